@@ -1,0 +1,1 @@
+"""Interface of the seft node graph (topics, QoS, conversions, parameter schema, errors)."""

@@ -1,0 +1,238 @@
+"""The one parameter schema of a seft experiment.
+
+Every node declares its ROS parameters from this table (name, default, unit, range,
+description), the command-line runner validates a configuration against it, and the README
+table is checked against it. Values are SI floats (REP-103); the unit is in the name or in the
+``unit`` field.
+
+Imports no rclpy: the nodes turn a :class:`ParamSpec` into a ``ParameterDescriptor``.
+"""
+
+from dataclasses import dataclass, field
+import math
+from typing import Any, Iterable, Mapping
+
+from seft_msgs_py.errors import ParameterError
+
+__all__ = [
+    'ParamSpec', 'SCHEMA', 'NODES', 'spec', 'specs_for_node', 'defaults', 'validate_value',
+    'resolve',
+]
+
+#: The node names of the graph, as used in ``ParamSpec.nodes``.
+NODES = (
+    'ground_motion_publisher', 'reference_force_builder', 'force_servo_controller', 'rig',
+    'recorder',
+)
+
+_ALL = NODES
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """One parameter of the experiment.
+
+    Attributes
+    ----------
+    name : str
+        ROS parameter name (flat, snake case, unit suffix where it has one).
+    default : bool, int, float or str
+        Default value; its Python type is the parameter's type.
+    unit : str
+        SI unit ('' for dimensionless or text).
+    description : str
+        One sentence for the ``ParameterDescriptor`` and the README.
+    minimum, maximum : float or None
+        Inclusive range for numbers (``None``: unbounded).
+    exclusive_minimum : bool
+        The minimum itself is not allowed (``mass_kg > 0``).
+    choices : tuple of str
+        Allowed values for a text parameter (empty: any text).
+    nodes : tuple of str
+        The nodes that declare it.
+    """
+
+    name: str
+    default: Any
+    unit: str
+    description: str
+    minimum: float | None = None
+    maximum: float | None = None
+    exclusive_minimum: bool = False
+    choices: tuple = ()
+    nodes: tuple = field(default=_ALL)
+
+    @property
+    def type_name(self) -> str:
+        """'bool', 'int', 'float' or 'str'."""
+        return type(self.default).__name__
+
+    def expected(self) -> str:
+        """Human-readable description of the allowed values, for error messages."""
+        if self.choices:
+            return 'one of ' + ', '.join(repr(c) for c in self.choices)
+        parts = [self.type_name]
+        if self.minimum is not None:
+            parts.append(('> ' if self.exclusive_minimum else '>= ') + f'{self.minimum:g}')
+        if self.maximum is not None:
+            parts.append(f'<= {self.maximum:g}')
+        return ' '.join(parts)
+
+
+_GM = ('ground_motion_publisher',)
+_RFB = ('reference_force_builder',)
+_CTRL = ('force_servo_controller',)
+_RIG = ('rig',)
+_SPECIMEN = ('reference_force_builder', 'rig', 'recorder')
+
+SCHEMA: tuple[ParamSpec, ...] = (
+    # -- experiment -------------------------------------------------------------------------
+    ParamSpec('dt', 0.002, 's', 'Control (sample) period of every node.', 1e-5, 1.0, True),
+    ParamSpec('alpha', 0.0, '', 'Mass ratio alpha = computational mass / specimen mass '
+              '(paper Eq. 2.1).', 0.0, 100.0),
+    ParamSpec('mass_kg', 52.7, 'kg', 'Specimen (load-resisting member) mass m.', 0.0, None,
+              True, nodes=_SPECIMEN + _GM),
+    ParamSpec('stiffness_N_per_m', 2.11e5, 'N/m', 'Specimen stiffness k.', 0.0, None, True,
+              nodes=_SPECIMEN),
+    ParamSpec('damping_N_s_per_m', 17.14 * 52.7, 'N s/m', 'Specimen viscous damping c '
+              '(default 17.14 m: the controller denominator s^2+17.14 s+4002 is '
+              '(m s^2+c s+k)/m).', 0.0, None, nodes=_SPECIMEN),
+    ParamSpec('n_steps', 0, '', 'Number of control steps of the run (0: the whole prepared '
+              'record); set by the runner.', 0, None, nodes=_ALL),
+    # -- ground motion ----------------------------------------------------------------------
+    ParamSpec('record', 'default', '', "Ground-motion source: 'default' (embedded synthetic "
+              'accelerogram), a PEER NGA .AT2 path (g) or a two-column time [s], '
+              'acceleration [m/s^2] CSV path.', nodes=_GM + ('recorder',)),
+    ParamSpec('amplitude_N', 1000.0, 'N', 'Scale the record so that the peak of m*xg_ddot is '
+              'this force (reference study: 1000 N); 0 uses scale_factor instead.', 0.0, None,
+              nodes=_GM + ('recorder',)),
+    ParamSpec('scale_factor', 1.0, '', 'Plain amplitude factor on the record (used when '
+              'amplitude_N is 0).', 0.0, None, True, nodes=_GM + ('recorder',)),
+    ParamSpec('time_scale', 0.5, '', 'Time scale of the record (0.5 halves its time step, as '
+              'in the reference study).', 0.0, 100.0, True, nodes=_GM + ('recorder',)),
+    ParamSpec('duration_s', 0.0, 's', 'Length of the run after time scaling (0: the whole '
+              'record).', 0.0, None, nodes=_GM + ('recorder',)),
+    ParamSpec('preview_steps', 50, '', 'How many steps ahead of the simulated clock the ground '
+              'acceleration is published.', 1, 100000, nodes=_GM),
+    # -- reference force builder ------------------------------------------------------------
+    ParamSpec('predictor', 'none', '', 'Delay compensation of the fed-back acceleration '
+              "('none': measured acceleration of the previous step, paper Eq. 5.3).",
+              choices=('none',), nodes=_RFB + ('recorder',)),
+    # -- force servo controller -------------------------------------------------------------
+    ParamSpec('valve_limit_V', 10.0, 'V', 'Saturation of the servo-valve command.', 0.0, 100.0,
+              True, nodes=_CTRL),
+    # -- rig --------------------------------------------------------------------------------
+    ParamSpec('rig_model', 'servohydraulic', '', "Simulated rig: 'delay' (measured force = "
+              "reference force delayed by tau_s, paper Sec. 5.2) or 'servohydraulic'.",
+              choices=('delay', 'servohydraulic'), nodes=_RIG + _CTRL + ('recorder',)),
+    ParamSpec('tau_s', 0.01, 's', "Actuator time delay of the 'delay' rig (paper Eq. 5.2).",
+              0.0, 1.0, True, nodes=_RIG),
+    ParamSpec('stroke_limit_m', 0.076, 'm', 'Actuator stroke limit (+/-); beyond it the run is '
+              'aborted safely.', 0.0, None, True, nodes=_RIG),
+    ParamSpec('force_limit_N', 24.5e3, 'N', 'Actuator force limit (+/-); beyond it the run is '
+              'aborted safely.', 0.0, None, True, nodes=_RIG),
+    ParamSpec('noise_force_N', 0.0, 'N', 'Standard deviation of load-cell noise.', 0.0, None,
+              nodes=_RIG),
+    ParamSpec('noise_displacement_m', 0.0, 'm', 'Standard deviation of displacement-sensor '
+              'noise.', 0.0, None, nodes=_RIG),
+    ParamSpec('noise_velocity_m_s', 0.0, 'm/s', 'Standard deviation of velocity-sensor noise.',
+              0.0, None, nodes=_RIG),
+    ParamSpec('noise_acceleration_m_s2', 0.0, 'm/s^2', 'Standard deviation of accelerometer '
+              'noise.', 0.0, None, nodes=_RIG),
+    ParamSpec('noise_seed', 1, '', 'Seed of the sensor-noise generator (runs are '
+              'reproducible).', 0, None, nodes=_RIG),
+)
+
+_BY_NAME = {s.name: s for s in SCHEMA}
+
+
+def spec(name: str) -> ParamSpec:
+    """Return the :class:`ParamSpec` called `name`.
+
+    Raises
+    ------
+    ParameterError
+        If no parameter has that name.
+    """
+    try:
+        return _BY_NAME[name]
+    except KeyError:
+        raise ParameterError(f'unknown parameter {name!r}') from None
+
+
+def specs_for_node(node: str) -> list[ParamSpec]:
+    """Return the specs a node declares, in schema order."""
+    return [s for s in SCHEMA if node in s.nodes]
+
+
+def defaults() -> dict[str, Any]:
+    """Return ``{name: default}`` for every parameter."""
+    return {s.name: s.default for s in SCHEMA}
+
+
+def validate_value(name: str, value: Any, *, where: str = '') -> Any:
+    """Check one value against the schema and return it coerced to the parameter's type.
+
+    Integers are accepted for float parameters; nothing else is coerced.
+
+    Parameters
+    ----------
+    name : str
+        Parameter name.
+    value : object
+        Candidate value.
+    where : str
+        Context for the message (a file name), prefixed as ``'<where>: '``.
+
+    Raises
+    ------
+    ParameterError
+        Unknown name, wrong type, non-finite number, out of range or not one of the choices;
+        the message names the parameter and what was expected.
+    """
+    s = spec(name)
+    prefix = f'{where}: ' if where else ''
+    expected = s.expected()
+    bad = ParameterError(f'{prefix}parameter {name}={value!r}: expected {expected}')
+    if isinstance(s.default, bool):
+        if not isinstance(value, bool):
+            raise bad
+        return value
+    if isinstance(s.default, str):
+        if not isinstance(value, str) or (s.choices and value not in s.choices):
+            raise bad
+        if not value:
+            raise ParameterError(f'{prefix}parameter {name}: expected a non-empty text')
+        return value
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise bad
+    if isinstance(s.default, int) and not isinstance(value, int):
+        if not float(value).is_integer():
+            raise bad
+        value = int(value)
+    if isinstance(s.default, float):
+        value = float(value)
+    if isinstance(value, float) and not math.isfinite(value):
+        raise bad
+    if s.minimum is not None:
+        if value < s.minimum or (s.exclusive_minimum and value == s.minimum):
+            raise bad
+    if s.maximum is not None and value > s.maximum:
+        raise bad
+    return value
+
+
+def resolve(overrides: Mapping[str, Any] | Iterable[tuple[str, Any]] = (), *,
+            where: str = '') -> dict[str, Any]:
+    """Return the defaults updated with validated `overrides`.
+
+    Raises
+    ------
+    ParameterError
+        As :func:`validate_value`, for the first bad override.
+    """
+    values = defaults()
+    items = overrides.items() if isinstance(overrides, Mapping) else overrides
+    for name, value in items:
+        values[name] = validate_value(name, value, where=where)
+    return values

@@ -1,0 +1,1 @@
+"""Simulated actuator + specimen rig for substructure EFT (ROS-free models + rig node)."""

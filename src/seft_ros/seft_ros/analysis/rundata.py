@@ -1,0 +1,75 @@
+"""The recorded signals of one substructure EFT run, whatever produced them (bag or simulate)."""
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+__all__ = ['RunData', 'SIGNALS']
+
+#: Signals compared against the reference analysis, in report order.
+SIGNALS = ('displacement', 'force', 'acceleration')
+
+
+@dataclass
+class RunData:
+    """Sampled signals of one run, one sample per control step, SI units.
+
+    All arrays have shape ``(n,)`` where n is the number of steps that were completed (an
+    aborted run is shorter than its record). Sample k is at ``time_s[k] = k*dt``.
+
+    Attributes
+    ----------
+    params : dict
+        Resolved run parameters (schema of ``seft_msgs_py.parameters``): ``alpha``, ``dt``,
+        ``mass_kg``, ``damping_N_s_per_m``, ``stiffness_N_per_m``, ``rig_model``,
+        ``predictor``, ``record``, ...
+    time_s : ndarray (n,)
+        Sample times [s].
+    ground_acceleration_m_s2 : ndarray (n,)
+        Ground acceleration xg'' after scaling and resampling [m/s^2].
+    reference_force_N : ndarray (n,)
+        Reference force f_r commanded at each step [N] (paper Eq. 5.3).
+    measured_force_N : ndarray (n,)
+        Load-cell force [N].
+    displacement_m, velocity_m_s, acceleration_m_s2 : ndarray (n,)
+        Measured specimen response [m], [m/s], [m/s^2] (relative to the ground).
+    valve_command_V : ndarray (n,) or None
+        Servo-valve command [V] (None for the 'delay' rig).
+    stable : bool
+        False if the run was aborted (limit exceeded or instability detected).
+    unstable_at_s : float or None
+        Time the run was aborted [s].
+    abort_reason : str or None
+        One-line reason of the abort.
+    record_name : str
+        Name of the ground-motion record.
+    source : str
+        Where the data came from (bag path or 'simulate').
+    """
+
+    params: dict[str, Any]
+    time_s: np.ndarray
+    ground_acceleration_m_s2: np.ndarray
+    reference_force_N: np.ndarray
+    measured_force_N: np.ndarray
+    displacement_m: np.ndarray
+    velocity_m_s: np.ndarray
+    acceleration_m_s2: np.ndarray
+    valve_command_V: np.ndarray | None = None
+    stable: bool = True
+    unstable_at_s: float | None = None
+    abort_reason: str | None = None
+    record_name: str = ''
+    source: str = ''
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def n_steps(self) -> int:
+        """Number of samples."""
+        return int(self.time_s.shape[0])
+
+    def signal(self, name: str) -> np.ndarray:
+        """Return the measured signal 'displacement', 'force' or 'acceleration'."""
+        return {'displacement': self.displacement_m, 'force': self.measured_force_N,
+                'acceleration': self.acceleration_m_s2}[name]
