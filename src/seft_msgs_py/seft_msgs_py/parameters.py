@@ -121,6 +121,12 @@ SCHEMA: tuple[ParamSpec, ...] = (
     # -- force servo controller -------------------------------------------------------------
     ParamSpec('valve_limit_V', 10.0, 'V', 'Saturation of the servo-valve command.', 0.0, 100.0,
               True, nodes=_CTRL),
+    ParamSpec('saturation_window_s', 0.1, 's', 'Window of the loss-of-control interlock: the '
+              'run is aborted when the valve command was saturated in more than '
+              'saturation_abort_fraction of this window.', 0.0, 10.0, True, nodes=_CTRL),
+    ParamSpec('saturation_abort_fraction', 0.5, '', 'Fraction of saturated samples in '
+              'saturation_window_s that aborts the run (1: never).', 0.0, 1.0, True,
+              nodes=_CTRL),
     # -- rig --------------------------------------------------------------------------------
     ParamSpec('rig_model', 'servohydraulic', '', "Simulated rig: 'delay' (measured force = "
               "reference force delayed by tau_s, paper Sec. 5.2) or 'servohydraulic'.",
@@ -141,6 +147,36 @@ SCHEMA: tuple[ParamSpec, ...] = (
               'noise.', 0.0, None, nodes=_RIG),
     ParamSpec('noise_seed', 1, '', 'Seed of the sensor-noise generator (runs are '
               'reproducible).', 0, None, nodes=_RIG),
+    # -- servohydraulic rig (seft_plant_sim.servohydraulic.ServoHydraulicParams) -------------
+    ParamSpec('piston_area_m2', 1.18e-3, 'm^2', 'Effective piston area A.', 0.0, None, True,
+              nodes=_RIG),
+    ParamSpec('oil_bulk_modulus_Pa', 1.0e9, 'Pa', 'Effective bulk modulus beta of the oil.',
+              0.0, None, True, nodes=_RIG),
+    ParamSpec('actuator_volume_m3', 3.35e-4, 'm^3', 'Oil volume V_t of both chambers and '
+              'lines (with A and beta it sets the ~90 Hz oil-column resonance).', 0.0, None,
+              True, nodes=_RIG),
+    ParamSpec('valve_time_constant_s', 0.0025, 's', 'Time constant of the first-order '
+              'servo-valve spool.', 0.0, None, True, nodes=_RIG),
+    ParamSpec('valve_flow_gain_m3_per_s_V', 5.3e-5, 'm^3/(s V)', 'Linearized valve flow gain '
+              'k_q (sets the ~12 Hz loop crossover).', 0.0, None, True, nodes=_RIG),
+    ParamSpec('valve_pressure_coefficient_m3_per_s_Pa', 8e-12, 'm^3/(s Pa)', 'Valve '
+              'flow-pressure coefficient K_c at null.', 0.0, None, nodes=_RIG),
+    ParamSpec('leakage_coefficient_m3_per_s_Pa', 2e-12, 'm^3/(s Pa)', 'Cross-port leakage '
+              'C_l past the piston seals.', 0.0, None, nodes=_RIG),
+    ParamSpec('io_latency_s', 0.003, 's', 'Transport delay of the valve command (DAQ sample '
+              'and hold, one control period of computation, D/A, valve amplifier, anti-alias '
+              'group delay); it puts the uncompensated stability boundary at alpha = 1.32.',
+              0.0, 1.0, nodes=_RIG),
+    ParamSpec('anti_alias_cutoff_hz', 0.0, 'Hz', 'Cut-off of a 2nd-order Butterworth on the '
+              'force and acceleration channels (0: off; its delay is lumped in io_latency_s).',
+              0.0, None, nodes=_RIG),
+    ParamSpec('accelerometer_range_m_s2', 39.2, 'm/s^2', 'Accelerometer full scale (4 g); '
+              'readings saturate there (0: unlimited).', 0.0, None, nodes=_RIG),
+    # -- recorder ---------------------------------------------------------------------------
+    ParamSpec('bag_path', 'seft_bag', '', 'Directory of the rosbag2 bag to write (must not '
+              'exist yet).', nodes=('recorder',)),
+    ParamSpec('bag_storage', 'mcap', '', 'rosbag2 storage plugin of the bag.',
+              choices=('mcap', 'sqlite3'), nodes=('recorder',)),
 )
 
 _BY_NAME = {s.name: s for s in SCHEMA}
@@ -161,7 +197,12 @@ def spec(name: str) -> ParamSpec:
 
 
 def specs_for_node(node: str) -> list[ParamSpec]:
-    """Return the specs a node declares, in schema order."""
+    """Return the specs a node declares, in schema order.
+
+    The recorder declares every parameter: it stores the whole run configuration in the bag.
+    """
+    if node == 'recorder':
+        return list(SCHEMA)
     return [s for s in SCHEMA if node in s.nodes]
 
 

@@ -57,10 +57,10 @@ class DelayRig:
 
     def __init__(self, specimen: LinearSpecimen, dt: float, tau_s: float,
                  sensors: Sensors | None = None, limits: SafetyLimits | None = None):
-        if not dt > 0:
-            raise ParameterError(f'parameter dt={dt!r}: expected float > 0')
-        if not tau_s > 0:
-            raise ParameterError(f'parameter tau_s={tau_s!r}: expected float > 0')
+        if not (dt > 0 and np.isfinite(dt)):
+            raise ParameterError(f'parameter dt={dt!r}: expected finite float > 0')
+        if not (tau_s > 0 and np.isfinite(tau_s)):
+            raise ParameterError(f'parameter tau_s={tau_s!r}: expected finite float > 0')
         self.specimen = specimen
         self.dt = float(dt)
         self.tau_s = float(tau_s)

@@ -7,7 +7,8 @@ from scipy import signal
 
 from seft_msgs_py.errors import ParameterError
 
-__all__ = ['DiscreteFilter', 'ForceServoController', 'LOOP_SHAPING_NUM', 'LOOP_SHAPING_DEN']
+__all__ = ['DiscreteFilter', 'ForceServoController', 'SaturationInterlock', 'LOOP_SHAPING_NUM',
+           'LOOP_SHAPING_DEN']
 
 #: Numerator of C_f(s) = 37 / (s^2 + 17.14 s + 4002) [V/N] (paper Eq. 3.1).
 LOOP_SHAPING_NUM = (37.0,)
@@ -150,3 +151,59 @@ class ForceServoController:
         lim = self.valve_limit_V
         self.saturated = abs(u) > lim
         return min(max(u, -lim), lim)
+
+
+class SaturationInterlock:
+    """Loss-of-force-control interlock on the servo-valve command.
+
+    Trips when the valve command was saturated in more than ``abort_fraction`` of the last
+    ``window_s`` seconds of samples. A substructure EFT loop that went unstable with a
+    saturating valve settles into a large high-frequency limit cycle (about 37 Hz on the
+    calibrated servohydraulic rig) that need not reach the stroke or force limits; a force
+    controller whose valve is pinned at its limit has lost control, and the run must stop
+    (the role of the "error detectors" of commercial servo controllers).
+
+    Parameters
+    ----------
+    dt : float > 0
+        Control period [s].
+    window_s : float > 0
+        Sliding window [s].
+    abort_fraction : float in (0, 1]
+        Saturated fraction that trips the interlock (1: never trips).
+
+    Raises
+    ------
+    ParameterError
+        If a value is out of range.
+    """
+
+    def __init__(self, dt: float, window_s: float = 0.1, abort_fraction: float = 0.5):
+        if not window_s > 0:
+            raise ParameterError(f'parameter saturation_window_s={window_s!r}: expected > 0')
+        if not 0 < abort_fraction <= 1:
+            raise ParameterError(
+                f'parameter saturation_abort_fraction={abort_fraction!r}: expected in (0, 1]')
+        self.window = max(1, int(round(window_s / dt)))
+        self.window_s = self.window * dt
+        self.abort_fraction = float(abort_fraction)
+        self._flags = [False] * self.window
+        self._i = 0
+        self._count = 0
+
+    @classmethod
+    def from_parameters(cls, params) -> 'SaturationInterlock':
+        """Build from ``dt``, ``saturation_window_s`` and ``saturation_abort_fraction``."""
+        return cls(float(params['dt']), float(params['saturation_window_s']),
+                   float(params['saturation_abort_fraction']))
+
+    def update(self, saturated: bool, time_s: float) -> str | None:
+        """Record one sample; return a one-line abort reason when the interlock trips."""
+        old = self._flags[self._i]
+        self._flags[self._i] = saturated
+        self._i = (self._i + 1) % self.window
+        self._count += int(saturated) - int(old)
+        if self.abort_fraction < 1 and self._count > self.abort_fraction * self.window:
+            return (f'force control lost at t={time_s:.3f} s: valve command saturated in '
+                    f'{self._count}/{self.window} samples of the last {self.window_s:.3f} s')
+        return None

@@ -1,0 +1,49 @@
+"""The registry of simulated rig models, chosen by the ``rig_model`` parameter.
+
+A hardware DAQ/servo bridge would register here under its own name: the test loop only sees
+the :class:`~seft_plant_sim.interface.Rig` protocol.
+"""
+
+from typing import Callable, Mapping
+
+from seft_msgs_py.errors import ParameterError
+from seft_plant_sim.delay_rig import DelayRig
+from seft_plant_sim.interface import Rig
+from seft_plant_sim.servohydraulic import ServoHydraulicRig
+
+__all__ = ['RIG_MODELS', 'make_rig']
+
+#: ``rig_model`` name -> factory taking the flat parameter mapping.
+RIG_MODELS: dict[str, Callable[[Mapping], Rig]] = {
+    'delay': DelayRig.from_parameters,
+    'servohydraulic': ServoHydraulicRig.from_parameters,
+}
+
+
+def make_rig(params: Mapping) -> Rig:
+    """Build the rig named by ``params['rig_model']`` from the flat parameter mapping.
+
+    Parameters
+    ----------
+    params : mapping
+        The resolved experiment parameters (``rig_model``, ``dt``, specimen, noise, limits
+        and the model's own keys).
+
+    Returns
+    -------
+    Rig
+
+    Raises
+    ------
+    ParameterError
+        If ``rig_model`` is missing or not a registered name, or a model parameter is out of
+        range.
+    """
+    name = params.get('rig_model')
+    try:
+        factory = RIG_MODELS[name]
+    except (KeyError, TypeError):
+        expected = ', '.join(repr(n) for n in RIG_MODELS)
+        raise ParameterError(f'parameter rig_model={name!r}: expected one of {expected}') \
+            from None
+    return factory(params)

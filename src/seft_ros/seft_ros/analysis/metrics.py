@@ -1,0 +1,483 @@
+"""Error metrics of a substructure EFT run against the analytical reference.
+
+Imports no rclpy. The test lags the reference by the actuator's loop delay (paper Eq. 5.2), so
+each signal is compared after removing its lag: the lag is estimated from the cross-correlation
+peak, the test is advanced by it, and the normalized RMS error is computed over the samples
+both signals share.
+"""
+
+from dataclasses import dataclass
+import math
+from typing import Any
+
+import numpy as np
+from scipy import interpolate, signal
+
+from seft_msgs_py.errors import ParameterError
+from seft_ros.analysis.reference import ReferenceResponse, reference_from_run
+from seft_ros.analysis.rundata import SIGNALS, RunData
+
+__all__ = [
+    'SignalComparison', 'RunComparison', 'estimate_lag', 'shift', 'nrms_error', 'peak',
+    'peak_ratio', 'high_frequency_fraction', 'compare_run', 'summary_entry',
+    'json_safe',
+]
+
+#: Default bound of the lag search [s] (ten times the reference rig's 10 ms delay).
+MAX_LAG_S = 0.1
+#: Default cutoff of :func:`high_frequency_fraction` [Hz] (the controller works up to 25 Hz).
+HIGH_FREQUENCY_CUTOFF_HZ = 20.0
+
+
+def _as_1d(name: str, x) -> np.ndarray:
+    try:
+        arr = np.asarray(x, dtype=float)
+    except (TypeError, ValueError):
+        raise ParameterError(f'{name}: expected a 1-D array of floats') from None
+    if arr.ndim != 1:
+        raise ParameterError(f'{name}: expected a 1-D array, got shape {arr.shape}')
+    return arr
+
+
+def _check_dt(dt) -> float:
+    if isinstance(dt, bool) or not isinstance(dt, (int, float, np.integer, np.floating)) \
+            or not (math.isfinite(dt) and dt > 0):
+        raise ParameterError(f'parameter dt={dt!r}: expected a finite float > 0')
+    return float(dt)
+
+
+def estimate_lag(test, reference, dt: float, max_lag_s: float = MAX_LAG_S) -> float:
+    """Estimate how much the test lags the reference, from their cross-correlation peak.
+
+    Parameters
+    ----------
+    test, reference : array_like (n,), (n_ref,)
+        Test and reference signals sampled at the same instants ``k*dt`` (any unit, the
+        same for both). Only the first ``min(n, n_ref)`` samples are used; samples that are
+        not finite in either signal are set to zero in both.
+    dt : float > 0
+        Sample period [s].
+    max_lag_s : float >= 0
+        Bound of the search [s]: the peak is searched for lags in ``[-max_lag_s, max_lag_s]``.
+
+    Returns
+    -------
+    float
+        Lag L [s], positive when the test lags the reference (``test(t) ~ reference(t - L)``),
+        within ``[-max_lag_s, max_lag_s]``. 0.0 when the lag is undefined (fewer than two
+        common samples, or a signal that is identically zero).
+
+    Raises
+    ------
+    ParameterError
+        If `dt` or `max_lag_s` is out of range or a signal is not 1-D.
+
+    Notes
+    -----
+    Both signals have their mean removed; the cross-correlation
+    ``r[l] = sum_k test[k+l] reference[k]`` is computed with ``scipy.signal.correlate`` and
+    its lags with ``scipy.signal.correlation_lags``. The integer peak l0 is refined to
+    sub-sample precision by fitting a parabola through ``r[l0-1], r[l0], r[l0+1]``:
+    ``l = l0 + (r[l0-1] - r[l0+1]) / (2 (r[l0-1] - 2 r[l0] + r[l0+1]))``.
+
+    For a diverging (unstable) run the correlation is dominated by the growing oscillation
+    and the estimate may be meaningless; when the peak lies at the edge of the search window
+    the result is clamped to ``+/-max_lag_s``, so a lag equal to the bound flags an estimate
+    that should not be trusted.
+
+    References
+    ----------
+    N. Nakata and S. Combs, Substructure Effective Force Testing, Eq. 5.2 (delay tau).
+    """
+    dt = _check_dt(dt)
+    if isinstance(max_lag_s, bool) or not (isinstance(max_lag_s, (int, float, np.integer,
+                                                                   np.floating))
+                                          and math.isfinite(max_lag_s) and max_lag_s >= 0):
+        raise ParameterError(f'parameter max_lag_s={max_lag_s!r}: expected a finite float >= 0')
+    test = _as_1d('test', test)
+    reference = _as_1d('reference', reference)
+    n = min(test.shape[0], reference.shape[0])
+    if n < 2:
+        return 0.0
+    x = test[:n].copy()
+    y = reference[:n].copy()
+    good = np.isfinite(x) & np.isfinite(y)
+    if not np.any(good):
+        return 0.0
+    x = np.where(good, x - np.mean(x[good]), 0.0)
+    y = np.where(good, y - np.mean(y[good]), 0.0)
+    if not (np.any(x) and np.any(y)):
+        return 0.0
+    max_lag = min(int(math.floor(max_lag_s / dt + 1e-9)), n - 1)
+    r = signal.correlate(x, y, mode='full')
+    lags = signal.correlation_lags(n, n, mode='full')
+    window = np.abs(lags) <= max_lag
+    r = r[window]
+    lags = lags[window]
+    i = int(np.argmax(r))
+    if r[i] <= 0:
+        return 0.0
+    if i == 0 or i == r.shape[0] - 1:
+        return float(np.clip(lags[i] * dt, -max_lag_s, max_lag_s))
+    r_minus, r_0, r_plus = r[i - 1], r[i], r[i + 1]
+    denominator = r_minus - 2.0 * r_0 + r_plus
+    delta = 0.5 * (r_minus - r_plus) / denominator if denominator < 0 else 0.0
+    return float(np.clip((lags[i] + delta) * dt, -max_lag_s, max_lag_s))
+
+
+def shift(signal, lag_s: float, dt: float) -> np.ndarray:
+    """Advance a signal by `lag_s` with sub-sample accuracy (remove a lag of the test).
+
+    Parameters
+    ----------
+    signal : array_like (n,)
+        Samples at ``k*dt`` (any unit).
+    lag_s : float
+        Time advance [s]; the result is ``y[k] = signal(k*dt + lag_s)`` (a negative value
+        delays).
+    dt : float > 0
+        Sample period [s].
+
+    Returns
+    -------
+    ndarray (n,)
+        The shifted signal, same unit. Samples whose instant falls outside the record (the
+        last ``lag_s/dt`` samples for a positive lag) or next to a non-finite input sample are
+        NaN, so that metrics exclude them.
+
+    Raises
+    ------
+    ParameterError
+        If `dt` is not > 0, `lag_s` is not finite or the signal is not 1-D.
+
+    Notes
+    -----
+    A whole number of samples is an exact index shift. Otherwise the signal is interpolated
+    by a not-a-knot cubic spline (``scipy.interpolate.CubicSpline``), whose error for a
+    signal band-limited well below the Nyquist frequency is of order ``(omega dt)^4``.
+    """
+    dt = _check_dt(dt)
+    if isinstance(lag_s, bool) or not isinstance(lag_s, (int, float, np.integer, np.floating)) \
+            or not math.isfinite(lag_s):
+        raise ParameterError(f'parameter lag_s={lag_s!r}: expected a finite float')
+    x = _as_1d('signal', signal)
+    n = x.shape[0]
+    out = np.full(n, np.nan)
+    steps = lag_s / dt
+    whole = round(steps)
+    if abs(steps - whole) < 1e-9:
+        if whole >= 0:
+            out[:n - whole] = x[whole:]
+        else:
+            out[-whole:] = x[:n + whole]
+        return out
+    if n < 2:
+        return out
+    bad = ~np.isfinite(x)
+    k = np.arange(n, dtype=float)
+    query = k + steps
+    inside = (query >= 0) & (query <= n - 1)
+    spline = interpolate.CubicSpline(k, np.where(bad, 0.0, x))
+    out[inside] = spline(query[inside])
+    if np.any(bad):
+        # Poison the output within two samples of a non-finite input (the spline's support).
+        bad_near = np.convolve(bad.astype(float), np.ones(5), mode='same') > 0
+        lo = np.clip(np.floor(query).astype(int), 0, n - 1)
+        hi = np.clip(lo + 1, 0, n - 1)
+        out[bad_near[lo] | bad_near[hi]] = np.nan
+    return out
+
+
+def nrms_error(test, reference) -> float:
+    """Normalized RMS error of a test signal against the reference, as a fraction.
+
+    Parameters
+    ----------
+    test, reference : array_like (n,)
+        Signals at the same instants, same unit (already aligned, see :func:`shift`).
+
+    Returns
+    -------
+    float
+        ``rms(test - reference) / rms(reference)`` over the samples finite in both
+        (0.1 means 10 %). NaN if no sample is common or the reference is zero there.
+
+    Raises
+    ------
+    ParameterError
+        If the signals are not 1-D arrays of the same shape.
+
+    Notes
+    -----
+    With the N common finite samples k::
+
+        nrms = sqrt(sum_k (test[k] - reference[k])^2) / sqrt(sum_k reference[k]^2)
+
+    which is the normalized RMS error of the RTHS benchmark evaluation criteria
+    (Silva et al. 2020, J2): scale-free, 0 for a perfect test, 1 for a test that is
+    identically zero.
+
+    References
+    ----------
+    C. E. Silva, D. Gomez, A. Maghareh, S. J. Dyke and B. F. Spencer Jr. (2020), Benchmark
+    control problem for real-time hybrid simulation, Mech. Syst. Signal Process. 135, 106381.
+    """
+    test = _as_1d('test', test)
+    reference = _as_1d('reference', reference)
+    if test.shape != reference.shape:
+        raise ParameterError(
+            f'nrms_error: test and reference have shapes {test.shape} and {reference.shape}; '
+            'expected the same')
+    good = np.isfinite(test) & np.isfinite(reference)
+    if not np.any(good):
+        return math.nan
+    denominator = float(np.sqrt(np.sum(reference[good] ** 2)))
+    if denominator == 0:
+        return math.nan
+    return float(np.sqrt(np.sum((test[good] - reference[good]) ** 2))) / denominator
+
+
+def peak(x) -> float:
+    """Peak magnitude ``max |x|`` ignoring NaN (inf if the signal diverged; NaN if empty)."""
+    x = _as_1d('x', x)
+    x = np.abs(x[~np.isnan(x)])
+    return float(np.max(x)) if x.size else math.nan
+
+
+def peak_ratio(test, reference) -> float:
+    """``peak(test) / peak(reference)`` (NaN if the reference peak is zero or undefined)."""
+    p_ref = peak(reference)
+    if not p_ref > 0:
+        return math.nan
+    return peak(test) / p_ref
+
+
+def high_frequency_fraction(x, dt: float, cutoff_hz: float = HIGH_FREQUENCY_CUTOFF_HZ) -> float:
+    """Fraction of a signal's power above a cutoff frequency.
+
+    Quantifies the "undesirable high frequency vibration" that acceleration feedback induces
+    in the test (paper Sec. 4).
+
+    Parameters
+    ----------
+    x : array_like (n,)
+        Signal sampled at ``k*dt`` (any unit). Only the samples before the first non-finite
+        one are used.
+    dt : float > 0
+        Sample period [s].
+    cutoff_hz : float > 0
+        Cutoff frequency [Hz], below the Nyquist frequency ``1/(2 dt)``.
+
+    Returns
+    -------
+    float
+        ``sum_{f > cutoff} P(f) / sum_f P(f)`` in [0, 1], with P the Welch power spectral
+        density (``scipy.signal.welch``, Hann window, segments of up to 512 samples, mean
+        removed). NaN for fewer than 8 samples or a constant signal.
+
+    Raises
+    ------
+    ParameterError
+        If `dt` is not > 0 or `cutoff_hz` is not in ``(0, 1/(2 dt))``.
+
+    References
+    ----------
+    N. Nakata and S. Combs, Substructure Effective Force Testing, Sec. 4 (Figure 6 f, i).
+    """
+    dt = _check_dt(dt)
+    nyquist = 0.5 / dt
+    if isinstance(cutoff_hz, bool) or not isinstance(cutoff_hz, (int, float, np.integer,
+                                                                  np.floating)) \
+            or not (0 < cutoff_hz < nyquist):
+        raise ParameterError(
+            f'parameter cutoff_hz={cutoff_hz!r}: expected a float in (0, {nyquist:g}) Hz')
+    x = _as_1d('x', x)
+    bad = np.flatnonzero(~np.isfinite(x))
+    if bad.size:
+        x = x[:bad[0]]
+    if x.shape[0] < 8:
+        return math.nan
+    freq, power = signal.welch(x, fs=1.0 / dt, window='hann', nperseg=min(x.shape[0], 512),
+                               detrend='constant')
+    total = float(np.sum(power))
+    if not total > 0:
+        return math.nan
+    return float(np.sum(power[freq > cutoff_hz])) / total
+
+
+@dataclass(frozen=True)
+class SignalComparison:
+    """Comparison of one test signal with its reference counterpart.
+
+    Attributes
+    ----------
+    peak_test, peak_reference : float
+        Peak magnitudes ``max |x|`` of the test and the reference over the run's samples
+        (SI unit of the signal: m, N or m/s^2).
+    lag_s : float
+        Estimated lag of the test behind the reference [s] (:func:`estimate_lag`).
+    nrms : float
+        Normalized RMS error after removing the lag, as a fraction (:func:`nrms_error`).
+    peak_ratio : float
+        ``peak_test / peak_reference`` [-].
+    """
+
+    peak_test: float
+    peak_reference: float
+    lag_s: float
+    nrms: float
+    peak_ratio: float
+
+
+@dataclass(frozen=True)
+class RunComparison:
+    """Comparison of a run with the reference, one :class:`SignalComparison` per signal.
+
+    Attributes
+    ----------
+    displacement, force, acceleration : SignalComparison
+        Displacement [m], load-cell force versus member force [N], acceleration [m/s^2].
+    reference : ReferenceResponse
+        The reference over the run's n samples.
+    high_frequency_force_fraction : float
+        Fraction of the test force's power above 20 Hz (:func:`high_frequency_fraction`).
+    high_frequency_force_fraction_reference : float
+        The same for the reference force.
+    """
+
+    displacement: SignalComparison
+    force: SignalComparison
+    acceleration: SignalComparison
+    reference: ReferenceResponse
+    high_frequency_force_fraction: float
+    high_frequency_force_fraction_reference: float
+
+    def signal(self, name: str) -> SignalComparison:
+        """Return the comparison of 'displacement', 'force' or 'acceleration'."""
+        if name not in SIGNALS:
+            raise ParameterError(f'signal {name!r}: expected one of {", ".join(SIGNALS)}')
+        return getattr(self, name)
+
+
+def compare_run(run: RunData, reference: ReferenceResponse | None = None, *,
+                max_lag_s: float = MAX_LAG_S) -> RunComparison:
+    """Compare a run's displacement, force and acceleration with the reference analysis.
+
+    For each signal: the lag of the test behind the reference is estimated
+    (:func:`estimate_lag`), the test is advanced by that lag (:func:`shift`), and the
+    normalized RMS error (:func:`nrms_error`) is computed over the samples both share; the
+    peaks are those of the unshifted signals. Each signal is aligned by its own lag (all
+    three share the loop delay in a well-behaved test; a different force or acceleration lag
+    reveals the phase error of acceleration feedback).
+
+    Parameters
+    ----------
+    run : RunData
+        The run (n samples; an aborted run is compared over the samples it has).
+    reference : ReferenceResponse or None
+        The reference; computed with :func:`reference_from_run` if None. Only its first n
+        samples are used.
+    max_lag_s : float >= 0
+        Bound of the lag search [s].
+
+    Returns
+    -------
+    RunComparison
+
+    Raises
+    ------
+    ParameterError
+        If a run parameter is missing or out of range, or the reference has fewer samples
+        than the run.
+
+    References
+    ----------
+    N. Nakata and S. Combs, Substructure Effective Force Testing, Sec. 4 (Figure 6) and
+    Eq. 5.2.
+    """
+    if reference is None:
+        reference = reference_from_run(run)
+    n = run.n_steps
+    if reference.n_steps < n:
+        raise ParameterError(f'reference has {reference.n_steps} samples, the run {n}; '
+                             'expected at least as many as the run')
+    dt = _check_dt(run.params.get('dt'))
+    results = {}
+    for name in SIGNALS:
+        test = np.asarray(run.signal(name), dtype=float)[:n]
+        ref = np.asarray(reference.signal(name), dtype=float)[:n]
+        lag = estimate_lag(test, ref, dt, max_lag_s)
+        results[name] = SignalComparison(
+            peak_test=peak(test), peak_reference=peak(ref), lag_s=lag,
+            nrms=nrms_error(shift(test, lag, dt), ref), peak_ratio=peak_ratio(test, ref))
+    return RunComparison(
+        **results, reference=reference,
+        high_frequency_force_fraction=high_frequency_fraction(
+            np.asarray(run.measured_force_N, dtype=float)[:n], dt),
+        high_frequency_force_fraction_reference=high_frequency_fraction(
+            reference.force_N[:n], dt))
+
+
+def _finite_or_none(value) -> float | None:
+    if value is None:
+        return None
+    value = float(value)
+    return value if math.isfinite(value) else None
+
+
+def json_safe(value: Any) -> Any:
+    """Return `value` with every non-finite float (and NumPy scalar) made JSON-safe.
+
+    NaN and +/-inf become None (JSON null), NumPy scalars become Python scalars; dicts, lists
+    and tuples are converted recursively.
+    """
+    if isinstance(value, dict):
+        return {str(k): json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [json_safe(v) for v in value]
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    if isinstance(value, (int, np.integer)):
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        return _finite_or_none(value)
+    return value
+
+
+def summary_entry(run: RunData, comparison: RunComparison) -> dict[str, Any]:
+    """Summarize a run and its comparison as a JSON-safe dict.
+
+    Parameters
+    ----------
+    run : RunData
+        The run.
+    comparison : RunComparison
+        Its comparison (:func:`compare_run`).
+
+    Returns
+    -------
+    dict
+        ``{'alpha', 'rig', 'predictor', 'record', 'stable', 'unstable_at_s', 'lag_s',
+        'nrms': {'displacement', 'acceleration', 'force'},
+        'peak_ratio': {'displacement', 'acceleration', 'force'},
+        'high_frequency_force_fraction'}`` where rig is ``params['rig_model']``, record is
+        ``run.record_name`` (``params['record']`` if empty), ``lag_s`` [s] is the
+        displacement lag, nrms values are fractions, and every NaN or inf is None, so that
+        ``json.dumps(entry, allow_nan=False)`` succeeds.
+    """
+    params = run.params
+    order = ('displacement', 'acceleration', 'force')
+    entry = {
+        'alpha': _finite_or_none(params.get('alpha')),
+        'rig': params.get('rig_model'),
+        'predictor': params.get('predictor'),
+        'record': run.record_name or params.get('record', ''),
+        'stable': bool(run.stable),
+        'unstable_at_s': _finite_or_none(run.unstable_at_s),
+        'lag_s': comparison.displacement.lag_s,
+        'nrms': {name: comparison.signal(name).nrms for name in order},
+        'peak_ratio': {name: comparison.signal(name).peak_ratio for name in order},
+        'high_frequency_force_fraction': comparison.high_frequency_force_fraction,
+    }
+    return json_safe(entry)
+

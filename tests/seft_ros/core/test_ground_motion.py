@@ -1,0 +1,481 @@
+"""Tests of the ground-motion readers, the embedded default record and ``prepare``."""
+
+from pathlib import Path
+import re
+
+import numpy as np
+import pytest
+from scipy import signal
+from scipy.integrate import cumulative_trapezoid
+
+from seft_msgs_py.errors import InputError, ParameterError
+from seft_ros.core.ground_motion import (
+    G,
+    GroundMotion,
+    load_record,
+    prepare,
+    read_at2,
+    read_csv,
+    synthetic_default,
+)
+
+RECORDS = Path(__file__).resolve().parents[3] / '..' / 'shared' / 'data' / 'ground_motions'
+
+#: Seven values in g as printed in an AT2 file, and the same numbers typed independently.
+AT2_TOKENS = ['.1000000E-01', '-.2500000E-02', '0.0', '.3141593E+00', '-.1000000E+01',
+              '.5000000E-03', '-.7500000E-01']
+AT2_VALUES_G = np.array([0.01, -0.0025, 0.0, 0.3141593, -1.0, 0.0005, -0.075])
+
+
+def write_at2(tmp_path, line4, tokens=AT2_TOKENS, per_line=5, newline='\n',
+              units='ACCELERATION TIME SERIES IN UNITS OF G', name='rec.AT2'):
+    """Write a small AT2 file with the given fourth header line and values."""
+    rows = [' '.join(f'{t:>15}' for t in tokens[i:i + per_line])
+            for i in range(0, len(tokens), per_line)]
+    lines = ['PEER NGA STRONG MOTION DATABASE RECORD', 'Test event, 1/1/2000, STA, 0', units,
+             line4, *rows]
+    path = tmp_path / name
+    path.write_bytes(newline.join(lines).encode() + newline.encode())
+    return path
+
+
+def raises_from(path, message):
+    """``pytest.raises(InputError)`` whose message starts with the path and contains text."""
+    return pytest.raises(InputError, match=re.escape(f'{path}: ') + '.*' + re.escape(message))
+
+
+# -- read_at2 --------------------------------------------------------------------------------
+
+@pytest.mark.parametrize('line4', [
+    'NPTS=      7, DT=   .0200 SEC,',                          # standard PEER
+    'NPTS =   7 , DT =   .020 SEC ,                        ',  # KJM000-like, trailing blanks
+    'NPTS =  7 , DT =   .020 SEC,',                            # KJM090-like
+    'NPTS=      7, DT=   .0200 SEC',                           # no trailing comma
+    'NPTS=7,DT=.02SEC',                                        # no blanks at all
+    'npts=      7, dt=   .0200 sec,',                          # lower case
+    '   7   0.0200',                                           # older layout
+    '7   0.0200    NPTS, DT',                                  # older layout with text
+    '7   0.2000D-01',                                          # older layout, D exponent
+])
+def test_read_at2_header_variants(tmp_path, line4):
+    rec = read_at2(write_at2(tmp_path, line4))
+    assert rec.dt == 0.02
+    np.testing.assert_array_equal(rec.acceleration_m_s2, AT2_VALUES_G * G)
+    assert rec.name == 'rec'
+    assert rec.source == str(tmp_path / 'rec.AT2')
+
+
+@pytest.mark.parametrize('newline', ['\r\n', '\r'])
+def test_read_at2_line_endings(tmp_path, newline):
+    rec = read_at2(write_at2(tmp_path, 'NPTS=      7, DT=   .0050 SEC,', newline=newline))
+    assert rec.dt == 0.005
+    np.testing.assert_array_equal(rec.acceleration_m_s2, AT2_VALUES_G * G)
+
+
+@pytest.mark.parametrize('per_line', [1, 3, 7])
+def test_read_at2_any_number_of_values_per_line(tmp_path, per_line):
+    rec = read_at2(write_at2(tmp_path, 'NPTS= 7, DT= .01 SEC,', per_line=per_line))
+    np.testing.assert_array_equal(rec.acceleration_m_s2, AT2_VALUES_G * G)
+
+
+def test_read_at2_fortran_d_exponent(tmp_path):
+    tokens = ['.1000000D-01', '-.2500000d-02', '0.0', '3.141593E-01', '-1.0D+00', '5E-4',
+              '-.7500000D-01']
+    rec = read_at2(write_at2(tmp_path, 'NPTS= 7, DT= .01 SEC,', tokens=tokens))
+    np.testing.assert_array_equal(rec.acceleration_m_s2, AT2_VALUES_G * G)
+
+
+def test_read_at2_blank_lines_and_stem(tmp_path):
+    path = write_at2(tmp_path, 'NPTS= 7, DT= .01 SEC,', name='RSN1_X.Y-Z.at2')
+    path.write_text(path.read_text() + '\n   \n')
+    rec = read_at2(path)
+    assert rec.name == 'RSN1_X.Y-Z'
+    assert rec.n == 7
+
+
+def test_read_at2_truncated(tmp_path):
+    path = write_at2(tmp_path, 'NPTS=      7, DT=   .0200 SEC,', tokens=AT2_TOKENS[:6])
+    with raises_from(path, 'line 6: truncated: expected NPTS=7 values, found 6'):
+        read_at2(path)
+
+
+def test_read_at2_extra_values(tmp_path):
+    path = write_at2(tmp_path, 'NPTS=      6, DT=   .0200 SEC,')
+    with raises_from(path, 'line 6: expected NPTS=6 values, found 7'):
+        read_at2(path)
+
+
+@pytest.mark.parametrize('line4, message', [
+    ('NPTS=      0, DT=   .0200 SEC,', 'line 4: expected NPTS > 0, got NPTS=0'),
+    ('NPTS=     -7, DT=   .0200 SEC,', 'line 4: expected NPTS > 0, got NPTS=-7'),
+    ('NPTS=    7.5, DT=   .0200 SEC,',
+     "line 4: expected 'NPTS=<int>, DT=<float> SEC', got 'NPTS=    7.5, DT=   .0200 SEC,'"),
+    ('NPTS=    abc, DT=   .0200 SEC,', "line 4: expected 'NPTS=<int>, DT=<float> SEC'"),
+    ('NPTS=      7', "line 4: expected 'NPTS=<int>, DT=<float> SEC', got 'NPTS=      7'"),
+    ('NPTS=      7, DT=   .02xy SEC,', "line 4: expected 'NPTS=<int>, DT=<float> SEC'"),
+    ('NPTS=      7, DT=   0.0 SEC,', 'line 4: expected DT > 0, got DT=0.0'),
+    ('NPTS=      7, DT=  -.0200 SEC,', 'line 4: expected DT > 0, got DT=-.0200'),
+    ('7   0.0', 'line 4: expected DT > 0, got DT=0.0'),
+    ('', "line 4: expected 'NPTS=<int>, DT=<float> SEC', got ''"),
+])
+def test_read_at2_bad_npts_dt_line(tmp_path, line4, message):
+    path = write_at2(tmp_path, line4)
+    with raises_from(path, message) as info:
+        read_at2(path)
+    assert '\n' not in str(info.value)
+
+
+@pytest.mark.parametrize('bad', ['abc', 'nan', 'inf', '1.0E', '1,5', '--1.0'])
+def test_read_at2_non_numeric_token(tmp_path, bad):
+    tokens = AT2_TOKENS[:6] + [bad]
+    path = write_at2(tmp_path, 'NPTS= 7, DT= .02 SEC,', tokens=tokens)
+    with raises_from(path, f'line 6: expected a number, got {bad!r}'):
+        read_at2(path)
+
+
+def test_read_at2_units_not_g(tmp_path):
+    path = write_at2(tmp_path, 'NPTS= 7, DT= .02 SEC,',
+                     units='ACCELERATION TIME SERIES IN UNITS OF CM/S/S')
+    with raises_from(path, "line 3: expected units of G, got 'CM/S/S'"):
+        read_at2(path)
+
+
+def test_read_at2_missing_empty_short(tmp_path):
+    missing = tmp_path / 'nope.AT2'
+    with pytest.raises(InputError, match=f'^{re.escape(str(missing))}: no such file$'):
+        read_at2(missing)
+    empty = tmp_path / 'empty.AT2'
+    empty.write_text('')
+    with raises_from(empty, 'line 1: empty file'):
+        read_at2(empty)
+    short = tmp_path / 'short.AT2'
+    short.write_text('TITLE\nEVENT\nUNITS OF G\n')
+    with raises_from(short, 'line 4: expected 4 header lines, the file ends after 3'):
+        read_at2(short)
+    with raises_from(tmp_path, 'is a directory'):
+        read_at2(tmp_path)
+
+
+# -- the real records (not part of the project; skipped when absent) -------------------------
+
+@pytest.fixture(scope='module')
+def records_dir():
+    if not RECORDS.is_dir():
+        pytest.skip(f'{RECORDS} is absent')
+    return RECORDS
+
+
+@pytest.mark.parametrize('stem, npts, dt, pga_g, t_pga', [
+    ('RSN1106_KOBE_KJM000', 7500, 0.02, 0.8342, 8.52),
+    ('RSN1106_KOBE_KJM090', 7500, 0.02, 0.6297, 8.44),
+    ('RSN6_IMPVALL.I_I-ELC180', 5372, 0.01, 0.2808, 2.18),
+])
+def test_real_records(records_dir, stem, npts, dt, pga_g, t_pga):
+    rec = load_record(str(records_dir / f'{stem}.AT2'))
+    assert rec.name == stem
+    assert rec.n == npts
+    assert rec.dt == dt
+    assert rec.duration_s == pytest.approx(npts * dt, rel=1e-12)
+    assert rec.peak_m_s2 / G == pytest.approx(pga_g, abs=5e-5)  # SOURCES.md: 4 decimals
+    assert rec.time_s[np.argmax(np.abs(rec.acceleration_m_s2))] == pytest.approx(t_pga)
+
+
+def test_real_record_at_reference_settings(records_dir):
+    rec = read_at2(records_dir / 'RSN1106_KOBE_KJM000.AT2')
+    run = prepare(rec, dt=0.002, mass_kg=52.7, amplitude_N=1000.0, time_scale=0.5)
+    assert run.n == 37500
+    assert run.duration_s == pytest.approx(75.0)
+    assert np.max(np.abs(52.7 * run.acceleration_m_s2)) == pytest.approx(1000.0, rel=1e-12)
+
+
+# -- read_csv --------------------------------------------------------------------------------
+
+def test_read_csv_with_header_and_comments(tmp_path):
+    path = tmp_path / 'rec.csv'
+    path.write_text('# a comment line\n'
+                    'time_s, accel_m_s2\n'
+                    '0.00, 0.10\n'
+                    '0.01, -0.20   # inline comment\n'
+                    '\n'
+                    '0.02, 0.30\n'
+                    '0.03, 1e-3\n')
+    rec = read_csv(path)
+    assert rec.dt == pytest.approx(0.01, rel=1e-12)
+    np.testing.assert_array_equal(rec.acceleration_m_s2, [0.1, -0.2, 0.3, 0.001])
+    assert rec.name == 'rec'
+    assert rec.source == str(path)
+
+
+def test_read_csv_whitespace_no_header_offset_time(tmp_path):
+    path = tmp_path / 'rec.CSV'
+    path.write_text('5.000\t1.0\r\n5.002  2.0\r\n5.004 3.0\r\n')
+    rec = read_csv(path)
+    assert rec.dt == pytest.approx(0.002, rel=1e-9)
+    np.testing.assert_array_equal(rec.acceleration_m_s2, [1.0, 2.0, 3.0])
+    np.testing.assert_allclose(rec.time_s, [0.0, 0.002, 0.004], rtol=1e-9)
+
+
+@pytest.mark.parametrize('text, message', [
+    ('t,a\n0.0,1\n0.01,2\n0.025,3\n0.03,4\n', 'line 4: non-uniform time step'),
+    ('0.0,1\n0.01,2\n0.0200001,3\n0.03,4\n', 'line 3: non-uniform time step'),
+    ('0.0,1\n0.01,2\n0.01,3\n', 'line 3: time not strictly increasing (t=0.01 after t=0.01)'),
+    ('0.0,1\n-0.01,2\n', 'line 2: time not strictly increasing'),
+    ('t,a\n0.0,1\n0.01,abc\n', "line 3: expected a number, got 'abc'"),
+    ('0.0,1\nfoo,2\n', "line 2: expected a number, got 'foo'"),
+    ('0.0,nan\n0.01,2\n', "line 1: expected a number, got 'nan'"),
+    ('0.0,1,5\n0.01,2,5\n', 'line 1: expected 2 columns (time [s], acceleration [m/s^2]), '
+                            'found 3'),
+    ('t,a\n0.0,1\n', 'line 3: expected at least 2 rows of time, acceleration, found 1'),
+    ('', 'line 1: expected at least 2 rows of time, acceleration, found 0'),
+])
+def test_read_csv_errors(tmp_path, text, message):
+    path = tmp_path / 'bad.csv'
+    path.write_text(text)
+    with raises_from(path, message) as info:
+        read_csv(path)
+    assert '\n' not in str(info.value)
+
+
+def test_read_csv_tolerance_and_missing(tmp_path):
+    path = tmp_path / 'ok.csv'
+    path.write_text('0.0,1\n0.01,2\n0.02000000001,3\n0.03,4\n')  # 1e-9 of dt: accepted
+    assert read_csv(path).n == 4
+    with raises_from(tmp_path / 'none.csv', 'no such file'):
+        read_csv(tmp_path / 'none.csv')
+
+
+# -- synthetic_default -----------------------------------------------------------------------
+
+@pytest.fixture(scope='module')
+def default_record():
+    return synthetic_default()
+
+
+def test_synthetic_default_is_deterministic(default_record):
+    again = synthetic_default(duration_s=20.0, dt=0.01, seed=1)
+    np.testing.assert_array_equal(again.acceleration_m_s2, default_record.acceleration_m_s2)
+    other = synthetic_default(seed=2)
+    assert not np.array_equal(other.acceleration_m_s2, default_record.acceleration_m_s2)
+
+
+def test_synthetic_default_shape_and_peak(default_record):
+    rec = default_record
+    assert rec.dt == 0.01
+    assert rec.n == 2000
+    assert rec.duration_s == pytest.approx(20.0)
+    assert rec.name == 'synthetic-default(seed=1)'
+    assert rec.source == 'default'
+    assert rec.peak_m_s2 == pytest.approx(0.5 * 9.80665, rel=1e-12)
+    assert not rec.acceleration_m_s2.flags.writeable
+
+
+def test_synthetic_default_envelope(default_record):
+    a = np.abs(default_record.acceleration_m_s2)
+    t = default_record.time_s
+    peak = a.max()
+    assert a[t < 0.5].max() < 0.1 * peak       # quadratic rise over 2 s
+    assert a[t > 19.0].max() < 0.1 * peak      # decayed to exp(-4) at 20 s
+    assert 2.0 <= t[np.argmax(a)] <= 12.0      # strongest motion on the plateau (or just after)
+
+
+def test_synthetic_default_frequency_content(default_record):
+    f, pxx = signal.welch(default_record.acceleration_m_s2, fs=1 / default_record.dt,
+                          nperseg=512)
+    total = np.trapezoid(pxx, f)
+
+    def share(lo, hi):
+        keep = (f >= lo) & (f <= hi)
+        return np.trapezoid(pxx[keep], f[keep]) / total
+
+    assert share(0.5, 15.0) > 0.90
+    assert share(2.0, 10.0) > 0.45
+    assert 1.5 < f[np.argmax(pxx)] < 4.0       # Kanai-Tajimi omega_g = 2*pi*2.5 rad/s
+
+
+def test_synthetic_default_baseline_corrected(default_record):
+    a, dt = default_record.acceleration_m_s2, default_record.dt
+    v = cumulative_trapezoid(a, dx=dt, initial=0.0)
+    d = cumulative_trapezoid(v, dx=dt, initial=0.0)
+    assert abs(v[-1]) < 0.02 * np.abs(v).max()
+    assert abs(d[-1]) < 0.02 * np.abs(d).max()
+    # rectangle rule, an independent integration: still small
+    v_rect = np.cumsum(a) * dt
+    assert abs(v_rect[-1]) < 0.02 * np.abs(v_rect).max()
+
+
+def test_synthetic_default_other_duration_and_dt():
+    rec = synthetic_default(duration_s=10.0, dt=0.005, seed=3)
+    assert rec.n == 2000
+    assert rec.dt == 0.005
+    assert rec.name == 'synthetic-default(seed=3, duration_s=10, dt=0.005)'
+    assert rec.peak_m_s2 == pytest.approx(0.5 * G, rel=1e-12)
+
+
+@pytest.mark.parametrize('kwargs, message', [
+    ({'dt': 0.0}, 'parameter dt=0.0: expected float > 0'),
+    ({'dt': 0.05}, 'parameter dt=0.05: expected float, 0 < dt <= 0.02'),
+    ({'duration_s': -1.0}, 'parameter duration_s=-1.0: expected float > 0'),
+    ({'duration_s': 0.5}, 'parameter duration_s=0.5: expected float >= 100*dt = 1.0'),
+    ({'seed': -1}, 'parameter seed=-1: expected int >= 0'),
+    ({'seed': 1.5}, 'parameter seed=1.5: expected int >= 0'),
+])
+def test_synthetic_default_bad_parameters(kwargs, message):
+    with pytest.raises(ParameterError, match=f'^{re.escape(message)}$'):
+        synthetic_default(**kwargs)
+
+
+# -- load_record -----------------------------------------------------------------------------
+
+def test_load_record_dispatch(tmp_path, default_record):
+    np.testing.assert_array_equal(load_record('default').acceleration_m_s2,
+                                  default_record.acceleration_m_s2)
+    at2 = write_at2(tmp_path, 'NPTS= 7, DT= .02 SEC,', name='x.at2')
+    assert load_record(str(at2)).n == 7
+    assert load_record(at2).n == 7
+    csv = tmp_path / 'x.Csv'
+    csv.write_text('0,1\n0.5,2\n')
+    assert load_record(str(csv)).dt == 0.5
+
+
+@pytest.mark.parametrize('source, message', [
+    ('rec.txt', "rec.txt: unknown record format '.txt'"),
+    ('Default', "Default: unknown record format ''"),
+    ('', ": unknown record format ''"),
+])
+def test_load_record_unknown(source, message):
+    with pytest.raises(InputError, match=re.escape(message)):
+        load_record(source)
+
+
+def test_load_record_missing(tmp_path):
+    with raises_from(tmp_path / 'gone.AT2', 'no such file'):
+        load_record(str(tmp_path / 'gone.AT2'))
+
+
+# -- prepare ---------------------------------------------------------------------------------
+
+def sine_record(freq_hz=1.0, dt=0.01, n=2000, amp=2.0):
+    return GroundMotion(dt, amp * np.sin(2 * np.pi * freq_hz * np.arange(n) * dt), 'sine',
+                        'test')
+
+
+def test_prepare_time_scale_halves_duration(default_record):
+    full = prepare(default_record, dt=0.002, mass_kg=52.7)
+    half = prepare(default_record, dt=0.002, mass_kg=52.7, time_scale=0.5)
+    assert full.n == 10000 and half.n == 5000
+    assert half.duration_s == pytest.approx(full.duration_s / 2)
+    assert half.dt == 0.002
+    assert half.name == default_record.name and half.source == 'default'
+    # sample k of the half-time record is sample 2k of the full one (both interpolate the
+    # same points); same peak
+    np.testing.assert_allclose(half.acceleration_m_s2[:4999], full.acceleration_m_s2[:9998:2],
+                               rtol=0, atol=1e-12)
+
+
+def test_prepare_resampling_reproduces_a_sine():
+    rec = sine_record(freq_hz=1.0, amp=2.0)
+    out = prepare(rec, dt=0.002, mass_kg=1.0)
+    assert out.n == 10000
+    t = out.time_s
+    inside = t <= (rec.n - 1) * rec.dt + 1e-12
+    err = out.acceleration_m_s2[inside] - 2.0 * np.sin(2 * np.pi * t[inside])
+    bound = (2 * np.pi * 1.0 * 0.01) ** 2 / 8      # linear-interpolation error bound
+    assert np.abs(err).max() <= bound * 2.0
+    assert np.abs(err).max() < 1e-3 * 2.0
+    # past the last record sample the last value is held
+    np.testing.assert_array_equal(out.acceleration_m_s2[~inside], rec.acceleration_m_s2[-1])
+
+
+def test_prepare_time_scale_doubles_frequency():
+    out = prepare(sine_record(freq_hz=1.0, amp=1.0), dt=0.002, mass_kg=1.0, time_scale=0.5)
+    f, pxx = signal.periodogram(out.acceleration_m_s2, fs=1 / out.dt)
+    assert f[np.argmax(pxx)] == pytest.approx(2.0, abs=0.05)
+
+
+def test_prepare_no_overshoot_on_a_step():
+    a = np.r_[np.zeros(50), np.ones(50), -np.ones(50), np.zeros(50)]
+    rec = GroundMotion(0.01, a, 'steps', 'test')
+    for time_scale in (1.0, 0.5, 0.7, 1.3):
+        out = prepare(rec, dt=0.002, mass_kg=1.0, time_scale=time_scale)
+        assert out.peak_m_s2 <= 1.0
+        assert out.acceleration_m_s2.min() >= -1.0
+
+
+def test_prepare_amplitude_N(default_record):
+    out = prepare(default_record, dt=0.002, mass_kg=52.7, amplitude_N=1000.0, time_scale=0.5)
+    force = 52.7 * out.acceleration_m_s2
+    assert np.max(np.abs(force)) == pytest.approx(1000.0, rel=1e-12)
+    plain = prepare(default_record, dt=0.002, mass_kg=52.7, time_scale=0.5)
+    ratio = out.acceleration_m_s2 / np.where(plain.acceleration_m_s2 == 0, np.nan,
+                                             plain.acceleration_m_s2)
+    np.testing.assert_allclose(ratio[np.isfinite(ratio)], 1000.0 / (52.7 * plain.peak_m_s2),
+                               rtol=1e-12)
+    # amplitude_N wins over scale_factor
+    other = prepare(default_record, dt=0.002, mass_kg=52.7, amplitude_N=1000.0,
+                    scale_factor=3.0, time_scale=0.5)
+    np.testing.assert_array_equal(other.acceleration_m_s2, out.acceleration_m_s2)
+
+
+def test_prepare_scale_factor_same_dt(default_record):
+    out = prepare(default_record, dt=0.01, mass_kg=52.7, scale_factor=2.5)
+    np.testing.assert_array_equal(out.acceleration_m_s2, 2.5 * default_record.acceleration_m_s2)
+    assert out.dt == 0.01
+
+
+def test_prepare_duration(default_record):
+    out = prepare(default_record, dt=0.002, mass_kg=52.7, time_scale=0.5, duration_s=4.0)
+    assert out.n == 2000
+    assert out.duration_s == pytest.approx(4.0)
+    whole = prepare(default_record, dt=0.002, mass_kg=52.7, time_scale=0.5, duration_s=1e3)
+    assert whole.n == 5000
+
+
+def test_prepare_all_zero_record():
+    rec = GroundMotion(0.01, np.zeros(10), 'zeros', 'z.csv')
+    with pytest.raises(InputError, match=re.escape("z.csv: record 'zeros' is all zeros")):
+        prepare(rec, dt=0.002, mass_kg=1.0, amplitude_N=1000.0)
+    assert prepare(rec, dt=0.002, mass_kg=1.0).peak_m_s2 == 0.0
+
+
+@pytest.mark.parametrize('kwargs, message', [
+    ({'dt': 0.0}, 'parameter dt=0.0: expected float > 0'),
+    ({'dt': -0.002}, 'parameter dt=-0.002: expected float > 0'),
+    ({'dt': float('nan')}, 'parameter dt=nan: expected float > 0'),
+    ({'mass_kg': 0.0}, 'parameter mass_kg=0.0: expected float > 0'),
+    ({'mass_kg': 'heavy'}, "parameter mass_kg='heavy': expected float > 0"),
+    ({'amplitude_N': -1.0}, 'parameter amplitude_N=-1.0: expected float >= 0'),
+    ({'amplitude_N': float('inf')}, 'parameter amplitude_N=inf: expected float >= 0'),
+    ({'scale_factor': 0.0}, 'parameter scale_factor=0.0: expected float > 0'),
+    ({'time_scale': -1.0}, 'parameter time_scale=-1.0: expected float > 0'),
+    ({'time_scale': 0}, 'parameter time_scale=0: expected float > 0'),
+    ({'duration_s': -1.0}, 'parameter duration_s=-1.0: expected float >= 0'),
+    ({'duration_s': 0.0005},
+     'parameter duration_s=0.0005: expected 0 (whole record) or float >= dt=0.002'),
+])
+def test_prepare_bad_parameters(kwargs, message):
+    args = {'dt': 0.002, 'mass_kg': 52.7} | kwargs
+    with pytest.raises(ParameterError, match=f'^{re.escape(message)}$'):
+        prepare(sine_record(), **args)
+
+
+# -- GroundMotion ----------------------------------------------------------------------------
+
+def test_ground_motion_properties():
+    rec = GroundMotion(0.5, [1.0, -3.0, 2.0], 'r', 's')
+    np.testing.assert_array_equal(rec.time_s, [0.0, 0.5, 1.0])
+    assert rec.duration_s == 1.5
+    assert rec.peak_m_s2 == 3.0
+    assert rec.n == 3
+    with pytest.raises(ValueError):
+        rec.acceleration_m_s2[0] = 0.0
+
+
+@pytest.mark.parametrize('dt, accel, message', [
+    (0.0, [1.0], 'parameter dt=0.0: expected float > 0'),
+    (0.01, [], r'expected a finite array of shape \(n,\), n >= 1, got shape \(0,\)'),
+    (0.01, [[1.0, 2.0]], r'got shape \(1, 2\)'),
+    (0.01, [1.0, np.nan], r'got shape \(2,\)'),
+])
+def test_ground_motion_validation(dt, accel, message):
+    with pytest.raises(ParameterError, match=message):
+        GroundMotion(dt, accel, 'r', 's')
