@@ -76,7 +76,7 @@ def clock_msg(stamp_ns: int) -> Clock:
     return Clock(clock=ns_to_stamp(stamp_ns))
 
 
-def status_msg(node: str, state: str, message: str = '', *, level: int | None = None,
+def status_msg(node: str, state: str, message: str = '', *, level: bytes | None = None,
                **values) -> DiagnosticStatus:
     """A node status report: ``name`` = node, ``values['state']`` = state, extra key/values.
 
@@ -87,7 +87,7 @@ def status_msg(node: str, state: str, message: str = '', *, level: int | None = 
                  else DiagnosticStatus.OK)
     kv = [KeyValue(key='state', value=state)]
     kv += [KeyValue(key=k, value=str(v)) for k, v in values.items()]
-    return DiagnosticStatus(level=bytes([level]), name=node, message=message,
+    return DiagnosticStatus(level=level, name=node, message=message,
                             hardware_id='seft', values=kv)
 
 

@@ -1,0 +1,178 @@
+"""What every seft node shares: schema parameters, status reports, a clean ``main``.
+
+``main`` follows ``ros2/demos`` ``demo_nodes_py/topics/talker.py``: spin in ``try``, catch
+``KeyboardInterrupt`` and ``ExternalShutdownException``, destroy the node and
+``rclpy.try_shutdown()`` in ``finally``. A :class:`SeftError` (bad parameter or input file)
+becomes a one-line message on stderr and exit code 2.
+"""
+
+import math
+import sys
+import time
+import traceback
+from typing import Callable
+
+from rcl_interfaces.msg import (
+    FloatingPointRange,
+    IntegerRange,
+    ParameterDescriptor,
+    SetParametersResult,
+)
+import rclpy
+from rclpy.clock import Clock, ClockType
+from rclpy.executors import ExternalShutdownException
+from rclpy.experimental import EventsExecutor
+from rclpy.node import Node
+
+from seft_msgs_py import parameters
+from seft_msgs_py.convert import STATE_FAILED, status_msg
+from seft_msgs_py.errors import ParameterError, SeftError
+from seft_msgs_py.topics import STATUS
+
+__all__ = ['SeftNode', 'main_for', 'descriptor_of', 'LINGER_S']
+
+#: How long a finished node keeps serving its publishers before it exits [s].
+LINGER_S = 1.0
+
+
+def descriptor_of(spec: parameters.ParamSpec) -> ParameterDescriptor:
+    """The ``ParameterDescriptor`` of a schema parameter (description, unit, range).
+
+    Dynamic typing is on so that ``alpha: 1`` in a YAML file is accepted for a float
+    parameter; the schema validation that follows checks type and range with a clear message.
+    """
+    unit = f' [{spec.unit}]' if spec.unit else ''
+    d = ParameterDescriptor(name=spec.name, description=spec.description + unit,
+                            additional_constraints=f'expected {spec.expected()}',
+                            read_only=False, dynamic_typing=True)
+    lo, hi = spec.minimum, spec.maximum
+    if lo is not None and hi is not None and math.isfinite(lo) and math.isfinite(hi):
+        if isinstance(spec.default, int) and not isinstance(spec.default, bool):
+            d.integer_range = [IntegerRange(from_value=int(lo), to_value=int(hi), step=0)]
+        elif isinstance(spec.default, float):
+            d.floating_point_range = [FloatingPointRange(from_value=float(lo),
+                                                         to_value=float(hi), step=0.0)]
+    return d
+
+
+class SeftNode(Node):
+    """A node of the seft graph: declares its schema parameters and reports its state.
+
+    Parameters
+    ----------
+    node_name : str
+        One of ``seft_msgs_py.parameters.NODES``.
+
+    Raises
+    ------
+    ParameterError
+        If a parameter value is out of its schema range (message names it).
+    """
+
+    def __init__(self, node_name: str, **kwargs):
+        super().__init__(node_name, **kwargs)
+        self.seft_name = node_name
+        self.params = self._declare(node_name)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        self.status_pub = self.create_publisher(STATUS.msg_type, STATUS.name, STATUS.qos)
+        self.done = False
+        self.exit_code = 0
+
+    def _declare(self, node_name: str) -> dict:
+        values = {}
+        for spec in parameters.specs_for_node(node_name):
+            try:
+                p = self.declare_parameter(spec.name, spec.default, descriptor_of(spec))
+            except Exception as exc:  # rclpy raises several types for a bad override
+                raise ParameterError(f'parameter {spec.name}: {exc}; expected '
+                                     f'{spec.expected()}') from None
+            values[spec.name] = parameters.validate_value(spec.name, p.value)
+        return values
+
+    def _on_set_parameters(self, params) -> SetParametersResult:
+        """Validation at run time (``demo_nodes_py/parameters/set_parameters_callback.py``).
+
+        Values are checked against the schema; they are read once at start-up, so a change
+        takes effect in the next run, never in the middle of one.
+        """
+        for p in params:
+            if p.name == 'use_sim_time':
+                continue
+            try:
+                parameters.validate_value(p.name, p.value)
+            except ParameterError as exc:
+                return SetParametersResult(successful=False, reason=str(exc))
+        return SetParametersResult(successful=True)
+
+    def wall_timer(self, period_s: float, callback: Callable):
+        """A guarded timer on the steady (wall) clock.
+
+        Node timers follow ROS time, which is frozen until the rig publishes ``/clock`` when
+        ``use_sim_time`` is on; start-up and housekeeping timers must not depend on it.
+        """
+        return self.create_timer(period_s, self.guard(callback),
+                                 clock=Clock(clock_type=ClockType.STEADY_TIME))
+
+    def report(self, state: str, message: str = '', **values) -> None:
+        """Publish a status report on ``/seft/status``."""
+        self.status_pub.publish(status_msg(self.seft_name, state, message, **values))
+
+    def guard(self, callback: Callable) -> Callable:
+        """Wrap a callback so that an exception ends the node cleanly instead of the executor.
+
+        A :class:`SeftError` is reported as one line (status 'failed', exit code 2); anything
+        else with its traceback (exit code 1).
+        """
+        def wrapper(*args):
+            if self.done:
+                return None
+            try:
+                return callback(*args)
+            except SeftError as exc:
+                print(f'{self.seft_name}: error: {exc}', file=sys.stderr)
+                self.report(STATE_FAILED, str(exc))
+                self.finish(2)
+            except Exception as exc:  # noqa: BLE001 - a node must not die silently
+                traceback.print_exc()
+                self.report(STATE_FAILED, f'{type(exc).__name__}: {exc}')
+                self.finish(1)
+            return None
+        return wrapper
+
+    def finish(self, exit_code: int = 0) -> None:
+        """Ask :func:`main_for` to stop spinning and exit with `exit_code`."""
+        self.done = True
+        self.exit_code = exit_code
+
+
+def main_for(factory: Callable[[], SeftNode], name: str, args=None) -> int:
+    """Create the node, spin it until it finishes, shut down cleanly; return the exit code.
+
+    Uses rclpy's ``EventsExecutor`` (about twice the lockstep rate of the default executor
+    on two cores). It cannot be stopped from inside a callback, so the node sets ``done``
+    and this loop stops spinning.
+    """
+    rclpy.init(args=args)
+    node = None
+    code = 0
+    try:
+        node = factory()
+        executor = EventsExecutor()
+        executor.add_node(node)
+        while not node.done:
+            executor.spin_once(timeout_sec=0.1)
+        code = node.exit_code
+        # linger, so that the last samples and the final status reach their subscribers
+        deadline = time.monotonic() + LINGER_S
+        while time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.05)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        code = 0 if node is None else node.exit_code
+    except SeftError as exc:
+        print(f'{name}: error: {exc}', file=sys.stderr)
+        code = 2
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return code

@@ -1,0 +1,182 @@
+"""recorder node: every seft topic into a rosbag2 bag (rosbags), with the run's parameters.
+
+Subscribes to all topics of ``seft_msgs_py.topics.TOPICS`` as serialized bytes and writes
+them unchanged to ``bag_path`` (``bag_storage``: mcap by default; message definitions are
+stored, so ``ros2 bag``, Foxglove and PlotJuggler open it). The log time of a stamped
+message is its header stamp (the sample time); status messages take the latest sample time
+seen. At start it writes the run's resolved parameters as JSON on ``/seft/run_parameters``,
+so the bag alone is enough to analyse and reproduce the run.
+
+It ends by itself once the rig reported 'done' or 'aborted' and every node's final count of
+published samples has arrived (or after ``FLUSH_TIMEOUT_S``), closes the bag, reports
+'closed' and exits. On Ctrl-C or SIGTERM it closes the bag too.
+
+Run by hand: ``ros2 run seft_ros recorder --ros-args -p bag_path:=my_run ...``.
+"""
+
+import os
+import struct
+import sys
+import time
+
+from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.typesys import Stores, get_typestore
+from std_msgs.msg import String
+
+from seft_msgs_py.convert import (
+    STATE_ABORTED,
+    STATE_CLOSED,
+    STATE_DONE,
+    STATE_FAILED,
+    STATE_READY,
+    parameters_json,
+    status_values,
+)
+from seft_msgs_py.errors import InputError
+from seft_msgs_py.node_support import SeftNode, main_for
+from seft_msgs_py.topics import (
+    ACCELERATION,
+    CLOCK,
+    DISPLACEMENT,
+    GROUND_ACCELERATION,
+    MEASURED_FORCE,
+    REFERENCE_FORCE,
+    RUN_PARAMETERS,
+    STATUS,
+    TOPICS,
+    VALVE_COMMAND,
+    VELOCITY,
+)
+
+__all__ = ['RecorderNode', 'main', 'FLUSH_TIMEOUT_S', 'TOPICS_OF_NODE']
+
+#: Longest wait for late samples after the rig finished [s].
+FLUSH_TIMEOUT_S = 10.0
+
+#: The data topics each node publishes (its final status says how many samples).
+TOPICS_OF_NODE = {
+    'rig': (CLOCK.name, MEASURED_FORCE.name, DISPLACEMENT.name, VELOCITY.name,
+            ACCELERATION.name),
+    'ground_motion_publisher': (GROUND_ACCELERATION.name,),
+    'reference_force_builder': (REFERENCE_FORCE.name,),
+    'force_servo_controller': (VALVE_COMMAND.name,),
+}
+
+_FINAL = (STATE_DONE, STATE_ABORTED, STATE_FAILED)
+_STAMP = struct.Struct('<iI')   # builtin_interfaces/Time right after the CDR header
+
+
+def _stamp_ns(raw: bytes) -> int:
+    """Header stamp of a serialized stamped message (little-endian CDR) [ns]."""
+    sec, nanosec = _STAMP.unpack_from(raw, 4)
+    return sec * 1_000_000_000 + nanosec
+
+
+class RecorderNode(SeftNode):
+    """Writes the seft topics to a rosbag2 bag."""
+
+    def __init__(self):
+        super().__init__('recorder')
+        p = self.params
+        self.bag_path = p['bag_path']
+        if os.path.exists(self.bag_path):
+            raise InputError(f'{self.bag_path}: bag_path exists already; expected a new '
+                             'directory name')
+        self.typestore = get_typestore(Stores.ROS2_JAZZY)
+        storage = StoragePlugin.MCAP if p['bag_storage'] == 'mcap' else StoragePlugin.SQLITE3
+        self.writer = Writer(self.bag_path, version=9, storage_plugin=storage)
+        self.writer.open()
+        self.connections = {t.name: self.writer.add_connection(t.name, t.type_name,
+                                                               typestore=self.typestore)
+                            for t in TOPICS}
+        self.counts = {t.name: 0 for t in TOPICS}
+        self.latest_ns = 0
+        params_msg = self.typestore.types['std_msgs/msg/String'](data=parameters_json(p))
+        self._write(RUN_PARAMETERS.name, 0,
+                    self.typestore.serialize_cdr(params_msg, 'std_msgs/msg/String'))
+        self.params_pub = self.create_publisher(String, RUN_PARAMETERS.name, RUN_PARAMETERS.qos)
+        self.params_pub.publish(String(data=parameters_json(p)))
+        stamped = {t.name for t in TOPICS if t not in (STATUS, RUN_PARAMETERS)}
+        for t in TOPICS:
+            if t is RUN_PARAMETERS:
+                continue
+            cb = self._on_stamped if t.name in stamped else self._on_unstamped
+            self.create_subscription(t.msg_type, t.name,
+                                     self.guard(lambda raw, n=t.name, f=cb: f(n, raw)), t.qos,
+                                     raw=True)
+        self.create_subscription(STATUS.msg_type, STATUS.name, self.guard(self._on_status),
+                                 STATUS.qos)
+        self.finals = {}
+        self.participants = set()
+        self.rig_final_at = None
+        self.wall_timer(0.1, self._check_complete)
+        self.report(STATE_READY, f'recording to {self.bag_path}')
+
+    def _write(self, name: str, stamp_ns: int, raw) -> None:
+        self.writer.write(self.connections[name], stamp_ns, raw)
+        self.counts[name] += 1
+
+    def _on_stamped(self, name: str, raw: bytes) -> None:
+        stamp = _stamp_ns(raw)
+        if stamp > self.latest_ns and name == CLOCK.name:
+            self.latest_ns = stamp
+        self._write(name, stamp, raw)
+
+    def _on_unstamped(self, name: str, raw: bytes) -> None:
+        self._write(name, self.latest_ns, raw)
+
+    def _on_status(self, msg) -> None:
+        state = status_values(msg).get('state')
+        if state == STATE_READY and msg.name in TOPICS_OF_NODE:
+            self.participants.add(msg.name)
+        if state in _FINAL:
+            self.finals[msg.name] = status_values(msg)
+            if msg.name == 'rig' and self.rig_final_at is None:
+                self.rig_final_at = time.monotonic()
+
+    def _missing(self) -> list[str]:
+        """What has not arrived yet: nodes without a final status, topics short of samples."""
+        missing = [f'{n} (no final status)' for n in sorted(self.participants)
+                   if n not in self.finals]
+        for node, values in self.finals.items():
+            want = int(values.get('published', 0))
+            for name in TOPICS_OF_NODE.get(node, ()):
+                if self.counts[name] < want:
+                    missing.append(f'{name} ({self.counts[name]}/{want})')
+        return missing
+
+    def _check_complete(self) -> None:
+        if self.rig_final_at is None or self.done:
+            return
+        missing = self._missing()
+        timed_out = time.monotonic() - self.rig_final_at > FLUSH_TIMEOUT_S
+        if missing and not timed_out:
+            return
+        if missing:
+            self.get_logger().warning('closing the bag without: ' + ', '.join(missing))
+        self._close()
+        self.report(STATE_CLOSED, f'bag {self.bag_path} closed',
+                    incomplete=', '.join(missing),
+                    **{name.rsplit('/', 1)[-1]: n for name, n in self.counts.items()})
+        self.get_logger().info(f'bag {self.bag_path} closed: {sum(self.counts.values())} '
+                               'messages')
+        self.finish(0)
+
+    def _close(self) -> None:
+        if self.writer is not None:
+            self.writer.close()
+            self.writer = None
+
+    def destroy_node(self):
+        """Close the bag (also on Ctrl-C), then destroy the node."""
+        self._close()
+        return super().destroy_node()
+
+
+def main(args=None) -> int:
+    """Entry point of ``ros2 run seft_ros recorder``."""
+    return main_for(RecorderNode, 'recorder', args)
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,113 @@
+"""reference_force_builder node: f_r[k] = -(1+alpha) m xg''[k] - alpha m a_hat[k].
+
+Subscribes to the ground acceleration and to the rig's sensor topics; when the measurement
+of step k is complete and ``xg''[k+1]`` has arrived it publishes ``f_r[k+1]`` stamped
+``t_k+1`` (``f_r[0]`` as soon as ``xg''[0]`` arrives, the specimen at rest). ``a_hat`` comes
+from the ``predictor`` (``none``: the measured acceleration of the previous step, paper
+Eq. 5.3). The numerics are ``seft_ros.core.reference_force``.
+
+Run by hand: ``ros2 run seft_ros reference_force_builder --ros-args --params-file ...``.
+"""
+
+import sys
+
+from seft_msgs_py.convert import (
+    STATE_ABORTED,
+    STATE_DONE,
+    STATE_FAILED,
+    STATE_READY,
+    dt_to_ns,
+    scalar_msg,
+    scalar_value,
+    status_values,
+    step_of,
+)
+from seft_msgs_py.node_support import SeftNode, main_for
+from seft_msgs_py.sync import StepSync
+from seft_msgs_py.topics import (
+    ACCELERATION,
+    DISPLACEMENT,
+    GROUND_ACCELERATION,
+    MEASURED_FORCE,
+    REFERENCE_FORCE,
+    STATUS,
+    VELOCITY,
+)
+from seft_plant_sim.interface import Measurement
+from seft_ros.core.reference_force import ReferenceForceBuilder
+
+__all__ = ['ReferenceForceBuilderNode', 'main']
+
+_SENSORS = (MEASURED_FORCE, DISPLACEMENT, VELOCITY, ACCELERATION)
+
+
+class ReferenceForceBuilderNode(SeftNode):
+    """Lockstep shell around :class:`ReferenceForceBuilder`."""
+
+    def __init__(self):
+        super().__init__('reference_force_builder')
+        p = self.params
+        self.builder = ReferenceForceBuilder.from_parameters(p)
+        self.dt = float(p['dt'])
+        self.dt_ns = dt_to_ns(self.dt)
+        self.ground = {}
+        self.measurements = {}
+        self.sync = StepSync(t.name for t in _SENSORS)
+        self.next_step = 0          # step of the next reference force to publish
+        self.pub = self.create_publisher(REFERENCE_FORCE.msg_type, REFERENCE_FORCE.name,
+                                         REFERENCE_FORCE.qos)
+        self.create_subscription(GROUND_ACCELERATION.msg_type, GROUND_ACCELERATION.name,
+                                 self.guard(self._on_ground), GROUND_ACCELERATION.qos)
+        for spec in _SENSORS:
+            self.create_subscription(spec.msg_type, spec.name,
+                                     self.guard(lambda msg, s=spec: self._on_sensor(s, msg)),
+                                     spec.qos)
+        self.create_subscription(STATUS.msg_type, STATUS.name, self.guard(self._on_status),
+                                 STATUS.qos)
+        self.report(STATE_READY, f'predictor {self.builder.predictor.name}')
+
+    def _on_ground(self, msg) -> None:
+        self.ground[step_of(msg.header.stamp, self.dt_ns)] = scalar_value(GROUND_ACCELERATION,
+                                                                          msg)
+        self._advance()
+
+    def _on_sensor(self, spec, msg) -> None:
+        k = step_of(msg.header.stamp, self.dt_ns)
+        done = self.sync.add(k, spec.name, scalar_value(spec, msg))
+        if done is not None:
+            self.measurements[k] = Measurement(
+                k, k * self.dt, done[DISPLACEMENT.name], done[VELOCITY.name],
+                done[ACCELERATION.name], done[MEASURED_FORCE.name])
+            self._advance()
+
+    def _advance(self) -> None:
+        """Publish every reference force whose inputs are all there, in step order."""
+        while True:
+            k = self.next_step
+            if k not in self.ground:
+                return
+            if k == 0:
+                latest = None
+            elif k - 1 in self.measurements:
+                latest = self.measurements.pop(k - 1)
+            else:
+                return
+            force = self.builder.step(self.ground.pop(k), latest)
+            self.pub.publish(scalar_msg(REFERENCE_FORCE, k * self.dt_ns, force))
+            self.next_step += 1
+
+    def _on_status(self, msg) -> None:
+        if msg.name == 'rig':
+            state = status_values(msg).get('state')
+            if state in (STATE_DONE, STATE_ABORTED, STATE_FAILED):
+                self.report(STATE_DONE, 'rig finished', published=self.next_step)
+                self.finish(0)
+
+
+def main(args=None) -> int:
+    """Entry point of ``ros2 run seft_ros reference_force_builder``."""
+    return main_for(ReferenceForceBuilderNode, 'reference_force_builder', args)
+
+
+if __name__ == '__main__':
+    sys.exit(main())
