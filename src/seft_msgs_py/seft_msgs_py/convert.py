@@ -15,7 +15,7 @@ from seft_msgs_py.topics import FRAME_ID, TopicSpec
 __all__ = [
     'dt_to_ns', 'ns_to_stamp', 'stamp_to_ns', 'step_of', 'scalar_msg', 'scalar_value',
     'clock_msg', 'status_msg', 'status_values', 'STATE_READY', 'STATE_RUNNING', 'STATE_DONE',
-    'STATE_ABORTED', 'STATE_CLOSED', 'STATE_FAILED', 'parameters_json',
+    'STATE_ABORTED', 'STATE_CLOSED', 'STATE_FAILED', 'STATE_RECORDING', 'parameters_json',
 ]
 
 STATE_READY = 'ready'
@@ -24,6 +24,7 @@ STATE_DONE = 'done'
 STATE_ABORTED = 'aborted'
 STATE_CLOSED = 'closed'
 STATE_FAILED = 'failed'
+STATE_RECORDING = 'recording'
 
 
 def dt_to_ns(dt: float) -> int:

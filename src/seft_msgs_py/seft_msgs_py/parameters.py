@@ -172,6 +172,9 @@ SCHEMA: tuple[ParamSpec, ...] = (
               0.0, None, nodes=_RIG),
     ParamSpec('accelerometer_range_m_s2', 39.2, 'm/s^2', 'Accelerometer full scale (4 g); '
               'readings saturate there (0: unlimited).', 0.0, None, nodes=_RIG),
+    ParamSpec('recorder_window_steps', 1000, '', 'Lockstep flow control: the rig waits while '
+              'the recorder is more than this many steps behind (0: never waits); must stay '
+              'below the 2000-sample history of the data topics.', 0, 1900, nodes=_RIG),
     # -- recorder ---------------------------------------------------------------------------
     ParamSpec('bag_path', 'seft_bag', '', 'Directory of the rosbag2 bag to write (must not '
               'exist yet).', nodes=('recorder',)),

@@ -63,11 +63,15 @@ class RigNode(SeftNode):
         self.command_sub = self.create_subscription(
             self.command_topic.msg_type, self.command_topic.name,
             self.guard(self._on_command), self.command_topic.qos)
-        self.create_subscription(STATUS.msg_type, STATUS.name, self.guard(self._on_status),
-                                 STATUS.qos)
         self.pending = {}
+        self.window = int(p['recorder_window_steps'])
+        self.recorder_present = False
+        self.recorded = 0
+        self.waiting_for_recorder = False
         self.published = 0
         self.running = False
+        self.create_subscription(STATUS.msg_type, STATUS.name, self.guard(self._on_status),
+                                 STATUS.qos)
         self.start_timer = self.wall_timer(0.05, self._try_start)
         self.report(STATE_READY, 'waiting for the command publisher and the record length',
                     n_steps=self.n_steps)
@@ -86,13 +90,32 @@ class RigNode(SeftNode):
     def _on_status(self, msg) -> None:
         values = status_values(msg)
         state = values.get('state')
+        if msg.name == 'recorder':
+            self.recorder_present = True
+            if 'recorded' in values:
+                self.recorded = int(values['recorded'])
+                if self.waiting_for_recorder and self._recorder_keeps_up():
+                    self.waiting_for_recorder = False
+                    self._publish_step()
         if msg.name == 'ground_motion_publisher' and self.n_steps <= 0 and 'n_steps' in values:
             self.n_steps = int(values['n_steps'])
         if msg.name != self.seft_name and state in (STATE_ABORTED, STATE_FAILED):
             self._end(STATE_ABORTED, f'{msg.name}: {msg.message}')
 
+    def _recorder_keeps_up(self) -> bool:
+        return (not self.recorder_present or self.window <= 0
+                or self.rig.step - self.recorded < self.window)
+
     def _publish_step(self) -> None:
-        """Limit check, then clock and sensor readings of the current step."""
+        """Limit check, then clock and sensor readings of the current step.
+
+        In lockstep mode with a recorder, the rig holds the step until the recorder has
+        recorded all but ``recorder_window_steps`` of the past steps: the simulated test waits
+        rather than the bag losing samples.
+        """
+        if not self._recorder_keeps_up():
+            self.waiting_for_recorder = True
+            return
         reason = self.rig.limit_violation()
         if reason:
             self._end(STATE_ABORTED, reason)

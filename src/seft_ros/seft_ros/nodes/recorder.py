@@ -1,11 +1,15 @@
 """recorder node: every seft topic into a rosbag2 bag (rosbags), with the run's parameters.
 
-Subscribes to all topics of ``seft_msgs_py.topics.TOPICS`` as serialized bytes and writes
-them unchanged to ``bag_path`` (``bag_storage``: mcap by default; message definitions are
-stored, so ``ros2 bag``, Foxglove and PlotJuggler open it). The log time of a stamped
-message is its header stamp (the sample time); status messages take the latest sample time
-seen. At start it writes the run's resolved parameters as JSON on ``/seft/run_parameters``,
-so the bag alone is enough to analyse and reproduce the run.
+Subscribes to every topic of ``seft_msgs_py.topics.TOPICS`` except ``/clock`` (its value is
+the header stamp of every sample) as serialized bytes and writes them unchanged to
+``bag_path`` (``bag_storage``: mcap by default). Message definitions are stored, so
+``ros2 bag``, Foxglove and PlotJuggler open the bag. The log time of a stamped message is
+its header stamp (the sample time); status messages take the latest sample time seen. At
+start it writes the run's resolved parameters as JSON on ``/seft/run_parameters``, so the
+bag alone is enough to analyse and reproduce the run.
+
+Every ``ACK_EVERY`` steps it reports how many steps it has recorded; the rig waits for it
+(lockstep flow control), so no sample is ever dropped from a subscription queue.
 
 It ends by itself once the rig reported 'done' or 'aborted' and every node's final count of
 published samples has arrived (or after ``FLUSH_TIMEOUT_S``), closes the bag, reports
@@ -29,6 +33,7 @@ from seft_msgs_py.convert import (
     STATE_DONE,
     STATE_FAILED,
     STATE_READY,
+    STATE_RECORDING,
     parameters_json,
     status_values,
 )
@@ -52,11 +57,16 @@ __all__ = ['RecorderNode', 'main', 'FLUSH_TIMEOUT_S', 'TOPICS_OF_NODE']
 
 #: Longest wait for late samples after the rig finished [s].
 FLUSH_TIMEOUT_S = 10.0
+#: The recorder acknowledges the recorded steps every this many steps (lockstep flow control).
+ACK_EVERY = 50
+#: Recorded topics: every seft topic but /clock, whose value is every sample's header stamp.
+RECORDED = tuple(t for t in TOPICS if t is not CLOCK)
+_LOCKSTEP = (MEASURED_FORCE.name, DISPLACEMENT.name, VELOCITY.name, ACCELERATION.name,
+             REFERENCE_FORCE.name)
 
 #: The data topics each node publishes (its final status says how many samples).
 TOPICS_OF_NODE = {
-    'rig': (CLOCK.name, MEASURED_FORCE.name, DISPLACEMENT.name, VELOCITY.name,
-            ACCELERATION.name),
+    'rig': (MEASURED_FORCE.name, DISPLACEMENT.name, VELOCITY.name, ACCELERATION.name),
     'ground_motion_publisher': (GROUND_ACCELERATION.name,),
     'reference_force_builder': (REFERENCE_FORCE.name,),
     'force_servo_controller': (VALVE_COMMAND.name,),
@@ -88,8 +98,9 @@ class RecorderNode(SeftNode):
         self.writer.open()
         self.connections = {t.name: self.writer.add_connection(t.name, t.type_name,
                                                                typestore=self.typestore)
-                            for t in TOPICS}
-        self.counts = {t.name: 0 for t in TOPICS}
+                            for t in RECORDED}
+        self.counts = {t.name: 0 for t in RECORDED}
+        self.acked = 0
         self.latest_ns = 0
         params_msg = self.typestore.types['std_msgs/msg/String'](data=parameters_json(p))
         self._write(RUN_PARAMETERS.name, 0,
@@ -97,7 +108,7 @@ class RecorderNode(SeftNode):
         self.params_pub = self.create_publisher(String, RUN_PARAMETERS.name, RUN_PARAMETERS.qos)
         self.params_pub.publish(String(data=parameters_json(p)))
         stamped = {t.name for t in TOPICS if t not in (STATUS, RUN_PARAMETERS)}
-        for t in TOPICS:
+        for t in RECORDED:
             if t is RUN_PARAMETERS:
                 continue
             cb = self._on_stamped if t.name in stamped else self._on_unstamped
@@ -118,9 +129,13 @@ class RecorderNode(SeftNode):
 
     def _on_stamped(self, name: str, raw: bytes) -> None:
         stamp = _stamp_ns(raw)
-        if stamp > self.latest_ns and name == CLOCK.name:
+        if name == MEASURED_FORCE.name:
             self.latest_ns = stamp
         self._write(name, stamp, raw)
+        recorded = min(self.counts[n] for n in _LOCKSTEP)
+        if recorded >= self.acked + ACK_EVERY:
+            self.acked = recorded
+            self.report(STATE_RECORDING, recorded=recorded)
 
     def _on_unstamped(self, name: str, raw: bytes) -> None:
         self._write(name, self.latest_ns, raw)

@@ -1,0 +1,82 @@
+"""Run configuration files and command-line overrides (no rclpy).
+
+A configuration is a ROS 2 parameter file (``/**: ros__parameters: {...}``, the format of
+``--params-file``) or a plain mapping of the same parameters. For ``seft run`` and
+``seft simulate`` only, ``alpha`` may be a list: one run per value.
+"""
+
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from seft_msgs_py import parameters
+from seft_msgs_py.errors import InputError, ParameterError
+
+__all__ = ['load_config', 'expand_runs', 'write_params_file']
+
+
+def load_config(path) -> dict[str, Any]:
+    """Read a configuration file into ``{name: value}`` (not yet validated).
+
+    Raises
+    ------
+    InputError
+        Missing file, invalid YAML, or not a mapping of parameters.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f'{path}: no such configuration file')
+    try:
+        data = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, 'problem_mark', None)
+        where = f': line {mark.line + 1}' if mark is not None else ''
+        raise InputError(f'{path}{where}: invalid YAML ({getattr(exc, "problem", exc)})') \
+            from None
+    if data is None:
+        return {}
+    if not isinstance(data, dict):
+        raise InputError(f'{path}: expected a mapping of parameters')
+    if len(data) == 1:
+        (key, value), = data.items()
+        if isinstance(value, dict) and 'ros__parameters' in value:
+            data = value['ros__parameters']
+            if not isinstance(data, dict):
+                raise InputError(f'{path}: {key}.ros__parameters: expected a mapping')
+    data = {k: v for k, v in data.items() if k != 'use_sim_time'}
+    known = parameters.defaults()
+    for key in data:
+        if key not in known:
+            raise InputError(f'{path}: unknown parameter {key!r}')
+    return data
+
+
+def expand_runs(config: dict[str, Any], *, where: str = '') -> list[dict[str, Any]]:
+    """Validate a configuration and expand an ``alpha`` list into one parameter set per run.
+
+    Raises
+    ------
+    ParameterError
+        A value out of range (the message names the parameter and, if given, `where`).
+    """
+    alphas = config.get('alpha', parameters.spec('alpha').default)
+    if not isinstance(alphas, (list, tuple)):
+        alphas = [alphas]
+    if not alphas:
+        raise ParameterError(f'{where + ": " if where else ""}parameter alpha: expected at '
+                             'least one value')
+    runs = []
+    for alpha in alphas:
+        values = dict(config, alpha=alpha)
+        runs.append(parameters.resolve(values, where=where))
+    return runs
+
+
+def write_params_file(params: dict[str, Any], path) -> Path:
+    """Write `params` as a ROS 2 parameter file for every node (``/**``), sim time on."""
+    path = Path(path)
+    body = {'/**': {'ros__parameters': dict(params, use_sim_time=True)}}
+    path.write_text('# seft run parameters (ROS 2 --params-file format)\n'
+                    + yaml.safe_dump(body, sort_keys=True))
+    return path

@@ -1,0 +1,124 @@
+"""The ``seft`` command line: run, simulate, compare (thin verbs over ``seft_ros.cli.api``).
+
+Every :class:`SeftError` (bad file, bad parameter, failed node) is printed as one line
+``seft: error: ...`` with exit code 2; Ctrl-C stops the run safely with exit code 130.
+"""
+
+import argparse
+import sys
+import time
+
+import yaml
+
+from seft_msgs_py.errors import InputError, SeftError
+from seft_ros.cli import api
+
+__all__ = ['main', 'build_parser']
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):
+        self.print_usage(sys.stderr)
+        print(f'seft: error: {message}', file=sys.stderr)
+        sys.exit(2)
+
+
+def _set_value(text: str):
+    if '=' not in text:
+        raise argparse.ArgumentTypeError(f'--set {text!r}: expected NAME=VALUE')
+    name, value = text.split('=', 1)
+    try:
+        return name.strip(), yaml.safe_load(value)
+    except yaml.YAMLError:
+        raise argparse.ArgumentTypeError(f'--set {text!r}: VALUE is not a YAML scalar') \
+            from None
+
+
+def _experiment_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument('config', nargs='?', help='configuration YAML (ROS 2 parameter file; '
+                   'alpha may be a list)')
+    p.add_argument('--record', help="ground motion: 'default', a PEER .AT2 or a CSV path")
+    p.add_argument('--alpha', type=float, nargs='+', metavar='A', help='mass ratio(s)')
+    p.add_argument('--rig', dest='rig_model', choices=('delay', 'servohydraulic'),
+                   help='simulated rig model')
+    p.add_argument('--predictor', help="delay compensation ('none')")
+    p.add_argument('--amplitude', dest='amplitude_N', type=float, metavar='N',
+                   help="peak of m*xg'' [N] (0: use --scale)")
+    p.add_argument('--scale', dest='scale_factor', type=float, help='plain amplitude factor')
+    p.add_argument('--time-scale', dest='time_scale', type=float, help='record time scale')
+    p.add_argument('--duration', dest='duration_s', type=float, metavar='S',
+                   help='run length after time scaling [s] (0: whole record)')
+    p.add_argument('--set', dest='sets', type=_set_value, action='append', default=[],
+                   metavar='NAME=VALUE', help='any other parameter (repeatable)')
+    p.add_argument('--out', help='output directory (default runs/<name>/)')
+    p.add_argument('--name', help='run name (default: the config file name, or "run")')
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of ``seft``."""
+    parser = _Parser(prog='seft', description='Substructure effective force testing '
+                     '(force-based real-time hybrid simulation) on ROS 2.')
+    sub = parser.add_subparsers(dest='verb', required=True, parser_class=_Parser)
+    run = sub.add_parser('run', help='run experiments as a node graph over DDS (bag + report)')
+    _experiment_options(run)
+    run.add_argument('--domain-id', type=int, help='ROS_DOMAIN_ID of the run (default: '
+                     '$ROS_DOMAIN_ID, else a random one in 100-199)')
+    sim = sub.add_parser('simulate', help='the same experiments in one process, without ROS')
+    _experiment_options(sim)
+    cmp_ = sub.add_parser('compare', help='compare recorded bags against the analytical '
+                          'reference (figures, table, summary.json)')
+    cmp_.add_argument('bags', nargs='+', metavar='BAG')
+    cmp_.add_argument('--out', help='output directory (default runs/compare/)')
+    return parser
+
+
+def _progress(text: str) -> None:
+    print(f'[seft] {text}', file=sys.stderr, flush=True)
+
+
+def _experiments(args):
+    overrides = {k: getattr(args, k) for k in ('record', 'rig_model', 'predictor',
+                                               'amplitude_N', 'scale_factor', 'time_scale',
+                                               'duration_s')}
+    for name, value in args.sets:
+        if name == 'alpha':
+            raise InputError('--set alpha: use --alpha')
+        overrides[name] = value
+    runs = api.build_runs(config=args.config, overrides=overrides, alphas=args.alpha)
+    from pathlib import Path
+    name = args.name or (Path(args.config).stem if args.config else 'run')
+    return runs, api.output_dir(out=args.out, name=name), name
+
+
+def main(argv=None) -> int:
+    """Entry point of ``seft``; returns the exit code."""
+    args = build_parser().parse_args(argv)
+    t0 = time.monotonic()
+    try:
+        if args.verb == 'compare':
+            out = api.output_dir(out=args.out, name='compare')
+            result = api.compare_bags(bags=args.bags, out_dir=out)
+        else:
+            runs, out, name = _experiments(args)
+            _progress(f'{len(runs)} run(s) -> {out}')
+            if args.verb == 'run':
+                result = api.run_experiments(runs=runs, out_dir=out, progress=_progress,
+                                             title=f'seft run {name}', domain_id=args.domain_id)
+            else:
+                result = api.simulate_experiments(runs=runs, out_dir=out, progress=_progress,
+                                                  title=f'seft simulate {name}')
+    except SeftError as exc:
+        print(f'seft: error: {exc}', file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print('seft: interrupted; nodes stopped, bags closed', file=sys.stderr)
+        return 130
+    print(api.summary_table(result.summary))
+    print(f'report: {result.out_dir / "report.md"}')
+    print(f'summary: {result.out_dir / "summary.json"}')
+    print(f'took {time.monotonic() - t0:.1f} s')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,251 @@
+"""Start the node graph of one run as separate processes, watch it, shut it down cleanly.
+
+The runner is itself a small rclpy node (``seft_runner``) that only listens to
+``/seft/status`` for readiness, progress, the end of the run and abort reasons.
+
+Order: the recorder first (so that nothing is published before it listens), then the
+ground-motion publisher, the reference-force builder and the force servo controller (not
+for the 'delay' rig), and the rig last; the rig starts stepping once it has discovered its
+command publisher. The run is over when the recorder reports the bag 'closed'.
+"""
+
+from dataclasses import dataclass
+import os
+from pathlib import Path
+import signal
+import subprocess
+import sys
+import time
+from typing import Callable
+
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+
+from seft_msgs_py.convert import (
+    STATE_ABORTED,
+    STATE_CLOSED,
+    STATE_DONE,
+    STATE_FAILED,
+    STATE_READY,
+    STATE_RUNNING,
+    status_values,
+)
+from seft_msgs_py.errors import SeftError
+from seft_msgs_py.topics import STATUS
+from seft_ros.cli.config import write_params_file
+
+__all__ = ['NODE_MODULES', 'RunOutcome', 'GraphRunner', 'node_command']
+
+#: Executable module of each node (``ros2 run <package> <node>`` on a full ROS install).
+NODE_MODULES = {
+    'recorder': 'seft_ros.nodes.recorder',
+    'ground_motion_publisher': 'seft_ros.nodes.ground_motion_publisher',
+    'reference_force_builder': 'seft_ros.nodes.reference_force_builder',
+    'force_servo_controller': 'seft_ros.nodes.force_servo_controller',
+    'rig': 'seft_plant_sim.rig_node',
+}
+
+#: Longest wait for the nodes to report ready [s].
+STARTUP_TIMEOUT_S = 60.0
+#: Longest time without any progress report before the run is declared stalled [s].
+STALL_TIMEOUT_S = 30.0
+
+
+def node_command(node: str, params_file) -> list[str]:
+    """The command line that starts `node` with a parameter file."""
+    return [sys.executable, '-m', NODE_MODULES[node], '--ros-args', '--params-file',
+            str(params_file)]
+
+
+@dataclass
+class RunOutcome:
+    """What one graph run left behind."""
+
+    bag_path: Path
+    run_dir: Path
+    wall_time_s: float
+    rig_state: str
+    message: str
+
+
+class GraphRunner:
+    """Runs experiments as node graphs, one after the other, in one ROS domain.
+
+    Parameters
+    ----------
+    domain_id : int
+        ROS_DOMAIN_ID of the nodes and of the runner.
+    progress : callable(text), optional
+        Receives progress lines.
+    """
+
+    def __init__(self, domain_id: int, progress: Callable[[str], None] | None = None):
+        self.domain_id = domain_id
+        self.progress = progress or (lambda text: None)
+        self.env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id))
+        self.env.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+        self.env.setdefault('PYTHONUNBUFFERED', '1')
+        os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE',
+                              self.env['ROS_AUTOMATIC_DISCOVERY_RANGE'])
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context, domain_id=domain_id)
+        self.node = Node('seft_runner', context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.statuses = []
+        self.node.create_subscription(STATUS.msg_type, STATUS.name, self._on_status, STATUS.qos)
+
+    def close(self) -> None:
+        """Shut the runner's ROS context down."""
+        self.executor.shutdown()
+        self.node.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+
+    def _on_status(self, msg) -> None:
+        values = status_values(msg)
+        values.update(name=msg.name, message=msg.message, received=time.monotonic())
+        self.statuses.append(values)
+
+    def _spin(self, seconds: float) -> None:
+        deadline = time.monotonic() + seconds
+        while True:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                return
+            self.executor.spin_once(timeout_sec=min(left, 0.05))
+
+    def _latest(self, name: str, states=None):
+        for s in reversed(self.statuses):
+            if s['name'] == name and (states is None or s.get('state') in states):
+                return s
+        return None
+
+    def run(self, params: dict, run_dir, *, label: str = '') -> RunOutcome:
+        """Run one experiment; return where its bag is.
+
+        Raises
+        ------
+        SeftError
+            A node failed (its last error line is in the message), the graph did not start
+            or stalled.
+        KeyboardInterrupt
+            After the nodes were stopped and the bag closed.
+        """
+        run_dir = Path(run_dir)
+        log_dir = run_dir / 'logs'
+        log_dir.mkdir(parents=True, exist_ok=True)
+        bag_path = run_dir / 'bag'
+        params = dict(params, bag_path=str(bag_path.resolve()))
+        params_file = write_params_file(params, run_dir / 'params.yaml')
+        nodes = ['recorder', 'ground_motion_publisher', 'reference_force_builder']
+        if params['rig_model'] == 'servohydraulic':
+            nodes.append('force_servo_controller')
+        nodes.append('rig')
+        env = dict(self.env, ROS_LOG_DIR=str(log_dir / 'ros'))
+        self.statuses.clear()
+        procs: dict[str, subprocess.Popen] = {}
+        logs = {}
+        start = time.monotonic()
+
+        def launch(name):
+            logs[name] = open(log_dir / f'{name}.log', 'w')
+            procs[name] = subprocess.Popen(node_command(name, params_file), env=env,
+                                           stdout=logs[name], stderr=subprocess.STDOUT)
+
+        try:
+            launch('recorder')
+            self._wait_ready(['recorder'], procs, log_dir)
+            for name in nodes[1:-1]:
+                launch(name)
+            self._wait_ready(nodes[1:-1], procs, log_dir)
+            launch('rig')
+            self.progress(f'{label}graph up in {time.monotonic() - start:.1f} s '
+                          f'(ROS_DOMAIN_ID={self.domain_id}); running')
+            rig_final = self._watch(procs, log_dir, label)
+            return RunOutcome(bag_path, run_dir, time.monotonic() - start,
+                              rig_final.get('state', ''), rig_final.get('message', ''))
+        finally:
+            self._stop(procs)
+            for f in logs.values():
+                f.close()
+
+    def _check_procs(self, procs, log_dir) -> None:
+        for name, proc in procs.items():
+            code = proc.poll()
+            if code is not None and code != 0:
+                raise SeftError(f'node {name} exited with code {code}: '
+                                f'{_last_line(log_dir / f"{name}.log")} '
+                                f'(log: {log_dir / f"{name}.log"})')
+
+    def _wait_ready(self, names, procs, log_dir) -> None:
+        deadline = time.monotonic() + STARTUP_TIMEOUT_S
+        while not all(self._latest(n, (STATE_READY, STATE_RUNNING)) for n in names):
+            self._check_procs(procs, log_dir)
+            for n in names:
+                if procs[n].poll() == 0 and not self._latest(n):
+                    raise SeftError(f'node {n} exited before it was ready: '
+                                    f'{_last_line(log_dir / f"{n}.log")}')
+            if time.monotonic() > deadline:
+                missing = [n for n in names if not self._latest(n, (STATE_READY,))]
+                raise SeftError(f'nodes not ready after {STARTUP_TIMEOUT_S:.0f} s: '
+                                + ', '.join(missing))
+            self._spin(0.05)
+
+    def _watch(self, procs, log_dir, label) -> dict:
+        last_progress = time.monotonic()
+        last_print = 0.0
+        seen = 0
+        t0 = time.monotonic()
+        while True:
+            self._spin(0.1)
+            self._check_procs(procs, log_dir)
+            new = self.statuses[seen:]
+            seen = len(self.statuses)
+            for s in new:
+                last_progress = time.monotonic()
+                if s.get('state') in (STATE_ABORTED, STATE_FAILED):
+                    self.progress(f'{label}{s["name"]}: {s.get("state")}: {s["message"]}')
+            rig = self._latest('rig')
+            now = time.monotonic()
+            if rig and rig.get('state') == STATE_RUNNING and now - last_print > 2.0:
+                last_print = now
+                step, n = int(rig.get('step', 0)), int(rig.get('n_steps', 0) or 1)
+                sim_t = float(rig.get('time_s', 0.0))
+                speed = sim_t / max(now - t0, 1e-9)
+                self.progress(f'{label}step {step}/{n} ({100 * step / n:.0f} %), '
+                              f't = {sim_t:.2f} s sim, {speed:.2f}x real time')
+            if self._latest('recorder', (STATE_CLOSED,)):
+                final = self._latest('rig', (STATE_DONE, STATE_ABORTED, STATE_FAILED))
+                return final or {}
+            if procs['recorder'].poll() is not None:
+                raise SeftError('the recorder exited before closing the bag: '
+                                f'{_last_line(log_dir / "recorder.log")}')
+            if now - last_progress > STALL_TIMEOUT_S:
+                raise SeftError(f'the run stalled: no report for {STALL_TIMEOUT_S:.0f} s '
+                                f'(logs in {log_dir})')
+
+    def _stop(self, procs) -> None:
+        """Let finished nodes exit; SIGINT the rest (the recorder closes its bag), then kill."""
+        deadline = time.monotonic() + 5.0
+        while time.monotonic() < deadline and any(p.poll() is None for p in procs.values()):
+            self._spin(0.05)
+        for sig, wait in ((signal.SIGINT, 10.0), (signal.SIGTERM, 5.0), (signal.SIGKILL, 5.0)):
+            alive = [p for p in procs.values() if p.poll() is None]
+            if not alive:
+                return
+            for p in alive:
+                p.send_signal(sig)
+            deadline = time.monotonic() + wait
+            while time.monotonic() < deadline and any(p.poll() is None for p in alive):
+                time.sleep(0.05)
+
+
+def _last_line(path: Path) -> str:
+    """The last non-empty line of a log file ('' if none)."""
+    try:
+        lines = [ln.strip() for ln in path.read_text(errors='replace').splitlines()]
+    except OSError:
+        return ''
+    lines = [ln for ln in lines if ln]
+    return lines[-1] if lines else ''
