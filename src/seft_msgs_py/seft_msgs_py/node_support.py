@@ -83,8 +83,10 @@ class SeftNode(Node):
         for spec in parameters.specs_for_node(node_name):
             try:
                 p = self.declare_parameter(spec.name, spec.default, descriptor_of(spec))
-            except Exception as exc:  # rclpy raises several types for a bad override
-                raise ParameterError(f'parameter {spec.name}: {exc}; expected '
+            except Exception:  # rclpy raises several types for a bad override
+                given = getattr(self, '_parameter_overrides', {}).get(spec.name)
+                shown = f'={given.value!r}' if given is not None else ''
+                raise ParameterError(f'parameter {spec.name}{shown}: expected '
                                      f'{spec.expected()}') from None
             values[spec.name] = parameters.validate_value(spec.name, p.value)
         return values

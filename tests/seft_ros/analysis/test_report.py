@@ -33,7 +33,7 @@ def runs():
     for alpha, vibration, n_run in ((0.0, 0.0, n), (0.5, 0.2, n), (1.5, 0.0, 3000)):
         params = {'alpha': alpha, 'dt': DT, 'mass_kg': M, 'damping_N_s_per_m': C,
                   'stiffness_N_per_m': K, 'rig_model': 'servohydraulic', 'predictor': 'none',
-                  'record': 'default', 'tau_s': 0.01}
+                  'record': 'default', 'tau_s': 0.01, 'io_latency_s': 0.003}
         ref = reference_response(alpha=alpha, mass_kg=M, damping_N_s_per_m=C,
                                  stiffness_N_per_m=K, dt=DT, ground_acceleration_m_s2=ag)
 
@@ -85,7 +85,7 @@ def test_write_report(runs, tmp_path):
     assert '| signal | peak test | peak ref | peak ratio | lag [ms] | NRMS [%] |' in md
     assert '**aborted at t = 6.000 s**: stroke limit exceeded' in md
     assert md.count('**stable**') == 2
-    assert 'tau = 10 ms' in md and 'dt = 2 ms' in md
+    assert 'I/O latency = 3 ms' in md and 'dt = 2 ms' in md  # servohydraulic: no tau
     assert '(time_histories.png)' in md and '(time_histories_zoom.png)' in md
     # The displacement row of the alpha = 0 run: 10 ms lag, NRMS 0.00 %.
     row = next(line for line in md.splitlines() if line.startswith('| displacement'))

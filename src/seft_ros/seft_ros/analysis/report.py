@@ -266,8 +266,11 @@ def _run_markdown(index: int, run: RunData, comparison: RunComparison) -> list[s
         '',
         f"- alpha = {_param(run, 'alpha')}, rig = {params.get('rig_model', 'n/a')}, "
         f"predictor = {params.get('predictor', 'n/a')}, record = {record or 'n/a'}",
-        f"- dt = {_param(run, 'dt', 1e3, ' ms')}, tau = {_param(run, 'tau_s', 1e3, ' ms')}, "
-        f'{run.n_steps} samples' + (f', source {run.source}' if run.source else ''),
+        f"- dt = {_param(run, 'dt', 1e3, ' ms')}, " + (
+            f"tau = {_param(run, 'tau_s', 1e3, ' ms')}, "
+            if run.params.get('rig_model') == 'delay' else
+            f"I/O latency = {_param(run, 'io_latency_s', 1e3, ' ms')}, ")
+        + f'{run.n_steps} samples' + (f', source {run.source}' if run.source else ''),
     ]
     if run.stable:
         lines.append('- **stable**')

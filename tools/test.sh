@@ -1,0 +1,8 @@
+#!/usr/bin/env bash
+# Set up (idempotent), lint as ROS does (ament_flake8 rules via ruff), run the test suite.
+set -euo pipefail
+root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+bash "$root/tools/setup.sh"
+cd "$root"
+.venv/bin/ruff check src tests benchmarks
+exec .venv/bin/python -m pytest tests -q -p no:cacheprovider "$@"
