@@ -118,6 +118,16 @@ SCHEMA: tuple[ParamSpec, ...] = (
     ParamSpec('predictor', 'none', '', 'Delay compensation of the fed-back acceleration '
               "('none': measured acceleration of the previous step, paper Eq. 5.3).",
               choices=('none',), nodes=_RFB + ('recorder',)),
+    ParamSpec('monitor_cutoff_hz', 25.0, 'Hz', 'Online instability monitor: band split of '
+              'the measured force (the unstable mode lies above it, the response below).',
+              0.0, None, True, nodes=_RFB),
+    ParamSpec('monitor_window_s', 0.2, 's', "Time constant of the monitor's running RMS.",
+              0.0, 10.0, True, nodes=_RFB),
+    ParamSpec('monitor_threshold', 1.0, '', 'The run is aborted when the high-band RMS exceeds '
+              'this times (low-band RMS + 5 % of the ground-motion force + monitor_floor_N); 0 '
+              'disables.', 0.0, 100.0, nodes=_RFB),
+    ParamSpec('monitor_floor_N', 50.0, 'N', "Absolute floor of the monitor's comparison "
+              '(keeps sensor noise from tripping it).', 0.0, None, nodes=_RFB),
     # -- force servo controller -------------------------------------------------------------
     ParamSpec('valve_limit_V', 10.0, 'V', 'Saturation of the servo-valve command.', 0.0, 100.0,
               True, nodes=_CTRL),

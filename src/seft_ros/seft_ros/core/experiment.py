@@ -8,7 +8,8 @@ One step k (the node that does it in the graph in brackets)::
     [rig]                     stop if rig.limit_violation(); m_k = rig.measure()
     [force_servo_controller]  u_k = C_f(f_r[k] - f_m[k]); stop if the interlock trips
     [rig]                     rig.apply(u_k)            (delay rig: rig.apply(f_r[k]))
-    [reference_force_builder] f_r[k+1] = -(1+alpha) m xg''[k+1] - alpha m a_hat(m_k, ...)
+    [reference_force_builder] stop if the instability monitor trips on m_k (k+1 < N);
+                              f_r[k+1] = -(1+alpha) m xg''[k+1] - alpha m a_hat(m_k, ...)
 
 ``f_r[0]`` is built from ``xg''[0]`` with the specimen at rest.
 """
@@ -26,6 +27,7 @@ from seft_plant_sim.rigs import make_rig
 from seft_ros.analysis.rundata import RunData
 from seft_ros.core.controller import ForceServoController, SaturationInterlock
 from seft_ros.core.ground_motion import GroundMotion, load_record, prepare
+from seft_ros.core.monitor import InstabilityMonitor
 from seft_ros.core.reference_force import ReferenceForceBuilder
 
 __all__ = ['prepared_record', 'simulate', 'StepRecord']
@@ -99,6 +101,7 @@ def simulate(params, *, progress: Callable[[int, int], None] | None = None,
     valve = rig.command_kind == COMMAND_VALVE
     ctrl = ForceServoController.from_parameters(params) if valve else None
     interlock = SaturationInterlock.from_parameters(params) if valve else None
+    monitor = InstabilityMonitor.from_parameters(params)
     rec = StepRecord(*(np.full(n_total, np.nan) for _ in range(6)))
     reason = None
     n_done = n_total
@@ -123,6 +126,10 @@ def simulate(params, *, progress: Callable[[int, int], None] | None = None,
                                         meas.acceleration_m_s2)
         rig.apply(u)
         if k + 1 < n_total:
+            reason = monitor.update(meas.force_N, builder.last_ground_force_N, meas.time_s)
+            if reason:
+                n_done = k + 1
+                break
             fr = builder.step(float(ag[k + 1]), meas)
         if progress is not None and time.monotonic() - t_last > 0.5:
             t_last = time.monotonic()

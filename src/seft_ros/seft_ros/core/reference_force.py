@@ -100,6 +100,7 @@ class ReferenceForceBuilder:
         self.mass_kg = float(mass_kg)
         self.predictor = predictor
         self.commanded_N: list[float] = []
+        self.last_ground_force_N = 0.0
 
     @classmethod
     def from_parameters(cls, params) -> 'ReferenceForceBuilder':
@@ -110,6 +111,7 @@ class ReferenceForceBuilder:
         """Return ``f_r[k]`` [N] from ``xg''[k]`` and the measurement of step k-1."""
         a_hat = self.predictor.predict(latest, self.commanded_N)
         m, alpha = self.mass_kg, self.alpha
-        force = -(1.0 + alpha) * m * ground_acceleration_m_s2 - alpha * m * a_hat
+        self.last_ground_force_N = -(1.0 + alpha) * m * ground_acceleration_m_s2
+        force = self.last_ground_force_N - alpha * m * a_hat
         self.commanded_N.append(force)
         return force

@@ -4,7 +4,10 @@ Subscribes to the ground acceleration and to the rig's sensor topics; when the m
 of step k is complete and ``xg''[k+1]`` has arrived it publishes ``f_r[k+1]`` stamped
 ``t_k+1`` (``f_r[0]`` as soon as ``xg''[0]`` arrives, the specimen at rest). ``a_hat`` comes
 from the ``predictor`` (``none``: the measured acceleration of the previous step, paper
-Eq. 5.3). The numerics are ``seft_ros.core.reference_force``.
+Eq. 5.3). Before each new reference force, the online instability monitor
+(``seft_ros.core.monitor``) checks the measurement for a growing high-frequency oscillation;
+when it trips, the builder reports 'aborted' instead and the rig stops. The numerics are
+``seft_ros.core.reference_force``.
 
 Run by hand: ``ros2 run seft_ros reference_force_builder --ros-args --params-file ...``.
 """
@@ -34,6 +37,7 @@ from seft_msgs_py.topics import (
     VELOCITY,
 )
 from seft_plant_sim.interface import Measurement
+from seft_ros.core.monitor import InstabilityMonitor
 from seft_ros.core.reference_force import ReferenceForceBuilder
 
 __all__ = ['ReferenceForceBuilderNode', 'main']
@@ -48,6 +52,7 @@ class ReferenceForceBuilderNode(SeftNode):
         super().__init__('reference_force_builder')
         p = self.params
         self.builder = ReferenceForceBuilder.from_parameters(p)
+        self.monitor = InstabilityMonitor.from_parameters(p)
         self.dt = float(p['dt'])
         self.dt_ns = dt_to_ns(self.dt)
         self.ground = {}
@@ -90,6 +95,13 @@ class ReferenceForceBuilderNode(SeftNode):
                 latest = None
             elif k - 1 in self.measurements:
                 latest = self.measurements.pop(k - 1)
+                reason = self.monitor.update(latest.force_N, self.builder.last_ground_force_N,
+                                             latest.time_s)
+                if reason:
+                    self.get_logger().error(reason)
+                    self.report(STATE_ABORTED, reason, step=k, time_s=f'{k * self.dt:.6f}')
+                    self.finish(0)
+                    return
             else:
                 return
             force = self.builder.step(self.ground.pop(k), latest)

@@ -1,0 +1,76 @@
+"""Fixtures shared by the tests: an isolated ROS environment, the ``seft`` executable and the
+reference rig's parameters.
+
+Test modules have unique basenames: pytest's default ``prepend`` import mode cannot hold two
+``test_x.py`` from different folders without ``__init__.py`` files.
+"""
+
+import os
+from pathlib import Path
+import signal
+import subprocess
+import sys
+
+import pytest
+
+from seft_msgs_py import parameters
+
+#: ROS_DOMAIN_ID of this test session: outside 100-199, where ``seft run`` picks a random
+#: domain when none is set (a run of another session there would mix into ours), derived from
+#: the pid so that parallel sessions on one machine rarely share it.
+DOMAIN_ID = 200 + os.getpid() % 30
+
+
+@pytest.fixture(scope='session')
+def ros_env(tmp_path_factory):
+    """Environment of the processes a test starts: own domain, localhost only, logs in tmp."""
+    log_dir = tmp_path_factory.mktemp('ros_log')
+    env = dict(os.environ)
+    env.update(ROS_DOMAIN_ID=str(DOMAIN_ID), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
+               ROS_LOG_DIR=str(log_dir), PYTHONUNBUFFERED='1')
+    env.pop('ROS_STATIC_PEERS', None)
+    return env
+
+
+@pytest.fixture(scope='session')
+def seft_exe():
+    """The ``seft`` console script of the interpreter running the tests."""
+    path = Path(sys.executable).parent / 'seft'
+    assert path.is_file(), f'{path}: seft is not installed in this environment'
+    return path
+
+
+@pytest.fixture(scope='session')
+def run_process(ros_env):
+    """Run a command in its own session; on timeout stop its whole process group, then fail.
+
+    Returns a callable ``(argv, *, cwd, timeout=60) -> CompletedProcess`` (text output).
+    """
+    def run(argv, *, cwd, timeout=60.0, env=None):
+        proc = subprocess.Popen([str(a) for a in argv], cwd=cwd, env=env or ros_env,
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                start_new_session=True)
+        try:
+            out, err = proc.communicate(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            for sig, wait in ((signal.SIGINT, 10.0), (signal.SIGKILL, 5.0)):
+                try:
+                    os.killpg(proc.pid, sig)
+                except ProcessLookupError:
+                    break
+                try:
+                    out, err = proc.communicate(timeout=wait)
+                    break
+                except subprocess.TimeoutExpired:
+                    continue
+            pytest.fail(f'{argv} did not finish within {timeout} s')
+        return subprocess.CompletedProcess(argv, proc.returncode, out, err)
+    return run
+
+
+@pytest.fixture(scope='session')
+def reference_params():
+    """The reference rig (Nakata and Combs Sec. 3.1): the schema defaults, resolved."""
+    p = parameters.resolve()
+    assert p['mass_kg'] == 52.7 and p['stiffness_N_per_m'] == 2.11e5 and p['dt'] == 0.002
+    return p

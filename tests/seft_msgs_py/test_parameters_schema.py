@@ -1,0 +1,278 @@
+"""Tests of the parameter schema, the message conversions and the step synchronizer."""
+
+from dataclasses import fields
+import json
+import math
+import re
+
+from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticStatus
+import pytest
+
+from seft_msgs_py import parameters
+from seft_msgs_py.convert import (
+    STATE_ABORTED,
+    STATE_DONE,
+    STATE_FAILED,
+    STATE_READY,
+    clock_msg,
+    dt_to_ns,
+    ns_to_stamp,
+    parameters_json,
+    scalar_msg,
+    scalar_value,
+    stamp_to_ns,
+    status_msg,
+    status_values,
+    step_of,
+)
+from seft_msgs_py.errors import InputError, ParameterError, RigLimitError, SeftError
+from seft_msgs_py.parameters import SCHEMA, resolve, spec, specs_for_node, validate_value
+from seft_msgs_py.sync import StepSync
+from seft_msgs_py.topics import (
+    CLOCK,
+    FRAME_ID,
+    MEASUREMENT_TOPICS,
+    RUN_PARAMETERS,
+    STATUS,
+    TOPICS,
+    topic,
+)
+from seft_plant_sim.servohydraulic import ServoHydraulicParams
+
+#: Topics that carry one stamped scalar (every topic but /clock, status and parameters).
+SCALAR_TOPICS = [t for t in TOPICS if t not in (CLOCK, STATUS, RUN_PARAMETERS)]
+
+
+def bad(text):
+    """``pytest.raises(ParameterError)`` for exactly this message."""
+    return pytest.raises(ParameterError, match='^' + re.escape(text) + '$')
+
+
+# -- validate_value / resolve ----------------------------------------------------------------
+
+@pytest.mark.parametrize('name, value, message', [
+    # float: range, exclusive minimum, maximum
+    ('alpha', -1, 'parameter alpha=-1: expected float >= 0 <= 100'),
+    ('alpha', 100.5, 'parameter alpha=100.5: expected float >= 0 <= 100'),
+    ('dt', 1e-5, 'parameter dt=1e-05: expected float > 1e-05 <= 1'),
+    ('dt', 0, 'parameter dt=0: expected float > 1e-05 <= 1'),
+    ('mass_kg', 0.0, 'parameter mass_kg=0.0: expected float > 0'),
+    ('saturation_abort_fraction', 0.0,
+     'parameter saturation_abort_fraction=0.0: expected float > 0 <= 1'),
+    # wrong types: bool and text are not numbers
+    ('alpha', True, 'parameter alpha=True: expected float >= 0 <= 100'),
+    ('alpha', '1', "parameter alpha='1': expected float >= 0 <= 100"),
+    ('alpha', None, 'parameter alpha=None: expected float >= 0 <= 100'),
+    ('noise_seed', False, 'parameter noise_seed=False: expected int >= 0'),
+    # non-finite
+    ('mass_kg', math.inf, 'parameter mass_kg=inf: expected float > 0'),
+    ('alpha', math.nan, 'parameter alpha=nan: expected float >= 0 <= 100'),
+    ('amplitude_N', -math.inf, 'parameter amplitude_N=-inf: expected float >= 0'),
+    # int: no fraction, range
+    ('n_steps', 3.5, 'parameter n_steps=3.5: expected int >= 0'),
+    ('n_steps', -1, 'parameter n_steps=-1: expected int >= 0'),
+    ('n_steps', math.inf, 'parameter n_steps=inf: expected int >= 0'),
+    ('preview_steps', 0, 'parameter preview_steps=0: expected int >= 1 <= 100000'),
+    ('recorder_window_steps', 1901,
+     'parameter recorder_window_steps=1901: expected int >= 0 <= 1900'),
+    # text: choices (case matters), type, non-empty
+    ('rig_model', 'foo', "parameter rig_model='foo': expected one of 'delay', 'servohydraulic'"),
+    ('bag_storage', 'MCAP', "parameter bag_storage='MCAP': expected one of 'mcap', 'sqlite3'"),
+    ('predictor', 'smith', "parameter predictor='smith': expected one of 'none'"),
+    ('record', 5, 'parameter record=5: expected str'),
+    ('record', '', 'parameter record: expected a non-empty text'),
+])
+def test_validate_value_errors(name, value, message):
+    with bad(message):
+        validate_value(name, value)
+
+
+def test_validate_value_where_prefix():
+    with bad('run.yaml: parameter tau_s=0: expected float > 0 <= 1'):
+        validate_value('tau_s', 0, where='run.yaml')
+
+
+def test_unknown_parameter():
+    with bad("unknown parameter 'alpah'"):
+        validate_value('alpah', 1.0)
+    with bad("unknown parameter 'alpah'"):
+        spec('alpah')
+    with bad("unknown parameter 'foo'"):
+        resolve({'foo': 1})
+
+
+@pytest.mark.parametrize('name, value, expected', [
+    ('alpha', 1, 1.0),                 # int accepted for a float, returned as float
+    ('dt', 1, 1.0),                    # the maximum is inclusive
+    ('dt', 1.0000001e-5, 1.0000001e-5),
+    ('alpha', 0, 0.0),                 # the minimum is inclusive unless exclusive
+    ('n_steps', 3.0, 3),               # an integral float for an int, returned as int
+    ('n_steps', 0, 0),
+    ('rig_model', 'delay', 'delay'),
+    ('record', 'some/file.AT2', 'some/file.AT2'),
+])
+def test_validate_value_accepts_and_coerces(name, value, expected):
+    got = validate_value(name, value)
+    assert got == expected and type(got) is type(expected)
+
+
+def test_every_default_validates_to_itself():
+    assert len({s.name for s in SCHEMA}) == len(SCHEMA)
+    for s in SCHEMA:
+        got = validate_value(s.name, s.default)
+        assert got == s.default and type(got) is type(s.default), s.name
+        assert s.type_name in ('int', 'float', 'str'), s.name
+        assert set(s.nodes) <= set(parameters.NODES), s.name
+        assert s.description and s.description[-1] == '.', s.name
+
+
+def test_resolve_merges_in_order_and_stops_at_the_first_bad_value():
+    p = resolve({'alpha': 1, 'rig_model': 'delay'})
+    assert p == dict(parameters.defaults(), alpha=1.0, rig_model='delay')
+    assert type(p['alpha']) is float
+    assert resolve([('alpha', 2), ('alpha', 3)])['alpha'] == 3.0
+    assert resolve() == parameters.defaults()
+    with bad('cfg: parameter mass_kg=-1: expected float > 0'):
+        resolve([('alpha', 1), ('mass_kg', -1), ('dt', 0)], where='cfg')
+
+
+def test_specs_for_node():
+    assert specs_for_node('recorder') == list(SCHEMA)
+    ctrl = [s.name for s in specs_for_node('force_servo_controller')]
+    assert {'dt', 'valve_limit_V', 'saturation_window_s', 'saturation_abort_fraction',
+            'rig_model'} <= set(ctrl)
+    assert 'piston_area_m2' not in ctrl
+    assert 'piston_area_m2' in [s.name for s in specs_for_node('rig')]
+    assert specs_for_node('nobody') == []
+
+
+def test_servohydraulic_defaults_equal_the_schema():
+    names = [f.name for f in fields(ServoHydraulicParams)]
+    assert len(names) == 10
+    defaults = ServoHydraulicParams()
+    for name in names:
+        assert getattr(defaults, name) == spec(name).default, name
+        assert 'rig' in spec(name).nodes, name
+
+
+def test_error_types():
+    for cls in (InputError, ParameterError, RigLimitError):
+        assert issubclass(cls, SeftError)
+    assert issubclass(SeftError, Exception)
+
+
+# -- convert ---------------------------------------------------------------------------------
+
+@pytest.mark.parametrize('ns, sec, nanosec', [
+    (0, 0, 0),
+    (1, 0, 1),
+    (999_999_999, 0, 999_999_999),
+    (1_000_000_000, 1, 0),
+    (1_234_567_890_123, 1234, 567_890_123),
+    (2_147_483_647_999_999_999, 2_147_483_647, 999_999_999),   # the largest int32 second
+])
+def test_stamp_round_trip(ns, sec, nanosec):
+    stamp = ns_to_stamp(ns)
+    assert isinstance(stamp, Time)
+    assert (stamp.sec, stamp.nanosec) == (sec, nanosec)
+    assert stamp_to_ns(stamp) == ns
+
+
+def test_dt_to_ns_and_step_of():
+    assert dt_to_ns(0.002) == 2_000_000
+    assert dt_to_ns(1e-5) == 10_000
+    assert dt_to_ns(0.001 * 3) == 3_000_000        # 0.003000...0004 rounds to whole ns
+    dt_ns = 2_000_000
+    for k in (0, 1, 499, 500, 123_456):
+        assert step_of(ns_to_stamp(k * dt_ns), dt_ns) == k
+        # a stamp off by less than half a period still names its step
+        assert step_of(ns_to_stamp(k * dt_ns + 999_999), dt_ns) == k
+        assert step_of(ns_to_stamp(max(k * dt_ns - 999_999, 0)), dt_ns) == k
+    # anything with sec/nanosec works (rosbags' deserialized stamps)
+    assert step_of(type('S', (), {'sec': 3, 'nanosec': 2_000_000})(), dt_ns) == 1501
+
+
+@pytest.mark.parametrize('spec_', SCALAR_TOPICS, ids=lambda t: t.name)
+def test_scalar_msg_round_trip(spec_):
+    value = -1234.5678e-3
+    msg = scalar_msg(spec_, 7 * 2_000_000, value)
+    assert type(msg) is spec_.msg_type
+    assert msg.header.frame_id == FRAME_ID == 'actuator'
+    assert stamp_to_ns(msg.header.stamp) == 14_000_000
+    assert scalar_value(spec_, msg) == value
+    # the value sits where the topic table says, read independently of scalar_value
+    obj = msg
+    for part in spec_.field.split('.'):
+        obj = getattr(obj, part)
+    assert obj == value
+    pkg, kind, name = spec_.type_name.split('/')
+    assert kind == 'msg' and type(msg).__name__ == name
+    assert type(msg).__module__.startswith(f'{pkg}.msg.')
+    assert topic(spec_.name) is spec_
+
+
+def test_topic_table():
+    assert [t.name for t in SCALAR_TOPICS] == [
+        '/seft/ground_acceleration', '/seft/reference_force', '/seft/valve_command',
+        '/seft/measured_force', '/seft/displacement', '/seft/velocity', '/seft/acceleration']
+    assert [t.field for t in SCALAR_TOPICS] == [
+        'accel.linear.x', 'wrench.force.x', 'vector.x', 'wrench.force.x', 'point.x',
+        'twist.linear.x', 'accel.linear.x']
+    assert [t.name for t in MEASUREMENT_TOPICS] == [
+        '/seft/measured_force', '/seft/displacement', '/seft/velocity', '/seft/acceleration']
+    with pytest.raises(KeyError, match='/seft/nothing'):
+        topic('/seft/nothing')
+
+
+def test_bag_reader_reads_the_fields_of_the_topic_table():
+    from seft_ros.analysis import bag
+    assert {t.name: t.field for t in SCALAR_TOPICS} == {
+        k: v for k, v in bag._SCALARS.items() if k != '/clock'}
+
+
+def test_clock_msg():
+    msg = clock_msg(3_002_000_000)
+    assert type(msg) is CLOCK.msg_type
+    assert (msg.clock.sec, msg.clock.nanosec) == (3, 2_000_000)
+
+
+def test_status_msg_and_values():
+    msg = status_msg('rig', STATE_DONE, 'completed 500 steps', step=500, time_s='1.000000')
+    assert type(msg) is STATUS.msg_type
+    assert (msg.name, msg.message, msg.hardware_id) == ('rig', 'completed 500 steps', 'seft')
+    assert msg.level == DiagnosticStatus.OK
+    assert [kv.key for kv in msg.values] == ['state', 'step', 'time_s']
+    assert status_values(msg) == {'state': 'done', 'step': '500', 'time_s': '1.000000'}
+    for state in (STATE_ABORTED, STATE_FAILED):
+        assert status_msg('x', state).level == DiagnosticStatus.ERROR
+    assert status_msg('x', STATE_READY).level == DiagnosticStatus.OK
+    assert status_msg('x', STATE_READY, level=DiagnosticStatus.WARN).level == \
+        DiagnosticStatus.WARN
+    assert status_values(status_msg('x', STATE_READY)) == {'state': 'ready'}
+
+
+def test_parameters_json_is_canonical():
+    p = resolve({'alpha': 0.5})
+    text = parameters_json(p)
+    assert json.loads(text) == p
+    keys = list(json.loads(text))
+    assert keys == sorted(keys)
+    assert parameters_json(dict(reversed(list(p.items())))) == text
+
+
+# -- StepSync --------------------------------------------------------------------------------
+
+def test_step_sync():
+    sync = StepSync(iter(['a', 'b', 'c']))
+    assert sync.names == ('a', 'b', 'c')
+    assert sync.add(1, 'a', 1.0) is None
+    assert sync.add(0, 'b', 2.0) is None          # steps are collected independently
+    assert sync.add(1, 'b', 3.0) is None
+    assert sync.add(1, 'b', 4.0) is None          # a repeat overwrites, does not complete
+    assert sync.add(1, 'c', 5.0) == {'a': 1.0, 'b': 4.0, 'c': 5.0}
+    assert sync.add(0, 'a', 6.0) is None
+    assert sync.add(0, 'c', 7.0) == {'a': 6.0, 'b': 2.0, 'c': 7.0}
+    # a completed step is forgotten: the same step starts over
+    assert sync.add(1, 'a', 8.0) is None
+    assert StepSync(['only']).add(5, 'only', 9.0) == {'only': 9.0}
