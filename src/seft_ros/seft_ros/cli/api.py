@@ -11,7 +11,7 @@ import time
 from typing import Any, Callable
 
 from seft_msgs_py import parameters
-from seft_msgs_py.errors import InputError
+from seft_msgs_py.errors import InputError, SeftError
 from seft_ros.analysis.bag import read_run
 from seft_ros.analysis.report import write_report
 from seft_ros.analysis.rundata import RunData
@@ -131,7 +131,19 @@ def run_experiments(*, runs: list[dict], out_dir: Path,
     from seft_ros.cli.runner import GraphRunner  # rclpy only for this verb
 
     t0 = time.monotonic()
-    runner = GraphRunner(_domain_id() if domain_id is None else domain_id, progress)
+    chosen = domain_id if domain_id is not None else (
+        int(os.environ['ROS_DOMAIN_ID']) if os.environ.get('ROS_DOMAIN_ID') else None)
+    for _ in range(5):
+        runner = GraphRunner(_domain_id() if chosen is None else chosen, progress)
+        busy = runner.busy_topics()
+        if not busy:
+            break
+        runner.close()
+        if chosen is not None:
+            raise SeftError(f'ROS_DOMAIN_ID={chosen} already carries seft topics '
+                            f'({", ".join(busy)}): another run? Choose another --domain-id')
+    else:
+        raise SeftError('no free ROS domain found for the run (5 random tries)')
     data = []
     try:
         for p in runs:

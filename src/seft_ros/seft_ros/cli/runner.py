@@ -32,7 +32,7 @@ from seft_msgs_py.convert import (
     status_values,
 )
 from seft_msgs_py.errors import SeftError
-from seft_msgs_py.topics import STATUS
+from seft_msgs_py.topics import STATUS, TOPICS
 from seft_ros.cli.config import write_params_file
 
 __all__ = ['NODE_MODULES', 'RunOutcome', 'GraphRunner', 'node_command']
@@ -95,6 +95,15 @@ class GraphRunner:
         self.executor.add_node(self.node)
         self.statuses = []
         self.node.create_subscription(STATUS.msg_type, STATUS.name, self._on_status, STATUS.qos)
+
+    def busy_topics(self, settle_s: float = 1.0) -> list[str]:
+        """The seft topics that already have publishers in this domain (another run?).
+
+        Two runs in one domain would mix their samples; the runner refuses to start then.
+        """
+        self._spin(settle_s)
+        return [t.name for t in TOPICS if t is not STATUS
+                and self.node.count_publishers(t.name) > 0]
 
     def close(self) -> None:
         """Shut the runner's ROS context down."""
