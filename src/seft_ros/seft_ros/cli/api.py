@@ -132,7 +132,7 @@ def run_experiments(*, runs: list[dict], out_dir: Path,
 
     t0 = time.monotonic()
     chosen = domain_id if domain_id is not None else (
-        int(os.environ['ROS_DOMAIN_ID']) if os.environ.get('ROS_DOMAIN_ID') else None)
+        _domain_id() if os.environ.get('ROS_DOMAIN_ID') else None)
     for _ in range(5):
         runner = GraphRunner(_domain_id() if chosen is None else chosen, progress)
         busy = runner.busy_topics()
