@@ -73,6 +73,15 @@ def test_readme_documents_every_parameter_and_topic():
     assert 'tools/test.sh' in (ROOT / '.ci' / 'run').read_text()
 
 
+def test_generated_parameter_docs_are_current():
+    sys.path.insert(0, str(ROOT / 'tools'))
+    import gen_param_docs
+    assert (ROOT / 'config' / 'default.yaml').read_text() == gen_param_docs.default_yaml(), \
+        'run tools/gen_param_docs.py'
+    readme = (ROOT / 'README.md').read_text()
+    assert gen_param_docs.readme_with_table(readme) == readme, 'run tools/gen_param_docs.py'
+
+
 def test_default_config_lists_every_parameter_with_its_default():
     from seft_ros.cli.config import load_config
     values = load_config(ROOT / 'config' / 'default.yaml')

@@ -25,7 +25,7 @@ from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 
 from seft_msgs_py import parameters
-from seft_msgs_py.convert import STATE_FAILED, status_msg
+from seft_msgs_py.convert import STATE_CLOSED, STATE_FAILED, status_msg, status_values
 from seft_msgs_py.errors import ParameterError, SeftError
 from seft_msgs_py.topics import STATUS
 
@@ -33,6 +33,8 @@ __all__ = ['SeftNode', 'main_for', 'descriptor_of', 'LINGER_S']
 
 #: How long a finished node keeps serving its publishers before it exits [s].
 LINGER_S = 1.0
+#: With a recorder in the graph, the longest wait for it to close the bag [s].
+RECORDER_WAIT_S = 20.0
 
 
 def descriptor_of(spec: parameters.ParamSpec) -> ParameterDescriptor:
@@ -75,6 +77,9 @@ class SeftNode(Node):
         self.params = self._declare(node_name)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.status_pub = self.create_publisher(STATUS.msg_type, STATUS.name, STATUS.qos)
+        self.recorder_ready = False
+        self.recorder_closed = False
+        self.create_subscription(STATUS.msg_type, STATUS.name, self._watch_recorder, STATUS.qos)
         self.done = False
         self.exit_code = 0
 
@@ -90,6 +95,12 @@ class SeftNode(Node):
                                      f'{spec.expected()}') from None
             values[spec.name] = parameters.validate_value(spec.name, p.value)
         return values
+
+    def _watch_recorder(self, msg) -> None:
+        if msg.name == 'recorder':
+            state = status_values(msg).get('state')
+            self.recorder_ready = True
+            self.recorder_closed = self.recorder_closed or state == STATE_CLOSED
 
     def _on_set_parameters(self, params) -> SetParametersResult:
         """Validation at run time (``demo_nodes_py/parameters/set_parameters_callback.py``).
@@ -164,9 +175,16 @@ def main_for(factory: Callable[[], SeftNode], name: str, args=None) -> int:
         while not node.done:
             executor.spin_once(timeout_sec=0.1)
         code = node.exit_code
-        # linger, so that the last samples and the final status reach their subscribers
-        deadline = time.monotonic() + LINGER_S
-        while time.monotonic() < deadline:
+        # linger, so that the last samples and the final status reach their subscribers: with a
+        # recorder in the graph, until it has closed the bag (a publisher that exits earlier
+        # takes its unsent samples with it)
+        start = time.monotonic()
+        while True:
+            waited = time.monotonic() - start
+            if waited > (RECORDER_WAIT_S if node.recorder_ready else LINGER_S):
+                break
+            if node.recorder_ready and node.recorder_closed and waited > 0.2:
+                break
             executor.spin_once(timeout_sec=0.05)
     except (KeyboardInterrupt, ExternalShutdownException):
         code = 0 if node is None else node.exit_code

@@ -97,6 +97,23 @@ SCHEMA: tuple[ParamSpec, ...] = (
     ParamSpec('damping_N_s_per_m', 17.14 * 52.7, 'N s/m', 'Specimen viscous damping c '
               '(default 17.14 m: the controller denominator s^2+17.14 s+4002 is '
               '(m s^2+c s+k)/m).', 0.0, None, nodes=_SPECIMEN),
+    # -- specimen model (seft_plant_sim.specimen.BoucWenSpecimen) -----------------------------
+    ParamSpec('specimen_model', 'linear', '', "Specimen: 'linear' (m x'' + c x' + k x = f, "
+              "paper Eq. 5.1) or 'bouc_wen' (hysteretic: k x replaced by the Bouc-Wen force "
+              'f_s = a k x + (1-a) k D_y z, initial stiffness k).',
+              choices=('linear', 'bouc_wen'), nodes=_RIG),
+    ParamSpec('post_yield_stiffness_ratio', 0.1, '', "Bouc-Wen a = post-yield / pre-yield "
+              "stiffness ('bouc_wen' specimen; 1 is linear).", 0.0, 1.0, nodes=_RIG),
+    ParamSpec('yield_displacement_m', 0.004, 'm', 'Bouc-Wen yield displacement D_y (yield '
+              "force k D_y = 844 N: the default input yields the 'bouc_wen' specimen).", 0.0,
+              None, True, nodes=_RIG),
+    ParamSpec('bouc_wen_n', 2.0, '', 'Bouc-Wen exponent n: sharpness of the elastic-plastic '
+              'knee.', 1.0, 100.0, nodes=_RIG),
+    ParamSpec('bouc_wen_beta', 0.5, '', 'Bouc-Wen shape parameter beta (beta + gamma > 0 and '
+              'beta >= gamma; beta = gamma: unloading at the initial stiffness).', -100.0, 100.0,
+              nodes=_RIG),
+    ParamSpec('bouc_wen_gamma', 0.5, '', 'Bouc-Wen shape parameter gamma (z saturates at '
+              '(beta + gamma)^(-1/n)).', -100.0, 100.0, nodes=_RIG),
     ParamSpec('n_steps', 0, '', 'Number of control steps of the run (0: the whole prepared '
               'record); set by the runner.', 0, None, nodes=_ALL),
     # -- ground motion ----------------------------------------------------------------------
@@ -116,8 +133,38 @@ SCHEMA: tuple[ParamSpec, ...] = (
               'acceleration is published.', 1, 100000, nodes=_GM),
     # -- reference force builder ------------------------------------------------------------
     ParamSpec('predictor', 'none', '', 'Delay compensation of the fed-back acceleration '
-              "('none': measured acceleration of the previous step, paper Eq. 5.3).",
-              choices=('none',), nodes=_RFB + ('recorder',)),
+              "('none': measured acceleration of the previous step, paper Eq. 5.3; "
+              "'polynomial': extrapolated over the delay, Horiuchi et al. 1996; 'model': "
+              'hold-consistent model-based prediction after Carrion and Spencer 2007, with '
+              "the force loop inverted on the servohydraulic rig; 'adaptive': 'model' with "
+              'the delay and gain identified online).',
+              choices=('none', 'polynomial', 'model', 'adaptive'), nodes=_RFB + ('recorder',)),
+    ParamSpec('ground_preview', False, '', 'Command the ground-motion part of the reference '
+              "force ahead by the predictor's loop delay (the record is known before the "
+              'test), so that the response does not lag the reference.',
+              nodes=_RFB + ('recorder',)),
+    ParamSpec('polynomial_order', 2, '', "Order of the 'polynomial' predictor's "
+              'extrapolation.', 1, 3, nodes=_RFB + ('recorder',)),
+    ParamSpec('predictor_mass_kg', 0.0, 'kg', "Specimen mass of the predictor's model (0: "
+              'mass_kg).', 0.0, None, nodes=_RFB + ('recorder',)),
+    ParamSpec('predictor_damping_N_s_per_m', 0.0, 'N s/m', "Specimen damping of the "
+              "predictor's model (0: damping_N_s_per_m).", 0.0, None,
+              nodes=_RFB + ('recorder',)),
+    ParamSpec('predictor_stiffness_N_per_m', 0.0, 'N/m', "Specimen stiffness of the "
+              "predictor's model (0: stiffness_N_per_m).", 0.0, None,
+              nodes=_RFB + ('recorder',)),
+    ParamSpec('predictor_tau_s', 0.0, 's', "Actuator delay assumed by the predictor on the "
+              "'delay' rig, the prior of 'adaptive' (0: tau_s).", 0.0, 1.0,
+              nodes=_RFB + ('recorder',)),
+    ParamSpec('predictor_loop_delay_steps', 10, '', "Servohydraulic rig, 'model': the force "
+              'loop is inverted to a pure delay of this many steps.', 1, 50,
+              nodes=_RFB + ('recorder',)),
+    ParamSpec('predictor_loop_taps', 48, '', "Servohydraulic rig, 'model': taps of the FIR "
+              'force-loop inverse.', 1, 1000, nodes=_RFB + ('recorder',)),
+    ParamSpec('adaptive_window_s', 0.5, 's', "Identification window of the 'adaptive' "
+              'predictor.', 0.0, 100.0, True, nodes=_RFB + ('recorder',)),
+    ParamSpec('adaptive_max_delay_s', 0.03, 's', "Largest delay the 'adaptive' predictor "
+              'searches.', 0.0, 1.0, True, nodes=_RFB + ('recorder',)),
     ParamSpec('monitor_cutoff_hz', 25.0, 'Hz', 'Online instability monitor: band split of '
               'the measured force (the unstable mode lies above it, the response below).',
               0.0, None, True, nodes=_RFB),
@@ -182,6 +229,9 @@ SCHEMA: tuple[ParamSpec, ...] = (
               0.0, None, nodes=_RIG),
     ParamSpec('accelerometer_range_m_s2', 39.2, 'm/s^2', 'Accelerometer full scale (4 g); '
               'readings saturate there (0: unlimited).', 0.0, None, nodes=_RIG),
+    ParamSpec('wait_for_recorder', False, '', 'The rig starts stepping only once the recorder '
+              'subscribes to its topics (set by seft run, so no sample precedes the recorder).',
+              nodes=_RIG),
     ParamSpec('recorder_window_steps', 1000, '', 'Lockstep flow control: the rig waits while '
               'the recorder is more than this many steps behind (0: never waits); must stay '
               'below the 2000-sample history of the data topics.', 0, 1900, nodes=_RIG),

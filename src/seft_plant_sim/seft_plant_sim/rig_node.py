@@ -81,11 +81,21 @@ class RigNode(SeftNode):
             return
         if self.command_sub.get_publisher_count() < 1:
             return
+        if self.params['wait_for_recorder'] and not self._recorder_subscribed():
+            return
         self.start_timer.cancel()
         self.running = True
         self.get_logger().info(f'starting: {self.n_steps} steps of {self.rig.dt} s, '
                                f'command {self.command_topic.name}')
         self._publish_step()
+
+    def _recorder_subscribed(self) -> bool:
+        """The recorder's subscriptions to every rig topic are discovered."""
+        for name in self.pubs:
+            nodes = {i.node_name for i in self.get_subscriptions_info_by_topic(name)}
+            if 'recorder' not in nodes:
+                return False
+        return True
 
     def _on_status(self, msg) -> None:
         values = status_values(msg)

@@ -1,7 +1,9 @@
 """The registry of simulated rig models, chosen by the ``rig_model`` parameter.
 
 A hardware DAQ/servo bridge would register here under its own name: the test loop only sees
-the :class:`~seft_plant_sim.interface.Rig` protocol.
+the :class:`~seft_plant_sim.interface.Rig` protocol. Each simulated rig takes its specimen from
+``specimen_model`` (:data:`~seft_plant_sim.specimen.SPECIMEN_MODELS`: 'linear', stepped
+exactly, or the hysteretic 'bouc_wen', stepped with RK4 substeps).
 """
 
 from typing import Callable, Mapping
@@ -26,8 +28,8 @@ def make_rig(params: Mapping) -> Rig:
     Parameters
     ----------
     params : mapping
-        The resolved experiment parameters (``rig_model``, ``dt``, specimen, noise, limits
-        and the model's own keys).
+        The resolved experiment parameters (``rig_model``, ``dt``, specimen with
+        ``specimen_model``, noise, limits and the model's own keys).
 
     Returns
     -------

@@ -9,6 +9,7 @@ from scipy import signal as sps
 
 from seft_msgs_py.errors import ParameterError
 from seft_ros.analysis.metrics import (
+    best_runs,
     compare_run,
     estimate_lag,
     high_frequency_fraction,
@@ -260,7 +261,13 @@ def test_summary_entry_keys_and_values(ground_motion):
     run = _run_from(ref, ground_motion, 0.5, d=5)
     entry = summary_entry(run, compare_run(run))
     assert set(entry) == {'alpha', 'rig', 'predictor', 'record', 'stable', 'unstable_at_s',
-                          'lag_s', 'nrms', 'peak_ratio', 'high_frequency_force_fraction'}
+                          'lag_s', 'nrms', 'peak_ratio', 'high_frequency_force_fraction',
+                          'high_frequency_force_fraction_reference',
+                          'high_frequency_cutoff_hz'}
+    assert entry['high_frequency_cutoff_hz'] == 20.0
+    # The delayed reference: the same spectrum as the reference force.
+    assert entry['high_frequency_force_fraction'] == pytest.approx(
+        entry['high_frequency_force_fraction_reference'], rel=0.05)
     assert list(entry['nrms']) == ['displacement', 'acceleration', 'force']
     assert list(entry['peak_ratio']) == ['displacement', 'acceleration', 'force']
     assert (entry['alpha'], entry['rig'], entry['predictor'], entry['record']) == \
@@ -288,3 +295,50 @@ def test_summary_entry_of_aborted_run_is_valid_json(ground_motion):
 def test_json_safe():
     value = {'a': np.float64('nan'), 'b': [np.inf, np.int64(3), np.bool_(True)], 'c': 'x'}
     assert json_safe(value) == {'a': None, 'b': [None, 3, True], 'c': 'x'}
+
+
+# -- high-frequency cutoff and best_runs -------------------------------------------------
+def test_compare_run_high_frequency_cutoff(ground_motion):
+    """A 45 Hz tone added to the force counts above a 20 Hz cutoff, not above 60 Hz."""
+    ref = _reference(0.5, ground_motion)
+    run = _run_from(ref, ground_motion, 0.5, d=5)
+    t = run.time_s
+    run.measured_force_N = run.measured_force_N + 200.0 * np.sin(2 * np.pi * 45.0 * t)
+    low = compare_run(run, ref)
+    high = compare_run(run, ref, high_frequency_cutoff_hz=60.0)
+    assert low.high_frequency_cutoff_hz == 20.0 and high.high_frequency_cutoff_hz == 60.0
+    assert low.high_frequency_force_fraction > 0.1
+    assert high.high_frequency_force_fraction < 0.01
+    entry = summary_entry(run, high)
+    assert entry['high_frequency_cutoff_hz'] == 60.0
+    assert entry['high_frequency_force_fraction_reference'] < 0.01
+    with pytest.raises(ParameterError, match='cutoff_hz=250'):
+        compare_run(run, ref, high_frequency_cutoff_hz=250.0)  # Nyquist of dt = 2 ms
+
+
+def _entry(alpha, predictor, nrms_x, stable=True, rig='delay', record='r'):
+    return {'alpha': alpha, 'rig': rig, 'predictor': predictor, 'record': record,
+            'stable': stable, 'nrms': {'displacement': nrms_x}}
+
+
+def test_best_runs_picks_stable_compensated_with_smallest_displacement_nrms():
+    entries = [
+        _entry(0.5, 'none', 0.01),                 # uncompensated: never picked
+        _entry(0.5, 'polynomial', 0.05),
+        _entry(0.5, 'model', 0.03),
+        _entry(0.5, 'lms', 0.001, stable=False),   # aborted: never picked
+        _entry(1.0, 'polynomial', None),           # NRMS undefined (null in JSON)
+        _entry(1.0, 'model', 0.20),
+        _entry(1.0, 'lms', 0.20),                  # tie: the first one wins
+        _entry(1.0, 'model', 0.02, rig='servohydraulic'),
+        _entry(1.5, 'none', 0.5),                  # no compensated run: absent
+        _entry(2.0, 'model', math.nan),            # NaN: not a candidate
+    ]
+    best = best_runs(entries)
+    assert list(best) == [(0.5, 'delay'), (1.0, 'delay'), (1.0, 'servohydraulic')]
+    assert best[(0.5, 'delay')] is entries[2]
+    assert best[(1.0, 'delay')] is entries[5]
+    assert best[(1.0, 'servohydraulic')] is entries[7]
+    assert best_runs([]) == {}
+    with pytest.raises(ParameterError, match='expected a dict'):
+        best_runs(['x'])

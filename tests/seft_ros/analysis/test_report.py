@@ -1,4 +1,4 @@
-"""The report writes strict JSON, a Markdown table per run and legible PNG figures."""
+"""The report writes strict JSON, Markdown tables per run and across predictors, PNG figures."""
 
 import json
 import math
@@ -102,3 +102,180 @@ def test_write_summary_json_writes_null_for_nan(tmp_path):
 def test_write_report_errors(tmp_path):
     with pytest.raises(ParameterError, match='at least one run'):
         write_report([], tmp_path)
+
+
+# -- several predictors -------------------------------------------------------------------
+def _ground_motion(n, seed=5):
+    t = np.arange(n) * DT
+    b, a = sps.butter(4, [0.5, 15.0], btype='band', fs=1 / DT)
+    ag = sps.lfilter(b, a, np.random.default_rng(seed).normal(size=n))
+    ag *= np.minimum(1.0, t / 2.0) * np.exp(-np.maximum(0.0, t - 5.0) / 3.0)
+    return ag * 1000.0 / M / np.max(np.abs(ag))
+
+
+def _predictor_run(alpha, predictor, ag, *, scale=1.0, delay=0, vibration=0.0, n_run=None,
+                   record='synthetic'):
+    """A run built from the reference: scaled, delayed by whole samples, with a 45 Hz
+    vibration in force and acceleration; aborted (growing 30 Hz oscillation) if n_run is
+    shorter than the record."""
+    n = ag.shape[0]
+    n_run = n if n_run is None else n_run
+    params = {'alpha': alpha, 'dt': DT, 'mass_kg': M, 'damping_N_s_per_m': C,
+              'stiffness_N_per_m': K, 'rig_model': 'delay', 'predictor': predictor,
+              'record': record, 'tau_s': 0.01}
+    ref = reference_response(alpha=alpha, mass_kg=M, damping_N_s_per_m=C, stiffness_N_per_m=K,
+                             dt=DT, ground_acceleration_m_s2=ag)
+
+    def test(x):
+        x = scale * x
+        return (np.concatenate([np.zeros(delay), x[:n - delay]]) if delay else x)[:n_run]
+
+    t = np.arange(n_run) * DT
+    hf = vibration * np.sin(2 * np.pi * 45 * t)
+    run = RunData(params=params, time_s=t, ground_acceleration_m_s2=ag[:n_run],
+                  reference_force_N=ref.force_N[:n_run],
+                  measured_force_N=test(ref.force_N) + 1000 * hf,
+                  displacement_m=test(ref.displacement_m),
+                  velocity_m_s=test(ref.velocity_m_s),
+                  acceleration_m_s2=test(ref.acceleration_m_s2) + 500 * hf,
+                  record_name=record, source='test')
+    if n_run < n:
+        growth = 1e-4 * np.exp(1.5 * t) * np.sin(2 * np.pi * 30 * t)
+        run.displacement_m = run.displacement_m + growth
+        run.measured_force_N = run.measured_force_N + K * growth
+        run.acceleration_m_s2 = run.acceleration_m_s2 - (2 * np.pi * 30) ** 2 * growth
+        run.stable = False
+        run.unstable_at_s = n_run * DT
+        run.abort_reason = 'stroke limit exceeded'
+    return run
+
+
+@pytest.fixture(scope='module')
+def predictor_runs():
+    """alpha = 0.5 and 1.0 x predictors 'polynomial' (1.05 x reference), 'none' (delayed
+    10 ms, displacement 1.10 x, 45 Hz vibration) and 'model' (1.02 x reference; aborted at
+    4 s at alpha = 1.0), in the order a sweep might list them ('none' not first)."""
+    ag = _ground_motion(4000)
+    out = []
+    for alpha in (0.5, 1.0):
+        out.append(_predictor_run(alpha, 'polynomial', ag, scale=1.05))
+        out.append(_predictor_run(alpha, 'none', ag, delay=5, vibration=0.2))
+        out[-1].displacement_m = 1.10 * out[-1].displacement_m
+        out.append(_predictor_run(alpha, 'model', ag, scale=1.02,
+                                  n_run=2000 if alpha == 1.0 else None))
+    return out
+
+
+def _table_after(md, heading):
+    """Rows (lists of cells) of the first Markdown table after `heading`, header excluded."""
+    lines = md.splitlines()
+    start = lines.index(heading)
+    rows = []
+    for line in lines[start + 1:]:
+        if line.startswith('#'):
+            break
+        if line.startswith('|'):
+            rows.append([c.strip() for c in line.strip('|').split('|')])
+        elif rows:
+            break
+    return rows[2:]  # header and alignment row
+
+
+def test_write_report_across_predictors(predictor_runs, tmp_path):
+    paths = write_report(predictor_runs, tmp_path / 'report', title='sweep')
+    entries = json.loads(paths.summary_json.read_text())['runs']
+    assert [(e['alpha'], e['predictor']) for e in entries] == [
+        (0.5, 'polynomial'), (0.5, 'none'), (0.5, 'model'),
+        (1.0, 'polynomial'), (1.0, 'none'), (1.0, 'model')]
+    for e in entries:
+        assert {'alpha', 'rig', 'predictor', 'record', 'stable', 'unstable_at_s', 'lag_s',
+                'nrms', 'peak_ratio', 'high_frequency_force_fraction',
+                'high_frequency_force_fraction_reference',
+                'high_frequency_cutoff_hz'} <= set(e)
+        assert e['high_frequency_cutoff_hz'] == 20.0
+        assert e['high_frequency_force_fraction_reference'] < 0.02
+    assert entries[0]['nrms']['displacement'] == pytest.approx(0.05, abs=1e-6)
+    assert entries[1]['high_frequency_force_fraction'] > 0.05
+
+    # Figures: no 16-column grid, one Figure-6 grid per predictor, one Figures-7/8 per alpha.
+    assert paths.time_histories_png is None and paths.zoom_png is None
+    assert not (paths.out_dir / 'time_histories.png').exists()
+    assert list(paths.predictor_time_histories) == ['none', 'polynomial', 'model']
+    assert {p.name for p in paths.predictor_comparisons.values()} == {
+        'predictors_alpha_0.5.png', 'predictors_alpha_1.png'}
+    assert {p.name for p in paths.figures} >= {
+        'time_histories_none.png', 'time_histories_none_zoom.png',
+        'time_histories_model.png', 'time_histories_polynomial_zoom.png',
+        'predictors_alpha_0.5.png', 'predictors_alpha_1.png'}
+    assert len(paths.figures) == 8
+    for png in paths.figures:
+        assert png.exists() and png.stat().st_size > 10_000
+        assert png.read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
+
+    md = paths.report_md.read_text()
+    for png in paths.figures:
+        assert f'({png.name})' in md
+    # Cross-predictor table at alpha = 0.5: 'none' first, one row per run.
+    rows = _table_after(md, '### alpha = 0.5, rig delay')
+    assert [(r[0], r[1], r[2]) for r in rows] == [
+        ('2', 'none', 'synthetic'), ('1', 'polynomial', 'synthetic'),
+        ('3', 'model', 'synthetic')]
+    none, poly, model = rows
+    assert poly[3:9] == ['5.00', '5.00', '5.00', '1.050', '1.050', '1.050']
+    assert model[3:9] == ['2.00', '2.00', '2.00', '1.020', '1.020', '1.020']
+    assert none[3] == '10.00' and none[6] == '1.100'
+    assert float(none[9]) > 5.0 and float(poly[9]) < 2.0  # HF force [%]
+    assert none[10] == poly[10] == model[10]  # the same reference
+    assert [r[11] for r in rows] == ['10.00', '0.00', '0.00']  # lag x [ms]
+    assert [r[12] for r in rows] == ['stable'] * 3
+    rows = _table_after(md, '### alpha = 1, rig delay')
+    assert rows[2][1] == 'model' and rows[2][12] == 'aborted at 4.000 s'
+
+    # Uncompensated vs best compensated: model at 0.5, polynomial at 1.0 (model aborted).
+    rows = _table_after(md, '## Uncompensated vs best compensated')
+    assert len(rows) == 2
+    assert rows[0][:4] == ['0.5', 'delay', '10.00', '1.100']
+    assert rows[0][5:9] == ['stable', 'model', '2.00', '1.020']
+    assert rows[1][6:9] == ['polynomial', '5.00', '1.050']
+    assert float(rows[0][4]) > 5.0 and float(rows[0][9]) < 2.0
+    # The per-run sections are kept.
+    assert md.count('## Run ') == 6
+    assert md.count('| displacement [mm] |') == 6
+
+
+def test_write_report_keeps_runs_sharing_a_setup_apart(tmp_path):
+    """Two 'polynomial' runs of one record and one of another record, with 'none'."""
+    ag = _ground_motion(1500)
+    runs = [_predictor_run(0.5, 'none', ag, vibration=0.2),
+            _predictor_run(0.5, 'polynomial', ag, scale=1.05),
+            _predictor_run(0.5, 'polynomial', ag, scale=1.01),
+            _predictor_run(0.5, 'polynomial', ag, scale=1.03, record='other')]
+    paths = write_report(runs, tmp_path, high_frequency_cutoff_hz=30.0)
+    assert json.loads(paths.summary_json.read_text())['runs'][0][
+        'high_frequency_cutoff_hz'] == 30.0
+    assert {p.name for p in paths.predictor_comparisons.values()} == {
+        'predictors_alpha_0.5_synthetic.png', 'predictors_alpha_0.5_other.png'}
+    assert list(paths.predictor_time_histories) == ['none', 'polynomial']
+    md = paths.report_md.read_text()
+    rows = _table_after(md, '### alpha = 0.5, rig delay')
+    assert [(r[0], r[1], r[2], r[3]) for r in rows] == [
+        ('1', 'none', 'synthetic', '0.00'), ('2', 'polynomial', 'synthetic', '5.00'),
+        ('3', 'polynomial', 'synthetic', '1.00'), ('4', 'polynomial', 'other', '3.00')]
+    assert 'above 30 Hz' in md
+    best = _table_after(md, '## Uncompensated vs best compensated')
+    assert best == [['0.5', 'delay', '0.00', '1.000', best[0][4], 'stable', 'polynomial',
+                     '1.00', '1.010', best[0][9]]]
+
+
+def test_write_report_single_predictor_keeps_one_grid(runs, tmp_path):
+    paths = write_report(runs, tmp_path)
+    assert paths.predictor_time_histories == {} and paths.predictor_comparisons == {}
+    assert paths.figures == (paths.time_histories_png, paths.zoom_png)
+    md = paths.report_md.read_text()
+    assert 'Comparison across predictors' not in md and 'best compensated' not in md
+    assert not list(tmp_path.glob('predictors_alpha_*.png'))
+
+
+def test_write_report_cutoff_error(predictor_runs, tmp_path):
+    with pytest.raises(ParameterError, match='cutoff_hz=300'):
+        write_report(predictor_runs[:1], tmp_path, high_frequency_cutoff_hz=300.0)

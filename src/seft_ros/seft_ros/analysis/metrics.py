@@ -20,13 +20,15 @@ from seft_ros.analysis.rundata import SIGNALS, RunData
 __all__ = [
     'SignalComparison', 'RunComparison', 'estimate_lag', 'shift', 'nrms_error', 'peak',
     'peak_ratio', 'high_frequency_fraction', 'compare_run', 'summary_entry',
-    'json_safe',
+    'json_safe', 'best_runs', 'UNCOMPENSATED',
 ]
 
 #: Default bound of the lag search [s] (ten times the reference rig's 10 ms delay).
 MAX_LAG_S = 0.1
 #: Default cutoff of :func:`high_frequency_fraction` [Hz] (the controller works up to 25 Hz).
 HIGH_FREQUENCY_CUTOFF_HZ = 20.0
+#: Name of the predictor that leaves the fed-back acceleration uncompensated.
+UNCOMPENSATED = 'none'
 
 
 def _as_1d(name: str, x) -> np.ndarray:
@@ -340,9 +342,12 @@ class RunComparison:
     reference : ReferenceResponse
         The reference over the run's n samples.
     high_frequency_force_fraction : float
-        Fraction of the test force's power above 20 Hz (:func:`high_frequency_fraction`).
+        Fraction of the test force's power above `high_frequency_cutoff_hz`
+        (:func:`high_frequency_fraction`).
     high_frequency_force_fraction_reference : float
         The same for the reference force.
+    high_frequency_cutoff_hz : float
+        Cutoff of the two fractions [Hz] (default ``HIGH_FREQUENCY_CUTOFF_HZ``, 20 Hz).
     """
 
     displacement: SignalComparison
@@ -351,6 +356,7 @@ class RunComparison:
     reference: ReferenceResponse
     high_frequency_force_fraction: float
     high_frequency_force_fraction_reference: float
+    high_frequency_cutoff_hz: float = HIGH_FREQUENCY_CUTOFF_HZ
 
     def signal(self, name: str) -> SignalComparison:
         """Return the comparison of 'displacement', 'force' or 'acceleration'."""
@@ -360,7 +366,8 @@ class RunComparison:
 
 
 def compare_run(run: RunData, reference: ReferenceResponse | None = None, *,
-                max_lag_s: float = MAX_LAG_S) -> RunComparison:
+                max_lag_s: float = MAX_LAG_S,
+                high_frequency_cutoff_hz: float = HIGH_FREQUENCY_CUTOFF_HZ) -> RunComparison:
     """Compare a run's displacement, force and acceleration with the reference analysis.
 
     For each signal: the lag of the test behind the reference is estimated
@@ -379,6 +386,9 @@ def compare_run(run: RunData, reference: ReferenceResponse | None = None, *,
         samples are used.
     max_lag_s : float >= 0
         Bound of the lag search [s].
+    high_frequency_cutoff_hz : float > 0
+        Cutoff of the high-frequency content of the force [Hz], below the Nyquist frequency
+        ``1/(2 dt)`` (:func:`high_frequency_fraction`).
 
     Returns
     -------
@@ -387,8 +397,8 @@ def compare_run(run: RunData, reference: ReferenceResponse | None = None, *,
     Raises
     ------
     ParameterError
-        If a run parameter is missing or out of range, or the reference has fewer samples
-        than the run.
+        If a run parameter is missing or out of range, the cutoff is not below the Nyquist
+        frequency, or the reference has fewer samples than the run.
 
     References
     ----------
@@ -413,9 +423,10 @@ def compare_run(run: RunData, reference: ReferenceResponse | None = None, *,
     return RunComparison(
         **results, reference=reference,
         high_frequency_force_fraction=high_frequency_fraction(
-            np.asarray(run.measured_force_N, dtype=float)[:n], dt),
+            np.asarray(run.measured_force_N, dtype=float)[:n], dt, high_frequency_cutoff_hz),
         high_frequency_force_fraction_reference=high_frequency_fraction(
-            reference.force_N[:n], dt))
+            reference.force_N[:n], dt, high_frequency_cutoff_hz),
+        high_frequency_cutoff_hz=float(high_frequency_cutoff_hz))
 
 
 def _finite_or_none(value) -> float | None:
@@ -460,9 +471,12 @@ def summary_entry(run: RunData, comparison: RunComparison) -> dict[str, Any]:
         ``{'alpha', 'rig', 'predictor', 'record', 'stable', 'unstable_at_s', 'lag_s',
         'nrms': {'displacement', 'acceleration', 'force'},
         'peak_ratio': {'displacement', 'acceleration', 'force'},
-        'high_frequency_force_fraction'}`` where rig is ``params['rig_model']``, record is
-        ``run.record_name`` (``params['record']`` if empty), ``lag_s`` [s] is the
-        displacement lag, nrms values are fractions, and every NaN or inf is None, so that
+        'high_frequency_force_fraction', 'high_frequency_force_fraction_reference',
+        'high_frequency_cutoff_hz'}`` where rig is ``params['rig_model']``, predictor is
+        ``params['predictor']``, record is ``run.record_name`` (``params['record']`` if
+        empty), ``lag_s`` [s] is the displacement lag, nrms values and the high-frequency
+        fractions (of the measured and of the reference force's power above the cutoff
+        [Hz]) are fractions, and every NaN or inf is None, so that
         ``json.dumps(entry, allow_nan=False)`` succeeds.
     """
     params = run.params
@@ -478,6 +492,47 @@ def summary_entry(run: RunData, comparison: RunComparison) -> dict[str, Any]:
         'nrms': {name: comparison.signal(name).nrms for name in order},
         'peak_ratio': {name: comparison.signal(name).peak_ratio for name in order},
         'high_frequency_force_fraction': comparison.high_frequency_force_fraction,
+        'high_frequency_force_fraction_reference':
+            comparison.high_frequency_force_fraction_reference,
+        'high_frequency_cutoff_hz': comparison.high_frequency_cutoff_hz,
     }
     return json_safe(entry)
+
+
+def best_runs(summary_entries) -> dict[tuple[Any, Any], dict[str, Any]]:
+    """Pick the best compensated run per alpha and rig: stable, smallest displacement NRMS.
+
+    Parameters
+    ----------
+    summary_entries : iterable of dict
+        Summary entries (:func:`summary_entry`, or the ``runs`` of a ``summary.json``).
+
+    Returns
+    -------
+    dict
+        ``{(alpha, rig): entry}`` in order of first appearance. Candidates are the stable
+        entries whose predictor is neither ``UNCOMPENSATED`` ('none') nor missing and whose
+        displacement NRMS is a finite number; among them the smallest displacement NRMS wins
+        (the first one on a tie). An (alpha, rig) without a candidate is absent.
+
+    Raises
+    ------
+    ParameterError
+        If an entry is not a dict.
+    """
+    best: dict[tuple[Any, Any], dict[str, Any]] = {}
+    for entry in summary_entries:
+        if not isinstance(entry, dict):
+            raise ParameterError(f'summary entry {entry!r}: expected a dict')
+        predictor = entry.get('predictor')
+        if predictor in (None, UNCOMPENSATED) or not entry.get('stable'):
+            continue
+        error = (entry.get('nrms') or {}).get('displacement')
+        if isinstance(error, bool) or not isinstance(error, (int, float)) \
+                or not math.isfinite(error):
+            continue
+        key = (entry.get('alpha'), entry.get('rig'))
+        if key not in best or error < best[key]['nrms']['displacement']:
+            best[key] = entry
+    return best
 

@@ -2,7 +2,8 @@
 
 Imports no rclpy. The reference study validates each substructure EFT test against the response
 of the whole linear structure (load-resisting member plus computational mass) computed from the
-same ground motion (paper Sec. 4, Figure 6); this module computes that response.
+same ground motion (paper Sec. 4, Figure 6); this module computes that response, also for a
+hysteretic (Bouc-Wen) member, the nonlinear case the method is meant for.
 """
 
 from dataclasses import dataclass
@@ -10,11 +11,13 @@ import math
 from typing import Any, Mapping
 
 import numpy as np
-from scipy import signal
+from scipy import integrate, signal
 
 from seft_msgs_py.errors import ParameterError
+from seft_plant_sim.specimen import BoucWenSpecimen
 
-__all__ = ['ReferenceResponse', 'reference_response', 'reference_from_run']
+__all__ = ['ReferenceResponse', 'reference_response', 'hysteretic_reference_response',
+           'reference_from_run']
 
 
 @dataclass(frozen=True)
@@ -34,9 +37,11 @@ class ReferenceResponse:
     acceleration_m_s2 : ndarray (n,)
         Acceleration x'' relative to the ground [m/s^2].
     force_N : ndarray (n,)
-        Force on the load-resisting member ``m x'' + c x' + k x`` [N], the counterpart of the
-        load-cell force of a test (paper Eq. 2.4); it equals
-        ``-(1+alpha) m xg'' - alpha m x''`` (paper Eq. 2.5).
+        Force on the load-resisting member ``m x'' + c x' + k x`` [N] (hysteretic member:
+        ``m x'' + c x' + f_s(x, z)``), the counterpart of the load-cell force of a test (paper
+        Eq. 2.4); it equals ``-(1+alpha) m xg'' - alpha m x''`` (paper Eq. 2.5).
+    hysteretic_z : ndarray (n,) or None
+        Bouc-Wen variable z of a hysteretic member [-] (None: linear member).
     """
 
     time_s: np.ndarray
@@ -44,6 +49,7 @@ class ReferenceResponse:
     velocity_m_s: np.ndarray
     acceleration_m_s2: np.ndarray
     force_N: np.ndarray
+    hysteretic_z: np.ndarray | None = None
 
     @property
     def n_steps(self) -> int:
@@ -80,9 +86,9 @@ def _positive(name: str, value: Any, *, allow_zero: bool = False) -> float:
 
 
 def reference_response(*, alpha: float, mass_kg: float, damping_N_s_per_m: float,
-                       stiffness_N_per_m: float, dt: float,
-                       ground_acceleration_m_s2) -> ReferenceResponse:
-    """Simulate the whole linear structure from rest under a sampled ground acceleration.
+                       stiffness_N_per_m: float, dt: float, ground_acceleration_m_s2,
+                       specimen_model: str = 'linear', **bouc_wen) -> ReferenceResponse:
+    """Simulate the whole structure from rest under a sampled ground acceleration.
 
     Solves the equation of motion of the structure (load-resisting member plus computational
     mass ``alpha*m``)::
@@ -108,6 +114,13 @@ def reference_response(*, alpha: float, mass_kg: float, damping_N_s_per_m: float
         Sample period of the record [s].
     ground_acceleration_m_s2 : array_like (n,)
         Ground acceleration xg'' at ``k*dt`` [m/s^2]; finite values.
+    specimen_model : {'linear', 'bouc_wen'}
+        The load-resisting member: linear, or hysteretic (see
+        :func:`hysteretic_reference_response`), with initial stiffness ``stiffness_N_per_m``.
+    **bouc_wen
+        ``post_yield_stiffness_ratio``, ``yield_displacement_m``, ``bouc_wen_n``,
+        ``bouc_wen_beta``, ``bouc_wen_gamma`` of the 'bouc_wen' member (absent: the defaults of
+        :class:`~seft_plant_sim.specimen.BoucWenSpecimen`).
 
     Returns
     -------
@@ -118,8 +131,9 @@ def reference_response(*, alpha: float, mass_kg: float, damping_N_s_per_m: float
     Raises
     ------
     ParameterError
-        If a parameter is out of range, not finite or of the wrong type, or the ground
-        acceleration is not a finite 1-D array; the message names the parameter.
+        If a parameter is out of range, not finite or of the wrong type, the specimen model is
+        unknown, or the ground acceleration is not a finite 1-D array; the message names the
+        parameter.
 
     Notes
     -----
@@ -148,6 +162,17 @@ def reference_response(*, alpha: float, mass_kg: float, damping_N_s_per_m: float
             f'ground_acceleration_m_s2: expected a finite 1-D array, got shape {ag.shape}'
             + ('' if ag.ndim != 1 else ' with non-finite values'))
 
+    unknown = sorted(set(bouc_wen) - set(_BOUC_WEN))
+    if unknown:
+        raise ParameterError(f'unknown parameter {unknown[0]!r} of the Bouc-Wen member')
+    if specimen_model == 'bouc_wen':
+        specimen = BoucWenSpecimen(m, c, k, **{name: _finite(name, value)
+                                               for name, value in bouc_wen.items()})
+        return hysteretic_reference_response(alpha=alpha, specimen=specimen, dt=dt,
+                                             ground_acceleration_m_s2=ag)
+    if specimen_model != 'linear':
+        raise ParameterError(f"parameter specimen_model={specimen_model!r}: expected one of "
+                             "'linear', 'bouc_wen'")
     n = ag.shape[0]
     total_mass = (1.0 + alpha) * m
     t = np.arange(n) * dt
@@ -167,11 +192,125 @@ def reference_response(*, alpha: float, mass_kg: float, damping_N_s_per_m: float
                              force_N=force)
 
 
+def _finite(name: str, value: Any) -> float:
+    """Return `value` as a finite float, or raise ParameterError naming `name`."""
+    ok = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
+    if not (ok and math.isfinite(float(value))):
+        raise ParameterError(f'parameter {name}={value!r}: expected a finite float')
+    return float(value)
+
+
+def hysteretic_reference_response(*, alpha: float, specimen: BoucWenSpecimen, dt: float,
+                                  ground_acceleration_m_s2, rtol: float = 1e-9,
+                                  atol: float = 1e-9) -> ReferenceResponse:
+    """Simulate the whole structure with a hysteretic (Bouc-Wen) member from rest.
+
+    Solves::
+
+        (1+alpha) m x'' + c x' + f_s(x, z) = -(1+alpha) m xg''
+        f_s = a k x + (1 - a) k D_y z,   z' = (x'/D_y)(1 - |z|^n (beta sgn(x' z) + gamma))
+
+    on the state ``[x, x', z]`` with ``scipy.integrate.solve_ivp`` (LSODA, adaptive, steps
+    capped at ``dt``). As in :func:`reference_response`, the record is linearly interpolated
+    between samples. With the default tolerances the result agrees with a classical RK4
+    solution at 80 steps per sample to 5e-7 (relative to the peaks) on the default record;
+    5000 samples take about 1.5 s.
+
+    Parameters
+    ----------
+    alpha : float >= 0
+        Mass ratio [-].
+    specimen : BoucWenSpecimen
+        The member: m, c, initial stiffness k and the Bouc-Wen parameters.
+    dt : float > 0
+        Sample period of the record [s].
+    ground_acceleration_m_s2 : array_like (n,)
+        Ground acceleration xg'' at ``k*dt`` [m/s^2]; finite values.
+    rtol, atol : float > 0
+        Tolerances of the integrator (atol applies to ``x/D_y``, ``x'/(D_y w_0)`` and z, all
+        scaled to order one; w_0 is the initial natural circular frequency).
+
+    Returns
+    -------
+    ReferenceResponse
+        Displacement, velocity, acceleration, member force ``m x'' + c x' + f_s`` and z, each
+        of shape ``(n,)``.
+
+    Raises
+    ------
+    ParameterError
+        If a parameter is out of range or the integration fails.
+
+    Notes
+    -----
+    The member force equals ``-(1+alpha) m xg'' - alpha m x''`` (paper Eq. 2.5), as for the
+    linear member: the equation of motion does not depend on the member's constitutive law.
+
+    References
+    ----------
+    N. Nakata and S. Combs, Substructure Effective Force Testing, Eqs. 2.1, 2.4, 2.5.
+    M. Ismail, F. Ikhouane and J. Rodellar, The hysteresis Bouc-Wen model, a survey, Arch.
+    Comput. Methods Eng. 16, 2009, 161-188.
+    L. Petzold, Automatic selection of methods for solving stiff and nonstiff systems of
+    ordinary differential equations, SIAM J. Sci. Stat. Comput. 4(1), 1983, 136-148 (LSODA).
+    """
+    if not isinstance(specimen, BoucWenSpecimen):
+        raise ParameterError(f'specimen={specimen!r}: expected a BoucWenSpecimen')
+    alpha = _positive('alpha', alpha, allow_zero=True)
+    dt = _positive('dt', dt)
+    rtol = _positive('rtol', rtol)
+    atol = _positive('atol', atol)
+    ag = np.asarray(ground_acceleration_m_s2, dtype=float)
+    if ag.ndim != 1 or not np.all(np.isfinite(ag)):
+        raise ParameterError(
+            f'ground_acceleration_m_s2: expected a finite 1-D array, got shape {ag.shape}')
+    n = ag.shape[0]
+    m, c = specimen.mass_kg, specimen.damping_N_s_per_m
+    total_mass = (1.0 + alpha) * m
+    t = np.arange(n) * dt
+    if n < 2:
+        zeros = np.zeros(n)
+        a = -ag
+        return ReferenceResponse(time_s=t, displacement_m=zeros, velocity_m_s=zeros.copy(),
+                                 acceleration_m_s2=a, force_N=m * a, hysteretic_z=zeros.copy())
+    samples = ag.tolist()
+    last = n - 2
+    restoring, rate = specimen.restoring_force, specimen.hysteretic_rate
+
+    def rhs(time, y):
+        x, v, z = y
+        pos = time / dt
+        i = min(max(int(pos), 0), last)
+        xg = samples[i] + (pos - i) * (samples[i + 1] - samples[i])
+        return [v, -(c * v + restoring(x, z)) / total_mass - xg, rate(v, z)]
+
+    w0 = 2.0 * np.pi * specimen.natural_frequency_hz
+    dy = specimen.yield_displacement_m
+    sol = integrate.solve_ivp(rhs, (0.0, t[-1]), [0.0, 0.0, 0.0], method='LSODA', t_eval=t,
+                              rtol=rtol, atol=atol * np.array([dy, dy * w0, 1.0]),
+                              max_step=dt)
+    if not sol.success:
+        raise ParameterError(f'hysteretic reference: integration failed ({sol.message})')
+    x, v, z = (np.ascontiguousarray(row) for row in sol.y)
+    fs = restoring(x, z)
+    a = -(c * v + fs) / total_mass - ag
+    force = m * a + c * v + fs
+    return ReferenceResponse(time_s=t, displacement_m=x, velocity_m_s=v, acceleration_m_s2=a,
+                             force_N=force, hysteretic_z=z)
+
+
 _PARAMS = ('alpha', 'mass_kg', 'damping_N_s_per_m', 'stiffness_N_per_m', 'dt')
+
+
+_BOUC_WEN = ('post_yield_stiffness_ratio', 'yield_displacement_m', 'bouc_wen_n',
+             'bouc_wen_beta', 'bouc_wen_gamma')
 
 
 def _reference_params(params: Mapping[str, Any]) -> dict[str, Any]:
     """Pick the arguments of :func:`reference_response` from a run's parameters.
+
+    ``specimen_model`` absent means 'linear' (runs recorded before the hysteretic member);
+    absent Bouc-Wen parameters take the member's defaults.
 
     Raises
     ------
@@ -181,7 +320,12 @@ def _reference_params(params: Mapping[str, Any]) -> dict[str, Any]:
     missing = [name for name in _PARAMS if name not in params]
     if missing:
         raise ParameterError(f'run parameters: missing {", ".join(missing)}')
-    return {name: params[name] for name in _PARAMS}
+    picked = {name: params[name] for name in _PARAMS}
+    model = params.get('specimen_model', 'linear')
+    if model != 'linear':
+        picked['specimen_model'] = model
+        picked.update({name: params[name] for name in _BOUC_WEN if name in params})
+    return picked
 
 
 def reference_from_run(run) -> ReferenceResponse:
@@ -191,7 +335,8 @@ def reference_from_run(run) -> ReferenceResponse:
     ----------
     run : RunData
         The run; uses ``run.params`` (alpha, mass_kg, damping_N_s_per_m, stiffness_N_per_m,
-        dt) and ``run.ground_acceleration_m_s2`` (n,) [m/s^2].
+        dt; ``specimen_model`` and the Bouc-Wen parameters, absent: linear) and
+        ``run.ground_acceleration_m_s2`` (n,) [m/s^2].
 
     Returns
     -------

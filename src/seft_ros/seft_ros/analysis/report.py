@@ -4,10 +4,11 @@ Imports no rclpy and no pyplot: figures are drawn on ``matplotlib.figure.Figure`
 the Agg canvas, so the report works without a display and leaves the global backend alone.
 """
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 import json
 import math
 from pathlib import Path
+import re
 from typing import Any
 
 from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -17,19 +18,28 @@ import numpy as np
 from seft_msgs_py.errors import ParameterError
 from seft_ros.analysis.metrics import (
     HIGH_FREQUENCY_CUTOFF_HZ,
+    UNCOMPENSATED,
     RunComparison,
+    best_runs,
     compare_run,
     json_safe,
+    peak,
     summary_entry,
 )
 from seft_ros.analysis.reference import reference_from_run
 from seft_ros.analysis.rundata import SIGNALS, RunData
 
-__all__ = ['ReportPaths', 'write_report', 'write_summary_json', 'plot_time_histories']
+__all__ = ['ReportPaths', 'write_report', 'write_summary_json', 'plot_time_histories',
+           'plot_predictor_comparison']
 
-#: Figure files written by :func:`write_report`.
+#: Figure files written by :func:`write_report` (single predictor).
 TIME_HISTORIES_PNG = 'time_histories.png'
 ZOOM_PNG = 'time_histories_zoom.png'
+#: Figure files written by :func:`write_report` per predictor (several predictors).
+PREDICTOR_TIME_HISTORIES_PNG = 'time_histories_{predictor}.png'
+PREDICTOR_ZOOM_PNG = 'time_histories_{predictor}_zoom.png'
+#: Cross-predictor figure per alpha (as the reference study's Figures 7 and 8).
+PREDICTORS_PNG = 'predictors_alpha_{alpha}.png'
 #: Width of the zoom window around the reference's displacement peak [s].
 ZOOM_WINDOW_S = 2.0
 #: Most points drawn per line (min/max decimation beyond; plotting only, never metrics).
@@ -59,21 +69,37 @@ class ReportPaths:
         ``summary.json``: ``{"runs": [entry, ...]}`` (see ``metrics.summary_entry``).
     report_md : Path
         ``report.md``: one table per run and links to the figures.
-    time_histories_png, zoom_png : Path
-        Whole-record figure (as the reference study's Figure 6) and the zoom around the
-        reference's displacement peak.
+    time_histories_png, zoom_png : Path or None
+        Whole-record figure of all runs (as the reference study's Figure 6) and the zoom
+        around the reference's displacement peak, written when the runs share one predictor;
+        None otherwise (see `predictor_time_histories`).
+    predictor_time_histories : dict of str to (Path, Path)
+        With several predictors: ``{predictor: (whole record, zoom)}``, the Figure-6 grid of
+        that predictor's runs (``time_histories_<predictor>.png`` and ``..._zoom.png``);
+        empty with a single predictor.
+    predictor_comparisons : dict of (alpha, rig, record) to Path
+        With several predictors: one figure per alpha, rig and record comparing the
+        reference, the uncompensated and the compensated runs
+        (``predictors_alpha_<alpha>[_<rig>][_<record>].png``, as the reference study's
+        Figures 7-8); empty with a single predictor.
     """
 
     out_dir: Path
     summary_json: Path
     report_md: Path
-    time_histories_png: Path
-    zoom_png: Path
+    time_histories_png: Path | None
+    zoom_png: Path | None
+    predictor_time_histories: dict[str, tuple[Path, Path]] = field(default_factory=dict)
+    predictor_comparisons: dict[tuple[Any, Any, Any], Path] = field(default_factory=dict)
 
     @property
-    def figures(self) -> tuple[Path, Path]:
-        """The PNG figures."""
-        return (self.time_histories_png, self.zoom_png)
+    def figures(self) -> tuple[Path, ...]:
+        """All PNG figures, in report order."""
+        out = [p for p in (self.time_histories_png, self.zoom_png) if p is not None]
+        for pair in self.predictor_time_histories.values():
+            out += list(pair)
+        out += list(self.predictor_comparisons.values())
+        return tuple(out)
 
 
 def write_summary_json(entries: list[dict[str, Any]], path) -> Path:
@@ -244,6 +270,144 @@ def plot_time_histories(runs: list[RunData], comparisons: list[RunComparison], p
     return path
 
 
+#: Rows of :func:`plot_predictor_comparison` (the reference study's Figures 7-8 show the first
+#: two).
+_COMPARISON_ROWS = ('displacement', 'acceleration', 'force')
+_COMPENSATED_COLORS = ('C0', 'C2', 'C4', 'C1', 'C5', 'C6', 'C8', 'C9')
+
+
+def _predictor(run: RunData) -> str:
+    value = run.params.get('predictor')
+    return 'n/a' if value is None else str(value)
+
+
+def _abort_label(run: RunData) -> str:
+    at = _abort_time(run)
+    if at is None:
+        return 'stable' if run.stable else 'aborted'
+    return f'aborted at {at:.3f} s'
+
+
+def plot_predictor_comparison(runs: list[RunData], comparisons: list[RunComparison], path, *,
+                              labels: list[str] | None = None, title: str = '') -> Path:
+    """Draw the reference versus the uncompensated and the compensated runs, and save a PNG.
+
+    Rows: displacement [mm], acceleration [m/s^2], force [N]; columns: the whole record
+    (min/max-decimated, the zoom window shaded) and a ``ZOOM_WINDOW_S`` window around the
+    reference's displacement peak, where the lag and the high-frequency vibration show. The
+    reference is black dashed, the uncompensated run (predictor 'none') red, the compensated
+    runs in other colours; an aborted run's abort time is a dotted vertical line in its colour.
+    The y axes span the reference and the stable runs (at most three times the reference's
+    peak), so that a diverging run does not flatten the others.
+
+    Parameters
+    ----------
+    runs : list of RunData
+        Runs of the same structure and record (same alpha), one line each; at least one.
+    comparisons : list of RunComparison
+        Their comparisons (same order); the reference is taken from the longest run.
+    path : str or Path
+        Output PNG.
+    labels : list of str or None
+        Legend label of each run (default: its predictor).
+    title : str
+        Figure title.
+
+    Returns
+    -------
+    Path
+
+    Raises
+    ------
+    ParameterError
+        If `runs` is empty or the lists differ in length.
+
+    References
+    ----------
+    N. Nakata and S. Combs, Substructure Effective Force Testing, Sec. 5, Figures 7 and 8.
+    """
+    runs = list(runs)
+    comparisons = list(comparisons)
+    labels = [_predictor(r) for r in runs] if labels is None else list(labels)
+    if not runs or len(comparisons) != len(runs) or len(labels) != len(runs):
+        raise ParameterError('plot_predictor_comparison: expected at least one run and one '
+                             'comparison and label per run')
+    path = Path(path)
+    longest = max(range(len(runs)), key=lambda j: runs[j].n_steps)
+    ref_run, ref_comparison = runs[longest], comparisons[longest]
+    n_ref = ref_run.n_steps
+    t_ref = np.asarray(ref_run.time_s, dtype=float)
+    window = _zoom_window(ref_run, ref_comparison)
+    colors, k = [], 0
+    for run in runs:
+        if _predictor(run) == UNCOMPENSATED:
+            colors.append('C3')
+        else:
+            colors.append(_COMPENSATED_COLORS[k % len(_COMPENSATED_COLORS)])
+            k += 1
+    fig = Figure(figsize=(11.0, _ROW_HEIGHT_IN * len(_COMPARISON_ROWS) + 1.2),
+                 layout='constrained')
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(len(_COMPARISON_ROWS), 2, squeeze=False, sharex='col',
+                        width_ratios=[1.6, 1.0])
+    for i, name in enumerate(_COMPARISON_ROWS):
+        ylabel, _, factor = _DISPLAY[name]
+        ref = np.asarray(ref_comparison.reference.signal(name), dtype=float)[:n_ref] * factor
+        ref_peak = peak(ref) if n_ref else math.nan
+        peaks = [ref_peak] + [peak(np.asarray(r.signal(name), dtype=float)[:r.n_steps])
+                              * factor for r in runs if r.stable and r.n_steps]
+        peaks = [p for p in peaks if math.isfinite(p)]
+        limit = 1.15 * max(peaks) if peaks else math.nan
+        if math.isfinite(ref_peak) and ref_peak > 0:
+            limit = min(limit, 3.0 * ref_peak)
+        for col in range(2):
+            ax = axes[i, col]
+            zoom = col == 1
+            for run, label, color in zip(runs, labels, colors):
+                n = run.n_steps
+                t = np.asarray(run.time_s, dtype=float)
+                y = np.asarray(run.signal(name), dtype=float)[:n] * factor
+                if zoom:
+                    keep = (t >= window[0] - 1e-9) & (t <= window[1] + 1e-9)
+                    t, y = t[keep], y[keep]
+                else:
+                    t, y = _decimate(t, y)
+                if not run.stable:
+                    label = f'{label} ({_abort_label(run)})'
+                ax.plot(t, y, color=color, lw=0.8, alpha=0.9, label=label, zorder=2)
+                at = _abort_time(run)
+                if at is not None and (not zoom or window[0] <= at <= window[1]):
+                    ax.axvline(at, color=color, lw=1.0, ls=':')
+            if zoom:
+                keep = (t_ref >= window[0] - 1e-9) & (t_ref <= window[1] + 1e-9)
+                tr, yr = t_ref[keep], ref[keep]
+            else:
+                tr, yr = _decimate(t_ref, ref)
+                ax.axvspan(window[0], window[1], color='0.5', alpha=0.12, lw=0)
+            ax.plot(tr, yr, color='k', lw=1.1, ls='--', label='reference', zorder=3)
+            if math.isfinite(limit) and limit > 0:
+                ax.set_ylim(-limit, limit)
+            if zoom:
+                ax.set_xlim(*window)
+            ax.grid(True, lw=0.3, alpha=0.5)
+            if col == 0:
+                ax.set_ylabel(ylabel)
+            if i == 0:
+                ax.set_title('whole record' if not zoom else
+                             f'zoom: {ZOOM_WINDOW_S:g} s around the reference peak')
+            if i == len(_COMPARISON_ROWS) - 1:
+                ax.set_xlabel('time [s]')
+    handles, names = axes[0, 0].get_legend_handles_labels()
+    order = [len(handles) - 1] + list(range(len(handles) - 1))  # reference first
+    fig.legend([handles[j] for j in order], [names[j] for j in order], loc='outside lower center',
+               ncols=min(len(handles), 5), fontsize=8)
+    if title:
+        fig.suptitle(title)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=_DPI)
+    return path
+
+
 def _fmt(value, spec: str = '.4g', factor: float = 1.0) -> str:
     if value is None or not math.isfinite(value):
         return 'n/a'
@@ -279,7 +443,7 @@ def _run_markdown(index: int, run: RunData, comparison: RunComparison) -> list[s
         where = f' at t = {at:.3f} s' if at is not None else ''
         lines.append(f'- **aborted{where}**: {run.abort_reason or "no reason recorded"}')
     lines += [
-        f'- power above {HIGH_FREQUENCY_CUTOFF_HZ:g} Hz in the force: test '
+        f'- power above {comparison.high_frequency_cutoff_hz:g} Hz in the force: test '
         f'{_fmt(comparison.high_frequency_force_fraction, ".2f", 100)} %, reference '
         f'{_fmt(comparison.high_frequency_force_fraction_reference, ".2f", 100)} %',
         '',
@@ -297,21 +461,181 @@ def _run_markdown(index: int, run: RunData, comparison: RunComparison) -> list[s
     return lines
 
 
-def write_report(runs: list[RunData], out_dir, *, title: str = 'seft comparison') -> ReportPaths:
+def _safe_name(text: Any) -> str:
+    """A file-name-safe version of `text` (letters, digits, '.', '-', '_')."""
+    return re.sub(r'[^A-Za-z0-9_.+-]+', '_', str(text)).strip('_') or 'na'
+
+
+def _alpha_text(alpha: Any) -> str:
+    if isinstance(alpha, (int, float)) and not isinstance(alpha, bool):
+        return f'{alpha:g}'
+    return 'n/a' if alpha is None else str(alpha)
+
+
+def _record(run: RunData) -> str:
+    return run.record_name or run.params.get('record', '') or 'n/a'
+
+
+def _predictor_order(runs: list[RunData]) -> list[str]:
+    """Distinct predictors, the uncompensated one first, then in order of appearance."""
+    names = list(dict.fromkeys(_predictor(r) for r in runs))
+    return sorted(names, key=lambda name: (name != UNCOMPENSATED, names.index(name)))
+
+
+def _groups(runs: list[RunData], key) -> dict[Any, list[int]]:
+    """Run indices grouped by ``key(run)``, groups in order of appearance, runs ordered by
+    predictor (uncompensated first) then by index."""
+    rank = {name: i for i, name in enumerate(_predictor_order(runs))}
+    out: dict[Any, list[int]] = {}
+    for j, run in enumerate(runs):
+        out.setdefault(key(run), []).append(j)
+    return {k: sorted(v, key=lambda j: (rank[_predictor(runs[j])], j)) for k, v in out.items()}
+
+
+def _setup_key(run: RunData) -> tuple[Any, Any]:
+    return (run.params.get('alpha'), run.params.get('rig_model'))
+
+
+def _figure_key(run: RunData) -> tuple[Any, Any, str]:
+    return (run.params.get('alpha'), run.params.get('rig_model'), _record(run))
+
+
+def _comparison_labels(runs: list[RunData], indices: list[int]) -> list[str]:
+    """Legend labels: the predictor, with the run number when a predictor repeats."""
+    names = [_predictor(runs[j]) for j in indices]
+    return [f'{name} (run {j + 1})' if names.count(name) > 1 else name
+            for name, j in zip(names, indices)]
+
+
+def _entry_status(entry: dict[str, Any]) -> str:
+    if entry.get('stable'):
+        return 'stable'
+    at = entry.get('unstable_at_s')
+    return f'aborted at {at:.3f} s' if isinstance(at, (int, float)) else 'aborted'
+
+
+def _cross_predictor_markdown(runs: list[RunData], entries: list[dict[str, Any]],
+                              figures: dict[tuple[Any, Any, str], Path],
+                              cutoff_hz: float) -> list[str]:
+    lines = [
+        '## Comparison across predictors',
+        '',
+        'One table per alpha (and rig), one row per run, the uncompensated predictor '
+        f"'{UNCOMPENSATED}' first. x, a, f: displacement, acceleration, force. HF force: "
+        f'fraction of the power of the measured force above {cutoff_hz:g} Hz (Welch PSD), '
+        "which quantifies the 'undesirable high frequency vibration' of the reference study "
+        '(Sec. 4); HF ref: the same for the reference force. NRMS is computed after '
+        "removing each signal's lag; lag x: the displacement lag behind the reference.",
+        '',
+    ]
+    for (alpha, rig), indices in _groups(runs, _setup_key).items():
+        lines += [f'### alpha = {_alpha_text(alpha)}, rig {rig or "n/a"}', '']
+        for key, png in figures.items():
+            if key[:2] == (alpha, rig):
+                lines += [f'![Reference vs uncompensated vs compensated, alpha = '
+                          f'{_alpha_text(alpha)}, record {key[2]}]({png.name})', '']
+        lines += [
+            '| run | predictor | record | NRMS x [%] | NRMS a [%] | NRMS f [%] | peak ratio x '
+            '| peak ratio a | peak ratio f | HF force [%] | HF ref [%] | lag x [ms] | status |',
+            '|---:|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|',
+        ]
+        for j in indices:
+            e = entries[j]
+            nrms, ratio = e['nrms'], e['peak_ratio']
+            lines.append(
+                f'| {j + 1} | {_predictor(runs[j])} | {_record(runs[j])} | '
+                + ' | '.join(_fmt(nrms[s], '.2f', 100)
+                             for s in ('displacement', 'acceleration', 'force')) + ' | '
+                + ' | '.join(_fmt(ratio[s], '.3f')
+                             for s in ('displacement', 'acceleration', 'force')) + ' | '
+                + f"{_fmt(e['high_frequency_force_fraction'], '.2f', 100)} | "
+                f"{_fmt(e['high_frequency_force_fraction_reference'], '.2f', 100)} | "
+                f"{_fmt(e['lag_s'], '.2f', 1e3)} | {_entry_status(e)} |")
+        lines.append('')
+    return lines
+
+
+def _best_markdown(entries: list[dict[str, Any]]) -> list[str]:
+    best = best_runs(entries)
+    lines = [
+        '## Uncompensated vs best compensated',
+        '',
+        f"Per alpha and rig: the uncompensated run (predictor '{UNCOMPENSATED}') beside the "
+        'stable compensated run with the smallest displacement NRMS. x: displacement; HF: '
+        'fraction of the power of the measured force above the cutoff.',
+        '',
+        '| alpha | rig | none NRMS x [%] | none peak ratio x | none HF [%] | none status '
+        '| best predictor | best NRMS x [%] | best peak ratio x | best HF [%] |',
+        '|---:|---|---:|---:|---:|---|---|---:|---:|---:|',
+    ]
+    for key in dict.fromkeys((e.get('alpha'), e.get('rig')) for e in entries):
+        chosen = best.get(key)
+        plain = [e for e in entries if (e.get('alpha'), e.get('rig')) == key
+                 and e.get('predictor') == UNCOMPENSATED]
+        same = [e for e in plain if chosen is not None and e.get('record') == chosen['record']]
+        none = (same or plain or [None])[0]
+
+        def cells(e):
+            if e is None:
+                return ['n/a'] * 3
+            return [_fmt(e['nrms']['displacement'], '.2f', 100),
+                    _fmt(e['peak_ratio']['displacement'], '.3f'),
+                    _fmt(e['high_frequency_force_fraction'], '.2f', 100)]
+
+        row = [_alpha_text(key[0]), key[1] or 'n/a', *cells(none),
+               'n/a' if none is None else _entry_status(none),
+               'no stable compensated run' if chosen is None else chosen['predictor'],
+               *cells(chosen)]
+        lines.append('| ' + ' | '.join(row) + ' |')
+    lines.append('')
+    return lines
+
+
+def _comparison_files(runs: list[RunData]) -> dict[tuple[Any, Any, str], str]:
+    """File name of each cross-predictor figure, rig and record appended when they vary."""
+    rigs = {r.params.get('rig_model') for r in runs}
+    records = {_record(r) for r in runs}
+    names: dict[tuple[Any, Any, str], str] = {}
+    for key in _groups(runs, _figure_key):
+        stem = PREDICTORS_PNG.format(alpha=_safe_name(_alpha_text(key[0])))[:-len('.png')]
+        if len(rigs) > 1:
+            stem += f'_{_safe_name(key[1])}'
+        if len(records) > 1:
+            stem += f'_{_safe_name(key[2])}'
+        name, k = stem + '.png', 2
+        while name in names.values():
+            name, k = f'{stem}_{k}.png', k + 1
+        names[key] = name
+    return names
+
+
+def write_report(runs: list[RunData], out_dir, *, title: str = 'seft comparison',
+                 high_frequency_cutoff_hz: float = HIGH_FREQUENCY_CUTOFF_HZ) -> ReportPaths:
     """Compare runs with the reference analysis and write summary.json, report.md and figures.
 
     For each run the reference (``reference.reference_from_run``) and the comparison
     (``metrics.compare_run``) are computed; then
 
     - ``summary.json``: ``{"runs": [entry, ...]}``, one ``metrics.summary_entry`` per run in
-      the given order, strict JSON (NaN/inf as null);
+      the given order (with the predictor name and the high-frequency fractions of the
+      measured and the reference force above the cutoff), strict JSON (NaN/inf as null);
     - ``report.md``: per run, the parameters that matter (alpha, rig, predictor, record, dt,
       tau), stable or aborted (time and reason) and a table
       signal | peak test | peak ref | peak ratio | lag [ms] | NRMS [%]; links to the figures;
-    - ``time_histories.png``: test versus reference, rows displacement [mm], force [N],
-      acceleration [m/s^2], one column per run (as the reference study's Figure 6);
-    - ``time_histories_zoom.png``: the same in a 2 s window around each reference's
-      displacement peak, where the lag and the high-frequency vibration are visible.
+    - one predictor: ``time_histories.png``, test versus reference, rows displacement [mm],
+      force [N], acceleration [m/s^2], one column per run (as the reference study's
+      Figure 6), and ``time_histories_zoom.png``, the same in a 2 s window around each
+      reference's displacement peak, where the lag and the high-frequency vibration show;
+    - several predictors: those two figures per predictor
+      (``time_histories_<predictor>.png``, ``time_histories_<predictor>_zoom.png``), and in
+      addition, in report.md, an "Uncompensated vs best compensated" table (one row per
+      alpha and rig, ``metrics.best_runs``) and a cross-predictor section: per alpha and rig
+      a table with a row per run (NRMS and peak ratio of displacement, acceleration and
+      force, high-frequency fraction of the measured and the reference force, stable or
+      aborted) and a figure ``predictors_alpha_<alpha>.png`` (``_<rig>``, ``_<record>``
+      appended when they vary) of the reference versus the uncompensated and the
+      compensated runs (:func:`plot_predictor_comparison`, as the reference study's
+      Figures 7-8).
 
     Parameters
     ----------
@@ -321,6 +645,9 @@ def write_report(runs: list[RunData], out_dir, *, title: str = 'seft comparison'
         Output directory (created if needed; existing files are overwritten).
     title : str
         Title of the report and the figures.
+    high_frequency_cutoff_hz : float > 0
+        Cutoff of the high-frequency content of the force [Hz], below every run's Nyquist
+        frequency.
 
     Returns
     -------
@@ -329,22 +656,25 @@ def write_report(runs: list[RunData], out_dir, *, title: str = 'seft comparison'
     Raises
     ------
     ParameterError
-        If `runs` is empty or a run's parameters are missing or out of range.
+        If `runs` is empty, a run's parameters are missing or out of range, or the cutoff is
+        not below a run's Nyquist frequency.
 
     References
     ----------
-    N. Nakata and S. Combs, Substructure Effective Force Testing, Sec. 4 (Figure 6).
+    N. Nakata and S. Combs, Substructure Effective Force Testing, Sec. 4 (Figure 6) and
+    Sec. 5 (Figures 7 and 8).
     """
     runs = list(runs)
     if not runs:
         raise ParameterError('runs: expected at least one run')
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    comparisons = [compare_run(run, reference_from_run(run)) for run in runs]
-    summary = write_summary_json(
-        [summary_entry(run, c) for run, c in zip(runs, comparisons)], out_dir / 'summary.json')
-    figure = plot_time_histories(runs, comparisons, out_dir / TIME_HISTORIES_PNG, title=title)
-    zoom = plot_time_histories(runs, comparisons, out_dir / ZOOM_PNG, title=title, zoom=True)
+    comparisons = [compare_run(run, reference_from_run(run),
+                               high_frequency_cutoff_hz=high_frequency_cutoff_hz)
+                   for run in runs]
+    entries = [summary_entry(run, c) for run, c in zip(runs, comparisons)]
+    summary = write_summary_json(entries, out_dir / 'summary.json')
+    predictors = _predictor_order(runs)
 
     lines = [
         f'# {title}',
@@ -357,14 +687,49 @@ def write_report(runs: list[RunData], out_dir, *, title: str = 'seft comparison'
         '(positive: the test lags); NRMS = rms(test - reference) / rms(reference) after '
         'advancing the test by its lag, over the samples both share.',
         '',
-        f'![Time histories]({figure.name})',
-        '',
-        f'![Zoom around the reference displacement peak]({zoom.name})',
-        '',
     ]
+    figure = zoom = None
+    grids: dict[str, tuple[Path, Path]] = {}
+    comparison_figures: dict[tuple[Any, Any, str], Path] = {}
+    if len(predictors) == 1:
+        figure = plot_time_histories(runs, comparisons, out_dir / TIME_HISTORIES_PNG,
+                                     title=title)
+        zoom = plot_time_histories(runs, comparisons, out_dir / ZOOM_PNG, title=title,
+                                   zoom=True)
+        lines += [f'![Time histories]({figure.name})', '',
+                  f'![Zoom around the reference displacement peak]({zoom.name})', '']
+    else:
+        files = _comparison_files(runs)
+        for key, indices in _groups(runs, _figure_key).items():
+            comparison_figures[key] = plot_predictor_comparison(
+                [runs[j] for j in indices], [comparisons[j] for j in indices],
+                out_dir / files[key], labels=_comparison_labels(runs, indices),
+                title=f'{title}: alpha = {_alpha_text(key[0])}, rig {key[1] or "n/a"}, '
+                      f'record {key[2]}: reference vs uncompensated vs compensated')
+        lines += _best_markdown(entries)
+        lines += _cross_predictor_markdown(runs, entries, comparison_figures,
+                                           high_frequency_cutoff_hz)
+        lines += ['## Time histories per predictor', '']
+        for name in predictors:
+            indices = [j for j, run in enumerate(runs) if _predictor(run) == name]
+            sub_runs = [runs[j] for j in indices]
+            sub_comparisons = [comparisons[j] for j in indices]
+            stem = _safe_name(name)
+            grid = plot_time_histories(
+                sub_runs, sub_comparisons,
+                out_dir / PREDICTOR_TIME_HISTORIES_PNG.format(predictor=stem),
+                title=f'{title}: predictor {name}')
+            grid_zoom = plot_time_histories(
+                sub_runs, sub_comparisons, out_dir / PREDICTOR_ZOOM_PNG.format(predictor=stem),
+                title=f'{title}: predictor {name}', zoom=True)
+            grids[name] = (grid, grid_zoom)
+            lines += [f'### Predictor {name}', '', f'![Time histories, {name}]({grid.name})',
+                      '', f'![Zoom around the reference displacement peak, {name}]'
+                      f'({grid_zoom.name})', '']
     for index, (run, comparison) in enumerate(zip(runs, comparisons), start=1):
         lines += _run_markdown(index, run, comparison)
     report = out_dir / 'report.md'
     report.write_text('\n'.join(lines), encoding='utf-8')
     return ReportPaths(out_dir=out_dir, summary_json=summary, report_md=report,
-                       time_histories_png=figure, zoom_png=zoom)
+                       time_histories_png=figure, zoom_png=zoom,
+                       predictor_time_histories=grids, predictor_comparisons=comparison_figures)

@@ -10,16 +10,23 @@ import random
 import time
 from typing import Any, Callable
 
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+import numpy as np
+
 from seft_msgs_py import parameters
-from seft_msgs_py.errors import InputError, SeftError
+from seft_msgs_py.errors import InputError, ParameterError, SeftError
 from seft_ros.analysis.bag import read_run
 from seft_ros.analysis.report import write_report
 from seft_ros.analysis.rundata import RunData
 from seft_ros.cli.config import expand_runs, load_config, write_params_file
-from seft_ros.core.experiment import simulate
+from seft_ros.core import stability
+from seft_ros.core.experiment import prepared_record, simulate
+from seft_ros.core.reference_force import PREDICTORS
 
 __all__ = ['build_runs', 'output_dir', 'run_experiments', 'simulate_experiments',
-           'compare_bags', 'summary_table', 'Result']
+           'compare_bags', 'summary_table', 'Result', 'check_stability', 'stability_report',
+           'stability_table', 'StabilityResult']
 
 
 class Result:
@@ -46,7 +53,16 @@ def build_runs(*, config: str | None = None, overrides: dict[str, Any] | None = 
     values.update({k: v for k, v in (overrides or {}).items() if v is not None})
     if alphas:
         values['alpha'] = list(alphas)
-    return expand_runs(values, where=config or 'command line')
+    runs = expand_runs(values, where=config or 'command line')
+    # read every record now: a bad file is reported before anything starts
+    seen = set()
+    for p in runs:
+        key = tuple(p[k] for k in ('record', 'dt', 'mass_kg', 'amplitude_N', 'scale_factor',
+                                   'time_scale', 'duration_s', 'n_steps'))
+        if key not in seen:
+            seen.add(key)
+            prepared_record(p)
+    return runs
 
 
 def output_dir(*, out: str | None, name: str) -> Path:
@@ -84,15 +100,21 @@ def _finish(out_dir: Path, runs: list[RunData], title: str, t0: float) -> Result
 
 
 def simulate_experiments(*, runs: list[dict], out_dir: Path,
-                         progress: Callable[[str], None] = print, title: str = '') -> Result:
+                         progress: Callable[[str], None] = print, title: str = '',
+                         force: bool = False) -> Result:
     """Run each parameter set in one process (no ROS) and write the report.
+
+    Before the first run, :func:`check_stability` (`force`: warn instead of refusing).
 
     Raises
     ------
     InputError, ParameterError
         Bad record or parameter.
+    PredictedUnstableError
+        A run is predicted unstable and `force` is False.
     """
     t0 = time.monotonic()
+    check_stability(runs=runs, force=force, progress=progress)
     data = []
     for p in runs:
         label = _run_label(p)
@@ -119,15 +141,20 @@ def _domain_id() -> int:
 
 def run_experiments(*, runs: list[dict], out_dir: Path,
                     progress: Callable[[str], None] = print, title: str = '',
-                    domain_id: int | None = None) -> Result:
+                    domain_id: int | None = None, force: bool = False) -> Result:
     """Run each parameter set as a node graph (separate processes over DDS), record a bag
     per run, read the bags back and write the report.
 
+    Before any node starts, :func:`check_stability` (`force`: warn instead of refusing).
+
     Raises
     ------
+    PredictedUnstableError
+        A run is predicted unstable and `force` is False (nothing started).
     SeftError
         A node failed or the graph stalled (message names the node and its log).
     """
+    check_stability(runs=runs, force=force, progress=progress)
     from seft_ros.cli.runner import GraphRunner  # rclpy only for this verb
 
     t0 = time.monotonic()
@@ -200,3 +227,168 @@ def summary_table(summary: list[dict]) -> str:
 def parameter_names() -> list[str]:
     """Every parameter name (for ``--set`` completion and checks)."""
     return [s.name for s in parameters.SCHEMA]
+
+
+# -- stability map and the pre-run guard ------------------------------------------------------
+
+def check_stability(*, runs: list[dict], force: bool = False,
+                    progress: Callable[[str], None] = print) -> list[stability.StabilityCheck]:
+    """Refuse (or with `force` warn about) runs predicted unstable at their alpha.
+
+    Each run with a linear rig and a predictor with a linear form is checked by
+    :func:`seft_ros.core.stability.check_run` (spectral radius of the sampled loop at the
+    configured alpha); the others get a note through `progress`.
+
+    Returns
+    -------
+    list of StabilityCheck
+        One per run.
+
+    Raises
+    ------
+    PredictedUnstableError
+        A run is predicted unstable and `force` is False (message of the first such run).
+    """
+    checks = [stability.check_run(p) for p in runs]
+    unstable = [c for c in checks if c.stable is False]
+    for c in checks:
+        if c.stable is None:
+            progress(f'note: {c.message}')
+    if unstable and not force:
+        more = f' (and {len(unstable) - 1} more run(s))' if len(unstable) > 1 else ''
+        raise stability.PredictedUnstableError(
+            f'{unstable[0].message}{more}; use --force to run it anyway')
+    for c in unstable:
+        progress(f'warning: {c.message}; running it anyway (--force)')
+    return checks
+
+
+class StabilityResult:
+    """What ``seft stability`` produced: the map, the configured alphas and the files."""
+
+    def __init__(self, smap: stability.StabilityMap, alphas: list[float], tau_s: float,
+                 json_path: Path, png_path: Path):
+        self.map = smap
+        self.alphas = alphas
+        self.tau_s = tau_s
+        self.json_path = json_path
+        self.png_path = png_path
+
+
+#: Default delay range of the map per rig [s]: (first, last); 0.5 ms spacing.
+_TAU_RANGE = {'delay': (0.0005, 0.02), 'servohydraulic': (0.0, 0.01)}
+
+
+def stability_report(*, out_dir: Path, config: str | None = None,
+                     overrides: dict[str, Any] | None = None,
+                     predictors: list[str] | None = None, tau_min: float | None = None,
+                     tau_max: float | None = None, points: int | None = None,
+                     alpha_max: float = 3.0) -> StabilityResult:
+    """Largest stable alpha over the rig's delay per predictor: ``stability.json`` and
+    ``stability.png`` in `out_dir`.
+
+    Parameters
+    ----------
+    out_dir : Path
+        Output directory.
+    config, overrides
+        As :func:`build_runs`; the rig (``rig_model``) and the other parameters of the map,
+        the configured alpha(s) and delay are marked on the plot.
+    predictors : list of str, optional
+        Default: every registered predictor.
+    tau_min, tau_max : float, optional
+        Delay range [s] (``tau_s`` of the delay rig, ``io_latency_s`` of the servohydraulic
+        rig); default 0.5-20 ms (delay) or 0-10 ms (servohydraulic).
+    points : int >= 2, optional
+        Number of delays (default: 0.5 ms spacing).
+    alpha_max : float > 0
+        Upper end of the search in alpha.
+
+    Raises
+    ------
+    InputError, ParameterError
+        Bad configuration, range or predictor name.
+    """
+    runs = build_runs(config=config, overrides=overrides)
+    params = runs[0]
+    rig = params['rig_model']
+    knob = stability.DELAY_PARAMETER.get(rig)
+    if knob is None:
+        raise ParameterError(f'parameter rig_model={rig!r}: no linear model for a map')
+    lo, hi = _TAU_RANGE[rig]
+    lo = lo if tau_min is None else float(tau_min)
+    hi = hi if tau_max is None else float(tau_max)
+    low_ok = lo > 0 if rig == 'delay' else lo >= 0
+    if not (low_ok and hi > lo):
+        raise ParameterError(f'--tau-min {lo:g} --tau-max {hi:g}: expected '
+                             f'{"0 <" if rig == "delay" else "0 <="} tau-min < tau-max')
+    n = int(round((hi - lo) / 0.0005)) + 1 if points is None else int(points)
+    if n < 2:
+        raise ParameterError(f'--points {n}: expected >= 2')
+    if not alpha_max > 0:
+        raise ParameterError(f'--alpha-max {alpha_max:g}: expected > 0')
+    names = list(predictors or PREDICTORS)
+    for name in names:
+        if name not in PREDICTORS:
+            choices = ', '.join(repr(c) for c in PREDICTORS)
+            raise ParameterError(f'predictor {name!r}: expected one of {choices}')
+    smap = stability.stability_map(params, np.linspace(lo, hi, n), names, alpha_max=alpha_max)
+    alphas = [float(p['alpha']) for p in runs]
+    json_path = Path(out_dir) / 'stability.json'
+    doc = smap.to_json()
+    doc['configured'] = {'alpha': alphas, knob: float(params[knob])}
+    json_path.write_text(json.dumps(doc, indent=1) + '\n')
+    png_path = _plot_stability(smap, alphas, float(params[knob]), Path(out_dir) / 'stability.png')
+    return StabilityResult(smap, alphas, float(params[knob]), json_path, png_path)
+
+
+def _plot_stability(smap: stability.StabilityMap, alphas: list[float], tau_s: float,
+                    path: Path) -> Path:
+    fig = Figure(figsize=(7.5, 4.8))
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot()
+    t_ms = 1e3 * smap.taus_s
+    for i, name in enumerate(smap.predictors):
+        if name in smap.notes:
+            ax.plot([], [], ' ', label=f'{name}: n/a (nonlinear)')
+            continue
+        y = np.minimum(smap.boundary_alpha[i], smap.alpha_max)
+        ax.plot(t_ms, y, marker='.', label=f'{name}')
+    ax.axhline(1.0, color='k', ls='--', lw=1.0,
+               label='alpha = 1: neutral-type limit (pure delay, no compensation)')
+    ax.plot([1e3 * tau_s] * len(alphas), alphas, 'rx', ms=8, label='configured runs')
+    label = 'actuator delay tau_s' if smap.rig == 'delay' else 'I/O latency io_latency_s'
+    ax.set_xlabel(f'{label} [ms]')
+    ax.set_ylabel('largest stable alpha')
+    ax.set_ylim(0.0, smap.alpha_max * 1.02)
+    ax.set_title(f'Substructure EFT stability boundary, {smap.rig} rig '
+                 f'(stable below the curve; capped at {smap.alpha_max:g})', fontsize=9)
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    return path
+
+
+def stability_table(result: StabilityResult) -> str:
+    """Plain-text table of the map: delay [ms] and the largest stable alpha per predictor
+    ('unstable': already at alpha = 0; '>X': stable up to alpha_max; 'n/a': nonlinear)."""
+    smap = result.map
+    head = f'{smap.delay_parameter + " [ms]":>17} ' + ' '.join(f'{p:>12}'
+                                                              for p in smap.predictors)
+    lines = [head]
+
+    def cell(i, j):
+        if smap.predictors[i] in smap.notes:
+            return 'n/a'
+        v = smap.boundary_alpha[i, j]
+        if v != v:
+            return 'unstable'
+        return f'>{smap.alpha_max:g}' if v == float('inf') else f'{v:.3f}'
+
+    for j, tau in enumerate(smap.taus_s):
+        lines.append(f'{1e3 * tau:17.2f} ' + ' '.join(f'{cell(i, j):>12}'
+                                                      for i in range(len(smap.predictors))))
+    for name, note in smap.notes.items():
+        lines.append(f'{name}: {note}')
+    return '\n'.join(lines)

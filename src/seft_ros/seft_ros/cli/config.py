@@ -2,7 +2,8 @@
 
 A configuration is a ROS 2 parameter file (``/**: ros__parameters: {...}``, the format of
 ``--params-file``) or a plain mapping of the same parameters. For ``seft run`` and
-``seft simulate`` only, ``alpha`` may be a list: one run per value.
+``seft simulate`` only, ``alpha`` and ``predictor`` may be lists: one run per combination
+(predictors outer, alphas inner).
 """
 
 from pathlib import Path
@@ -66,10 +67,14 @@ def expand_runs(config: dict[str, Any], *, where: str = '') -> list[dict[str, An
     if not alphas:
         raise ParameterError(f'{where + ": " if where else ""}parameter alpha: expected at '
                              'least one value')
+    predictors = config.get('predictor', parameters.spec('predictor').default)
+    if not isinstance(predictors, (list, tuple)):
+        predictors = [predictors]
     runs = []
-    for alpha in alphas:
-        values = dict(config, alpha=alpha)
-        runs.append(parameters.resolve(values, where=where))
+    for predictor in predictors:
+        for alpha in alphas:
+            values = dict(config, alpha=alpha, predictor=predictor)
+            runs.append(parameters.resolve(values, where=where))
     return runs
 
 

@@ -1,4 +1,5 @@
-"""The ``seft`` command line: run, simulate, compare (thin verbs over ``seft_ros.cli.api``).
+"""The ``seft`` command line: run, simulate, compare, stability (thin verbs over
+``seft_ros.cli.api``).
 
 Every :class:`SeftError` (bad file, bad parameter, failed node) is printed as one line
 ``seft: error: ...`` with exit code 2; Ctrl-C stops the run safely with exit code 130.
@@ -41,7 +42,9 @@ def _experiment_options(p: argparse.ArgumentParser) -> None:
     p.add_argument('--alpha', type=float, nargs='+', metavar='A', help='mass ratio(s)')
     p.add_argument('--rig', dest='rig_model', choices=('delay', 'servohydraulic'),
                    help='simulated rig model')
-    p.add_argument('--predictor', help="delay compensation ('none')")
+    p.add_argument('--predictor', nargs='+', metavar='NAME',
+                   help="delay compensation(s): 'none', 'model', 'polynomial', 'adaptive' "
+                   '(several: one run per predictor and alpha)')
     p.add_argument('--amplitude', dest='amplitude_N', type=float, metavar='N',
                    help="peak of m*xg'' [N] (0: use --scale)")
     p.add_argument('--scale', dest='scale_factor', type=float, help='plain amplitude factor')
@@ -52,6 +55,8 @@ def _experiment_options(p: argparse.ArgumentParser) -> None:
                    metavar='NAME=VALUE', help='any other parameter (repeatable)')
     p.add_argument('--out', help='output directory (default runs/<name>/)')
     p.add_argument('--name', help='run name (default: the config file name, or "run")')
+    p.add_argument('--force', action='store_true', help='run even when a run is predicted '
+                   'unstable by the stability map (warn instead of refusing)')
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -69,6 +74,25 @@ def build_parser() -> argparse.ArgumentParser:
                           'reference (figures, table, summary.json)')
     cmp_.add_argument('bags', nargs='+', metavar='BAG')
     cmp_.add_argument('--out', help='output directory (default runs/compare/)')
+    stab = sub.add_parser('stability', help='largest stable alpha over the delay per predictor '
+                          "from the sampled loop's eigenvalues (stability.png, .json, table)")
+    stab.add_argument('config', nargs='?', help='configuration YAML (rig, specimen, dt; '
+                      'its alpha(s) and delay are marked)')
+    stab.add_argument('--rig', dest='rig_model', choices=('delay', 'servohydraulic'),
+                      help='simulated rig model')
+    stab.add_argument('--predictor', dest='predictors', nargs='+', metavar='NAME',
+                      help='predictors to map (default: all registered)')
+    stab.add_argument('--tau-min', type=float, metavar='S', help='first delay [s] (tau_s of '
+                      'the delay rig, io_latency_s of the servohydraulic rig)')
+    stab.add_argument('--tau-max', type=float, metavar='S', help='last delay [s] (default '
+                      '0.02 on the delay rig, 0.01 on the servohydraulic rig)')
+    stab.add_argument('--points', type=int, metavar='N', help='number of delays (default: '
+                      '0.5 ms spacing)')
+    stab.add_argument('--alpha-max', type=float, default=3.0, metavar='A',
+                      help='upper end of the search in alpha (default 3)')
+    stab.add_argument('--set', dest='sets', type=_set_value, action='append', default=[],
+                      metavar='NAME=VALUE', help='any other parameter (repeatable)')
+    stab.add_argument('--out', help='output directory (default runs/stability/)')
     return parser
 
 
@@ -90,11 +114,28 @@ def _experiments(args):
     return runs, api.output_dir(out=args.out, name=name), name
 
 
+def _stability(args) -> int:
+    overrides = {'rig_model': args.rig_model}
+    for name, value in args.sets:
+        overrides[name] = value
+    out = api.output_dir(out=args.out, name='stability')
+    result = api.stability_report(out_dir=out, config=args.config, overrides=overrides,
+                                  predictors=args.predictors, tau_min=args.tau_min,
+                                  tau_max=args.tau_max, points=args.points,
+                                  alpha_max=args.alpha_max)
+    print(api.stability_table(result))
+    print(f'plot: {result.png_path}')
+    print(f'map: {result.json_path}')
+    return 0
+
+
 def main(argv=None) -> int:
     """Entry point of ``seft``; returns the exit code."""
     args = build_parser().parse_args(argv)
     t0 = time.monotonic()
     try:
+        if args.verb == 'stability':
+            return _stability(args)
         if args.verb == 'compare':
             out = api.output_dir(out=args.out, name='compare')
             result = api.compare_bags(bags=args.bags, out_dir=out)
@@ -103,10 +144,12 @@ def main(argv=None) -> int:
             _progress(f'{len(runs)} run(s) -> {out}')
             if args.verb == 'run':
                 result = api.run_experiments(runs=runs, out_dir=out, progress=_progress,
-                                             title=f'seft run {name}', domain_id=args.domain_id)
+                                             title=f'seft run {name}', domain_id=args.domain_id,
+                                             force=args.force)
             else:
                 result = api.simulate_experiments(runs=runs, out_dir=out, progress=_progress,
-                                                  title=f'seft simulate {name}')
+                                                  title=f'seft simulate {name}',
+                                                  force=args.force)
     except SeftError as exc:
         print(f'seft: error: {exc}', file=sys.stderr)
         return 2

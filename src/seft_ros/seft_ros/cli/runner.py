@@ -145,7 +145,7 @@ class GraphRunner:
         log_dir = run_dir / 'logs'
         log_dir.mkdir(parents=True, exist_ok=True)
         bag_path = run_dir / 'bag'
-        params = dict(params, bag_path=str(bag_path.resolve()))
+        params = dict(params, bag_path=str(bag_path.resolve()), wait_for_recorder=True)
         params_file = write_params_file(params, run_dir / 'params.yaml')
         nodes = ['recorder', 'ground_motion_publisher', 'reference_force_builder']
         if params['rig_model'] == 'servohydraulic':

@@ -179,6 +179,8 @@ class SaturationInterlock:
     """
 
     def __init__(self, dt: float, window_s: float = 0.1, abort_fraction: float = 0.5):
+        if not (dt > 0 and np.isfinite(dt)):
+            raise ParameterError(f'parameter dt={dt!r}: expected float > 0')
         if not window_s > 0:
             raise ParameterError(f'parameter saturation_window_s={window_s!r}: expected > 0')
         if not 0 < abort_fraction <= 1:
@@ -187,6 +189,8 @@ class SaturationInterlock:
         self.window = max(1, int(round(window_s / dt)))
         self.window_s = self.window * dt
         self.abort_fraction = float(abort_fraction)
+        # the largest tolerated count, exact for fractions like 0.58 (0.58*50 = 28.999...)
+        self._max_count = int(np.floor(self.abort_fraction * self.window + 1e-9))
         self._flags = [False] * self.window
         self._i = 0
         self._count = 0
@@ -203,7 +207,7 @@ class SaturationInterlock:
         self._flags[self._i] = saturated
         self._i = (self._i + 1) % self.window
         self._count += int(saturated) - int(old)
-        if self.abort_fraction < 1 and self._count > self.abort_fraction * self.window:
+        if self.abort_fraction < 1 and self._count > self._max_count:
             return (f'force control lost at t={time_s:.3f} s: valve command saturated in '
                     f'{self._count}/{self.window} samples of the last {self.window_s:.3f} s')
         return None

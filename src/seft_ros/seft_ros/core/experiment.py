@@ -9,7 +9,8 @@ One step k (the node that does it in the graph in brackets)::
     [force_servo_controller]  u_k = C_f(f_r[k] - f_m[k]); stop if the interlock trips
     [rig]                     rig.apply(u_k)            (delay rig: rig.apply(f_r[k]))
     [reference_force_builder] stop if the instability monitor trips on m_k (k+1 < N);
-                              f_r[k+1] = -(1+alpha) m xg''[k+1] - alpha m a_hat(m_k, ...)
+                              f_r[k+1] = -(1+alpha) m g[k+1] - alpha m a_hat(m_k, ...)
+                              from xg''[k+1 .. k+1+L] (the record is known ahead)
 
 ``f_r[0]`` is built from ``xg''[0]`` with the specimen at rest.
 """
@@ -28,7 +29,7 @@ from seft_ros.analysis.rundata import RunData
 from seft_ros.core.controller import ForceServoController, SaturationInterlock
 from seft_ros.core.ground_motion import GroundMotion, load_record, prepare
 from seft_ros.core.monitor import InstabilityMonitor
-from seft_ros.core.reference_force import ReferenceForceBuilder
+from seft_ros.core.reference_force import ReferenceForceBuilder, ground_window
 
 __all__ = ['prepared_record', 'simulate', 'StepRecord']
 
@@ -105,7 +106,12 @@ def simulate(params, *, progress: Callable[[int, int], None] | None = None,
     rec = StepRecord(*(np.full(n_total, np.nan) for _ in range(6)))
     reason = None
     n_done = n_total
-    fr = builder.step(float(ag[0]), None)
+    look = builder.lookahead_steps
+
+    def ground(j):
+        return ground_window(ag.__getitem__, j, look, n_total)
+
+    fr = builder.step(ground(0), None)
     t_last = time.monotonic()
     for k in range(n_total):
         reason = rig.limit_violation()
@@ -130,7 +136,7 @@ def simulate(params, *, progress: Callable[[int, int], None] | None = None,
             if reason:
                 n_done = k + 1
                 break
-            fr = builder.step(float(ag[k + 1]), meas)
+            fr = builder.step(ground(k + 1), meas)
         if progress is not None and time.monotonic() - t_last > 0.5:
             t_last = time.monotonic()
             progress(k + 1, n_total)

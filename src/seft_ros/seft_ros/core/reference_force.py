@@ -1,52 +1,64 @@
 """The reference-force builder of substructure EFT and its delay-compensation plug-in point."""
 
+import math
 from typing import Callable, Protocol, runtime_checkable
 
 from seft_msgs_py.errors import ParameterError
 from seft_plant_sim.interface import Measurement
+from seft_ros.core.predictors import (
+    AdaptivePredictor,
+    ModelPredictor,
+    NoPredictor,
+    PolynomialPredictor,
+    foh_step_average,
+)
 
-__all__ = ['Predictor', 'NoPredictor', 'PREDICTORS', 'make_predictor', 'ReferenceForceBuilder']
+__all__ = ['Predictor', 'NoPredictor', 'PREDICTORS', 'make_predictor', 'ReferenceForceBuilder',
+           'ground_window']
 
 
 @runtime_checkable
 class Predictor(Protocol):
-    """Estimate of the specimen acceleration fed back into the reference force.
+    """Delay compensator: estimate of the specimen acceleration fed back into the reference force.
 
     Called once per step k with the latest measurement, that of step k-1 (None before the
-    first sample: the specimen is at rest), and the reference forces already commanded
-    (``f_r[0..k-1]``); returns ``a_hat[k]`` [m/s^2] for the reference force of step k.
+    first sample: the specimen is at rest), the desired forces already built
+    (``F[0..k-1]``) and the ground-motion part ``G[k] = -(1 + alpha) m gbar[k]`` [N] of the
+    new force (the compensator may solve the algebraic loop through it); returns
+    ``a_hat[k]`` [m/s^2]. The builder forms ``F[k] = G[k] - alpha m a_hat[k]`` and sends
+    ``command(F[k])`` (the identity, except for a force-loop inverse).
+
+    Attributes
+    ----------
+    name : str
+        Registry name (parameter ``predictor``).
+    step_average : bool
+        The ground term is the step average of the (linearly interpolated) record over the
+        step in which the force acts (hold-consistent compensators), not the sample
+        ``xg''[k]`` (paper Eq. 5.3).
+    delay_s : float
+        Loop delay the compensator assumes [s] (the shift of the ground-motion preview).
     """
 
     name: str
+    step_average: bool
+    delay_s: float
 
-    def predict(self, latest: Measurement | None, commanded_N: list[float]) -> float:
+    def predict(self, latest: Measurement | None, commanded_N: list[float],
+                ground_force_N: float = 0.0) -> float:
         """Return the fed-back acceleration estimate [m/s^2]."""
 
-
-class NoPredictor:
-    """No compensation: the measured acceleration of the previous step (paper Eq. 5.3).
-
-    ``a_hat[k] = a_m[k-1]``; zero before the first measurement.
-
-    References
-    ----------
-    N. Nakata and S. Combs, Substructure Effective Force Testing, Eq. 5.3.
-    """
-
-    name = 'none'
-
-    @classmethod
-    def from_parameters(cls, params) -> 'NoPredictor':
-        """No parameters."""
-        return cls()
-
-    def predict(self, latest: Measurement | None, commanded_N: list[float]) -> float:
-        """Return the previous step's measured acceleration [m/s^2]."""
-        return 0.0 if latest is None else latest.acceleration_m_s2
+    def command(self, force_N: float) -> float:
+        """Return the command sent to the actuator for the desired force [N]."""
 
 
 #: Delay compensators by name (parameter ``predictor``).
-PREDICTORS: dict[str, Callable] = {'none': NoPredictor.from_parameters}
+PREDICTORS: dict[str, Callable] = {
+    'none': NoPredictor.from_parameters,
+    'polynomial': PolynomialPredictor.from_parameters,
+    'model': ModelPredictor.from_parameters,
+    'adaptive': AdaptivePredictor.from_parameters,
+}
 
 
 def make_predictor(params) -> Predictor:
@@ -69,9 +81,14 @@ def make_predictor(params) -> Predictor:
 class ReferenceForceBuilder:
     """Reference force of substructure EFT from the ground motion and fed-back acceleration.
 
-    ``f_r[k] = -(1 + alpha) m xg''[k] - alpha m a_hat[k]`` (paper Eq. 2.5 with the measured
+    ``F[k] = -(1 + alpha) m g[k] - alpha m a_hat[k]`` (paper Eq. 2.5 with the measured
     acceleration, Eq. 5.3), where ``a_hat[k]`` is the predictor's estimate (``none``: the
-    measured acceleration of step k-1).
+    measured acceleration of step k-1) and ``g[k]`` is the ground acceleration: the sample
+    ``xg''[k]`` for ``none``, the step average of the linearly interpolated record over
+    ``[t_k + s, t_k+1 + s]`` for the hold-consistent predictors, with ``s = 0`` or, with the
+    ground-motion preview, ``s`` = the predictor's loop delay: the record is known before the
+    test, so its part of the force is commanded ahead by the delay and the response no longer
+    lags the reference. The command sent is ``predictor.command(F[k])``.
 
     Parameters
     ----------
@@ -80,6 +97,15 @@ class ReferenceForceBuilder:
     mass_kg : float > 0
         Specimen mass m [kg].
     predictor : Predictor
+    dt : float > 0, optional
+        Control period [s]; needed by the preview.
+    ground_preview : bool
+        Shift the ground term ahead by the predictor's delay.
+
+    Attributes
+    ----------
+    lookahead_steps : int
+        How many samples after ``xg''[k]`` :meth:`step` reads (the window length - 1).
 
     Raises
     ------
@@ -91,7 +117,8 @@ class ReferenceForceBuilder:
     N. Nakata and S. Combs, Substructure Effective Force Testing, Eqs. 2.4-2.5 and 5.3.
     """
 
-    def __init__(self, alpha: float, mass_kg: float, predictor: Predictor):
+    def __init__(self, alpha: float, mass_kg: float, predictor: Predictor, *,
+                 dt: float = 0.0, ground_preview: bool = False):
         if not alpha >= 0:
             raise ParameterError(f'parameter alpha={alpha!r}: expected float >= 0')
         if not mass_kg > 0:
@@ -99,19 +126,66 @@ class ReferenceForceBuilder:
         self.alpha = float(alpha)
         self.mass_kg = float(mass_kg)
         self.predictor = predictor
+        self.dt = float(dt)
+        self.ground_preview = bool(ground_preview) and self.dt > 0
         self.commanded_N: list[float] = []
         self.last_ground_force_N = 0.0
+        self.lookahead_steps = 0
+        if getattr(predictor, 'step_average', False):
+            self.lookahead_steps = 1
+            if self.ground_preview:
+                most = getattr(predictor, 'max_delay_s', predictor.delay_s)
+                self.lookahead_steps = 1 + int(math.ceil(most / self.dt - 1e-9))
 
     @classmethod
     def from_parameters(cls, params) -> 'ReferenceForceBuilder':
-        """Build from ``alpha``, ``mass_kg`` and ``predictor``."""
-        return cls(float(params['alpha']), float(params['mass_kg']), make_predictor(params))
+        """Build from ``alpha``, ``mass_kg``, ``dt``, ``ground_preview`` and ``predictor``."""
+        return cls(float(params['alpha']), float(params['mass_kg']), make_predictor(params),
+                   dt=float(params['dt']), ground_preview=bool(params['ground_preview']))
 
-    def step(self, ground_acceleration_m_s2: float, latest: Measurement | None) -> float:
-        """Return ``f_r[k]`` [N] from ``xg''[k]`` and the measurement of step k-1."""
-        a_hat = self.predictor.predict(latest, self.commanded_N)
+    def ground(self, window) -> float:
+        """The ground acceleration g[k] [m/s^2] of the new force from ``xg''[k..k+L]``."""
+        if not self.predictor.step_average:
+            return float(window[0])
+        shift = self.predictor.delay_s / self.dt if self.ground_preview else 0.0
+        return foh_step_average(window, shift)
+
+    def step(self, ground, latest: Measurement | None) -> float:
+        """Return the command ``f_r[k]`` [N] from the ground motion and the measurement of k-1.
+
+        Parameters
+        ----------
+        ground : float or sequence of float, shape (lookahead_steps + 1,)
+            ``xg''[k]`` [m/s^2], or the window ``xg''[k], ..., xg''[k + lookahead_steps]``
+            (zeros after the end of the record); a float is enough when
+            ``lookahead_steps == 0``.
+        latest : Measurement or None
+            The measurement of step k-1 (None for k = 0).
+        """
+        window = (ground,) if isinstance(ground, (int, float)) else ground
+        if len(window) < self.lookahead_steps + 1:
+            raise ParameterError(f'ground window of {len(window)} samples: expected '
+                                 f'{self.lookahead_steps + 1} (xg[k..k+{self.lookahead_steps}])')
         m, alpha = self.mass_kg, self.alpha
-        self.last_ground_force_N = -(1.0 + alpha) * m * ground_acceleration_m_s2
+        self.last_ground_force_N = -(1.0 + alpha) * m * self.ground(window)
+        a_hat = self.predictor.predict(latest, self.commanded_N, self.last_ground_force_N)
         force = self.last_ground_force_N - alpha * m * a_hat
         self.commanded_N.append(force)
-        return force
+        return self.predictor.command(force)
+
+
+def ground_window(lookup: Callable[[int], float], k: int, lookahead_steps: int,
+                  n_total: int) -> list[float]:
+    """``[xg''[k], ..., xg''[k + lookahead_steps]]`` with zeros after the record.
+
+    Parameters
+    ----------
+    lookup : callable(int) -> float
+        Ground acceleration of a step [m/s^2].
+    k : int
+        Step of the new force.
+    lookahead_steps : int >= 0
+    n_total : int
+        Record length (steps at and after it are 0).
+    """
+    return [float(lookup(j)) if j < n_total else 0.0 for j in range(k, k + lookahead_steps + 1)]

@@ -118,7 +118,10 @@ class RecorderNode(SeftNode):
         self.create_subscription(STATUS.msg_type, STATUS.name, self.guard(self._on_status),
                                  STATUS.qos)
         self.finals = {}
-        self.participants = set()
+        # the nodes of this run's graph: the recorder waits for each one's final count
+        self.participants = {'rig', 'ground_motion_publisher', 'reference_force_builder'}
+        if p['rig_model'] == 'servohydraulic':
+            self.participants.add('force_servo_controller')
         self.rig_final_at = None
         self.wall_timer(0.1, self._check_complete)
         self.report(STATE_READY, f'recording to {self.bag_path}')

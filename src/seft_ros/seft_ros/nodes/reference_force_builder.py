@@ -1,8 +1,11 @@
 """reference_force_builder node: f_r[k] = -(1+alpha) m xg''[k] - alpha m a_hat[k].
 
 Subscribes to the ground acceleration and to the rig's sensor topics; when the measurement
-of step k is complete and ``xg''[k+1]`` has arrived it publishes ``f_r[k+1]`` stamped
-``t_k+1`` (``f_r[0]`` as soon as ``xg''[0]`` arrives, the specimen at rest). ``a_hat`` comes
+of step k is complete and ``xg''[k+1 .. k+1+L]`` have arrived (``L`` =
+``builder.lookahead_steps``: the hold-consistent predictors and the ground-motion preview read
+the record ahead; samples after its end, known from ``n_steps`` or the publisher's status, are
+0) it publishes ``f_r[k+1]`` stamped ``t_k+1`` (``f_r[0]`` as soon as ``xg''[0..L]`` are
+there, the specimen at rest). ``a_hat`` comes
 from the ``predictor`` (``none``: the measured acceleration of the previous step, paper
 Eq. 5.3). Before each new reference force, the online instability monitor
 (``seft_ros.core.monitor``) checks the measurement for a growing high-frequency oscillation;
@@ -14,6 +17,7 @@ Run by hand: ``ros2 run seft_ros reference_force_builder --ros-args --params-fil
 
 import sys
 
+from seft_msgs_py import parameters
 from seft_msgs_py.convert import (
     STATE_ABORTED,
     STATE_DONE,
@@ -25,7 +29,7 @@ from seft_msgs_py.convert import (
     status_values,
     step_of,
 )
-from seft_msgs_py.node_support import SeftNode, main_for
+from seft_msgs_py.node_support import SeftNode, descriptor_of, main_for
 from seft_msgs_py.sync import StepSync
 from seft_msgs_py.topics import (
     ACCELERATION,
@@ -38,9 +42,17 @@ from seft_msgs_py.topics import (
 )
 from seft_plant_sim.interface import Measurement
 from seft_ros.core.monitor import InstabilityMonitor
-from seft_ros.core.reference_force import ReferenceForceBuilder
+from seft_ros.core.reference_force import ReferenceForceBuilder, ground_window
 
 __all__ = ['ReferenceForceBuilderNode', 'main']
+
+#: Rig and controller parameters the compensators model (declared here too if the schema
+#: does not list this node for them).
+_MODEL_PARAMETERS = ('rig_model', 'tau_s', 'valve_limit_V', 'piston_area_m2',
+                     'oil_bulk_modulus_Pa', 'actuator_volume_m3', 'valve_time_constant_s',
+                     'valve_flow_gain_m3_per_s_V', 'valve_pressure_coefficient_m3_per_s_Pa',
+                     'leakage_coefficient_m3_per_s_Pa', 'io_latency_s', 'anti_alias_cutoff_hz',
+                     'accelerometer_range_m_s2')
 
 _SENSORS = (MEASURED_FORCE, DISPLACEMENT, VELOCITY, ACCELERATION)
 
@@ -51,7 +63,14 @@ class ReferenceForceBuilderNode(SeftNode):
     def __init__(self):
         super().__init__('reference_force_builder')
         p = self.params
+        for name in _MODEL_PARAMETERS:
+            if name not in p:
+                spec = parameters.spec(name)
+                value = self.declare_parameter(name, spec.default, descriptor_of(spec)).value
+                p[name] = parameters.validate_value(name, value)
         self.builder = ReferenceForceBuilder.from_parameters(p)
+        # record length: n_steps, or as the ground-motion publisher reports it
+        self.n_total = int(p['n_steps']) or None
         self.monitor = InstabilityMonitor.from_parameters(p)
         self.dt = float(p['dt'])
         self.dt_ns = dt_to_ns(self.dt)
@@ -85,11 +104,18 @@ class ReferenceForceBuilderNode(SeftNode):
                 done[ACCELERATION.name], done[MEASURED_FORCE.name])
             self._advance()
 
+    def _ground_ready(self, k: int) -> bool:
+        """Whether ``xg''[k..k+L]`` are all there (or known to lie after the record)."""
+        for j in range(k, k + self.builder.lookahead_steps + 1):
+            if j not in self.ground and (self.n_total is None or j < self.n_total):
+                return False
+        return True
+
     def _advance(self) -> None:
         """Publish every reference force whose inputs are all there, in step order."""
         while True:
             k = self.next_step
-            if k not in self.ground:
+            if k not in self.ground or not self._ground_ready(k):
                 return
             if k == 0:
                 latest = None
@@ -104,11 +130,20 @@ class ReferenceForceBuilderNode(SeftNode):
                     return
             else:
                 return
-            force = self.builder.step(self.ground.pop(k), latest)
+            look = self.builder.lookahead_steps
+            n_total = self.n_total if self.n_total is not None else k + look + 1
+            force = self.builder.step(
+                ground_window(self.ground.__getitem__, k, look, n_total), latest)
+            self.ground.pop(k)
             self.pub.publish(scalar_msg(REFERENCE_FORCE, k * self.dt_ns, force))
             self.next_step += 1
 
     def _on_status(self, msg) -> None:
+        if msg.name == 'ground_motion_publisher' and self.n_total is None:
+            n = status_values(msg).get('n_steps')
+            if n is not None:
+                self.n_total = int(n)
+                self._advance()
         if msg.name == 'rig':
             state = status_values(msg).get('state')
             if state in (STATE_DONE, STATE_ABORTED, STATE_FAILED):

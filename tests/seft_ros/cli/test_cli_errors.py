@@ -1,0 +1,180 @@
+"""Bad input to the ``seft`` command and to a node started by hand: exit code 2 and one line.
+
+Every case runs the installed ``seft`` as a subprocess (cwd in tmp, isolated ROS env). The
+``seft simulate`` cases run a few at a time in a module fixture: each start costs about a
+second of imports.
+"""
+
+from concurrent.futures import ThreadPoolExecutor
+import re
+import sys
+
+import pytest
+from rosbags.rosbag2 import Writer
+from rosbags.typesys import Stores, get_typestore
+
+AT2_HEAD = 'PEER NGA STRONG MOTION DATABASE RECORD\nTest, 1/1/2000, STA, 0\n' \
+    'ACCELERATION TIME SERIES IN UNITS OF G\n'
+FILES = {
+    'npts.AT2': AT2_HEAD + 'NPTS= abc, DT= 0.01 SEC\n0.1 0.2 0.3 0.4 0.5\n',
+    'short.AT2': AT2_HEAD + 'NPTS= 12, DT= 0.01 SEC\n0.1 0.2 0.3 0.4 0.5\n0.1 0.2 0.3 0.4 0.5\n',
+    'token.AT2': AT2_HEAD + 'NPTS= 10, DT= 0.01 SEC\n0.1 0.2 0.3 0.4 0.5\n0.1 0.2 0.3x 0.4 0.5\n',
+    'bad.csv': 'time,acceleration\n0.0,0.1\n0.01,0.2\n0.02,abc\n',
+    'mass0.yaml': 'mass_kg: 0\n',
+    'alpha.yaml': 'alpha: [0.5, -1]\n',
+    'dt0.yaml': 'dt: 0\n',
+    'unknown.yaml': 'alpha: 0.5\nstiffnes_N_per_m: 2.0e5\n',
+    'invalid.yaml': 'alpha: 0.5\nrig_model: [delay\n',
+    'ros.yaml': '/**:\n  ros__parameters:\n    use_sim_time: true\n    tau_s: 2.0\n',
+}
+
+#: id -> (arguments after 'seft', expected error line as a regex, stderr is only that line)
+CASES = {
+    'at2_npts_line': (['simulate', '--record', 'npts.AT2'], re.escape(
+        "npts.AT2: line 4: expected 'NPTS=<int>, DT=<float> SEC', got 'NPTS= abc, DT= 0.01 "
+        "SEC'")),
+    'at2_truncated': (['simulate', '--record', 'short.AT2'],
+                      r'short\.AT2: line \d+: truncated: expected NPTS=12 values, found 10'),
+    'at2_token': (['simulate', '--record', 'token.AT2'],
+                  re.escape("token.AT2: line 6: expected a number, got '0.3x'")),
+    'record_missing': (['simulate', '--record', 'nothing.AT2'], r'nothing\.AT2: no such file'),
+    'csv_token': (['simulate', '--record', 'bad.csv'],
+                  re.escape("bad.csv: line 4: expected a number, got 'abc'")),
+    'yaml_mass_0': (['simulate', 'mass0.yaml'],
+                    re.escape('mass0.yaml: parameter mass_kg=0: expected float > 0')),
+    'yaml_alpha_negative': (['simulate', 'alpha.yaml'], re.escape(
+        'alpha.yaml: parameter alpha=-1: expected float >= 0 <= 100')),
+    'arg_alpha_negative': (['simulate', '--alpha', '0.5', '-1'], re.escape(
+        'command line: parameter alpha=-1.0: expected float >= 0 <= 100')),
+    'yaml_dt_0': (['simulate', 'dt0.yaml'],
+                  re.escape('dt0.yaml: parameter dt=0: expected float > 1e-05 <= 1')),
+    'set_rig_model': (['simulate', '--set', 'rig_model=foo'], re.escape(
+        "command line: parameter rig_model='foo': expected one of 'delay', 'servohydraulic'")),
+    'set_alpha': (['simulate', '--set', 'alpha=1'], re.escape('--set alpha: use --alpha')),
+    'yaml_unknown': (['simulate', 'unknown.yaml'],
+                     re.escape("unknown.yaml: unknown parameter 'stiffnes_N_per_m'")),
+    'yaml_invalid': (['simulate', 'invalid.yaml'],
+                     r'invalid\.yaml: line \d+: invalid YAML \(.+\)'),
+    'yaml_ros_format': (['simulate', 'ros.yaml'],
+                        re.escape('ros.yaml: parameter tau_s=2.0: expected float > 0 <= 1')),
+    'yaml_missing': (['simulate', 'nope.yaml'],
+                     re.escape('nope.yaml: no such configuration file')),
+    'out_not_empty': (['simulate', '--out', 'full'], re.escape(
+        'full: output directory exists and is not empty; expected a new directory')),
+    'n_steps_too_long': (['simulate', '--set', 'n_steps=100000'], re.escape(
+        'parameter n_steps=100000: expected <= 500 (the prepared record length)')),
+    'compare_not_a_bag': (['compare', 'plain_dir'],
+                          r'plain_dir: cannot read the bag: .+'),
+    'compare_missing': (['compare', 'no_such_bag'], re.escape('no_such_bag: no such bag')),
+    'compare_foreign_bag': (['compare', 'foreign_bag'], re.escape(
+        'foreign_bag: not a seft bag (no /seft/run_parameters message)')),
+}
+
+#: Errors found while running (the record is read when its run starts): progress lines
+#: '[seft] ...' come first on stderr.
+LATE = {'at2_npts_line', 'at2_truncated', 'at2_token', 'record_missing', 'csv_token',
+        'n_steps_too_long'}
+
+
+def make_inputs(cwd):
+    for name, text in FILES.items():
+        (cwd / name).write_text(text)
+    (cwd / 'plain_dir').mkdir()
+    (cwd / 'plain_dir' / 'notes.txt').write_text('not a bag\n')
+    (cwd / 'full').mkdir()
+    (cwd / 'full' / 'keep.txt').write_text('x\n')
+    store = get_typestore(Stores.ROS2_JAZZY)
+    with Writer(cwd / 'foreign_bag', version=9) as writer:
+        conn = writer.add_connection('/chatter', 'std_msgs/msg/String', typestore=store)
+        msg = store.types['std_msgs/msg/String'](data='hello')
+        writer.write(conn, 1, store.serialize_cdr(msg, 'std_msgs/msg/String'))
+
+
+@pytest.fixture(scope='module')
+def results(tmp_path_factory, seft_exe, run_process):
+    cwd = tmp_path_factory.mktemp('cli_errors')
+    make_inputs(cwd)
+
+    def one(item):
+        key, (args, _) = item
+        argv = [seft_exe, *args]
+        if args[0] == 'simulate':
+            argv += ['--duration', '1'] + ([] if '--out' in args else ['--out', f'out_{key}'])
+        else:
+            argv += ['--out', f'out_{key}']
+        return key, run_process(argv, cwd=cwd, timeout=60)
+
+    with ThreadPoolExecutor(max_workers=3) as pool:
+        return dict(pool.map(one, CASES.items()))
+
+
+def error_line(proc, prefix='seft: error: '):
+    """The one error line of a failed command (exit code 2, no traceback, nothing else but
+    '[seft]' progress lines)."""
+    assert proc.returncode == 2, proc.stderr
+    assert 'Traceback' not in proc.stderr + proc.stdout
+    lines = proc.stderr.splitlines()
+    errors = [ln for ln in lines if ln.startswith(prefix)]
+    assert len(errors) == 1, proc.stderr
+    assert lines[-1] == errors[0], proc.stderr
+    assert all(ln.startswith('[seft] ') for ln in lines[:-1]), proc.stderr
+    assert proc.stdout == ''
+    return errors[0][len(prefix):]
+
+
+@pytest.mark.parametrize('case', sorted(CASES))
+def test_bad_input_is_one_error_line(results, case):
+    proc = results[case]
+    message = error_line(proc)
+    assert re.fullmatch(CASES[case][1], message), message
+    if case not in LATE:
+        assert len(proc.stderr.splitlines()) == 1, proc.stderr
+
+
+@pytest.mark.parametrize('case', ['at2_token', 'record_missing'])
+def test_bad_record_is_reported_before_the_run_starts(results, case):
+    assert len(results[case].stderr.splitlines()) == 1, results[case].stderr
+
+
+def test_argparse_choice_error(seft_exe, run_process, tmp_path):
+    proc = run_process([seft_exe, 'simulate', '--rig', 'foo'], cwd=tmp_path)
+    assert proc.returncode == 2 and 'Traceback' not in proc.stderr
+    assert proc.stderr.startswith('usage: seft simulate')
+    last = proc.stderr.splitlines()[-1]
+    assert re.fullmatch(r"seft: error: argument --rig: invalid choice: 'foo' \(choose from "
+                        r"'?delay'?, '?servohydraulic'?\)", last), last
+    assert not any(tmp_path.iterdir())
+
+
+def test_argparse_set_without_value(seft_exe, run_process, tmp_path):
+    proc = run_process([seft_exe, 'simulate', '--set', 'alpha'], cwd=tmp_path)
+    assert proc.returncode == 2 and 'Traceback' not in proc.stderr
+    assert proc.stderr.splitlines()[-1] == \
+        "seft: error: argument --set: --set 'alpha': expected NAME=VALUE"
+
+
+def test_run_with_bad_record_fails_fast(seft_exe, run_process, tmp_path):
+    (tmp_path / 'token.AT2').write_text(FILES['token.AT2'])
+    proc = run_process([seft_exe, 'run', '--record', 'token.AT2', '--duration', '1', '--out',
+                        'out'], cwd=tmp_path, timeout=60)
+    message = error_line(proc)
+    # the record is read before any node starts: the file's own one-line error
+    assert message == "token.AT2: line 6: expected a number, got '0.3x'"
+    assert len(proc.stderr.splitlines()) == 1, proc.stderr
+
+
+def test_run_with_bad_parameter_starts_nothing(seft_exe, run_process, tmp_path):
+    proc = run_process([seft_exe, 'run', '--alpha', '-1', '--out', 'out'], cwd=tmp_path)
+    assert error_line(proc) == 'command line: parameter alpha=-1.0: expected float >= 0 <= 100'
+    assert len(proc.stderr.splitlines()) == 1
+    assert not (tmp_path / 'out').exists()
+
+
+@pytest.mark.parametrize('value, shown', [('-1.0', '-1.0'), ('abc', "'abc'"), ('200', '200')])
+def test_node_started_by_hand_with_bad_parameter(run_process, tmp_path, value, shown):
+    proc = run_process([sys.executable, '-m', 'seft_ros.nodes.reference_force_builder',
+                        '--ros-args', '-p', f'alpha:={value}'], cwd=tmp_path, timeout=30)
+    assert proc.returncode == 2
+    assert proc.stdout == ''
+    assert proc.stderr.splitlines() == [
+        f'reference_force_builder: error: parameter alpha={shown}: expected float >= 0 <= 100']

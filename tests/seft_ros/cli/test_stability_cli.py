@@ -1,0 +1,76 @@
+"""``seft stability`` and the pre-run stability guard of ``seft simulate``/``seft run``."""
+
+import json
+import re
+
+import pytest
+
+from seft_msgs_py.errors import SeftError
+from seft_ros.cli import api
+from seft_ros.core.stability import PredictedUnstableError
+
+REFUSED = ('alpha=1.5 with predictor none on the servohydraulic rig is predicted unstable '
+           '(largest stable alpha 1.32); use --force to run it anyway')
+
+
+def test_simulate_refuses_a_predicted_unstable_run(seft_exe, run_process, tmp_path):
+    proc = run_process([seft_exe, 'simulate', '--alpha', '0.5', '1.5', '--duration', '1',
+                        '--out', 'out'], cwd=tmp_path)
+    assert proc.returncode == 2, proc.stderr
+    assert 'Traceback' not in proc.stderr and proc.stdout == ''
+    lines = proc.stderr.splitlines()
+    assert lines[-1] == f'seft: error: {REFUSED}'
+    assert all(ln.startswith('[seft] ') for ln in lines[:-1]), proc.stderr
+    assert not any('simulating' in ln for ln in lines)          # nothing ran
+
+
+def test_force_runs_it_with_a_warning(seft_exe, run_process, tmp_path):
+    proc = run_process([seft_exe, 'simulate', '--alpha', '1.5', '--duration', '1', '--out',
+                        'out', '--force'], cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    warning = [ln for ln in proc.stderr.splitlines() if 'warning:' in ln]
+    assert warning == ['[seft] warning: alpha=1.5 with predictor none on the servohydraulic '
+                       'rig is predicted unstable (largest stable alpha 1.32); running it '
+                       'anyway (--force)']
+    assert (tmp_path / 'out' / 'summary.json').is_file()
+
+
+def test_api_guard(reference_params, tmp_path):
+    runs = [dict(reference_params, alpha=a, duration_s=0.2) for a in (1.0, 1.5, 2.0)]
+    with pytest.raises(PredictedUnstableError, match=re.escape(
+            'predicted unstable (largest stable alpha 1.32) (and 1 more run(s)); use --force')):
+        api.simulate_experiments(runs=runs, out_dir=tmp_path, progress=lambda s: None)
+    assert issubclass(PredictedUnstableError, SeftError)
+    notes = []
+    checks = api.check_stability(runs=[dict(reference_params, alpha=1.5,
+                                            predictor='adaptive')], progress=notes.append)
+    assert checks[0].stable is None
+    assert notes and notes[0].startswith('note: alpha=1.5 with predictor adaptive')
+
+
+def test_stability_verb(seft_exe, run_process, tmp_path):
+    proc = run_process([seft_exe, 'stability', '--rig', 'delay', '--predictor', 'none',
+                        'adaptive', '--tau-min', '0.004', '--tau-max', '0.02', '--points', '3',
+                        '--out', 'map'], cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    out = proc.stdout.splitlines()
+    assert out[0].split() == ['tau_s', '[ms]', 'none', 'adaptive']
+    assert out[1].split() == ['4.00', '0.972', 'n/a']
+    assert out[3].split() == ['20.00', '0.813', 'n/a']
+    assert (tmp_path / 'map' / 'stability.png').stat().st_size > 10000
+    doc = json.loads((tmp_path / 'map' / 'stability.json').read_text())
+    assert doc['rig'] == 'delay' and doc['delay_parameter'] == 'tau_s'
+    assert doc['taus_s'] == pytest.approx([0.004, 0.012, 0.02])
+    assert doc['predictors']['none']['boundary_alpha'] == pytest.approx([0.972, 0.913, 0.813],
+                                                                        abs=1e-3)
+    assert doc['predictors']['adaptive']['note'].startswith('n/a')
+    assert doc['configured'] == {'alpha': [0.0], 'tau_s': 0.01}
+
+
+def test_stability_verb_bad_predictor(seft_exe, run_process, tmp_path):
+    proc = run_process([seft_exe, 'stability', '--predictor', 'foo', '--out', 'map'],
+                       cwd=tmp_path)
+    assert proc.returncode == 2
+    assert proc.stderr.splitlines() == [
+        "seft: error: predictor 'foo': expected one of 'none', 'polynomial', 'model', "
+        "'adaptive'"]

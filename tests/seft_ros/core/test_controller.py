@@ -1,0 +1,215 @@
+"""Tests of the discrete force servo controller and its saturation interlock (paper Eq. 3.1)."""
+
+from fractions import Fraction
+import math
+
+import numpy as np
+import pytest
+from scipy import signal
+
+from seft_msgs_py.errors import ParameterError
+from seft_ros.core.controller import (
+    LOOP_SHAPING_DEN,
+    LOOP_SHAPING_NUM,
+    DiscreteFilter,
+    ForceServoController,
+    SaturationInterlock,
+)
+
+DT = 0.002
+
+
+@pytest.fixture(scope='module')
+def controller():
+    return ForceServoController(DT)
+
+
+def continuous_cf(w):
+    """C_f(j w) = 37 / ((j w)^2 + 17.14 j w + 4002) [V/N], typed from paper Eq. 3.1."""
+    s = 1j * np.asarray(w)
+    return 37.0 / (s ** 2 + 17.14 * s + 4002.0)
+
+
+# -- DiscreteFilter --------------------------------------------------------------------------
+
+@pytest.mark.parametrize('b, a', [
+    ([0.5], [1.0]),                                   # a gain
+    ([1.0, -0.3], [1.0]),                             # FIR
+    ([0.2, 0.3, 0.1], [2.0, -1.2, 0.5]),              # a[0] != 1 is normalized
+    ([1.0], [1.0, -1.5, 0.7]),                        # shorter numerator
+    ([0.1, 0.2, 0.3, 0.4], [1.0, 0.1]),               # shorter denominator
+    signal.butter(4, 0.2),
+])
+def test_discrete_filter_equals_lfilter(b, a):
+    x = np.random.default_rng(11).standard_normal(2000) * 100.0
+    f = DiscreteFilter(b, a)
+    y = np.array([f.step(v) for v in x])
+    ref = signal.lfilter(b, a, x)
+    np.testing.assert_allclose(y, ref, rtol=0, atol=1e-12 * np.max(np.abs(ref)))
+    f.reset()
+    assert [f.step(v) for v in x[:10]] == pytest.approx(ref[:10], rel=1e-12, abs=1e-12)
+
+
+@pytest.mark.parametrize('b, a', [
+    ([1.0], [0.0, 1.0]),
+    ([1.0], [1.0, math.nan]),
+    ([math.inf], [1.0]),
+])
+def test_discrete_filter_bad_coefficients(b, a):
+    with pytest.raises(ParameterError,
+                       match=r'^filter coefficients: expected finite values with a\[0\] != 0$'):
+        DiscreteFilter(b, a)
+
+
+# -- ForceServoController --------------------------------------------------------------------
+
+def test_coefficients_are_the_paper_controller(controller):
+    assert LOOP_SHAPING_NUM == (37.0,) and LOOP_SHAPING_DEN == (1.0, 17.14, 4002.0)
+    ct = controller.continuous()
+    np.testing.assert_array_equal(np.ravel(ct.num), [37.0])
+    np.testing.assert_array_equal(ct.den, [1.0, 17.14, 4002.0])
+    assert controller.discrete().dt == DT
+    assert 'bilinear' in controller.design.method
+
+
+def test_frequency_response_matches_continuous_to_25hz(controller):
+    f = np.linspace(0.01, 25.0, 2500)
+    _, hd = signal.freqz(controller.bz, controller.az, worN=f, fs=1 / DT)
+    ratio = hd / continuous_cf(2 * np.pi * f)
+    assert np.max(np.abs(np.abs(ratio) - 1)) < 0.02
+    assert np.max(np.abs(np.degrees(np.angle(ratio)))) < 0.2
+
+
+def test_prewarping_is_exact_at_the_resonance(controller):
+    w0 = math.sqrt(4002.0)
+    z = np.exp(1j * w0 * DT)
+    hd = np.polyval(controller.bz, z) / np.polyval(controller.az, z)
+    assert abs(hd / continuous_cf(w0) - 1) < 1e-4
+    # without prewarping (plain Tustin) the response at w0 is off by more than that
+    bz, az, _ = signal.cont2discrete((LOOP_SHAPING_NUM, LOOP_SHAPING_DEN), DT, 'bilinear')
+    plain = np.polyval(np.ravel(bz), z) / np.polyval(np.ravel(az), z)
+    assert abs(plain / continuous_cf(w0) - 1) > 5e-3
+
+
+def test_discrete_poles_are_the_mapped_continuous_poles(controller):
+    """Tustin with prewarping maps s to z; the lightly damped poles stay at about w0."""
+    zp = np.roots(controller.az)
+    assert np.all(np.abs(zp) < 1)
+    sp = np.log(zp) / DT
+    np.testing.assert_allclose(np.sort(np.abs(sp)), [math.sqrt(4002.0)] * 2, rtol=1e-3)
+
+
+def test_step_filters_the_force_error_and_saturates(controller):
+    c = ForceServoController(DT, valve_limit_V=2.5)
+    rng = np.random.default_rng(2)
+    fr, fm = rng.standard_normal(3000) * 3000.0, rng.standard_normal(3000) * 1000.0
+    u = []
+    sat = []
+    for a, b in zip(fr, fm):
+        u.append(c.step(a, b))
+        sat.append(c.saturated)
+    u, sat = np.array(u), np.array(sat)
+    # an unsaturated linear filter of the error (no integrator: saturation does not wind up)
+    raw = signal.lfilter(c.bz, c.az, fr - fm)
+    np.testing.assert_allclose(u, np.clip(raw, -2.5, 2.5), rtol=0, atol=1e-12)
+    assert np.array_equal(sat, np.abs(raw) > 2.5)
+    assert sat.any() and not sat.all()
+    assert np.max(np.abs(u)) == 2.5
+    c.reset()
+    assert c.saturated is False
+    assert c.step(fr[0], fm[0]) == pytest.approx(raw[0], abs=1e-15)
+
+
+def test_default_limit_and_from_parameters(reference_params):
+    c = ForceServoController.from_parameters(reference_params)
+    assert (c.dt, c.valve_limit_V) == (0.002, 10.0)
+    assert c.step(1e9, 0.0) == 10.0 and c.saturated
+    assert c.step(-1e12, 0.0) == -10.0 and c.saturated
+
+
+@pytest.mark.parametrize('kwargs, message', [
+    ({'dt': 0.0}, 'parameter dt=0.0: expected float > 0'),
+    ({'dt': -0.002}, 'parameter dt=-0.002: expected float > 0'),
+    ({'dt': math.nan}, 'parameter dt=nan: expected float > 0'),
+    ({'dt': DT, 'valve_limit_V': 0.0}, 'parameter valve_limit_V=0.0: expected float > 0'),
+])
+def test_controller_parameter_errors(kwargs, message):
+    with pytest.raises(ParameterError, match='^' + message.replace('.', r'\.') + '$'):
+        ForceServoController(**kwargs)
+
+
+# -- SaturationInterlock ---------------------------------------------------------------------
+
+def first_trip(interlock, flags):
+    """Feed saturation flags at t = k*DT; return (index, reason) of the first trip or None."""
+    for k, flag in enumerate(flags):
+        reason = interlock.update(flag, k * DT)
+        if reason:
+            return k, reason
+    return None
+
+
+def test_interlock_trips_on_the_26th_saturated_sample_of_50():
+    il = SaturationInterlock(DT, 0.1, 0.5)
+    assert il.window == 50 and il.window_s == pytest.approx(0.1)
+    k, reason = first_trip(il, [True] * 50)
+    assert k == 25    # the 26th sample: 26/50 > 0.5, 25/50 is not
+    assert reason == ('force control lost at t=0.050 s: valve command saturated in 26/50 '
+                      'samples of the last 0.100 s')
+
+
+def test_interlock_counts_a_sliding_window():
+    # 25 saturated of every 50 (alternating) never trips ...
+    il = SaturationInterlock(DT, 0.1, 0.5)
+    assert first_trip(il, [True, False] * 500) is None
+    # ... old saturated samples leave the window: 25 saturated, 30 clear, then 25 more
+    il = SaturationInterlock(DT, 0.1, 0.5)
+    assert first_trip(il, [True] * 25 + [False] * 30 + [True] * 25) is None
+    # ... but 25 + 24 clear + 1 more is 26 within the window
+    il = SaturationInterlock(DT, 0.1, 0.5)
+    assert first_trip(il, [True] * 25 + [False] * 24 + [True]) == (
+        49, 'force control lost at t=0.098 s: valve command saturated in 26/50 samples of '
+        'the last 0.100 s')
+
+
+@pytest.mark.parametrize('window, fraction', [
+    (50, 0.5), (50, 0.1), (10, 0.7), (100, 0.25), (200, 0.99), (1, 0.5), (50, 0.3),
+    (100, 0.29), (50, 0.58),  # 0.29*100 = 28.999999999999996 in floats
+])
+def test_interlock_trips_exactly_above_the_fraction(window, fraction):
+    il = SaturationInterlock(DT, window * DT, fraction)
+    assert il.window == window
+    expected = math.floor(Fraction(str(fraction)) * window) + 1   # smallest count > f*w
+    k, reason = first_trip(il, [True] * window)
+    assert k + 1 == expected
+    assert f'{expected}/{window} samples' in reason
+
+
+def test_interlock_fraction_one_never_trips():
+    il = SaturationInterlock(DT, 0.1, 1.0)
+    assert first_trip(il, [True] * 5000) is None
+
+
+def test_interlock_reason_names_the_time(reference_params):
+    il = SaturationInterlock.from_parameters(reference_params)
+    for k in range(25):
+        assert il.update(True, 12.345 + k) is None
+    assert il.update(True, 3.14159).startswith('force control lost at t=3.142 s:')
+
+
+@pytest.mark.parametrize('window_s, fraction, message', [
+    (0.0, 0.5, r'^parameter saturation_window_s=0\.0: expected > 0$'),
+    (-1.0, 0.5, r'^parameter saturation_window_s=-1\.0: expected > 0$'),
+    (0.1, 0.0, r'^parameter saturation_abort_fraction=0\.0: expected in \(0, 1\]$'),
+    (0.1, 1.5, r'^parameter saturation_abort_fraction=1\.5: expected in \(0, 1\]$'),
+    (0.1, math.nan, r'^parameter saturation_abort_fraction=nan: expected in \(0, 1\]$'),
+])
+def test_interlock_parameter_errors(window_s, fraction, message):
+    with pytest.raises(ParameterError, match=message):
+        SaturationInterlock(DT, window_s, fraction)
+
+
+@pytest.mark.parametrize('dt', [0.0, -0.002])
+def test_interlock_bad_dt(dt):
+    with pytest.raises(ParameterError, match='dt'):
+        SaturationInterlock(dt, 0.1, 0.5)

@@ -1,0 +1,260 @@
+"""Tests of the stability map (sampled-loop eigenvalues) against independent references and
+against simulation."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+from scipy import signal
+
+from seft_plant_sim.servohydraulic import (
+    ServoHydraulicParams,
+    stability_boundary_alpha,
+    substructure_spectral_radius,
+)
+from seft_plant_sim.specimen import LinearSpecimen
+from seft_ros.core import stability as st
+from seft_ros.core.controller import ForceServoController
+from seft_ros.core.experiment import simulate
+from seft_ros.core.reference_force import PREDICTORS
+
+
+@pytest.fixture(scope='module')
+def delay_params(reference_params):
+    return dict(reference_params, rig_model='delay', predictor='none')
+
+
+@pytest.fixture(scope='module')
+def free_response(reference_params, tmp_path_factory):
+    """Parameters of a free-response run: a 6 ms ground pulse then 4 s of nothing, no monitor,
+    no interlock, no limits in reach, unlimited valve and accelerometer."""
+    path = tmp_path_factory.mktemp('stability') / 'pulse.csv'
+    t = np.arange(2000) * 0.002
+    ag = np.zeros_like(t)
+    ag[1:4] = 1.0
+    np.savetxt(path, np.c_[t, ag], delimiter=',')
+    return dict(reference_params, record=str(path), time_scale=1.0, amplitude_N=100.0,
+                monitor_threshold=0.0, saturation_abort_fraction=1.0, stroke_limit_m=1e3,
+                force_limit_N=1e12, valve_limit_V=100.0, accelerometer_range_m_s2=0.0)
+
+
+def growth(params) -> float:
+    """max|x| over the last second / max|x| over the first second of a free response."""
+    run = simulate(params)
+    assert run.n_steps == 2000, run.abort_reason
+    x = np.abs(run.displacement_m)
+    return float(np.max(x[-500:]) / np.max(x[:500]))
+
+
+def delay_roots_radius(params, alpha: float) -> float:
+    """Independent reference, delay rig with tau = n dt: the roots of the characteristic
+    polynomial ``z^(n+1) den(z) + alpha m num(z)`` with ``num/den`` the ZOH pulse transfer
+    function from the held actuator force to the acceleration sampled at t_k+."""
+    m, c, k = params['mass_kg'], params['damping_N_s_per_m'], params['stiffness_N_per_m']
+    dt = params['dt']
+    n = int(round(params['tau_s'] / dt))
+    assert abs(n * dt - params['tau_s']) < 1e-12
+    sysd = signal.cont2discrete((np.array([[0.0, 1.0], [-k / m, -c / m]]),
+                                 np.array([[0.0], [1.0 / m]]), np.array([[-k / m, -c / m]]),
+                                 np.array([[1.0 / m]])), dt, 'zoh')
+    num, den = signal.ss2tf(*sysd[:4])
+    num, den = np.ravel(num), np.ravel(den)            # same degree (feedthrough 1/m)
+    poly = np.polyadd(np.concatenate([den, np.zeros(n + 1)]), alpha * m * num)
+    return float(np.max(np.abs(np.roots(poly))))
+
+
+# -- delay rig, no compensation: the neutral-type loop (paper Eq. 5.4) --------------------------
+
+@pytest.mark.parametrize('tau', [0.004, 0.01, 0.02])
+def test_delay_none_matches_characteristic_polynomial(delay_params, tau):
+    p = dict(delay_params, tau_s=tau)
+    for alpha in (0.3, 0.8, 0.95, 1.2):
+        assert st.spectral_radius(p, alpha) == pytest.approx(delay_roots_radius(p, alpha),
+                                                              rel=1e-9)
+
+
+@pytest.mark.parametrize('tau', [0.004, 0.01, 0.02])
+def test_delay_none_is_unstable_above_one_for_every_tau(delay_params, tau):
+    p = dict(delay_params, tau_s=tau)
+    boundary = st.largest_stable_alpha(p)
+    assert boundary <= 1.0 + 1e-3
+    # the first root chain crosses near exp(-(w_n T / pi)^2), T = tau + dt (module notes)
+    w_n = math.sqrt(p['stiffness_N_per_m'] / p['mass_kg'])
+    estimate = math.exp(-(w_n * (tau + p['dt']) / math.pi) ** 2)
+    assert boundary == pytest.approx(estimate, abs=0.04)
+    assert st.spectral_radius(p, 1.01) > 1.0
+
+
+@pytest.mark.parametrize('tau', [0.004, 0.01])
+def test_delay_none_alpha_0_9_is_stable(delay_params, tau):
+    assert st.spectral_radius(dict(delay_params, tau_s=tau), 0.9) < 1.0
+
+
+def test_delay_none_alpha_0_9_is_unstable_at_20_ms(delay_params):
+    """With the specimen's stiffness the boundary drops below 1 as the delay grows."""
+    p = dict(delay_params, tau_s=0.02)
+    assert st.largest_stable_alpha(p) == pytest.approx(0.813, abs=2e-3)
+    assert st.spectral_radius(p, 0.9) > 1.0
+
+
+def test_delay_none_neutral_limit_over_a_range_of_delays(delay_params):
+    smap = st.stability_map(delay_params, np.linspace(0.0005, 0.02, 40), ['none'])
+    curve = smap.boundary('none')
+    assert curve.shape == (40,) and np.all(np.isfinite(curve))
+    assert np.all(curve < 1.0 + 0.005) and np.all(curve > 0.8)   # 1.0035 at 0.5 ms (sampled)
+    assert smap.delay_parameter == 'tau_s' and smap.notes == {}
+
+
+# -- servohydraulic rig, no compensation ------------------------------------------------------
+
+def test_servohydraulic_none_matches_the_rig_model(reference_params):
+    p = dict(reference_params, predictor='none')
+    spec = LinearSpecimen.from_parameters(p)
+    ctrl = ForceServoController(0.002)
+    hp = ServoHydraulicParams()
+    assert st.largest_stable_alpha(p) == pytest.approx(
+        stability_boundary_alpha(hp, spec, ctrl), abs=2e-4)
+    assert st.largest_stable_alpha(p) == pytest.approx(1.317, abs=1e-3)
+    for alpha in (0.0, 0.7, 1.5):
+        assert st.spectral_radius(p, alpha) == pytest.approx(
+            substructure_spectral_radius(hp, spec, ctrl, alpha), rel=1e-9)
+
+
+def test_servohydraulic_map_over_io_latency(reference_params):
+    smap = st.stability_map(dict(reference_params, predictor='none'), [0.0, 0.003, 0.02],
+                            ['none'])
+    assert smap.delay_parameter == 'io_latency_s'
+    b = smap.boundary('none')
+    assert b[0] == pytest.approx(2.545, abs=2e-3)       # servohydraulic.py: 2.54 without it
+    assert b[1] == pytest.approx(1.317, abs=1e-3)
+    assert math.isnan(b[2])                              # force loop unstable at alpha = 0
+    doc = json.loads(json.dumps(smap.to_json()))
+    assert doc['predictors']['none']['boundary_alpha'][2] is None
+
+
+# -- against simulation ----------------------------------------------------------------------
+
+@pytest.mark.parametrize('rig, tau_key, tau, predictor, extra', [
+    ('delay', 'tau_s', 0.01, 'none', {}),
+    ('delay', 'tau_s', 0.011, 'none', {}),               # fractional delay, split step
+    ('servohydraulic', 'io_latency_s', 0.003, 'none', {}),
+    ('delay', 'tau_s', 0.01, 'polynomial', {'polynomial_order': 1}),
+])
+def test_boundary_against_simulation(free_response, rig, tau_key, tau, predictor, extra):
+    p = dict(free_response, rig_model=rig, predictor=predictor, **{tau_key: tau}, **extra)
+    boundary = st.largest_stable_alpha(p)
+    assert 0.0 < boundary < 3.0
+    inside, outside = 0.95 * boundary, 1.05 * boundary
+    assert st.spectral_radius(p, inside) < 1.0 < st.spectral_radius(p, outside)
+    assert growth(dict(p, alpha=inside)) < 0.1
+    assert growth(dict(p, alpha=outside)) > 10.0
+
+
+def test_model_compensator_moves_the_boundary(free_response):
+    p = dict(free_response, rig_model='delay', predictor='model')
+    comp = st.compensator(p)
+    assert comp.alpha_dependent                          # pole matching depends on alpha
+    assert st.largest_stable_alpha(p) == math.inf        # stable up to alpha_max = 3
+    assert st.spectral_radius(p, 3.0) < 1.0
+    assert growth(dict(p, alpha=3.0)) < 0.1
+
+
+# -- compensator forms -------------------------------------------------------------------------
+
+class FakeFir:
+    """A linear compensator with memory and a command filter, known taps."""
+
+    name = 'fake_fir'
+
+    def __init__(self):
+        self.acc = [0.0, 0.0]
+        self.sent = [0.0]
+
+    @classmethod
+    def from_parameters(cls, params):
+        return cls()
+
+    def predict(self, latest, commanded_N, ground_force_N=0.0):
+        if latest is not None:
+            self.acc = [latest.acceleration_m_s2, self.acc[0]]
+        force = commanded_N[-1] if commanded_N else 0.0
+        x = latest.displacement_m if latest is not None else 0.0
+        return 1.5 * self.acc[0] - 0.5 * self.acc[1] + 2.0 * x + 1e-4 * force
+
+    def command(self, force_N):
+        out = 0.75 * force_N + 0.25 * self.sent[0]
+        self.sent = [force_N]
+        return out
+
+
+class FakeSquare(FakeFir):
+    name = 'fake_square'
+
+    def predict(self, latest, commanded_N, ground_force_N=0.0):
+        return 0.0 if latest is None else latest.acceleration_m_s2 ** 2
+
+
+class FakeStated(FakeFir):
+    """States its own form (the LinearPredictor protocol)."""
+
+    name = 'fake_stated'
+
+    def linear_form(self):
+        return st.PredictorForm.fir([[2.0, 0.0], [0.0, 0.0], [1.5, -0.5], [0.0, 0.0], [1e-4, 0.0]],
+                                    [0.75, 0.25])
+
+
+@pytest.fixture
+def fakes(monkeypatch):
+    for cls in (FakeFir, FakeSquare, FakeStated):
+        monkeypatch.setitem(PREDICTORS, cls.name, cls.from_parameters)
+
+
+def test_identified_form_equals_the_stated_one(fakes, delay_params):
+    fir = st.compensator(dict(delay_params, predictor='fake_fir'))
+    stated = st.compensator(dict(delay_params, predictor='fake_stated'))
+    assert not fir.alpha_dependent and not stated.alpha_dependent
+    f, g = fir.form(1.0), stated.form(1.0)
+    assert f.source == 'identified' and g.source == 'linear_form'
+    for name in ('a', 'b', 'c', 'd', 'cmd_a', 'cmd_b', 'cmd_c'):
+        np.testing.assert_allclose(getattr(f, name), getattr(g, name), rtol=1e-9, atol=1e-15,
+                                   err_msg=name)
+    assert f.cmd_d == pytest.approx(0.75)
+    for alpha in (0.2, 0.6):
+        assert st.spectral_radius(dict(delay_params, predictor='fake_fir'), alpha) == \
+            pytest.approx(st.spectral_radius(dict(delay_params, predictor='fake_stated'),
+                                             alpha), rel=1e-9)
+
+
+def test_none_identified_equals_analytic(delay_params):
+    taps, cmd = st._identify(PREDICTORS['none'](delay_params), 'none', 0.002, True)
+    form = st.PredictorForm.fir(taps, cmd)
+    np.testing.assert_array_equal(form.d, st.PredictorForm.none().d)
+    assert form.order == 0 and form.command_order == 0 and form.cmd_d == 1.0
+
+
+def test_nonlinear_compensators_have_no_form(fakes, delay_params):
+    with pytest.raises(st.NoLinearModelError, match="'fake_square': not linear"):
+        st.compensator(dict(delay_params, predictor='fake_square'))
+    with pytest.raises(st.NoLinearModelError, match="'adaptive' is nonlinear"):
+        st.compensator(dict(delay_params, predictor='adaptive'))
+    smap = st.stability_map(delay_params, [0.01], ['none', 'adaptive'])
+    assert 'adaptive' in smap.notes and np.isnan(smap.boundary('adaptive')).all()
+    assert smap.boundary('none')[0] == pytest.approx(0.932, abs=1e-3)
+
+
+# -- the pre-run check -------------------------------------------------------------------------
+
+def test_check_run(reference_params):
+    bad = st.check_run(dict(reference_params, alpha=1.5))
+    assert bad.stable is False and bad.spectral_radius > 1.0
+    assert bad.message == ('alpha=1.5 with predictor none on the servohydraulic rig is '
+                           'predicted unstable (largest stable alpha 1.32)')
+    ok = st.check_run(dict(reference_params, alpha=1.0))
+    assert ok.stable is True and ok.spectral_radius < 1.0
+    assert ok.boundary_alpha == pytest.approx(1.317, abs=1e-3)
+    skipped = st.check_run(dict(reference_params, alpha=1.5, specimen_model='bouc_wen'))
+    assert skipped.stable is None and 'nonlinear' in skipped.message
+    skipped = st.check_run(dict(reference_params, alpha=1.5, predictor='adaptive'))
+    assert skipped.stable is None and 'not predicted' in skipped.message
