@@ -25,7 +25,14 @@ from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 
 from seft_msgs_py import parameters
-from seft_msgs_py.convert import STATE_CLOSED, STATE_FAILED, status_msg, status_values
+from seft_msgs_py.convert import (
+    STATE_ABORTED,
+    STATE_CLOSED,
+    STATE_DONE,
+    STATE_FAILED,
+    status_msg,
+    status_values,
+)
 from seft_msgs_py.errors import ParameterError, SeftError
 from seft_msgs_py.topics import STATUS
 
@@ -79,7 +86,8 @@ class SeftNode(Node):
         self.status_pub = self.create_publisher(STATUS.msg_type, STATUS.name, STATUS.qos)
         self.recorder_ready = False
         self.recorder_closed = False
-        self.create_subscription(STATUS.msg_type, STATUS.name, self._watch_recorder, STATUS.qos)
+        self.create_subscription(STATUS.msg_type, STATUS.name, self.guard(self._watch_run),
+                                 STATUS.qos)
         self.done = False
         self.exit_code = 0
 
@@ -96,11 +104,20 @@ class SeftNode(Node):
             values[spec.name] = parameters.validate_value(spec.name, p.value)
         return values
 
-    def _watch_recorder(self, msg) -> None:
+    def _watch_run(self, msg) -> None:
+        """Track the recorder, and end this node when the rig has finished the run."""
+        state = status_values(msg).get('state')
         if msg.name == 'recorder':
-            state = status_values(msg).get('state')
             self.recorder_ready = True
             self.recorder_closed = self.recorder_closed or state == STATE_CLOSED
+        elif (msg.name == 'rig' and self.seft_name not in ('rig', 'recorder')
+              and state in (STATE_DONE, STATE_ABORTED, STATE_FAILED)):
+            self.report(STATE_DONE, 'rig finished', published=self.published_count())
+            self.finish(0)
+
+    def published_count(self) -> int:
+        """Samples this node published on its data topic (its final status reports it)."""
+        return int(getattr(self, 'next_step', 0))
 
     def _on_set_parameters(self, params) -> SetParametersResult:
         """Validation at run time (``demo_nodes_py/parameters/set_parameters_callback.py``).

@@ -3,10 +3,11 @@
 from collections import deque
 
 import numpy as np
-from scipy.signal import cont2discrete
 
 from seft_msgs_py.errors import ParameterError
 from seft_plant_sim.interface import COMMAND_FORCE, Measurement
+from seft_plant_sim.sampling import split_delay
+from seft_plant_sim.sampling import zoh as _zoh
 from seft_plant_sim.sensors import Sensors
 from seft_plant_sim.specimen import (
     BoucWenSpecimen,
@@ -20,12 +21,6 @@ from seft_plant_sim.specimen import (
 __all__ = ['DelayRig']
 
 
-def _zoh(a, b, h):
-    """Return (Phi(h), Gamma(h)) of ``x' = a x + b u`` under a hold of length h [s]."""
-    if h <= 0.0:
-        return np.eye(a.shape[0]), np.zeros_like(b)
-    phi, gamma, *_ = cont2discrete((a, b, np.eye(a.shape[0]), np.zeros_like(b)), h, 'zoh')
-    return phi, gamma
 
 
 class DelayRig:
@@ -83,10 +78,7 @@ class DelayRig:
         self.tau_s = float(tau_s)
         self.sensors = sensors or Sensors()
         self.limits = limits or SafetyLimits()
-        n = int(np.floor(tau_s / dt + 1e-9))
-        delta = tau_s - n * dt
-        if abs(delta) < 1e-9 * dt:
-            delta = 0.0
+        n, delta = split_delay(tau_s, dt)
         self._n, self._delta = n, delta
         # past reference forces, newest last: f_r[k-n-1], ..., f_r[k-1]
         self._history = deque([0.0] * (n + 1), maxlen=n + 1)

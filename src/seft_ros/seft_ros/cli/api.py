@@ -17,6 +17,7 @@ import numpy as np
 from seft_msgs_py import parameters
 from seft_msgs_py.errors import InputError, ParameterError, SeftError
 from seft_ros.analysis.bag import read_run
+from seft_ros.analysis.reference import reference_response
 from seft_ros.analysis.report import write_report
 from seft_ros.analysis.rundata import RunData
 from seft_ros.cli.config import expand_runs, load_config, write_params_file
@@ -115,6 +116,7 @@ def simulate_experiments(*, runs: list[dict], out_dir: Path,
     """
     t0 = time.monotonic()
     check_stability(runs=runs, force=force, progress=progress)
+    check_capacity(runs=runs, progress=progress)
     data = []
     for p in runs:
         label = _run_label(p)
@@ -155,6 +157,7 @@ def run_experiments(*, runs: list[dict], out_dir: Path,
         A node failed or the graph stalled (message names the node and its log).
     """
     check_stability(runs=runs, force=force, progress=progress)
+    check_capacity(runs=runs, progress=progress)
     from seft_ros.cli.runner import GraphRunner  # rclpy only for this verb
 
     t0 = time.monotonic()
@@ -230,6 +233,42 @@ def parameter_names() -> list[str]:
 
 
 # -- stability map and the pre-run guard ------------------------------------------------------
+
+def actuator_velocity_limit_m_s(params) -> float | None:
+    """Largest piston velocity the servohydraulic rig can deliver [m/s] (None: other rigs).
+
+    ``v_max = k_q * valve_limit_V / A``: the valve flow at full command over the piston area
+    (no load pressure; Merritt 1967, Ch. 5).
+    """
+    if params['rig_model'] != 'servohydraulic':
+        return None
+    return (params['valve_flow_gain_m3_per_s_V'] * params['valve_limit_V']
+            / params['piston_area_m2'])
+
+
+def check_capacity(*, runs: list[dict], progress: Callable[[str], None] = print) -> None:
+    """Warn before a run whose reference response needs more velocity than the actuator has.
+
+    The analytical reference of the whole structure (linear model, the prepared record) is
+    what a perfectly compensated test reproduces; if its peak velocity exceeds
+    :func:`actuator_velocity_limit_m_s`, the valve will saturate and the loss-of-control
+    interlock is likely to end the run. A warning, not a refusal.
+    """
+    for p in runs:
+        v_max = actuator_velocity_limit_m_s(p)
+        if v_max is None:
+            continue
+        gm = prepared_record(p)
+        ref = reference_response(alpha=p['alpha'], mass_kg=p['mass_kg'],
+                                 damping_N_s_per_m=p['damping_N_s_per_m'],
+                                 stiffness_N_per_m=p['stiffness_N_per_m'], dt=p['dt'],
+                                 ground_acceleration_m_s2=gm.acceleration_m_s2)
+        v_peak = float(np.max(np.abs(ref.velocity_m_s)))
+        if v_peak > v_max:
+            progress(f'warning: alpha={p["alpha"]:g} ({p["predictor"]}): the reference response '
+                     f'needs {v_peak:.2f} m/s, the actuator delivers {v_max:.2f} m/s at '
+                     f'{p["valve_limit_V"]:g} V: expect valve saturation (lower amplitude_N)')
+
 
 def check_stability(*, runs: list[dict], force: bool = False,
                     progress: Callable[[str], None] = print) -> list[stability.StabilityCheck]:

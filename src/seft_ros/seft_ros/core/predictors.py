@@ -35,10 +35,11 @@ from collections import deque
 import math
 
 import numpy as np
-from scipy.signal import cont2discrete
 
 from seft_msgs_py.errors import ParameterError
 from seft_plant_sim.interface import Measurement
+from seft_plant_sim.sampling import split_delay as _split_delay
+from seft_plant_sim.sampling import zoh as _zoh
 
 __all__ = [
     'NoPredictor', 'PolynomialPredictor', 'ModelPredictor', 'AdaptivePredictor',
@@ -49,21 +50,8 @@ __all__ = [
 
 # -- helpers --------------------------------------------------------------------------------
 
-def _zoh(a, b, h):
-    """Return (Phi(h), Gamma(h)) of ``x' = a x + b u`` under a hold of length h [s]."""
-    if h <= 0.0:
-        return np.eye(a.shape[0]), np.zeros_like(b)
-    phi, gamma, *_ = cont2discrete((a, b, np.eye(a.shape[0]), np.zeros_like(b)), h, 'zoh')
-    return phi, gamma
 
 
-def _split_delay(tau_s: float, dt: float):
-    """``tau = n dt + delta`` with ``0 <= delta < dt`` (delta snapped to 0 near a multiple)."""
-    n = int(math.floor(tau_s / dt + 1e-9))
-    delta = tau_s - n * dt
-    if abs(delta) < 1e-9 * dt:
-        delta = 0.0
-    return n, max(delta, 0.0)
 
 
 def lagrange_extrapolation_weights(order: int, horizon_steps: float) -> np.ndarray:

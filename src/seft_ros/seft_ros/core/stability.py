@@ -43,10 +43,10 @@ from typing import Any, Mapping, Protocol, runtime_checkable
 
 import numpy as np
 from scipy import signal
-from scipy.signal import cont2discrete
 
 from seft_msgs_py.errors import SeftError
 from seft_plant_sim.interface import Measurement
+from seft_plant_sim.sampling import zoh as _zoh
 from seft_plant_sim.servohydraulic import OUTPUTS, ServoHydraulicParams, sample
 from seft_plant_sim.specimen import LinearSpecimen
 from seft_ros.core.controller import ForceServoController
@@ -363,12 +363,6 @@ def compensator(params: Mapping) -> Compensator:
 
 # -- rig models -------------------------------------------------------------------------------
 
-def _zoh(a, b, h):
-    """(Phi(h), Gamma(h)) of ``x' = a x + b u`` under a hold of length h [s]."""
-    if h <= 0.0:
-        return np.eye(a.shape[0]), np.zeros_like(b)
-    phi, gamma, *_ = cont2discrete((a, b, np.eye(a.shape[0]), np.zeros_like(b)), h, 'zoh')
-    return phi, gamma
 
 
 def _delay_rig(params: Mapping):

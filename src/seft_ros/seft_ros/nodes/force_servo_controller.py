@@ -12,18 +12,15 @@ import sys
 
 from seft_msgs_py.convert import (
     STATE_ABORTED,
-    STATE_DONE,
-    STATE_FAILED,
     STATE_READY,
     dt_to_ns,
     scalar_msg,
     scalar_value,
-    status_values,
     step_of,
 )
 from seft_msgs_py.node_support import SeftNode, main_for
 from seft_msgs_py.sync import StepSync
-from seft_msgs_py.topics import MEASURED_FORCE, REFERENCE_FORCE, STATUS, VALVE_COMMAND
+from seft_msgs_py.topics import MEASURED_FORCE, REFERENCE_FORCE, VALVE_COMMAND
 from seft_ros.core.controller import ForceServoController, SaturationInterlock
 
 __all__ = ['ForceServoControllerNode', 'main']
@@ -48,8 +45,6 @@ class ForceServoControllerNode(SeftNode):
             self.create_subscription(spec.msg_type, spec.name,
                                      self.guard(lambda msg, s=spec: self._on_force(s, msg)),
                                      spec.qos)
-        self.create_subscription(STATUS.msg_type, STATUS.name, self.guard(self._on_status),
-                                 STATUS.qos)
         self.report(STATE_READY, f'controller discretized: {self.controller.design.method}')
 
     def _on_force(self, spec, msg) -> None:
@@ -70,13 +65,6 @@ class ForceServoControllerNode(SeftNode):
                 return
             self.pub.publish(scalar_msg(VALVE_COMMAND, k * self.dt_ns, u))
             self.next_step += 1
-
-    def _on_status(self, msg) -> None:
-        if msg.name == 'rig':
-            state = status_values(msg).get('state')
-            if state in (STATE_DONE, STATE_ABORTED, STATE_FAILED):
-                self.report(STATE_DONE, 'rig finished', published=self.next_step)
-                self.finish(0)
 
 
 def main(args=None) -> int:

@@ -13,17 +13,13 @@ Run by hand: ``ros2 run seft_ros ground_motion_publisher --ros-args --params-fil
 import sys
 
 from seft_msgs_py.convert import (
-    STATE_ABORTED,
-    STATE_DONE,
-    STATE_FAILED,
     STATE_READY,
     dt_to_ns,
     scalar_msg,
-    status_values,
     step_of,
 )
 from seft_msgs_py.node_support import SeftNode, main_for
-from seft_msgs_py.topics import CLOCK, GROUND_ACCELERATION, STATUS
+from seft_msgs_py.topics import CLOCK, GROUND_ACCELERATION
 from seft_ros.core.experiment import prepared_record
 
 __all__ = ['GroundMotionPublisher', 'main']
@@ -45,8 +41,6 @@ class GroundMotionPublisher(SeftNode):
                                          GROUND_ACCELERATION.qos)
         self.create_subscription(CLOCK.msg_type, CLOCK.name, self.guard(self._on_clock),
                                  CLOCK.qos)
-        self.create_subscription(STATUS.msg_type, STATUS.name, self.guard(self._on_status),
-                                 STATUS.qos)
         self.get_logger().info(
             f'record {self.record.name}: {self.n_steps} steps of {p["dt"]} s, '
             f'peak {abs(self.values).max():.4g} m/s^2')
@@ -64,13 +58,6 @@ class GroundMotionPublisher(SeftNode):
 
     def _on_clock(self, msg) -> None:
         self._publish_until(step_of(msg.clock, self.dt_ns) + self.preview)
-
-    def _on_status(self, msg) -> None:
-        if msg.name == 'rig':
-            state = status_values(msg).get('state')
-            if state in (STATE_DONE, STATE_ABORTED, STATE_FAILED):
-                self.report(STATE_DONE, 'rig finished', published=self.next_step)
-                self.finish(0)
 
 
 def main(args=None) -> int:

@@ -20,8 +20,6 @@ import sys
 from seft_msgs_py import parameters
 from seft_msgs_py.convert import (
     STATE_ABORTED,
-    STATE_DONE,
-    STATE_FAILED,
     STATE_READY,
     dt_to_ns,
     scalar_msg,
@@ -144,11 +142,6 @@ class ReferenceForceBuilderNode(SeftNode):
             if n is not None:
                 self.n_total = int(n)
                 self._advance()
-        if msg.name == 'rig':
-            state = status_values(msg).get('state')
-            if state in (STATE_DONE, STATE_ABORTED, STATE_FAILED):
-                self.report(STATE_DONE, 'rig finished', published=self.next_step)
-                self.finish(0)
 
 
 def main(args=None) -> int:

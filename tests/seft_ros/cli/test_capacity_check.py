@@ -1,0 +1,35 @@
+"""The pre-run actuator capacity check: v_max = k_q V_lim / A against the reference's peak."""
+
+import pytest
+
+from seft_msgs_py import parameters
+from seft_ros.cli import api
+
+
+def _runs(amplitude_N, alphas, rig='servohydraulic'):
+    return [parameters.resolve({'alpha': a, 'amplitude_N': amplitude_N, 'predictor': 'model',
+                                'rig_model': rig}) for a in alphas]
+
+
+def test_velocity_limit_of_the_calibrated_rig():
+    p = parameters.defaults()
+    assert api.actuator_velocity_limit_m_s(p) == pytest.approx(5.3e-5 * 10.0 / 1.18e-3)
+    assert api.actuator_velocity_limit_m_s(dict(p, rig_model='delay')) is None
+
+
+def test_warns_only_for_runs_beyond_the_valve_capacity():
+    lines = []
+    api.check_capacity(runs=_runs(1000.0, [0.0, 0.5, 1.0, 1.5]), progress=lines.append)
+    # the default record at 1000 N: alpha >= 0.5 needs more than the valve's 0.45 m/s
+    assert [ln.split(' (')[0] for ln in lines] == ['warning: alpha=0.5', 'warning: alpha=1',
+                                                  'warning: alpha=1.5']
+    assert '0.67 m/s' in lines[1] and '0.45 m/s at 10 V' in lines[1]
+    lines.clear()
+    api.check_capacity(runs=_runs(500.0, [0.0, 0.5, 1.0, 1.5]), progress=lines.append)
+    assert lines == []
+
+
+def test_delay_rig_has_no_capacity_check():
+    lines = []
+    api.check_capacity(runs=_runs(1000.0, [1.5], rig='delay'), progress=lines.append)
+    assert lines == []
