@@ -137,6 +137,22 @@ def servo(graph_dir, seft_exe, run_process):
 
 
 @pytest.fixture(scope='module')
+def servo_model(graph_dir, seft_exe, run_process):
+    # compensated: the model predictor with its force-loop inverse, alpha beyond the
+    # uncompensated boundary (1.32)
+    return seft_run(seft_exe, run_process, graph_dir / 'servo_model', '--alpha', '1.5',
+                    '--duration', '1.0', '--rig', 'servohydraulic', '--predictor', 'model')
+
+
+@pytest.fixture(scope='module')
+def delay_adaptive(graph_dir, seft_exe, run_process):
+    # compensated, nonlinear predictor, with the ground-motion preview (look-ahead samples)
+    return seft_run(seft_exe, run_process, graph_dir / 'delay_adaptive', '--alpha', '1.0',
+                    '--duration', '1.0', '--rig', 'delay', '--predictor', 'adaptive',
+                    '--set', 'ground_preview=true')
+
+
+@pytest.fixture(scope='module')
 def delay(graph_dir, seft_exe, run_process):
     # --force: the pre-run stability check rightly predicts this run unstable
     return seft_run(seft_exe, run_process, graph_dir / 'delay', '--rig', 'delay', '--alpha',
@@ -182,7 +198,7 @@ def test_servo_run_parameters_in_the_bag(servo):
     assert p['dt'] == 0.002 and p['bag_path'] == str(servo.bag.resolve())
 
 
-@pytest.mark.parametrize('which', ['servo', 'delay'])
+@pytest.mark.parametrize('which', ['servo', 'delay', 'servo_model', 'delay_adaptive'])
 def test_bag_equals_simulate(request, which):
     run = request.getfixturevalue(which)
     sim = run.sim
@@ -206,6 +222,13 @@ def test_bag_equals_simulate(request, which):
         assert (a is None) == (b is None), attr
         if a is not None:
             np.testing.assert_allclose(a, b, rtol=0, atol=1e-9 * np.max(np.abs(b)), err_msg=attr)
+
+
+@pytest.mark.parametrize('which', ['servo_model', 'delay_adaptive'])
+def test_compensated_graph_runs_are_stable_and_complete(request, which):
+    run = request.getfixturevalue(which)
+    assert run.sim.stable and run.sim.n_steps == 500
+    assert run.params['predictor'] == which.split('_')[1]
 
 
 def test_servo_run_is_stable_and_complete(servo):
