@@ -65,7 +65,6 @@ class RigNode(SeftNode):
             self.guard(self._on_command), self.command_topic.qos)
         self.pending = {}
         self.window = int(p['recorder_window_steps'])
-        self.recorder_present = False
         self.recorded = 0
         self.waiting_for_recorder = False
         self.published = 0
@@ -101,7 +100,7 @@ class RigNode(SeftNode):
         values = status_values(msg)
         state = values.get('state')
         if msg.name == 'recorder':
-            self.recorder_present = True
+            self.recorder_ready = True   # also set by SeftNode; this callback may run first
             if 'recorded' in values:
                 self.recorded = int(values['recorded'])
                 if self.waiting_for_recorder and self._recorder_keeps_up():
@@ -113,7 +112,7 @@ class RigNode(SeftNode):
             self._end(STATE_ABORTED, f'{msg.name}: {msg.message}')
 
     def _recorder_keeps_up(self) -> bool:
-        return (not self.recorder_present or self.window <= 0
+        return (not self.recorder_ready or self.window <= 0
                 or self.rig.step - self.recorded < self.window)
 
     def _publish_step(self) -> None:
