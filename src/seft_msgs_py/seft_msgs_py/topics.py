@@ -1,5 +1,8 @@
 """Topic names, message types and QoS of the seft node graph: the one place they live.
 
+Names, type names, fields and units come from the ROS-free table ``seft_msgs_py.signals``;
+this module adds the rclpy message classes and the QoS profiles.
+
 Every core signal is a scalar in a standard common_interfaces message with a header whose
 stamp is the sample time ``t_k = k*dt`` (REP-103 SI units). The table :data:`TOPICS` is what
 the nodes, the recorder, the bag reader and the README use.
@@ -18,6 +21,8 @@ from geometry_msgs.msg import (
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import String
+
+from seft_msgs_py import signals as sig
 
 __all__ = [
     'TopicSpec', 'TOPICS', 'CLOCK', 'GROUND_ACCELERATION', 'REFERENCE_FORCE', 'VALVE_COMMAND',
@@ -76,40 +81,21 @@ class TopicSpec:
     qos: QoSProfile
 
 
-CLOCK = TopicSpec('/clock', Clock, 'rosgraph_msgs/msg/Clock', 'clock', 's', 'rig',
-                  'Simulated time t_k = k*dt (lockstep mode; use_sim_time).', CLOCK_QOS)
-GROUND_ACCELERATION = TopicSpec(
-    '/seft/ground_acceleration', AccelStamped, 'geometry_msgs/msg/AccelStamped',
-    'accel.linear.x', 'm/s^2', 'ground_motion_publisher',
-    "Ground acceleration xg'' after scaling and resampling (published ahead of the clock).",
-    DATA_QOS)
-REFERENCE_FORCE = TopicSpec(
-    '/seft/reference_force', WrenchStamped, 'geometry_msgs/msg/WrenchStamped', 'wrench.force.x',
-    'N', 'reference_force_builder',
-    "Reference force f_r[k] = -(1+alpha) m xg''[k] - alpha m a_hat[k] (paper Eq. 5.3).",
-    DATA_QOS)
-VALVE_COMMAND = TopicSpec(
-    '/seft/valve_command', Vector3Stamped, 'geometry_msgs/msg/Vector3Stamped', 'vector.x', 'V',
-    'force_servo_controller', 'Servo-valve command u[k] (saturated at +/-valve_limit_V).',
-    DATA_QOS)
-MEASURED_FORCE = TopicSpec(
-    '/seft/measured_force', WrenchStamped, 'geometry_msgs/msg/WrenchStamped', 'wrench.force.x',
-    'N', 'rig', 'Load-cell force f_m[k] on the specimen.', DATA_QOS)
-DISPLACEMENT = TopicSpec(
-    '/seft/displacement', PointStamped, 'geometry_msgs/msg/PointStamped', 'point.x', 'm', 'rig',
-    'Specimen displacement x[k] relative to the ground.', DATA_QOS)
-VELOCITY = TopicSpec(
-    '/seft/velocity', TwistStamped, 'geometry_msgs/msg/TwistStamped', 'twist.linear.x', 'm/s',
-    'rig', "Specimen velocity x'[k].", DATA_QOS)
-ACCELERATION = TopicSpec(
-    '/seft/acceleration', AccelStamped, 'geometry_msgs/msg/AccelStamped', 'accel.linear.x',
-    'm/s^2', 'rig', "Specimen acceleration x''[k] (accelerometer).", DATA_QOS)
-STATUS = TopicSpec(
-    '/seft/status', DiagnosticStatus, 'diagnostic_msgs/msg/DiagnosticStatus', '', '', '(all)',
-    'Node state (ready/running/done/aborted), progress and abort reasons.', STATUS_QOS)
-RUN_PARAMETERS = TopicSpec(
-    '/seft/run_parameters', String, 'std_msgs/msg/String', 'data', '', 'recorder',
-    "The run's resolved parameters as JSON (written once into the bag).", STATUS_QOS)
+def _spec(signal: sig.Signal, msg_type: type, qos: QoSProfile) -> TopicSpec:
+    return TopicSpec(signal.name, msg_type, signal.type_name, signal.field, signal.unit,
+                     signal.publisher, signal.description, qos)
+
+
+CLOCK = _spec(sig.CLOCK, Clock, CLOCK_QOS)
+GROUND_ACCELERATION = _spec(sig.GROUND_ACCELERATION, AccelStamped, DATA_QOS)
+REFERENCE_FORCE = _spec(sig.REFERENCE_FORCE, WrenchStamped, DATA_QOS)
+VALVE_COMMAND = _spec(sig.VALVE_COMMAND, Vector3Stamped, DATA_QOS)
+MEASURED_FORCE = _spec(sig.MEASURED_FORCE, WrenchStamped, DATA_QOS)
+DISPLACEMENT = _spec(sig.DISPLACEMENT, PointStamped, DATA_QOS)
+VELOCITY = _spec(sig.VELOCITY, TwistStamped, DATA_QOS)
+ACCELERATION = _spec(sig.ACCELERATION, AccelStamped, DATA_QOS)
+STATUS = _spec(sig.STATUS, DiagnosticStatus, STATUS_QOS)
+RUN_PARAMETERS = _spec(sig.RUN_PARAMETERS, String, STATUS_QOS)
 
 #: Every topic, in report order.
 TOPICS = (CLOCK, GROUND_ACCELERATION, REFERENCE_FORCE, VALVE_COMMAND, MEASURED_FORCE,

@@ -12,22 +12,13 @@ import numpy as np
 from rosbags.rosbag2 import Reader
 from rosbags.typesys import Stores, get_typestore
 
-from seft_msgs_py import parameters
+from seft_msgs_py import parameters, signals
 from seft_msgs_py.errors import InputError
 from seft_ros.analysis.rundata import RunData
 
 __all__ = ['read_run', 'BagSignals', 'read_signals']
 
-_SCALARS = {
-    '/clock': 'clock',
-    '/seft/ground_acceleration': 'accel.linear.x',
-    '/seft/reference_force': 'wrench.force.x',
-    '/seft/valve_command': 'vector.x',
-    '/seft/measured_force': 'wrench.force.x',
-    '/seft/displacement': 'point.x',
-    '/seft/velocity': 'twist.linear.x',
-    '/seft/acceleration': 'accel.linear.x',
-}
+_SCALARS = {s.name: s.field for s in (signals.CLOCK,) + signals.SCALAR_SIGNALS}
 
 
 def _get(msg, path: str):
@@ -78,17 +69,17 @@ def read_signals(path) -> BagSignals:
         with Reader(path) as reader:
             for conn, _, raw in reader.messages():
                 counts[conn.topic] = counts.get(conn.topic, 0) + 1
-                if conn.topic == '/seft/run_parameters':
+                if conn.topic == signals.RUN_PARAMETERS.name:
                     msg = typestore.deserialize_cdr(raw, conn.msgtype)
                     params = json.loads(msg.data)
-                elif conn.topic == '/seft/status':
+                elif conn.topic == signals.STATUS.name:
                     msg = typestore.deserialize_cdr(raw, conn.msgtype)
                     entry = {kv.key: kv.value for kv in msg.values}
                     entry.update(name=msg.name, message=msg.message)
                     statuses.append(entry)
                 elif conn.topic in _SCALARS:
                     msg = typestore.deserialize_cdr(raw, conn.msgtype)
-                    if conn.topic == '/clock':
+                    if conn.topic == signals.CLOCK.name:
                         stamp, value = msg.clock, None
                     else:
                         stamp, value = msg.header.stamp, float(_get(msg, _SCALARS[conn.topic]))
@@ -121,10 +112,11 @@ def read_run(path) -> RunData:
     bag = read_signals(path)
     p = bag.params
     valve = p['rig_model'] == 'servohydraulic'
-    needed = ['/seft/ground_acceleration', '/seft/reference_force', '/seft/measured_force',
-              '/seft/displacement', '/seft/velocity', '/seft/acceleration']
+    needed = [s.name for s in (signals.GROUND_ACCELERATION, signals.REFERENCE_FORCE,
+                               signals.MEASURED_FORCE, signals.DISPLACEMENT, signals.VELOCITY,
+                               signals.ACCELERATION)]
     if valve:
-        needed.append('/seft/valve_command')
+        needed.append(signals.VALVE_COMMAND.name)
     n = 0
     while all(n in bag.samples[name] for name in needed):
         n += 1
@@ -153,7 +145,7 @@ def read_run(path) -> RunData:
         reference_force_N=arr(needed[1]), measured_force_N=arr(needed[2]),
         displacement_m=arr(needed[3]), velocity_m_s=arr(needed[4]),
         acceleration_m_s2=arr(needed[5]),
-        valve_command_V=arr('/seft/valve_command') if valve else None, stable=stable,
+        valve_command_V=arr(signals.VALVE_COMMAND.name) if valve else None, stable=stable,
         unstable_at_s=None if stable else n * dt, abort_reason=reason,
         record_name=record_name, source=str(path),
         extra={'rig_final': rig_final[-1] if rig_final else None, 'counts': bag.counts})

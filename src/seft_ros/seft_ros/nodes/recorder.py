@@ -43,13 +43,11 @@ from seft_msgs_py.topics import (
     ACCELERATION,
     CLOCK,
     DISPLACEMENT,
-    GROUND_ACCELERATION,
     MEASURED_FORCE,
     REFERENCE_FORCE,
     RUN_PARAMETERS,
     STATUS,
     TOPICS,
-    VALVE_COMMAND,
     VELOCITY,
 )
 
@@ -65,12 +63,9 @@ _LOCKSTEP = (MEASURED_FORCE.name, DISPLACEMENT.name, VELOCITY.name, ACCELERATION
              REFERENCE_FORCE.name)
 
 #: The data topics each node publishes (its final status says how many samples).
-TOPICS_OF_NODE = {
-    'rig': (MEASURED_FORCE.name, DISPLACEMENT.name, VELOCITY.name, ACCELERATION.name),
-    'ground_motion_publisher': (GROUND_ACCELERATION.name,),
-    'reference_force_builder': (REFERENCE_FORCE.name,),
-    'force_servo_controller': (VALVE_COMMAND.name,),
-}
+TOPICS_OF_NODE = {node: tuple(t.name for t in RECORDED if t.publisher == node)
+                  for node in ('rig', 'ground_motion_publisher', 'reference_force_builder',
+                               'force_servo_controller')}
 
 _FINAL = (STATE_DONE, STATE_ABORTED, STATE_FAILED)
 _STAMP = struct.Struct('<iI')   # builtin_interfaces/Time right after the CDR header
