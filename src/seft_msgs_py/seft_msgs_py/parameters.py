@@ -114,6 +114,11 @@ SCHEMA: tuple[ParamSpec, ...] = (
               nodes=_RIG),
     ParamSpec('bouc_wen_gamma', 0.5, '', 'Bouc-Wen shape parameter gamma (z saturates at '
               '(beta + gamma)^(-1/n)).', -100.0, 100.0, nodes=_RIG),
+    ParamSpec('mode', 'lockstep', '', "How the node graph steps: 'lockstep' (every node acts "
+              'on step k once its inputs for step k are in; the rig is the simulated clock and '
+              "the run equals seft simulate bit for bit) or 'realtime' (the rig ticks on the "
+              'wall clock every dt, the other nodes act on message arrival with the latest '
+              'inputs and nobody waits).', choices=('lockstep', 'realtime'), nodes=_ALL),
     ParamSpec('n_steps', 0, '', 'Number of control steps of the run (0: the whole prepared '
               'record); set by the runner.', 0, None, nodes=_ALL),
     # -- ground motion ----------------------------------------------------------------------
@@ -161,6 +166,10 @@ SCHEMA: tuple[ParamSpec, ...] = (
               nodes=_RFB + ('recorder',)),
     ParamSpec('predictor_loop_taps', 48, '', "Servohydraulic rig, 'model': taps of the FIR "
               'force-loop inverse.', 1, 1000, nodes=_RFB + ('recorder',)),
+    ParamSpec('predictor_loop_latency_s', 0.0, 's', "Real-time mode with realtime_output "
+              "'on_arrival': the measured loop latency (sample to command at the rig, p50 of "
+              'the timing data); the predictor then compensates the actuator delay plus '
+              'loop_latency - dt (0: as lockstep).', 0.0, 1.0, nodes=_RFB + ('recorder',)),
     ParamSpec('adaptive_window_s', 0.5, 's', "Identification window of the 'adaptive' "
               'predictor.', 0.0, 100.0, True, nodes=_RFB + ('recorder',)),
     ParamSpec('adaptive_max_delay_s', 0.03, 's', "Largest delay the 'adaptive' predictor "
@@ -229,6 +238,22 @@ SCHEMA: tuple[ParamSpec, ...] = (
               0.0, None, nodes=_RIG),
     ParamSpec('accelerometer_range_m_s2', 39.2, 'm/s^2', 'Accelerometer full scale (4 g); '
               'readings saturate there (0: unlimited).', 0.0, None, nodes=_RIG),
+    ParamSpec('watchdog_timeout_s', 0.02, 's', 'Real-time mode: when no command (valve '
+              'command, or reference force on the delay rig) has arrived for this long, the rig '
+              'goes to its safe state and the run ends aborted.', 0.0, 10.0, True, nodes=_RIG),
+    ParamSpec('safe_ramp_s', 0.2, 's', "Real-time mode: on any abort the rig's command (the "
+              'actuator force on the delay rig, the valve opening on the servohydraulic rig) '
+              'is ramped linearly to zero over this time, then held at zero (valve closed).',
+              0.0, 10.0, True, nodes=_RIG),
+    ParamSpec('realtime_output', 'latched', '', "Real-time mode: when the rig applies the "
+              "command computed from sample k. 'latched': at t_k + io_latency_s (tau_s on the "
+              'delay rig), as the lockstep rig does, or on arrival if it arrives later; '
+              "'on_arrival': on arrival plus the modelled hardware part io_latency_s - dt "
+              '(tau_s - dt), so the measured loop latency replaces one control period of '
+              'computation.', choices=('latched', 'on_arrival'), nodes=_RIG),
+    ParamSpec('realtime_substep_s', 1e-4, 's', "Real-time mode: sub-step of the rig's plant "
+              'integration between ticks (command changes are applied on this grid).', 1e-6,
+              1.0, True, nodes=_RIG),
     ParamSpec('wait_for_recorder', False, '', 'The rig starts stepping only once the recorder '
               'subscribes to its topics (set by seft run, so no sample precedes the recorder).',
               nodes=_RIG),

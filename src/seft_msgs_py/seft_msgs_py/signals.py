@@ -9,7 +9,8 @@ from dataclasses import dataclass
 __all__ = [
     'Signal', 'CLOCK', 'GROUND_ACCELERATION', 'REFERENCE_FORCE', 'VALVE_COMMAND',
     'MEASURED_FORCE', 'DISPLACEMENT', 'VELOCITY', 'ACCELERATION', 'STATUS', 'RUN_PARAMETERS',
-    'SIGNALS', 'SCALAR_SIGNALS',
+    'SIGNALS', 'SCALAR_SIGNALS', 'NODE_PARAMETERS', 'TIMING', 'TIMING_FIELDS', 'TIMING_TYPE',
+    'timing_signal',
 ]
 
 
@@ -73,10 +74,39 @@ RUN_PARAMETERS = Signal(
     '/seft/run_parameters', 'std_msgs/msg/String', 'data', '', 'recorder',
     "The run's resolved parameters as JSON (written once into the bag).")
 
+NODE_PARAMETERS = Signal(
+    '/seft/node_parameters', 'std_msgs/msg/String', 'data', '', '(all)',
+    'The parameters each node resolved, as JSON {"node": name, "parameters": {...}}, once at '
+    'start (the graph refuses to start when shared values differ).')
+
+#: Per-step timing record of a node (real-time mode), a sensor_msgs/JointState whose
+#: ``name`` lists the fields and ``position`` holds their values (:data:`TIMING_FIELDS`).
+TIMING_TYPE = 'sensor_msgs/msg/JointState'
+#: Fields of a timing record, in order: period jitter (actual period - dt) [s], compute time
+#: [s], age of the oldest input used, from its sample instant [s], missed deadline (0/1),
+#: stale input (0/1: the rig's command of the previous sample, the controller's reference
+#: force, the builder's ground acceleration had not arrived), loop latency (rig only: the
+#: command computed from this sample arrived at the rig this long after the sample) [s].
+TIMING_FIELDS = ('period_jitter_s', 'compute_s', 'input_age_s', 'missed_deadline', 'stale',
+                 'loop_latency_s')
+_TIMED = ('rig', 'force_servo_controller', 'reference_force_builder',
+          'ground_motion_publisher')
+TIMING = tuple(
+    Signal(f'/seft/timing/{node}', TIMING_TYPE, 'position', 's', node,
+           f'Real-time mode: per-step timing of {node} (fields: '
+           + ', '.join(TIMING_FIELDS) + ').')
+    for node in _TIMED)
+
 #: Every topic, in report order.
 SIGNALS = (CLOCK, GROUND_ACCELERATION, REFERENCE_FORCE, VALVE_COMMAND, MEASURED_FORCE,
-           DISPLACEMENT, VELOCITY, ACCELERATION, STATUS, RUN_PARAMETERS)
+           DISPLACEMENT, VELOCITY, ACCELERATION, STATUS, RUN_PARAMETERS,
+           NODE_PARAMETERS) + TIMING
 
 #: The stamped scalar signals, one sample per control step.
 SCALAR_SIGNALS = (GROUND_ACCELERATION, REFERENCE_FORCE, VALVE_COMMAND, MEASURED_FORCE,
                   DISPLACEMENT, VELOCITY, ACCELERATION)
+
+
+def timing_signal(node: str) -> Signal:
+    """The timing topic of `node` (KeyError if the node publishes none)."""
+    return {t.publisher: t for t in TIMING}[node]

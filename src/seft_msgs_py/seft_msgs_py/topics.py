@@ -20,6 +20,7 @@ from geometry_msgs.msg import (
 )
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
 from seft_msgs_py import signals as sig
@@ -28,6 +29,7 @@ __all__ = [
     'TopicSpec', 'TOPICS', 'CLOCK', 'GROUND_ACCELERATION', 'REFERENCE_FORCE', 'VALVE_COMMAND',
     'MEASURED_FORCE', 'DISPLACEMENT', 'VELOCITY', 'ACCELERATION', 'STATUS', 'RUN_PARAMETERS',
     'DATA_QOS', 'STATUS_QOS', 'CLOCK_QOS', 'MEASUREMENT_TOPICS', 'topic', 'FRAME_ID',
+    'NODE_PARAMETERS', 'TIMING', 'timing_topic',
 ]
 
 #: ``header.frame_id`` of every seft signal: the actuator axis (x: positive extension).
@@ -97,9 +99,14 @@ ACCELERATION = _spec(sig.ACCELERATION, AccelStamped, DATA_QOS)
 STATUS = _spec(sig.STATUS, DiagnosticStatus, STATUS_QOS)
 RUN_PARAMETERS = _spec(sig.RUN_PARAMETERS, String, STATUS_QOS)
 
+NODE_PARAMETERS = _spec(sig.NODE_PARAMETERS, String, STATUS_QOS)
+#: Per-node timing topics (real-time mode), in the order of ``signals.TIMING``.
+TIMING = tuple(_spec(s, JointState, DATA_QOS) for s in sig.TIMING)
+
 #: Every topic, in report order.
 TOPICS = (CLOCK, GROUND_ACCELERATION, REFERENCE_FORCE, VALVE_COMMAND, MEASURED_FORCE,
-          DISPLACEMENT, VELOCITY, ACCELERATION, STATUS, RUN_PARAMETERS)
+          DISPLACEMENT, VELOCITY, ACCELERATION, STATUS, RUN_PARAMETERS,
+          NODE_PARAMETERS) + TIMING
 
 #: The rig's sensor topics, published together at every step.
 MEASUREMENT_TOPICS = (MEASURED_FORCE, DISPLACEMENT, VELOCITY, ACCELERATION)
@@ -110,3 +117,8 @@ _BY_NAME = {t.name: t for t in TOPICS}
 def topic(name: str) -> TopicSpec:
     """Return the :class:`TopicSpec` of a topic name (KeyError if it is not a seft topic)."""
     return _BY_NAME[name]
+
+
+def timing_topic(node: str) -> TopicSpec:
+    """The :class:`TopicSpec` of `node`'s timing topic (KeyError if it publishes none)."""
+    return {t.publisher: t for t in TIMING}[node]

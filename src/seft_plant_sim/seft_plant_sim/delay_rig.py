@@ -100,14 +100,15 @@ class DelayRig:
         self._state = np.zeros(2)
 
     @classmethod
-    def from_parameters(cls, params) -> 'DelayRig':
+    def from_parameters(cls, params, *, rk4_substeps: int = 10) -> 'DelayRig':
         """Build from the parameter schema (``dt``, ``tau_s``, specimen, noise, limits).
 
-        The specimen is chosen by ``specimen_model`` (absent: 'linear').
+        The specimen is chosen by ``specimen_model`` (absent: 'linear'); `rk4_substeps` as in
+        the constructor.
         """
         return cls(make_specimen(params), float(params['dt']),
                    float(params['tau_s']), Sensors.from_parameters(params),
-                   SafetyLimits.from_parameters(params))
+                   SafetyLimits.from_parameters(params), rk4_substeps=rk4_substeps)
 
     def _forces(self, newest: float):
         """(force over the early part, force over the late part) of the current step."""

@@ -16,13 +16,13 @@ from seft_plant_sim.servohydraulic import ServoHydraulicRig
 __all__ = ['RIG_MODELS', 'make_rig']
 
 #: ``rig_model`` name -> factory taking the flat parameter mapping.
-RIG_MODELS: dict[str, Callable[[Mapping], Rig]] = {
+RIG_MODELS: dict[str, Callable[..., Rig]] = {
     'delay': DelayRig.from_parameters,
     'servohydraulic': ServoHydraulicRig.from_parameters,
 }
 
 
-def make_rig(params: Mapping) -> Rig:
+def make_rig(params: Mapping, **options) -> Rig:
     """Build the rig named by ``params['rig_model']`` from the flat parameter mapping.
 
     Parameters
@@ -30,6 +30,9 @@ def make_rig(params: Mapping) -> Rig:
     params : mapping
         The resolved experiment parameters (``rig_model``, ``dt``, specimen with
         ``specimen_model``, noise, limits and the model's own keys).
+    **options
+        Passed to the model's ``from_parameters`` (``rk4_substeps``: Runge-Kutta substeps
+        per step of a hysteretic specimen).
 
     Returns
     -------
@@ -48,4 +51,4 @@ def make_rig(params: Mapping) -> Rig:
         expected = ', '.join(repr(n) for n in RIG_MODELS)
         raise ParameterError(f'parameter rig_model={name!r}: expected one of {expected}') \
             from None
-    return factory(params)
+    return factory(params, **options)

@@ -514,19 +514,20 @@ class ServoHydraulicRig:
             self._work = None
 
     @classmethod
-    def from_parameters(cls, params: Mapping) -> 'ServoHydraulicRig':
+    def from_parameters(cls, params: Mapping, *, rk4_substeps: int = 20) -> 'ServoHydraulicRig':
         """Build from the parameter schema.
 
         Reads ``dt``, the specimen (``specimen_model``, absent: 'linear'; ``mass_kg``,
         ``damping_N_s_per_m``, ``stiffness_N_per_m`` and the Bouc-Wen keys), ``noise_*``,
         ``noise_seed``, ``stroke_limit_m``, ``force_limit_N`` and the
-        :class:`ServoHydraulicParams` keys (absent: defaults).
+        :class:`ServoHydraulicParams` keys (absent: defaults); `rk4_substeps` as in the
+        constructor.
         """
         hp = ServoHydraulicParams.from_parameters(params)
         rng = hp.accelerometer_range_m_s2
         return cls(make_specimen(params), float(params['dt']), hp,
                    Sensors.from_parameters(params, rng if rng > 0 else None),
-                   SafetyLimits.from_parameters(params))
+                   SafetyLimits.from_parameters(params), rk4_substeps=rk4_substeps)
 
     @property
     def time_s(self) -> float:
