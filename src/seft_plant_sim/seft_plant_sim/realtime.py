@@ -1,0 +1,254 @@
+"""The rig on the wall clock: commands take effect when they arrive (real-time mode).
+
+In lockstep mode the rig waits for the command of each step and holds it over the step
+(:class:`~seft_plant_sim.interface.Rig`). A laboratory rig cannot wait: its plant moves on
+whether a command has arrived or not. :class:`WallClockRig` is the same simulated rig driven
+that way. Between two ticks ``t_k`` and ``t_k+1`` it integrates the plant on a fine sub-step
+grid, and the actuator sees the latest command that has taken effect, switched at the
+sub-step on which it takes effect. Its sensors are sampled at every tick.
+
+When a command takes effect (``realtime_output``), for the command computed from sample
+``j`` (the valve command ``u[j]``; on the delay rig the reference force ``f_r[j+1]``) that
+arrived at time ``t_a``:
+
+* ``'latched'`` (default): the output is latched at the next tick ``t_j+1`` (the lockstep
+  timing: one control period of computation), or at ``t_a`` if the command arrives later,
+  and reaches the actuator after the modelled hardware latency ``h``;
+* ``'on_arrival'``: at ``t_a + h`` (the measured computation and communication replace the
+  control period).
+
+``h = io_latency_s - dt`` on the servohydraulic rig (its ``io_latency_s`` lumps one control
+period of computation with the D/A, valve-amplifier and anti-alias delays; clipped at 0) and
+``h = tau_s`` on the delay rig (its actuator delay). So with every command in time a
+``'latched'`` run reproduces the lockstep rig exactly (up to rounding: tested), and a late
+command (one that missed its tick: a *stale* command) acts from its arrival.
+
+The plant itself is the lockstep rig's own class, built at the sub-step period with no
+internal latency (:func:`~seft_plant_sim.rigs.make_rig`), so the physics, the sensors and the
+limits are the same code.
+"""
+
+from dataclasses import replace
+import heapq
+import math
+from typing import Mapping
+
+from seft_msgs_py.errors import ParameterError
+from seft_plant_sim.interface import COMMAND_VALVE, Measurement
+from seft_plant_sim.rigs import make_rig
+
+__all__ = ['WallClockRig', 'OUTPUT_TIMINGS']
+
+#: Values of the ``realtime_output`` parameter.
+OUTPUT_TIMINGS = ('latched', 'on_arrival')
+_EPS = 1e-9
+
+
+class WallClockRig:
+    """A simulated rig sub-stepped between wall-clock ticks, commanded by arrival time.
+
+    Parameters
+    ----------
+    params : mapping
+        Resolved experiment parameters: ``rig_model``, ``dt`` [s], ``realtime_substep_s``
+        [s], ``realtime_output``, ``safe_ramp_s`` [s], ``io_latency_s`` [s] (servohydraulic)
+        or ``tau_s`` [s] (delay) and everything :func:`~seft_plant_sim.rigs.make_rig` reads.
+
+    Attributes
+    ----------
+    dt : float
+        Tick (control) period [s].
+    substep_s : float
+        Integration sub-step ``dt / M`` [s], ``M = round(dt / realtime_substep_s)``.
+    hardware_latency_s : float
+        Delay from the output instant to the actuator ``h`` [s] (module notes).
+    step : int
+        Index k of the current tick (the plant is at ``t_k = k*dt``).
+    command_kind : str
+        As the lockstep rig's.
+    source_lag : int
+        A command stamped ``j`` is computed from sample ``j - source_lag`` (0: valve command,
+        1: reference force on the delay rig).
+
+    Raises
+    ------
+    ParameterError
+        Unknown ``realtime_output``, or a rig parameter out of range.
+
+    Notes
+    -----
+    A command's effect time is rounded up to the sub-step grid, so it acts at most one
+    sub-step (default 0.1 ms) after the instant the timing rule gives. A command older than
+    the one already in effect is discarded (:attr:`discarded`).
+    """
+
+    def __init__(self, params: Mapping):
+        dt = float(params['dt'])
+        output = params.get('realtime_output', 'latched')
+        if output not in OUTPUT_TIMINGS:
+            raise ParameterError(f'parameter realtime_output={output!r}: expected one of '
+                                 + ', '.join(repr(o) for o in OUTPUT_TIMINGS))
+        self.output = output
+        self.dt = dt
+        self.substeps = max(1, int(round(dt / float(params['realtime_substep_s']))))
+        h = dt / self.substeps
+        self.substep_s = h
+        probe = make_rig(dict(params))          # validates the model parameters at dt
+        self.command_kind = probe.command_kind
+        if self.command_kind == COMMAND_VALVE:
+            io = float(params['io_latency_s'])
+            self.source_lag = 0
+            self._latch_offset_s = min(dt, io)
+            self.hardware_latency_s = io - self._latch_offset_s
+            self._lead = 0
+            sub = dict(params, dt=h, io_latency_s=0.0)
+        else:
+            self.source_lag = 1
+            self._latch_offset_s = dt
+            self.hardware_latency_s = float(params['tau_s'])
+            # the delay rig needs tau > 0: one sub-step, commands applied one sub-step early
+            self._lead = 1
+            sub = dict(params, dt=h, tau_s=h)
+        self.plant = make_rig(sub, rk4_substeps=1)
+        self.safe_ramp_s = float(params['safe_ramp_s'])
+        self.step = 0
+        self._sub = 0
+        self._events: list[tuple[int, int, float]] = []   # (effect sub-step, stamp, value)
+        self._held = 0.0
+        self._held_stamp = -1 - self.source_lag
+        self._arrivals: dict[int, float] = {}     # source sample -> first arrival time [s]
+        self._safe_from_sub: int | None = None
+        self._ramp_sub = 0
+        self._safe_from_value = 0.0
+        self.discarded = 0
+
+    # -- commands ---------------------------------------------------------------------------
+
+    def effect_time_s(self, stamp: int, arrival_s: float) -> float:
+        """When the command stamped `stamp` arriving at `arrival_s` [s] acts (module notes)."""
+        if self.output == 'latched':
+            source = stamp - self.source_lag
+            start = max(source * self.dt + self._latch_offset_s, arrival_s)
+        else:
+            start = arrival_s
+        return start + self.hardware_latency_s
+
+    def arrive(self, stamp: int, value: float, arrival_s: float) -> None:
+        """A command arrived.
+
+        Parameters
+        ----------
+        stamp : int
+            Its step index j (header stamp ``t_j``).
+        value : float
+            Valve command [V] or reference force [N].
+        arrival_s : float
+            Arrival time on the plant's time axis (``t = 0`` at tick 0) [s]; may be negative
+            (before the clock started).
+        """
+        source = stamp - self.source_lag
+        self._arrivals.setdefault(source, arrival_s)
+        if self._safe_from_sub is not None:
+            self.discarded += 1
+            return
+        effect = self.effect_time_s(stamp, arrival_s)
+        heapq.heappush(self._events, (math.ceil(effect / self.substep_s - _EPS), stamp,
+                                      float(value)))
+
+    def arrival_s(self, source: int) -> float | None:
+        """First arrival time [s] of the command computed from sample `source` (or None)."""
+        return self._arrivals.get(source)
+
+    def loop_latency_s(self, source: int) -> float | None:
+        """Sample `source` to the arrival of its command at the rig [s] (None: not arrived)."""
+        a = self._arrivals.get(source)
+        return None if a is None else a - source * self.dt
+
+    def stale(self, tick: int) -> bool:
+        """The command computed from sample ``tick - 1`` had not arrived by ``t_tick``."""
+        a = self._arrivals.get(tick - 1)
+        return a is None or a > tick * self.dt
+
+    def forget_before(self, source: int) -> None:
+        """Drop the arrival times of samples before `source` (bounded memory)."""
+        for j in [j for j in self._arrivals if j < source]:
+            del self._arrivals[j]
+
+    # -- safe state -------------------------------------------------------------------------
+
+    def enter_safe_state(self) -> None:
+        """From now on ignore commands and ramp the command linearly to 0 over safe_ramp_s.
+
+        The commands already output still reach the actuator; the ramp starts from the last
+        of them, reaches the actuator after the hardware latency, then the command is held
+        at 0 (valve closed; actuator force zero on the delay rig).
+        """
+        if self._safe_from_sub is None:
+            # commands output before now still reach the actuator; the ramp starts from the
+            # last of them and reaches the actuator after the hardware latency
+            self._safe_from_sub = self._sub
+            self._ramp_sub = self._sub + math.ceil(self.hardware_latency_s / self.substep_s
+                                                   - _EPS)
+            self._events = [e for e in self._events if e[0] <= self._ramp_sub]
+            heapq.heapify(self._events)
+            newest = max(self._events, key=lambda e: e[1], default=None)
+            self._safe_from_value = (newest[2] if newest and newest[1] > self._held_stamp
+                                     else self._held)
+
+    @property
+    def in_safe_state(self) -> bool:
+        """Whether :meth:`enter_safe_state` was called."""
+        return self._safe_from_sub is not None
+
+    @property
+    def safe_ramp_done(self) -> bool:
+        """The safe-state ramp is over (the command is 0 and has reached the actuator)."""
+        if self._safe_from_sub is None:
+            return False
+        return (self._sub - self._ramp_sub) * self.substep_s >= self.safe_ramp_s - _EPS
+
+    def _safe_command(self, sub: int) -> float:
+        elapsed = (sub - self._ramp_sub) * self.substep_s
+        if self.safe_ramp_s <= 0 or elapsed >= self.safe_ramp_s:
+            return 0.0
+        return self._safe_from_value * (1.0 - elapsed / self.safe_ramp_s)
+
+    # -- the plant --------------------------------------------------------------------------
+
+    def advance(self) -> None:
+        """Integrate ``[t_k, t_k+1)`` with the commands in effect; move to tick k+1."""
+        plant = self.plant
+        events = self._events
+        lead = self._lead
+        for i in range(self._sub, self._sub + self.substeps):
+            if self._safe_from_sub is not None and i + lead >= self._ramp_sub:
+                u = self._safe_command(i + lead)
+            else:
+                while events and events[0][0] <= i + lead:
+                    _, stamp, value = heapq.heappop(events)
+                    if stamp > self._held_stamp:
+                        self._held, self._held_stamp = value, stamp
+                    else:
+                        self.discarded += 1
+                u = self._held
+            plant.apply(u)
+        self._sub += self.substeps
+        self.step += 1
+
+    @property
+    def time_s(self) -> float:
+        """Time of the current tick [s]."""
+        return self.step * self.dt
+
+    @property
+    def held_command(self) -> float:
+        """The command in effect at the current sub-step [V or N]."""
+        return self._held
+
+    def measure(self) -> Measurement:
+        """Sensor readings at the current tick (step k, time ``t_k``)."""
+        return replace(self.plant.measure(), step=self.step, time_s=self.step * self.dt)
+
+    def limit_violation(self) -> str | None:
+        """Stroke/force limit check at the current tick (as the lockstep rig)."""
+        return self.plant.limit_violation()

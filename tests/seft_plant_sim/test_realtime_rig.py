@@ -1,0 +1,138 @@
+"""WallClockRig: the rig of real-time mode against the lockstep rig it must reduce to.
+
+Every check compares with an independent solution: the lockstep rig sampled exactly at dt
+with its own (fractional) delay split, which a command timing that is the same for every step
+reduces to. Arrival times are on the 0.1 ms sub-step grid, so the comparison is exact up to
+rounding.
+"""
+
+import numpy as np
+import pytest
+
+from seft_msgs_py import parameters
+from seft_msgs_py.errors import ParameterError
+from seft_plant_sim.realtime import WallClockRig
+from seft_plant_sim.rigs import make_rig
+
+N = 600
+DT = 0.002
+
+
+@pytest.fixture
+def command():
+    """A valve-command-sized random sequence with content up to the oil-column resonance."""
+    rng = np.random.default_rng(7)
+    return np.convolve(rng.standard_normal(N), np.ones(3) / 3, mode='same')
+
+
+def _params(**kw):
+    return parameters.resolve(dict(dict(dt=DT), **kw))
+
+
+def _lockstep(params, u):
+    rig = make_rig(params)
+    out = []
+    for k in range(N):
+        m = rig.measure()
+        out.append((m.displacement_m, m.velocity_m_s, m.acceleration_m_s2, m.force_N))
+        rig.apply(u[k])
+    return np.array(out)
+
+
+def _realtime(params, u, latency_s, *, source_lag=0):
+    """Command stamped j arrives latency_s after sample j - source_lag."""
+    rig = WallClockRig(params)
+    assert rig.source_lag == source_lag
+    out = []
+    for k in range(N):
+        m = rig.measure()
+        assert m.step == k and m.time_s == pytest.approx(k * DT)
+        out.append((m.displacement_m, m.velocity_m_s, m.acceleration_m_s2, m.force_N))
+        # the command stamped k (delay rig: k + 1 is computed from sample k)
+        stamp = k + source_lag
+        if stamp < N:
+            rig.arrive(stamp, u[stamp], k * DT + latency_s)
+        if source_lag and k == 0:
+            rig.arrive(0, u[0], -DT + latency_s)   # f_r[0]: before the clock starts
+        rig.advance()
+    return np.array(out), rig
+
+
+def _close(a, b):
+    scale = np.max(np.abs(b), axis=0)
+    return np.max(np.abs(a - b) / scale)
+
+
+def test_latched_in_time_equals_lockstep_servohydraulic(command):
+    p = _params(rig_model='servohydraulic', io_latency_s=0.003)
+    rt, rig = _realtime(p, command, 0.0012)
+    assert rig.hardware_latency_s == pytest.approx(0.001)
+    assert _close(rt, _lockstep(p, command)) < 1e-9
+    assert not any(rig.stale(k) for k in range(1, N))
+    assert rig.loop_latency_s(10) == pytest.approx(0.0012)
+
+
+def test_latched_late_commands_act_on_arrival(command):
+    # every command misses its tick by 0.5 ms: it acts at t_k + 2.5 ms + 1 ms, which is the
+    # lockstep rig with a 3.5 ms I/O latency
+    p = _params(rig_model='servohydraulic', io_latency_s=0.003)
+    rt, rig = _realtime(p, command, 0.0025)
+    assert _close(rt, _lockstep(dict(p, io_latency_s=0.0035), command)) < 1e-9
+    assert all(rig.stale(k) for k in range(1, N))
+
+
+def test_on_arrival_replaces_the_control_period(command):
+    # on arrival after 1.2 ms + hardware 1 ms = lockstep with 2.2 ms
+    p = _params(rig_model='servohydraulic', io_latency_s=0.003, realtime_output='on_arrival')
+    rt, _ = _realtime(p, command, 0.0012)
+    assert _close(rt, _lockstep(dict(p, io_latency_s=0.0022), command)) < 1e-9
+
+
+def test_delay_rig_latched_and_on_arrival(command):
+    force = 500.0 * command
+    p = _params(rig_model='delay', tau_s=0.01)
+    rt, rig = _realtime(p, force, 0.0007, source_lag=1)
+    assert rig.hardware_latency_s == pytest.approx(0.01)
+    assert _close(rt, _lockstep(p, force)) < 1e-9
+    # on arrival: f_r[j] acts at t_j-1 + 0.7 ms + tau = t_j + 8.7 ms
+    p2 = dict(p, realtime_output='on_arrival')
+    rt2, _ = _realtime(p2, force, 0.0007, source_lag=1)
+    assert _close(rt2, _lockstep(dict(p, tau_s=0.0087), force)) < 1e-9
+
+
+def test_older_command_is_discarded():
+    p = _params(rig_model='delay', tau_s=0.002, realtime_output='on_arrival')
+    rig = WallClockRig(p)
+    rig.arrive(2, 100.0, 0.0)      # newer, acts at 2 ms
+    rig.arrive(1, -50.0, 0.0011)   # older, would act at 3.1 ms: dropped
+    for _ in range(3):
+        rig.advance()
+    assert rig.discarded == 1
+    assert rig.measure().force_N == pytest.approx(100.0)
+
+
+def test_safe_state_ramps_the_force_to_zero():
+    p = _params(rig_model='delay', tau_s=0.002, safe_ramp_s=0.02)
+    rig = WallClockRig(p)
+    rig.arrive(0, 1000.0, -0.001)
+    for _ in range(5):
+        rig.advance()
+    assert rig.measure().force_N == pytest.approx(1000.0)
+    rig.enter_safe_state()                 # at t = 10 ms
+    rig.arrive(6, 5000.0, rig.time_s)      # ignored
+    forces = []
+    while not rig.safe_ramp_done:
+        rig.advance()
+        forces.append(rig.measure().force_N)
+    # the ramp reaches the specimen tau = 2 ms later: 1000 N at 12 ms, 0 from 32 ms on
+    assert rig.time_s == pytest.approx(0.032)
+    assert forces[0] == pytest.approx(1000.0)             # t = 12 ms
+    assert forces[5] == pytest.approx(500.0)               # t = 22 ms: half way
+    assert forces[-1] == pytest.approx(0.0, abs=1e-9)
+    assert np.all(np.diff(forces) <= 1e-9)
+    assert rig.discarded == 1
+
+
+def test_bad_output_timing_is_named():
+    with pytest.raises(ParameterError, match='realtime_output'):
+        WallClockRig(dict(_params(), realtime_output='soon'))
