@@ -15,6 +15,7 @@ from seft_msgs_py.convert import (
     STATE_DONE,
     STATE_FAILED,
     STATE_READY,
+    ScalarMessage,
     clock_msg,
     dt_to_ns,
     ns_to_stamp,
@@ -33,15 +34,19 @@ from seft_msgs_py.topics import (
     CLOCK,
     FRAME_ID,
     MEASUREMENT_TOPICS,
+    NODE_PARAMETERS,
     RUN_PARAMETERS,
     STATUS,
+    TIMING,
     TOPICS,
+    timing_topic,
     topic,
 )
 from seft_plant_sim.servohydraulic import ServoHydraulicParams
 
 #: Topics that carry one stamped scalar (every topic but /clock, status and parameters).
-SCALAR_TOPICS = [t for t in TOPICS if t not in (CLOCK, STATUS, RUN_PARAMETERS)]
+SCALAR_TOPICS = [t for t in TOPICS
+                 if t not in (CLOCK, STATUS, RUN_PARAMETERS, NODE_PARAMETERS) + TIMING]
 
 
 def bad(text):
@@ -233,6 +238,28 @@ def test_topic_table():
         '/seft/measured_force', '/seft/displacement', '/seft/velocity', '/seft/acceleration']
     with pytest.raises(KeyError, match='/seft/nothing'):
         topic('/seft/nothing')
+
+
+def test_timing_and_node_parameter_topics():
+    assert [t.name for t in TIMING] == [
+        '/seft/timing/rig', '/seft/timing/force_servo_controller',
+        '/seft/timing/reference_force_builder', '/seft/timing/ground_motion_publisher']
+    assert all(t.type_name == 'sensor_msgs/msg/JointState' for t in TIMING)
+    assert timing_topic('rig') is TIMING[0] and timing_topic('rig').publisher == 'rig'
+    with pytest.raises(KeyError):
+        timing_topic('recorder')
+    assert NODE_PARAMETERS.type_name == 'std_msgs/msg/String'
+    assert NODE_PARAMETERS.qos.durability == STATUS.qos.durability     # latched
+
+
+@pytest.mark.parametrize('spec_', SCALAR_TOPICS, ids=lambda t: t.name)
+def test_reused_scalar_message_equals_a_new_one(spec_):
+    writer = ScalarMessage(spec_)
+    first = writer(14_000_000, 1.5)
+    assert first == scalar_msg(spec_, 14_000_000, 1.5)
+    second = writer(3_002_000_000, -2.25)      # the same object, stamp and value replaced
+    assert second is first and second == scalar_msg(spec_, 3_002_000_000, -2.25)
+    assert scalar_value(spec_, second) == -2.25
 
 
 def test_bag_reader_reads_the_fields_of_the_topic_table():

@@ -178,7 +178,11 @@ def test_servo_run_one_message_per_step(servo):
 
 def test_servo_run_message_definitions(servo):
     types = {t.name: t.type_name for t in TOPICS}
-    assert set(servo.connections) == set(DATA) | {'/seft/status', '/seft/run_parameters'}
+    timing = {t.name for t in TOPICS if t.name.startswith('/seft/timing/')}
+    assert set(servo.connections) == set(DATA) | timing | {
+        '/seft/status', '/seft/run_parameters', '/seft/node_parameters'}
+    # lockstep: the timing topics are recorded (connections) but carry nothing
+    assert all(servo.connections[t].msgcount == 0 for t in timing)
     for topic, conn in servo.connections.items():
         assert conn.msgtype == types[topic], topic
         assert conn.msgdef.data.strip(), topic
@@ -187,6 +191,23 @@ def test_servo_run_message_definitions(servo):
     metadata = (servo.bag / 'metadata.yaml').read_text()
     assert 'storage_identifier: mcap' in metadata
     assert (servo.bag / 'bag.mcap').is_file()
+
+
+def test_servo_run_every_node_parameters_in_the_bag(servo):
+    """Issue 12: each node's resolved parameters are in the bag, per node, and agree."""
+    entries = [json.loads(m.data) for _, m in servo.messages['/seft/node_parameters']]
+    by_node = {e['node']: e['parameters'] for e in entries}
+    assert set(by_node) == {'recorder', 'ground_motion_publisher', 'reference_force_builder',
+                            'force_servo_controller', 'rig'}
+    for node, values in by_node.items():
+        assert values['alpha'] == 0.5 and values['dt'] == 0.002, node
+        assert values['mode'] == 'lockstep', node
+    assert 'io_latency_s' in by_node['reference_force_builder']   # the model it compensates
+    assert 'bag_path' not in by_node['rig'] and 'bag_path' in by_node['recorder']
+    run = read_run(servo.bag)
+    assert run.extra['param_sources']['alpha'] == 'reference_force_builder'
+    assert run.extra['param_sources']['stiffness_N_per_m'] == 'rig'
+    assert run.extra['parameter_mismatches'] == []
 
 
 def test_servo_run_parameters_in_the_bag(servo):

@@ -16,6 +16,7 @@ __all__ = [
     'dt_to_ns', 'ns_to_stamp', 'stamp_to_ns', 'step_of', 'scalar_msg', 'scalar_value',
     'clock_msg', 'status_msg', 'status_values', 'STATE_READY', 'STATE_RUNNING', 'STATE_DONE',
     'STATE_ABORTED', 'STATE_CLOSED', 'STATE_FAILED', 'STATE_RECORDING', 'parameters_json',
+    'ScalarMessage',
 ]
 
 STATE_READY = 'ready'
@@ -62,6 +63,37 @@ def scalar_msg(spec: TopicSpec, stamp_ns: int, value: float):
     msg.header.frame_id = FRAME_ID
     _set(msg, spec.field, value)
     return msg
+
+
+class ScalarMessage:
+    """One reusable message of a scalar topic: ``msg = writer(stamp_ns, value)``.
+
+    Builds the message once and only sets its stamp and value per sample: about a third of
+    the cost of :func:`scalar_msg` (rclpy message construction dominates a publish). rclpy
+    serializes on ``publish``, so the same object can be published again at the next step.
+
+    Parameters
+    ----------
+    spec : TopicSpec
+        A scalar topic.
+    """
+
+    def __init__(self, spec: TopicSpec):
+        self.msg = spec.msg_type()
+        self.msg.header.frame_id = FRAME_ID
+        *parents, self._attr = spec.field.split('.')
+        obj = self.msg
+        for p in parents:
+            obj = getattr(obj, p)
+        self._obj = obj
+        self._stamp = self.msg.header.stamp
+
+    def __call__(self, stamp_ns: int, value: float):
+        """Set the stamp [ns] and the value [SI]; return the message."""
+        self._stamp.sec = int(stamp_ns // 1_000_000_000)
+        self._stamp.nanosec = int(stamp_ns % 1_000_000_000)
+        setattr(self._obj, self._attr, float(value))
+        return self.msg
 
 
 def scalar_value(spec: TopicSpec, msg) -> float:

@@ -6,6 +6,7 @@
 becomes a one-line message on stderr and exit code 2.
 """
 
+import json
 import math
 import sys
 import time
@@ -23,6 +24,8 @@ from rclpy.clock import Clock, ClockType
 from rclpy.executors import ExternalShutdownException
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
+from sensor_msgs.msg import JointState
+from std_msgs.msg import String
 
 from seft_msgs_py import parameters
 from seft_msgs_py.convert import (
@@ -30,13 +33,15 @@ from seft_msgs_py.convert import (
     STATE_CLOSED,
     STATE_DONE,
     STATE_FAILED,
+    dt_to_ns,
     status_msg,
     status_values,
 )
 from seft_msgs_py.errors import ParameterError, SeftError
-from seft_msgs_py.topics import STATUS
+from seft_msgs_py.signals import TIMING_FIELDS
+from seft_msgs_py.topics import FRAME_ID, NODE_PARAMETERS, STATUS, timing_topic
 
-__all__ = ['SeftNode', 'main_for', 'descriptor_of', 'LINGER_S']
+__all__ = ['SeftNode', 'StepTiming', 'main_for', 'descriptor_of', 'LINGER_S']
 
 #: How long a finished node keeps serving its publishers before it exits [s].
 LINGER_S = 1.0
@@ -82,6 +87,8 @@ class SeftNode(Node):
         super().__init__(node_name, **kwargs)
         self.seft_name = node_name
         self.params = self._declare(node_name)
+        self.realtime = self.params.get('mode') == 'realtime'
+        self.dt_ns = dt_to_ns(self.params['dt'])
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.status_pub = self.create_publisher(STATUS.msg_type, STATUS.name, STATUS.qos)
         self.recorder_ready = False
@@ -90,6 +97,42 @@ class SeftNode(Node):
                                  STATUS.qos)
         self.done = False
         self.exit_code = 0
+        #: System-clock time [ns] of sample 0, from the rig's status (real-time mode).
+        self.t0_ns: int | None = None
+        self.timing: StepTiming | None = None
+        #: The parameters each node of the graph resolved: {node: {name: value}}.
+        self.node_params: dict[str, dict] = {}
+        self.node_params_pub = self.create_publisher(
+            NODE_PARAMETERS.msg_type, NODE_PARAMETERS.name, NODE_PARAMETERS.qos)
+        self.create_subscription(NODE_PARAMETERS.msg_type, NODE_PARAMETERS.name,
+                                 self.guard(self._on_node_parameters), NODE_PARAMETERS.qos)
+
+    def publish_parameters(self) -> None:
+        """Publish the parameters this node resolved (latched), and check them at once.
+
+        Call at the end of ``__init__``, once ``self.params`` is complete.
+        """
+        self.node_params[self.seft_name] = dict(self.params)
+        self.node_params_pub.publish(String(data=json.dumps(
+            {'node': self.seft_name, 'parameters': self.params}, sort_keys=True)))
+
+    def _on_node_parameters(self, msg) -> None:
+        """Collect another node's parameters; refuse to go on when a shared value differs."""
+        try:
+            data = json.loads(msg.data)
+            node, values = str(data['node']), dict(data['parameters'])
+        except (ValueError, KeyError, TypeError):
+            self.get_logger().warning('ignoring a malformed /seft/node_parameters message')
+            return
+        if node not in parameters.NODES:
+            return
+        self.node_params[node] = values
+        lines = parameters.shared_mismatches(self.node_params)
+        if lines:
+            for line in lines:
+                print(f'{self.seft_name}: error: {line}', file=sys.stderr, flush=True)
+            self.report(STATE_FAILED, 'parameters differ between nodes: ' + '; '.join(lines))
+            self.finish(2)
 
     def _declare(self, node_name: str) -> dict:
         values = {}
@@ -106,14 +149,31 @@ class SeftNode(Node):
 
     def _watch_run(self, msg) -> None:
         """Track the recorder, and end this node when the rig has finished the run."""
-        state = status_values(msg).get('state')
+        values = status_values(msg)
+        state = values.get('state')
+        if msg.name == 'rig' and 't0_ns' in values and self.t0_ns is None:
+            self.t0_ns = int(values['t0_ns'])
         if msg.name == 'recorder':
             self.recorder_ready = True
             self.recorder_closed = self.recorder_closed or state == STATE_CLOSED
         elif (msg.name == 'rig' and self.seft_name not in ('rig', 'recorder')
               and state in (STATE_DONE, STATE_ABORTED, STATE_FAILED)):
-            self.report(STATE_DONE, 'rig finished', published=self.published_count())
+            self.report(STATE_DONE, 'rig finished', **self.final_counts())
             self.finish(0)
+
+    def final_counts(self) -> dict:
+        """What the final status reports: samples published, and timing records with their
+        missed deadlines and stale inputs (real-time mode)."""
+        counts = {'published': self.published_count()}
+        if self.timing is not None:
+            counts.update(self.timing.counts())
+        return counts
+
+    def sample_time_ns(self, step: int) -> float:
+        """System-clock instant [ns] of sample `step` (nan before the rig has started)."""
+        if self.t0_ns is None:
+            return math.nan
+        return self.t0_ns + step * self.dt_ns
 
     def published_count(self) -> int:
         """Samples this node published on its data topic (its final status reports it)."""
@@ -173,6 +233,63 @@ class SeftNode(Node):
         """Ask :func:`main_for` to stop spinning and exit with `exit_code`."""
         self.done = True
         self.exit_code = exit_code
+
+
+class StepTiming:
+    """Per-step timing records of a node in real-time mode (``/seft/timing/<node>``).
+
+    One ``sensor_msgs/JointState`` per step, stamped with the step's sample time, ``name`` =
+    :data:`~seft_msgs_py.signals.TIMING_FIELDS` and ``position`` = their values. The period
+    jitter is measured on the monotonic clock between two activations of the node; ages and
+    deadlines against the rig's sample instants on the system clock (one clock on one host;
+    several hosts need synchronized clocks, e.g. PTP).
+
+    Parameters
+    ----------
+    node : SeftNode
+        The publishing node (its ``dt`` is the nominal period).
+    """
+
+    def __init__(self, node: 'SeftNode'):
+        spec = timing_topic(node.seft_name)
+        self.pub = node.create_publisher(spec.msg_type, spec.name, spec.qos)
+        self.dt = float(node.params['dt'])
+        self.msg = JointState()
+        self.msg.name = list(TIMING_FIELDS)
+        self.msg.header.frame_id = FRAME_ID
+        self.published = 0
+        self.missed = 0
+        self.stale = 0
+        self._last_start: float | None = None
+
+    def start(self) -> tuple[float, float]:
+        """Mark the start of an activation; return (start [s, monotonic], period jitter [s]).
+
+        The jitter is the time since the previous activation minus ``dt`` (nan the first
+        time).
+        """
+        now = time.monotonic()
+        jitter = math.nan if self._last_start is None else now - self._last_start - self.dt
+        self._last_start = now
+        return now, jitter
+
+    def publish(self, stamp_ns: int, jitter_s: float, compute_s: float, input_age_s: float,
+                missed: bool, stale: bool, loop_latency_s: float = math.nan) -> None:
+        """Publish the record of one step (fields as :data:`TIMING_FIELDS`)."""
+        self.missed += bool(missed)
+        self.stale += bool(stale)
+        m = self.msg
+        m.header.stamp.sec = int(stamp_ns // 1_000_000_000)
+        m.header.stamp.nanosec = int(stamp_ns % 1_000_000_000)
+        m.position = [jitter_s, compute_s, input_age_s, float(bool(missed)),
+                      float(bool(stale)), loop_latency_s]
+        self.pub.publish(m)
+        self.published += 1
+
+    def counts(self) -> dict:
+        """Final-status counts: ``published_timing``, ``missed_deadlines``, ``stale``."""
+        return {'published_timing': self.published, 'missed_deadlines': self.missed,
+                'stale': self.stale}
 
 
 def main_for(factory: Callable[[], SeftNode], name: str, args=None) -> int:

@@ -10,13 +10,14 @@ Imports no rclpy: the nodes turn a :class:`ParamSpec` into a ``ParameterDescript
 
 from dataclasses import dataclass, field
 import math
+from types import MappingProxyType
 from typing import Any, Iterable, Mapping
 
 from seft_msgs_py.errors import ParameterError
 
 __all__ = [
     'ParamSpec', 'SCHEMA', 'NODES', 'spec', 'specs_for_node', 'defaults', 'validate_value',
-    'resolve',
+    'resolve', 'PER_NODE', 'shared_mismatches', 'VALUE_SOURCE', 'value_source',
 ]
 
 #: The node names of the graph, as used in ``ParamSpec.nodes``.
@@ -365,3 +366,135 @@ def resolve(overrides: Mapping[str, Any] | Iterable[tuple[str, Any]] = (), *,
     for name, value in items:
         values[name] = validate_value(name, value, where=where)
     return values
+
+
+#: Parameters that are legitimately set per node and never compared between nodes
+#: (``use_sim_time`` is rclpy's, not the schema's).
+PER_NODE = frozenset({'bag_path', 'bag_storage', 'wait_for_recorder', 'recorder_window_steps',
+                      'use_sim_time'})
+
+
+def _node_rank(node: str) -> tuple[int, str]:
+    """Sort key of a node name: the graph's nodes in ``NODES`` order, then others by name."""
+    return (NODES.index(node), '') if node in NODES else (len(NODES), node)
+
+
+def _comparable(name: str, value: Any) -> tuple:
+    """Hashable comparison key of `value`: the schema-coerced value (so 1 and 1.0 agree for a
+    float parameter), or its repr when the schema rejects it (never equal to a valid one)."""
+    try:
+        return ('valid', validate_value(name, value))
+    except ParameterError:
+        return ('invalid', type(value).__name__, repr(value))
+
+
+def _shown(name: str, value: Any) -> str:
+    key = _comparable(name, value)
+    return repr(key[1] if key[0] == 'valid' else value)
+
+
+def shared_mismatches(node_params: Mapping[str, Mapping[str, Any]]) -> list[str]:
+    """List the shared parameters on which the nodes disagree, one line per parameter.
+
+    Every schema parameter that two or more of the given nodes declare must have one value:
+    the graph computes one experiment, so the reference-force builder's alpha, say, must be
+    the alpha the rig and the recorder hold. Values are compared after :func:`validate_value`
+    coercion, so floats compare exactly and an int equals the float of the same value; a value
+    the schema rejects differs from every other value.
+
+    Parameters
+    ----------
+    node_params : mapping of str to mapping of str to object
+        ``{node name: {parameter name: value}}``, the parameters each node resolved (the JSON
+        of ``/seft/node_parameters``). Names outside the schema (``use_sim_time``) and the
+        per-node parameters :data:`PER_NODE` are ignored.
+
+    Returns
+    -------
+    list of str
+        In schema order, for each differing parameter the line ``'parameter <name> differs:
+        <node>=<value>, ...'`` naming every node that declares it with its value (``repr`` of
+        the coerced value), grouped by value: the group held by the fewest nodes first (ties:
+        the group of the earlier node), nodes within a group in ``NODES`` order, other names
+        alphabetically. Empty when the nodes agree.
+
+    Raises
+    ------
+    ParameterError
+        If a node's parameters are not a mapping.
+
+    Examples
+    --------
+    >>> shared_mismatches({'reference_force_builder': {'alpha': 0.5, 'dt': 0.002},
+    ...                    'rig': {'alpha': 0, 'dt': 0.002}})
+    ['parameter alpha differs: reference_force_builder=0.5, rig=0.0']
+    """
+    nodes = sorted(node_params, key=_node_rank)
+    for node in nodes:
+        if not isinstance(node_params[node], Mapping):
+            raise ParameterError(f'parameters of node {node!r}: expected a mapping of parameter '
+                                 f'names to values, got {type(node_params[node]).__name__}')
+    lines = []
+    for s in SCHEMA:
+        if s.name in PER_NODE:
+            continue
+        holders = [n for n in nodes if s.name in node_params[n]]
+        if len(holders) < 2:
+            continue
+        groups: dict[tuple, list[str]] = {}
+        for n in holders:
+            groups.setdefault(_comparable(s.name, node_params[n][s.name]), []).append(n)
+        if len(groups) < 2:
+            continue
+        ordered = sorted(groups.values(), key=lambda g: (len(g), holders.index(g[0])))
+        lines.append(f'parameter {s.name} differs: ' + ', '.join(
+            f'{n}={_shown(s.name, node_params[n][s.name])}' for g in ordered for n in g))
+    return lines
+
+
+#: The source node of the parameters that several nodes declare (see :data:`VALUE_SOURCE`).
+_SHARED_SOURCE = {
+    'alpha': 'reference_force_builder',     # Eq. 5.3 is computed there
+    'dt': 'rig', 'mode': 'rig', 'n_steps': 'rig',  # the rig is the clock
+    'mass_kg': 'rig', 'stiffness_N_per_m': 'rig', 'damping_N_s_per_m': 'rig',  # the specimen
+    'rig_model': 'rig',
+}
+
+
+def _source_of(s: ParamSpec) -> str:
+    if s.name in _SHARED_SOURCE:
+        return _SHARED_SOURCE[s.name]
+    users = [n for n in s.nodes if n != 'recorder']
+    # one user: that node; several (a new shared parameter missing above, which a test
+    # catches): the first of them; none: the recorder's own parameter
+    return users[0] if users else 'recorder'
+
+
+#: ``{parameter name: node}``: the node whose value an analysis must use, the one that acts on
+#: it (alpha and the predictor from the reference-force builder; the specimen, the rig model
+#: and the clock (dt, mode, n_steps) from the rig; the record and its scaling from the
+#: ground-motion publisher; the valve limit from the servo controller; the bag settings from
+#: the recorder). Derived from ``ParamSpec.nodes`` where one node besides the recorder
+#: declares a parameter, explicit where several do.
+VALUE_SOURCE: Mapping[str, str] = MappingProxyType({s.name: _source_of(s) for s in SCHEMA})
+
+
+def value_source(name: str) -> str:
+    """Return the node whose value of parameter `name` an analysis must use.
+
+    Parameters
+    ----------
+    name : str
+        Schema parameter name.
+
+    Returns
+    -------
+    str
+        One of :data:`NODES` (see :data:`VALUE_SOURCE`).
+
+    Raises
+    ------
+    ParameterError
+        If no parameter has that name.
+    """
+    return VALUE_SOURCE[spec(name).name]

@@ -241,6 +241,11 @@ class WallClockRig:
         return self.step * self.dt
 
     @property
+    def held_source(self) -> int:
+        """The sample the command in effect was computed from (negative: none yet)."""
+        return self._held_stamp - self.source_lag
+
+    @property
     def held_command(self) -> float:
         """The command in effect at the current sub-step [V or N]."""
         return self._held

@@ -1,17 +1,37 @@
-"""rig node: the simulated actuator + specimen, master of the simulated clock (lockstep mode).
+"""rig node: the simulated actuator + specimen, master of the clock.
 
-At each step k the rig checks its safety limits, publishes ``/clock`` = t_k and the sensor
-readings stamped t_k, then waits for the command of step k (the valve command of the force
-servo controller, or the reference force for the 'delay' rig), applies it over the step and
-moves to k+1. The run ends after ``n_steps`` (or the length the ground-motion publisher
-reports), on a limit violation, or when another node reports 'aborted'; the rig then
-reports 'done' or 'aborted' and exits.
+**Lockstep mode** (``mode: lockstep``): at each step k the rig checks its safety limits,
+publishes ``/clock`` = t_k and the sensor readings stamped t_k, then waits for the command of
+step k (the valve command of the force servo controller, or the reference force for the
+'delay' rig), applies it over the step and moves to k+1.
+
+**Real-time mode** (``mode: realtime``): the rig ticks on the wall clock (a steady-clock ROS
+timer every dt). At each tick it integrates its plant up to the tick with the commands that
+have arrived, each acting from its arrival as :class:`~seft_plant_sim.realtime.WallClockRig`
+says, samples and publishes its sensors, and publishes one timing record per sample on
+``/seft/timing/rig`` (period jitter, compute time, age of the command in effect, missed
+deadline, stale command, loop latency). A tick that ran late by more than a period is caught
+up at once (never skipped) and counts as a missed deadline. It never waits: a command that has
+not arrived is simply not applied yet (a *stale command*). Watchdog: when no command has
+arrived for ``watchdog_timeout_s``, and on any abort (limits, another node's abort), the rig
+goes to its safe state: the command ramps to zero over ``safe_ramp_s`` while the rig keeps
+sampling, then the run ends aborted with the reason and the time it happened.
+
+Start (both modes): once the command publisher is discovered, the recorder subscribes (if
+``wait_for_recorder``), and the parameters of every node of the graph are in and agree (each
+node publishes them on ``/seft/node_parameters``); in real-time mode also once the nodes that
+read the sensors subscribe to them. The run ends after ``n_steps`` (or the length the
+ground-motion publisher reports), or on an abort; the rig then reports 'done' or 'aborted'.
 
 Run by hand: ``ros2 run seft_plant_sim rig --ros-args --params-file config/default.yaml``
 (here: ``.venv/lib/seft_plant_sim/rig --ros-args ...``).
 """
 
+import math
 import sys
+import time
+
+from rclpy.clock import Clock, ClockType
 
 from seft_msgs_py.convert import (
     STATE_ABORTED,
@@ -19,14 +39,12 @@ from seft_msgs_py.convert import (
     STATE_FAILED,
     STATE_READY,
     STATE_RUNNING,
-    clock_msg,
-    dt_to_ns,
-    scalar_msg,
+    ScalarMessage,
     scalar_value,
     status_values,
     step_of,
 )
-from seft_msgs_py.node_support import SeftNode, main_for
+from seft_msgs_py.node_support import SeftNode, StepTiming, main_for
 from seft_msgs_py.topics import (
     ACCELERATION,
     CLOCK,
@@ -38,61 +56,104 @@ from seft_msgs_py.topics import (
     VELOCITY,
 )
 from seft_plant_sim.interface import COMMAND_VALVE
+from seft_plant_sim.realtime import WallClockRig
 from seft_plant_sim.rigs import make_rig
 
-__all__ = ['RigNode', 'main']
+__all__ = ['RigNode', 'main', 'graph_nodes']
 
 #: Sim-time interval of progress reports [steps].
 PROGRESS_EVERY = 250
 
 
+def graph_nodes(params) -> tuple[str, ...]:
+    """The nodes of the run's graph besides the rig (the recorder only with
+    ``wait_for_recorder``)."""
+    nodes = ['ground_motion_publisher', 'reference_force_builder']
+    if params['rig_model'] == 'servohydraulic':
+        nodes.append('force_servo_controller')
+    if params['wait_for_recorder']:
+        nodes.append('recorder')
+    return tuple(nodes)
+
+
 class RigNode(SeftNode):
-    """Lockstep rig node around a :class:`seft_plant_sim.interface.Rig`."""
+    """Rig node around a :class:`seft_plant_sim.interface.Rig` (lockstep) or a
+    :class:`~seft_plant_sim.realtime.WallClockRig` (real-time)."""
 
     def __init__(self):
         super().__init__('rig')
         p = self.params
-        self.rig = make_rig(p)
-        self.dt_ns = dt_to_ns(p['dt'])
+        self.rig = WallClockRig(p) if self.realtime else make_rig(p)
         self.n_steps = int(p['n_steps'])
         self.command_topic = (VALVE_COMMAND if self.rig.command_kind == COMMAND_VALVE
                               else REFERENCE_FORCE)
         self.clock_pub = self.create_publisher(CLOCK.msg_type, CLOCK.name, CLOCK.qos)
         self.pubs = {t.name: self.create_publisher(t.msg_type, t.name, t.qos)
                      for t in (MEASURED_FORCE, DISPLACEMENT, VELOCITY, ACCELERATION)}
+        self.msgs = {t.name: ScalarMessage(t)
+                     for t in (MEASURED_FORCE, DISPLACEMENT, VELOCITY, ACCELERATION)}
+        self.clock_msg = CLOCK.msg_type()
+        on_command = self._on_command_realtime if self.realtime else self._on_command
         self.command_sub = self.create_subscription(
             self.command_topic.msg_type, self.command_topic.name,
-            self.guard(self._on_command), self.command_topic.qos)
+            self.guard(on_command), self.command_topic.qos)
         self.pending = {}
         self.window = int(p['recorder_window_steps'])
         self.recorded = 0
         self.waiting_for_recorder = False
         self.published = 0
         self.running = False
+        self.graph = graph_nodes(p)
         self.create_subscription(STATUS.msg_type, STATUS.name, self.guard(self._on_status),
                                  STATUS.qos)
+        if self.realtime:
+            self.timing = StepTiming(self)
+            self.watchdog_s = float(p['watchdog_timeout_s'])
+            self.watchdog_steps = max(1, int(math.ceil(self.watchdog_s / self.rig.dt)))
+            self.t0 = None                   # monotonic time of sample 0 [s]
+            self.last_command_at = None      # monotonic time of the latest command [s]
+            self.early_commands = []         # (stamp, value) received before the start
+            self.abort_reason = None
+            self.abort_at_s = None
+            self.last_tick_at = None
+            self.timing_pending = {}         # sample -> record fields without the latency
+            self.tick_timer = None
         self.start_timer = self.wall_timer(0.05, self._try_start)
-        self.report(STATE_READY, 'waiting for the command publisher and the record length',
-                    n_steps=self.n_steps)
+        self.publish_parameters()
+        self.report(STATE_READY, 'waiting for the graph: ' + ', '.join(self.graph),
+                    n_steps=self.n_steps, mode=p['mode'])
+
+    # -- start ------------------------------------------------------------------------------
 
     def _try_start(self) -> None:
-        if self.running or self.n_steps <= 0:
+        if self.running or self.done or self.n_steps <= 0:
             return
         if self.command_sub.get_publisher_count() < 1:
             return
-        if self.params['wait_for_recorder'] and not self._recorder_subscribed():
+        if self.params['wait_for_recorder'] and not self._subscribed_by('recorder'):
+            return
+        if any(n not in self.node_params for n in self.graph):
+            return
+        if self.realtime and not self._subscribed_by('reference_force_builder'):
+            return
+        if (self.realtime and 'force_servo_controller' in self.graph
+                and not self._subscribed_by('force_servo_controller', (MEASURED_FORCE.name,))):
             return
         self.start_timer.cancel()
         self.running = True
-        self.get_logger().info(f'starting: {self.n_steps} steps of {self.rig.dt} s, '
-                               f'command {self.command_topic.name}')
-        self._publish_step()
+        self.get_logger().info(f'starting ({self.params["mode"]}): {self.n_steps} steps of '
+                               f'{self.rig.dt} s, command {self.command_topic.name}')
+        self.wall_start = time.monotonic()
+        if self.realtime:
+            self._start_realtime()
+        else:
+            self._publish_step()
 
-    def _recorder_subscribed(self) -> bool:
-        """The recorder's subscriptions to every rig topic are discovered."""
-        for name in self.pubs:
+    def _subscribed_by(self, node: str, topics=None) -> bool:
+        """`node`'s subscriptions to the rig's sensor topics are discovered."""
+        for name in topics or self.pubs:
             nodes = {i.node_name for i in self.get_subscriptions_info_by_topic(name)}
-            if 'recorder' not in nodes:
+            if node not in nodes:
                 return False
         return True
 
@@ -109,7 +170,13 @@ class RigNode(SeftNode):
         if msg.name == 'ground_motion_publisher' and self.n_steps <= 0 and 'n_steps' in values:
             self.n_steps = int(values['n_steps'])
         if msg.name != self.seft_name and state in (STATE_ABORTED, STATE_FAILED):
-            self._end(STATE_ABORTED, f'{msg.name}: {msg.message}')
+            reason = f'{msg.name}: {msg.message}'
+            if self.realtime and self.running:
+                self._abort_realtime(reason)
+            else:
+                self._end(STATE_ABORTED, reason)
+
+    # -- lockstep ---------------------------------------------------------------------------
 
     def _recorder_keeps_up(self) -> bool:
         return (not self.recorder_ready or self.window <= 0
@@ -129,18 +196,27 @@ class RigNode(SeftNode):
         if reason:
             self._end(STATE_ABORTED, reason)
             return
+        self._publish_sample()
+
+    def _publish_sample(self) -> None:
+        """Publish /clock and the sensor readings of the rig's current step."""
         k = self.rig.step
         stamp = k * self.dt_ns
         m = self.rig.measure()
-        self.clock_pub.publish(clock_msg(stamp))
-        self.pubs[MEASURED_FORCE.name].publish(scalar_msg(MEASURED_FORCE, stamp, m.force_N))
-        self.pubs[DISPLACEMENT.name].publish(scalar_msg(DISPLACEMENT, stamp, m.displacement_m))
-        self.pubs[VELOCITY.name].publish(scalar_msg(VELOCITY, stamp, m.velocity_m_s))
-        self.pubs[ACCELERATION.name].publish(
-            scalar_msg(ACCELERATION, stamp, m.acceleration_m_s2))
+        self.clock_msg.clock.sec = int(stamp // 1_000_000_000)
+        self.clock_msg.clock.nanosec = int(stamp % 1_000_000_000)
+        self.clock_pub.publish(self.clock_msg)
+        pubs, msgs = self.pubs, self.msgs
+        for name, value in ((MEASURED_FORCE.name, m.force_N),
+                            (DISPLACEMENT.name, m.displacement_m),
+                            (VELOCITY.name, m.velocity_m_s),
+                            (ACCELERATION.name, m.acceleration_m_s2)):
+            pubs[name].publish(msgs[name](stamp, value))
         self.published = k + 1
         if k % PROGRESS_EVERY == 0:
-            self.report(STATE_RUNNING, step=k, n_steps=self.n_steps, time_s=f'{m.time_s:.3f}')
+            extra = {'t0_ns': self.t0_ns} if self.realtime else {}
+            self.report(STATE_RUNNING, step=k, n_steps=self.n_steps, time_s=f'{m.time_s:.3f}',
+                        **extra)
 
     def _on_command(self, msg) -> None:
         k = step_of(msg.header.stamp, self.dt_ns)
@@ -152,17 +228,125 @@ class RigNode(SeftNode):
                 return
             self._publish_step()
 
+    # -- real time --------------------------------------------------------------------------
+
+    def _start_realtime(self) -> None:
+        """Sample 0 now; then a steady-clock timer every dt."""
+        self.t0 = time.monotonic()
+        self.t0_ns = time.time_ns()
+        self.last_command_at = self.t0
+        for stamp, value in self.early_commands:
+            self.rig.arrive(stamp, value, 0.0)
+        self.early_commands = []
+        self.report(STATE_RUNNING, step=0, n_steps=self.n_steps, time_s='0.000',
+                    t0_ns=self.t0_ns)
+        self.last_tick_at = self.t0
+        self._sample_realtime(self.t0, self.t0)
+        self.tick_timer = self.create_timer(self.rig.dt, self.guard(self._tick),
+                                            clock=Clock(clock_type=ClockType.STEADY_TIME))
+
+    def _on_command_realtime(self, msg) -> None:
+        now = time.monotonic()
+        stamp = step_of(msg.header.stamp, self.dt_ns)
+        value = scalar_value(self.command_topic, msg)
+        if self.t0 is None:
+            self.early_commands.append((stamp, value))
+            return
+        self.rig.arrive(stamp, value, now - self.t0)
+        self.last_command_at = now
+
+    def _tick(self) -> None:
+        """Catch up with the wall clock: every tick due by now, in order."""
+        now = time.monotonic()
+        due = int((now - self.t0) / self.rig.dt)
+        while self.running and self.rig.step < due:
+            start = time.monotonic()
+            self.rig.advance()
+            self._after_advance(start)
+
+    def _after_advance(self, start: float) -> None:
+        rig = self.rig
+        k = rig.step
+        if k >= self.n_steps:
+            self._flush_timing(final=True)
+            if self.abort_reason:
+                self._end(STATE_ABORTED, self.abort_reason)
+            else:
+                self._end(STATE_DONE, f'completed {self.n_steps} steps')
+            return
+        if rig.in_safe_state:
+            if rig.safe_ramp_done:
+                self._flush_timing(final=True)
+                self._end(STATE_ABORTED, self.abort_reason)
+                return
+        else:
+            reason = rig.limit_violation()
+            if reason is None and start - self.last_command_at > self.watchdog_s:
+                reason = (f'watchdog: no {self.command_topic.name} for '
+                          f'{1e3 * (start - self.last_command_at):.1f} ms (limit '
+                          f'{1e3 * self.watchdog_s:.0f} ms) at t = {rig.time_s:.3f} s')
+            if reason:
+                self._abort_realtime(reason)
+        self._sample_realtime(start, time.monotonic())
+
+    def _sample_realtime(self, start: float, now: float) -> None:
+        """Publish the current tick's sample and keep its timing record pending."""
+        rig = self.rig
+        k = rig.step
+        self._publish_sample()
+        done = time.monotonic()
+        scheduled = self.t0 + k * rig.dt
+        jitter = math.nan if k == 0 else (now - self.last_tick_at) - rig.dt
+        self.last_tick_at = now
+        held = rig.held_source
+        age = now - (self.t0 + held * rig.dt) if held >= 0 else math.nan
+        self.timing_pending[k] = (jitter, done - start, age, now - scheduled >= rig.dt,
+                                  k > 0 and rig.stale(k))
+        self._flush_timing()
+
+    def _flush_timing(self, final: bool = False) -> None:
+        """Publish the timing records whose command arrived (or that waited long enough)."""
+        k = self.rig.step
+        for j in sorted(self.timing_pending):
+            latency = self.rig.loop_latency_s(j)
+            if latency is None and not final and k - j <= self.watchdog_steps:
+                break
+            jitter, compute, age, missed, stale = self.timing_pending.pop(j)
+            self.timing.publish(j * self.dt_ns, jitter, compute, age, missed, stale,
+                                math.nan if latency is None else latency)
+        self.rig.forget_before(k - 2 * self.watchdog_steps)
+
+    def _abort_realtime(self, reason: str) -> None:
+        """Go to the safe state; the run ends once the ramp is done."""
+        if self.abort_reason is not None or not self.running:
+            return
+        self.abort_reason = reason
+        self.abort_at_s = self.rig.time_s
+        self.get_logger().error(f'safe state at t = {self.abort_at_s:.3f} s: {reason}')
+        self.rig.enter_safe_state()
+
     def _end(self, state: str, message: str) -> None:
         if self.done:
             return
         k = self.rig.step
         self.running = False
+        if self.realtime and self.tick_timer is not None:
+            self.tick_timer.cancel()
         if state == STATE_ABORTED:
             self.get_logger().error(f'run aborted at step {k}: {message}')
         else:
             self.get_logger().info(message)
+        extra = {}
+        if self.realtime:
+            extra.update(self.timing.counts())
+            if self.abort_at_s is not None:
+                extra['abort_at_s'] = f'{self.abort_at_s:.6f}'
+            extra['discarded_commands'] = self.rig.discarded
+        if getattr(self, 'wall_start', None) is not None:
+            extra['wall_s'] = f'{time.monotonic() - self.wall_start:.3f}'
         self.report(state, message, step=k, n_steps=self.n_steps,
-                    time_s=f'{k * self.rig.dt:.6f}', published=self.published)
+                    time_s=f'{k * self.rig.dt:.6f}', published=self.published,
+                    mode=self.params['mode'], **extra)
         self.finish(0)
 
 

@@ -263,7 +263,8 @@ def test_summary_entry_keys_and_values(ground_motion):
     assert set(entry) == {'alpha', 'rig', 'predictor', 'record', 'stable', 'unstable_at_s',
                           'lag_s', 'nrms', 'peak_ratio', 'high_frequency_force_fraction',
                           'high_frequency_force_fraction_reference',
-                          'high_frequency_cutoff_hz'}
+                          'high_frequency_cutoff_hz', 'mode', 'wall_s'}
+    assert entry['mode'] == 'lockstep' and entry['wall_s'] is None
     assert entry['high_frequency_cutoff_hz'] == 20.0
     # The delayed reference: the same spectrum as the reference force.
     assert entry['high_frequency_force_fraction'] == pytest.approx(
@@ -275,6 +276,17 @@ def test_summary_entry_keys_and_values(ground_motion):
     assert entry['stable'] is True and entry['unstable_at_s'] is None
     assert entry['lag_s'] == pytest.approx(0.01, abs=1e-5)
     assert json.loads(json.dumps(entry, allow_nan=False)) == entry
+
+
+def test_summary_entry_of_a_realtime_run_has_the_timing_block(ground_motion):
+    run = _run_from(_reference(0.5, ground_motion), ground_motion, 0.5, d=5)
+    timing = {'loop_latency_ms': {'p50': 1.2, 'p99': 4.0, 'max': 6.5},
+              'period_jitter_ms': {'p50': 0.1, 'p99': 0.9, 'max': 2.0},
+              'missed_deadline_fraction': 0.004, 'stale_command_fraction': 0.01}
+    run.params['mode'] = 'realtime'
+    run.extra.update(wall_s=12.5, timing=timing)
+    entry = summary_entry(run, compare_run(run))
+    assert (entry['mode'], entry['wall_s'], entry['timing']) == ('realtime', 12.5, timing)
 
 
 def test_summary_entry_of_aborted_run_is_valid_json(ground_motion):

@@ -1,8 +1,11 @@
 """Read a seft rosbag2 bag (written by the recorder node) back into a :class:`RunData`.
 
-Uses rosbags (no rclpy): the run's parameters come from ``/seft/run_parameters``, the
-signals from the scalar topics (one message per step, stamped ``t_k``), the abort reason
-from the final ``/seft/status`` reports.
+Uses rosbags (no rclpy): each parameter comes from the node that used it (the
+``/seft/node_parameters`` message of its ``parameters.value_source`` node: alpha from the
+reference-force builder, the specimen and the rig from the rig, ...), from the next node that
+declared it when that node is not in the bag, and from ``/seft/run_parameters`` in a bag
+without node parameters; the signals from the scalar topics (one message per step, stamped
+``t_k``), the abort reason from the final ``/seft/status`` reports.
 """
 
 import json
@@ -15,6 +18,7 @@ from rosbags.typesys import Stores, get_typestore
 from seft_msgs_py import parameters, signals
 from seft_msgs_py.errors import InputError
 from seft_ros.analysis.rundata import RunData
+from seft_ros.analysis.timing import read_timing, timing_summary
 
 __all__ = ['read_run', 'BagSignals', 'read_signals']
 
@@ -27,35 +31,115 @@ def _get(msg, path: str):
     return msg
 
 
+#: ``param_sources`` value of a parameter taken from ``/seft/run_parameters``.
+RUN_PARAMETERS_SOURCE = 'run_parameters'
+#: ``param_sources`` value of a parameter the bag does not hold at all (schema default).
+DEFAULT_SOURCE = 'default'
+
+
 class BagSignals:
     """The raw content of a seft bag.
 
     Attributes
     ----------
     params : dict
-        Run parameters (JSON of ``/seft/run_parameters``).
+        Run parameters, every schema parameter validated: each from its source node (see
+        `param_sources`), in a bag without node parameters the JSON of
+        ``/seft/run_parameters``.
     samples : dict of str -> dict of int -> float
         Per topic, the value of each step (stamp // dt); ``/clock`` maps step -> step.
     counts : dict of str -> int
         Messages per topic (duplicates included).
     statuses : list of dict
         Every status report: ``name``, ``message`` and its key/values.
+    node_params : dict of str -> dict
+        ``{node: {parameter: value}}`` as each node published it on
+        ``/seft/node_parameters`` (the last message of a node); empty in an older bag.
+    param_sources : dict of str -> str
+        ``{parameter: where params took it from}``: a node name, ``'run_parameters'``
+        (:data:`RUN_PARAMETERS_SOURCE`) or ``'default'`` (:data:`DEFAULT_SOURCE`: in no
+        message of the bag).
+    parameter_mismatches : list of str
+        ``parameters.shared_mismatches(node_params)``: one line per shared parameter on which
+        the nodes disagree (empty when they agree or the bag has no node parameters).
     """
 
-    def __init__(self, params, samples, counts, statuses):
+    def __init__(self, params, samples, counts, statuses, node_params=None,
+                 param_sources=None, parameter_mismatches=None):
         self.params = params
         self.samples = samples
         self.counts = counts
         self.statuses = statuses
+        self.node_params = {} if node_params is None else node_params
+        self.param_sources = {} if param_sources is None else param_sources
+        self.parameter_mismatches = [] if parameter_mismatches is None else parameter_mismatches
+
+
+def _node_parameters(data: str, where: str) -> tuple[str, dict]:
+    """``(node, parameters)`` of one ``/seft/node_parameters`` message (JSON text)."""
+    try:
+        doc = json.loads(data)
+    except ValueError as exc:
+        raise InputError(f'{where}: invalid JSON ({exc})') from None
+    node = doc.get('node') if isinstance(doc, dict) else None
+    values = doc.get('parameters') if isinstance(doc, dict) else None
+    if not isinstance(node, str) or not node or not isinstance(values, dict):
+        raise InputError(f'{where}: expected {{"node": <name>, "parameters": {{...}}}}')
+    return node, values
+
+
+def _candidates(name: str, node_params: dict) -> list[str]:
+    """The nodes to take parameter `name` from, in order: its source node, then the graph's
+    other nodes in ``parameters.NODES`` order, then any other node by name."""
+    first = parameters.value_source(name)
+    rest = [n for n in parameters.NODES if n != first]
+    rest += sorted(n for n in node_params if n not in parameters.NODES)
+    return [first] + rest
+
+
+def _resolve_sources(node_params: dict, run_params: dict | None,
+                     path: Path) -> tuple[dict, dict]:
+    """``(params, param_sources)``: every schema parameter from the first node of
+    :func:`_candidates` that declared it, else from the run parameters, else the default."""
+    values, sources = {}, {}
+    for s in parameters.SCHEMA:
+        node = next((n for n in _candidates(s.name, node_params)
+                     if s.name in node_params.get(n, {})), None)
+        if node is not None:
+            value, source, where = node_params[node][s.name], node, f'{path}: node {node}'
+        elif run_params is not None and s.name in run_params:
+            value, source, where = run_params[s.name], RUN_PARAMETERS_SOURCE, str(path)
+        else:
+            value, source, where = s.default, DEFAULT_SOURCE, str(path)
+        try:
+            values[s.name] = parameters.validate_value(s.name, value, where=where)
+        except parameters.ParameterError as exc:
+            raise InputError(str(exc)) from None
+        sources[s.name] = source
+    return values, sources
 
 
 def read_signals(path) -> BagSignals:
     """Read every seft topic of the bag at `path`.
 
+    Parameters
+    ----------
+    path : str or Path
+        Bag directory.
+
+    Returns
+    -------
+    BagSignals
+        The parameters (each from the node that used it, see ``BagSignals.param_sources``),
+        the samples per step, the message counts and the status reports. Nodes that disagree
+        on a shared parameter do not stop the reading: the lines are in
+        ``BagSignals.parameter_mismatches``.
+
     Raises
     ------
     InputError
-        No bag there, not a seft bag (no run parameters), or unreadable.
+        No bag there, not a seft bag (neither run nor node parameters), a malformed
+        parameter message, a parameter out of its schema range, or unreadable.
     """
     path = Path(path)
     if not path.exists():
@@ -65,6 +149,7 @@ def read_signals(path) -> BagSignals:
     counts = {}
     statuses = []
     params = None
+    node_params = {}
     try:
         with Reader(path) as reader:
             for conn, _, raw in reader.messages():
@@ -72,6 +157,11 @@ def read_signals(path) -> BagSignals:
                 if conn.topic == signals.RUN_PARAMETERS.name:
                     msg = typestore.deserialize_cdr(raw, conn.msgtype)
                     params = json.loads(msg.data)
+                elif conn.topic == signals.NODE_PARAMETERS.name:
+                    msg = typestore.deserialize_cdr(raw, conn.msgtype)
+                    node, values = _node_parameters(
+                        msg.data, f'{path}: {signals.NODE_PARAMETERS.name}')
+                    node_params[node] = values
                 elif conn.topic == signals.STATUS.name:
                     msg = typestore.deserialize_cdr(raw, conn.msgtype)
                     entry = {kv.key: kv.value for kv in msg.values}
@@ -88,21 +178,37 @@ def read_signals(path) -> BagSignals:
         raise
     except Exception as exc:  # rosbags raises several types for a damaged bag
         raise InputError(f'{path}: cannot read the bag: {exc}') from None
-    if params is None:
+    if params is None and not node_params:
         raise InputError(f'{path}: not a seft bag (no /seft/run_parameters message)')
-    try:
-        params = parameters.resolve({k: v for k, v in params.items()
-                                     if k in parameters.defaults()}, where=str(path))
-    except parameters.ParameterError as exc:
-        raise InputError(str(exc)) from None
+    if params is not None and not isinstance(params, dict):
+        raise InputError(f'{path}: {signals.RUN_PARAMETERS.name}: expected a JSON object')
+    if node_params:
+        params, sources = _resolve_sources(node_params, params, path)
+        mismatches = parameters.shared_mismatches(node_params)
+    else:  # a bag written before the nodes published their parameters
+        given = {k: v for k, v in params.items() if k in parameters.defaults()}
+        try:
+            params = parameters.resolve(given, where=str(path))
+        except parameters.ParameterError as exc:
+            raise InputError(str(exc)) from None
+        sources = {name: RUN_PARAMETERS_SOURCE if name in given else DEFAULT_SOURCE
+                   for name in params}
+        mismatches = []
     dt_ns = int(round(params['dt'] * 1e9))
     by_step = {name: {int(round(ns / dt_ns)): v for ns, v in vals.items()}
                for name, vals in samples.items()}
-    return BagSignals(params, by_step, counts, statuses)
+    return BagSignals(params, by_step, counts, statuses, node_params=node_params,
+                      param_sources=sources, parameter_mismatches=mismatches)
 
 
 def read_run(path) -> RunData:
     """Read a seft bag into a :class:`RunData` (the steps for which every signal exists).
+
+    The parameters are ``BagSignals.params``; ``extra`` holds, besides ``'rig_final'`` and
+    ``'counts'``, ``'node_params'`` (``{node: {parameter: value}}``, empty for a bag without
+    node parameters), ``'param_sources'`` (``{parameter: node, 'run_parameters' or
+    'default'}``) and ``'parameter_mismatches'`` (one line per shared parameter on which the
+    nodes disagree; empty when they agree).
 
     Raises
     ------
@@ -130,6 +236,12 @@ def read_run(path) -> RunData:
     aborted = [s for s in bag.statuses if s.get('state') in ('aborted', 'failed')]
     rig_final = [s for s in bag.statuses
                  if s['name'] == 'rig' and s.get('state') in ('done', 'aborted', 'failed')]
+    final = rig_final[-1] if rig_final else {}
+    dt = p['dt']
+    abort_at_s = float(final['abort_at_s']) if 'abort_at_s' in final else None
+    if abort_at_s is not None:
+        # real time: the rig kept sampling its safe-state ramp after the abort
+        n = max(1, min(n, int(round(abort_at_s / dt))))
     stable = not aborted
     reason = None
     if aborted:
@@ -139,13 +251,21 @@ def read_run(path) -> RunData:
     record_name = next((s.get('record') for s in bag.statuses
                         if s['name'] == 'ground_motion_publisher' and s.get('record')),
                        Path(str(p['record'])).stem)
-    dt = p['dt']
+    extra = {'rig_final': rig_final[-1] if rig_final else None, 'counts': bag.counts,
+             'node_params': bag.node_params, 'param_sources': bag.param_sources,
+             'parameter_mismatches': bag.parameter_mismatches,
+             'wall_s': float(final['wall_s']) if 'wall_s' in final else None}
+    closed = [s for s in bag.statuses if s['name'] == 'recorder' and s.get('state') == 'closed']
+    if closed and 'lost' in closed[-1]:
+        extra['bag_lost_messages'] = int(closed[-1]['lost'])
+    if p.get('mode') == 'realtime':
+        extra['timing_data'] = read_timing(path, dt)
+        extra['timing'] = timing_summary(extra['timing_data'])
     return RunData(
         params=p, time_s=np.arange(n) * dt, ground_acceleration_m_s2=arr(needed[0]),
         reference_force_N=arr(needed[1]), measured_force_N=arr(needed[2]),
         displacement_m=arr(needed[3]), velocity_m_s=arr(needed[4]),
         acceleration_m_s2=arr(needed[5]),
         valve_command_V=arr(signals.VALVE_COMMAND.name) if valve else None, stable=stable,
-        unstable_at_s=None if stable else n * dt, abort_reason=reason,
-        record_name=record_name, source=str(path),
-        extra={'rig_final': rig_final[-1] if rig_final else None, 'counts': bag.counts})
+        unstable_at_s=None if stable else (abort_at_s if abort_at_s is not None else n * dt),
+        abort_reason=reason, record_name=record_name, source=str(path), extra=extra)

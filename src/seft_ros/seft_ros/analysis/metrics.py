@@ -472,7 +472,10 @@ def summary_entry(run: RunData, comparison: RunComparison) -> dict[str, Any]:
         'nrms': {'displacement', 'acceleration', 'force'},
         'peak_ratio': {'displacement', 'acceleration', 'force'},
         'high_frequency_force_fraction', 'high_frequency_force_fraction_reference',
-        'high_frequency_cutoff_hz'}`` where rig is ``params['rig_model']``, predictor is
+        'high_frequency_cutoff_hz', 'mode', 'wall_s'}`` (and ``'timing'``, the
+        :func:`seft_ros.analysis.timing.timing_summary` of a real-time run, from
+        ``run.extra['timing']``; ``wall_s`` [s], the wall time of the stepping, from
+        ``run.extra['wall_s']``) where rig is ``params['rig_model']``, predictor is
         ``params['predictor']``, record is ``run.record_name`` (``params['record']`` if
         empty), ``lag_s`` [s] is the displacement lag, nrms values and the high-frequency
         fractions (of the measured and of the reference force's power above the cutoff
@@ -495,7 +498,11 @@ def summary_entry(run: RunData, comparison: RunComparison) -> dict[str, Any]:
         'high_frequency_force_fraction_reference':
             comparison.high_frequency_force_fraction_reference,
         'high_frequency_cutoff_hz': comparison.high_frequency_cutoff_hz,
+        'mode': params.get('mode', 'lockstep'),
+        'wall_s': _finite_or_none(run.extra.get('wall_s')),
     }
+    if run.extra.get('timing') is not None:
+        entry['timing'] = run.extra['timing']
     return json_safe(entry)
 
 

@@ -28,6 +28,7 @@ from seft_ros.analysis.metrics import (
 )
 from seft_ros.analysis.reference import reference_from_run
 from seft_ros.analysis.rundata import SIGNALS, RunData
+from seft_ros.analysis.timing import timing_figure, timing_table
 
 __all__ = ['ReportPaths', 'write_report', 'write_summary_json', 'plot_time_histories',
            'plot_predictor_comparison']
@@ -40,6 +41,8 @@ PREDICTOR_TIME_HISTORIES_PNG = 'time_histories_{predictor}.png'
 PREDICTOR_ZOOM_PNG = 'time_histories_{predictor}_zoom.png'
 #: Cross-predictor figure per alpha (as the reference study's Figures 7 and 8).
 PREDICTORS_PNG = 'predictors_alpha_{alpha}.png'
+#: Histograms of a real-time run's timing records.
+TIMING_PNG = 'timing_run_{index}.png'
 #: Width of the zoom window around the reference's displacement peak [s].
 ZOOM_WINDOW_S = 2.0
 #: Most points drawn per line (min/max decimation beyond; plotting only, never metrics).
@@ -421,6 +424,44 @@ def _param(run: RunData, name: str, factor: float = 1.0, unit: str = '') -> str:
     return 'n/a' if value is None else str(value)
 
 
+#: The key values named in a run's "parameters: ... from <node>" line: label -> parameters.
+_SOURCE_LABELS = (
+    ('alpha', ('alpha',)), ('predictor', ('predictor',)), ('mass', ('mass_kg',)),
+    ('stiffness', ('stiffness_N_per_m',)), ('damping', ('damping_N_s_per_m',)),
+    ('rig', ('rig_model',)), ('dt', ('dt',)), ('record', ('record',)),
+    ('scaling', ('amplitude_N', 'scale_factor', 'time_scale')),
+)
+
+
+def _sources_line(run: RunData) -> str | None:
+    """'parameters: alpha, predictor from reference_force_builder; mass, ... from rig; ...'
+    for a run read from a bag with node parameters (None otherwise). A label whose
+    parameters came from different places is split into the parameter names."""
+    sources = run.extra.get('param_sources') or {}
+    if not run.extra.get('node_params') or not sources:
+        return None
+    groups: dict[str, list[str]] = {}
+    for label, names in _SOURCE_LABELS:
+        found = {sources.get(n, 'n/a') for n in names}
+        if len(found) == 1:
+            groups.setdefault(found.pop(), []).append(label)
+        else:
+            for n in names:
+                groups.setdefault(sources.get(n, 'n/a'), []).append(n)
+    return 'parameters: ' + '; '.join(f"{', '.join(labels)} from {where}"
+                                      for where, labels in groups.items())
+
+
+def _mismatch_lines(run: RunData) -> list[str]:
+    """A marked warning with one sub-item per parameter the run's nodes disagreed on."""
+    mismatches = list(run.extra.get('parameter_mismatches') or ())
+    if not mismatches:
+        return []
+    return ['- **WARNING: the nodes ran with different values of shared parameters** (each '
+            'value above is the one of the node that used it; the run is not one consistent '
+            'experiment):'] + [f'  - {line}' for line in mismatches]
+
+
 def _run_markdown(index: int, run: RunData, comparison: RunComparison) -> list[str]:
     params = run.params
     record = run.record_name or params.get('record', '')
@@ -436,6 +477,10 @@ def _run_markdown(index: int, run: RunData, comparison: RunComparison) -> list[s
             f"I/O latency = {_param(run, 'io_latency_s', 1e3, ' ms')}, ")
         + f'{run.n_steps} samples' + (f', source {run.source}' if run.source else ''),
     ]
+    sources = _sources_line(run)
+    if sources is not None:
+        lines.append(f'- {sources}')
+    lines += _mismatch_lines(run)
     if run.stable:
         lines.append('- **stable**')
     else:
@@ -458,6 +503,24 @@ def _run_markdown(index: int, run: RunData, comparison: RunComparison) -> list[s
             f'{_fmt(c.peak_reference, ".4g", factor)} | {_fmt(c.peak_ratio, ".3f")} | '
             f'{_fmt(c.lag_s, ".2f", 1e3)} | {_fmt(c.nrms, ".2f", 100)} |')
     lines.append('')
+    return lines
+
+
+def _timing_markdown(index: int, run: RunData, out_dir: Path, title: str) -> list[str]:
+    """A real-time run's timing: the summary, a table per node and the histograms."""
+    timing = run.extra.get('timing')
+    if not timing:
+        return []
+    lines = [f'### Run {index}: timing (real time, wall {_fmt(run.extra.get("wall_s"), ".1f")}'
+             ' s)', '', timing_table(timing), '']
+    lost = run.extra.get('bag_lost_messages')
+    if lost is not None:
+        lines += [f'Messages published but not in the bag: {lost}.', '']
+    data = run.extra.get('timing_data')
+    if data:
+        png = timing_figure(data, out_dir / TIMING_PNG.format(index=index),
+                            title=f'{title}: run {index}, timing')
+        lines += [f'![Timing, run {index}]({png.name})', '']
     return lines
 
 
@@ -619,9 +682,16 @@ def write_report(runs: list[RunData], out_dir, *, title: str = 'seft comparison'
     - ``summary.json``: ``{"runs": [entry, ...]}``, one ``metrics.summary_entry`` per run in
       the given order (with the predictor name and the high-frequency fractions of the
       measured and the reference force above the cutoff), strict JSON (NaN/inf as null);
+      A run read from a bag with node parameters (``run.extra['node_params']``) has its
+      ``run.extra['param_sources']`` in the entry as ``"parameter_sources"``
+      (``{parameter: node}``);
     - ``report.md``: per run, the parameters that matter (alpha, rig, predictor, record, dt,
-      tau), stable or aborted (time and reason) and a table
-      signal | peak test | peak ref | peak ratio | lag [ms] | NRMS [%]; links to the figures;
+      tau), for a run read from a bag with node parameters the node each key value was taken
+      from (``parameters: alpha, predictor from reference_force_builder; mass, ... from
+      rig; ...``) and a marked warning listing ``run.extra['parameter_mismatches']``, the
+      shared parameters on which the nodes disagreed; stable or aborted (time and reason)
+      and a table signal | peak test | peak ref | peak ratio | lag [ms] | NRMS [%]; links to
+      the figures;
     - one predictor: ``time_histories.png``, test versus reference, rows displacement [mm],
       force [N], acceleration [m/s^2], one column per run (as the reference study's
       Figure 6), and ``time_histories_zoom.png``, the same in a 2 s window around each
@@ -673,6 +743,9 @@ def write_report(runs: list[RunData], out_dir, *, title: str = 'seft comparison'
                                high_frequency_cutoff_hz=high_frequency_cutoff_hz)
                    for run in runs]
     entries = [summary_entry(run, c) for run, c in zip(runs, comparisons)]
+    for run, entry in zip(runs, entries):
+        if run.extra.get('node_params') and run.extra.get('param_sources'):
+            entry['parameter_sources'] = dict(run.extra['param_sources'])
     summary = write_summary_json(entries, out_dir / 'summary.json')
     predictors = _predictor_order(runs)
 
@@ -728,6 +801,7 @@ def write_report(runs: list[RunData], out_dir, *, title: str = 'seft comparison'
                       f'({grid_zoom.name})', '']
     for index, (run, comparison) in enumerate(zip(runs, comparisons), start=1):
         lines += _run_markdown(index, run, comparison)
+        lines += _timing_markdown(index, run, out_dir, title)
     report = out_dir / 'report.md'
     report.write_text('\n'.join(lines), encoding='utf-8')
     return ReportPaths(out_dir=out_dir, summary_json=summary, report_md=report,

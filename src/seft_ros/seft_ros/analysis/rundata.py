@@ -46,6 +46,14 @@ class RunData:
         Name of the ground-motion record.
     source : str
         Where the data came from (bag path or 'simulate').
+    extra : dict
+        Further data of the source. A run read from a bag (``analysis.bag.read_run``) has
+        ``'rig_final'`` (the rig's final status), ``'counts'`` (messages per topic),
+        ``'node_params'`` (``{node: {parameter: value}}`` as each node published them; empty
+        for a bag without node parameters), ``'param_sources'`` (``{parameter: node,
+        'run_parameters' or 'default'}``: where each value of `params` was taken from) and
+        ``'parameter_mismatches'`` (one line per shared parameter on which the nodes
+        disagreed, ``seft_msgs_py.parameters.shared_mismatches``; empty when they agree).
     """
 
     params: dict[str, Any]

@@ -66,6 +66,10 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest='verb', required=True, parser_class=_Parser)
     run = sub.add_parser('run', help='run experiments as a node graph over DDS (bag + report)')
     _experiment_options(run)
+    run.add_argument('--mode', choices=('lockstep', 'realtime'),
+                     help="'lockstep' (default: every node waits for its inputs; equals "
+                     "simulate bit for bit) or 'realtime' (the rig ticks on the wall clock "
+                     'every dt, nobody waits; timing recorded and reported)')
     run.add_argument('--domain-id', type=int, help='ROS_DOMAIN_ID of the run (default: '
                      '$ROS_DOMAIN_ID, else a random one in 100-199)')
     sim = sub.add_parser('simulate', help='the same experiments in one process, without ROS')
@@ -104,6 +108,7 @@ def _experiments(args):
     overrides = {k: getattr(args, k) for k in ('record', 'rig_model', 'predictor',
                                                'amplitude_N', 'scale_factor', 'time_scale',
                                                'duration_s')}
+    overrides['mode'] = getattr(args, 'mode', None)
     for name, value in args.sets:
         if name == 'alpha':
             raise InputError('--set alpha: use --alpha')

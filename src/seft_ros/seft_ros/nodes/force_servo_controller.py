@@ -1,24 +1,30 @@
 """force_servo_controller node: u[k] = sat(C_f(z) (f_r[k] - f_m[k])), paper Eq. 3.1.
 
-When the reference force and the measured force of step k have both arrived it publishes the
-valve command of step k. Its loss-of-control interlock (``seft_ros.core.controller.
-SaturationInterlock``) aborts the run when the valve stays saturated: it then publishes
-'aborted' on ``/seft/status`` instead of the command, and the rig stops.
+Lockstep mode: when the reference force and the measured force of step k have both arrived it
+publishes the valve command of step k. Real-time mode: it acts on the arrival of each measured
+force ``f_m[k]`` with the newest reference force it has (normally ``f_r[k]``, built in
+parallel during step k-1; an older one counts as stale), never waits, and publishes one
+timing record per step on ``/seft/timing/force_servo_controller``.
+
+Its loss-of-control interlock (``seft_ros.core.controller.SaturationInterlock``) aborts the
+run when the valve stays saturated: it then publishes 'aborted' on ``/seft/status`` instead of
+the command, and the rig stops.
 
 Run by hand: ``ros2 run seft_ros force_servo_controller --ros-args --params-file ...``.
 """
 
 import sys
+import time
 
 from seft_msgs_py.convert import (
     STATE_ABORTED,
     STATE_READY,
+    ScalarMessage,
     dt_to_ns,
-    scalar_msg,
     scalar_value,
     step_of,
 )
-from seft_msgs_py.node_support import SeftNode, main_for
+from seft_msgs_py.node_support import SeftNode, StepTiming, main_for
 from seft_msgs_py.sync import StepSync
 from seft_msgs_py.topics import MEASURED_FORCE, REFERENCE_FORCE, VALVE_COMMAND
 from seft_ros.core.controller import ForceServoController, SaturationInterlock
@@ -41,11 +47,58 @@ class ForceServoControllerNode(SeftNode):
         self.next_step = 0
         self.pub = self.create_publisher(VALVE_COMMAND.msg_type, VALVE_COMMAND.name,
                                          VALVE_COMMAND.qos)
-        for spec in (REFERENCE_FORCE, MEASURED_FORCE):
-            self.create_subscription(spec.msg_type, spec.name,
-                                     self.guard(lambda msg, s=spec: self._on_force(s, msg)),
-                                     spec.qos)
+        self.out_msg = ScalarMessage(VALVE_COMMAND)
+        if self.realtime:
+            self.timing = StepTiming(self)
+            self.reference = {}            # step -> f_r (the newest few)
+            self.latest_reference = (-1, 0.0)
+            self.create_subscription(REFERENCE_FORCE.msg_type, REFERENCE_FORCE.name,
+                                     self.guard(self._on_reference_realtime),
+                                     REFERENCE_FORCE.qos)
+            self.create_subscription(MEASURED_FORCE.msg_type, MEASURED_FORCE.name,
+                                     self.guard(self._on_measured_realtime),
+                                     MEASURED_FORCE.qos)
+        else:
+            for spec in (REFERENCE_FORCE, MEASURED_FORCE):
+                self.create_subscription(
+                    spec.msg_type, spec.name,
+                    self.guard(lambda msg, s=spec: self._on_force(s, msg)), spec.qos)
+        self.publish_parameters()
         self.report(STATE_READY, f'controller discretized: {self.controller.design.method}')
+
+    def _on_reference_realtime(self, msg) -> None:
+        k = step_of(msg.header.stamp, self.dt_ns)
+        value = scalar_value(REFERENCE_FORCE, msg)
+        self.reference[k] = value
+        if k > self.latest_reference[0]:
+            self.latest_reference = (k, value)
+
+    def _on_measured_realtime(self, msg) -> None:
+        """u[k] from f_m[k] and the newest reference force: act at once, never wait."""
+        start, jitter = self.timing.start()
+        k = step_of(msg.header.stamp, self.dt_ns)
+        if k < self.next_step:
+            return                          # a duplicate: each step is computed once
+        fm = scalar_value(MEASURED_FORCE, msg)
+        stale = k not in self.reference
+        fr_step, fr = (k, self.reference.pop(k)) if not stale else self.latest_reference
+        for j in [j for j in self.reference if j < k]:
+            del self.reference[j]
+        u = self.controller.step(fr, fm)
+        reason = self.interlock.update(self.controller.saturated, k * self.dt)
+        if reason:
+            self.get_logger().error(reason)
+            self.report(STATE_ABORTED, reason, step=k, time_s=f'{k * self.dt:.6f}')
+            self.finish(0)
+            return
+        self.pub.publish(self.out_msg(k * self.dt_ns, u))
+        self.next_step = k + 1
+        now_ns = time.time_ns()
+        oldest = min(k, fr_step) if fr_step >= 0 else k
+        age = (now_ns - self.sample_time_ns(oldest)) * 1e-9
+        missed = now_ns > self.sample_time_ns(k + 1)   # nan compares False before t0
+        self.timing.publish(k * self.dt_ns, jitter, time.monotonic() - start, age, missed,
+                            stale)
 
     def _on_force(self, spec, msg) -> None:
         k = step_of(msg.header.stamp, self.dt_ns)
@@ -63,7 +116,7 @@ class ForceServoControllerNode(SeftNode):
                 self.report(STATE_ABORTED, reason, step=k, time_s=f'{k * self.dt:.6f}')
                 self.finish(0)
                 return
-            self.pub.publish(scalar_msg(VALVE_COMMAND, k * self.dt_ns, u))
+            self.pub.publish(self.out_msg(k * self.dt_ns, u))
             self.next_step += 1
 
 

@@ -7,18 +7,24 @@ reports its length on ``/seft/status`` and publishes ``xg''[k]`` stamped ``t_k``
 ``/clock`` tick, so the reference-force builder always has the samples it needs (and a
 preview of the record, which is known before the test).
 
+In real-time mode it also publishes one timing record per sample on
+``/seft/timing/ground_motion_publisher`` (a sample is late, a missed deadline, when it is
+published after the sample before it was due).
+
 Run by hand: ``ros2 run seft_ros ground_motion_publisher --ros-args --params-file ...``.
 """
 
+import math
 import sys
+import time
 
 from seft_msgs_py.convert import (
     STATE_READY,
+    ScalarMessage,
     dt_to_ns,
-    scalar_msg,
     step_of,
 )
-from seft_msgs_py.node_support import SeftNode, main_for
+from seft_msgs_py.node_support import SeftNode, StepTiming, main_for
 from seft_msgs_py.topics import CLOCK, GROUND_ACCELERATION
 from seft_ros.core.experiment import prepared_record
 
@@ -39,8 +45,12 @@ class GroundMotionPublisher(SeftNode):
         self.next_step = 0
         self.pub = self.create_publisher(GROUND_ACCELERATION.msg_type, GROUND_ACCELERATION.name,
                                          GROUND_ACCELERATION.qos)
+        self.out_msg = ScalarMessage(GROUND_ACCELERATION)
         self.create_subscription(CLOCK.msg_type, CLOCK.name, self.guard(self._on_clock),
                                  CLOCK.qos)
+        if self.realtime:
+            self.timing = StepTiming(self)
+        self.publish_parameters()
         self.get_logger().info(
             f'record {self.record.name}: {self.n_steps} steps of {p["dt"]} s, '
             f'peak {abs(self.values).max():.4g} m/s^2')
@@ -48,16 +58,26 @@ class GroundMotionPublisher(SeftNode):
                     record=self.record.name)
         self._publish_until(self.preview)
 
-    def _publish_until(self, last: int) -> None:
+    def _publish_until(self, last: int, clock_step: int | None = None) -> None:
         last = min(last, self.n_steps - 1)
+        start, jitter = (self.timing.start() if self.timing is not None and self.next_step <= last
+                         else (0.0, math.nan))
         while self.next_step <= last:
             k = self.next_step
-            self.pub.publish(scalar_msg(GROUND_ACCELERATION, k * self.dt_ns,
+            self.pub.publish(self.out_msg(k * self.dt_ns,
                                         float(self.values[k])))
             self.next_step += 1
+            if self.timing is not None:
+                now_ns = time.time_ns()
+                age = (math.nan if clock_step is None
+                       else (now_ns - self.sample_time_ns(clock_step)) * 1e-9)
+                self.timing.publish(k * self.dt_ns, jitter, time.monotonic() - start, age,
+                                    now_ns > self.sample_time_ns(k - 1), False)
+                jitter = math.nan
 
     def _on_clock(self, msg) -> None:
-        self._publish_until(step_of(msg.clock, self.dt_ns) + self.preview)
+        k = step_of(msg.clock, self.dt_ns)
+        self._publish_until(k + self.preview, k)
 
 
 def main(args=None) -> int:

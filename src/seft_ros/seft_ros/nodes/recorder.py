@@ -44,9 +44,11 @@ from seft_msgs_py.topics import (
     CLOCK,
     DISPLACEMENT,
     MEASURED_FORCE,
+    NODE_PARAMETERS,
     REFERENCE_FORCE,
     RUN_PARAMETERS,
     STATUS,
+    TIMING,
     TOPICS,
     VELOCITY,
 )
@@ -62,10 +64,12 @@ RECORDED = tuple(t for t in TOPICS if t is not CLOCK)
 _LOCKSTEP = (MEASURED_FORCE.name, DISPLACEMENT.name, VELOCITY.name, ACCELERATION.name,
              REFERENCE_FORCE.name)
 
-#: The data topics each node publishes (its final status says how many samples).
+#: The data topics each node publishes (its final status says how many samples:
+#: ``published`` for its data topics, ``published_timing`` for its timing topic).
 TOPICS_OF_NODE = {node: tuple(t.name for t in RECORDED if t.publisher == node)
                   for node in ('rig', 'ground_motion_publisher', 'reference_force_builder',
                                'force_servo_controller')}
+_TIMING_NAMES = {t.name for t in TIMING}
 
 _FINAL = (STATE_DONE, STATE_ABORTED, STATE_FAILED)
 _STAMP = struct.Struct('<iI')   # builtin_interfaces/Time right after the CDR header
@@ -102,7 +106,7 @@ class RecorderNode(SeftNode):
                     self.typestore.serialize_cdr(params_msg, 'std_msgs/msg/String'))
         self.params_pub = self.create_publisher(String, RUN_PARAMETERS.name, RUN_PARAMETERS.qos)
         self.params_pub.publish(String(data=parameters_json(p)))
-        stamped = {t.name for t in TOPICS if t not in (STATUS, RUN_PARAMETERS)}
+        stamped = {t.name for t in TOPICS if t not in (STATUS, RUN_PARAMETERS, NODE_PARAMETERS)}
         for t in RECORDED:
             if t is RUN_PARAMETERS:
                 continue
@@ -119,6 +123,7 @@ class RecorderNode(SeftNode):
             self.participants.add('force_servo_controller')
         self.rig_final_at = None
         self.wall_timer(0.1, self._check_complete)
+        self.publish_parameters()
         self.report(STATE_READY, f'recording to {self.bag_path}')
 
     def _write(self, name: str, stamp_ns: int, raw) -> None:
@@ -152,11 +157,21 @@ class RecorderNode(SeftNode):
         missing = [f'{n} (no final status)' for n in sorted(self.participants)
                    if n not in self.finals]
         for node, values in self.finals.items():
-            want = int(values.get('published', 0))
             for name in TOPICS_OF_NODE.get(node, ()):
+                key = 'published_timing' if name in _TIMING_NAMES else 'published'
+                want = int(values.get(key, 0))
                 if self.counts[name] < want:
                     missing.append(f'{name} ({self.counts[name]}/{want})')
         return missing
+
+    def _lost(self) -> int:
+        """Messages the nodes published but the bag does not hold."""
+        lost = 0
+        for node, values in self.finals.items():
+            for name in TOPICS_OF_NODE.get(node, ()):
+                key = 'published_timing' if name in _TIMING_NAMES else 'published'
+                lost += max(0, int(values.get(key, 0)) - self.counts[name])
+        return lost
 
     def _check_complete(self) -> None:
         if self.rig_final_at is None or self.done:
@@ -169,7 +184,7 @@ class RecorderNode(SeftNode):
             self.get_logger().warning('closing the bag without: ' + ', '.join(missing))
         self._close()
         self.report(STATE_CLOSED, f'bag {self.bag_path} closed',
-                    incomplete=', '.join(missing),
+                    incomplete=', '.join(missing), lost=self._lost(),
                     **{name.rsplit('/', 1)[-1]: n for name, n in self.counts.items()})
         self.get_logger().info(f'bag {self.bag_path} closed: {sum(self.counts.values())} '
                                'messages')

@@ -12,22 +12,28 @@ Eq. 5.3). Before each new reference force, the online instability monitor
 when it trips, the builder reports 'aborted' instead and the rig stops. The numerics are
 ``seft_ros.core.reference_force``.
 
+Real-time mode: the builder works in parallel with the force loop. As soon as the measurement
+of step k is complete it publishes ``f_r[k+1]`` (needed at ``t_k+1``); a ground acceleration
+that has not arrived is replaced by the latest one it has (counted as stale), and nothing
+waits. One timing record per step goes to ``/seft/timing/reference_force_builder``.
+
 Run by hand: ``ros2 run seft_ros reference_force_builder --ros-args --params-file ...``.
 """
 
 import sys
+import time
 
 from seft_msgs_py import parameters
 from seft_msgs_py.convert import (
     STATE_ABORTED,
     STATE_READY,
+    ScalarMessage,
     dt_to_ns,
-    scalar_msg,
     scalar_value,
     status_values,
     step_of,
 )
-from seft_msgs_py.node_support import SeftNode, descriptor_of, main_for
+from seft_msgs_py.node_support import SeftNode, StepTiming, descriptor_of, main_for
 from seft_msgs_py.sync import StepSync
 from seft_msgs_py.topics import (
     ACCELERATION,
@@ -78,6 +84,7 @@ class ReferenceForceBuilderNode(SeftNode):
         self.next_step = 0          # step of the next reference force to publish
         self.pub = self.create_publisher(REFERENCE_FORCE.msg_type, REFERENCE_FORCE.name,
                                          REFERENCE_FORCE.qos)
+        self.out_msg = ScalarMessage(REFERENCE_FORCE)
         self.create_subscription(GROUND_ACCELERATION.msg_type, GROUND_ACCELERATION.name,
                                  self.guard(self._on_ground), GROUND_ACCELERATION.qos)
         for spec in _SENSORS:
@@ -86,11 +93,23 @@ class ReferenceForceBuilderNode(SeftNode):
                                      spec.qos)
         self.create_subscription(STATUS.msg_type, STATUS.name, self.guard(self._on_status),
                                  STATUS.qos)
+        if self.realtime:
+            self.timing = StepTiming(self)
+            self.latest_ground = (-1, 0.0)
+            self.ground_stale = False
+        self.publish_parameters()
         self.report(STATE_READY, f'predictor {self.builder.predictor.name}')
 
     def _on_ground(self, msg) -> None:
-        self.ground[step_of(msg.header.stamp, self.dt_ns)] = scalar_value(GROUND_ACCELERATION,
-                                                                          msg)
+        k = step_of(msg.header.stamp, self.dt_ns)
+        value = scalar_value(GROUND_ACCELERATION, msg)
+        self.ground[k] = value
+        if self.realtime:
+            if k > self.latest_ground[0]:
+                self.latest_ground = (k, value)
+            if self.next_step == 0:
+                self._advance()
+            return
         self._advance()
 
     def _on_sensor(self, spec, msg) -> None:
@@ -100,7 +119,49 @@ class ReferenceForceBuilderNode(SeftNode):
             self.measurements[k] = Measurement(
                 k, k * self.dt, done[DISPLACEMENT.name], done[VELOCITY.name],
                 done[ACCELERATION.name], done[MEASURED_FORCE.name])
-            self._advance()
+            if self.realtime:
+                self._advance_realtime()
+            else:
+                self._advance()
+
+    def _ground_or_latest(self, j: int) -> float:
+        """xg''[j], or the latest ground acceleration received if it has not arrived."""
+        value = self.ground.get(j)
+        if value is None:
+            if self.n_total is not None and j >= self.n_total:
+                return 0.0
+            self.ground_stale = True
+            return self.latest_ground[1]
+        return value
+
+    def _advance_realtime(self) -> None:
+        """f_r[k+1] for every complete measurement k, in order, with the latest inputs."""
+        while self.next_step - 1 in self.measurements and not self.done:
+            start, jitter = self.timing.start()
+            k = self.next_step
+            latest = self.measurements.pop(k - 1)
+            reason = self.monitor.update(latest.force_N, self.builder.last_ground_force_N,
+                                         latest.time_s)
+            if reason:
+                self.get_logger().error(reason)
+                self.report(STATE_ABORTED, reason, step=k, time_s=f'{k * self.dt:.6f}')
+                self.finish(0)
+                return
+            if self.n_total is not None and k >= self.n_total:
+                return
+            look = self.builder.lookahead_steps
+            n_total = self.n_total if self.n_total is not None else k + look + 1
+            self.ground_stale = False
+            force = self.builder.step(
+                ground_window(self._ground_or_latest, k, look, n_total), latest)
+            self.ground.pop(k, None)
+            self.pub.publish(self.out_msg(k * self.dt_ns, force))
+            self.next_step += 1
+            now_ns = time.time_ns()
+            age = (now_ns - self.sample_time_ns(k - 1)) * 1e-9
+            missed = now_ns > self.sample_time_ns(k)
+            self.timing.publish(k * self.dt_ns, jitter, time.monotonic() - start, age,
+                                missed, self.ground_stale)
 
     def _ground_ready(self, k: int) -> bool:
         """Whether ``xg''[k..k+L]`` are all there (or known to lie after the record)."""
@@ -113,6 +174,8 @@ class ReferenceForceBuilderNode(SeftNode):
         """Publish every reference force whose inputs are all there, in step order."""
         while True:
             k = self.next_step
+            if self.realtime and k > 0:
+                return                    # real time: _advance_realtime from here on
             if k not in self.ground or not self._ground_ready(k):
                 return
             if k == 0:
@@ -133,7 +196,7 @@ class ReferenceForceBuilderNode(SeftNode):
             force = self.builder.step(
                 ground_window(self.ground.__getitem__, k, look, n_total), latest)
             self.ground.pop(k)
-            self.pub.publish(scalar_msg(REFERENCE_FORCE, k * self.dt_ns, force))
+            self.pub.publish(self.out_msg(k * self.dt_ns, force))
             self.next_step += 1
 
     def _on_status(self, msg) -> None:

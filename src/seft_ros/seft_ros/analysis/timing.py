@@ -1,0 +1,211 @@
+"""Timing of a real-time run, from the per-node timing records of its bag.
+
+Every node publishes, in real-time mode, one record per step on ``/seft/timing/<node>``
+(``seft_msgs_py.signals.TIMING_FIELDS``): period jitter, compute time, age of the oldest
+input, missed deadline, stale input and, for the rig, the loop latency (sample at the rig to
+the command computed from it back at the rig). This module reads them (rosbags, no rclpy),
+summarizes them as percentiles and fractions, and plots their distributions, after the
+latency and overrun statistics the ``pendulum_control`` demo of ros2/demos keeps as data.
+"""
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+import numpy as np
+from rosbags.rosbag2 import Reader
+from rosbags.typesys import Stores, get_typestore
+
+from seft_msgs_py import signals
+from seft_msgs_py.errors import InputError
+
+__all__ = ['NodeTiming', 'read_timing', 'timing_summary', 'timing_figure', 'timing_table',
+           'percentiles_ms']
+
+_FIELDS = signals.TIMING_FIELDS
+_TOPICS = {s.name: s.publisher for s in signals.TIMING}
+
+
+@dataclass
+class NodeTiming:
+    """The timing records of one node, sorted by step.
+
+    Attributes
+    ----------
+    node : str
+    step : ndarray of int, shape (n,)
+        Step index of each record.
+    period_jitter_s, compute_s, input_age_s, loop_latency_s : ndarray, shape (n,)
+        [s]; nan where not defined (the first activation; loop latency on nodes other than
+        the rig, or a command that never arrived).
+    missed_deadline, stale : ndarray of bool, shape (n,)
+    """
+
+    node: str
+    step: np.ndarray
+    period_jitter_s: np.ndarray
+    compute_s: np.ndarray
+    input_age_s: np.ndarray
+    missed_deadline: np.ndarray
+    stale: np.ndarray
+    loop_latency_s: np.ndarray
+
+    @property
+    def n(self) -> int:
+        """Number of records."""
+        return int(self.step.shape[0])
+
+
+def read_timing(path, dt: float) -> dict[str, NodeTiming]:
+    """Read the timing records of the bag at `path` ({} for a lockstep bag).
+
+    Parameters
+    ----------
+    path : path-like
+        A seft bag.
+    dt : float > 0
+        Control period [s] (turns stamps into steps).
+
+    Raises
+    ------
+    InputError
+        The bag cannot be read.
+    """
+    typestore = get_typestore(Stores.ROS2_JAZZY)
+    rows: dict[str, list] = {}
+    dt_ns = int(round(dt * 1e9))
+    try:
+        with Reader(Path(path)) as reader:
+            conns = [c for c in reader.connections if c.topic in _TOPICS]
+            for conn, _, raw in reader.messages(connections=conns):
+                msg = typestore.deserialize_cdr(raw, conn.msgtype)
+                values = dict(zip(msg.name, msg.position))
+                stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+                rows.setdefault(_TOPICS[conn.topic], []).append(
+                    [round(stamp / dt_ns)] + [values.get(f, np.nan) for f in _FIELDS])
+    except Exception as exc:  # rosbags raises several types for a damaged bag
+        raise InputError(f'{path}: cannot read the timing records: {exc}') from None
+    out = {}
+    for node, r in rows.items():
+        a = np.array(r, dtype=float)
+        a = a[np.argsort(a[:, 0], kind='stable')]
+        out[node] = NodeTiming(node, a[:, 0].astype(int), a[:, 1], a[:, 2], a[:, 3],
+                               a[:, 4] > 0.5, a[:, 5] > 0.5, a[:, 6])
+    return out
+
+
+def percentiles_ms(values) -> dict:
+    """``{"p50", "p99", "max"}`` of the finite `values` [s] in ms (None if there are none)."""
+    v = np.asarray(values, dtype=float)
+    v = v[np.isfinite(v)]
+    if v.size == 0:
+        return {'p50': None, 'p99': None, 'max': None}
+    p50, p99 = np.percentile(v, [50, 99])
+    return {'p50': round(float(p50) * 1e3, 4), 'p99': round(float(p99) * 1e3, 4),
+            'max': round(float(v.max()) * 1e3, 4)}
+
+
+def timing_summary(timing: dict[str, NodeTiming]) -> dict | None:
+    """The ``"timing"`` block of ``summary.json`` (None without timing records).
+
+    Returns
+    -------
+    dict
+        ``loop_latency_ms`` and ``period_jitter_ms`` ({p50, p99, max} of the rig's loop latency
+        and absolute period jitter), ``missed_deadline_fraction`` (rig ticks whose sample was
+        taken a period or more late), ``stale_command_fraction`` (rig ticks at which the
+        command computed from the previous sample had not arrived), ``lost_commands`` (samples
+        whose command never arrived), and ``nodes``: per node ``records``, ``compute_ms``,
+        ``input_age_ms``, ``period_jitter_ms``, ``missed_deadline_fraction`` and
+        ``stale_fraction``. Fractions are in 0..1.
+    """
+    rig = timing.get('rig')
+    if rig is None or rig.n == 0:
+        return None
+    nodes = {}
+    for name, t in sorted(timing.items()):
+        nodes[name] = {
+            'records': t.n,
+            'compute_ms': percentiles_ms(t.compute_s),
+            'input_age_ms': percentiles_ms(t.input_age_s),
+            'period_jitter_ms': percentiles_ms(np.abs(t.period_jitter_s)),
+            'missed_deadline_fraction': round(float(np.mean(t.missed_deadline)), 6),
+            'stale_fraction': round(float(np.mean(t.stale)), 6),
+        }
+    # the last sample's command may legitimately never come (the run ended)
+    lost = int(np.sum(~np.isfinite(rig.loop_latency_s[:-1])))
+    return {
+        'loop_latency_ms': percentiles_ms(rig.loop_latency_s),
+        'period_jitter_ms': percentiles_ms(np.abs(rig.period_jitter_s)),
+        'missed_deadline_fraction': round(float(np.mean(rig.missed_deadline)), 6),
+        'stale_command_fraction': round(float(np.mean(rig.stale[1:])) if rig.n > 1 else 0.0,
+                                        6),
+        'lost_commands': lost,
+        'nodes': nodes,
+    }
+
+
+def timing_table(summary: dict) -> str:
+    """A Markdown table of a run's timing summary (one row per node)."""
+    def fmt(d):
+        if d['p50'] is None:
+            return '–'
+        return f"{d['p50']:.2f} / {d['p99']:.2f} / {d['max']:.2f}"
+    lines = [
+        f"Loop latency (ms, p50 / p99 / max): {fmt(summary['loop_latency_ms'])}; rig period "
+        f"jitter: {fmt(summary['period_jitter_ms'])}; missed deadlines "
+        f"{100 * summary['missed_deadline_fraction']:.2f} %, stale commands "
+        f"{100 * summary['stale_command_fraction']:.2f} %, lost commands "
+        f"{summary['lost_commands']}.",
+        '',
+        '| node | records | compute ms (p50 / p99 / max) | input age ms | period jitter ms '
+        '| missed | stale |',
+        '|---|---|---|---|---|---|---|',
+    ]
+    for name, n in summary['nodes'].items():
+        lines.append(f"| {name} | {n['records']} | {fmt(n['compute_ms'])} | "
+                     f"{fmt(n['input_age_ms'])} | {fmt(n['period_jitter_ms'])} | "
+                     f"{100 * n['missed_deadline_fraction']:.2f} % | "
+                     f"{100 * n['stale_fraction']:.2f} % |")
+    return '\n'.join(lines)
+
+
+def timing_figure(timing: dict[str, NodeTiming], path, *, title: str = '') -> Path:
+    """Histograms of loop latency, period jitter, compute time and input age; PNG at `path`.
+
+    Returns
+    -------
+    Path
+        The written file.
+    """
+    fig = Figure(figsize=(12, 7), layout='constrained')
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(2, 2)
+    panels = (
+        (axes[0, 0], 'loop latency at the rig [ms]', lambda t: t.loop_latency_s, ('rig',)),
+        (axes[0, 1], 'period jitter [ms]', lambda t: t.period_jitter_s, None),
+        (axes[1, 0], 'compute time per step [ms]', lambda t: t.compute_s, None),
+        (axes[1, 1], 'age of the oldest input [ms]', lambda t: t.input_age_s, None),
+    )
+    for ax, label, get, only in panels:
+        for name, t in sorted(timing.items()):
+            if only and name not in only:
+                continue
+            v = get(t) * 1e3
+            v = v[np.isfinite(v)]
+            if v.size == 0:
+                continue
+            p50, p99 = np.percentile(v, [50, 99])
+            ax.hist(v, bins=80, histtype='step', log=True,
+                    label=f'{name} (p50 {p50:.2f}, p99 {p99:.2f})')
+        ax.set_xlabel(label)
+        ax.set_ylabel('steps')
+        ax.grid(True, alpha=0.3)
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=7)
+    if title:
+        fig.suptitle(title)
+    path = Path(path)
+    fig.savefig(path, dpi=90)
+    return path
