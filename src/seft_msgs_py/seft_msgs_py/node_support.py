@@ -8,6 +8,7 @@ becomes a one-line message on stderr and exit code 2.
 
 import json
 import math
+import os
 import sys
 import time
 import traceback
@@ -47,6 +48,8 @@ __all__ = ['SeftNode', 'StepTiming', 'main_for', 'descriptor_of', 'LINGER_S']
 LINGER_S = 1.0
 #: With a recorder in the graph, the longest wait for it to close the bag [s].
 RECORDER_WAIT_S = 20.0
+#: Start of the 'failed' status message of a node that refused differing parameters.
+MISMATCH_MESSAGE = 'parameters differ between nodes: '
 
 
 def descriptor_of(spec: parameters.ParamSpec) -> ParameterDescriptor:
@@ -93,8 +96,7 @@ class SeftNode(Node):
         self.status_pub = self.create_publisher(STATUS.msg_type, STATUS.name, STATUS.qos)
         self.recorder_ready = False
         self.recorder_closed = False
-        self.create_subscription(STATUS.msg_type, STATUS.name, self.guard(self._watch_run),
-                                 STATUS.qos)
+        self.create_subscription(STATUS.msg_type, STATUS.name, self._on_any_status, STATUS.qos)
         self.done = False
         self.exit_code = 0
         #: System-clock time [ns] of sample 0, from the rig's status (real-time mode).
@@ -105,7 +107,42 @@ class SeftNode(Node):
         self.node_params_pub = self.create_publisher(
             NODE_PARAMETERS.msg_type, NODE_PARAMETERS.name, NODE_PARAMETERS.qos)
         self.create_subscription(NODE_PARAMETERS.msg_type, NODE_PARAMETERS.name,
-                                 self.guard(self._on_node_parameters), NODE_PARAMETERS.qos)
+                                 self._on_node_parameters, NODE_PARAMETERS.qos)
+        #: This node refused the graph's parameters (a shared value differs between nodes).
+        self.refused = False
+        #: The nodes whose status this node has received.
+        self.heard: set[str] = set()
+
+    def next_due(self) -> float | None:
+        """Monotonic time [s] of this node's next scheduled work (None: events only).
+
+        A node on a fixed schedule (the rig in real-time mode) overrides this and
+        :meth:`run_due`; :func:`main_for` then waits for events only until that time.
+        Measured here: an rclpy timer on the EventsExecutor drifts (at 500 Hz it lost 1-4 %
+        of its periods and fell 10-180 ms behind a 5 s schedule), while waiting in
+        ``spin_once(timeout)`` up to absolute deadlines kept the lateness at 0.13-0.18 ms p50.
+        """
+        return None
+
+    def run_due(self) -> None:
+        """Do the work scheduled at :meth:`next_due` (called once it is due)."""
+
+    def apply_priority(self) -> None:
+        """Real-time mode with ``realtime_priority`` > 0: run this process under SCHED_FIFO.
+
+        Where the system refuses (no root, no CAP_SYS_NICE, no RT budget) the node logs one
+        warning and keeps the normal scheduler: a run never fails for it.
+        """
+        priority = int(self.params.get('realtime_priority', 0))
+        if not self.realtime or priority <= 0:
+            return
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+        except (OSError, AttributeError) as exc:
+            self.get_logger().warning(f'realtime_priority={priority}: SCHED_FIFO refused '
+                                      f'({exc}); keeping the normal scheduler')
+            return
+        self.get_logger().info(f'SCHED_FIFO priority {priority}')
 
     def publish_parameters(self) -> None:
         """Publish the parameters this node resolved (latched), and check them at once.
@@ -117,7 +154,9 @@ class SeftNode(Node):
             {'node': self.seft_name, 'parameters': self.params}, sort_keys=True)))
 
     def _on_node_parameters(self, msg) -> None:
-        """Collect another node's parameters; refuse to go on when a shared value differs."""
+        """Collect another node's parameters (also once this node has finished: after a
+        refusal :func:`main_for` lingers until every node is heard); refuse to go on when a
+        shared value differs."""
         try:
             data = json.loads(msg.data)
             node, values = str(data['node']), dict(data['parameters'])
@@ -127,12 +166,47 @@ class SeftNode(Node):
         if node not in parameters.NODES:
             return
         self.node_params[node] = values
+        self.guard(self._check_parameters)()
+
+    def _check_parameters(self) -> None:
         lines = parameters.shared_mismatches(self.node_params)
         if lines:
-            for line in lines:
-                print(f'{self.seft_name}: error: {line}', file=sys.stderr, flush=True)
-            self.report(STATE_FAILED, 'parameters differ between nodes: ' + '; '.join(lines))
-            self.finish(2)
+            self._refuse_parameters(lines)
+
+    def _refuse_parameters(self, lines: list[str]) -> None:
+        """Name every differing parameter in one line on stderr, report 'failed', exit 2."""
+        self.refused = True
+        for line in lines:
+            print(f'{self.seft_name}: error: {line}', file=sys.stderr, flush=True)
+        self.report(STATE_FAILED, MISMATCH_MESSAGE + '; '.join(lines))
+        self.finish(2)
+
+    def refused_by_another_node(self, msg) -> bool:
+        """Another node refused the graph's parameters: refuse too (True), else False.
+
+        Call first in every status callback that ends the node. The 'failed' status of the
+        node that found the mismatch may arrive before the parameters that differ (two
+        topics, no order between them): the node then names the parameters as that node
+        reported them, instead of taking the failure for the end of a run.
+        """
+        if msg.name == self.seft_name or not msg.message.startswith(MISMATCH_MESSAGE):
+            return False
+        if status_values(msg).get('state') != STATE_FAILED:
+            return False
+        lines = (parameters.shared_mismatches(self.node_params)
+                 or msg.message[len(MISMATCH_MESSAGE):].split('; '))
+        self._refuse_parameters(lines)
+        return True
+
+    def refusal_heard(self) -> bool:
+        """After a refusal: every node of the graph has published its parameters or a status
+        here, so it is up and receives the refusal too (the graph: every node, the force servo
+        controller only unless every node says rig_model 'delay'; without a recorder the
+        refusing nodes linger ``RECORDER_WAIT_S``)."""
+        expected = set(parameters.NODES)
+        if {v.get('rig_model') for v in self.node_params.values()} - {None} == {'delay'}:
+            expected.discard('force_servo_controller')
+        return expected <= set(self.node_params) | self.heard
 
     def _declare(self, node_name: str) -> dict:
         values = {}
@@ -147,16 +221,28 @@ class SeftNode(Node):
             values[spec.name] = parameters.validate_value(spec.name, p.value)
         return values
 
+    def _on_any_status(self, msg) -> None:
+        """Track the nodes heard and the recorder, also once this node has finished
+        (:func:`main_for` lingers until the recorder has closed the bag, or failed: then it
+        records nothing more; after a refusal, until every node is heard), then
+        :meth:`_watch_run`."""
+        self.heard.add(msg.name)
+        if msg.name == 'recorder':
+            self.recorder_ready = True
+            self.recorder_closed = (self.recorder_closed or status_values(msg).get('state')
+                                    in (STATE_CLOSED, STATE_FAILED))
+        self.guard(self._watch_run)(msg)
+
     def _watch_run(self, msg) -> None:
-        """Track the recorder, and end this node when the rig has finished the run."""
+        """Refuse another node's parameter mismatch; end this node when the rig has finished
+        the run."""
+        if self.refused_by_another_node(msg):
+            return
         values = status_values(msg)
         state = values.get('state')
         if msg.name == 'rig' and 't0_ns' in values and self.t0_ns is None:
             self.t0_ns = int(values['t0_ns'])
-        if msg.name == 'recorder':
-            self.recorder_ready = True
-            self.recorder_closed = self.recorder_closed or state == STATE_CLOSED
-        elif (msg.name == 'rig' and self.seft_name not in ('rig', 'recorder')
+        if (msg.name == 'rig' and self.seft_name not in ('rig', 'recorder')
               and state in (STATE_DONE, STATE_ABORTED, STATE_FAILED)):
             self.report(STATE_DONE, 'rig finished', **self.final_counts())
             self.finish(0)
@@ -297,28 +383,49 @@ def main_for(factory: Callable[[], SeftNode], name: str, args=None) -> int:
 
     Uses rclpy's ``EventsExecutor`` (about twice the lockstep rate of the default executor
     on two cores). It cannot be stopped from inside a callback, so the node sets ``done``
-    and this loop stops spinning.
+    and this loop stops spinning. A node with a schedule (:meth:`SeftNode.next_due`) gets its
+    :meth:`SeftNode.run_due` called from this loop at absolute deadlines.
     """
     rclpy.init(args=args)
     node = None
     code = 0
     try:
         node = factory()
+        node.apply_priority()
         executor = EventsExecutor()
         executor.add_node(node)
         while not node.done:
-            executor.spin_once(timeout_sec=0.1)
+            due = node.next_due()
+            if due is None:
+                executor.spin_once(timeout_sec=0.1)
+                continue
+            wait = due - time.monotonic()
+            if wait > 0:
+                executor.spin_once(timeout_sec=min(wait, 0.1))
+            else:
+                node.run_due()
         code = node.exit_code
         # linger, so that the last samples and the final status reach their subscribers: with a
         # recorder in the graph, until it has closed the bag (a publisher that exits earlier
         # takes its unsent samples with it)
         start = time.monotonic()
+        heard_at = None
         while True:
-            waited = time.monotonic() - start
-            if waited > (RECORDER_WAIT_S if node.recorder_ready else LINGER_S):
-                break
-            if node.recorder_ready and node.recorder_closed and waited > 0.2:
-                break
+            now = time.monotonic()
+            waited = now - start
+            if node.refused:
+                # a refusal: until every node of the graph has heard it (a node started later
+                # names the mismatch too, instead of waiting for a graph that is gone)
+                if heard_at is None and node.refusal_heard():
+                    heard_at = now
+                if waited > RECORDER_WAIT_S or (heard_at is not None
+                                                and now - heard_at > LINGER_S):
+                    break
+            else:
+                if waited > (RECORDER_WAIT_S if node.recorder_ready else LINGER_S):
+                    break
+                if node.recorder_ready and node.recorder_closed and waited > 0.2:
+                    break
             executor.spin_once(timeout_sec=0.05)
     except (KeyboardInterrupt, ExternalShutdownException):
         code = 0 if node is None else node.exit_code

@@ -120,6 +120,10 @@ SCHEMA: tuple[ParamSpec, ...] = (
               "the run equals seft simulate bit for bit) or 'realtime' (the rig ticks on the "
               'wall clock every dt, the other nodes act on message arrival with the latest '
               'inputs and nobody waits).', choices=('lockstep', 'realtime'), nodes=_ALL),
+    ParamSpec('realtime_priority', 0, '', "Real-time mode: SCHED_FIFO priority of the node's "
+              'process (1-99; 0: the normal scheduler). Needs root or CAP_SYS_NICE; where it is '
+              'refused the node warns and keeps the normal scheduler. Per node.', 0, 99,
+              nodes=_ALL),
     ParamSpec('n_steps', 0, '', 'Number of control steps of the run (0: the whole prepared '
               'record); set by the runner.', 0, None, nodes=_ALL),
     # -- ground motion ----------------------------------------------------------------------
@@ -246,12 +250,12 @@ SCHEMA: tuple[ParamSpec, ...] = (
               'actuator force on the delay rig, the valve opening on the servohydraulic rig) '
               'is ramped linearly to zero over this time, then held at zero (valve closed).',
               0.0, 10.0, True, nodes=_RIG),
-    ParamSpec('realtime_output', 'latched', '', "Real-time mode: when the rig applies the "
-              "command computed from sample k. 'latched': at t_k + io_latency_s (tau_s on the "
-              'delay rig), as the lockstep rig does, or on arrival if it arrives later; '
-              "'on_arrival': on arrival plus the modelled hardware part io_latency_s - dt "
-              '(tau_s - dt), so the measured loop latency replaces one control period of '
-              'computation.', choices=('latched', 'on_arrival'), nodes=_RIG),
+    ParamSpec('realtime_output', 'latched', '', 'Real-time mode: when the rig outputs the '
+              "command computed from sample k. 'latched': at the next tick t_k+1 (the lockstep "
+              "timing), or on arrival if it comes later; 'on_arrival': on arrival. Either way it "
+              'reaches the actuator after the hardware latency io_latency_s - dt '
+              '(servohydraulic) or tau_s (delay rig).', choices=('latched', 'on_arrival'),
+              nodes=_RIG),
     ParamSpec('realtime_substep_s', 1e-4, 's', "Real-time mode: sub-step of the rig's plant "
               'integration between ticks (command changes are applied on this grid).', 1e-6,
               1.0, True, nodes=_RIG),
@@ -371,7 +375,7 @@ def resolve(overrides: Mapping[str, Any] | Iterable[tuple[str, Any]] = (), *,
 #: Parameters that are legitimately set per node and never compared between nodes
 #: (``use_sim_time`` is rclpy's, not the schema's).
 PER_NODE = frozenset({'bag_path', 'bag_storage', 'wait_for_recorder', 'recorder_window_steps',
-                      'use_sim_time'})
+                      'use_sim_time', 'realtime_priority'})
 
 
 def _node_rank(node: str) -> tuple[int, str]:

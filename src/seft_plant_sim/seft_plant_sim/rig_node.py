@@ -1,21 +1,24 @@
 """rig node: the simulated actuator + specimen, master of the clock.
 
 **Lockstep mode** (``mode: lockstep``): at each step k the rig checks its safety limits,
-publishes ``/clock`` = t_k and the sensor readings stamped t_k, then waits for the command of
+publishes the sensor readings stamped t_k and ``/clock`` = t_k, then waits for the command of
 step k (the valve command of the force servo controller, or the reference force for the
 'delay' rig), applies it over the step and moves to k+1.
 
-**Real-time mode** (``mode: realtime``): the rig ticks on the wall clock (a steady-clock ROS
-timer every dt). At each tick it integrates its plant up to the tick with the commands that
-have arrived, each acting from its arrival as :class:`~seft_plant_sim.realtime.WallClockRig`
-says, samples and publishes its sensors, and publishes one timing record per sample on
-``/seft/timing/rig`` (period jitter, compute time, age of the command in effect, missed
+**Real-time mode** (``mode: realtime``): the rig ticks on the wall clock at the absolute
+instants ``t0 + k dt`` (``main_for`` waits for events until the next one: an rclpy timer
+drifts, see :meth:`~seft_msgs_py.node_support.SeftNode.next_due`). At each tick it integrates
+its plant up to the tick with the commands that have arrived, each acting from its arrival as
+:class:`~seft_plant_sim.realtime.WallClockRig` says, samples and publishes its sensors, and
+publishes one timing record per sample on ``/seft/timing/rig`` (period jitter, here the tick's
+lateness against its absolute schedule; compute time, age of the command in effect, missed
 deadline, stale command, loop latency). A tick that ran late by more than a period is caught
 up at once (never skipped) and counts as a missed deadline. It never waits: a command that has
 not arrived is simply not applied yet (a *stale command*). Watchdog: when no command has
 arrived for ``watchdog_timeout_s``, and on any abort (limits, another node's abort), the rig
 goes to its safe state: the command ramps to zero over ``safe_ramp_s`` while the rig keeps
-sampling, then the run ends aborted with the reason and the time it happened.
+sampling (and ``SAFE_HOLD_S`` after), then the run ends aborted with the reason and the time
+it happened.
 
 Start (both modes): once the command publisher is discovered, the recorder subscribes (if
 ``wait_for_recorder``), and the parameters of every node of the graph are in and agree (each
@@ -30,8 +33,6 @@ Run by hand: ``ros2 run seft_plant_sim rig --ros-args --params-file config/defau
 import math
 import sys
 import time
-
-from rclpy.clock import Clock, ClockType
 
 from seft_msgs_py.convert import (
     STATE_ABORTED,
@@ -63,6 +64,8 @@ __all__ = ['RigNode', 'main', 'graph_nodes']
 
 #: Sim-time interval of progress reports [steps].
 PROGRESS_EVERY = 250
+#: Real-time mode: how long the rig keeps sampling its safe state after the ramp [s].
+SAFE_HOLD_S = 0.05
 
 
 def graph_nodes(params) -> tuple[str, ...]:
@@ -115,9 +118,8 @@ class RigNode(SeftNode):
             self.early_commands = []         # (stamp, value) received before the start
             self.abort_reason = None
             self.abort_at_s = None
-            self.last_tick_at = None
+            self.safe_since = None           # plant time the safe ramp ended [s]
             self.timing_pending = {}         # sample -> record fields without the latency
-            self.tick_timer = None
         self.start_timer = self.wall_timer(0.05, self._try_start)
         self.publish_parameters()
         self.report(STATE_READY, 'waiting for the graph: ' + ', '.join(self.graph),
@@ -158,6 +160,8 @@ class RigNode(SeftNode):
         return True
 
     def _on_status(self, msg) -> None:
+        if self.refused_by_another_node(msg):
+            return
         values = status_values(msg)
         state = values.get('state')
         if msg.name == 'recorder':
@@ -203,15 +207,16 @@ class RigNode(SeftNode):
         k = self.rig.step
         stamp = k * self.dt_ns
         m = self.rig.measure()
+        pubs, msgs = self.pubs, self.msgs
+        # the measured force first: the force servo controller acts on it
+        for name, value in ((MEASURED_FORCE.name, m.force_N),
+                            (ACCELERATION.name, m.acceleration_m_s2),
+                            (DISPLACEMENT.name, m.displacement_m),
+                            (VELOCITY.name, m.velocity_m_s)):
+            pubs[name].publish(msgs[name](stamp, value))
         self.clock_msg.clock.sec = int(stamp // 1_000_000_000)
         self.clock_msg.clock.nanosec = int(stamp % 1_000_000_000)
         self.clock_pub.publish(self.clock_msg)
-        pubs, msgs = self.pubs, self.msgs
-        for name, value in ((MEASURED_FORCE.name, m.force_N),
-                            (DISPLACEMENT.name, m.displacement_m),
-                            (VELOCITY.name, m.velocity_m_s),
-                            (ACCELERATION.name, m.acceleration_m_s2)):
-            pubs[name].publish(msgs[name](stamp, value))
         self.published = k + 1
         if k % PROGRESS_EVERY == 0:
             extra = {'t0_ns': self.t0_ns} if self.realtime else {}
@@ -240,10 +245,17 @@ class RigNode(SeftNode):
         self.early_commands = []
         self.report(STATE_RUNNING, step=0, n_steps=self.n_steps, time_s='0.000',
                     t0_ns=self.t0_ns)
-        self.last_tick_at = self.t0
         self._sample_realtime(self.t0, self.t0)
-        self.tick_timer = self.create_timer(self.rig.dt, self.guard(self._tick),
-                                            clock=Clock(clock_type=ClockType.STEADY_TIME))
+
+    def next_due(self) -> float | None:
+        """Real time, running: the instant of the next tick (absolute schedule t0 + k dt)."""
+        if not (self.realtime and self.running) or self.t0 is None:
+            return None
+        return self.t0 + (self.rig.step + 1) * self.rig.dt
+
+    def run_due(self) -> None:
+        """The next tick is due: catch up with the wall clock."""
+        self.guard(self._tick)()
 
     def _on_command_realtime(self, msg) -> None:
         now = time.monotonic()
@@ -276,9 +288,12 @@ class RigNode(SeftNode):
             return
         if rig.in_safe_state:
             if rig.safe_ramp_done:
-                self._flush_timing(final=True)
-                self._end(STATE_ABORTED, self.abort_reason)
-                return
+                if self.safe_since is None:
+                    self.safe_since = rig.time_s
+                elif rig.time_s - self.safe_since >= SAFE_HOLD_S - 1e-9:
+                    self._flush_timing(final=True)
+                    self._end(STATE_ABORTED, self.abort_reason)
+                    return
         else:
             reason = rig.limit_violation()
             if reason is None and start - self.last_command_at > self.watchdog_s:
@@ -296,8 +311,7 @@ class RigNode(SeftNode):
         self._publish_sample()
         done = time.monotonic()
         scheduled = self.t0 + k * rig.dt
-        jitter = math.nan if k == 0 else (now - self.last_tick_at) - rig.dt
-        self.last_tick_at = now
+        jitter = now - scheduled         # the tick's lateness against the absolute schedule
         held = rig.held_source
         age = now - (self.t0 + held * rig.dt) if held >= 0 else math.nan
         self.timing_pending[k] = (jitter, done - start, age, now - scheduled >= rig.dt,
@@ -330,8 +344,6 @@ class RigNode(SeftNode):
             return
         k = self.rig.step
         self.running = False
-        if self.realtime and self.tick_timer is not None:
-            self.tick_timer.cancel()
         if state == STATE_ABORTED:
             self.get_logger().error(f'run aborted at step {k}: {message}')
         else:

@@ -10,6 +10,7 @@ command publisher. The run is over when the recorder reports the bag 'closed'.
 """
 
 from dataclasses import dataclass
+import json
 import os
 from pathlib import Path
 import signal
@@ -22,6 +23,7 @@ import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
+from seft_msgs_py import parameters
 from seft_msgs_py.convert import (
     STATE_ABORTED,
     STATE_CLOSED,
@@ -32,7 +34,7 @@ from seft_msgs_py.convert import (
     status_values,
 )
 from seft_msgs_py.errors import SeftError
-from seft_msgs_py.topics import STATUS, TOPICS
+from seft_msgs_py.topics import NODE_PARAMETERS, STATUS, TOPICS
 from seft_ros.cli.config import write_params_file
 
 __all__ = ['NODE_MODULES', 'RunOutcome', 'GraphRunner', 'node_command']
@@ -95,6 +97,9 @@ class GraphRunner:
         self.executor.add_node(self.node)
         self.statuses = []
         self.node.create_subscription(STATUS.msg_type, STATUS.name, self._on_status, STATUS.qos)
+        self.node_params: dict[str, dict] = {}
+        self.node.create_subscription(NODE_PARAMETERS.msg_type, NODE_PARAMETERS.name,
+                                      self._on_node_parameters, NODE_PARAMETERS.qos)
 
     def busy_topics(self, settle_s: float = 1.0) -> list[str]:
         """The seft topics that already have publishers in this domain (another run?).
@@ -115,6 +120,25 @@ class GraphRunner:
         values = status_values(msg)
         values.update(name=msg.name, message=msg.message, received=time.monotonic())
         self.statuses.append(values)
+
+    def _on_node_parameters(self, msg) -> None:
+        try:
+            data = json.loads(msg.data)
+            self.node_params[str(data['node'])] = dict(data['parameters'])
+        except (ValueError, KeyError, TypeError):
+            return
+
+    def _check_parameters(self) -> None:
+        """Stop when the nodes resolved different values of a shared parameter.
+
+        Each differing parameter is shown on one line (the nodes print the same lines).
+        """
+        lines = parameters.shared_mismatches(self.node_params)
+        if lines:
+            for line in lines:
+                self.progress(line)
+            raise SeftError(f'{len(lines)} shared parameter(s) differ between the nodes '
+                            '(listed above); nothing was run')
 
     def _spin(self, seconds: float) -> None:
         deadline = time.monotonic() + seconds
@@ -153,6 +177,7 @@ class GraphRunner:
         nodes.append('rig')
         env = dict(self.env, ROS_LOG_DIR=str(log_dir / 'ros'))
         self.statuses.clear()
+        self.node_params.clear()
         procs: dict[str, subprocess.Popen] = {}
         logs = {}
         start = time.monotonic()
@@ -190,6 +215,7 @@ class GraphRunner:
     def _wait_ready(self, names, procs, log_dir) -> None:
         deadline = time.monotonic() + STARTUP_TIMEOUT_S
         while not all(self._latest(n, (STATE_READY, STATE_RUNNING)) for n in names):
+            self._check_parameters()
             self._check_procs(procs, log_dir)
             for n in names:
                 if procs[n].poll() == 0 and not self._latest(n):
@@ -208,6 +234,7 @@ class GraphRunner:
         t0 = time.monotonic()
         while True:
             self._spin(0.1)
+            self._check_parameters()
             self._check_procs(procs, log_dir)
             new = self.statuses[seen:]
             seen = len(self.statuses)

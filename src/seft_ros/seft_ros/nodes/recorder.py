@@ -135,10 +135,11 @@ class RecorderNode(SeftNode):
         if name == MEASURED_FORCE.name:
             self.latest_ns = stamp
         self._write(name, stamp, raw)
-        recorded = min(self.counts[n] for n in _LOCKSTEP)
-        if recorded >= self.acked + ACK_EVERY:
-            self.acked = recorded
-            self.report(STATE_RECORDING, recorded=recorded)
+        if name in _LOCKSTEP and self.counts[name] >= self.acked + ACK_EVERY:
+            recorded = min(self.counts[n] for n in _LOCKSTEP)   # only now and then
+            if recorded >= self.acked + ACK_EVERY:
+                self.acked = recorded
+                self.report(STATE_RECORDING, recorded=recorded)
 
     def _on_unstamped(self, name: str, raw: bytes) -> None:
         self._write(name, self.latest_ns, raw)

@@ -1,0 +1,180 @@
+"""The node graph in real-time mode, started by ``seft run --mode realtime``, checked from its
+bag on disk: a short run at 500 Hz that must complete with every step of every per-step topic
+recorded and its timing in the summary, and a frozen node that the rig's watchdog must catch.
+
+Timing targets live in ``benchmarks/realtime_graph.py``, not here: on a shared machine a test
+may be slow, never wrong. The runs therefore use α small enough to stay stable with any loop
+latency a loaded machine produces, and the completeness run widens the watchdog.
+"""
+
+import json
+import os
+from pathlib import Path
+import signal
+import subprocess
+import time
+
+import numpy as np
+import pytest
+from test_node_graph_integration import DATA, leftover_processes, read_bag, stamps_ns
+
+from seft_msgs_py.convert import status_values
+from seft_ros.analysis.bag import read_run
+
+DT_NS = 2_000_000
+
+
+@pytest.fixture(scope='module')
+def rt_dir(tmp_path_factory):
+    return tmp_path_factory.mktemp('realtime')
+
+
+@pytest.fixture(scope='module')
+def rt_run(rt_dir, seft_exe, run_process):
+    out = rt_dir / 'servo'
+    proc = run_process([seft_exe, 'run', '--mode', 'realtime', '--alpha', '0.25',
+                        '--duration', '3', '--amplitude', '400', '--set',
+                        'watchdog_timeout_s=0.5', '--out', out], cwd=rt_dir, timeout=150)
+    assert proc.returncode == 0, proc.stderr
+    assert 'Traceback' not in proc.stderr
+    assert leftover_processes(str(out)) == []
+    bag = next(out.glob('*/bag'))
+    connections, messages = read_bag(bag)
+    return out, proc, bag, connections, messages
+
+
+def test_realtime_run_records_every_step(rt_run):
+    out, proc, bag, connections, messages = rt_run
+    n = 1500
+    for topic in DATA:
+        stamps = stamps_ns(messages[topic])
+        # every step 0..n-1 exactly once (ground acceleration is published ahead, up to n-1)
+        assert sorted(stamps) == [k * DT_NS for k in range(n)], topic
+    rig_final = [status_values(m) | {'message': m.message} for _, m in messages['/seft/status']
+                 if m.name == 'rig' and status_values(m).get('state') == 'done']
+    assert len(rig_final) == 1 and rig_final[0]['mode'] == 'realtime'
+    closed = [status_values(m) for _, m in messages['/seft/status']
+              if m.name == 'recorder' and status_values(m).get('state') == 'closed']
+    assert closed and closed[-1]['lost'] == '0' and closed[-1]['incomplete'] == ''
+
+
+def test_realtime_run_timing_records(rt_run):
+    out, proc, bag, connections, messages = rt_run
+    n = 1500
+    fields = ['period_jitter_s', 'compute_s', 'input_age_s', 'missed_deadline', 'stale',
+              'loop_latency_s']
+    expected = {'rig': n, 'force_servo_controller': n, 'ground_motion_publisher': n,
+                'reference_force_builder': n - 1}       # f_r[0] is built before the clock
+    for node, count in expected.items():
+        entries = messages[f'/seft/timing/{node}']
+        assert connections[f'/seft/timing/{node}'].msgtype == 'sensor_msgs/msg/JointState'
+        assert len(entries) == count, node
+        assert all(list(m.name) == fields for _, m in entries), node
+        stamps = sorted(stamps_ns(entries))
+        assert len(set(stamps)) == count, node
+    rig = np.array([list(m.position) for _, m in messages['/seft/timing/rig']])
+    latency = rig[:, 5]
+    # the command of every sample but possibly the last arrived, after its sample
+    assert np.isfinite(latency[:-1]).all() and (latency[:-1] > 0).all()
+    assert set(np.unique(rig[:, 3])) <= {0.0, 1.0} and set(np.unique(rig[:, 4])) <= {0.0, 1.0}
+    # the rig's own compute time is a fraction of the wall time between its ticks
+    assert (rig[:, 1] > 0).all()
+
+
+def test_realtime_summary_has_the_timing_block(rt_run):
+    out, proc, bag, connections, messages = rt_run
+    entry = json.loads((out / 'summary.json').read_text())['runs'][0]
+    assert entry['mode'] == 'realtime' and entry['stable'] is True
+    assert entry['wall_s'] == pytest.approx(3.0, abs=1.5)
+    timing = entry['timing']
+    for key in ('loop_latency_ms', 'period_jitter_ms'):
+        d = timing[key]
+        assert set(d) >= {'p50', 'p99', 'max'} and 0 < d['p50'] <= d['p99'] <= d['max'], key
+    for key in ('missed_deadline_fraction', 'stale_command_fraction'):
+        assert 0.0 <= timing[key] <= 1.0, key
+    # the summary is computed from the bag: the same numbers as the records there
+    rig = np.array([list(m.position) for _, m in messages['/seft/timing/rig']])
+    assert timing['loop_latency_ms']['p50'] == pytest.approx(
+        1e3 * np.median(rig[np.isfinite(rig[:, 5]), 5]), rel=1e-3)
+    assert timing['stale_command_fraction'] == pytest.approx(np.mean(rig[1:, 4]), abs=1e-6)
+    report = (out / 'report.md').read_text()
+    assert 'Loop latency (ms, p50 / p99 / max)' in report
+    assert (out / 'timing_run_1.png').stat().st_size > 10_000
+    assert 'lat50ms' in proc.stdout
+
+
+def _pid_of(node: str, marker: str) -> int:
+    for pid in os.listdir('/proc'):
+        if not pid.isdigit():
+            continue
+        try:
+            cmd = Path(f'/proc/{pid}/cmdline').read_bytes().replace(b'\0', b' ').decode()
+        except OSError:
+            continue
+        if f'seft_ros.nodes.{node}' in cmd and marker in cmd:
+            return int(pid)
+    raise AssertionError(f'no {node} process for {marker}')
+
+
+def test_watchdog_takes_the_rig_to_its_safe_state(rt_dir, seft_exe, ros_env):
+    """Freeze the reference-force builder (SIGSTOP) on the delay rig: within the 20 ms watchdog
+    the rig ramps the actuator force to zero over safe_ramp_s and the run ends aborted."""
+    out = rt_dir / 'watchdog'
+    proc = subprocess.Popen(
+        [str(seft_exe), 'run', '--mode', 'realtime', '--rig', 'delay', '--alpha', '0',
+         '--duration', '8', '--amplitude', '400', '--set', 'safe_ramp_s=0.1', '--out',
+         str(out)], cwd=rt_dir, env=ros_env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+        text=True, start_new_session=True)
+    frozen = None
+    try:
+        deadline = time.monotonic() + 90
+        rig_log = None
+        while time.monotonic() < deadline:
+            logs = list(out.glob('*/logs/rig.log'))
+            if logs and 'starting (realtime)' in logs[0].read_text():
+                rig_log = logs[0]
+                break
+            time.sleep(0.1)
+        assert rig_log is not None, 'the rig did not start'
+        time.sleep(1.5)
+        frozen = _pid_of('reference_force_builder', str(out))
+        os.kill(frozen, signal.SIGSTOP)
+        time.sleep(0.5)
+        os.kill(frozen, signal.SIGCONT)
+        frozen = None
+        stdout, stderr = proc.communicate(timeout=120)
+    finally:
+        if frozen is not None:
+            os.kill(frozen, signal.SIGCONT)
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    assert proc.returncode == 0, stderr
+    assert 'Traceback' not in stderr
+    entry = json.loads((out / 'summary.json').read_text())['runs'][0]
+    assert entry['stable'] is False
+    assert 1.0 < entry['unstable_at_s'] < 7.0
+    bag = next(out.glob('*/bag'))
+    _, messages = read_bag(bag)
+    final = [(status_values(m), m.message) for _, m in messages['/seft/status']
+             if m.name == 'rig' and status_values(m).get('state') == 'aborted']
+    assert len(final) == 1
+    values, message = final[0]
+    assert message.startswith('watchdog: no /seft/reference_force for ')
+    abort_at = float(values['abort_at_s'])
+    assert abort_at == pytest.approx(entry['unstable_at_s'])
+    # the rig kept sampling through the ramp: force = the last command ramped to zero over
+    # 0.1 s, reaching the specimen tau = 10 ms later; then exactly zero
+    force = {round(s / DT_NS): m.wrench.force.x for s, (_, m) in
+             zip(stamps_ns(messages['/seft/measured_force']), messages['/seft/measured_force'])}
+    k_abort = round(abort_at / 0.002)
+    k_zero = k_abort + round((0.1 + 0.01) / 0.002) + 1
+    after = [force[k] for k in sorted(force) if k >= k_zero]
+    assert after and max(abs(f) for f in after) < 1e-9
+    ramp = np.array([force[k] for k in range(k_abort + 6, k_zero - 1)])
+    assert np.all(np.abs(np.diff(np.abs(ramp))) < 400.0 * 0.002 / 0.1 + 1e-6)
+    assert np.all(np.diff(np.abs(ramp)) <= 1e-9)
+    run = read_run(bag)
+    assert run.stable is False and run.unstable_at_s == pytest.approx(abort_at)
+    assert run.n_steps == round(abort_at / 0.002)
+    assert 'watchdog' in (run.abort_reason or '')
