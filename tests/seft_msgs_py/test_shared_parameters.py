@@ -125,7 +125,7 @@ def test_per_node_and_unknown_names_are_ignored(graph):
                         use_sim_time=False, not_seft=2)
     assert shared_mismatches(graph) == []
     assert PER_NODE == {'bag_path', 'bag_storage', 'wait_for_recorder',
-                        'recorder_window_steps', 'use_sim_time'}
+                        'recorder_window_steps', 'use_sim_time', 'realtime_priority'}
 
 
 def test_unknown_node_names_sort_after_the_graph():
@@ -192,7 +192,8 @@ def test_value_source_of_each_parameter(names, node):
 
 
 def test_value_source_lists_cover_the_schema():
-    assert len(VALUE_SOURCE) == len(SCHEMA) == 17 + 37 + 6 + 3 + 2
+    # + 1: realtime_priority, per node (the rig's value is the one reported)
+    assert len(VALUE_SOURCE) == len(SCHEMA) == 17 + 37 + 6 + 3 + 2 + 1
 
 
 def test_value_source_of_unknown_name_is_an_error():

@@ -462,6 +462,7 @@ _SHARED_SOURCE = {
     'dt': 'rig', 'mode': 'rig', 'n_steps': 'rig',  # the rig is the clock
     'mass_kg': 'rig', 'stiffness_N_per_m': 'rig', 'damping_N_s_per_m': 'rig',  # the specimen
     'rig_model': 'rig',
+    'realtime_priority': 'rig',             # per node; the rig's is the clock's
 }
 
 
