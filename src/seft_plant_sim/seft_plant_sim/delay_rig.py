@@ -6,6 +6,7 @@ import numpy as np
 
 from seft_msgs_py.errors import ParameterError
 from seft_plant_sim.interface import COMMAND_FORCE, Measurement
+from seft_plant_sim.sampling import linear_map as _linear_map
 from seft_plant_sim.sampling import split_delay
 from seft_plant_sim.sampling import zoh as _zoh
 from seft_plant_sim.sensors import Sensors
@@ -93,11 +94,15 @@ class DelayRig:
             self._state = [0.0, 0.0, 0.0]                  # [x, x', z]
             return
         a, b = specimen.state_space()
-        self._phi, _ = _zoh(a, b, self.dt)
-        phi_rest, self._gamma_late = _zoh(a, b, self.dt - delta)
+        phi, _ = _zoh(a, b, self.dt)
+        phi_rest, gamma_late = _zoh(a, b, self.dt - delta)
         _, gamma_early = _zoh(a, b, delta)
-        self._gamma_early = phi_rest @ gamma_early
-        self._state = np.zeros(2)
+        # [x, v](t_k+1) = [phi, gamma_early, gamma_late] [x, v, f_early, f_late](t_k)
+        self._advance = _linear_map(np.hstack([phi, phi_rest @ gamma_early, gamma_late]),
+                                    name='advance')
+        self._state = (0.0, 0.0)                           # [x, x']
+        self._coef = (specimen.damping_N_s_per_m, specimen.stiffness_N_per_m,
+                      specimen.mass_kg)
 
     @classmethod
     def from_parameters(cls, params, *, rk4_substeps: int = 10) -> 'DelayRig':
@@ -112,15 +117,14 @@ class DelayRig:
 
     def _forces(self, newest: float):
         """(force over the early part, force over the late part) of the current step."""
-        hist = list(self._history) + [newest]          # f_r[k-n-1] ... f_r[k]
-        return hist[0], hist[1]                         # f_r[k-n-1], f_r[k-n]
+        hist = self._history                            # f_r[k-n-1] ... f_r[k-1]
+        return hist[0], (hist[1] if self._n >= 1 else newest)   # f_r[k-n-1], f_r[k-n]
 
     def _force_now(self) -> float:
         """Actuator force at t_k+ = f_r(t_k - tau)."""
-        hist = list(self._history)                      # f_r[k-n-1] ... f_r[k-1]
         if self._delta == 0.0:
-            return hist[1] if self._n >= 1 else float('nan')
-        return hist[0]
+            return self._history[1] if self._n >= 1 else float('nan')
+        return self._history[0]
 
     @property
     def time_s(self) -> float:
@@ -143,28 +147,30 @@ class DelayRig:
             x, v, z = self._state
             a = self.specimen.acceleration(x, v, z, f)
         else:
-            x, v = self._state
-            a = self.specimen.acceleration(x, v, f)
-        return self.sensors.read(self.step, self.time_s, x, v, a, f)
+            s = self._state
+            x, v = s[0], s[1]
+            c, k, m = self._coef
+            a = (f - c * v - k * x) / m             # LinearSpecimen.acceleration (Eq. 5.1)
+        step = self.step
+        return self.sensors.read(step, step * self.dt, x, v, a, f)
 
     def apply(self, command: float) -> None:
         """Hold the reference force `command` [N] over the current step and advance."""
-        f_early, f_late = self._forces(float(command))
+        f = float(command)
+        f_early, f_late = self._forces(f)
         if self._hysteretic:
             n_early, h_early, n_late, h_late = self._substeps
             s = rk4_hysteretic(self._rk4, self._state, f_early, h_early, n_early)
             self._state = rk4_hysteretic(self._rk4, s, f_late, h_late, n_late)
-            self._history.append(float(command))
-            self.step += 1
-            return
-        self._state = (self._phi @ self._state + self._gamma_early[:, 0] * f_early
-                       + self._gamma_late[:, 0] * f_late)
-        self._history.append(float(command))
+        else:
+            s = self._state
+            self._state = self._advance((s[0], s[1], f_early, f_late))
+        self._history.append(f)
         self.step += 1
 
     def limit_violation(self) -> str | None:
         """Stroke/force limit check on the true state at the current sample."""
-        return self.limits.violation(self.time_s, float(self._state[0]), self._force_now())
+        return self.limits.violation(self.step * self.dt, self._state[0], self._force_now())
 
 
 def _hysteretic_step(specimen: BoucWenSpecimen):

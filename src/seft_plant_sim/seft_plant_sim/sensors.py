@@ -1,12 +1,26 @@
 """Sensor models of the rig: additive Gaussian noise (seeded) and range clipping."""
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 
 from seft_plant_sim.interface import Measurement
 
 __all__ = ['Sensors']
+
+_FIELDS = ('step', 'time_s', 'displacement_m', 'velocity_m_s', 'acceleration_m_s2', 'force_N')
+
+
+def _plain_measurement() -> bool:
+    """Whether :class:`Measurement` can be built by filling its ``__dict__`` (see read)."""
+    return ('__slots__' not in Measurement.__dict__
+            and not hasattr(Measurement, '__post_init__')
+            and tuple(f.name for f in fields(Measurement)) == _FIELDS)
+
+
+#: Build readings without the frozen dataclass ``__init__`` (see :meth:`Sensors.read`).
+_FILL_DICT = _plain_measurement()
+_new = object.__new__
 
 
 @dataclass
@@ -40,6 +54,8 @@ class Sensors:
         self._sigma = np.array([self.noise_force_N, self.noise_displacement_m,
                                 self.noise_velocity_m_s, self.noise_acceleration_m_s2])
         self._noisy = bool(np.any(self._sigma > 0))
+        r = self.acceleration_range_m_s2
+        self._range = None if r is None else float(r)
 
     @classmethod
     def from_parameters(cls, params, acceleration_range_m_s2=None) -> 'Sensors':
@@ -50,12 +66,33 @@ class Sensors:
 
     def read(self, step: int, time_s: float, displacement_m: float, velocity_m_s: float,
              acceleration_m_s2: float, force_N: float) -> Measurement:
-        """Return the readings of the true values at one sample."""
+        """Return the readings of the true values at one sample.
+
+        The readings are Python floats if the true values are (the rigs pass floats).
+        """
         f, x, v, a = force_N, displacement_m, velocity_m_s, acceleration_m_s2
         if self._noisy:
             e = self._rng.standard_normal(4) * self._sigma
-            f, x, v, a = f + e[0], x + e[1], v + e[2], a + e[3]
-        if self.acceleration_range_m_s2 is not None:
-            r = self.acceleration_range_m_s2
-            a = min(max(a, -r), r)
-        return Measurement(step, time_s, float(x), float(v), float(a), float(f))
+            f, x, v, a = (float(f + e[0]), float(x + e[1]), float(v + e[2]),
+                          float(a + e[3]))
+        r = self._range
+        if r is not None:
+            if a > r:               # min(max(a, -r), r); NaN passes through
+                a = r
+            elif a < -r:
+                a = -r
+        if not _FILL_DICT:
+            return Measurement(step, time_s, x, v, a, f)
+        # A frozen dataclass sets each field through object.__setattr__: about 1.2 us for a
+        # Measurement, a fifth of a simulated step. Filling the new instance's __dict__ gives
+        # the same object (equal, hashable, dataclasses.replace works) in 0.45 us; only while
+        # Measurement is a plain frozen dataclass of these fields without __post_init__.
+        m = _new(Measurement)
+        d = m.__dict__
+        d['step'] = step
+        d['time_s'] = time_s
+        d['displacement_m'] = x
+        d['velocity_m_s'] = v
+        d['acceleration_m_s2'] = a
+        d['force_N'] = f
+        return m

@@ -382,7 +382,10 @@ class SafetyLimits:
 
     def violation(self, time_s: float, displacement_m: float, force_N: float) -> str | None:
         """Return a one-line reason if a limit is exceeded, else None."""
-        if not (np.isfinite(displacement_m) and np.isfinite(force_N)):
+        stroke, force = self.stroke_limit_m, self.force_limit_N
+        if -stroke <= displacement_m <= stroke and -force <= force_N <= force:
+            return None                 # the common case (false for NaN)
+        if not (math.isfinite(displacement_m) and math.isfinite(force_N)):
             return f'non-finite rig state at t={time_s:.3f} s'
         if abs(displacement_m) > self.stroke_limit_m:
             return (f'stroke limit exceeded at t={time_s:.3f} s: |x|={abs(displacement_m):.4g} m'

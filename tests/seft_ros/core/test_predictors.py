@@ -132,6 +132,37 @@ def test_impulse_matching_solves_its_algebraic_loop():
     assert a_hat == pytest.approx((r @ s_hat + model.q * force) / DT, rel=1e-12)
 
 
+@pytest.mark.parametrize('tau', [0.01, 0.0093])
+def test_pole_matching_prediction_is_the_gain_law(tau):
+    """predict() (one precomputed row) equals F = beta G - K s_hat from its parts, also
+    while fewer forces than the model needs were sent (rest before t = 0)."""
+    model = DelayImpulseModel(M, C, K, DT, tau)
+    alpha = 1.3
+    p = ModelPredictor(model, alpha, M)
+    gain, beta = model.matching_gains(alpha)
+    rng = np.random.default_rng(6)
+    hist = []
+    for k in range(20):
+        x, v, ground = rng.standard_normal() * 1e-3, rng.standard_normal() * 0.05, \
+            rng.standard_normal() * 200.0
+        past = np.array(([0.0] * (model.n + 2) + hist)[-(model.n + 2):])
+        force = beta * ground - gain @ model.state_ahead(x, v, past)
+        a_hat = p.predict(meas(k, x=x, v=v), hist, ground)
+        assert a_hat == pytest.approx((ground - force) / (alpha * M), rel=1e-11, abs=1e-9)
+        hist.append(rng.standard_normal() * 300.0)
+    assert p.predict(meas(20), np.array(hist), 0.0) == pytest.approx(p.predict(meas(20), hist,
+                                                                              0.0), rel=1e-15)
+
+
+def test_force_loop_inverse_step_is_the_fir():
+    y = np.zeros(100)
+    y[3:8] = [0.1, 0.4, 0.3, 0.15, 0.03]
+    inv = ForceLoopInverse(y, DT, 4, 12)
+    f = np.random.default_rng(1).standard_normal(60) * 500.0
+    got = [inv.step(v) for v in f.tolist()]
+    np.testing.assert_allclose(got, np.convolve(inv.taps, f)[:60], rtol=0, atol=1e-12 * 500)
+
+
 @pytest.mark.parametrize('alpha', [0.0, 0.5, 3.0])
 def test_pole_matching_gives_the_sampled_reference_poles(alpha):
     model = DelayImpulseModel(M, C_2PCT, K, DT, 0.01)

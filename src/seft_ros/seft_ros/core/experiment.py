@@ -15,7 +15,6 @@ One step k (the node that does it in the graph in brackets)::
 ``f_r[0]`` is built from ``xg''[0]`` with the specimen at rest.
 """
 
-from dataclasses import dataclass
 import time
 from typing import Callable
 
@@ -25,13 +24,14 @@ from seft_msgs_py import parameters
 from seft_msgs_py.errors import ParameterError
 from seft_plant_sim.interface import COMMAND_VALVE
 from seft_plant_sim.rigs import make_rig
+from seft_plant_sim.sampling import single_blas_thread
 from seft_ros.analysis.rundata import RunData
 from seft_ros.core.controller import ForceServoController, SaturationInterlock
 from seft_ros.core.ground_motion import GroundMotion, load_record, prepare
 from seft_ros.core.monitor import InstabilityMonitor
-from seft_ros.core.reference_force import ReferenceForceBuilder, ground_window
+from seft_ros.core.reference_force import ReferenceForceBuilder
 
-__all__ = ['prepared_record', 'simulate', 'StepRecord']
+__all__ = ['prepared_record', 'simulate']
 
 
 def prepared_record(params) -> GroundMotion:
@@ -56,18 +56,6 @@ def prepared_record(params) -> GroundMotion:
                 '(the prepared record length)')
         gm = GroundMotion(gm.dt, gm.acceleration_m_s2[:n], gm.name, gm.source)
     return gm
-
-
-@dataclass
-class StepRecord:
-    """Preallocated per-step arrays of a run, shape (N,)."""
-
-    fr: np.ndarray
-    fm: np.ndarray
-    x: np.ndarray
-    v: np.ndarray
-    a: np.ndarray
-    u: np.ndarray
 
 
 def simulate(params, *, progress: Callable[[int, int], None] | None = None,
@@ -97,55 +85,72 @@ def simulate(params, *, progress: Callable[[int, int], None] | None = None,
     gm = record if record is not None else prepared_record(params)
     ag = gm.acceleration_m_s2
     n_total = ag.shape[0]
-    rig = make_rig(params)
-    builder = ReferenceForceBuilder.from_parameters(params)
-    valve = rig.command_kind == COMMAND_VALVE
-    ctrl = ForceServoController.from_parameters(params) if valve else None
-    interlock = SaturationInterlock.from_parameters(params) if valve else None
-    monitor = InstabilityMonitor.from_parameters(params)
-    rec = StepRecord(*(np.full(n_total, np.nan) for _ in range(6)))
-    reason = None
-    n_done = n_total
-    look = builder.lookahead_steps
-
-    def ground(j):
-        return ground_window(ag.__getitem__, j, look, n_total)
-
-    fr = builder.step(ground(0), None)
-    t_last = time.monotonic()
-    for k in range(n_total):
-        reason = rig.limit_violation()
-        if reason:
-            n_done = k
-            break
-        meas = rig.measure()
+    with single_blas_thread():                 # see there: faster set-up, no spinning threads
+        rig = make_rig(params)
+        builder = ReferenceForceBuilder.from_parameters(params)
+        valve = rig.command_kind == COMMAND_VALVE
+        ctrl = ForceServoController.from_parameters(params) if valve else None
+        interlock = SaturationInterlock.from_parameters(params) if valve else None
+        monitor = InstabilityMonitor.from_parameters(params)
+        reason = None
+        n_done = n_total
+        look = builder.lookahead_steps
+        # the ground window xg''[j..j+look] of every step as a slice (the numbers of
+        # reference_force.ground_window: the record as Python floats, zeros after its end)
+        padded = ag.tolist() + [0.0] * (look + 1)
+        # per-step signals as Python lists (a list store is a few times cheaper than an array's)
+        fr_rec, fm_rec, u_rec, x_rec, v_rec, a_rec = ([] for _ in range(6))
+        # bound methods and attributes looked up once (the per-step calls are the nodes' calls)
+        limit_violation, measure, apply = rig.limit_violation, rig.measure, rig.apply
+        build = builder.step
+        watch = monitor.update
         if valve:
-            u = ctrl.step(fr, meas.force_N)
-            reason = interlock.update(ctrl.saturated, meas.time_s)
+            control, interlock_update = ctrl.step, interlock.update
+
+        fr = build(padded[0:1 + look], None)
+        t_last = time.monotonic()
+        for k in range(n_total):
+            reason = limit_violation()
             if reason:
                 n_done = k
                 break
-        else:
-            u = fr
-        rec.fr[k], rec.fm[k], rec.u[k] = fr, meas.force_N, u
-        rec.x[k], rec.v[k], rec.a[k] = (meas.displacement_m, meas.velocity_m_s,
-                                        meas.acceleration_m_s2)
-        rig.apply(u)
-        if k + 1 < n_total:
-            reason = monitor.update(meas.force_N, builder.last_ground_force_N, meas.time_s)
-            if reason:
-                n_done = k + 1
-                break
-            fr = builder.step(ground(k + 1), meas)
-        if progress is not None and time.monotonic() - t_last > 0.5:
-            t_last = time.monotonic()
-            progress(k + 1, n_total)
+            meas = measure()
+            fm = meas.force_N
+            if valve:
+                u = control(fr, fm)
+                reason = interlock_update(ctrl.saturated, meas.time_s)
+                if reason:
+                    n_done = k
+                    break
+            else:
+                u = fr
+            fr_rec.append(fr)
+            fm_rec.append(fm)
+            u_rec.append(u)
+            x_rec.append(meas.displacement_m)
+            v_rec.append(meas.velocity_m_s)
+            a_rec.append(meas.acceleration_m_s2)
+            apply(u)
+            if k + 1 < n_total:
+                reason = watch(fm, builder.last_ground_force_N, meas.time_s)
+                if reason:
+                    n_done = k + 1
+                    break
+                fr = build(padded[k + 1:k + 2 + look], meas)
+            if progress is not None and not k & 255 and time.monotonic() - t_last > 0.5:
+                t_last = time.monotonic()
+                progress(k + 1, n_total)
     n = n_done
     dt = float(params['dt'])
+
+    def signal(values):
+        return np.array(values[:n], dtype=float)
+
     return RunData(
         params=dict(params), time_s=np.arange(n) * dt,
-        ground_acceleration_m_s2=np.array(ag[:n]), reference_force_N=rec.fr[:n],
-        measured_force_N=rec.fm[:n], displacement_m=rec.x[:n], velocity_m_s=rec.v[:n],
-        acceleration_m_s2=rec.a[:n], valve_command_V=rec.u[:n] if valve else None,
+        ground_acceleration_m_s2=np.array(ag[:n]), reference_force_N=signal(fr_rec),
+        measured_force_N=signal(fm_rec), displacement_m=signal(x_rec),
+        velocity_m_s=signal(v_rec), acceleration_m_s2=signal(a_rec),
+        valve_command_V=signal(u_rec) if valve else None,
         stable=reason is None, unstable_at_s=None if reason is None else n * dt,
         abort_reason=reason, record_name=gm.name, source='simulate')

@@ -1,5 +1,7 @@
 """Online instability monitor: growing high-frequency oscillation of the measured force."""
 
+import math
+
 import numpy as np
 from scipy import signal
 
@@ -91,14 +93,26 @@ class InstabilityMonitor:
         time_s : float
             Sample time [s], for the message.
         """
-        hf = self._hp.step(measured_force_N)
-        lf = self._lp.step(measured_force_N)
+        x = measured_force_N
+        # the two Butterworth sections (DiscreteFilter.step of a biquad, written out)
+        z = self._hp._z
+        b0, b1, b2, a1, a2 = self._hp._biquad
+        hf = b0 * x + z[0]
+        z[0] = b1 * x - a1 * hf + z[1]
+        z[1] = b2 * x - a2 * hf
+        z = self._lp._z
+        b0, b1, b2, a1, a2 = self._lp._biquad
+        lf = b0 * x + z[0]
+        z[0] = b1 * x - a1 * lf + z[1]
+        z[1] = b2 * x - a2 * lf
         b = self._beta
-        self._ms_hf = b * self._ms_hf + (1.0 - b) * hf * hf
-        self._ms_lf = b * self._ms_lf + (1.0 - b) * lf * lf
-        self.ground_force_scale_N = max(self.ground_force_scale_N, abs(ground_force_N))
-        floor = np.sqrt(self._ms_lf) + 0.05 * self.ground_force_scale_N + self.floor_N
-        self.ratio = np.sqrt(self._ms_hf) / floor if floor > 0 else 0.0
+        ms_hf = self._ms_hf = b * self._ms_hf + (1.0 - b) * hf * hf
+        ms_lf = self._ms_lf = b * self._ms_lf + (1.0 - b) * lf * lf
+        scale = abs(ground_force_N)
+        if scale > self.ground_force_scale_N:
+            self.ground_force_scale_N = scale
+        floor = math.sqrt(ms_lf) + 0.05 * self.ground_force_scale_N + self.floor_N
+        self.ratio = math.sqrt(ms_hf) / floor if floor > 0 else 0.0
         if self.threshold > 0 and self.ratio > self.threshold:
             return (f'unstable at t={time_s:.3f} s: high-frequency oscillation of the measured '
                     f'force, RMS above the cut-off {self.ratio:.2f} x the response band '

@@ -38,6 +38,8 @@ import numpy as np
 
 from seft_msgs_py.errors import ParameterError
 from seft_plant_sim.interface import Measurement
+from seft_plant_sim.sampling import linear_map as _linear_map
+from seft_plant_sim.sampling import single_blas_thread as _single_blas_thread
 from seft_plant_sim.sampling import split_delay as _split_delay
 from seft_plant_sim.sampling import zoh as _zoh
 
@@ -217,6 +219,7 @@ class PolynomialPredictor:
         self.order = int(order)
         self.weights = lagrange_extrapolation_weights(order, tau_s / dt + 1.5)
         self._history = deque([0.0] * (order + 1), maxlen=order + 1)   # newest first
+        self._extrapolate = _linear_map(self.weights, name='extrapolate')
 
     @classmethod
     def from_parameters(cls, params) -> 'PolynomialPredictor':
@@ -229,7 +232,7 @@ class PolynomialPredictor:
         """Return the extrapolated acceleration [m/s^2]."""
         if latest is not None:
             self._history.appendleft(latest.acceleration_m_s2)
-        return float(np.dot(self.weights, self._history))
+        return self._extrapolate(self._history)
 
     def command(self, force_N: float) -> float:
         """The reference force is sent as it is."""
@@ -414,6 +417,16 @@ class ModelPredictor:
         self.delay_s = model.tau_s
         self.dt = model.dt
         self._r = (model.phi - np.eye(2))[1]
+        self._n_past = model.n + 2
+        self._zeros = [0.0] * self._n_past
+        self._feedback = None
+        if matching == 'poles':
+            # K s_hat = K E [x, v] + K H f[k-2-n..k-1], one row of n + 4 numbers per step
+            gain, beta = model.matching_gains(self.alpha)
+            row = gain @ np.hstack([model.E, model.H])
+            self._beta = float(beta)
+            self._kx, self._kv = float(row[0]), float(row[1])
+            self._feedback = _linear_map(row[2:], name='feedback')
 
     @classmethod
     def from_parameters(cls, params) -> 'ModelPredictor':
@@ -449,10 +462,20 @@ class ModelPredictor:
         """Return the fed-back acceleration [m/s^2] (see class notes).
 
         `commanded_N` are the desired forces ``F[0..k-1]`` (before the loop inverse).
+        With pole matching, ``K s_hat = K E [x, v] + K H f`` is one precomputed row (the
+        same numbers within rounding).
         """
         x, v = (0.0, 0.0) if latest is None else (latest.displacement_m, latest.velocity_m_s)
-        s_hat = self.model.state_ahead(x, v, _past(commanded_N, self.model.n + 2))
-        force = self.force(s_hat, ground_force_N)
+        if self._feedback is None:
+            s_hat = self.model.state_ahead(x, v, _past(commanded_N, self.model.n + 2))
+            force = self.force(s_hat, ground_force_N)
+        else:
+            count = self._n_past
+            past = commanded_N[-count:]
+            if len(past) < count:                   # rest before t = 0
+                past = self._zeros[len(past):] + list(past)
+            force = self._beta * ground_force_N - (self._kx * x + self._kv * v
+                                                   + self._feedback(past))
         if self.alpha == 0.0:
             return 0.0
         return (ground_force_N - force) / (self.alpha * self.mass_kg)
@@ -515,14 +538,15 @@ class ForceLoopInverse:
         a = np.vstack([fit.real, fit.imag, reg.real, reg.imag])
         rhs = np.concatenate([target[band].real, target[band].imag,
                               np.zeros(2 * reg.shape[0])])
-        self.taps = np.linalg.lstsq(a, rhs, rcond=None)[0]
+        with _single_blas_thread():               # the same taps on every machine
+            self.taps = np.linalg.lstsq(a, rhs, rcond=None)[0]
         w_f = basis @ self.taps
         low = freq <= 25.0
         self.band_error = float(np.max(np.abs(w_f[low] * t[low] - target[low])))
         self.max_gain = float(np.max(np.abs(w_f)))
         self.delay_steps = int(delay_steps)
-        self._x = deque([0.0] * n_taps, maxlen=n_taps)
-        self._w = [float(w) for w in self.taps]
+        self._x = [0.0] * n_taps                    # newest first
+        self._fir = _linear_map(self.taps, name='fir')
 
     @classmethod
     def from_parameters(cls, params) -> 'ForceLoopInverse':
@@ -544,8 +568,10 @@ class ForceLoopInverse:
 
     def step(self, force_N: float) -> float:
         """Filter one sample of the desired force [N]; return the command [N]."""
-        self._x.appendleft(force_N)
-        return float(sum(w * x for w, x in zip(self._w, self._x)))
+        x = self._x
+        x.insert(0, force_N)
+        x.pop()
+        return self._fir(x)
 
 
 def step_average_force_impulse_response(rig_params, specimen, controller, n: int
@@ -588,19 +614,21 @@ def step_average_force_impulse_response(rig_params, specimen, controller, n: int
     _, g_early = _zoh(a, b, delta)
     g_early = (phi_rest @ g_early)[:, 0]
     g_late = g_late[:, 0]
-    c_force = np.asarray(sys.C)[0]
+    measured_force = _linear_map(np.asarray(sys.C)[0], name='measured_force')
+    advance = _linear_map(np.hstack([phi, g_early[:, None], g_late[:, None]]), name='advance')
     bz, az = np.ravel(controller.bz), np.ravel(controller.az)
     bz, az = bz / az[0], az / az[0]
     nc = max(len(bz), len(az)) - 1
     bz = np.concatenate([bz, np.zeros(nc + 1 - len(bz))])
     az = np.concatenate([az, np.zeros(nc + 1 - len(az))])
+    bz, az = bz.tolist(), az.tolist()
     zc = [0.0] * nc
-    s = np.zeros(ns + 1)
+    s = [0.0] * (ns + 1)
     u_hist = deque([0.0] * (nd + 1), maxlen=nd + 1)
     out = np.zeros(n)
     for j in range(n):
         fr = 1.0 if j == 0 else 0.0
-        e = fr - float(c_force @ s[:ns])
+        e = fr - measured_force(s)
         u = bz[0] * e + (zc[0] if nc else 0.0)
         for i in range(nc):
             nxt = zc[i + 1] if i + 1 < nc else 0.0
@@ -608,7 +636,7 @@ def step_average_force_impulse_response(rig_params, specimen, controller, n: int
         early = u_hist[0]
         late = u_hist[1] if nd >= 1 else u
         w_before = s[ns]
-        s = phi @ s + g_early * early + g_late * late
+        s = list(advance(s + [early, late]))
         u_hist.append(u)
         out[j] = (s[ns] - w_before) / dt
     return out
@@ -753,7 +781,8 @@ class AdaptivePredictor:
             if self._prev is not None:
                 px, pv, j = self._prev
                 y = v - pv - (self._r[0] * px + self._r[1] * pv)
-                self._rows.append((y, _past(self._sent[:j + 1], self.max_n + 2)))
+                count = self.max_n + 2            # _past(self._sent[:j + 1], count)
+                self._rows.append((y, _past(self._sent[max(0, j + 1 - count):j + 1], count)))
                 self._count += 1
                 if (len(self._rows) == self.window
                         and self._count % self.update_steps == 0):

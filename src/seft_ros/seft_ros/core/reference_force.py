@@ -130,6 +130,8 @@ class ReferenceForceBuilder:
         self.ground_preview = bool(ground_preview) and self.dt > 0
         self.commanded_N: list[float] = []
         self.last_ground_force_N = 0.0
+        self._ground_gain = -(1.0 + self.alpha) * self.mass_kg    # G = ground_gain g
+        self._alpha_m = self.alpha * self.mass_kg
         self.lookahead_steps = 0
         if getattr(predictor, 'step_average', False):
             self.lookahead_steps = 1
@@ -163,15 +165,21 @@ class ReferenceForceBuilder:
             The measurement of step k-1 (None for k = 0).
         """
         window = (ground,) if isinstance(ground, (int, float)) else ground
-        if len(window) < self.lookahead_steps + 1:
+        if len(window) <= self.lookahead_steps:
             raise ParameterError(f'ground window of {len(window)} samples: expected '
                                  f'{self.lookahead_steps + 1} (xg[k..k+{self.lookahead_steps}])')
-        m, alpha = self.mass_kg, self.alpha
-        self.last_ground_force_N = -(1.0 + alpha) * m * self.ground(window)
-        a_hat = self.predictor.predict(latest, self.commanded_N, self.last_ground_force_N)
-        force = self.last_ground_force_N - alpha * m * a_hat
+        predictor = self.predictor
+        if not predictor.step_average:             # self.ground(window), written out
+            g = float(window[0])
+        elif self.ground_preview:
+            g = foh_step_average(window, predictor.delay_s / self.dt)
+        else:
+            g = 0.5 * (window[0] + window[1])      # foh_step_average(window, 0.0)
+        ground_force = self.last_ground_force_N = self._ground_gain * g
+        a_hat = predictor.predict(latest, self.commanded_N, ground_force)
+        force = ground_force - self._alpha_m * a_hat
         self.commanded_N.append(force)
-        return self.predictor.command(force)
+        return predictor.command(force)
 
 
 def ground_window(lookup: Callable[[int], float], k: int, lookahead_steps: int,
@@ -188,4 +196,7 @@ def ground_window(lookup: Callable[[int], float], k: int, lookahead_steps: int,
     n_total : int
         Record length (steps at and after it are 0).
     """
-    return [float(lookup(j)) if j < n_total else 0.0 for j in range(k, k + lookahead_steps + 1)]
+    end = k + lookahead_steps + 1
+    if end <= n_total:
+        return [float(lookup(j)) for j in range(k, end)]
+    return [float(lookup(j)) if j < n_total else 0.0 for j in range(k, end)]

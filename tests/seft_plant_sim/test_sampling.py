@@ -1,0 +1,115 @@
+"""Sampled-data helpers, the sensors' readings and the safety limits (the per-step code)."""
+
+import dataclasses
+import math
+import re
+
+import numpy as np
+import pytest
+
+from seft_plant_sim.interface import Measurement
+from seft_plant_sim.sampling import linear_map, single_blas_thread, split_delay
+from seft_plant_sim.sensors import Sensors
+from seft_plant_sim.specimen import SafetyLimits
+
+
+def test_linear_map_equals_the_matrix_product():
+    rng = np.random.default_rng(3)
+    m = rng.standard_normal((5, 7)) * 10.0 ** rng.integers(-6, 6, (5, 7))
+    m[1, 2] = 0.0
+    m[2, :] = 0.0                                  # an all-zero row
+    m[3, 4] = 1.0
+    f = linear_map(m, name='product')
+    assert f.__name__ == 'product'
+    for _ in range(20):
+        x = rng.standard_normal(7) * 100.0
+        y = f(x.tolist())
+        assert isinstance(y, tuple) and len(y) == 5
+        assert all(isinstance(v, float) for v in y)
+        np.testing.assert_allclose(y, m @ x, rtol=1e-13, atol=1e-13 * np.max(np.abs(m @ x)))
+        # left to right: exactly the Python sum of the products
+        assert y[0] == sum(c * v for c, v in zip(m[0].tolist(), x.tolist()))
+    assert f([0.0] * 7)[2] == 0.0
+    assert f(list(range(7)) + [99.0])[4] == pytest.approx(m[4] @ np.arange(7.0), rel=1e-14)
+
+
+def test_linear_map_of_a_row_returns_a_float():
+    w = [0.5, -0.25, 0.0, 2.0]
+    f = linear_map(w)
+    assert f([1.0, 2.0, 3.0, 4.0]) == 0.5 - 0.5 + 8.0
+    assert linear_map([0.0, 0.0])([1.0, 2.0]) == 0.0
+
+
+@pytest.mark.parametrize('matrix, name, message', [
+    ([[1.0, math.inf]], 'f', r'^linear_map: expected finite coefficients$'),
+    ([[1.0, math.nan]], 'f', r'^linear_map: expected finite coefficients$'),
+    (np.zeros((2, 2, 2)), 'f', r'^linear_map: expected a 1-d or 2-d matrix, got shape '
+     r'\(2, 2, 2\)$'),
+    ([1.0], 'not a name', r"^linear_map: name 'not a name' is not an identifier$"),
+])
+def test_linear_map_errors(matrix, name, message):
+    with pytest.raises(ValueError, match=message):
+        linear_map(matrix, name=name)
+
+
+def test_split_delay_snaps_to_whole_steps():
+    assert split_delay(0.01, 0.002) == (5, 0.0)
+    n, delta = split_delay(0.003, 0.002)
+    assert n == 1 and delta == pytest.approx(0.001, abs=1e-15)
+
+
+def test_sensor_readings_are_measurements():
+    m = Sensors().read(3, 0.006, 1e-3, -0.2, 4.5, 120.0)
+    ref = Measurement(3, 0.006, 1e-3, -0.2, 4.5, 120.0)
+    assert type(m) is Measurement and m == ref and hash(m) == hash(ref)
+    assert dataclasses.replace(m, step=4) == Measurement(4, 0.006, 1e-3, -0.2, 4.5, 120.0)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        m.force_N = 0.0
+
+
+def test_accelerometer_range_clips_and_noise_is_seeded():
+    s = Sensors(acceleration_range_m_s2=39.2)
+    assert s.read(0, 0.0, 0.0, 0.0, 50.0, 0.0).acceleration_m_s2 == 39.2
+    assert s.read(0, 0.0, 0.0, 0.0, -50.0, 0.0).acceleration_m_s2 == -39.2
+    assert s.read(0, 0.0, 0.0, 0.0, -3.0, 0.0).acceleration_m_s2 == -3.0
+    assert math.isnan(s.read(0, 0.0, 0.0, 0.0, math.nan, 0.0).acceleration_m_s2)
+    a = [Sensors(noise_force_N=5.0, seed=9).read(0, 0.0, 0.0, 0.0, 0.0, 100.0)
+         for _ in range(2)]
+    b = Sensors(noise_force_N=5.0, seed=9)
+    e = np.random.Generator(np.random.PCG64(9)).standard_normal(4) * [5.0, 0.0, 0.0, 0.0]
+    assert a[0] == a[1] == b.read(0, 0.0, 0.0, 0.0, 0.0, 100.0)
+    assert a[0].force_N == 100.0 + e[0] and type(a[0].force_N) is float
+    assert a[0].displacement_m == 0.0
+
+
+@pytest.mark.parametrize('x, f, reason', [
+    (0.076, 24.5e3, None),                          # on the limits: inside
+    (-0.076, -24.5e3, None),
+    (0.0761, 0.0, r'^stroke limit exceeded at t=1\.250 s: \|x\|=0\.0761 m > 0\.076 m$'),
+    (0.0, -24.6e3, r'^force limit exceeded at t=1\.250 s: \|f\|=2\.46e\+04 N > 24500 N$'),
+    (math.nan, 0.0, r'^non-finite rig state at t=1\.250 s$'),
+    (0.0, math.inf, r'^non-finite rig state at t=1\.250 s$'),
+])
+def test_safety_limits(x, f, reason):
+    got = SafetyLimits().violation(1.25, x, f)
+    if reason is None:
+        assert got is None
+    else:
+        assert got is not None and re.match(reason, got), got
+
+
+def test_single_blas_thread_limits_and_restores():
+    from threadpoolctl import threadpool_info
+    before = [i['num_threads'] for i in threadpool_info() if i['user_api'] == 'blas']
+    assert before
+    with single_blas_thread():
+        assert all(i['num_threads'] == 1 for i in threadpool_info() if i['user_api'] == 'blas')
+    assert [i['num_threads'] for i in threadpool_info() if i['user_api'] == 'blas'] == before
+
+
+def test_sensor_readings_without_the_dict_shortcut(monkeypatch):
+    from seft_plant_sim import sensors
+    assert sensors._FILL_DICT                      # Measurement is a plain frozen dataclass
+    fast = Sensors().read(1, 0.002, 1.0, 2.0, 3.0, 4.0)
+    monkeypatch.setattr(sensors, '_FILL_DICT', False)
+    assert Sensors().read(1, 0.002, 1.0, 2.0, 3.0, 4.0) == fast

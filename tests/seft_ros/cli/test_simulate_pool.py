@@ -1,0 +1,100 @@
+"""``seft simulate`` with several runs: a process pool that gives each run's numbers alone."""
+
+import multiprocessing
+
+import numpy as np
+import pytest
+
+from seft_msgs_py import parameters
+from seft_ros.cli import api
+from seft_ros.core.experiment import simulate
+
+FIELDS = ('time_s', 'ground_acceleration_m_s2', 'reference_force_N', 'measured_force_N',
+          'displacement_m', 'velocity_m_s', 'acceleration_m_s2', 'valve_command_V')
+
+
+@pytest.fixture
+def no_report(monkeypatch):
+    """Skip the stability guard and the report (tested elsewhere): only the runs matter here."""
+    monkeypatch.setattr(api, 'check_stability', lambda **kw: [])
+    monkeypatch.setattr(api, 'check_capacity', lambda **kw: None)
+    monkeypatch.setattr(api, '_finish', lambda out_dir, runs, title, t0:
+                        api.Result(out_dir, runs, [], 0.0))
+
+
+def _runs():
+    """Both rigs, three predictors, a run the monitor aborts and one with sensor noise."""
+    base = dict(duration_s=1.0, amplitude_N=500.0)
+    sets = [dict(rig_model='servohydraulic', predictor='model', alpha=1.0),
+            dict(rig_model='servohydraulic', predictor='none', alpha=1.5),        # aborts
+            dict(rig_model='delay', predictor='model', alpha=0.5, ground_preview=True),
+            dict(rig_model='delay', predictor='adaptive', alpha=1.0),
+            dict(rig_model='servohydraulic', predictor='none', alpha=0.5, noise_force_N=5.0)]
+    return [parameters.resolve(dict(base, **s)) for s in sets]
+
+
+def test_pool_gives_the_numbers_of_each_run_alone(no_report, tmp_path):
+    runs = _runs()
+    lines = []
+    result = api.simulate_experiments(runs=runs, out_dir=tmp_path, progress=lines.append,
+                                      workers=2)
+    assert '5 runs on 2 worker processes' in lines
+    assert len(result.runs) == len(runs)
+    for p, got in zip(runs, result.runs):
+        alone = simulate(p)
+        assert got.params == alone.params          # results in the order of the runs
+        for name in FIELDS:
+            a, b = getattr(got, name), getattr(alone, name)
+            assert (a is None) == (b is None), name
+            if a is not None:
+                np.testing.assert_array_equal(a, b, err_msg=name)
+        assert (got.stable, got.unstable_at_s, got.abort_reason) \
+            == (alone.stable, alone.unstable_at_s, alone.abort_reason)
+    assert not result.runs[1].stable and all(r.stable for r in result.runs[2:])
+    # one line per finished run, counted in the order they finished
+    done = [ln for ln in lines if 'runs done)' in ln]
+    assert len(done) == 5
+    assert [ln.rsplit('(', 1)[1] for ln in done] == [f'{i}/5 runs done)' for i in range(1, 6)]
+    for p in runs:
+        label = f'alpha_{p["alpha"]:g}_{p["rig_model"]}_{p["predictor"]}'
+        assert (tmp_path / label / 'params.yaml').is_file()
+    assert multiprocessing.active_children() == []
+
+
+def test_one_worker_runs_in_process(no_report, tmp_path):
+    runs = _runs()[:2]
+    lines = []
+    result = api.simulate_experiments(runs=runs, out_dir=tmp_path, progress=lines.append,
+                                      workers=1)
+    assert not any('worker processes' in ln for ln in lines)
+    assert lines[0] == '[alpha_1_servohydraulic_model] simulating'
+    np.testing.assert_array_equal(result.runs[0].displacement_m,
+                                  simulate(runs[0]).displacement_m)
+
+
+def _endless(params, progress=None):
+    """Stands in for simulate in the workers (inherited by fork): reports until stopped."""
+    import time
+    for k in range(3000):
+        time.sleep(0.01)
+        progress(k, 3000)
+    params['marker'].write_text('not stopped')          # 30 s later: the test fails
+
+
+def test_ctrl_c_stops_the_workers(no_report, monkeypatch, tmp_path):
+    monkeypatch.setattr(api, 'simulate', _endless)
+    seen = []
+
+    def progress(line):
+        seen.append(line)
+        if 'step' in line:                     # a run is under way: Ctrl-C
+            raise KeyboardInterrupt
+
+    runs = [dict(p, marker=tmp_path / f'unstopped{i}') for i, p in enumerate(_runs()[:3])]
+    with pytest.raises(KeyboardInterrupt):
+        api.simulate_experiments(runs=runs, out_dir=tmp_path, progress=progress, workers=2)
+    # the running runs stopped at their next progress report and the workers exited
+    assert multiprocessing.active_children() == []
+    assert not any('runs done' in ln for ln in seen)
+    assert not list(tmp_path.glob('*/params.yaml'))
+    assert not list(tmp_path.glob('unstopped*'))
