@@ -95,9 +95,10 @@ def main() -> int:
             for r in results:
                 e, t = r['entry'], r['entry'].get('timing') or {}
                 lat, jit = t.get('loop_latency_ms', {}), t.get('period_jitter_ms', {})
+                aborted = ('' if e['stable'] else
+                           f'aborted at {e["unstable_at_s"]:.2f} s: {e.get("abort_reason")}')
                 print(f'\n{rate} Hz, {args.duration:g} s (load {r["load_before"]:.2f} -> '
-                      f'{r["load_after"]:.2f}); stable={e["stable"]} '
-                      f'{"" if e["stable"] else "aborted at %.2f s" % e["unstable_at_s"]}')
+                      f'{r["load_after"]:.2f}); stable={e["stable"]} {aborted}')
                 print(f'  loop latency ms   p50 {lat.get("p50")}  p99 {lat.get("p99")}  '
                       f'max {lat.get("max")}')
                 print(f'  period jitter ms  p50 {jit.get("p50")}  p99 {jit.get("p99")}  '

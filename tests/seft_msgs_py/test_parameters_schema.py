@@ -8,6 +8,7 @@ import re
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticStatus
 import pytest
+from rclpy.serialization import deserialize_message, serialize_message
 
 from seft_msgs_py import parameters
 from seft_msgs_py.convert import (
@@ -16,7 +17,9 @@ from seft_msgs_py.convert import (
     STATE_FAILED,
     STATE_READY,
     ScalarMessage,
+    ScalarReader,
     clock_msg,
+    clock_ns_from_raw,
     dt_to_ns,
     ns_to_stamp,
     parameters_json,
@@ -260,6 +263,22 @@ def test_reused_scalar_message_equals_a_new_one(spec_):
     second = writer(3_002_000_000, -2.25)      # the same object, stamp and value replaced
     assert second is first and second == scalar_msg(spec_, 3_002_000_000, -2.25)
     assert scalar_value(spec_, second) == -2.25
+
+
+@pytest.mark.parametrize('spec_', SCALAR_TOPICS, ids=lambda t: t.name)
+@pytest.mark.parametrize('frame', ['actuator', '', 'a', 'abcdefg', 'abcdefgh'])
+def test_scalar_reader_reads_the_serialized_message(spec_, frame):
+    """The fast path against rclpy's own deserialization, for frame ids of every alignment."""
+    msg = scalar_msg(spec_, 3_002_000_001, -1234.5678e-3)
+    msg.header.frame_id = frame
+    raw = serialize_message(msg)
+    assert ScalarReader(spec_)(raw) == (3_002_000_001, -1234.5678e-3)
+    back = deserialize_message(raw, spec_.msg_type)
+    assert scalar_value(spec_, back) == -1234.5678e-3
+
+
+def test_clock_from_raw():
+    assert clock_ns_from_raw(serialize_message(clock_msg(7_002_000_003))) == 7_002_000_003
 
 
 def test_bag_reader_reads_the_fields_of_the_topic_table():

@@ -6,6 +6,7 @@
 becomes a one-line message on stderr and exit code 2.
 """
 
+import gc
 import json
 import math
 import os
@@ -34,6 +35,7 @@ from seft_msgs_py.convert import (
     STATE_CLOSED,
     STATE_DONE,
     STATE_FAILED,
+    ScalarReader,
     dt_to_ns,
     status_msg,
     status_values,
@@ -48,6 +50,9 @@ __all__ = ['SeftNode', 'StepTiming', 'main_for', 'descriptor_of', 'LINGER_S']
 LINGER_S = 1.0
 #: With a recorder in the graph, the longest wait for it to close the bag [s].
 RECORDER_WAIT_S = 20.0
+#: SCHED_FIFO priority of each node above ``realtime_priority`` (the recorder: none).
+PRIORITY_OFFSET = {'rig': 3, 'force_servo_controller': 2, 'reference_force_builder': 1,
+                   'ground_motion_publisher': 0}
 #: Start of the 'failed' status message of a node that refused differing parameters.
 MISMATCH_MESSAGE = 'parameters differ between nodes: '
 
@@ -130,19 +135,41 @@ class SeftNode(Node):
     def apply_priority(self) -> None:
         """Real-time mode with ``realtime_priority`` > 0: run this process under SCHED_FIFO.
 
-        Where the system refuses (no root, no CAP_SYS_NICE, no RT budget) the node logs one
+        The priority is ``realtime_priority`` plus :data:`PRIORITY_OFFSET` of the node: the
+        rig highest, then the controller, the builder and the ground-motion publisher. The
+        recorder keeps the normal scheduler: it buffers (2000 samples a topic), and its bag
+        writes would hold a core for milliseconds at a real-time priority. Where the system
+        refuses (no root, no CAP_SYS_NICE, no RT budget) the node logs one
         warning and keeps the normal scheduler: a run never fails for it.
         """
-        priority = int(self.params.get('realtime_priority', 0))
-        if not self.realtime or priority <= 0:
+        base = int(self.params.get('realtime_priority', 0))
+        if not self.realtime or base <= 0 or self.seft_name not in PRIORITY_OFFSET:
             return
+        priority = min(99, base + PRIORITY_OFFSET[self.seft_name])
         try:
-            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+            # every thread of the process: the middleware's receive threads exist already
+            # (they deliver the samples; at the normal priority they would delay them), and
+            # threads created later inherit the policy
+            for tid in os.listdir('/proc/self/task'):
+                os.sched_setscheduler(int(tid), os.SCHED_FIFO, os.sched_param(priority))
         except (OSError, AttributeError) as exc:
             self.get_logger().warning(f'realtime_priority={priority}: SCHED_FIFO refused '
                                       f'({exc}); keeping the normal scheduler')
             return
         self.get_logger().info(f'SCHED_FIFO priority {priority}')
+
+    def scalar_subscription(self, spec, callback: Callable[[int, float], None]):
+        """Subscribe to a scalar topic; `callback(step, value)` gets the sample's step and value.
+
+        A raw subscription read by :class:`~seft_msgs_py.convert.ScalarReader` (no rclpy message
+        object per sample), guarded like every callback.
+        """
+        read, dt_ns, guarded = ScalarReader(spec), self.dt_ns, self.guard(callback)
+
+        def on_raw(raw):
+            stamp, value = read(raw)
+            guarded(int(round(stamp / dt_ns)), value)
+        return self.create_subscription(spec.msg_type, spec.name, on_raw, spec.qos, raw=True)
 
     def publish_parameters(self) -> None:
         """Publish the parameters this node resolved (latched), and check them at once.
@@ -392,6 +419,11 @@ def main_for(factory: Callable[[], SeftNode], name: str, args=None) -> int:
     try:
         node = factory()
         node.apply_priority()
+        if node.realtime:
+            # the set-up's objects never need collecting again: move them out of the
+            # collector's way, so that a run's collections stay short
+            gc.collect()
+            gc.freeze()
         executor = EventsExecutor()
         executor.add_node(node)
         while not node.done:

@@ -263,8 +263,9 @@ def test_summary_entry_keys_and_values(ground_motion):
     assert set(entry) == {'alpha', 'rig', 'predictor', 'record', 'stable', 'unstable_at_s',
                           'lag_s', 'nrms', 'peak_ratio', 'high_frequency_force_fraction',
                           'high_frequency_force_fraction_reference',
-                          'high_frequency_cutoff_hz', 'mode', 'wall_s'}
+                          'high_frequency_cutoff_hz', 'abort_reason', 'mode', 'wall_s'}
     assert entry['mode'] == 'lockstep' and entry['wall_s'] is None
+    assert entry['abort_reason'] is None
     assert entry['high_frequency_cutoff_hz'] == 20.0
     # The delayed reference: the same spectrum as the reference force.
     assert entry['high_frequency_force_fraction'] == pytest.approx(

@@ -472,7 +472,7 @@ def summary_entry(run: RunData, comparison: RunComparison) -> dict[str, Any]:
         'nrms': {'displacement', 'acceleration', 'force'},
         'peak_ratio': {'displacement', 'acceleration', 'force'},
         'high_frequency_force_fraction', 'high_frequency_force_fraction_reference',
-        'high_frequency_cutoff_hz', 'mode', 'wall_s'}`` (and ``'timing'``, the
+        'high_frequency_cutoff_hz', 'abort_reason', 'mode', 'wall_s'}`` (and ``'timing'``, the
         :func:`seft_ros.analysis.timing.timing_summary` of a real-time run, from
         ``run.extra['timing']``, and ``'bag_lost_messages'``, what the nodes published and the
         bag does not hold, from ``run.extra``; ``wall_s`` [s], the wall time of the stepping, from
@@ -499,6 +499,7 @@ def summary_entry(run: RunData, comparison: RunComparison) -> dict[str, Any]:
         'high_frequency_force_fraction_reference':
             comparison.high_frequency_force_fraction_reference,
         'high_frequency_cutoff_hz': comparison.high_frequency_cutoff_hz,
+        'abort_reason': run.abort_reason,
         'mode': params.get('mode', 'lockstep'),
         'wall_s': _finite_or_none(run.extra.get('wall_s')),
     }

@@ -21,8 +21,6 @@ from seft_msgs_py.convert import (
     STATE_READY,
     ScalarMessage,
     dt_to_ns,
-    scalar_value,
-    step_of,
 )
 from seft_msgs_py.node_support import SeftNode, StepTiming, main_for
 from seft_msgs_py.sync import StepSync
@@ -52,34 +50,25 @@ class ForceServoControllerNode(SeftNode):
             self.timing = StepTiming(self)
             self.reference = {}            # step -> f_r (the newest few)
             self.latest_reference = (-1, 0.0)
-            self.create_subscription(REFERENCE_FORCE.msg_type, REFERENCE_FORCE.name,
-                                     self.guard(self._on_reference_realtime),
-                                     REFERENCE_FORCE.qos)
-            self.create_subscription(MEASURED_FORCE.msg_type, MEASURED_FORCE.name,
-                                     self.guard(self._on_measured_realtime),
-                                     MEASURED_FORCE.qos)
+            self.scalar_subscription(REFERENCE_FORCE, self._on_reference_realtime)
+            self.scalar_subscription(MEASURED_FORCE, self._on_measured_realtime)
         else:
             for spec in (REFERENCE_FORCE, MEASURED_FORCE):
-                self.create_subscription(
-                    spec.msg_type, spec.name,
-                    self.guard(lambda msg, s=spec: self._on_force(s, msg)), spec.qos)
+                self.scalar_subscription(
+                    spec, lambda k, value, s=spec: self._on_force(s, k, value))
         self.publish_parameters()
         self.report(STATE_READY, f'controller discretized: {self.controller.design.method}')
 
-    def _on_reference_realtime(self, msg) -> None:
-        k = step_of(msg.header.stamp, self.dt_ns)
-        value = scalar_value(REFERENCE_FORCE, msg)
+    def _on_reference_realtime(self, k: int, value: float) -> None:
         self.reference[k] = value
         if k > self.latest_reference[0]:
             self.latest_reference = (k, value)
 
-    def _on_measured_realtime(self, msg) -> None:
+    def _on_measured_realtime(self, k: int, fm: float) -> None:
         """u[k] from f_m[k] and the newest reference force: act at once, never wait."""
         start, jitter = self.timing.start()
-        k = step_of(msg.header.stamp, self.dt_ns)
         if k < self.next_step:
             return                          # a duplicate: each step is computed once
-        fm = scalar_value(MEASURED_FORCE, msg)
         stale = k not in self.reference
         fr_step, fr = (k, self.reference.pop(k)) if not stale else self.latest_reference
         for j in [j for j in self.reference if j < k]:
@@ -100,9 +89,8 @@ class ForceServoControllerNode(SeftNode):
         self.timing.publish(k * self.dt_ns, jitter, time.monotonic() - start, age, missed,
                             stale)
 
-    def _on_force(self, spec, msg) -> None:
-        k = step_of(msg.header.stamp, self.dt_ns)
-        done = self.sync.add(k, spec.name, scalar_value(spec, msg))
+    def _on_force(self, spec, k: int, value: float) -> None:
+        done = self.sync.add(k, spec.name, value)
         if done is None:
             return
         self.ready[k] = done

@@ -21,8 +21,8 @@ import time
 from seft_msgs_py.convert import (
     STATE_READY,
     ScalarMessage,
+    clock_ns_from_raw,
     dt_to_ns,
-    step_of,
 )
 from seft_msgs_py.node_support import SeftNode, StepTiming, main_for
 from seft_msgs_py.topics import CLOCK, GROUND_ACCELERATION
@@ -47,7 +47,7 @@ class GroundMotionPublisher(SeftNode):
                                          GROUND_ACCELERATION.qos)
         self.out_msg = ScalarMessage(GROUND_ACCELERATION)
         self.create_subscription(CLOCK.msg_type, CLOCK.name, self.guard(self._on_clock),
-                                 CLOCK.qos)
+                                 CLOCK.qos, raw=True)
         if self.realtime:
             self.timing = StepTiming(self)
         self.publish_parameters()
@@ -75,8 +75,8 @@ class GroundMotionPublisher(SeftNode):
                                     now_ns > self.sample_time_ns(k - 1), False)
                 jitter = math.nan
 
-    def _on_clock(self, msg) -> None:
-        k = step_of(msg.clock, self.dt_ns)
+    def _on_clock(self, raw) -> None:
+        k = int(round(clock_ns_from_raw(raw) / self.dt_ns))
         self._publish_until(k + self.preview, k)
 
 

@@ -29,9 +29,7 @@ from seft_msgs_py.convert import (
     STATE_READY,
     ScalarMessage,
     dt_to_ns,
-    scalar_value,
     status_values,
-    step_of,
 )
 from seft_msgs_py.node_support import SeftNode, StepTiming, descriptor_of, main_for
 from seft_msgs_py.sync import StepSync
@@ -85,12 +83,9 @@ class ReferenceForceBuilderNode(SeftNode):
         self.pub = self.create_publisher(REFERENCE_FORCE.msg_type, REFERENCE_FORCE.name,
                                          REFERENCE_FORCE.qos)
         self.out_msg = ScalarMessage(REFERENCE_FORCE)
-        self.create_subscription(GROUND_ACCELERATION.msg_type, GROUND_ACCELERATION.name,
-                                 self.guard(self._on_ground), GROUND_ACCELERATION.qos)
+        self.scalar_subscription(GROUND_ACCELERATION, self._on_ground)
         for spec in _SENSORS:
-            self.create_subscription(spec.msg_type, spec.name,
-                                     self.guard(lambda msg, s=spec: self._on_sensor(s, msg)),
-                                     spec.qos)
+            self.scalar_subscription(spec, lambda k, value, s=spec: self._on_sensor(s, k, value))
         self.create_subscription(STATUS.msg_type, STATUS.name, self.guard(self._on_status),
                                  STATUS.qos)
         if self.realtime:
@@ -100,9 +95,7 @@ class ReferenceForceBuilderNode(SeftNode):
         self.publish_parameters()
         self.report(STATE_READY, f'predictor {self.builder.predictor.name}')
 
-    def _on_ground(self, msg) -> None:
-        k = step_of(msg.header.stamp, self.dt_ns)
-        value = scalar_value(GROUND_ACCELERATION, msg)
+    def _on_ground(self, k: int, value: float) -> None:
         self.ground[k] = value
         if self.realtime:
             if k > self.latest_ground[0]:
@@ -112,9 +105,8 @@ class ReferenceForceBuilderNode(SeftNode):
             return
         self._advance()
 
-    def _on_sensor(self, spec, msg) -> None:
-        k = step_of(msg.header.stamp, self.dt_ns)
-        done = self.sync.add(k, spec.name, scalar_value(spec, msg))
+    def _on_sensor(self, spec, k: int, value: float) -> None:
+        done = self.sync.add(k, spec.name, value)
         if done is not None:
             self.measurements[k] = Measurement(
                 k, k * self.dt, done[DISPLACEMENT.name], done[VELOCITY.name],
