@@ -23,6 +23,7 @@ import struct
 import sys
 import time
 
+from rclpy.serialization import serialize_message
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 from std_msgs.msg import String
@@ -35,6 +36,7 @@ from seft_msgs_py.convert import (
     STATE_READY,
     STATE_RECORDING,
     parameters_json,
+    status_msg,
     status_values,
 )
 from seft_msgs_py.errors import InputError
@@ -183,10 +185,13 @@ class RecorderNode(SeftNode):
             return
         if missing:
             self.get_logger().warning('closing the bag without: ' + ', '.join(missing))
+        counts = {name.rsplit('/', 1)[-1]: n for name, n in self.counts.items()}
+        final = status_msg(self.seft_name, STATE_CLOSED, f'bag {self.bag_path} closed',
+                           incomplete=', '.join(missing), lost=self._lost(), **counts)
+        # the bag's own account of what it holds and lost, as its last message
+        self._write(STATUS.name, self.latest_ns, serialize_message(final))
         self._close()
-        self.report(STATE_CLOSED, f'bag {self.bag_path} closed',
-                    incomplete=', '.join(missing), lost=self._lost(),
-                    **{name.rsplit('/', 1)[-1]: n for name, n in self.counts.items()})
+        self.status_pub.publish(final)
         self.get_logger().info(f'bag {self.bag_path} closed: {sum(self.counts.values())} '
                                'messages')
         self.finish(0)
