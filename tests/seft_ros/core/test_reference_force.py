@@ -83,3 +83,22 @@ def test_unknown_predictor():
 def test_builder_parameter_errors(alpha, mass, message):
     with pytest.raises(ParameterError, match=message):
         ReferenceForceBuilder(alpha, mass, NoPredictor())
+
+
+def test_loop_latency_moves_the_modelled_delay_by_latency_minus_dt():
+    """predictor_loop_latency_s = L: the predictor models tau + L - dt (real time, on arrival).
+
+    The delay rig with tau = 10 ms whose commands act on arrival 0.7 ms after their sample is
+    the lockstep rig with tau = 8.7 ms (tests/seft_plant_sim/test_realtime_rig.py), so the
+    model predictor must then be the one built for 8.7 ms.
+    """
+    from seft_msgs_py import parameters
+    from seft_ros.core.reference_force import make_predictor, with_loop_latency
+    base = parameters.resolve({'rig_model': 'delay', 'predictor': 'model', 'alpha': 1.0})
+    assert with_loop_latency(base) == base                       # 0: unchanged
+    shifted = with_loop_latency(dict(base, predictor_loop_latency_s=0.0007))
+    assert shifted['predictor_tau_s'] == pytest.approx(0.0087)
+    assert make_predictor(dict(base, predictor_loop_latency_s=0.0007)).delay_s == \
+        pytest.approx(make_predictor(dict(base, predictor_tau_s=0.0087)).delay_s)
+    servo = parameters.resolve({'predictor': 'model', 'predictor_loop_latency_s': 0.0012})
+    assert with_loop_latency(servo)['io_latency_s'] == pytest.approx(0.0022)

@@ -14,7 +14,7 @@ from seft_ros.core.predictors import (
 )
 
 __all__ = ['Predictor', 'NoPredictor', 'PREDICTORS', 'make_predictor', 'ReferenceForceBuilder',
-           'ground_window']
+           'ground_window', 'with_loop_latency']
 
 
 @runtime_checkable
@@ -61,14 +61,49 @@ PREDICTORS: dict[str, Callable] = {
 }
 
 
+def with_loop_latency(params) -> dict:
+    """The parameters a predictor models, with the measured loop latency added.
+
+    In real time with ``realtime_output: on_arrival`` a command acts when it arrives, so the
+    loop's delay differs from the lockstep one by ``L - dt``, where ``L`` is the loop latency
+    (sample to command at the rig) and ``dt`` the control period that lockstep assumes.
+    With ``predictor_loop_latency_s = L > 0`` the predictor models the actuator delay
+    ``tau + L - dt`` on the delay rig (``predictor_tau_s``, 0: ``tau_s``) and the I/O latency
+    ``io_latency_s + L - dt`` on the servohydraulic rig, so that compensation covers the
+    actuator and the communication together. ``L = 0`` (the default) changes nothing.
+
+    Parameters
+    ----------
+    params : mapping
+        The resolved parameters.
+
+    Returns
+    -------
+    dict
+        A copy with ``predictor_tau_s`` and ``io_latency_s`` adjusted (never below 0; the
+        delay stays above 0).
+    """
+    out = dict(params)
+    latency = float(params.get('predictor_loop_latency_s', 0.0) or 0.0)
+    if latency <= 0.0:
+        return out
+    extra = latency - float(params['dt'])
+    tau = float(params.get('predictor_tau_s') or params.get('tau_s') or 0.0)
+    out['predictor_tau_s'] = max(tau + extra, 1e-6)
+    if 'io_latency_s' in params:
+        out['io_latency_s'] = max(float(params['io_latency_s']) + extra, 0.0)
+    return out
+
+
 def make_predictor(params) -> Predictor:
-    """Build the predictor named by ``params['predictor']``.
+    """Build the predictor named by ``params['predictor']`` (:func:`with_loop_latency`).
 
     Raises
     ------
     ParameterError
         If the name is not registered.
     """
+    params = with_loop_latency(params)
     name = params['predictor']
     try:
         factory = PREDICTORS[name]
