@@ -50,9 +50,9 @@ __all__ = ['SeftNode', 'StepTiming', 'main_for', 'descriptor_of', 'LINGER_S']
 LINGER_S = 1.0
 #: With a recorder in the graph, the longest wait for it to close the bag [s].
 RECORDER_WAIT_S = 20.0
-#: SCHED_FIFO priority of each node above ``realtime_priority`` (the recorder: none).
+#: SCHED_FIFO priority of each node relative to ``realtime_priority``.
 PRIORITY_OFFSET = {'rig': 3, 'force_servo_controller': 2, 'reference_force_builder': 1,
-                   'ground_motion_publisher': 0}
+                   'ground_motion_publisher': 1, 'recorder': -1}
 #: Start of the 'failed' status message of a node that refused differing parameters.
 MISMATCH_MESSAGE = 'parameters differ between nodes: '
 
@@ -136,16 +136,16 @@ class SeftNode(Node):
         """Real-time mode with ``realtime_priority`` > 0: run this process under SCHED_FIFO.
 
         The priority is ``realtime_priority`` plus :data:`PRIORITY_OFFSET` of the node: the
-        rig highest, then the controller, the builder and the ground-motion publisher. The
-        recorder keeps the normal scheduler: it buffers (2000 samples a topic), and its bag
-        writes would hold a core for milliseconds at a real-time priority. Where the system
-        refuses (no root, no CAP_SYS_NICE, no RT budget) the node logs one
+        rig highest, then the controller, then the builder and the ground-motion publisher,
+        and the recorder lowest: it must keep up (at the normal priority the loop's nodes
+        starved it and the bag lost samples), but its bag writes must never delay the loop.
+        Where the system refuses (no root, no CAP_SYS_NICE, no RT budget) the node logs one
         warning and keeps the normal scheduler: a run never fails for it.
         """
         base = int(self.params.get('realtime_priority', 0))
         if not self.realtime or base <= 0 or self.seft_name not in PRIORITY_OFFSET:
             return
-        priority = min(99, base + PRIORITY_OFFSET[self.seft_name])
+        priority = max(1, min(99, base + PRIORITY_OFFSET[self.seft_name]))
         try:
             # every thread of the process: the middleware's receive threads exist already
             # (they deliver the samples; at the normal priority they would delay them), and

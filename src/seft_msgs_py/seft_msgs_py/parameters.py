@@ -121,9 +121,9 @@ SCHEMA: tuple[ParamSpec, ...] = (
               'wall clock every dt, the other nodes act on message arrival with the latest '
               'inputs and nobody waits).', choices=('lockstep', 'realtime'), nodes=_ALL),
     ParamSpec('realtime_priority', 50, '', 'Real-time mode: SCHED_FIFO base priority of the '
-              'node processes (1-96; the rig gets +3, the controller +2, the builder +1, the '
-              'ground-motion publisher +0, the recorder keeps the normal scheduler; 0: the '
-              'normal scheduler for all). Needs root or CAP_SYS_NICE; where it is refused the '
+              'node processes (1-96; the rig gets +3, the controller +2, the builder and the '
+              'ground-motion publisher +1, the recorder -1; 0: the normal scheduler for all). '
+              'Needs root or CAP_SYS_NICE; where it is refused the '
               'node warns and keeps the normal scheduler. Per node.', 0, 96, nodes=_ALL),
     ParamSpec('n_steps', 0, '', 'Number of control steps of the run (0: the whole prepared '
               'record); set by the runner.', 0, None, nodes=_ALL),
