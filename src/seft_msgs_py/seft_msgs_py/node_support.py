@@ -274,6 +274,12 @@ class SeftNode(Node):
             self.report(STATE_DONE, 'rig finished', **self.final_counts())
             self.finish(0)
 
+    def abort_run(self, reason: str, step: int) -> None:
+        """Stop the run safely from this node: log, report 'aborted' with the step, finish."""
+        self.get_logger().error(reason)
+        self.report(STATE_ABORTED, reason, step=step, time_s=f'{step * self.dt_ns * 1e-9:.6f}')
+        self.finish(0)
+
     def final_counts(self) -> dict:
         """What the final status reports: samples published, and timing records with their
         missed deadlines and stale inputs (real-time mode)."""

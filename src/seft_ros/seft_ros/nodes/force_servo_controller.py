@@ -17,7 +17,6 @@ import sys
 import time
 
 from seft_msgs_py.convert import (
-    STATE_ABORTED,
     STATE_READY,
     ScalarMessage,
     dt_to_ns,
@@ -76,9 +75,7 @@ class ForceServoControllerNode(SeftNode):
         u = self.controller.step(fr, fm)
         reason = self.interlock.update(self.controller.saturated, k * self.dt)
         if reason:
-            self.get_logger().error(reason)
-            self.report(STATE_ABORTED, reason, step=k, time_s=f'{k * self.dt:.6f}')
-            self.finish(0)
+            self.abort_run(reason, k)
             return
         self.pub.publish(self.out_msg(k * self.dt_ns, u))
         self.next_step = k + 1
@@ -100,9 +97,7 @@ class ForceServoControllerNode(SeftNode):
             u = self.controller.step(forces[REFERENCE_FORCE.name], forces[MEASURED_FORCE.name])
             reason = self.interlock.update(self.controller.saturated, k * self.dt)
             if reason:
-                self.get_logger().error(reason)
-                self.report(STATE_ABORTED, reason, step=k, time_s=f'{k * self.dt:.6f}')
-                self.finish(0)
+                self.abort_run(reason, k)
                 return
             self.pub.publish(self.out_msg(k * self.dt_ns, u))
             self.next_step += 1

@@ -25,7 +25,6 @@ import time
 
 from seft_msgs_py import parameters
 from seft_msgs_py.convert import (
-    STATE_ABORTED,
     STATE_READY,
     ScalarMessage,
     dt_to_ns,
@@ -126,18 +125,21 @@ class ReferenceForceBuilderNode(SeftNode):
             return self.latest_ground[1]
         return value
 
+    def _monitor_trips(self, latest: Measurement, k: int) -> bool:
+        """The instability monitor on sample k-1; on a trip the run is aborted (True)."""
+        reason = self.monitor.update(latest.force_N, self.builder.last_ground_force_N,
+                                     latest.time_s)
+        if reason:
+            self.abort_run(reason, k)
+        return bool(reason)
+
     def _advance_realtime(self) -> None:
         """f_r[k+1] for every complete measurement k, in order, with the latest inputs."""
         while self.next_step - 1 in self.measurements and not self.done:
             start, jitter = self.timing.start()
             k = self.next_step
             latest = self.measurements.pop(k - 1)
-            reason = self.monitor.update(latest.force_N, self.builder.last_ground_force_N,
-                                         latest.time_s)
-            if reason:
-                self.get_logger().error(reason)
-                self.report(STATE_ABORTED, reason, step=k, time_s=f'{k * self.dt:.6f}')
-                self.finish(0)
+            if self._monitor_trips(latest, k):
                 return
             if self.n_total is not None and k >= self.n_total:
                 return
@@ -174,12 +176,7 @@ class ReferenceForceBuilderNode(SeftNode):
                 latest = None
             elif k - 1 in self.measurements:
                 latest = self.measurements.pop(k - 1)
-                reason = self.monitor.update(latest.force_N, self.builder.last_ground_force_N,
-                                             latest.time_s)
-                if reason:
-                    self.get_logger().error(reason)
-                    self.report(STATE_ABORTED, reason, step=k, time_s=f'{k * self.dt:.6f}')
-                    self.finish(0)
+                if self._monitor_trips(latest, k):
                     return
             else:
                 return
