@@ -120,14 +120,18 @@ def _pid_of(node: str, marker: str) -> int:
 
 
 def test_watchdog_takes_the_rig_to_its_safe_state(rt_dir, seft_exe, ros_env):
-    """Freeze the reference-force builder (SIGSTOP) on the delay rig: within the 20 ms watchdog
-    the rig ramps the actuator force to zero over safe_ramp_s and the run ends aborted."""
+    """Freeze the reference-force builder (SIGSTOP, 1 s) on the delay rig: within the watchdog
+    time the rig ramps the actuator force to zero over safe_ramp_s and the run ends aborted.
+
+    The watchdog is set to 0.2 s here, not its 20 ms default: this shared virtual machine
+    stalls a whole graph for tens of milliseconds now and then (README, real-time results),
+    and such a stall before the freeze would trip the default first."""
     out = rt_dir / 'watchdog'
     proc = subprocess.Popen(
         [str(seft_exe), 'run', '--mode', 'realtime', '--rig', 'delay', '--alpha', '0',
-         '--duration', '8', '--amplitude', '400', '--set', 'safe_ramp_s=0.1', '--out',
-         str(out)], cwd=rt_dir, env=ros_env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-        text=True, start_new_session=True)
+         '--duration', '8', '--amplitude', '400', '--set', 'safe_ramp_s=0.1', '--set',
+         'watchdog_timeout_s=0.2', '--out', str(out)], cwd=rt_dir, env=ros_env,
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
     frozen = None
     try:
         deadline = time.monotonic() + 90
@@ -142,7 +146,7 @@ def test_watchdog_takes_the_rig_to_its_safe_state(rt_dir, seft_exe, ros_env):
         time.sleep(1.5)
         frozen = _pid_of('reference_force_builder', str(out))
         os.kill(frozen, signal.SIGSTOP)
-        time.sleep(0.5)
+        time.sleep(1.0)
         os.kill(frozen, signal.SIGCONT)
         frozen = None
         stdout, stderr = proc.communicate(timeout=120)
@@ -164,6 +168,7 @@ def test_watchdog_takes_the_rig_to_its_safe_state(rt_dir, seft_exe, ros_env):
     assert len(final) == 1
     values, message = final[0]
     assert message.startswith('watchdog: no /seft/reference_force for ')
+    assert '(limit 200 ms)' in message
     abort_at = float(values['abort_at_s'])
     assert abort_at == pytest.approx(entry['unstable_at_s'])
     # the rig kept sampling through the ramp: force = the last command ramped to zero over
