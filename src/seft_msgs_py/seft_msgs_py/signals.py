@@ -43,7 +43,7 @@ class Signal:
 
 
 CLOCK = Signal('/clock', 'rosgraph_msgs/msg/Clock', 'clock', 's', 'rig',
-               'Simulated time t_k = k*dt (lockstep mode; use_sim_time).')
+               'Simulated time t_k = k*dt, every CLOCK_EVERY = 10 steps.')
 GROUND_ACCELERATION = Signal(
     '/seft/ground_acceleration', 'geometry_msgs/msg/AccelStamped', 'accel.linear.x', 'm/s^2',
     'ground_motion_publisher',

@@ -47,6 +47,7 @@ from seft_msgs_py.node_support import SeftNode, StepTiming, main_for
 from seft_msgs_py.topics import (
     ACCELERATION,
     CLOCK,
+    CLOCK_EVERY,
     DISPLACEMENT,
     MEASURED_FORCE,
     REFERENCE_FORCE,
@@ -62,10 +63,6 @@ __all__ = ['RigNode', 'main', 'graph_nodes']
 
 #: Sim-time interval of progress reports [steps].
 PROGRESS_EVERY = 250
-#: Real-time mode: /clock is published every this many ticks. The ground-motion publisher,
-#: ``preview_steps`` ahead, then wakes up once for that many samples: on two cores every
-#: wake-up of a process costs about 0.1 ms of CPU, more than the work it does.
-REALTIME_CLOCK_EVERY = 10
 #: Real-time mode: how long the rig keeps sampling its safe state after the ramp [s].
 SAFE_HOLD_S = 0.05
 
@@ -214,7 +211,7 @@ class RigNode(SeftNode):
                             (DISPLACEMENT.name, m.displacement_m),
                             (VELOCITY.name, m.velocity_m_s)):
             pubs[name].publish(msgs[name](stamp, value))
-        if not self.realtime or k % REALTIME_CLOCK_EVERY == 0:
+        if k % CLOCK_EVERY == 0:
             self.clock_msg.clock.sec = int(stamp // 1_000_000_000)
             self.clock_msg.clock.nanosec = int(stamp % 1_000_000_000)
             self.clock_pub.publish(self.clock_msg)

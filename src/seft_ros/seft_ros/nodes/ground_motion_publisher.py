@@ -3,9 +3,10 @@
 Loads the record (``record``: 'default', a PEER .AT2 or a CSV path), scales it (amplitude_N or
 scale_factor), time-scales it and resamples it to ``dt`` (``seft_ros.core.ground_motion``),
 reports its length on ``/seft/status`` and publishes ``xg''[k]`` stamped ``t_k`` on
-``/seft/ground_acceleration``: the first ``preview_steps`` at once, then one more for every
-``/clock`` tick, so the reference-force builder always has the samples it needs (and a
-preview of the record, which is known before the test).
+``/seft/ground_acceleration``: the first ``preview_steps`` at once, then, at every ``/clock``
+(published every ``CLOCK_EVERY`` steps), up to ``preview_steps + CLOCK_EVERY - 1`` ahead, so
+that the reference-force builder always has the samples it needs (and a preview of the
+record, which is known before the test).
 
 In real-time mode it also publishes one timing record per sample on
 ``/seft/timing/ground_motion_publisher`` (a sample is late, a missed deadline, when it is
@@ -25,7 +26,7 @@ from seft_msgs_py.convert import (
     dt_to_ns,
 )
 from seft_msgs_py.node_support import SeftNode, StepTiming, main_for
-from seft_msgs_py.topics import CLOCK, GROUND_ACCELERATION
+from seft_msgs_py.topics import CLOCK, CLOCK_EVERY, GROUND_ACCELERATION
 from seft_ros.core.experiment import prepared_record
 
 __all__ = ['GroundMotionPublisher', 'main']
@@ -77,7 +78,8 @@ class GroundMotionPublisher(SeftNode):
 
     def _on_clock(self, raw) -> None:
         k = int(round(clock_ns_from_raw(raw) / self.dt_ns))
-        self._publish_until(k + self.preview, k)
+        # the next /clock comes CLOCK_EVERY steps later: stay preview_steps ahead until then
+        self._publish_until(k + self.preview + CLOCK_EVERY - 1, k)
 
 
 def main(args=None) -> int:
