@@ -108,7 +108,7 @@ def simulate(params, *, progress: Callable[[int, int], None] | None = None,
             control, interlock_update = ctrl.step, interlock.update
 
         fr = build(padded[0:1 + look], None)
-        t_last = time.monotonic()
+        t_last = t_start = time.monotonic()
         for k in range(n_total):
             reason = limit_violation()
             if reason:
@@ -140,6 +140,7 @@ def simulate(params, *, progress: Callable[[int, int], None] | None = None,
             if progress is not None and not k & 255 and time.monotonic() - t_last > 0.5:
                 t_last = time.monotonic()
                 progress(k + 1, n_total)
+    wall_s = time.monotonic() - t_start
     n = n_done
     dt = float(params['dt'])
 
@@ -153,4 +154,5 @@ def simulate(params, *, progress: Callable[[int, int], None] | None = None,
         velocity_m_s=signal(v_rec), acceleration_m_s2=signal(a_rec),
         valve_command_V=signal(u_rec) if valve else None,
         stable=reason is None, unstable_at_s=None if reason is None else n * dt,
-        abort_reason=reason, record_name=gm.name, source='simulate')
+        abort_reason=reason, record_name=gm.name, source='simulate',
+        extra={'wall_s': wall_s})
