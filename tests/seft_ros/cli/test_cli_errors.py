@@ -51,6 +51,11 @@ CASES = {
     'set_rig_model': (['simulate', '--set', 'rig_model=foo'], re.escape(
         "command line: parameter rig_model='foo': expected one of 'delay', 'servohydraulic'")),
     'set_alpha': (['simulate', '--set', 'alpha=1'], re.escape('--set alpha: use --alpha')),
+    'simulate_realtime': (['simulate', '--set', 'mode=realtime'], re.escape(
+        'parameter mode=realtime: seft simulate has no wall clock (it is the lockstep graph '
+        'in one process); use seft run --mode realtime')),
+    'set_mode': (['simulate', '--set', 'mode=fast'], re.escape(
+        "command line: parameter mode='fast': expected one of 'lockstep', 'realtime'")),
     'yaml_unknown': (['simulate', 'unknown.yaml'],
                      re.escape("unknown.yaml: unknown parameter 'stiffnes_N_per_m'")),
     'yaml_invalid': (['simulate', 'invalid.yaml'],

@@ -114,6 +114,9 @@ def _experiments(args):
             raise InputError('--set alpha: use --alpha')
         overrides[name] = value
     runs = api.build_runs(config=args.config, overrides=overrides, alphas=args.alpha)
+    if args.verb == 'simulate' and any(p.get('mode') == 'realtime' for p in runs):
+        raise InputError('parameter mode=realtime: seft simulate has no wall clock (it is the '
+                         'lockstep graph in one process); use seft run --mode realtime')
     from pathlib import Path
     name = args.name or (Path(args.config).stem if args.config else 'run')
     return runs, api.output_dir(out=args.out, name=name), name
