@@ -233,7 +233,7 @@ class RigNode(SeftNode):
     # -- real time --------------------------------------------------------------------------
 
     def _start_realtime(self) -> None:
-        """Sample 0 now; then a steady-clock timer every dt."""
+        """Sample 0 now; the next ticks come at t0 + k dt (:meth:`next_due`, :meth:`run_due`)."""
         self.t0 = time.monotonic()
         self.t0_ns = time.time_ns()
         self.last_command_at = self.t0
