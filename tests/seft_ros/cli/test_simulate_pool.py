@@ -98,3 +98,25 @@ def test_ctrl_c_stops_the_workers(no_report, monkeypatch, tmp_path):
     assert not any('runs done' in ln for ln in seen)
     assert not list(tmp_path.glob('*/params.yaml'))
     assert not list(tmp_path.glob('unstopped*'))
+
+
+def test_a_sweep_over_records_predictors_and_alphas(tmp_path):
+    """Records x predictors x alphas, records outermost; each run on its own record."""
+    csv = tmp_path / 'pulse.csv'
+    t = np.arange(0, 2.0, 0.01)
+    csv.write_text('time,acceleration\n' + '\n'.join(
+        f'{ti:.2f},{a:.6f}' for ti, a in zip(t, np.sin(2 * np.pi * 2 * t) * np.exp(-t))))
+    runs = api.build_runs(overrides={'record': ['default', str(csv)], 'duration_s': 1.0,
+                                     'predictor': ['none', 'model']}, alphas=[0.0, 0.5])
+    assert [(r['record'], r['predictor'], r['alpha']) for r in runs] == [
+        (rec, pred, a) for rec in ('default', str(csv)) for pred in ('none', 'model')
+        for a in (0.0, 0.5)]
+    assert api._run_label(runs[4], runs) == 'alpha_0_servohydraulic_none_pulse'
+    assert api._run_label(runs[0], runs[:1]) == 'alpha_0_servohydraulic_none'
+    result = api.simulate_experiments(runs=runs, out_dir=tmp_path / 'out', progress=print,
+                                      force=True)
+    names = [r.record_name for r in result.runs]
+    assert names[:4] == ['synthetic-default(seed=1)'] * 4 and len(set(names[4:])) == 1
+    assert 'pulse' in names[4]
+    first = simulate(runs[5])
+    assert np.array_equal(result.runs[5].displacement_m, first.displacement_m)

@@ -91,8 +91,13 @@ def output_dir(*, out: str | None, name: str) -> Path:
     return path
 
 
-def _run_label(p: dict) -> str:
-    return f'alpha_{p["alpha"]:g}_{p["rig_model"]}_{p["predictor"]}'
+def _run_label(p: dict, runs: list[dict] | None = None) -> str:
+    """A run's directory name; with several records in `runs`, the record's file stem too."""
+    label = f'alpha_{p["alpha"]:g}_{p["rig_model"]}_{p["predictor"]}'
+    if runs and len({r['record'] for r in runs}) > 1:
+        stem = Path(str(p['record'])).stem
+        label += '_' + ''.join(c if c.isalnum() or c in '-_.' else '_' for c in stem)
+    return label
 
 
 def _finish(out_dir: Path, runs: list[RunData], title: str, t0: float) -> Result:
@@ -171,7 +176,7 @@ def simulate_runs(*, runs: list[dict], out_dir: Path,
     KeyboardInterrupt
         As :func:`simulate_experiments`.
     """
-    labels = [_run_label(p) for p in runs]
+    labels = [_run_label(p, runs) for p in runs]
     n_workers = min(len(runs), workers or os.cpu_count() or 1)
     if n_workers > 1:
         return _simulate_pool(runs, labels, out_dir, progress, n_workers)
@@ -330,7 +335,7 @@ def run_experiments(*, runs: list[dict], out_dir: Path,
     data = []
     try:
         for p in runs:
-            label = _run_label(p)
+            label = _run_label(p, runs)
             outcome = runner.run(p, out_dir / label, label=f'[{label}] ')
             rd = read_run(outcome.bag_path)
             data.append(rd)
@@ -362,6 +367,9 @@ def summary_table(summary: list[dict]) -> str:
     head = (f'{"alpha":>6} {"rig":>14} {"predictor":>10} {"stable":>7} {"abort_s":>8} '
             f'{"lag_ms":>7} {"nrms_x%":>8} {"nrms_a%":>8} {"nrms_f%":>8} {"peak_x":>7} '
             f'{"peak_a":>7} {"peak_f":>7}')
+    records = len({e.get('record') for e in summary}) > 1
+    if records:
+        head += f' {"record":>24}'
     timed = any(e.get('timing') for e in summary)
     if timed:
         head += f' {"lat50ms":>8} {"lat99ms":>8} {"missed%":>8} {"stale%":>8}'
@@ -381,6 +389,8 @@ def summary_table(summary: list[dict]) -> str:
             f'{abort} {lag} {pct(e["nrms"]["displacement"])} {pct(e["nrms"]["acceleration"])} '
             f'{pct(e["nrms"]["force"])} {num(e["peak_ratio"]["displacement"])} '
             f'{num(e["peak_ratio"]["acceleration"])} {num(e["peak_ratio"]["force"])}')
+        if records:
+            lines[-1] += f' {str(e.get("record"))[:24]:>24}'
         if timed:
             t = e.get('timing')
             lines[-1] += (f' {num(t["loop_latency_ms"]["p50"], 8)} '

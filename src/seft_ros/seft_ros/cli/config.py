@@ -54,7 +54,8 @@ def load_config(path) -> dict[str, Any]:
 
 
 def expand_runs(config: dict[str, Any], *, where: str = '') -> list[dict[str, Any]]:
-    """Validate a configuration and expand an ``alpha`` list into one parameter set per run.
+    """Validate a configuration and expand lists of ``record``, ``predictor`` and ``alpha``
+    into one parameter set per combination (in that order of nesting).
 
     Raises
     ------
@@ -70,18 +71,31 @@ def expand_runs(config: dict[str, Any], *, where: str = '') -> list[dict[str, An
     predictors = config.get('predictor', parameters.spec('predictor').default)
     if not isinstance(predictors, (list, tuple)):
         predictors = [predictors]
+    records = config.get('record', parameters.spec('record').default)
+    if not isinstance(records, (list, tuple)):
+        records = [records]
+    if not records:
+        raise ParameterError(f'{where + ": " if where else ""}parameter record: expected at '
+                             'least one value')
     runs = []
-    for predictor in predictors:
-        for alpha in alphas:
-            values = dict(config, alpha=alpha, predictor=predictor)
-            runs.append(parameters.resolve(values, where=where))
+    for record in records:
+        for predictor in predictors:
+            for alpha in alphas:
+                values = dict(config, alpha=alpha, predictor=predictor, record=record)
+                runs.append(parameters.resolve(values, where=where))
     return runs
 
 
 def write_params_file(params: dict[str, Any], path) -> Path:
-    """Write `params` as a ROS 2 parameter file for every node (``/**``), sim time on."""
+    """Write `params` as a ROS 2 parameter file for every node (``/**``).
+
+    ``use_sim_time`` is on in lockstep (ROS time is the rig's simulated clock) and off in real
+    time (the wall clock is the time; no node then listens to ``/clock`` but the ground-motion
+    publisher).
+    """
     path = Path(path)
-    body = {'/**': {'ros__parameters': dict(params, use_sim_time=True)}}
+    sim_time = params.get('mode', 'lockstep') != 'realtime'
+    body = {'/**': {'ros__parameters': dict(params, use_sim_time=sim_time)}}
     path.write_text('# seft run parameters (ROS 2 --params-file format)\n'
                     + yaml.safe_dump(body, sort_keys=True))
     return path

@@ -38,7 +38,9 @@ def _set_value(text: str):
 def _experiment_options(p: argparse.ArgumentParser) -> None:
     p.add_argument('config', nargs='?', help='configuration YAML (ROS 2 parameter file; '
                    'alpha may be a list)')
-    p.add_argument('--record', help="ground motion: 'default', a PEER .AT2 or a CSV path")
+    p.add_argument('--record', nargs='+', metavar='FILE',
+                   help="ground motion(s): 'default', a PEER .AT2 or a CSV path (several: one "
+                   'run per record, predictor and alpha)')
     p.add_argument('--alpha', type=float, nargs='+', metavar='A', help='mass ratio(s)')
     p.add_argument('--rig', dest='rig_model', choices=('delay', 'servohydraulic'),
                    help='simulated rig model')
