@@ -62,21 +62,15 @@ def expand_runs(config: dict[str, Any], *, where: str = '') -> list[dict[str, An
     ParameterError
         A value out of range (the message names the parameter and, if given, `where`).
     """
-    alphas = config.get('alpha', parameters.spec('alpha').default)
-    if not isinstance(alphas, (list, tuple)):
-        alphas = [alphas]
-    if not alphas:
-        raise ParameterError(f'{where + ": " if where else ""}parameter alpha: expected at '
-                             'least one value')
-    predictors = config.get('predictor', parameters.spec('predictor').default)
-    if not isinstance(predictors, (list, tuple)):
-        predictors = [predictors]
-    records = config.get('record', parameters.spec('record').default)
-    if not isinstance(records, (list, tuple)):
-        records = [records]
-    if not records:
-        raise ParameterError(f'{where + ": " if where else ""}parameter record: expected at '
-                             'least one value')
+    def values_of(name):
+        value = config.get(name, parameters.spec(name).default)
+        values = list(value) if isinstance(value, (list, tuple)) else [value]
+        if not values:
+            raise ParameterError(f'{where + ": " if where else ""}parameter {name}: expected '
+                                 'at least one value')
+        return values
+
+    alphas, predictors, records = (values_of(n) for n in ('alpha', 'predictor', 'record'))
     runs = []
     for record in records:
         for predictor in predictors:
