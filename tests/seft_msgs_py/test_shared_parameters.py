@@ -201,3 +201,11 @@ def test_value_source_of_unknown_name_is_an_error():
         value_source('alhpa')
     with pytest.raises(TypeError):
         VALUE_SOURCE['alpha'] = 'rig'  # read-only
+
+
+def test_graph_nodes_in_start_order():
+    from seft_msgs_py.parameters import graph_nodes
+    assert graph_nodes('servohydraulic') == ('ground_motion_publisher',
+                                             'reference_force_builder',
+                                             'force_servo_controller', 'rig')
+    assert graph_nodes('delay') == ('ground_motion_publisher', 'reference_force_builder', 'rig')

@@ -17,7 +17,7 @@ from seft_msgs_py.errors import ParameterError
 
 __all__ = [
     'ParamSpec', 'SCHEMA', 'NODES', 'spec', 'specs_for_node', 'defaults', 'validate_value',
-    'resolve', 'PER_NODE', 'shared_mismatches', 'VALUE_SOURCE', 'value_source',
+    'resolve', 'graph_nodes', 'PER_NODE', 'shared_mismatches', 'VALUE_SOURCE', 'value_source',
 ]
 
 #: The node names of the graph, as used in ``ParamSpec.nodes``.
@@ -288,6 +288,18 @@ def spec(name: str) -> ParamSpec:
         return _BY_NAME[name]
     except KeyError:
         raise ParameterError(f'unknown parameter {name!r}') from None
+
+
+def graph_nodes(rig_model: str) -> tuple[str, ...]:
+    """The data nodes of a run's graph, in start order (the rig last; the recorder apart).
+
+    The force servo controller only on the 'servohydraulic' rig: the 'delay' rig takes the
+    reference force directly.
+    """
+    nodes = ('ground_motion_publisher', 'reference_force_builder')
+    if rig_model == 'servohydraulic':
+        nodes += ('force_servo_controller',)
+    return nodes + ('rig',)
 
 
 def specs_for_node(node: str) -> list[ParamSpec]:

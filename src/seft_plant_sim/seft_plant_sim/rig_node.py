@@ -34,6 +34,7 @@ import math
 import sys
 import time
 
+from seft_msgs_py import parameters
 from seft_msgs_py.convert import (
     STATE_ABORTED,
     STATE_DONE,
@@ -70,12 +71,8 @@ SAFE_HOLD_S = 0.05
 def graph_nodes(params) -> tuple[str, ...]:
     """The nodes of the run's graph besides the rig (the recorder only with
     ``wait_for_recorder``)."""
-    nodes = ['ground_motion_publisher', 'reference_force_builder']
-    if params['rig_model'] == 'servohydraulic':
-        nodes.append('force_servo_controller')
-    if params['wait_for_recorder']:
-        nodes.append('recorder')
-    return tuple(nodes)
+    nodes = parameters.graph_nodes(params['rig_model'])[:-1]
+    return nodes + (('recorder',) if params['wait_for_recorder'] else ())
 
 
 class RigNode(SeftNode):

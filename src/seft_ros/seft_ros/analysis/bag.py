@@ -18,7 +18,12 @@ from rosbags.typesys import Stores, get_typestore
 from seft_msgs_py import parameters, signals
 from seft_msgs_py.errors import InputError
 from seft_ros.analysis.rundata import RunData
-from seft_ros.analysis.timing import read_timing, timing_summary
+from seft_ros.analysis.timing import (
+    TIMING_PUBLISHER,
+    node_timings,
+    timing_row,
+    timing_summary,
+)
 
 __all__ = ['read_run', 'BagSignals', 'read_signals']
 
@@ -62,10 +67,13 @@ class BagSignals:
     parameter_mismatches : list of str
         ``parameters.shared_mismatches(node_params)``: one line per shared parameter on which
         the nodes disagree (empty when they agree or the bag has no node parameters).
+    timing : dict of str -> NodeTiming
+        The real-time timing records per node (:mod:`seft_ros.analysis.timing`; empty for a
+        lockstep run).
     """
 
     def __init__(self, params, samples, counts, statuses, node_params=None,
-                 param_sources=None, parameter_mismatches=None):
+                 param_sources=None, parameter_mismatches=None, timing=None):
         self.params = params
         self.samples = samples
         self.counts = counts
@@ -73,6 +81,7 @@ class BagSignals:
         self.node_params = {} if node_params is None else node_params
         self.param_sources = {} if param_sources is None else param_sources
         self.parameter_mismatches = [] if parameter_mismatches is None else parameter_mismatches
+        self.timing = {} if timing is None else timing
 
 
 def _node_parameters(data: str, where: str) -> tuple[str, dict]:
@@ -150,6 +159,7 @@ def read_signals(path) -> BagSignals:
     statuses = []
     params = None
     node_params = {}
+    timing_rows: dict[str, list] = {}
     try:
         with Reader(path) as reader:
             for conn, _, raw in reader.messages():
@@ -162,6 +172,9 @@ def read_signals(path) -> BagSignals:
                     node, values = _node_parameters(
                         msg.data, f'{path}: {signals.NODE_PARAMETERS.name}')
                     node_params[node] = values
+                elif conn.topic in TIMING_PUBLISHER:
+                    timing_rows.setdefault(TIMING_PUBLISHER[conn.topic], []).append(
+                        timing_row(typestore.deserialize_cdr(raw, conn.msgtype)))
                 elif conn.topic == signals.STATUS.name:
                     msg = typestore.deserialize_cdr(raw, conn.msgtype)
                     entry = {kv.key: kv.value for kv in msg.values}
@@ -198,7 +211,8 @@ def read_signals(path) -> BagSignals:
     by_step = {name: {int(round(ns / dt_ns)): v for ns, v in vals.items()}
                for name, vals in samples.items()}
     return BagSignals(params, by_step, counts, statuses, node_params=node_params,
-                      param_sources=sources, parameter_mismatches=mismatches)
+                      param_sources=sources, parameter_mismatches=mismatches,
+                      timing=node_timings(timing_rows, params['dt']))
 
 
 def read_run(path) -> RunData:
@@ -207,8 +221,14 @@ def read_run(path) -> RunData:
     The parameters are ``BagSignals.params``; ``extra`` holds, besides ``'rig_final'`` and
     ``'counts'``, ``'node_params'`` (``{node: {parameter: value}}``, empty for a bag without
     node parameters), ``'param_sources'`` (``{parameter: node, 'run_parameters' or
-    'default'}``) and ``'parameter_mismatches'`` (one line per shared parameter on which the
-    nodes disagree; empty when they agree).
+    'default'}``), ``'parameter_mismatches'`` (one line per shared parameter on which the
+    nodes disagree; empty when they agree), ``'wall_s'`` (the rig's wall time of the stepping
+    [s], or None), ``'bag_lost_messages'`` (what the nodes published and the bag does not
+    hold, from the recorder's closing status) and, for a real-time run, ``'timing_data'``
+    (``BagSignals.timing``) and ``'timing'`` (its
+    :func:`~seft_ros.analysis.timing.timing_summary`). A real-time run aborted into the
+    rig's safe state ends at the abort (``abort_at_s`` of the rig's final status): the ramp
+    after it is not part of the test.
 
     Raises
     ------
@@ -259,8 +279,8 @@ def read_run(path) -> RunData:
     if closed and 'lost' in closed[-1]:
         extra['bag_lost_messages'] = int(closed[-1]['lost'])
     if p.get('mode') == 'realtime':
-        extra['timing_data'] = read_timing(path, dt)
-        extra['timing'] = timing_summary(extra['timing_data'])
+        extra['timing_data'] = bag.timing
+        extra['timing'] = timing_summary(bag.timing)
     return RunData(
         params=p, time_s=np.arange(n) * dt, ground_acceleration_m_s2=arr(needed[0]),
         reference_force_N=arr(needed[1]), measured_force_N=arr(needed[2]),

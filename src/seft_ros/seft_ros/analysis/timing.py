@@ -20,11 +20,12 @@ from rosbags.typesys import Stores, get_typestore
 from seft_msgs_py import signals
 from seft_msgs_py.errors import InputError
 
-__all__ = ['NodeTiming', 'read_timing', 'timing_summary', 'timing_figure', 'timing_table',
-           'percentiles_ms']
+__all__ = ['NodeTiming', 'read_timing', 'timing_row', 'node_timings', 'timing_summary',
+           'timing_figure', 'timing_table', 'percentiles_ms', 'TIMING_PUBLISHER']
 
 _FIELDS = signals.TIMING_FIELDS
-_TOPICS = {s.name: s.publisher for s in signals.TIMING}
+#: Timing topic -> the node that publishes it.
+TIMING_PUBLISHER = {s.name: s.publisher for s in signals.TIMING}
 
 
 @dataclass
@@ -57,6 +58,34 @@ class NodeTiming:
         return int(self.step.shape[0])
 
 
+def timing_row(msg) -> tuple[int, list[float]]:
+    """``(stamp [ns], [field values in TIMING_FIELDS order])`` of one timing record (a
+    deserialized ``sensor_msgs/JointState``; a field it lacks is nan)."""
+    values = dict(zip(msg.name, msg.position))
+    stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+    return stamp, [values.get(f, np.nan) for f in _FIELDS]
+
+
+def node_timings(rows: dict[str, list], dt: float) -> dict[str, NodeTiming]:
+    """The :class:`NodeTiming` of each node from its :func:`timing_row` rows.
+
+    Parameters
+    ----------
+    rows : dict of str -> list of (int, list of float)
+        Per node, ``(stamp [ns], field values)``.
+    dt : float > 0
+        Control period [s] (turns stamps into steps).
+    """
+    dt_ns = int(round(dt * 1e9))
+    out = {}
+    for node, r in rows.items():
+        a = np.array([[round(stamp / dt_ns)] + values for stamp, values in r], dtype=float)
+        a = a[np.argsort(a[:, 0], kind='stable')]
+        out[node] = NodeTiming(node, a[:, 0].astype(int), a[:, 1], a[:, 2], a[:, 3],
+                               a[:, 4] > 0.5, a[:, 5] > 0.5, a[:, 6])
+    return out
+
+
 def read_timing(path, dt: float) -> dict[str, NodeTiming]:
     """Read the timing records of the bag at `path` ({} for a lockstep bag).
 
@@ -74,25 +103,15 @@ def read_timing(path, dt: float) -> dict[str, NodeTiming]:
     """
     typestore = get_typestore(Stores.ROS2_JAZZY)
     rows: dict[str, list] = {}
-    dt_ns = int(round(dt * 1e9))
     try:
         with Reader(Path(path)) as reader:
-            conns = [c for c in reader.connections if c.topic in _TOPICS]
+            conns = [c for c in reader.connections if c.topic in TIMING_PUBLISHER]
             for conn, _, raw in reader.messages(connections=conns):
-                msg = typestore.deserialize_cdr(raw, conn.msgtype)
-                values = dict(zip(msg.name, msg.position))
-                stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-                rows.setdefault(_TOPICS[conn.topic], []).append(
-                    [round(stamp / dt_ns)] + [values.get(f, np.nan) for f in _FIELDS])
+                rows.setdefault(TIMING_PUBLISHER[conn.topic], []).append(
+                    timing_row(typestore.deserialize_cdr(raw, conn.msgtype)))
     except Exception as exc:  # rosbags raises several types for a damaged bag
         raise InputError(f'{path}: cannot read the timing records: {exc}') from None
-    out = {}
-    for node, r in rows.items():
-        a = np.array(r, dtype=float)
-        a = a[np.argsort(a[:, 0], kind='stable')]
-        out[node] = NodeTiming(node, a[:, 0].astype(int), a[:, 1], a[:, 2], a[:, 3],
-                               a[:, 4] > 0.5, a[:, 5] > 0.5, a[:, 6])
-    return out
+    return node_timings(rows, dt)
 
 
 def percentiles_ms(values) -> dict:

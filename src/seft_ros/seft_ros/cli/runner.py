@@ -171,10 +171,7 @@ class GraphRunner:
         bag_path = run_dir / 'bag'
         params = dict(params, bag_path=str(bag_path.resolve()), wait_for_recorder=True)
         params_file = write_params_file(params, run_dir / 'params.yaml')
-        nodes = ['recorder', 'ground_motion_publisher', 'reference_force_builder']
-        if params['rig_model'] == 'servohydraulic':
-            nodes.append('force_servo_controller')
-        nodes.append('rig')
+        nodes = ['recorder', *parameters.graph_nodes(params['rig_model'])]
         env = dict(self.env, ROS_LOG_DIR=str(log_dir / 'ros'))
         self.statuses.clear()
         self.node_params.clear()

@@ -19,7 +19,6 @@ import time
 from seft_msgs_py.convert import (
     STATE_READY,
     ScalarMessage,
-    dt_to_ns,
 )
 from seft_msgs_py.node_support import SeftNode, StepTiming, main_for
 from seft_msgs_py.sync import StepSync
@@ -38,7 +37,6 @@ class ForceServoControllerNode(SeftNode):
         self.controller = ForceServoController.from_parameters(p)
         self.interlock = SaturationInterlock.from_parameters(p)
         self.dt = float(p['dt'])
-        self.dt_ns = dt_to_ns(self.dt)
         self.sync = StepSync((REFERENCE_FORCE.name, MEASURED_FORCE.name))
         self.ready = {}
         self.next_step = 0

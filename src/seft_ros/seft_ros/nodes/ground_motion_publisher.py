@@ -23,7 +23,6 @@ from seft_msgs_py.convert import (
     STATE_READY,
     ScalarMessage,
     clock_ns_from_raw,
-    dt_to_ns,
 )
 from seft_msgs_py.node_support import SeftNode, StepTiming, main_for
 from seft_msgs_py.topics import CLOCK, CLOCK_EVERY, GROUND_ACCELERATION
@@ -41,7 +40,6 @@ class GroundMotionPublisher(SeftNode):
         self.record = prepared_record(p)
         self.values = self.record.acceleration_m_s2
         self.n_steps = int(self.values.shape[0])
-        self.dt_ns = dt_to_ns(p['dt'])
         self.preview = int(p['preview_steps'])
         self.next_step = 0
         self.pub = self.create_publisher(GROUND_ACCELERATION.msg_type, GROUND_ACCELERATION.name,

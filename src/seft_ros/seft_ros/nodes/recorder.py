@@ -28,6 +28,7 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 from std_msgs.msg import String
 
+from seft_msgs_py import parameters
 from seft_msgs_py.convert import (
     STATE_ABORTED,
     STATE_CLOSED,
@@ -120,9 +121,7 @@ class RecorderNode(SeftNode):
                                  STATUS.qos)
         self.finals = {}
         # the nodes of this run's graph: the recorder waits for each one's final count
-        self.participants = {'rig', 'ground_motion_publisher', 'reference_force_builder'}
-        if p['rig_model'] == 'servohydraulic':
-            self.participants.add('force_servo_controller')
+        self.participants = set(parameters.graph_nodes(p['rig_model']))
         self.rig_final_at = None
         self.wall_timer(0.1, self._check_complete)
         self.publish_parameters()
@@ -155,26 +154,24 @@ class RecorderNode(SeftNode):
             if msg.name == 'rig' and self.rig_final_at is None:
                 self.rig_final_at = time.monotonic()
 
+    def _published(self):
+        """``(topic, recorded, published)`` of every topic of every node that has finished."""
+        for node, values in self.finals.items():
+            for name in TOPICS_OF_NODE.get(node, ()):
+                key = 'published_timing' if name in _TIMING_NAMES else 'published'
+                yield name, self.counts[name], int(values.get(key, 0))
+
     def _missing(self) -> list[str]:
         """What has not arrived yet: nodes without a final status, topics short of samples."""
         missing = [f'{n} (no final status)' for n in sorted(self.participants)
                    if n not in self.finals]
-        for node, values in self.finals.items():
-            for name in TOPICS_OF_NODE.get(node, ()):
-                key = 'published_timing' if name in _TIMING_NAMES else 'published'
-                want = int(values.get(key, 0))
-                if self.counts[name] < want:
-                    missing.append(f'{name} ({self.counts[name]}/{want})')
+        missing += [f'{name} ({got}/{want})' for name, got, want in self._published()
+                    if got < want]
         return missing
 
     def _lost(self) -> int:
         """Messages the nodes published but the bag does not hold."""
-        lost = 0
-        for node, values in self.finals.items():
-            for name in TOPICS_OF_NODE.get(node, ()):
-                key = 'published_timing' if name in _TIMING_NAMES else 'published'
-                lost += max(0, int(values.get(key, 0)) - self.counts[name])
-        return lost
+        return sum(max(0, want - got) for _, got, want in self._published())
 
     def _check_complete(self) -> None:
         if self.rig_final_at is None or self.done:

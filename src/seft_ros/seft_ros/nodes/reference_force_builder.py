@@ -27,7 +27,6 @@ from seft_msgs_py import parameters
 from seft_msgs_py.convert import (
     STATE_READY,
     ScalarMessage,
-    dt_to_ns,
     status_values,
 )
 from seft_msgs_py.node_support import SeftNode, StepTiming, descriptor_of, main_for
@@ -74,7 +73,6 @@ class ReferenceForceBuilderNode(SeftNode):
         self.n_total = int(p['n_steps']) or None
         self.monitor = InstabilityMonitor.from_parameters(p)
         self.dt = float(p['dt'])
-        self.dt_ns = dt_to_ns(self.dt)
         self.ground = {}
         self.measurements = {}
         self.sync = StepSync(t.name for t in _SENSORS)
@@ -125,6 +123,15 @@ class ReferenceForceBuilderNode(SeftNode):
             return self.latest_ground[1]
         return value
 
+    def _publish_force(self, k: int, ground, latest: Measurement | None) -> None:
+        """Build f_r[k] from ``ground(j)`` (xg''[j]) and the measurement of k-1; publish it."""
+        look = self.builder.lookahead_steps
+        n_total = self.n_total if self.n_total is not None else k + look + 1
+        force = self.builder.step(ground_window(ground, k, look, n_total), latest)
+        self.ground.pop(k, None)
+        self.pub.publish(self.out_msg(k * self.dt_ns, force))
+        self.next_step += 1
+
     def _monitor_trips(self, latest: Measurement, k: int) -> bool:
         """The instability monitor on sample k-1; on a trip the run is aborted (True)."""
         reason = self.monitor.update(latest.force_N, self.builder.last_ground_force_N,
@@ -143,14 +150,8 @@ class ReferenceForceBuilderNode(SeftNode):
                 return
             if self.n_total is not None and k >= self.n_total:
                 return
-            look = self.builder.lookahead_steps
-            n_total = self.n_total if self.n_total is not None else k + look + 1
             self.ground_stale = False
-            force = self.builder.step(
-                ground_window(self._ground_or_latest, k, look, n_total), latest)
-            self.ground.pop(k, None)
-            self.pub.publish(self.out_msg(k * self.dt_ns, force))
-            self.next_step += 1
+            self._publish_force(k, self._ground_or_latest, latest)
             now_ns = time.time_ns()
             age = (now_ns - self.sample_time_ns(k - 1)) * 1e-9
             missed = now_ns > self.sample_time_ns(k)
@@ -180,13 +181,7 @@ class ReferenceForceBuilderNode(SeftNode):
                     return
             else:
                 return
-            look = self.builder.lookahead_steps
-            n_total = self.n_total if self.n_total is not None else k + look + 1
-            force = self.builder.step(
-                ground_window(self.ground.__getitem__, k, look, n_total), latest)
-            self.ground.pop(k)
-            self.pub.publish(self.out_msg(k * self.dt_ns, force))
-            self.next_step += 1
+            self._publish_force(k, self.ground.__getitem__, latest)
 
     def _on_status(self, msg) -> None:
         if msg.name == 'ground_motion_publisher' and self.n_total is None:
