@@ -34,8 +34,10 @@ NODES = (('recorder', 'seft_ros'), ('ground_motion_publisher', 'seft_ros'),
          ('rig', 'seft_plant_sim'))
 NODE_NAMES = tuple(n for n, _ in NODES)
 
-#: Every node: a short run (n_steps from the ground-motion publisher's record length).
-SHORT = ('-p', 'duration_s:=1.0')
+#: Every node, as the README's P: a short run (n_steps from the ground-motion publisher's
+#: record length), and the rig waits for the recorder (else a slow discovery lets the rig run
+#: and exit before the recorder heard it: no sample, no final status in the bag).
+SHORT = ('-p', 'duration_s:=1.0', '-p', 'wait_for_recorder:=true')
 N_STEPS = 500
 
 EXIT_TIMEOUT_S = 30.0
