@@ -26,12 +26,13 @@ import tempfile
 import time
 
 from seft_msgs_py import parameters
+from seft_msgs_py.sampling import single_blas_thread
 from seft_plant_sim.rigs import make_rig
-from seft_plant_sim.sampling import single_blas_thread
 from seft_ros.analysis.report import write_report
 from seft_ros.cli import api
 from seft_ros.core.controller import ForceServoController, SaturationInterlock
-from seft_ros.core.experiment import prepared_record, simulate
+from seft_ros.core.experiment import simulate
+from seft_ros.core.ground_motion import prepared_record
 from seft_ros.core.monitor import InstabilityMonitor
 from seft_ros.core.reference_force import ReferenceForceBuilder
 

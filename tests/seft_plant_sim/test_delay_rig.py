@@ -5,9 +5,9 @@ import pytest
 from scipy import signal
 
 from seft_msgs_py.errors import ParameterError
+from seft_msgs_py.interface import COMMAND_FORCE, Rig
 from seft_msgs_py.parameters import defaults
 from seft_plant_sim.delay_rig import DelayRig
-from seft_plant_sim.interface import COMMAND_FORCE, Rig
 from seft_plant_sim.specimen import LinearSpecimen
 
 DT = 0.002

@@ -7,8 +7,8 @@ import re
 import numpy as np
 import pytest
 
-from seft_plant_sim.interface import Measurement
-from seft_plant_sim.sampling import linear_map, single_blas_thread, split_delay
+from seft_msgs_py.interface import Measurement
+from seft_msgs_py.sampling import linear_map, single_blas_thread, split_delay
 from seft_plant_sim.sensors import Sensors
 from seft_plant_sim.specimen import SafetyLimits
 

@@ -8,9 +8,9 @@ import pytest
 from scipy import signal
 
 from seft_msgs_py.errors import ParameterError
+from seft_msgs_py.interface import COMMAND_VALVE, Rig
 from seft_msgs_py.parameters import defaults
 from seft_plant_sim.delay_rig import DelayRig
-from seft_plant_sim.interface import COMMAND_VALVE, Rig
 from seft_plant_sim.rigs import RIG_MODELS, make_rig
 from seft_plant_sim.sensors import Sensors
 from seft_plant_sim.servohydraulic import (

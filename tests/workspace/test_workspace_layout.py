@@ -87,3 +87,35 @@ def test_default_config_lists_every_parameter_with_its_default():
     values = load_config(ROOT / 'config' / 'default.yaml')
     expected = {s.name: s.default for s in parameters.SCHEMA if s.name != 'bag_path'}
     assert values == expected
+
+
+_NO_PLANT_SIM = '''
+import importlib.abc, sys
+class Block(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path=None, target=None):
+        if name == 'seft_plant_sim' or name.startswith('seft_plant_sim.'):
+            raise ImportError('blocked: ' + name)
+sys.meta_path.insert(0, Block())
+import seft_ros.nodes.ground_motion_publisher, seft_ros.nodes.reference_force_builder
+import seft_ros.nodes.force_servo_controller, seft_ros.nodes.recorder
+from seft_msgs_py import parameters
+from seft_msgs_py.errors import ParameterError
+from seft_ros.core.reference_force import ReferenceForceBuilder
+p = parameters.resolve({'rig_model': 'delay', 'predictor': 'model', 'alpha': 1.0})
+ReferenceForceBuilder.from_parameters(p)
+try:
+    ReferenceForceBuilder.from_parameters(parameters.resolve({'predictor': 'model', 'alpha': 1.0}))
+except ParameterError as exc:
+    print('refused:', exc)
+'''
+
+
+def test_controller_side_runs_without_the_plant_simulation():
+    """A lab's controller host installs no plant simulation (issue: structure): the nodes of
+    the computational side import, and a delay-rig `model` builder is built, with
+    seft_plant_sim made unimportable; the servohydraulic `model` says what it misses."""
+    proc = subprocess.run([sys.executable, '-c', _NO_PLANT_SIM], capture_output=True,
+                          text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert 'refused: predictor model on rig_model servohydraulic' in proc.stdout
+    assert 'seft_plant_sim' in proc.stdout

@@ -5,10 +5,10 @@ from collections import deque
 import numpy as np
 
 from seft_msgs_py.errors import ParameterError
-from seft_plant_sim.interface import COMMAND_FORCE, Measurement
-from seft_plant_sim.sampling import linear_map as _linear_map
-from seft_plant_sim.sampling import split_delay
-from seft_plant_sim.sampling import zoh as _zoh
+from seft_msgs_py.interface import COMMAND_FORCE, Measurement
+from seft_msgs_py.sampling import linear_map as _linear_map
+from seft_msgs_py.sampling import split_delay
+from seft_msgs_py.sampling import zoh as _zoh
 from seft_plant_sim.sensors import Sensors
 from seft_plant_sim.specimen import (
     BoucWenSpecimen,

@@ -1,7 +1,7 @@
 """The rig on the wall clock: commands take effect when they arrive (real-time mode).
 
 In lockstep mode the rig waits for the command of each step and holds it over the step
-(:class:`~seft_plant_sim.interface.Rig`). A laboratory rig cannot wait: its plant moves on
+(:class:`~seft_msgs_py.interface.Rig`). A laboratory rig cannot wait: its plant moves on
 whether a command has arrived or not. :class:`WallClockRig` is the same simulated rig driven
 that way. Between two ticks ``t_k`` and ``t_k+1`` it integrates the plant on a fine sub-step
 grid, and the actuator sees the latest command that has taken effect, switched at the
@@ -34,7 +34,7 @@ import math
 from typing import Mapping
 
 from seft_msgs_py.errors import ParameterError
-from seft_plant_sim.interface import COMMAND_VALVE, Measurement
+from seft_msgs_py.interface import COMMAND_VALVE, Measurement
 from seft_plant_sim.rigs import make_rig
 
 __all__ = ['WallClockRig', 'OUTPUT_TIMINGS']

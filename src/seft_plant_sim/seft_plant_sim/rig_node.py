@@ -44,6 +44,7 @@ from seft_msgs_py.convert import (
     ScalarMessage,
     status_values,
 )
+from seft_msgs_py.interface import COMMAND_VALVE
 from seft_msgs_py.node_support import SeftNode, StepTiming, main_for
 from seft_msgs_py.topics import (
     ACCELERATION,
@@ -56,7 +57,6 @@ from seft_msgs_py.topics import (
     VALVE_COMMAND,
     VELOCITY,
 )
-from seft_plant_sim.interface import COMMAND_VALVE
 from seft_plant_sim.realtime import WallClockRig
 from seft_plant_sim.rigs import make_rig
 
@@ -76,7 +76,7 @@ def graph_nodes(params) -> tuple[str, ...]:
 
 
 class RigNode(SeftNode):
-    """Rig node around a :class:`seft_plant_sim.interface.Rig` (lockstep) or a
+    """Rig node around a :class:`seft_msgs_py.interface.Rig` (lockstep) or a
     :class:`~seft_plant_sim.realtime.WallClockRig` (real-time)."""
 
     def __init__(self):

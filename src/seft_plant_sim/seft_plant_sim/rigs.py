@@ -1,7 +1,7 @@
 """The registry of simulated rig models, chosen by the ``rig_model`` parameter.
 
 A hardware DAQ/servo bridge would register here under its own name: the test loop only sees
-the :class:`~seft_plant_sim.interface.Rig` protocol. Each simulated rig takes its specimen from
+the :class:`~seft_msgs_py.interface.Rig` protocol. Each simulated rig takes its specimen from
 ``specimen_model`` (:data:`~seft_plant_sim.specimen.SPECIMEN_MODELS`: 'linear', stepped
 exactly, or the hysteretic 'bouc_wen', stepped with RK4 substeps).
 """
@@ -9,8 +9,8 @@ exactly, or the hysteretic 'bouc_wen', stepped with RK4 substeps).
 from typing import Callable, Mapping
 
 from seft_msgs_py.errors import ParameterError
+from seft_msgs_py.interface import Rig
 from seft_plant_sim.delay_rig import DelayRig
-from seft_plant_sim.interface import Rig
 from seft_plant_sim.servohydraulic import ServoHydraulicRig
 
 __all__ = ['RIG_MODELS', 'make_rig']

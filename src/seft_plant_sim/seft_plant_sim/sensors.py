@@ -4,7 +4,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from seft_plant_sim.interface import Measurement
+from seft_msgs_py.interface import Measurement
 
 __all__ = ['Sensors']
 

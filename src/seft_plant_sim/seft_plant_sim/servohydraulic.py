@@ -44,10 +44,10 @@ import numpy as np
 from scipy import optimize, signal
 
 from seft_msgs_py.errors import ParameterError
-from seft_plant_sim.interface import COMMAND_VALVE, Measurement
-from seft_plant_sim.sampling import linear_map as _linear_map
-from seft_plant_sim.sampling import split_delay as _split_delay
-from seft_plant_sim.sampling import zoh as _zoh
+from seft_msgs_py.interface import COMMAND_VALVE, Measurement
+from seft_msgs_py.sampling import linear_map as _linear_map
+from seft_msgs_py.sampling import split_delay as _split_delay
+from seft_msgs_py.sampling import zoh as _zoh
 from seft_plant_sim.sensors import Sensors
 from seft_plant_sim.specimen import (
     BoucWenSpecimen,
@@ -467,7 +467,7 @@ class ServoHydraulicRig:
     -----
     A linear step is one (ns x ns+2) matrix-vector product on a preallocated work list
     ``[s, u_early, u_late]`` and the readings ``c s`` computed once per step, both as
-    straight-line Python float code (:func:`~seft_plant_sim.sampling.linear_map`): measured
+    straight-line Python float code (:func:`~seft_msgs_py.sampling.linear_map`): measured
     0.9 us per ``apply()`` and 0.5 us per ``measure()`` on the development machine.
 
     The rig itself is linear; the controller's valve saturation (10 V) and the accelerometer

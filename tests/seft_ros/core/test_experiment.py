@@ -7,7 +7,8 @@ import pytest
 from scipy import signal
 
 from seft_msgs_py.errors import InputError, ParameterError
-from seft_ros.core.experiment import prepared_record, simulate
+from seft_ros.core.experiment import simulate
+from seft_ros.core.ground_motion import prepared_record
 
 FIELDS = ('time_s', 'ground_acceleration_m_s2', 'reference_force_N', 'measured_force_N',
           'displacement_m', 'velocity_m_s', 'acceleration_m_s2', 'valve_command_V')

@@ -5,9 +5,9 @@ import pytest
 from scipy.signal import cont2discrete
 
 from seft_msgs_py.errors import ParameterError
+from seft_msgs_py.interface import Measurement
 from seft_msgs_py.parameters import spec
 from seft_plant_sim.delay_rig import DelayRig
-from seft_plant_sim.interface import Measurement
 from seft_plant_sim.servohydraulic import ServoHydraulicParams
 from seft_plant_sim.specimen import LinearSpecimen
 from seft_ros.analysis.metrics import compare_run

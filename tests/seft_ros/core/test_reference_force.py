@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from seft_msgs_py.errors import ParameterError
+from seft_msgs_py.interface import Measurement
 from seft_msgs_py.parameters import spec
-from seft_plant_sim.interface import Measurement
 from seft_ros.core.reference_force import (
     PREDICTORS,
     NoPredictor,

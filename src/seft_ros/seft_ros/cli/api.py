@@ -16,14 +16,15 @@ import numpy as np
 
 from seft_msgs_py import parameters
 from seft_msgs_py.errors import InputError, ParameterError, SeftError
-from seft_plant_sim.sampling import single_blas_thread
+from seft_msgs_py.sampling import single_blas_thread
 from seft_ros.analysis.bag import read_run
 from seft_ros.analysis.reference import reference_response
 from seft_ros.analysis.report import write_report
 from seft_ros.analysis.rundata import RunData
 from seft_ros.cli.config import expand_runs, load_config, write_params_file
 from seft_ros.core import stability
-from seft_ros.core.experiment import prepared_record, simulate
+from seft_ros.core.experiment import simulate
+from seft_ros.core.ground_motion import prepared_record
 from seft_ros.core.reference_force import PREDICTORS
 
 __all__ = ['build_runs', 'output_dir', 'run_experiments', 'simulate_experiments',

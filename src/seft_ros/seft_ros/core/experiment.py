@@ -21,41 +21,16 @@ from typing import Callable
 import numpy as np
 
 from seft_msgs_py import parameters
-from seft_msgs_py.errors import ParameterError
-from seft_plant_sim.interface import COMMAND_VALVE
+from seft_msgs_py.interface import COMMAND_VALVE
+from seft_msgs_py.sampling import single_blas_thread
 from seft_plant_sim.rigs import make_rig
-from seft_plant_sim.sampling import single_blas_thread
 from seft_ros.analysis.rundata import RunData
 from seft_ros.core.controller import ForceServoController, SaturationInterlock
-from seft_ros.core.ground_motion import GroundMotion, load_record, prepare
+from seft_ros.core.ground_motion import GroundMotion, prepared_record
 from seft_ros.core.monitor import InstabilityMonitor
 from seft_ros.core.reference_force import ReferenceForceBuilder
 
-__all__ = ['prepared_record', 'simulate']
-
-
-def prepared_record(params) -> GroundMotion:
-    """Load and prepare the run's ground motion (scaling, time scale, resampling, duration).
-
-    Raises
-    ------
-    InputError, ParameterError
-        Bad record file or parameter.
-    """
-    record = load_record(params['record'])
-    gm = prepare(record, dt=float(params['dt']), mass_kg=float(params['mass_kg']),
-                 amplitude_N=float(params['amplitude_N']),
-                 scale_factor=float(params['scale_factor']),
-                 time_scale=float(params['time_scale']),
-                 duration_s=float(params['duration_s']))
-    n = int(params.get('n_steps', 0) or 0)
-    if n:
-        if n > gm.acceleration_m_s2.shape[0]:
-            raise ParameterError(
-                f'parameter n_steps={n}: expected <= {gm.acceleration_m_s2.shape[0]} '
-                '(the prepared record length)')
-        gm = GroundMotion(gm.dt, gm.acceleration_m_s2[:n], gm.name, gm.source)
-    return gm
+__all__ = ['simulate']
 
 
 def simulate(params, *, progress: Callable[[int, int], None] | None = None,

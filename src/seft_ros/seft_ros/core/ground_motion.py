@@ -20,6 +20,7 @@ from seft_msgs_py.errors import InputError, ParameterError
 
 __all__ = [
     'G', 'GroundMotion', 'read_at2', 'read_csv', 'synthetic_default', 'load_record', 'prepare',
+    'prepared_record',
 ]
 
 #: Standard gravity [m/s^2] (CGPM 1901), used to convert records in g.
@@ -554,3 +555,27 @@ def prepare(record: GroundMotion, *, dt: float, mass_kg: float, amplitude_N: flo
     else:
         a = a * scale_factor
     return GroundMotion(dt, a, record.name, record.source)
+
+
+def prepared_record(params) -> GroundMotion:
+    """Load and prepare the run's ground motion (scaling, time scale, resampling, duration).
+
+    Raises
+    ------
+    InputError, ParameterError
+        Bad record file or parameter.
+    """
+    record = load_record(params['record'])
+    gm = prepare(record, dt=float(params['dt']), mass_kg=float(params['mass_kg']),
+                 amplitude_N=float(params['amplitude_N']),
+                 scale_factor=float(params['scale_factor']),
+                 time_scale=float(params['time_scale']),
+                 duration_s=float(params['duration_s']))
+    n = int(params.get('n_steps', 0) or 0)
+    if n:
+        if n > gm.acceleration_m_s2.shape[0]:
+            raise ParameterError(
+                f'parameter n_steps={n}: expected <= {gm.acceleration_m_s2.shape[0]} '
+                '(the prepared record length)')
+        gm = GroundMotion(gm.dt, gm.acceleration_m_s2[:n], gm.name, gm.source)
+    return gm

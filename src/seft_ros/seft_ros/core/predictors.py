@@ -37,11 +37,11 @@ import math
 import numpy as np
 
 from seft_msgs_py.errors import ParameterError
-from seft_plant_sim.interface import Measurement
-from seft_plant_sim.sampling import linear_map as _linear_map
-from seft_plant_sim.sampling import single_blas_thread as _single_blas_thread
-from seft_plant_sim.sampling import split_delay as _split_delay
-from seft_plant_sim.sampling import zoh as _zoh
+from seft_msgs_py.interface import Measurement
+from seft_msgs_py.sampling import linear_map as _linear_map
+from seft_msgs_py.sampling import single_blas_thread as _single_blas_thread
+from seft_msgs_py.sampling import split_delay as _split_delay
+from seft_msgs_py.sampling import zoh as _zoh
 
 __all__ = [
     'NoPredictor', 'PolynomialPredictor', 'ModelPredictor', 'AdaptivePredictor',
@@ -555,8 +555,13 @@ class ForceLoopInverse:
         ``predictor_loop_delay_steps`` (d) and ``predictor_loop_taps`` set the fit; the
         specimen model is that of the predictor (``predictor_*``).
         """
-        from seft_plant_sim.servohydraulic import ServoHydraulicParams
-        from seft_plant_sim.specimen import LinearSpecimen
+        try:  # the plant models are optional on a lab's controller host
+            from seft_plant_sim.servohydraulic import ServoHydraulicParams
+            from seft_plant_sim.specimen import LinearSpecimen
+        except ImportError as exc:
+            raise ParameterError(
+                'predictor model on rig_model servohydraulic: the force-loop model comes from '
+                f'seft_plant_sim, which cannot be imported here ({exc}); install it') from None
         from seft_ros.core.controller import ForceServoController
         mp = model_parameters(params)
         spec = LinearSpecimen(mp['mass_kg'], mp['damping_N_s_per_m'], mp['stiffness_N_per_m'])

@@ -4,7 +4,7 @@ import math
 from typing import Callable, Protocol, runtime_checkable
 
 from seft_msgs_py.errors import ParameterError
-from seft_plant_sim.interface import Measurement
+from seft_msgs_py.interface import Measurement
 from seft_ros.core.predictors import (
     AdaptivePredictor,
     ModelPredictor,

@@ -45,8 +45,8 @@ import numpy as np
 from scipy import signal
 
 from seft_msgs_py.errors import SeftError
-from seft_plant_sim.interface import Measurement
-from seft_plant_sim.sampling import zoh as _zoh
+from seft_msgs_py.interface import Measurement
+from seft_msgs_py.sampling import zoh as _zoh
 from seft_plant_sim.servohydraulic import OUTPUTS, ServoHydraulicParams, sample
 from seft_plant_sim.specimen import LinearSpecimen
 from seft_ros.core.controller import ForceServoController

@@ -26,7 +26,7 @@ from seft_msgs_py.convert import (
 )
 from seft_msgs_py.node_support import SeftNode, StepTiming, main_for
 from seft_msgs_py.topics import CLOCK, CLOCK_EVERY, GROUND_ACCELERATION
-from seft_ros.core.experiment import prepared_record
+from seft_ros.core.ground_motion import prepared_record
 
 __all__ = ['GroundMotionPublisher', 'main']
 

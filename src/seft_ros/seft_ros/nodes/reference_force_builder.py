@@ -29,6 +29,7 @@ from seft_msgs_py.convert import (
     ScalarMessage,
     status_values,
 )
+from seft_msgs_py.interface import Measurement
 from seft_msgs_py.node_support import SeftNode, StepTiming, descriptor_of, main_for
 from seft_msgs_py.sync import StepSync
 from seft_msgs_py.topics import (
@@ -40,7 +41,6 @@ from seft_msgs_py.topics import (
     STATUS,
     VELOCITY,
 )
-from seft_plant_sim.interface import Measurement
 from seft_ros.core.monitor import InstabilityMonitor
 from seft_ros.core.reference_force import ReferenceForceBuilder, ground_window
 

@@ -1,5 +1,8 @@
 """The rig interface: what a simulated rig and a hardware DAQ/servo bridge both implement.
 
+It lives in seft_msgs_py, below both sides, so that the controller side (the reference-force
+builder and its compensators) installs and runs without the plant simulation.
+
 After OpenFresco's split of experimental control from setup and site
 (``SRC/experimentalControl/ExperimentalControl.h``): the test loop only ever calls
 :meth:`Rig.measure`, :meth:`Rig.apply` and :meth:`Rig.limit_violation`, so the simulated rigs

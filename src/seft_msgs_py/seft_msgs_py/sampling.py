@@ -1,4 +1,5 @@
-"""Sampled-data helpers shared by the rigs, the compensators and the stability analysis."""
+"""Sampled-data helpers shared by the rigs, the compensators and the stability analysis (here,
+below both the controller side and the plant simulation, which both use them)."""
 
 import math
 
