@@ -89,7 +89,7 @@ def test_default_config_lists_every_parameter_with_its_default():
     assert values == expected
 
 
-_NO_PLANT_SIM = '''
+_NO_PLANT_SIM = """
 import importlib.abc, sys
 class Block(importlib.abc.MetaPathFinder):
     def find_spec(self, name, path=None, target=None):
@@ -107,7 +107,7 @@ try:
     ReferenceForceBuilder.from_parameters(parameters.resolve({'predictor': 'model', 'alpha': 1.0}))
 except ParameterError as exc:
     print('refused:', exc)
-'''
+"""
 
 
 def test_controller_side_runs_without_the_plant_simulation():

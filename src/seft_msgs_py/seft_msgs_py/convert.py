@@ -6,10 +6,11 @@ attribute names (rosbags' deserialized messages), so the bag reader uses them to
 
 import json
 import struct
+from typing import Callable
 
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
-from rclpy.serialization import deserialize_message
+from rclpy.serialization import deserialize_message, serialize_message
 from rosgraph_msgs.msg import Clock
 
 from seft_msgs_py.topics import FRAME_ID, TopicSpec
@@ -18,7 +19,7 @@ __all__ = [
     'dt_to_ns', 'ns_to_stamp', 'stamp_to_ns', 'step_of', 'scalar_msg', 'scalar_value',
     'clock_msg', 'status_msg', 'status_values', 'STATE_READY', 'STATE_RUNNING', 'STATE_DONE',
     'STATE_ABORTED', 'STATE_CLOSED', 'STATE_FAILED', 'STATE_RECORDING', 'parameters_json',
-    'ScalarMessage', 'ScalarReader', 'clock_ns_from_raw',
+    'ScalarMessage', 'ScalarReader', 'clock_ns_from_raw', 'SerializedStamped', 'FieldsReader',
 ]
 
 STATE_READY = 'ready'
@@ -130,6 +131,150 @@ class ScalarReader:
                     _DOUBLE.unpack_from(raw, 4 + ((end + 7) & ~7))[0])
         msg = deserialize_message(raw, self.spec.msg_type)
         return stamp_to_ns(msg.header.stamp), scalar_value(self.spec, msg)
+
+
+#: Marker values located in a serialized template to find where its float64 fields lie.
+_MARKERS = tuple(-1.2345678901234567e-299 * (i + 1) for i in range(16))
+
+
+_TYPESTORE = None
+
+
+def _exact(msg) -> bytes:
+    """``serialize_message(msg)`` as exact, deterministic bytes.
+
+    rclpy's serializer leaves the alignment padding uninitialized (other bytes in every
+    process) and, for some types, returns a buffer longer than the message (a
+    ``sensor_msgs/JointState`` with empty sequences: 8 bytes more), which strict CDR readers
+    refuse (rosbags: "CDR message size mismatch"). The bytes are read back with rosbags
+    (its reader skips padding; the shortest readable end is the message's) and written again
+    by rosbags' serializer, zero padding included, as a bag written by rosbags holds them.
+    """
+    global _TYPESTORE
+    from rosbags.serde import SerdeError
+    from rosbags.typesys import Stores, get_typestore
+    if _TYPESTORE is None:
+        _TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
+    module = type(msg).__module__.split('.')[0]
+    type_name = f'{module}/msg/{type(msg).__name__}'
+    raw = serialize_message(msg)
+    for length in range(len(raw), max(4, len(raw) - 16), -1):
+        try:
+            obj = _TYPESTORE.deserialize_cdr(raw[:length], type_name)
+        except SerdeError:
+            continue
+        return bytes(_TYPESTORE.serialize_cdr(obj, type_name))
+    raise ValueError(f'SerializedStamped: cannot read back a serialized {type_name}')
+
+
+class SerializedStamped:
+    """Serialized bytes of a stamped message, with its stamp and float64 fields set per sample.
+
+    Serializes `msg` once with marker values in its float64 fields, finds where they lie, and
+    then only writes the stamp and the values into a copy of those bytes (about 0.5 us against
+    11-16 us for ``rclpy.serialization.serialize_message``). A publisher publishes the bytes
+    (``Publisher.publish`` takes serialized messages); the recorder writes them to the bag.
+    The layout is that of little-endian CDR (XCDR1, encapsulation ``00 01``), which rclpy
+    produces on every platform it runs on here; anything else raises.
+
+    Parameters
+    ----------
+    msg : rclpy message
+        A stamped message (``header`` first), with everything but the values set.
+    set_values : callable(msg, values)
+        Writes `n` float64 values into `msg`.
+    n : int
+        Number of values (1..16).
+
+    Raises
+    ------
+    ValueError
+        The encoding is not little-endian CDR, or a value's place is not unique.
+    """
+
+    def __init__(self, msg, set_values: Callable, n: int):
+        set_values(msg, _MARKERS[:n])
+        raw = _exact(msg)
+        if raw[:2] != b'\x00\x01':
+            raise ValueError('SerializedStamped: expected little-endian CDR')
+        self.offsets = []
+        for m in _MARKERS[:n]:
+            packed = _DOUBLE.pack(m)
+            at = raw.find(packed)
+            if at < 0 or raw.find(packed, at + 1) >= 0:
+                raise ValueError('SerializedStamped: a value has no unique place')
+            self.offsets.append(at)
+        set_values(msg, (0.0,) * n)
+        self.template = _exact(msg)
+        contiguous = all(b - a == 8 for a, b in zip(self.offsets, self.offsets[1:]))
+        self._block = struct.Struct(f'<{n}d') if contiguous else None
+
+    @classmethod
+    def scalar(cls, spec: TopicSpec) -> 'SerializedStamped':
+        """The template of a scalar topic (:class:`ScalarMessage`'s message)."""
+        writer = ScalarMessage(spec)
+        return cls(writer.msg, lambda msg, v: writer(0, v[0]), 1)
+
+    @classmethod
+    def fields(cls, msg_type, names) -> 'SerializedStamped':
+        """A ``sensor_msgs/JointState``-like message: ``name`` = `names`, ``position`` = values."""
+        msg = msg_type()
+        msg.header.frame_id = FRAME_ID
+        msg.name = list(names)
+
+        def set_values(m, values):
+            m.position = [float(v) for v in values]
+        return cls(msg, set_values, len(names))
+
+    def __call__(self, stamp_ns: int, values) -> bytes:
+        """The serialized message of one sample: stamp [ns] and values (sequence of n)."""
+        b = bytearray(self.template)
+        _STAMP.pack_into(b, 4, stamp_ns // 1_000_000_000, stamp_ns % 1_000_000_000)
+        if self._block is not None:
+            self._block.pack_into(b, self.offsets[0], *values)
+        else:
+            for at, v in zip(self.offsets, values):
+                _DOUBLE.pack_into(b, at, v)
+        return bytes(b)
+
+
+class FieldsReader:
+    """Read ``(stamp [ns], values)`` from a serialized message of a named-fields topic
+    (``name`` = the fields, ``position`` = the values, as :meth:`SerializedStamped.fields`).
+
+    A message laid out like the template (same frame id and names) is read in place; any
+    other (another publisher's frame id, names in another order) is deserialized and its
+    values are taken by name.
+
+    Parameters
+    ----------
+    msg_type : type
+        The rclpy message class (``sensor_msgs.msg.JointState``).
+    names : sequence of str
+        The fields, in the order the values are returned.
+
+    Raises
+    ------
+    KeyError
+        (on a call) A field is missing from a message.
+    """
+
+    def __init__(self, msg_type, names):
+        self.msg_type = msg_type
+        self.names = tuple(names)
+        t = SerializedStamped.fields(msg_type, names)
+        self._start = t.offsets[0]
+        self._prefix = t.template[12:self._start]
+        self._block = struct.Struct(f'<{len(self.names)}d')
+
+    def __call__(self, raw: bytes) -> tuple[int, tuple]:
+        """``(header stamp [ns], values)`` of one serialized message."""
+        if raw[:2] == b'\x00\x01' and raw[12:self._start] == self._prefix:
+            sec, nanosec = _STAMP.unpack_from(raw, 4)
+            return sec * 1_000_000_000 + nanosec, self._block.unpack_from(raw, self._start)
+        msg = deserialize_message(raw, self.msg_type)
+        by_name = dict(zip(msg.name, msg.position))
+        return stamp_to_ns(msg.header.stamp), tuple(float(by_name[n]) for n in self.names)
 
 
 def clock_ns_from_raw(raw: bytes) -> int:

@@ -10,7 +10,8 @@ __all__ = [
     'Signal', 'CLOCK', 'GROUND_ACCELERATION', 'REFERENCE_FORCE', 'VALVE_COMMAND',
     'MEASURED_FORCE', 'DISPLACEMENT', 'VELOCITY', 'ACCELERATION', 'STATUS', 'RUN_PARAMETERS',
     'SIGNALS', 'SCALAR_SIGNALS', 'NODE_PARAMETERS', 'TIMING', 'TIMING_FIELDS', 'TIMING_TYPE',
-    'timing_signal',
+    'timing_signal', 'MEASUREMENT', 'MEASUREMENT_FIELDS', 'RecordStream', 'RECORD_STREAMS',
+    'RECORD_TYPE', 'RECORD_ROWS', 'BAG_SIGNALS', 'record_streams_of',
 ]
 
 
@@ -97,10 +98,86 @@ TIMING = tuple(
            + ', '.join(TIMING_FIELDS) + ').')
     for node in _TIMED)
 
+#: Fields of the rig's live measurement message, in order (SI units as named).
+MEASUREMENT_FIELDS = ('measured_force_N', 'displacement_m', 'velocity_m_s', 'acceleration_m_s2')
+#: The rig's sensor readings of one sample in one live message (``name`` lists
+#: :data:`MEASUREMENT_FIELDS`, ``position`` holds their values): the builder and the controller
+#: take one message a step instead of four. The bag holds them as the four sensor topics.
+MEASUREMENT = Signal(
+    '/seft/measurement', 'sensor_msgs/msg/JointState', 'position', '', 'rig',
+    'Live: the sensor readings of sample k in one message (name: '
+    + ', '.join(MEASUREMENT_FIELDS) + '); recorded as the four sensor topics.')
+
+
+@dataclass(frozen=True)
+class RecordStream:
+    """A node's record batches: what it published (or timed) for the bag, in table rows.
+
+    A node publishes a ``std_msgs/Float64MultiArray`` on ``name`` every :data:`RECORD_ROWS`
+    rows (and at its end): ``layout.dim[0]`` = ('step', rows), ``layout.dim[1]`` = the column
+    labels joined by commas ('step' then :attr:`columns`), ``data`` = the rows, row-major. The
+    recorder writes every row back as the per-sample messages the bag holds (same topics,
+    types and stamps as if it had subscribed to each of them), so it receives one message
+    per stream every ten steps instead of one per topic per step.
+
+    Attributes
+    ----------
+    name : str
+        Live topic of the batches.
+    node : str
+        Publishing node.
+    columns : tuple of str
+        After the step: bag topic names of scalar signals, or :data:`TIMING_FIELDS` for
+        a timing stream.
+    timing : bool
+        The rows are the node's timing records (``/seft/timing/<node>`` in the bag).
+    """
+
+    name: str
+    node: str
+    columns: tuple[str, ...]
+    timing: bool = False
+
+    @property
+    def labels(self) -> str:
+        """The column labels of ``layout.dim[1]``."""
+        return ','.join(('step',) + self.columns)
+
+
+#: ROS type of the record batches.
+RECORD_TYPE = 'std_msgs/msg/Float64MultiArray'
+#: Rows of a record batch: a node publishes its batch every this many steps. A node killed
+#: (SIGKILL) loses at most this many unpublished rows of each of its streams.
+RECORD_ROWS = 10
+RECORD_STREAMS = (
+    RecordStream('/seft/record/rig', 'rig', (MEASURED_FORCE.name, DISPLACEMENT.name,
+                                             VELOCITY.name, ACCELERATION.name)),
+    RecordStream('/seft/record/ground_motion_publisher', 'ground_motion_publisher',
+                 (GROUND_ACCELERATION.name,)),
+    RecordStream('/seft/record/reference_force_builder', 'reference_force_builder',
+                 (REFERENCE_FORCE.name,)),
+    RecordStream('/seft/record/force_servo_controller', 'force_servo_controller',
+                 (VALVE_COMMAND.name,)),
+) + tuple(RecordStream(f'/seft/record/{node}/timing', node, TIMING_FIELDS, timing=True)
+          for node in _TIMED)
+_RECORD = tuple(
+    Signal(r.name, RECORD_TYPE, 'data', '', r.node,
+           f'Live: record batches of {r.node} for the recorder (columns {r.labels}).')
+    for r in RECORD_STREAMS)
+
+
+def record_streams_of(node: str) -> tuple[RecordStream, ...]:
+    """The record streams `node` publishes (data first, then timing)."""
+    return tuple(r for r in RECORD_STREAMS if r.node == node)
+
+
+#: What the recorder writes into a bag: every topic but /clock (its value is every sample's
+#: header stamp) and the live-only measurement and record batches.
+BAG_SIGNALS = (GROUND_ACCELERATION, REFERENCE_FORCE, VALVE_COMMAND, MEASURED_FORCE,
+               DISPLACEMENT, VELOCITY, ACCELERATION, STATUS, RUN_PARAMETERS,
+               NODE_PARAMETERS) + TIMING
 #: Every topic, in report order.
-SIGNALS = (CLOCK, GROUND_ACCELERATION, REFERENCE_FORCE, VALVE_COMMAND, MEASURED_FORCE,
-           DISPLACEMENT, VELOCITY, ACCELERATION, STATUS, RUN_PARAMETERS,
-           NODE_PARAMETERS) + TIMING
+SIGNALS = ((CLOCK,) + BAG_SIGNALS[:7] + (MEASUREMENT,) + BAG_SIGNALS[7:] + _RECORD)
 
 #: The stamped scalar signals, one sample per control step.
 SCALAR_SIGNALS = (GROUND_ACCELERATION, REFERENCE_FORCE, VALVE_COMMAND, MEASURED_FORCE,

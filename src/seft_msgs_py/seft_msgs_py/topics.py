@@ -21,7 +21,7 @@ from geometry_msgs.msg import (
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
-from std_msgs.msg import String
+from std_msgs.msg import Float64MultiArray, String
 
 from seft_msgs_py import signals as sig
 
@@ -29,7 +29,8 @@ __all__ = [
     'TopicSpec', 'TOPICS', 'CLOCK', 'GROUND_ACCELERATION', 'REFERENCE_FORCE', 'VALVE_COMMAND',
     'MEASURED_FORCE', 'DISPLACEMENT', 'VELOCITY', 'ACCELERATION', 'STATUS', 'RUN_PARAMETERS',
     'DATA_QOS', 'STATUS_QOS', 'CLOCK_QOS', 'MEASUREMENT_TOPICS', 'topic', 'FRAME_ID',
-    'NODE_PARAMETERS', 'TIMING', 'timing_topic', 'CLOCK_EVERY',
+    'NODE_PARAMETERS', 'TIMING', 'timing_topic', 'CLOCK_EVERY', 'MEASUREMENT', 'RECORD',
+    'BAG_TOPICS', 'record_topic', 'SCALAR_TOPICS',
 ]
 
 #: ``header.frame_id`` of every seft signal: the actuator axis (x: positive extension).
@@ -107,12 +108,25 @@ NODE_PARAMETERS = _spec(sig.NODE_PARAMETERS, String, STATUS_QOS)
 #: Per-node timing topics (real-time mode), in the order of ``signals.TIMING``.
 TIMING = tuple(_spec(s, JointState, DATA_QOS) for s in sig.TIMING)
 
-#: Every topic, in report order.
-TOPICS = (CLOCK, GROUND_ACCELERATION, REFERENCE_FORCE, VALVE_COMMAND, MEASURED_FORCE,
-          DISPLACEMENT, VELOCITY, ACCELERATION, STATUS, RUN_PARAMETERS,
-          NODE_PARAMETERS) + TIMING
+#: The rig's sensor readings of a sample in one live message (the bag: the four topics).
+MEASUREMENT = _spec(sig.MEASUREMENT, JointState, DATA_QOS)
+#: The nodes' record batches for the recorder (``signals.RECORD_STREAMS``), keyed by name.
+RECORD = {r.name: TopicSpec(r.name, Float64MultiArray, sig.RECORD_TYPE, 'data', '', r.node,
+                            f'Live: record batches of {r.node} (columns {r.labels}).',
+                            DATA_QOS)
+          for r in sig.RECORD_STREAMS}
 
-#: The rig's sensor topics, published together at every step.
+#: What the recorder writes into a bag (``signals.BAG_SIGNALS``).
+BAG_TOPICS = (GROUND_ACCELERATION, REFERENCE_FORCE, VALVE_COMMAND, MEASURED_FORCE,
+              DISPLACEMENT, VELOCITY, ACCELERATION, STATUS, RUN_PARAMETERS,
+              NODE_PARAMETERS) + TIMING
+#: Every topic, in report order.
+TOPICS = (CLOCK,) + BAG_TOPICS[:7] + (MEASUREMENT,) + BAG_TOPICS[7:] + tuple(RECORD.values())
+
+#: The stamped scalar topics, one sample per control step (``signals.SCALAR_SIGNALS``).
+SCALAR_TOPICS = (GROUND_ACCELERATION, REFERENCE_FORCE, VALVE_COMMAND, MEASURED_FORCE,
+                 DISPLACEMENT, VELOCITY, ACCELERATION)
+#: The rig's sensor topics of the bag (live, the rig publishes them as :data:`MEASUREMENT`).
 MEASUREMENT_TOPICS = (MEASURED_FORCE, DISPLACEMENT, VELOCITY, ACCELERATION)
 
 _BY_NAME = {t.name: t for t in TOPICS}
@@ -121,6 +135,11 @@ _BY_NAME = {t.name: t for t in TOPICS}
 def topic(name: str) -> TopicSpec:
     """Return the :class:`TopicSpec` of a topic name (KeyError if it is not a seft topic)."""
     return _BY_NAME[name]
+
+
+def record_topic(stream: sig.RecordStream) -> TopicSpec:
+    """The :class:`TopicSpec` of a record stream."""
+    return RECORD[stream.name]
 
 
 def timing_topic(node: str) -> TopicSpec:

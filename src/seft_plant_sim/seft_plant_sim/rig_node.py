@@ -41,21 +41,20 @@ from seft_msgs_py.convert import (
     STATE_FAILED,
     STATE_READY,
     STATE_RUNNING,
-    ScalarMessage,
+    SerializedStamped,
     status_values,
 )
+from seft_msgs_py.errors import ParameterError
 from seft_msgs_py.interface import COMMAND_VALVE
 from seft_msgs_py.node_support import SeftNode, StepTiming, main_for
+from seft_msgs_py.signals import MEASUREMENT_FIELDS, RECORD_ROWS
 from seft_msgs_py.topics import (
-    ACCELERATION,
     CLOCK,
     CLOCK_EVERY,
-    DISPLACEMENT,
-    MEASURED_FORCE,
+    MEASUREMENT,
     REFERENCE_FORCE,
     STATUS,
     VALVE_COMMAND,
-    VELOCITY,
 )
 from seft_plant_sim.realtime import WallClockRig
 from seft_plant_sim.rigs import make_rig
@@ -64,6 +63,9 @@ __all__ = ['RigNode', 'main', 'graph_nodes']
 
 #: Sim-time interval of progress reports [steps].
 PROGRESS_EVERY = 250
+#: Smallest lockstep flow-control window but 0 [steps]: it must exceed the recorder's
+#: acknowledgement interval (50) plus a record batch of each node.
+MIN_WINDOW_STEPS = 100
 #: Real-time mode: how long the rig keeps sampling its safe state after the ramp [s].
 SAFE_HOLD_S = 0.05
 
@@ -87,15 +89,23 @@ class RigNode(SeftNode):
         self.command_topic = (VALVE_COMMAND if self.rig.command_kind == COMMAND_VALVE
                               else REFERENCE_FORCE)
         self.clock_pub = self.create_publisher(CLOCK.msg_type, CLOCK.name, CLOCK.qos)
-        self.pubs = {t.name: self.create_publisher(t.msg_type, t.name, t.qos)
-                     for t in (MEASURED_FORCE, DISPLACEMENT, VELOCITY, ACCELERATION)}
-        self.msgs = {t.name: ScalarMessage(t)
-                     for t in (MEASURED_FORCE, DISPLACEMENT, VELOCITY, ACCELERATION)}
+        # one live message of the four sensors a step (serialized in place), and the rows
+        # of the record batches that the recorder writes as the bag's four sensor topics
+        self.measurement_pub = self.create_publisher(MEASUREMENT.msg_type, MEASUREMENT.name,
+                                                     MEASUREMENT.qos)
+        self.measurement_msg = SerializedStamped.fields(MEASUREMENT.msg_type,
+                                                        MEASUREMENT_FIELDS)
+        self.batch = self.record_stream()
         self.clock_msg = CLOCK.msg_type()
         on_command = self._on_command_realtime if self.realtime else self._on_command
         self.command_sub = self.scalar_subscription(self.command_topic, on_command)
         self.pending = {}
         self.window = int(p['recorder_window_steps'])
+        if 0 < self.window < MIN_WINDOW_STEPS:
+            raise ParameterError(
+                f'parameter recorder_window_steps={self.window}: expected 0 or >= '
+                f'{MIN_WINDOW_STEPS} (the recorder acknowledges every 50 steps and receives '
+                f'the samples in batches of {RECORD_ROWS})')
         self.recorded = 0
         self.waiting_for_recorder = False
         self.published = 0
@@ -126,14 +136,15 @@ class RigNode(SeftNode):
             return
         if self.command_sub.get_publisher_count() < 1:
             return
-        if self.params['wait_for_recorder'] and not self._subscribed_by('recorder'):
+        if (self.params['wait_for_recorder']
+                and not self._subscribed_by('recorder', (self.batch.stream.name,))):
             return
         if any(n not in self.node_params for n in self.graph):
             return
         if self.realtime and not self._subscribed_by('reference_force_builder'):
             return
         if (self.realtime and 'force_servo_controller' in self.graph
-                and not self._subscribed_by('force_servo_controller', (MEASURED_FORCE.name,))):
+                and not self._subscribed_by('force_servo_controller')):
             return
         self.start_timer.cancel()
         self.running = True
@@ -145,9 +156,10 @@ class RigNode(SeftNode):
         else:
             self._publish_step()
 
-    def _subscribed_by(self, node: str, topics=None) -> bool:
-        """`node`'s subscriptions to the rig's sensor topics are discovered."""
-        for name in topics or self.pubs:
+    def _subscribed_by(self, node: str, topics=(MEASUREMENT.name,)) -> bool:
+        """`node`'s subscriptions to `topics` (default: the rig's measurement) are
+        discovered."""
+        for name in topics:
             nodes = {i.node_name for i in self.get_subscriptions_info_by_topic(name)}
             if node not in nodes:
                 return False
@@ -201,13 +213,9 @@ class RigNode(SeftNode):
         k = self.rig.step
         stamp = k * self.dt_ns
         m = self.rig.measure()
-        pubs, msgs = self.pubs, self.msgs
-        # the measured force first: the force servo controller acts on it
-        for name, value in ((MEASURED_FORCE.name, m.force_N),
-                            (ACCELERATION.name, m.acceleration_m_s2),
-                            (DISPLACEMENT.name, m.displacement_m),
-                            (VELOCITY.name, m.velocity_m_s)):
-            pubs[name].publish(msgs[name](stamp, value))
+        values = (m.force_N, m.displacement_m, m.velocity_m_s, m.acceleration_m_s2)
+        self.measurement_pub.publish(self.measurement_msg(stamp, values))
+        self.batch.add(k, *values)
         if k % CLOCK_EVERY == 0:
             self.clock_msg.clock.sec = int(stamp // 1_000_000_000)
             self.clock_msg.clock.nanosec = int(stamp % 1_000_000_000)

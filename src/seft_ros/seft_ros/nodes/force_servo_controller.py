@@ -2,9 +2,10 @@
 
 Lockstep mode: when the reference force and the measured force of step k have both arrived it
 publishes the valve command of step k. Real-time mode: it acts on the arrival of each measured
-force ``f_m[k]`` with the newest reference force it has (normally ``f_r[k]``, built in
-parallel during step k-1; an older one counts as stale), never waits, and publishes one
-timing record per step on ``/seft/timing/force_servo_controller``.
+force ``f_m[k]`` (in the rig's measurement) with the newest reference force it has
+(normally ``f_r[k]``, built in parallel during step k-1; an older one counts as stale), never
+waits, and records one timing record per step (the bag's
+``/seft/timing/force_servo_controller``, through its record stream).
 
 Its loss-of-control interlock (``seft_ros.core.controller.SaturationInterlock``) aborts the
 run when the valve stays saturated: it then publishes 'aborted' on ``/seft/status`` instead of
@@ -18,7 +19,7 @@ import time
 
 from seft_msgs_py.convert import (
     STATE_READY,
-    ScalarMessage,
+    SerializedStamped,
 )
 from seft_msgs_py.node_support import SeftNode, StepTiming, main_for
 from seft_msgs_py.sync import StepSync
@@ -42,17 +43,20 @@ class ForceServoControllerNode(SeftNode):
         self.next_step = 0
         self.pub = self.create_publisher(VALVE_COMMAND.msg_type, VALVE_COMMAND.name,
                                          VALVE_COMMAND.qos)
-        self.out_msg = ScalarMessage(VALVE_COMMAND)
+        self.out_msg = SerializedStamped.scalar(VALVE_COMMAND)
+        self.batch = self.record_stream()
         if self.realtime:
             self.timing = StepTiming(self)
             self.reference = {}            # step -> f_r (the newest few)
             self.latest_reference = (-1, 0.0)
             self.scalar_subscription(REFERENCE_FORCE, self._on_reference_realtime)
-            self.scalar_subscription(MEASURED_FORCE, self._on_measured_realtime)
+            self.measurement_subscription(
+                lambda k, values: self._on_measured_realtime(k, values[0]))
         else:
-            for spec in (REFERENCE_FORCE, MEASURED_FORCE):
-                self.scalar_subscription(
-                    spec, lambda k, value, s=spec: self._on_force(s, k, value))
+            self.scalar_subscription(
+                REFERENCE_FORCE, lambda k, value: self._on_force(REFERENCE_FORCE.name, k, value))
+            self.measurement_subscription(
+                lambda k, values: self._on_force(MEASURED_FORCE.name, k, values[0]))
         self.publish_parameters()
         self.report(STATE_READY, f'controller discretized: {self.controller.design.method}')
 
@@ -75,7 +79,8 @@ class ForceServoControllerNode(SeftNode):
         if reason:
             self.abort_run(reason, k)
             return
-        self.pub.publish(self.out_msg(k * self.dt_ns, u))
+        self.pub.publish(self.out_msg(k * self.dt_ns, (u,)))
+        self.batch.add(k, u)
         self.next_step = k + 1
         now_ns = time.time_ns()
         oldest = min(k, fr_step) if fr_step >= 0 else k
@@ -84,8 +89,8 @@ class ForceServoControllerNode(SeftNode):
         self.timing.publish(k * self.dt_ns, jitter, time.monotonic() - start, age, missed,
                             stale)
 
-    def _on_force(self, spec, k: int, value: float) -> None:
-        done = self.sync.add(k, spec.name, value)
+    def _on_force(self, name: str, k: int, value: float) -> None:
+        done = self.sync.add(k, name, value)
         if done is None:
             return
         self.ready[k] = done
@@ -97,7 +102,8 @@ class ForceServoControllerNode(SeftNode):
             if reason:
                 self.abort_run(reason, k)
                 return
-            self.pub.publish(self.out_msg(k * self.dt_ns, u))
+            self.pub.publish(self.out_msg(k * self.dt_ns, (u,)))
+            self.batch.add(k, u)
             self.next_step += 1
 
 

@@ -21,7 +21,7 @@ import time
 
 from seft_msgs_py.convert import (
     STATE_READY,
-    ScalarMessage,
+    SerializedStamped,
     clock_ns_from_raw,
 )
 from seft_msgs_py.node_support import SeftNode, StepTiming, main_for
@@ -44,7 +44,8 @@ class GroundMotionPublisher(SeftNode):
         self.next_step = 0
         self.pub = self.create_publisher(GROUND_ACCELERATION.msg_type, GROUND_ACCELERATION.name,
                                          GROUND_ACCELERATION.qos)
-        self.out_msg = ScalarMessage(GROUND_ACCELERATION)
+        self.out_msg = SerializedStamped.scalar(GROUND_ACCELERATION)
+        self.batch = self.record_stream()
         self.create_subscription(CLOCK.msg_type, CLOCK.name, self.guard(self._on_clock),
                                  CLOCK.qos, raw=True)
         if self.realtime:
@@ -63,8 +64,9 @@ class GroundMotionPublisher(SeftNode):
                          else (0.0, math.nan))
         while self.next_step <= last:
             k = self.next_step
-            self.pub.publish(self.out_msg(k * self.dt_ns,
-                                        float(self.values[k])))
+            value = float(self.values[k])
+            self.pub.publish(self.out_msg(k * self.dt_ns, (value,)))
+            self.batch.add(k, value)
             self.next_step += 1
             if self.timing is not None:
                 now_ns = time.time_ns()

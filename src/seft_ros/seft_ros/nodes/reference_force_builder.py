@@ -1,7 +1,7 @@
 """reference_force_builder node: f_r[k] = -(1+alpha) m xg''[k] - alpha m a_hat[k].
 
-Subscribes to the ground acceleration and to the rig's sensor topics; when the measurement
-of step k is complete and ``xg''[k+1 .. k+1+L]`` have arrived (``L`` =
+Subscribes to the ground acceleration and to the rig's measurement; when the measurement
+of step k has arrived and ``xg''[k+1 .. k+1+L]`` have arrived (``L`` =
 ``builder.lookahead_steps``: the hold-consistent predictors and the ground-motion preview read
 the record ahead; samples after its end, known from ``n_steps`` or the publisher's status, are
 0) it publishes ``f_r[k+1]`` stamped ``t_k+1`` (``f_r[0]`` as soon as ``xg''[0..L]`` are
@@ -15,7 +15,8 @@ when it trips, the builder reports 'aborted' instead and the rig stops. The nume
 Real-time mode: the builder works in parallel with the force loop. As soon as the measurement
 of step k is complete it publishes ``f_r[k+1]`` (needed at ``t_k+1``); a ground acceleration
 that has not arrived is replaced by the latest one it has (counted as stale), and nothing
-waits. One timing record per step goes to ``/seft/timing/reference_force_builder``.
+waits. One timing record per step goes to the bag's ``/seft/timing/reference_force_builder``
+(through its record stream, as its reference forces do).
 
 Run by hand: ``ros2 run seft_ros reference_force_builder --ros-args --params-file ...``.
 """
@@ -26,21 +27,12 @@ import time
 from seft_msgs_py import parameters
 from seft_msgs_py.convert import (
     STATE_READY,
-    ScalarMessage,
+    SerializedStamped,
     status_values,
 )
 from seft_msgs_py.interface import Measurement
 from seft_msgs_py.node_support import SeftNode, StepTiming, descriptor_of, main_for
-from seft_msgs_py.sync import StepSync
-from seft_msgs_py.topics import (
-    ACCELERATION,
-    DISPLACEMENT,
-    GROUND_ACCELERATION,
-    MEASURED_FORCE,
-    REFERENCE_FORCE,
-    STATUS,
-    VELOCITY,
-)
+from seft_msgs_py.topics import GROUND_ACCELERATION, REFERENCE_FORCE, STATUS
 from seft_ros.core.monitor import InstabilityMonitor
 from seft_ros.core.reference_force import ReferenceForceBuilder, ground_window
 
@@ -53,8 +45,6 @@ _MODEL_PARAMETERS = ('rig_model', 'tau_s', 'valve_limit_V', 'piston_area_m2',
                      'valve_flow_gain_m3_per_s_V', 'valve_pressure_coefficient_m3_per_s_Pa',
                      'leakage_coefficient_m3_per_s_Pa', 'io_latency_s', 'anti_alias_cutoff_hz',
                      'accelerometer_range_m_s2')
-
-_SENSORS = (MEASURED_FORCE, DISPLACEMENT, VELOCITY, ACCELERATION)
 
 
 class ReferenceForceBuilderNode(SeftNode):
@@ -75,14 +65,13 @@ class ReferenceForceBuilderNode(SeftNode):
         self.dt = float(p['dt'])
         self.ground = {}
         self.measurements = {}
-        self.sync = StepSync(t.name for t in _SENSORS)
         self.next_step = 0          # step of the next reference force to publish
         self.pub = self.create_publisher(REFERENCE_FORCE.msg_type, REFERENCE_FORCE.name,
                                          REFERENCE_FORCE.qos)
-        self.out_msg = ScalarMessage(REFERENCE_FORCE)
+        self.out_msg = SerializedStamped.scalar(REFERENCE_FORCE)
+        self.batch = self.record_stream()
         self.scalar_subscription(GROUND_ACCELERATION, self._on_ground)
-        for spec in _SENSORS:
-            self.scalar_subscription(spec, lambda k, value, s=spec: self._on_sensor(s, k, value))
+        self.measurement_subscription(self._on_measurement)
         self.create_subscription(STATUS.msg_type, STATUS.name, self.guard(self._on_status),
                                  STATUS.qos)
         if self.realtime:
@@ -102,16 +91,13 @@ class ReferenceForceBuilderNode(SeftNode):
             return
         self._advance()
 
-    def _on_sensor(self, spec, k: int, value: float) -> None:
-        done = self.sync.add(k, spec.name, value)
-        if done is not None:
-            self.measurements[k] = Measurement(
-                k, k * self.dt, done[DISPLACEMENT.name], done[VELOCITY.name],
-                done[ACCELERATION.name], done[MEASURED_FORCE.name])
-            if self.realtime:
-                self._advance_realtime()
-            else:
-                self._advance()
+    def _on_measurement(self, k: int, values: tuple) -> None:
+        force, x, v, a = values
+        self.measurements[k] = Measurement(k, k * self.dt, x, v, a, force)
+        if self.realtime:
+            self._advance_realtime()
+        else:
+            self._advance()
 
     def _ground_or_latest(self, j: int) -> float:
         """xg''[j], or the latest ground acceleration received if it has not arrived."""
@@ -129,7 +115,8 @@ class ReferenceForceBuilderNode(SeftNode):
         n_total = self.n_total if self.n_total is not None else k + look + 1
         force = self.builder.step(ground_window(ground, k, look, n_total), latest)
         self.ground.pop(k, None)
-        self.pub.publish(self.out_msg(k * self.dt_ns, force))
+        self.pub.publish(self.out_msg(k * self.dt_ns, (force,)))
+        self.batch.add(k, force)
         self.next_step += 1
 
     def _monitor_trips(self, latest: Measurement, k: int) -> bool:
