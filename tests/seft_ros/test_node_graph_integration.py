@@ -19,6 +19,7 @@ from rosbags.typesys import Stores, get_typestore
 from seft_msgs_py.convert import status_values
 from seft_msgs_py.topics import TOPICS
 from seft_ros.analysis.bag import read_run
+from seft_ros.analysis.htmlreport import check_html
 from seft_ros.core.experiment import simulate
 
 DT_NS = 2_000_000
@@ -312,3 +313,11 @@ def test_compare_reproduces_the_summary(servo, delay, seft_exe, run_process, tmp
     summary = json.loads((tmp_path / 'cmp' / 'summary.json').read_text())
     assert summary['runs'] == [servo.summary['runs'][0], delay.summary['runs'][0]]
     assert (tmp_path / 'cmp' / 'report.md').is_file()
+    # the self-contained page of the real bags: criteria and parameter tables, every figure
+    # embedded, nothing fetched from elsewhere
+    page = check_html((tmp_path / 'cmp' / 'report.html').read_text(encoding='utf-8'))
+    assert page.self_contained, page.external
+    assert page.images >= 3 and page.tables >= 4
+    assert {'Evaluation criteria (RTHS benchmark)', 'Parameters and software'} <= set(
+        page.headings)
+    assert all(set(e['criteria']) == {'J1', 'J2', 'J3', 'J4', 'J5'} for e in summary['runs'])

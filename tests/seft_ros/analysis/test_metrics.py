@@ -238,6 +238,41 @@ def test_compare_run_of_scaled_test(ground_motion):
     assert comparison.force.nrms < 1e-4
 
 
+def test_common_lag_shows_what_a_signal_of_its_own_lag_hides(ground_motion):
+    """The acceleration lags 5 samples more than the displacement: aligned by its own lag it
+    looks perfect; aligned by the displacement's (common) lag it does not; unshifted, every
+    signal carries the delay."""
+    ref = _reference(0.5, ground_motion)
+    run = _run_from(ref, ground_motion, 0.5, d=5)
+    run.acceleration_m_s2 = _delayed(ref.acceleration_m_s2, 10)
+    c = compare_run(run, ref)
+    assert c.displacement.lag_s == pytest.approx(5 * DT, abs=1e-5)
+    assert c.acceleration.lag_s == pytest.approx(10 * DT, abs=1e-5)
+    assert c.acceleration.nrms < 1e-4
+    assert c.acceleration.nrms_common_lag > 0.1
+    assert c.displacement.nrms_common_lag == c.displacement.nrms
+    assert c.force.nrms_common_lag < 1e-4
+    for name in ('displacement', 'force', 'acceleration'):
+        assert c.signal(name).nrms_unshifted > 0.1
+        assert c.signal(name).nrms_unshifted == pytest.approx(
+            nrms_error(np.asarray(run.signal(name)), ref.signal(name)[:run.n_steps]))
+
+
+def test_compare_run_criteria_are_those_of_the_recorded_signals(ground_motion):
+    ref = _reference(0.5, ground_motion)
+    run = _run_from(ref, ground_motion, 0.5, d=5)
+    c = compare_run(run, ref).criteria
+    f_r, f_m = np.asarray(run.reference_force_N), np.asarray(run.measured_force_N)
+    x, x_ref = np.asarray(run.displacement_m), ref.displacement_m[:run.n_steps]
+    assert c.j1_ms == pytest.approx(10.0)
+    assert c.j2_pct == pytest.approx(100 * np.std(f_m - f_r) / np.std(f_r), rel=1e-12)
+    assert c.j3_pct == pytest.approx(100 * np.max(np.abs(f_m - f_r)) / np.max(np.abs(f_r)),
+                                     rel=1e-12)
+    assert c.j4_pct == pytest.approx(100 * np.std(x - x_ref) / np.std(x_ref), rel=1e-12)
+    assert c.j5_pct == pytest.approx(100 * np.max(np.abs(x - x_ref)) / np.max(np.abs(x_ref)),
+                                     rel=1e-12)
+
+
 def _aborted_run(ground_motion):
     """An unstable run: a growing 30 Hz oscillation, stopped at 8 s with inf/NaN samples."""
     ref = _reference(1.5, ground_motion)
@@ -261,9 +296,13 @@ def test_summary_entry_keys_and_values(ground_motion):
     run = _run_from(ref, ground_motion, 0.5, d=5)
     entry = summary_entry(run, compare_run(run))
     assert set(entry) == {'alpha', 'rig', 'predictor', 'record', 'stable', 'unstable_at_s',
-                          'lag_s', 'nrms', 'peak_ratio', 'high_frequency_force_fraction',
+                          'lag_s', 'nrms', 'nrms_common_lag', 'nrms_unshifted', 'criteria',
+                          'peak_ratio', 'high_frequency_force_fraction',
                           'high_frequency_force_fraction_reference',
                           'high_frequency_cutoff_hz', 'abort_reason', 'mode', 'wall_s'}
+    assert list(entry['criteria']) == ['J1', 'J2', 'J3', 'J4', 'J5']
+    assert entry['criteria']['J1'] == pytest.approx(10.0)  # the 5-sample delay, in ms
+    assert entry['nrms_common_lag']['force'] < 1e-4
     assert entry['mode'] == 'lockstep' and entry['wall_s'] is None
     assert entry['abort_reason'] is None
     assert entry['high_frequency_cutoff_hz'] == 20.0

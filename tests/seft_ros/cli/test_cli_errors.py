@@ -69,8 +69,10 @@ CASES = {
     'n_steps_too_long': (['simulate', '--set', 'n_steps=100000'], re.escape(
         'parameter n_steps=100000: expected <= 500 (the prepared record length)')),
     'compare_not_a_bag': (['compare', 'plain_dir'],
-                          r'plain_dir: cannot read the bag: .+'),
-    'compare_missing': (['compare', 'no_such_bag'], re.escape('no_such_bag: no such bag')),
+                          re.escape('plain_dir: not a bag, a run directory (with bag/) '
+                                    'or a folder of run directories') + '; .+'),
+    'compare_missing': (['compare', 'no_such_bag'],
+                        re.escape('no_such_bag: no such bag or run directory')),
     'compare_foreign_bag': (['compare', 'foreign_bag'], re.escape(
         'foreign_bag: not a seft bag (no /seft/run_parameters message)')),
 }

@@ -3,7 +3,9 @@
 Imports no rclpy. The test lags the reference by the actuator's loop delay (paper Eq. 5.2), so
 each signal is compared after removing its lag: the lag is estimated from the cross-correlation
 peak, the test is advanced by it, and the normalized RMS error is computed over the samples
-both signals share.
+both signals share. Each signal's NRMS is also given unshifted and after removing one common
+lag (the displacement's) from every signal: a lag of its own can hide a signal's phase error.
+The RTHS benchmark's criteria J1-J5 come from ``seft_ros.analysis.criteria``.
 """
 
 from dataclasses import dataclass
@@ -14,6 +16,7 @@ import numpy as np
 from scipy import interpolate, signal
 
 from seft_msgs_py.errors import ParameterError
+from seft_ros.analysis.criteria import J1_MAX_LAG_S, Criteria, evaluation_criteria
 from seft_ros.analysis.reference import ReferenceResponse, reference_from_run
 from seft_ros.analysis.rundata import SIGNALS, RunData
 
@@ -319,9 +322,15 @@ class SignalComparison:
     lag_s : float
         Estimated lag of the test behind the reference [s] (:func:`estimate_lag`).
     nrms : float
-        Normalized RMS error after removing the lag, as a fraction (:func:`nrms_error`).
+        Normalized RMS error after removing the signal's own lag `lag_s`, as a fraction
+        (:func:`nrms_error`).
     peak_ratio : float
         ``peak_test / peak_reference`` [-].
+    nrms_unshifted : float
+        Normalized RMS error of the signals as recorded (no lag removed), as a fraction.
+    nrms_common_lag : float
+        Normalized RMS error after removing the run's common lag (the displacement's) from
+        this signal, as a fraction; equals `nrms` for the displacement.
     """
 
     peak_test: float
@@ -329,6 +338,8 @@ class SignalComparison:
     lag_s: float
     nrms: float
     peak_ratio: float
+    nrms_unshifted: float = math.nan
+    nrms_common_lag: float = math.nan
 
 
 @dataclass(frozen=True)
@@ -348,6 +359,8 @@ class RunComparison:
         The same for the reference force.
     high_frequency_cutoff_hz : float
         Cutoff of the two fractions [Hz] (default ``HIGH_FREQUENCY_CUTOFF_HZ``, 20 Hz).
+    criteria : Criteria or None
+        The RTHS benchmark's criteria J1-J5 (``criteria.evaluation_criteria``).
     """
 
     displacement: SignalComparison
@@ -357,6 +370,7 @@ class RunComparison:
     high_frequency_force_fraction: float
     high_frequency_force_fraction_reference: float
     high_frequency_cutoff_hz: float = HIGH_FREQUENCY_CUTOFF_HZ
+    criteria: Criteria | None = None
 
     def signal(self, name: str) -> SignalComparison:
         """Return the comparison of 'displacement', 'force' or 'acceleration'."""
@@ -367,7 +381,8 @@ class RunComparison:
 
 def compare_run(run: RunData, reference: ReferenceResponse | None = None, *,
                 max_lag_s: float = MAX_LAG_S,
-                high_frequency_cutoff_hz: float = HIGH_FREQUENCY_CUTOFF_HZ) -> RunComparison:
+                high_frequency_cutoff_hz: float = HIGH_FREQUENCY_CUTOFF_HZ,
+                j1_max_lag_s: float = J1_MAX_LAG_S) -> RunComparison:
     """Compare a run's displacement, force and acceleration with the reference analysis.
 
     For each signal: the lag of the test behind the reference is estimated
@@ -375,7 +390,11 @@ def compare_run(run: RunData, reference: ReferenceResponse | None = None, *,
     normalized RMS error (:func:`nrms_error`) is computed over the samples both share; the
     peaks are those of the unshifted signals. Each signal is aligned by its own lag (all
     three share the loop delay in a well-behaved test; a different force or acceleration lag
-    reveals the phase error of acceleration feedback).
+    reveals the phase error of acceleration feedback). The NRMS is also computed unshifted
+    and after advancing every signal by the displacement's lag (the common lag), and the
+    RTHS benchmark's criteria J1-J5 (``criteria.evaluation_criteria``: the reference force
+    commanded versus the load-cell force, and the displacement versus the reference, as
+    recorded).
 
     Parameters
     ----------
@@ -389,6 +408,8 @@ def compare_run(run: RunData, reference: ReferenceResponse | None = None, *,
     high_frequency_cutoff_hz : float > 0
         Cutoff of the high-frequency content of the force [Hz], below the Nyquist frequency
         ``1/(2 dt)`` (:func:`high_frequency_fraction`).
+    j1_max_lag_s : float >= 0
+        Bound of the search of criterion J1 [s] (``criteria.J1_MAX_LAG_S``).
 
     Returns
     -------
@@ -412,16 +433,24 @@ def compare_run(run: RunData, reference: ReferenceResponse | None = None, *,
         raise ParameterError(f'reference has {reference.n_steps} samples, the run {n}; '
                              'expected at least as many as the run')
     dt = _check_dt(run.params.get('dt'))
+    pairs = {name: (np.asarray(run.signal(name), dtype=float)[:n],
+                    np.asarray(reference.signal(name), dtype=float)[:n]) for name in SIGNALS}
+    common_lag = estimate_lag(*pairs['displacement'], dt, max_lag_s)
     results = {}
-    for name in SIGNALS:
-        test = np.asarray(run.signal(name), dtype=float)[:n]
-        ref = np.asarray(reference.signal(name), dtype=float)[:n]
+    for name, (test, ref) in pairs.items():
         lag = estimate_lag(test, ref, dt, max_lag_s)
         results[name] = SignalComparison(
             peak_test=peak(test), peak_reference=peak(ref), lag_s=lag,
-            nrms=nrms_error(shift(test, lag, dt), ref), peak_ratio=peak_ratio(test, ref))
+            nrms=nrms_error(shift(test, lag, dt), ref), peak_ratio=peak_ratio(test, ref),
+            nrms_unshifted=nrms_error(test, ref),
+            nrms_common_lag=nrms_error(shift(test, common_lag, dt), ref))
+    criteria = evaluation_criteria(
+        target_force=np.asarray(run.reference_force_N, dtype=float)[:n],
+        measured_force=np.asarray(run.measured_force_N, dtype=float)[:n],
+        displacement=pairs['displacement'][0], reference_displacement=pairs['displacement'][1],
+        dt=dt, j1_max_lag_s=j1_max_lag_s)
     return RunComparison(
-        **results, reference=reference,
+        **results, reference=reference, criteria=criteria,
         high_frequency_force_fraction=high_frequency_fraction(
             np.asarray(run.measured_force_N, dtype=float)[:n], dt, high_frequency_cutoff_hz),
         high_frequency_force_fraction_reference=high_frequency_fraction(
@@ -470,7 +499,9 @@ def summary_entry(run: RunData, comparison: RunComparison) -> dict[str, Any]:
     dict
         ``{'alpha', 'rig', 'predictor', 'record', 'stable', 'unstable_at_s', 'lag_s',
         'nrms': {'displacement', 'acceleration', 'force'},
+        'nrms_common_lag': {...}, 'nrms_unshifted': {...},
         'peak_ratio': {'displacement', 'acceleration', 'force'},
+        'criteria': {'J1', 'J2', 'J3', 'J4', 'J5'},
         'high_frequency_force_fraction', 'high_frequency_force_fraction_reference',
         'high_frequency_cutoff_hz', 'abort_reason', 'mode', 'wall_s'}`` (and ``'timing'``, the
         :func:`seft_ros.analysis.timing.timing_summary` of a real-time run, from
@@ -478,7 +509,10 @@ def summary_entry(run: RunData, comparison: RunComparison) -> dict[str, Any]:
         bag does not hold, from ``run.extra``; ``wall_s`` [s], the wall time of the stepping, from
         ``run.extra['wall_s']``) where rig is ``params['rig_model']``, predictor is
         ``params['predictor']``, record is ``run.record_name`` (``params['record']`` if
-        empty), ``lag_s`` [s] is the displacement lag, nrms values and the high-frequency
+        empty), ``lag_s`` [s] is the displacement lag, ``nrms`` is after removing each
+        signal's own lag, ``nrms_common_lag`` after removing ``lag_s`` from every signal,
+        ``nrms_unshifted`` as recorded, ``criteria`` are the RTHS benchmark's J1 [ms] and
+        J2-J5 [%] (``criteria.CRITERIA``), nrms values and the high-frequency
         fractions (of the measured and of the reference force's power above the cutoff
         [Hz]) are fractions, and every NaN or inf is None, so that
         ``json.dumps(entry, allow_nan=False)`` succeeds.
@@ -494,6 +528,10 @@ def summary_entry(run: RunData, comparison: RunComparison) -> dict[str, Any]:
         'unstable_at_s': _finite_or_none(run.unstable_at_s),
         'lag_s': comparison.displacement.lag_s,
         'nrms': {name: comparison.signal(name).nrms for name in order},
+        'nrms_common_lag': {name: comparison.signal(name).nrms_common_lag for name in order},
+        'nrms_unshifted': {name: comparison.signal(name).nrms_unshifted for name in order},
+        'criteria': (comparison.criteria.as_dict() if comparison.criteria is not None
+                     else {key: None for key in ('J1', 'J2', 'J3', 'J4', 'J5')}),
         'peak_ratio': {name: comparison.signal(name).peak_ratio for name in order},
         'high_frequency_force_fraction': comparison.high_frequency_force_fraction,
         'high_frequency_force_fraction_reference':

@@ -78,7 +78,8 @@ def build_parser() -> argparse.ArgumentParser:
     _experiment_options(sim)
     cmp_ = sub.add_parser('compare', help='compare recorded bags against the analytical '
                           'reference (figures, table, summary.json)')
-    cmp_.add_argument('bags', nargs='+', metavar='BAG')
+    cmp_.add_argument('bags', nargs='+', metavar='BAG', help='a bag, a run directory '
+                      '(with bag/) or a folder of run directories (one report of the sweep)')
     cmp_.add_argument('--out', help='output directory (default runs/compare/)')
     stab = sub.add_parser('stability', help='largest stable alpha over the delay per predictor '
                           "from the sampled loop's eigenvalues (stability.png, .json, table)")
@@ -167,7 +168,9 @@ def main(argv=None) -> int:
         print('seft: interrupted; nodes stopped, bags closed', file=sys.stderr)
         return 130
     print(api.summary_table(result.summary))
-    print(f'report: {result.out_dir / "report.md"}')
+    print(api.criteria_table(result.summary))
+    print(f'report: {result.out_dir / "report.md"} (self-contained page: '
+          f'{result.out_dir / "report.html"})')
     print(f'summary: {result.out_dir / "summary.json"}')
     print(f'took {time.monotonic() - t0:.1f} s')
     return 0

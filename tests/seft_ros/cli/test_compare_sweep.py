@@ -1,0 +1,96 @@
+"""``seft compare`` takes bags, run directories and folders of run directories (a sweep).
+
+The folders have the layout ``seft run --out DIR`` writes (``DIR/<run>/bag/metadata.yaml``);
+reading the bags is replaced by simulated runs (the bag reader has its own tests and the node
+graph test compares a real bag), so that these tests need no ROS and take seconds.
+"""
+
+import json
+
+import pytest
+
+from seft_msgs_py import parameters
+from seft_msgs_py.errors import InputError
+from seft_ros.cli import api
+from seft_ros.cli.main import main
+from seft_ros.core.experiment import simulate
+
+LABELS = ('alpha_0_servohydraulic_none', 'alpha_0.5_servohydraulic_none',
+          'alpha_1_servohydraulic_none', 'alpha_0_servohydraulic_model',
+          'alpha_0.5_servohydraulic_model', 'alpha_1_servohydraulic_model')
+
+
+@pytest.fixture(scope='module')
+def simulated():
+    """``{run label: RunData}`` of short simulated runs (2 s of the default record)."""
+    out = {}
+    for label in LABELS:
+        _, alpha, _, predictor = label.split('_')
+        p = parameters.resolve({'alpha': float(alpha), 'predictor': predictor,
+                                'rig_model': 'servohydraulic', 'amplitude_N': 500.0,
+                                'duration_s': 2.0})
+        out[label] = simulate(p)
+    return out
+
+
+@pytest.fixture
+def sweep_dir(tmp_path, simulated, monkeypatch):
+    """A folder of run directories, and read_run answering from the simulated runs."""
+    root = tmp_path / 'sweep'
+    for label in LABELS:
+        bag = root / label / 'bag'
+        bag.mkdir(parents=True)
+        (bag / 'metadata.yaml').write_text('rosbag2_bagfile_information: {}\n')
+        (root / label / 'params.yaml').write_text('/**: {ros__parameters: {}}\n')
+    (root / 'report.md').write_text('# an earlier report\n')
+    monkeypatch.setattr(api, 'read_run', lambda path: simulated[path.parent.name])
+    return root
+
+
+def test_find_bags_of_a_sweep_in_natural_order(sweep_dir):
+    bags = api.find_bags([str(sweep_dir)])
+    # numbers by value (alpha_0 < alpha_0.5 < alpha_1), not as text ('.' < '_')
+    assert [b.parent.name for b in bags] == [
+        'alpha_0_servohydraulic_model', 'alpha_0_servohydraulic_none',
+        'alpha_0.5_servohydraulic_model', 'alpha_0.5_servohydraulic_none',
+        'alpha_1_servohydraulic_model', 'alpha_1_servohydraulic_none']
+    # a run directory and a bag name themselves; the order of the paths is kept
+    one = sweep_dir / 'alpha_1_servohydraulic_model'
+    assert api.find_bags([str(one), str(one / 'bag')]) == [one / 'bag', one / 'bag']
+
+
+def test_find_bags_errors(tmp_path):
+    with pytest.raises(InputError, match='nothere: no such bag or run directory'):
+        api.find_bags([str(tmp_path / 'nothere')])
+    sim = tmp_path / 'simulated' / 'alpha_0_delay_none'
+    sim.mkdir(parents=True)
+    (sim / 'params.yaml').write_text('{}\n')
+    with pytest.raises(InputError, match='seft simulate keeps no bag'):
+        api.find_bags([str(tmp_path / 'simulated')])
+
+
+def test_compare_a_sweep_folder(sweep_dir, tmp_path, capsys):
+    out = tmp_path / 'cmp'
+    assert main(['compare', str(sweep_dir), '--out', str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert 'J1_ms' in printed and 'J4%' in printed
+    assert f'(self-contained page: {out / "report.html"})' in printed
+    summary = json.loads((out / 'summary.json').read_text())['runs']
+    assert len(summary) == len(LABELS)
+    for entry in summary:
+        assert set(entry['criteria']) == {'J1', 'J2', 'J3', 'J4', 'J5'}
+        assert all(isinstance(v, float) for v in entry['criteria'].values())
+        assert set(entry['nrms_common_lag']) == set(entry['nrms_unshifted']) == {
+            'displacement', 'acceleration', 'force'}
+    assert (out / 'criteria_vs_alpha.png').read_bytes()[:4] == b'\x89PNG'
+    assert not (out / 'runs_compared.png').exists()   # six runs: the table and plot only
+    html = (out / 'report.html').read_text(encoding='utf-8')
+    assert html.count('<img ') == html.count('src="data:image/png;base64,')
+
+
+def test_criteria_table_of_missing_values():
+    table = api.criteria_table([{'alpha': 0.5, 'predictor': 'none', 'criteria':
+                                 {'J1': None, 'J2': 1.0, 'J3': None, 'J4': 2.0, 'J5': 3.0},
+                                 'nrms_common_lag': {'displacement': 0.01}}])
+    row = table.splitlines()[1].split()
+    assert row == ['0.5', 'none', '-', '1.00', '-', '2.00', '3.00', '1.00', '-', '-']
