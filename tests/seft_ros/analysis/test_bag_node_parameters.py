@@ -343,3 +343,100 @@ def test_report_names_the_sources_and_warns(issue_bag, old_bag, tmp_path):
     assert 'parameter_sources' not in summary[1]
     assert summary[0]['nrms']['displacement'] < 1e-6
 
+
+
+# -- a bag of the live topics (ros2 bag record) -------------------------------------------------
+
+def measurement_raw(step, values, names=signals.MEASUREMENT_FIELDS):
+    msg = default_of('sensor_msgs/msg/JointState')
+    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(step * int(DT * 1e9), 10**9)
+    msg.name = list(names)
+    msg.position = np.asarray(values, dtype=float)
+    msg.velocity = np.zeros(0)
+    msg.effort = np.zeros(0)
+    return STORE.serialize_cdr(msg, 'sensor_msgs/msg/JointState')
+
+
+def batch_raw(stream, rows, labels=None):
+    dim = STORE.types['std_msgs/msg/MultiArrayDimension']
+    layout = STORE.types['std_msgs/msg/MultiArrayLayout'](
+        dim=[dim(label='step', size=len(rows), stride=len(rows) * len(rows[0])),
+             dim(label=labels or stream.labels, size=len(rows[0]), stride=len(rows[0]))],
+        data_offset=0)
+    msg = STORE.types['std_msgs/msg/Float64MultiArray'](
+        layout=layout, data=np.asarray(rows, dtype=float).ravel())
+    return STORE.serialize_cdr(msg, 'std_msgs/msg/Float64MultiArray')
+
+
+def write_live_bag(path, response, *, measured_from='measurement', labels=None):
+    """What ``ros2 bag record`` keeps of a real-time run: the control topics, the rig's
+    measurement message (in shuffled field order, from another frame), the record batches
+    (ten rows each; the rig's data only in its batches when `measured_from` is 'batches')
+    and the node parameters."""
+    nodes = node_parameters(reference_force_builder={'alpha': ALPHA_RUN, 'mode': 'realtime'},
+                            rig={'alpha': ALPHA_RUN, 'mode': 'realtime'})
+    streams = {r.name: r for r in signals.RECORD_STREAMS}
+    rig_stream = streams['/seft/record/rig']
+    timing_stream = streams['/seft/record/rig/timing']
+    order = (3, 0, 2, 1)
+    names = [signals.MEASUREMENT_FIELDS[i] for i in order]
+    sensors = [response[t] for t in rig_stream.columns]
+    with Writer(path, version=9) as writer:
+        conns = {}
+
+        def write(name, typename, stamp, raw):
+            if name not in conns:
+                conns[name] = writer.add_connection(name, typename, typestore=STORE)
+            writer.write(conns[name], stamp, raw)
+
+        for node, values in nodes.items():
+            write(signals.NODE_PARAMETERS.name, signals.NODE_PARAMETERS.type_name, 0,
+                  string_raw(json.dumps({'node': node, 'parameters': values})))
+        for step in range(N):
+            stamp = step * int(DT * 1e9)
+            for sig in (signals.GROUND_ACCELERATION, signals.REFERENCE_FORCE,
+                        signals.VALVE_COMMAND):
+                write(sig.name, sig.type_name, stamp,
+                      scalar_raw(sig, step, response[sig.name][step]))
+            if measured_from == 'measurement':
+                write(signals.MEASUREMENT.name, signals.MEASUREMENT.type_name, stamp,
+                      measurement_raw(step, [sensors[i][step] for i in order], names))
+        for first in range(0, N, signals.RECORD_ROWS):
+            steps = range(first, min(N, first + signals.RECORD_ROWS))
+            stamp = steps[-1] * int(DT * 1e9)
+            if measured_from == 'batches':
+                write(rig_stream.name, signals.RECORD_TYPE, stamp, batch_raw(
+                    rig_stream, [[k] + [s[k] for s in sensors] for k in steps], labels))
+            write(timing_stream.name, signals.RECORD_TYPE, stamp, batch_raw(
+                timing_stream, [[k, 1e-4, 2e-5, 3e-4, 0.0, float(k % 5 == 0), 8e-4]
+                                for k in steps]))
+        write(signals.STATUS.name, signals.STATUS.type_name, N * int(DT * 1e9),
+              status_raw('rig', 'done', 'finished'))
+    return path
+
+
+@pytest.mark.parametrize('measured_from', ['measurement', 'batches'])
+def test_a_bag_of_the_live_topics_reads_as_the_recorders(tmp_path, response, measured_from):
+    run = read_run(write_live_bag(tmp_path / 'live', response, measured_from=measured_from))
+    assert run.n_steps == N
+    for name, values in ((signals.MEASURED_FORCE.name, run.measured_force_N),
+                         (signals.DISPLACEMENT.name, run.displacement_m),
+                         (signals.VELOCITY.name, run.velocity_m_s),
+                         (signals.ACCELERATION.name, run.acceleration_m_s2),
+                         (signals.REFERENCE_FORCE.name, run.reference_force_N)):
+        assert np.array_equal(values, response[name]), name
+    assert compare_run(run, reference_from_run(run)).displacement.nrms < 1e-9
+    rig = run.extra['timing_data']['rig']
+    assert rig.step.tolist() == list(range(N))
+    # step 0 has no command before it: the fraction is over steps 1..N-1 (rounded to 1e-6)
+    stale = run.extra['timing']['stale_command_fraction']
+    assert stale == pytest.approx((N // 5 - 1) / (N - 1), abs=1e-6)
+    assert run.extra['timing']['loop_latency_ms']['p50'] == pytest.approx(0.8)
+
+
+def test_a_batch_with_other_columns_is_refused(tmp_path, response):
+    path = write_live_bag(tmp_path / 'live', response, measured_from='batches',
+                          labels='step,a,b,c,d')
+    with pytest.raises(InputError, match=re.escape(
+            '/seft/record/rig: expected a batch with columns step,/seft/measured_force,')):
+        read_run(path)

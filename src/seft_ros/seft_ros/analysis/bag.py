@@ -6,6 +6,11 @@ reference-force builder, the specimen and the rig from the rig, ...), from the n
 declared it when that node is not in the bag, and from ``/seft/run_parameters`` in a bag
 without node parameters; the signals from the scalar topics (one message per step, stamped
 ``t_k``), the abort reason from the final ``/seft/status`` reports.
+
+A bag recorded from the live topics (``ros2 bag record`` on a full ROS install, which sees
+the rig's one ``/seft/measurement`` message and the nodes' record batches instead of the
+recorder's per-signal topics) reads the same: a signal missing as its own topic is taken
+from the measurement or the batches.
 """
 
 import json
@@ -28,6 +33,9 @@ from seft_ros.analysis.timing import (
 __all__ = ['read_run', 'BagSignals', 'read_signals']
 
 _SCALARS = {s.name: s.field for s in (signals.CLOCK,) + signals.SCALAR_SIGNALS}
+_RECORD = {r.name: r for r in signals.RECORD_STREAMS}
+_MEASURED = (signals.MEASURED_FORCE.name, signals.DISPLACEMENT.name, signals.VELOCITY.name,
+             signals.ACCELERATION.name)
 
 
 def _get(msg, path: str):
@@ -160,6 +168,8 @@ def read_signals(path) -> BagSignals:
     params = None
     node_params = {}
     timing_rows: dict[str, list] = {}
+    live = {name: {} for name in _SCALARS}      # topic -> {step or ('ns', stamp): value}
+    live_timing: dict[str, list] = {}          # node -> [(step, values)]
     try:
         with Reader(path) as reader:
             for conn, _, raw in reader.messages():
@@ -180,6 +190,16 @@ def read_signals(path) -> BagSignals:
                     entry = {kv.key: kv.value for kv in msg.values}
                     entry.update(name=msg.name, message=msg.message)
                     statuses.append(entry)
+                elif conn.topic == signals.MEASUREMENT.name:
+                    msg = typestore.deserialize_cdr(raw, conn.msgtype)
+                    by_name = dict(zip(msg.name, msg.position))
+                    stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+                    for topic, field in zip(_MEASURED, signals.MEASUREMENT_FIELDS):
+                        if field in by_name:
+                            live[topic][('ns', stamp)] = float(by_name[field])
+                elif conn.topic in _RECORD:
+                    _read_batch(_RECORD[conn.topic], typestore.deserialize_cdr(raw, conn.msgtype),
+                                live, live_timing, path)
                 elif conn.topic in _SCALARS:
                     msg = typestore.deserialize_cdr(raw, conn.msgtype)
                     if conn.topic == signals.CLOCK.name:
@@ -210,9 +230,33 @@ def read_signals(path) -> BagSignals:
     dt_ns = int(round(params['dt'] * 1e9))
     by_step = {name: {int(round(ns / dt_ns)): v for ns, v in vals.items()}
                for name, vals in samples.items()}
+    for name, vals in live.items():
+        if vals and not by_step[name]:     # recorded from the live topics only
+            by_step[name] = {(int(round(key[1] / dt_ns)) if isinstance(key, tuple) else key): v
+                             for key, v in vals.items()}
+    for node, rows in live_timing.items():
+        if node not in timing_rows:
+            timing_rows[node] = [(step * dt_ns, values) for step, values in rows]
     return BagSignals(params, by_step, counts, statuses, node_params=node_params,
                       param_sources=sources, parameter_mismatches=mismatches,
                       timing=node_timings(timing_rows, params['dt']))
+
+
+def _read_batch(stream, msg, live: dict, live_timing: dict, path: Path) -> None:
+    """The rows of one record batch into `live` ({topic: {step: value}}) or, for a timing
+    stream, `live_timing` ({node: [(step, values)]})."""
+    width = 1 + len(stream.columns)
+    labels = msg.layout.dim[1].label if len(msg.layout.dim) == 2 else ''
+    if labels != stream.labels or len(msg.data) % width:
+        raise InputError(f'{path}: {stream.name}: expected a batch with columns '
+                         f'{stream.labels}, got {labels or "no layout"}')
+    rows = np.asarray(msg.data, dtype=float).reshape(-1, width)
+    if stream.timing:
+        live_timing.setdefault(stream.node, []).extend(
+            (int(r[0]), [float(v) for v in r[1:]]) for r in rows)
+        return
+    for j, topic in enumerate(stream.columns, start=1):
+        live[topic].update((int(r[0]), float(r[j])) for r in rows)
 
 
 def read_run(path) -> RunData:
