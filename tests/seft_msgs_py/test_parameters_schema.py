@@ -16,8 +16,10 @@ from seft_msgs_py.convert import (
     STATE_DONE,
     STATE_FAILED,
     STATE_READY,
+    FieldsReader,
     ScalarMessage,
     ScalarReader,
+    SerializedStamped,
     clock_msg,
     clock_ns_from_raw,
     dt_to_ns,
@@ -34,11 +36,15 @@ from seft_msgs_py.errors import InputError, ParameterError, RigLimitError, SeftE
 from seft_msgs_py.parameters import SCHEMA, resolve, spec, specs_for_node, validate_value
 from seft_msgs_py.sync import StepSync
 from seft_msgs_py.topics import (
+    BAG_TOPICS,
     CLOCK,
     FRAME_ID,
+    MEASUREMENT,
     MEASUREMENT_TOPICS,
     NODE_PARAMETERS,
+    RECORD,
     RUN_PARAMETERS,
+    SCALAR_TOPICS,
     STATUS,
     TIMING,
     TOPICS,
@@ -47,9 +53,11 @@ from seft_msgs_py.topics import (
 )
 from seft_plant_sim.servohydraulic import ServoHydraulicParams
 
-#: Topics that carry one stamped scalar (every topic but /clock, status and parameters).
-SCALAR_TOPICS = [t for t in TOPICS
-                 if t not in (CLOCK, STATUS, RUN_PARAMETERS, NODE_PARAMETERS) + TIMING]
+#: Topics that carry one stamped scalar: every topic but /clock, status, parameters, timing,
+#: the live measurement and the record batches.
+OTHER = ((CLOCK, STATUS, RUN_PARAMETERS, NODE_PARAMETERS, MEASUREMENT) + TIMING
+         + tuple(RECORD.values()))
+assert SCALAR_TOPICS == tuple(t for t in TOPICS if t not in OTHER)
 
 
 def bad(text):
@@ -169,9 +177,14 @@ def test_servohydraulic_defaults_equal_the_schema():
     names = [f.name for f in fields(ServoHydraulicParams)]
     assert len(names) == 10
     defaults = ServoHydraulicParams()
+    assert ServoHydraulicParams.from_parameters(parameters.defaults()) == defaults
     for name in names:
-        assert getattr(defaults, name) == spec(name).default, name
         assert 'rig' in spec(name).nodes, name
+        if name == 'valve_flow_gain_m3_per_s_V':    # schema 0: the rig calibration's k_q
+            assert spec(name).default == 0.0
+            assert defaults.valve_flow_gain_m3_per_s_V == pytest.approx(5.3e-5 * 4.4482216)
+            continue
+        assert getattr(defaults, name) == spec(name).default, name
 
 
 def test_error_types():
@@ -275,6 +288,95 @@ def test_scalar_reader_reads_the_serialized_message(spec_, frame):
     assert ScalarReader(spec_)(raw) == (3_002_000_001, -1234.5678e-3)
     back = deserialize_message(raw, spec_.msg_type)
     assert scalar_value(spec_, back) == -1234.5678e-3
+
+
+def test_live_and_bag_topics():
+    """Live, the rig sends its four sensors in one message and every node its record
+    batches; the bag holds every signal per sample (the recorder writes the batches back)."""
+    assert MEASUREMENT.name == '/seft/measurement'
+    assert MEASUREMENT.type_name == 'sensor_msgs/msg/JointState'
+    names = {t.name for t in TOPICS}
+    bag_names = {t.name for t in BAG_TOPICS}
+    live_only = {CLOCK.name, MEASUREMENT.name} | set(RECORD)
+    assert names == bag_names | live_only and not live_only & bag_names
+    assert sorted(RECORD) == sorted(
+        [f'/seft/record/{n}' for n in ('rig', 'ground_motion_publisher',
+                                       'reference_force_builder', 'force_servo_controller')]
+        + [f'{t.name.replace("/seft/timing/", "/seft/record/")}/timing' for t in TIMING])
+    assert all(t.type_name == 'std_msgs/msg/Float64MultiArray' for t in RECORD.values())
+    assert RECORD['/seft/record/rig'].description.endswith(
+        '(columns step,/seft/measured_force,/seft/displacement,/seft/velocity,'
+        '/seft/acceleration).')
+
+
+def _rosbags_scalar(ts, spec_, stamp_ns, value):
+    """The message as rosbags builds it, independently of rclpy."""
+    import numpy as np
+    T, H = ts.types['builtin_interfaces/msg/Time'], ts.types['std_msgs/msg/Header']
+    V = ts.types['geometry_msgs/msg/Vector3']
+    header = H(stamp=T(sec=stamp_ns // 10**9, nanosec=stamp_ns % 10**9), frame_id=FRAME_ID)
+    vec = V(x=value, y=0.0, z=0.0)
+    zero = V(x=0.0, y=0.0, z=0.0)
+    kind = spec_.type_name.split('/')[-1]
+    cls = ts.types[spec_.type_name]
+    if kind == 'AccelStamped':
+        return cls(header=header, accel=ts.types['geometry_msgs/msg/Accel'](linear=vec,
+                                                                            angular=zero))
+    if kind == 'WrenchStamped':
+        return cls(header=header, wrench=ts.types['geometry_msgs/msg/Wrench'](force=vec,
+                                                                              torque=zero))
+    if kind == 'TwistStamped':
+        return cls(header=header, twist=ts.types['geometry_msgs/msg/Twist'](linear=vec,
+                                                                            angular=zero))
+    if kind == 'PointStamped':
+        return cls(header=header, point=ts.types['geometry_msgs/msg/Point'](x=value, y=0.0,
+                                                                            z=0.0))
+    assert kind == 'Vector3Stamped'
+    del np
+    return cls(header=header, vector=vec)
+
+
+@pytest.mark.parametrize('spec_', SCALAR_TOPICS, ids=lambda t: t.name)
+def test_serialized_stamped_scalar_equals_rosbags_bytes(spec_):
+    """The bytes written in place equal rosbags' own serialization of the same message
+    (exact length, zero padding), and rclpy and the fast reader read them back."""
+    from rosbags.typesys import Stores, get_typestore
+    ts = get_typestore(Stores.ROS2_JAZZY)
+    write = SerializedStamped.scalar(spec_)
+    for stamp, value in ((0, 0.0), (3_002_000_001, -1234.5678e-3), (7 * 10**9, 1e300)):
+        raw = write(stamp, (value,))
+        expected = ts.serialize_cdr(_rosbags_scalar(ts, spec_, stamp, value), spec_.type_name)
+        assert raw == bytes(expected)
+        assert ScalarReader(spec_)(raw) == (stamp, value)
+        assert deserialize_message(raw, spec_.msg_type) == scalar_msg(spec_, stamp, value)
+
+
+def test_serialized_fields_and_fields_reader():
+    """The measurement and timing records: rosbags reads the bytes (the old rclpy bytes of a
+    JointState carried 8 bytes too many, which rosbags refuses), and the reader takes the
+    values in place, or by name from a message laid out another way."""
+    import numpy as np
+    from rosbags.typesys import Stores, get_typestore
+    from sensor_msgs.msg import JointState
+
+    from seft_msgs_py.signals import MEASUREMENT_FIELDS, TIMING_FIELDS
+    ts = get_typestore(Stores.ROS2_JAZZY)
+    for names in (MEASUREMENT_FIELDS, TIMING_FIELDS):
+        values = tuple(-1.5 * (i + 1) for i in range(len(names)))
+        raw = SerializedStamped.fields(JointState, names)(5_000_000_001, values)
+        back = ts.deserialize_cdr(raw, 'sensor_msgs/msg/JointState')
+        assert list(back.name) == list(names) and back.header.frame_id == FRAME_ID
+        assert np.array_equal(back.position, values)
+        assert (back.header.stamp.sec, back.header.stamp.nanosec) == (5, 1)
+        assert FieldsReader(JointState, names)(raw) == (5_000_000_001, values)
+    other = JointState(name=list(reversed(MEASUREMENT_FIELDS)), position=[4.0, 3.0, 2.0, 1.0])
+    other.header.frame_id = 'hardware_bridge'
+    other.header.stamp.sec = 2
+    assert FieldsReader(JointState, MEASUREMENT_FIELDS)(serialize_message(other)) == (
+        2_000_000_000, (1.0, 2.0, 3.0, 4.0))
+    missing = JointState(name=['measured_force_N'], position=[1.0])
+    with pytest.raises(KeyError, match='displacement_m'):
+        FieldsReader(JointState, MEASUREMENT_FIELDS)(serialize_message(missing))
 
 
 def test_clock_from_raw():

@@ -169,11 +169,13 @@ def test_shared_parameters_have_an_explicit_source():
     (['alpha', 'predictor', 'ground_preview', 'polynomial_order', 'predictor_mass_kg',
       'predictor_damping_N_s_per_m', 'predictor_stiffness_N_per_m', 'predictor_tau_s',
       'predictor_loop_delay_steps', 'predictor_loop_taps', 'predictor_loop_latency_s',
-      'adaptive_window_s', 'adaptive_max_delay_s', 'monitor_cutoff_hz', 'monitor_window_s',
+      'adaptive_window_s', 'adaptive_max_delay_s', 'adaptive_memory_s',
+      'adaptive_excitation_N', 'adaptive_max_deviation', 'adaptive_max_rate_per_s',
+      'ats_window_s', 'monitor_cutoff_hz', 'monitor_window_s',
       'monitor_threshold', 'monitor_floor_N'], 'reference_force_builder'),
     (['mass_kg', 'stiffness_N_per_m', 'damping_N_s_per_m', 'specimen_model',
       'post_yield_stiffness_ratio', 'yield_displacement_m', 'bouc_wen_n', 'bouc_wen_beta',
-      'bouc_wen_gamma', 'rig_model', 'tau_s', 'stroke_limit_m', 'force_limit_N',
+      'bouc_wen_gamma', 'rig_model', 'rig_calibration', 'tau_s', 'stroke_limit_m', 'force_limit_N',
       'noise_force_N', 'noise_displacement_m', 'noise_velocity_m_s', 'noise_acceleration_m_s2',
       'noise_seed', 'piston_area_m2', 'oil_bulk_modulus_Pa', 'actuator_volume_m3',
       'valve_time_constant_s', 'valve_flow_gain_m3_per_s_V',
@@ -193,7 +195,7 @@ def test_value_source_of_each_parameter(names, node):
 
 def test_value_source_lists_cover_the_schema():
     # + 1: realtime_priority, per node (the rig's value is the one reported)
-    assert len(VALUE_SOURCE) == len(SCHEMA) == 17 + 37 + 6 + 3 + 2 + 1
+    assert len(VALUE_SOURCE) == len(SCHEMA) == 22 + 38 + 6 + 3 + 2 + 1
 
 
 def test_value_source_of_unknown_name_is_an_error():

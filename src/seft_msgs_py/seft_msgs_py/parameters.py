@@ -148,11 +148,16 @@ SCHEMA: tuple[ParamSpec, ...] = (
               "'polynomial': extrapolated over the delay, Horiuchi et al. 1996; 'model': "
               'hold-consistent model-based prediction after Carrion and Spencer 2007, with '
               "the force loop inverted on the servohydraulic rig; 'adaptive': 'model' with "
-              'the delay and gain identified online).',
-              choices=('none', 'polynomial', 'model', 'adaptive'), nodes=_RFB + ('recorder',)),
-    ParamSpec('ground_preview', False, '', 'Command the ground-motion part of the reference '
+              'the specimen m, c, k (recursive least squares), the delay and the gain '
+              "identified online, the force-loop inverse refitted to them; 'ats': the "
+              'adaptive time-series compensator of Chae et al. 2013 on the force loop, with '
+              "'model' for the one-step measurement lag).",
+              choices=('none', 'polynomial', 'model', 'adaptive', 'ats'),
+              nodes=_RFB + ('recorder',)),
+    ParamSpec('ground_preview', True, '', 'Command the ground-motion part of the reference '
               "force ahead by the predictor's loop delay (the record is known before the "
-              'test), so that the response does not lag the reference.',
+              'test), so that the response does not lag the reference (no effect with '
+              "predictor 'none').",
               nodes=_RFB + ('recorder',)),
     ParamSpec('polynomial_order', 2, '', "Order of the 'polynomial' predictor's "
               'extrapolation.', 1, 3, nodes=_RFB + ('recorder',)),
@@ -179,7 +184,25 @@ SCHEMA: tuple[ParamSpec, ...] = (
     ParamSpec('adaptive_window_s', 0.5, 's', "Identification window of the 'adaptive' "
               'predictor.', 0.0, 100.0, True, nodes=_RFB + ('recorder',)),
     ParamSpec('adaptive_max_delay_s', 0.03, 's', "Largest delay the 'adaptive' predictor "
-              'searches.', 0.0, 1.0, True, nodes=_RFB + ('recorder',)),
+              "searches (also the bound of the 'ats' coefficient a1).", 0.0, 1.0, True,
+              nodes=_RFB + ('recorder',)),
+    ParamSpec('adaptive_memory_s', 5.0, 's', "Memory of the 'adaptive' predictor's recursive "
+              'least squares on m, c, k: forgetting factor exp(-dt / memory).', 0.0, 1000.0,
+              True, nodes=_RFB + ('recorder',)),
+    ParamSpec('adaptive_excitation_N', 20.0, 'N', "'adaptive' and 'ats': the estimates are "
+              'held while the running RMS of the measured force (time constant '
+              'adaptive_window_s) is below this (quiet start and coda).', 0.0, None,
+              nodes=_RFB + ('recorder',)),
+    ParamSpec('adaptive_max_deviation', 0.5, '', "'adaptive': the estimates of m, c, k and "
+              'the actuator gain stay within this fraction of the configured values (the '
+              "delay within 0..adaptive_max_delay_s).", 0.0, 0.95, True,
+              nodes=_RFB + ('recorder',)),
+    ParamSpec('adaptive_max_rate_per_s', 1.0, '1/s', "'adaptive' and 'ats': each estimate "
+              'changes by at most this fraction of its configured (initial) value per second.',
+              0.0, 100.0, True, nodes=_RFB + ('recorder',)),
+    ParamSpec('ats_window_s', 1.0, 's', "'ats': sliding window of the least-squares fit of "
+              'a0, a1, a2 (refitted every 16 steps, Chae et al. 2013).', 0.0, 100.0, True,
+              nodes=_RFB + ('recorder',)),
     ParamSpec('monitor_cutoff_hz', 25.0, 'Hz', 'Online instability monitor: band split of '
               'the measured force (the unstable mode lies above it, the response below).',
               0.0, None, True, nodes=_RFB),
@@ -203,6 +226,12 @@ SCHEMA: tuple[ParamSpec, ...] = (
     ParamSpec('rig_model', 'servohydraulic', '', "Simulated rig: 'delay' (measured force = "
               "reference force delayed by tau_s, paper Sec. 5.2) or 'servohydraulic'.",
               choices=('delay', 'servohydraulic'), nodes=_RIG + _CTRL + ('recorder',)),
+    ParamSpec('rig_calibration', 'us_customary', '', 'Servohydraulic rig: the units the '
+              "reference controller C_f = 37/(s^2+17.14 s+4002) (paper Eq. 3.1) is read in. "
+              "'us_customary': V/lbf (37/4.448 V/N; the valve passes 2.0 m/s at 10 V); 'si': "
+              'V/N (0.45 m/s at 10 V). The valve flow gain scales with it, so the force loop '
+              'is the same in both.', choices=('us_customary', 'si'),
+              nodes=_RIG + _CTRL + _RFB + ('recorder',)),
     ParamSpec('tau_s', 0.01, 's', "Actuator time delay of the 'delay' rig (paper Eq. 5.2).",
               0.0, 1.0, True, nodes=_RIG),
     ParamSpec('stroke_limit_m', 0.076, 'm', 'Actuator stroke limit (+/-); beyond it the run is '
@@ -229,8 +258,10 @@ SCHEMA: tuple[ParamSpec, ...] = (
               True, nodes=_RIG),
     ParamSpec('valve_time_constant_s', 0.0025, 's', 'Time constant of the first-order '
               'servo-valve spool.', 0.0, None, True, nodes=_RIG),
-    ParamSpec('valve_flow_gain_m3_per_s_V', 5.3e-5, 'm^3/(s V)', 'Linearized valve flow gain '
-              'k_q (sets the ~12 Hz loop crossover).', 0.0, None, True, nodes=_RIG),
+    ParamSpec('valve_flow_gain_m3_per_s_V', 0.0, 'm^3/(s V)', 'Linearized valve flow gain '
+              'k_q (with the controller gain it sets the ~12 Hz loop crossover; 0: that of '
+              "rig_calibration, 2.358e-4 'us_customary' or 5.3e-5 'si').", 0.0, None,
+              nodes=_RIG),
     ParamSpec('valve_pressure_coefficient_m3_per_s_Pa', 8e-12, 'm^3/(s Pa)', 'Valve '
               'flow-pressure coefficient K_c at null.', 0.0, None, nodes=_RIG),
     ParamSpec('leakage_coefficient_m3_per_s_Pa', 2e-12, 'm^3/(s Pa)', 'Cross-port leakage '
@@ -264,8 +295,9 @@ SCHEMA: tuple[ParamSpec, ...] = (
               'subscribes to its topics (set by seft run, so no sample precedes the recorder).',
               nodes=_RIG),
     ParamSpec('recorder_window_steps', 1000, '', 'Lockstep flow control: the rig waits while '
-              'the recorder is more than this many steps behind (0: never waits); must stay '
-              'below the 2000-sample history of the data topics.', 0, 1900, nodes=_RIG),
+              'the recorder is more than this many steps behind (0: never waits; else at least '
+              '100: the recorder acknowledges every 50 steps and takes the samples in batches of '
+              '10).', 0, 1900, nodes=_RIG),
     # -- recorder ---------------------------------------------------------------------------
     ParamSpec('bag_path', 'seft_bag', '', 'Directory of the rosbag2 bag to write (must not '
               'exist yet).', nodes=('recorder',)),
@@ -474,7 +506,7 @@ _SHARED_SOURCE = {
     'alpha': 'reference_force_builder',     # Eq. 5.3 is computed there
     'dt': 'rig', 'mode': 'rig', 'n_steps': 'rig',  # the rig is the clock
     'mass_kg': 'rig', 'stiffness_N_per_m': 'rig', 'damping_N_s_per_m': 'rig',  # the specimen
-    'rig_model': 'rig',
+    'rig_model': 'rig', 'rig_calibration': 'rig',
     'realtime_priority': 'rig',             # per node; the rig's is the clock's
 }
 

@@ -43,6 +43,7 @@ from typing import Mapping
 import numpy as np
 from scipy import optimize, signal
 
+from seft_msgs_py.calibration import CALIBRATIONS, DEFAULT_CALIBRATION, valve_flow_gain_m3_per_s_V
 from seft_msgs_py.errors import ParameterError
 from seft_msgs_py.interface import COMMAND_VALVE, Measurement
 from seft_msgs_py.sampling import linear_map as _linear_map
@@ -74,6 +75,10 @@ _FORCE, _ACCEL, _DISP, _VEL, _TRUE_FORCE = range(5)
 
 
 # -- parameters -----------------------------------------------------------------------------
+
+#: Default valve flow gain [m^3/(s V)]: the default reading of paper Eq. 3.1 (V/lbf).
+_KQ_DEFAULT = CALIBRATIONS[DEFAULT_CALIBRATION].valve_flow_gain_m3_per_s_V
+
 
 @dataclass(frozen=True)
 class ServoHydraulicParams:
@@ -110,10 +115,13 @@ class ServoHydraulicParams:
         (64 Hz corner): a small-amplitude MTS 252 two-stage valve as a first-order lag, the
         valve model of Carrion and Spencer (2007).
     valve_flow_gain_m3_per_s_V : float > 0
-        Linearized flow gain k_q [m^3/s per V of valve command]; 5.3e-5, calibrated: with A it
-        sets the loop crossover (paper Fig. 3c). Plausible for the valve size assumed here, a
-        252 series valve rated 5 gpm at 6.9 MPa drop: 8.7 gpm = 5.5e-4 m^3/s at 10 V and
-        20.7 MPa supply.
+        Linearized flow gain k_q [m^3/s per V of valve command]; calibrated: with A and the
+        controller gain it sets the loop crossover (paper Fig. 3c), so it depends on the units
+        Eq. 3.1 is read in (:mod:`seft_msgs_py.calibration`). Default 2.358e-4, the
+        'us_customary' reading (Eq. 3.1 in V/lbf): 2.0 m/s at 10 V, 2.36e-3 m^3/s = 37 gpm at
+        20.7 MPa supply, i.e. a valve rated about 22 gpm at 6.9 MPa drop, within the MTS 252
+        family's flow range. The 'si' reading (Eq. 3.1 in V/N) has 5.3e-5: 0.45 m/s and
+        8.4 gpm at 10 V (a 5 gpm valve). The loop calibration numbers above hold for both.
     valve_pressure_coefficient_m3_per_s_Pa : float >= 0
         Flow-pressure coefficient K_c of the valve at null [m^3/(s Pa)]; 8e-12, chosen
         (the order of magnitude of a practical valve near null, Merritt 1967). Sets, with
@@ -152,7 +160,7 @@ class ServoHydraulicParams:
     oil_bulk_modulus_Pa: float = 1.0e9
     actuator_volume_m3: float = 3.35e-4
     valve_time_constant_s: float = 0.0025
-    valve_flow_gain_m3_per_s_V: float = 5.3e-5
+    valve_flow_gain_m3_per_s_V: float = _KQ_DEFAULT
     valve_pressure_coefficient_m3_per_s_Pa: float = 8e-12
     leakage_coefficient_m3_per_s_Pa: float = 2e-12
     io_latency_s: float = 0.003
@@ -176,6 +184,9 @@ class ServoHydraulicParams:
     def from_parameters(cls, params: Mapping) -> 'ServoHydraulicParams':
         """Build from a flat parameter mapping; absent keys take the defaults.
 
+        ``valve_flow_gain_m3_per_s_V`` absent or 0: that of the mapping's ``rig_calibration``
+        (:func:`seft_msgs_py.calibration.valve_flow_gain_m3_per_s_V`).
+
         Raises
         ------
         ParameterError
@@ -188,6 +199,7 @@ class ServoHydraulicParams:
                 if isinstance(value, bool) or not isinstance(value, (int, float)):
                     raise ParameterError(f'parameter {f.name}={value!r}: expected float')
                 values[f.name] = float(value)
+        values['valve_flow_gain_m3_per_s_V'] = float(valve_flow_gain_m3_per_s_V(params))
         return cls(**values)
 
     @property
@@ -473,7 +485,10 @@ class ServoHydraulicRig:
     The rig itself is linear; the controller's valve saturation (10 V) and the accelerometer
     range are what bound an unstable substructure EFT loop: with the defaults, alpha = 1.5
     and 2 ring at about 37 Hz with a few kN, within the stroke and force limits, so
-    :meth:`limit_violation` does not stop such a run.
+    :meth:`limit_violation` does not stop such a run. With Eq. 3.1 in V/lbf (the default
+    calibration) the accelerometer range bounds it first (alpha = 1.5: 4.5 kN at 4.2 V), so
+    the valve does not saturate and only the instability monitor ends the run; with the 'si'
+    reading the valve saturates and the loss-of-control interlock trips.
 
     References
     ----------

@@ -207,7 +207,8 @@ def test_write_report_across_predictors(predictor_runs, tmp_path):
         'time_histories_none.png', 'time_histories_none_zoom.png',
         'time_histories_model.png', 'time_histories_polynomial_zoom.png',
         'predictors_alpha_0.5.png', 'predictors_alpha_1.png'}
-    assert len(paths.figures) == 8
+    # the eight above and criteria_vs_alpha.png (several alphas; > 4 runs: no runs_compared)
+    assert len(paths.figures) == 9 and paths.criteria_png.name == 'criteria_vs_alpha.png'
     for png in paths.figures:
         assert png.exists() and png.stat().st_size > 10_000
         assert png.read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
@@ -270,7 +271,8 @@ def test_write_report_keeps_runs_sharing_a_setup_apart(tmp_path):
 def test_write_report_single_predictor_keeps_one_grid(runs, tmp_path):
     paths = write_report(runs, tmp_path)
     assert paths.predictor_time_histories == {} and paths.predictor_comparisons == {}
-    assert paths.figures == (paths.time_histories_png, paths.zoom_png)
+    assert paths.figures == (paths.criteria_png, paths.runs_png, paths.time_histories_png,
+                             paths.zoom_png)
     md = paths.report_md.read_text()
     assert 'Comparison across predictors' not in md and 'best compensated' not in md
     assert not list(tmp_path.glob('predictors_alpha_*.png'))

@@ -73,4 +73,4 @@ def test_stability_verb_bad_predictor(seft_exe, run_process, tmp_path):
     assert proc.returncode == 2
     assert proc.stderr.splitlines() == [
         "seft: error: predictor 'foo': expected one of 'none', 'polynomial', 'model', "
-        "'adaptive'"]
+        "'adaptive', 'ats'"]

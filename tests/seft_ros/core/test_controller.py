@@ -17,6 +17,8 @@ from seft_ros.core.controller import (
 )
 
 DT = 0.002
+#: 1 lbf [N], typed from its definition (0.45359237 kg x 9.80665 m/s^2).
+LBF = 0.45359237 * 9.80665
 
 
 @pytest.fixture(scope='module')
@@ -24,10 +26,11 @@ def controller():
     return ForceServoController(DT)
 
 
-def continuous_cf(w):
-    """C_f(j w) = 37 / ((j w)^2 + 17.14 j w + 4002) [V/N], typed from paper Eq. 3.1."""
+def continuous_cf(w, force_unit_N=LBF):
+    """C_f(j w) = 37 / ((j w)^2 + 17.14 j w + 4002) [V/N], typed from paper Eq. 3.1 read in
+    V per `force_unit_N` (default: V/lbf, the default rig calibration)."""
     s = 1j * np.asarray(w)
-    return 37.0 / (s ** 2 + 17.14 * s + 4002.0)
+    return 37.0 / force_unit_N / (s ** 2 + 17.14 * s + 4002.0)
 
 
 # -- DiscreteFilter --------------------------------------------------------------------------
@@ -64,9 +67,11 @@ def test_discrete_filter_bad_coefficients(b, a):
 # -- ForceServoController --------------------------------------------------------------------
 
 def test_coefficients_are_the_paper_controller(controller):
-    assert LOOP_SHAPING_NUM == (37.0,) and LOOP_SHAPING_DEN == (1.0, 17.14, 4002.0)
+    # Eq. 3.1 read in V/lbf by default: 37 V/lbf = 37/4.448 V/N
+    assert LOOP_SHAPING_NUM == (pytest.approx(37.0 / LBF, rel=1e-15),)
+    assert LOOP_SHAPING_DEN == (1.0, 17.14, 4002.0)
     ct = controller.continuous()
-    np.testing.assert_array_equal(np.ravel(ct.num), [37.0])
+    np.testing.assert_allclose(np.ravel(ct.num), [37.0 / LBF], rtol=1e-15)
     np.testing.assert_array_equal(ct.den, [1.0, 17.14, 4002.0])
     assert controller.discrete().dt == DT
     assert 'bilinear' in controller.design.method
@@ -120,9 +125,25 @@ def test_step_filters_the_force_error_and_saturates(controller):
     assert c.step(fr[0], fm[0]) == pytest.approx(raw[0], abs=1e-15)
 
 
+@pytest.mark.parametrize('reading, gain_V_per_N', [('us_customary', 37.0 / LBF), ('si', 37.0)])
+def test_from_parameters_reads_eq_3_1_in_the_rig_calibration(reference_params, reading,
+                                                             gain_V_per_N):
+    c = ForceServoController.from_parameters(dict(reference_params, rig_calibration=reading))
+    assert c.design.num == (pytest.approx(gain_V_per_N, rel=1e-15),)
+    assert c.design.den == LOOP_SHAPING_DEN
+    w = 2 * np.pi * np.array([0.5, 10.0, 25.0])
+    force_unit = 1.0 if reading == 'si' else LBF
+    np.testing.assert_allclose(c.continuous().freqresp(w)[1], continuous_cf(w, force_unit),
+                               rtol=1e-12)
+    with pytest.raises(ParameterError, match="^parameter rig_calibration='metric': expected "
+                       "one of 'us_customary', 'si'$"):
+        ForceServoController.from_parameters(dict(reference_params, rig_calibration='metric'))
+
+
 def test_default_limit_and_from_parameters(reference_params):
     c = ForceServoController.from_parameters(reference_params)
     assert (c.dt, c.valve_limit_V) == (0.002, 10.0)
+    assert c.design.num == ForceServoController(DT).design.num
     assert c.step(1e9, 0.0) == 10.0 and c.saturated
     assert c.step(-1e12, 0.0) == -10.0 and c.saturated
 

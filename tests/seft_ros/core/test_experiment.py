@@ -98,7 +98,10 @@ def test_diverging_delay_run_is_stopped_earlier_by_the_monitor(reference_params)
 
 
 def test_servohydraulic_alpha_1_5_trips_the_interlock(reference_params):
-    run = simulate(dict(reference_params, alpha=1.5, monitor_threshold=0.0))
+    # the 'si' reading of Eq. 3.1: its valve (0.45 m/s at 10 V) saturates before the
+    # accelerometer does, and the interlock ends the run
+    run = simulate(dict(reference_params, alpha=1.5, monitor_threshold=0.0,
+                        rig_calibration='si'))
     assert_aborted(run)
     assert run.abort_reason.startswith(f'force control lost at t={run.unstable_at_s:.3f} s')
     assert 'saturated in 26/50 samples' in run.abort_reason
@@ -108,8 +111,26 @@ def test_servohydraulic_alpha_1_5_trips_the_interlock(reference_params):
     assert np.count_nonzero(np.abs(u[-49:]) == 10.0) == 25
 
 
-def test_servohydraulic_alpha_1_5_is_aborted_with_the_monitor_on(reference_params):
-    run = simulate(dict(reference_params, alpha=1.5))
+def test_default_reading_alpha_1_5_is_bounded_by_the_accelerometer_range(reference_params):
+    """The default reading's valve passes 4.448 times the flow per volt: without the monitor
+    the unstable loop's limit cycle is bounded by the 4 g accelerometer range (the fed-back
+    acceleration saturates) below the valve limit, so neither the interlock nor the rig's
+    limits end it; the monitor (on by default, next test) is what stops such a run."""
+    run = simulate(dict(reference_params, alpha=1.5, monitor_threshold=0.0))
+    assert run.stable and run.abort_reason is None
+    assert np.max(np.abs(run.acceleration_m_s2)) == 39.2
+    assert 3.0 < np.max(np.abs(run.valve_command_V)) < 10.0
+    assert 2e3 < np.max(np.abs(run.measured_force_N)) < 24.5e3 / 2
+    # without the accelerometer range the loop grows until the force limit stops it
+    run = simulate(dict(reference_params, alpha=1.5, monitor_threshold=0.0,
+                        accelerometer_range_m_s2=0.0))
+    assert_aborted(run)
+    assert run.abort_reason.startswith(f'force limit exceeded at t={run.unstable_at_s:.3f} s')
+
+
+@pytest.mark.parametrize('reading', ['us_customary', 'si'])
+def test_servohydraulic_alpha_1_5_is_aborted_with_the_monitor_on(reference_params, reading):
+    run = simulate(dict(reference_params, alpha=1.5, rig_calibration=reading))
     assert_aborted(run)
     assert re.match(r'(unstable|force control lost) at t=', run.abort_reason)
 

@@ -15,6 +15,7 @@ from seft_ros.core import experiment
 from seft_ros.core.controller import ForceServoController
 from seft_ros.core.predictors import (
     AdaptivePredictor,
+    AtsPredictor,
     DelayImpulseModel,
     ForceLoopInverse,
     ModelPredictor,
@@ -194,7 +195,7 @@ def test_force_loop_inverse_makes_the_loop_a_delay_in_band():
 
 def test_registry_schema_and_protocol():
     assert set(PREDICTORS) == set(spec('predictor').choices) \
-        == {'none', 'polynomial', 'model', 'adaptive'}
+        == {'none', 'polynomial', 'model', 'adaptive', 'ats'}
     for name in PREDICTORS:
         for rig in ('delay', 'servohydraulic'):
             from seft_msgs_py.parameters import resolve
@@ -249,7 +250,8 @@ def test_servohydraulic_full_amplitude_saturates_the_valve_beyond_alpha_half():
 @pytest.mark.parametrize('rig, amplitude', [('delay', 1000.0), ('servohydraulic', 400.0)])
 def test_ground_preview_removes_the_lag(rig, amplitude):
     base = dict(rig_model=rig, amplitude_N=amplitude, alpha=1.0, predictor='model')
-    lag = compare_run(experiment.simulate(base)).displacement.lag_s
+    # the preview is on by default since issue 7: switch it off for the lagging run
+    lag = compare_run(experiment.simulate(dict(base, ground_preview=False))).displacement.lag_s
     assert lag > 0.009
     c = compare_run(experiment.simulate(dict(base, ground_preview=True)))
     assert abs(c.displacement.lag_s) < 0.001 and c.displacement.nrms < 0.01
@@ -323,7 +325,179 @@ def test_adaptive_tracks_a_drifting_delay(monkeypatch):
     monkeypatch.setattr(experiment, 'make_rig', lambda params: rig)
     run = experiment.simulate(dict(rig_model='delay', alpha=1.0, predictor='adaptive'))
     assert run.stable
-    est = {j: tau for j, tau, _ in made[0].history_tau_s}
+    est = {j: tau for j, tau, *_ in made[0].history_tau_s}
     for step in (1000, 2000, 3000, 4000, 4900):
         j = min(est, key=lambda i: abs(i - step))
         assert est[j] == pytest.approx(rig.tau(j), abs=5e-4), step
+
+
+# -- adaptive: the specimen, the delay and the gain identified online (issue 7) -------------
+
+NOISE = {'noise_force_N': 5.0, 'noise_displacement_m': 1e-5, 'noise_velocity_m_s': 1e-4,
+         'noise_acceleration_m_s2': 0.05}      # benchmarks/compensation_targets.py NOISE
+WRONG = {'m': ('predictor_mass_kg', M), 'c': ('predictor_damping_N_s_per_m', C),
+         'k': ('predictor_stiffness_N_per_m', K), 'tau': ('predictor_tau_s', 0.01)}
+
+
+def wrong_model(names, sign):
+    return {WRONG[n][0]: WRONG[n][1] * (1 + 0.1 * sign) for n in names}
+
+
+def adaptive(**kwargs):
+    args = dict(mass_kg=M, damping_N_s_per_m=C, stiffness_N_per_m=K, dt=DT, tau0_s=0.01,
+                alpha=1.0, mass_ref_kg=M)
+    args.update(kwargs)
+    return AdaptivePredictor(**args)
+
+
+def feed(pred, n, *, mass=M, damping=C, stiffness=K, amplitude=1e-3, start=0):
+    """Measurements of a specimen (m, c, k) in a two-tone motion of `amplitude` [m]."""
+    for j in range(start, start + n):
+        t = j * DT
+        w1, w2 = 2 * np.pi * 3.0, 2 * np.pi * 11.0
+        x = amplitude * (np.sin(w1 * t) + 0.5 * np.sin(w2 * t))
+        v = amplitude * (w1 * np.cos(w1 * t) + 0.5 * w2 * np.cos(w2 * t))
+        a = -amplitude * (w1 ** 2 * np.sin(w1 * t) + 0.5 * w2 ** 2 * np.sin(w2 * t))
+        f = mass * a + damping * v + stiffness * x
+        pred.predict(Measurement(j, t, x, v, a, f), [], 0.0)
+        pred.command(f)
+
+
+def test_adaptive_identification_converges_on_a_known_specimen():
+    """m, c, k of a specimen 20 % off the prior (two-tone motion, no noise): within 0.1 %."""
+    pred = adaptive(mass_kg=1.2 * M, damping_N_s_per_m=0.8 * C, stiffness_N_per_m=1.2 * K)
+    feed(pred, 1500)
+    est = pred.estimates()
+    assert set(est) == set(AdaptivePredictor.ESTIMATES)
+    assert est['mass_kg'] == pytest.approx(M, rel=1e-3)
+    assert est['damping_N_s_per_m'] == pytest.approx(C, rel=1e-3)
+    assert est['stiffness_N_per_m'] == pytest.approx(K, rel=1e-3)
+
+
+def test_adaptive_holds_its_estimates_on_quiet_input():
+    """Motion whose force RMS stays below adaptive_excitation_N moves nothing."""
+    pred = adaptive(mass_kg=1.1 * M, excitation_N=20.0)
+    feed(pred, 2000, amplitude=2e-5)                # force RMS ~ 10 N
+    assert pred.estimates() == pytest.approx({**pred.prior})
+    assert pred.rls.updates == 0 and pred.history_tau_s == []
+
+
+def test_adaptive_estimates_are_bounded_and_rate_limited():
+    """A specimen of twice the mass: the estimate rises at the rate limit, stops at the bound."""
+    pred = adaptive(max_deviation=0.3, max_rate_per_s=0.5)
+    history = []
+    for block in range(40):
+        feed(pred, 50, mass=2 * M, start=50 * block)
+        history.append(pred.estimates()['mass_kg'])
+    steps = np.diff([M] + history)
+    assert np.all(steps <= 0.5 * M * 50 * DT * (1 + 1e-9))   # at most 50 %/s of m0
+    assert max(history) == pytest.approx(1.3 * M)             # and never above m0 (1 + 0.3)
+
+
+@pytest.mark.parametrize('name, value, message', [
+    ('excitation_N', -1.0, r'^parameter adaptive_excitation_N=-1.0: out of range'),
+    ('max_deviation', 1.0, r'^parameter adaptive_max_deviation=1.0: out of range'),
+    ('max_rate_per_s', 0.0, r'^parameter adaptive_max_rate_per_s=0.0: out of range'),
+    ('window_s', 0.0, r'^parameter adaptive_window_s=0.0: out of range'),
+])
+def test_adaptive_parameter_errors(name, value, message):
+    with pytest.raises(ParameterError, match=message):
+        adaptive(**{name: value})
+
+
+@pytest.mark.parametrize('names, sign, alpha', [
+    (('m', 'c', 'k', 'tau'), +1, 0.5), (('m', 'c', 'k', 'tau'), -1, 0.5),
+    (('m', 'c', 'k', 'tau'), +1, 1.0), (('m', 'c', 'k', 'tau'), -1, 1.0),
+    (('m', 'c', 'k', 'tau'), +1, 2.0), (('m', 'c', 'k', 'tau'), -1, 2.0),
+    (('m',), -1, 2.0), (('c',), +1, 2.0), (('k',), +1, 2.0), (('tau',), -1, 1.5),
+])
+def test_adaptive_delay_rig_target_with_a_wrong_model(names, sign, alpha):
+    """Issue 7: every +/-10 % error, sensor noise on, delay rig: <= 0.5 % for alpha <= 2
+    (``model`` gives 3-43 % here; measured with ``adaptive``: 0.17-0.49 %)."""
+    err, run = nrms_percent(rig_model='delay', alpha=alpha, predictor='adaptive',
+                            **NOISE, **wrong_model(names, sign))
+    assert run.stable and err <= 0.5
+
+
+def test_adaptive_estimates_converge_within_two_seconds_of_strong_motion():
+    """All four +10 % wrong; after 2 s of strong motion every estimate is within 2 %."""
+    run = experiment.simulate(dict(rig_model='delay', alpha=1.0, predictor='adaptive',
+                                   **NOISE, **wrong_model(('m', 'c', 'k', 'tau'), +1)))
+    est = run.estimates
+    assert set(est) == set(AdaptivePredictor.ESTIMATES)
+    assert est['mass_kg'][0] == pytest.approx(1.1 * M)       # starts at the configured model
+    f = run.measured_force_N
+    rms = np.sqrt(np.convolve(f * f, np.ones(250) / 250, mode='same'))
+    strong = int(np.argmax(rms > 100.0))                      # 0.5 s on the default record
+    end = strong + int(2.0 / DT)
+    for name, truth in (('mass_kg', M), ('damping_N_s_per_m', C), ('stiffness_N_per_m', K),
+                        ('tau_s', 0.01)):
+        assert np.max(np.abs(est[name][end:] / truth - 1)) < 0.02, name
+
+
+def test_adaptive_servohydraulic_stays_stable_at_alpha_two_with_a_wrong_model():
+    err, run = nrms_percent(rig_model='servohydraulic', alpha=2.0, predictor='adaptive',
+                            **NOISE, **wrong_model(('m', 'c', 'k'), +1))
+    assert run.stable and err <= 3.0
+
+
+# -- ats ------------------------------------------------------------------------------------
+
+def ats(**kwargs):
+    return AtsPredictor(DelayImpulseModel(M, C, K, DT, 0.0), 1.0, M, 0.01, **kwargs)
+
+
+def test_ats_command_is_the_time_series_by_hand():
+    pred = ats()
+    a0, a1, a2 = pred.coefficients
+    assert (a0, a1, a2) == (1.0, 0.01, pytest.approx(5e-5))
+    forces = [10.0, 30.0, 20.0, -5.0]
+    out = [pred.command(f) for f in forces]
+    past = [0.0, 0.0] + forces
+    for i, u in enumerate(out):
+        f, f1, f2 = past[i + 2], past[i + 1], past[i]
+        assert u == pytest.approx(a0 * f + a1 * (f - f1) / DT + a2 * (f - 2 * f1 + f2) / DT ** 2)
+    assert pred.estimates() == {'a0': a0, 'a1': a1, 'a2': a2}
+
+
+def test_ats_update_is_the_least_squares_of_the_filtered_window():
+    """After a refit the coefficients move toward the hand-computed least squares of the
+    filtered window (rate limited)."""
+    from scipy.signal import butter, sosfiltfilt
+    pred = ats(window_s=0.2, max_rate_per_s=1e3)
+    t = np.arange(600) * DT
+    desired = 400 * np.sin(2 * np.pi * 2.0 * t) + 150 * np.sin(2 * np.pi * 6.0 * t)
+    sent = []
+    for j in range(600):
+        if j:
+            # f_m[j-1] = 0.95 u[j-4]: a 3-step delay, gain 0.95
+            f_m = 0.95 * sent[j - 4] if j >= 4 else 0.0
+            pred.predict(Measurement(j - 1, (j - 1) * DT, 0.0, 0.0, 0.0, f_m), [], 0.0)
+        sent.append(pred.command(desired[j]))
+    assert pred.history, 'no refit happened'
+    step = pred.history[-1][0]
+    sos = butter(2, 20.0, fs=1 / DT, output='sos')
+    u = np.array(sent[step - pred.window + 1:step + 1])
+    f = np.array([0.95 * sent[j - 3] for j in range(step - pred.window + 1, step + 1)])
+    uf, ff = sosfiltfilt(sos, u), sosfiltfilt(sos, f)
+    x = np.column_stack([ff[2:], (ff[2:] - ff[1:-1]) / DT,
+                         (ff[2:] - 2 * ff[1:-1] + ff[:-2]) / DT ** 2])
+    by_hand = np.linalg.solve(x.T @ x, x.T @ uf[2:])
+    by_hand = np.clip(by_hand, [0.7, 0.0, 0.0], [1.3, 0.03, 0.5 * 0.03 ** 2])
+    np.testing.assert_allclose(pred.history[-1][1:], by_hand, rtol=1e-6, atol=1e-12)
+    assert pred.coefficients[0] == pytest.approx(1 / 0.95, rel=0.02)
+    assert pred.coefficients[1] == pytest.approx(3 * DT / 0.95, rel=0.15)
+
+
+def test_ats_parameter_errors():
+    with pytest.raises(ParameterError, match=r'^parameter ats_window_s=0.01: out of range'):
+        ats(window_s=0.01)
+    with pytest.raises(ParameterError, match=r'^ats: the model law must have tau_s = 0'):
+        AtsPredictor(DelayImpulseModel(M, C, K, DT, 0.01), 1.0, M, 0.01)
+
+
+def test_ats_runs_on_the_delay_rig_and_records_its_estimates():
+    err, run = nrms_percent(rig_model='delay', alpha=1.0, predictor='ats', **NOISE)
+    assert run.stable and err < 10.0                # measured 3.7 %: the baseline
+    assert set(run.estimates) == {'a0', 'a1', 'a2'}
+    assert 0.005 < run.estimates['a1'][-1] < 0.012

@@ -36,7 +36,11 @@ def free_response(reference_params, tmp_path_factory):
     np.savetxt(path, np.c_[t, ag], delimiter=',')
     return dict(reference_params, record=str(path), time_scale=1.0, amplitude_N=100.0,
                 monitor_threshold=0.0, saturation_abort_fraction=1.0, stroke_limit_m=1e3,
-                force_limit_N=1e12, valve_limit_V=100.0, accelerometer_range_m_s2=0.0)
+                force_limit_N=1e12, valve_limit_V=100.0, accelerometer_range_m_s2=0.0,
+                # the preview (on by default) would command the pulse tau ahead: a pulse in
+                # the first tau of the record would then never be applied (nothing is
+                # commanded before t = 0); the stability is the feedback loop's either way
+                ground_preview=False)
 
 
 def growth(params) -> float:

@@ -13,6 +13,7 @@ from typing import Any
 
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
+from matplotlib.ticker import FuncFormatter
 import numpy as np
 
 from seft_msgs_py.errors import ParameterError
@@ -31,7 +32,8 @@ from seft_ros.analysis.rundata import SIGNALS, RunData
 from seft_ros.analysis.timing import timing_figure, timing_table
 
 __all__ = ['ReportPaths', 'write_report', 'write_summary_json', 'plot_time_histories',
-           'plot_predictor_comparison']
+           'plot_criteria_vs_alpha', 'plot_runs_compared', 'software_versions',
+           'plot_predictor_comparison', 'plot_estimates']
 
 #: Figure files written by :func:`write_report` (single predictor).
 TIME_HISTORIES_PNG = 'time_histories.png'
@@ -43,6 +45,8 @@ PREDICTOR_ZOOM_PNG = 'time_histories_{predictor}_zoom.png'
 PREDICTORS_PNG = 'predictors_alpha_{alpha}.png'
 #: Histograms of a real-time run's timing records.
 TIMING_PNG = 'timing_run_{index}.png'
+#: The compensator's online estimates of a run (when it has any), one figure per run.
+ESTIMATES_PNG = 'estimates_run_{index}.png'
 #: Width of the zoom window around the reference's displacement peak [s].
 ZOOM_WINDOW_S = 2.0
 #: Most points drawn per line (min/max decimation beyond; plotting only, never metrics).
@@ -85,6 +89,14 @@ class ReportPaths:
         reference, the uncompensated and the compensated runs
         (``predictors_alpha_<alpha>[_<rig>][_<record>].png``, as the reference study's
         Figures 7-8); empty with a single predictor.
+    report_html : Path or None
+        ``report.html``: report.md as one self-contained HTML page (figures embedded).
+    criteria_png : Path or None
+        ``criteria_vs_alpha.png`` (:func:`plot_criteria_vs_alpha`) when the runs have more
+        than one alpha.
+    runs_png : Path or None
+        ``runs_compared.png`` (:func:`plot_runs_compared`) for 2 to ``MAX_COMPARED_RUNS``
+        runs of one record and dt.
     """
 
     out_dir: Path
@@ -94,11 +106,15 @@ class ReportPaths:
     zoom_png: Path | None
     predictor_time_histories: dict[str, tuple[Path, Path]] = field(default_factory=dict)
     predictor_comparisons: dict[tuple[Any, Any, Any], Path] = field(default_factory=dict)
+    report_html: Path | None = None
+    criteria_png: Path | None = None
+    runs_png: Path | None = None
 
     @property
     def figures(self) -> tuple[Path, ...]:
         """All PNG figures, in report order."""
-        out = [p for p in (self.time_histories_png, self.zoom_png) if p is not None]
+        out = [p for p in (self.criteria_png, self.runs_png) if p is not None]
+        out += [p for p in (self.time_histories_png, self.zoom_png) if p is not None]
         for pair in self.predictor_time_histories.values():
             out += list(pair)
         out += list(self.predictor_comparisons.values())
@@ -492,8 +508,9 @@ def _run_markdown(index: int, run: RunData, comparison: RunComparison) -> list[s
         f'{_fmt(comparison.high_frequency_force_fraction, ".2f", 100)} %, reference '
         f'{_fmt(comparison.high_frequency_force_fraction_reference, ".2f", 100)} %',
         '',
-        '| signal | peak test | peak ref | peak ratio | lag [ms] | NRMS [%] |',
-        '|---|---:|---:|---:|---:|---:|',
+        '| signal | peak test | peak ref | peak ratio | lag [ms] | NRMS [%] '
+        '| NRMS common lag [%] | NRMS as recorded [%] |',
+        '|---|---:|---:|---:|---:|---:|---:|---:|',
     ]
     for name in SIGNALS:
         _, label, factor = _DISPLAY[name]
@@ -501,7 +518,8 @@ def _run_markdown(index: int, run: RunData, comparison: RunComparison) -> list[s
         lines.append(
             f'| {label} | {_fmt(c.peak_test, ".4g", factor)} | '
             f'{_fmt(c.peak_reference, ".4g", factor)} | {_fmt(c.peak_ratio, ".3f")} | '
-            f'{_fmt(c.lag_s, ".2f", 1e3)} | {_fmt(c.nrms, ".2f", 100)} |')
+            f'{_fmt(c.lag_s, ".2f", 1e3)} | {_fmt(c.nrms, ".2f", 100)} | '
+            f'{_fmt(c.nrms_common_lag, ".2f", 100)} | {_fmt(c.nrms_unshifted, ".2f", 100)} |')
     lines.append('')
     return lines
 
@@ -522,6 +540,76 @@ def _timing_markdown(index: int, run: RunData, out_dir: Path, title: str) -> lis
                             title=f'{title}: run {index}, timing')
         lines += [f'![Timing, run {index}]({png.name})', '']
     return lines
+
+
+def plot_estimates(run: RunData, path, *, title: str = '') -> Path:
+    """The compensator's online estimates over time, relative to their first value.
+
+    Parameters
+    ----------
+    run : RunData
+        A run with ``run.estimates`` (``{name: ndarray (n,)}``).
+    path : str or Path
+        PNG file to write.
+    title : str
+
+    Returns
+    -------
+    Path
+        `path`.
+
+    Raises
+    ------
+    ParameterError
+        If the run has no estimates.
+
+    Notes
+    -----
+    One axis per estimate: ``value / first value - 1`` in percent (the first value is the
+    configured model, the compensator's start), with the final value in the legend; the
+    measured-force envelope below marks where the excitation is strong.
+    """
+    if not run.estimates:
+        raise ParameterError('plot_estimates: the run has no estimates')
+    names = list(run.estimates)
+    t = run.time_s
+    fig = Figure(figsize=(2 * _COLUMN_WIDTH_IN, _ROW_HEIGHT_IN * (len(names) + 1) * 0.7),
+                 constrained_layout=True)
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(len(names) + 1, 1, sharex=True, squeeze=False)[:, 0]
+    for ax, name in zip(axes, names):
+        y = np.asarray(run.estimates[name], dtype=float)
+        first = y[0] if y.shape[0] else 0.0
+        if first != 0.0:
+            rel = 100.0 * (y / first - 1.0)
+            label = f'{name}: start {first:.4g}, end {y[-1]:.4g}'
+            ax.set_ylabel('change [%]')
+        else:
+            rel, label = y, f'{name}: end {y[-1]:.4g}'
+        ax.plot(*_decimate(t, rel), lw=0.9, label=label)
+        ax.legend(loc='best', fontsize='small')
+        ax.grid(True, alpha=0.3)
+    ax = axes[-1]
+    ax.plot(*_decimate(t, run.measured_force_N), lw=0.5, color='0.4')
+    ax.set_ylabel('f_m [N]')
+    ax.set_xlabel('time [s]')
+    ax.grid(True, alpha=0.3)
+    if title:
+        fig.suptitle(title)
+    path = Path(path)
+    fig.savefig(path, dpi=_DPI)
+    return path
+
+
+def _estimates_markdown(index: int, run: RunData, out_dir: Path, title: str) -> list[str]:
+    """The figure of the compensator's online estimates, if the run has them."""
+    if not run.estimates or run.n_steps == 0:
+        return []
+    png = plot_estimates(run, out_dir / ESTIMATES_PNG.format(index=index),
+                         title=f'{title}: run {index}, online estimates')
+    final = ', '.join(f'{k} = {v[-1]:.5g}' for k, v in run.estimates.items())
+    return [f'### Run {index}: online estimates', '', f'Final: {final}.', '',
+            f'![Online estimates, run {index}]({png.name})', '']
 
 
 def _safe_name(text: Any) -> str:
@@ -672,12 +760,342 @@ def _comparison_files(runs: list[RunData]) -> dict[tuple[Any, Any, str], str]:
     return names
 
 
+# -- evaluation criteria, parameters and software, sweep and run-comparison figures ----------
+
+#: Figure of the criteria against alpha, one line per predictor (a sweep over alpha).
+CRITERIA_PNG = 'criteria_vs_alpha.png'
+#: Figure of runs of one record side by side: time histories and differences to the reference.
+RUNS_COMPARED_PNG = 'runs_compared.png'
+#: Most runs drawn in :func:`plot_runs_compared` (more are unreadable; the table has them all).
+MAX_COMPARED_RUNS = 4
+#: The self-contained HTML page written next to report.md.
+REPORT_HTML = 'report.html'
+#: Distributions whose version the report names.
+_DISTRIBUTIONS = ('seft_ros', 'seft_msgs_py', 'seft_plant_sim')
+
+
+def software_versions() -> dict[str, str]:
+    """Versions of the seft packages, Python and, where available, ``git describe``.
+
+    Returns
+    -------
+    dict of str to str
+        ``{'seft_ros': '0.1.0', 'seft_msgs_py': ..., 'seft_plant_sim': ..., 'python':
+        '3.11.x', 'git': 'c44bed9-dirty'}``; a package that is not installed is 'not
+        installed', and 'git' is absent when the sources are not in a git work tree or git
+        is missing (never an error).
+    """
+    from importlib import metadata
+    import platform
+    import subprocess
+
+    out = {}
+    for name in _DISTRIBUTIONS:
+        try:
+            out[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            out[name] = 'not installed'
+    out['python'] = platform.python_version()
+    try:
+        proc = subprocess.run(['git', 'describe', '--always', '--dirty', '--tags'],
+                              cwd=Path(__file__).resolve().parent, capture_output=True,
+                              text=True, timeout=5)
+        if proc.returncode == 0 and proc.stdout.strip():
+            out['git'] = proc.stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        pass
+    return out
+
+
+def _criteria_markdown(runs: list[RunData], entries: list[dict[str, Any]],
+                       comparisons: list[RunComparison]) -> list[str]:
+    """The table of the RTHS benchmark's criteria, one row per run."""
+    from seft_ros.analysis.criteria import BENCHMARK_J1_LAG_SAMPLES
+
+    j1_window = comparisons[0].criteria.j1_max_lag_s if comparisons[0].criteria else math.nan
+    lines = [
+        '## Evaluation criteria (RTHS benchmark)',
+        '',
+        'The criteria of the RTHS benchmark control problem (Silva, Gomez, Maghareh, Dyke and '
+        'Spencer 2020, Mech. Syst. Signal Process. 135, 106381), for the force loop and the '
+        "one-storey response. J1: the lag, in whole samples, that maximises the "
+        'cross-correlation of the load-cell force with the reference force commanded; the '
+        f'search spans 0-{_fmt(j1_window, "g", 1e3)} ms (the benchmark: 0-'
+        f'{BENCHMARK_J1_LAG_SAMPLES} samples). J2 = 100 std(f_m - f_r) / std(f_r) and J3 = 100 '
+        'max|f_m - f_r| / max|f_r|: force tracking. J4 = 100 std(x - x_ref) / std(x_ref) '
+        'and J5 = 100 max|x - x_ref| / max|x_ref|: the displacement against the analytical '
+        'reference. J2-J5 compare the signals as recorded (a lag counts as error) and use the '
+        "standard deviation, as the benchmark does, not the RMS. The benchmark's J6-J9 are "
+        'J4-J5 of its other storeys and do not apply to one degree of freedom. NRMS columns: '
+        "rms(test - ref) / rms(ref) after removing one common lag, the displacement's (lag "
+        'x), from every signal; NRMS x as recorded: without removing it. (The per-run tables '
+        "also give each signal's NRMS after removing its own lag.)",
+        '',
+        '| run | alpha | rig | predictor | record | J1 [ms] | J2 [%] | J3 [%] | J4 [%] '
+        '| J5 [%] | NRMS x [%] | NRMS a [%] | NRMS f [%] | NRMS x as recorded [%] '
+        '| lag x [ms] | status |',
+        '|---:|---:|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|',
+    ]
+    for j, (run, e) in enumerate(zip(runs, entries)):
+        crit = e.get('criteria') or {}
+        common = e.get('nrms_common_lag') or {}
+        unshifted = e.get('nrms_unshifted') or {}
+        lines.append(
+            f"| {j + 1} | {_alpha_text(e.get('alpha'))} | {e.get('rig') or 'n/a'} "
+            f'| {_predictor(run)} | {_record(run)} | {_fmt(crit.get("J1"), ".1f")} | '
+            + ' | '.join(_fmt(crit.get(k), '.2f') for k in ('J2', 'J3', 'J4', 'J5')) + ' | '
+            + ' | '.join(_fmt(common.get(s), '.2f', 100)
+                         for s in ('displacement', 'acceleration', 'force')) + ' | '
+            + f"{_fmt(unshifted.get('displacement'), '.2f', 100)} | "
+            f"{_fmt(e.get('lag_s'), '.2f', 1e3)} | {_entry_status(e)} |")
+    lines.append('')
+    return lines
+
+
+def _value_text(value: Any) -> str:
+    if isinstance(value, float):
+        return f'{value:.6g}'
+    return 'n/a' if value is None else str(value)
+
+
+def _parameters_markdown(runs: list[RunData]) -> list[str]:
+    """The runs' parameters (one table of the common values, one of those that differ) and
+    the software versions."""
+    from seft_msgs_py import parameters as schema
+
+    def unit(name):
+        try:
+            u = schema.spec(name).unit
+        except Exception:  # a parameter of an older or newer schema
+            return ''
+        return '' if u in ('', '-') else u
+
+    names = list(dict.fromkeys(n for run in runs for n in run.params))
+    texts = {n: [_value_text(run.params.get(n)) for run in runs] for n in names}
+    common = [n for n in names if len(set(texts[n])) == 1]
+    differ = [n for n in names if n not in common]
+    versions = software_versions()
+    lines = [
+        '## Parameters and software',
+        '',
+        'Software: ' + ', '.join(f'{k} {v}' for k, v in versions.items()) + '.',
+        '',
+    ]
+    if differ:
+        lines += ['Parameters that differ between the runs:', '',
+                  '| parameter | unit | ' + ' | '.join(f'run {j + 1}' for j in range(len(runs)))
+                  + ' |', '|---|---|' + '---:|' * len(runs)]
+        lines += [f'| `{n}` | {unit(n)} | ' + ' | '.join(texts[n]) + ' |' for n in differ]
+        lines.append('')
+    lines += ['Parameters of ' + ('every run' if len(runs) > 1 else 'the run') + ':', '',
+              '| parameter | unit | value |', '|---|---|---:|']
+    lines += [f'| `{n}` | {unit(n)} | {texts[n][0]} |' for n in common]
+    lines.append('')
+    return lines
+
+
+def plot_criteria_vs_alpha(entries: list[dict[str, Any]], path, *, title: str = '') -> Path:
+    """Draw the criteria against alpha, one line per predictor (and rig and record), as PNG.
+
+    Panels: J1 [ms], J2-J5 [%] (``criteria.CRITERIA``) and the displacement NRMS after
+    removing the common lag [%]. Aborted runs are drawn with a cross (their criteria cover
+    the samples before the abort). A percent axis is logarithmic when its values are > 0
+    and span more than a factor of 20.
+
+    Parameters
+    ----------
+    entries : list of dict
+        Summary entries (``metrics.summary_entry``): ``alpha``, ``predictor``, ``rig``,
+        ``record``, ``stable``, ``criteria``, ``nrms_common_lag``.
+    path : str or Path
+        Output PNG.
+    title : str
+        Figure title.
+
+    Returns
+    -------
+    Path
+    """
+    path = Path(path)
+    panels = (('J1', 'J1: force-loop delay [ms]', 1.0),
+              ('J2', 'J2: force tracking, std [%]', 1.0),
+              ('J3', 'J3: force tracking, peak [%]', 1.0),
+              ('J4', 'J4: displacement, std [%]', 1.0),
+              ('J5', 'J5: displacement, peak [%]', 1.0),
+              ('nrms_x', 'NRMS x, common lag removed [%]', 100.0))
+
+    def value(e, key):
+        if key == 'nrms_x':
+            v = (e.get('nrms_common_lag') or {}).get('displacement')
+        else:
+            v = (e.get('criteria') or {}).get(key)
+        return v if isinstance(v, (int, float)) and math.isfinite(v) else None
+
+    rigs = {e.get('rig') for e in entries}
+    records = {e.get('record') for e in entries}
+    groups: dict[tuple, list[dict[str, Any]]] = {}
+    for e in entries:
+        groups.setdefault((e.get('predictor'), e.get('rig'), e.get('record')), []).append(e)
+    rank = {p: i for i, p in enumerate(sorted(dict.fromkeys(k[0] for k in groups),
+                                              key=lambda p: p != UNCOMPENSATED))}
+    fig = Figure(figsize=(12.0, 6.4), layout='constrained')
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(2, 3).ravel()
+    for ax, (key, label, factor) in zip(axes, panels):
+        values = []
+        for g, (group, members) in enumerate(sorted(groups.items(),
+                                                    key=lambda kv: rank[kv[0][0]])):
+            members = sorted((e for e in members if isinstance(e.get('alpha'), (int, float))),
+                             key=lambda e: e['alpha'])
+            name = str(group[0])
+            if len(rigs) > 1:
+                name += f', {group[1]}'
+            if len(records) > 1:
+                name += f', {group[2]}'
+            color = f'C{g % 10}'
+            xs = [e['alpha'] for e in members if value(e, key) is not None]
+            ys = [factor * value(e, key) for e in members if value(e, key) is not None]
+            values += ys
+            ax.plot(xs, ys, color=color, marker='o', ms=4, lw=1.2, label=name)
+            bad = [(e['alpha'], factor * value(e, key)) for e in members
+                   if not e.get('stable') and value(e, key) is not None]
+            if bad:
+                ax.plot(*zip(*bad), ls='none', marker='x', ms=9, mew=2, color=color,
+                        label=f'{name}: aborted')
+        if key != 'J1' and values and min(values) > 0 and max(values) > 20 * min(values):
+            ax.set_yscale('log')
+            ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f'{v:g}'))
+        ax.set_title(label, fontsize=9)
+        ax.set_xlabel('alpha')
+        ax.grid(True, which='both', lw=0.3, alpha=0.5)
+    handles, names = axes[0].get_legend_handles_labels()
+    if handles:
+        fig.legend(handles, names, loc='outside lower center', ncols=min(len(handles), 6),
+                   fontsize=8)
+    fig.suptitle(title or 'Evaluation criteria against alpha (Silva et al. 2020)')
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=_DPI)
+    return path
+
+
+def plot_runs_compared(runs: list[RunData], comparisons: list[RunComparison], path, *,
+                       labels: list[str] | None = None, title: str = '') -> Path:
+    """Runs of one record side by side: time histories and their differences to the reference.
+
+    Rows: displacement [mm], force [N], acceleration [m/s^2]. Columns: the runs and their
+    references in a ``ZOOM_WINDOW_S`` window around the first run's reference displacement
+    peak; the difference test - reference over the whole record; the same difference in the
+    window. The runs are aligned by sample: sample k of every run is the record's sample k
+    (no lag removed), so the differences hold the lag error that J4 and J5 measure.
+
+    Parameters
+    ----------
+    runs : list of RunData
+        Runs of the same record and dt (two predictors, two alphas, a repeat run).
+    comparisons : list of RunComparison
+        Their comparisons (same order), which carry the reference responses.
+    path : str or Path
+        Output PNG.
+    labels : list of str, optional
+        Legend label per run (default ``run <j>: <predictor>, alpha = <alpha>``).
+    title : str
+        Figure title.
+
+    Returns
+    -------
+    Path
+
+    Raises
+    ------
+    ParameterError
+        If `runs` and `comparisons` differ in length or are empty.
+    """
+    if not runs or len(runs) != len(comparisons):
+        raise ParameterError(f'plot_runs_compared: {len(runs)} runs and {len(comparisons)} '
+                             'comparisons; expected the same number, at least one')
+    path = Path(path)
+    labels = labels or [f'run {j + 1}: {_predictor(r)}, '
+                        f'alpha = {_alpha_text(r.params.get("alpha"))}'
+                        for j, r in enumerate(runs)]
+    window = _zoom_window(runs[0], comparisons[0])
+    fig = Figure(figsize=(13.0, 8.0), layout='constrained')
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(len(SIGNALS), 3, sharex='col')
+    drawn_refs: dict[Any, bool] = {}
+    for j, (run, comparison) in enumerate(zip(runs, comparisons)):
+        n = run.n_steps
+        t = np.asarray(run.time_s, dtype=float)
+        keep = (t >= window[0] - 1e-9) & (t <= window[1] + 1e-9)
+        color = f'C{j % 10}'
+        alpha = run.params.get('alpha')
+        for i, name in enumerate(SIGNALS):
+            _, _, factor = _DISPLAY[name]
+            test = np.asarray(run.signal(name), dtype=float)[:n] * factor
+            ref = comparison.reference.signal(name)[:n] * factor
+            axes[i, 0].plot(t[keep], test[keep], color=color, lw=0.9,
+                            label=labels[j] if i == 0 else None)
+            if (alpha, i) not in drawn_refs:
+                drawn_refs[(alpha, i)] = True
+                axes[i, 0].plot(t[keep], ref[keep], color='k', lw=1.0, ls='--',
+                                label=f'reference, alpha = {_alpha_text(alpha)}'
+                                if i == 0 else None)
+            diff = test - ref
+            td, yd = _decimate(t, diff)
+            axes[i, 1].plot(td, yd, color=color, lw=0.7)
+            axes[i, 2].plot(t[keep], diff[keep], color=color, lw=0.9)
+    for i, name in enumerate(SIGNALS):
+        ylabel = _DISPLAY[name][0]
+        axes[i, 0].set_ylabel(ylabel)
+        axes[i, 1].set_ylabel(ylabel.replace(name, 'test - reference'))
+        for ax in axes[i]:
+            ax.grid(True, lw=0.3, alpha=0.5)
+        axes[i, 0].set_xlim(*window)
+        axes[i, 2].set_xlim(*window)
+    axes[0, 0].set_title(f'time histories ({ZOOM_WINDOW_S:g} s around the reference peak)',
+                         fontsize=9)
+    axes[0, 1].set_title('test - reference, whole record', fontsize=9)
+    axes[0, 2].set_title('test - reference, zoom', fontsize=9)
+    for ax in axes[-1]:
+        ax.set_xlabel('time [s]')
+    handles, names = axes[0, 0].get_legend_handles_labels()
+    fig.legend(handles, names, loc='outside lower center', ncols=min(len(handles), 4),
+               fontsize=8)
+    if title:
+        fig.suptitle(title)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=_DPI)
+    return path
+
+
+def _same_record(runs: list[RunData]) -> bool:
+    """Whether the runs can be drawn on one time axis: one record and one dt."""
+    return len({_record(r) for r in runs}) == 1 and len({r.params.get('dt') for r in runs}) == 1
+
+
+def _write_html(markdown: str, out_dir: Path, title: str) -> Path:
+    from seft_ros.analysis.htmlreport import markdown_to_html
+
+    path = out_dir / REPORT_HTML
+    path.write_text(markdown_to_html(markdown, base_dir=out_dir, title=title), encoding='utf-8')
+    return path
+
+
+
 def write_report(runs: list[RunData], out_dir, *, title: str = 'seft comparison',
                  high_frequency_cutoff_hz: float = HIGH_FREQUENCY_CUTOFF_HZ) -> ReportPaths:
     """Compare runs with the reference analysis and write summary.json, report.md and figures.
 
     For each run the reference (``reference.reference_from_run``) and the comparison
     (``metrics.compare_run``) are computed; then
+
+    - in report.md, after the introduction: the table of the RTHS benchmark's criteria
+      J1-J5 (``criteria``) with the NRMS after removing the common lag, one row per run;
+      with several alphas ``criteria_vs_alpha.png`` (:func:`plot_criteria_vs_alpha`); for 2
+      to ``MAX_COMPARED_RUNS`` runs of one record ``runs_compared.png``
+      (:func:`plot_runs_compared`); at the end the parameters (common and differing) and
+      the software versions (:func:`software_versions`);
+    - ``report.html``: report.md as one self-contained HTML page, every figure embedded as
+      a base64 ``data:`` URI (``htmlreport.markdown_to_html``);
 
     - ``summary.json``: ``{"runs": [entry, ...]}``, one ``metrics.summary_entry`` per run in
       the given order (with the predictor name and the high-frequency fractions of the
@@ -690,8 +1108,8 @@ def write_report(runs: list[RunData], out_dir, *, title: str = 'seft comparison'
       from (``parameters: alpha, predictor from reference_force_builder; mass, ... from
       rig; ...``) and a marked warning listing ``run.extra['parameter_mismatches']``, the
       shared parameters on which the nodes disagreed; stable or aborted (time and reason)
-      and a table signal | peak test | peak ref | peak ratio | lag [ms] | NRMS [%]; links to
-      the figures;
+      and a table signal | peak test | peak ref | peak ratio | lag [ms] | NRMS [%] (own
+      lag) | NRMS common lag [%] | NRMS as recorded [%]; links to the figures;
     - one predictor: ``time_histories.png``, test versus reference, rows displacement [mm],
       force [N], acceleration [m/s^2], one column per run (as the reference study's
       Figure 6), and ``time_histories_zoom.png``, the same in a 2 s window around each
@@ -761,6 +1179,20 @@ def write_report(runs: list[RunData], out_dir, *, title: str = 'seft comparison'
         'advancing the test by its lag, over the samples both share.',
         '',
     ]
+    lines += _criteria_markdown(runs, entries, comparisons)
+    criteria_png = runs_png = None
+    if len({e.get('alpha') for e in entries}) > 1:
+        criteria_png = plot_criteria_vs_alpha(entries, out_dir / CRITERIA_PNG,
+                                              title=f'{title}: criteria against alpha')
+        lines += [f'![Evaluation criteria against alpha, per predictor]({criteria_png.name})',
+                  '']
+    if 1 < len(runs) <= MAX_COMPARED_RUNS and _same_record(runs):
+        runs_png = plot_runs_compared(runs, comparisons, out_dir / RUNS_COMPARED_PNG,
+                                      title=f'{title}: the runs side by side, record '
+                                            f'{_record(runs[0])}')
+        lines += ['The runs side by side, aligned by sample (no lag removed), with their '
+                  'differences to the reference:', '',
+                  f'![Runs side by side and their differences]({runs_png.name})', '']
     figure = zoom = None
     grids: dict[str, tuple[Path, Path]] = {}
     comparison_figures: dict[tuple[Any, Any, str], Path] = {}
@@ -802,8 +1234,13 @@ def write_report(runs: list[RunData], out_dir, *, title: str = 'seft comparison'
     for index, (run, comparison) in enumerate(zip(runs, comparisons), start=1):
         lines += _run_markdown(index, run, comparison)
         lines += _timing_markdown(index, run, out_dir, title)
+        lines += _estimates_markdown(index, run, out_dir, title)
+    lines += _parameters_markdown(runs)
     report = out_dir / 'report.md'
-    report.write_text('\n'.join(lines), encoding='utf-8')
+    markdown = '\n'.join(lines)
+    report.write_text(markdown, encoding='utf-8')
     return ReportPaths(out_dir=out_dir, summary_json=summary, report_md=report,
                        time_histories_png=figure, zoom_png=zoom,
-                       predictor_time_histories=grids, predictor_comparisons=comparison_figures)
+                       predictor_time_histories=grids, predictor_comparisons=comparison_figures,
+                       report_html=_write_html(markdown, out_dir, title),
+                       criteria_png=criteria_png, runs_png=runs_png)

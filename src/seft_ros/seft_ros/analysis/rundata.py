@@ -54,6 +54,11 @@ class RunData:
         'run_parameters' or 'default'}``: where each value of `params` was taken from) and
         ``'parameter_mismatches'`` (one line per shared parameter on which the nodes
         disagreed, ``seft_msgs_py.parameters.shared_mismatches``; empty when they agree).
+    estimates : dict of str to ndarray (n,), or None
+        The compensator's online estimates in effect for each sample's reference force,
+        keyed by the compensator's ``ESTIMATES`` names (units in the name, e.g. ``mass_kg``,
+        ``tau_s``; ATS ``a0`` [-], ``a1`` [s], ``a2`` [s^2]); None for a compensator without
+        estimates.
     """
 
     params: dict[str, Any]
@@ -71,6 +76,7 @@ class RunData:
     record_name: str = ''
     source: str = ''
     extra: dict[str, Any] = field(default_factory=dict)
+    estimates: dict[str, np.ndarray] | None = None
 
     @property
     def n_steps(self) -> int:

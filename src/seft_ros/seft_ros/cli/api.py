@@ -7,6 +7,7 @@ import json
 import os
 from pathlib import Path
 import random
+import re
 import time
 from typing import Any, Callable
 
@@ -15,6 +16,7 @@ from matplotlib.figure import Figure
 import numpy as np
 
 from seft_msgs_py import parameters
+from seft_msgs_py.calibration import valve_flow_gain_m3_per_s_V
 from seft_msgs_py.errors import InputError, ParameterError, SeftError
 from seft_msgs_py.sampling import single_blas_thread
 from seft_ros.analysis.bag import read_run
@@ -28,7 +30,8 @@ from seft_ros.core.ground_motion import prepared_record
 from seft_ros.core.reference_force import PREDICTORS
 
 __all__ = ['build_runs', 'output_dir', 'run_experiments', 'simulate_experiments',
-           'simulate_runs', 'compare_bags', 'summary_table', 'Result', 'check_stability',
+           'simulate_runs', 'compare_bags', 'find_bags', 'summary_table', 'criteria_table',
+           'Result', 'check_stability',
            'stability_report', 'stability_table', 'StabilityResult']
 
 
@@ -349,16 +352,72 @@ def run_experiments(*, runs: list[dict], out_dir: Path,
     return _finish(out_dir, data, title or 'seft run', t0)
 
 
-def compare_bags(*, bags: list[str], out_dir: Path, title: str = '') -> Result:
-    """Read bags and write the comparison report against the analytical reference.
+def _natural_key(path: Path) -> list:
+    """Sort key that orders numbers by value: alpha_0 < alpha_0.5 < alpha_1 < alpha_10."""
+    parts = re.split(r'(\d+(?:\.\d+)?)', path.name)
+    return [(0, float(p), '') if i % 2 else (1, 0.0, p) for i, p in enumerate(parts)]
+
+
+def find_bags(paths: list[str]) -> list[Path]:
+    """The bags named by `paths`: bags, run directories or folders of run directories.
+
+    Parameters
+    ----------
+    paths : list of str
+        Each one a bag (a directory with ``metadata.yaml`` or a ``.mcap``/``.db3`` file), a
+        run directory of ``seft run`` (holding ``bag/``) or a folder of run directories
+        (``seft run --out DIR``: ``DIR/<run>/bag``, taken in natural order of the run names,
+        numbers by value).
+
+    Returns
+    -------
+    list of Path
+        The bags, in the order of `paths`.
 
     Raises
     ------
     InputError
-        A path is not a readable seft bag.
+        A path does not exist, or is none of the three (a ``seft simulate`` directory holds
+        no bag: its report is already written).
+    """
+    def is_bag(p: Path) -> bool:
+        return p.is_dir() and ((p / 'metadata.yaml').is_file()
+                               or any(p.glob('*.mcap')) or any(p.glob('*.db3')))
+
+    out: list[Path] = []
+    for text in paths:
+        path = Path(text)
+        if not path.exists():
+            raise InputError(f'{path}: no such bag or run directory')
+        if is_bag(path) or path.is_file():
+            out.append(path)  # a file: read_run says what is wrong with it
+        elif is_bag(path / 'bag'):
+            out.append(path / 'bag')
+        else:
+            runs = sorted((d for d in path.iterdir() if is_bag(d / 'bag')), key=_natural_key)
+            if not runs:
+                raise InputError(
+                    f'{path}: not a bag, a run directory (with bag/) or a folder of run '
+                    'directories; expected one of them (seft simulate keeps no bag: its '
+                    'report.md and report.html are in its output directory)')
+            out += [d / 'bag' for d in runs]
+    return out
+
+
+def compare_bags(*, bags: list[str], out_dir: Path, title: str = '') -> Result:
+    """Read bags and write the comparison report against the analytical reference.
+
+    Each path is a bag, a run directory or a folder of run directories (:func:`find_bags`):
+    ``seft compare runs/main`` reports a whole sweep, with the table of criteria (one row
+    per run) and their plot against alpha per predictor.
+
+    Raises
+    ------
+    InputError
+        A path is not a readable seft bag, run directory or folder of run directories.
     """
     t0 = time.monotonic()
-    data = [read_run(b) for b in bags]
+    data = [read_run(b) for b in find_bags(bags)]
     return _finish(out_dir, data, title or 'seft compare', t0)
 
 
@@ -401,6 +460,29 @@ def summary_table(summary: list[dict]) -> str:
     return '\n'.join(lines)
 
 
+def criteria_table(summary: list[dict]) -> str:
+    """A plain-text table of the RTHS benchmark's criteria (``"criteria"`` of each summary
+    entry): J1 [ms], J2-J5 [%], and the NRMS of every signal after removing the common
+    (displacement) lag [%]."""
+    head = (f'{"alpha":>6} {"predictor":>10} {"J1_ms":>6} {"J2%":>8} {"J3%":>8} {"J4%":>8} '
+            f'{"J5%":>8} {"nrms_x%":>8} {"nrms_a%":>8} {"nrms_f%":>8}  (criteria: Silva et al. '
+            '2020; NRMS after removing the displacement lag from every signal)')
+    lines = [head]
+
+    def cell(v, w=8, spec='.2f'):
+        return f'{v:{w}{spec}}' if isinstance(v, (int, float)) else f'{"-":>{w}}'
+
+    for e in summary:
+        c = e.get('criteria') or {}
+        n = e.get('nrms_common_lag') or {}
+        lines.append(
+            f'{e["alpha"]:6g} {e["predictor"]:>10} {cell(c.get("J1"), 6, ".1f")} '
+            + ' '.join(cell(c.get(k)) for k in ('J2', 'J3', 'J4', 'J5')) + ' '
+            + ' '.join(cell(100 * n[s] if isinstance(n.get(s), (int, float)) else None)
+                       for s in ('displacement', 'acceleration', 'force')))
+    return '\n'.join(lines)
+
+
 def parameter_names() -> list[str]:
     """Every parameter name (for ``--set`` completion and checks)."""
     return [s.name for s in parameters.SCHEMA]
@@ -412,11 +494,12 @@ def actuator_velocity_limit_m_s(params) -> float | None:
     """Largest piston velocity the servohydraulic rig can deliver [m/s] (None: other rigs).
 
     ``v_max = k_q * valve_limit_V / A``: the valve flow at full command over the piston area
-    (no load pressure; Merritt 1967, Ch. 5).
+    (no load pressure; Merritt 1967, Ch. 5), with k_q of the rig calibration (2.0 m/s at
+    10 V with Eq. 3.1 in V/lbf, 0.45 m/s in V/N; :mod:`seft_msgs_py.calibration`).
     """
     if params['rig_model'] != 'servohydraulic':
         return None
-    return (params['valve_flow_gain_m3_per_s_V'] * params['valve_limit_V']
+    return (valve_flow_gain_m3_per_s_V(params) * params['valve_limit_V']
             / params['piston_area_m2'])
 
 

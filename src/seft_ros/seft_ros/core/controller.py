@@ -5,13 +5,15 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import signal
 
+from seft_msgs_py.calibration import CALIBRATIONS, DEFAULT_CALIBRATION, controller_gain_V_per_N
 from seft_msgs_py.errors import ParameterError
 
 __all__ = ['DiscreteFilter', 'ForceServoController', 'SaturationInterlock', 'LOOP_SHAPING_NUM',
            'LOOP_SHAPING_DEN']
 
-#: Numerator of C_f(s) = 37 / (s^2 + 17.14 s + 4002) [V/N] (paper Eq. 3.1).
-LOOP_SHAPING_NUM = (37.0,)
+#: Numerator of C_f(s) = 37 / (s^2 + 17.14 s + 4002) [V/N] (paper Eq. 3.1) in the default
+#: reading, V/lbf: 37/4.448 = 8.318 V/N (:mod:`seft_msgs_py.calibration`; 'si': 37 V/N).
+LOOP_SHAPING_NUM = (CALIBRATIONS[DEFAULT_CALIBRATION].controller_gain_V_per_N,)
 #: Denominator of C_f(s) (paper Eq. 3.1).
 LOOP_SHAPING_DEN = (1.0, 17.14, 4002.0)
 
@@ -86,7 +88,9 @@ class ForceServoController:
     """Loop-shaping force controller ``C_f(s) = 37/(s^2 + 17.14 s + 4002)`` at period ``dt``.
 
     The valve command is ``u[k] = sat(C_f(z) e[k])`` with the force error
-    ``e[k] = f_r[k] - f_m[k]`` [N] and the saturation ``|u| <= valve_limit_V`` [V].
+    ``e[k] = f_r[k] - f_m[k]`` [N] and the saturation ``|u| <= valve_limit_V`` [V]. The
+    gain 37 is in volts per unit of force of the rig calibration (parameter
+    ``rig_calibration``, :mod:`seft_msgs_py.calibration`): V/lbf by default, 37/4.448 V/N.
 
     Discretization: Tustin (bilinear) with frequency prewarping at the controller's resonance
     ``w0 = sqrt(den[2])`` (sqrt(4002) rad/s = 10.07 Hz), done by
@@ -107,7 +111,7 @@ class ForceServoController:
     valve_limit_V : float > 0
         Valve command saturation [V] (reference rig: 10 V).
     num, den : sequence of float
-        Continuous controller coefficients (default: paper Eq. 3.1).
+        Continuous controller coefficients [V/N] (default: paper Eq. 3.1 in V/lbf).
 
     Raises
     ------
@@ -140,8 +144,9 @@ class ForceServoController:
 
     @classmethod
     def from_parameters(cls, params) -> 'ForceServoController':
-        """Build from the parameter schema (``dt``, ``valve_limit_V``)."""
-        return cls(float(params['dt']), float(params['valve_limit_V']))
+        """Build from the parameter schema (``dt``, ``valve_limit_V``, ``rig_calibration``)."""
+        return cls(float(params['dt']), float(params['valve_limit_V']),
+                   num=(controller_gain_V_per_N(params),))
 
     def continuous(self) -> signal.TransferFunction:
         """The continuous controller C_f(s) [V/N]."""

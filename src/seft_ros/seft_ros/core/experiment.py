@@ -81,8 +81,12 @@ def simulate(params, *, progress: Callable[[int, int], None] | None = None,
         watch = monitor.update
         if valve:
             control, interlock_update = ctrl.step, interlock.update
+        # the compensator's online estimates (if it has any), in effect for each f_r[k]
+        estimates = getattr(builder.predictor, 'estimates', None)
+        est_rec = []
 
         fr = build(padded[0:1 + look], None)
+        est = estimates() if estimates is not None else None
         t_last = t_start = time.monotonic()
         for k in range(n_total):
             reason = limit_violation()
@@ -100,6 +104,8 @@ def simulate(params, *, progress: Callable[[int, int], None] | None = None,
             else:
                 u = fr
             fr_rec.append(fr)
+            if estimates is not None:
+                est_rec.append(est)
             fm_rec.append(fm)
             u_rec.append(u)
             x_rec.append(meas.displacement_m)
@@ -112,6 +118,8 @@ def simulate(params, *, progress: Callable[[int, int], None] | None = None,
                     n_done = k + 1
                     break
                 fr = build(padded[k + 1:k + 2 + look], meas)
+                if estimates is not None:
+                    est = estimates()
             if progress is not None and not k & 255 and time.monotonic() - t_last > 0.5:
                 t_last = time.monotonic()
                 progress(k + 1, n_total)
@@ -122,6 +130,11 @@ def simulate(params, *, progress: Callable[[int, int], None] | None = None,
     def signal(values):
         return np.array(values[:n], dtype=float)
 
+    estimate_signals = None
+    if estimates is not None and est_rec:
+        estimate_signals = {name: np.array([e[name] for e in est_rec[:n]], dtype=float)
+                            for name in est_rec[0]}
+
     return RunData(
         params=dict(params), time_s=np.arange(n) * dt,
         ground_acceleration_m_s2=np.array(ag[:n]), reference_force_N=signal(fr_rec),
@@ -130,4 +143,4 @@ def simulate(params, *, progress: Callable[[int, int], None] | None = None,
         valve_command_V=signal(u_rec) if valve else None,
         stable=reason is None, unstable_at_s=None if reason is None else n * dt,
         abort_reason=reason, record_name=gm.name, source='simulate',
-        extra={'wall_s': wall_s})
+        extra={'wall_s': wall_s}, estimates=estimate_signals)

@@ -12,7 +12,10 @@ Every compensator implements the ``Predictor`` protocol of
     zero-order hold of the reference force ("impulse matching"), with the force loop of the
     servo-hydraulic rig inverted by a model-based feedforward filter.
 ``adaptive``
-    The ``model`` compensator with the actuator delay and amplitude identified online.
+    The ``model`` compensator with the specimen (m, c, k), the actuator delay and amplitude
+    identified online.
+``ats``
+    The adaptive time-series compensator of Chae et al. (2013) on the force loop.
 
 Timing (see :mod:`seft_ros.core.experiment`): the reference force ``f_r[k]`` is built after
 the measurement of step ``k-1``; on the pure-delay rig (``tau = n dt + delta``) it acts on
@@ -42,11 +45,13 @@ from seft_msgs_py.sampling import linear_map as _linear_map
 from seft_msgs_py.sampling import single_blas_thread as _single_blas_thread
 from seft_msgs_py.sampling import split_delay as _split_delay
 from seft_msgs_py.sampling import zoh as _zoh
+from seft_ros.core import identification as _ident
 
 __all__ = [
     'NoPredictor', 'PolynomialPredictor', 'ModelPredictor', 'AdaptivePredictor',
     'DelayImpulseModel', 'ForceLoopInverse', 'lagrange_extrapolation_weights',
-    'foh_step_average', 'model_parameters',
+    'foh_step_average', 'model_parameters', 'ADAPTIVE_ESTIMATES', 'AtsPredictor',
+    'ATS_ESTIMATES',
 ]
 
 
@@ -649,118 +654,276 @@ def step_average_force_impulse_response(rig_params, specimen, controller, n: int
 
 # -- adaptive -------------------------------------------------------------------------------
 
+#: Names (and units, in the name) of the ``adaptive`` compensator's estimates.
+ADAPTIVE_ESTIMATES = ('mass_kg', 'damping_N_s_per_m', 'stiffness_N_per_m', 'tau_s', 'gain')
+
+
 class AdaptivePredictor:
-    """The hold-consistent model predictor with the actuator delay and gain identified online.
+    """The ``model`` law with the specimen and the actuator delay identified online.
 
-    The actuator is modelled as ``f(t) = A f_r(t - tau)`` with unknown A and tau. Over a
-    sliding window of ``window_s``, for each whole-step candidate ``n`` the measured velocity
-    increments are regressed on the two reference forces that can act in a step (exact ZOH
-    specimen model, the predictor's m, c, k)::
+    Three identifications run on the measurements, and their guarded estimates drive the
+    hold-consistent model law of :class:`ModelPredictor` (pole matching):
 
-        v[j+1] - v[j] - (Phi - I)_v [x, v][j] = g_e f_r[j-n-1] + g_l f_r[j-n]
+    1. **Specimen m, c, k** from its equation of motion ``f = m x'' + c x' + k x`` (paper Eq.
+       5.1) with the load-cell force, acceleration, velocity and displacement of each sample,
+       by recursive least squares with exponential forgetting
+       (:class:`~seft_ros.core.identification.RecursiveLeastSquares`, memory ``memory_s``).
+       The unknowns are normalised by the configured model, ``theta = [m/m0, c/c0, k/k0]``
+       (regressor ``[m0 x'', c0 x', k0 x]`` in N, with ``c0`` at least 5 % of critical
+       damping), and the prior ``theta = 1`` weighs as 0.01 s of data at the excitation
+       threshold.
+    2. **Actuator delay and gain** (``f = A f_r(t - tau)``) over a sliding window of
+       ``window_s``: for each whole-step candidate ``n`` the measured velocity increments are
+       regressed on the two commanded forces that can act in a step (exact ZOH model of the
+       *identified* specimen)::
 
-    (least squares, recursive sums). The candidate with the smallest residual gives ``n``;
-    ``g_e / (g_e + g_l)`` gives the fractional part ``delta`` (through the exact hold
-    integrals, tabulated) and ``(g_e + g_l) / Gamma_v(dt)`` the gain A. The estimate
-    (``tau = n dt + delta``, A) is refreshed every ``update_steps`` and drives
-    :class:`ModelPredictor` (the forces it predicts with and the command are scaled by A).
-    Until the window is full and excited the prior (``predictor_tau_s``, A = 1) is used.
+           v[j+1] - v[j] - (Phi - I)_v [x, v][j] = g_e f_r[j-n-1] + g_l f_r[j-n]
 
-    This plays the role of the adaptive time-series compensator of Chae et al. (2013): the
-    user need not know tau and the compensation follows a drifting delay; unlike the ATS
-    compensator it identifies delay and gain of a force actuator from the specimen response.
+       The candidate with the smallest residual gives ``n``, ``g_e / (g_e + g_l)`` the
+       fractional part ``delta`` (exact hold integrals, tabulated) and
+       ``(g_e + g_l) / Gamma_v(dt)`` the gain A. A fit is accepted when it explains at least
+       ``min_fit_quality`` of the data; the target is the median of the last 5 accepted
+       fits.
+    3. On the servohydraulic rig the force loop that the law inverts
+       (:class:`ForceLoopInverse`) is refitted from the rig model with the identified
+       specimen whenever m, c or k moved by more than 1 % since the last fit (the closed
+       force loop depends on the specimen through the control-structure interaction).
+
+    Safety before data: the estimates start at the configured model (``predictor_*``) and
+    only move while the measured force's running RMS (time constant ``window_s``) exceeds
+    ``excitation_N`` (quiet start and coda: held); m, c, k and A stay within
+    ``+/- max_deviation`` of the configured values, tau within ``[0, max_delay_s]``, and each
+    changes by at most ``max_rate_per_s`` of its configured value per second (tau:
+    ``max_rate_per_s * max(tau0, dt)``). Every ``update_steps`` the guarded estimates are
+    refreshed and, if they moved, the law's model is rebuilt. :meth:`estimates` returns the
+    current values (published and recorded).
+
+    The target of the law is the reference structure with the configured computational
+    mass: ``(m_hat + alpha m_ref) x'' + c_hat x' + k_hat x = G`` (an effective mass ratio
+    ``alpha m_ref / m_hat`` in :meth:`DelayImpulseModel.matching_gains`).
 
     Parameters
     ----------
     mass_kg, damping_N_s_per_m, stiffness_N_per_m : float
-        Predictor's specimen model.
+        Configured (prior) specimen model m0 [kg], c0 [N s/m], k0 [N/m].
     dt : float > 0
         Control period [s].
     tau0_s : float >= 0
         Prior delay [s].
-    alpha : float
-        Mass ratio; ``mass_ref_kg`` the specimen mass of the reference force [kg].
+    alpha : float >= 0
+        Mass ratio.
+    mass_ref_kg : float > 0
+        Specimen mass of the reference force [kg] (``mass_kg``).
     window_s : float > 0
-        Identification window [s].
+        Delay-identification window and excitation time constant [s].
     max_delay_s : float > 0
         Largest delay searched [s].
+    update_steps : int >= 1
+        Steps between estimate refreshes.
+    memory_s : float > 0
+        Memory of the RLS forgetting, ``lambda = exp(-dt / memory_s)`` [s].
+    excitation_N : float >= 0
+        Running RMS of the measured force below which the estimates are held [N].
+    max_deviation : float in (0, 1)
+        Range of m, c, k and A, relative to the configured values [-].
+    max_rate_per_s : float > 0
+        Rate limit, relative to the configured values [1/s].
+    identify_specimen : bool
+        False: m, c, k stay at the prior (only tau and A are identified, the compensator of
+        earlier versions).
+    loop_factory : callable(m, c, k) -> ForceLoopInverse, optional
+        Servohydraulic rig: fits the force-loop inverse for a specimen model; None on the
+        delay rig.
+    min_fit_quality : float in [0, 1]
+        A delay identification is used only when its fit explains at least this fraction of
+        the velocity increments' energy (``R^2 = 1 - residual / sum y^2``; measured: 0.9999
+        in strong motion, 0.94-0.997 in the coda, where noise dominates).
+
+    Attributes
+    ----------
+    ESTIMATES : tuple of str
+        Keys of :meth:`estimates`.
+    history_tau_s : list of (int, float, float, float)
+        ``(step, tau_s, gain, fit_quality)`` at every delay identification.
+
+    Raises
+    ------
+    ParameterError
+        If a value is out of range (the message names the parameter).
 
     References
     ----------
-    Y. Chae, K. Kazemibidokhti and J. M. Ricles (2013), Adaptive time series compensator for
-    delay compensation of servo-hydraulic actuator systems for real-time hybrid simulation,
-    Earthquake Eng. Struct. Dyn. 42(11), 1697-1715. Carrion and Spencer (2007).
+    L. Ljung, System Identification, 2nd ed. (1999), Sec. 11.2 (RLS with forgetting).
+    K. J. Astrom and B. Wittenmark, Adaptive Control, 2nd ed. (1995), Ch. 5 (certainty
+    equivalence: the estimates feed the design law as if exact) and Sec. 11.2 (covariance
+    limiting, conditional updating). J. E. Carrion and B. F. Spencer Jr. (2007), NSEL Report
+    006 (the model law). The delay identification plays the role of the adaptive time-series
+    compensator of Chae et al. (2013), Earthquake Engng Struct. Dyn. 42(11), 1697-1715
+    (``ats`` is that compensator itself).
     """
 
     name = 'adaptive'
     step_average = True
+    ESTIMATES = ADAPTIVE_ESTIMATES
 
     def __init__(self, mass_kg, damping_N_s_per_m, stiffness_N_per_m, dt, tau0_s, alpha,
-                 mass_ref_kg, window_s=0.5, max_delay_s=0.03, update_steps=10):
-        self._model_args = (float(mass_kg), float(damping_N_s_per_m),
-                            float(stiffness_N_per_m), float(dt))
-        self.dt = float(dt)
+                 mass_ref_kg, window_s=0.5, max_delay_s=0.03, update_steps=10, *,
+                 memory_s=5.0, excitation_N=20.0, max_deviation=0.5, max_rate_per_s=1.0,
+                 identify_specimen=True, loop_factory=None, min_fit_quality=0.995):
+        m0, c0, k0, dt = (float(mass_kg), float(damping_N_s_per_m), float(stiffness_N_per_m),
+                          float(dt))
+        for name, value, ok in (
+                ('adaptive_window_s', window_s, window_s > 0),
+                ('adaptive_max_delay_s', max_delay_s, max_delay_s > 0),
+                ('adaptive_excitation_N', excitation_N, excitation_N >= 0),
+                ('adaptive_max_deviation', max_deviation, 0 < max_deviation < 1),
+                ('adaptive_max_rate_per_s', max_rate_per_s, max_rate_per_s > 0)):
+            if not (ok and math.isfinite(value)):
+                raise ParameterError(f'parameter {name}={value!r}: out of range')
+        self.dt = dt
         self.alpha = float(alpha)
         self.mass_ref_kg = float(mass_ref_kg)
         self.max_n = int(math.ceil(max_delay_s / dt))
-        self.max_delay_s = self.max_n * float(dt)
+        self.max_delay_s = self.max_n * dt
         self.window = max(8, int(round(window_s / dt)))
         self.update_steps = int(update_steps)
-        self.gain = 1.0
-        self.tau_s = float(tau0_s)
-        self._cache = {}
-        self._set_model(self.tau_s)
-        m, c, k, _ = self._model_args
-        a = np.array([[0.0, 1.0], [-k / m, -c / m]])
-        b = np.array([[0.0], [1.0 / m]])
-        phi, gam = _zoh(a, b, dt)
-        self._r = (phi - np.eye(2))[1]
-        self._gv = float(gam[1, 0])
-        # fraction table: delta -> g_e / (g_e + g_l) for a unit force
-        grid = np.linspace(0.0, dt, 41)
-        frac = []
-        for d in grid:
-            phi_rest, g_late = _zoh(a, b, dt - d)
-            _, g_e = _zoh(a, b, d)
-            ge = float((phi_rest @ g_e)[1, 0])
-            frac.append(ge / (ge + float(g_late[1, 0])))
-        self._frac_grid, self._frac_delta = np.array(frac), grid
-        self._rows = deque(maxlen=self.window)      # (y, f_r[j-max_n-1 .. j])
+        self.identify_specimen = bool(identify_specimen)
+        self._loop_factory = loop_factory
+        self.prior = {'mass_kg': m0, 'damping_N_s_per_m': c0, 'stiffness_N_per_m': k0,
+                      'tau_s': float(tau0_s), 'gain': 1.0}
+        # normalised RLS on [m, c, k]; the damping scale is at least 5 % of critical
+        c_scale = max(c0, 0.1 * math.sqrt(k0 * m0))
+        self._scale = np.array([m0, c_scale, k0])
+        self._theta0 = np.array([1.0, c0 / c_scale, 1.0])
+        level = max(float(excitation_N), 1.0)
+        p0 = dt / (0.01 * level * level)
+        self.rls = _ident.RecursiveLeastSquares(
+            self._theta0, p0, _ident.forgetting_factor(dt, memory_s))
+        self.gate = _ident.ExcitationGate(dt, window_s, excitation_N)
+        per_update = float(max_rate_per_s) * dt * self.update_steps
+        d = float(max_deviation)
+        self._guards = {
+            'mass_kg': _ident.GuardedValue(m0, m0 * (1 - d), m0 * (1 + d), m0 * per_update),
+            'damping_N_s_per_m': _ident.GuardedValue(
+                c0, max(c0 - d * c_scale, 0.0), c0 + d * c_scale, c_scale * per_update),
+            'stiffness_N_per_m': _ident.GuardedValue(k0, k0 * (1 - d), k0 * (1 + d),
+                                                     k0 * per_update),
+            'tau_s': _ident.GuardedValue(tau0_s, 0.0, self.max_delay_s,
+                                         max(float(tau0_s), dt) * per_update),
+            'gain': _ident.GuardedValue(1.0, 1 - d, 1 + d, per_update),
+        }
+        self._targets = dict(self.prior)
+        self.loop_inverse = None
+        self._loop_model = None
+        self._frac_model = None
+        self.model = None
+        self._model_key = None
+        self._rebuild()
+        self._rows = deque(maxlen=self.window)      # (dv, x, v, f_r[j-max_n-1 .. j])
         self._prev = None
         self._sent = []
         self._count = 0
         self.history_tau_s = []
+        self.fit_quality = float('nan')
+        self._fits = deque(maxlen=5)
+        self.min_fit_quality = float(min_fit_quality)
 
     @classmethod
     def from_parameters(cls, params) -> 'AdaptivePredictor':
-        """Build from the predictor model, ``dt``, ``alpha``, ``adaptive_*``."""
+        """Build from the predictor model, ``dt``, ``alpha``, ``adaptive_*`` and the rig.
+
+        On the ``servohydraulic`` rig the prior delay is the loop inverse's
+        ``predictor_loop_delay_steps`` and the inverse is refitted to the identified specimen.
+        """
         mp = model_parameters(params)
+        tau0 = mp['tau_s']
+        factory = None
+        if params.get('rig_model') == 'servohydraulic':
+            def factory(m, c, k, _params=dict(params)):
+                return ForceLoopInverse.from_parameters(dict(
+                    _params, predictor_mass_kg=m, predictor_damping_N_s_per_m=c,
+                    predictor_stiffness_N_per_m=k))
+            tau0 = int(params['predictor_loop_delay_steps']) * float(params['dt'])
         return cls(mp['mass_kg'], mp['damping_N_s_per_m'], mp['stiffness_N_per_m'],
-                   float(params['dt']), mp['tau_s'], float(params['alpha']),
+                   float(params['dt']), tau0, float(params['alpha']),
                    float(params['mass_kg']), float(params['adaptive_window_s']),
-                   float(params['adaptive_max_delay_s']))
+                   float(params['adaptive_max_delay_s']),
+                   memory_s=float(params.get('adaptive_memory_s', 5.0)),
+                   excitation_N=float(params.get('adaptive_excitation_N', 20.0)),
+                   max_deviation=float(params.get('adaptive_max_deviation', 0.5)),
+                   max_rate_per_s=float(params.get('adaptive_max_rate_per_s', 1.0)),
+                   loop_factory=factory)
+
+    # -- estimates ---------------------------------------------------------------------------
+
+    def estimates(self) -> dict[str, float]:
+        """The current guarded estimates: ``mass_kg`` [kg], ``damping_N_s_per_m`` [N s/m],
+        ``stiffness_N_per_m`` [N/m], ``tau_s`` [s], ``gain`` [-] (keys :attr:`ESTIMATES`)."""
+        return {name: guard.value for name, guard in self._guards.items()}
+
+    @property
+    def tau_s(self) -> float:
+        """Current delay estimate [s]."""
+        return self._guards['tau_s'].value
+
+    @property
+    def gain(self) -> float:
+        """Current actuator gain estimate A [-]."""
+        return self._guards['gain'].value
 
     @property
     def delay_s(self) -> float:
-        """Current delay estimate [s]."""
-        return self.tau_s
+        """Current delay estimate [s] (the shift of the ground-motion preview)."""
+        return self._guards['tau_s'].value
 
-    def _set_model(self, tau_s: float) -> None:
-        key = round(tau_s / self.dt * 64)
-        if key not in self._cache:
-            self._cache[key] = DelayImpulseModel(*self._model_args, key * self.dt / 64)
-        self.model = self._cache[key]
+    def _rebuild(self) -> None:
+        """Rebuild the law's model (and tables) from the guarded estimates, if they moved."""
+        est = self.estimates()
+        m, c, k, tau = (est['mass_kg'], est['damping_N_s_per_m'], est['stiffness_N_per_m'],
+                        est['tau_s'])
+        if self._loop_factory is not None:
+            if self._loop_model is None or _moved((m, c, k), self._loop_model, 0.01):
+                fresh = self._loop_factory(m, c, k)
+                if self.loop_inverse is not None:     # keep the filter's past inputs
+                    fresh._x = self.loop_inverse._x
+                self.loop_inverse = fresh
+                self._loop_model = (m, c, k)
+        key = (m, c, k, round(tau / self.dt * 64))
+        if key == self._model_key:
+            return
+        self._model_key = key
+        self.model = DelayImpulseModel(m, c, k, self.dt, key[3] * self.dt / 64)
+        alpha_eff = self.alpha * self.mass_ref_kg / m
+        self._law = self.model.matching_gains(alpha_eff)
+        a = np.array([[0.0, 1.0], [-k / m, -c / m]])
+        b = np.array([[0.0], [1.0 / m]])
+        phi, gam = _zoh(a, b, self.dt)
+        self._r = (phi - np.eye(2))[1]
+        self._gv = float(gam[1, 0])
+        if self._frac_model is None or _moved((m, c, k), self._frac_model, 0.01):
+            # fraction table: delta -> g_e / (g_e + g_l) for a unit force
+            grid = np.linspace(0.0, self.dt, 21)
+            frac = []
+            for d in grid:
+                phi_rest, g_late = _zoh(a, b, self.dt - d)
+                _, g_e = _zoh(a, b, d)
+                ge = float((phi_rest @ g_e)[1, 0])
+                frac.append(ge / (ge + float(g_late[1, 0])))
+            self._frac_grid, self._frac_delta = np.array(frac), grid
+            self._frac_model = (m, c, k)
 
-    def _identify(self) -> None:
-        rows = np.array([r[1] for r in self._rows])
-        y = np.array([r[0] for r in self._rows])
+    def _identify_delay(self) -> None:
+        """Delay and gain from the window (class notes, step 2); sets the targets."""
+        data = np.array([r[:3] for r in self._rows])
+        rows = np.array([r[3] for r in self._rows])
+        y = data[:, 0] - (self._r[0] * data[:, 1] + self._r[1] * data[:, 2])
         if not np.any(rows):
             return
         best = None
         width = rows.shape[1]
         for n in range(0, self.max_n):
             cols = rows[:, [width - 2 - n, width - 1 - n]]
-            sol, res, rank, _ = np.linalg.lstsq(cols, y, rcond=None)
+            sol, _, rank, _ = np.linalg.lstsq(cols, y, rcond=None)
             if rank < 2:
                 continue
             err = float(np.sum((cols @ sol - y) ** 2))
@@ -768,44 +931,233 @@ class AdaptivePredictor:
                 best = (err, n, sol)
         if best is None:
             return
-        _, n, (ge, gl) = best
+        err, n, (ge, gl) = best
         total = ge + gl
-        if not total > 0:
+        self.fit_quality = 1.0 - err / max(float(y @ y), 1e-300)
+        if not (total > 0 and self.fit_quality >= self.min_fit_quality):
             return
         frac = min(max(ge / total, 0.0), self._frac_grid[-1])
-        delta = float(np.interp(frac, self._frac_grid, self._frac_delta))
-        self.tau_s = n * self.dt + delta
-        self.gain = max(total / self._gv, 0.1)
-        self._set_model(self.tau_s)
+        self._fits.append((n * self.dt + float(np.interp(frac, self._frac_grid,
+                                                         self._frac_delta)),
+                           total / self._gv))
+        # the median of the last accepted fits: one outlier (the integer part of the delay
+        # flipping on a noisy window) does not move the target
+        tau, gain = np.median(np.array(self._fits), axis=0)
+        self._targets['tau_s'], self._targets['gain'] = float(tau), float(gain)
+
+    def _observe(self, latest: Measurement) -> None:
+        """Take the newest measurement into the identifications."""
+        x, v = latest.displacement_m, latest.velocity_m_s
+        excited = self.gate.update(latest.force_N)
+        if excited and self.identify_specimen:
+            s = self._scale
+            self.rls.update((s[0] * latest.acceleration_m_s2, s[1] * v, s[2] * x),
+                            latest.force_N)
+        if self._prev is not None:
+            px, pv, j = self._prev
+            count = self.max_n + 2
+            self._rows.append((v - pv, px, pv,
+                               _past(self._sent[max(0, j + 1 - count):j + 1], count)))
+            self._count += 1
+            if excited and self._count % self.update_steps == 0:
+                if self.identify_specimen:
+                    theta = self.rls.theta * self._scale
+                    self._targets.update(mass_kg=theta[0], damping_N_s_per_m=theta[1],
+                                         stiffness_N_per_m=theta[2])
+                if len(self._rows) == self.window:
+                    self._identify_delay()
+                    self.history_tau_s.append((j, self.tau_s, self.gain, self.fit_quality))
+                for name, guard in self._guards.items():
+                    guard.follow(self._targets[name])
+                self._rebuild()
+        self._prev = (x, v, latest.step)
 
     def predict(self, latest: Measurement | None, commanded_N, ground_force_N: float = 0.0
                 ) -> float:
-        """Update the identification with the newest measurement; return a_hat [m/s^2]."""
+        """Update the identifications with the newest measurement; return a_hat [m/s^2]."""
         if latest is not None:
+            self._observe(latest)
             x, v = latest.displacement_m, latest.velocity_m_s
-            if self._prev is not None:
-                px, pv, j = self._prev
-                y = v - pv - (self._r[0] * px + self._r[1] * pv)
-                count = self.max_n + 2            # _past(self._sent[:j + 1], count)
-                self._rows.append((y, _past(self._sent[max(0, j + 1 - count):j + 1], count)))
-                self._count += 1
-                if (len(self._rows) == self.window
-                        and self._count % self.update_steps == 0):
-                    self._identify()
-                    self.history_tau_s.append((j, self.tau_s, self.gain))
-            self._prev = (x, v, latest.step)
         else:
             x, v = 0.0, 0.0
         # the forces already sent act as A f_sent; the new one is sent as F / A
-        s_hat = self.model.state_ahead(x, v, self.gain * _past(self._sent, self.model.n + 2))
-        gain, beta = self.model.matching_gains(self.alpha)
+        model = self.model
+        s_hat = model.state_ahead(x, v, self.gain * _past(self._sent, model.n + 2))
+        gain, beta = self._law
         force = beta * ground_force_N - float(gain @ s_hat)
         if self.alpha == 0.0:
             return 0.0
         return (ground_force_N - force) / (self.alpha * self.mass_ref_kg)
 
     def command(self, force_N: float) -> float:
-        """The command ``F / A`` (so that the actuator applies F)."""
+        """The command ``F / A`` (so that the actuator applies F), through the loop inverse
+        on the servohydraulic rig."""
         sent = force_N / self.gain
         self._sent.append(sent)
-        return sent
+        return sent if self.loop_inverse is None else self.loop_inverse.step(sent)
+
+
+def _moved(values, reference, tolerance: float) -> bool:
+    """Whether any of `values` differs from `reference` by more than `tolerance` (relative)."""
+    return any(abs(a - b) > tolerance * abs(b) for a, b in zip(values, reference))
+
+
+# -- ats ------------------------------------------------------------------------------------
+
+#: Names of the ``ats`` compensator's estimates: a0 [-], a1 [s], a2 [s^2].
+ATS_ESTIMATES = ('a0', 'a1', 'a2')
+
+
+class AtsPredictor:
+    """Adaptive time-series (ATS) compensation of the force loop (Chae et al. 2013).
+
+    The actuator is commanded with ``u = a0 F + a1 F' + a2 F''`` (the desired force F and its
+    backward differences, :func:`~seft_ros.core.identification.backward_differences`), which
+    approximately inverts the force loop ``f_m(t) ~ u(t - tau) / a0`` (Taylor series of the
+    advance). Every ``skip`` steps ``a0, a1, a2`` are refitted by least squares on the last
+    ``window_s`` of commands u and measured forces ``f_m``,
+    ``u_j = a0 f_m,j + a1 f'_m,j + a2 f''_m,j`` (:func:`~seft_ros.core.identification.
+    ats_coefficients`), after both are low-passed by the same zero-phase Butterworth filter
+    (``cutoff_hz``; Chae et al. filter the measured signals before differencing; the same
+    filter on both sides keeps the relation). The fit is used only while the measured
+    force's running RMS exceeds ``excitation_N`` (Chae et al.'s trigger threshold); the
+    coefficients stay within ``a0 in [0.7, 1.3]`` (OpenFresco's set-up files),
+    ``a1 in [0, max_delay_s]``, ``a2 in [0, max_delay_s^2 / 2]``, and change by at most
+    ``max_rate_per_s`` times their initial values ``(1, tau0, tau0^2 / 2)`` per second.
+
+    The one-step lag of the fed-back measurement (paper Eq. 5.3) is not part of the force
+    loop: it is compensated by the ``model`` law with zero actuator delay (the configured
+    specimen model), :class:`ModelPredictor` with ``tau = 0``.
+
+    Parameters
+    ----------
+    model : DelayImpulseModel
+        Specimen model with ``tau_s = 0``.
+    alpha : float >= 0
+        Mass ratio.
+    mass_kg : float > 0
+        Specimen mass of the reference force [kg].
+    tau0_s : float >= 0
+        Prior loop delay [s] (initial ``a1``).
+    window_s : float > 0
+        Least-squares window [s].
+    skip : int >= 1
+        Steps between refits (Chae et al.'s skipping number, 16).
+    excitation_N : float >= 0
+        Trigger level of the running RMS of the measured force [N].
+    max_rate_per_s : float > 0
+        Rate limit relative to the initial values [1/s].
+    max_delay_s : float > 0
+        Bound of a1 [s].
+    cutoff_hz : float > 0
+        Cut-off of the 2nd-order Butterworth on command and measurement [Hz].
+
+    Raises
+    ------
+    ParameterError
+        If a value is out of range (the message names the parameter).
+
+    References
+    ----------
+    Y. Chae, K. Kazemibidokhti and J. M. Ricles (2013), Adaptive time series compensator for
+    delay compensation of servo-hydraulic actuator systems for real-time hybrid simulation,
+    Earthquake Engng Struct. Dyn. 42(11), 1697-1715, Eqs. 6-13.
+    """
+
+    name = 'ats'
+    step_average = True
+    delay_s = 0.0
+    ESTIMATES = ATS_ESTIMATES
+
+    def __init__(self, model: DelayImpulseModel, alpha: float, mass_kg: float, tau0_s: float,
+                 *, window_s: float = 1.0, skip: int = 16, excitation_N: float = 20.0,
+                 max_rate_per_s: float = 1.0, max_delay_s: float = 0.03,
+                 cutoff_hz: float = 20.0):
+        from scipy.signal import butter
+        dt = model.dt
+        for name, value, ok in (
+                ('ats_window_s', window_s, window_s > 0 and window_s / dt >= 16),
+                ('adaptive_excitation_N', excitation_N, excitation_N >= 0),
+                ('adaptive_max_rate_per_s', max_rate_per_s, max_rate_per_s > 0),
+                ('adaptive_max_delay_s', max_delay_s, max_delay_s > 0),
+                ('predictor_tau_s', tau0_s, tau0_s >= 0)):
+            if not (ok and math.isfinite(value)):
+                raise ParameterError(f'parameter {name}={value!r}: out of range')
+        if model.tau_s != 0.0:
+            raise ParameterError('ats: the model law must have tau_s = 0')
+        self.dt = dt
+        self._law = ModelPredictor(model, alpha, mass_kg)
+        self.skip = int(skip)
+        self.window = int(round(window_s / dt))
+        self.gate = _ident.ExcitationGate(dt, 0.5, excitation_N)
+        tau0 = min(float(tau0_s), float(max_delay_s))
+        initial = (1.0, tau0, 0.5 * tau0 * tau0)
+        per_fit = float(max_rate_per_s) * dt * self.skip
+        scale = (1.0, max(tau0, dt), 0.5 * max(tau0, dt) ** 2)
+        ranges = ((0.7, 1.3), (0.0, float(max_delay_s)), (0.0, 0.5 * max_delay_s ** 2))
+        self._guards = [_ident.GuardedValue(v, lo, hi, s * per_fit)
+                        for v, (lo, hi), s in zip(initial, ranges, scale)]
+        self._sos = butter(2, cutoff_hz, fs=1.0 / dt, output='sos')
+        self._u = deque(maxlen=self.window)
+        self._f = deque(maxlen=self.window)
+        self._desired = deque([0.0, 0.0, 0.0], maxlen=3)
+        self._count = 0
+        self._n_sent = self._n_measured = 0
+        self.history = []            # (step, a0, a1, a2) at every refit used
+
+    @classmethod
+    def from_parameters(cls, params) -> 'AtsPredictor':
+        """Build from the predictor model (``predictor_*``; prior delay ``predictor_tau_s``,
+        0: ``tau_s``), ``alpha``, ``ats_window_s`` and ``adaptive_*``."""
+        mp = model_parameters(params)
+        dt = float(params['dt'])
+        model = DelayImpulseModel(mp['mass_kg'], mp['damping_N_s_per_m'],
+                                  mp['stiffness_N_per_m'], dt, 0.0)
+        return cls(model, float(params['alpha']), float(params['mass_kg']), mp['tau_s'],
+                   window_s=float(params.get('ats_window_s', 1.0)),
+                   excitation_N=float(params.get('adaptive_excitation_N', 20.0)),
+                   max_rate_per_s=float(params.get('adaptive_max_rate_per_s', 1.0)),
+                   max_delay_s=float(params.get('adaptive_max_delay_s', 0.03)))
+
+    @property
+    def coefficients(self) -> tuple[float, float, float]:
+        """``(a0, a1, a2)`` [-, s, s^2] in use."""
+        return tuple(g.value for g in self._guards)
+
+    def estimates(self) -> dict[str, float]:
+        """``{'a0': [-], 'a1': [s], 'a2': [s^2]}`` in use (keys :attr:`ESTIMATES`)."""
+        return dict(zip(self.ESTIMATES, self.coefficients))
+
+    def _refit(self) -> None:
+        from scipy.signal import sosfiltfilt
+        u = sosfiltfilt(self._sos, np.array(self._u))
+        f = sosfiltfilt(self._sos, np.array(self._f))
+        target = _ident.ats_coefficients(u, f, self.dt)
+        for guard, value in zip(self._guards, target):
+            guard.follow(float(value))
+
+    def predict(self, latest: Measurement | None, commanded_N, ground_force_N: float = 0.0
+                ) -> float:
+        """Take the newest measured force into the fit; return a_hat of the ``model`` law
+        with zero delay [m/s^2]."""
+        if latest is not None and self._n_sent > self._n_measured:
+            self._f.append(latest.force_N)        # f_m[j] beside u[j]
+            self._n_measured += 1
+            excited = self.gate.update(latest.force_N)
+            self._count += 1
+            if excited and len(self._f) == self.window and self._count % self.skip == 0:
+                self._refit()
+                self.history.append((latest.step, *self.coefficients))
+        return self._law.predict(latest, commanded_N, ground_force_N)
+
+    def command(self, force_N: float) -> float:
+        """``u = a0 F + a1 F' + a2 F''`` (backward differences of the desired forces) [N]."""
+        d = self._desired
+        d.append(force_N)
+        dt = self.dt
+        a0, a1, a2 = self.coefficients
+        u = (a0 * force_N + a1 * (force_N - d[1]) / dt
+             + a2 * (force_N - 2.0 * d[1] + d[0]) / (dt * dt))
+        self._u.append(u)
+        self._n_sent += 1
+        return u

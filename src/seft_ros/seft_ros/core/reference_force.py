@@ -7,6 +7,7 @@ from seft_msgs_py.errors import ParameterError
 from seft_msgs_py.interface import Measurement
 from seft_ros.core.predictors import (
     AdaptivePredictor,
+    AtsPredictor,
     ModelPredictor,
     NoPredictor,
     PolynomialPredictor,
@@ -58,6 +59,7 @@ PREDICTORS: dict[str, Callable] = {
     'polynomial': PolynomialPredictor.from_parameters,
     'model': ModelPredictor.from_parameters,
     'adaptive': AdaptivePredictor.from_parameters,
+    'ats': AtsPredictor.from_parameters,
 }
 
 

@@ -44,6 +44,7 @@ from typing import Any, Mapping, Protocol, runtime_checkable
 import numpy as np
 from scipy import signal
 
+from seft_msgs_py.calibration import controller_gain_V_per_N
 from seft_msgs_py.errors import SeftError
 from seft_msgs_py.interface import Measurement
 from seft_msgs_py.sampling import zoh as _zoh
@@ -464,7 +465,8 @@ class LoopModel:
             bc, cc, dc = np.zeros((0, 1)), np.zeros((1, 0)), np.zeros((1, 1))
         else:
             a, b, cy = _servohydraulic_rig(params)
-            ctrl = ForceServoController(float(params['dt']))
+            ctrl = ForceServoController(float(params['dt']),
+                                        num=(controller_gain_V_per_N(params),))
             nb = max(len(ctrl.az), len(ctrl.bz))
             bz = np.concatenate([ctrl.bz, np.zeros(nb - len(ctrl.bz))])
             az = np.concatenate([ctrl.az, np.zeros(nb - len(ctrl.az))])
