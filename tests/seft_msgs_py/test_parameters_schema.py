@@ -38,6 +38,7 @@ from seft_msgs_py.sync import StepSync
 from seft_msgs_py.topics import (
     BAG_TOPICS,
     CLOCK,
+    ESTIMATES,
     FRAME_ID,
     MEASUREMENT,
     MEASUREMENT_TOPICS,
@@ -55,7 +56,7 @@ from seft_plant_sim.servohydraulic import ServoHydraulicParams
 
 #: Topics that carry one stamped scalar: every topic but /clock, status, parameters, timing,
 #: the live measurement and the record batches.
-OTHER = ((CLOCK, STATUS, RUN_PARAMETERS, NODE_PARAMETERS, MEASUREMENT) + TIMING
+OTHER = ((CLOCK, STATUS, RUN_PARAMETERS, NODE_PARAMETERS, MEASUREMENT, ESTIMATES) + TIMING
          + tuple(RECORD.values()))
 assert SCALAR_TOPICS == tuple(t for t in TOPICS if t not in OTHER)
 
@@ -298,11 +299,13 @@ def test_live_and_bag_topics():
     names = {t.name for t in TOPICS}
     bag_names = {t.name for t in BAG_TOPICS}
     live_only = {CLOCK.name, MEASUREMENT.name} | set(RECORD)
+    assert ESTIMATES.name in bag_names
     assert names == bag_names | live_only and not live_only & bag_names
     assert sorted(RECORD) == sorted(
         [f'/seft/record/{n}' for n in ('rig', 'ground_motion_publisher',
                                        'reference_force_builder', 'force_servo_controller')]
-        + [f'{t.name.replace("/seft/timing/", "/seft/record/")}/timing' for t in TIMING])
+        + [f'{t.name.replace("/seft/timing/", "/seft/record/")}/timing' for t in TIMING]
+        + ['/seft/record/reference_force_builder/estimates'])
     assert all(t.type_name == 'std_msgs/msg/Float64MultiArray' for t in RECORD.values())
     assert RECORD['/seft/record/rig'].description.endswith(
         '(columns step,/seft/measured_force,/seft/displacement,/seft/velocity,'

@@ -181,9 +181,9 @@ def test_servo_run_message_definitions(servo):
     types = {t.name: t.type_name for t in TOPICS}
     timing = {t.name for t in TOPICS if t.name.startswith('/seft/timing/')}
     assert set(servo.connections) == set(DATA) | timing | {
-        '/seft/status', '/seft/run_parameters', '/seft/node_parameters'}
-    # lockstep: the timing topics are recorded (connections) but carry nothing
-    assert all(servo.connections[t].msgcount == 0 for t in timing)
+        '/seft/status', '/seft/run_parameters', '/seft/node_parameters', '/seft/estimates'}
+    # lockstep, no adaptive compensator: timing and estimates are connections without data
+    assert all(servo.connections[t].msgcount == 0 for t in timing | {'/seft/estimates'})
     for topic, conn in servo.connections.items():
         assert conn.msgtype == types[topic], topic
         assert conn.msgdef.data.strip(), topic
@@ -251,6 +251,24 @@ def test_compensated_graph_runs_are_stable_and_complete(request, which):
     run = request.getfixturevalue(which)
     assert run.sim.stable and run.sim.n_steps == 500
     assert run.params['predictor'] == which.split('_')[1]
+
+
+def test_adaptive_estimates_are_recorded_as_simulate_has_them(delay_adaptive):
+    """Issue 7: the compensator's estimates go into the bag (/seft/estimates, one JointState
+    per reference force, by name) and read back equal to seft simulate's."""
+    sim, n = delay_adaptive.sim, delay_adaptive.sim.n_steps
+    entries = delay_adaptive.messages['/seft/estimates']
+    assert len(entries) == n
+    assert [t for t, _ in entries] == [k * DT_NS for k in range(n)]
+    assert list(entries[0][1].name) == list(sim.estimates)
+    rd = read_run(delay_adaptive.bag)
+    assert set(rd.estimates) == set(sim.estimates) == {
+        'mass_kg', 'damping_N_s_per_m', 'stiffness_N_per_m', 'tau_s', 'gain'}
+    for name, values in sim.estimates.items():
+        np.testing.assert_allclose(rd.estimates[name], values, rtol=1e-12, atol=0,
+                                   err_msg=name)
+    # the run started at the configured model: the first estimate is the configured mass
+    assert rd.estimates['mass_kg'][0] == rd.params['mass_kg']
 
 
 def test_servo_run_is_stable_and_complete(servo):

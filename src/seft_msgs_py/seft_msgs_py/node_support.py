@@ -125,11 +125,12 @@ class SeftNode(Node):
         #: This node's record batches (flushed before its final status).
         self.records: list[RecordBatch] = []
 
-    def record_stream(self, stream: RecordStream | None = None) -> 'RecordBatch':
+    def record_stream(self, stream: RecordStream | None = None,
+                      columns: tuple[str, ...] = ()) -> 'RecordBatch':
         """The :class:`RecordBatch` of one of this node's record streams (default: its data
-        stream), created once."""
+        stream), created once; `columns` names the fields of a ``fields_topic`` stream."""
         stream = stream or record_streams_of(self.seft_name)[0]
-        batch = RecordBatch(self, stream)
+        batch = RecordBatch(self, stream, columns)
         self.records.append(batch)
         return batch
 
@@ -315,6 +316,9 @@ class SeftNode(Node):
         counts = {'published': self.published_count()}
         if self.timing is not None:
             counts.update(self.timing.counts())
+        for batch in self.records:
+            if batch.stream.fields_topic:
+                counts['published_estimates'] = batch.added
         return counts
 
     def sample_time_ns(self, step: int) -> float:
@@ -402,24 +406,39 @@ class RecordBatch:
     ----------
     node : SeftNode
     stream : RecordStream
+    columns : tuple of str
+        The field names of a ``fields_topic`` stream (the stream's own columns otherwise).
+
+    Raises
+    ------
+    ValueError
+        `columns` given for a stream with fixed columns, or missing for a fields stream.
     """
 
-    def __init__(self, node: 'SeftNode', stream: RecordStream):
+    def __init__(self, node: 'SeftNode', stream: RecordStream, columns: tuple[str, ...] = ()):
+        if bool(columns) != bool(stream.fields_topic):
+            raise ValueError(f'{stream.name}: columns are given by the publisher only for a '
+                             'fields stream')
         spec = record_topic(stream)
         self.stream = stream
+        self.columns = tuple(columns) or stream.columns
         self.pub = node.create_publisher(spec.msg_type, spec.name, spec.qos)
-        self.width = 1 + len(stream.columns)
+        self.width = 1 + len(self.columns)
         self.msg = Float64MultiArray()
+        label = ','.join(('step',) + self.columns)
         self.msg.layout.dim = [MultiArrayDimension(label='step', size=0, stride=0),
-                               MultiArrayDimension(label=stream.labels, size=self.width,
+                               MultiArrayDimension(label=label, size=self.width,
                                                    stride=self.width)]
         self.rows: list[float] = []
         self.published = 0
+        #: Rows added (published or pending).
+        self.added = 0
 
     def add(self, step: int, *values: float) -> None:
         """Append the row of sample `step` (values in the order of the stream's columns)."""
         self.rows.append(float(step))
         self.rows.extend(values)
+        self.added += 1
         if len(self.rows) >= RECORD_ROWS * self.width:
             self.flush()
 
@@ -453,7 +472,8 @@ class StepTiming:
     """
 
     def __init__(self, node: 'SeftNode'):
-        self.batch = node.record_stream(record_streams_of(node.seft_name)[-1])
+        self.batch = node.record_stream(
+            next(r for r in record_streams_of(node.seft_name) if r.timing))
         self.dt = float(node.params['dt'])
         self.dt_ns = node.dt_ns
         self.published = 0

@@ -11,7 +11,7 @@ __all__ = [
     'MEASURED_FORCE', 'DISPLACEMENT', 'VELOCITY', 'ACCELERATION', 'STATUS', 'RUN_PARAMETERS',
     'SIGNALS', 'SCALAR_SIGNALS', 'NODE_PARAMETERS', 'TIMING', 'TIMING_FIELDS', 'TIMING_TYPE',
     'timing_signal', 'MEASUREMENT', 'MEASUREMENT_FIELDS', 'RecordStream', 'RECORD_STREAMS',
-    'RECORD_TYPE', 'RECORD_ROWS', 'BAG_SIGNALS', 'record_streams_of',
+    'RECORD_TYPE', 'RECORD_ROWS', 'BAG_SIGNALS', 'record_streams_of', 'ESTIMATES',
 ]
 
 
@@ -107,6 +107,13 @@ MEASUREMENT = Signal(
     '/seft/measurement', 'sensor_msgs/msg/JointState', 'position', '', 'rig',
     'Live: the sensor readings of sample k in one message (name: '
     + ', '.join(MEASUREMENT_FIELDS) + '); recorded as the four sensor topics.')
+#: The compensator's online estimates in effect for each reference force (``adaptive``,
+#: ``ats``): ``name`` lists them (the predictor's ``ESTIMATES``), ``position`` their values.
+ESTIMATES = Signal(
+    '/seft/estimates', 'sensor_msgs/msg/JointState', 'position', '',
+    'reference_force_builder',
+    "The compensator's online estimates in effect for f_r[k] ('adaptive': mass_kg, "
+    "damping_N_s_per_m, stiffness_N_per_m, tau_s, gain; 'ats': a0, a1, a2), by name.")
 
 
 @dataclass(frozen=True)
@@ -131,12 +138,17 @@ class RecordStream:
         a timing stream.
     timing : bool
         The rows are the node's timing records (``/seft/timing/<node>`` in the bag).
+    fields_topic : str
+        If set, every row is one ``sensor_msgs/JointState`` on this bag topic, ``name`` = the
+        columns, which the publisher chooses (``columns`` is empty; the batch's label names
+        them): the compensator's estimates.
     """
 
     name: str
     node: str
     columns: tuple[str, ...]
     timing: bool = False
+    fields_topic: str = ''
 
     @property
     def labels(self) -> str:
@@ -159,7 +171,10 @@ RECORD_STREAMS = (
     RecordStream('/seft/record/force_servo_controller', 'force_servo_controller',
                  (VALVE_COMMAND.name,)),
 ) + tuple(RecordStream(f'/seft/record/{node}/timing', node, TIMING_FIELDS, timing=True)
-          for node in _TIMED)
+          for node in _TIMED) + (
+    RecordStream('/seft/record/reference_force_builder/estimates', 'reference_force_builder',
+                 (), fields_topic=ESTIMATES.name),
+)
 _RECORD = tuple(
     Signal(r.name, RECORD_TYPE, 'data', '', r.node,
            f'Live: record batches of {r.node} for the recorder (columns {r.labels}).')
@@ -167,7 +182,7 @@ _RECORD = tuple(
 
 
 def record_streams_of(node: str) -> tuple[RecordStream, ...]:
-    """The record streams `node` publishes (data first, then timing)."""
+    """The record streams `node` publishes (data first, then timing, then estimates)."""
     return tuple(r for r in RECORD_STREAMS if r.node == node)
 
 
@@ -175,7 +190,7 @@ def record_streams_of(node: str) -> tuple[RecordStream, ...]:
 #: header stamp) and the live-only measurement and record batches.
 BAG_SIGNALS = (GROUND_ACCELERATION, REFERENCE_FORCE, VALVE_COMMAND, MEASURED_FORCE,
                DISPLACEMENT, VELOCITY, ACCELERATION, STATUS, RUN_PARAMETERS,
-               NODE_PARAMETERS) + TIMING
+               NODE_PARAMETERS) + TIMING + (ESTIMATES,)
 #: Every topic, in report order.
 SIGNALS = ((CLOCK,) + BAG_SIGNALS[:7] + (MEASUREMENT,) + BAG_SIGNALS[7:] + _RECORD)
 

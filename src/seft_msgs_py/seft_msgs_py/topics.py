@@ -30,7 +30,7 @@ __all__ = [
     'MEASURED_FORCE', 'DISPLACEMENT', 'VELOCITY', 'ACCELERATION', 'STATUS', 'RUN_PARAMETERS',
     'DATA_QOS', 'STATUS_QOS', 'CLOCK_QOS', 'MEASUREMENT_TOPICS', 'topic', 'FRAME_ID',
     'NODE_PARAMETERS', 'TIMING', 'timing_topic', 'CLOCK_EVERY', 'MEASUREMENT', 'RECORD',
-    'BAG_TOPICS', 'record_topic', 'SCALAR_TOPICS',
+    'BAG_TOPICS', 'record_topic', 'SCALAR_TOPICS', 'ESTIMATES',
 ]
 
 #: ``header.frame_id`` of every seft signal: the actuator axis (x: positive extension).
@@ -108,6 +108,8 @@ NODE_PARAMETERS = _spec(sig.NODE_PARAMETERS, String, STATUS_QOS)
 #: Per-node timing topics (real-time mode), in the order of ``signals.TIMING``.
 TIMING = tuple(_spec(s, JointState, DATA_QOS) for s in sig.TIMING)
 
+#: The compensator's online estimates per reference force (bag; live in record batches).
+ESTIMATES = _spec(sig.ESTIMATES, JointState, DATA_QOS)
 #: The rig's sensor readings of a sample in one live message (the bag: the four topics).
 MEASUREMENT = _spec(sig.MEASUREMENT, JointState, DATA_QOS)
 #: The nodes' record batches for the recorder (``signals.RECORD_STREAMS``), keyed by name.
@@ -119,7 +121,7 @@ RECORD = {r.name: TopicSpec(r.name, Float64MultiArray, sig.RECORD_TYPE, 'data', 
 #: What the recorder writes into a bag (``signals.BAG_SIGNALS``).
 BAG_TOPICS = (GROUND_ACCELERATION, REFERENCE_FORCE, VALVE_COMMAND, MEASURED_FORCE,
               DISPLACEMENT, VELOCITY, ACCELERATION, STATUS, RUN_PARAMETERS,
-              NODE_PARAMETERS) + TIMING
+              NODE_PARAMETERS) + TIMING + (ESTIMATES,)
 #: Every topic, in report order.
 TOPICS = (CLOCK,) + BAG_TOPICS[:7] + (MEASUREMENT,) + BAG_TOPICS[7:] + tuple(RECORD.values())
 

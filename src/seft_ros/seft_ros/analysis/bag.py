@@ -78,6 +78,9 @@ class BagSignals:
     timing : dict of str -> NodeTiming
         The real-time timing records per node (:mod:`seft_ros.analysis.timing`; empty for a
         lockstep run).
+    estimates : dict of int -> dict of str -> float
+        The compensator's estimates in effect for each step's reference force
+        (``/seft/estimates``; empty without an adaptive compensator).
     """
 
     def __init__(self, params, samples, counts, statuses, node_params=None,
@@ -90,6 +93,7 @@ class BagSignals:
         self.param_sources = {} if param_sources is None else param_sources
         self.parameter_mismatches = [] if parameter_mismatches is None else parameter_mismatches
         self.timing = {} if timing is None else timing
+        self.estimates: dict[int, dict[str, float]] = {}
 
 
 def _node_parameters(data: str, where: str) -> tuple[str, dict]:
@@ -170,6 +174,7 @@ def read_signals(path) -> BagSignals:
     timing_rows: dict[str, list] = {}
     live = {name: {} for name in _SCALARS}      # topic -> {step or ('ns', stamp): value}
     live_timing: dict[str, list] = {}          # node -> [(step, values)]
+    estimates: dict = {}                       # stamp [ns] or ('step', k) -> {name: value}
     try:
         with Reader(path) as reader:
             for conn, _, raw in reader.messages():
@@ -197,6 +202,16 @@ def read_signals(path) -> BagSignals:
                     for topic, field in zip(_MEASURED, signals.MEASUREMENT_FIELDS):
                         if field in by_name:
                             live[topic][('ns', stamp)] = float(by_name[field])
+                elif conn.topic == signals.ESTIMATES.name:
+                    msg = typestore.deserialize_cdr(raw, conn.msgtype)
+                    stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+                    estimates[stamp] = dict(zip(msg.name, (float(v) for v in msg.position)))
+                elif conn.topic in _RECORD and _RECORD[conn.topic].fields_topic:
+                    msg = typestore.deserialize_cdr(raw, conn.msgtype)
+                    names = msg.layout.dim[1].label.split(',')[1:] if msg.layout.dim else []
+                    rows = np.asarray(msg.data, dtype=float).reshape(-1, 1 + len(names))
+                    for r in rows:
+                        estimates.setdefault(('step', int(r[0])), dict(zip(names, r[1:])))
                 elif conn.topic in _RECORD:
                     _read_batch(_RECORD[conn.topic], typestore.deserialize_cdr(raw, conn.msgtype),
                                 live, live_timing, path)
@@ -237,9 +252,12 @@ def read_signals(path) -> BagSignals:
     for node, rows in live_timing.items():
         if node not in timing_rows:
             timing_rows[node] = [(step * dt_ns, values) for step, values in rows]
-    return BagSignals(params, by_step, counts, statuses, node_params=node_params,
-                      param_sources=sources, parameter_mismatches=mismatches,
-                      timing=node_timings(timing_rows, params['dt']))
+    bag = BagSignals(params, by_step, counts, statuses, node_params=node_params,
+                     param_sources=sources, parameter_mismatches=mismatches,
+                     timing=node_timings(timing_rows, params['dt']))
+    bag.estimates = {(key[1] if isinstance(key, tuple) else int(round(key / dt_ns))): values
+                     for key, values in estimates.items()}
+    return bag
 
 
 def _read_batch(stream, msg, live: dict, live_timing: dict, path: Path) -> None:
@@ -325,6 +343,11 @@ def read_run(path) -> RunData:
     if p.get('mode') == 'realtime':
         extra['timing_data'] = bag.timing
         extra['timing'] = timing_summary(bag.timing)
+    estimates = None
+    if bag.estimates and all(k in bag.estimates for k in range(n)):
+        names = list(bag.estimates[0])
+        estimates = {name: np.array([bag.estimates[k].get(name, np.nan) for k in range(n)])
+                     for name in names}
     return RunData(
         params=p, time_s=np.arange(n) * dt, ground_acceleration_m_s2=arr(needed[0]),
         reference_force_N=arr(needed[1]), measured_force_N=arr(needed[2]),
@@ -332,4 +355,5 @@ def read_run(path) -> RunData:
         acceleration_m_s2=arr(needed[5]),
         valve_command_V=arr(signals.VALVE_COMMAND.name) if valve else None, stable=stable,
         unstable_at_s=None if stable else (abort_at_s if abort_at_s is not None else n * dt),
-        abort_reason=reason, record_name=record_name, source=str(path), extra=extra)
+        abort_reason=reason, record_name=record_name, source=str(path), extra=extra,
+        estimates=estimates)

@@ -53,6 +53,7 @@ from seft_msgs_py.topics import (
     ACCELERATION,
     BAG_TOPICS,
     DISPLACEMENT,
+    ESTIMATES,
     MEASURED_FORCE,
     NODE_PARAMETERS,
     REFERENCE_FORCE,
@@ -140,9 +141,13 @@ class RecorderNode(SeftNode):
 
     def _on_batch(self, stream, msg) -> None:
         """Write every row of a record batch as the per-sample messages of the bag."""
-        width = 1 + len(stream.columns)
         dims = msg.layout.dim
-        if len(dims) != 2 or dims[1].label != stream.labels or len(msg.data) % width:
+        label = dims[1].label if len(dims) == 2 else ''
+        if stream.fields_topic and label.startswith('step,'):
+            self._write_fields(stream.fields_topic, label, msg.data)
+            return
+        width = 1 + len(stream.columns)
+        if label != stream.labels or len(msg.data) % width:
             if stream.name not in self.foreign_batches:   # say it once, record the rest
                 self.foreign_batches.add(stream.name)
                 self.get_logger().error(f'{stream.name}: expected columns {stream.labels}; '
@@ -170,6 +175,19 @@ class RecorderNode(SeftNode):
                 self.acked = recorded
                 self.report(STATE_RECORDING, recorded=recorded)
 
+    def _write_fields(self, name: str, label: str, data) -> None:
+        """Rows of a fields stream (the estimates): one JointState per row, ``name`` = the
+        columns the publisher's label gives."""
+        serialize = self.serialized.get(label)
+        if serialize is None:
+            fields = label.split(',')[1:]
+            serialize = self.serialized[label] = SerializedStamped.fields(
+                ESTIMATES.msg_type, fields)
+        width = 1 + len(serialize.offsets)
+        for i in range(0, len(data) - width + 1, width):
+            stamp = int(data[i]) * self.dt_ns
+            self._write(name, stamp, serialize(stamp, data[i + 1:i + width]))
+
     def _on_unstamped(self, name: str, raw: bytes) -> None:
         self._write(name, self.latest_ns, raw)
 
@@ -186,7 +204,8 @@ class RecorderNode(SeftNode):
         """``(topic, recorded, published)`` of every topic of every node that has finished."""
         for node, values in self.finals.items():
             for name in TOPICS_OF_NODE.get(node, ()):
-                key = 'published_timing' if name in _TIMING_NAMES else 'published'
+                key = ('published_timing' if name in _TIMING_NAMES else
+                       'published_estimates' if name == ESTIMATES.name else 'published')
                 yield name, self.counts[name], int(values.get(key, 0))
 
     def _missing(self) -> list[str]:

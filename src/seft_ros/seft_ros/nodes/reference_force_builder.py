@@ -32,6 +32,7 @@ from seft_msgs_py.convert import (
 )
 from seft_msgs_py.interface import Measurement
 from seft_msgs_py.node_support import SeftNode, StepTiming, descriptor_of, main_for
+from seft_msgs_py.signals import record_streams_of
 from seft_msgs_py.topics import GROUND_ACCELERATION, REFERENCE_FORCE, STATUS
 from seft_ros.core.monitor import InstabilityMonitor
 from seft_ros.core.reference_force import ReferenceForceBuilder, ground_window
@@ -70,6 +71,13 @@ class ReferenceForceBuilderNode(SeftNode):
                                          REFERENCE_FORCE.qos)
         self.out_msg = SerializedStamped.scalar(REFERENCE_FORCE)
         self.batch = self.record_stream()
+        # an adaptive compensator's estimates in effect for each f_r[k] (as seft simulate)
+        self.estimates = getattr(self.builder.predictor, 'estimates', None)
+        self.estimates_batch = None
+        if self.estimates is not None:
+            names = tuple(self.builder.predictor.ESTIMATES)
+            self.estimates_batch = self.record_stream(
+                next(r for r in record_streams_of(self.seft_name) if r.fields_topic), names)
         self.scalar_subscription(GROUND_ACCELERATION, self._on_ground)
         self.measurement_subscription(self._on_measurement)
         self.create_subscription(STATUS.msg_type, STATUS.name, self.guard(self._on_status),
@@ -117,6 +125,8 @@ class ReferenceForceBuilderNode(SeftNode):
         self.ground.pop(k, None)
         self.pub.publish(self.out_msg(k * self.dt_ns, (force,)))
         self.batch.add(k, force)
+        if self.estimates_batch is not None:
+            self.estimates_batch.add(k, *self.estimates().values())
         self.next_step += 1
 
     def _monitor_trips(self, latest: Measurement, k: int) -> bool:
