@@ -138,6 +138,16 @@ def servo(graph_dir, seft_exe, run_process):
 
 
 @pytest.fixture(scope='module')
+def servo_window(graph_dir, seft_exe, run_process):
+    # the lockstep flow control at work: 1000 steps with the smallest window the rig accepts
+    # (it waits for the recorder's acknowledgements, which follow the record batches), into
+    # a sqlite3 bag
+    return seft_run(seft_exe, run_process, graph_dir / 'servo_window', '--alpha', '0.5',
+                    '--duration', '2.0', '--rig', 'servohydraulic', '--set',
+                    'recorder_window_steps=100', '--set', 'bag_storage=sqlite3')
+
+
+@pytest.fixture(scope='module')
 def servo_model(graph_dir, seft_exe, run_process):
     # compensated: the model predictor with its force-loop inverse, alpha beyond the
     # uncompensated boundary (1.32)
@@ -220,7 +230,8 @@ def test_servo_run_parameters_in_the_bag(servo):
     assert p['dt'] == 0.002 and p['bag_path'] == str(servo.bag.resolve())
 
 
-@pytest.mark.parametrize('which', ['servo', 'delay', 'servo_model', 'delay_adaptive'])
+@pytest.mark.parametrize('which', ['servo', 'delay', 'servo_model', 'delay_adaptive',
+                                   'servo_window'])
 def test_bag_equals_simulate(request, which):
     run = request.getfixturevalue(which)
     sim = run.sim
@@ -269,6 +280,17 @@ def test_adaptive_estimates_are_recorded_as_simulate_has_them(delay_adaptive):
                                    err_msg=name)
     # the run started at the configured model: the first estimate is the configured mass
     assert rd.estimates['mass_kg'][0] == rd.params['mass_kg']
+
+
+def test_flow_control_window_run_is_complete_in_sqlite3(servo_window):
+    run = servo_window
+    assert run.sim.stable and run.sim.n_steps == 1000
+    assert (run.bag / 'metadata.yaml').read_text().count('storage_identifier: sqlite3') == 1
+    closed = [status_values(m) for _, m in run.messages['/seft/status']
+              if m.name == 'recorder' and status_values(m).get('state') == 'closed']
+    assert closed and closed[-1]['lost'] == '0' and closed[-1]['incomplete'] == ''
+    for topic in DATA:
+        assert len(run.messages[topic]) == 1000, topic
 
 
 def test_servo_run_is_stable_and_complete(servo):

@@ -61,6 +61,13 @@ def test_installed_node_starts_and_rejects_bad_parameter(colcon_install, tmp_pat
     proc = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2
     assert proc.stderr.strip() == 'rig: error: parameter dt=-1.0: expected float > 1e-05 <= 1'
+    # a flow-control window below the recorder's acknowledgement interval would stall the run
+    cmd[-1] = cmd[-1].replace('dt:=-1.0', 'recorder_window_steps:=20')
+    proc = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2
+    assert proc.stderr.strip() == (
+        'rig: error: parameter recorder_window_steps=20: expected 0 or >= 100 (the recorder '
+        'acknowledges every 50 steps and receives the samples in batches of 10)')
 
 
 def test_readme_documents_every_parameter_and_topic():
