@@ -169,7 +169,9 @@ def test_specs_for_node():
     ctrl = [s.name for s in specs_for_node('force_servo_controller')]
     assert {'dt', 'valve_limit_V', 'saturation_window_s', 'saturation_abort_fraction',
             'rig_model'} <= set(ctrl)
-    assert 'piston_area_m2' not in ctrl
+    # the 'velocity_feedback' design derives its gains from the nominal hydraulics
+    assert 'piston_area_m2' in ctrl and 'force_controller' in ctrl
+    assert 'valve_time_constant_s' not in ctrl
     assert 'piston_area_m2' in [s.name for s in specs_for_node('rig')]
     assert specs_for_node('nobody') == []
 

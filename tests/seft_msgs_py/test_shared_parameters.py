@@ -185,7 +185,8 @@ def test_shared_parameters_have_an_explicit_source():
       'wait_for_recorder', 'recorder_window_steps', 'dt', 'mode', 'n_steps'], 'rig'),
     (['record', 'amplitude_N', 'scale_factor', 'time_scale', 'duration_s', 'preview_steps'],
      'ground_motion_publisher'),
-    (['valve_limit_V', 'saturation_window_s', 'saturation_abort_fraction'],
+    (['valve_limit_V', 'saturation_window_s', 'saturation_abort_fraction', 'force_controller',
+      'force_integral_hz', 'force_crossover_hz', 'velocity_lead_s', 'velocity_filter_hz'],
      'force_servo_controller'),
     (['bag_path', 'bag_storage'], 'recorder'),
 ])
@@ -195,7 +196,7 @@ def test_value_source_of_each_parameter(names, node):
 
 def test_value_source_lists_cover_the_schema():
     # + 1: realtime_priority, per node (the rig's value is the one reported)
-    assert len(VALUE_SOURCE) == len(SCHEMA) == 22 + 38 + 6 + 3 + 2 + 1
+    assert len(VALUE_SOURCE) == len(SCHEMA) == 22 + 38 + 6 + 8 + 2 + 1
 
 
 def test_value_source_of_unknown_name_is_an_error():

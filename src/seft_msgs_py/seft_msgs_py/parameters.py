@@ -216,6 +216,27 @@ SCHEMA: tuple[ParamSpec, ...] = (
     # -- force servo controller -------------------------------------------------------------
     ParamSpec('valve_limit_V', 10.0, 'V', 'Saturation of the servo-valve command.', 0.0, 100.0,
               True, nodes=_CTRL),
+    ParamSpec('force_controller', 'loop_shaping', '', "Force controller of the servo valve "
+              "(seft_ros.core.controller): 'loop_shaping' (the reference study's C_f, paper "
+              "Eq. 3.1); 'integral' (C_f with integral action below force_integral_hz); "
+              "'velocity_feedback' (velocity feedback compensation A/k_q of the "
+              'control-structure interaction, Dimig et al. 1999, Zhao et al. 2005, with a PI '
+              "force controller that cancels the oil column's leakage pole: the force loop "
+              "then does not depend on the specimen's stiffness).",
+              choices=('loop_shaping', 'integral', 'velocity_feedback'), nodes=_CTRL + _RFB),
+    ParamSpec('force_integral_hz', 2.0, 'Hz', "Corner of the integral action of the 'integral' "
+              'force controller.', 0.0, 100.0, True, nodes=_CTRL + _RFB),
+    ParamSpec('force_crossover_hz', 12.0, 'Hz', "Crossover of the 'velocity_feedback' force "
+              'loop (its gain follows from the nominal piston area, oil volume, bulk modulus, '
+              'valve flow gain and leakage coefficients).', 0.0, 100.0, True,
+              nodes=_CTRL + _RFB),
+    ParamSpec('velocity_lead_s', 0.0, 's', "'velocity_feedback': the fed-back velocity is "
+              'advanced by this time with the measured acceleration (v + T a), offsetting the '
+              'I/O latency and the valve lag.', 0.0, 0.1, nodes=_CTRL + _RFB),
+    ParamSpec('velocity_filter_hz', 20.0, 'Hz', "'velocity_feedback' controllers: cut-off of "
+              'the 2nd-order Butterworth low-pass on the fed-back velocity (keeps the delayed '
+              'velocity feedback off the ~90 Hz oil-column resonance; 0: unfiltered).', 0.0,
+              200.0, nodes=_CTRL + _RFB),
     ParamSpec('saturation_window_s', 0.1, 's', 'Window of the loss-of-control interlock: the '
               'run is aborted when the valve command was saturated in more than '
               'saturation_abort_fraction of this window.', 0.0, 10.0, True, nodes=_CTRL),
@@ -250,22 +271,22 @@ SCHEMA: tuple[ParamSpec, ...] = (
               'reproducible).', 0, None, nodes=_RIG),
     # -- servohydraulic rig (seft_plant_sim.servohydraulic.ServoHydraulicParams) -------------
     ParamSpec('piston_area_m2', 1.18e-3, 'm^2', 'Effective piston area A.', 0.0, None, True,
-              nodes=_RIG),
+              nodes=_RIG + _CTRL),
     ParamSpec('oil_bulk_modulus_Pa', 1.0e9, 'Pa', 'Effective bulk modulus beta of the oil.',
-              0.0, None, True, nodes=_RIG),
+              0.0, None, True, nodes=_RIG + _CTRL),
     ParamSpec('actuator_volume_m3', 3.35e-4, 'm^3', 'Oil volume V_t of both chambers and '
               'lines (with A and beta it sets the ~90 Hz oil-column resonance).', 0.0, None,
-              True, nodes=_RIG),
+              True, nodes=_RIG + _CTRL),
     ParamSpec('valve_time_constant_s', 0.0025, 's', 'Time constant of the first-order '
               'servo-valve spool.', 0.0, None, True, nodes=_RIG),
     ParamSpec('valve_flow_gain_m3_per_s_V', 0.0, 'm^3/(s V)', 'Linearized valve flow gain '
               'k_q (with the controller gain it sets the ~12 Hz loop crossover; 0: that of '
               "rig_calibration, 2.358e-4 'us_customary' or 5.3e-5 'si').", 0.0, None,
-              nodes=_RIG),
+              nodes=_RIG + _CTRL),
     ParamSpec('valve_pressure_coefficient_m3_per_s_Pa', 8e-12, 'm^3/(s Pa)', 'Valve '
-              'flow-pressure coefficient K_c at null.', 0.0, None, nodes=_RIG),
+              'flow-pressure coefficient K_c at null.', 0.0, None, nodes=_RIG + _CTRL),
     ParamSpec('leakage_coefficient_m3_per_s_Pa', 2e-12, 'm^3/(s Pa)', 'Cross-port leakage '
-              'C_l past the piston seals.', 0.0, None, nodes=_RIG),
+              'C_l past the piston seals.', 0.0, None, nodes=_RIG + _CTRL),
     ParamSpec('io_latency_s', 0.003, 's', 'Transport delay of the valve command (DAQ sample '
               'and hold, one control period of computation, D/A, valve amplifier, anti-alias '
               'group delay); it puts the uncompensated stability boundary at alpha = 1.32.',
@@ -507,6 +528,12 @@ _SHARED_SOURCE = {
     'dt': 'rig', 'mode': 'rig', 'n_steps': 'rig',  # the rig is the clock
     'mass_kg': 'rig', 'stiffness_N_per_m': 'rig', 'damping_N_s_per_m': 'rig',  # the specimen
     'rig_model': 'rig', 'rig_calibration': 'rig',
+    'piston_area_m2': 'rig', 'oil_bulk_modulus_Pa': 'rig', 'actuator_volume_m3': 'rig',
+    'valve_flow_gain_m3_per_s_V': 'rig', 'valve_pressure_coefficient_m3_per_s_Pa': 'rig',
+    'leakage_coefficient_m3_per_s_Pa': 'rig',  # the rig's; the controller's velocity design
+    'force_controller': 'force_servo_controller', 'force_integral_hz': 'force_servo_controller',
+    'force_crossover_hz': 'force_servo_controller', 'velocity_lead_s': 'force_servo_controller',
+    'velocity_filter_hz': 'force_servo_controller',
     'realtime_priority': 'rig',             # per node; the rig's is the clock's
 }
 

@@ -1,6 +1,7 @@
 """The force servo controller: the reference study's loop-shaping controller, discretized."""
 
 from dataclasses import dataclass
+import math
 
 import numpy as np
 from scipy import signal
@@ -9,13 +10,16 @@ from seft_msgs_py.calibration import CALIBRATIONS, DEFAULT_CALIBRATION, controll
 from seft_msgs_py.errors import ParameterError
 
 __all__ = ['DiscreteFilter', 'ForceServoController', 'SaturationInterlock', 'LOOP_SHAPING_NUM',
-           'LOOP_SHAPING_DEN']
+           'LOOP_SHAPING_DEN', 'FORCE_CONTROLLERS']
 
 #: Numerator of C_f(s) = 37 / (s^2 + 17.14 s + 4002) [V/N] (paper Eq. 3.1) in the default
 #: reading, V/lbf: 37/4.448 = 8.318 V/N (:mod:`seft_msgs_py.calibration`; 'si': 37 V/N).
 LOOP_SHAPING_NUM = (CALIBRATIONS[DEFAULT_CALIBRATION].controller_gain_V_per_N,)
 #: Denominator of C_f(s) (paper Eq. 3.1).
 LOOP_SHAPING_DEN = (1.0, 17.14, 4002.0)
+
+#: The force controller designs (parameter ``force_controller``), :class:`ForceServoController`.
+FORCE_CONTROLLERS = ('loop_shaping', 'integral', 'velocity_feedback')
 
 
 class DiscreteFilter:
@@ -85,24 +89,51 @@ class ControllerDesign:
 
 
 class ForceServoController:
-    """Loop-shaping force controller ``C_f(s) = 37/(s^2 + 17.14 s + 4002)`` at period ``dt``.
+    """Force controller of the servo valve, one of :data:`FORCE_CONTROLLERS`, at period ``dt``.
 
-    The valve command is ``u[k] = sat(C_f(z) e[k])`` with the force error
-    ``e[k] = f_r[k] - f_m[k]`` [N] and the saturation ``|u| <= valve_limit_V`` [V]. The
-    gain 37 is in volts per unit of force of the rig calibration (parameter
-    ``rig_calibration``, :mod:`seft_msgs_py.calibration`): V/lbf by default, 37/4.448 V/N.
+    The valve command is ``u[k] = sat(C_e(z) e[k] + g_v (v[k] + T_v a[k]))`` with the force
+    error ``e[k] = f_r[k] - f_m[k]`` [N], the measured velocity ``v`` [m/s] and acceleration
+    ``a`` [m/s^2] of the specimen, and the saturation ``|u| <= valve_limit_V`` [V]. The
+    error path ``C_e`` and the velocity gain ``g_v`` [V s/m] and lead ``T_v`` [s] are set by
+    the design (parameter ``force_controller``, :meth:`from_parameters`):
 
-    Discretization: Tustin (bilinear) with frequency prewarping at the controller's resonance
-    ``w0 = sqrt(den[2])`` (sqrt(4002) rad/s = 10.07 Hz), done by
-    ``scipy.signal.cont2discrete(method='bilinear')`` at the prewarped period
-    ``2*tan(w0*dt/2)/w0``. Why: the controller's lightly damped poles are there to cancel the
-    control-structure-interaction zero at the specimen's natural frequency, so they must land
-    exactly there (prewarping makes the discrete response exact at w0); Tustin maps the stable
-    poles to stable discrete poles and adds no phase lag (measured: within 1.7 % in magnitude
-    and 0.1 deg in phase of the continuous controller up to 25 Hz at dt = 2 ms), whereas a
-    zero-order-hold or Euler emulation adds about half a sample of lag, which the 12 Hz
-    crossover cannot spare. The controller has no integrator, so saturating its output cannot
-    wind it up.
+    ``loop_shaping`` (default; the reference study)
+        ``C_e(s) = C_f(s) = 37/(s^2 + 17.14 s + 4002)``, ``g_v = 0``. The gain 37 is in volts
+        per unit of force of the rig calibration (``rig_calibration``,
+        :mod:`seft_msgs_py.calibration`): V/lbf by default, 37/4.448 V/N.
+    ``integral``
+        ``C_e(s) = C_f(s) (1 + w_i/s)``, ``w_i = 2 pi force_integral_hz``: integral action
+        below w_i on top of the loop-shaping controller (a type-2 force loop).
+    ``velocity_feedback``
+        Velocity feedback compensation of the control-structure interaction (Dimig et al.
+        1999; Zhao et al. 2003, 2005): ``g_v = A/k_q`` so that the valve supplies the flow the
+        moving specimen takes, ``k_q g_v v = A v``, and the oil column sees only the force
+        error: ``f/e = A k_q C_e(s)/(C_h s + K)`` whatever the specimen's (tangent)
+        stiffness, with ``C_h = V_t/(4 beta)`` and ``K = K_c + C_l``. ``C_e(s) = K_p (1 +
+        w_h/s)`` with ``w_h = K/C_h`` cancels the leakage pole (19 Hz on the default rig, so
+        that a proportional controller alone would leave a static loop gain of 0.6) and
+        ``K_p = 2 pi f_c C_h/(A k_q)`` puts the crossover of the resulting integrator
+        ``2 pi f_c/s`` at ``force_crossover_hz``. The fed-back velocity is low-passed (2nd-
+        order Butterworth at ``velocity_filter_hz``) and may be advanced by ``T_v =
+        velocity_lead_s`` with the measured acceleration. Measured limitation on the
+        simulated rig: the velocity reaches the valve 5.5 ms (latency and spool) plus the
+        filter's delay late; the flow mismatch ``A tau a`` acts through the stiff oil column
+        as a large added mass, and the loop has an unstable 2-5 Hz mode (spectral radius
+        1.010-1.018 for f_c = 6-20 Hz), so this design is provided for rigs with a fast
+        valve and is not recommended here (README "Force control").
+
+    Discretization (``scipy.signal.cont2discrete``): the loop-shaping ``C_f`` by Tustin
+    (bilinear) with frequency prewarping at its resonance ``w0 = sqrt(den[2])`` (sqrt(4002)
+    rad/s = 10.07 Hz), at the prewarped period ``2*tan(w0*dt/2)/w0``. Why: the controller's
+    lightly damped poles are there to cancel the control-structure-interaction zero at the
+    specimen's natural frequency, so they must land exactly there (prewarping makes the
+    discrete response exact at w0); Tustin maps the stable poles to stable discrete poles and
+    adds no phase lag (measured: within 1.7 % in magnitude and 0.1 deg in phase of the
+    continuous controller up to 25 Hz at dt = 2 ms), whereas a zero-order-hold or Euler
+    emulation adds about half a sample of lag, which the 12 Hz crossover cannot spare. The
+    integrator ``w_i/s`` is discretized by Tustin at the same period and acts on the output
+    of the proportional or loop-shaping part; it is frozen while the valve command saturates
+    (conditional integration, no wind-up). The velocity path is static.
 
     Parameters
     ----------
@@ -111,58 +142,222 @@ class ForceServoController:
     valve_limit_V : float > 0
         Valve command saturation [V] (reference rig: 10 V).
     num, den : sequence of float
-        Continuous controller coefficients [V/N] (default: paper Eq. 3.1 in V/lbf).
+        Continuous error path without the integral action [V/N] (default: paper Eq. 3.1 in
+        V/lbf); a second-order ``den`` is prewarped at its resonance.
+    integral_hz : float >= 0
+        Corner ``w_i/(2 pi)`` of the integral action [Hz] (0: none).
+    velocity_gain_V_s_per_m : float >= 0
+        ``g_v`` [V/(m/s)] (0: no velocity path).
+    velocity_lead_s : float >= 0
+        ``T_v`` [s].
+    kind : str
+        Name of the design, for messages.
+
+    Attributes
+    ----------
+    bz, az : ndarray
+        Discrete error path ``C_e(z)`` including the integral action, descending powers of z.
+    velocity_gain_V_s_per_m, velocity_lead_s : float
 
     Raises
     ------
     ParameterError
-        If ``dt <= 0`` or ``valve_limit_V <= 0``.
+        If ``dt <= 0``, ``valve_limit_V <= 0`` or a gain, corner or lead is negative or not
+        finite.
 
     References
     ----------
     N. Nakata and S. Combs, Substructure Effective Force Testing, Eq. 3.1, Figs. 3-4;
-    N. Nakata (2012), Effective force testing using a robust loop shaping controller.
+    N. Nakata (2012), Effective force testing using a robust loop shaping controller,
+    Earthquake Eng. Struct. Dyn. 42(2).
+    J. P. Dimig, C. K. Shield, C. W. French, F. Bailey and A. Clark, Effective force testing:
+    a method of seismic simulation for structural testing, J. Struct. Eng. 125(9), 1999,
+    1028-1037 (velocity feedback added because force control alone failed at the structure's
+    natural frequency).
+    J. Zhao, C. French, C. Shield and T. Posbergh, Considerations for the development of
+    real-time dynamic testing using servo-hydraulic actuation, Earthquake Eng. Struct. Dyn.
+    32(11), 2003, 1773-1794, and Comparison of tests of a nonlinear structure using a shake
+    table and the EFT method, J. Struct. Eng. 131(11), 2005, 1755-1763 (velocity
+    compensation ``A/k_q`` of the natural velocity feedback).
     """
 
     def __init__(self, dt: float, valve_limit_V: float = 10.0,
-                 num=LOOP_SHAPING_NUM, den=LOOP_SHAPING_DEN):
+                 num=LOOP_SHAPING_NUM, den=LOOP_SHAPING_DEN, *, integral_hz: float = 0.0,
+                 velocity_gain_V_s_per_m: float = 0.0, velocity_lead_s: float = 0.0,
+                 velocity_filter_hz: float = 0.0, kind: str = 'loop_shaping'):
         if not dt > 0:
             raise ParameterError(f'parameter dt={dt!r}: expected float > 0')
         if not valve_limit_V > 0:
             raise ParameterError(f'parameter valve_limit_V={valve_limit_V!r}: expected float > 0')
+        for name, value in (('force_integral_hz', integral_hz),
+                            ('velocity_feedback_gain', velocity_gain_V_s_per_m),
+                            ('velocity_lead_s', velocity_lead_s),
+                            ('velocity_filter_hz', velocity_filter_hz)):
+            if not (math.isfinite(value) and value >= 0):
+                raise ParameterError(f'parameter {name}={value!r}: expected float >= 0')
         self.dt = float(dt)
         self.valve_limit_V = float(valve_limit_V)
-        w0 = float(np.sqrt(den[-1] / den[0]))
-        prewarped_dt = 2.0 * np.tan(w0 * self.dt / 2.0) / w0
-        bz, az, _ = signal.cont2discrete((num, den), prewarped_dt, method='bilinear')
-        self.design = ControllerDesign(tuple(num), tuple(den), self.dt,
-                                       f'bilinear, prewarped at {w0:.4g} rad/s')
-        self.bz = np.ravel(bz)
-        self.az = np.ravel(az)
-        self._filter = DiscreteFilter(self.bz, self.az)
+        self.kind = str(kind)
+        den = tuple(float(v) for v in den)
+        num = tuple(float(v) for v in num)
+        if len(den) == 3:                      # resonant loop shaping: prewarp at w0
+            w0 = float(np.sqrt(den[-1] / den[0]))
+            period = 2.0 * np.tan(w0 * self.dt / 2.0) / w0
+            method = f'bilinear, prewarped at {w0:.4g} rad/s'
+        else:
+            period, method = self.dt, 'bilinear'
+        if len(den) == 1 and len(num) == 1:      # static gain (cont2discrete adds a z=1 pair)
+            bz, az = np.array([num[0] / den[0]]), np.array([1.0])
+        else:
+            bz, az, _ = signal.cont2discrete((num, den), period, method='bilinear')
+            bz, az = np.ravel(bz), np.ravel(az)
+        self._filter = DiscreteFilter(bz, az)
+        self.integral_hz = float(integral_hz)
+        # Tustin integrator y[k] = y[k-1] + ki (x[k] + x[k-1])
+        self._ki = 0.0
+        if self.integral_hz > 0:
+            wi = 2.0 * math.pi * self.integral_hz
+            bi, ai, _ = signal.cont2discrete(((wi,), (1.0, 0.0)), period, method='bilinear')
+            bi, ai = np.ravel(bi) / ai.ravel()[0], np.ravel(ai) / ai.ravel()[0]
+            self._ki = float(bi[0])
+            # C_e = C (1 + I) = b (a_i + b_i) / (a a_i)
+            bz = np.polymul(bz, np.polyadd(ai, bi))
+            az = np.polymul(az, ai)
+            method += f'; integral action below {self.integral_hz:g} Hz (bilinear)'
+        self.design = ControllerDesign(num, den, self.dt, method)
+        self.bz = bz
+        self.az = az
+        self.velocity_gain_V_s_per_m = float(velocity_gain_V_s_per_m)
+        self.velocity_lead_s = float(velocity_lead_s)
+        self._gv = self.velocity_gain_V_s_per_m
+        self._gva = self._gv * self.velocity_lead_s
+        self.velocity_filter_hz = float(velocity_filter_hz)
+        self._vfilter = None
+        if self._gv and self.velocity_filter_hz > 0:
+            if not self.velocity_filter_hz < 0.5 / self.dt:
+                raise ParameterError(f'parameter velocity_filter_hz={velocity_filter_hz!r}: '
+                                     'expected below the Nyquist frequency')
+            bv, av = signal.butter(2, self.velocity_filter_hz, fs=1.0 / self.dt)
+            self._vfilter = DiscreteFilter(bv, av)
+        self._plain = self._ki == 0.0 and self._gv == 0.0
+        self._i = 0.0                           # integrator output
+        self._x_prev = 0.0                      # its previous input
         self.saturated = False
 
     @classmethod
     def from_parameters(cls, params) -> 'ForceServoController':
-        """Build from the parameter schema (``dt``, ``valve_limit_V``, ``rig_calibration``)."""
-        return cls(float(params['dt']), float(params['valve_limit_V']),
-                   num=(controller_gain_V_per_N(params),))
+        """Build from the parameter schema.
+
+        Reads ``dt``, ``valve_limit_V``, ``rig_calibration``, ``force_controller``,
+        ``force_integral_hz``, ``force_crossover_hz``, ``velocity_lead_s``,
+        ``velocity_filter_hz`` and, for the
+        velocity designs, the nominal hydraulics ``piston_area_m2``, ``oil_bulk_modulus_Pa``,
+        ``actuator_volume_m3`` and ``valve_flow_gain_m3_per_s_V`` (absent keys: the schema's
+        defaults).
+
+        Raises
+        ------
+        ParameterError
+            Unknown ``force_controller`` or a value out of range.
+        """
+        from seft_msgs_py.calibration import valve_flow_gain_m3_per_s_V
+        from seft_msgs_py.parameters import spec
+
+        def get(name):
+            return params[name] if name in params else spec(name).default
+
+        kind = get('force_controller')
+        if kind not in FORCE_CONTROLLERS:
+            raise ParameterError(f'parameter force_controller={kind!r}: expected one of '
+                                 + ', '.join(repr(c) for c in FORCE_CONTROLLERS))
+        dt, limit = float(params['dt']), float(params['valve_limit_V'])
+        fi = float(get('force_integral_hz'))
+        if kind in ('loop_shaping', 'integral'):
+            return cls(dt, limit, num=(controller_gain_V_per_N(params),),
+                       integral_hz=fi if kind == 'integral' else 0.0, kind=kind)
+        area = float(get('piston_area_m2'))
+        c_h = float(get('actuator_volume_m3')) / (4.0 * float(get('oil_bulk_modulus_Pa')))
+        k_q = float(valve_flow_gain_m3_per_s_V(params))
+        fc = float(get('force_crossover_hz'))
+        if not (area > 0 and c_h > 0 and k_q > 0 and fc > 0):
+            raise ParameterError(f'parameter force_crossover_hz={fc!r}: expected float > 0 '
+                                 '(and positive piston area, volume, bulk modulus, flow gain)')
+        kp = 2.0 * math.pi * fc * c_h / (area * k_q)
+        leak = (float(get('valve_pressure_coefficient_m3_per_s_Pa'))
+                + float(get('leakage_coefficient_m3_per_s_Pa')))
+        return cls(dt, limit, num=(kp,), den=(1.0,),
+                   integral_hz=leak / c_h / (2.0 * math.pi),
+                   velocity_gain_V_s_per_m=area / k_q,
+                   velocity_filter_hz=float(get('velocity_filter_hz')),
+                   velocity_lead_s=float(get('velocity_lead_s')), kind=kind)
+
+    @property
+    def uses_motion(self) -> bool:
+        """True when the command uses the measured velocity (and acceleration)."""
+        return self._gv != 0.0
 
     def continuous(self) -> signal.TransferFunction:
-        """The continuous controller C_f(s) [V/N]."""
+        """The continuous error path without integral action [V/N]."""
         return signal.TransferFunction(self.design.num, self.design.den)
 
     def discrete(self) -> signal.TransferFunction:
-        """The discretized controller C_f(z) [V/N] with ``dt``."""
+        """The discretized error path ``C_e(z)`` [V/N] with ``dt`` (integral action included)."""
         return signal.TransferFunction(self.bz, self.az, dt=self.dt)
+
+    def state_space(self):
+        """The linear controller (no saturation) as a discrete state space.
+
+        Returns
+        -------
+        a, b, c, d : ndarray
+            ``x[k+1] = a x[k] + b w[k]``, ``u[k] = c x[k] + d w[k]`` with the inputs
+            ``w = (e, v, a)`` [N, m/s, m/s^2]; shapes (n, n), (n, 3), (1, n), (1, 3).
+        """
+        nb = max(len(self.az), len(self.bz))
+        bz = np.concatenate([np.zeros(nb - len(self.bz)), self.bz])
+        az = np.concatenate([self.az, np.zeros(nb - len(self.az))])
+        a, b, c, d = signal.tf2ss(bz, az)
+        n = a.shape[0]
+        b3 = np.zeros((n, 3))
+        b3[:, 0] = b[:, 0]
+        d3 = np.array([[d[0, 0], self._gv, self._gva]])
+        c = c.reshape(1, n)
+        if self._vfilter is None:
+            return a, b3, c, d3
+        # velocity path g_v H(z) (v + T_v a), H the Butterworth low-pass, in series
+        av_, bv_, cv_, dv_ = signal.tf2ss(self._vfilter.b, self._vfilter.a)
+        nv = av_.shape[0]
+        a2 = np.zeros((n + nv, n + nv))
+        a2[:n, :n], a2[n:, n:] = a, av_
+        b2 = np.zeros((n + nv, 3))
+        b2[:n] = b3
+        b2[n:, 1] = bv_[:, 0]
+        b2[n:, 2] = bv_[:, 0] * self.velocity_lead_s
+        c2 = np.hstack([c, self._gv * cv_.reshape(1, nv)])
+        d3 = np.array([[d[0, 0], self._gv * dv_[0, 0], self._gva * dv_[0, 0]]])
+        return a2, b2, c2, d3
 
     def reset(self) -> None:
         """Zero the controller state."""
         self._filter.reset()
+        if self._vfilter is not None:
+            self._vfilter.reset()
+        self._i = 0.0
+        self._x_prev = 0.0
         self.saturated = False
 
-    def step(self, reference_force_N: float, measured_force_N: float) -> float:
-        """Return the valve command [V] for one sample of reference and measured force [N]."""
+    def step(self, reference_force_N: float, measured_force_N: float,
+             velocity_m_s: float = 0.0, acceleration_m_s2: float = 0.0) -> float:
+        """Return the valve command [V] for one sample.
+
+        Parameters
+        ----------
+        reference_force_N, measured_force_N : float
+            f_r[k], f_m[k] [N].
+        velocity_m_s, acceleration_m_s2 : float
+            Measured velocity [m/s] and acceleration [m/s^2] of the specimen at step k; used
+            only by the velocity designs (default 0: the loop-shaping call ``step(f_r, f_m)``).
+        """
         e = reference_force_N - measured_force_N
         f = self._filter
         if f._biquad is None:
@@ -174,12 +369,30 @@ class ForceServoController:
             z[0] = b1 * e - a1 * u + z[1]
             z[1] = b2 * e - a2 * u
         lim = self.valve_limit_V             # saturate: min(max(u, -lim), lim); NaN passes
-        if u > lim:
-            self.saturated = True
-            return lim
-        if u < -lim:
-            self.saturated = True
-            return -lim
+        if self._plain:
+            if u > lim:
+                self.saturated = True
+                return lim
+            if u < -lim:
+                self.saturated = True
+                return -lim
+            self.saturated = False
+            return u
+        ki = self._ki
+        if ki:
+            i_new = self._i + ki * (u + self._x_prev)
+            self._x_prev = u
+            u = u + i_new
+        if self._vfilter is None:
+            u += self._gv * velocity_m_s + self._gva * acceleration_m_s2
+        else:
+            u += self._gv * self._vfilter.step(velocity_m_s
+                                               + self.velocity_lead_s * acceleration_m_s2)
+        if u > lim or u < -lim:
+            self.saturated = True               # conditional integration: i held
+            return lim if u > 0 else -lim
+        if ki:
+            self._i = i_new
         self.saturated = False
         return u
 

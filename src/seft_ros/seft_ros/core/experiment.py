@@ -6,7 +6,9 @@ This is ``seft simulate`` and the independent check of the node graph: the locks
 One step k (the node that does it in the graph in brackets)::
 
     [rig]                     stop if rig.limit_violation(); m_k = rig.measure()
-    [force_servo_controller]  u_k = C_f(f_r[k] - f_m[k]); stop if the interlock trips
+    [force_servo_controller]  u_k = C_e(f_r[k] - f_m[k]) + g_v (v_k + T_v a_k) (m_k's velocity
+                              and acceleration; g_v = 0 for loop shaping); stop if the
+                              interlock trips
     [rig]                     rig.apply(u_k)            (delay rig: rig.apply(f_r[k]))
     [reference_force_builder] stop if the instability monitor trips on m_k (k+1 < N);
                               f_r[k+1] = -(1+alpha) m g[k+1] - alpha m a_hat(m_k, ...)
@@ -96,7 +98,7 @@ def simulate(params, *, progress: Callable[[int, int], None] | None = None,
             meas = measure()
             fm = meas.force_N
             if valve:
-                u = control(fr, fm)
+                u = control(fr, fm, meas.velocity_m_s, meas.acceleration_m_s2)
                 reason = interlock_update(ctrl.saturated, meas.time_s)
                 if reason:
                     n_done = k

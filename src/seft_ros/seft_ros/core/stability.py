@@ -7,7 +7,7 @@ servohydraulic rig) and the reference-force builder with its delay compensator, 
 Eq. 5.3 with ``a_hat`` in place of the measured acceleration::
 
     z[k+1]     = A z[k] + B u[k],  y[k] = (x, v, a, f_m)[k] = C z[k]        rig
-    u[k]       = C_f(z) (f_r[k] - f_m[k])     (delay rig: u[k] = f_r[k])    controller
+    u[k]       = C_e(z) (f_r[k] - f_m[k]) + g_v (v + T_v a)[k]  (delay: f_r[k])  controller
     a_hat[k+1] = P_alpha(z) q[k],  q[k] = (x, v, a, f_m, F)[k]              compensator
     F[k+1]     = -alpha m a_hat[k+1]                                        Eq. 5.3
     f_r[k+1]   = W(z) F[k+1]                                                command
@@ -42,9 +42,7 @@ import math
 from typing import Any, Mapping, Protocol, runtime_checkable
 
 import numpy as np
-from scipy import signal
 
-from seft_msgs_py.calibration import controller_gain_V_per_N
 from seft_msgs_py.errors import SeftError
 from seft_msgs_py.interface import Measurement
 from seft_msgs_py.sampling import zoh as _zoh
@@ -449,9 +447,11 @@ class LoopModel:
     Notes
     -----
     State ``X = [z (rig, past commands), x_c (controller; servohydraulic rig only),
-    w (prediction), w_W (command filter), F]``; the controller ``C_f(z)`` of
-    :class:`~seft_ros.core.controller.ForceServoController` in controllable canonical form
-    (``scipy.signal.tf2ss``); the valve saturation and the accelerometer range are left out
+    w (prediction), w_W (command filter), F]``; the controller of
+    :class:`~seft_ros.core.controller.ForceServoController` (``force_controller``: its
+    error path ``C_e(z)`` in controllable canonical form by ``scipy.signal.tf2ss`` and its
+    velocity and acceleration feedback, :meth:`~ForceServoController.state_space`); the
+    valve saturation and the accelerometer range are left out
     (small signal).
     """
 
@@ -462,15 +462,11 @@ class LoopModel:
         if rig == 'delay':
             a, b, cy = _delay_rig(params)
             ac = np.zeros((0, 0))
-            bc, cc, dc = np.zeros((0, 1)), np.zeros((1, 0)), np.zeros((1, 1))
+            bc, cc, dc = np.zeros((0, 3)), np.zeros((1, 0)), np.zeros((1, 3))
         else:
             a, b, cy = _servohydraulic_rig(params)
-            ctrl = ForceServoController(float(params['dt']),
-                                        num=(controller_gain_V_per_N(params),))
-            nb = max(len(ctrl.az), len(ctrl.bz))
-            bz = np.concatenate([ctrl.bz, np.zeros(nb - len(ctrl.bz))])
-            az = np.concatenate([ctrl.az, np.zeros(nb - len(ctrl.az))])
-            ac, bc, cc, dc = signal.tf2ss(bz, az)
+            ctrl = ForceServoController.from_parameters(params)
+            ac, bc, cc, dc = ctrl.state_space()
         self._rig = (rig, a, b, cy, ac, bc, cc, dc)
         self._affine = None
         if not self.compensator.alpha_dependent:
@@ -500,16 +496,20 @@ class LoopModel:
         f_r[i_f] = form.cmd_d
         e = f_r.copy()                                     # force error f_r - f_m
         e[iz] -= cy[3]
+        # controller inputs (e, v, a) and output u = cc x_c + dc (e, v, a)
+        w_in = np.vstack([e, np.zeros(n), np.zeros(n)])
+        w_in[1, iz] = cy[1]
+        w_in[2, iz] = cy[2]
         if rig == 'delay':
             u = f_r
         else:
-            u = dc[0, 0] * e
+            u = dc[0] @ w_in
             u[ic] += cc[0]
         m0 = np.zeros((n, n))
         m0[iz, iz] = a
         m0[iz] += np.outer(b[:, 0], u)
         m0[ic, ic] = ac
-        m0[ic] += np.outer(bc[:, 0], e)
+        m0[ic] += bc @ w_in
         m0[iw, iw] = form.a
         m0[iw] += form.b @ q
         m0[iv, iv] = form.cmd_a
