@@ -148,6 +148,16 @@ def servo_window(graph_dir, seft_exe, run_process):
 
 
 @pytest.fixture(scope='module')
+def servo_velocity(graph_dir, seft_exe, run_process):
+    # the velocity-feedback force controller takes the measured velocity and acceleration
+    # from the rig's measurement; --force: the guard rightly predicts the loop unstable, and
+    # 1 s is before it grows
+    return seft_run(seft_exe, run_process, graph_dir / 'servo_velocity', '--alpha', '0.0',
+                    '--duration', '1.0', '--rig', 'servohydraulic', '--force', '--set',
+                    'force_controller=velocity_feedback')
+
+
+@pytest.fixture(scope='module')
 def servo_model(graph_dir, seft_exe, run_process):
     # compensated: the model predictor with its force-loop inverse, alpha beyond the
     # uncompensated boundary (1.32)
@@ -231,7 +241,7 @@ def test_servo_run_parameters_in_the_bag(servo):
 
 
 @pytest.mark.parametrize('which', ['servo', 'delay', 'servo_model', 'delay_adaptive',
-                                   'servo_window'])
+                                   'servo_window', 'servo_velocity'])
 def test_bag_equals_simulate(request, which):
     run = request.getfixturevalue(which)
     sim = run.sim

@@ -51,12 +51,13 @@ class ForceServoControllerNode(SeftNode):
             self.latest_reference = (-1, 0.0)
             self.scalar_subscription(REFERENCE_FORCE, self._on_reference_realtime)
             self.measurement_subscription(
-                lambda k, values: self._on_measured_realtime(k, values[0]))
+                lambda k, values: self._on_measured_realtime(k, values[0], values[2],
+                                                             values[3]))
         else:
             self.scalar_subscription(
                 REFERENCE_FORCE, lambda k, value: self._on_force(REFERENCE_FORCE.name, k, value))
             self.measurement_subscription(
-                lambda k, values: self._on_force(MEASURED_FORCE.name, k, values[0]))
+                lambda k, values: self._on_force(MEASURED_FORCE.name, k, values))
         self.publish_parameters()
         self.report(STATE_READY, f'controller discretized: {self.controller.design.method}')
 
@@ -65,7 +66,7 @@ class ForceServoControllerNode(SeftNode):
         if k > self.latest_reference[0]:
             self.latest_reference = (k, value)
 
-    def _on_measured_realtime(self, k: int, fm: float) -> None:
+    def _on_measured_realtime(self, k: int, fm: float, v: float = 0.0, a: float = 0.0) -> None:
         """u[k] from f_m[k] and the newest reference force: act at once, never wait."""
         start, jitter = self.timing.start()
         if k < self.next_step:
@@ -74,7 +75,7 @@ class ForceServoControllerNode(SeftNode):
         fr_step, fr = (k, self.reference.pop(k)) if not stale else self.latest_reference
         for j in [j for j in self.reference if j < k]:
             del self.reference[j]
-        u = self.controller.step(fr, fm)
+        u = self.controller.step(fr, fm, v, a)
         reason = self.interlock.update(self.controller.saturated, k * self.dt)
         if reason:
             self.abort_run(reason, k)
@@ -89,7 +90,8 @@ class ForceServoControllerNode(SeftNode):
         self.timing.publish(k * self.dt_ns, jitter, time.monotonic() - start, age, missed,
                             stale)
 
-    def _on_force(self, name: str, k: int, value: float) -> None:
+    def _on_force(self, name: str, k: int, value) -> None:
+        """Lockstep: collect f_r[k] (a float) and the measurement of k (a tuple)."""
         done = self.sync.add(k, name, value)
         if done is None:
             return
@@ -97,7 +99,9 @@ class ForceServoControllerNode(SeftNode):
         while self.next_step in self.ready and not self.done:
             k = self.next_step
             forces = self.ready.pop(k)
-            u = self.controller.step(forces[REFERENCE_FORCE.name], forces[MEASURED_FORCE.name])
+            # the measurement: (force, displacement, velocity, acceleration), as simulate
+            fm, _, v, a = forces[MEASURED_FORCE.name]
+            u = self.controller.step(forces[REFERENCE_FORCE.name], fm, v, a)
             reason = self.interlock.update(self.controller.saturated, k * self.dt)
             if reason:
                 self.abort_run(reason, k)

@@ -1,13 +1,13 @@
 """reference_force_builder node: f_r[k] = -(1+alpha) m xg''[k] - alpha m a_hat[k].
 
-Subscribes to the ground acceleration and to the rig's measurement; when the measurement
-of step k has arrived and ``xg''[k+1 .. k+1+L]`` have arrived (``L`` =
-``builder.lookahead_steps``: the hold-consistent predictors and the ground-motion preview read
-the record ahead; samples after its end, known from ``n_steps`` or the publisher's status, are
-0) it publishes ``f_r[k+1]`` stamped ``t_k+1`` (``f_r[0]`` as soon as ``xg''[0..L]`` are
-there, the specimen at rest). ``a_hat`` comes
-from the ``predictor`` (``none``: the measured acceleration of the previous step, paper
-Eq. 5.3). Before each new reference force, the online instability monitor
+Subscribes to the ground acceleration (the ground-motion publisher's record batches) and to
+the rig's measurement; when the measurement of step k has arrived and ``xg''[k+1 .. k+1+L]``
+have arrived (``L`` = ``builder.lookahead_steps``: the hold-consistent predictors and the
+ground-motion preview read the record ahead; samples after its end, known from ``n_steps``
+or the publisher's status, are 0) it publishes ``f_r[k+1]`` stamped ``t_k+1`` (``f_r[0]``
+as soon as ``xg''[0..L]`` are there, the specimen at rest). ``a_hat`` comes from the
+``predictor`` (``none``: the measured acceleration of the previous step, paper Eq. 5.3).
+Before each new reference force, the online instability monitor
 (``seft_ros.core.monitor``) checks the measurement for a growing high-frequency oscillation;
 when it trips, the builder reports 'aborted' instead and the rig stops. The numerics are
 ``seft_ros.core.reference_force``.
@@ -30,10 +30,11 @@ from seft_msgs_py.convert import (
     SerializedStamped,
     status_values,
 )
+from seft_msgs_py.errors import InputError
 from seft_msgs_py.interface import Measurement
 from seft_msgs_py.node_support import SeftNode, StepTiming, descriptor_of, main_for
 from seft_msgs_py.signals import record_streams_of
-from seft_msgs_py.topics import GROUND_ACCELERATION, REFERENCE_FORCE, STATUS
+from seft_msgs_py.topics import REFERENCE_FORCE, STATUS, record_topic
 from seft_ros.core.monitor import InstabilityMonitor
 from seft_ros.core.reference_force import ReferenceForceBuilder, ground_window
 
@@ -78,7 +79,11 @@ class ReferenceForceBuilderNode(SeftNode):
             names = tuple(self.builder.predictor.ESTIMATES)
             self.estimates_batch = self.record_stream(
                 next(r for r in record_streams_of(self.seft_name) if r.fields_topic), names)
-        self.scalar_subscription(GROUND_ACCELERATION, self._on_ground)
+        ground = record_streams_of('ground_motion_publisher')[0]
+        spec = record_topic(ground)
+        self.create_subscription(spec.msg_type, spec.name,
+                                 self.guard(lambda msg: self._on_ground_batch(ground, msg)),
+                                 spec.qos)
         self.measurement_subscription(self._on_measurement)
         self.create_subscription(STATUS.msg_type, STATUS.name, self.guard(self._on_status),
                                  STATUS.qos)
@@ -88,6 +93,15 @@ class ReferenceForceBuilderNode(SeftNode):
             self.ground_stale = False
         self.publish_parameters()
         self.report(STATE_READY, f'predictor {self.builder.predictor.name}')
+
+    def _on_ground_batch(self, stream, msg) -> None:
+        """The ground-motion publisher's batch: ``xg''[k]`` of every row, in order."""
+        dims = msg.layout.dim
+        if len(dims) != 2 or dims[1].label != stream.labels or len(msg.data) % 2:
+            raise InputError(f'{stream.name}: expected rows of {stream.labels}')
+        data = msg.data
+        for i in range(0, len(data), 2):
+            self._on_ground(int(data[i]), data[i + 1])
 
     def _on_ground(self, k: int, value: float) -> None:
         self.ground[k] = value
