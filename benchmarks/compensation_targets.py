@@ -25,7 +25,7 @@ from seft_ros.core.experiment import simulate
 KOBE = Path(__file__).resolve().parents[1] / '..' / 'shared' / 'data' / 'ground_motions' \
     / 'RSN1106_KOBE_KJM000.AT2'
 ALPHAS = (0.5, 1.0, 1.5, 2.0, 3.0)
-PREDICTORS = ('none', 'polynomial', 'model', 'adaptive')
+PREDICTORS = ('none', 'polynomial', 'model', 'adaptive', 'ats')
 NOISE = {'noise_force_N': 5.0, 'noise_displacement_m': 1e-5, 'noise_velocity_m_s': 1e-4,
          'noise_acceleration_m_s2': 0.05}
 

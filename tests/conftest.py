@@ -14,11 +14,17 @@ import sys
 import pytest
 
 from seft_msgs_py import parameters
+from seft_msgs_py.domain import LOCK_DIR, claim_domain
 
-#: ROS_DOMAIN_ID of this test session: outside 100-199, where ``seft run`` picks a random
-#: domain when none is set (a run of another session there would mix into ours), derived from
-#: the pid so that parallel sessions on one machine rarely share it.
-DOMAIN_ID = 200 + os.getpid() % 30
+#: Domains the test sessions claim from: outside 100-199, where ``seft run`` picks a random
+#: domain when none is set, and within the valid 0-232.
+DOMAIN_RANGE = range(200, 233)
+#: Where the claims are (``seft_msgs_py.domain``), shared with ``seft run``.
+DOMAIN_LOCK_DIR = LOCK_DIR
+
+
+#: ROS_DOMAIN_ID of this test session, claimed for its lifetime (the lock file stays open).
+DOMAIN_ID, _DOMAIN_CLAIM = claim_domain(DOMAIN_RANGE)
 
 
 @pytest.fixture(scope='session')

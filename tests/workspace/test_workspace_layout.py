@@ -52,10 +52,9 @@ def test_colcon_build_installs_every_executable(colcon_install):
         assert (index / pkg).is_file()
 
 
-def test_installed_node_starts_and_rejects_bad_parameter(colcon_install, tmp_path):
+def test_installed_node_starts_and_rejects_bad_parameter(colcon_install, ros_env):
     """`ros2 run seft_plant_sim rig` equivalent: the installed executable runs its main()."""
-    env = dict(os.environ, ROS_DOMAIN_ID=str(150 + os.getpid() % 50),
-               ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', ROS_LOG_DIR=str(tmp_path))
+    env = ros_env                   # the session's claimed domain (conftest.claim_domain)
     cmd = ['sh', '-c', f'. {colcon_install}/setup.sh && '
            f'{colcon_install}/seft_plant_sim/lib/seft_plant_sim/rig --ros-args -p dt:=-1.0']
     proc = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=60)

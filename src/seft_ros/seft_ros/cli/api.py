@@ -17,6 +17,7 @@ import numpy as np
 
 from seft_msgs_py import parameters
 from seft_msgs_py.calibration import valve_flow_gain_m3_per_s_V
+from seft_msgs_py.domain import LOCK_DIR, claim_domain
 from seft_msgs_py.errors import InputError, ParameterError, SeftError
 from seft_msgs_py.sampling import single_blas_thread
 from seft_ros.analysis.bag import read_run
@@ -292,6 +293,10 @@ def _run_pool(runs, labels, out_dir, progress, n_workers):
     return results
 
 
+#: The domains ``seft run`` claims from when none is given (tests use 200-232).
+RUN_DOMAINS = range(100, 200)
+
+
 def _domain_id() -> int:
     env = os.environ.get('ROS_DOMAIN_ID')
     if env:
@@ -325,16 +330,36 @@ def run_experiments(*, runs: list[dict], out_dir: Path,
     t0 = time.monotonic()
     chosen = domain_id if domain_id is not None else (
         _domain_id() if os.environ.get('ROS_DOMAIN_ID') else None)
+    # claim the domain (seft_msgs_py.domain: no two seft processes of this machine meet),
+    # then check that nothing else (nodes started by hand) publishes seft topics there
+    claim = None
     for _ in range(5):
-        runner = GraphRunner(_domain_id() if chosen is None else chosen, progress)
+        if claim is not None:
+            claim.close()
+        try:
+            if chosen is None:
+                domain, claim = claim_domain(RUN_DOMAINS,
+                                             start=random.SystemRandom().randrange(100))
+            else:
+                domain, claim = claim_domain([chosen])
+        except RuntimeError:
+            if chosen is not None:
+                raise SeftError(f'ROS_DOMAIN_ID={chosen} is claimed by another seft process '
+                                f'on this machine (lock {LOCK_DIR}/{chosen}.lock): choose '
+                                'another --domain-id') from None
+            raise SeftError(f'no free ROS domain in {RUN_DOMAINS[0]}-{RUN_DOMAINS[-1]}: every '
+                            f'one is claimed (lock files in {LOCK_DIR})') from None
+        runner = GraphRunner(domain, progress)
         busy = runner.busy_topics()
         if not busy:
             break
         runner.close()
         if chosen is not None:
+            claim.close()
             raise SeftError(f'ROS_DOMAIN_ID={chosen} already carries seft topics '
                             f'({", ".join(busy)}): another run? Choose another --domain-id')
     else:
+        claim.close()
         raise SeftError('no free ROS domain found for the run (5 random tries)')
     data = []
     try:
@@ -349,6 +374,7 @@ def run_experiments(*, runs: list[dict], out_dir: Path,
                      f'{state}; bag {outcome.bag_path}')
     finally:
         runner.close()
+        claim.close()
     return _finish(out_dir, data, title or 'seft run', t0)
 
 

@@ -1,0 +1,62 @@
+"""Which ROS domain a seft process uses: claimed, so that concurrent runs never meet.
+
+The rule (tests and ``seft run`` alike): a process that starts ROS nodes claims its domain
+with an exclusive, non-blocking ``flock`` on ``<LOCK_DIR>/<id>.lock`` and holds it until it
+exits. The kernel releases the lock when the process dies, also on SIGKILL, so no claim
+outlives its owner. A process tries the ids of its range from a start it chooses (the test
+session's pid, a random one for ``seft run``) and takes the first it can lock, so two
+concurrent processes can never share a domain. Tests use 200-232, ``seft run`` 100-199 (or
+the id the user gives, refused while another process holds it).
+"""
+
+import fcntl
+import os
+from pathlib import Path
+
+__all__ = ['LOCK_DIR', 'claim_domain']
+
+#: The claims: one lock file per domain, shared by every user of the machine (DDS discovery
+#: on localhost crosses users).
+LOCK_DIR = Path('/tmp/seft-ros-domains')
+
+
+def claim_domain(ids, lock_dir: Path = LOCK_DIR, start: int | None = None):
+    """Claim a ROS domain for as long as this process lives; return ``(domain_id, file)``.
+
+    Tries the ids of `ids` from index ``start % len(ids)`` (default: this process's pid) and
+    takes the first one it can lock (module notes); a pid-derived id alone could be shared
+    (30 ids: 1 in 30 pairs of pids). Keep the returned file open: closing it releases the
+    claim.
+
+    Parameters
+    ----------
+    ids : iterable of int
+        Candidate domain ids (0-232).
+    lock_dir : Path
+        Directory of the lock files (created world-writable if missing).
+    start : int, optional
+        Where to start in `ids`.
+
+    Raises
+    ------
+    RuntimeError
+        Every id of the range is claimed.
+    """
+    ids = list(ids)
+    lock_dir.mkdir(mode=0o1777, parents=True, exist_ok=True)
+    first = (os.getpid() if start is None else start) % len(ids)
+    for domain in ids[first:] + ids[:first]:
+        path = lock_dir / f'{domain}.lock'
+        f = open(path, 'a+')
+        try:
+            fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            f.close()
+            continue
+        f.seek(0)
+        f.truncate()
+        f.write(f'{os.getpid()}\n')
+        f.flush()
+        return domain, f
+    raise RuntimeError(f'no free ROS domain in {ids[0]}-{ids[-1]}: every one is claimed '
+                       f'(lock files in {lock_dir})')

@@ -1,0 +1,363 @@
+"""Tests of the online instability monitor on synthetic signals with known spectra.
+
+The expected numbers come from closed forms, not from the monitor's own output:
+
+- the bands are 2nd-order Butterworth filters made by the bilinear transform with the cut-off
+  pre-warped (``scipy.signal.butter(..., fs=...)``), so a sine of frequency ``f`` sampled at
+  ``fs`` is passed with the gains (``w = tan(pi f / fs)``, ``wc = tan(pi f_c / fs)``)
+
+      |H_lp| = 1 / sqrt(1 + (w / wc)^4),   |H_hp| = 1 / sqrt(1 + (wc / w)^4);
+
+- in steady state the running mean square of a sine of amplitude ``A`` is ``A^2 / 2``, and
+  after a sine is switched on it grows as ``(A^2 / 2) (1 - exp(-t / window))``;
+- a sample-by-sample reference written with ``scipy.signal.lfilter`` (independent code).
+"""
+
+import math
+import re
+
+import numpy as np
+import pytest
+from scipy import signal
+
+from seft_msgs_py.errors import ParameterError
+from seft_ros.core import experiment
+from seft_ros.core.experiment import simulate
+from seft_ros.core.ground_motion import prepare, synthetic_default
+from seft_ros.core.monitor import InstabilityMonitor
+
+DT = 0.002
+FS = 1.0 / DT
+
+
+def band_gains(f_hz, cutoff_hz=25.0, fs=FS):
+    """(|H_lp|, |H_hp|) of the 2nd-order bilinear Butterworth pair at `f_hz`."""
+    r = (math.tan(math.pi * f_hz / fs) / math.tan(math.pi * cutoff_hz / fs)) ** 4
+    return 1.0 / math.sqrt(1.0 + r), 1.0 / math.sqrt(1.0 + 1.0 / r)
+
+
+def steady_ratio(sines, *, ground_N=0.0, floor_N=50.0, cutoff_hz=25.0):
+    """Closed-form steady ratio for a sum of sines ``[(amplitude, f_hz), ...]`` (frequencies
+    far enough apart that the cross terms average out)."""
+    ms_lf = ms_hf = 0.0
+    for amp, f in sines:
+        g_lf, g_hf = band_gains(f, cutoff_hz)
+        ms_lf += (amp * g_lf) ** 2 / 2
+        ms_hf += (amp * g_hf) ** 2 / 2
+    return math.sqrt(ms_hf) / (math.sqrt(ms_lf) + 0.05 * ground_N + floor_N)
+
+
+def feed(monitor, force, ground=None, dt=DT):
+    """Feed the samples; return (index of the first trip or None, its message, ratios)."""
+    ground = np.zeros_like(force) if ground is None else ground
+    ratios = np.empty(force.shape[0])
+    for k, (f, g) in enumerate(zip(force.tolist(), ground.tolist())):
+        reason = monitor.update(f, g, k * dt)
+        ratios[k] = monitor.ratio
+        if reason is not None:
+            return k, reason, ratios[:k + 1]
+    return None, None, ratios
+
+
+def sine(amp, f_hz, seconds, dt=DT, ramp_s=0.0):
+    """A sine from t = 0, optionally faded in by a half cosine over `ramp_s` (a sine switched
+    on abruptly has a broadband onset that the high band sees)."""
+    t = np.arange(round(seconds / dt)) * dt
+    fade = 0.5 - 0.5 * np.cos(np.pi * np.clip(t / ramp_s, 0, 1)) if ramp_s else 1.0
+    return amp * fade * np.sin(2 * np.pi * f_hz * t)
+
+
+def reference_ratio(force, ground, *, dt=DT, cutoff_hz=25.0, window_s=0.2, floor_N=50.0):
+    """The docstring's ratio, vectorized with lfilter (independent of the per-sample code)."""
+    fs = 1.0 / dt
+    hf = signal.lfilter(*signal.butter(2, cutoff_hz, 'highpass', fs=fs), force)
+    lf = signal.lfilter(*signal.butter(2, cutoff_hz, 'lowpass', fs=fs), force)
+    beta = math.exp(-dt / window_s)
+    ms_hf = signal.lfilter([1 - beta], [1, -beta], hf ** 2)
+    ms_lf = signal.lfilter([1 - beta], [1, -beta], lf ** 2)
+    scale = np.maximum.accumulate(np.abs(ground))
+    return np.sqrt(ms_hf) / (np.sqrt(ms_lf) + 0.05 * scale + floor_N)
+
+
+# -- the ratio, sample by sample and in steady state ---------------------------------------
+
+@pytest.mark.parametrize('cutoff_hz, window_s, floor_N', [
+    (25.0, 0.2, 50.0), (40.0, 0.05, 0.0), (10.0, 1.0, 200.0)])
+def test_ratio_equals_the_vectorized_definition(cutoff_hz, window_s, floor_N):
+    rng = np.random.Generator(np.random.PCG64(3))
+    n = 3000
+    force = (800 * np.sin(2 * np.pi * 1.7 * np.arange(n) * DT)
+             + 60 * rng.standard_normal(n) + np.linspace(0, 300, n) * np.sin(0.8 * np.arange(n)))
+    ground = 900 * np.sin(2 * np.pi * 0.6 * np.arange(n) * DT) * np.exp(-np.arange(n) / 800)
+    mon = InstabilityMonitor(DT, cutoff_hz, window_s, threshold=0.0, floor_N=floor_N)
+    k, reason, ratios = feed(mon, force, ground)
+    assert k is None and reason is None                    # threshold 0: observe only
+    np.testing.assert_allclose(ratios, reference_ratio(force, ground, cutoff_hz=cutoff_hz,
+                                                       window_s=window_s, floor_N=floor_N),
+                               rtol=1e-9, atol=0)
+    # the ground-force scale is the largest |ground force| so far, not the latest
+    assert mon.ground_force_scale_N == pytest.approx(np.max(np.abs(ground)), rel=1e-15)
+    assert abs(ground[-1]) < 0.1 * mon.ground_force_scale_N
+
+
+@pytest.mark.parametrize('sines, ground_N, floor_N, cutoff_hz', [
+    ([(300.0, 100.0)], 0.0, 0.0, 25.0),            # high band only: |H_hp| / |H_lp|
+    ([(300.0, 100.0)], 0.0, 50.0, 25.0),           # the floor in the denominator
+    ([(300.0, 100.0)], 0.0, 200.0, 25.0),
+    ([(300.0, 100.0)], 2000.0, 50.0, 25.0),        # 5 % of the ground force: + 100 N
+    ([(300.0, 100.0)], 6000.0, 0.0, 25.0),         # ... + 300 N
+    ([(1000.0, 2.0), (200.0, 37.0)], 0.0, 50.0, 25.0),   # a response plus the unstable mode
+    ([(1000.0, 2.0), (200.0, 37.0)], 0.0, 50.0, 60.0),   # cut-off above the mode: ratio low
+    ([(500.0, 30.0)], 0.0, 0.0, 20.0),             # 30 Hz above a 20 Hz cut-off ...
+    ([(500.0, 30.0)], 0.0, 0.0, 45.0),             # ... and below a 45 Hz one
+])
+def test_steady_ratio_matches_the_closed_form(sines, ground_N, floor_N, cutoff_hz):
+    force = sum(sine(a, f, 4.0) for a, f in sines)
+    ground = np.zeros_like(force)
+    ground[10] = -ground_N                         # seen once, kept as the scale
+    mon = InstabilityMonitor(DT, cutoff_hz, threshold=0.0, floor_N=floor_N)
+    ratios = feed(mon, force, ground)[2]
+    expected = steady_ratio(sines, ground_N=ground_N, floor_N=floor_N, cutoff_hz=cutoff_hz)
+    # the running mean square ripples at twice each frequency (+-19 % at 2 Hz with the 0.2 s
+    # window): the mean over the last second (whole periods) is within 1.5 %
+    assert np.mean(ratios[-500:]) == pytest.approx(expected, rel=0.015)
+    assert mon.ground_force_scale_N == ground_N
+
+
+def test_cutoff_moves_a_frequency_between_the_bands():
+    force = sine(2000.0, 30.0, 3.0, ramp_s=1.0)
+    below = InstabilityMonitor(DT, cutoff_hz=20.0, floor_N=20.0)
+    above = InstabilityMonitor(DT, cutoff_hz=45.0, floor_N=20.0)
+    assert feed(below, force)[0] is not None       # 30 Hz is high-frequency content: trips
+    assert feed(above, force)[0] is None           # 30 Hz is response: does not
+    assert above.ratio == pytest.approx(steady_ratio([(2000.0, 30.0)], floor_N=20.0,
+                                                     cutoff_hz=45.0), rel=0.015)
+    assert above.ratio < 0.5
+
+
+# -- trips when it must, not otherwise -----------------------------------------------------
+
+def test_trips_on_a_growing_oscillation_under_a_stable_response():
+    """A 2 Hz, 1000 N response plus a 37 Hz mode growing from 5 N at 3 /s (the unstable
+    loop's mode on the servohydraulic rig): it trips once the mode's high-band RMS exceeds
+    the response band's RMS plus the floor, a window's lag after the crossing."""
+    t = np.arange(round(4.0 / DT)) * DT
+    mode = 5.0 * np.exp(3.0 * t)
+    force = 1000 * np.sin(2 * np.pi * 2.0 * t) + mode * np.sin(2 * np.pi * 37.0 * t)
+    k, reason, _ = feed(InstabilityMonitor(DT), force)
+    assert k is not None
+    # the time at which the mode's steady ratio would reach 1 (closed form, no lag)
+    g_lf, g_hf = band_gains(37.0)
+    lf_resp, _ = band_gains(2.0)
+    # r_hf = A g_hf / sqrt2 ; r_lf ~ sqrt((1000 lf_resp)^2 + (A g_lf)^2) / sqrt2 ; solve = 1
+    amps = np.linspace(1, 5e4, 200001)
+    r = (amps * g_hf / math.sqrt(2)) / (np.hypot(1000 * lf_resp, amps * g_lf) / math.sqrt(2)
+                                        + 50.0)
+    a_cross = amps[np.argmax(r > 1.0)]
+    t_cross = math.log(a_cross / 5.0) / 3.0
+    # growing at 3 /s the running RMS lags by about the window (0.2 s): trips within it
+    assert t_cross < k * DT < t_cross + 0.2
+    assert re.fullmatch(
+        rf'unstable at t={k * DT:.3f} s: high-frequency oscillation of the measured force, '
+        r'RMS above the cut-off 1\.\d\d x the response band \(threshold 1\)', reason)
+
+
+def test_stable_response_with_load_cell_noise_does_not_trip():
+    """The default record's stable response with 5 N white load-cell noise (about 90 % of its
+    power above 25 Hz): the floor keeps the quiet start from tripping."""
+    rng = np.random.Generator(np.random.PCG64(11))
+    n = round(20.0 / DT)
+    t = np.arange(n) * DT
+    envelope = np.clip(t / 2.0, 0, 1) * np.exp(-np.clip(t - 8.0, 0, None) / 3.0)
+    force = envelope * 1500 * np.sin(2 * np.pi * 2.4 * t) + 5.0 * rng.standard_normal(n)
+    k, _, ratios = feed(InstabilityMonitor(DT), force)
+    assert k is None
+    # the high band of white noise: sigma * sqrt(fraction of |H_hp|^2 over 0 .. fs/2)
+    w, h = signal.freqz(*signal.butter(2, 25.0, 'highpass', fs=FS), worN=8192)
+    hf_rms = 5.0 * math.sqrt(np.mean(np.abs(h) ** 2))
+    assert 0.88 < (hf_rms / 5.0) ** 2 < 0.92        # the docstring's "about 90 %"
+    assert np.max(ratios) < 2 * hf_rms / 50.0        # noise over the floor, at most
+    # without the floor, the same noise alone trips at the quiet start ...
+    noise_only = 5.0 * rng.standard_normal(n)
+    k, _, _ = feed(InstabilityMonitor(DT, floor_N=0.0), noise_only)
+    assert k is not None and k * DT < 0.1
+    # ... unless the ground-motion term covers it (5 % of 200 N = 10 N > noise)
+    ground = np.full(n, 200.0)
+    assert feed(InstabilityMonitor(DT, floor_N=0.0), noise_only, ground)[0] is None
+
+
+@pytest.mark.parametrize('window_s', [0.1, 0.2, 0.4])
+def test_window_sets_the_time_to_trip(window_s):
+    """A 100 Hz sine of 80 N switched on at t = 0: the running mean squares grow as
+    1 - exp(-t/window), the ratio as sqrt of it; it trips when
+    q = floor / (r_hf - r_lf) = sqrt(1 - exp(-t/window)), so t = -window ln(1 - q^2)."""
+    amp = 80.0
+    g_lf, g_hf = band_gains(100.0)
+    q = 50.0 / (amp * (g_hf - g_lf) / math.sqrt(2))
+    t_trip = -window_s * math.log(1 - q * q)
+    k, _, _ = feed(InstabilityMonitor(DT, window_s=window_s), sine(amp, 100.0, 3.0))
+    assert k is not None
+    assert k * DT == pytest.approx(t_trip, rel=0.05, abs=0.01)
+
+
+def test_threshold_is_the_trip_ratio():
+    # one 100 Hz sine over the 50 N floor: the ratio rises with the amplitude and settles
+    # with a ripple below 0.5 %
+    sines = [(400.0, 100.0)]
+    expected = steady_ratio(sines)
+    force = sine(400.0, 100.0, 4.0, ramp_s=1.0)
+    assert 3 < expected < 5
+    assert feed(InstabilityMonitor(DT, threshold=1.03 * expected), force)[0] is None
+    k, reason, _ = feed(InstabilityMonitor(DT, threshold=0.97 * expected), force)
+    assert k is not None and k * DT > 1.0          # only once the oscillation is there
+    assert reason.endswith(f'(threshold {0.97 * expected:g})')
+    # threshold 0 disables it, however large the oscillation; the ratio is still computed
+    off = InstabilityMonitor(DT, threshold=0.0)
+    assert feed(off, sine(1e5, 100.0, 1.0))[0] is None
+    assert off.ratio == pytest.approx(steady_ratio([(1e5, 100.0)]), rel=0.015) and off.ratio > 20
+
+
+def test_trips_only_when_the_ratio_exceeds_the_threshold_strictly():
+    """``r_hf > threshold * (...)``: a ratio equal to the threshold does not trip."""
+    probe = InstabilityMonitor(DT, threshold=0.0, floor_N=0.0)
+    probe.update(100.0, 0.0, 0.0)
+    assert probe.ratio > 0
+    assert InstabilityMonitor(DT, threshold=probe.ratio, floor_N=0.0).update(
+        100.0, 0.0, 0.0) is None
+    assert InstabilityMonitor(DT, threshold=probe.ratio * (1 - 1e-12), floor_N=0.0).update(
+        100.0, 0.0, 0.0) is not None
+
+
+def test_silence_gives_ratio_zero_and_small_forces_are_judged_by_their_shape():
+    """A fresh monitor has ratio 0; with no floor, all-zero input (0 / 0) is ratio 0, not a
+    trip; and without a floor the ratio does not depend on the force's scale, also below
+    1 N (a milli-newton oscillation has the ratio of a kilo-newton one)."""
+    mon = InstabilityMonitor(DT, threshold=0.5, floor_N=0.0)
+    assert mon.ratio == 0.0 and mon.ground_force_scale_N == 0.0
+    assert all(mon.update(0.0, 0.0, k * DT) is None for k in range(100))
+    assert mon.ratio == 0.0
+    small = InstabilityMonitor(DT, threshold=0.0, floor_N=0.0)
+    large = InstabilityMonitor(DT, threshold=0.0, floor_N=0.0)
+    r_small = feed(small, sine(1e-3, 100.0, 1.0))[2]
+    r_large = feed(large, sine(1e3, 100.0, 1.0))[2]
+    np.testing.assert_allclose(r_small, r_large, rtol=1e-9)
+    assert small.ratio == pytest.approx(steady_ratio([(1.0, 100.0)], floor_N=0.0), rel=0.015)
+
+
+def test_a_trip_is_reported_on_every_later_sample():
+    mon = InstabilityMonitor(DT, floor_N=0.0)
+    k, _, _ = feed(mon, sine(500.0, 100.0, 1.0))
+    assert k is not None
+    assert mon.update(500.0, 0.0, 9.0).startswith('unstable at t=9.000 s: ')
+
+
+# -- parameters ----------------------------------------------------------------------------
+
+@pytest.mark.parametrize('kwargs, message', [
+    ({'cutoff_hz': 250.0}, r'parameter monitor_cutoff_hz=250\.0: expected > 0 and below the '
+                           r'Nyquist frequency 250 Hz'),
+    ({'cutoff_hz': 300.0}, r'parameter monitor_cutoff_hz=300\.0: expected > 0 and below the '
+                           r'Nyquist frequency 250 Hz'),
+    ({'cutoff_hz': 0.0}, r'parameter monitor_cutoff_hz=0\.0: expected > 0'),
+    ({'cutoff_hz': -5.0}, r'parameter monitor_cutoff_hz=-5\.0: expected > 0'),
+    ({'cutoff_hz': math.nan}, r'parameter monitor_cutoff_hz=nan: expected > 0'),
+    ({'window_s': 0.0}, r'parameter monitor_window_s=0\.0: expected > 0$'),
+    ({'window_s': math.nan}, r'parameter monitor_window_s=nan: expected > 0$'),
+    ({'threshold': -0.1}, r'parameter monitor_threshold=-0\.1: expected >= 0$'),
+    ({'threshold': math.nan}, r'parameter monitor_threshold=nan: expected >= 0$'),
+    ({'floor_N': -1.0}, r'parameter monitor_floor_N=-1\.0: expected >= 0$'),
+    ({'floor_N': math.nan}, r'parameter monitor_floor_N=nan: expected >= 0$'),
+])
+def test_out_of_range_parameters_are_refused(kwargs, message):
+    with pytest.raises(ParameterError, match='^' + message):
+        InstabilityMonitor(DT, **kwargs)
+
+
+def test_cutoff_just_below_nyquist_and_zero_threshold_and_floor_are_accepted():
+    InstabilityMonitor(DT, cutoff_hz=0.5)          # any cut-off above 0 Hz
+    mon = InstabilityMonitor(DT, cutoff_hz=249.0, window_s=1e-3, threshold=0.0, floor_N=0.0)
+    assert mon.threshold == 0.0 and mon.floor_N == 0.0 and mon.dt == DT
+    # the Nyquist frequency follows dt: 300 Hz is fine at 1 kHz
+    InstabilityMonitor(0.001, cutoff_hz=300.0)
+
+
+def test_from_parameters_reads_the_monitor_parameters(reference_params):
+    p = dict(reference_params, dt=0.001, monitor_cutoff_hz=40.0, monitor_window_s=0.5,
+             monitor_threshold=2.0, monitor_floor_N=10.0)
+    mon = InstabilityMonitor.from_parameters(p)
+    assert (mon.dt, mon.threshold, mon.floor_N) == (0.001, 2.0, 10.0)
+    force = sine(300.0, 37.0, 3.0, dt=0.001)
+    ratios = feed(mon, force, dt=0.001)[2]
+    np.testing.assert_allclose(ratios, reference_ratio(
+        force, np.zeros_like(force), dt=0.001, cutoff_hz=40.0, window_s=0.5, floor_N=10.0),
+        rtol=1e-9)
+    # the schema's defaults are the docstring's
+    default = InstabilityMonitor.from_parameters(reference_params)
+    assert (reference_params['monitor_cutoff_hz'], reference_params['monitor_window_s'],
+            default.threshold, default.floor_N) == (25.0, 0.2, 1.0, 50.0)
+
+
+# -- the README's calibration claim over several records -----------------------------------
+
+class _RecordingMonitor(InstabilityMonitor):
+    """The monitor of a run, observing (threshold 0) and keeping its largest ratio."""
+
+    largest: list = []
+
+    def update(self, measured_force_N, ground_force_N, time_s):
+        out = super().update(measured_force_N, ground_force_N, time_s)
+        if math.isfinite(self.ratio):
+            _RecordingMonitor.largest[-1] = max(_RecordingMonitor.largest[-1], self.ratio)
+        return out
+
+
+OBSERVE = {'monitor_threshold': 0.0, 'saturation_abort_fraction': 1.0, 'force_limit_N': 1e12,
+           'stroke_limit_m': 1e6}
+STABLE = {'delay': (0.0, 0.5, 0.9), 'servohydraulic': (0.0, 0.5, 1.0, 1.2)}
+UNSTABLE = {'delay': (1.5, 2.0), 'servohydraulic': (1.5, 2.0)}
+
+
+@pytest.fixture(scope='module')
+def calibration_ratios(request):
+    """Largest in-loop monitor ratio of each run: 3 synthetic records (seeds 1-3, seed 1 is
+    the default), both rigs, uncompensated, alpha in the stable and unstable groups of
+    ``benchmarks/monitor_margin.py``; seed 1 also with sensor noise."""
+    from seft_msgs_py import parameters
+    mp = pytest.MonkeyPatch()
+    mp.setattr(experiment, 'InstabilityMonitor', _RecordingMonitor)
+    base = parameters.resolve()
+    out = []
+    try:
+        for seed in (1, 2, 3):
+            gm = prepare(synthetic_default(seed=seed), dt=base['dt'], mass_kg=base['mass_kg'],
+                         amplitude_N=base['amplitude_N'], time_scale=base['time_scale'])
+            noises = ({}, {'noise_force_N': 5.0, 'noise_acceleration_m_s2': 0.05}) \
+                if seed == 1 else ({},)
+            for noise in noises:
+                for rig in ('delay', 'servohydraulic'):
+                    for alpha in STABLE[rig] + UNSTABLE[rig]:
+                        _RecordingMonitor.largest.append(0.0)
+                        simulate(dict(base, **OBSERVE, **noise, rig_model=rig, alpha=alpha,
+                                      predictor='none'), record=gm)
+                        out.append((seed, bool(noise), rig, alpha, alpha in STABLE[rig],
+                                    _RecordingMonitor.largest[-1]))
+    finally:
+        mp.undo()
+    return out
+
+
+def test_calibration_stable_and_unstable_runs_are_separated(calibration_ratios):
+    """``benchmarks/monitor_margin.py``'s claim as a check. The README ("Safety") states a
+    largest stable ratio of 0.66 and 1.5 or more for every unstable run; with the current
+    rig defaults (Eq. 3.1 read in V/lbf, ground preview) the default record alone gives 0.69
+    (delay rig, alpha 0.9) and 1.46 (servohydraulic, alpha 1.5), and the seeds 2-3 records
+    0.80 and 1.44. What the default threshold 1.0 needs, and what is asserted: every stable
+    run below 1/1.2 of it, every unstable run above 1.4 times it."""
+    stable = [r for *_, s, r in calibration_ratios if s]
+    unstable = [r for *_, s, r in calibration_ratios if not s]
+    assert len(stable) == 4 * 7 and len(unstable) == 4 * 4
+    assert max(stable) < 1 / 1.2, calibration_ratios
+    assert min(unstable) > 1.4, calibration_ratios
+    # on the default record the delay rig's unstable runs are far beyond (neutral-type loop)
+    assert min(r for seed, _, rig, _, s, r in calibration_ratios
+               if rig == 'delay' and not s) > 3.0
