@@ -40,12 +40,36 @@ def test_concurrent_claims_never_share_a_domain_and_end_with_their_owner(tmp_pat
 
 
 def test_seft_run_refuses_a_domain_another_process_claimed(seft_exe, run_process, tmp_path):
-    """`seft run` follows the same rule: this test session holds DOMAIN_ID, so a run asked to
-    use it is refused before any node starts, in one line."""
-    proc = run_process([seft_exe, 'run', '--duration', '0.2', '--domain-id', str(DOMAIN_ID),
-                        '--out', tmp_path / 'out'], cwd=tmp_path)
+    """`seft run` follows the same rule: a domain another (unrelated) process holds is
+    refused before any node starts, in one line; the test session's own domain is its
+    children's to use (held by an ancestor)."""
+    holder = subprocess.Popen(
+        [sys.executable, '-c', textwrap.dedent("""
+            import sys, time
+            from seft_msgs_py.domain import claim_domain
+            d, f = claim_domain(range(200, 233))
+            print(d, flush=True)
+            time.sleep(60)
+        """)], stdout=subprocess.PIPE, text=True)
+    try:
+        held = int(holder.stdout.readline())
+        proc = run_process([seft_exe, 'run', '--duration', '0.2', '--domain-id', str(held),
+                            '--out', tmp_path / 'out'], cwd=tmp_path)
+    finally:
+        holder.kill()
+        holder.wait()
     assert proc.returncode == 2, proc.stderr
     assert proc.stderr.strip().splitlines()[-1] == (
-        f'seft: error: ROS_DOMAIN_ID={DOMAIN_ID} is claimed by another seft process on this '
-        f'machine (lock /tmp/seft-ros-domains/{DOMAIN_ID}.lock): choose another --domain-id')
-    assert not (tmp_path / 'out' / 'run').exists() or not any((tmp_path / 'out').rglob('bag'))
+        f'seft: error: ROS_DOMAIN_ID={held} is claimed by another seft process on this '
+        f'machine (lock /tmp/seft-ros-domains/{held}.lock): choose another --domain-id')
+    assert not any((tmp_path / 'out').rglob('bag'))
+
+
+def test_a_child_uses_its_ancestors_claim():
+    from seft_msgs_py.domain import held_by_ancestor
+    code = ('from seft_msgs_py.domain import held_by_ancestor; '
+            f'print(held_by_ancestor({DOMAIN_ID}))')
+    child = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                           timeout=60)
+    assert child.stdout.strip() == 'True', child.stderr
+    assert not held_by_ancestor(DOMAIN_ID)      # this process holds it: not an ancestor

@@ -6,14 +6,16 @@ exits. The kernel releases the lock when the process dies, also on SIGKILL, so n
 outlives its owner. A process tries the ids of its range from a start it chooses (the test
 session's pid, a random one for ``seft run``) and takes the first it can lock, so two
 concurrent processes can never share a domain. Tests use 200-232, ``seft run`` 100-199 (or
-the id the user gives, refused while another process holds it).
+the id the user gives, refused while another process holds it). A claim covers the
+holder's child processes: a test session's ``seft run`` uses the session's domain
+(:func:`held_by_ancestor`).
 """
 
 import fcntl
 import os
 from pathlib import Path
 
-__all__ = ['LOCK_DIR', 'claim_domain']
+__all__ = ['LOCK_DIR', 'claim_domain', 'held_by_ancestor']
 
 #: The claims: one lock file per domain, shared by every user of the machine (DDS discovery
 #: on localhost crosses users).
@@ -60,3 +62,30 @@ def claim_domain(ids, lock_dir: Path = LOCK_DIR, start: int | None = None):
         return domain, f
     raise RuntimeError(f'no free ROS domain in {ids[0]}-{ids[-1]}: every one is claimed '
                        f'(lock files in {lock_dir})')
+
+
+def _parent_pid(pid: int) -> int:
+    """The parent of `pid` (0 when unknown), from ``/proc/<pid>/stat``."""
+    try:
+        stat = Path(f'/proc/{pid}/stat').read_text()
+    except OSError:
+        return 0
+    return int(stat.rsplit(')', 1)[1].split()[1])
+
+
+def held_by_ancestor(domain: int, lock_dir: Path = LOCK_DIR) -> bool:
+    """Whether `domain`'s claim is held by this process's parent, grandparent, ...
+
+    The holder writes its pid into the lock file (:func:`claim_domain`); a process started by
+    the holder (a test session's ``seft run``) may use the domain under that claim.
+    """
+    try:
+        holder = int((lock_dir / f'{domain}.lock').read_text().split()[0])
+    except (OSError, ValueError, IndexError):
+        return False
+    pid = os.getppid()
+    while pid > 1:
+        if pid == holder:
+            return True
+        pid = _parent_pid(pid)
+    return False

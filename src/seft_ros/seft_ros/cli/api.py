@@ -17,7 +17,7 @@ import numpy as np
 
 from seft_msgs_py import parameters
 from seft_msgs_py.calibration import valve_flow_gain_m3_per_s_V
-from seft_msgs_py.domain import LOCK_DIR, claim_domain
+from seft_msgs_py.domain import LOCK_DIR, claim_domain, held_by_ancestor
 from seft_msgs_py.errors import InputError, ParameterError, SeftError
 from seft_msgs_py.sampling import single_blas_thread
 from seft_ros.analysis.bag import read_run
@@ -297,6 +297,14 @@ def _run_pool(runs, labels, out_dir, progress, n_workers):
 RUN_DOMAINS = range(100, 200)
 
 
+class _InheritedClaim:
+    """The domain claim of an ancestor process (``seft_msgs_py.domain``): nothing to
+    release."""
+
+    def close(self) -> None:
+        """Nothing: the ancestor holds the claim."""
+
+
 def _domain_id() -> int:
     env = os.environ.get('ROS_DOMAIN_ID')
     if env:
@@ -340,6 +348,8 @@ def run_experiments(*, runs: list[dict], out_dir: Path,
             if chosen is None:
                 domain, claim = claim_domain(RUN_DOMAINS,
                                              start=random.SystemRandom().randrange(100))
+            elif held_by_ancestor(chosen):       # e.g. a test session's run: its claim
+                domain, claim = chosen, _InheritedClaim()
             else:
                 domain, claim = claim_domain([chosen])
         except RuntimeError:
