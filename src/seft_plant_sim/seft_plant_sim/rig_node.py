@@ -1,16 +1,17 @@
 """rig node: the simulated actuator + specimen, master of the clock.
 
 **Lockstep mode** (``mode: lockstep``): at each step k the rig checks its safety limits,
-publishes the sensor readings stamped t_k and ``/clock`` = t_k, then waits for the command of
-step k (the valve command of the force servo controller, or the reference force for the
-'delay' rig), applies it over the step and moves to k+1.
+publishes the sensor readings stamped t_k (one ``/seft/measurement`` message, and a row of
+its record batch for the bag) and, every ``CLOCK_EVERY`` steps, ``/clock`` = t_k, then waits
+for the command of step k (the valve command of the force servo controller, or the reference
+force for the 'delay' rig), applies it over the step and moves to k+1.
 
 **Real-time mode** (``mode: realtime``): the rig ticks on the wall clock at the absolute
 instants ``t0 + k dt`` (``main_for`` waits for events until the next one: an rclpy timer
 drifts, see :meth:`~seft_msgs_py.node_support.SeftNode.next_due`). At each tick it integrates
 its plant up to the tick with the commands that have arrived, each acting from its arrival as
 :class:`~seft_plant_sim.realtime.WallClockRig` says, samples and publishes its sensors, and
-publishes one timing record per sample on ``/seft/timing/rig`` (period jitter, here the tick's
+records one timing record per sample (the bag's ``/seft/timing/rig``; period jitter, the tick's
 lateness against its absolute schedule; compute time, age of the command in effect, missed
 deadline, stale command, loop latency). A tick that ran late by more than a period is caught
 up at once (never skipped) and counts as a missed deadline. It never waits: a command that has

@@ -1,6 +1,6 @@
 """Timing of a real-time run, from the per-node timing records of its bag.
 
-Every node publishes, in real-time mode, one record per step on ``/seft/timing/<node>``
+Every node keeps, in real-time mode, one record per step, in the bag on ``/seft/timing/<node>``
 (``seft_msgs_py.signals.TIMING_FIELDS``): period jitter, compute time, age of the oldest
 input, missed deadline, stale input and, for the rig, the loop latency (sample at the rig to
 the command computed from it back at the rig). This module reads them (rosbags, no rclpy),
