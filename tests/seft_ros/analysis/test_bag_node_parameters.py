@@ -440,3 +440,14 @@ def test_a_batch_with_other_columns_is_refused(tmp_path, response):
     with pytest.raises(InputError, match=re.escape(
             '/seft/record/rig: expected a batch with columns step,/seft/measured_force,')):
         read_run(path)
+
+
+def test_a_bag_without_a_signal_names_what_is_missing(tmp_path, response):
+    """A bag whose rig data never arrived (the live topics, no measurement, no rig batches)
+    is refused in one line that names the missing topics."""
+    path = write_live_bag(tmp_path / 'live', response, measured_from='nowhere')
+    with pytest.raises(InputError) as err:
+        read_run(path)
+    assert str(err.value) == (
+        f'{path}: the bag holds no complete step: no samples on /seft/measured_force, '
+        '/seft/displacement, /seft/velocity, /seft/acceleration')

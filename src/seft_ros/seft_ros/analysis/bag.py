@@ -309,7 +309,11 @@ def read_run(path) -> RunData:
     while all(n in bag.samples[name] for name in needed):
         n += 1
     if n == 0:
-        raise InputError(f'{path}: the bag holds no complete step')
+        missing = [name for name in needed if not bag.samples[name]]
+        first = [name for name in needed if 0 not in bag.samples[name]]
+        raise InputError(f'{path}: the bag holds no complete step: '
+                         + (f'no samples on {", ".join(missing)}' if missing else
+                            f'step 0 missing on {", ".join(first)}'))
 
     def arr(name):
         d = bag.samples[name]
