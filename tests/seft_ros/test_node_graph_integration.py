@@ -330,6 +330,15 @@ def test_diverging_run_is_aborted_safely(delay):
     finals = {m.name: status_values(m) for _, m in delay.messages['/seft/status']}
     assert finals['rig']['state'] == 'aborted'
     assert float(finals['rig']['time_s']) == pytest.approx(sim.unstable_at_s, abs=1e-9)
+    # the builder that aborted says how many reference forces it published: all in the bag
+    aborted = [status_values(m) for _, m in delay.messages['/seft/status']
+               if m.name == 'reference_force_builder'
+               and status_values(m).get('state') == 'aborted']
+    assert len(aborted) == 1
+    assert int(aborted[0]['published']) == len(delay.messages['/seft/reference_force'])
+    closed = [status_values(m) for _, m in delay.messages['/seft/status']
+              if m.name == 'recorder' and status_values(m).get('state') == 'closed']
+    assert closed[-1]['lost'] == '0'
 
 
 @pytest.mark.parametrize('which', ['servo', 'delay'])

@@ -307,7 +307,9 @@ class SeftNode(Node):
     def abort_run(self, reason: str, step: int) -> None:
         """Stop the run safely from this node: log, report 'aborted' with the step, finish."""
         self.get_logger().error(reason)
-        self.report(STATE_ABORTED, reason, step=step, time_s=f'{step * self.dt_ns * 1e-9:.6f}')
+        # with what it published so far, so that the recorder can tell what is missing
+        self.report(STATE_ABORTED, reason, step=step, time_s=f'{step * self.dt_ns * 1e-9:.6f}',
+                    **self.final_counts())
         self.finish(0)
 
     def final_counts(self) -> dict:
