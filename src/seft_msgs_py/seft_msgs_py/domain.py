@@ -45,11 +45,19 @@ def claim_domain(ids, lock_dir: Path = LOCK_DIR, start: int | None = None):
         Every id of the range is claimed.
     """
     ids = list(ids)
-    lock_dir.mkdir(mode=0o1777, parents=True, exist_ok=True)
+    if not lock_dir.is_dir():
+        lock_dir.mkdir(parents=True, exist_ok=True)
+        try:            # every user's runs claim here (the umask would take the write bits)
+            os.chmod(lock_dir, 0o1777)
+        except OSError:
+            pass
     first = (os.getpid() if start is None else start) % len(ids)
     for domain in ids[first:] + ids[:first]:
         path = lock_dir / f'{domain}.lock'
-        f = open(path, 'a+')
+        try:
+            f = open(path, 'a+')
+        except OSError:             # another user's lock file: that domain is theirs
+            continue
         try:
             fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError:
