@@ -55,17 +55,29 @@ CRITERIA = {
 }
 
 
+def as_1d(name: str, x) -> np.ndarray:
+    """`x` as a 1-D float array, or ParameterError naming `name` (also used by ``metrics``)."""
+    try:
+        arr = np.asarray(x, dtype=float)
+    except (TypeError, ValueError):
+        raise ParameterError(f'{name}: expected a 1-D array of floats') from None
+    if arr.ndim != 1:
+        raise ParameterError(f'{name}: expected a 1-D array, got shape {arr.shape}')
+    return arr
+
+
+def check_dt(dt) -> float:
+    """`dt` as a float, or ParameterError unless it is a finite number > 0 (also used by
+    ``metrics``)."""
+    if isinstance(dt, bool) or not isinstance(dt, (int, float, np.integer, np.floating)) \
+            or not (math.isfinite(dt) and dt > 0):
+        raise ParameterError(f'parameter dt={dt!r}: expected a finite float > 0')
+    return float(dt)
+
+
 def _pair(name_a: str, a, name_b: str, b) -> tuple[np.ndarray, np.ndarray]:
     """Two 1-D float arrays of the same shape, or ParameterError."""
-    out = []
-    for name, x in ((name_a, a), (name_b, b)):
-        try:
-            arr = np.asarray(x, dtype=float)
-        except (TypeError, ValueError):
-            raise ParameterError(f'{name}: expected a 1-D array of floats') from None
-        if arr.ndim != 1:
-            raise ParameterError(f'{name}: expected a 1-D array, got shape {arr.shape}')
-        out.append(arr)
+    out = [as_1d(name_a, a), as_1d(name_b, b)]
     if out[0].shape != out[1].shape:
         raise ParameterError(f'{name_a} and {name_b} have shapes {out[0].shape} and '
                              f'{out[1].shape}; expected the same')
@@ -125,9 +137,7 @@ def tracking_delay(measured, target, dt: float, max_lag_s: float = J1_MAX_LAG_S)
     control problem for real-time hybrid simulation, Mech. Syst. Signal Process. 135, 106381
     (evaluation criterion J1).
     """
-    if isinstance(dt, bool) or not isinstance(dt, (int, float, np.integer, np.floating)) \
-            or not (math.isfinite(dt) and dt > 0):
-        raise ParameterError(f'parameter dt={dt!r}: expected a finite float > 0')
+    dt = check_dt(dt)
     if isinstance(max_lag_s, bool) \
             or not isinstance(max_lag_s, (int, float, np.integer, np.floating)) \
             or not (math.isfinite(max_lag_s) and max_lag_s >= 0):

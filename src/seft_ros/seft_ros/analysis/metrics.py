@@ -17,6 +17,8 @@ from scipy import interpolate, signal
 
 from seft_msgs_py.errors import ParameterError
 from seft_ros.analysis.criteria import J1_MAX_LAG_S, Criteria, evaluation_criteria
+from seft_ros.analysis.criteria import as_1d as _as_1d
+from seft_ros.analysis.criteria import check_dt as _check_dt
 from seft_ros.analysis.reference import ReferenceResponse, reference_from_run
 from seft_ros.analysis.rundata import SIGNALS, RunData
 
@@ -32,23 +34,6 @@ MAX_LAG_S = 0.1
 HIGH_FREQUENCY_CUTOFF_HZ = 20.0
 #: Name of the predictor that leaves the fed-back acceleration uncompensated.
 UNCOMPENSATED = 'none'
-
-
-def _as_1d(name: str, x) -> np.ndarray:
-    try:
-        arr = np.asarray(x, dtype=float)
-    except (TypeError, ValueError):
-        raise ParameterError(f'{name}: expected a 1-D array of floats') from None
-    if arr.ndim != 1:
-        raise ParameterError(f'{name}: expected a 1-D array, got shape {arr.shape}')
-    return arr
-
-
-def _check_dt(dt) -> float:
-    if isinstance(dt, bool) or not isinstance(dt, (int, float, np.integer, np.floating)) \
-            or not (math.isfinite(dt) and dt > 0):
-        raise ParameterError(f'parameter dt={dt!r}: expected a finite float > 0')
-    return float(dt)
 
 
 def estimate_lag(test, reference, dt: float, max_lag_s: float = MAX_LAG_S) -> float:
