@@ -155,6 +155,29 @@ class RecordStream:
         """The column labels of ``layout.dim[1]``."""
         return ','.join(('step',) + self.columns)
 
+    def columns_of(self, msg) -> tuple[str, ...]:
+        """The columns after 'step' of one batch of this stream (a deserialized
+        ``Float64MultiArray``, rclpy's or rosbags'), checked against its layout.
+
+        Raises
+        ------
+        ValueError
+            The batch's labels are not this stream's (for a fields stream: do not start with
+            'step'), or its data is not whole rows; the message names what was expected.
+        """
+        dims = msg.layout.dim
+        label = dims[1].label if len(dims) == 2 else ''
+        if self.fields_topic:
+            columns = tuple(label.split(',')[1:])
+            ok = label.startswith('step,')
+        else:
+            columns, ok = self.columns, label == self.labels
+        if not ok or len(msg.data) % (1 + len(columns)):
+            raise ValueError(f'{self.name}: expected a batch with columns '
+                             f'{self.labels if not self.fields_topic else "step,..."}, got '
+                             f'{label or "no layout"}')
+        return columns
+
 
 #: ROS type of the record batches.
 RECORD_TYPE = 'std_msgs/msg/Float64MultiArray'

@@ -208,7 +208,7 @@ def read_signals(path) -> BagSignals:
                     estimates[stamp] = dict(zip(msg.name, (float(v) for v in msg.position)))
                 elif conn.topic in _RECORD and _RECORD[conn.topic].fields_topic:
                     msg = typestore.deserialize_cdr(raw, conn.msgtype)
-                    names = msg.layout.dim[1].label.split(',')[1:] if msg.layout.dim else []
+                    names = _RECORD[conn.topic].columns_of(msg)
                     rows = np.asarray(msg.data, dtype=float).reshape(-1, 1 + len(names))
                     for r in rows:
                         estimates.setdefault(('step', int(r[0])), dict(zip(names, r[1:])))
@@ -263,11 +263,10 @@ def read_signals(path) -> BagSignals:
 def _read_batch(stream, msg, live: dict, live_timing: dict, path: Path) -> None:
     """The rows of one record batch into `live` ({topic: {step: value}}) or, for a timing
     stream, `live_timing` ({node: [(step, values)]})."""
-    width = 1 + len(stream.columns)
-    labels = msg.layout.dim[1].label if len(msg.layout.dim) == 2 else ''
-    if labels != stream.labels or len(msg.data) % width:
-        raise InputError(f'{path}: {stream.name}: expected a batch with columns '
-                         f'{stream.labels}, got {labels or "no layout"}')
+    try:
+        width = 1 + len(stream.columns_of(msg))
+    except ValueError as exc:
+        raise InputError(f'{path}: {exc}') from None
     rows = np.asarray(msg.data, dtype=float).reshape(-1, width)
     if stream.timing:
         live_timing.setdefault(stream.node, []).extend(

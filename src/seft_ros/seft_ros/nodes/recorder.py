@@ -141,18 +141,17 @@ class RecorderNode(SeftNode):
 
     def _on_batch(self, stream, msg) -> None:
         """Write every row of a record batch as the per-sample messages of the bag."""
-        dims = msg.layout.dim
-        label = dims[1].label if len(dims) == 2 else ''
-        if stream.fields_topic and label.startswith('step,'):
-            self._write_fields(stream.fields_topic, label, msg.data)
-            return
-        width = 1 + len(stream.columns)
-        if label != stream.labels or len(msg.data) % width:
+        try:
+            columns = stream.columns_of(msg)
+        except ValueError as exc:
             if stream.name not in self.foreign_batches:   # say it once, record the rest
                 self.foreign_batches.add(stream.name)
-                self.get_logger().error(f'{stream.name}: expected columns {stream.labels}; '
-                                        'ignoring its batches')
+                self.get_logger().error(f'{exc}; ignoring its batches')
             return
+        if stream.fields_topic:
+            self._write_fields(stream.fields_topic, columns, msg.data)
+            return
+        width = 1 + len(columns)
         data, dt_ns, write = msg.data, self.dt_ns, self._write
         if stream.timing:
             name = timing_topic(stream.node).name
@@ -161,7 +160,7 @@ class RecorderNode(SeftNode):
                 stamp = int(data[i]) * dt_ns
                 write(name, stamp, serialize(stamp, data[i + 1:i + width]))
             return
-        columns = [(j + 1, c, self.serialized[c]) for j, c in enumerate(stream.columns)]
+        columns = [(j + 1, c, self.serialized[c]) for j, c in enumerate(columns)]
         stamp = self.latest_ns
         for i in range(0, len(data), width):
             stamp = int(data[i]) * dt_ns
@@ -175,13 +174,12 @@ class RecorderNode(SeftNode):
                 self.acked = recorded
                 self.report(STATE_RECORDING, recorded=recorded)
 
-    def _write_fields(self, name: str, label: str, data) -> None:
+    def _write_fields(self, name: str, fields: tuple[str, ...], data) -> None:
         """Rows of a fields stream (the estimates): one JointState per row, ``name`` = the
         columns the publisher's label gives."""
-        serialize = self.serialized.get(label)
+        serialize = self.serialized.get(fields)
         if serialize is None:
-            fields = label.split(',')[1:]
-            serialize = self.serialized[label] = SerializedStamped.fields(
+            serialize = self.serialized[fields] = SerializedStamped.fields(
                 ESTIMATES.msg_type, fields)
         width = 1 + len(serialize.offsets)
         for i in range(0, len(data) - width + 1, width):

@@ -96,9 +96,10 @@ class ReferenceForceBuilderNode(SeftNode):
 
     def _on_ground_batch(self, stream, msg) -> None:
         """The ground-motion publisher's batch: ``xg''[k]`` of every row, in order."""
-        dims = msg.layout.dim
-        if len(dims) != 2 or dims[1].label != stream.labels or len(msg.data) % 2:
-            raise InputError(f'{stream.name}: expected rows of {stream.labels}')
+        try:
+            stream.columns_of(msg)
+        except ValueError as exc:
+            raise InputError(str(exc)) from None
         data = msg.data
         for i in range(0, len(data), 2):
             self._on_ground(int(data[i]), data[i + 1])
