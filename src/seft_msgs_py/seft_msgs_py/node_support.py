@@ -478,7 +478,6 @@ class StepTiming:
             next(r for r in record_streams_of(node.seft_name) if r.timing))
         self.dt = float(node.params['dt'])
         self.dt_ns = node.dt_ns
-        self.published = 0
         self.missed = 0
         self.stale = 0
         self._last_start: float | None = None
@@ -501,11 +500,10 @@ class StepTiming:
         self.stale += bool(stale)
         self.batch.add(stamp_ns // self.dt_ns, jitter_s, compute_s, input_age_s,
                        float(bool(missed)), float(bool(stale)), loop_latency_s)
-        self.published += 1
 
     def counts(self) -> dict:
         """Final-status counts: ``published_timing``, ``missed_deadlines``, ``stale``."""
-        return {'published_timing': self.published, 'missed_deadlines': self.missed,
+        return {'published_timing': self.batch.added, 'missed_deadlines': self.missed,
                 'stale': self.stale}
 
 
