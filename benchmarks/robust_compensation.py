@@ -8,8 +8,9 @@ sensor noise on (the noise set of ``benchmarks/compensation_targets.py``; the pa
 defaults are noise-free), the displacement NRMS after removing the lag for every
 predictor x error case x alpha x rig. The error cases are the predictor's m, c, k and tau
 (delay rig only; on the servohydraulic rig the loop delay is the inverse's) each +/-10 %,
-and all of them +/-10 % together. Then the convergence of the `adaptive` estimates (all
-+10 % wrong at the start) on both rigs and on Kobe KJM000 when present, and with
+and all of them +/-10 % together; on the servohydraulic rig also `adaptive` with the force
+loop identified from data (``adaptive_loop: data``). Then the convergence of the `adaptive`
+estimates (all +10 % wrong at the start) on both rigs and on Kobe KJM000 when present, and with
 ``--plot`` a figure of the estimates over a run.
 """
 
@@ -33,6 +34,8 @@ KEYS = {'m': 'predictor_mass_kg', 'c': 'predictor_damping_N_s_per_m',
         'k': 'predictor_stiffness_N_per_m', 'tau': 'predictor_tau_s'}
 ALPHAS = (0.5, 1.0, 1.5, 2.0)
 PREDICTORS = ('model', 'adaptive', 'ats')
+#: Extra rows of the servohydraulic rig: `adaptive` with the force loop identified from data.
+VARIANTS = {'adaptive/data': ('adaptive', {'adaptive_loop': 'data'})}
 
 
 def cases(rig: str) -> list[tuple[str, dict]]:
@@ -60,14 +63,17 @@ def table(rig: str, base: dict) -> dict:
     print(f'\n== {rig} rig, sensor noise on (displacement NRMS %, U = aborted)')
     print('predictor case'.ljust(24) + ''.join(f'a={a:<7g}' for a in ALPHAS) + 'worst')
     out = {}
-    for pred in PREDICTORS:
+    rows = [(p, p, {}) for p in PREDICTORS]
+    if rig == 'servohydraulic':
+        rows += [(name, p, opts) for name, (p, opts) in VARIANTS.items()]
+    for pred, predictor, opts in rows:
         for label, extra in cases(rig):
-            row = [nrms(dict(base, rig_model=rig, predictor=pred, alpha=a, **NOISE, **extra))
-                   for a in ALPHAS]
+            row = [nrms(dict(base, rig_model=rig, predictor=predictor, alpha=a, **NOISE,
+                             **opts, **extra)) for a in ALPHAS]
             out[pred, label] = row
             cells = ''.join(f'{e:6.2f}{"U" if not s else " "} ' for e, s in row)
             worst = max(e if s else float('inf') for e, s in row)
-            print(f'{pred:9s}{label:15s}' + cells + f'{worst:6.2f}', flush=True)
+            print(f'{pred:14s}{label:10s}' + cells + f'{worst:6.2f}', flush=True)
     return out
 
 
