@@ -171,7 +171,7 @@ def test_shared_parameters_have_an_explicit_source():
       'predictor_loop_delay_steps', 'predictor_loop_taps', 'predictor_loop_latency_s',
       'adaptive_window_s', 'adaptive_max_delay_s', 'adaptive_memory_s',
       'adaptive_excitation_N', 'adaptive_max_deviation', 'adaptive_max_rate_per_s',
-      'ats_window_s', 'monitor_cutoff_hz', 'monitor_window_s',
+      'adaptive_loop', 'ats_window_s', 'monitor_cutoff_hz', 'monitor_window_s',
       'monitor_threshold', 'monitor_floor_N'], 'reference_force_builder'),
     (['mass_kg', 'stiffness_N_per_m', 'damping_N_s_per_m', 'specimen_model',
       'post_yield_stiffness_ratio', 'yield_displacement_m', 'bouc_wen_n', 'bouc_wen_beta',
@@ -185,6 +185,8 @@ def test_shared_parameters_have_an_explicit_source():
       'wait_for_recorder', 'recorder_window_steps', 'dt', 'mode', 'n_steps'], 'rig'),
     (['record', 'amplitude_N', 'scale_factor', 'time_scale', 'duration_s', 'preview_steps'],
      'ground_motion_publisher'),
+    (['excitation', 'excitation_input', 'excitation_amplitude', 'excitation_band_low_hz',
+      'excitation_band_hz', 'excitation_seed'], 'ground_motion_publisher'),
     (['valve_limit_V', 'saturation_window_s', 'saturation_abort_fraction', 'force_controller',
       'force_integral_hz', 'force_crossover_hz', 'velocity_lead_s', 'velocity_filter_hz'],
      'force_servo_controller'),
@@ -195,8 +197,9 @@ def test_value_source_of_each_parameter(names, node):
 
 
 def test_value_source_lists_cover_the_schema():
-    # + 1: realtime_priority, per node (the rig's value is the one reported)
-    assert len(VALUE_SOURCE) == len(SCHEMA) == 22 + 38 + 6 + 8 + 2 + 1
+    # + 1: realtime_priority, per node (the rig's value is the one reported); the second 6:
+    # the excitation of identification runs
+    assert len(VALUE_SOURCE) == len(SCHEMA) == 23 + 38 + 6 + 6 + 8 + 2 + 1
 
 
 def test_value_source_of_unknown_name_is_an_error():

@@ -174,6 +174,15 @@ def delay_adaptive(graph_dir, seft_exe, run_process):
 
 
 @pytest.fixture(scope='module')
+def servo_open_loop(graph_dir, seft_exe, run_process):
+    # an identification run: the controller node drives the valve with the excitation
+    return seft_run(seft_exe, run_process, graph_dir / 'servo_open_loop', '--alpha', '0.5',
+                    '--duration', '1.0', '--rig', 'servohydraulic', '--set', 'excitation=noise',
+                    '--set', 'excitation_input=valve_command', '--set',
+                    'excitation_band_low_hz=2', '--set', 'monitor_threshold=0')
+
+
+@pytest.fixture(scope='module')
 def delay(graph_dir, seft_exe, run_process):
     # --force: the pre-run stability check rightly predicts this run unstable
     return seft_run(seft_exe, run_process, graph_dir / 'delay', '--rig', 'delay', '--alpha',
@@ -241,7 +250,7 @@ def test_servo_run_parameters_in_the_bag(servo):
 
 
 @pytest.mark.parametrize('which', ['servo', 'delay', 'servo_model', 'delay_adaptive',
-                                   'servo_window', 'servo_velocity'])
+                                   'servo_window', 'servo_velocity', 'servo_open_loop'])
 def test_bag_equals_simulate(request, which):
     run = request.getfixturevalue(which)
     sim = run.sim
@@ -380,3 +389,22 @@ def test_compare_reproduces_the_summary(servo, delay, seft_exe, run_process, tmp
     assert {'Evaluation criteria (RTHS benchmark)', 'Parameters and software'} <= set(
         page.headings)
     assert all(set(e['criteria']) == {'J1', 'J2', 'J3', 'J4', 'J5'} for e in summary['runs'])
+
+
+def test_simulate_bag_is_the_graph_bag(servo_open_loop, tmp_path):
+    """seft simulate --bag writes the topics, types, samples and parameters the graph records."""
+    from seft_ros.analysis.bagwrite import write_run_bag
+    run = servo_open_loop
+    assert np.any(run.sim.valve_command_V) and not np.any(run.sim.ground_acceleration_m_s2)
+    path = write_run_bag(run.sim, tmp_path / 'bag')
+    connections, messages = read_bag(path)
+    assert {t: c.msgtype for t, c in connections.items()} == {
+        t: c.msgtype for t, c in run.connections.items() if not t.startswith('/seft/timing/')}
+    assert json.loads(messages['/seft/run_parameters'][0][1].data) == run.params
+    graph, sim = read_run(run.bag), read_run(path)
+    assert graph.params == sim.params
+    assert graph.n_steps == sim.n_steps
+    for attr, _ in DATA.values():
+        b = getattr(graph, attr)
+        np.testing.assert_allclose(getattr(sim, attr), b, rtol=0,
+                                   atol=1e-9 * np.max(np.abs(b)), err_msg=attr)

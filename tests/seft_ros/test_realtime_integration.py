@@ -20,6 +20,7 @@ from test_node_graph_integration import DATA, leftover_processes, read_bag, stam
 
 from seft_msgs_py.convert import status_values
 from seft_ros.analysis.bag import read_run
+from seft_ros.cli.runner import NODE_MODULES
 
 DT_NS = 2_000_000
 
@@ -156,7 +157,7 @@ def _pid_of(node: str, marker: str) -> int:
             cmd = Path(f'/proc/{pid}/cmdline').read_bytes().replace(b'\0', b' ').decode()
         except OSError:
             continue
-        if f'seft_ros.nodes.{node}' in cmd and marker in cmd:
+        if f'-m {NODE_MODULES[node]} ' in cmd and marker in cmd:
             return int(pid)
     raise AssertionError(f'no {node} process for {marker}')
 

@@ -10,6 +10,7 @@ import gc
 import json
 import math
 import os
+import signal
 import sys
 import time
 import traceback
@@ -26,6 +27,7 @@ from rclpy.clock import Clock, ClockType
 from rclpy.executors import ExternalShutdownException
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension, String
 
 from seft_msgs_py import parameters
@@ -49,7 +51,8 @@ from seft_msgs_py.signals import (
 )
 from seft_msgs_py.topics import MEASUREMENT, NODE_PARAMETERS, STATUS, record_topic
 
-__all__ = ['SeftNode', 'StepTiming', 'RecordBatch', 'main_for', 'descriptor_of', 'LINGER_S']
+__all__ = ['SeftNode', 'StepTiming', 'RecordBatch', 'InputWatchdog', 'main_for', 'descriptor_of',
+           'LINGER_S']
 
 #: How long a finished node keeps serving its publishers before it exits [s].
 LINGER_S = 1.0
@@ -303,14 +306,30 @@ class SeftNode(Node):
               and state in (STATE_DONE, STATE_ABORTED, STATE_FAILED)):
             self.report(STATE_DONE, 'rig finished', **self.final_counts())
             self.finish(0)
+        elif (msg.name == 'recorder' and state == STATE_CLOSED
+              and self.seft_name not in ('rig', 'recorder')):
+            # the bag closed without the rig's final status (rig or link lost): over too
+            self.report(STATE_DONE, 'the recorder closed the bag', **self.final_counts())
+            self.finish(0)
 
-    def abort_run(self, reason: str, step: int) -> None:
-        """Stop the run safely from this node: log, report 'aborted' with the step, finish."""
+    def abort_run(self, reason: str, step: int, **values) -> None:
+        """Stop the run safely from this node: log, report 'aborted' with the step (and
+        `values`), finish."""
         self.get_logger().error(reason)
         # with what it published so far, so that the recorder can tell what is missing
         self.report(STATE_ABORTED, reason, step=step, time_s=f'{step * self.dt_ns * 1e-9:.6f}',
-                    **self.final_counts())
+                    **self.final_counts(), **values)
         self.finish(0)
+
+    def on_stop_signal(self, signame: str) -> None:
+        """SIGINT or SIGTERM during the run: end it safely from this node (the rig goes to its
+        safe state when it hears the abort; the recorder closes the bag after it).
+
+        Nodes override this (the rig ramps to its safe state itself). A second signal ends
+        the process at once.
+        """
+        self.abort_run(f'{self.seft_name} stopped by {signame}',
+                       int(getattr(self, 'next_step', 0)), signal=signame)
 
     def final_counts(self) -> dict:
         """What the final status reports: samples published, and timing records with their
@@ -507,6 +526,58 @@ class StepTiming:
                 'stale': self.stale}
 
 
+class InputWatchdog:
+    """Real-time mode: end the run when an input has stopped arriving (a node or the link to
+    another host lost).
+
+    Armed by the node once the run is under way (its first measurement, :meth:`arm`); from
+    then on a steady-clock timer (period half the limit, at most 10 ms) aborts the run through
+    :meth:`SeftNode.abort_run` once an input has been silent for longer than
+    ``watchdog_timeout_s`` (an input that never arrived counts from the arming). The rig then
+    goes to its safe state when it hears the abort; on a lost link the rig's own watchdog (no
+    valve command) or the force servo controller's (no reference force) does it on that side.
+    Detection time: the limit plus at most one timer period.
+
+    Parameters
+    ----------
+    node : SeftNode
+        The node (real-time mode, ``watchdog_timeout_s`` declared).
+    inputs : sequence of str
+        Names of the watched inputs, as the abort reason names them.
+    """
+
+    def __init__(self, node: 'SeftNode', inputs):
+        self.node = node
+        self.timeout_s = float(node.params['watchdog_timeout_s'])
+        self.inputs = tuple(inputs)
+        self.last_at = dict.fromkeys(self.inputs, -math.inf)
+        self.armed_at: float | None = None
+        node.wall_timer(min(0.5 * self.timeout_s, 0.01), self.check)
+
+    def arm(self) -> None:
+        """The run is under way: watch from now (a no-op once armed)."""
+        if self.armed_at is None:
+            self.armed_at = time.monotonic()
+
+    def feed(self, name: str) -> None:
+        """An input `name` arrived now."""
+        self.last_at[name] = time.monotonic()
+
+    def check(self) -> None:
+        """Abort the run when an input has been silent for longer than the limit."""
+        if self.node.done or self.armed_at is None:
+            return
+        now = time.monotonic()
+        for name in self.inputs:
+            silent = now - max(self.last_at[name], self.armed_at)
+            if silent > self.timeout_s:
+                self.node.abort_run(
+                    f'watchdog: no {name} for {1e3 * silent:.0f} ms (limit '
+                    f'{1e3 * self.timeout_s:.0f} ms; node or link lost)',
+                    int(getattr(self.node, 'next_step', 0)))
+                return
+
+
 def main_for(factory: Callable[[], SeftNode], name: str, args=None) -> int:
     """Create the node, spin it until it finishes, shut down cleanly; return the exit code.
 
@@ -515,7 +586,18 @@ def main_for(factory: Callable[[], SeftNode], name: str, args=None) -> int:
     and this loop stops spinning. A node with a schedule (:meth:`SeftNode.next_due`) gets its
     :meth:`SeftNode.run_due` called from this loop at absolute deadlines.
     """
-    rclpy.init(args=args)
+    # SIGINT and SIGTERM are this loop's (rclpy's handlers would shut the context down at
+    # once): the first one asks the node to stop safely (:meth:`SeftNode.on_stop_signal`),
+    # a second one ends the process now
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    stop: list[str] = []
+
+    def on_signal(signum, frame):
+        if stop:
+            raise KeyboardInterrupt
+        stop.append(signal.Signals(signum).name)
+
+    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     node = None
     code = 0
     try:
@@ -528,7 +610,12 @@ def main_for(factory: Callable[[], SeftNode], name: str, args=None) -> int:
             gc.freeze()
         executor = EventsExecutor()
         executor.add_node(node)
+        stop_handled = False
         while not node.done:
+            if stop and not stop_handled:
+                stop_handled = True
+                node.guard(node.on_stop_signal)(stop[0])
+                continue
             due = node.next_due()
             if due is None:
                 executor.spin_once(timeout_sec=0.1)
@@ -547,6 +634,8 @@ def main_for(factory: Callable[[], SeftNode], name: str, args=None) -> int:
         while True:
             now = time.monotonic()
             waited = now - start
+            if stop and (not stop_handled or waited > LINGER_S):
+                break                 # stopped by a signal: serve the final status briefly
             if node.refused:
                 # a refusal: until every node of the graph has heard it (a node started later
                 # names the mismatch too, instead of waiting for a graph that is gone)
@@ -570,4 +659,6 @@ def main_for(factory: Callable[[], SeftNode], name: str, args=None) -> int:
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
     return code

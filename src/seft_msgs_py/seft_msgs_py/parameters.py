@@ -85,6 +85,7 @@ _RFB = ('reference_force_builder',)
 _CTRL = ('force_servo_controller',)
 _RIG = ('rig',)
 _SPECIMEN = ('reference_force_builder', 'rig', 'recorder')
+_EXC = ('ground_motion_publisher', 'force_servo_controller', 'recorder')
 
 SCHEMA: tuple[ParamSpec, ...] = (
     # -- experiment -------------------------------------------------------------------------
@@ -139,9 +140,32 @@ SCHEMA: tuple[ParamSpec, ...] = (
     ParamSpec('time_scale', 0.5, '', 'Time scale of the record (0.5 halves its time step, as '
               'in the reference study).', 0.0, 100.0, True, nodes=_GM + ('recorder',)),
     ParamSpec('duration_s', 0.0, 's', 'Length of the run after time scaling (0: the whole '
-              'record).', 0.0, None, nodes=_GM + ('recorder',)),
+              'record; with an excitation, its length, 0: 20 s).', 0.0, None,
+              nodes=_GM + _CTRL + ('recorder',)),
     ParamSpec('preview_steps', 50, '', 'How many steps ahead of the simulated clock the ground '
               'acceleration is published.', 1, 100000, nodes=_GM),
+    # -- excitation (seft_ros.core.excitation): identification runs -------------------------
+    ParamSpec('excitation', 'none', '', "Identification run: 'none' (the ground-motion test), "
+              "'noise' (band-limited Gaussian noise, amplitude = its standard deviation), "
+              "'chirp' (logarithmic sweep over the band) or 'stepped_sine' (20 log-spaced "
+              'sines of whole cycles over the band); the record is not played.',
+              choices=('none', 'noise', 'chirp', 'stepped_sine'), nodes=_EXC),
+    ParamSpec('excitation_input', 'reference_force', '', "Where the excitation enters: "
+              "'reference_force' (closed loop: it replaces the ground-motion term "
+              '-(1+alpha) m xg_ddot of the reference force, so the bag holds it as the ground '
+              "acceleration) or 'valve_command' (open loop, servohydraulic rig: the force "
+              'controller is bypassed and the valve is driven directly; ground motion 0).',
+              choices=('reference_force', 'valve_command'), nodes=_EXC),
+    ParamSpec('excitation_amplitude', 0.0, 'N or V', 'Excitation amplitude, in N on the '
+              'reference force, in V on the valve (noise: standard deviation; chirp, '
+              'stepped sine: peak; 0: 100 N, 0.05 V).', 0.0, None, nodes=_EXC),
+    ParamSpec('excitation_band_low_hz', 0.5, 'Hz', 'Lower edge of the excitation band.',
+              0.0, None, True, nodes=_EXC),
+    ParamSpec('excitation_band_hz', 150.0, 'Hz', 'Upper edge of the excitation band (below the '
+              'Nyquist frequency 1/(2 dt), above excitation_band_low_hz).', 0.0, None, True,
+              nodes=_EXC),
+    ParamSpec('excitation_seed', 1, '', 'Seed of the noise excitation (runs are '
+              'reproducible).', 0, None, nodes=_EXC),
     # -- reference force builder ------------------------------------------------------------
     ParamSpec('predictor', 'none', '', 'Delay compensation of the fed-back acceleration '
               "('none': measured acceleration of the previous step, paper Eq. 5.3; "
@@ -200,6 +224,10 @@ SCHEMA: tuple[ParamSpec, ...] = (
     ParamSpec('adaptive_max_rate_per_s', 1.0, '1/s', "'adaptive' and 'ats': each estimate "
               'changes by at most this fraction of its configured (initial) value per second.',
               0.0, 100.0, True, nodes=_RFB + ('recorder',)),
+    ParamSpec('adaptive_loop', 'model', '', "'adaptive' on the servohydraulic rig: the force "
+              "loop it inverts is identified from data ('data': command vs measured force) or "
+              "refitted from the rig model with the identified specimen ('model').",
+              choices=('data', 'model'), nodes=_RFB + ('recorder',)),
     ParamSpec('ats_window_s', 1.0, 's', "'ats': sliding window of the least-squares fit of "
               'a0, a1, a2 (refitted every 16 steps, Chae et al. 2013).', 0.0, 100.0, True,
               nodes=_RFB + ('recorder',)),
@@ -298,7 +326,10 @@ SCHEMA: tuple[ParamSpec, ...] = (
               'readings saturate there (0: unlimited).', 0.0, None, nodes=_RIG),
     ParamSpec('watchdog_timeout_s', 0.02, 's', 'Real-time mode: when no command (valve '
               'command, or reference force on the delay rig) has arrived for this long, the rig '
-              'goes to its safe state and the run ends aborted.', 0.0, 10.0, True, nodes=_RIG),
+              'goes to its safe state and the run ends aborted; likewise when the force servo '
+              'controller has had no new reference force, or the reference-force builder no '
+              'measurement, for this long (a lost link between hosts).', 0.0, 10.0, True,
+              nodes=_RIG + _RFB + _CTRL),
     ParamSpec('safe_ramp_s', 0.2, 's', "Real-time mode: on any abort the rig's command (the "
               'actuator force on the delay rig, the valve opening on the servohydraulic rig) '
               'is ramped linearly to zero over this time, then held at zero (valve closed).',
@@ -535,6 +566,14 @@ _SHARED_SOURCE = {
     'force_crossover_hz': 'force_servo_controller', 'velocity_lead_s': 'force_servo_controller',
     'velocity_filter_hz': 'force_servo_controller',
     'realtime_priority': 'rig',             # per node; the rig's is the clock's
+    'watchdog_timeout_s': 'rig',            # the rig's watchdog; the others watch their inputs
+    # the excitation: the ground-motion publisher plays it (closed loop), the controller
+    # drives the valve with it (open loop); both generate the same samples
+    'duration_s': 'ground_motion_publisher', 'excitation': 'ground_motion_publisher',
+    'excitation_input': 'ground_motion_publisher',
+    'excitation_amplitude': 'ground_motion_publisher',
+    'excitation_band_low_hz': 'ground_motion_publisher',
+    'excitation_band_hz': 'ground_motion_publisher', 'excitation_seed': 'ground_motion_publisher',
 }
 
 

@@ -52,6 +52,7 @@ from seft_msgs_py.signals import MEASUREMENT_FIELDS, RECORD_ROWS
 from seft_msgs_py.topics import (
     CLOCK,
     CLOCK_EVERY,
+    LINK_EMULATOR_NODE,
     MEASUREMENT,
     REFERENCE_FORCE,
     STATUS,
@@ -159,10 +160,12 @@ class RigNode(SeftNode):
 
     def _subscribed_by(self, node: str, topics=(MEASUREMENT.name,)) -> bool:
         """`node`'s subscriptions to `topics` (default: the rig's measurement) are
-        discovered."""
+        discovered (or, across an emulated link, the link emulator's, which relays them to
+        `node`, whose parameters have come over the link)."""
         for name in topics:
             nodes = {i.node_name for i in self.get_subscriptions_info_by_topic(name)}
-            if node not in nodes:
+            if node not in nodes and not (LINK_EMULATOR_NODE in nodes
+                                          and node in self.node_params):
                 return False
         return True
 
@@ -340,6 +343,16 @@ class RigNode(SeftNode):
         self.get_logger().error(f'safe state at t = {self.abort_at_s:.3f} s: {reason}')
         self.rig.enter_safe_state()
 
+    def on_stop_signal(self, signame: str) -> None:
+        """SIGINT/SIGTERM: the safe state (real time: the command ramped to zero, sampled to
+        the end), then the run ends aborted with that reason."""
+        reason = f'rig stopped by {signame}'
+        self.stop_signal = signame
+        if self.realtime and self.running:
+            self._abort_realtime(reason)
+        else:
+            self._end(STATE_ABORTED, reason)
+
     def _end(self, state: str, message: str) -> None:
         if self.done:
             return
@@ -357,6 +370,8 @@ class RigNode(SeftNode):
             extra['discarded_commands'] = self.rig.discarded
         if getattr(self, 'wall_start', None) is not None:
             extra['wall_s'] = f'{time.monotonic() - self.wall_start:.3f}'
+        if getattr(self, 'stop_signal', None):
+            extra['signal'] = self.stop_signal
         self.report(state, message, step=k, n_steps=self.n_steps,
                     time_s=f'{k * self.rig.dt:.6f}', published=self.published,
                     mode=self.params['mode'], **extra)

@@ -7,6 +7,11 @@ declared it when that node is not in the bag, and from ``/seft/run_parameters`` 
 without node parameters; the signals from the scalar topics (one message per step, stamped
 ``t_k``), the abort reason from the final ``/seft/status`` reports.
 
+A bag its recorder never closed (killed with SIGKILL: no ``metadata.yaml``, an MCAP file
+without its summary, an uncommitted sqlite3 transaction) reads too: every message of its
+complete records (:mod:`seft_ros.analysis.bag_recovery`); :func:`read_run` says that the
+recording ended in a crash and how much it recovered.
+
 A bag recorded from the live topics (``ros2 bag record`` on a full ROS install, which sees
 the rig's one ``/seft/measurement`` message and the nodes' record batches instead of the
 recorder's per-signal topics) reads the same: a signal missing as its own topic is taken
@@ -22,6 +27,7 @@ from rosbags.typesys import Stores, get_typestore
 
 from seft_msgs_py import parameters, signals
 from seft_msgs_py.errors import InputError
+from seft_ros.analysis.bag_recovery import FLUSH_EVERY_S, is_unclosed_bag, recover_bag
 from seft_ros.analysis.rundata import RunData
 from seft_ros.analysis.timing import (
     TIMING_PUBLISHER,
@@ -30,7 +36,7 @@ from seft_ros.analysis.timing import (
     timing_summary,
 )
 
-__all__ = ['read_run', 'BagSignals', 'read_signals']
+__all__ = ['read_run', 'BagSignals', 'read_signals', 'recording_end']
 
 _SCALARS = {s.name: s.field for s in (signals.CLOCK,) + signals.SCALAR_SIGNALS}
 _RECORD = {r.name: r for r in signals.RECORD_STREAMS}
@@ -81,6 +87,9 @@ class BagSignals:
     estimates : dict of int -> dict of str -> float
         The compensator's estimates in effect for each step's reference force
         (``/seft/estimates``; empty without an adaptive compensator).
+    recovery : RecoveredBag or None
+        For a bag that was not closed, what :func:`~seft_ros.analysis.bag_recovery.recover_bag`
+        read (its messages emptied once read); None for a closed bag.
     """
 
     def __init__(self, params, samples, counts, statuses, node_params=None,
@@ -94,6 +103,7 @@ class BagSignals:
         self.parameter_mismatches = [] if parameter_mismatches is None else parameter_mismatches
         self.timing = {} if timing is None else timing
         self.estimates: dict[int, dict[str, float]] = {}
+        self.recovery = None
 
 
 def _node_parameters(data: str, where: str) -> tuple[str, dict]:
@@ -146,7 +156,8 @@ def read_signals(path) -> BagSignals:
     Parameters
     ----------
     path : str or Path
-        Bag directory.
+        Bag directory: a closed bag (rosbags reads it), or one its recorder never closed
+        (no ``metadata.yaml``; the complete records of its file, ``BagSignals.recovery``).
 
     Returns
     -------
@@ -175,58 +186,64 @@ def read_signals(path) -> BagSignals:
     live = {name: {} for name in _SCALARS}      # topic -> {step or ('ns', stamp): value}
     live_timing: dict[str, list] = {}          # node -> [(step, values)]
     estimates: dict = {}                       # stamp [ns] or ('step', k) -> {name: value}
+    recovery = None
     try:
-        with Reader(path) as reader:
-            for conn, _, raw in reader.messages():
-                counts[conn.topic] = counts.get(conn.topic, 0) + 1
-                if conn.topic == signals.RUN_PARAMETERS.name:
-                    msg = typestore.deserialize_cdr(raw, conn.msgtype)
-                    params = json.loads(msg.data)
-                elif conn.topic == signals.NODE_PARAMETERS.name:
-                    msg = typestore.deserialize_cdr(raw, conn.msgtype)
-                    node, values = _node_parameters(
-                        msg.data, f'{path}: {signals.NODE_PARAMETERS.name}')
-                    node_params[node] = values
-                elif conn.topic in TIMING_PUBLISHER:
-                    timing_rows.setdefault(TIMING_PUBLISHER[conn.topic], []).append(
-                        timing_row(typestore.deserialize_cdr(raw, conn.msgtype)))
-                elif conn.topic == signals.STATUS.name:
-                    msg = typestore.deserialize_cdr(raw, conn.msgtype)
-                    entry = {kv.key: kv.value for kv in msg.values}
-                    entry.update(name=msg.name, message=msg.message)
-                    statuses.append(entry)
-                elif conn.topic == signals.MEASUREMENT.name:
-                    msg = typestore.deserialize_cdr(raw, conn.msgtype)
-                    by_name = dict(zip(msg.name, msg.position))
-                    stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-                    for topic, field in zip(_MEASURED, signals.MEASUREMENT_FIELDS):
-                        if field in by_name:
-                            live[topic][('ns', stamp)] = float(by_name[field])
-                elif conn.topic == signals.ESTIMATES.name:
-                    msg = typestore.deserialize_cdr(raw, conn.msgtype)
-                    stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-                    estimates[stamp] = dict(zip(msg.name, (float(v) for v in msg.position)))
-                elif conn.topic in _RECORD and _RECORD[conn.topic].fields_topic:
-                    msg = typestore.deserialize_cdr(raw, conn.msgtype)
-                    names = _RECORD[conn.topic].columns_of(msg)
-                    rows = np.asarray(msg.data, dtype=float).reshape(-1, 1 + len(names))
-                    for r in rows:
-                        estimates.setdefault(('step', int(r[0])), dict(zip(names, r[1:])))
-                elif conn.topic in _RECORD:
-                    _read_batch(_RECORD[conn.topic], typestore.deserialize_cdr(raw, conn.msgtype),
-                                live, live_timing, path)
-                elif conn.topic in _SCALARS:
-                    msg = typestore.deserialize_cdr(raw, conn.msgtype)
-                    if conn.topic == signals.CLOCK.name:
-                        stamp, value = msg.clock, None
-                    else:
-                        stamp, value = msg.header.stamp, float(_get(msg, _SCALARS[conn.topic]))
-                    samples[conn.topic][stamp.sec * 1_000_000_000 + stamp.nanosec] = value
+        if is_unclosed_bag(path):
+            recovery = recover_bag(path)
+        for topic, msgtype, raw in _messages(path, recovery):
+            counts[topic] = counts.get(topic, 0) + 1
+            if topic == signals.RUN_PARAMETERS.name:
+                msg = typestore.deserialize_cdr(raw, msgtype)
+                params = json.loads(msg.data)
+            elif topic == signals.NODE_PARAMETERS.name:
+                msg = typestore.deserialize_cdr(raw, msgtype)
+                node, values = _node_parameters(
+                    msg.data, f'{path}: {signals.NODE_PARAMETERS.name}')
+                node_params[node] = values
+            elif topic in TIMING_PUBLISHER:
+                timing_rows.setdefault(TIMING_PUBLISHER[topic], []).append(
+                    timing_row(typestore.deserialize_cdr(raw, msgtype)))
+            elif topic == signals.STATUS.name:
+                msg = typestore.deserialize_cdr(raw, msgtype)
+                entry = {kv.key: kv.value for kv in msg.values}
+                entry.update(name=msg.name, message=msg.message)
+                statuses.append(entry)
+            elif topic == signals.MEASUREMENT.name:
+                msg = typestore.deserialize_cdr(raw, msgtype)
+                by_name = dict(zip(msg.name, msg.position))
+                stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+                for name, field in zip(_MEASURED, signals.MEASUREMENT_FIELDS):
+                    if field in by_name:
+                        live[name][('ns', stamp)] = float(by_name[field])
+            elif topic == signals.ESTIMATES.name:
+                msg = typestore.deserialize_cdr(raw, msgtype)
+                stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+                estimates[stamp] = dict(zip(msg.name, (float(v) for v in msg.position)))
+            elif topic in _RECORD and _RECORD[topic].fields_topic:
+                msg = typestore.deserialize_cdr(raw, msgtype)
+                names = _RECORD[topic].columns_of(msg)
+                rows = np.asarray(msg.data, dtype=float).reshape(-1, 1 + len(names))
+                for r in rows:
+                    estimates.setdefault(('step', int(r[0])), dict(zip(names, r[1:])))
+            elif topic in _RECORD:
+                _read_batch(_RECORD[topic], typestore.deserialize_cdr(raw, msgtype),
+                            live, live_timing, path)
+            elif topic in _SCALARS:
+                msg = typestore.deserialize_cdr(raw, msgtype)
+                if topic == signals.CLOCK.name:
+                    stamp, value = msg.clock, None
+                else:
+                    stamp, value = msg.header.stamp, float(_get(msg, _SCALARS[topic]))
+                samples[topic][stamp.sec * 1_000_000_000 + stamp.nanosec] = value
     except InputError:
         raise
     except Exception as exc:  # rosbags raises several types for a damaged bag
         raise InputError(f'{path}: cannot read the bag: {exc}') from None
     if params is None and not node_params:
+        if recovery is not None:
+            cut = f' ({recovery.end})' if recovery.end else ''
+            raise InputError(f'{path}: the bag was not closed (recorder killed?) and holds no '
+                             f'run parameters in its complete records{cut}')
         raise InputError(f'{path}: not a seft bag (no /seft/run_parameters message)')
     if params is not None and not isinstance(params, dict):
         raise InputError(f'{path}: {signals.RUN_PARAMETERS.name}: expected a JSON object')
@@ -257,7 +274,22 @@ def read_signals(path) -> BagSignals:
                      timing=node_timings(timing_rows, params['dt']))
     bag.estimates = {(key[1] if isinstance(key, tuple) else int(round(key / dt_ns))): values
                      for key, values in estimates.items()}
+    if recovery is not None:
+        recovery.messages = []       # read: the counts say how many
+    bag.recovery = recovery
     return bag
+
+
+def _messages(path: Path, recovery):
+    """``(topic, message type, CDR bytes)`` of every message, in log-time order: rosbags'
+    reader for a closed bag, the recovered messages of an unclosed one."""
+    if recovery is not None:
+        for topic, msgtype, _, raw in recovery.messages:
+            yield topic, msgtype, raw
+        return
+    with Reader(path) as reader:
+        for conn, _, raw in reader.messages():
+            yield conn.topic, conn.msgtype, raw
 
 
 def _read_batch(stream, msg, live: dict, live_timing: dict, path: Path) -> None:
@@ -276,6 +308,57 @@ def _read_batch(stream, msg, live: dict, live_timing: dict, path: Path) -> None:
         live[topic].update((int(r[0]), float(r[j])) for r in rows)
 
 
+def recording_end(bag: BagSignals, n_steps: int) -> dict:
+    """How the recording of `bag` ended, and what it holds.
+
+    Parameters
+    ----------
+    bag : BagSignals
+        A bag read by :func:`read_signals`.
+    n_steps : int
+        Its complete steps (every signal present).
+
+    Returns
+    -------
+    dict
+        ``'end'``: ``'closed'`` (the recorder closed the bag after the rig's final status),
+        ``'stopped'`` (the recorder closed the bag, but the run's end is not in it: no final
+        status of the rig; the recorder was stopped by a signal, or lost the rig),
+        ``'crashed'`` (never closed: recovered from the file, the recorder was killed) or
+        ``'unknown'`` (no recorder status: a bag not written by the recorder);
+        ``'steps'`` and ``'duration_s'``: the complete steps and their time span [s];
+        ``'messages'``: the messages read; ``'note'``: one line for the report. A crashed
+        bag adds ``'flush_every_s'`` (the recorder's flush period [s]: the bound of what the
+        crash lost, at most that much of the last complete steps, see
+        ``seft_ros.nodes.recorder``), ``'storage'``, ``'file_complete'`` (the file ended
+        as a closed one, killed during the close) and ``'cut'`` (where the file was cut).
+    """
+    dt = bag.params['dt']
+    recorder = [s for s in bag.statuses if s['name'] == 'recorder']
+    closed = any(s.get('state') == 'closed' for s in recorder)
+    run_ended = any(s['name'] == 'rig' and s.get('state') in ('done', 'aborted', 'failed')
+                    for s in bag.statuses)
+    out = {'steps': n_steps, 'duration_s': n_steps * dt,
+           'messages': int(sum(bag.counts.values()))}
+    held = f'{n_steps * dt:.3f} s ({n_steps} steps, {out["messages"]} messages)'
+    if bag.recovery is not None:
+        flush = next((float(s['flush_every_s']) for s in recorder if 'flush_every_s' in s),
+                     FLUSH_EVERY_S)
+        out.update(end='crashed', flush_every_s=flush, storage=bag.recovery.storage,
+                   file_complete=bag.recovery.file_complete, cut=bag.recovery.end)
+        out['note'] = (f'the recording ended in a crash (recorder killed, bag not closed): '
+                       f'recovered {held}; at most the last {flush:g} s before the crash '
+                       'is lost')
+    elif closed and run_ended:
+        out.update(end='closed', note=f'bag closed by the recorder: {held}')
+    elif recorder:
+        out.update(end='stopped', note='the recording was stopped before the run ended (bag '
+                                       f"closed without the rig's final status): {held}")
+    else:
+        out.update(end='unknown', note=f'no recorder status in the bag: {held}')
+    return out
+
+
 def read_run(path) -> RunData:
     """Read a seft bag into a :class:`RunData` (the steps for which every signal exists).
 
@@ -283,13 +366,18 @@ def read_run(path) -> RunData:
     ``'counts'``, ``'node_params'`` (``{node: {parameter: value}}``, empty for a bag without
     node parameters), ``'param_sources'`` (``{parameter: node, 'run_parameters' or
     'default'}``), ``'parameter_mismatches'`` (one line per shared parameter on which the
-    nodes disagree; empty when they agree), ``'wall_s'`` (the rig's wall time of the stepping
+    nodes disagree; empty when they agree), ``'recording'`` (how the recording ended and what
+    it holds, :func:`recording_end`: a bag whose recorder was killed reads too, from its
+    complete records), ``'wall_s'`` (the rig's wall time of the stepping
     [s], or None), ``'bag_lost_messages'`` (what the nodes published and the bag does not
     hold, from the recorder's closing status) and, for a real-time run, ``'timing_data'``
     (``BagSignals.timing``) and ``'timing'`` (its
     :func:`~seft_ros.analysis.timing.timing_summary`). A real-time run aborted into the
     rig's safe state ends at the abort (``abort_at_s`` of the rig's final status): the ramp
-    after it is not part of the test.
+    after it is not part of the test. A bag that ends before the run did (no final status of
+    the rig; the recorder killed or stopped) is a run cut short: not ``stable``, ended at its
+    last complete step, with the reason ``'recorder: the recording ended in a crash (recorder
+    killed)'`` (or ``'... was stopped before the run ended'``).
 
     Raises
     ------
@@ -321,6 +409,7 @@ def read_run(path) -> RunData:
     aborted = [s for s in bag.statuses if s.get('state') in ('aborted', 'failed')]
     rig_final = [s for s in bag.statuses
                  if s['name'] == 'rig' and s.get('state') in ('done', 'aborted', 'failed')]
+    recording = recording_end(bag, n)
     final = rig_final[-1] if rig_final else {}
     dt = p['dt']
     abort_at_s = float(final['abort_at_s']) if 'abort_at_s' in final else None
@@ -333,10 +422,17 @@ def read_run(path) -> RunData:
         first = aborted[0]
         reason = first['message'] if first['name'] == 'rig' else (
             f"{first['name']}: {first['message']}")
+    elif not rig_final and recording['end'] in ('crashed', 'stopped'):
+        # the bag ends before the run did: the test is cut short at its last complete step
+        stable = False
+        reason = ('recorder: the recording ended in a crash (recorder killed)'
+                  if recording['end'] == 'crashed' else
+                  'recorder: the recording was stopped before the run ended')
     record_name = next((s.get('record') for s in bag.statuses
                         if s['name'] == 'ground_motion_publisher' and s.get('record')),
                        Path(str(p['record'])).stem)
     extra = {'rig_final': rig_final[-1] if rig_final else None, 'counts': bag.counts,
+             'recording': recording,
              'node_params': bag.node_params, 'param_sources': bag.param_sources,
              'parameter_mismatches': bag.parameter_mismatches,
              'wall_s': float(final['wall_s']) if 'wall_s' in final else None}

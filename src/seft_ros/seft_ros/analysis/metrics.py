@@ -490,8 +490,10 @@ def summary_entry(run: RunData, comparison: RunComparison) -> dict[str, Any]:
         'high_frequency_force_fraction', 'high_frequency_force_fraction_reference',
         'high_frequency_cutoff_hz', 'abort_reason', 'mode', 'wall_s'}`` (and ``'timing'``, the
         :func:`seft_ros.analysis.timing.timing_summary` of a real-time run, from
-        ``run.extra['timing']``, and ``'bag_lost_messages'``, what the nodes published and the
-        bag does not hold, from ``run.extra``; ``wall_s`` [s], the wall time of the stepping, from
+        ``run.extra['timing']``, ``'bag_lost_messages'``, what the nodes published and the
+        bag does not hold, and ``'recording'``, how the recording ended
+        (``seft_ros.analysis.bag.recording_end``: closed, stopped, or crashed and recovered),
+        from ``run.extra``; ``wall_s`` [s], the wall time of the stepping, from
         ``run.extra['wall_s']``) where rig is ``params['rig_model']``, predictor is
         ``params['predictor']``, record is ``run.record_name`` (``params['record']`` if
         empty), ``lag_s`` [s] is the displacement lag, ``nrms`` is after removing each
@@ -530,6 +532,8 @@ def summary_entry(run: RunData, comparison: RunComparison) -> dict[str, Any]:
         entry['timing'] = run.extra['timing']
     if run.extra.get('bag_lost_messages') is not None:
         entry['bag_lost_messages'] = int(run.extra['bag_lost_messages'])
+    if run.extra.get('recording') is not None:
+        entry['recording'] = dict(run.extra['recording'])
     return json_safe(entry)
 
 

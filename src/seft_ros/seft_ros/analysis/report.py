@@ -503,6 +503,9 @@ def _run_markdown(index: int, run: RunData, comparison: RunComparison) -> list[s
         at = _abort_time(run)
         where = f' at t = {at:.3f} s' if at is not None else ''
         lines.append(f'- **aborted{where}**: {run.abort_reason or "no reason recorded"}')
+    recording = run.extra.get('recording') or {}
+    if recording.get('end') in ('crashed', 'stopped'):
+        lines.append(f'- **recording {recording["end"]}**: {recording.get("note")}')
     lines += [
         f'- power above {comparison.high_frequency_cutoff_hz:g} Hz in the force: test '
         f'{_fmt(comparison.high_frequency_force_fraction, ".2f", 100)} %, reference '

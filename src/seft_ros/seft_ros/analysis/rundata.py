@@ -53,7 +53,11 @@ class RunData:
         for a bag without node parameters), ``'param_sources'`` (``{parameter: node,
         'run_parameters' or 'default'}``: where each value of `params` was taken from) and
         ``'parameter_mismatches'`` (one line per shared parameter on which the nodes
-        disagreed, ``seft_msgs_py.parameters.shared_mismatches``; empty when they agree).
+        disagreed, ``seft_msgs_py.parameters.shared_mismatches``; empty when they agree) and
+        ``'recording'`` (how the recording ended: ``'end'`` is ``'closed'``, ``'stopped'``
+        before the run's end, ``'crashed'``, the recorder killed and the bag recovered from
+        its file, or ``'unknown'``; with the steps, messages and a one-line ``'note'``,
+        ``seft_ros.analysis.bag.recording_end``).
     estimates : dict of str to ndarray (n,), or None
         The compensator's online estimates in effect for each sample's reference force,
         keyed by the compensator's ``ESTIMATES`` names (units in the name, e.g. ``mass_kg``,

@@ -33,7 +33,7 @@ from seft_ros.core.reference_force import PREDICTORS
 __all__ = ['build_runs', 'output_dir', 'run_experiments', 'simulate_experiments',
            'simulate_runs', 'compare_bags', 'find_bags', 'summary_table', 'criteria_table',
            'Result', 'check_stability',
-           'stability_report', 'stability_table', 'StabilityResult']
+           'stability_report', 'stability_table', 'StabilityResult', 'identify_bags']
 
 
 class Result:
@@ -113,7 +113,8 @@ def _finish(out_dir: Path, runs: list[RunData], title: str, t0: float) -> Result
 
 def simulate_experiments(*, runs: list[dict], out_dir: Path,
                          progress: Callable[[str], None] = print, title: str = '',
-                         force: bool = False, workers: int | None = None) -> Result:
+                         force: bool = False, workers: int | None = None,
+                         bag: bool = False) -> Result:
     """Run each parameter set with :func:`~seft_ros.core.experiment.simulate` (no ROS) and
     write the report.
 
@@ -138,6 +139,10 @@ def simulate_experiments(*, runs: list[dict], out_dir: Path,
     workers : int >= 1, optional
         Worker processes (default ``os.cpu_count()``; never more than the runs). 1: every
         run in this process, one after the other.
+    bag : bool
+        Also write each run's bag to ``out_dir/<run>/bag``, the bag the node graph records
+        (:func:`seft_ros.analysis.bagwrite.write_run_bag`), for ``seft compare`` and
+        ``seft identify``.
 
     Returns
     -------
@@ -155,9 +160,18 @@ def simulate_experiments(*, runs: list[dict], out_dir: Path,
         progress check (within about 0.5 s) and the workers exit before this re-raises.
     """
     t0 = time.monotonic()
+    bags = [out_dir / _run_label(p, runs) / 'bag' for p in runs] if bag else []
+    for path in bags:
+        if path.exists():
+            raise InputError(f'{path}: the bag exists already; expected a new --out directory')
     check_stability(runs=runs, force=force, progress=progress)
     check_capacity(runs=runs, progress=progress)
     data = simulate_runs(runs=runs, out_dir=out_dir, progress=progress, workers=workers)
+    if bags:
+        from seft_ros.analysis.bagwrite import write_run_bag
+        for rd, path in zip(data, bags):
+            write_run_bag(rd, path)
+            progress(f'bag: {path}')
     return _finish(out_dir, data, title or 'seft simulate', t0)
 
 
@@ -316,23 +330,112 @@ def _domain_id() -> int:
     return random.SystemRandom().randint(100, 199)
 
 
+def check_nodes(nodes: list[str], runs: list[dict]) -> list[str]:
+    """Validate ``seft run --nodes``: names of the graph of every run, none twice.
+
+    Returns
+    -------
+    list of str
+        The names, in the graph's start order.
+
+    Raises
+    ------
+    InputError
+        A name that is no node of a run's graph (the message lists the valid ones).
+    """
+    if not nodes:
+        raise InputError('--nodes: expected one or more node names')
+    for p in runs:
+        graph = ['recorder', *parameters.graph_nodes(p['rig_model'])]
+        for name in nodes:
+            if name not in graph:
+                raise InputError(f'--nodes {name}: not a node of the {p["rig_model"]!r} rig\'s '
+                                 f'graph; expected some of {", ".join(graph)}')
+    if len(set(nodes)) != len(nodes):
+        raise InputError(f'--nodes {",".join(nodes)}: a node is named twice')
+    return list(nodes)
+
+
+def _shared_domain(domain_id: int | None) -> int:
+    """The ROS domain of a run over several hosts: given, never chosen at random."""
+    if domain_id is not None:
+        return domain_id
+    if not os.environ.get('ROS_DOMAIN_ID'):
+        raise InputError('--nodes: the hosts of a run must share its ROS domain; set '
+                         'ROS_DOMAIN_ID (or --domain-id) to the same value on every host')
+    return _domain_id()
+
+
+def _read_outcome(outcome, label: str, progress: Callable[[str], None]) -> RunData:
+    """Read a graph run's bag back and say how the run went."""
+    rd = read_run(outcome.bag_path)
+    state = 'stable' if rd.stable else f'ABORTED at {rd.unstable_at_s:.3f} s: ' \
+        f'{rd.abort_reason}'
+    progress(f'[{label}] {rd.n_steps} steps in {outcome.wall_time_s:.1f} s wall; '
+             f'{state}; bag {outcome.bag_path}')
+    return rd
+
+
+def _run_here(runs, out_dir, progress, domain, nodes) -> Result | None:
+    """Run this host's `nodes` of every run (the others run on other hosts); the report
+    where the recorder runs (None elsewhere)."""
+    from seft_ros.cli.runner import GraphRunner  # rclpy only for this verb
+    t0 = time.monotonic()
+    runner = GraphRunner(domain, progress, localhost_default=False)
+    try:
+        present = runner.present_nodes(nodes)
+        if present:
+            raise SeftError(f'ROS_DOMAIN_ID={domain} already has node(s) '
+                            f'{", ".join(present)}: another run? Stop it or choose another '
+                            'domain on every host')
+        data = []
+        for p in runs:
+            label = _run_label(p, runs)
+            outcome = runner.run(p, out_dir / label, label=f'[{label}] ', nodes=nodes)
+            if outcome.recorded_here:
+                data.append(_read_outcome(outcome, label, progress))
+            else:
+                progress(f'[{label}] run over on this host ({", ".join(nodes)}): rig '
+                         f'{outcome.rig_state or "not heard"}'
+                         + (f': {outcome.message}' if outcome.message else '')
+                         + f'; outcome in {outcome.run_dir / "outcome.json"}')
+    finally:
+        runner.close()
+    if 'recorder' not in nodes:
+        return None
+    return _finish(out_dir, data, 'seft run (several hosts)', t0)
+
+
 def run_experiments(*, runs: list[dict], out_dir: Path,
                     progress: Callable[[str], None] = print, title: str = '',
-                    domain_id: int | None = None, force: bool = False) -> Result:
+                    domain_id: int | None = None, force: bool = False,
+                    nodes: list[str] | None = None) -> Result | None:
     """Run each parameter set as a node graph (separate processes over DDS), record a bag
     per run, read the bags back and write the report.
 
     Before any node starts, :func:`check_stability` (`force`: warn instead of refusing).
 
+    `nodes` (``seft run --nodes``): start only these nodes; the rest of the graph runs on
+    other hosts in the same ROS domain (``ROS_DOMAIN_ID`` or `domain_id`, required then;
+    discovery range and static peers from the environment). Returns None on a host without
+    the recorder (the bag and the report are on the recorder's host).
+
     Raises
     ------
     PredictedUnstableError
         A run is predicted unstable and `force` is False (nothing started).
+    InputError
+        `nodes` names no node of the graph, or several hosts without a shared domain.
     SeftError
-        A node failed or the graph stalled (message names the node and its log).
+        A node failed, died, was stopped or the graph stalled (message names the node, when,
+        and its log).
     """
+    if nodes is not None:
+        nodes = check_nodes(nodes, runs)
     check_stability(runs=runs, force=force, progress=progress)
     check_capacity(runs=runs, progress=progress)
+    if nodes is not None:
+        return _run_here(runs, out_dir, progress, _shared_domain(domain_id), nodes)
     from seft_ros.cli.runner import GraphRunner  # rclpy only for this verb
 
     t0 = time.monotonic()
@@ -376,12 +479,7 @@ def run_experiments(*, runs: list[dict], out_dir: Path,
         for p in runs:
             label = _run_label(p, runs)
             outcome = runner.run(p, out_dir / label, label=f'[{label}] ')
-            rd = read_run(outcome.bag_path)
-            data.append(rd)
-            state = 'stable' if rd.stable else f'ABORTED at {rd.unstable_at_s:.3f} s: ' \
-                f'{rd.abort_reason}'
-            progress(f'[{label}] {rd.n_steps} steps in {outcome.wall_time_s:.1f} s wall; '
-                     f'{state}; bag {outcome.bag_path}')
+            data.append(_read_outcome(outcome, label, progress))
     finally:
         runner.close()
         claim.close()
@@ -459,7 +557,9 @@ def compare_bags(*, bags: list[str], out_dir: Path, title: str = '') -> Result:
 
 def summary_table(summary: list[dict]) -> str:
     """A plain-text table of summary entries (one line per run); real-time runs add the loop
-    latency (p50, p99), missed deadlines and stale commands."""
+    latency (p50, p99), missed deadlines and stale commands. Below it, one ``note:`` line per
+    run whose recording did not end with the run (``"recording"`` of the entry: the recorder
+    killed, the bag recovered; or stopped)."""
     head = (f'{"alpha":>6} {"rig":>14} {"predictor":>10} {"stable":>7} {"abort_s":>8} '
             f'{"lag_ms":>7} {"nrms_x%":>8} {"nrms_a%":>8} {"nrms_f%":>8} {"peak_x":>7} '
             f'{"peak_a":>7} {"peak_f":>7}')
@@ -493,6 +593,11 @@ def summary_table(summary: list[dict]) -> str:
                           f'{num(t["loop_latency_ms"]["p99"], 8)} '
                           f'{pct(t["missed_deadline_fraction"])} '
                           f'{pct(t["stale_command_fraction"])}' if t else '')
+    for i, e in enumerate(summary, start=1):
+        rec = e.get('recording') or {}
+        if rec.get('end') in ('crashed', 'stopped'):
+            lines.append(f'note: run {i} (alpha {e["alpha"]:g}, {e["predictor"]}): '
+                         f'{rec.get("note")}')
     return '\n'.join(lines)
 
 
@@ -724,3 +829,64 @@ def stability_table(result: StabilityResult) -> str:
     for name, note in smap.notes.items():
         lines.append(f'{name}: {note}')
     return '\n'.join(lines)
+
+
+class IdentifyResult:
+    """What ``seft identify`` produced: the JSON document and where the files are."""
+
+    def __init__(self, out_dir: Path, document: dict, params_path: Path | None):
+        self.out_dir = out_dir
+        self.document = document
+        self.params_path = params_path
+
+
+def identify_bags(*, bags: list[str], out_dir: Path, window: str = 'hann',
+                  nperseg: int | None = None, noverlap: int | None = None,
+                  orders: tuple[int, int] | None = None,
+                  params_out: str | None = None) -> IdentifyResult:
+    """Identify the rig from the bags of identification runs (``seft identify``).
+
+    Parameters
+    ----------
+    bags : list of str
+        Bags, run directories or folders of run directories (:func:`find_bags`).
+    out_dir : Path
+        Where ``identification.json``, ``identification.md`` and the PNGs go.
+    window, nperseg, noverlap
+        Welch settings of the H1 estimates (default segment 1024 samples, half overlap).
+    orders : (int, int), optional
+        Orders (nb, na) of the rational fits (default per kind of run).
+    params_out : str, optional
+        Write the identified delay and force-loop model there as a parameter file.
+
+    Returns
+    -------
+    IdentifyResult
+
+    Raises
+    ------
+    InputError, ParameterError
+        Unreadable bag, a run too short for the segment length, bad options; the message
+        names the bag or the option.
+    """
+    from seft_ros.analysis import rig_identification as ri
+    from seft_ros.analysis.identification_report import write_identification, write_params_yaml
+    from seft_ros.analysis.report import software_versions
+    idents = []
+    for path in find_bags(bags):
+        rd = read_run(path)
+        with single_blas_thread():
+            idents.append(ri.identify_run(rd, window=window,
+                                          nperseg=nperseg or ri.DEFAULT_NPERSEG,
+                                          noverlap=noverlap, orders=orders))
+    identified = ri.identified_parameters(idents)
+    doc = write_identification(idents, out_dir, identified=identified,
+                               version=', '.join(f'{k} {v}' for k, v in
+                                                 software_versions().items()))
+    params_path = None
+    if params_out:
+        if not identified:
+            raise InputError(f'--params {params_out}: nothing to write (no closed-loop delay '
+                             'and no open-loop servohydraulic run among the bags)')
+        params_path = write_params_yaml(identified, params_out)
+    return IdentifyResult(out_dir, doc, params_path)

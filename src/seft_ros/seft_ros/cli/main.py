@@ -1,4 +1,4 @@
-"""The ``seft`` command line: run, simulate, compare, stability (thin verbs over
+"""The ``seft`` command line: run, simulate, compare, stability, identify (thin verbs over
 ``seft_ros.cli.api``).
 
 Every :class:`SeftError` (bad file, bad parameter, failed node) is printed as one line
@@ -6,6 +6,7 @@ Every :class:`SeftError` (bad file, bad parameter, failed node) is printed as on
 """
 
 import argparse
+import signal
 import sys
 import time
 
@@ -13,6 +14,7 @@ import yaml
 
 from seft_msgs_py.errors import InputError, SeftError
 from seft_ros.cli import api
+from seft_ros.cli.config import load_config
 
 __all__ = ['main', 'build_parser']
 
@@ -35,6 +37,13 @@ def _set_value(text: str):
             from None
 
 
+def _node_list(text: str) -> list[str]:
+    names = [n.strip() for n in text.split(',') if n.strip()]
+    if not names:
+        raise argparse.ArgumentTypeError(f'--nodes {text!r}: expected NAME[,NAME...]')
+    return names
+
+
 def _experiment_options(p: argparse.ArgumentParser) -> None:
     p.add_argument('config', nargs='?', help='configuration YAML (ROS 2 parameter file; '
                    'alpha may be a list)')
@@ -53,6 +62,9 @@ def _experiment_options(p: argparse.ArgumentParser) -> None:
     p.add_argument('--time-scale', dest='time_scale', type=float, help='record time scale')
     p.add_argument('--duration', dest='duration_s', type=float, metavar='S',
                    help='run length after time scaling [s] (0: whole record)')
+    p.add_argument('--params', dest='params_files', action='append', default=[],
+                   metavar='FILE', help='parameter file layered over CONFIG (repeatable; e.g. '
+                   'the --params file of seft identify); the options above and --set win')
     p.add_argument('--set', dest='sets', type=_set_value, action='append', default=[],
                    metavar='NAME=VALUE', help='any other parameter (repeatable)')
     p.add_argument('--out', help='output directory (default runs/<name>/)')
@@ -74,8 +86,30 @@ def build_parser() -> argparse.ArgumentParser:
                      'every dt, nobody waits; timing recorded and reported)')
     run.add_argument('--domain-id', type=int, help='ROS_DOMAIN_ID of the run (default: '
                      '$ROS_DOMAIN_ID, else a random one in 100-199)')
+    run.add_argument('--nodes', type=_node_list, metavar='NAME[,NAME...]',
+                     help='start only these nodes of the graph (recorder, '
+                     'ground_motion_publisher, reference_force_builder, '
+                     'force_servo_controller, rig); the others run on another host with the '
+                     'same ROS_DOMAIN_ID and parameters. The host with the recorder writes '
+                     'the bag and the report')
     sim = sub.add_parser('simulate', help='the same experiments in one process, without ROS')
     _experiment_options(sim)
+    sim.add_argument('--bag', action='store_true', help="also write each run's bag "
+                     '(DIR/<run>/bag), the bag the node graph records')
+    ident = sub.add_parser('identify', help='identify the rig from the bags of identification '
+                           'runs (frequency responses, fits, delay, loop margins)')
+    ident.add_argument('bags', nargs='+', metavar='BAG', help='a bag, a run directory or a '
+                       'folder of run directories')
+    ident.add_argument('--out', help='output directory (default runs/identify/)')
+    ident.add_argument('--window', default='hann', help="Welch window (default 'hann')")
+    ident.add_argument('--nperseg', type=int, metavar='N', help='Welch segment length '
+                       '[samples] (default 1024)')
+    ident.add_argument('--noverlap', type=int, metavar='N', help='Welch overlap [samples] '
+                       '(default nperseg/2)')
+    ident.add_argument('--orders', type=int, nargs=2, metavar=('NB', 'NA'), help='orders of '
+                       'the rational fit in z^-1 (default 6 4 open loop, 8 6 closed loop)')
+    ident.add_argument('--params', dest='params_out', metavar='FILE', help='write the '
+                       'identified delay and force-loop model as a parameter file')
     cmp_ = sub.add_parser('compare', help='compare recorded bags against the analytical '
                           'reference (figures, table, summary.json)')
     cmp_.add_argument('bags', nargs='+', metavar='BAG', help='a bag, a run directory '
@@ -103,6 +137,10 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _interrupt(signum, frame):
+    raise KeyboardInterrupt
+
+
 def _progress(text: str) -> None:
     print(f'[seft] {text}', file=sys.stderr, flush=True)
 
@@ -112,6 +150,10 @@ def _experiments(args):
                                                'amplitude_N', 'scale_factor', 'time_scale',
                                                'duration_s')}
     overrides['mode'] = getattr(args, 'mode', None)
+    for path in args.params_files:
+        for name, value in load_config(path).items():
+            if overrides.get(name) is None:
+                overrides[name] = value
     for name, value in args.sets:
         if name == 'alpha':
             raise InputError('--set alpha: use --alpha')
@@ -140,13 +182,39 @@ def _stability(args) -> int:
     return 0
 
 
+def _identify(args) -> int:
+    out = api.output_dir(out=args.out, name='identify')
+    result = api.identify_bags(bags=args.bags, out_dir=out, window=args.window,
+                               nperseg=args.nperseg, noverlap=args.noverlap,
+                               orders=tuple(args.orders) if args.orders else None,
+                               params_out=args.params_out)
+    doc = result.document
+    for key in ('zero_hz', 'resonance_hz', 'crossover_hz', 'phase_margin_deg', 'gain_margin',
+                'delay_ms', 'delay_xcorr_ms'):
+        if doc.get(key) is not None:
+            model = next((r['figures']['model'].get(key) for r in doc['runs']
+                          if key in r['figures']), None)
+            known = f'  (known model {model:.4g})' if model is not None else ''
+            print(f'{key:18s} {doc[key]:10.4g}{known}')
+    print(f'report: {out / "identification.md"}')
+    print(f'figures: {out / "identification.json"}')
+    if result.params_path is not None:
+        print(f'parameters: {result.params_path}')
+    return 0
+
+
 def main(argv=None) -> int:
     """Entry point of ``seft``; returns the exit code."""
     args = build_parser().parse_args(argv)
     t0 = time.monotonic()
+    # SIGTERM ends a run as Ctrl-C does (rig to its safe state, bags closed), not the runner
+    # alone with its nodes left running
+    signal.signal(signal.SIGTERM, _interrupt)
     try:
         if args.verb == 'stability':
             return _stability(args)
+        if args.verb == 'identify':
+            return _identify(args)
         if args.verb == 'compare':
             out = api.output_dir(out=args.out, name='compare')
             result = api.compare_bags(bags=args.bags, out_dir=out)
@@ -156,11 +224,16 @@ def main(argv=None) -> int:
             if args.verb == 'run':
                 result = api.run_experiments(runs=runs, out_dir=out, progress=_progress,
                                              title=f'seft run {name}', domain_id=args.domain_id,
-                                             force=args.force)
+                                             force=args.force, nodes=args.nodes)
+                if result is None:
+                    print(f'this host ran {", ".join(args.nodes)}; the bag and the report are '
+                          'on the host that ran the recorder')
+                    print(f'took {time.monotonic() - t0:.1f} s')
+                    return 0
             else:
                 result = api.simulate_experiments(runs=runs, out_dir=out, progress=_progress,
                                                   title=f'seft simulate {name}',
-                                                  force=args.force)
+                                                  force=args.force, bag=args.bag)
     except SeftError as exc:
         print(f'seft: error: {exc}', file=sys.stderr)
         return 2

@@ -1,12 +1,18 @@
 """Start the node graph of one run as separate processes, watch it, shut it down cleanly.
 
-The runner is itself a small rclpy node (``seft_runner``) that only listens to
-``/seft/status`` for readiness, progress, the end of the run and abort reasons.
+The runner is itself a small rclpy node (``seft_runner``) that listens to ``/seft/status``
+for readiness, progress, the end of the run and abort reasons, and publishes there only to
+end a run safely: when one of its nodes died, or on Ctrl-C.
 
 Order: the recorder first (so that nothing is published before it listens), then the
 ground-motion publisher, the reference-force builder and the force servo controller (not
-for the 'delay' rig), and the rig last; the rig starts stepping once it has discovered its
-command publisher. The run is over when the recorder reports the bag 'closed'.
+for the 'delay' rig), and the rig last; the rig starts stepping once every node of its graph
+has sent its parameters. The run is over when the recorder reports the bag 'closed'.
+
+Several hosts: a runner may start only some of the nodes (``nodes``); the others are started
+by the runner of another host, in the same ROS domain. The runner waits until every node of
+the graph, local or remote, has reported ready, and ends when the bag is closed or, where the
+recorder runs elsewhere, when the run is over and its own nodes have exited.
 """
 
 from dataclasses import dataclass
@@ -31,13 +37,14 @@ from seft_msgs_py.convert import (
     STATE_FAILED,
     STATE_READY,
     STATE_RUNNING,
+    status_msg,
     status_values,
 )
 from seft_msgs_py.errors import SeftError
 from seft_msgs_py.topics import NODE_PARAMETERS, STATUS, TOPICS
 from seft_ros.cli.config import write_params_file
 
-__all__ = ['NODE_MODULES', 'RunOutcome', 'GraphRunner', 'node_command']
+__all__ = ['NODE_MODULES', 'RunOutcome', 'GraphRunner', 'node_command', 'RUNNER_NAME']
 
 #: Executable module of each node (``ros2 run <package> <node>`` on a full ROS install).
 NODE_MODULES = {
@@ -50,6 +57,13 @@ NODE_MODULES = {
 
 #: Longest wait for the nodes to report ready [s].
 STARTUP_TIMEOUT_S = 60.0
+#: Longest wait for the nodes of another host to report ready [s] (an operator starts them).
+REMOTE_TIMEOUT_S = 600.0
+#: Longest wait for the bag to close after the runner ended a run (a node died, Ctrl-C) [s].
+END_TIMEOUT_S = 15.0
+#: Name of the runner's status reports.
+RUNNER_NAME = 'seft_runner'
+
 #: Longest time without any progress report before the run is declared stalled [s].
 STALL_TIMEOUT_S = 30.0
 
@@ -69,6 +83,8 @@ class RunOutcome:
     wall_time_s: float
     rig_state: str
     message: str
+    #: Whether this host ran the recorder (else the bag is on another host).
+    recorded_here: bool = True
 
 
 class GraphRunner:
@@ -80,16 +96,22 @@ class GraphRunner:
         ROS_DOMAIN_ID of the nodes and of the runner.
     progress : callable(text), optional
         Receives progress lines.
+    localhost_default : bool
+        Where ``ROS_AUTOMATIC_DISCOVERY_RANGE`` is unset, keep discovery on this host (one
+        host); False leaves ROS's default (the subnet), for runs over several hosts.
     """
 
-    def __init__(self, domain_id: int, progress: Callable[[str], None] | None = None):
+    def __init__(self, domain_id: int, progress: Callable[[str], None] | None = None, *,
+                 localhost_default: bool = True):
         self.domain_id = domain_id
         self.progress = progress or (lambda text: None)
         self.env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id))
-        self.env.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+        if localhost_default:
+            # one host: stay on it unless the environment says otherwise
+            self.env.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+            os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE',
+                                  self.env['ROS_AUTOMATIC_DISCOVERY_RANGE'])
         self.env.setdefault('PYTHONUNBUFFERED', '1')
-        os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE',
-                              self.env['ROS_AUTOMATIC_DISCOVERY_RANGE'])
         self.context = rclpy.Context()
         rclpy.init(context=self.context, domain_id=domain_id)
         self.node = Node('seft_runner', context=self.context)
@@ -100,6 +122,7 @@ class GraphRunner:
         self.node_params: dict[str, dict] = {}
         self.node.create_subscription(NODE_PARAMETERS.msg_type, NODE_PARAMETERS.name,
                                       self._on_node_parameters, NODE_PARAMETERS.qos)
+        self.status_pub = self.node.create_publisher(STATUS.msg_type, STATUS.name, STATUS.qos)
 
     def busy_topics(self, settle_s: float = 1.0) -> list[str]:
         """The seft topics that already have publishers in this domain (another run?).
@@ -109,6 +132,12 @@ class GraphRunner:
         self._spin(settle_s)
         return [t.name for t in TOPICS if t is not STATUS
                 and self.node.count_publishers(t.name) > 0]
+
+    def present_nodes(self, names, settle_s: float = 1.0) -> list[str]:
+        """Which of the node `names` already run in this domain (on any host)."""
+        self._spin(settle_s)
+        present = {n for n, _ in self.node.get_node_names_and_namespaces()}
+        return [n for n in names if n in present]
 
     def close(self) -> None:
         """Shut the runner's ROS context down."""
@@ -154,16 +183,29 @@ class GraphRunner:
                 return s
         return None
 
-    def run(self, params: dict, run_dir, *, label: str = '') -> RunOutcome:
+    def run(self, params: dict, run_dir, *, label: str = '', nodes=None) -> RunOutcome:
         """Run one experiment; return where its bag is.
+
+        Parameters
+        ----------
+        params : dict
+            The run's parameters (resolved).
+        run_dir : path
+            Where this host writes ``params.yaml``, the node logs, the bag (if it runs the
+            recorder) and ``outcome.json`` (the end of the run as this host saw it).
+        label : str
+            Prefix of the progress lines.
+        nodes : sequence of str, optional
+            The nodes this host starts (default: the whole graph); the others are started by
+            another host in the same ROS domain.
 
         Raises
         ------
         SeftError
-            A node failed (its last error line is in the message), the graph did not start
-            or stalled.
+            A node failed, died or was stopped by a signal (which node and when; the bag up
+            to then is closed and readable), the graph did not start or stalled.
         KeyboardInterrupt
-            After the nodes were stopped and the bag closed.
+            After the run was ended safely (rig to its safe state, bag closed).
         """
         run_dir = Path(run_dir)
         log_dir = run_dir / 'logs'
@@ -171,13 +213,16 @@ class GraphRunner:
         bag_path = run_dir / 'bag'
         params = dict(params, bag_path=str(bag_path.resolve()), wait_for_recorder=True)
         params_file = write_params_file(params, run_dir / 'params.yaml')
-        nodes = ['recorder', *parameters.graph_nodes(params['rig_model'])]
+        graph = ['recorder', *parameters.graph_nodes(params['rig_model'])]
+        local = [n for n in graph if nodes is None or n in nodes]
+        remote = [n for n in graph if n not in local]
         env = dict(self.env, ROS_LOG_DIR=str(log_dir / 'ros'))
         self.statuses.clear()
         self.node_params.clear()
         procs: dict[str, subprocess.Popen] = {}
         logs = {}
         start = time.monotonic()
+        outcome: dict = {'nodes': local, 'remote_nodes': remote}
 
         def launch(name):
             logs[name] = open(log_dir / f'{name}.log', 'w')
@@ -185,29 +230,86 @@ class GraphRunner:
                                            stdout=logs[name], stderr=subprocess.STDOUT)
 
         try:
-            launch('recorder')
-            self._wait_ready(['recorder'], procs, log_dir)
-            for name in nodes[1:-1]:
-                launch(name)
-            self._wait_ready(nodes[1:-1], procs, log_dir)
-            launch('rig')
+            first = [n for n in local if n == 'recorder']
+            middle = [n for n in local if n not in ('recorder', 'rig')]
+            for group in (first, middle):
+                for name in group:
+                    launch(name)
+                self._wait_ready(group, procs, log_dir)
+            if 'rig' in local:
+                launch('rig')
+            if remote:
+                self._wait_remote(remote, procs, log_dir, label)
             self.progress(f'{label}graph up in {time.monotonic() - start:.1f} s '
-                          f'(ROS_DOMAIN_ID={self.domain_id}); running')
-            rig_final = self._watch(procs, log_dir, label)
+                          f'(ROS_DOMAIN_ID={self.domain_id}'
+                          + (f'; here: {", ".join(local)}' if remote else '') + '); running')
+            rig_final = self._watch(procs, log_dir, label, 'recorder' in local)
+            outcome.update(rig_final=rig_final)
             return RunOutcome(bag_path, run_dir, time.monotonic() - start,
-                              rig_final.get('state', ''), rig_final.get('message', ''))
+                              rig_final.get('state', ''), rig_final.get('message', ''),
+                              'recorder' in local)
+        except KeyboardInterrupt:
+            self.progress(f'{label}interrupted: ending the run safely (rig to its safe '
+                          'state, bag closed)')
+            self._end_run('interrupted (Ctrl-C or SIGTERM at the runner)', procs)
+            outcome.update(error='interrupted')
+            raise
+        except SeftError as exc:
+            outcome.update(error=str(exc))
+            raise
         finally:
             self._stop(procs)
             for f in logs.values():
                 f.close()
+            outcome.update(statuses=[{k: v for k, v in st.items() if k != 'received'}
+                                     for st in self.statuses
+                                     if st.get('state') not in (STATE_RUNNING, STATE_READY)])
+            try:
+                (run_dir / 'outcome.json').write_text(json.dumps(outcome, indent=1,
+                                                                 default=str))
+            except OSError as exc:      # the run directory is gone: say so, lose nothing else
+                self.progress(f'{label}could not write outcome.json: {exc}')
+
+    def _publish_abort(self, reason: str, **values) -> None:
+        """Report an abort on ``/seft/status``: the rig goes to its safe state and ends the
+        run, the recorder closes the bag after it."""
+        self.status_pub.publish(status_msg(RUNNER_NAME, STATE_ABORTED, reason, **values))
+
+    def _end_run(self, reason: str, procs, **values) -> None:
+        """End the run from the runner (`reason` recorded in the bag), then wait until the
+        bag is closed (or, without a recorder here, until this host's nodes have exited)."""
+        self._publish_abort(reason, **values)
+        deadline = time.monotonic() + END_TIMEOUT_S
+        while time.monotonic() < deadline:
+            if self._latest('recorder', (STATE_CLOSED,)):
+                return
+            if 'recorder' not in procs and all(p.poll() is not None for p in procs.values()):
+                return
+            self._spin(0.05)
+
+    def _when(self) -> str:
+        """When in the run, as the rig's latest report tells it."""
+        rig = self._latest('rig')
+        if not rig:
+            return 'before the rig started'
+        if 'abort_at_s' in rig:
+            return f'at t = {float(rig["abort_at_s"]):.3f} s (rig safe state from then)'
+        return f'at t = {float(rig.get("time_s", 0.0)):.3f} s (step {rig.get("step", "?")})'
 
     def _check_procs(self, procs, log_dir) -> None:
+        """A node of this host that died ends the run safely, then the runner fails naming
+        it, when and how."""
         for name, proc in procs.items():
             code = proc.poll()
-            if code is not None and code != 0:
-                raise SeftError(f'node {name} exited with code {code}: '
-                                f'{_last_line(log_dir / f"{name}.log")} '
-                                f'(log: {log_dir / f"{name}.log"})')
+            if code is None or code == 0:
+                continue
+            how = (f'was killed by {signal.Signals(-code).name}' if code < 0
+                   else f'exited with code {code}')
+            self._end_run(f'node {name} {how}', procs, failed_node=name)
+            raise SeftError(f'node {name} {how} {self._when()}: '
+                            f'{_last_line(log_dir / f"{name}.log")} '
+                            f'(log: {log_dir / f"{name}.log"}; the recording up to then is '
+                            'closed)')
 
     def _wait_ready(self, names, procs, log_dir) -> None:
         deadline = time.monotonic() + STARTUP_TIMEOUT_S
@@ -224,7 +326,30 @@ class GraphRunner:
                                 + ', '.join(missing))
             self._spin(0.05)
 
-    def _watch(self, procs, log_dir, label) -> dict:
+    def _wait_remote(self, names, procs, log_dir, label) -> None:
+        """Wait until the nodes of the other host(s) have reported ready (or already run)."""
+        deadline = time.monotonic() + REMOTE_TIMEOUT_S
+        said = 0.0
+        while True:
+            missing = [n for n in names if not self._latest(n)]
+            if not missing:
+                return
+            self._check_parameters()
+            self._check_procs(procs, log_dir)
+            now = time.monotonic()
+            if now > deadline:
+                raise SeftError(f'nodes of the other host not ready after '
+                                f'{REMOTE_TIMEOUT_S:.0f} s: {", ".join(missing)} (same '
+                                f'ROS_DOMAIN_ID={self.domain_id}, discovery range and '
+                                'parameters there?)')
+            if now - said > 10.0:
+                said = now
+                self.progress(f'{label}waiting for the other host: {", ".join(missing)} '
+                              f'(seft run --nodes {",".join(missing)} there, '
+                              f'ROS_DOMAIN_ID={self.domain_id})')
+            self._spin(0.05)
+
+    def _watch(self, procs, log_dir, label, recorded_here: bool) -> dict:
         last_progress = time.monotonic()
         last_print = 0.0
         seen = 0
@@ -248,15 +373,27 @@ class GraphRunner:
                 speed = sim_t / max(now - t0, 1e-9)
                 self.progress(f'{label}step {step}/{n} ({100 * step / n:.0f} %), '
                               f't = {sim_t:.2f} s sim, {speed:.2f}x real time')
-            if self._latest('recorder', (STATE_CLOSED,)):
-                final = self._latest('rig', (STATE_DONE, STATE_ABORTED, STATE_FAILED))
+            final = self._latest('rig', (STATE_DONE, STATE_ABORTED, STATE_FAILED))
+            over = (self._latest('recorder', (STATE_CLOSED,)) or (
+                not recorded_here and all(p.poll() is not None for p in procs.values())))
+            if over:
+                self._check_stopped()
                 return final or {}
-            if procs['recorder'].poll() is not None:
+            if recorded_here and procs['recorder'].poll() is not None:
                 raise SeftError('the recorder exited before closing the bag: '
                                 f'{_last_line(log_dir / "recorder.log")}')
             if now - last_progress > STALL_TIMEOUT_S:
                 raise SeftError(f'the run stalled: no report for {STALL_TIMEOUT_S:.0f} s '
                                 f'(logs in {log_dir})')
+
+    def _check_stopped(self) -> None:
+        """A node stopped by a signal (SIGINT, SIGTERM) ended the run safely; the runner still
+        fails, naming it."""
+        for st in self.statuses:
+            if st.get('signal') and st.get('state') == STATE_ABORTED:
+                raise SeftError(f'node {st["name"]} was stopped by {st["signal"]} '
+                                f'at t = {float(st.get("time_s", 0.0)):.3f} s; the run ended '
+                                'safely and the recording up to then is closed')
 
     def _stop(self, procs) -> None:
         """Let finished nodes exit; SIGINT the rest (the recorder closes its bag), then kill."""

@@ -7,8 +7,8 @@ One step k (the node that does it in the graph in brackets)::
 
     [rig]                     stop if rig.limit_violation(); m_k = rig.measure()
     [force_servo_controller]  u_k = C_e(f_r[k] - f_m[k]) + g_v (v_k + T_v a_k) (m_k's velocity
-                              and acceleration; g_v = 0 for loop shaping); stop if the
-                              interlock trips
+                              and acceleration; g_v = 0 for loop shaping), or u_k = e[k] in
+                              an open-loop identification run; stop if the interlock trips
     [rig]                     rig.apply(u_k)            (delay rig: rig.apply(f_r[k]))
     [reference_force_builder] stop if the instability monitor trips on m_k (k+1 < N);
                               f_r[k+1] = -(1+alpha) m g[k+1] - alpha m a_hat(m_k, ...)
@@ -27,7 +27,8 @@ from seft_msgs_py.interface import COMMAND_VALVE
 from seft_msgs_py.sampling import single_blas_thread
 from seft_plant_sim.rigs import make_rig
 from seft_ros.analysis.rundata import RunData
-from seft_ros.core.controller import ForceServoController, SaturationInterlock
+from seft_ros.core.controller import SaturationInterlock
+from seft_ros.core.excitation import make_valve_controller
 from seft_ros.core.ground_motion import GroundMotion, prepared_record
 from seft_ros.core.monitor import InstabilityMonitor
 from seft_ros.core.reference_force import ReferenceForceBuilder
@@ -66,10 +67,11 @@ def simulate(params, *, progress: Callable[[int, int], None] | None = None,
         rig = make_rig(params)
         builder = ReferenceForceBuilder.from_parameters(params)
         valve = rig.command_kind == COMMAND_VALVE
-        ctrl = ForceServoController.from_parameters(params) if valve else None
+        # the force controller, or the excitation itself in an open-loop identification run
+        ctrl = make_valve_controller(params) if valve else None
         interlock = SaturationInterlock.from_parameters(params) if valve else None
         monitor = InstabilityMonitor.from_parameters(params)
-        reason = None
+        reason = abort_node = None
         n_done = n_total
         look = builder.lookahead_steps
         # the ground window xg''[j..j+look] of every step as a slice (the numbers of
@@ -93,7 +95,7 @@ def simulate(params, *, progress: Callable[[int, int], None] | None = None,
         for k in range(n_total):
             reason = limit_violation()
             if reason:
-                n_done = k
+                n_done, abort_node = k, 'rig'
                 break
             meas = measure()
             fm = meas.force_N
@@ -101,7 +103,7 @@ def simulate(params, *, progress: Callable[[int, int], None] | None = None,
                 u = control(fr, fm, meas.velocity_m_s, meas.acceleration_m_s2)
                 reason = interlock_update(ctrl.saturated, meas.time_s)
                 if reason:
-                    n_done = k
+                    n_done, abort_node = k, 'force_servo_controller'
                     break
             else:
                 u = fr
@@ -117,7 +119,7 @@ def simulate(params, *, progress: Callable[[int, int], None] | None = None,
             if k + 1 < n_total:
                 reason = watch(fm, builder.last_ground_force_N, meas.time_s)
                 if reason:
-                    n_done = k + 1
+                    n_done, abort_node = k + 1, 'reference_force_builder'
                     break
                 fr = build(padded[k + 1:k + 2 + look], meas)
                 if estimates is not None:
@@ -145,4 +147,4 @@ def simulate(params, *, progress: Callable[[int, int], None] | None = None,
         valve_command_V=signal(u_rec) if valve else None,
         stable=reason is None, unstable_at_s=None if reason is None else n * dt,
         abort_reason=reason, record_name=gm.name, source='simulate',
-        extra={'wall_s': wall_s}, estimates=estimate_signals)
+        extra={'wall_s': wall_s, 'abort_node': abort_node}, estimates=estimate_signals)

@@ -560,11 +560,19 @@ def prepare(record: GroundMotion, *, dt: float, mass_kg: float, amplitude_N: flo
 def prepared_record(params) -> GroundMotion:
     """Load and prepare the run's ground motion (scaling, time scale, resampling, duration).
 
+    With an excitation (parameter ``excitation`` other than 'none'), the record is not
+    played: the ground motion is :func:`seft_ros.core.excitation.excitation_record`.
+
     Raises
     ------
     InputError, ParameterError
         Bad record file or parameter.
     """
+    if params.get('excitation', 'none') != 'none':
+        from seft_ros.core.excitation import excitation_record
+        gm = excitation_record(params)
+        n = int(params.get('n_steps', 0) or 0)
+        return GroundMotion(gm.dt, gm.acceleration_m_s2[:n], gm.name, gm.source) if n else gm
     record = load_record(params['record'])
     gm = prepare(record, dt=float(params['dt']), mass_kg=float(params['mass_kg']),
                  amplitude_N=float(params['amplitude_N']),

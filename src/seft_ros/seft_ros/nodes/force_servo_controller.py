@@ -21,21 +21,24 @@ from seft_msgs_py.convert import (
     STATE_READY,
     SerializedStamped,
 )
-from seft_msgs_py.node_support import SeftNode, StepTiming, main_for
+from seft_msgs_py.node_support import InputWatchdog, SeftNode, StepTiming, main_for
 from seft_msgs_py.sync import StepSync
 from seft_msgs_py.topics import MEASURED_FORCE, REFERENCE_FORCE, VALVE_COMMAND
-from seft_ros.core.controller import ForceServoController, SaturationInterlock
+from seft_ros.core.controller import SaturationInterlock
+from seft_ros.core.excitation import make_valve_controller
 
 __all__ = ['ForceServoControllerNode', 'main']
 
 
 class ForceServoControllerNode(SeftNode):
-    """Lockstep shell around :class:`ForceServoController`."""
+    """Lockstep shell around :class:`~seft_ros.core.controller.ForceServoController` (or, in
+    an open-loop identification run, :class:`~seft_ros.core.excitation.OpenLoopValve`)."""
 
     def __init__(self):
         super().__init__('force_servo_controller')
         p = self.params
-        self.controller = ForceServoController.from_parameters(p)
+        # the force controller, or the excitation in an open-loop identification run
+        self.controller = make_valve_controller(p)
         self.interlock = SaturationInterlock.from_parameters(p)
         self.dt = float(p['dt'])
         self.sync = StepSync((REFERENCE_FORCE.name, MEASURED_FORCE.name))
@@ -49,6 +52,7 @@ class ForceServoControllerNode(SeftNode):
             self.timing = StepTiming(self)
             self.reference = {}            # step -> f_r (the newest few)
             self.latest_reference = (-1, 0.0)
+            self.watchdog = InputWatchdog(self, (REFERENCE_FORCE.name, 'measurement'))
             self.scalar_subscription(REFERENCE_FORCE, self._on_reference_realtime)
             self.measurement_subscription(
                 lambda k, values: self._on_measured_realtime(k, values[0], values[2],
@@ -62,6 +66,7 @@ class ForceServoControllerNode(SeftNode):
         self.report(STATE_READY, f'controller discretized: {self.controller.design.method}')
 
     def _on_reference_realtime(self, k: int, value: float) -> None:
+        self.watchdog.feed(REFERENCE_FORCE.name)
         self.reference[k] = value
         if k > self.latest_reference[0]:
             self.latest_reference = (k, value)
@@ -69,6 +74,8 @@ class ForceServoControllerNode(SeftNode):
     def _on_measured_realtime(self, k: int, fm: float, v: float = 0.0, a: float = 0.0) -> None:
         """u[k] from f_m[k] and the newest reference force: act at once, never wait."""
         start, jitter = self.timing.start()
+        self.watchdog.feed('measurement')
+        self.watchdog.arm()
         if k < self.next_step:
             return                          # a duplicate: each step is computed once
         stale = k not in self.reference

@@ -32,7 +32,13 @@ from seft_msgs_py.convert import (
 )
 from seft_msgs_py.errors import InputError
 from seft_msgs_py.interface import Measurement
-from seft_msgs_py.node_support import SeftNode, StepTiming, descriptor_of, main_for
+from seft_msgs_py.node_support import (
+    InputWatchdog,
+    SeftNode,
+    StepTiming,
+    descriptor_of,
+    main_for,
+)
 from seft_msgs_py.signals import record_streams_of
 from seft_msgs_py.topics import REFERENCE_FORCE, STATUS, record_topic
 from seft_ros.core.monitor import InstabilityMonitor
@@ -91,6 +97,7 @@ class ReferenceForceBuilderNode(SeftNode):
             self.timing = StepTiming(self)
             self.latest_ground = (-1, 0.0)
             self.ground_stale = False
+            self.watchdog = InputWatchdog(self, ('measurement',))
         self.publish_parameters()
         self.report(STATE_READY, f'predictor {self.builder.predictor.name}')
 
@@ -118,6 +125,8 @@ class ReferenceForceBuilderNode(SeftNode):
         force, x, v, a = values
         self.measurements[k] = Measurement(k, k * self.dt, x, v, a, force)
         if self.realtime:
+            self.watchdog.feed('measurement')
+            self.watchdog.arm()
             self._advance_realtime()
         else:
             self._advance()

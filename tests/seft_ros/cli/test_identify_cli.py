@@ -1,0 +1,61 @@
+"""seft identify end to end on bags of seft simulate --bag; its --params file loads."""
+
+import json
+
+import pytest
+
+from seft_ros.cli.api import build_runs
+from seft_ros.cli.config import load_config
+from seft_ros.cli.main import main
+from seft_ros.core.experiment import simulate
+
+
+@pytest.fixture(scope='module')
+def bags(tmp_path_factory):
+    root = tmp_path_factory.mktemp('ident')
+    common = ['--duration', '8', '--set', 'monitor_threshold=0', '--set', 'excitation=noise',
+              '--bag']
+    assert main(['simulate', *common, '--set', 'excitation_input=valve_command',
+                 '--out', str(root / 'open')]) == 0
+    assert main(['simulate', *common, '--set', 'excitation_band_hz=50',
+                 '--out', str(root / 'closed')]) == 0
+    return root
+
+
+def test_identify_writes_json_plots_report_and_params(bags, capsys):
+    out = bags / 'id'
+    params = bags / 'rig.yaml'
+    assert main(['identify', str(bags / 'open'), str(bags / 'closed'), '--out', str(out),
+                 '--nperseg', '1024', '--params', str(params)]) == 0
+    printed = capsys.readouterr().out
+    assert 'zero_hz' in printed and 'delay_ms' in printed
+    doc = json.loads((out / 'identification.json').read_text())
+    assert [r['kind'] for r in doc['runs']] == ['open_loop', 'closed_loop']
+    assert doc['zero_hz'] == pytest.approx(10.07, rel=0.03)
+    assert doc['resonance_hz'] == pytest.approx(90.2, rel=0.01)
+    assert doc['delay_ms'] == pytest.approx(11.7, abs=0.6)
+    for r in doc['runs']:
+        for name in r['plots']:
+            assert (out / name).read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
+    assert 'bode_run_0.png' in (out / 'identification.md').read_text()
+    # the parameter file is a configuration of seft run / simulate
+    values = load_config(params)
+    assert values['predictor_tau_s'] == pytest.approx(doc['delay_ms'] * 1e-3)
+    assert values['io_latency_s'] == pytest.approx(0.003, rel=0.02)
+    run, = build_runs(config=str(params), overrides={'predictor': 'model', 'duration_s': 0.5})
+    assert simulate(run).stable
+    assert main(['simulate', '--params', str(params), '--predictor', 'polynomial',
+                 '--duration', '0.5', '--out', str(bags / 'with_params')]) == 0
+    saved = load_config(bags / 'with_params' / 'alpha_0_servohydraulic_polynomial' /
+                        'params.yaml')
+    assert saved['predictor_tau_s'] == values['predictor_tau_s']
+
+
+def test_identify_errors_are_one_line(bags, capsys):
+    assert main(['identify', str(bags / 'nothing'), '--out', str(bags / 'x')]) == 2
+    assert capsys.readouterr().err.strip() == \
+        f'seft: error: {bags / "nothing"}: no such bag or run directory'
+    assert main(['identify', str(bags / 'open'), '--nperseg', '100000',
+                 '--out', str(bags / 'y')]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith('seft: error: ') and 'nperseg=100000' in err and '\n' not in err
