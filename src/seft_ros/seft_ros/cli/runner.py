@@ -306,10 +306,12 @@ class GraphRunner:
             how = (f'was killed by {signal.Signals(-code).name}' if code < 0
                    else f'exited with code {code}')
             self._end_run(f'node {name} {how}', procs, failed_node=name)
+            saved = ('the bag was not closed: seft compare recovers it up to at most the '
+                     'last 0.25 s' if name == 'recorder' else 'the recording up to then is '
+                     'closed')
             raise SeftError(f'node {name} {how} {self._when()}: '
                             f'{_last_line(log_dir / f"{name}.log")} '
-                            f'(log: {log_dir / f"{name}.log"}; the recording up to then is '
-                            'closed)')
+                            f'(log: {log_dir / f"{name}.log"}; {saved})')
 
     def _wait_ready(self, names, procs, log_dir) -> None:
         deadline = time.monotonic() + STARTUP_TIMEOUT_S
