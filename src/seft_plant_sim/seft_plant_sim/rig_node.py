@@ -112,6 +112,8 @@ class RigNode(SeftNode):
         self.waiting_for_recorder = False
         self.published = 0
         self.running = False
+        #: The signal that stopped the rig (SIGINT, SIGTERM), reported in its final status.
+        self.stop_signal = None
         self.graph = graph_nodes(p)
         self.create_subscription(STATUS.msg_type, STATUS.name, self.guard(self._on_status),
                                  STATUS.qos)
@@ -370,7 +372,7 @@ class RigNode(SeftNode):
             extra['discarded_commands'] = self.rig.discarded
         if getattr(self, 'wall_start', None) is not None:
             extra['wall_s'] = f'{time.monotonic() - self.wall_start:.3f}'
-        if getattr(self, 'stop_signal', None):
+        if self.stop_signal:
             extra['signal'] = self.stop_signal
         self.report(state, message, step=k, n_steps=self.n_steps,
                     time_s=f'{k * self.rig.dt:.6f}', published=self.published,

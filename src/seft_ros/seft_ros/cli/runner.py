@@ -277,13 +277,17 @@ class GraphRunner:
 
     def _end_run(self, reason: str, procs, **values) -> None:
         """End the run from the runner (`reason` recorded in the bag), then wait until the
-        bag is closed (or, without a recorder here, until this host's nodes have exited)."""
+        bag is closed or the recorder of this host is gone (or, without a recorder here, until
+        this host's nodes have exited)."""
         self._publish_abort(reason, **values)
         deadline = time.monotonic() + END_TIMEOUT_S
+        recorder = procs.get('recorder')
         while time.monotonic() < deadline:
             if self._latest('recorder', (STATE_CLOSED,)):
                 return
-            if 'recorder' not in procs and all(p.poll() is not None for p in procs.values()):
+            if recorder is not None and recorder.poll() is not None:
+                return                        # killed: nothing left to close
+            if recorder is None and all(p.poll() is not None for p in procs.values()):
                 return
             self._spin(0.05)
 

@@ -284,15 +284,16 @@ class RecorderNode(SeftNode):
         if self.done:
             return
         now = time.monotonic()
-        if self.rig_final_at is None:
-            if self.abort_heard_at is None or now - self.abort_heard_at < self.rig_silent_s:
-                return
-            self.rig_final_at = now - FLUSH_TIMEOUT_S      # the rig is gone: close now
+        if self.rig_final_at is not None:
+            timed_out = now - self.rig_final_at >= FLUSH_TIMEOUT_S
+        elif self.abort_heard_at is not None and now - self.abort_heard_at >= self.rig_silent_s:
+            timed_out = True                  # the rig is gone (killed, link lost): close now
             self.get_logger().error('no final status of the rig '
                                     f'{self.rig_silent_s:.1f} s after the abort: rig or link '
                                     'lost; closing the bag')
+        else:
+            return
         missing = self._missing()
-        timed_out = now - self.rig_final_at >= FLUSH_TIMEOUT_S
         if missing and not timed_out:
             return
         if missing:
