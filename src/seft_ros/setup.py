@@ -23,7 +23,7 @@ setup(
             'reference_force_builder = seft_ros.nodes.reference_force_builder:main',
             'force_servo_controller = seft_ros.nodes.force_servo_controller:main',
             'recorder = seft_ros.nodes.recorder:main',
-            'link_emulator = seft_ros.nodes.link_emulator:main',
+            'link_emulator = seft_ros.cli.link_emulator:main',
         ],
     },
 )

@@ -46,7 +46,12 @@ def _run_and_hit(seft_exe, ros_env, cwd, out, node, sig, extra, after_s=2.0):
     try:
         _wait_for_rig(out)
         time.sleep(after_s)
-        os.kill(_pid_of(node, str(out)), sig)
+        try:
+            os.kill(_pid_of(node, str(out)), sig)
+        except (AssertionError, ProcessLookupError):
+            # the node has gone already: the run ended before the fault (a stall of this
+            # shared machine in real time); the test sees that in the bag and skips
+            pass
         stdout, stderr = proc.communicate(timeout=120)
     finally:
         if proc.poll() is None:

@@ -1,88 +1,125 @@
-"""The link emulator relays the graph's live topics between two domains (two emulated hosts),
-in order, after its delay, and sends every node's status across once (no echo)."""
+"""The link emulator's packet wire (``seft_ros.cli.link_emulator.PacketWire``): packets move
+between two descriptors after the link model's delay, in order, dropped at its loss rate.
 
+The TUN devices need root; the wire itself is tested here on datagram socket pairs, which
+keep packet boundaries as a TUN device does. The namespaces test runs it on TUN devices.
+"""
+
+import os
+import socket
 import time
 
 import pytest
-import rclpy
-from rclpy.executors import SingleThreadedExecutor
-from rclpy.node import Node
 
-from seft_msgs_py.convert import SerializedStamped, status_msg
-from seft_msgs_py.domain import claim_domain
-from seft_msgs_py.signals import MEASUREMENT_FIELDS
-from seft_msgs_py.topics import MEASUREMENT, STATUS
-from seft_ros.nodes.link_emulator import LinkEmulator
+from seft_ros.cli.link_emulator import PacketWire, main
+from seft_ros.core.link import LinkModel
 
 
 @pytest.fixture
-def two_domains(ros_env):
-    """The test session's domain (lab) and a second claimed one (compute)."""
-    from conftest import DOMAIN_ID, DOMAIN_RANGE
-    other, claim = claim_domain([d for d in DOMAIN_RANGE if d != DOMAIN_ID])
-    yield DOMAIN_ID, other
-    claim.close()
+def ends():
+    """Two 'hosts' (a, b) and the wire's two descriptors between them."""
+    a, wire_a = socket.socketpair(socket.AF_UNIX, socket.SOCK_DGRAM)
+    b, wire_b = socket.socketpair(socket.AF_UNIX, socket.SOCK_DGRAM)
+    for s in (a, b, wire_a, wire_b):
+        s.setblocking(False)
+    yield a, b, (wire_a.fileno(), wire_b.fileno())
+    for s in (a, b, wire_a, wire_b):
+        s.close()
 
 
-def test_relay_delays_in_order_and_sends_status_once(two_domains, monkeypatch):
-    monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
-    lab_domain, compute_domain = two_domains
-    relay = LinkEmulator({'lab': lab_domain, 'compute': compute_domain},
-                         ['rig', 'force_servo_controller'], delay_s=0.02, jitter_s=0.004)
-    relay.start()
-    ctx = {}
-    nodes = {}
-    for side, domain in (('lab', lab_domain), ('compute', compute_domain)):
-        ctx[side] = rclpy.Context()
-        rclpy.init(context=ctx[side], domain_id=domain)
-        nodes[side] = Node(f'probe_{side}', context=ctx[side])
-    got = {'measurement': [], 'status_compute': [], 'status_lab': []}
-    nodes['compute'].create_subscription(
-        MEASUREMENT.msg_type, MEASUREMENT.name,
-        lambda m: got['measurement'].append((time.monotonic(), m.header.stamp.nanosec)),
-        MEASUREMENT.qos)
-    nodes['compute'].create_subscription(STATUS.msg_type, STATUS.name,
-                                         lambda m: got['status_compute'].append(m.name),
-                                         STATUS.qos)
-    nodes['lab'].create_subscription(STATUS.msg_type, STATUS.name,
-                                     lambda m: got['status_lab'].append(m.name), STATUS.qos)
-    meas_pub = nodes['lab'].create_publisher(MEASUREMENT.msg_type, MEASUREMENT.name,
-                                             MEASUREMENT.qos)
-    status_pub = nodes['lab'].create_publisher(STATUS.msg_type, STATUS.name, STATUS.qos)
-    serialize = SerializedStamped.fields(MEASUREMENT.msg_type, MEASUREMENT_FIELDS)
-    executors = {}
-    for side in nodes:
-        executors[side] = SingleThreadedExecutor(context=ctx[side])
-        executors[side].add_node(nodes[side])
+def _pump_until(wire, cond, receive, timeout=5.0):
+    """Pump the wire, and take what it delivered at once (`receive`), until `cond`."""
+    end = time.monotonic() + timeout
+    while not cond() and time.monotonic() < end:
+        wire.pump(0.01)
+        receive()
 
-    def spin(seconds):
-        end = time.monotonic() + seconds
-        while time.monotonic() < end:
-            for ex in executors.values():
-                ex.spin_once(timeout_sec=0.001)
 
-    try:
-        deadline = time.monotonic() + 20
-        while meas_pub.get_subscription_count() < 1 and time.monotonic() < deadline:
-            spin(0.1)
-        spin(1.0)
-        sent = []
-        status_pub.publish(status_msg('rig', 'running', 'probe'))
-        for k in range(40):
-            sent.append(time.monotonic())
-            meas_pub.publish(serialize(k * 1000, (float(k), 0.0, 0.0, 0.0)))
-            spin(0.01)
-        spin(1.0)
-    finally:
-        summary = relay.close()
-        for side in nodes:
-            executors[side].shutdown()
-            nodes[side].destroy_node()
-            rclpy.try_shutdown(context=ctx[side])
-    stamps = [s for _, s in got['measurement']]
-    assert stamps == [k * 1000 for k in range(40)]          # every one, in order
-    holds = [t - s for (t, _), s in zip(got['measurement'], sent)]
-    assert min(holds) >= 0.016 - 0.001                      # delay - jitter, at least
-    assert got['status_compute'] == ['rig']                 # across once
-    assert got['status_lab'] == ['rig']                     # and not echoed back
-    assert 'relayed' in summary
+def _recv_all(sock):
+    got = []
+    while True:
+        try:
+            got.append((time.monotonic(), sock.recv(70000)))
+        except BlockingIOError:
+            return got
+
+
+def test_packets_cross_after_the_delay_in_order_both_ways(ends):
+    a, b, fds = ends
+    delay = 0.020
+    wire = PacketWire(fds, (LinkModel(delay, 0.004, seed=1, resend=False),
+                            LinkModel(delay, seed=2, resend=False)))
+    sent, got, back = {}, [], []
+
+    def receive():
+        got.extend(_recv_all(b))
+        back.extend(_recv_all(a))
+
+    for i in range(50):
+        payload = i.to_bytes(4, 'big') * 300            # 1200 bytes
+        sent[payload] = time.monotonic()
+        a.send(payload)
+        b.send(b'back' + payload[:4])
+        wire.pump(0.0)
+        receive()
+        time.sleep(0.002)
+    _pump_until(wire, lambda: wire.forwarded == [50, 50], receive)
+    assert wire.forwarded == [50, 50] and wire.dropped == [0, 0]
+    # a -> b: every packet, whole and in order, held delay +/- jitter (plus select's slack)
+    assert [p for _, p in got] == list(sent)
+    holds = [t - sent[p] for t, p in got]
+    assert min(holds) >= 0.016 - 1e-3
+    assert max(holds) <= 0.024 + 0.015                  # a loaded machine's wake-up
+    assert sorted(holds)[len(holds) // 2] <= 0.024 + 0.003
+    assert [p for _, p in back] == [b'back' + i.to_bytes(4, 'big') for i in range(50)]
+
+
+def test_no_delay_forwards_at_once(ends):
+    a, b, fds = ends
+    wire = PacketWire(fds, (LinkModel(resend=False), LinkModel(resend=False)))
+    a.send(b'x' * 1500)
+    wire.pump(0.5)
+    assert wire.forwarded == [1, 0]
+    assert b.recv(2000) == b'x' * 1500
+
+
+def test_loss_drops_packets_at_its_rate(ends):
+    a, b, fds = ends
+    wire = PacketWire(fds, (LinkModel(loss=0.2, seed=5, resend=False), LinkModel()))
+    n, got = 2000, []
+
+    def receive():
+        got.extend(int.from_bytes(p, 'big') for _, p in _recv_all(b))
+
+    for i in range(n):
+        a.send(i.to_bytes(4, 'big'))
+        if i % 5 == 4:                                   # within the sockets' queues
+            wire.pump(0.0)
+            receive()
+    _pump_until(wire, lambda: sum(wire.forwarded) + sum(wire.dropped) >= n, receive)
+    assert wire.failed == [0, 0]
+    assert wire.dropped[0] == n - len(got)
+    assert wire.dropped[0] == pytest.approx(0.2 * n, abs=4 * (0.16 * n) ** 0.5)
+    assert got == sorted(got)                            # the rest in order
+
+
+def test_a_closed_receiver_counts_undeliverable(ends):
+    a, b, fds = ends
+    wire = PacketWire(fds, (LinkModel(resend=False), LinkModel(resend=False)))
+    b.close()
+    a.send(b'lost')
+    wire.pump(0.5)
+    assert wire.forwarded == [0, 0] and wire.failed == [1, 0]
+
+
+@pytest.mark.parametrize('args, text', [
+    (['--devices', 'a', 'b', '--delay-ms', '1', '--jitter-ms', '2'],
+     'link_emulator: error: jitter 0.002 s: expected 0 .. delay'),
+    (['--devices', 'x' * 20, 'b'], "link_emulator: error: cannot create TUN device 'xxxx"),
+])
+def test_bad_arguments_are_one_line(args, text, capsys):
+    if os.geteuid() != 0 and '--jitter-ms' not in args:
+        text = 'link_emulator: error: cannot create TUN device'
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith(text) and len(err.splitlines()) == 1

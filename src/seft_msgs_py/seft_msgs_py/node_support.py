@@ -36,6 +36,8 @@ from seft_msgs_py.convert import (
     STATE_CLOSED,
     STATE_DONE,
     STATE_FAILED,
+    STATE_READY,
+    STATE_RUNNING,
     FieldsReader,
     ScalarReader,
     dt_to_ns,
@@ -114,6 +116,8 @@ class SeftNode(Node):
         self.exit_code = 0
         #: System-clock time [ns] of sample 0, from the rig's status (real-time mode).
         self.t0_ns: int | None = None
+        #: The run's number of steps, from the rig's 'running' status (None before).
+        self.run_steps: int | None = None
         self.timing: StepTiming | None = None
         #: The parameters each node of the graph resolved: {node: {name: value}}.
         self.node_params: dict[str, dict] = {}
@@ -302,6 +306,8 @@ class SeftNode(Node):
         state = values.get('state')
         if msg.name == 'rig' and 't0_ns' in values and self.t0_ns is None:
             self.t0_ns = int(values['t0_ns'])
+        if msg.name == 'rig' and state == STATE_RUNNING and 'n_steps' in values:
+            self.run_steps = int(values['n_steps'])
         if (msg.name == 'rig' and self.seft_name not in ('rig', 'recorder')
               and state in (STATE_DONE, STATE_ABORTED, STATE_FAILED)):
             self.report(STATE_DONE, 'rig finished', **self.final_counts())
@@ -366,6 +372,19 @@ class SeftNode(Node):
             except ParameterError as exc:
                 return SetParametersResult(successful=False, reason=str(exc))
         return SetParametersResult(successful=True)
+
+    def watch_inputs(self, subscriptions) -> None:
+        """Real time: report ``inputs=matched`` (state 'ready') once each of `subscriptions`
+        has discovered a publisher, so that the rig starts its clock only when the samples
+        will be taken in (across a link to another host, discovery takes round trips, and a
+        sample sent before its reader has matched the writer is lost)."""
+        waiting = list(subscriptions)
+
+        def check():
+            if all(sub.get_publisher_count() > 0 for sub in waiting):
+                timer.cancel()
+                self.report(STATE_READY, 'inputs matched', inputs='matched')
+        timer = self.wall_timer(0.02, check)
 
     def wall_timer(self, period_s: float, callback: Callable):
         """A guarded timer on the steady (wall) clock.
@@ -526,6 +545,11 @@ class StepTiming:
                 'stale': self.stale}
 
 
+#: Real-time mode: the input watchdogs' limit for an input not heard since the start [s]
+#: (at least; ``watchdog_timeout_s`` if larger).
+WATCHDOG_START_S = 0.25
+
+
 class InputWatchdog:
     """Real-time mode: end the run when an input has stopped arriving (a node or the link to
     another host lost).
@@ -533,7 +557,9 @@ class InputWatchdog:
     Armed by the node once the run is under way (its first measurement, :meth:`arm`); from
     then on a steady-clock timer (period half the limit, at most 10 ms) aborts the run through
     :meth:`SeftNode.abort_run` once an input has been silent for longer than
-    ``watchdog_timeout_s`` (an input that never arrived counts from the arming). The rig then
+    ``watchdog_timeout_s`` (an input that has not arrived since the arming: for longer than
+    ``max(watchdog_timeout_s, WATCHDOG_START_S)``, as the first sample over a new path to
+    another host can take longer). The rig then
     goes to its safe state when it hears the abort; on a lost link the rig's own watchdog (no
     valve command) or the force servo controller's (no reference force) does it on that side.
     Detection time: the limit plus at most one timer period.
@@ -552,6 +578,7 @@ class InputWatchdog:
         self.inputs = tuple(inputs)
         self.last_at = dict.fromkeys(self.inputs, -math.inf)
         self.armed_at: float | None = None
+        self.complete = False            # the last step's measurement has arrived
         node.wall_timer(min(0.5 * self.timeout_s, 0.01), self.check)
 
     def arm(self) -> None:
@@ -559,18 +586,31 @@ class InputWatchdog:
         if self.armed_at is None:
             self.armed_at = time.monotonic()
 
-    def feed(self, name: str) -> None:
-        """An input `name` arrived now."""
+    def feed(self, name: str, step: int | None = None) -> None:
+        """An input `name` arrived now; with `step`, the measurement of that step.
+
+        The measurement of the run's last step (``n_steps - 1``, from the rig's 'running'
+        status) ends the watch: no input is due after it, and the rig's final status (which
+        may come later, after the rig has waited for its last commands) ends the node.
+        """
         self.last_at[name] = time.monotonic()
+        n = self.node.run_steps
+        if step is not None and n is not None and step >= n - 1:
+            self.complete = True
 
     def check(self) -> None:
         """Abort the run when an input has been silent for longer than the limit."""
-        if self.node.done or self.armed_at is None:
+        if self.node.done or self.armed_at is None or self.complete:
             return
         now = time.monotonic()
         for name in self.inputs:
-            silent = now - max(self.last_at[name], self.armed_at)
-            if silent > self.timeout_s:
+            last = self.last_at[name]
+            silent = now - max(last, self.armed_at)
+            # an input not heard yet since the start: the first sample over a new path
+            # (another host) may take longer than the steady-state limit
+            limit = self.timeout_s if last > -math.inf else max(self.timeout_s,
+                                                                  WATCHDOG_START_S)
+            if silent > limit:
                 self.node.abort_run(
                     f'watchdog: no {name} for {1e3 * silent:.0f} ms (limit '
                     f'{1e3 * self.timeout_s:.0f} ms; node or link lost)',

@@ -205,6 +205,14 @@ SCHEMA: tuple[ParamSpec, ...] = (
               "'on_arrival': the measured loop latency (sample to command at the rig, p50 of "
               'the timing data); the predictor then compensates the actuator delay plus '
               'loop_latency - dt (0: as lockstep).', 0.0, 1.0, nodes=_RFB + ('recorder',)),
+    ParamSpec('network_delay_s', 0.0, 's', 'Real-time mode, servohydraulic rig, the '
+              'reference-force builder on another host than the force servo controller: the '
+              'controller applies f_r[k] at step k + round(network_delay_s / dt), a fixed '
+              "delay that covers the network's round trip (the measurement there, the "
+              'reference force back) and its jitter, and the predictor predicts that much '
+              'further ahead. Set it to the longest round trip plus about 1 ms (0: one '
+              'host).', 0.0, 1.0,
+              nodes=_RFB + _CTRL + ('recorder',)),
     ParamSpec('adaptive_window_s', 0.5, 's', "Identification window of the 'adaptive' "
               'predictor.', 0.0, 100.0, True, nodes=_RFB + ('recorder',)),
     ParamSpec('adaptive_max_delay_s', 0.03, 's', "Largest delay the 'adaptive' predictor "
@@ -567,6 +575,7 @@ _SHARED_SOURCE = {
     'velocity_filter_hz': 'force_servo_controller',
     'realtime_priority': 'rig',             # per node; the rig's is the clock's
     'watchdog_timeout_s': 'rig',            # the rig's watchdog; the others watch their inputs
+    'network_delay_s': 'reference_force_builder',   # the delay its predictor compensates
     # the excitation: the ground-motion publisher plays it (closed loop), the controller
     # drives the valve with it (open loop); both generate the same samples
     'duration_s': 'ground_motion_publisher', 'excitation': 'ground_motion_publisher',

@@ -30,13 +30,9 @@ __all__ = [
     'MEASURED_FORCE', 'DISPLACEMENT', 'VELOCITY', 'ACCELERATION', 'STATUS', 'RUN_PARAMETERS',
     'DATA_QOS', 'STATUS_QOS', 'CLOCK_QOS', 'MEASUREMENT_TOPICS', 'topic', 'FRAME_ID',
     'NODE_PARAMETERS', 'TIMING', 'timing_topic', 'CLOCK_EVERY', 'MEASUREMENT', 'RECORD',
-    'BAG_TOPICS', 'record_topic', 'SCALAR_TOPICS', 'ESTIMATES', 'LINK_EMULATOR_NODE',
+    'BAG_TOPICS', 'record_topic', 'SCALAR_TOPICS', 'ESTIMATES',
 ]
 
-#: Node name of the link emulator (``seft_ros.nodes.link_emulator``), which relays the live
-#: topics between the domains of two emulated hosts: its subscriptions stand for those of the
-#: nodes on the other side.
-LINK_EMULATOR_NODE = 'seft_link_emulator'
 #: ``header.frame_id`` of every seft signal: the actuator axis (x: positive extension).
 FRAME_ID = 'actuator'
 #: The rig publishes /clock every this many steps: the ground-motion publisher, ahead of it

@@ -52,7 +52,6 @@ from seft_msgs_py.signals import MEASUREMENT_FIELDS, RECORD_ROWS
 from seft_msgs_py.topics import (
     CLOCK,
     CLOCK_EVERY,
-    LINK_EMULATOR_NODE,
     MEASUREMENT,
     REFERENCE_FORCE,
     STATUS,
@@ -70,6 +69,12 @@ PROGRESS_EVERY = 250
 MIN_WINDOW_STEPS = 100
 #: Real-time mode: how long the rig keeps sampling its safe state after the ramp [s].
 SAFE_HOLD_S = 0.05
+#: Real-time mode: after the last tick the rig waits for the commands of its last samples
+#: (their loop latency recorded, not counted lost) for watchdog_timeout_s, at least this [s].
+DRAIN_MIN_S = 0.1
+#: Real-time mode: the nodes whose inputs must have matched their publishers before the
+#: rig starts its clock (they report it, ``SeftNode.watch_inputs``).
+INPUT_NODES = ('reference_force_builder', 'force_servo_controller')
 
 
 def graph_nodes(params) -> tuple[str, ...]:
@@ -115,6 +120,8 @@ class RigNode(SeftNode):
         #: The signal that stopped the rig (SIGINT, SIGTERM), reported in its final status.
         self.stop_signal = None
         self.graph = graph_nodes(p)
+        #: Nodes that reported their inputs matched (real time, :data:`INPUT_NODES`).
+        self.inputs_matched = set()
         self.create_subscription(STATUS.msg_type, STATUS.name, self.guard(self._on_status),
                                  STATUS.qos)
         if self.realtime:
@@ -128,6 +135,10 @@ class RigNode(SeftNode):
             self.abort_at_s = None
             self.safe_since = None           # plant time the safe ramp ended [s]
             self.timing_pending = {}         # sample -> record fields without the latency
+            #: After the last tick: until when (monotonic [s]) the rig still waits for the
+            #: commands of its last samples, so that their loop latency is recorded rather
+            #: than counted lost (at most watchdog_timeout_s, and at least DRAIN_MIN_S).
+            self.drain_until = None
         self.start_timer = self.wall_timer(0.05, self._try_start)
         self.publish_parameters()
         self.report(STATE_READY, 'waiting for the graph: ' + ', '.join(self.graph),
@@ -147,6 +158,11 @@ class RigNode(SeftNode):
             return
         if self.realtime and not self._subscribed_by('reference_force_builder'):
             return
+        # real time: the builder and controller have also discovered their inputs'
+        # publishers (SeftNode.watch_inputs): a sample sent before that is lost
+        if self.realtime and any(n not in self.inputs_matched for n in INPUT_NODES
+                                 if n in self.graph):
+            return
         if (self.realtime and 'force_servo_controller' in self.graph
                 and not self._subscribed_by('force_servo_controller')):
             return
@@ -162,12 +178,10 @@ class RigNode(SeftNode):
 
     def _subscribed_by(self, node: str, topics=(MEASUREMENT.name,)) -> bool:
         """`node`'s subscriptions to `topics` (default: the rig's measurement) are
-        discovered (or, across an emulated link, the link emulator's, which relays them to
-        `node`, whose parameters have come over the link)."""
+        discovered."""
         for name in topics:
             nodes = {i.node_name for i in self.get_subscriptions_info_by_topic(name)}
-            if node not in nodes and not (LINK_EMULATOR_NODE in nodes
-                                          and node in self.node_params):
+            if node not in nodes:
                 return False
         return True
 
@@ -183,6 +197,8 @@ class RigNode(SeftNode):
                 if self.waiting_for_recorder and self._recorder_keeps_up():
                     self.waiting_for_recorder = False
                     self._publish_step()
+        if values.get('inputs') == 'matched':
+            self.inputs_matched.add(msg.name)
         if msg.name == 'ground_motion_publisher' and self.n_steps <= 0 and 'n_steps' in values:
             self.n_steps = int(values['n_steps'])
         if msg.name != self.seft_name and state in (STATE_ABORTED, STATE_FAILED):
@@ -259,6 +275,8 @@ class RigNode(SeftNode):
         """Real time, running: the instant of the next tick (absolute schedule t0 + k dt)."""
         if not (self.realtime and self.running) or self.t0 is None:
             return None
+        if self.drain_until is not None:
+            return self.drain_until
         return self.t0 + (self.rig.step + 1) * self.rig.dt
 
     def run_due(self) -> None:
@@ -272,12 +290,18 @@ class RigNode(SeftNode):
             return
         self.rig.arrive(stamp, value, now - self.t0)
         self.last_command_at = now
+        if self.drain_until is not None and all(
+                self.rig.loop_latency_s(j) is not None for j in self.timing_pending):
+            self._end_realtime()
 
     def _tick(self) -> None:
         """Catch up with the wall clock: every tick due by now, in order."""
         now = time.monotonic()
+        if self.drain_until is not None:
+            self._end_realtime()            # the drain's deadline: the rest count lost
+            return
         due = int((now - self.t0) / self.rig.dt)
-        while self.running and self.rig.step < due:
+        while self.running and self.drain_until is None and self.rig.step < due:
             start = time.monotonic()
             self.rig.advance()
             self._after_advance(start)
@@ -286,11 +310,10 @@ class RigNode(SeftNode):
         rig = self.rig
         k = rig.step
         if k >= self.n_steps:
-            self._flush_timing(final=True)
-            if self.abort_reason:
-                self._end(STATE_ABORTED, self.abort_reason)
-            else:
-                self._end(STATE_DONE, f'completed {self.n_steps} steps')
+            # the last tick: wait (briefly) for the commands of the last samples
+            self.drain_until = time.monotonic() + max(self.watchdog_s, DRAIN_MIN_S)
+            if all(rig.loop_latency_s(j) is not None for j in self.timing_pending):
+                self._end_realtime()
             return
         if rig.in_safe_state:
             if rig.safe_ramp_done:
@@ -336,6 +359,14 @@ class RigNode(SeftNode):
                                 math.nan if latency is None else latency)
         self.rig.forget_before(k - 2 * self.watchdog_steps)
 
+    def _end_realtime(self) -> None:
+        """After the last tick and its drain: the final timing records, then the end."""
+        self._flush_timing(final=True)
+        if self.abort_reason:
+            self._end(STATE_ABORTED, self.abort_reason)
+        else:
+            self._end(STATE_DONE, f'completed {self.n_steps} steps')
+
     def _abort_realtime(self, reason: str) -> None:
         """Go to the safe state; the run ends once the ramp is done."""
         if self.abort_reason is not None or not self.running:
@@ -350,7 +381,9 @@ class RigNode(SeftNode):
         the end), then the run ends aborted with that reason."""
         reason = f'rig stopped by {signame}'
         self.stop_signal = signame
-        if self.realtime and self.running:
+        if self.realtime and self.running and self.drain_until is not None:
+            self._end_realtime()            # every step was taken; the drain is cut short
+        elif self.realtime and self.running:
             self._abort_realtime(reason)
         else:
             self._end(STATE_ABORTED, reason)

@@ -152,8 +152,8 @@ def timing_summary(timing: dict[str, NodeTiming]) -> dict | None:
             'missed_deadline_fraction': round(float(np.mean(t.missed_deadline)), 6),
             'stale_fraction': round(float(np.mean(t.stale)), 6),
         }
-    # the last sample's command may legitimately never come (the run ended)
-    lost = int(np.sum(~np.isfinite(rig.loop_latency_s[:-1])))
+    # the rig waits for the commands of its last samples after its last tick (DRAIN_MIN_S)
+    lost = int(np.sum(~np.isfinite(rig.loop_latency_s)))
     return {
         'loop_latency_ms': percentiles_ms(rig.loop_latency_s),
         'period_jitter_ms': percentiles_ms(np.abs(rig.period_jitter_s)),

@@ -264,6 +264,11 @@ class GraphRunner:
             outcome.update(statuses=[{k: v for k, v in st.items() if k != 'received'}
                                      for st in self.statuses
                                      if st.get('state') not in (STATE_RUNNING, STATE_READY)])
+            # the wall time of the rig's sample 0 [ns since the epoch] (real time): the
+            # rig's times (abort_at_s) on the wall clock
+            t0 = [st['t0_ns'] for st in self.statuses if st['name'] == 'rig' and 't0_ns' in st]
+            if t0:
+                outcome['rig_t0_ns'] = int(t0[0])
             try:
                 (run_dir / 'outcome.json').write_text(json.dumps(outcome, indent=1,
                                                                  default=str))

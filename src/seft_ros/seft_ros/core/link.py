@@ -1,21 +1,21 @@
 """A network link between two hosts, as delay, jitter and loss (ROS-free).
 
-The link emulator (``seft_ros.nodes.link_emulator``) relays the graph's topics between two
-DDS domains, one per "host", and holds each message for the time this model gives. It is the
+The link emulator (``seft_ros.cli.link_emulator``) forwards the IP packets between two
+network namespaces ("hosts") and holds each packet for the time this model gives. It is the
 stand-in for ``tc netem`` where the kernel has none.
 
-Model (per topic, one direction): a message that arrives at time ``t`` leaves at
+Model (one direction): a packet that arrives at time ``t`` leaves at
 
     t_out = max(t + delay + U(-jitter, +jitter) [+ retransmit if lost], t_out_previous)
 
 - ``delay``: one-way network delay [s];
 - ``jitter``: half-width of a uniform jitter [s] (the issue's "± 20 %" is jitter = 0.2 delay);
-- ``loss``: probability that a packet is lost. Every topic of the graph is *reliable*, so a
-  lost packet is not lost data: DDS resends it once the reader has told the writer about the
-  gap, one round trip and the reader's response delay later (``retransmit``, default
-  ``2 delay + 5 ms``);
-- the ``max`` keeps each topic in order, as a reliable DDS reader delivers it: a late message
-  holds the ones behind it (head-of-line blocking), as on a real reliable link.
+- ``loss``: probability that a packet is lost. With ``resend=False`` (the packet emulator)
+  a lost packet is dropped, as netem drops it, and DDS's reliability protocol has to resend
+  it; with ``resend=True`` (a model of one reliable topic) it arrives ``retransmit`` later
+  (default ``2 delay + 5 ms``: the reader's negative acknowledgement and the resend);
+- the ``max`` keeps the packets in order (a FIFO link, as ``netem`` with a rate or a
+  pfifo child): a late packet holds the ones behind it (head-of-line blocking).
 
 References
 ----------
@@ -46,6 +46,9 @@ class LinkModel:
         Extra delay of a resent packet [s] (default ``2 delay_s + 0.005``).
     seed : int
         Seed of the random draws (a run is reproducible).
+    resend : bool
+        True: a lost packet arrives `retransmit_s` later; False: it is dropped
+        (:meth:`departure` returns None).
 
     Raises
     ------
@@ -58,6 +61,7 @@ class LinkModel:
     loss: float = 0.0
     retransmit_s: float | None = None
     seed: int = 0
+    resend: bool = True
     _last_out: float = field(default=float('-inf'), init=False, repr=False)
     _rng: random.Random = field(init=False, repr=False)
 
@@ -76,13 +80,16 @@ class LinkModel:
         self._rng = random.Random(self.seed)
         self.lost = 0
 
-    def departure(self, arrival_s: float) -> float:
-        """When a message that arrived at `arrival_s` [s] leaves the link [s] (in order)."""
+    def departure(self, arrival_s: float) -> float | None:
+        """When a packet that arrived at `arrival_s` [s] leaves the link [s] (in order);
+        None if it is lost and dropped (``resend=False``)."""
         hold = self.delay_s
         if self.jitter_s:
             hold += self._rng.uniform(-self.jitter_s, self.jitter_s)
         if self.loss and self._rng.random() < self.loss:
             self.lost += 1
+            if not self.resend:
+                return None
             hold += self.retransmit_s
         out = max(arrival_s + hold, self._last_out)
         self._last_out = out

@@ -442,15 +442,20 @@ class ModelPredictor:
 
         On the ``delay`` rig the delay is ``predictor_tau_s`` (0: ``tau_s``); on the
         ``servohydraulic`` rig the force loop is modelled from the rig parameters and the
-        discrete force controller (:class:`ForceLoopInverse`).
+        discrete force controller (:class:`ForceLoopInverse`), and the prediction covers its
+        inverted delay plus the reference force's network delay (``network_delay_s``,
+        :func:`~seft_ros.core.reference_force.network_delay_steps`).
         """
         mp = model_parameters(params)
         dt = float(params['dt'])
         inverse = None
         tau = mp['tau_s']
         if params.get('rig_model') == 'servohydraulic':
+            from seft_ros.core.reference_force import network_delay_steps  # noqa: I001
             inverse = ForceLoopInverse.from_parameters(params)
-            tau = inverse.delay_steps * dt
+            # the inverted force loop's delay, plus the reference force's way over a network
+            # (a pure delay in series; on the delay rig it is in predictor_tau_s already)
+            tau = (inverse.delay_steps + network_delay_steps(params)) * dt
         model = DelayImpulseModel(mp['mass_kg'], mp['damping_N_s_per_m'],
                                   mp['stiffness_N_per_m'], dt, tau)
         return cls(model, float(params['alpha']), float(params['mass_kg']), inverse)

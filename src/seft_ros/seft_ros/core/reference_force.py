@@ -15,7 +15,7 @@ from seft_ros.core.predictors import (
 )
 
 __all__ = ['Predictor', 'NoPredictor', 'PREDICTORS', 'make_predictor', 'ReferenceForceBuilder',
-           'ground_window', 'with_loop_latency']
+           'ground_window', 'with_loop_latency', 'network_delay_steps']
 
 
 @runtime_checkable
@@ -63,6 +63,30 @@ PREDICTORS: dict[str, Callable] = {
 }
 
 
+def network_delay_steps(params) -> int:
+    """The fixed delay [steps] of the reference force between builder and controller.
+
+    ``round(network_delay_s / dt)``: with the reference-force builder on another host, the
+    force servo controller applies ``f_r[k]`` at step ``k + m`` (a playout delay: it covers
+    the network's round trip and jitter, so the delay the predictor compensates is constant).
+
+    Raises
+    ------
+    ParameterError
+        ``network_delay_s > 0`` outside real-time mode or on a rig without a force servo
+        controller (the delay rig): there is no network to cover there.
+    """
+    delay = float(params.get('network_delay_s', 0.0) or 0.0)
+    if delay <= 0.0:
+        return 0
+    if params.get('mode') != 'realtime' or params.get('rig_model') != 'servohydraulic':
+        raise ParameterError(
+            f'parameter network_delay_s={delay}: applies to real-time mode on the '
+            f"servohydraulic rig only (here mode {params.get('mode')!r}, rig_model "
+            f"{params.get('rig_model')!r}); set it to 0")
+    return int(round(delay / float(params['dt'])))
+
+
 def with_loop_latency(params) -> dict:
     """The parameters a predictor models, with the measured loop latency added.
 
@@ -73,6 +97,13 @@ def with_loop_latency(params) -> dict:
     ``tau + L - dt`` on the delay rig (``predictor_tau_s``, 0: ``tau_s``) and the I/O latency
     ``io_latency_s + L - dt`` on the servohydraulic rig, so that compensation covers the
     actuator and the communication together. ``L = 0`` (the default) changes nothing.
+
+    With ``network_delay_s > 0`` (the builder on another host) the force servo controller
+    applies each reference force ``N = round(network_delay_s / dt) dt`` later
+    (:func:`network_delay_steps`): a pure delay in series with the actuator, outside the force
+    loop. The predictor then predicts N beyond the force loop's inverted delay
+    (:meth:`~seft_ros.core.predictors.ModelPredictor.from_parameters`); the force loop's own
+    model is unchanged.
 
     Parameters
     ----------
@@ -87,12 +118,14 @@ def with_loop_latency(params) -> dict:
     """
     out = dict(params)
     latency = float(params.get('predictor_loop_latency_s', 0.0) or 0.0)
-    if latency <= 0.0:
+    steps = network_delay_steps(params)
+    network = steps * float(params['dt']) if steps else 0.0
+    if latency <= 0.0 and network <= 0.0:
         return out
-    extra = latency - float(params['dt'])
+    extra = latency - float(params['dt']) if latency > 0.0 else 0.0
     tau = float(params.get('predictor_tau_s') or params.get('tau_s') or 0.0)
-    out['predictor_tau_s'] = max(tau + extra, 1e-6)
-    if 'io_latency_s' in params:
+    out['predictor_tau_s'] = max(tau + extra + network, 1e-6)
+    if 'io_latency_s' in params and latency > 0.0:
         out['io_latency_s'] = max(float(params['io_latency_s']) + extra, 0.0)
     return out
 

@@ -26,6 +26,7 @@ from seft_msgs_py.sync import StepSync
 from seft_msgs_py.topics import MEASURED_FORCE, REFERENCE_FORCE, VALVE_COMMAND
 from seft_ros.core.controller import SaturationInterlock
 from seft_ros.core.excitation import make_valve_controller
+from seft_ros.core.reference_force import network_delay_steps
 
 __all__ = ['ForceServoControllerNode', 'main']
 
@@ -41,6 +42,9 @@ class ForceServoControllerNode(SeftNode):
         self.controller = make_valve_controller(p)
         self.interlock = SaturationInterlock.from_parameters(p)
         self.dt = float(p['dt'])
+        #: Real time, the builder on another host: f_r[k] is applied at step k + this
+        #: (network_delay_s; 0 on one host). Raises ParameterError in lockstep.
+        self.playout_steps = network_delay_steps(p)
         self.sync = StepSync((REFERENCE_FORCE.name, MEASURED_FORCE.name))
         self.ready = {}
         self.next_step = 0
@@ -53,10 +57,11 @@ class ForceServoControllerNode(SeftNode):
             self.reference = {}            # step -> f_r (the newest few)
             self.latest_reference = (-1, 0.0)
             self.watchdog = InputWatchdog(self, (REFERENCE_FORCE.name, 'measurement'))
-            self.scalar_subscription(REFERENCE_FORCE, self._on_reference_realtime)
-            self.measurement_subscription(
-                lambda k, values: self._on_measured_realtime(k, values[0], values[2],
-                                                             values[3]))
+            self.watch_inputs([
+                self.scalar_subscription(REFERENCE_FORCE, self._on_reference_realtime),
+                self.measurement_subscription(
+                    lambda k, values: self._on_measured_realtime(k, values[0], values[2],
+                                                                 values[3]))])
         else:
             self.scalar_subscription(
                 REFERENCE_FORCE, lambda k, value: self._on_force(REFERENCE_FORCE.name, k, value))
@@ -72,15 +77,20 @@ class ForceServoControllerNode(SeftNode):
             self.latest_reference = (k, value)
 
     def _on_measured_realtime(self, k: int, fm: float, v: float = 0.0, a: float = 0.0) -> None:
-        """u[k] from f_m[k] and the newest reference force: act at once, never wait."""
+        """u[k] from f_m[k] and the reference force of step k (``network_delay_s``: of step
+        k - m), else the newest one: act at once, never wait."""
         start, jitter = self.timing.start()
-        self.watchdog.feed('measurement')
+        self.watchdog.feed('measurement', k)
         self.watchdog.arm()
         if k < self.next_step:
             return                          # a duplicate: each step is computed once
-        stale = k not in self.reference
-        fr_step, fr = (k, self.reference.pop(k)) if not stale else self.latest_reference
-        for j in [j for j in self.reference if j < k]:
+        # the reference force of this step: f_r[k], or with a network delay f_r[k - m]
+        # (f_r[0] until then); if it has not arrived, the newest there is
+        due = max(k - self.playout_steps, 0)
+        stale = due not in self.reference
+        fr_step, fr = (due, self.reference[due]) if not stale else self.latest_reference
+        done = due if k >= self.playout_steps else due - 1     # f_r[0] serves steps 0..m
+        for j in [j for j in self.reference if j <= done]:
             del self.reference[j]
         u = self.controller.step(fr, fm, v, a)
         reason = self.interlock.update(self.controller.saturated, k * self.dt)

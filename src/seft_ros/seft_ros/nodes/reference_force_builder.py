@@ -90,10 +90,11 @@ class ReferenceForceBuilderNode(SeftNode):
         self.create_subscription(spec.msg_type, spec.name,
                                  self.guard(lambda msg: self._on_ground_batch(ground, msg)),
                                  spec.qos)
-        self.measurement_subscription(self._on_measurement)
+        measurement = self.measurement_subscription(self._on_measurement)
         self.create_subscription(STATUS.msg_type, STATUS.name, self.guard(self._on_status),
                                  STATUS.qos)
         if self.realtime:
+            self.watch_inputs([measurement])
             self.timing = StepTiming(self)
             self.latest_ground = (-1, 0.0)
             self.ground_stale = False
@@ -125,7 +126,7 @@ class ReferenceForceBuilderNode(SeftNode):
         force, x, v, a = values
         self.measurements[k] = Measurement(k, k * self.dt, x, v, a, force)
         if self.realtime:
-            self.watchdog.feed('measurement')
+            self.watchdog.feed('measurement', k)
             self.watchdog.arm()
             self._advance_realtime()
         else:

@@ -1,0 +1,71 @@
+"""The real-time input watchdog (``node_support.InputWatchdog``) on a clock of its own."""
+
+import pytest
+
+from seft_msgs_py import node_support
+from seft_msgs_py.node_support import WATCHDOG_START_S, InputWatchdog
+
+
+class FakeNode:
+    """What the watchdog uses of a node: parameters, a timer, the run's steps, abort_run."""
+
+    def __init__(self, timeout_s):
+        self.params = {'watchdog_timeout_s': timeout_s}
+        self.done = False
+        self.run_steps = None
+        self.next_step = 0
+        self.aborts = []
+
+    def wall_timer(self, period_s, callback):
+        self.period_s = period_s
+
+    def abort_run(self, reason, step):
+        self.aborts.append(reason)
+        self.done = True
+
+
+@pytest.fixture
+def clock(monkeypatch):
+    now = [100.0]
+    monkeypatch.setattr(node_support.time, 'monotonic', lambda: now[0])
+    return now
+
+
+def test_a_silent_input_ends_the_run_after_the_limit(clock):
+    node = FakeNode(0.02)
+    dog = InputWatchdog(node, ('measurement',))
+    dog.arm()
+    dog.feed('measurement', 0)
+    clock[0] += 0.019
+    dog.check()
+    assert node.aborts == []
+    clock[0] += 0.002
+    dog.check()
+    assert len(node.aborts) == 1
+    assert node.aborts[0].startswith('watchdog: no measurement for 21 ms (limit 20 ms')
+
+
+def test_an_input_not_heard_since_the_start_gets_the_start_limit(clock):
+    node = FakeNode(0.02)
+    dog = InputWatchdog(node, ('/seft/reference_force', 'measurement'))
+    dog.arm()
+    dog.feed('measurement', 0)
+    clock[0] += WATCHDOG_START_S - 0.001      # the reference force's first sample is late:
+    dog.feed('measurement', 1)                # it has not come over the link yet
+    dog.check()
+    assert node.aborts == []
+    clock[0] += 0.002
+    dog.check()
+    assert node.aborts and 'no /seft/reference_force for 251 ms' in node.aborts[0]
+
+
+def test_the_last_steps_measurement_ends_the_watch(clock):
+    node = FakeNode(0.02)
+    node.run_steps = 10
+    dog = InputWatchdog(node, ('measurement',))
+    dog.arm()
+    dog.feed('measurement', 8)
+    dog.feed('measurement', 9)                # the run's last step: nothing more is due
+    clock[0] += 1.0
+    dog.check()
+    assert node.aborts == []
