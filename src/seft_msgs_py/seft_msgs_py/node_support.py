@@ -546,8 +546,10 @@ class StepTiming:
 
 
 #: Real-time mode: the input watchdogs' limit for an input not heard since the start [s]
-#: (at least; ``watchdog_timeout_s`` if larger).
-WATCHDOG_START_S = 0.25
+#: (at least; ``watchdog_timeout_s`` if larger). Across an emulated 5 ms link the first
+#: reference force once took more than 0.25 s to come (DDS's repair of a sample sent before
+#: both ends had matched); the rig is at rest until it comes.
+WATCHDOG_START_S = 1.0
 
 
 class InputWatchdog:
