@@ -373,15 +373,17 @@ class SeftNode(Node):
                 return SetParametersResult(successful=False, reason=str(exc))
         return SetParametersResult(successful=True)
 
-    def watch_inputs(self, subscriptions) -> None:
+    def watch_inputs(self, subscriptions, publishers=()) -> None:
         """Real time: report ``inputs=matched`` (state 'ready') once each of `subscriptions`
-        has discovered a publisher, so that the rig starts its clock only when the samples
-        will be taken in (across a link to another host, discovery takes round trips, and a
-        sample sent before its reader has matched the writer is lost)."""
-        waiting = list(subscriptions)
+        has discovered a publisher and each of `publishers` a subscriber, so that the rig
+        starts its clock only when the samples will be taken in on both ends (across a link to
+        another host, discovery takes round trips, one end may match long before the other,
+        and a sample sent before both have matched waits for DDS's repair)."""
+        subs, pubs = list(subscriptions), list(publishers)
 
         def check():
-            if all(sub.get_publisher_count() > 0 for sub in waiting):
+            if (all(sub.get_publisher_count() > 0 for sub in subs)
+                    and all(pub.get_subscription_count() > 0 for pub in pubs)):
                 timer.cancel()
                 self.report(STATE_READY, 'inputs matched', inputs='matched')
         timer = self.wall_timer(0.02, check)

@@ -74,7 +74,7 @@ SAFE_HOLD_S = 0.05
 DRAIN_MIN_S = 0.1
 #: Real-time mode: the nodes whose inputs must have matched their publishers before the
 #: rig starts its clock (they report it, ``SeftNode.watch_inputs``).
-INPUT_NODES = ('reference_force_builder', 'force_servo_controller')
+INPUT_NODES = ('ground_motion_publisher', 'reference_force_builder', 'force_servo_controller')
 
 
 def graph_nodes(params) -> tuple[str, ...]:
@@ -158,8 +158,9 @@ class RigNode(SeftNode):
             return
         if self.realtime and not self._subscribed_by('reference_force_builder'):
             return
-        # real time: the builder and controller have also discovered their inputs'
-        # publishers (SeftNode.watch_inputs): a sample sent before that is lost
+        # real time: the ground-motion publisher, builder and controller have also matched
+        # their inputs and outputs (SeftNode.watch_inputs): a sample sent before that waits
+        # for DDS's repair
         if self.realtime and any(n not in self.inputs_matched for n in INPUT_NODES
                                  if n in self.graph):
             return

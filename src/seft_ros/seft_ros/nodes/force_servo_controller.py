@@ -61,7 +61,7 @@ class ForceServoControllerNode(SeftNode):
                 self.scalar_subscription(REFERENCE_FORCE, self._on_reference_realtime),
                 self.measurement_subscription(
                     lambda k, values: self._on_measured_realtime(k, values[0], values[2],
-                                                                 values[3]))])
+                                                                 values[3]))], [self.pub])
         else:
             self.scalar_subscription(
                 REFERENCE_FORCE, lambda k, value: self._on_force(REFERENCE_FORCE.name, k, value))

@@ -44,9 +44,10 @@ class GroundMotionPublisher(SeftNode):
         # the samples go out as record batches only: the builder reads them there, and the
         # recorder writes them to the bag's /seft/ground_acceleration
         self.batch = self.record_stream()
-        self.create_subscription(CLOCK.msg_type, CLOCK.name, self.guard(self._on_clock),
-                                 CLOCK.qos, raw=True)
+        clock = self.create_subscription(CLOCK.msg_type, CLOCK.name,
+                                         self.guard(self._on_clock), CLOCK.qos, raw=True)
         if self.realtime:
+            self.watch_inputs([clock], [self.batch.pub])
             self.timing = StepTiming(self)
         self.publish_parameters()
         self.get_logger().info(

@@ -87,14 +87,14 @@ class ReferenceForceBuilderNode(SeftNode):
                 next(r for r in record_streams_of(self.seft_name) if r.fields_topic), names)
         ground = record_streams_of('ground_motion_publisher')[0]
         spec = record_topic(ground)
-        self.create_subscription(spec.msg_type, spec.name,
-                                 self.guard(lambda msg: self._on_ground_batch(ground, msg)),
-                                 spec.qos)
+        ground_sub = self.create_subscription(
+            spec.msg_type, spec.name, self.guard(lambda msg: self._on_ground_batch(ground, msg)),
+            spec.qos)
         measurement = self.measurement_subscription(self._on_measurement)
         self.create_subscription(STATUS.msg_type, STATUS.name, self.guard(self._on_status),
                                  STATUS.qos)
         if self.realtime:
-            self.watch_inputs([measurement])
+            self.watch_inputs([measurement, ground_sub], [self.pub])
             self.timing = StepTiming(self)
             self.latest_ground = (-1, 0.0)
             self.ground_stale = False
