@@ -46,6 +46,11 @@ def run(out: Path, delay_ms: float, jitter: float, seft_args: list) -> dict:
     return entry
 
 
+def watchdog_s(delay_ms: float) -> float:
+    """The watchdog limit of a run [s]: above a stall of this machine and the round trip."""
+    return 0.1 + 4e-3 * delay_ms
+
+
 def row(delay_ms: float, name: str, e: dict) -> str:
     if 'nrms' not in e:
         return f'| {delay_ms:g} | {name} | failed (exit {e["exit"]}) | | | | | | | |'
@@ -74,7 +79,6 @@ def main() -> int:
         print('network_delay.py: error: needs root (network namespaces)', file=sys.stderr)
         return 2
     base = ['--alpha', f'{a.alpha:g}', '--duration', f'{a.duration:g}', *a.extra]
-    watchdog_s = lambda d: 0.1 + 4e-3 * d        # noqa: E731 (above a stall, and the round trip)
     print(f'load average before: {os.getloadavg()}', flush=True)
     print('| delay ms | compensation | run | bag lost / steps | NRMS x % | NRMS a % | '
           'NRMS f % | J2 % | rig loop latency p50 ms | controller f_r age p50 ms |')

@@ -291,8 +291,7 @@ class RigNode(SeftNode):
             return
         self.rig.arrive(stamp, value, now - self.t0)
         self.last_command_at = now
-        if self.drain_until is not None and all(
-                self.rig.loop_latency_s(j) is not None for j in self.timing_pending):
+        if self.drain_until is not None and self._drained():
             self._end_realtime()
 
     def _tick(self) -> None:
@@ -313,7 +312,7 @@ class RigNode(SeftNode):
         if k >= self.n_steps:
             # the last tick: wait (briefly) for the commands of the last samples
             self.drain_until = time.monotonic() + max(self.watchdog_s, DRAIN_MIN_S)
-            if all(rig.loop_latency_s(j) is not None for j in self.timing_pending):
+            if self._drained():
                 self._end_realtime()
             return
         if rig.in_safe_state:
@@ -359,6 +358,10 @@ class RigNode(SeftNode):
             self.timing.publish(j * self.dt_ns, jitter, compute, age, missed, stale,
                                 math.nan if latency is None else latency)
         self.rig.forget_before(k - 2 * self.watchdog_steps)
+
+    def _drained(self) -> bool:
+        """The command of every sample with a pending timing record has arrived."""
+        return all(self.rig.loop_latency_s(j) is not None for j in self.timing_pending)
 
     def _end_realtime(self) -> None:
         """After the last tick and its drain: the final timing records, then the end."""

@@ -55,6 +55,7 @@ __all__ = [
     'foh_step_average', 'model_parameters', 'ADAPTIVE_ESTIMATES', 'AtsPredictor',
     'ATS_ESTIMATES', 'IdentifiedForceLoop', 'LOOP_ESTIMATES', 'LoopImpulseResponses',
     'force_loop_impulse_responses', 'step_average_force_impulse_response',
+    'network_delay_steps',
 ]
 
 
@@ -363,6 +364,30 @@ def _past(history, count: int) -> np.ndarray:
     return np.array([0.0] * (count - len(tail)) + tail)
 
 
+def network_delay_steps(params) -> int:
+    """The fixed delay [steps] of the reference force between builder and controller.
+
+    ``round(network_delay_s / dt)``: with the reference-force builder on another host, the
+    force servo controller applies ``f_r[k]`` at step ``k + m`` (a playout delay: it covers
+    the network's round trip and jitter, so the delay the predictor compensates is constant).
+
+    Raises
+    ------
+    ParameterError
+        ``network_delay_s > 0`` outside real-time mode or on a rig without a force servo
+        controller (the delay rig): there is no network to cover there.
+    """
+    delay = float(params.get('network_delay_s', 0.0) or 0.0)
+    if delay <= 0.0:
+        return 0
+    if params.get('mode') != 'realtime' or params.get('rig_model') != 'servohydraulic':
+        raise ParameterError(
+            f'parameter network_delay_s={delay}: applies to real-time mode on the '
+            f"servohydraulic rig only (here mode {params.get('mode')!r}, rig_model "
+            f"{params.get('rig_model')!r}); set it to 0")
+    return int(round(delay / float(params['dt'])))
+
+
 class ModelPredictor:
     """Model-based compensation consistent with the hold (after Carrion and Spencer 2007).
 
@@ -444,14 +469,13 @@ class ModelPredictor:
         ``servohydraulic`` rig the force loop is modelled from the rig parameters and the
         discrete force controller (:class:`ForceLoopInverse`), and the prediction covers its
         inverted delay plus the reference force's network delay (``network_delay_s``,
-        :func:`~seft_ros.core.reference_force.network_delay_steps`).
+        :func:`network_delay_steps`).
         """
         mp = model_parameters(params)
         dt = float(params['dt'])
         inverse = None
         tau = mp['tau_s']
         if params.get('rig_model') == 'servohydraulic':
-            from seft_ros.core.reference_force import network_delay_steps  # noqa: I001
             inverse = ForceLoopInverse.from_parameters(params)
             # the inverted force loop's delay, plus the reference force's way over a network
             # (a pure delay in series; on the delay rig it is in predictor_tau_s already)

@@ -12,6 +12,7 @@ from seft_ros.core.predictors import (
     NoPredictor,
     PolynomialPredictor,
     foh_step_average,
+    network_delay_steps,
 )
 
 __all__ = ['Predictor', 'NoPredictor', 'PREDICTORS', 'make_predictor', 'ReferenceForceBuilder',
@@ -61,30 +62,6 @@ PREDICTORS: dict[str, Callable] = {
     'adaptive': AdaptivePredictor.from_parameters,
     'ats': AtsPredictor.from_parameters,
 }
-
-
-def network_delay_steps(params) -> int:
-    """The fixed delay [steps] of the reference force between builder and controller.
-
-    ``round(network_delay_s / dt)``: with the reference-force builder on another host, the
-    force servo controller applies ``f_r[k]`` at step ``k + m`` (a playout delay: it covers
-    the network's round trip and jitter, so the delay the predictor compensates is constant).
-
-    Raises
-    ------
-    ParameterError
-        ``network_delay_s > 0`` outside real-time mode or on a rig without a force servo
-        controller (the delay rig): there is no network to cover there.
-    """
-    delay = float(params.get('network_delay_s', 0.0) or 0.0)
-    if delay <= 0.0:
-        return 0
-    if params.get('mode') != 'realtime' or params.get('rig_model') != 'servohydraulic':
-        raise ParameterError(
-            f'parameter network_delay_s={delay}: applies to real-time mode on the '
-            f"servohydraulic rig only (here mode {params.get('mode')!r}, rig_model "
-            f"{params.get('rig_model')!r}); set it to 0")
-    return int(round(delay / float(params['dt'])))
 
 
 def with_loop_latency(params) -> dict:
