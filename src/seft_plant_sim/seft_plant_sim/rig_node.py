@@ -151,8 +151,12 @@ class RigNode(SeftNode):
             return
         if self.command_sub.get_publisher_count() < 1:
             return
+        # the recorder listens to this rig and has discovered the record batches of every
+        # node of the graph (the nodes start together: a short run could otherwise end before
+        # the recorder heard of one of them)
         if (self.params['wait_for_recorder']
-                and not self._subscribed_by('recorder', (self.batch.stream.name,))):
+                and (not self._subscribed_by('recorder', (self.batch.stream.name,))
+                     or 'recorder' not in self.inputs_matched)):
             return
         if any(n not in self.node_params for n in self.graph):
             return

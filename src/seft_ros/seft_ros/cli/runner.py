@@ -4,10 +4,11 @@ The runner is itself a small rclpy node (``seft_runner``) that listens to ``/sef
 for readiness, progress, the end of the run and abort reasons, and publishes there only to
 end a run safely: when one of its nodes died, or on Ctrl-C.
 
-Order: the recorder first (so that nothing is published before it listens), then the
-ground-motion publisher, the reference-force builder and the force servo controller (not
-for the 'delay' rig), and the rig last; the rig starts stepping once every node of its graph
-has sent its parameters. The run is over when the recorder reports the bag 'closed'.
+Start-up: every node at once (the recorder, the ground-motion publisher, the reference-force
+builder, the force servo controller (not for the 'delay' rig) and the rig). The rig starts
+stepping only once every node of its graph has sent its parameters, the recorder listens and,
+in real time, every input path is matched at both ends, so nothing is published before the
+recorder listens. The run is over when the recorder reports the bag 'closed'.
 
 Several hosts: a runner may start only some of the nodes (``nodes``); the others are started
 by the runner of another host, in the same ROS domain. The runner waits until every node of
@@ -55,6 +56,8 @@ NODE_MODULES = {
     'rig': 'seft_plant_sim.rig_node',
 }
 
+#: How long a node that exited cleanly without a report may take to be heard [s].
+EXITED_GRACE_S = 3.0
 #: Longest wait for the nodes to report ready [s].
 STARTUP_TIMEOUT_S = 60.0
 #: Longest wait for the nodes of another host to report ready [s] (an operator starts them).
@@ -230,14 +233,13 @@ class GraphRunner:
                                            stdout=logs[name], stderr=subprocess.STDOUT)
 
         try:
-            first = [n for n in local if n == 'recorder']
-            middle = [n for n in local if n not in ('recorder', 'rig')]
-            for group in (first, middle):
-                for name in group:
-                    launch(name)
-                self._wait_ready(group, procs, log_dir)
-            if 'rig' in local:
-                launch('rig')
+            # every node at once (the recorder first): the rig starts its clock only when the
+            # parameters of every node are in, the recorder listens and, in real time, every
+            # input path is matched, so the order of the start-ups does not matter; started
+            # together they take the time of the slowest, not of all of them in turn
+            for name in sorted(local, key=lambda n: (n != 'recorder', n == 'rig')):
+                launch(name)
+            self._wait_ready([n for n in local if n != 'rig'], procs, log_dir)
             if remote:
                 self._wait_remote(remote, procs, log_dir, label)
             self.progress(f'{label}graph up in {time.monotonic() - start:.1f} s '
@@ -323,14 +325,23 @@ class GraphRunner:
                             f'(log: {log_dir / f"{name}.log"}; {saved})')
 
     def _wait_ready(self, names, procs, log_dir) -> None:
+        """Wait until every node of `names` has reported ready (or running), or the run is
+        already over (a short run may end before this runner has discovered a node)."""
         deadline = time.monotonic() + STARTUP_TIMEOUT_S
+        gone: dict[str, float] = {}     # node -> when it was seen exited (code 0) unheard
         while not all(self._latest(n, (STATE_READY, STATE_RUNNING)) for n in names):
+            if self._latest('rig', (STATE_DONE, STATE_ABORTED, STATE_FAILED)):
+                return
             self._check_parameters()
             self._check_procs(procs, log_dir)
             for n in names:
                 if procs[n].poll() == 0 and not self._latest(n):
-                    raise SeftError(f'node {n} exited before it was ready: '
-                                    f'{_last_line(log_dir / f"{n}.log")}')
+                    # ended cleanly before its reports reached this runner: give them (and
+                    # the rig's final status) a moment before calling it a failed start
+                    since = gone.setdefault(n, time.monotonic())
+                    if time.monotonic() - since > EXITED_GRACE_S:
+                        raise SeftError(f'node {n} exited before it was ready: '
+                                        f'{_last_line(log_dir / f"{n}.log")}')
             if time.monotonic() > deadline:
                 missing = [n for n in names if not self._latest(n, (STATE_READY,))]
                 raise SeftError(f'nodes not ready after {STARTUP_TIMEOUT_S:.0f} s: '

@@ -62,7 +62,7 @@ from seft_msgs_py.convert import (
 )
 from seft_msgs_py.errors import InputError
 from seft_msgs_py.node_support import SeftNode, main_for
-from seft_msgs_py.signals import RECORD_STREAMS, TIMING_FIELDS
+from seft_msgs_py.signals import RECORD_STREAMS, TIMING_FIELDS, record_streams_of
 from seft_msgs_py.topics import (
     ACCELERATION,
     BAG_TOPICS,
@@ -168,6 +168,19 @@ class RecorderNode(SeftNode):
         self.wall_timer(0.1, self._on_timer)
         self.publish_parameters()
         self.report(STATE_READY, f'recording to {self.bag_path}', flush_every_s=FLUSH_EVERY_S)
+        self.matched_timer = self.wall_timer(0.02, self._check_matched)
+
+    def _check_matched(self) -> None:
+        """Report ``inputs=matched`` once the record batches of every node of the graph are
+        discovered (the rig starts only then, with ``wait_for_recorder``): the nodes start
+        together, and a short run could otherwise end, and its nodes exit, before this
+        recorder heard of one of them."""
+        for node in self.participants:
+            topic = record_streams_of(node)[0].name
+            if node not in {i.node_name for i in self.get_publishers_info_by_topic(topic)}:
+                return
+        self.matched_timer.cancel()
+        self.report(STATE_READY, 'every node discovered', inputs='matched')
 
     def _flush(self) -> None:
         """Everything written so far into the bag's file (readable after a SIGKILL)."""
