@@ -69,6 +69,10 @@ class BagSignals:
         Per topic, the value of each step (stamp // dt); ``/clock`` maps step -> step.
     counts : dict of str -> int
         Messages per topic (duplicates included).
+    duplicates : dict of str -> list of int
+        Per scalar topic, the steps recorded more than once with the same value (read as one
+        sample); empty when none. A step recorded twice with different values is an
+        :class:`InputError` of :func:`read_signals`.
     statuses : list of dict
         Every status report: ``name``, ``message`` and its key/values.
     node_params : dict of str -> dict
@@ -104,6 +108,7 @@ class BagSignals:
         self.timing = {} if timing is None else timing
         self.estimates: dict[int, dict[str, float]] = {}
         self.recovery = None
+        self.duplicates: dict[str, list[int]] = {}
 
 
 def _node_parameters(data: str, where: str) -> tuple[str, dict]:
@@ -165,13 +170,16 @@ def read_signals(path) -> BagSignals:
         The parameters (each from the node that used it, see ``BagSignals.param_sources``),
         the samples per step, the message counts and the status reports. Nodes that disagree
         on a shared parameter do not stop the reading: the lines are in
-        ``BagSignals.parameter_mismatches``.
+        ``BagSignals.parameter_mismatches``. A step recorded more than once with the same
+        value reads as one sample (listed in ``BagSignals.duplicates``).
 
     Raises
     ------
     InputError
         No bag there, not a seft bag (neither run nor node parameters), a malformed
-        parameter message, a parameter out of its schema range, or unreadable.
+        parameter message, a parameter out of its schema range, unreadable, or a step of a
+        signal recorded more than once with different values (the error names the topic,
+        the step and both values: which one the test saw cannot be known).
     """
     path = Path(path)
     if not path.exists():
@@ -186,6 +194,8 @@ def read_signals(path) -> BagSignals:
     live = {name: {} for name in _SCALARS}      # topic -> {step or ('ns', stamp): value}
     live_timing: dict[str, list] = {}          # node -> [(step, values)]
     estimates: dict = {}                       # stamp [ns] or ('step', k) -> {name: value}
+    repeats: dict[str, list] = {}              # topic -> [(stamp, first value, repeated one)]
+    live_repeats: dict[str, list] = {}         # the same for `live` (its keys)
     recovery = None
     try:
         if is_unclosed_bag(path):
@@ -214,7 +224,8 @@ def read_signals(path) -> BagSignals:
                 stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
                 for name, field in zip(_MEASURED, signals.MEASUREMENT_FIELDS):
                     if field in by_name:
-                        live[name][('ns', stamp)] = float(by_name[field])
+                        _store(live[name], ('ns', stamp), float(by_name[field]), name,
+                               live_repeats)
             elif topic == signals.ESTIMATES.name:
                 msg = typestore.deserialize_cdr(raw, msgtype)
                 stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
@@ -227,14 +238,15 @@ def read_signals(path) -> BagSignals:
                     estimates.setdefault(('step', int(r[0])), dict(zip(names, r[1:])))
             elif topic in _RECORD:
                 _read_batch(_RECORD[topic], typestore.deserialize_cdr(raw, msgtype),
-                            live, live_timing, path)
+                            live, live_timing, path, live_repeats)
             elif topic in _SCALARS:
                 msg = typestore.deserialize_cdr(raw, msgtype)
                 if topic == signals.CLOCK.name:
                     stamp, value = msg.clock, None
                 else:
                     stamp, value = msg.header.stamp, float(_get(msg, _SCALARS[topic]))
-                samples[topic][stamp.sec * 1_000_000_000 + stamp.nanosec] = value
+                _store(samples[topic], stamp.sec * 1_000_000_000 + stamp.nanosec, value,
+                       topic, repeats)
     except InputError:
         raise
     except Exception as exc:  # rosbags raises several types for a damaged bag
@@ -260,12 +272,30 @@ def read_signals(path) -> BagSignals:
                    for name in params}
         mismatches = []
     dt_ns = int(round(params['dt'] * 1e9))
-    by_step = {name: {int(round(ns / dt_ns)): v for ns, v in vals.items()}
+    steps = _Steps(dt_ns)
+    by_step = {name: steps.of(name, vals.items(), listed=True)
                for name, vals in samples.items()}
+    for name, entries in repeats.items():
+        for key, first, other in entries:
+            steps.repeat(name, key, first, other, step_keys=False)
     for name, vals in live.items():
         if vals and not by_step[name]:     # recorded from the live topics only
-            by_step[name] = {(int(round(key[1] / dt_ns)) if isinstance(key, tuple) else key): v
-                             for key, v in vals.items()}
+            # the rig's measurement and its record batches: two sources of the same samples
+            measured = steps.of(name, ((k, v) for k, v in vals.items() if isinstance(k, tuple)),
+                                listed=True)
+            batches = steps.of(name, ((k, v) for k, v in vals.items()
+                                      if not isinstance(k, tuple)), listed=True, step_keys=True)
+            by_step[name] = steps.of(name, list(measured.items()) + list(batches.items()),
+                                     listed=False, step_keys=True)
+            for key, first, other in live_repeats.get(name, ()):
+                steps.repeat(name, key, first, other, step_keys=True)
+    if steps.conflicts:
+        topic, k, first, other = steps.conflicts[0]
+        more = len(steps.conflicts) - 1
+        raise InputError(
+            f'{path}: {topic}: step {k} (t = {k * dt_ns * 1e-9:.6f} s) recorded more than once '
+            f'with different values ({first!r} and {other!r})'
+            + (f'; {more} more such sample{"s" if more > 1 else ""}' if more else ''))
     for node, rows in live_timing.items():
         if node not in timing_rows:
             timing_rows[node] = [(step * dt_ns, values) for step, values in rows]
@@ -274,6 +304,7 @@ def read_signals(path) -> BagSignals:
                      timing=node_timings(timing_rows, params['dt']))
     bag.estimates = {(key[1] if isinstance(key, tuple) else int(round(key / dt_ns))): values
                      for key, values in estimates.items()}
+    bag.duplicates = {name: sorted(ks) for name, ks in steps.duplicates.items()}
     if recovery is not None:
         recovery.messages = []       # read: the counts say how many
     bag.recovery = recovery
@@ -292,9 +323,11 @@ def _messages(path: Path, recovery):
             yield conn.topic, conn.msgtype, raw
 
 
-def _read_batch(stream, msg, live: dict, live_timing: dict, path: Path) -> None:
-    """The rows of one record batch into `live` ({topic: {step: value}}) or, for a timing
-    stream, `live_timing` ({node: [(step, values)]})."""
+def _read_batch(stream, msg, live: dict, live_timing: dict, path: Path,
+                repeats: dict) -> None:
+    """The rows of one record batch into `live` ({topic: {step: value}}; a step seen before
+    into `repeats`, see :func:`_store`) or, for a timing stream, `live_timing` ({node:
+    [(step, values)]})."""
     try:
         width = 1 + len(stream.columns_of(msg))
     except ValueError as exc:
@@ -305,7 +338,57 @@ def _read_batch(stream, msg, live: dict, live_timing: dict, path: Path) -> None:
             (int(r[0]), [float(v) for v in r[1:]]) for r in rows)
         return
     for j, topic in enumerate(stream.columns, start=1):
-        live[topic].update((int(r[0]), float(r[j])) for r in rows)
+        for r in rows:
+            _store(live[topic], int(r[0]), float(r[j]), topic, repeats)
+
+
+def _store(store: dict, key, value, topic: str, repeats: dict) -> None:
+    """``store[key] = value``, or, for a `key` seen before, ``(key, first value, value)``
+    appended to ``repeats[topic]`` (the first value stays)."""
+    if key in store:
+        repeats.setdefault(topic, []).append((key, store[key], value))
+    else:
+        store[key] = value
+
+
+def _same(a, b) -> bool:
+    """Whether two recorded values are the same sample (NaN is NaN; /clock's are None)."""
+    return a == b or (a != a and b != b)
+
+
+class _Steps:
+    """Keys of the samples (stamps [ns], ``('ns', stamp)`` or steps) to steps, collecting
+    the steps recorded more than once: ``duplicates`` ({topic: {step}}, the same value) and
+    ``conflicts`` ([(topic, step, first value, other value)])."""
+
+    def __init__(self, dt_ns: int):
+        self.dt_ns = dt_ns
+        self.duplicates: dict[str, set] = {}
+        self.conflicts: list[tuple] = []
+
+    def step(self, key, step_keys: bool) -> int:
+        if isinstance(key, tuple):
+            return int(round(key[1] / self.dt_ns))
+        return int(key) if step_keys else int(round(key / self.dt_ns))
+
+    def repeat(self, topic: str, key, first, other, *, step_keys: bool, listed=True) -> None:
+        """One more sample of the step of `key`, whose first value was `first`."""
+        if not _same(first, other):
+            self.conflicts.append((topic, self.step(key, step_keys), first, other))
+        elif listed:
+            self.duplicates.setdefault(topic, set()).add(self.step(key, step_keys))
+
+    def of(self, topic: str, items, *, listed: bool, step_keys: bool = False) -> dict:
+        """``{step: value}`` of ``(key, value)`` pairs (an int key is a stamp [ns] unless
+        `step_keys`); a step met again is a duplicate (`listed`) or a conflict."""
+        out = {}
+        for key, value in items:
+            k = self.step(key, step_keys)
+            if k in out:
+                self.repeat(topic, k, out[k], value, step_keys=True, listed=listed)
+            else:
+                out[k] = value
+        return out
 
 
 def recording_end(bag: BagSignals, n_steps: int) -> dict:
@@ -360,7 +443,8 @@ def recording_end(bag: BagSignals, n_steps: int) -> dict:
 
 
 def read_run(path) -> RunData:
-    """Read a seft bag into a :class:`RunData` (the steps for which every signal exists).
+    """Read a seft bag into a :class:`RunData`: its steps from 0 up to the first step a signal
+    lacks (the analysis needs contiguous samples), and what the bag misses after it.
 
     The parameters are ``BagSignals.params``; ``extra`` holds, besides ``'rig_final'`` and
     ``'counts'``, ``'node_params'`` (``{node: {parameter: value}}``, empty for a bag without
@@ -368,10 +452,10 @@ def read_run(path) -> RunData:
     'default'}``), ``'parameter_mismatches'`` (one line per shared parameter on which the
     nodes disagree; empty when they agree), ``'recording'`` (how the recording ended and what
     it holds, :func:`recording_end`: a bag whose recorder was killed reads too, from its
-    complete records), ``'wall_s'`` (the rig's wall time of the stepping
-    [s], or None), ``'bag_lost_messages'`` (what the nodes published and the bag does not
-    hold, from the recorder's closing status) and, for a real-time run, ``'timing_data'``
-    (``BagSignals.timing``) and ``'timing'`` (its
+    complete records), ``'gaps'`` and ``'duplicates'`` (below), ``'wall_s'`` (the rig's wall
+    time of the stepping [s], or None), ``'bag_lost_messages'`` (what the nodes published and
+    the bag does not hold, from the recorder's closing status) and, for a real-time run,
+    ``'timing_data'`` (``BagSignals.timing``) and ``'timing'`` (its
     :func:`~seft_ros.analysis.timing.timing_summary`). A real-time run aborted into the
     rig's safe state ends at the abort (``abort_at_s`` of the rig's final status): the ramp
     after it is not part of the test. A bag that ends before the run did (no final status of
@@ -379,10 +463,37 @@ def read_run(path) -> RunData:
     last complete step, with the reason ``'recorder: the recording ended in a crash (recorder
     killed)'`` (or ``'... was stopped before the run ended'``).
 
+    **Gaps.** A step missing on a signal before the run's end (the rig's final ``step``, the
+    safe state of a real-time abort, else the last step every signal has) ends the analysed
+    run there, and nothing after it is dropped unsaid: ``extra['gaps']`` is ``{'at_step',
+    'at_s', 'missing': {topic: [steps]}, 'steps_after_gap', 'last_step', 'note'}`` (the first
+    incomplete step and its time [s], the steps each signal misses up to the run's last
+    step, the complete steps after the gap that were not analysed, that last step and one
+    line), and ``extra['recording']`` gains ``'gap_at_step'``, ``'steps_not_analysed'`` and
+    the line at the end of its ``'note'`` (``'gap at step 12 (t = 0.024 s):
+    /seft/measured_force misses steps 12-14; 25 complete steps after it (to step 39) were not
+    analysed'``); None without a gap. Samples past the run's end on some topics only (the
+    ground motion's preview, the rig's sample after an abort) are no gap. A gap does not
+    change ``stable``; an aborted run whose bag lost the steps before the abort keeps the
+    rig's abort time as ``unstable_at_s``. Compensator estimates missing for an analysed step
+    are not read (``estimates`` None): ``extra['estimates_missing_steps']`` lists the steps
+    and the note says so.
+
+    **Duplicates.** A step recorded more than once with the same value is one sample
+    (``extra['duplicates']``: ``{topic: [steps]}``, empty when none); with different values
+    the bag is refused (:func:`read_signals`).
+
+    **Aborts.** The first 'aborted' or 'failed' report, of any node, makes the run not
+    ``stable``; the reason is the message of a rig's report, else ``'<node>: <message>'``
+    (``'reference_force_builder: unstable at t=...'`` when its instability monitor trips);
+    ``unstable_at_s`` is the real-time rig's ``abort_at_s``, else the end of the analysed
+    steps (in the graph, where the rig stopped stepping).
+
     Raises
     ------
     InputError
-        As :func:`read_signals`, or the bag holds no complete step.
+        As :func:`read_signals`, or the bag holds no complete step (a signal without a sample:
+        the message names its topics; step 0 missing on some).
     """
     bag = read_signals(path)
     p = bag.params
@@ -395,12 +506,15 @@ def read_run(path) -> RunData:
     n = 0
     while all(n in bag.samples[name] for name in needed):
         n += 1
+    complete = set.intersection(*(set(bag.samples[name]) for name in needed))
     if n == 0:
         missing = [name for name in needed if not bag.samples[name]]
         first = [name for name in needed if 0 not in bag.samples[name]]
+        later = len(complete)
         raise InputError(f'{path}: the bag holds no complete step: '
                          + (f'no samples on {", ".join(missing)}' if missing else
-                            f'step 0 missing on {", ".join(first)}'))
+                            f'step 0 missing on {", ".join(first)}'
+                            + (f' ({later} complete steps after it)' if later else '')))
 
     def arr(name):
         d = bag.samples[name]
@@ -413,9 +527,15 @@ def read_run(path) -> RunData:
     final = rig_final[-1] if rig_final else {}
     dt = p['dt']
     abort_at_s = float(final['abort_at_s']) if 'abort_at_s' in final else None
+    end_step = _rig_end_step(final, abort_at_s, dt)
+    gaps = _gaps(bag, needed, n, complete, end_step, dt)
     if abort_at_s is not None:
         # real time: the rig kept sampling its safe-state ramp after the abort
         n = max(1, min(n, int(round(abort_at_s / dt))))
+    if gaps is not None:
+        recording.update(gap_at_step=gaps['at_step'],
+                         steps_not_analysed=gaps['steps_after_gap'])
+        recording['note'] += f'; {gaps["note"]}'
     stable = not aborted
     reason = None
     if aborted:
@@ -431,8 +551,14 @@ def read_run(path) -> RunData:
     record_name = next((s.get('record') for s in bag.statuses
                         if s['name'] == 'ground_motion_publisher' and s.get('record')),
                        Path(str(p['record'])).stem)
+    unstable_at_s = None
+    if not stable:
+        unstable_at_s = abort_at_s if abort_at_s is not None else n * dt
+        if (abort_at_s is None and end_step is not None and end_step > n
+                and final.get('state') in ('aborted', 'failed')):
+            unstable_at_s = end_step * dt      # the bag lost steps before the rig's abort
     extra = {'rig_final': rig_final[-1] if rig_final else None, 'counts': bag.counts,
-             'recording': recording,
+             'recording': recording, 'gaps': gaps, 'duplicates': bag.duplicates,
              'node_params': bag.node_params, 'param_sources': bag.param_sources,
              'parameter_mismatches': bag.parameter_mismatches,
              'wall_s': float(final['wall_s']) if 'wall_s' in final else None}
@@ -447,12 +573,70 @@ def read_run(path) -> RunData:
         names = list(bag.estimates[0])
         estimates = {name: np.array([bag.estimates[k].get(name, np.nan) for k in range(n)])
                      for name in names}
+    elif bag.estimates:
+        lost = [k for k in range(n) if k not in bag.estimates]
+        extra['estimates_missing_steps'] = lost
+        recording['note'] += (f'; {signals.ESTIMATES.name} misses steps {_ranges(lost)}: the '
+                              "compensator's estimates were not read")
     return RunData(
         params=p, time_s=np.arange(n) * dt, ground_acceleration_m_s2=arr(needed[0]),
         reference_force_N=arr(needed[1]), measured_force_N=arr(needed[2]),
         displacement_m=arr(needed[3]), velocity_m_s=arr(needed[4]),
         acceleration_m_s2=arr(needed[5]),
         valve_command_V=arr(signals.VALVE_COMMAND.name) if valve else None, stable=stable,
-        unstable_at_s=None if stable else (abort_at_s if abort_at_s is not None else n * dt),
+        unstable_at_s=unstable_at_s,
         abort_reason=reason, record_name=record_name, source=str(path), extra=extra,
         estimates=estimates)
+
+
+def _rig_end_step(final: dict, abort_at_s: float | None, dt: float) -> int | None:
+    """The step at which the rig says the run ended (its final status): the safe state of a
+    real-time abort (`abort_at_s`), else the final ``step`` (at most ``n_steps``); None
+    without a final status or a step in it."""
+    if abort_at_s is not None:
+        return int(round(abort_at_s / dt))
+    try:
+        step = int(final['step'])
+        if 'n_steps' in final:
+            step = min(step, int(final['n_steps']))
+    except (KeyError, ValueError):
+        return None
+    return step
+
+
+def _ranges(steps, most: int = 6) -> str:
+    """Sorted steps as ``'10-12, 20'`` (at most `most` ranges, then how many more)."""
+    runs: list[list[int]] = []
+    for k in steps:
+        if runs and k == runs[-1][1] + 1:
+            runs[-1][1] = k
+        else:
+            runs.append([k, k])
+    text = [f'{a}-{b}' if b > a else f'{a}' for a, b in runs[:most]]
+    if len(runs) > most:
+        text.append(f'and {len(runs) - most} more ranges')
+    return ', '.join(text)
+
+
+def _gaps(bag: BagSignals, needed: list[str], n: int, complete: set, end_step: int | None,
+          dt: float) -> dict | None:
+    """The steps the bag misses between its first incomplete step `n` and the run's end
+    (`end_step`, or the last complete step), or None when the complete steps reach the end.
+
+    Returns ``{'at_step', 'at_s', 'missing': {topic: [steps]}, 'steps_after_gap',
+    'last_step', 'note'}``: the first incomplete step and its time [s], the steps each topic
+    misses in ``[at_step, last_step]``, the complete steps after the gap (not analysed), the
+    run's last step and one line for the report.
+    """
+    after = [k for k in complete if k > n and (end_step is None or k < end_step)]
+    end = end_step if end_step is not None else (max(after) + 1 if after else n)
+    if end <= n:
+        return None
+    missing = {name: [k for k in range(n, end) if k not in bag.samples[name]]
+               for name in needed}
+    missing = {name: steps for name, steps in missing.items() if steps}
+    what = '; '.join(f'{name} misses steps {_ranges(steps)}' for name, steps in missing.items())
+    note = (f'gap at step {n} (t = {n * dt:.3f} s): {what}; {len(after)} complete steps after '
+            f'it (to step {end - 1}) were not analysed')
+    return {'at_step': n, 'at_s': n * dt, 'missing': missing, 'steps_after_gap': len(after),
+            'last_step': end - 1, 'note': note}

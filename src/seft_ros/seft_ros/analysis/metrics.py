@@ -5,7 +5,11 @@ each signal is compared after removing its lag: the lag is estimated from the cr
 peak, the test is advanced by it, and the normalized RMS error is computed over the samples
 both signals share. Each signal's NRMS is also given unshifted and after removing one common
 lag (the displacement's) from every signal: a lag of its own can hide a signal's phase error.
-The RTHS benchmark's criteria J1-J5 come from ``seft_ros.analysis.criteria``.
+The RTHS benchmark's criteria J1-J5 come from ``seft_ros.analysis.criteria``. For a yielding
+(nonlinear) member the displacement is also compared after removing each signal's slowly
+varying permanent offset (:func:`drift`), with the residual (permanent) displacement
+(:func:`residual_displacement`) and the member's restoring force (:func:`restoring_force`) for
+its hysteresis loops.
 """
 
 from dataclasses import dataclass
@@ -25,7 +29,9 @@ from seft_ros.analysis.rundata import SIGNALS, RunData
 __all__ = [
     'SignalComparison', 'RunComparison', 'estimate_lag', 'shift', 'nrms_error', 'peak',
     'peak_ratio', 'high_frequency_fraction', 'compare_run', 'summary_entry',
-    'json_safe', 'best_runs', 'UNCOMPENSATED',
+    'json_safe', 'best_runs', 'UNCOMPENSATED', 'residual_displacement', 'drift',
+    'restoring_force', 'ResidualComparison', 'is_nonlinear', 'DRIFT_CUTOFF_HZ',
+    'RESIDUAL_WINDOW_S',
 ]
 
 #: Default bound of the lag search [s] (ten times the reference rig's 10 ms delay).
@@ -34,6 +40,15 @@ MAX_LAG_S = 0.1
 HIGH_FREQUENCY_CUTOFF_HZ = 20.0
 #: Name of the predictor that leaves the fed-back acceleration uncompensated.
 UNCOMPENSATED = 'none'
+#: Cut-off of the zero-phase low-pass that gives a displacement's drift [Hz] (:func:`drift`):
+#: 8 to 13 times below the slowest oscillation of the default yielding member (its post-yield
+#: tangent frequency, 3.2 Hz at alpha = 0, 2.0 Hz at alpha = 1.5) and a quarter of the lower
+#: band edge of the default record at time scale 0.5 (1 Hz).
+DRIFT_CUTOFF_HZ = 0.25
+#: Order of the Butterworth low-pass of :func:`drift` (applied forward and backward).
+DRIFT_FILTER_ORDER = 4
+#: Length of the Hann window of :func:`residual_displacement` [s].
+RESIDUAL_WINDOW_S = 2.0
 
 
 def estimate_lag(test, reference, dt: float, max_lag_s: float = MAX_LAG_S) -> float:
@@ -242,6 +257,16 @@ def peak_ratio(test, reference) -> float:
     return peak(test) / p_ref
 
 
+def _check_cutoff(cutoff_hz, dt: float) -> None:
+    """ParameterError naming cutoff_hz unless it is a float in (0, 1/(2 dt)) Hz."""
+    nyquist = 0.5 / dt
+    if isinstance(cutoff_hz, bool) or not isinstance(cutoff_hz, (int, float, np.integer,
+                                                                  np.floating)) \
+            or not (0 < cutoff_hz < nyquist):
+        raise ParameterError(
+            f'parameter cutoff_hz={cutoff_hz!r}: expected a float in (0, {nyquist:g}) Hz')
+
+
 def high_frequency_fraction(x, dt: float, cutoff_hz: float = HIGH_FREQUENCY_CUTOFF_HZ) -> float:
     """Fraction of a signal's power above a cutoff frequency.
 
@@ -275,12 +300,7 @@ def high_frequency_fraction(x, dt: float, cutoff_hz: float = HIGH_FREQUENCY_CUTO
     N. Nakata and S. Combs, Substructure Effective Force Testing, Sec. 4 (Figure 6 f, i).
     """
     dt = _check_dt(dt)
-    nyquist = 0.5 / dt
-    if isinstance(cutoff_hz, bool) or not isinstance(cutoff_hz, (int, float, np.integer,
-                                                                  np.floating)) \
-            or not (0 < cutoff_hz < nyquist):
-        raise ParameterError(
-            f'parameter cutoff_hz={cutoff_hz!r}: expected a float in (0, {nyquist:g}) Hz')
+    _check_cutoff(cutoff_hz, dt)
     x = _as_1d('x', x)
     bad = np.flatnonzero(~np.isfinite(x))
     if bad.size:
@@ -293,6 +313,197 @@ def high_frequency_fraction(x, dt: float, cutoff_hz: float = HIGH_FREQUENCY_CUTO
     if not total > 0:
         return math.nan
     return float(np.sum(power[freq > cutoff_hz])) / total
+
+
+def _finite_prefix(x: np.ndarray) -> np.ndarray:
+    """The samples of `x` before its first non-finite one."""
+    bad = np.flatnonzero(~np.isfinite(x))
+    return x[:bad[0]] if bad.size else x
+
+
+def _check_positive(name: str, value) -> float:
+    """`value` as a finite float > 0, or ParameterError naming `name`."""
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) \
+            or not (math.isfinite(value) and value > 0):
+        raise ParameterError(f'parameter {name}={value!r}: expected a finite float > 0')
+    return float(value)
+
+
+def residual_displacement(x, dt: float, window_s: float = RESIDUAL_WINDOW_S) -> float:
+    """Residual (permanent) displacement: the Hann-weighted mean over the record's last seconds.
+
+    Parameters
+    ----------
+    x : array_like (n,)
+        Displacement at ``k*dt`` [m] (any unit; the result has the same). Only the samples
+        before the first non-finite one are used.
+    dt : float > 0
+        Sample period [s].
+    window_s : float > 0
+        Length T of the window at the end of the record [s]; a record shorter than T is
+        used whole.
+
+    Returns
+    -------
+    float
+        ``sum_k w[k] x[k] / sum_k w[k]`` over the last ``N = round(T/dt)`` samples, with w
+        the Hann window of N samples without its zero end points
+        (``scipy.signal.windows.hann(N + 2)[1:-1]``); same unit as `x`. NaN if no sample is
+        finite.
+
+    Raises
+    ------
+    ParameterError
+        If `dt` or `window_s` is not a finite float > 0 or `x` is not 1-D.
+
+    Notes
+    -----
+    The permanent set of a yielding member is the displacement it comes to rest at once the
+    shaking has ended. This definition gives it also when the record ends while the
+    structure still oscillates: a sinusoid ``A sin(2 pi f t + phi)`` adds at most
+    ``A / (pi f T ((f T)^2 - 1))`` for ``f T > 1`` (the magnitude of the Hann window's
+    transform relative to its value at 0, Harris 1978), i.e. 0.4 % of A at 2.2 Hz (the
+    post-yield tangent frequency of the default member at alpha = 1) and 1.2e-4 A at 7 Hz
+    with the default 2 s. The mean lies on a linear trend's value at the window's centre
+    (T/2 before the end): a member still drifting at the end of the record is credited with
+    its offset about a second earlier.
+
+    References
+    ----------
+    F. J. Harris, On the use of windows for harmonic analysis with the discrete Fourier
+    transform, Proc. IEEE 66(1), 1978, 51-83 (the Hann window and its transform).
+    """
+    dt = _check_dt(dt)
+    window_s = _check_positive('window_s', window_s)
+    x = _finite_prefix(_as_1d('x', x))
+    n = x.shape[0]
+    if n == 0:
+        return math.nan
+    count = min(n, max(1, int(round(window_s / dt))))
+    weights = signal.windows.hann(count + 2)[1:-1]
+    return float(np.dot(weights, x[n - count:]) / np.sum(weights))
+
+
+def drift(x, dt: float, cutoff_hz: float = DRIFT_CUTOFF_HZ) -> np.ndarray:
+    """The slowly varying permanent offset of a displacement: a zero-phase low-pass of it.
+
+    Parameters
+    ----------
+    x : array_like (n,)
+        Displacement at ``k*dt`` [m] (any unit; the result has the same).
+    dt : float > 0
+        Sample period [s].
+    cutoff_hz : float > 0
+        Cut-off frequency [Hz], below the Nyquist frequency ``1/(2 dt)``.
+
+    Returns
+    -------
+    ndarray (n,)
+        The low-passed displacement, same unit. Samples from the first non-finite one of
+        `x` on are NaN; a single sample is returned as it is.
+
+    Raises
+    ------
+    ParameterError
+        If `dt` is not > 0, `cutoff_hz` is not in ``(0, 1/(2 dt))`` or `x` is not 1-D.
+
+    Notes
+    -----
+    A Butterworth low-pass of order ``DRIFT_FILTER_ORDER`` (4), applied forward and backward
+    (``scipy.signal.sosfiltfilt``): zero phase, magnitude ``1 / (1 + (f/f_c)^8)``, so a
+    step of the permanent offset stays where it happened and the oscillation is removed
+    (with the default 0.25 Hz: 1.5e-5 of it passes at 1 Hz, 6e-8 at 2 Hz). The record is
+    extended at both ends by its even reflection of ``n - 1`` samples (``padtype='even'``),
+    which keeps the mean of an oscillation that is cut off at the end and passes a constant
+    (to rounding, 1e-11 relative): ``x - drift(x)`` of ``x + d`` is that of x for any
+    constant d. The default cut-off (``DRIFT_CUTOFF_HZ``) lies 8 to 13 times below the
+    slowest oscillation of the default yielding member (its post-yield tangent frequency
+    ``sqrt(a k / ((1 + alpha) m)) / (2 pi)``: 3.2 Hz at alpha = 0, 2.0 Hz at alpha = 1.5)
+    and at a quarter of the default record's lower band edge at time scale 0.5 (1 Hz).
+
+    References
+    ----------
+    D. M. Boore and J. J. Bommer (2005), Processing of strong-motion accelerograms: needs,
+    options and consequences, Soil Dyn. Earthquake Eng. 25(2), 93-115 (acausal Butterworth
+    filtering of records, padded).
+    """
+    dt = _check_dt(dt)
+    _check_cutoff(cutoff_hz, dt)
+    x = _as_1d('x', x)
+    out = np.full(x.shape[0], np.nan)
+    head = _finite_prefix(x)
+    m = head.shape[0]
+    if m < 2:
+        out[:m] = head
+        return out
+    sos = signal.butter(DRIFT_FILTER_ORDER, float(cutoff_hz), fs=1.0 / dt, output='sos')
+    out[:m] = signal.sosfiltfilt(sos, head, padtype='even', padlen=m - 1)
+    return out
+
+
+def is_nonlinear(params) -> bool:
+    """Whether a run's specimen is nonlinear: ``params['specimen_model']`` other than 'linear'
+    (absent: 'linear', the runs recorded before the hysteretic member)."""
+    return params.get('specimen_model', 'linear') != 'linear'
+
+
+def restoring_force(run: RunData) -> np.ndarray:
+    """The member's restoring force in a test, from the load cell, accelerometer and velocity.
+
+    Parameters
+    ----------
+    run : RunData
+        The run; uses ``measured_force_N``, ``acceleration_m_s2``, ``velocity_m_s`` (n,) and
+        ``params['mass_kg']``, ``params['damping_N_s_per_m']``.
+
+    Returns
+    -------
+    ndarray (n,)
+        ``f_s = f_m - m a - c v`` [N] at every sample; plotted against the displacement it is
+        the member's hysteresis loop.
+
+    Raises
+    ------
+    ParameterError
+        If mass_kg or damping_N_s_per_m is missing, not finite or out of range (m > 0,
+        c >= 0).
+
+    Notes
+    -----
+    The load cell measures the actuator force f_m on the specimen, and the specimen obeys
+    ``m x'' + c x' + f_s(x, z) = f_m`` (paper Eq. 5.1, ``k x`` replaced by the member's
+    restoring force). Both simulated rigs read their sensors from that equation at the
+    same instant t_k (``ServoHydraulicRig.measure``: ``f_m = A p_L``,
+    ``a = (A p_L - c x' - f_s)/m``; ``DelayRig.measure``: ``f_m = f_r(t_k - tau)``,
+    ``a = (f_m - c v - f_s)/m``), so the reconstruction is exact for noise-free sensors, an
+    acceleration inside the accelerometer's range (4 g by default) and no anti-alias filter
+    (``anti_alias_cutoff_hz = 0``, the default; with it the force and the acceleration are
+    filtered alike and only ``c v`` is not). Sensor noise enters as
+    ``sigma_f + m sigma_a + c sigma_v``. The viscous damping is the nominal c: damping of a
+    real member beyond it shows in the loops.
+
+    References
+    ----------
+    N. Nakata and S. Combs, Substructure Effective Force Testing, Eq. 5.1.
+    """
+    params = run.params
+    values = {}
+    for name, allow_zero in (('mass_kg', False), ('damping_N_s_per_m', True)):
+        if name not in params:
+            raise ParameterError(f'run parameters: missing {name}')
+        value = params[name]
+        ok = isinstance(value, (int, float, np.integer, np.floating)) \
+            and not isinstance(value, bool) and math.isfinite(value) \
+            and (value >= 0 if allow_zero else value > 0)
+        if not ok:
+            raise ParameterError(f'parameter {name}={value!r}: expected a finite float '
+                                 + ('>= 0' if allow_zero else '> 0'))
+        values[name] = float(value)
+    n = run.n_steps
+    f = np.asarray(run.measured_force_N, dtype=float)[:n]
+    a = np.asarray(run.acceleration_m_s2, dtype=float)[:n]
+    v = np.asarray(run.velocity_m_s, dtype=float)[:n]
+    return f - values['mass_kg'] * a - values['damping_N_s_per_m'] * v
 
 
 @dataclass(frozen=True)
@@ -328,6 +539,40 @@ class SignalComparison:
 
 
 @dataclass(frozen=True)
+class ResidualComparison:
+    """The displacement of a test and its reference with and without the permanent offset.
+
+    Attributes
+    ----------
+    peak_test_m, peak_reference_m : float
+        Peak displacements ``max |x|`` of the test and the reference [m].
+    residual_test_m, residual_reference_m : float
+        Residual (permanent) displacements [m] (:func:`residual_displacement`).
+    lag_s : float
+        The displacement's lag behind the reference [s], removed in both NRMS.
+    nrms : float
+        Displacement NRMS after removing the lag, as a fraction (the displacement's `nrms`).
+    nrms_residual_removed : float
+        The same NRMS after subtracting from the test and from the reference each its own
+        drift (:func:`drift`): ``nrms(x - drift(x), x_ref - drift(x_ref))``, as a fraction.
+    drift_cutoff_hz : float
+        Cut-off of the drift low-pass [Hz].
+    residual_window_s : float
+        Window of the residual displacement [s].
+    """
+
+    peak_test_m: float
+    peak_reference_m: float
+    residual_test_m: float
+    residual_reference_m: float
+    lag_s: float
+    nrms: float
+    nrms_residual_removed: float
+    drift_cutoff_hz: float = DRIFT_CUTOFF_HZ
+    residual_window_s: float = RESIDUAL_WINDOW_S
+
+
+@dataclass(frozen=True)
 class RunComparison:
     """Comparison of a run with the reference, one :class:`SignalComparison` per signal.
 
@@ -346,6 +591,9 @@ class RunComparison:
         Cutoff of the two fractions [Hz] (default ``HIGH_FREQUENCY_CUTOFF_HZ``, 20 Hz).
     criteria : Criteria or None
         The RTHS benchmark's criteria J1-J5 (``criteria.evaluation_criteria``).
+    residual : ResidualComparison or None
+        Peak and residual displacements and the displacement NRMS with the permanent offsets
+        removed (computed for every run; reported for a nonlinear specimen).
     """
 
     displacement: SignalComparison
@@ -356,6 +604,7 @@ class RunComparison:
     high_frequency_force_fraction_reference: float
     high_frequency_cutoff_hz: float = HIGH_FREQUENCY_CUTOFF_HZ
     criteria: Criteria | None = None
+    residual: ResidualComparison | None = None
 
     def signal(self, name: str) -> SignalComparison:
         """Return the comparison of 'displacement', 'force' or 'acceleration'."""
@@ -367,7 +616,9 @@ class RunComparison:
 def compare_run(run: RunData, reference: ReferenceResponse | None = None, *,
                 max_lag_s: float = MAX_LAG_S,
                 high_frequency_cutoff_hz: float = HIGH_FREQUENCY_CUTOFF_HZ,
-                j1_max_lag_s: float = J1_MAX_LAG_S) -> RunComparison:
+                j1_max_lag_s: float = J1_MAX_LAG_S,
+                drift_cutoff_hz: float = DRIFT_CUTOFF_HZ,
+                residual_window_s: float = RESIDUAL_WINDOW_S) -> RunComparison:
     """Compare a run's displacement, force and acceleration with the reference analysis.
 
     For each signal: the lag of the test behind the reference is estimated
@@ -379,7 +630,10 @@ def compare_run(run: RunData, reference: ReferenceResponse | None = None, *,
     and after advancing every signal by the displacement's lag (the common lag), and the
     RTHS benchmark's criteria J1-J5 (``criteria.evaluation_criteria``: the reference force
     commanded versus the load-cell force, and the displacement versus the reference, as
-    recorded).
+    recorded). The displacement is also compared without the permanent offsets
+    (:class:`ResidualComparison`): peaks, residual displacements
+    (:func:`residual_displacement`) and the NRMS, after removing the displacement's lag, of
+    ``x - drift(x)`` against ``x_ref - drift(x_ref)`` (:func:`drift`).
 
     Parameters
     ----------
@@ -395,6 +649,10 @@ def compare_run(run: RunData, reference: ReferenceResponse | None = None, *,
         ``1/(2 dt)`` (:func:`high_frequency_fraction`).
     j1_max_lag_s : float >= 0
         Bound of the search of criterion J1 [s] (``criteria.J1_MAX_LAG_S``).
+    drift_cutoff_hz : float > 0
+        Cut-off of the drift low-pass [Hz], below the Nyquist frequency (:func:`drift`).
+    residual_window_s : float > 0
+        Window of the residual displacement [s] (:func:`residual_displacement`).
 
     Returns
     -------
@@ -403,8 +661,9 @@ def compare_run(run: RunData, reference: ReferenceResponse | None = None, *,
     Raises
     ------
     ParameterError
-        If a run parameter is missing or out of range, the cutoff is not below the Nyquist
-        frequency, or the reference has fewer samples than the run.
+        If a run parameter is missing or out of range, a cutoff is not below the Nyquist
+        frequency, `residual_window_s` is not > 0, or the reference has fewer samples than
+        the run.
 
     References
     ----------
@@ -429,6 +688,17 @@ def compare_run(run: RunData, reference: ReferenceResponse | None = None, *,
             nrms=nrms_error(shift(test, lag, dt), ref), peak_ratio=peak_ratio(test, ref),
             nrms_unshifted=nrms_error(test, ref),
             nrms_common_lag=nrms_error(shift(test, common_lag, dt), ref))
+    x_test, x_ref = pairs['displacement']
+    lag_x = results['displacement'].lag_s
+    residual = ResidualComparison(
+        peak_test_m=peak(x_test), peak_reference_m=peak(x_ref),
+        residual_test_m=residual_displacement(x_test, dt, residual_window_s),
+        residual_reference_m=residual_displacement(x_ref, dt, residual_window_s),
+        lag_s=lag_x, nrms=results['displacement'].nrms,
+        nrms_residual_removed=nrms_error(
+            shift(x_test - drift(x_test, dt, drift_cutoff_hz), lag_x, dt),
+            x_ref - drift(x_ref, dt, drift_cutoff_hz)),
+        drift_cutoff_hz=float(drift_cutoff_hz), residual_window_s=float(residual_window_s))
     criteria = evaluation_criteria(
         target_force=np.asarray(run.reference_force_N, dtype=float)[:n],
         measured_force=np.asarray(run.measured_force_N, dtype=float)[:n],
@@ -440,7 +710,7 @@ def compare_run(run: RunData, reference: ReferenceResponse | None = None, *,
             np.asarray(run.measured_force_N, dtype=float)[:n], dt, high_frequency_cutoff_hz),
         high_frequency_force_fraction_reference=high_frequency_fraction(
             reference.force_N[:n], dt, high_frequency_cutoff_hz),
-        high_frequency_cutoff_hz=float(high_frequency_cutoff_hz))
+        high_frequency_cutoff_hz=float(high_frequency_cutoff_hz), residual=residual)
 
 
 def _finite_or_none(value) -> float | None:
@@ -503,6 +773,16 @@ def summary_entry(run: RunData, comparison: RunComparison) -> dict[str, Any]:
         fractions (of the measured and of the reference force's power above the cutoff
         [Hz]) are fractions, and every NaN or inf is None, so that
         ``json.dumps(entry, allow_nan=False)`` succeeds.
+
+        A run with a nonlinear specimen (:func:`is_nonlinear`) has in addition
+        ``'nonlinear'``: ``{'specimen_model', 'nrms_displacement',
+        'nrms_displacement_residual_removed', 'peak_displacement_m': {'test', 'reference'},
+        'residual_displacement_m': {'test', 'reference'}, 'drift_cutoff_hz',
+        'residual_window_s'}`` from ``comparison.residual`` (:class:`ResidualComparison`):
+        the displacement NRMS after removing the lag as it is (the ``nrms`` displacement) and
+        with each signal's drift removed (fractions), peaks and residual (permanent)
+        displacements [m], the drift's cut-off [Hz] and the residual's window [s]. A linear
+        run's entry has no such key.
     """
     params = run.params
     order = ('displacement', 'acceleration', 'force')
@@ -528,6 +808,19 @@ def summary_entry(run: RunData, comparison: RunComparison) -> dict[str, Any]:
         'mode': params.get('mode', 'lockstep'),
         'wall_s': _finite_or_none(run.extra.get('wall_s')),
     }
+    residual = comparison.residual
+    if is_nonlinear(params) and residual is not None:
+        entry['nonlinear'] = {
+            'specimen_model': params.get('specimen_model'),
+            'nrms_displacement': residual.nrms,
+            'nrms_displacement_residual_removed': residual.nrms_residual_removed,
+            'peak_displacement_m': {'test': residual.peak_test_m,
+                                    'reference': residual.peak_reference_m},
+            'residual_displacement_m': {'test': residual.residual_test_m,
+                                        'reference': residual.residual_reference_m},
+            'drift_cutoff_hz': residual.drift_cutoff_hz,
+            'residual_window_s': residual.residual_window_s,
+        }
     if run.extra.get('timing') is not None:
         entry['timing'] = run.extra['timing']
     if run.extra.get('bag_lost_messages') is not None:

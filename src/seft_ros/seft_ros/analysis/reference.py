@@ -42,6 +42,11 @@ class ReferenceResponse:
         Eq. 2.4); it equals ``-(1+alpha) m xg'' - alpha m x''`` (paper Eq. 2.5).
     hysteretic_z : ndarray (n,) or None
         Bouc-Wen variable z of a hysteretic member [-] (None: linear member).
+    restoring_force_N : ndarray (n,) or None
+        Restoring force of the member [N]: ``k x`` (linear) or the Bouc-Wen
+        ``f_s = a k x + (1 - a) k D_y z`` (hysteretic), i.e. `force_N` without the member's
+        inertia and damping, ``force_N - m x'' - c x'``; plotted against `displacement_m` it
+        is the member's hysteresis loop. None only for a response built without it.
     """
 
     time_s: np.ndarray
@@ -50,6 +55,7 @@ class ReferenceResponse:
     acceleration_m_s2: np.ndarray
     force_N: np.ndarray
     hysteretic_z: np.ndarray | None = None
+    restoring_force_N: np.ndarray | None = None
 
     @property
     def n_steps(self) -> int:
@@ -125,8 +131,8 @@ def reference_response(*, alpha: float, mass_kg: float, damping_N_s_per_m: float
     Returns
     -------
     ReferenceResponse
-        Displacement, velocity, acceleration (relative to the ground) and member force, each
-        of shape ``(n,)``.
+        Displacement, velocity, acceleration (relative to the ground), member force and the
+        member's restoring force (``k x``; hysteretic: ``f_s``), each of shape ``(n,)``.
 
     Raises
     ------
@@ -189,7 +195,7 @@ def reference_response(*, alpha: float, mass_kg: float, damping_N_s_per_m: float
     a = -(c * v + k * x) / total_mass - ag
     force = m * a + c * v + k * x
     return ReferenceResponse(time_s=t, displacement_m=x, velocity_m_s=v, acceleration_m_s2=a,
-                             force_N=force)
+                             force_N=force, restoring_force_N=k * x)
 
 
 def _finite(name: str, value: Any) -> float:
@@ -233,8 +239,8 @@ def hysteretic_reference_response(*, alpha: float, specimen: BoucWenSpecimen, dt
     Returns
     -------
     ReferenceResponse
-        Displacement, velocity, acceleration, member force ``m x'' + c x' + f_s`` and z, each
-        of shape ``(n,)``.
+        Displacement, velocity, acceleration, member force ``m x'' + c x' + f_s``, z and the
+        restoring force ``f_s``, each of shape ``(n,)``.
 
     Raises
     ------
@@ -272,7 +278,8 @@ def hysteretic_reference_response(*, alpha: float, specimen: BoucWenSpecimen, dt
         zeros = np.zeros(n)
         a = -ag
         return ReferenceResponse(time_s=t, displacement_m=zeros, velocity_m_s=zeros.copy(),
-                                 acceleration_m_s2=a, force_N=m * a, hysteretic_z=zeros.copy())
+                                 acceleration_m_s2=a, force_N=m * a, hysteretic_z=zeros.copy(),
+                                 restoring_force_N=zeros.copy())
     samples = ag.tolist()
     last = n - 2
     restoring, rate = specimen.restoring_force, specimen.hysteretic_rate
@@ -296,7 +303,7 @@ def hysteretic_reference_response(*, alpha: float, specimen: BoucWenSpecimen, dt
     a = -(c * v + fs) / total_mass - ag
     force = m * a + c * v + fs
     return ReferenceResponse(time_s=t, displacement_m=x, velocity_m_s=v, acceleration_m_s2=a,
-                             force_N=force, hysteretic_z=z)
+                             force_N=force, hysteretic_z=z, restoring_force_N=fs)
 
 
 _PARAMS = ('alpha', 'mass_kg', 'damping_N_s_per_m', 'stiffness_N_per_m', 'dt')

@@ -23,8 +23,11 @@ from seft_ros.analysis.metrics import (
     RunComparison,
     best_runs,
     compare_run,
+    drift,
+    is_nonlinear,
     json_safe,
     peak,
+    restoring_force,
     summary_entry,
 )
 from seft_ros.analysis.reference import reference_from_run
@@ -33,7 +36,7 @@ from seft_ros.analysis.timing import timing_figure, timing_table
 
 __all__ = ['ReportPaths', 'write_report', 'write_summary_json', 'plot_time_histories',
            'plot_criteria_vs_alpha', 'plot_runs_compared', 'software_versions',
-           'plot_predictor_comparison', 'plot_estimates']
+           'plot_predictor_comparison', 'plot_estimates', 'plot_hysteresis']
 
 #: Figure files written by :func:`write_report` (single predictor).
 TIME_HISTORIES_PNG = 'time_histories.png'
@@ -47,6 +50,10 @@ PREDICTORS_PNG = 'predictors_alpha_{alpha}.png'
 TIMING_PNG = 'timing_run_{index}.png'
 #: The compensator's online estimates of a run (when it has any), one figure per run.
 ESTIMATES_PNG = 'estimates_run_{index}.png'
+#: Hysteresis loops and drift of the runs with a nonlinear specimen (one predictor among them).
+HYSTERESIS_PNG = 'hysteresis.png'
+#: The same per predictor (several predictors among the nonlinear runs).
+PREDICTOR_HYSTERESIS_PNG = 'hysteresis_{predictor}.png'
 #: Width of the zoom window around the reference's displacement peak [s].
 ZOOM_WINDOW_S = 2.0
 #: Most points drawn per line (min/max decimation beyond; plotting only, never metrics).
@@ -97,6 +104,10 @@ class ReportPaths:
     runs_png : Path or None
         ``runs_compared.png`` (:func:`plot_runs_compared`) for 2 to ``MAX_COMPARED_RUNS``
         runs of one record and dt.
+    hysteresis : dict of str to Path
+        ``{predictor: path}``: the hysteresis loops and drift of the runs with a nonlinear
+        specimen (:func:`plot_hysteresis`), ``hysteresis.png`` when they share one predictor,
+        else ``hysteresis_<predictor>.png``; empty without a nonlinear run.
     """
 
     out_dir: Path
@@ -109,6 +120,7 @@ class ReportPaths:
     report_html: Path | None = None
     criteria_png: Path | None = None
     runs_png: Path | None = None
+    hysteresis: dict[str, Path] = field(default_factory=dict)
 
     @property
     def figures(self) -> tuple[Path, ...]:
@@ -118,6 +130,7 @@ class ReportPaths:
         for pair in self.predictor_time_histories.values():
             out += list(pair)
         out += list(self.predictor_comparisons.values())
+        out += list(self.hysteresis.values())
         return tuple(out)
 
 
@@ -506,6 +519,16 @@ def _run_markdown(index: int, run: RunData, comparison: RunComparison) -> list[s
     recording = run.extra.get('recording') or {}
     if recording.get('end') in ('crashed', 'stopped'):
         lines.append(f'- **recording {recording["end"]}**: {recording.get("note")}')
+    elif recording.get('gap_at_step') is not None:
+        lines.append(f'- **recording with a gap**: {recording.get("note")}')
+    res = comparison.residual
+    if is_nonlinear(params) and res is not None:
+        lines.append(
+            f"- nonlinear specimen ({params.get('specimen_model')}): residual displacement "
+            f'test {_fmt(res.residual_test_m, ".2f", 1e3)} mm, reference '
+            f'{_fmt(res.residual_reference_m, ".2f", 1e3)} mm; displacement NRMS '
+            f'{_fmt(res.nrms, ".2f", 100)} %, {_fmt(res.nrms_residual_removed, ".2f", 100)} % '
+            f'with the drift (< {res.drift_cutoff_hz:g} Hz) removed')
     lines += [
         f'- power above {comparison.high_frequency_cutoff_hz:g} Hz in the force: test '
         f'{_fmt(comparison.high_frequency_force_fraction, ".2f", 100)} %, reference '
@@ -613,6 +636,187 @@ def _estimates_markdown(index: int, run: RunData, out_dir: Path, title: str) -> 
     final = ', '.join(f'{k} = {v[-1]:.5g}' for k, v in run.estimates.items())
     return [f'### Run {index}: online estimates', '', f'Final: {final}.', '',
             f'![Online estimates, run {index}]({png.name})', '']
+
+
+def plot_hysteresis(runs: list[RunData], comparisons: list[RunComparison], path, *,
+                    title: str = '') -> Path:
+    """Draw the member's hysteresis loops and the displacement's drift, test over reference.
+
+    One column per run. Top: restoring force [N] against displacement [mm], the test's
+    (:func:`~seft_ros.analysis.metrics.restoring_force`, ``f_m - m a - c v``) in red over the
+    reference's (``ReferenceResponse.restoring_force_N``, the member's ``f_s(x, z)``) in
+    black. Bottom: the displacement [mm] over time, test and reference thin, their drifts
+    (:func:`~seft_ros.analysis.metrics.drift`) thick, the residual displacements as
+    horizontal bars over the residual's window at the end, and the displacement NRMS with and
+    without the drift. An aborted run's axes span at most three times the reference's peaks.
+
+    Parameters
+    ----------
+    runs : list of RunData
+        The runs (one column each), at least one; their parameters give m and c.
+    comparisons : list of RunComparison
+        Their comparisons (same order): the reference responses and
+        ``comparison.residual`` (drift cut-off, residual window, residuals, NRMS).
+    path : str or Path
+        Output PNG.
+    title : str
+        Figure title.
+
+    Returns
+    -------
+    Path
+
+    Raises
+    ------
+    ParameterError
+        If `runs` is empty or the lists differ in length, or a run lacks mass_kg or
+        damping_N_s_per_m.
+    """
+    runs = list(runs)
+    comparisons = list(comparisons)
+    if not runs or len(runs) != len(comparisons):
+        raise ParameterError(f'plot_hysteresis: {len(runs)} runs and {len(comparisons)} '
+                             'comparisons; expected the same number, at least one')
+    path = Path(path)
+    ncol = len(runs)
+    setups = {(r.params.get('rig_model'), r.params.get('predictor')) for r in runs}
+    alphas = [r.params.get('alpha') for r in runs]
+    label_setup = len(setups) > 1 or len(set(alphas)) < len(alphas)
+    # at least 6 in wide: a single column still has room for the title
+    fig = Figure(figsize=(max(_COLUMN_WIDTH_IN * ncol, 6.0), 2 * _ROW_HEIGHT_IN * 1.25 + 1.2),
+                 layout='constrained')
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(2, ncol, squeeze=False)
+    for j, (run, comparison) in enumerate(zip(runs, comparisons)):
+        n = run.n_steps
+        ref = comparison.reference
+        res = comparison.residual
+        x_test = np.asarray(run.displacement_m, dtype=float)[:n] * 1e3
+        x_ref = np.asarray(ref.displacement_m, dtype=float)[:n] * 1e3
+        fs_test = restoring_force(run)
+        fs_ref = (None if ref.restoring_force_N is None
+                  else np.asarray(ref.restoring_force_N, dtype=float)[:n])
+        ax = axes[0, j]
+        if fs_ref is not None:
+            ax.plot(x_ref, fs_ref, color='k', lw=0.9, label='reference: f_s(x, z)', zorder=2)
+        ax.plot(x_test, fs_test, color='C3', lw=0.7, alpha=0.85,
+                label='test: f_m - m a - c v', zorder=3)
+        if not run.stable:
+            for values, setter in ((x_ref, ax.set_xlim), (fs_ref, ax.set_ylim)):
+                top = peak(values) if values is not None and n else math.nan
+                if math.isfinite(top) and top > 0:
+                    setter(-3.0 * top, 3.0 * top)
+        ax.set_xlabel('displacement [mm]')
+        ax.set_title(_alpha_title(run, label_setup)
+                     + ('' if run.stable else f' ({_abort_label(run)})'))
+        ax.grid(True, lw=0.3, alpha=0.5)
+        ax = axes[1, j]
+        t = np.asarray(run.time_s, dtype=float)
+        dt = float(run.params.get('dt', t[1] - t[0] if n > 1 else 0.0))
+        for x, color, ls, who in ((x_test, 'C3', '-', 'test'), (x_ref, 'k', '--', 'reference')):
+            ax.plot(*_decimate(t, x), color=color, lw=0.5, alpha=0.5)
+            if res is not None and n > 1:
+                ax.plot(t, drift(x, dt, res.drift_cutoff_hz), color=color, lw=1.8, ls=ls,
+                        label=f'{who}: drift (< {res.drift_cutoff_hz:g} Hz)')
+        if res is not None and n:
+            start = max(float(t[0]), float(t[-1]) - res.residual_window_s)
+            for value, color in ((res.residual_test_m, 'C3'), (res.residual_reference_m, 'k')):
+                if value is not None and math.isfinite(value):
+                    ax.hlines(value * 1e3, start, float(t[-1]), colors=color, lw=3.0,
+                              alpha=0.6)
+            ax.text(0.02, 0.97, f'NRMS x {_fmt(res.nrms, ".1f", 100)} %, drift removed '
+                    f'{_fmt(res.nrms_residual_removed, ".1f", 100)} %\nresidual: test '
+                    f'{_fmt(res.residual_test_m, ".2f", 1e3)} mm, reference '
+                    f'{_fmt(res.residual_reference_m, ".2f", 1e3)} mm',
+                    transform=ax.transAxes, ha='left', va='top', fontsize=7,
+                    bbox={'boxstyle': 'round', 'fc': 'w', 'ec': '0.7', 'lw': 0.5})
+        if not run.stable:
+            top = peak(x_ref) if n else math.nan
+            if math.isfinite(top) and top > 0:
+                ax.set_ylim(-3.0 * top, 3.0 * top)
+        ax.set_xlabel('time [s]')
+        ax.grid(True, lw=0.3, alpha=0.5)
+    axes[0, 0].set_ylabel('restoring force [N]')
+    axes[1, 0].set_ylabel('displacement [mm]')
+    for row in range(2):
+        handles, names = axes[row, 0].get_legend_handles_labels()
+        if handles:
+            axes[row, 0].legend(handles, names, loc='lower right', fontsize=7)
+    if title:
+        fig.suptitle(title, fontsize='medium')
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=_DPI)
+    return path
+
+
+def _nonlinear_markdown(runs: list[RunData], entries: list[dict[str, Any]],
+                        comparisons: list[RunComparison], out_dir: Path,
+                        title: str) -> tuple[list[str], dict[str, Path]]:
+    """The section of the runs with a nonlinear specimen: the table of peak and residual
+    displacements and of the NRMS with and without the drift, and the hysteresis figures
+    (one per predictor). No lines and no figure without such a run."""
+    indices = [j for j, run in enumerate(runs) if is_nonlinear(run.params)
+               and comparisons[j].residual is not None]
+    if not indices:
+        return [], {}
+    res0 = comparisons[indices[0]].residual
+    lines = [
+        '## Nonlinear specimen: residual displacement and hysteresis',
+        '',
+        'The runs with a yielding member (`specimen_model` other than linear). Residual '
+        '(permanent) displacement: the Hann-weighted mean of the displacement over the last '
+        f'{res0.residual_window_s:g} s of the record, the offset the member comes to rest at '
+        '(an oscillation still going on at the end is averaged out). Drift: the displacement '
+        f'low-passed at {res0.drift_cutoff_hz:g} Hz (4th-order Butterworth, forward and '
+        'backward: zero phase), well below the oscillation of the yielding member (the '
+        "default member's post-yield frequency: 2.0-3.2 Hz for alpha = 1.5-0). NRMS x: "
+        "rms(x - x_ref) / rms(x_ref) after removing the displacement's lag; drift removed: "
+        'the same of x - drift(x) against x_ref - drift(x_ref), each signal without its own '
+        'permanent offset, so that an offset the test took at one yield excursion does not '
+        'count over the rest of the record.',
+        '',
+        '| run | alpha | rig | predictor | specimen | NRMS x [%] | NRMS x, drift removed [%] '
+        '| peak x test [mm] | peak x ref [mm] | residual x test [mm] | residual x ref [mm] '
+        '| status |',
+        '|---:|---:|---|---|---|---:|---:|---:|---:|---:|---:|---|',
+    ]
+    for j in indices:
+        e = entries[j]
+        block = e.get('nonlinear') or {}
+        peaks = block.get('peak_displacement_m') or {}
+        residuals = block.get('residual_displacement_m') or {}
+        lines.append(
+            f"| {j + 1} | {_alpha_text(e.get('alpha'))} | {e.get('rig') or 'n/a'} | "
+            f"{_predictor(runs[j])} | {block.get('specimen_model') or 'n/a'} | "
+            f"{_fmt(block.get('nrms_displacement'), '.2f', 100)} | "
+            f"{_fmt(block.get('nrms_displacement_residual_removed'), '.2f', 100)} | "
+            + ' | '.join(_fmt(d.get(k), '.2f', 1e3) for d in (peaks, residuals)
+                         for k in ('test', 'reference'))
+            + f' | {_entry_status(e)} |')
+    lines.append('')
+    predictors = list(dict.fromkeys(_predictor(runs[j]) for j in indices))
+    order = {name: i for i, name in enumerate(_predictor_order(runs))}
+    predictors.sort(key=order.__getitem__)
+    figures: dict[str, Path] = {}
+    for name in predictors:
+        chosen = [j for j in indices if _predictor(runs[j]) == name]
+        file = (HYSTERESIS_PNG if len(predictors) == 1
+                else PREDICTOR_HYSTERESIS_PNG.format(predictor=_safe_name(name)))
+        figures[name] = plot_hysteresis(
+            [runs[j] for j in chosen], [comparisons[j] for j in chosen], out_dir / file,
+            title=f'{title}: predictor {name}, hysteresis loops and drift')
+        alphas = ', '.join(_alpha_text(runs[j].params.get('alpha')) for j in chosen)
+        lines += [f'![Hysteresis loops and drift, predictor {name}]({file})', '',
+                  f'**Hysteresis, predictor {name}, alpha = {alphas}.** Top: the restoring '
+                  'force of the '
+                  'member against its displacement, the test (red: load-cell force minus '
+                  'the inertia and damping of the specimen, f_m - m a - c v) over the '
+                  'reference (black: the restoring force of the reference analysis, '
+                  'Bouc-Wen f_s(x, z)). '
+                  'Bottom: the displacement of test and reference (thin) with their drifts '
+                  '(thick) and, at the end, the residual displacements (bars over the '
+                  'window).', '']
+    return lines, figures
 
 
 def _safe_name(text: Any) -> str:
@@ -1126,7 +1330,14 @@ def write_report(runs: list[RunData], out_dir, *, title: str = 'seft comparison'
       aborted) and a figure ``predictors_alpha_<alpha>.png`` (``_<rig>``, ``_<record>``
       appended when they vary) of the reference versus the uncompensated and the
       compensated runs (:func:`plot_predictor_comparison`, as the reference study's
-      Figures 7-8).
+      Figures 7-8);
+    - runs with a nonlinear specimen (``metrics.is_nonlinear``): their summary entries carry
+      ``"nonlinear"`` (``metrics.summary_entry``); report.md has a section "Nonlinear
+      specimen: residual displacement and hysteresis" with a table (displacement NRMS as it
+      is and with each signal's drift removed, peak and residual displacements of test and
+      reference) and, per predictor, ``hysteresis.png`` (one predictor among them) or
+      ``hysteresis_<predictor>.png`` (:func:`plot_hysteresis`) with a caption; each such
+      run's section names its residual displacements and both NRMS.
 
     Parameters
     ----------
@@ -1234,6 +1445,9 @@ def write_report(runs: list[RunData], out_dir, *, title: str = 'seft comparison'
             lines += [f'### Predictor {name}', '', f'![Time histories, {name}]({grid.name})',
                       '', f'![Zoom around the reference displacement peak, {name}]'
                       f'({grid_zoom.name})', '']
+    nonlinear_lines, hysteresis = _nonlinear_markdown(runs, entries, comparisons, out_dir,
+                                                      title)
+    lines += nonlinear_lines
     for index, (run, comparison) in enumerate(zip(runs, comparisons), start=1):
         lines += _run_markdown(index, run, comparison)
         lines += _timing_markdown(index, run, out_dir, title)
@@ -1246,4 +1460,4 @@ def write_report(runs: list[RunData], out_dir, *, title: str = 'seft comparison'
                        time_histories_png=figure, zoom_png=zoom,
                        predictor_time_histories=grids, predictor_comparisons=comparison_figures,
                        report_html=_write_html(markdown, out_dir, title),
-                       criteria_png=criteria_png, runs_png=runs_png)
+                       criteria_png=criteria_png, runs_png=runs_png, hysteresis=hysteresis)

@@ -57,7 +57,11 @@ class RunData:
         ``'recording'`` (how the recording ended: ``'end'`` is ``'closed'``, ``'stopped'``
         before the run's end, ``'crashed'``, the recorder killed and the bag recovered from
         its file, or ``'unknown'``; with the steps, messages and a one-line ``'note'``,
-        ``seft_ros.analysis.bag.recording_end``).
+        ``seft_ros.analysis.bag.recording_end``; a gap adds ``'gap_at_step'`` and
+        ``'steps_not_analysed'``), and, where the bag has them, ``'gaps'`` (the steps each
+        topic misses and the complete steps after the first gap, not analysed),
+        ``'duplicates'`` (steps recorded twice with the same value, read once) and
+        ``'estimates_missing_steps'`` (``seft_ros.analysis.bag.read_run``).
     estimates : dict of str to ndarray (n,), or None
         The compensator's online estimates in effect for each sample's reference force,
         keyed by the compensator's ``ESTIMATES`` names (units in the name, e.g. ``mass_kg``,

@@ -557,9 +557,11 @@ def compare_bags(*, bags: list[str], out_dir: Path, title: str = '') -> Result:
 
 def summary_table(summary: list[dict]) -> str:
     """A plain-text table of summary entries (one line per run); real-time runs add the loop
-    latency (p50, p99), missed deadlines and stale commands. Below it, one ``note:`` line per
+    latency (p50, p99), missed deadlines and stale commands; runs with a nonlinear specimen
+    (``"nonlinear"`` of the entry) add the displacement NRMS with the drift removed and the
+    residual displacement of test and reference [mm]. Below it, one ``note:`` line per
     run whose recording did not end with the run (``"recording"`` of the entry: the recorder
-    killed, the bag recovered; or stopped)."""
+    killed, the bag recovered; or stopped) or has a gap (steps after it not analysed)."""
     head = (f'{"alpha":>6} {"rig":>14} {"predictor":>10} {"stable":>7} {"abort_s":>8} '
             f'{"lag_ms":>7} {"nrms_x%":>8} {"nrms_a%":>8} {"nrms_f%":>8} {"peak_x":>7} '
             f'{"peak_a":>7} {"peak_f":>7}')
@@ -569,6 +571,9 @@ def summary_table(summary: list[dict]) -> str:
     timed = any(e.get('timing') for e in summary)
     if timed:
         head += f' {"lat50ms":>8} {"lat99ms":>8} {"missed%":>8} {"stale%":>8}'
+    nonlinear = any(e.get('nonlinear') for e in summary)
+    if nonlinear:
+        head += f' {"nrms_xr%":>8} {"xres_mm":>8} {"xres_ref":>8}'
     lines = [head]
 
     def pct(v):
@@ -576,6 +581,9 @@ def summary_table(summary: list[dict]) -> str:
 
     def num(v, w=7):
         return f'{v:{w}.3f}' if v is not None else f'{"-":>{w}}'
+
+    def mm(v):
+        return f'{1000 * v:8.2f}' if v is not None else f'{"-":>8}'
 
     for e in summary:
         abort = f'{e["unstable_at_s"]:8.3f}' if e['unstable_at_s'] is not None else f'{"-":>8}'
@@ -593,9 +601,15 @@ def summary_table(summary: list[dict]) -> str:
                           f'{num(t["loop_latency_ms"]["p99"], 8)} '
                           f'{pct(t["missed_deadline_fraction"])} '
                           f'{pct(t["stale_command_fraction"])}' if t else '')
+        if nonlinear:
+            nl = e.get('nonlinear') or {}
+            res = nl.get('residual_displacement_m') or {}
+            lines[-1] += (f' {pct(nl.get("nrms_displacement_residual_removed"))} '
+                          f'{mm(res.get("test"))} {mm(res.get("reference"))}' if nl
+                          else f' {"-":>8} {"-":>8} {"-":>8}')
     for i, e in enumerate(summary, start=1):
         rec = e.get('recording') or {}
-        if rec.get('end') in ('crashed', 'stopped'):
+        if rec.get('end') in ('crashed', 'stopped') or rec.get('gap_at_step') is not None:
             lines.append(f'note: run {i} (alpha {e["alpha"]:g}, {e["predictor"]}): '
                          f'{rec.get("note")}')
     return '\n'.join(lines)

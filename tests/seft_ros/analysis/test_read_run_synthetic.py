@@ -1,0 +1,272 @@
+"""read_run on small synthetic bags: a gap, a duplicate, a missing topic, another node's abort.
+
+Each bag starts as the bag ``seft simulate --bag`` writes for a 40-step servohydraulic run
+(``write_run_bag``), copied message by message with rosbags while the test drops, repeats or
+changes records (:func:`rewrite`). What read_run returns is checked against what the test
+wrote: the simulated run's arrays, cut where the test cut them.
+"""
+
+import re
+
+import numpy as np
+import pytest
+from rosbags.rosbag2 import Reader, StoragePlugin, Writer
+from rosbags.typesys import Stores, get_typestore
+
+from seft_msgs_py import parameters, signals
+from seft_msgs_py.errors import InputError
+from seft_ros.analysis.bag import read_run
+from seft_ros.analysis.bagwrite import write_run_bag
+from seft_ros.core.experiment import simulate
+
+STORE = get_typestore(Stores.ROS2_JAZZY)
+DT = 0.002
+DT_NS = 2_000_000
+N = 40
+GROUND, REFERENCE, VALVE = (signals.GROUND_ACCELERATION.name, signals.REFERENCE_FORCE.name,
+                            signals.VALVE_COMMAND.name)
+MEASURED, DISPLACEMENT = signals.MEASURED_FORCE.name, signals.DISPLACEMENT.name
+#: RunData attribute of each scalar topic.
+ATTR = {GROUND: 'ground_acceleration_m_s2', REFERENCE: 'reference_force_N',
+        VALVE: 'valve_command_V', MEASURED: 'measured_force_N', DISPLACEMENT: 'displacement_m',
+        signals.VELOCITY.name: 'velocity_m_s', signals.ACCELERATION.name: 'acceleration_m_s2'}
+FIELD = {s.name: s.field for s in signals.SCALAR_SIGNALS}
+MONITOR = ('unstable at t=0.050 s: high-frequency oscillation of the measured force, RMS '
+           'above the cut-off 1.20 x the response band (threshold 1)')
+
+
+@pytest.fixture(scope='module')
+def run():
+    rd = simulate(parameters.resolve({'duration_s': N * DT, 'dt': DT}))
+    assert rd.n_steps == N and rd.stable and rd.params['rig_model'] == 'servohydraulic'
+    for attr in ATTR.values():        # distinct values, or a wrong step would go unnoticed
+        assert len(set(getattr(rd, attr)[2:].tolist())) == N - 2, attr
+    return rd
+
+
+@pytest.fixture(scope='module')
+def source(run, tmp_path_factory):
+    return write_run_bag(run, tmp_path_factory.mktemp('source') / 'bag')
+
+
+def rewrite(src, dst, edit):
+    """Copy bag `src` to `dst`, each message through ``edit(topic, ns, msg)``: the list of
+    ``(ns, msg)`` to write instead (``msg`` a fresh copy, free to change)."""
+    with Reader(src) as reader, Writer(dst, version=9,
+                                       storage_plugin=StoragePlugin.MCAP) as writer:
+        conns = {c.topic: writer.add_connection(c.topic, c.msgtype, typestore=STORE)
+                 for c in reader.connections}
+        for conn, ns, raw in reader.messages():
+            for out_ns, msg in edit(conn.topic, ns, STORE.deserialize_cdr(raw, conn.msgtype)):
+                writer.write(conns[conn.topic], out_ns, STORE.serialize_cdr(msg, conn.msgtype))
+    return dst
+
+
+def set_value(topic, msg, value):
+    *path, last = FIELD[topic].split('.')
+    for p in path:
+        msg = getattr(msg, p)
+    setattr(msg, last, value)
+
+
+def status(node, state, message, **values):
+    kv = STORE.types['diagnostic_msgs/msg/KeyValue']
+    return STORE.types['diagnostic_msgs/msg/DiagnosticStatus'](
+        level=2 if state == 'aborted' else 0, name=node, message=message, hardware_id='seft',
+        values=[kv(key='state', value=state)] + [kv(key=k, value=str(v))
+                                                 for k, v in values.items()])
+
+
+def drop(steps_of):
+    """An edit that drops the steps ``steps_of[topic]`` (a set) of each topic."""
+    def edit(topic, ns, msg):
+        return [] if ns // DT_NS in steps_of.get(topic, ()) else [(ns, msg)]
+    return edit
+
+
+def check_values(rd, run, n):
+    assert rd.n_steps == n
+    np.testing.assert_array_equal(rd.time_s, np.arange(n) * DT)
+    for attr in ATTR.values():
+        np.testing.assert_array_equal(getattr(rd, attr), getattr(run, attr)[:n], err_msg=attr)
+
+
+def test_the_intact_bag_reads_every_step(source, run):
+    rd = read_run(source)
+    check_values(rd, run, N)
+    assert rd.stable and rd.unstable_at_s is None
+    assert rd.extra['gaps'] is None and rd.extra['duplicates'] == {}
+    assert rd.extra['recording']['end'] == 'closed'
+    assert 'gap' not in rd.extra['recording']['note']
+
+
+def test_a_gap_ends_the_analysis_and_is_reported(source, run, tmp_path):
+    """Steps 12-14 of the measured force and step 13 of the displacement lost: the run is
+    analysed up to step 12, and the report says what was missing and what was not read."""
+    bag = rewrite(source, tmp_path / 'bag',
+                  drop({MEASURED: {12, 13, 14}, DISPLACEMENT: {13}}))
+    rd = read_run(bag)
+    check_values(rd, run, 12)
+    assert rd.stable and rd.unstable_at_s is None        # the rig completed the run
+    gaps = rd.extra['gaps']
+    assert gaps['missing'] == {MEASURED: [12, 13, 14], DISPLACEMENT: [13]}
+    assert (gaps['at_step'], gaps['last_step']) == (12, N - 1)
+    assert gaps['at_s'] == pytest.approx(12 * DT, abs=1e-15)
+    assert gaps['steps_after_gap'] == N - 15                 # 15..39: complete, not analysed
+    rec = rd.extra['recording']
+    assert (rec['gap_at_step'], rec['steps_not_analysed']) == (12, 25)
+    assert rec['note'].endswith(
+        f'; gap at step 12 (t = 0.024 s): {MEASURED} misses steps 12-14; {DISPLACEMENT} '
+        'misses steps 13; 25 complete steps after it (to step 39) were not analysed')
+    assert rd.extra['counts'][MEASURED] == N - 3 and rd.extra['counts'][DISPLACEMENT] == N - 1
+
+
+def test_steps_lost_at_the_end_of_a_completed_run_are_reported(source, run, tmp_path):
+    """The rig completed 40 steps; the bag lost the last five valve commands (and step 30,
+    scattered): no complete step after the gap, but the steps the run had are named."""
+    lost = {30, 35, 36, 37, 38, 39}
+    rd = read_run(rewrite(source, tmp_path / 'bag', drop({VALVE: lost})))
+    check_values(rd, run, 30)
+    gaps = rd.extra['gaps']
+    assert gaps['missing'] == {VALVE: sorted(lost)}
+    assert (gaps['at_step'], gaps['steps_after_gap'], gaps['last_step']) == (30, 4, 39)
+    assert f'{VALVE} misses steps 30, 35-39; 4 complete steps after it' in gaps['note']
+
+
+def test_a_missing_step_0_is_refused_with_what_follows(source, tmp_path):
+    bag = rewrite(source, tmp_path / 'bag', drop({GROUND: {0}}))
+    with pytest.raises(InputError) as err:
+        read_run(bag)
+    assert str(err.value) == (f'{bag}: the bag holds no complete step: step 0 missing on '
+                              f'{GROUND} ({N - 1} complete steps after it)')
+
+
+def test_an_identical_duplicate_reads_as_one(source, run, tmp_path):
+    """Step 7 of the reference force recorded twice, and every displacement twice: the same
+    values, read once each; the duplicates are listed."""
+    def edit(topic, ns, msg):
+        if topic == DISPLACEMENT or (topic == REFERENCE and ns == 7 * DT_NS):
+            return [(ns, msg), (ns, msg)]
+        return [(ns, msg)]
+
+    rd = read_run(rewrite(source, tmp_path / 'bag', edit))
+    check_values(rd, run, N)
+    assert rd.extra['gaps'] is None
+    assert rd.extra['duplicates'] == {REFERENCE: [7], DISPLACEMENT: list(range(N))}
+    assert rd.extra['counts'][REFERENCE] == N + 1 and rd.extra['counts'][DISPLACEMENT] == 2 * N
+
+
+def test_a_duplicate_with_another_value_is_refused(source, run, tmp_path):
+    """Step 7 of the measured force recorded twice, the second 1 N higher: which one the test
+    saw cannot be known; the error names the bag, the topic, the step and both values."""
+    first = float(run.measured_force_N[7])
+
+    def edit(topic, ns, msg):
+        if topic == MEASURED and ns == 7 * DT_NS:
+            other = STORE.deserialize_cdr(STORE.serialize_cdr(msg, msg.__msgtype__),
+                                          msg.__msgtype__)
+            set_value(topic, other, first + 1.0)
+            return [(ns, msg), (ns, other)]
+        return [(ns, msg)]
+
+    bag = rewrite(source, tmp_path / 'bag', edit)
+    with pytest.raises(InputError, match=re.escape(
+            f'{bag}: {MEASURED}: step 7 (t = 0.014000 s) recorded more than once with '
+            f'different values ({first!r} and {first + 1.0!r})')):
+        read_run(bag)
+
+
+def test_two_differing_duplicates_are_counted(source, run, tmp_path):
+    def edit(topic, ns, msg):
+        if topic == VALVE and ns in (3 * DT_NS, 9 * DT_NS):
+            other = STORE.deserialize_cdr(STORE.serialize_cdr(msg, msg.__msgtype__),
+                                          msg.__msgtype__)
+            set_value(topic, other, -99.0)
+            return [(ns, msg), (ns, other)]
+        return [(ns, msg)]
+
+    bag = rewrite(source, tmp_path / 'bag', edit)
+    with pytest.raises(InputError, match=re.escape(
+            f'{VALVE}: step 3 (t = 0.006000 s) recorded more than once with different values '
+            f'({float(run.valve_command_V[3])!r} and -99.0); 1 more such sample')):
+        read_run(bag)
+
+
+@pytest.mark.parametrize('connection', [True, False])
+def test_a_missing_topic_is_named(source, tmp_path, connection):
+    """The valve command of a servohydraulic run absent: no messages on its connection, or
+    no connection at all."""
+    bag = rewrite(source, tmp_path / 'bag', drop({VALVE: set(range(N))}))
+    if not connection:
+        with Reader(source) as reader:
+            assert VALVE in {c.topic for c in reader.connections}
+        bag = tmp_path / 'no_connection'
+        with Reader(source) as reader, Writer(bag, version=9) as writer:
+            conns = {c.topic: writer.add_connection(c.topic, c.msgtype, typestore=STORE)
+                     for c in reader.connections if c.topic != VALVE}
+            for conn, ns, raw in reader.messages():
+                if conn.topic != VALVE:
+                    writer.write(conns[conn.topic], ns, raw)
+    with pytest.raises(InputError) as err:
+        read_run(bag)
+    assert str(err.value) == f'{bag}: the bag holds no complete step: no samples on {VALVE}'
+
+
+def builder_abort(k_abort, *, ground_ahead=5, lost=None):
+    """An edit that turns the completed run into one the builder's instability monitor
+    aborted at step `k_abort`, as the graph records it: the reference forces and valve
+    commands of steps 0..k_abort-1, the rig's samples up to step k_abort (the one it published
+    before hearing the abort), the ground acceleration `ground_ahead` steps past it; the
+    builder's 'aborted' report, then the rig's; `lost` ({topic: steps}) dropped as well."""
+    last = {REFERENCE: k_abort - 1, VALVE: k_abort - 1, GROUND: k_abort - 1 + ground_ahead}
+    lost = lost or {}
+    t_abort = f'{k_abort * DT:.6f}'
+
+    def edit(topic, ns, msg):
+        k = ns // DT_NS
+        if topic in FIELD:
+            if k > last.get(topic, k_abort) or k in lost.get(topic, ()):
+                return []
+            return [(ns, msg)]
+        if topic != signals.STATUS.name:
+            return [(ns, msg)]
+        state = next(kv.value for kv in msg.values if kv.key == 'state')
+        if msg.name == 'reference_force_builder' and state == 'done':
+            return [(k_abort * DT_NS, status('reference_force_builder', 'aborted', MONITOR,
+                                             step=k_abort, time_s=t_abort,
+                                             published=k_abort))]
+        if msg.name == 'rig' and state == 'done':
+            return [(k_abort * DT_NS, status('rig', 'aborted',
+                                             f'reference_force_builder: {MONITOR}',
+                                             step=k_abort, n_steps=N, time_s=t_abort,
+                                             published=k_abort + 1, mode='lockstep'))]
+        return [(ns, msg)]
+    return edit
+
+
+def test_an_abort_by_the_builder_names_it(source, run, tmp_path):
+    """The monitor of the reference-force builder trips at step 25: not stable, the reason
+    names the builder, the run ends at t = 25 dt; the samples past the abort (the rig's
+    step 25, the ground motion's preview) are not a gap."""
+    rd = read_run(rewrite(source, tmp_path / 'bag', builder_abort(25)))
+    check_values(rd, run, 25)
+    assert rd.stable is False
+    assert rd.abort_reason == f'reference_force_builder: {MONITOR}'
+    assert rd.unstable_at_s == 25 * DT
+    assert rd.extra['gaps'] is None
+    assert rd.extra['rig_final']['state'] == 'aborted'
+    assert rd.extra['recording']['end'] == 'closed'
+
+
+def test_an_abort_after_a_gap_keeps_its_time(source, run, tmp_path):
+    """The builder aborts at step 30; the bag lost the reference forces of steps 10 and 11:
+    analysed up to step 10, the abort still at t = 30 dt (the rig's final report), the gap
+    and the 18 complete steps 12..29 after it reported."""
+    rd = read_run(rewrite(source, tmp_path / 'bag',
+                          builder_abort(30, lost={REFERENCE: {10, 11}})))
+    check_values(rd, run, 10)
+    assert rd.stable is False and rd.abort_reason.startswith('reference_force_builder: ')
+    assert rd.unstable_at_s == 30 * DT
+    gaps = rd.extra['gaps']
+    assert gaps['missing'] == {REFERENCE: [10, 11]}
+    assert (gaps['at_step'], gaps['steps_after_gap'], gaps['last_step']) == (10, 18, 29)
