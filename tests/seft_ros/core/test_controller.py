@@ -1,4 +1,6 @@
-"""Tests of the discrete force servo controller and its saturation interlock (paper Eq. 3.1)."""
+"""Tests of the discrete force servo controller and its saturation interlock against hand-typed
+references: paper Eq. 3.1 evaluated by hand (C_f(j w), its DC gain 37/4002), scipy.signal.lfilter,
+the interlock's counts from exact fractions, and the documented limits and messages."""
 
 from fractions import Fraction
 import math
@@ -234,3 +236,92 @@ def test_interlock_parameter_errors(window_s, fraction, message):
 def test_interlock_bad_dt(dt):
     with pytest.raises(ParameterError, match='dt'):
         SaturationInterlock(dt, 0.1, 0.5)
+
+
+# -- Closed-form checks and boundaries (issue 11: killing the mutmut survivors) ---------------
+
+def test_dc_gain_is_37_over_4002_per_unit_error():
+    """A constant error e settles at e C_f(0) = e 37/4002 V/lbf (Tustin maps s = 0 to z = 1,
+    so the DC gain is exact); the poles decay as exp(-17.14/2 t), e^-25.7 after 3 s."""
+    c = ForceServoController(DT)
+    dc = 37.0 / LBF / 4002.0                                 # [V/N], by hand from Eq. 3.1
+    assert np.sum(c.bz) / np.sum(c.az) == pytest.approx(dc, rel=1e-10)
+    e = 100.0
+    u = [c.step(e + 250.0, 250.0) for _ in range(1500)]
+    assert u[-1] == pytest.approx(e * dc, rel=1e-9)
+    assert not c.saturated
+
+
+def test_a_scaled_denominator_is_prewarped_at_the_same_resonance():
+    """C_f written as 2*37/(2 s^2 + 34.28 s + 8004) is the same controller: w0 = sqrt(den[2] /
+    den[0]) = sqrt(4002) rad/s, so the discrete response is exact at w0 as before."""
+    c = ForceServoController(DT, num=(2.0 * 37.0 / LBF,), den=(2.0, 34.28, 8004.0))
+    w0 = math.sqrt(4002.0)
+    z = np.exp(1j * w0 * DT)
+    hd = np.polyval(c.bz, z) / np.polyval(c.az, z)
+    assert abs(hd / continuous_cf(w0) - 1) < 1e-9
+    assert c.design.method == 'bilinear, prewarped at 63.26 rad/s'     # sqrt(4002) = 63.261
+
+
+def test_constructor_defaults():
+    """Defaults: the paper controller, 10 V valve, no motion path, not saturated yet."""
+    c = ForceServoController(DT)
+    assert c.kind == 'loop_shaping'
+    assert c.saturated is False
+    assert c.design.dt == DT
+    assert (c.integral_hz, c.velocity_gain_V_s_per_m, c.velocity_lead_s,
+            c.velocity_filter_hz) == (0.0, 0.0, 0.0, 0.0)
+    assert not c.uses_motion
+    assert c.step(1e9, 0.0) == 10.0 and c.saturated
+
+
+def test_loop_shaping_ignores_the_motion_inputs_even_when_not_finite():
+    """g_v = 0: the command depends on the force error alone, whatever v and a are (a rig
+    without a velocity measurement may send NaN)."""
+    rng = np.random.default_rng(5)
+    fr, fm = rng.normal(scale=400.0, size=200), rng.normal(scale=400.0, size=200)
+    c1, c2 = ForceServoController(DT, 1.0), ForceServoController(DT, 1.0)
+    u1 = [c1.step(a, b) for a, b in zip(fr, fm)]
+    u2 = [c2.step(a, b, math.nan, math.inf) for a, b in zip(fr, fm)]
+    assert np.all(np.isfinite(u2))
+    np.testing.assert_array_equal(u1, u2)
+
+
+def test_a_command_equal_to_the_limit_is_not_saturated():
+    """|u| <= valve_limit_V is the valid range: the first command for a unit error is b0 (the
+    filter state is zero), so a limit of exactly b0 passes it unsaturated, either sign."""
+    b0 = ForceServoController(DT).bz[0]
+    c = ForceServoController(DT, valve_limit_V=b0)
+    assert c.step(1.0, 0.0) == b0 and c.saturated is False
+    c.reset()
+    assert c.step(0.0, 1.0) == -b0 and c.saturated is False
+    c.reset()
+    assert c.step(1.5, 0.0) == b0 and c.saturated is True
+    c.reset()
+    assert c.step(0.0, 1.5) == -b0 and c.saturated is True
+
+
+@pytest.mark.parametrize('coefficients', [([None], [1.0]), ([1.0], [1.0, None])])
+def test_discrete_filter_missing_coefficient(coefficients):
+    """A missing (None) coefficient is a non-finite one (NaN as a float), not a TypeError."""
+    with pytest.raises(ParameterError, match=r'^filter coefficients: expected finite'):
+        DiscreteFilter(*coefficients)
+
+
+def test_interlock_defaults_are_half_of_0_1_s():
+    """Defaults window_s = 0.1 s (50 samples at 2 ms) and abort_fraction = 0.5: the 26th
+    saturated sample trips (26/50 > 0.5)."""
+    il = SaturationInterlock(DT)
+    assert (il.window, il.abort_fraction) == (50, 0.5)
+    assert first_trip(il, [True] * 50)[0] == 25
+
+
+def test_interlock_from_parameters_reads_window_and_fraction(reference_params):
+    """0.2 s at 2 ms = 100 samples; fraction 0.3: the smallest count above 30 is 31."""
+    il = SaturationInterlock.from_parameters(dict(reference_params, saturation_window_s=0.2,
+                                                  saturation_abort_fraction=0.3))
+    assert (il.window, il.abort_fraction) == (100, 0.3)
+    k, reason = first_trip(il, [True] * 100)
+    assert k == 30
+    assert reason == ('force control lost at t=0.060 s: valve command saturated in 31/100 '
+                      'samples of the last 0.200 s')
