@@ -172,7 +172,8 @@ def test_shared_parameters_have_an_explicit_source():
       'adaptive_window_s', 'adaptive_max_delay_s', 'adaptive_memory_s',
       'adaptive_excitation_N', 'adaptive_max_deviation', 'adaptive_max_rate_per_s',
       'adaptive_loop', 'ats_window_s', 'monitor_cutoff_hz', 'monitor_window_s',
-      'monitor_threshold', 'monitor_floor_N', 'network_delay_s'], 'reference_force_builder'),
+      'monitor_threshold', 'monitor_floor_N', 'network_delay_s',
+      'predictor_restoring_force'], 'reference_force_builder'),
     (['mass_kg', 'stiffness_N_per_m', 'damping_N_s_per_m', 'specimen_model',
       'post_yield_stiffness_ratio', 'yield_displacement_m', 'bouc_wen_n', 'bouc_wen_beta',
       'bouc_wen_gamma', 'rig_model', 'rig_calibration', 'tau_s', 'stroke_limit_m', 'force_limit_N',
@@ -199,7 +200,7 @@ def test_value_source_of_each_parameter(names, node):
 def test_value_source_lists_cover_the_schema():
     # + 1: realtime_priority, per node (the rig's value is the one reported); the second 6:
     # the excitation of identification runs
-    assert len(VALUE_SOURCE) == len(SCHEMA) == 24 + 38 + 6 + 6 + 8 + 2 + 1
+    assert len(VALUE_SOURCE) == len(SCHEMA) == 25 + 38 + 6 + 6 + 8 + 2 + 1
 
 
 def test_value_source_of_unknown_name_is_an_error():

@@ -196,6 +196,11 @@ SCHEMA: tuple[ParamSpec, ...] = (
     ParamSpec('predictor_tau_s', 0.0, 's', "Actuator delay assumed by the predictor on the "
               "'delay' rig, the prior of 'adaptive' (0: tau_s).", 0.0, 1.0,
               nodes=_RFB + ('recorder',)),
+    ParamSpec('predictor_restoring_force', 'model', '', "'model': the restoring force in "
+              "the 'model' predictor is k x (the linear specimen, the study's); 'measured': it "
+              'is the measured one, f_m - m a - c v at the latest sample, extrapolated with '
+              'the tangent stiffness estimated online from its last change (for members that '
+              'yield).', choices=('model', 'measured'), nodes=_RFB + ('recorder',)),
     ParamSpec('predictor_loop_delay_steps', 10, '', "Servohydraulic rig, 'model': the force "
               'loop is inverted to a pure delay of this many steps.', 1, 50,
               nodes=_RFB + ('recorder',)),

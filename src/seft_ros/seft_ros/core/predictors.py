@@ -37,7 +37,7 @@ acceleration: integrated over the step, (*) is exactly the reference equation of
 from collections import deque
 import functools
 import math
-from typing import NamedTuple
+from typing import Callable, NamedTuple
 
 import numpy as np
 
@@ -55,7 +55,8 @@ __all__ = [
     'foh_step_average', 'model_parameters', 'ADAPTIVE_ESTIMATES', 'AtsPredictor',
     'ATS_ESTIMATES', 'IdentifiedForceLoop', 'LOOP_ESTIMATES', 'LoopImpulseResponses',
     'force_loop_impulse_responses', 'step_average_force_impulse_response',
-    'network_delay_steps',
+    'network_delay_steps', 'TangentModelPredictor', 'model_predictor',
+    'TANGENT_STIFFNESS_RATIOS',
 ]
 
 
@@ -415,6 +416,19 @@ class ModelPredictor:
     ``W(z)`` (:class:`ForceLoopInverse`) makes the step-average actuator force follow F
     delayed by a whole number of steps, and the prediction uses that delay.
 
+    ``restoring_force='measured'`` (for members that yield): the model's restoring force
+    ``k x`` is replaced by the measured one, ``f_s = f_m - m a - c v`` at the latest sample
+    (load cell, accelerometer, velocity; m, c of the model), extrapolated over the horizon
+    with the model's stiffness k (the tangent stiffness: :class:`TangentModelPredictor`
+    picks the model of the stiffness estimated online). The specimen is then
+    ``m x'' + c x' + k x + d = f`` with the offset ``d = f_s - k x`` held over the
+    horizon, and the reference structure
+    ``(1 + alpha) m x'' + c x' + k x + d = G``: the linear law applied to ``f - d`` and
+    ``G - d`` gives ``F = d + beta (G - d) - K s_hat(f - d)``, i.e. the linear F plus
+    ``d (1 - beta + K H 1)``. For a linear specimen with exact sensors d = 0 and the
+    prediction is the linear one; a yielding member's lost stiffness no longer pushes back in
+    the model.
+
     Parameters
     ----------
     model : DelayImpulseModel
@@ -425,6 +439,12 @@ class ModelPredictor:
     loop_inverse : ForceLoopInverse, optional
         Feedforward force-loop inverse (servo-hydraulic rig); None on the delay rig.
     matching : {'poles', 'impulse'}
+    restoring_force : {'model', 'measured'}
+
+    Raises
+    ------
+    ParameterError
+        An unknown `matching` or `restoring_force`.
 
     References
     ----------
@@ -438,10 +458,15 @@ class ModelPredictor:
     step_average = True
 
     def __init__(self, model: DelayImpulseModel, alpha: float, mass_kg: float,
-                 loop_inverse: 'ForceLoopInverse | None' = None, matching: str = 'poles'):
+                 loop_inverse: 'ForceLoopInverse | None' = None, matching: str = 'poles',
+                 restoring_force: str = 'model'):
         if matching not in ('poles', 'impulse'):
             raise ParameterError(f"matching={matching!r}: expected one of 'poles', "
                                  "'impulse'")
+        if restoring_force not in ('model', 'measured'):
+            raise ParameterError(f'predictor_restoring_force={restoring_force!r}: expected '
+                                 "one of 'model', 'measured'")
+        self.measured_restoring_force = restoring_force == 'measured'
         self.model = model
         self.alpha = float(alpha)
         self.mass_kg = float(mass_kg)
@@ -460,6 +485,8 @@ class ModelPredictor:
             self._beta = float(beta)
             self._kx, self._kv = float(row[0]), float(row[1])
             self._feedback = _linear_map(row[2:], name='feedback')
+            # weight of the restoring-force offset d in F (class notes): 1 - beta + K H 1
+            self._offset_weight = 1.0 - self._beta + float(np.sum(row[2:]))
 
     @classmethod
     def from_parameters(cls, params) -> 'ModelPredictor':
@@ -473,6 +500,7 @@ class ModelPredictor:
         """
         mp = model_parameters(params)
         dt = float(params['dt'])
+        restoring = params.get('predictor_restoring_force', 'model')
         inverse = None
         tau = mp['tau_s']
         if params.get('rig_model') == 'servohydraulic':
@@ -482,7 +510,18 @@ class ModelPredictor:
             tau = (inverse.delay_steps + network_delay_steps(params)) * dt
         model = DelayImpulseModel(mp['mass_kg'], mp['damping_N_s_per_m'],
                                   mp['stiffness_N_per_m'], dt, tau)
-        return cls(model, float(params['alpha']), float(params['mass_kg']), inverse)
+        return cls(model, float(params['alpha']), float(params['mass_kg']), inverse,
+                   restoring_force=restoring)
+
+    def restoring_offset(self, latest: Measurement | None) -> float:
+        """``d = f_m - m a - c v - k x`` [N] of the latest sample: the measured restoring
+        force less the model's (0 without a sample or with ``restoring_force='model'``)."""
+        if latest is None or not self.measured_restoring_force:
+            return 0.0
+        model = self.model
+        return (latest.force_N - model.mass_kg * latest.acceleration_m_s2
+                - model.damping_N_s_per_m * latest.velocity_m_s
+                - model.stiffness_N_per_m * latest.displacement_m)
 
     def force(self, s_hat, ground_force_N: float) -> float:
         """The held force F [N] for the predicted state `s_hat` and ground force G [N]."""
@@ -503,9 +542,10 @@ class ModelPredictor:
         same numbers within rounding).
         """
         x, v = (0.0, 0.0) if latest is None else (latest.displacement_m, latest.velocity_m_s)
+        offset = self.restoring_offset(latest)
         if self._feedback is None:
-            s_hat = self.model.state_ahead(x, v, _past(commanded_N, self.model.n + 2))
-            force = self.force(s_hat, ground_force_N)
+            s_hat = self.model.state_ahead(x, v, _past(commanded_N, self.model.n + 2) - offset)
+            force = self.force(s_hat, ground_force_N - offset) + offset
         else:
             count = self._n_past
             past = commanded_N[-count:]
@@ -513,6 +553,8 @@ class ModelPredictor:
                 past = self._zeros[len(past):] + list(past)
             force = self._beta * ground_force_N - (self._kx * x + self._kv * v
                                                    + self._feedback(past))
+            if offset:
+                force += offset * self._offset_weight
         if self.alpha == 0.0:
             return 0.0
         return (ground_force_N - force) / (self.alpha * self.mass_kg)
@@ -520,6 +562,136 @@ class ModelPredictor:
     def command(self, force_N: float) -> float:
         """The command for the actuator: `force_N` through the loop inverse, if any."""
         return force_N if self.loop_inverse is None else self.loop_inverse.step(force_N)
+
+
+#: Tangent stiffnesses of :class:`TangentModelPredictor`'s models, as fractions of k:
+#: geometric steps 5 % apart through 1 (the configured k exactly), from 0.03 (below the 0.1
+#: post-yield ratio of the default Bouc-Wen member) to 1.34 (a member stiffer than
+#: configured).
+TANGENT_STIFFNESS_RATIOS = 1.05 ** np.arange(-72, 7)
+#: Displacement increment [m] that weighs the configured stiffness in the tangent-stiffness
+#: estimate: over a step much shorter than it (near a velocity reversal) the estimate keeps k.
+TANGENT_REGULARIZATION_M = 1e-5
+
+
+class TangentModelPredictor:
+    """``model`` with the measured restoring force and an online tangent stiffness.
+
+    For members that yield (``predictor_restoring_force: measured``). Each step the specimen's
+    tangent stiffness is estimated from the last change of the measured restoring force
+    ``f_s = f_m - m a - c v`` and of the displacement (a secant, regularized towards the
+    configured k over increments below ``TANGENT_REGULARIZATION_M = d0``)::
+
+        k_t = (df dx + d0^2 k) / (dx^2 + d0^2)
+
+    clipped to ``TANGENT_STIFFNESS_RATIOS`` times k, and the prediction is that of the
+    :class:`ModelPredictor` (``restoring_force='measured'``) of the nearest stiffness of the
+    table: the measured restoring force at the latest sample, extrapolated with k_t over the
+    horizon, with the poles of the structure linearized at k_t. One force-loop inverse (the
+    servohydraulic rig's, fitted to the configured specimen) is shared.
+
+    Parameters
+    ----------
+    build : callable
+        ``build(ratio)`` returns the :class:`ModelPredictor` (``restoring_force='measured'``)
+        of stiffness ``ratio`` times `stiffness_N_per_m`; called the first time the estimate
+        comes nearest to that ratio (the models are built as they are needed).
+    ratios : ndarray, shape (n,)
+        The table of stiffnesses as fractions of `stiffness_N_per_m`, increasing, > 0.
+    stiffness_N_per_m, mass_kg, damping_N_s_per_m : float
+        The configured model k [N/m], m [kg], c [N s/m].
+    loop_inverse : ForceLoopInverse, optional
+
+    Raises
+    ------
+    ParameterError
+        An empty table or a ratio not > 0.
+
+    References
+    ----------
+    Y. K. Wen (1976), Method for random vibration of hysteretic systems, J. Eng. Mech. Div.
+    102(2) (the tangent stiffness of a yielding member changes at each reversal, so it is
+    re-estimated every step); J. E. Carrion and B. F. Spencer Jr. (2007), NSEL Report 006
+    (model-based compensation); see :class:`ModelPredictor`.
+    """
+
+    name = 'model'
+    step_average = True
+
+    def __init__(self, build: Callable, ratios, stiffness_N_per_m: float, mass_kg: float,
+                 damping_N_s_per_m: float, loop_inverse: 'ForceLoopInverse | None' = None):
+        self.ratios = np.asarray(ratios, dtype=float)
+        if self.ratios.ndim != 1 or self.ratios.shape[0] == 0 or not np.all(self.ratios > 0):
+            raise ParameterError('tangent stiffness: expected a non-empty table of ratios > 0, '
+                                 f'got {ratios!r}')
+        self._build = build
+        self.bank: dict[int, ModelPredictor] = {}
+        self.k = float(stiffness_N_per_m)
+        self.m = float(mass_kg)
+        self.c = float(damping_N_s_per_m)
+        self.loop_inverse = loop_inverse
+        self._log_ratios = np.log(self.ratios)
+        self._d0_sq = TANGENT_REGULARIZATION_M ** 2
+        self._last = None           # (x, f_s) of the previous sample
+        self.index = int(np.argmin(np.abs(self._log_ratios)))     # k_t = k at the start
+        self.stiffness_ratio = float(self.ratios[self.index])
+        self.delay_s = self._model(self.index).delay_s
+
+    @classmethod
+    def from_parameters(cls, params) -> 'TangentModelPredictor':
+        """Build from the parameters of ``model`` (table ``TANGENT_STIFFNESS_RATIOS``)."""
+        first = ModelPredictor.from_parameters(dict(params, predictor_restoring_force='model'))
+        mp = model_parameters(params)
+
+        def build(ratio):
+            model = DelayImpulseModel(mp['mass_kg'], mp['damping_N_s_per_m'],
+                                      mp['stiffness_N_per_m'] * float(ratio), first.dt,
+                                      first.delay_s)
+            return ModelPredictor(model, first.alpha, first.mass_kg, restoring_force='measured')
+        return cls(build, TANGENT_STIFFNESS_RATIOS, mp['stiffness_N_per_m'], mp['mass_kg'],
+                   mp['damping_N_s_per_m'], first.loop_inverse)
+
+    def _model(self, index: int) -> 'ModelPredictor':
+        model = self.bank.get(index)
+        if model is None:
+            model = self.bank[index] = self._build(float(self.ratios[index]))
+        return model
+
+    def estimates(self) -> dict[str, float]:
+        """The tangent stiffness in use [N/m] (recorded with the run)."""
+        return {'tangent_stiffness_N_per_m': self.stiffness_ratio * self.k}
+
+    def observe(self, latest: Measurement) -> None:
+        """Update the tangent stiffness from `latest` (called by :meth:`predict`)."""
+        x = latest.displacement_m
+        f_s = latest.force_N - self.m * latest.acceleration_m_s2 - self.c * latest.velocity_m_s
+        if self._last is not None:
+            dx, df = x - self._last[0], f_s - self._last[1]
+            k_t = (df * dx + self._d0_sq * self.k) / (dx * dx + self._d0_sq)
+            ratio = k_t / self.k
+            log_ratio = math.log(ratio) if ratio > 0 else -math.inf
+            self.index = int(np.argmin(np.abs(self._log_ratios - log_ratio)))
+            self.stiffness_ratio = float(self.ratios[self.index])
+        self._last = (x, f_s)
+
+    def predict(self, latest: Measurement | None, commanded_N, ground_force_N: float = 0.0
+                ) -> float:
+        """The fed-back acceleration [m/s^2] of the model at the current tangent stiffness."""
+        if latest is not None:
+            self.observe(latest)
+        return self._model(self.index).predict(latest, commanded_N, ground_force_N)
+
+    def command(self, force_N: float) -> float:
+        """The command for the actuator: `force_N` through the loop inverse, if any."""
+        return force_N if self.loop_inverse is None else self.loop_inverse.step(force_N)
+
+
+def model_predictor(params):
+    """The ``model`` predictor: :class:`ModelPredictor`, or with ``predictor_restoring_force:
+    measured`` :class:`TangentModelPredictor`."""
+    if params.get('predictor_restoring_force', 'model') == 'measured':
+        return TangentModelPredictor.from_parameters(params)
+    return ModelPredictor.from_parameters(params)
 
 
 class ForceLoopInverse:

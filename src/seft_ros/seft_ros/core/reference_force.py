@@ -8,10 +8,10 @@ from seft_msgs_py.interface import Measurement
 from seft_ros.core.predictors import (
     AdaptivePredictor,
     AtsPredictor,
-    ModelPredictor,
     NoPredictor,
     PolynomialPredictor,
     foh_step_average,
+    model_predictor,
     network_delay_steps,
 )
 
@@ -58,7 +58,7 @@ class Predictor(Protocol):
 PREDICTORS: dict[str, Callable] = {
     'none': NoPredictor.from_parameters,
     'polynomial': PolynomialPredictor.from_parameters,
-    'model': ModelPredictor.from_parameters,
+    'model': model_predictor,
     'adaptive': AdaptivePredictor.from_parameters,
     'ats': AtsPredictor.from_parameters,
 }
