@@ -73,6 +73,8 @@ CASES = {
                                     'or a folder of run directories') + '; .+'),
     'compare_missing': (['compare', 'no_such_bag'],
                         re.escape('no_such_bag: no such bag or run directory')),
+    'run_domain_out_of_range': (['run', '--domain-id', '233', '--duration', '0.1'],
+                                re.escape('--domain-id=233: expected an integer 0-232')),
     'compare_foreign_bag': (['compare', 'foreign_bag'], re.escape(
         'foreign_bag: not a seft bag (no /seft/run_parameters message)')),
 }

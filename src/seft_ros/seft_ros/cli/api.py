@@ -32,7 +32,7 @@ from seft_ros.core.reference_force import PREDICTORS
 
 __all__ = ['build_runs', 'output_dir', 'run_experiments', 'simulate_experiments',
            'simulate_runs', 'compare_bags', 'find_bags', 'summary_table', 'criteria_table',
-           'Result', 'check_stability',
+           'Result', 'check_stability', 'check_domain',
            'stability_report', 'stability_table', 'StabilityResult', 'identify_bags']
 
 
@@ -319,14 +319,39 @@ class _InheritedClaim:
         """Nothing: the ancestor holds the claim."""
 
 
+#: The largest ROS domain id (Fast DDS's port mapping; REP 2005 / the ROS 2 domain-id docs).
+MAX_DOMAIN_ID = 232
+
+
+def _checked_domain(value, source: str) -> int:
+    """`value` as a ROS domain id, or InputError naming `source` (one line)."""
+    try:
+        domain = int(value)
+    except (TypeError, ValueError):
+        domain = -1
+    if str(value).strip() != str(domain) or not 0 <= domain <= MAX_DOMAIN_ID:
+        raise InputError(f'{source}={value!r}: expected an integer 0-{MAX_DOMAIN_ID}')
+    return domain
+
+
+def check_domain(domain_id: int | None = None) -> None:
+    """Check `domain_id` (``--domain-id``) and ``ROS_DOMAIN_ID``, if set.
+
+    Raises
+    ------
+    InputError
+        Either is not an integer 0-232 (the message names which).
+    """
+    if domain_id is not None:
+        _checked_domain(domain_id, '--domain-id')
+    if os.environ.get('ROS_DOMAIN_ID'):
+        _checked_domain(os.environ['ROS_DOMAIN_ID'], 'ROS_DOMAIN_ID')
+
+
 def _domain_id() -> int:
     env = os.environ.get('ROS_DOMAIN_ID')
     if env:
-        try:
-            value = int(env)
-        except ValueError:
-            raise InputError(f'ROS_DOMAIN_ID={env!r}: expected an integer 0-232') from None
-        return value
+        return _checked_domain(env, 'ROS_DOMAIN_ID')
     return random.SystemRandom().randint(100, 199)
 
 
@@ -359,7 +384,7 @@ def check_nodes(nodes: list[str], runs: list[dict]) -> list[str]:
 def _shared_domain(domain_id: int | None) -> int:
     """The ROS domain of a run over several hosts: given, never chosen at random."""
     if domain_id is not None:
-        return domain_id
+        return _checked_domain(domain_id, '--domain-id')
     if not os.environ.get('ROS_DOMAIN_ID'):
         raise InputError('--nodes: the hosts of a run must share its ROS domain; set '
                          'ROS_DOMAIN_ID (or --domain-id) to the same value on every host')
@@ -439,7 +464,7 @@ def run_experiments(*, runs: list[dict], out_dir: Path,
     from seft_ros.cli.runner import GraphRunner  # rclpy only for this verb
 
     t0 = time.monotonic()
-    chosen = domain_id if domain_id is not None else (
+    chosen = _checked_domain(domain_id, '--domain-id') if domain_id is not None else (
         _domain_id() if os.environ.get('ROS_DOMAIN_ID') else None)
     # claim the domain (seft_msgs_py.domain: no two seft processes of this machine meet),
     # then check that nothing else (nodes started by hand) publishes seft topics there

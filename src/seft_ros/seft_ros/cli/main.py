@@ -220,6 +220,8 @@ def main(argv=None) -> int:
             result = api.compare_bags(bags=args.bags, out_dir=out)
         else:
             runs, out, name = _experiments(args)
+            if args.verb == 'run':
+                api.check_domain(args.domain_id)        # a bad domain before anything runs
             _progress(f'{len(runs)} run(s) -> {out}')
             if args.verb == 'run':
                 result = api.run_experiments(runs=runs, out_dir=out, progress=_progress,
