@@ -11,8 +11,6 @@ latency and overrun statistics the ``pendulum_control`` demo of ros2/demos keeps
 from dataclasses import dataclass
 from pathlib import Path
 
-from matplotlib.backends.backend_agg import FigureCanvasAgg
-from matplotlib.figure import Figure
 import numpy as np
 from rosbags.rosbag2 import Reader
 from rosbags.typesys import Stores, get_typestore
@@ -198,6 +196,8 @@ def timing_figure(timing: dict[str, NodeTiming], path, *, title: str = '') -> Pa
     Path
         The written file.
     """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg  # only for the figure
+    from matplotlib.figure import Figure
     fig = Figure(figsize=(12, 7), layout='constrained')
     FigureCanvasAgg(fig)
     axes = fig.subplots(2, 2)

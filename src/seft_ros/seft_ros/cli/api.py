@@ -11,8 +11,6 @@ import re
 import time
 from typing import Any, Callable
 
-from matplotlib.backends.backend_agg import FigureCanvasAgg
-from matplotlib.figure import Figure
 import numpy as np
 
 from seft_msgs_py import parameters
@@ -22,7 +20,6 @@ from seft_msgs_py.errors import InputError, ParameterError, SeftError
 from seft_msgs_py.sampling import single_blas_thread
 from seft_ros.analysis.bag import read_run
 from seft_ros.analysis.reference import reference_response
-from seft_ros.analysis.report import write_report
 from seft_ros.analysis.rundata import RunData
 from seft_ros.cli.config import expand_runs, load_config, write_params_file
 from seft_ros.core import stability
@@ -106,6 +103,7 @@ def _run_label(p: dict, runs: list[dict] | None = None) -> str:
 
 
 def _finish(out_dir: Path, runs: list[RunData], title: str, t0: float) -> Result:
+    from seft_ros.analysis.report import write_report  # matplotlib: only for the report
     paths = write_report(runs, out_dir, title=title)
     summary = json.loads(Path(paths.summary_json).read_text())['runs']
     return Result(out_dir, runs, summary, time.monotonic() - t0)
@@ -820,6 +818,8 @@ def stability_report(*, out_dir: Path, config: str | None = None,
 
 def _plot_stability(smap: stability.StabilityMap, alphas: list[float], tau_s: float,
                     path: Path) -> Path:
+    from matplotlib.backends.backend_agg import FigureCanvasAgg  # only for the figure
+    from matplotlib.figure import Figure
     fig = Figure(figsize=(7.5, 4.8))
     FigureCanvasAgg(fig)
     ax = fig.add_subplot()
