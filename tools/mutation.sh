@@ -21,12 +21,12 @@ fi
 # module -> "source file (package-relative)|test files (tests/-relative, space separated)"
 declare -A table=(
     [monitor]='seft_ros/core/monitor.py|seft_ros/core/test_monitor.py seft_ros/core/test_findings.py'
-    [controller]='seft_ros/core/controller.py|seft_ros/core/test_controller.py'
+    [controller]='seft_ros/core/controller.py|seft_ros/core/test_controller.py seft_ros/core/test_force_controllers.py'
     [reference_force]='seft_ros/core/reference_force.py|seft_ros/core/test_reference_force.py'
     [predictors]='seft_ros/core/predictors.py|seft_ros/core/test_predictors.py'
     [delay_rig]='seft_plant_sim/delay_rig.py|seft_plant_sim/test_delay_rig.py'
     [servohydraulic]='seft_plant_sim/servohydraulic.py|seft_plant_sim/test_servohydraulic.py'
-    [metrics]='seft_ros/analysis/metrics.py|seft_ros/analysis/test_metrics.py'
+    [metrics]='seft_ros/analysis/metrics.py|seft_ros/analysis/test_metrics.py seft_ros/analysis/test_metrics_definitions.py seft_ros/analysis/test_nonlinear_metrics.py'
 )
 modules=("$@")
 [ ${#modules[@]} -gt 0 ] || modules=(monitor controller reference_force predictors delay_rig
@@ -58,8 +58,10 @@ for name in "${modules[@]}"; do
         echo '[mutmut]'
         echo 'source_paths = src'
         echo "only_mutate = src/$source_file"
-        echo "pytest_add_cli_args_test_selection = ${selection[*]}"
-        echo 'pytest_add_cli_args = -p no:cacheprovider -q'
+        # mutmut splits a list value at line breaks only: one test file (one argument) a line
+        echo 'pytest_add_cli_args_test_selection ='
+        printf '    %s\n' "${selection[@]}"
+        printf 'pytest_add_cli_args =\n    -p\n    no:cacheprovider\n    -q\n'
     } > "$work/setup.cfg"
     echo "== $name: src/$source_file against ${test_files[*]}"
     (cd "$work" && "$root/.venv/bin/mutmut" run --max-children "${MUTATION_JOBS:-1}" \

@@ -171,6 +171,8 @@ def shift(signal, lag_s: float, dt: float) -> np.ndarray:
     steps = lag_s / dt
     whole = round(steps)
     if abs(steps - whole) < 1e-9:
+        if abs(whole) >= n:                  # shifted past the record: nothing left
+            return out
         if whole >= 0:
             out[:n - whole] = x[whole:]
         else:
