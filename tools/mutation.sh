@@ -23,7 +23,7 @@ declare -A table=(
     [monitor]='seft_ros/core/monitor.py|seft_ros/core/test_monitor.py seft_ros/core/test_findings.py'
     [controller]='seft_ros/core/controller.py|seft_ros/core/test_controller.py seft_ros/core/test_force_controllers.py'
     [reference_force]='seft_ros/core/reference_force.py|seft_ros/core/test_reference_force.py'
-    [predictors]='seft_ros/core/predictors.py|seft_ros/core/test_predictors.py'
+    [predictors]='seft_ros/core/predictors.py|seft_ros/core/test_predictors_closed_forms.py seft_ros/core/test_tangent_predictor.py'
     [delay_rig]='seft_plant_sim/delay_rig.py|seft_plant_sim/test_delay_rig.py'
     [servohydraulic]='seft_plant_sim/servohydraulic.py|seft_plant_sim/test_servohydraulic.py'
     [metrics]='seft_ros/analysis/metrics.py|seft_ros/analysis/test_metrics.py seft_ros/analysis/test_metrics_definitions.py seft_ros/analysis/test_nonlinear_metrics.py'
@@ -32,6 +32,8 @@ modules=("$@")
 [ ${#modules[@]} -gt 0 ] || modules=(monitor controller reference_force predictors delay_rig
                                      servohydraulic metrics)
 
+# one BLAS thread: with threads competing on a loaded machine scipy's expm took 34 ms a call
+export OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MKL_NUM_THREADS=1
 scratch="$(mktemp -d "${TMPDIR:-/tmp}/seft-mutation.XXXXXX")"
 trap 'rm -rf "$scratch"' EXIT
 declare -A scores
