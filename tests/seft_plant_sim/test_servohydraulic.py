@@ -1,10 +1,17 @@
-"""Tests of the servo-hydraulic rig: calibration (paper Figs. 3-4, Sec. 4), exactness, limits."""
+"""Tests of the servo-hydraulic rig: calibration (paper Figs. 3-4, Sec. 4), exactness, limits.
+
+The time stepping against ``scipy.signal.lsim`` of the continuous model and against the
+analysis; the hysteretic (Bouc-Wen) rig against ``scipy.integrate.solve_ivp`` (DOP853) of the
+module's equations typed anew here. The calibration numbers themselves are derived from the
+equations in ``test_servohydraulic_loop.py``.
+"""
 
 import math
 
 import numpy as np
 import pytest
 from scipy import signal
+from scipy.integrate import solve_ivp
 
 from seft_msgs_py.errors import ParameterError
 from seft_msgs_py.interface import COMMAND_VALVE, Rig
@@ -27,7 +34,7 @@ from seft_plant_sim.servohydraulic import (
     substructure_state_matrix,
     valve_to_force,
 )
-from seft_plant_sim.specimen import LinearSpecimen, SafetyLimits
+from seft_plant_sim.specimen import BoucWenSpecimen, LinearSpecimen, SafetyLimits
 from seft_ros.core.controller import ForceServoController
 
 DT = 0.002
@@ -89,12 +96,13 @@ def pulse(n, steps=10, value=1.0):
 def test_hfu_zero_at_specimen_natural_frequency(params, specimen):
     zeros = np.roots(valve_to_force(params, specimen).num)
     assert len(zeros) == 2
-    # the zeros are the specimen's poles: 10.07 Hz, damping ratio c/(2 sqrt(k m)) = 0.135
-    np.testing.assert_allclose(np.abs(zeros) / (2 * np.pi), specimen.natural_frequency_hz,
-                               rtol=1e-9)
+    # the zeros are the specimen's poles: sqrt(k/m)/(2 pi) = 10.07 Hz, damping ratio
+    # c/(2 sqrt(k m)) = 0.135
+    fn = math.sqrt(specimen.stiffness_N_per_m / MASS) / (2 * np.pi)
+    np.testing.assert_allclose(np.abs(zeros) / (2 * np.pi), fn, rtol=1e-9)
     zeta = specimen.damping_N_s_per_m / (2 * math.sqrt(specimen.stiffness_N_per_m * MASS))
     np.testing.assert_allclose(-zeros.real / np.abs(zeros), zeta, rtol=1e-9)
-    assert specimen.natural_frequency_hz == pytest.approx(10.07, abs=0.01)
+    assert fn == pytest.approx(10.07, abs=0.005)
 
 
 def test_hfu_oil_column_resonance_near_90hz(params, specimen):
@@ -192,13 +200,11 @@ def test_controller_response_matches_freqz(controller):
 
 def test_loop_crossover_and_margins(params, specimen, controller):
     mg = loop_margins(params, specimen, controller)
-    # measured: crossover 13.62 Hz, phase margin 57.3 deg, gain margin 2.75 at 37.1 Hz
+    # the calibration targets (the figures, 13.62 Hz, 57.3 deg, 2.75 at 37.1 Hz, are derived
+    # from the equations in test_servohydraulic_loop.py)
     assert 10.0 < mg.crossover_hz < 14.0
     assert mg.phase_margin_deg > 30.0
     assert mg.gain_margin > 2.0
-    assert mg.crossover_hz == pytest.approx(13.62, abs=0.05)
-    assert mg.phase_margin_deg == pytest.approx(57.3, abs=0.5)
-    assert mg.gain_margin == pytest.approx(2.75, abs=0.02)
     # independent check of the margins on the loop response itself
     loop_c = loop_frequency_response(params, specimen, controller, [mg.crossover_hz])[0]
     assert abs(loop_c) == pytest.approx(1.0, abs=1e-9)
@@ -211,9 +217,8 @@ def test_loop_crossover_and_margins(params, specimen, controller):
 def test_closed_loop_flat_to_25hz(params, specimen, controller):
     f = np.linspace(0.5, 25.0, 491)
     mag = np.abs(closed_loop_force_response(params, specimen, controller, f))
-    # measured: 0.915 (at 25 Hz) .. 1.047 (at 15.5 Hz)
+    # 0.915 (at 25 Hz) .. 1.047 (at 15.5 Hz), derived in test_servohydraulic_loop.py
     assert 0.9 < mag.min() and mag.max() < 1.06
-    assert mag[-1] == pytest.approx(0.915, abs=0.005)
 
 
 def test_no_latency_droops_and_stays_stable(specimen, controller):
@@ -228,8 +233,7 @@ def test_no_latency_droops_and_stays_stable(specimen, controller):
 
 def test_equivalent_delay_about_10ms(params, specimen, controller):
     tau = equivalent_delay_s(params, specimen, controller)
-    assert 0.008 < tau < 0.012                   # measured 11.7 ms
-    assert tau == pytest.approx(0.01171, abs=5e-5)
+    assert 0.008 < tau < 0.012                   # 11.7 ms, derived in test_servohydraulic_loop
 
 
 @pytest.mark.parametrize('freq_hz', [2.0, 10.0, 20.0])
@@ -270,8 +274,7 @@ def test_stability_boundary_by_eigenvalues(params, specimen, controller):
     assert substructure_spectral_radius(params, specimen, controller, 1.0) < 1.0   # 0.979
     assert substructure_spectral_radius(params, specimen, controller, 1.5) > 1.0   # 1.014
     boundary = stability_boundary_alpha(params, specimen, controller)
-    assert 1.2 < boundary < 1.35
-    assert boundary == pytest.approx(1.317, abs=0.002)
+    assert 1.2 < boundary < 1.35                 # 1.317, derived in test_servohydraulic_loop
     rho = substructure_spectral_radius(params, specimen, controller, boundary)
     assert rho == pytest.approx(1.0, abs=1e-3)
 
@@ -456,3 +459,198 @@ def test_make_rig():
     with pytest.raises(ParameterError, match=r"^parameter rig_model='x': expected one of "
                                              r"'delay', 'servohydraulic'$"):
         make_rig(values)
+
+
+def test_readings_carry_the_sample_step_and_time(specimen):
+    rig = ServoHydraulicRig(specimen, DT)
+    assert rig.specimen is specimen
+    for _ in range(3):
+        rig.apply(0.1)
+    m = rig.measure()
+    assert (m.step, rig.step) == (3, 3)
+    assert m.time_s == pytest.approx(3 * DT, rel=1e-12) == rig.time_s
+
+
+def test_accelerometer_range_below_one(specimen):
+    """A range of 0.5 m/s^2 (any value > 0) reaches the sensors, from the constructor and from
+    the parameters; 0 means unlimited."""
+    rig = ServoHydraulicRig(specimen, DT, ServoHydraulicParams(accelerometer_range_m_s2=0.5))
+    assert rig.sensors.acceleration_range_m_s2 == 0.5
+    values = defaults()
+    values.update(accelerometer_range_m_s2=0.5)
+    assert ServoHydraulicRig.from_parameters(values).sensors.acceleration_range_m_s2 == 0.5
+    rig = ServoHydraulicRig(specimen, DT, ServoHydraulicParams(accelerometer_range_m_s2=0.0))
+    assert rig.sensors.acceleration_range_m_s2 is None
+
+
+# -- the hysteretic (Bouc-Wen) specimen -----------------------------------------------------------
+
+@pytest.fixture(scope='module')
+def bouc_wen():
+    """The default hysteretic specimen: k = 2.11e5 N/m, D_y = 4 mm, a = 0.1, n = 2,
+    beta = gamma = 0.5."""
+    return BoucWenSpecimen(MASS, 17.14 * MASS, 2.11e5)
+
+
+def hysteretic_reference(p, spec, u):
+    """States ``[x, x', p_L, x_v, y_f, y_f', y_a, y_a', z]`` at t_k of the module equations with
+    ``k x`` replaced by the Bouc-Wen spring (typed anew from the docstrings)::
+
+        tau_v x_v' = u(t - tau_io) - x_v,   C_h p_L' = k_q x_v - (K_c + C_l) p_L - A x'
+        m x'' = A p_L - c x' - a k x - (1 - a) k D_y z
+        z' = (x'/D_y)(1 - |z|^n (beta sgn(x' z) + gamma))
+        y'' = w_a^2 (input - y) - sqrt(2) w_a y'   (force and acceleration filters)
+
+    under the held command delayed by tau_io = n dt + delta; DOP853, rtol 1e-12, per piece.
+    With the filter disabled the filter states follow a 1 Hz filter (unused).
+    """
+    m, c, k = spec.mass_kg, spec.damping_N_s_per_m, spec.stiffness_N_per_m
+    a, dy, nn = spec.post_yield_stiffness_ratio, spec.yield_displacement_m, spec.bouc_wen_n
+    beta, gamma = spec.bouc_wen_beta, spec.bouc_wen_gamma
+    area, ch = p.piston_area_m2, p.actuator_volume_m3 / (4 * p.oil_bulk_modulus_Pa)
+    kt = p.valve_pressure_coefficient_m3_per_s_Pa + p.leakage_coefficient_m3_per_s_Pa
+    kq, tv = p.valve_flow_gain_m3_per_s_V, p.valve_time_constant_s
+    wa = 2 * np.pi * (p.anti_alias_cutoff_hz or 1.0)
+
+    def rates(t, s, command):
+        x, v, pl, xv, yf, yfd, ya, yad, z = s
+        force = area * pl
+        acc = (force - c * v - a * k * x - (1 - a) * k * dy * z) / m
+        return [v, acc, (kq * xv - kt * pl - area * v) / ch, (command - xv) / tv,
+                yfd, wa ** 2 * (force - yf) - math.sqrt(2) * wa * yfd,
+                yad, wa ** 2 * (acc - ya) - math.sqrt(2) * wa * yad,
+                v / dy * (1 - abs(z) ** nn * (beta * np.sign(v * z) + gamma))]
+
+    n = int(math.floor(p.io_latency_s / DT + 1e-9))
+    delta = p.io_latency_s - n * DT
+    held = np.concatenate([np.zeros(n + 1), u])          # held[j + n + 1] = u[j]
+    s = np.zeros(9)
+    out = []
+    for i in range(len(u)):
+        out.append(s)
+        for command, h in ((held[i], delta), (held[i + 1], DT - delta)):
+            if h > 1e-15:
+                s = solve_ivp(rates, (0.0, h), s, args=(command,), method='DOP853',
+                              rtol=1e-12, atol=1e-14).y[:, -1]
+    return np.array(out)
+
+
+def valve_sine(n=300):
+    """0.5 V at 2 Hz, ramped in over 0.2 s: about 9 mm, twice the yield displacement."""
+    t = np.arange(n) * DT
+    return 0.5 * np.sin(2 * np.pi * 2.0 * t) * np.minimum(1.0, t / 0.2)
+
+
+@pytest.mark.parametrize('latency, cutoff, shape', [
+    (0.003, 0.0, {}),      # the default: 1.5 steps
+    (0.0013, 60.0, {}),    # below one step (the late command is the one being applied), filter
+    (0.004, 0.0, {}),      # whole steps
+    (0.003, 0.8, {}),      # a filter below 1 Hz (any cut-off > 0 enables it)
+    (0.003, 0.0, {'bouc_wen_n': 3.0, 'bouc_wen_beta': 0.7, 'bouc_wen_gamma': 0.1}),
+])
+def test_hysteretic_rig_matches_ode_solution(bouc_wen, latency, cutoff, shape):
+    """The RK4 rig (20 substeps) against DOP853 while the specimen yields (|z| -> z_max), with
+    the default Bouc-Wen shape and a sharper, asymmetric one (n = 3): state, z, readings
+    (filtered when enabled) and the true force to 1e-6 of their peaks (the rig's RK4 converges
+    to about 1e-8; a wrong coefficient or ordering gives 1e-3 or more)."""
+    if shape:
+        bouc_wen = BoucWenSpecimen(MASS, 17.14 * MASS, 2.11e5, **shape)
+    p = ServoHydraulicParams(io_latency_s=latency, anti_alias_cutoff_hz=cutoff,
+                             accelerometer_range_m_s2=0.0)
+    u = valve_sine()
+    ref = hysteretic_reference(p, bouc_wen, u)
+    rig = ServoHydraulicRig(bouc_wen, DT, p)
+    got = []
+    for uk in u:
+        m = rig.measure()
+        out = rig.outputs()
+        assert [m.force_N, m.acceleration_m_s2, m.displacement_m, m.velocity_m_s] == \
+            out[:4].tolist()
+        assert rig.true_force() == out[4]
+        got.append(np.concatenate([rig.state, [rig.hysteretic_z], out]))
+        rig.apply(uk)
+    got = np.array(got)
+    x, v, pl, xv, yf, _, ya, _, z = ref.T
+    force = p.piston_area_m2 * pl
+    k, a = bouc_wen.stiffness_N_per_m, bouc_wen.post_yield_stiffness_ratio
+    accel = (force - bouc_wen.damping_N_s_per_m * v - a * k * x
+             - (1 - a) * k * bouc_wen.yield_displacement_m * z) / MASS
+    measured = (yf, ya) if cutoff else (force, accel)
+    want = [x, v, pl, xv] + ([yf, ref[:, 5], ya, ref[:, 7]] if cutoff else []) + [z]
+    want += [measured[0], measured[1], x, v, force]
+    zmax = (bouc_wen.bouc_wen_beta + bouc_wen.bouc_wen_gamma) ** (-1 / bouc_wen.bouc_wen_n)
+    assert np.max(np.abs(z)) > 0.95 * zmax                   # it yields
+    assert got.shape[1] == len(want)
+    for col, w in enumerate(want):
+        assert np.max(np.abs(got[:, col] - w)) <= 1e-6 * np.max(np.abs(w)), col
+
+
+def test_hysteretic_substeps(bouc_wen):
+    """The default is the documented 20 RK4 substeps per step; 1 is allowed, fewer than one or
+    a non-integer count is a parameter error."""
+    u = valve_sine(100)
+    runs = {}
+    for n in (None, 20, 21, 1):
+        rig = ServoHydraulicRig(bouc_wen, DT) if n is None else \
+            ServoHydraulicRig(bouc_wen, DT, rk4_substeps=n)
+        rows = []
+        for uk in u:
+            rows.append(rig.outputs())
+            rig.apply(uk)
+        runs[n] = np.array(rows)
+    np.testing.assert_array_equal(runs[None], runs[20])
+    assert np.max(np.abs(runs[21] - runs[20])) > 0.0
+    assert np.max(np.abs(runs[1] - runs[20])) < 1e-3 * np.max(np.abs(runs[20]))
+    for bad in (0, -1, 2.5):
+        with pytest.raises(ParameterError,
+                           match=rf'^parameter rk4_substeps={bad!r}: expected int >= 1$'):
+            ServoHydraulicRig(bouc_wen, DT, rk4_substeps=bad)
+
+
+@pytest.mark.parametrize('limits, command, kind', [
+    (SafetyLimits(), 2.0, 'stroke'),         # 0.4 m/s: through 76 mm in 0.2 s, peak 6.3 kN
+    (SafetyLimits(1.0, 1500.0), 0.5, 'force'),   # the oil column's first ring: 1.6 kN
+])
+def test_hysteretic_limits_at_the_reference_state(bouc_wen, limits, command, kind):
+    """A constant valve command: the limit trips at the first sample where the reference
+    solution's |x| exceeds the stroke or |A p_L| the force limit, with its value."""
+    p = ServoHydraulicParams(accelerometer_range_m_s2=0.0)
+    u = np.full(150, command)
+    ref = hysteretic_reference(p, bouc_wen, u)
+    x, force = ref[:, 0], p.piston_area_m2 * ref[:, 2]
+    over = (np.abs(x) > limits.stroke_limit_m) | (np.abs(force) > limits.force_limit_N)
+    k_trip = int(np.argmax(over))
+    assert over[k_trip] and k_trip > 2
+    rig = ServoHydraulicRig(bouc_wen, DT, p, limits=limits)
+    for i in range(k_trip):
+        assert rig.limit_violation() is None, i
+        rig.apply(command)
+    if kind == 'stroke':
+        want = (f'stroke limit exceeded at t={k_trip * DT:.3f} s: |x|={abs(x[k_trip]):.4g} m'
+                f' > 0.076 m')
+    else:
+        want = (f'force limit exceeded at t={k_trip * DT:.3f} s: '
+                f'|f|={abs(force[k_trip]):.4g} N > 1500 N')
+    assert rig.limit_violation() == want
+
+
+def test_from_parameters_hysteretic_limits_and_substeps(bouc_wen):
+    """The specimen, the limits and the substeps reach the rig built from the parameters."""
+    values = defaults()
+    values.update(specimen_model='bouc_wen', stroke_limit_m=0.05, force_limit_N=3000.0)
+    rig = ServoHydraulicRig.from_parameters(values, rk4_substeps=3)
+    assert rig.specimen == bouc_wen
+    assert rig.limits == SafetyLimits(0.05, 3000.0)
+    u = valve_sine(60)
+
+    def run(r):
+        rows = []
+        for uk in u:
+            rows.append(r.outputs())
+            r.apply(uk)
+        return np.array(rows)
+
+    np.testing.assert_array_equal(run(rig), run(ServoHydraulicRig(bouc_wen, DT,
+                                                                  rk4_substeps=3)))
+    np.testing.assert_array_equal(run(ServoHydraulicRig.from_parameters(values)),
+                                  run(ServoHydraulicRig(bouc_wen, DT)))
