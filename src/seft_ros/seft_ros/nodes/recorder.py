@@ -90,10 +90,10 @@ FLUSH_TIMEOUT_S = 10.0
 #: After an abort (or a stop signal) without the rig's final status, the recorder waits the
 #: rig's safe ramp (``safe_ramp_s``) plus this long for it, then takes the rig for gone (a
 #: killed rig, a lost link) and closes the bag with what it has [s]. Long enough for a rig
-#: that is alive but slow on a loaded host (one took 2.9 s to act on an abort here in a
-#: lockstep run while the test suite loaded the machine): its final status then still makes
-#: it into the bag.
-RIG_SILENT_S = 3.0
+#: that is alive but slow on a loaded host (in lockstep runs while the test suite loaded the
+#: machine, one took 2.9 s to act on an abort, another 3.9 s, with the controller killed):
+#: its final status then still makes it into the bag.
+RIG_SILENT_S = 6.0
 #: The recorder acknowledges the recorded steps every this many steps (lockstep flow control).
 ACK_EVERY = 50
 #: Recorded topics (``topics.BAG_TOPICS``).
