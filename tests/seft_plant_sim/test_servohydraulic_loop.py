@@ -401,12 +401,14 @@ def test_latency_is_a_pure_transport_delay(specimen, latency_s, shift):
 # -- loop numbers: crossover, margins, closed loop, equivalent delay, stability boundary ----------
 
 @lru_cache
-def derived_margins(gain=1.0):
+def derived_margins(gain=1.0, differentiate=False):
     """Crossover [Hz], phase margin [deg] in (-180, 180], gain margin and phase crossover [Hz]
-    of g C P: the first fall of |L| through 1, 180 deg + arg L there, and the smallest 1/|L|
-    where L crosses the negative real axis below Nyquist."""
+    of g C P (times 1 - z^-1 if `differentiate`): the first fall of |L| through 1,
+    180 deg + arg L there, and the smallest 1/|L| where L crosses the negative real axis
+    below Nyquist."""
     def lg(f):
-        return gain * loop(f)
+        diff = 1 - np.exp(-2j * np.pi * np.asarray(f) * DT) if differentiate else 1.0
+        return gain * diff * loop(f)
 
     f = np.logspace(-1, math.log10(0.999 / (2 * DT)), 3000)
     scan = lg(f)
@@ -443,9 +445,10 @@ def test_loop_margins_are_the_derived_ones(params, specimen, controller):
 class _Scaled:
     """Paper Eq. 3.1's discrete controller times a gain (the controller protocol: bz, az, dt)."""
 
-    def __init__(self, gain):
+    def __init__(self, gain, differentiate=False):
         base = ForceServoController(DT)
-        self.bz, self.az, self.dt = gain * np.asarray(base.bz), list(base.az), DT
+        bz = np.convolve(base.bz, [1.0, -1.0]) if differentiate else np.asarray(base.bz)
+        self.bz, self.az, self.dt = gain * bz, list(base.az), DT
 
 
 @pytest.mark.parametrize('gain', [4.0, 1e-3, -2.73])
@@ -471,6 +474,21 @@ def test_loop_margins_of_scaled_controllers(params, specimen, gain):
         assert fc > fp and pm < 0.0
     else:
         assert -180.0 < pm < -179.0 and fp > 80.0
+
+
+@pytest.mark.parametrize('gain', [100.0, 200.0])
+def test_loop_margins_of_a_differentiating_controller(params, specimen, gain):
+    """g (1 - z^-1) x Eq. 3.1 (numerator one longer than the denominator): |L| starts below 1
+    at 0.01 Hz (g = 100: 0.73) or above (g = 200: 1.45) and falls through 1 only high up, at
+    157 Hz and 173 Hz; the gain margin is at 64.3 Hz. The scan finds them over its whole
+    band, up to 0.999 of Nyquist."""
+    fc, pm, gm, fp = derived_margins(gain, differentiate=True)
+    assert 150.0 < fc < 250.0 and fp == pytest.approx(64.3, abs=0.1)
+    mg = loop_margins(params, specimen, _Scaled(gain, differentiate=True))
+    assert mg.crossover_hz == pytest.approx(fc, abs=1e-7)
+    assert mg.phase_margin_deg == pytest.approx(pm, abs=1e-6)
+    assert mg.gain_margin == pytest.approx(gm, rel=1e-8)
+    assert mg.phase_crossover_hz == pytest.approx(fp, abs=1e-7)
 
 
 def test_closed_loop_and_equivalent_delay_are_the_derived_ones(params, specimen, controller):
