@@ -121,6 +121,7 @@ class GraphRunner:
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         self.statuses = []
+        self._bag_path: Path | None = None    # the bag of the run in progress
         self.node.create_subscription(STATUS.msg_type, STATUS.name, self._on_status, STATUS.qos)
         self.node_params: dict[str, dict] = {}
         self.node.create_subscription(NODE_PARAMETERS.msg_type, NODE_PARAMETERS.name,
@@ -214,6 +215,7 @@ class GraphRunner:
         log_dir = run_dir / 'logs'
         log_dir.mkdir(parents=True, exist_ok=True)
         bag_path = run_dir / 'bag'
+        self._bag_path = bag_path
         params = dict(params, bag_path=str(bag_path.resolve()), wait_for_recorder=True)
         params_file = write_params_file(params, run_dir / 'params.yaml')
         graph = ['recorder', *parameters.graph_nodes(params['rig_model'])]
@@ -324,18 +326,31 @@ class GraphRunner:
                             f'{_last_line(log_dir / f"{name}.log")} '
                             f'(log: {log_dir / f"{name}.log"}; {saved})')
 
+    def _closed_on_disk(self, procs) -> bool:
+        """The recorder of this host exited cleanly and its bag is closed on disk (rosbags
+        writes ``metadata.yaml`` on close only): the run is over even when its last status
+        reports never reached this runner (a short run on a fast machine can end before the
+        runner has discovered every node's status publisher; the statuses are in the bag)."""
+        recorder = procs.get('recorder')
+        return (recorder is not None and recorder.poll() == 0 and self._bag_path is not None
+                and (self._bag_path / 'metadata.yaml').is_file())
+
     def _wait_ready(self, names, procs, log_dir) -> None:
         """Wait until every node of `names` has reported ready (or running), or the run is
         already over (a short run may end before this runner has discovered a node)."""
         deadline = time.monotonic() + STARTUP_TIMEOUT_S
         gone: dict[str, float] = {}     # node -> when it was seen exited (code 0) unheard
         while not all(self._latest(n, (STATE_READY, STATE_RUNNING)) for n in names):
-            if self._latest('rig', (STATE_DONE, STATE_ABORTED, STATE_FAILED)):
+            if (self._latest('rig', (STATE_DONE, STATE_ABORTED, STATE_FAILED))
+                    or self._closed_on_disk(procs)):
                 return
             self._check_parameters()
             self._check_procs(procs, log_dir)
+            rig = procs.get('rig')
+            rig_over = rig is not None and rig.poll() is not None
             for n in names:
-                if procs[n].poll() == 0 and not self._latest(n):
+                # with the rig of this host gone too the run is over: wait for the bag
+                if procs[n].poll() == 0 and not self._latest(n) and not rig_over:
                     # ended cleanly before its reports reached this runner: give them (and
                     # the rig's final status) a moment before calling it a failed start
                     since = gone.setdefault(n, time.monotonic())
@@ -398,7 +413,7 @@ class GraphRunner:
             final = self._latest('rig', (STATE_DONE, STATE_ABORTED, STATE_FAILED))
             over = (self._latest('recorder', (STATE_CLOSED,)) or (
                 not recorded_here and all(p.poll() is not None for p in procs.values())))
-            if over:
+            if over or (recorded_here and self._closed_on_disk(procs)):
                 self._check_stopped()
                 return final or {}
             if recorded_here and procs['recorder'].poll() is not None:
