@@ -117,6 +117,33 @@ def test_infinite_delay_is_a_parameter_error(specimen):
         DelayRig(specimen, DT, float('inf'))
 
 
+@pytest.mark.parametrize('tau', [1e-12, 1.9e-12])
+def test_a_delay_that_rounds_to_none_is_a_parameter_error(specimen, tau):
+    """Under 1e-9 dt (2e-12 s) a delay rounds to 0 whole steps and no remainder: the force of
+    step k would act at t_k+, before its command is known (the rig measured NaN forces before
+    this was refused; the stability check's model: test_stability.py)."""
+    match = (rf'^parameter tau_s={tau!r}: expected float > 0 \(at least 1e-09 dt = 2e-12 s: '
+             r'shorter rounds to no delay\)$')
+    with pytest.raises(ParameterError, match=match):
+        DelayRig(specimen, DT, tau)
+
+
+def test_the_shortest_delay_measures_the_previous_command(specimen):
+    """Just above 1e-9 dt (2.1e-12 s: 0 whole steps, remainder 2.1e-12 s) f_m[k] = f_r(t_k -
+    tau) is the command held over the previous step, f_r[k-1], and the specimen moves as under
+    the command without delay (lsim with the force of step k over [t_k, t_k+1)) to 1e-8 of
+    its peak: ten times the share of a step the previous force still acts, 2.1 ps / 2 ms."""
+    fr = np.random.default_rng(7).standard_normal(200) * 1000.0
+    out = run(DelayRig(specimen, DT, 2.1e-12), fr)
+    np.testing.assert_array_equal(out[1:, 0], fr[:-1])
+    assert out[0, 0] == 0.0
+    a, b = specimen.state_space()
+    sys = signal.StateSpace(a, b, np.eye(2), np.zeros((2, 1)))
+    _, y, _ = signal.lsim(sys, fr, np.arange(len(fr)) * DT, interp=False)
+    for got, ref in ((out[:, 1], y[:, 0]), (out[:, 2], y[:, 1])):
+        assert np.max(np.abs(got - ref)) <= 1e-8 * np.max(np.abs(ref))
+
+
 def test_readings_carry_the_sample_step_and_time(specimen):
     rig = DelayRig(specimen, DT, 0.01)
     for _ in range(3):

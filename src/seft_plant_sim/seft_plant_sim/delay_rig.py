@@ -19,9 +19,24 @@ from seft_plant_sim.specimen import (
     substeps,
 )
 
-__all__ = ['DelayRig']
+__all__ = ['DelayRig', 'delay_split']
 
 
+def delay_split(tau_s: float, dt: float) -> tuple[int, float]:
+    """The actuator delay as whole steps and a remainder, ``tau = n dt + delta``
+    (:func:`~seft_msgs_py.sampling.split_delay`), for a delay that is one.
+
+    Raises
+    ------
+    ParameterError
+        `tau_s` is so short (under 1e-9 `dt`) that it rounds to no delay at all: the force
+        of step k would act at t_k+, before the command of step k is known.
+    """
+    n, delta = split_delay(tau_s, dt)
+    if n == 0 and delta == 0.0:
+        raise ParameterError(f'parameter tau_s={tau_s!r}: expected float > 0 (at least 1e-09 '
+                             f'dt = {1e-9 * dt:g} s: shorter rounds to no delay)')
+    return n, delta
 
 
 class DelayRig:
@@ -58,7 +73,8 @@ class DelayRig:
     Raises
     ------
     ParameterError
-        If ``dt <= 0``, ``tau_s <= 0`` or ``rk4_substeps < 1``.
+        If ``dt <= 0``, ``tau_s <= 0`` (or under 1e-9 ``dt``, :func:`delay_split`) or
+        ``rk4_substeps < 1``.
 
     References
     ----------
@@ -79,7 +95,7 @@ class DelayRig:
         self.tau_s = float(tau_s)
         self.sensors = sensors or Sensors()
         self.limits = limits or SafetyLimits()
-        n, delta = split_delay(tau_s, dt)
+        n, delta = delay_split(tau_s, dt)
         self._n, self._delta = n, delta
         # past reference forces, newest last: f_r[k-n-1], ..., f_r[k-1]
         self._history = deque([0.0] * (n + 1), maxlen=n + 1)
@@ -122,9 +138,8 @@ class DelayRig:
 
     def _force_now(self) -> float:
         """Actuator force at t_k+ = f_r(t_k - tau)."""
-        if self._delta == 0.0:
-            return self._history[1] if self._n >= 1 else float('nan')
-        return self._history[0]
+        # a delay of whole steps has n >= 1 (delay_split): f_r[k-n]; else f_r[k-n-1]
+        return self._history[1] if self._delta == 0.0 else self._history[0]
 
     @property
     def time_s(self) -> float:

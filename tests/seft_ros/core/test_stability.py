@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from scipy import signal
 
+from seft_msgs_py.errors import ParameterError
 from seft_plant_sim.servohydraulic import (
     ServoHydraulicParams,
     stability_boundary_alpha,
@@ -100,6 +101,14 @@ def test_delay_none_alpha_0_9_is_unstable_at_20_ms(delay_params):
     p = dict(delay_params, tau_s=0.02)
     assert st.largest_stable_alpha(p) == pytest.approx(0.813, abs=2e-3)
     assert st.spectral_radius(p, 0.9) > 1.0
+
+
+def test_a_delay_that_rounds_to_none_is_one_parameter_error(delay_params):
+    """tau_s under 1e-9 dt is no delay (the rig refuses it, test_delay_rig.py): the model of
+    the pre-run check says so in the rig's words (it failed with an IndexError, a traceback
+    from every seft simulate and seft run of such a tau)."""
+    with pytest.raises(ParameterError, match=r'^parameter tau_s=1e-12: expected float > 0 '):
+        st.loop_model(dict(delay_params, tau_s=1e-12))
 
 
 def test_delay_none_neutral_limit_over_a_range_of_delays(delay_params):

@@ -46,6 +46,7 @@ import numpy as np
 from seft_msgs_py.errors import SeftError
 from seft_msgs_py.interface import Measurement
 from seft_msgs_py.sampling import zoh as _zoh
+from seft_plant_sim.delay_rig import delay_split
 from seft_plant_sim.servohydraulic import OUTPUTS, ServoHydraulicParams, sample
 from seft_plant_sim.specimen import LinearSpecimen
 from seft_ros.core.controller import ForceServoController
@@ -371,11 +372,8 @@ def _delay_rig(params: Mapping):
     :class:`~seft_plant_sim.delay_rig.DelayRig`.
     """
     spec = LinearSpecimen.from_parameters(params)
-    dt, tau = float(params['dt']), float(params['tau_s'])
-    n = int(np.floor(tau / dt + 1e-9))
-    delta = tau - n * dt
-    if abs(delta) < 1e-9 * dt:
-        delta = 0.0
+    dt = float(params['dt'])
+    n, delta = delay_split(float(params['tau_s']), dt)
     a_s, b_s = spec.state_space()
     phi, _ = _zoh(a_s, b_s, dt)
     phi_rest, g_late = _zoh(a_s, b_s, dt - delta)
