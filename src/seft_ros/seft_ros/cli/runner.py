@@ -69,6 +69,11 @@ RUNNER_NAME = 'seft_runner'
 
 #: Longest time without any progress report before the run is declared stalled [s].
 STALL_TIMEOUT_S = 30.0
+#: How long the runner listens before it says what already runs in its domain [s]. A node
+#: that has made its start-up announcements is discovered at its next periodic one (Fast
+#: DDS: every 3 s): measured on this machine, a node started 2 s earlier took a new runner
+#: 1.7 s to discover in 5 of 6 tries (the former 1 s missed it), up to 2.7 s otherwise.
+DISCOVERY_SETTLE_S = 3.5
 
 
 def node_command(node: str, params_file) -> list[str]:
@@ -128,7 +133,7 @@ class GraphRunner:
                                       self._on_node_parameters, NODE_PARAMETERS.qos)
         self.status_pub = self.node.create_publisher(STATUS.msg_type, STATUS.name, STATUS.qos)
 
-    def busy_topics(self, settle_s: float = 1.0) -> list[str]:
+    def busy_topics(self, settle_s: float = DISCOVERY_SETTLE_S) -> list[str]:
         """The seft topics that already have publishers in this domain (another run?).
 
         Two runs in one domain would mix their samples; the runner refuses to start then.
@@ -137,7 +142,7 @@ class GraphRunner:
         return [t.name for t in TOPICS if t is not STATUS
                 and self.node.count_publishers(t.name) > 0]
 
-    def present_nodes(self, names, settle_s: float = 1.0) -> list[str]:
+    def present_nodes(self, names, settle_s: float = DISCOVERY_SETTLE_S) -> list[str]:
         """Which of the node `names` already run in this domain (on any host)."""
         self._spin(settle_s)
         present = {n for n, _ in self.node.get_node_names_and_namespaces()}
