@@ -10,6 +10,7 @@
 # on one worker (MUTATION_JOBS to change it), prints the score (killed / all mutants) and lists
 # the surviving mutants with their diffs. mutmut is installed into .venv on first use; it is
 # not a dependency of the project or of its test run. Never the node-graph tests.
+# MUTATION_KEEP=1 keeps the scratch folder (removed at exit otherwise).
 set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 py="$root/.venv/bin/python"
@@ -35,7 +36,11 @@ modules=("$@")
 # one BLAS thread: with threads competing on a loaded machine scipy's expm took 34 ms a call
 export OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MKL_NUM_THREADS=1
 scratch="$(mktemp -d "${TMPDIR:-/tmp}/seft-mutation.XXXXXX")"
-trap 'rm -rf "$scratch"' EXIT
+if [ -n "${MUTATION_KEEP:-}" ]; then
+    echo "scratch kept: $scratch (mutmut's results; cd there and 'mutmut run NAME' reruns one)"
+else
+    trap 'rm -rf "$scratch"' EXIT
+fi
 declare -A scores
 for name in "${modules[@]}"; do
     entry="${table[$name]:-}"
@@ -77,7 +82,9 @@ for name in "${modules[@]}"; do
     grep -v -E ': killed$' "$work/results.txt" | grep ': ' | while read -r line; do
         mutant="${line%%:*}"
         echo "-- survivor ${line}"
-        (cd "$work" && "$root/.venv/bin/mutmut" show "$mutant" 2>/dev/null | grep -E '^[-+][^-+]')
+        # (a diff without such lines, or a failed show, must not end the listing: set -e)
+        (cd "$work" && "$root/.venv/bin/mutmut" show "$mutant" 2>/dev/null \
+            | grep -E '^[-+][^-+]') || true
     done
 done
 echo '== scores (killed/all mutants)'
