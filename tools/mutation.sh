@@ -26,7 +26,7 @@ declare -A table=(
     [reference_force]='seft_ros/core/reference_force.py|seft_ros/core/test_reference_force.py'
     [predictors]='seft_ros/core/predictors.py|seft_ros/core/test_predictors_closed_forms.py seft_ros/core/test_tangent_predictor.py'
     [delay_rig]='seft_plant_sim/delay_rig.py|seft_plant_sim/test_delay_rig.py'
-    [servohydraulic]='seft_plant_sim/servohydraulic.py|seft_plant_sim/test_servohydraulic.py'
+    [servohydraulic]='seft_plant_sim/servohydraulic.py|seft_plant_sim/test_servohydraulic.py seft_plant_sim/test_servohydraulic_loop.py'
     [metrics]='seft_ros/analysis/metrics.py|seft_ros/analysis/test_metrics.py seft_ros/analysis/test_metrics_definitions.py seft_ros/analysis/test_nonlinear_metrics.py'
 )
 modules=("$@")

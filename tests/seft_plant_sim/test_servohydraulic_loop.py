@@ -401,14 +401,16 @@ def test_latency_is_a_pure_transport_delay(specimen, latency_s, shift):
 # -- loop numbers: crossover, margins, closed loop, equivalent delay, stability boundary ----------
 
 @lru_cache
-def derived_margins(gain=1.0, differentiate=False):
+def derived_margins(gain=1.0, differentiate=False, latency_s=TAU_IO):
     """Crossover [Hz], phase margin [deg] in (-180, 180], gain margin and phase crossover [Hz]
-    of g C P (times 1 - z^-1 if `differentiate`): the first fall of |L| through 1,
-    180 deg + arg L there, and the smallest 1/|L| where L crosses the negative real axis
-    below Nyquist."""
+    of g C P (times 1 - z^-1 if `differentiate`; P with the I/O latency `latency_s`): the
+    first fall of |L| through 1, 180 deg + arg L there, and the smallest 1/|L| where L
+    crosses the negative real axis below Nyquist."""
     def lg(f):
         diff = 1 - np.exp(-2j * np.pi * np.asarray(f) * DT) if differentiate else 1.0
-        return gain * diff * loop(f)
+        if latency_s == TAU_IO:
+            return gain * diff * loop(f)
+        return gain * diff * controller_z(f) * sampled(h_force, f, latency_s, terms=2000)
 
     f = np.logspace(-1, math.log10(0.999 / (2 * DT)), 3000)
     scan = lg(f)
@@ -489,6 +491,21 @@ def test_loop_margins_of_a_differentiating_controller(params, specimen, gain):
     assert mg.phase_margin_deg == pytest.approx(pm, abs=1e-6)
     assert mg.gain_margin == pytest.approx(gm, rel=1e-8)
     assert mg.phase_crossover_hz == pytest.approx(fp, abs=1e-7)
+
+
+def test_gain_margin_is_the_smallest_over_several_phase_crossovers(specimen):
+    """With a 10 ms I/O latency, 100 (1 - z^-1) x Eq. 3.1 crosses the negative real axis at
+    33.9 Hz with |L| = 16.8, then at 90.8 Hz with |L| = 29.2 (and at 154 Hz with 1.02): the
+    gain margin is the smallest 1/|L| of them all, 1/29.2 = 0.0342 at 90.8 Hz, not the first
+    crossing's 1/16.8 (the two within a factor of 2 of each other)."""
+    fc, pm, gm, fp = derived_margins(100.0, differentiate=True, latency_s=0.01)
+    assert fp == pytest.approx(90.8, abs=0.05) and gm == pytest.approx(1 / 29.2, rel=1e-3)
+    mg = loop_margins(ServoHydraulicParams(io_latency_s=0.01, accelerometer_range_m_s2=0.0),
+                      specimen, _Scaled(100.0, differentiate=True))
+    assert mg.gain_margin == pytest.approx(gm, rel=1e-8)
+    assert mg.phase_crossover_hz == pytest.approx(fp, abs=1e-7)
+    assert mg.crossover_hz == pytest.approx(fc, abs=1e-7)
+    assert mg.phase_margin_deg == pytest.approx(pm, abs=1e-6)
 
 
 def test_closed_loop_and_equivalent_delay_are_the_derived_ones(params, specimen, controller):
