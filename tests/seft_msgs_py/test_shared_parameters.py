@@ -85,7 +85,7 @@ def test_groups_minority_first_and_one_line_per_parameter(graph):
         'parameter alpha differs: recorder=1.5, ground_motion_publisher=0.0, '
         'force_servo_controller=0.0, reference_force_builder=0.5, rig=0.5',
         'parameter mass_kg differs: ground_motion_publisher=60.0, rig=60.0, '
-        'reference_force_builder=52.7, recorder=52.7',
+        'reference_force_builder=52.7, force_servo_controller=52.7, recorder=52.7',
         "parameter rig_model differs: rig='delay', reference_force_builder='servohydraulic', "
         "force_servo_controller='servohydraulic', recorder='servohydraulic'",
     ]
@@ -173,7 +173,8 @@ def test_shared_parameters_have_an_explicit_source():
       'adaptive_excitation_N', 'adaptive_max_deviation', 'adaptive_max_rate_per_s',
       'adaptive_loop', 'ats_window_s', 'monitor_cutoff_hz', 'monitor_window_s',
       'monitor_threshold', 'monitor_floor_N', 'network_delay_s',
-      'predictor_restoring_force'], 'reference_force_builder'),
+      'predictor_restoring_force', 'hysteresis_post_yield_ratio',
+      'hysteresis_yield_displacement_m', 'hysteresis_n'], 'reference_force_builder'),
     (['mass_kg', 'stiffness_N_per_m', 'damping_N_s_per_m', 'specimen_model',
       'post_yield_stiffness_ratio', 'yield_displacement_m', 'bouc_wen_n', 'bouc_wen_beta',
       'bouc_wen_gamma', 'rig_model', 'rig_calibration', 'tau_s', 'stroke_limit_m', 'force_limit_N',
@@ -189,8 +190,8 @@ def test_shared_parameters_have_an_explicit_source():
     (['excitation', 'excitation_input', 'excitation_amplitude', 'excitation_band_low_hz',
       'excitation_band_hz', 'excitation_seed'], 'ground_motion_publisher'),
     (['valve_limit_V', 'saturation_window_s', 'saturation_abort_fraction', 'force_controller',
-      'force_integral_hz', 'force_crossover_hz', 'velocity_lead_s', 'velocity_filter_hz'],
-     'force_servo_controller'),
+      'force_integral_hz', 'force_crossover_hz', 'velocity_lead_s', 'velocity_filter_hz',
+      'force_tangent_horizon_s'], 'force_servo_controller'),
     (['bag_path', 'bag_storage'], 'recorder'),
 ])
 def test_value_source_of_each_parameter(names, node):
@@ -200,7 +201,7 @@ def test_value_source_of_each_parameter(names, node):
 def test_value_source_lists_cover_the_schema():
     # + 1: realtime_priority, per node (the rig's value is the one reported); the second 6:
     # the excitation of identification runs
-    assert len(VALUE_SOURCE) == len(SCHEMA) == 25 + 38 + 6 + 6 + 8 + 2 + 1
+    assert len(VALUE_SOURCE) == len(SCHEMA) == 28 + 38 + 6 + 6 + 9 + 2 + 1
 
 
 def test_value_source_of_unknown_name_is_an_error():

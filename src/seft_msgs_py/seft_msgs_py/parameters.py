@@ -84,7 +84,7 @@ _GM = ('ground_motion_publisher',)
 _RFB = ('reference_force_builder',)
 _CTRL = ('force_servo_controller',)
 _RIG = ('rig',)
-_SPECIMEN = ('reference_force_builder', 'rig', 'recorder')
+_SPECIMEN = ('reference_force_builder', 'force_servo_controller', 'rig', 'recorder')
 _EXC = ('ground_motion_publisher', 'force_servo_controller', 'recorder')
 
 SCHEMA: tuple[ParamSpec, ...] = (
@@ -199,8 +199,23 @@ SCHEMA: tuple[ParamSpec, ...] = (
     ParamSpec('predictor_restoring_force', 'model', '', "'model': the restoring force in "
               "the 'model' predictor is k x (the linear specimen, the study's); 'measured': it "
               'is the measured one, f_m - m a - c v at the latest sample, extrapolated with '
-              'the tangent stiffness estimated online from its last change (for members that '
-              'yield).', choices=('model', 'measured'), nodes=_RFB + ('recorder',)),
+              'the tangent stiffness estimated online from its last change; '
+              "'hysteretic': a Bouc-Wen model of the member anchored on the measured restoring "
+              'force and identified online from the hysteresis_* guesses, integrated over the '
+              'horizon (for members that yield).', choices=('model', 'measured', 'hysteretic'),
+              nodes=_RFB + ('recorder',)),
+    ParamSpec('hysteresis_post_yield_ratio', 0.1, '', "Initial guess of the member's "
+              "post-yield / initial stiffness ratio for the 'hysteretic' compensator and the "
+              "'tangent_loop_shaping' force controller (identified online from there).", 0.0,
+              1.0, True, nodes=_RFB + _CTRL + ('recorder',)),
+    ParamSpec('hysteresis_yield_displacement_m', 0.004, 'm', "Initial guess of the member's "
+              "yield displacement (Bouc-Wen D_y) for the 'hysteretic' compensator and the "
+              "'tangent_loop_shaping' force controller.", 0.0, 1.0, True,
+              nodes=_RFB + _CTRL + ('recorder',)),
+    ParamSpec('hysteresis_n', 2.0, '', "Initial guess of the sharpness n of the member's "
+              "elastic-plastic transition (Bouc-Wen) for the 'hysteretic' compensator and the "
+              "'tangent_loop_shaping' force controller.", 1.0, 20.0, True,
+              nodes=_RFB + _CTRL + ('recorder',)),
     ParamSpec('predictor_loop_delay_steps', 10, '', "Servohydraulic rig, 'model': the force "
               'loop is inverted to a pure delay of this many steps.', 1, 50,
               nodes=_RFB + ('recorder',)),
@@ -263,8 +278,17 @@ SCHEMA: tuple[ParamSpec, ...] = (
               "'velocity_feedback' (velocity feedback compensation A/k_q of the "
               'control-structure interaction, Dimig et al. 1999, Zhao et al. 2005, with a PI '
               "force controller that cancels the oil column's leakage pole: the force loop "
-              "then does not depend on the specimen's stiffness).",
-              choices=('loop_shaping', 'integral', 'velocity_feedback'), nodes=_CTRL + _RFB),
+              "then does not depend on the specimen's stiffness); 'tangent_loop_shaping' "
+              "(C_f with its control-structure-interaction poles scheduled on the member's "
+              'tangent stiffness force_tangent_horizon_s ahead, from a Bouc-Wen model '
+              'identified online: for members that yield).',
+              choices=('loop_shaping', 'integral', 'velocity_feedback', 'tangent_loop_shaping'),
+              nodes=_CTRL + _RFB),
+    ParamSpec('force_tangent_horizon_s', 0.005, 's', "'tangent_loop_shaping': how far ahead "
+              "of the sample the member's tangent stiffness is predicted: when the valve "
+              'command acts on the flow (reference rig: I/O latency 3 ms and valve time '
+              'constant 2.5 ms; 5 ms measured best).', 0.0, 0.1,
+              nodes=_CTRL + _RFB),
     ParamSpec('force_integral_hz', 2.0, 'Hz', "Corner of the integral action of the 'integral' "
               'force controller.', 0.0, 100.0, True, nodes=_CTRL + _RFB),
     ParamSpec('force_crossover_hz', 12.0, 'Hz', "Crossover of the 'velocity_feedback' force "
@@ -578,6 +602,12 @@ _SHARED_SOURCE = {
     'force_controller': 'force_servo_controller', 'force_integral_hz': 'force_servo_controller',
     'force_crossover_hz': 'force_servo_controller', 'velocity_lead_s': 'force_servo_controller',
     'velocity_filter_hz': 'force_servo_controller',
+    'force_tangent_horizon_s': 'force_servo_controller',
+    # the member's model: the compensator's (its estimates are recorded); the tangent
+    # controller starts from the same guess
+    'hysteresis_post_yield_ratio': 'reference_force_builder',
+    'hysteresis_yield_displacement_m': 'reference_force_builder',
+    'hysteresis_n': 'reference_force_builder',
     'realtime_priority': 'rig',             # per node; the rig's is the clock's
     'watchdog_timeout_s': 'rig',            # the rig's watchdog; the others watch their inputs
     'network_delay_s': 'reference_force_builder',   # the delay its predictor compensates

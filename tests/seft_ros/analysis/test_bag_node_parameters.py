@@ -207,7 +207,7 @@ def test_source_node_wins_over_the_other_nodes(tmp_path, response, run_params):
     assert bag.params['alpha'] == 0.5
     assert bag.parameter_mismatches[1] == (
         'parameter mass_kg differs: rig=60.0, ground_motion_publisher=52.7, '
-        'reference_force_builder=52.7, recorder=52.7')
+        'reference_force_builder=52.7, force_servo_controller=52.7, recorder=52.7')
 
 
 def test_missing_source_falls_back_to_the_next_node_then_run_parameters(tmp_path, response,

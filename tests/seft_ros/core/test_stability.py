@@ -267,7 +267,8 @@ def test_check_run(reference_params):
     ok = st.check_run(dict(reference_params, alpha=1.0))
     assert ok.stable is True and ok.spectral_radius < 1.0
     assert ok.boundary_alpha == pytest.approx(1.317, abs=1e-3)
-    skipped = st.check_run(dict(reference_params, alpha=1.5, specimen_model='bouc_wen'))
-    assert skipped.stable is None and 'nonlinear' in skipped.message
+    skipped = st.check_run(dict(reference_params, alpha=1.5, specimen_model='bouc_wen',
+                                predictor='model', predictor_restoring_force='hysteretic'))
+    assert skipped.stable is None and 'not linear time-invariant' in skipped.message
     skipped = st.check_run(dict(reference_params, alpha=1.5, predictor='adaptive'))
     assert skipped.stable is None and 'not predicted' in skipped.message

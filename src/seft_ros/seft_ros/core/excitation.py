@@ -230,7 +230,8 @@ class OpenLoopValve:
         self.saturated = False
 
     def step(self, reference_force_N: float = 0.0, measured_force_N: float = 0.0,
-             velocity_m_s: float = 0.0, acceleration_m_s2: float = 0.0) -> float:
+             velocity_m_s: float = 0.0, acceleration_m_s2: float = 0.0,
+             displacement_m: float = 0.0) -> float:
         """Return the valve command [V] of the next step (the forces are ignored)."""
         k = self._k
         self._k = k + 1

@@ -7,8 +7,9 @@ One step k (the node that does it in the graph in brackets)::
 
     [rig]                     stop if rig.limit_violation(); m_k = rig.measure()
     [force_servo_controller]  u_k = C_e(f_r[k] - f_m[k]) + g_v (v_k + T_v a_k) (m_k's velocity
-                              and acceleration; g_v = 0 for loop shaping), or u_k = e[k] in
-                              an open-loop identification run; stop if the interlock trips
+                              and acceleration; g_v = 0 for loop shaping; the tangent design
+                              schedules C_e on m_k), or u_k = e[k] in an open-loop
+                              identification run; stop if the interlock trips
     [rig]                     rig.apply(u_k)            (delay rig: rig.apply(f_r[k]))
     [reference_force_builder] stop if the instability monitor trips on m_k (k+1 < N);
                               f_r[k+1] = -(1+alpha) m g[k+1] - alpha m a_hat(m_k, ...)
@@ -100,7 +101,8 @@ def simulate(params, *, progress: Callable[[int, int], None] | None = None,
             meas = measure()
             fm = meas.force_N
             if valve:
-                u = control(fr, fm, meas.velocity_m_s, meas.acceleration_m_s2)
+                u = control(fr, fm, meas.velocity_m_s, meas.acceleration_m_s2,
+                            meas.displacement_m)
                 reason = interlock_update(ctrl.saturated, meas.time_s)
                 if reason:
                     n_done, abort_node = k, 'force_servo_controller'

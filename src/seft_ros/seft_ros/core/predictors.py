@@ -56,7 +56,7 @@ __all__ = [
     'ATS_ESTIMATES', 'IdentifiedForceLoop', 'LOOP_ESTIMATES', 'LoopImpulseResponses',
     'force_loop_impulse_responses', 'step_average_force_impulse_response',
     'network_delay_steps', 'TangentModelPredictor', 'model_predictor',
-    'TANGENT_STIFFNESS_RATIOS',
+    'TANGENT_STIFFNESS_RATIOS', 'HystereticModelPredictor',
 ]
 
 
@@ -686,11 +686,163 @@ class TangentModelPredictor:
         return force_N if self.loop_inverse is None else self.loop_inverse.step(force_N)
 
 
+class HystereticModelPredictor:
+    """``model`` with a hysteretic model of the member, identified online.
+
+    For members that yield (``predictor_restoring_force: hysteretic``). The prediction of
+    :class:`ModelPredictor` integrates the specimen over the loop delay from the latest
+    measured state; here the specimen is ``m x'' + c x' + r(x, z) = f`` with the Bouc-Wen
+    restoring force of :class:`~seft_ros.core.hysteresis.HystereticMember`: its state z is
+    anchored on the measured restoring force ``f_m - m a - c v`` of the latest sample and
+    its parameters are identified online, so the prediction follows the member through
+    yielding and elastic unloading within the horizon (the linear model's k, or one tangent
+    stiffness held over the horizon, cannot: a member that yields in mid-prediction).
+
+    The state ``(x, v, z)`` at ``t_k-1`` is carried (classical RK4, ``RK4_SUBSTEPS`` a step,
+    the branch of each substep's starting velocity) over ``[t_k-1, t_k + tau)`` by the forces
+    already sent (the timing of :class:`DelayImpulseModel`), then over the interval of the
+    new force F; the step-average acceleration of that interval is
+    ``a_hat = (v(t_k+1 + tau) - v(t_k + tau))/dt`` and F solves the held-force law of
+    paper Eq. 2.5, ``F = G - alpha m a_hat(F)`` (impulse matching, see
+    :class:`ModelPredictor`), by the secant method from ``F = G`` (two integrations of the
+    step, exact for the linear part). On the servohydraulic rig the force loop is inverted
+    to a pure delay by :class:`ForceLoopInverse`, as for ``model``.
+
+    Parameters
+    ----------
+    member : HystereticMember
+        The model of the member (nominal m, c of the restoring force and of the prediction).
+    alpha : float >= 0
+    mass_kg : float > 0
+        Specimen mass m of the reference force [kg].
+    dt : float > 0
+        Control period [s].
+    tau_s : float >= 0
+        Delay over which the force reaches the specimen [s] (delay rig: the actuator delay;
+        servohydraulic rig: the inverted loop's delay plus a network delay).
+    loop_inverse : ForceLoopInverse, optional
+
+    References
+    ----------
+    J. E. Carrion and B. F. Spencer Jr. (2007), NSEL Report 006 (model-based compensation);
+    B. Wu and T. Wang (2014), Smart Struct. Syst. 14(6) (a model updated online in a hybrid
+    test); see :mod:`seft_ros.core.hysteresis`.
+    """
+
+    name = 'model'
+    step_average = True
+    #: RK4 substeps per control step of the horizon integration.
+    RK4_SUBSTEPS = 2
+
+    def __init__(self, member, alpha: float, mass_kg: float, dt: float, tau_s: float,
+                 loop_inverse: 'ForceLoopInverse | None' = None):
+        if not (alpha >= 0 and mass_kg > 0 and dt > 0 and tau_s >= 0):
+            raise ParameterError('hysteretic predictor: expected alpha >= 0, m > 0, dt > 0 '
+                                 f'and tau >= 0, got {alpha!r}, {mass_kg!r}, {dt!r}, '
+                                 f'{tau_s!r}')
+        self.member = member
+        self.alpha, self.mass_kg, self.dt = float(alpha), float(mass_kg), float(dt)
+        self.delay_s = float(tau_s)
+        self.n, self.delta = _split_delay(tau_s, dt)
+        self.loop_inverse = loop_inverse
+        self._m, self._c = member.mass_kg, member.damping_N_s_per_m
+
+    @classmethod
+    def from_parameters(cls, params) -> 'HystereticModelPredictor':
+        """Build from the parameters of ``model`` and the ``hysteresis_*`` guesses."""
+        from seft_ros.core.hysteresis import HystereticMember, MemberGuess
+        first = ModelPredictor.from_parameters(dict(params, predictor_restoring_force='model'))
+        dt = float(params['dt'])
+        member = HystereticMember(MemberGuess.from_parameters(params), dt)
+        return cls(member, first.alpha, first.mass_kg, dt, first.delay_s, first.loop_inverse)
+
+    def estimates(self) -> dict[str, float]:
+        """The member model's tangent stiffness and parameters (recorded with the run)."""
+        return self.member.estimates()
+
+    def _carry(self, state, force_N: float, h: float, substeps: int):
+        """``(x, v, z)`` after `h` seconds under the held force `force_N` (RK4).
+
+        Until the member has shown that it yields (``HystereticMember.has_yielded``) it is
+        carried elastically (``dz/dx = 1/D_y``: the restoring force grows with k)."""
+        model, m_inv, c = self.member.model, 1.0 / self._m, self._c
+        x, v, z = state
+        ak, hk = model._ak, model._hk
+        hs = h / substeps
+        if self.member.has_yielded:
+            dz = model.dz_dx
+        else:
+            inv_dy = model._inv_dy
+
+            def dz(zz, d):
+                return inv_dy
+
+        for _ in range(substeps):
+            d = 1.0 if v >= 0.0 else -1.0
+            a1 = (force_N - c * v - ak * x - hk * z) * m_inv
+            z1 = v * dz(z, d)
+            x2, v2, zz2 = x + 0.5 * hs * v, v + 0.5 * hs * a1, z + 0.5 * hs * z1
+            a2 = (force_N - c * v2 - ak * x2 - hk * zz2) * m_inv
+            z2 = v2 * dz(zz2, d)
+            x3, v3, zz3 = x + 0.5 * hs * v2, v + 0.5 * hs * a2, z + 0.5 * hs * z2
+            a3 = (force_N - c * v3 - ak * x3 - hk * zz3) * m_inv
+            z3 = v3 * dz(zz3, d)
+            x4, v4, zz4 = x + hs * v3, v + hs * a3, z + hs * z3
+            a4 = (force_N - c * v4 - ak * x4 - hk * zz4) * m_inv
+            z4 = v4 * dz(zz4, d)
+            w = hs / 6.0
+            x += w * (v + 2.0 * (v2 + v3) + v4)
+            v += w * (a1 + 2.0 * (a2 + a3) + a4)
+            z += w * (z1 + 2.0 * (z2 + z3) + z4)
+        return x, v, z
+
+    def predict(self, latest: Measurement | None, commanded_N, ground_force_N: float = 0.0
+                ) -> float:
+        """The fed-back acceleration [m/s^2] (class notes); the member's model is updated
+        with `latest` first."""
+        member = self.member
+        if latest is not None:
+            member.observe_measurement(latest)
+        if self.alpha == 0.0:
+            return 0.0
+        count = self.n + 2
+        past = list(commanded_N[-count:])
+        if len(past) < count:                       # rest before t = 0
+            past = [0.0] * (count - len(past)) + past
+        if latest is None:
+            state = (0.0, 0.0, 0.0)
+        else:
+            state = (member.displacement_m, member.velocity_m_s, member.z)
+        dt, sub = self.dt, self.RK4_SUBSTEPS
+        if self.delta > 0.0:
+            state = self._carry(state, past[0], self.delta, 1)
+        for force in past[1:]:
+            state = self._carry(state, force, dt, sub)
+        v0, g, am = state[1], ground_force_N, self.alpha * self.mass_kg
+
+        def residual(force):          # F - G + alpha m a_hat(F)
+            return force - g + am * (self._carry(state, force, dt, sub)[1] - v0) / dt
+
+        f_a, r_a = g, residual(g)
+        f_b = g - r_a                   # F = G - alpha m a_hat(G)
+        r_b = residual(f_b)
+        force = f_b if r_b == r_a else f_b - r_b * (f_b - f_a) / (r_b - r_a)
+        return (g - force) / am
+
+    def command(self, force_N: float) -> float:
+        """The command for the actuator: `force_N` through the loop inverse, if any."""
+        return force_N if self.loop_inverse is None else self.loop_inverse.step(force_N)
+
+
 def model_predictor(params):
     """The ``model`` predictor: :class:`ModelPredictor`, or with ``predictor_restoring_force:
-    measured`` :class:`TangentModelPredictor`."""
-    if params.get('predictor_restoring_force', 'model') == 'measured':
+    measured`` :class:`TangentModelPredictor`, with ``hysteretic``
+    :class:`HystereticModelPredictor`."""
+    restoring = params.get('predictor_restoring_force', 'model')
+    if restoring == 'measured':
         return TangentModelPredictor.from_parameters(params)
+    if restoring == 'hysteretic':
+        return HystereticModelPredictor.from_parameters(params)
     return ModelPredictor.from_parameters(params)
 
 

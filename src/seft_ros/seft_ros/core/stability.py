@@ -412,14 +412,26 @@ def _servohydraulic_rig(params: Mapping):
     return a, b, c[rows]
 
 
-def _rig_name(params: Mapping) -> str:
+def _rig_name(params: Mapping, frozen: bool = False) -> str:
     name = params.get('rig_model')
     if name not in DELAY_PARAMETER:
         raise NoLinearModelError(f'rig {name!r}: no linear model')
     specimen = params.get('specimen_model', 'linear')
-    if specimen != 'linear':
+    if specimen != 'linear' and not (frozen and specimen == 'bouc_wen'):
         raise NoLinearModelError(f'specimen {specimen!r} is nonlinear')
     return name
+
+
+def tangent_ratios(params: Mapping) -> tuple[float, ...]:
+    """The tangent stiffnesses, as fractions of k, at which a run's loop is linearized.
+
+    ``(1.0,)`` for the linear specimen; for the Bouc-Wen member ``(1.0, a)``: its elastic
+    (initial) and post-yield stiffness (``post_yield_stiffness_ratio`` a, at least 1e-3), the
+    two ends of the tangent stiffness under monotonic loading.
+    """
+    if params.get('specimen_model', 'linear') != 'bouc_wen':
+        return (1.0,)
+    return (1.0, max(float(params.get('post_yield_stiffness_ratio', 0.1)), 1e-3))
 
 
 class LoopModel:
@@ -432,6 +444,12 @@ class LoopModel:
         (``specimen_model`` 'linear'), the rig's keys and ``predictor`` with its keys.
     comp : Compensator, optional
         Default: :func:`compensator` of `params`.
+    tangent_ratio : float, optional
+        Linearize a yielding member (``specimen_model`` 'bouc_wen' allowed) at the frozen
+        tangent stiffness ``tangent_ratio * k``: the rig's specimen has that stiffness, the
+        ``tangent_loop_shaping`` controller is scheduled to it
+        (:meth:`~seft_ros.core.controller.TangentLoopShaping.frozen`), and the compensator
+        keeps its own model. A necessary condition only: the member's stiffness changes.
 
     Attributes
     ----------
@@ -453,17 +471,24 @@ class LoopModel:
     (small signal).
     """
 
-    def __init__(self, params: Mapping, comp: Compensator | None = None):
-        rig = _rig_name(params)
+    def __init__(self, params: Mapping, comp: Compensator | None = None, *,
+                 tangent_ratio: float | None = None):
+        rig = _rig_name(params, frozen=tangent_ratio is not None)
         self.compensator = comp if comp is not None else compensator(params)
         self.mass_kg = float(params['mass_kg'])
+        plant = params
+        if tangent_ratio is not None:
+            plant = dict(params, stiffness_N_per_m=float(params['stiffness_N_per_m'])
+                         * float(tangent_ratio))
         if rig == 'delay':
-            a, b, cy = _delay_rig(params)
+            a, b, cy = _delay_rig(plant)
             ac = np.zeros((0, 0))
             bc, cc, dc = np.zeros((0, 3)), np.zeros((1, 0)), np.zeros((1, 3))
         else:
-            a, b, cy = _servohydraulic_rig(params)
+            a, b, cy = _servohydraulic_rig(plant)
             ctrl = ForceServoController.from_parameters(params)
+            if tangent_ratio is not None and hasattr(ctrl, 'frozen'):
+                ctrl = ctrl.frozen(tangent_ratio)
             ac, bc, cc, dc = ctrl.state_space()
         self._rig = (rig, a, b, cy, ac, bc, cc, dc)
         self._affine = None
@@ -762,15 +787,21 @@ def check_run(params: Mapping) -> StabilityCheck:
     """
     alpha, pred, rig = float(params['alpha']), params['predictor'], params.get('rig_model')
     where = f'alpha={alpha:g} with predictor {pred} on the {rig} rig'
+    ratios = tangent_ratios(params)
     try:
-        loop = loop_model(params)
+        comp = compensator(params)
+        loops = [LoopModel(params, comp, tangent_ratio=None if len(ratios) == 1 else r)
+                 for r in ratios]
     except NoLinearModelError as exc:
         return StabilityCheck(None, math.nan, math.nan,
                               f'{where}: stability not predicted, {exc}')
-    rho = float(loop.radii(alpha)[0])
-    bound = _scan(loop, max(3.0, 2.0 * alpha), 0.02, 1e-4)[0]
+    rho = max(float(loop.radii(alpha)[0]) for loop in loops)
+    bounds = [_scan(loop, max(3.0, 2.0 * alpha), 0.02, 1e-4)[0] for loop in loops]
+    bound = math.nan if any(math.isnan(b) for b in bounds) else min(bounds)
+    frozen = ('' if len(ratios) == 1 else ' at the elastic and the post-yield stiffness of '
+              f'the yielding member, frozen (k and {ratios[1]:g} k)')
     if rho < 1.0:
-        return StabilityCheck(True, rho, bound, f'{where} is predicted stable (spectral '
-                              f'radius {rho:.4f}, largest stable alpha {bound:.3g})')
-    return StabilityCheck(False, rho, bound, f'{where} is predicted unstable (largest '
-                          f'stable alpha {bound:.3g})')
+        return StabilityCheck(True, rho, bound, f'{where} is predicted stable{frozen} '
+                              f'(spectral radius {rho:.4f}, largest stable alpha {bound:.3g})')
+    return StabilityCheck(False, rho, bound, f'{where} is predicted unstable{frozen} '
+                          f'(largest stable alpha {bound:.3g})')

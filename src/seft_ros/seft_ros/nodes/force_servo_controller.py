@@ -60,8 +60,7 @@ class ForceServoControllerNode(SeftNode):
             self.watch_inputs([
                 self.scalar_subscription(REFERENCE_FORCE, self._on_reference_realtime),
                 self.measurement_subscription(
-                    lambda k, values: self._on_measured_realtime(k, values[0], values[2],
-                                                                 values[3]))], [self.pub])
+                    lambda k, values: self._on_measured_realtime(k, *values))], [self.pub])
         else:
             self.scalar_subscription(
                 REFERENCE_FORCE, lambda k, value: self._on_force(REFERENCE_FORCE.name, k, value))
@@ -76,9 +75,10 @@ class ForceServoControllerNode(SeftNode):
         if k > self.latest_reference[0]:
             self.latest_reference = (k, value)
 
-    def _on_measured_realtime(self, k: int, fm: float, v: float = 0.0, a: float = 0.0) -> None:
-        """u[k] from f_m[k] and the reference force of step k (``network_delay_s``: of step
-        k - m), else the newest one: act at once, never wait."""
+    def _on_measured_realtime(self, k: int, fm: float, x: float = 0.0, v: float = 0.0,
+                              a: float = 0.0) -> None:
+        """u[k] from the measurement of k (f_m, x, v, a) and the reference force of step k
+        (``network_delay_s``: of step k - m), else the newest one: act at once, never wait."""
         start, jitter = self.timing.start()
         self.watchdog.feed('measurement', k)
         self.watchdog.arm()
@@ -92,7 +92,7 @@ class ForceServoControllerNode(SeftNode):
         done = due if k >= self.playout_steps else due - 1     # f_r[0] serves steps 0..m
         for j in [j for j in self.reference if j <= done]:
             del self.reference[j]
-        u = self.controller.step(fr, fm, v, a)
+        u = self.controller.step(fr, fm, v, a, x)
         reason = self.interlock.update(self.controller.saturated, k * self.dt)
         if reason:
             self.abort_run(reason, k)
@@ -117,8 +117,8 @@ class ForceServoControllerNode(SeftNode):
             k = self.next_step
             forces = self.ready.pop(k)
             # the measurement: (force, displacement, velocity, acceleration), as simulate
-            fm, _, v, a = forces[MEASURED_FORCE.name]
-            u = self.controller.step(forces[REFERENCE_FORCE.name], fm, v, a)
+            fm, x, v, a = forces[MEASURED_FORCE.name]
+            u = self.controller.step(forces[REFERENCE_FORCE.name], fm, v, a, x)
             reason = self.interlock.update(self.controller.saturated, k * self.dt)
             if reason:
                 self.abort_run(reason, k)
