@@ -158,6 +158,18 @@ def servo_velocity(graph_dir, seft_exe, run_process):
 
 
 @pytest.fixture(scope='module')
+def servo_yielding(graph_dir, seft_exe, run_process):
+    # a member that yields (issue 10): the tangent-scheduled controller takes the whole
+    # measurement (its member model needs the displacement too), the hysteretic compensator
+    # records its model's estimates; 1000 N yields the member within the first 2 s
+    return seft_run(seft_exe, run_process, graph_dir / 'servo_yielding', '--alpha', '1.0',
+                    '--duration', '2.0', '--rig', 'servohydraulic', '--amplitude', '1000',
+                    '--predictor', 'model', '--set', 'specimen_model=bouc_wen', '--set',
+                    'force_controller=tangent_loop_shaping', '--set',
+                    'predictor_restoring_force=hysteretic')
+
+
+@pytest.fixture(scope='module')
 def servo_model(graph_dir, seft_exe, run_process):
     # compensated: the model predictor with its force-loop inverse, alpha beyond the
     # uncompensated boundary (1.32)
@@ -250,7 +262,8 @@ def test_servo_run_parameters_in_the_bag(servo):
 
 
 @pytest.mark.parametrize('which', ['servo', 'delay', 'servo_model', 'delay_adaptive',
-                                   'servo_window', 'servo_velocity', 'servo_open_loop'])
+                                   'servo_window', 'servo_velocity', 'servo_open_loop',
+                                   'servo_yielding'])
 def test_bag_equals_simulate(request, which):
     run = request.getfixturevalue(which)
     sim = run.sim
@@ -281,6 +294,22 @@ def test_compensated_graph_runs_are_stable_and_complete(request, which):
     run = request.getfixturevalue(which)
     assert run.sim.stable and run.sim.n_steps == 500
     assert run.params['predictor'] == which.split('_')[1]
+
+
+def test_yielding_member_graph_records_the_member_model(servo_yielding):
+    """Issue 10: the hysteretic compensator's model of the member is in the bag as
+    simulate has it, and the member yielded (its tangent fell below 0.2 k)."""
+    sim = servo_yielding.sim
+    rd = read_run(servo_yielding.bag)
+    assert sim.stable and sim.n_steps == 1000
+    assert list(rd.estimates) == list(sim.estimates) == [
+        'tangent_stiffness_N_per_m', 'hysteresis_stiffness_N_per_m',
+        'hysteresis_post_yield_ratio', 'hysteresis_yield_displacement_m', 'hysteresis_n',
+        'hysteresis_unloading_shape']
+    for name, values in sim.estimates.items():
+        np.testing.assert_allclose(rd.estimates[name], values, rtol=1e-12, atol=0,
+                                   err_msg=name)
+    assert np.min(sim.estimates['tangent_stiffness_N_per_m']) < 0.2 * 2.11e5
 
 
 def test_adaptive_estimates_are_recorded_as_simulate_has_them(delay_adaptive):

@@ -171,3 +171,15 @@ def test_hysteretic_compensator_records_the_member_model():
     assert est['hysteresis_yield_displacement_m'][-1] == pytest.approx(0.004, rel=0.05)
     assert np.min(est['tangent_stiffness_N_per_m']) < 0.2 * K
     assert math.isclose(est['tangent_stiffness_N_per_m'][0], K, rel_tol=1e-9)
+
+
+@pytest.mark.parametrize('opts', [
+    dict(predictor='adaptive'), dict(predictor='ats'),
+    dict(predictor='model', predictor_restoring_force='measured'), dict(HYSTERETIC)])
+def test_every_compensator_with_estimates_names_them(opts):
+    """The builder node records estimates under ESTIMATES (the batch's columns): it must list
+    what estimates() returns, in order (the 'measured' option had none, so its graph run
+    failed at the first reference force)."""
+    from seft_ros.core.reference_force import make_predictor
+    pred = make_predictor(parameters.resolve(dict(rig_model='delay', alpha=1.0, **opts)))
+    assert tuple(pred.ESTIMATES) == tuple(pred.estimates())

@@ -48,6 +48,7 @@ from seft_msgs_py.sampling import single_blas_thread as _single_blas_thread
 from seft_msgs_py.sampling import split_delay as _split_delay
 from seft_msgs_py.sampling import zoh as _zoh
 from seft_ros.core import identification as _ident
+from seft_ros.core.hysteresis import HYSTERESIS_ESTIMATES
 
 __all__ = [
     'NoPredictor', 'PolynomialPredictor', 'ModelPredictor', 'AdaptivePredictor',
@@ -617,6 +618,8 @@ class TangentModelPredictor:
 
     name = 'model'
     step_average = True
+    #: Names of :meth:`estimates`.
+    ESTIMATES = ('tangent_stiffness_N_per_m',)
 
     def __init__(self, build: Callable, ratios, stiffness_N_per_m: float, mass_kg: float,
                  damping_N_s_per_m: float, loop_inverse: 'ForceLoopInverse | None' = None):
@@ -731,6 +734,8 @@ class HystereticModelPredictor:
 
     name = 'model'
     step_average = True
+    #: Names of :meth:`estimates`.
+    ESTIMATES = HYSTERESIS_ESTIMATES
     #: RK4 substeps per control step of the horizon integration.
     RK4_SUBSTEPS = 2
 
