@@ -100,12 +100,12 @@ def test_from_parameters(specimen):
 
 
 @pytest.mark.parametrize('dt, tau, match', [
-    (0.0, 0.01, r'parameter dt=0\.0: expected float > 0'),
-    (-0.002, 0.01, r'parameter dt=-0\.002: expected float > 0'),
-    (float('nan'), 0.01, r'parameter dt=nan: expected float > 0'),
-    (DT, 0.0, r'parameter tau_s=0\.0: expected float > 0'),
-    (DT, -0.01, r'parameter tau_s=-0\.01: expected float > 0'),
-    (DT, float('nan'), r'parameter tau_s=nan: expected float > 0'),
+    (0.0, 0.01, r'^parameter dt=0\.0: expected float > 0$'),
+    (-0.002, 0.01, r'^parameter dt=-0\.002: expected float > 0$'),
+    (float('nan'), 0.01, r'^parameter dt=nan: expected float > 0$'),
+    (DT, 0.0, r'^parameter tau_s=0\.0: expected float > 0$'),
+    (DT, -0.01, r'^parameter tau_s=-0\.01: expected float > 0$'),
+    (DT, float('nan'), r'^parameter tau_s=nan: expected float > 0$'),
 ])
 def test_parameter_errors(specimen, dt, tau, match):
     with pytest.raises(ParameterError, match=match):
