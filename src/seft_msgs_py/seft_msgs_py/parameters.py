@@ -202,7 +202,8 @@ SCHEMA: tuple[ParamSpec, ...] = (
               'the tangent stiffness estimated online from its last change; '
               "'hysteretic': a Bouc-Wen model of the member anchored on the measured restoring "
               'force and identified online from the hysteresis_* guesses, integrated over the '
-              'horizon (for members that yield).', choices=('model', 'measured', 'hysteretic'),
+              "horizon (for members that yield). 'adaptive' and 'ats' take that member model "
+              "for both 'measured' and 'hysteretic'.", choices=('model', 'measured', 'hysteretic'),
               nodes=_RFB + ('recorder',)),
     ParamSpec('hysteresis_post_yield_ratio', 0.1, '', "Initial guess of the member's "
               "post-yield / initial stiffness ratio for the 'hysteretic' compensator and the "

@@ -149,6 +149,20 @@ def test_delay_rig_target_on_the_yielding_member(alpha):
         assert not run.stable
 
 
+@pytest.mark.parametrize('predictor, rig, limit', [
+    ('adaptive', 'delay', 0.015), ('adaptive', 'servohydraulic', 0.05),
+    ('ats', 'delay', 0.12), ('ats', 'servohydraulic', 0.12)])
+def test_adaptive_compensators_do_not_run_away_on_the_yielding_member(predictor, rig, limit):
+    """Issue 10: every compensator with a specimen model takes the member's restoring force
+    (predictor_restoring_force: hysteretic); at alpha = 2 on both rigs it stays stable (with
+    the elastic k, adaptive and ats hit the stroke limit at every alpha from 0.5; measured
+    with the member: adaptive 0.8 % delay / 2.8 % servohydraulic, ats 7.6 % / 7.5 %)."""
+    base = dict(YIELDING, rig_model=rig, alpha=2.0, amplitude_N=1000.0, predictor=predictor,
+                **(TANGENT if rig == 'servohydraulic' else {}))
+    assert nrms_x(dict(base, predictor_restoring_force='hysteretic')) < limit
+    assert not simulate(base).stable
+
+
 @pytest.mark.parametrize('alpha, predictor', [(0.0, 'none'), (1.0, 'model'), (1.5, 'model')])
 def test_linear_specimen_is_not_worse_with_the_scheduled_controller(alpha, predictor):
     """The linear specimen never leaves its elastic line, so the scheduled controller is the
@@ -175,7 +189,9 @@ def test_hysteretic_compensator_records_the_member_model():
 
 @pytest.mark.parametrize('opts', [
     dict(predictor='adaptive'), dict(predictor='ats'),
-    dict(predictor='model', predictor_restoring_force='measured'), dict(HYSTERETIC)])
+    dict(predictor='model', predictor_restoring_force='measured'), dict(HYSTERETIC),
+    dict(predictor='adaptive', predictor_restoring_force='hysteretic'),
+    dict(predictor='ats', predictor_restoring_force='hysteretic')])
 def test_every_compensator_with_estimates_names_them(opts):
     """The builder node records estimates under ESTIMATES (the batch's columns): it must list
     what estimates() returns, in order (the 'measured' option had none, so its graph run

@@ -801,20 +801,36 @@ class HystereticModelPredictor:
             z += w * (z1 + 2.0 * (z2 + z3) + z4)
         return x, v, z
 
+    def set_delay(self, tau_s: float) -> None:
+        """Change the delay of the prediction [s] (``adaptive`` identifies it)."""
+        self.delay_s = float(tau_s)
+        self.n, self.delta = _split_delay(self.delay_s, self.dt)
+
+    def free_velocity_increment(self, state) -> float:
+        """The velocity change [m/s] of the member model over one step from ``(x, v, z)``
+        with no force (the free response, which ``adaptive``'s delay identification takes
+        out of the measured increments)."""
+        return self._carry(state, 0.0, self.dt, self.RK4_SUBSTEPS)[1] - state[1]
+
     def predict(self, latest: Measurement | None, commanded_N, ground_force_N: float = 0.0
                 ) -> float:
         """The fed-back acceleration [m/s^2] (class notes); the member's model is updated
         with `latest` first."""
-        member = self.member
         if latest is not None:
-            member.observe_measurement(latest)
+            self.member.observe_measurement(latest)
+        return self.predict_observed(latest is not None, commanded_N, ground_force_N)
+
+    def predict_observed(self, measured: bool, commanded_N, ground_force_N: float) -> float:
+        """:meth:`predict` after the member has observed the latest sample (`measured`
+        False: none yet, the specimen at rest)."""
+        member = self.member
         if self.alpha == 0.0:
             return 0.0
         count = self.n + 2
         past = list(commanded_N[-count:])
         if len(past) < count:                       # rest before t = 0
             past = [0.0] * (count - len(past)) + past
-        if latest is None:
+        if not measured:
             state = (0.0, 0.0, 0.0)
         else:
             state = (member.displacement_m, member.velocity_m_s, member.z)
@@ -837,6 +853,19 @@ class HystereticModelPredictor:
     def command(self, force_N: float) -> float:
         """The command for the actuator: `force_N` through the loop inverse, if any."""
         return force_N if self.loop_inverse is None else self.loop_inverse.step(force_N)
+
+
+def _member_law(params, tau_s: float) -> 'HystereticModelPredictor | None':
+    """The hysteretic law of ``adaptive`` and ``ats`` for a member that yields
+    (``predictor_restoring_force`` 'measured' or 'hysteretic'; both take the member model
+    here), with the delay `tau_s` [s]; None for 'model' (the linear law)."""
+    if params.get('predictor_restoring_force', 'model') == 'model':
+        return None
+    from seft_ros.core.hysteresis import HystereticMember, MemberGuess
+    dt = float(params['dt'])
+    member = HystereticMember(MemberGuess.from_parameters(params), dt)
+    return HystereticModelPredictor(member, float(params['alpha']), float(params['mass_kg']),
+                                    dt, tau_s)
 
 
 def model_predictor(params):
@@ -1454,6 +1483,13 @@ class AdaptivePredictor:
         A delay identification is used only when its fit explains at least this fraction of
         the velocity increments' energy (``R^2 = 1 - residual / sum y^2``; measured: 0.9999
         in strong motion, 0.94-0.997 in the coda, where noise dominates).
+    member_law : HystereticModelPredictor, optional
+        For a member that yields (``predictor_restoring_force`` other than 'model'): the
+        restoring force is the member model's (identified by it), not ``k x``; m, c, k are
+        held at the configured values (the member's restoring force ``f_m - m a - c v``
+        needs them fixed), the delay identification takes the member model's free response
+        out of the measured velocity increments, and the law is this predictor with the
+        identified delay and gain. Its estimates follow ``gain``.
 
     Attributes
     ----------
@@ -1487,7 +1523,7 @@ class AdaptivePredictor:
                  mass_ref_kg, window_s=0.5, max_delay_s=0.03, update_steps=10, *,
                  memory_s=5.0, excitation_N=20.0, max_deviation=0.5, max_rate_per_s=1.0,
                  identify_specimen=True, loop_factory=None, min_fit_quality=0.995,
-                 loop_identification=None):
+                 loop_identification=None, member_law=None):
         m0, c0, k0, dt = (float(mass_kg), float(damping_N_s_per_m), float(stiffness_N_per_m),
                           float(dt))
         for name, value, ok in (
@@ -1505,11 +1541,14 @@ class AdaptivePredictor:
         self.max_delay_s = self.max_n * dt
         self.window = max(8, int(round(window_s / dt)))
         self.update_steps = int(update_steps)
-        self.identify_specimen = bool(identify_specimen)
+        self._member_law = member_law
+        self.identify_specimen = bool(identify_specimen) and member_law is None
         self._loop_factory = None if loop_identification is not None else loop_factory
         self.loop_identification = loop_identification
         if loop_identification is not None:
             self.ESTIMATES = ADAPTIVE_ESTIMATES + loop_identification.ESTIMATES
+        if member_law is not None:
+            self.ESTIMATES = self.ESTIMATES + HYSTERESIS_ESTIMATES
         self.prior = {'mass_kg': m0, 'damping_N_s_per_m': c0, 'stiffness_N_per_m': k0,
                       'tau_s': float(tau0_s), 'gain': 1.0}
         # normalised RLS on [m, c, k]; the damping scale is at least 5 % of critical
@@ -1579,7 +1618,8 @@ class AdaptivePredictor:
                    excitation_N=float(params.get('adaptive_excitation_N', 20.0)),
                    max_deviation=float(params.get('adaptive_max_deviation', 0.5)),
                    max_rate_per_s=float(params.get('adaptive_max_rate_per_s', 1.0)),
-                   loop_factory=factory, loop_identification=identified)
+                   loop_factory=factory, loop_identification=identified,
+                   member_law=_member_law(params, tau0))
 
     # -- estimates ---------------------------------------------------------------------------
 
@@ -1590,6 +1630,8 @@ class AdaptivePredictor:
         out = {name: guard.value for name, guard in self._guards.items()}
         if self.loop_identification is not None:
             out.update(self.loop_identification.estimates())
+        if self._member_law is not None:
+            out.update(self._member_law.estimates())
         return out
 
     @property
@@ -1624,6 +1666,8 @@ class AdaptivePredictor:
             return
         self._model_key = key
         self.model = DelayImpulseModel(m, c, k, self.dt, key[3] * self.dt / 64)
+        if self._member_law is not None:
+            self._member_law.set_delay(self.model.tau_s)
         alpha_eff = self.alpha * self.mass_ref_kg / m
         self._law = self.model.matching_gains(alpha_eff)
         a = np.array([[0.0, 1.0], [-k / m, -c / m]])
@@ -1687,11 +1731,16 @@ class AdaptivePredictor:
             s = self._scale
             self.rls.update((s[0] * latest.acceleration_m_s2, s[1] * v, s[2] * x),
                             latest.force_N)
+        member = self._member_law
         if self._prev is not None:
-            px, pv, j = self._prev
+            px, pv, j, pz = self._prev
             count = self.max_n + 2
-            self._rows.append((v - pv, px, pv,
-                               _past(self._sent[max(0, j + 1 - count):j + 1], count)))
+            past = _past(self._sent[max(0, j + 1 - count):j + 1], count)
+            if member is None:
+                self._rows.append((v - pv, px, pv, past))
+            else:               # the member's free response out (the row's x, v unused)
+                free = member.free_velocity_increment((px, pv, pz))
+                self._rows.append((v - pv - free, 0.0, 0.0, past))
             self._count += 1
             if excited and self._count % self.update_steps == 0:
                 if self.identify_specimen:
@@ -1706,11 +1755,19 @@ class AdaptivePredictor:
                 if loop is not None and loop.refresh():
                     self.loop_inverse = loop.inverse
                 self._rebuild()
-        self._prev = (x, v, latest.step)
+        self._prev = (x, v, latest.step, 0.0 if member is None else member.member.z)
 
     def predict(self, latest: Measurement | None, commanded_N, ground_force_N: float = 0.0
                 ) -> float:
         """Update the identifications with the newest measurement; return a_hat [m/s^2]."""
+        law = self._member_law
+        if law is not None:
+            if latest is not None:
+                law.member.observe_measurement(latest)
+                self._observe(latest)
+            count = law.n + 2
+            sent = [self.gain * f for f in self._sent[-count:]]
+            return law.predict_observed(latest is not None, sent, ground_force_N)
         if latest is not None:
             self._observe(latest)
             x, v = latest.displacement_m, latest.velocity_m_s
@@ -1768,7 +1825,9 @@ class AtsPredictor:
 
     The one-step lag of the fed-back measurement (paper Eq. 5.3) is not part of the force
     loop: it is compensated by the ``model`` law with zero actuator delay (the configured
-    specimen model), :class:`ModelPredictor` with ``tau = 0``.
+    specimen model), :class:`ModelPredictor` with ``tau = 0``; for a member that yields
+    (``predictor_restoring_force`` other than 'model') by :class:`HystereticModelPredictor`
+    with ``tau = 0``, whose member estimates are recorded after a0, a1, a2.
 
     Parameters
     ----------
@@ -1792,6 +1851,9 @@ class AtsPredictor:
         Bound of a1 [s].
     cutoff_hz : float > 0
         Cut-off of the 2nd-order Butterworth on command and measurement [Hz].
+    law : HystereticModelPredictor, optional
+        The law of the one-step lag for a yielding member (``tau = 0``; default: the linear
+        ``model`` of `model`).
 
     Raises
     ------
@@ -1813,7 +1875,7 @@ class AtsPredictor:
     def __init__(self, model: DelayImpulseModel, alpha: float, mass_kg: float, tau0_s: float,
                  *, window_s: float = 1.0, skip: int = 16, excitation_N: float = 20.0,
                  max_rate_per_s: float = 1.0, max_delay_s: float = 0.03,
-                 cutoff_hz: float = 20.0):
+                 cutoff_hz: float = 20.0, law: 'HystereticModelPredictor | None' = None):
         from scipy.signal import butter
         dt = model.dt
         for name, value, ok in (
@@ -1827,7 +1889,10 @@ class AtsPredictor:
         if model.tau_s != 0.0:
             raise ParameterError('ats: the model law must have tau_s = 0')
         self.dt = dt
-        self._law = ModelPredictor(model, alpha, mass_kg)
+        self._law = ModelPredictor(model, alpha, mass_kg) if law is None else law
+        self._member = None if law is None else law.member
+        if self._member is not None:
+            self.ESTIMATES = ATS_ESTIMATES + HYSTERESIS_ESTIMATES
         self.skip = int(skip)
         self.window = int(round(window_s / dt))
         self.gate = _ident.ExcitationGate(dt, 0.5, excitation_N)
@@ -1854,11 +1919,12 @@ class AtsPredictor:
         dt = float(params['dt'])
         model = DelayImpulseModel(mp['mass_kg'], mp['damping_N_s_per_m'],
                                   mp['stiffness_N_per_m'], dt, 0.0)
+        law = _member_law(params, 0.0)
         return cls(model, float(params['alpha']), float(params['mass_kg']), mp['tau_s'],
                    window_s=float(params.get('ats_window_s', 1.0)),
                    excitation_N=float(params.get('adaptive_excitation_N', 20.0)),
                    max_rate_per_s=float(params.get('adaptive_max_rate_per_s', 1.0)),
-                   max_delay_s=float(params.get('adaptive_max_delay_s', 0.03)))
+                   max_delay_s=float(params.get('adaptive_max_delay_s', 0.03)), law=law)
 
     @property
     def coefficients(self) -> tuple[float, float, float]:
@@ -1866,8 +1932,12 @@ class AtsPredictor:
         return tuple(g.value for g in self._guards)
 
     def estimates(self) -> dict[str, float]:
-        """``{'a0': [-], 'a1': [s], 'a2': [s^2]}`` in use (keys :attr:`ESTIMATES`)."""
-        return dict(zip(self.ESTIMATES, self.coefficients))
+        """``{'a0': [-], 'a1': [s], 'a2': [s^2]}`` in use, then the member's (keys
+        :attr:`ESTIMATES`)."""
+        out = dict(zip(ATS_ESTIMATES, self.coefficients))
+        if self._member is not None:
+            out.update(self._member.estimates())
+        return out
 
     def _refit(self) -> None:
         from scipy.signal import sosfiltfilt
