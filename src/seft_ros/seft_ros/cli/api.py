@@ -455,18 +455,17 @@ def run_experiments(*, runs: list[dict], out_dir: Path,
     """
     if nodes is not None:
         nodes = check_nodes(nodes, runs)
-    check_stability(runs=runs, force=force, progress=progress)
-    check_capacity(runs=runs, progress=progress)
-    if nodes is not None:
+        check_stability(runs=runs, force=force, progress=progress)
+        check_capacity(runs=runs, progress=progress)
         return _run_here(runs, out_dir, progress, _shared_domain(domain_id), nodes)
-    from seft_ros.cli.runner import GraphRunner  # rclpy only for this verb
+    from seft_ros.cli.runner import DISCOVERY_SETTLE_S, GraphRunner  # rclpy for this verb
 
     t0 = time.monotonic()
     chosen = _checked_domain(domain_id, '--domain-id') if domain_id is not None else (
         _domain_id() if os.environ.get('ROS_DOMAIN_ID') else None)
     # claim the domain (seft_msgs_py.domain: no two seft processes of this machine meet),
     # then check that nothing else (nodes started by hand) publishes seft topics there
-    claim = None
+    claim = checks = None
     for _ in range(5):
         if claim is not None:
             claim.close()
@@ -486,7 +485,19 @@ def run_experiments(*, runs: list[dict], out_dir: Path,
             raise SeftError(f'no free ROS domain in {RUN_DOMAINS[0]}-{RUN_DOMAINS[-1]}: every '
                             f'one is claimed (lock files in {LOCK_DIR})') from None
         runner = GraphRunner(domain, progress)
-        busy = runner.busy_topics()
+        joined = time.monotonic()
+        if checks is None:
+            # the pre-run checks while discovery settles in the background (DDS threads):
+            # the busy-topic wait below is then what is left of DISCOVERY_SETTLE_S
+            try:
+                check_stability(runs=runs, force=force, progress=progress)
+                check_capacity(runs=runs, progress=progress)
+            except BaseException:
+                runner.close()
+                claim.close()
+                raise
+            checks = True
+        busy = runner.busy_topics(max(0.0, DISCOVERY_SETTLE_S - (time.monotonic() - joined)))
         if not busy:
             break
         runner.close()
