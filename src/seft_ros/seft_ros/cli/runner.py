@@ -369,12 +369,18 @@ class GraphRunner:
             self._spin(0.05)
 
     def _wait_remote(self, names, procs, log_dir, label) -> None:
-        """Wait until the nodes of the other host(s) have reported ready (or already run)."""
+        """Wait until the nodes of the other host(s) have reported ready (or already run).
+
+        A short run can be over before this runner hears a remote node at all (a node's
+        reports are not kept after it exits): the run's end on this host (the rig's final
+        status, the rig of this host exited cleanly, or the bag closed here) ends the wait."""
         deadline = time.monotonic() + REMOTE_TIMEOUT_S
         said = 0.0
         while True:
             missing = [n for n in names if not self._latest(n)]
-            if not missing:
+            rig = procs.get('rig')
+            if (not missing or self._latest('rig', (STATE_DONE, STATE_ABORTED, STATE_FAILED))
+                    or (rig is not None and rig.poll() == 0) or self._closed_on_disk(procs)):
                 return
             self._check_parameters()
             self._check_procs(procs, log_dir)
