@@ -236,17 +236,23 @@ class HystereticIdentifier:
     """Online identification of the Bouc-Wen parameters from the measured restoring force.
 
     A recursive Gauss-Newton (prediction-error) update with exponential forgetting, the
-    extended Kalman filter of constant parameters (Ljung and Soderstrom 1983, Ch. 3): at each
-    sample with motion, the model anchored at the previous sample's restoring force
-    ``r[j-1]`` (z from :meth:`BoucWenModel.z_of`) predicts ``r[j]`` after the measured
-    displacement increment, on the branch of the measured velocity's direction; the
-    prediction error updates the parameters along its gradient (finite differences)::
+    extended Kalman filter of constant parameters (Ljung and Soderstrom 1983, Ch. 3): the
+    model anchored at a sample's restoring force ``r[i]`` (z from :meth:`BoucWenModel.z_of`)
+    predicts ``r[j]`` of a later sample after the displacement increment in between,
+    integrated from the measured velocity, on the branch of its direction; the prediction
+    error updates the parameters along its gradient (finite differences)::
 
         theta = (ln k, logit a, ln D_y, ln(n - 1), s),   e = r[j] - r_hat(theta)
         K = P J / (lambda R + J' P J),  theta += K e,  P = (P - K J' P) / lambda
 
-    ``R`` is the running mean of ``e^2`` (time constant ``memory_s``) with a floor, so the
-    gain adapts to the sensors' noise; ``lambda = exp(-dt/memory_s)``; P is bounded (no
+    An update waits (the anchor stays) until the member has moved at least
+    ``min_increment_m`` and three standard deviations of the sensors' noise over k (the
+    force it moved must stand out of the noise), and restarts its anchor at a reversal of
+    the measured velocity. ``R`` is the running mean of ``e^2`` (time constant
+    ``memory_s``) with a floor, so the gain adapts to the residual; the sensors' noise
+    ``sensor_var_N2`` is the same mean over the samples far from yield (``|z| < 0.3``),
+    where the residual is noise and not the yield parameters' error;
+    ``lambda = exp(-dt/memory_s)`` per update; P is bounded (no
     wind-up while a parameter is not excited, e.g. the yield parameters of a member that
     stays elastic); theta stays within ``bounds`` of the guess. Only the initial stiffness
     is visible while the member is elastic; the others are learnt from its yield
@@ -273,6 +279,9 @@ class HystereticIdentifier:
         The model at the current estimates (updated in place).
     updates : int
         Parameter updates so far.
+    noise_var_N2, sensor_var_N2 : float
+        Running mean of the squared prediction error [N^2]: over all updates (the gain's R)
+        and over those far from yield (the sensors' noise).
 
     Raises
     ------
