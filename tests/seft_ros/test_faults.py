@@ -9,8 +9,10 @@ disk with the abort reason. The recorder's own crash is tested with the recorder
 
 import json
 import os
+import re
 import signal
 import subprocess
+import threading
 import time
 
 import numpy as np
@@ -36,28 +38,48 @@ def _wait_for_rig(out, timeout=90.0) -> float:
     raise AssertionError('the rig did not start')
 
 
-def _run_and_hit(seft_exe, ros_env, cwd, out, node, sig, extra, after_s=2.0):
+def _run_and_hit(seft_exe, ros_env, cwd, out, node, sig, extra, after_s=2.0, sim_s=1.5):
     """``seft run`` the servohydraulic rig (30 s of record), send `sig` to `node` `after_s`
-    after the rig started; return the finished process's (returncode, stdout, stderr)."""
+    after the rig started and once the runner's progress lines report at least `sim_s` of
+    the record stepped (a lockstep graph on a loaded machine steps slower than real time);
+    return the finished process's (returncode, stdout, stderr)."""
     proc = subprocess.Popen(
         [str(seft_exe), 'run', '--alpha', '0.5', '--duration', '30', '--out', str(out),
          *extra], cwd=cwd, env=ros_env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
         text=True, start_new_session=True)
+    lines, errors, sim = [], [], [0.0]
+
+    def read(stream, into):           # progress lines (stderr): '... t = 1.23 s sim, ...'
+        for line in stream:
+            into.append(line)
+            found = re.search(r't = ([0-9.]+) s sim', line)
+            if found:
+                sim[0] = float(found.group(1))
+
+    readers = [threading.Thread(target=read, args=(proc.stdout, lines), daemon=True),
+               threading.Thread(target=read, args=(proc.stderr, errors), daemon=True)]
+    for reader in readers:
+        reader.start()
     try:
-        _wait_for_rig(out)
-        time.sleep(after_s)
+        start = _wait_for_rig(out)
+        while proc.poll() is None and (time.monotonic() - start < after_s or sim[0] < sim_s):
+            if time.monotonic() - start > 60.0:
+                break
+            time.sleep(0.05)
         try:
             os.kill(_pid_of(node, str(out)), sig)
         except (AssertionError, ProcessLookupError):
             # the node has gone already: the run ended before the fault (a stall of this
             # shared machine in real time); the test sees that in the bag and skips
             pass
-        stdout, stderr = proc.communicate(timeout=120)
+        proc.wait(timeout=120)
+        for reader in readers:
+            reader.join(timeout=10)
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
             proc.wait()
-    return proc.returncode, stdout, stderr
+    return proc.returncode, ''.join(lines), ''.join(errors)
 
 
 CASES = [
