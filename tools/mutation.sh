@@ -3,7 +3,7 @@
 #
 # Usage: bash tools/mutation.sh [MODULE ...]
 #   MODULE: a key of the table below (monitor, controller, reference_force, predictors,
-#   delay_rig, servohydraulic, metrics); default: all of them, one after the other.
+#   hysteresis, delay_rig, servohydraulic, metrics); default: all of them, one after the other.
 #
 # For each module it copies the packages and the module's fastest relevant test files into a
 # scratch folder (mutmut mutates its own copy; the working tree is never touched), runs mutmut
@@ -25,13 +25,14 @@ declare -A table=(
     [controller]='seft_ros/core/controller.py|seft_ros/core/test_controller.py seft_ros/core/test_force_controllers.py'
     [reference_force]='seft_ros/core/reference_force.py|seft_ros/core/test_reference_force.py'
     [predictors]='seft_ros/core/predictors.py|seft_ros/core/test_predictors_closed_forms.py seft_ros/core/test_tangent_predictor.py'
+    [hysteresis]='seft_ros/core/hysteresis.py|seft_ros/core/test_hysteresis.py'
     [delay_rig]='seft_plant_sim/delay_rig.py|seft_plant_sim/test_delay_rig.py'
     [servohydraulic]='seft_plant_sim/servohydraulic.py|seft_plant_sim/test_servohydraulic.py seft_plant_sim/test_servohydraulic_loop.py'
     [metrics]='seft_ros/analysis/metrics.py|seft_ros/analysis/test_metrics.py seft_ros/analysis/test_metrics_definitions.py seft_ros/analysis/test_nonlinear_metrics.py'
 )
 modules=("$@")
-[ ${#modules[@]} -gt 0 ] || modules=(monitor controller reference_force predictors delay_rig
-                                     servohydraulic metrics)
+[ ${#modules[@]} -gt 0 ] || modules=(monitor controller reference_force predictors hysteresis
+                                     delay_rig servohydraulic metrics)
 
 # one BLAS thread: with threads competing on a loaded machine scipy's expm took 34 ms a call
 export OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MKL_NUM_THREADS=1
