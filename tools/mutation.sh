@@ -22,7 +22,7 @@ fi
 # module -> "source file (package-relative)|test files (tests/-relative, space separated)"
 declare -A table=(
     [monitor]='seft_ros/core/monitor.py|seft_ros/core/test_monitor.py seft_ros/core/test_findings.py'
-    [controller]='seft_ros/core/controller.py|seft_ros/core/test_controller.py seft_ros/core/test_force_controllers.py'
+    [controller]='seft_ros/core/controller.py|seft_ros/core/test_controller.py seft_ros/core/test_force_controllers.py seft_ros/core/test_tangent_loop_shaping.py'
     [reference_force]='seft_ros/core/reference_force.py|seft_ros/core/test_reference_force.py'
     [predictors]='seft_ros/core/predictors.py|seft_ros/core/test_predictors_closed_forms.py seft_ros/core/test_tangent_predictor.py'
     [hysteresis]='seft_ros/core/hysteresis.py|seft_ros/core/test_hysteresis.py'

@@ -355,7 +355,7 @@ def test_constructor_filter_messages(kw, message):
 def test_state_space_equals_the_step_recursion_for_every_design(kind):
     """state_space() against step() for each linear design (no saturation: a 1 MV limit),
     built without a warning (tf2ss warns on badly conditioned coefficients). The scheduled
-    design has its own tests (test_tangent_controller.py)."""
+    design has its own tests (test_tangent_loop_shaping.py)."""
     ctrl = ForceServoController.from_parameters(params(force_controller=kind,
                                                        velocity_lead_s=0.002))
     ctrl.valve_limit_V = 1e6
