@@ -124,10 +124,11 @@ def test_a_domain_that_carries_seft_topics_is_refused(tmp_path, ros_env, seft_ex
     line."""
     other = subprocess.Popen([sys.executable, '-c', BY_HAND], env=ros_env, text=True,
                              stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+    default = {k: v for k, v in ros_env.items() if k != 'SEFT_DISCOVERY_SETTLE_S'}
     try:
         assert other.stdout.readline().strip() == 'up'
         proc = run_process([seft_exe, 'run', '--duration', '0.2', '--out', tmp_path / 'out'],
-                           cwd=tmp_path)
+                           cwd=tmp_path, env=default)
     finally:
         other.stdin.close()
         other.wait(timeout=30)
@@ -184,3 +185,20 @@ def test_a_sweep_over_two_predictors_runs_both_graphs(tmp_path, seft_exe, run_pr
                                        atol=1e-9 * np.max(np.abs(expected)), err_msg=topic)
         run = read_run(bag)
         assert (run.n_steps, run.stable) == (sim.n_steps, sim.stable)
+
+
+@pytest.mark.parametrize('text, expected', [(None, 3.5), ('', 3.5), ('0.5', 0.5), ('0', 0.0),
+                                            ('abc', None), ('-1', None), ('61', None)])
+def test_discovery_settle_time_from_the_environment(monkeypatch, text, expected):
+    from seft_msgs_py.errors import SeftError
+    from seft_ros.cli.runner import discovery_settle_s
+    if text is None:
+        monkeypatch.delenv('SEFT_DISCOVERY_SETTLE_S', raising=False)
+    else:
+        monkeypatch.setenv('SEFT_DISCOVERY_SETTLE_S', text)
+    if expected is None:
+        with pytest.raises(SeftError, match=re.escape(
+                f'SEFT_DISCOVERY_SETTLE_S={text!r}: expected a number of seconds in 0..60')):
+            discovery_settle_s()
+    else:
+        assert discovery_settle_s() == expected

@@ -458,9 +458,10 @@ def run_experiments(*, runs: list[dict], out_dir: Path,
         check_stability(runs=runs, force=force, progress=progress)
         check_capacity(runs=runs, progress=progress)
         return _run_here(runs, out_dir, progress, _shared_domain(domain_id), nodes)
-    from seft_ros.cli.runner import DISCOVERY_SETTLE_S, GraphRunner  # rclpy for this verb
+    from seft_ros.cli.runner import GraphRunner, discovery_settle_s  # rclpy for this verb
 
     t0 = time.monotonic()
+    settle = discovery_settle_s()
     chosen = _checked_domain(domain_id, '--domain-id') if domain_id is not None else (
         _domain_id() if os.environ.get('ROS_DOMAIN_ID') else None)
     # claim the domain (seft_msgs_py.domain: no two seft processes of this machine meet),
@@ -497,7 +498,7 @@ def run_experiments(*, runs: list[dict], out_dir: Path,
                 claim.close()
                 raise
             checks = True
-        busy = runner.busy_topics(max(0.0, DISCOVERY_SETTLE_S - (time.monotonic() - joined)))
+        busy = runner.busy_topics(max(0.0, settle - (time.monotonic() - joined)))
         if not busy:
             break
         runner.close()

@@ -18,6 +18,7 @@ recorder runs elsewhere, when the run is over and its own nodes have exited.
 
 from dataclasses import dataclass
 import json
+import math
 import os
 from pathlib import Path
 import signal
@@ -74,6 +75,31 @@ STALL_TIMEOUT_S = 30.0
 #: DDS: every 3 s): measured on this machine, a node started 2 s earlier took a new runner
 #: 1.7 s to discover in 5 of 6 tries (the former 1 s missed it), up to 2.7 s otherwise.
 DISCOVERY_SETTLE_S = 3.5
+#: Environment variable that sets that wait [s] instead (e.g. a test session whose domain
+#: is claimed by a lock and has nothing started by hand; a lab on a LAN with static peers).
+DISCOVERY_SETTLE_ENV = 'SEFT_DISCOVERY_SETTLE_S'
+
+
+def discovery_settle_s() -> float:
+    """The busy-domain check's discovery wait [s]: ``$SEFT_DISCOVERY_SETTLE_S``, else
+    :data:`DISCOVERY_SETTLE_S`.
+
+    Raises
+    ------
+    SeftError
+        The variable is not a number in 0..60.
+    """
+    text = os.environ.get(DISCOVERY_SETTLE_ENV)
+    if text is None or not text.strip():
+        return DISCOVERY_SETTLE_S
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not 0.0 <= value <= 60.0:
+        raise SeftError(f'{DISCOVERY_SETTLE_ENV}={text!r}: expected a number of seconds in '
+                        '0..60')
+    return value
 
 
 def node_command(node: str, params_file) -> list[str]:
@@ -133,18 +159,20 @@ class GraphRunner:
                                       self._on_node_parameters, NODE_PARAMETERS.qos)
         self.status_pub = self.node.create_publisher(STATUS.msg_type, STATUS.name, STATUS.qos)
 
-    def busy_topics(self, settle_s: float = DISCOVERY_SETTLE_S) -> list[str]:
+    def busy_topics(self, settle_s: float | None = None) -> list[str]:
         """The seft topics that already have publishers in this domain (another run?).
 
         Two runs in one domain would mix their samples; the runner refuses to start then.
+        `settle_s`: how long to listen first (default :func:`discovery_settle_s`).
         """
-        self._spin(settle_s)
+        self._spin(discovery_settle_s() if settle_s is None else settle_s)
         return [t.name for t in TOPICS if t is not STATUS
                 and self.node.count_publishers(t.name) > 0]
 
-    def present_nodes(self, names, settle_s: float = DISCOVERY_SETTLE_S) -> list[str]:
-        """Which of the node `names` already run in this domain (on any host)."""
-        self._spin(settle_s)
+    def present_nodes(self, names, settle_s: float | None = None) -> list[str]:
+        """Which of the node `names` already run in this domain (on any host); `settle_s` as
+        :meth:`busy_topics`."""
+        self._spin(discovery_settle_s() if settle_s is None else settle_s)
         present = {n for n, _ in self.node.get_node_names_and_namespaces()}
         return [n for n in names if n in present]
 
