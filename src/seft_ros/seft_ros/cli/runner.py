@@ -359,6 +359,18 @@ class GraphRunner:
                             f'{_last_line(log_dir / f"{name}.log")} '
                             f'(log: {log_dir / f"{name}.log"}; {saved})')
 
+    def _rig_final(self):
+        """The rig's final status (done, aborted or failed), if heard."""
+        return self._latest('rig', (STATE_DONE, STATE_ABORTED, STATE_FAILED))
+
+    def _over_here(self, procs) -> bool:
+        """The run is over as this host sees it: the rig's final status, this host's rig
+        exited cleanly, or this host's bag closed on disk. A short run can end before this
+        runner hears a node at all (a node's reports are not kept after it exits)."""
+        rig = procs.get('rig')
+        return bool(self._rig_final() or (rig is not None and rig.poll() == 0)
+                    or self._closed_on_disk(procs))
+
     def _closed_on_disk(self, procs) -> bool:
         """The recorder of this host exited cleanly and its bag is closed on disk (rosbags
         writes ``metadata.yaml`` on close only): the run is over even when its last status
@@ -374,16 +386,12 @@ class GraphRunner:
         deadline = time.monotonic() + STARTUP_TIMEOUT_S
         gone: dict[str, float] = {}     # node -> when it was seen exited (code 0) unheard
         while not all(self._latest(n, (STATE_READY, STATE_RUNNING)) for n in names):
-            if (self._latest('rig', (STATE_DONE, STATE_ABORTED, STATE_FAILED))
-                    or self._closed_on_disk(procs)):
+            if self._over_here(procs):
                 return
             self._check_parameters()
             self._check_procs(procs, log_dir)
-            rig = procs.get('rig')
-            rig_over = rig is not None and rig.poll() is not None
             for n in names:
-                # with the rig of this host gone too the run is over: wait for the bag
-                if procs[n].poll() == 0 and not self._latest(n) and not rig_over:
+                if procs[n].poll() == 0 and not self._latest(n):
                     # ended cleanly before its reports reached this runner: give them (and
                     # the rig's final status) a moment before calling it a failed start
                     since = gone.setdefault(n, time.monotonic())
@@ -399,16 +407,12 @@ class GraphRunner:
     def _wait_remote(self, names, procs, log_dir, label) -> None:
         """Wait until the nodes of the other host(s) have reported ready (or already run).
 
-        A short run can be over before this runner hears a remote node at all (a node's
-        reports are not kept after it exits): the run's end on this host (the rig's final
-        status, the rig of this host exited cleanly, or the bag closed here) ends the wait."""
+        The run's end on this host (:meth:`_over_here`) ends the wait too."""
         deadline = time.monotonic() + REMOTE_TIMEOUT_S
         said = 0.0
         while True:
             missing = [n for n in names if not self._latest(n)]
-            rig = procs.get('rig')
-            if (not missing or self._latest('rig', (STATE_DONE, STATE_ABORTED, STATE_FAILED))
-                    or (rig is not None and rig.poll() == 0) or self._closed_on_disk(procs)):
+            if not missing or self._over_here(procs):
                 return
             self._check_parameters()
             self._check_procs(procs, log_dir)
@@ -449,7 +453,7 @@ class GraphRunner:
                 speed = sim_t / max(now - t0, 1e-9)
                 self.progress(f'{label}step {step}/{n} ({100 * step / n:.0f} %), '
                               f't = {sim_t:.2f} s sim, {speed:.2f}x real time')
-            final = self._latest('rig', (STATE_DONE, STATE_ABORTED, STATE_FAILED))
+            final = self._rig_final()
             over = (self._latest('recorder', (STATE_CLOSED,)) or (
                 not recorded_here and all(p.poll() is not None for p in procs.values())))
             if over or (recorded_here and self._closed_on_disk(procs)):
