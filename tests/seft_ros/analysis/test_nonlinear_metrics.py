@@ -178,7 +178,8 @@ def test_a_constant_offset_is_all_of_the_plain_error_and_none_of_the_other(shaki
     d = 0.003
     run, ref = _run_and_reference(x_ref + d, x_ref)
     res = compare_run(run, ref).residual
-    assert res.lag_s == 0.0
+    # no lag: the correlation's peak is symmetric to rounding (FFT correlation, 5e-17 s here)
+    assert abs(res.lag_s) < 1e-12
     assert res.nrms == pytest.approx(d / rms(x_ref), rel=1e-9)           # 0.81 here
     assert res.nrms > 0.8
     assert res.nrms_residual_removed < 1e-9
