@@ -256,7 +256,7 @@ def test_unknown_design_message_lists_the_designs():
     """from_parameters checks the name itself (the mapping need not come from resolve())."""
     with pytest.raises(ParameterError, match=re.escape(
             "parameter force_controller='pid': expected one of 'loop_shaping', 'integral', "
-            "'velocity_feedback', 'tangent_loop_shaping'") + '$'):
+            "'velocity_feedback', 'tangent_loop_shaping', 'specimen_loop_shaping'") + '$'):
         ForceServoController.from_parameters(dict(parameters.defaults(), force_controller='pid'))
 
 
@@ -371,3 +371,27 @@ def test_state_space_equals_the_step_recursion_for_every_design(kind):
         x = a @ x + b @ wk
     np.testing.assert_allclose(run_linear(ctrl, w[:, 0], w[:, 1], w[:, 2]), ys,
                                rtol=1e-8, atol=1e-12)
+
+
+def test_specimen_loop_shaping_cancels_this_rigs_specimen():
+    """The study's rule for another specimen: poles at (c/m, k/m) of the rig's own specimen,
+    Eq. 3.1's gain; a 1.6 k pier keeps force control with it (with Eq. 3.1 the valve
+    saturates) and 'model' follows the reference as closely as on the study's specimen."""
+    from seft_ros.analysis.metrics import compare_run
+    from seft_ros.core.experiment import simulate
+    k = 1.6 * 2.11e5
+    p = parameters.resolve({'stiffness_N_per_m': k, 'force_controller': 'specimen_loop_shaping',
+                            'rig_model': 'servohydraulic'})
+    ctrl = ForceServoController.from_parameters(p)
+    assert ctrl.design.den == (1.0, 903.278 / 52.7, k / 52.7)
+    assert ctrl.design.num == ForceServoController.from_parameters(
+        parameters.resolve()).design.num
+    runs = {}
+    for design in ('loop_shaping', 'specimen_loop_shaping'):
+        runs[design] = simulate(dict(p, force_controller=design, predictor='model',
+                                     duration_s=8.0))
+    assert not runs['loop_shaping'].stable
+    assert 'valve command saturated' in runs['loop_shaping'].abort_reason
+    run = runs['specimen_loop_shaping']
+    assert run.stable
+    assert compare_run(run).displacement.nrms < 0.006

@@ -19,7 +19,8 @@ LOOP_SHAPING_NUM = (CALIBRATIONS[DEFAULT_CALIBRATION].controller_gain_V_per_N,)
 LOOP_SHAPING_DEN = (1.0, 17.14, 4002.0)
 
 #: The force controller designs (parameter ``force_controller``), :class:`ForceServoController`.
-FORCE_CONTROLLERS = ('loop_shaping', 'integral', 'velocity_feedback', 'tangent_loop_shaping')
+FORCE_CONTROLLERS = ('loop_shaping', 'integral', 'velocity_feedback', 'tangent_loop_shaping',
+                     'specimen_loop_shaping')
 
 
 class DiscreteFilter:
@@ -101,6 +102,15 @@ class ForceServoController:
         ``C_e(s) = C_f(s) = 37/(s^2 + 17.14 s + 4002)``, ``g_v = 0``. The gain 37 is in volts
         per unit of force of the rig calibration (``rig_calibration``,
         :mod:`seft_msgs_py.calibration`): V/lbf by default, 37/4.448 V/N.
+    ``specimen_loop_shaping``
+        The study's loop-shaping rule for this rig's own specimen (``mass_kg``,
+        ``damping_N_s_per_m``, ``stiffness_N_per_m``): ``C_e(s) = g/(s^2 + (c/m) s + k/m)``,
+        whose poles cancel the control-structure-interaction zero of the valve-to-force plant
+        ``(k_q/A)(m s^2 + c s + k)/s`` at the specimen's natural frequency, with the gain
+        ``g`` of Eq. 3.1: the loop ``g k_q m/(A s)`` and its crossover are those of the study
+        whatever the stiffness. For the study's specimen it is Eq. 3.1 but for the rounding
+        of 4002 (k/m = 4003.8 s^-2); a rig of another stiffness (a second pier) needs it:
+        with Eq. 3.1 a 1.6 k specimen loses force control (the valve saturates).
     ``integral``
         ``C_e(s) = C_f(s) (1 + w_i/s)``, ``w_i = 2 pi force_integral_hz``: integral action
         below w_i on top of the loop-shaping controller (a type-2 force loop).
@@ -281,6 +291,10 @@ class ForceServoController:
         if kind in ('loop_shaping', 'integral'):
             return cls(dt, limit, num=(controller_gain_V_per_N(params),),
                        integral_hz=fi if kind == 'integral' else 0.0, kind=kind)
+        if kind == 'specimen_loop_shaping':
+            m = float(get('mass_kg'))
+            den = (1.0, float(get('damping_N_s_per_m')) / m, float(get('stiffness_N_per_m')) / m)
+            return cls(dt, limit, num=(controller_gain_V_per_N(params),), den=den, kind=kind)
         area = float(get('piston_area_m2'))
         c_h = float(get('actuator_volume_m3')) / (4.0 * float(get('oil_bulk_modulus_Pa')))
         k_q = float(valve_flow_gain_m3_per_s_V(params))

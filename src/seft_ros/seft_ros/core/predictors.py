@@ -998,8 +998,9 @@ class ForceLoopInverse:
     def from_parameters(cls, params) -> 'ForceLoopInverse':
         """Model the loop from the rig parameters, the specimen model and the controller.
 
-        ``predictor_loop_delay_steps`` (d) and ``predictor_loop_taps`` set the fit; the
-        specimen model is that of the predictor (``predictor_*``).
+        ``predictor_loop_delay_steps`` (d), ``predictor_loop_taps`` and
+        ``predictor_loop_hf_weight`` (mu) set the fit; the specimen model is that of the
+        predictor (``predictor_*``).
         """
         try:  # the plant models are optional on a lab's controller host
             from seft_plant_sim.servohydraulic import ServoHydraulicParams
@@ -1015,7 +1016,8 @@ class ForceLoopInverse:
         resp = step_average_force_impulse_response(
             ServoHydraulicParams.from_parameters(params), spec, ctrl, 1000)
         return cls(resp, ctrl.dt, int(params['predictor_loop_delay_steps']),
-                   int(params['predictor_loop_taps']))
+                   int(params['predictor_loop_taps']),
+                   hf_weight=float(params.get('predictor_loop_hf_weight', 1e-3)))
 
     def step(self, force_N: float) -> float:
         """Filter one sample of the desired force [N]; return the command [N]."""

@@ -1,0 +1,181 @@
+"""A structure test in one process: every rig, its controller and the builder, stepped in order.
+
+The structure counterpart of :func:`seft_ros.core.experiment.simulate`, and the independent
+check of the multi-rig lockstep graph: per step k, each rig (in the structure's order of its
+physical DOFs) does what the rig and force servo controller nodes of its namespace do, then
+the builder does what the one reference-force builder node does::
+
+    for each rig r:  stop if rig_r.limit_violation(); m_r = rig_r.measure()
+                     u_r = C_r(f_r[k] - f_m,r[k]) ... (servohydraulic), stop on its interlock
+                     rig_r.apply(u_r)           (delay rig: rig_r.apply(f_r[k]))
+    builder:         stop if any rig's instability monitor trips (k+1 < N)
+                     builder.observe(r, m_r) for every rig r (every builder)
+                     f[k+1] = builder.step(xg''[k+1 ..]) (each builder: its rigs' forces)
+
+``f[0]`` is built from ``xg''[0..]`` with the structure at rest.
+"""
+
+import time
+from typing import Callable
+
+import numpy as np
+
+from seft_msgs_py import parameters
+from seft_msgs_py.graph import Graph
+from seft_msgs_py.interface import COMMAND_VALVE
+from seft_msgs_py.sampling import single_blas_thread
+from seft_plant_sim.rigs import make_rig
+from seft_ros.analysis.rundata import RunData, StructureRunData
+from seft_ros.core.controller import SaturationInterlock
+from seft_ros.core.excitation import make_valve_controller
+from seft_ros.core.ground_motion import GroundMotion, prepared_record
+from seft_ros.core.monitor import InstabilityMonitor
+from seft_ros.core.substructure import StructureBuilder
+
+__all__ = ['simulate_structure']
+
+
+def simulate_structure(params, *, progress: Callable[[int, int], None] | None = None,
+                       record: GroundMotion | None = None) -> StructureRunData:
+    """Run one structure test without ROS and return its signals.
+
+    Parameters
+    ----------
+    params : mapping
+        Run parameters with a ``structure`` (validated against the schema).
+    progress : callable(step, n_steps), optional
+        Called about every 0.5 s of wall time.
+    record : GroundMotion, optional
+        Already prepared ground motion (default: :func:`prepared_record`).
+
+    Returns
+    -------
+    StructureRunData
+        n samples of every rig and of the computational DOFs (fewer than the record if the
+        run was aborted).
+
+    Raises
+    ------
+    InputError, ParameterError
+        Bad record, parameter or structure.
+    """
+    params = parameters.resolve(params)
+    gm = record if record is not None else prepared_record(params)
+    ag = gm.acceleration_m_s2
+    n_total = ag.shape[0]
+    with single_blas_thread():
+        # one builder for every rig, or (structure_builders per_rig) one per rig, as the graph
+        graph = Graph.from_parameters(params)
+        local_sets = [[r] for r in graph.rigs] if graph.per_rig_builders else [None]
+        builders = [StructureBuilder.from_parameters(params, local=lr) for lr in local_sets]
+        builder = builders[0]           # its computational state is the one recorded
+        names = builder.rig_names
+        rig_params = builder.setup.rig_params
+        rigs = [make_rig(rig_params[r]) for r in names]
+        valve = [rig.command_kind == COMMAND_VALVE for rig in rigs]
+        ctrls = [make_valve_controller(rig_params[r]) if v else None
+                 for r, v in zip(names, valve)]
+        locks = [SaturationInterlock.from_parameters(rig_params[r]) if v else None
+                 for r, v in zip(names, valve)]
+        monitors = [InstabilityMonitor.from_parameters(rig_params[r]) for r in names]
+    look = max(b.lookahead_steps for b in builders)
+    padded = ag.tolist() + [0.0] * (look + 1)
+
+    def build(j):
+        """The commands of step j of every rig, in rig order (xg''[j .. j + L] each)."""
+        return [c for b in builders for c in b.step(padded[j:j + 1 + b.lookahead_steps])]
+
+    def ground_forces():
+        return [g for b in builders for g in b.last_ground_forces_N]
+
+    n_r = len(rigs)
+    rec = {name: {k: [] for k in ('fr', 'fm', 'u', 'x', 'v', 'a')} for name in names}
+    state_rec = []
+    reason = abort_node = None
+    n_done = n_total
+    commands = build(0)
+    observers = [b.observe for b in builders]
+    t_last = t_start = time.monotonic()
+    for k in range(n_total):
+        meas = [None] * n_r
+        for r in range(n_r):
+            rig = rigs[r]
+            reason = rig.limit_violation()
+            if reason:
+                abort_node = f'{names[r]}/rig'
+                break
+            m = rig.measure()
+            meas[r] = m
+            if valve[r]:
+                u = ctrls[r].step(commands[r], m.force_N, m.velocity_m_s, m.acceleration_m_s2,
+                                  m.displacement_m)
+                reason = locks[r].update(ctrls[r].saturated, m.time_s)
+                if reason:
+                    abort_node = f'{names[r]}/force_servo_controller'
+                    break
+            else:
+                u = commands[r]
+            out = rec[names[r]]
+            out['fr'].append(commands[r])
+            out['fm'].append(m.force_N)
+            out['u'].append(u)
+            out['x'].append(m.displacement_m)
+            out['v'].append(m.velocity_m_s)
+            out['a'].append(m.acceleration_m_s2)
+            rig.apply(u)
+        if reason:
+            n_done = k
+            break
+        if k + 1 < n_total:
+            scale = ground_forces()
+            for r in range(n_r):
+                reason = monitors[r].update(meas[r].force_N, scale[r], meas[r].time_s)
+                if reason:
+                    reason = f'{names[r]}: {reason}'
+                    abort_node = 'reference_force_builder'
+                    break
+            if reason:
+                n_done = k + 1
+                break
+            for observe in observers:
+                for r in range(n_r):
+                    observe(r, meas[r])
+            commands = build(k + 1)
+            state_rec.append(builder.computational_state)
+        if progress is not None and not k & 255 and time.monotonic() - t_last > 0.5:
+            t_last = time.monotonic()
+            progress(k + 1, n_total)
+    wall_s = time.monotonic() - t_start
+    n = n_done
+    dt = float(params['dt'])
+    t = np.arange(n) * dt
+    runs = {}
+    for r, name in enumerate(names):
+        out = rec[name]
+
+        def signal(values):
+            return np.array(values[:n], dtype=float)
+        runs[name] = RunData(
+            params=dict(rig_params[name], alpha=float(builder.setup.substructures.alpha[r])),
+            time_s=t, ground_acceleration_m_s2=np.array(ag[:n]),
+            reference_force_N=signal(out['fr']), measured_force_N=signal(out['fm']),
+            displacement_m=signal(out['x']), velocity_m_s=signal(out['v']),
+            acceleration_m_s2=signal(out['a']),
+            valve_command_V=signal(out['u']) if valve[r] else None,
+            stable=reason is None, unstable_at_s=None if reason is None else n * dt,
+            abort_reason=reason, record_name=gm.name, source='simulate')
+    states = np.array(state_rec[:n], dtype=float).reshape(len(state_rec[:n]),
+                                                          len(builder.state_names))
+    # the computational state of sample k is recorded by the step of k+1: the last sample's
+    # is not (the run ends there); it is NaN
+    computational = {}
+    for i, name in enumerate(builder.state_names):
+        column = np.full(n, np.nan)
+        column[:states.shape[0]] = states[:n, i]
+        computational[name] = column
+    return StructureRunData(
+        params=dict(params), rigs=runs, time_s=t, ground_acceleration_m_s2=np.array(ag[:n]),
+        computational=computational, stable=reason is None,
+        unstable_at_s=None if reason is None else n * dt, abort_reason=reason,
+        record_name=gm.name, source='simulate',
+        extra={'wall_s': wall_s, 'abort_node': abort_node})

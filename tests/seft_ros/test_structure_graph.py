@@ -1,0 +1,259 @@
+"""A structure test as a node graph: every rig and its controller in the rig's namespace, over
+real DDS in lockstep, checked from the bag on disk against ``simulate_structure``.
+
+Two structures: a two-story building whose first story is the study's specimen on the
+servohydraulic rig (one rig, a computational story), and a bridge deck on two piers of
+different stiffness, each pier on its own rig, with one builder for both rigs (``central``)
+and with one builder beside each rig (``per_rig``).
+"""
+
+import json
+from pathlib import Path
+import re
+
+import numpy as np
+import pytest
+from rosbags.rosbag2 import Reader
+
+from seft_msgs_py import parameters
+from seft_ros.analysis.bag import read_run
+from seft_ros.analysis.rundata import StructureRunData
+from seft_ros.cli.config import expand_runs, load_config
+from seft_ros.core.structure_experiment import simulate_structure
+
+TWO_STORY = """\
+predictor: model
+duration_s: 1.0
+structure:
+  dofs: [story_1, story_2]
+  physical: {story_1: lab}
+  story_masses_kg: [52.7, 52.7]
+  story_stiffnesses_N_per_m: [2.11e5, 2.11e5]
+  story_damping_N_s_per_m: [903.278, 133.4]
+rigs:
+  lab: {rig_model: servohydraulic}
+"""
+
+BRIDGE = """\
+predictor: {predictor}
+duration_s: 1.0
+structure_builders: {builders}
+structure:
+  dofs: [pier_a, pier_b, deck]
+  physical: {{pier_a: pier_a, pier_b: pier_b}}
+  mass_matrix_kg: [[52.7, 0, 0], [0, 52.7, 0], [0, 0, 105.4]]
+  stiffness_matrix_N_per_m: [[4.22e5, 0, -2.11e5], [0, 5.486e5, -2.11e5],
+                             [-2.11e5, -2.11e5, 4.22e5]]
+  damping_matrix_N_s_per_m: [[1100, 0, -200], [0, 1100, -200], [-200, -200, 400]]
+rigs:
+  pier_a: {{force_controller: specimen_loop_shaping}}
+  pier_b: {{stiffness_N_per_m: 3.376e5, force_controller: specimen_loop_shaping,
+           rig_model: {rig_b}}}
+"""
+
+
+@pytest.fixture(scope='module')
+def runner(ros_env, tmp_path_factory):
+    """A graph runner in the session's ROS domain (its nodes log under tmp)."""
+    import os
+
+    from seft_ros.cli.runner import GraphRunner
+    saved = dict(os.environ)
+    os.environ.update(ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
+    r = GraphRunner(int(ros_env['ROS_DOMAIN_ID']))
+    yield r
+    r.close()
+    os.environ.clear()
+    os.environ.update(saved)
+
+
+def _params(tmp_path, text):
+    path = tmp_path / 'config.yaml'
+    path.write_text(text)
+    runs = expand_runs(load_config(path), where=str(path))
+    assert len(runs) == 1
+    return runs[0]
+
+
+def _same_run(rd: StructureRunData, sim: StructureRunData) -> None:
+    """Bit for bit: every rig's signals and the computational state as recorded."""
+    assert rd.n_steps == sim.n_steps
+    assert list(rd.rigs) == list(sim.rigs)
+    for name, rig in rd.rigs.items():
+        for attr in ('reference_force_N', 'measured_force_N', 'displacement_m', 'velocity_m_s',
+                     'acceleration_m_s2', 'valve_command_V', 'ground_acceleration_m_s2'):
+            got, want = getattr(rig, attr), getattr(sim.rigs[name], attr)
+            if want is None:
+                assert got is None, (name, attr)
+                continue
+            np.testing.assert_array_equal(got, want, err_msg=f'{name} {attr}')
+    assert set(rd.computational) == set(sim.computational)
+    for key, values in rd.computational.items():
+        np.testing.assert_array_equal(values, sim.computational[key], err_msg=key)
+
+
+def test_two_story_graph_equals_simulate(runner, tmp_path):
+    params = _params(tmp_path, TWO_STORY)
+    out = runner.run(params, tmp_path / 'run')
+    # (the runner may not hear a short run's last reports: the bag holds them)
+    assert out.rig_state in ('done', ''), out.message
+    # each node's log and parameters: the rig's nodes in its namespace, with its own file
+    logs = sorted(p.name for p in (tmp_path / 'run' / 'logs').glob('*.log'))
+    assert logs == ['ground_motion_publisher.log', 'lab.force_servo_controller.log',
+                    'lab.rig.log', 'recorder.log', 'reference_force_builder.log']
+    assert (tmp_path / 'run' / 'params_lab.yaml').is_file()
+    with Reader(out.bag_path) as reader:
+        counts = {c.topic: c.msgcount for c in reader.connections}
+    n = 500
+    for topic in ('/lab/seft/reference_force', '/lab/seft/valve_command',
+                  '/lab/seft/measured_force', '/lab/seft/displacement', '/lab/seft/velocity',
+                  '/lab/seft/acceleration', '/seft/ground_acceleration'):
+        assert counts[topic] == n, topic
+    assert counts['/seft/structure_state'] == n - 1      # x_Q[k-1] with each f_r[k], k >= 1
+    assert '/seft/measured_force' not in counts
+    rd = read_run(out.bag_path)
+    assert isinstance(rd, StructureRunData) and rd.stable and rd.abort_reason is None
+    assert set(rd.computational) == {'story_2/displacement_m', 'story_2/velocity_m_s',
+                                     'story_2/acceleration_m_s2'}
+    assert np.isnan(rd.computational['story_2/displacement_m'][-1])
+    assert np.ptp(rd.computational['story_2/displacement_m'][:-1]) > 1e-4
+    _same_run(rd, simulate_structure(rd.params))
+
+
+@pytest.mark.parametrize('builders,predictor,rig_b', [
+    ('central', 'model', 'servohydraulic'),
+    ('per_rig', 'model', 'servohydraulic'),
+    ('per_rig', 'model', 'delay'),
+])
+def test_bridge_on_two_rigs_equals_simulate(runner, tmp_path, builders, predictor, rig_b):
+    params = _params(tmp_path, BRIDGE.format(builders=builders, predictor=predictor,
+                                             rig_b=rig_b))
+    out = runner.run(params, tmp_path / 'run')
+    assert out.rig_state in ('done', ''), out.message
+    node_params = json.loads((tmp_path / 'run' / 'outcome.json').read_text())
+    assert set(node_params['nodes']) >= {'pier_a/rig', 'pier_b/rig',
+                                         'pier_a/force_servo_controller'}
+    assert ('pier_b/force_servo_controller' in node_params['nodes']) == (rig_b != 'delay')
+    rd = read_run(out.bag_path)
+    assert list(rd.rigs) == ['pier_a', 'pier_b']
+    # each rig ran with its own specimen: the node parameters in the bag say so
+    stiffness = {r: rd.rigs[r].params['stiffness_N_per_m'] for r in rd.rigs}
+    assert stiffness == {'pier_a': 2.11e5, 'pier_b': 3.376e5}
+    assert rd.extra['parameter_mismatches'] == []
+    assert (rd.rigs['pier_b'].valve_command_V is None) == (rig_b == 'delay')
+    _same_run(rd, simulate_structure(rd.params))
+    if builders == 'per_rig':
+        with Reader(out.bag_path) as reader:
+            topics = {c.topic for c in reader.connections}
+        assert {'/pier_a/seft/structure_state', '/pier_b/seft/structure_state',
+                '/pier_a/seft/timing/reference_force_builder'} <= topics
+
+
+def test_a_rig_at_its_limit_ends_every_rig_and_the_bag_reads(runner, tmp_path):
+    """Uncompensated, the delay of the force loops destabilises the deck's coupling (negative
+    damping): pier b reaches its stroke limit, and every rig ends there, aborted with that
+    reason; the bag up to then equals simulate_structure, which stops at the same step."""
+    params = _params(tmp_path, BRIDGE.format(builders='central', predictor='none',
+                                             rig_b='delay').replace('duration_s: 1.0',
+                                                                    'duration_s: 3.0'))
+    sim = simulate_structure(params)
+    assert not sim.stable and sim.extra['abort_node'] == 'pier_b/rig'
+    assert sim.abort_reason.startswith('stroke limit exceeded at t=')
+    out = runner.run(params, tmp_path / 'run')
+    rd = read_run(out.bag_path)
+    finals = rd.extra['rig_finals']          # the rigs' final reports, from the bag
+    assert finals['pier_b/rig']['state'] == 'aborted'
+    assert finals['pier_b/rig']['message'] == sim.abort_reason
+    assert finals['pier_a/rig']['state'] == 'aborted'
+    assert finals['pier_a/rig']['message'] == f'pier_b/rig: {sim.abort_reason}'
+    assert out.rig_state in ('aborted', '')
+    assert not rd.stable and rd.abort_reason == f'pier_b/rig: {sim.abort_reason}'
+    assert rd.unstable_at_s == pytest.approx(sim.n_steps * 0.002)
+    _same_run(rd, sim)
+
+
+def test_a_rig_whose_specimen_disagrees_with_the_structure_is_refused(tmp_path):
+    text = BRIDGE.format(builders='central', predictor='model', rig_b='servohydraulic')
+    text = text.replace('stiffness_N_per_m: 3.376e5', 'stiffness_N_per_m: 3.0e5')
+    with pytest.raises(parameters.ParameterError, match=(
+            r"config.yaml: structure: the stiffness to the ground at physical dof 'pier_b' is "
+            r"337600.0 N/m \(the row sum of the stiffness matrix\), but rig pier_b's specimen "
+            r'has stiffness_N_per_m=300000.0: the structure disagrees with the specimen$')):
+        _params(tmp_path, text)
+
+
+def test_one_builder_for_rigs_of_different_delays_is_refused_before_the_run(tmp_path):
+    text = BRIDGE.format(builders='central', predictor='model', rig_b='delay')
+    with pytest.raises(parameters.ParameterError, match=re.escape(
+            'config.yaml: predictor model with a structure: the rigs of one builder need the '
+            'same loop delay, got pier_a 20 ms, pier_b 10 ms (set predictor_tau_s or '
+            'predictor_loop_delay_steps in the rigs sections to one delay, or '
+            'structure_builders: per_rig)')):
+        _params(tmp_path, text)
+    _params(tmp_path, text.replace('rig_model: delay', 'rig_model: delay, tau_s: 0.02'))
+
+
+def test_a_structure_that_is_the_study_runs_as_the_study(tmp_path):
+    """One physical DOF carrying a rigid mass: alpha = mu / m, no structure, the rig's
+    parameters (bit for bit the study's run)."""
+    text = ('predictor: model\nstructure:\n  physical: {floor_1: lab}\n'
+            '  story_masses_kg: [105.4]\n  story_stiffnesses_N_per_m: [2.11e5]\n'
+            '  story_damping_N_s_per_m: [903.278]\nrigs:\n  lab: {rig_model: delay}\n')
+    p = _params(tmp_path, text)
+    assert p['structure'] == 'none' and p['alpha'] == 1.0 and p['rig_model'] == 'delay'
+    assert p == parameters.resolve({'alpha': 1.0, 'predictor': 'model', 'rig_model': 'delay'})
+
+
+def test_rigs_without_a_structure_is_one_error_line(tmp_path):
+    from seft_msgs_py.errors import InputError
+    path = Path(tmp_path / 'c.yaml')
+    path.write_text('rigs:\n  lab: {rig_model: delay}\n')
+    with pytest.raises(InputError, match=r'c.yaml: rigs: a rigs section needs a structure '
+                                         r'section'):
+        load_config(path)
+
+
+def test_two_rigs_in_real_time_start_together_and_lose_nothing(runner, tmp_path):
+    """Real time: each rig on its own timer, started at the instant the clock master
+    announced; every step of both rigs is in the bag and no command was lost."""
+    params = _params(tmp_path, BRIDGE.format(builders='central', predictor='model',
+                                             rig_b='servohydraulic'))
+    params = dict(params, mode='realtime', watchdog_timeout_s=0.2)
+    out = runner.run(params, tmp_path / 'run')
+    rd = read_run(out.bag_path)
+    assert rd.n_steps == 500, rd.abort_reason
+    timing = rd.extra['timing']
+    assert timing['lost_commands'] == 0
+    assert {'pier_a/rig', 'pier_b/rig', 'reference_force_builder'} <= set(timing['nodes'])
+    starts = {s['name']: int(s['t0_ns']) for s in rd.extra['node_statuses']
+              if s.get('state') == 'running' and 't0_ns' in s}
+    assert set(starts) == {'pier_a/rig', 'pier_b/rig'}
+    # the announced instant, 0.5 s after the master armed; each rig's sample 0 within a
+    # few scheduling delays of it
+    announced = [int(s['start_at_ns']) for s in rd.extra['node_statuses']
+                 if 'start_at_ns' in s]
+    assert len(announced) == 1
+    for name, t0 in starts.items():
+        assert 0 <= t0 - announced[0] < 20_000_000, name
+
+
+def test_seft_run_and_compare_of_a_structure_config(seft_exe, run_process, tmp_path):
+    """As a user runs it: seft run on a structure config prints one line per degree of
+    freedom and writes the report; seft compare of the run folder gives the same summary."""
+    config = tmp_path / 'two_story.yaml'
+    config.write_text(TWO_STORY.replace('duration_s: 1.0', 'duration_s: 0.6'))
+    out = tmp_path / 'run'
+    proc = run_process([seft_exe, 'run', config, '--out', out], cwd=tmp_path, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    lines = proc.stdout.splitlines()
+    assert any(re.match(r'\s+1\s+model\s+True\s+-\s+story_1\s+lab\s', ln) for ln in lines)
+    assert any(re.match(r'\s+1\s+model\s+True\s+-\s+story_2\s+-\s', ln) for ln in lines)
+    summary = json.loads((out / 'summary.json').read_text())['runs']
+    assert summary[0]['structure']['physical'] == {'story_1': 'lab'}
+    assert (out / 'structure_model' / 'bag' / 'metadata.yaml').is_file()
+    assert (out / 'report.html').is_file()
+    again = tmp_path / 'compared'
+    proc = run_process([seft_exe, 'compare', out, '--out', again], cwd=tmp_path, timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads((again / 'summary.json').read_text())['runs'][0]['dofs'] == \
+        summary[0]['dofs']
