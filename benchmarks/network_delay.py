@@ -3,7 +3,6 @@
 For each one-way network delay (default 0, 2, 5, 10 and 20 ms, jitter +/- 20 %) runs
 ``tools/two_hosts.sh`` (two network namespaces; the link emulator where the kernel has no
 netem) twice: uncompensated (``predictor none``) and compensated (``predictor model`` with
-``predictor_loop_latency_s`` = the uncompensated run's rig loop latency p50, and
 ``network_delay_s`` = the longest round trip, 2 x delay x (1 + jitter), plus 1 ms of
 processing, in whole steps: the reference force built on the compute host from sample k
 reaches the controller on the lab host about a round trip later, and the controller applies
@@ -91,15 +90,12 @@ def main() -> int:
             plain = run(Path(tmp) / f'none_{d:g}', d, a.jitter,
                         [*base_d, '--predictor', 'none'])
             print(row(d, 'none', plain), flush=True)
-            timing = plain.get('timing') or {}
-            lat = timing.get('loop_latency_ms', {}).get('p50') or 1.0
             # the playout delay: the longest round trip (2 x delay x (1 + jitter)) plus 1 ms
             # of processing, in whole steps
             network_s = 0.0 if d == 0 else 0.002 * math.ceil(
                 (2e-3 * d * (1 + a.jitter) + 0.001) / 0.002)
             comp = run(Path(tmp) / f'model_{d:g}', d, a.jitter,
                        [*base_d, '--predictor', 'model',
-                        '--set', f'predictor_loop_latency_s={1e-3 * lat:.4f}',
                         '--set', f'network_delay_s={network_s:.4f}'])
             print(row(d, f'model, N = {1e3 * network_s:.1f} ms', comp), flush=True)
             links += [(d, 'none', plain['link']), (d, 'model', comp['link'])]

@@ -86,10 +86,36 @@ def test_groups_minority_first_and_one_line_per_parameter(graph):
         'force_servo_controller=0.0, reference_force_builder=0.5, rig=0.5',
         'parameter mass_kg differs: ground_motion_publisher=60.0, rig=60.0, '
         'reference_force_builder=52.7, force_servo_controller=52.7, recorder=52.7',
-        "parameter rig_model differs: rig='delay', reference_force_builder='servohydraulic', "
-        "force_servo_controller='servohydraulic', recorder='servohydraulic'",
+        "parameter rig_model differs: rig='delay', ground_motion_publisher='servohydraulic', "
+        "reference_force_builder='servohydraulic', force_servo_controller='servohydraulic', "
+        "recorder='servohydraulic'",
     ]
     assert shared_mismatches(graph) == lines  # deterministic
+
+
+def test_rigs_of_a_structure_agree_within_their_namespace_and_on_the_test():
+    """Nodes of different rigs' namespaces (and of the root) compare only the test's
+    parameters (a rig section sets its rig's); nodes of one namespace compare every shared
+    parameter."""
+    from seft_msgs_py.parameters import TEST_PARAMETERS
+    base = parameters.resolve()
+    nodes = {name: dict(base) for name in (
+        'reference_force_builder', 'ground_motion_publisher', 'recorder', 'pier_a/rig',
+        'pier_a/force_servo_controller', 'pier_b/rig', 'pier_b/force_servo_controller')}
+    for name in ('pier_b/rig', 'pier_b/force_servo_controller'):
+        nodes[name]['stiffness_N_per_m'] = 1.6 * 2.11e5
+    assert 'stiffness_N_per_m' not in TEST_PARAMETERS and 'dt' in TEST_PARAMETERS
+    assert shared_mismatches(nodes) == []
+    nodes['pier_b/force_servo_controller']['stiffness_N_per_m'] = 2.11e5
+    assert shared_mismatches(nodes) == [
+        'parameter stiffness_N_per_m differs: pier_b/force_servo_controller=211000.0, '
+        'pier_b/rig=337600.0']
+    nodes['pier_b/force_servo_controller']['stiffness_N_per_m'] = 1.6 * 2.11e5
+    nodes['pier_a/rig']['dt'] = 0.001
+    assert shared_mismatches(nodes) == [
+        'parameter dt differs: pier_a/rig=0.001, ground_motion_publisher=0.002, '
+        'reference_force_builder=0.002, pier_a/force_servo_controller=0.002, '
+        'pier_b/force_servo_controller=0.002, pier_b/rig=0.002, recorder=0.002']
 
 
 def test_rfb_model_parameter_is_compared_with_the_rig(graph):
@@ -201,7 +227,7 @@ def test_value_source_of_each_parameter(names, node):
 def test_value_source_lists_cover_the_schema():
     # + 1: realtime_priority, per node (the rig's value is the one reported); the second 6:
     # the excitation of identification runs
-    assert len(VALUE_SOURCE) == len(SCHEMA) == 28 + 38 + 6 + 6 + 9 + 2 + 1
+    assert len(VALUE_SOURCE) == len(SCHEMA) == 28 + 38 + 6 + 6 + 9 + 2 + 1 + 2 + 1
 
 
 def test_value_source_of_unknown_name_is_an_error():

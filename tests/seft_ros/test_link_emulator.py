@@ -123,3 +123,63 @@ def test_bad_arguments_are_one_line(args, text, capsys):
     assert main(args) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith(text) and len(err.splitlines()) == 1
+
+
+def _ipv4(src: str, dst: str, payload: bytes = b'x' * 32) -> bytes:
+    """A minimal IPv4 packet (header fields the hub reads: version and addresses)."""
+    import ipaddress
+    header = bytearray(20)
+    header[0] = 0x45
+    header[12:16] = ipaddress.IPv4Address(src).packed
+    header[16:20] = ipaddress.IPv4Address(dst).packed
+    return bytes(header) + payload
+
+
+@pytest.fixture
+def star():
+    """Three hosts (compute, lab_a, lab_b) and the hub's three descriptors."""
+    pairs = [socket.socketpair(socket.AF_UNIX, socket.SOCK_DGRAM) for _ in range(3)]
+    for pair in pairs:
+        for s in pair:
+            s.setblocking(False)
+    yield [p[0] for p in pairs], [p[1].fileno() for p in pairs]
+    for pair in pairs:
+        for s in pair:
+            s.close()
+
+
+ADDRS = ['10.9.0.1', '10.9.0.2', '10.9.0.3']
+
+
+def test_the_hub_routes_through_the_compute_host_with_each_links_delay(star):
+    """Lab a's link 10 ms, lab b's 20 ms, the compute host in the middle: a -> compute
+    10 ms, compute -> b 20 ms, a -> b 30 ms (the star's route), multicast from a to both
+    others with its route's delay; a packet that is not IPv4, or to nobody, is not routed."""
+    from seft_ros.cli.link_emulator import PacketHub
+    hosts, fds = star
+    models = [(None, None),
+              (LinkModel(0.010, seed=1, resend=False), LinkModel(0.010, seed=2, resend=False)),
+              (LinkModel(0.020, seed=3, resend=False), LinkModel(0.020, seed=4, resend=False))]
+    hub = PacketHub(fds, ADDRS, models)
+    t0 = time.monotonic()
+    hosts[1].send(_ipv4(ADDRS[1], ADDRS[0], b'to compute'))
+    hosts[0].send(_ipv4(ADDRS[0], ADDRS[2], b'to b'))
+    hosts[1].send(_ipv4(ADDRS[1], ADDRS[2], b'a to b'))
+    hosts[1].send(_ipv4(ADDRS[1], '239.255.0.1', b'discovery'))
+    hosts[2].send(b'\x60' + b'\x00' * 40)                      # IPv6: not routed
+    hosts[2].send(_ipv4(ADDRS[2], '10.9.0.99'))                 # nobody there
+    got = {i: [] for i in range(3)}
+
+    def receive():
+        for i in range(3):
+            got[i].extend((t - t0, p[20:]) for t, p in _recv_all(hosts[i]))
+    _pump_until(hub, lambda: sum(map(len, got.values())) >= 5, receive)
+    arrivals = {(i, payload): t for i in got for t, payload in got[i]}
+    assert set(arrivals) == {(0, b'to compute'), (2, b'to b'), (2, b'a to b'),
+                             (0, b'discovery'), (2, b'discovery')}
+    for (host, payload), want in {(0, b'to compute'): 0.010, (2, b'to b'): 0.020,
+                                  (2, b'a to b'): 0.030, (0, b'discovery'): 0.010,
+                                  (2, b'discovery'): 0.030}.items():
+        assert want <= arrivals[host, payload] < want + 0.02, (host, payload)
+    assert hub.unroutable == [0, 0, 2]
+    assert hub.forwarded == [1, 4, 0]            # per copy: the discovery packet twice

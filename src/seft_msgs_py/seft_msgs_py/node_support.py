@@ -6,6 +6,7 @@
 becomes a one-line message on stderr and exit code 2.
 """
 
+from dataclasses import replace
 import gc
 import json
 import math
@@ -45,11 +46,11 @@ from seft_msgs_py.convert import (
     status_values,
 )
 from seft_msgs_py.errors import ParameterError, SeftError
+from seft_msgs_py.graph import Graph, qualified, scoped, split_qualified
 from seft_msgs_py.signals import (
     MEASUREMENT_FIELDS,
     RECORD_ROWS,
     RecordStream,
-    record_streams_of,
 )
 from seft_msgs_py.topics import MEASUREMENT, NODE_PARAMETERS, STATUS, record_topic
 
@@ -60,8 +61,14 @@ __all__ = ['SeftNode', 'StepTiming', 'RecordBatch', 'InputWatchdog', 'main_for',
 LINGER_S = 1.0
 #: With a recorder in the graph, the longest wait for it to close the bag [s].
 RECORDER_WAIT_S = 20.0
-#: SCHED_FIFO priority of each node relative to ``realtime_priority``.
-PRIORITY_OFFSET = {'rig': 3, 'force_servo_controller': 2, 'reference_force_builder': 1,
+#: SCHED_FIFO priority of each node relative to ``realtime_priority``. The builder is on a
+#: par with the controller: its f_r[k+1] is due at the controller's next activation. Measured
+#: on a bridge on two rigs at 500 Hz (7 processes, 2 cores): with the builder one below the
+#: controllers its reference forces missed their step 9 % of the time, the controllers used an
+#: older one 6-7 % of the time and the displacement NRMS was 1.4-2.2 %; on a par, 0.1 % and
+#: 0.16-0.26 % (lockstep: 0.17 %); above the rigs, the rigs' own commands came late (1.3 %).
+#: The study's single rig: unchanged (alpha 1, model: 0.40 %, 0.04 % stale).
+PRIORITY_OFFSET = {'rig': 3, 'force_servo_controller': 2, 'reference_force_builder': 2,
                    'ground_motion_publisher': 1, 'recorder': -1}
 #: Start of the 'failed' status message of a node that refused differing parameters.
 MISMATCH_MESSAGE = 'parameters differ between nodes: '
@@ -90,21 +97,47 @@ def descriptor_of(spec: parameters.ParamSpec) -> ParameterDescriptor:
 class SeftNode(Node):
     """A node of the seft graph: declares its schema parameters and reports its state.
 
+    A node of a rig of a structure runs in the rig's ROS namespace (``-r __ns:=/<rig>``,
+    :mod:`seft_msgs_py.graph`): its qualified name :attr:`seft_name` is ``<rig>/<node>``.
+
     Parameters
     ----------
     node_name : str
         One of ``seft_msgs_py.parameters.NODES``.
 
+    Attributes
+    ----------
+    kind : str
+        `node_name`.
+    rig_name : str
+        The rig of the node's namespace ('' in the root namespace).
+    seft_name : str
+        The qualified name (status reports, parameters, ``seft run --nodes``).
+    graph : Graph
+        The run's graph, from the parameters.
+
     Raises
     ------
     ParameterError
-        If a parameter value is out of its schema range (message names it).
+        If a parameter value is out of its schema range (message names it), or the node's
+        namespace is not a rig of the run's graph where it must be.
     """
 
     def __init__(self, node_name: str, **kwargs):
         super().__init__(node_name, **kwargs)
-        self.seft_name = node_name
+        self.kind = node_name
+        namespace = self.get_namespace().strip('/')
+        if '/' in namespace:
+            raise ParameterError(f'namespace /{namespace}: expected the root namespace or one '
+                                 'level named after a rig of the structure')
+        self.rig_name = namespace
+        self.seft_name = qualified(node_name, namespace)
         self.params = self._declare(node_name)
+        self.graph = Graph.from_parameters(self.params)
+        if namespace and namespace not in self.graph.rigs:
+            raise ParameterError(f'node {self.seft_name}: namespace /{namespace} is not a rig '
+                                 "of the run's structure (rigs: "
+                                 f'{", ".join(r for r in self.graph.rigs if r) or "none"})')
         self.realtime = self.params.get('mode') == 'realtime'
         self.dt_ns = dt_to_ns(self.params['dt'])
         self.add_on_set_parameters_callback(self._on_set_parameters)
@@ -131,12 +164,14 @@ class SeftNode(Node):
         self.heard: set[str] = set()
         #: This node's record batches (flushed before its final status).
         self.records: list[RecordBatch] = []
+        #: The rigs (qualified names) whose final status has been heard.
+        self.rigs_final: set[str] = set()
 
     def record_stream(self, stream: RecordStream | None = None,
                       columns: tuple[str, ...] = ()) -> 'RecordBatch':
         """The :class:`RecordBatch` of one of this node's record streams (default: its data
         stream), created once; `columns` names the fields of a ``fields_topic`` stream."""
-        stream = stream or record_streams_of(self.seft_name)[0]
+        stream = stream or self.graph.record_streams_of(self.seft_name)[0]
         batch = RecordBatch(self, stream, columns)
         self.records.append(batch)
         return batch
@@ -159,16 +194,16 @@ class SeftNode(Node):
         """Real-time mode with ``realtime_priority`` > 0: run this process under SCHED_FIFO.
 
         The priority is ``realtime_priority`` plus :data:`PRIORITY_OFFSET` of the node: the
-        rig highest, then the controller, then the builder and the ground-motion publisher,
+        rig highest, then the controller and the builder, then the ground-motion publisher,
         and the recorder lowest: it must keep up (at the normal priority the loop's nodes
         starved it and the bag lost samples), but its bag writes must never delay the loop.
         Where the system refuses (no root, no CAP_SYS_NICE, no RT budget) the node logs one
         warning and keeps the normal scheduler: a run never fails for it.
         """
         base = int(self.params.get('realtime_priority', 0))
-        if not self.realtime or base <= 0 or self.seft_name not in PRIORITY_OFFSET:
+        if not self.realtime or base <= 0 or self.kind not in PRIORITY_OFFSET:
             return
-        priority = max(1, min(99, base + PRIORITY_OFFSET[self.seft_name]))
+        priority = max(1, min(99, base + PRIORITY_OFFSET[self.kind]))
         try:
             # every thread of the process: the middleware's receive threads exist already
             # (they deliver the samples; at the normal priority they would delay them), and
@@ -194,10 +229,12 @@ class SeftNode(Node):
             guarded(int(round(stamp / dt_ns)), value)
         return self.create_subscription(spec.msg_type, spec.name, on_raw, spec.qos, raw=True)
 
-    def measurement_subscription(self, callback: Callable[[int, tuple], None]):
-        """Subscribe to the rig's measurement; `callback(step, values)` gets the sample's step
-        and the values of :data:`~seft_msgs_py.signals.MEASUREMENT_FIELDS` (measured force [N],
-        displacement [m], velocity [m/s], acceleration [m/s^2]). Raw and guarded, like
+    def measurement_subscription(self, callback: Callable[[int, tuple], None],
+                                 rig: str | None = None):
+        """Subscribe to a rig's measurement (default: this node's rig); `callback(step,
+        values)` gets the sample's step and the values of
+        :data:`~seft_msgs_py.signals.MEASUREMENT_FIELDS` (measured force [N], displacement [m],
+        velocity [m/s], acceleration [m/s^2]). Raw and guarded, like
         :meth:`scalar_subscription`."""
         read = FieldsReader(MEASUREMENT.msg_type, MEASUREMENT_FIELDS)
         dt_ns, guarded = self.dt_ns, self.guard(callback)
@@ -205,8 +242,27 @@ class SeftNode(Node):
         def on_raw(raw):
             stamp, values = read(raw)
             guarded(int(round(stamp / dt_ns)), values)
-        return self.create_subscription(MEASUREMENT.msg_type, MEASUREMENT.name, on_raw,
-                                        MEASUREMENT.qos, raw=True)
+        topic = scoped(MEASUREMENT.name, self.rig_name if rig is None else rig)
+        return self.create_subscription(MEASUREMENT.msg_type, topic, on_raw, MEASUREMENT.qos,
+                                        raw=True)
+
+    def scoped_spec(self, spec, rig: str | None = None):
+        """A study topic's spec in the namespace of `rig` (default: this node's)."""
+        return replace(spec, name=scoped(spec.name, self.rig_name if rig is None else rig))
+
+    def subscribed_by(self, node: str, topic: str) -> bool:
+        """Whether the node of qualified name `node` subscribes to `topic` (discovered)."""
+        rig, kind = split_qualified(node)
+        namespace = '/' + rig
+        return any(i.node_name == kind and i.node_namespace == namespace
+                   for i in self.get_subscriptions_info_by_topic(topic))
+
+    def publishes(self, node: str, topic: str) -> bool:
+        """Whether the node of qualified name `node` publishes `topic` (discovered)."""
+        rig, kind = split_qualified(node)
+        namespace = '/' + rig
+        return any(i.node_name == kind and i.node_namespace == namespace
+                   for i in self.get_publishers_info_by_topic(topic))
 
     def publish_parameters(self) -> None:
         """Publish the parameters this node resolved (latched), and check them at once.
@@ -227,7 +283,9 @@ class SeftNode(Node):
         except (ValueError, KeyError, TypeError):
             self.get_logger().warning('ignoring a malformed /seft/node_parameters message')
             return
-        if node not in parameters.NODES:
+        try:
+            split_qualified(node)
+        except ParameterError:
             return
         self.node_params[node] = values
         self.guard(self._check_parameters)()
@@ -267,9 +325,7 @@ class SeftNode(Node):
         here, so it is up and receives the refusal too (the graph: every node, the force servo
         controller only unless every node says rig_model 'delay'; without a recorder the
         refusing nodes linger ``RECORDER_WAIT_S``)."""
-        expected = set(parameters.NODES)
-        if {v.get('rig_model') for v in self.node_params.values()} - {None} == {'delay'}:
-            expected.discard('force_servo_controller')
+        expected = set(self.graph.nodes()) | {'recorder'}
         return expected <= set(self.node_params) | self.heard
 
     def _declare(self, node_name: str) -> dict:
@@ -297,23 +353,33 @@ class SeftNode(Node):
                                     in (STATE_CLOSED, STATE_FAILED))
         self.guard(self._watch_run)(msg)
 
+    def own_rigs(self) -> tuple[str, ...]:
+        """The rig nodes whose end ends this node: its own rig for a node in a rig's
+        namespace, every rig for a node of the root namespace."""
+        rig = self.graph.rig_of(self.seft_name)
+        return (qualified('rig', rig),) if rig is not None else self.graph.rig_nodes()
+
     def _watch_run(self, msg) -> None:
-        """Refuse another node's parameter mismatch; end this node when the rig has finished
-        the run."""
+        """Refuse another node's parameter mismatch; end this node when its rig (a node of
+        the root namespace: every rig) has finished the run."""
         if self.refused_by_another_node(msg):
             return
         values = status_values(msg)
         state = values.get('state')
-        if msg.name == 'rig' and 't0_ns' in values and self.t0_ns is None:
+        master = msg.name == self.graph.master
+        if master and 't0_ns' in values and self.t0_ns is None:
             self.t0_ns = int(values['t0_ns'])
-        if msg.name == 'rig' and state == STATE_RUNNING and 'n_steps' in values:
+        if master and state == STATE_RUNNING and 'n_steps' in values:
             self.run_steps = int(values['n_steps'])
-        if (msg.name == 'rig' and self.seft_name not in ('rig', 'recorder')
-              and state in (STATE_DONE, STATE_ABORTED, STATE_FAILED)):
+        if msg.name in self.graph.rig_nodes() and state in (STATE_DONE, STATE_ABORTED,
+                                                            STATE_FAILED):
+            self.rigs_final.add(msg.name)
+        if (self.kind not in ('rig', 'recorder') and msg.name in self.graph.rig_nodes()
+                and set(self.own_rigs()) <= self.rigs_final):
             self.report(STATE_DONE, 'rig finished', **self.final_counts())
             self.finish(0)
         elif (msg.name == 'recorder' and state == STATE_CLOSED
-              and self.seft_name not in ('rig', 'recorder')):
+              and self.kind not in ('rig', 'recorder')):
             # the bag closed without the rig's final status (rig or link lost): over too
             self.report(STATE_DONE, 'the recorder closed the bag', **self.final_counts())
             self.finish(0)
@@ -515,7 +581,7 @@ class StepTiming:
 
     def __init__(self, node: 'SeftNode'):
         self.batch = node.record_stream(
-            next(r for r in record_streams_of(node.seft_name) if r.timing))
+            next(r for r in node.graph.record_streams_of(node.seft_name) if r.timing))
         self.dt = float(node.params['dt'])
         self.dt_ns = node.dt_ns
         self.missed = 0

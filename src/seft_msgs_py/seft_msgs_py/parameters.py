@@ -27,6 +27,8 @@ NODES = (
 )
 
 _ALL = NODES
+#: The nodes of a structure's rig that take the rig's own parameters (its ``rigs`` section).
+RIG_SCOPED_NODES = ('force_servo_controller', 'rig')
 
 
 @dataclass(frozen=True)
@@ -116,6 +118,18 @@ SCHEMA: tuple[ParamSpec, ...] = (
               nodes=_RIG),
     ParamSpec('bouc_wen_gamma', 0.5, '', 'Bouc-Wen shape parameter gamma (z saturates at '
               '(beta + gamma)^(-1/n)).', -100.0, 100.0, nodes=_RIG),
+    ParamSpec('structure', 'none', '', 'The whole structure tested on several rigs, as JSON '
+              '(seft run writes it from the structure and rigs sections of a configuration, '
+              "seft_ros.core.structure; 'none': the reference study's single rig with the "
+              'rigid computational mass alpha m). Every node of a rig runs in the namespace '
+              'named after the rig.', nodes=_ALL),
+    ParamSpec('structure_builders', 'central', '', "Structure tests: 'central' (one "
+              'reference-force builder, in the root namespace, commands every rig: one host, '
+              "or the computation on a host of its own) or 'per_rig' (one builder per rig, in "
+              "the rig's namespace beside its controller: each integrates a replica of the "
+              "computational part from every rig's measurements and predicts the others' "
+              'motion over the network delay; the multi-site layout, network out of the fast '
+              'loop).', choices=('central', 'per_rig'), nodes=_ALL),
     ParamSpec('mode', 'lockstep', '', "How the node graph steps: 'lockstep' (every node acts "
               'on step k once its inputs for step k are in; the rig is the simulated clock and '
               "the run equals seft simulate bit for bit) or 'realtime' (the rig ticks on the "
@@ -222,10 +236,19 @@ SCHEMA: tuple[ParamSpec, ...] = (
               nodes=_RFB + ('recorder',)),
     ParamSpec('predictor_loop_taps', 48, '', "Servohydraulic rig, 'model': taps of the FIR "
               'force-loop inverse.', 1, 1000, nodes=_RFB + ('recorder',)),
+    ParamSpec('predictor_loop_hf_weight', 1e-3, '', "Servohydraulic rig, 'model': weight "
+              'mu of the FIR force-loop inverse on its own gain above 40 Hz (the fit minimizes '
+              '|W T - z^-d|^2 in the band plus mu |W|^2 above it): smaller fits the band closer '
+              'and lets |W| grow above it. With predictor_loop_delay_steps 14 and '
+              'predictor_loop_taps 96, 1e-4 fits within 0.2 % up to 20 Hz (the defaults: '
+              '0.2-0.9 %): what structures on the rig need (docs: structures).', 1e-9, 1.0,
+              nodes=_RFB),
     ParamSpec('predictor_loop_latency_s', 0.0, 's', "Real-time mode with realtime_output "
               "'on_arrival': the measured loop latency (sample to command at the rig, p50 of "
               'the timing data); the predictor then compensates the actuator delay plus '
-              'loop_latency - dt (0: as lockstep).', 0.0, 1.0, nodes=_RFB + ('recorder',)),
+              "loop_latency - dt (0: as lockstep). Refused with 'latched' output (the "
+              'default), where a command acts at the next tick whatever its latency.', 0.0,
+              1.0, nodes=_RFB + ('recorder',)),
     ParamSpec('network_delay_s', 0.0, 's', 'Real-time mode, servohydraulic rig, the '
               'reference-force builder on another host than the force servo controller: the '
               'controller applies f_r[k] at step k + round(network_delay_s / dt), a fixed '
@@ -282,8 +305,11 @@ SCHEMA: tuple[ParamSpec, ...] = (
               "then does not depend on the specimen's stiffness); 'tangent_loop_shaping' "
               "(C_f with its control-structure-interaction poles scheduled on the member's "
               'tangent stiffness force_tangent_horizon_s ahead, from a Bouc-Wen model '
-              'identified online: for members that yield).',
-              choices=('loop_shaping', 'integral', 'velocity_feedback', 'tangent_loop_shaping'),
+              "identified online: for members that yield); 'specimen_loop_shaping' (the "
+              "study's rule for this rig's own specimen: g/(s^2 + (c/m) s + k/m), e.g. a second "
+              'pier of another stiffness).',
+              choices=('loop_shaping', 'integral', 'velocity_feedback', 'tangent_loop_shaping',
+                       'specimen_loop_shaping'),
               nodes=_CTRL + _RFB),
     ParamSpec('force_tangent_horizon_s', 0.005, 's', "'tangent_loop_shaping': how far ahead "
               "of the sample the member's tangent stiffness is predicted: when the valve "
@@ -312,7 +338,7 @@ SCHEMA: tuple[ParamSpec, ...] = (
     # -- rig --------------------------------------------------------------------------------
     ParamSpec('rig_model', 'servohydraulic', '', "Simulated rig: 'delay' (measured force = "
               "reference force delayed by tau_s, paper Sec. 5.2) or 'servohydraulic'.",
-              choices=('delay', 'servohydraulic'), nodes=_RIG + _CTRL + ('recorder',)),
+              choices=('delay', 'servohydraulic'), nodes=_ALL),
     ParamSpec('rig_calibration', 'us_customary', '', 'Servohydraulic rig: the units the '
               "reference controller C_f = 37/(s^2+17.14 s+4002) (paper Eq. 3.1) is read in. "
               "'us_customary': V/lbf (37/4.448 V/N; the valve passes 2.0 m/s at 10 V); 'si': "
@@ -366,7 +392,8 @@ SCHEMA: tuple[ParamSpec, ...] = (
               'command, or reference force on the delay rig) has arrived for this long, the rig '
               'goes to its safe state and the run ends aborted; likewise when the force servo '
               'controller has had no new reference force, or the reference-force builder no '
-              'measurement, for this long (a lost link between hosts).', 0.0, 10.0, True,
+              'measurement or no new ground-motion sample, for this long (a lost link between '
+              'hosts).', 0.0, 10.0, True,
               nodes=_RIG + _RFB + _CTRL),
     ParamSpec('safe_ramp_s', 0.2, 's', "Real-time mode: on any abort the rig's command (the "
               'actuator force on the delay rig, the valve opening on the servohydraulic rig) '
@@ -377,7 +404,7 @@ SCHEMA: tuple[ParamSpec, ...] = (
               "timing), or on arrival if it comes later; 'on_arrival': on arrival. Either way it "
               'reaches the actuator after the hardware latency io_latency_s - dt '
               '(servohydraulic) or tau_s (delay rig).', choices=('latched', 'on_arrival'),
-              nodes=_RIG),
+              nodes=_RIG + _RFB),
     ParamSpec('realtime_substep_s', 1e-4, 's', "Real-time mode: sub-step of the rig's plant "
               'integration between ticks (command changes are applied on this grid).', 1e-6,
               1.0, True, nodes=_RIG),
@@ -509,13 +536,30 @@ def resolve(overrides: Mapping[str, Any] | Iterable[tuple[str, Any]] = (), *,
 
 #: Parameters that are legitimately set per node and never compared between nodes
 #: (``use_sim_time`` is rclpy's, not the schema's).
+#: Parameters that are the test's, not a rig's: a structure's ``rigs`` section may not set
+#: them, and nodes in different namespaces must agree on them (:func:`shared_mismatches`).
+TEST_PARAMETERS = frozenset({
+    'dt', 'alpha', 'mode', 'n_steps', 'record', 'amplitude_N', 'scale_factor', 'time_scale',
+    'duration_s', 'preview_steps', 'excitation', 'excitation_input', 'excitation_amplitude',
+    'excitation_band_low_hz', 'excitation_band_hz', 'excitation_seed', 'predictor',
+    'ground_preview', 'polynomial_order', 'predictor_restoring_force', 'predictor_loop_latency_s',
+    'network_delay_s', 'monitor_cutoff_hz', 'monitor_window_s', 'monitor_threshold',
+    'monitor_floor_N', 'wait_for_recorder', 'recorder_window_steps', 'bag_path', 'bag_storage',
+    'structure', 'structure_builders', 'realtime_priority', 'adaptive_window_s',
+    'adaptive_max_delay_s', 'adaptive_memory_s', 'adaptive_excitation_N', 'adaptive_max_deviation',
+    'adaptive_max_rate_per_s', 'adaptive_loop', 'ats_window_s',
+})
+
+
 PER_NODE = frozenset({'bag_path', 'bag_storage', 'wait_for_recorder', 'recorder_window_steps',
                       'use_sim_time', 'realtime_priority'})
 
 
-def _node_rank(node: str) -> tuple[int, str]:
-    """Sort key of a node name: the graph's nodes in ``NODES`` order, then others by name."""
-    return (NODES.index(node), '') if node in NODES else (len(NODES), node)
+def _node_rank(node: str) -> tuple[int, str, str]:
+    """Sort key of a node name (qualified, ``<rig>/<node>``): the graph's nodes in ``NODES``
+    order (of their kind, then by rig), then others by name."""
+    rig, _, kind = node.rpartition('/')
+    return (NODES.index(kind), rig, '') if kind in NODES else (len(NODES), '', node)
 
 
 def _comparable(name: str, value: Any) -> tuple:
@@ -573,27 +617,46 @@ def shared_mismatches(node_params: Mapping[str, Mapping[str, Any]]) -> list[str]
         if not isinstance(node_params[node], Mapping):
             raise ParameterError(f'parameters of node {node!r}: expected a mapping of parameter '
                                  f'names to values, got {type(node_params[node]).__name__}')
+    # a structure's rig sections set their rig's parameters: the rig and controller nodes of
+    # a rig ('<rig>/rig', '<rig>/force_servo_controller') agree among themselves, and with the
+    # others (another rig's, the root's, a builder in a rig's namespace, which works with the
+    # whole test's parameters) on the test's parameters only
+    scopes: dict[str, list[str]] = {}
+    for node in nodes:
+        rig, _, kind = node.rpartition('/')
+        scopes.setdefault(rig if kind in RIG_SCOPED_NODES else '', []).append(node)
     lines = []
     for s in SCHEMA:
         if s.name in PER_NODE:
             continue
-        holders = [n for n in nodes if s.name in node_params[n]]
-        if len(holders) < 2:
-            continue
-        groups: dict[tuple, list[str]] = {}
-        for n in holders:
-            groups.setdefault(_comparable(s.name, node_params[n][s.name]), []).append(n)
-        if len(groups) < 2:
-            continue
-        ordered = sorted(groups.values(), key=lambda g: (len(g), holders.index(g[0])))
-        lines.append(f'parameter {s.name} differs: ' + ', '.join(
-            f'{n}={_shown(s.name, node_params[n][s.name])}' for g in ordered for n in g))
+        groups_of = [nodes] if s.name in TEST_PARAMETERS else list(scopes.values())
+        for members in groups_of:
+            line = _differs(s.name, [n for n in members if s.name in node_params[n]],
+                            node_params)
+            if line:
+                lines.append(line)
     return lines
+
+
+def _differs(name: str, holders: list[str], node_params) -> str | None:
+    """The line of :func:`shared_mismatches` for one parameter among `holders`, or None."""
+    if len(holders) < 2:
+        return None
+    groups: dict[tuple, list[str]] = {}
+    for n in holders:
+        groups.setdefault(_comparable(name, node_params[n][name]), []).append(n)
+    if len(groups) < 2:
+        return None
+    ordered = sorted(groups.values(), key=lambda g: (len(g), holders.index(g[0])))
+    return f'parameter {name} differs: ' + ', '.join(
+        f'{n}={_shown(name, node_params[n][name])}' for g in ordered for n in g)
 
 
 #: The source node of the parameters that several nodes declare (see :data:`VALUE_SOURCE`).
 _SHARED_SOURCE = {
     'alpha': 'reference_force_builder',     # Eq. 5.3 is computed there
+    'structure': 'reference_force_builder',  # it integrates the computational part
+    'structure_builders': 'reference_force_builder',   # where the builders run
     'dt': 'rig', 'mode': 'rig', 'n_steps': 'rig',  # the rig is the clock
     'mass_kg': 'rig', 'stiffness_N_per_m': 'rig', 'damping_N_s_per_m': 'rig',  # the specimen
     'rig_model': 'rig', 'rig_calibration': 'rig',
@@ -612,6 +675,7 @@ _SHARED_SOURCE = {
     'realtime_priority': 'rig',             # per node; the rig's is the clock's
     'watchdog_timeout_s': 'rig',            # the rig's watchdog; the others watch their inputs
     'network_delay_s': 'reference_force_builder',   # the delay its predictor compensates
+    'realtime_output': 'rig',               # the rig outputs the commands
     # the excitation: the ground-motion publisher plays it (closed loop), the controller
     # drives the valve with it (open loop); both generate the same samples
     'duration_s': 'ground_motion_publisher', 'excitation': 'ground_motion_publisher',

@@ -12,6 +12,7 @@ __all__ = [
     'SIGNALS', 'SCALAR_SIGNALS', 'NODE_PARAMETERS', 'TIMING', 'TIMING_FIELDS', 'TIMING_TYPE',
     'timing_signal', 'MEASUREMENT', 'MEASUREMENT_FIELDS', 'RecordStream', 'RECORD_STREAMS',
     'RECORD_TYPE', 'RECORD_ROWS', 'BAG_SIGNALS', 'record_streams_of', 'ESTIMATES',
+    'record_signal', 'LINK',
 ]
 
 
@@ -74,6 +75,12 @@ STATUS = Signal(
 RUN_PARAMETERS = Signal(
     '/seft/run_parameters', 'std_msgs/msg/String', 'data', '', 'recorder',
     "The run's resolved parameters as JSON (written once into the bag).")
+
+LINK = Signal(
+    '/seft/link', 'std_msgs/msg/String', 'data', '', 'seft_runner',
+    "Several hosts: the links as the reference host (the recorder's) measured them, JSON "
+    '(round trip p50/p99/max and clock offset per host, the emulation, the playout delay and '
+    'preview chosen), every 2 s.')
 
 NODE_PARAMETERS = Signal(
     '/seft/node_parameters', 'std_msgs/msg/String', 'data', '', '(all)',
@@ -199,10 +206,14 @@ RECORD_STREAMS = (
     RecordStream('/seft/record/reference_force_builder/estimates', 'reference_force_builder',
                  (), fields_topic=ESTIMATES.name),
 )
-_RECORD = tuple(
-    Signal(r.name, RECORD_TYPE, 'data', '', r.node,
-           f'Live: record batches of {r.node} for the recorder (columns {r.labels}).')
-    for r in RECORD_STREAMS)
+def record_signal(stream: RecordStream) -> Signal:
+    """The live topic of a record stream's batches."""
+    return Signal(stream.name, RECORD_TYPE, 'data', '', stream.node,
+                  f'Live: record batches of {stream.node} for the recorder (columns '
+                  f'{stream.labels}).')
+
+
+_RECORD = tuple(record_signal(r) for r in RECORD_STREAMS)
 
 
 def record_streams_of(node: str) -> tuple[RecordStream, ...]:

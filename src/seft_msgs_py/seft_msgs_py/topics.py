@@ -30,7 +30,7 @@ __all__ = [
     'MEASURED_FORCE', 'DISPLACEMENT', 'VELOCITY', 'ACCELERATION', 'STATUS', 'RUN_PARAMETERS',
     'DATA_QOS', 'STATUS_QOS', 'CLOCK_QOS', 'MEASUREMENT_TOPICS', 'topic', 'FRAME_ID',
     'NODE_PARAMETERS', 'TIMING', 'timing_topic', 'CLOCK_EVERY', 'MEASUREMENT', 'RECORD',
-    'BAG_TOPICS', 'record_topic', 'SCALAR_TOPICS', 'ESTIMATES',
+    'BAG_TOPICS', 'record_topic', 'SCALAR_TOPICS', 'ESTIMATES', 'spec_for', 'LINK',
 ]
 
 #: ``header.frame_id`` of every seft signal: the actuator axis (x: positive extension).
@@ -105,6 +105,8 @@ STATUS = _spec(sig.STATUS, DiagnosticStatus, STATUS_QOS)
 RUN_PARAMETERS = _spec(sig.RUN_PARAMETERS, String, STATUS_QOS)
 
 NODE_PARAMETERS = _spec(sig.NODE_PARAMETERS, String, STATUS_QOS)
+#: The links of a run over several hosts (the runners', recorded).
+LINK = _spec(sig.LINK, String, STATUS_QOS)
 #: Per-node timing topics (real-time mode), in the order of ``signals.TIMING``.
 TIMING = tuple(_spec(s, JointState, DATA_QOS) for s in sig.TIMING)
 
@@ -140,10 +142,28 @@ def topic(name: str) -> TopicSpec:
 
 
 def record_topic(stream: sig.RecordStream) -> TopicSpec:
-    """The :class:`TopicSpec` of a record stream."""
-    return RECORD[stream.name]
+    """The :class:`TopicSpec` of a record stream (a study stream, or one of a structure's
+    graph, :mod:`seft_msgs_py.graph`)."""
+    if stream.name in RECORD:
+        return RECORD[stream.name]
+    return spec_for(sig.record_signal(stream))
 
 
 def timing_topic(node: str) -> TopicSpec:
     """The :class:`TopicSpec` of `node`'s timing topic (KeyError if it publishes none)."""
     return {t.publisher: t for t in TIMING}[node]
+
+
+#: The message class of each type name the graph uses.
+_MSG_TYPES = {t.type_name: t.msg_type for t in TOPICS}
+
+
+def spec_for(signal: sig.Signal) -> TopicSpec:
+    """The :class:`TopicSpec` of any topic of a run's graph (``seft_msgs_py.graph``): a study
+    topic, or one in a rig's namespace (its QoS is that of the study topic it scopes)."""
+    if signal.name in _BY_NAME:
+        return _BY_NAME[signal.name]
+    base = '/' + signal.name.split('/', 2)[2] if signal.name.count('/') >= 2 else signal.name
+    qos = _BY_NAME[base].qos if base in _BY_NAME else DATA_QOS
+    return TopicSpec(signal.name, _MSG_TYPES[signal.type_name], signal.type_name, signal.field,
+                     signal.unit, signal.publisher, signal.description, qos)

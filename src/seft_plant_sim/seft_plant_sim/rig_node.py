@@ -35,7 +35,7 @@ import math
 import sys
 import time
 
-from seft_msgs_py import parameters
+from seft_msgs_py import clock
 from seft_msgs_py.convert import (
     STATE_ABORTED,
     STATE_DONE,
@@ -46,6 +46,7 @@ from seft_msgs_py.convert import (
     status_values,
 )
 from seft_msgs_py.errors import ParameterError
+from seft_msgs_py.graph import Graph, qualified
 from seft_msgs_py.interface import COMMAND_VALVE
 from seft_msgs_py.node_support import SeftNode, StepTiming, main_for
 from seft_msgs_py.signals import MEASUREMENT_FIELDS, RECORD_ROWS
@@ -69,19 +70,25 @@ PROGRESS_EVERY = 250
 MIN_WINDOW_STEPS = 100
 #: Real-time mode: how long the rig keeps sampling its safe state after the ramp [s].
 SAFE_HOLD_S = 0.05
+#: Real time with several rigs: the clock master announces the common start instant this far
+#: ahead of its own clock [s], so that the announcement reaches every rig (on other hosts,
+#: across a network) before it.
+START_LEAD_S = 0.5
 #: Real-time mode: after the last tick the rig waits for the commands of its last samples
 #: (their loop latency recorded, not counted lost) for watchdog_timeout_s, at least this [s].
 DRAIN_MIN_S = 0.1
-#: Real-time mode: the nodes whose inputs must have matched their publishers before the
-#: rig starts its clock (they report it, ``SeftNode.watch_inputs``).
-INPUT_NODES = ('ground_motion_publisher', 'reference_force_builder', 'force_servo_controller')
 
-
-def graph_nodes(params) -> tuple[str, ...]:
-    """The nodes of the run's graph besides the rig (the recorder only with
-    ``wait_for_recorder``)."""
-    nodes = parameters.graph_nodes(params['rig_model'])[:-1]
+def graph_nodes(params, me: str = 'rig') -> tuple[str, ...]:
+    """The nodes of the run's graph besides the rig `me` (qualified names; the recorder only
+    with ``wait_for_recorder``)."""
+    nodes = tuple(n for n in Graph.from_parameters(params).nodes() if n != me)
     return nodes + (('recorder',) if params['wait_for_recorder'] else ())
+
+
+def input_nodes(graph: Graph) -> tuple[str, ...]:
+    """Real-time mode: the nodes whose inputs must have matched their publishers before a
+    rig starts its clock (they report it, ``SeftNode.watch_inputs``)."""
+    return ('ground_motion_publisher',) + graph.builder_nodes() + graph.controller_nodes()
 
 
 class RigNode(SeftNode):
@@ -93,13 +100,17 @@ class RigNode(SeftNode):
         p = self.params
         self.rig = WallClockRig(p) if self.realtime else make_rig(p)
         self.n_steps = int(p['n_steps'])
-        self.command_topic = (VALVE_COMMAND if self.rig.command_kind == COMMAND_VALVE
-                              else REFERENCE_FORCE)
-        self.clock_pub = self.create_publisher(CLOCK.msg_type, CLOCK.name, CLOCK.qos)
+        self.command_topic = self.scoped_spec(
+            VALVE_COMMAND if self.rig.command_kind == COMMAND_VALVE else REFERENCE_FORCE)
+        #: The clock master (the first rig of a structure) publishes /clock.
+        self.clock_master = self.seft_name == self.graph.master
+        self.clock_pub = (self.create_publisher(CLOCK.msg_type, CLOCK.name, CLOCK.qos)
+                          if self.clock_master else None)
         # one live message of the four sensors a step (serialized in place), and the rows
         # of the record batches that the recorder writes as the bag's four sensor topics
-        self.measurement_pub = self.create_publisher(MEASUREMENT.msg_type, MEASUREMENT.name,
-                                                     MEASUREMENT.qos)
+        self.measurement_topic = self.scoped_spec(MEASUREMENT).name
+        self.measurement_pub = self.create_publisher(MEASUREMENT.msg_type,
+                                                     self.measurement_topic, MEASUREMENT.qos)
         self.measurement_msg = SerializedStamped.fields(MEASUREMENT.msg_type,
                                                         MEASUREMENT_FIELDS)
         self.batch = self.record_stream()
@@ -119,7 +130,12 @@ class RigNode(SeftNode):
         self.running = False
         #: The signal that stopped the rig (SIGINT, SIGTERM), reported in its final status.
         self.stop_signal = None
-        self.graph = graph_nodes(p)
+        self.graph_names = graph_nodes(p, self.seft_name)
+        #: The builders that read this rig's measurement, and its controller (if any).
+        self.readers = (self.graph.builder_nodes() if self.graph.per_rig_builders
+                        else (self.graph.builder_of(self.rig_name),))
+        self.controller = (qualified('force_servo_controller', self.rig_name)
+                           if self.graph.has_controller(self.rig_name) else None)
         #: Nodes that reported their inputs matched (real time, :data:`INPUT_NODES`).
         self.inputs_matched = set()
         self.create_subscription(STATUS.msg_type, STATUS.name, self.guard(self._on_status),
@@ -139,9 +155,14 @@ class RigNode(SeftNode):
             #: commands of its last samples, so that their loop latency is recorded rather
             #: than counted lost (at most watchdog_timeout_s, and at least DRAIN_MIN_S).
             self.drain_until = None
+        #: Real time with several rigs: the rigs armed (their graph is up), heard by the
+        #: master; this rig's own arming; the monotonic instant of the common start.
+        self.armed_rigs: set[str] = set()
+        self.armed = False
+        self.start_at = None
         self.start_timer = self.wall_timer(0.05, self._try_start)
         self.publish_parameters()
-        self.report(STATE_READY, 'waiting for the graph: ' + ', '.join(self.graph),
+        self.report(STATE_READY, 'waiting for the graph: ' + ', '.join(self.graph_names),
                     n_steps=self.n_steps, mode=p['mode'])
 
     # -- start ------------------------------------------------------------------------------
@@ -155,23 +176,31 @@ class RigNode(SeftNode):
         # node of the graph (the nodes start together: a short run could otherwise end before
         # the recorder heard of one of them)
         if (self.params['wait_for_recorder']
-                and (not self._subscribed_by('recorder', (self.batch.stream.name,))
+                and (not self.subscribed_by('recorder', self.batch.stream.name)
                      or 'recorder' not in self.inputs_matched)):
             return
-        if any(n not in self.node_params for n in self.graph):
+        if any(n not in self.node_params for n in self.graph_names):
             return
-        if self.realtime and not self._subscribed_by('reference_force_builder'):
+        if self.realtime and not all(self.subscribed_by(n, self.measurement_topic)
+                                     for n in self.readers):
             return
         # real time: the ground-motion publisher, builder and controller have also matched
         # their inputs and outputs (SeftNode.watch_inputs): a sample sent before that waits
         # for DDS's repair
-        if self.realtime and any(n not in self.inputs_matched for n in INPUT_NODES
-                                 if n in self.graph):
+        if self.realtime and any(n not in self.inputs_matched
+                                 for n in input_nodes(self.graph)):
             return
-        if (self.realtime and 'force_servo_controller' in self.graph
-                and not self._subscribed_by('force_servo_controller')):
+        if (self.realtime and self.controller is not None
+                and not self.subscribed_by(self.controller, self.measurement_topic)):
+            return
+        if self.realtime and len(self.graph.rigs) > 1:
+            self._arm()
             return
         self.start_timer.cancel()
+        self._begin()
+
+    def _begin(self) -> None:
+        """Start stepping (real time: sample 0 now)."""
         self.running = True
         self.get_logger().info(f'starting ({self.params["mode"]}): {self.n_steps} steps of '
                                f'{self.rig.dt} s, command {self.command_topic.name}')
@@ -181,14 +210,27 @@ class RigNode(SeftNode):
         else:
             self._publish_step()
 
-    def _subscribed_by(self, node: str, topics=(MEASUREMENT.name,)) -> bool:
-        """`node`'s subscriptions to `topics` (default: the rig's measurement) are
-        discovered."""
-        for name in topics:
-            nodes = {i.node_name for i in self.get_subscriptions_info_by_topic(name)}
-            if node not in nodes:
-                return False
-        return True
+    def _arm(self) -> None:
+        """Real time, several rigs: one clock for all. Each rig whose graph is up reports
+        itself armed; once every rig is, the clock master announces a start instant
+        ``START_LEAD_S`` ahead on its system clock (``start_at_ns``), and every rig takes its
+        sample 0 then (:meth:`next_due`), each on its own timer from there."""
+        if not self.armed:
+            self.armed = True
+            self.armed_rigs.add(self.seft_name)
+            self.report(STATE_READY, 'armed: waiting for the start instant', armed='1')
+        if (self.clock_master and self.start_at is None
+                and set(self.graph.rig_nodes()) <= self.armed_rigs):
+            start_ns = clock.now_ns() + int(START_LEAD_S * 1e9)
+            self.report(STATE_READY, 'the rigs start together', start_at_ns=start_ns)
+            self._schedule_start(start_ns)
+
+    def _schedule_start(self, start_ns: int) -> None:
+        """Take sample 0 at `start_ns` (the master's system clock [ns])."""
+        if self.start_at is not None or self.running:
+            return
+        self.start_timer.cancel()
+        self.start_at = time.monotonic() + (start_ns - clock.now_ns()) * 1e-9
 
     def _on_status(self, msg) -> None:
         if self.refused_by_another_node(msg):
@@ -204,6 +246,12 @@ class RigNode(SeftNode):
                     self._publish_step()
         if values.get('inputs') == 'matched':
             self.inputs_matched.add(msg.name)
+        if values.get('armed') == '1':
+            self.armed_rigs.add(msg.name)
+            if self.armed:
+                self._arm()
+        if msg.name == self.graph.master and 'start_at_ns' in values and self.armed:
+            self._schedule_start(int(values['start_at_ns']))
         if msg.name == 'ground_motion_publisher' and self.n_steps <= 0 and 'n_steps' in values:
             self.n_steps = int(values['n_steps'])
         if msg.name != self.seft_name and state in (STATE_ABORTED, STATE_FAILED):
@@ -243,7 +291,7 @@ class RigNode(SeftNode):
         values = (m.force_N, m.displacement_m, m.velocity_m_s, m.acceleration_m_s2)
         self.measurement_pub.publish(self.measurement_msg(stamp, values))
         self.batch.add(k, *values)
-        if k % CLOCK_EVERY == 0:
+        if k % CLOCK_EVERY == 0 and self.clock_master:
             self.clock_msg.clock.sec = int(stamp // 1_000_000_000)
             self.clock_msg.clock.nanosec = int(stamp % 1_000_000_000)
             self.clock_pub.publish(self.clock_msg)
@@ -267,7 +315,7 @@ class RigNode(SeftNode):
     def _start_realtime(self) -> None:
         """Sample 0 now; the next ticks come at t0 + k dt (:meth:`next_due`, :meth:`run_due`)."""
         self.t0 = time.monotonic()
-        self.t0_ns = time.time_ns()
+        self.t0_ns = clock.now_ns()
         self.last_command_at = self.t0
         for stamp, value in self.early_commands:
             self.rig.arrive(stamp, value, 0.0)
@@ -277,7 +325,10 @@ class RigNode(SeftNode):
         self._sample_realtime(self.t0, self.t0)
 
     def next_due(self) -> float | None:
-        """Real time, running: the instant of the next tick (absolute schedule t0 + k dt)."""
+        """Real time, running: the instant of the next tick (absolute schedule t0 + k dt);
+        before the common start of several rigs, that instant."""
+        if self.realtime and not self.running and self.start_at is not None and not self.done:
+            return self.start_at
         if not (self.realtime and self.running) or self.t0 is None:
             return None
         if self.drain_until is not None:
@@ -285,7 +336,10 @@ class RigNode(SeftNode):
         return self.t0 + (self.rig.step + 1) * self.rig.dt
 
     def run_due(self) -> None:
-        """The next tick is due: catch up with the wall clock."""
+        """The next tick is due: catch up with the wall clock (or the common start)."""
+        if not self.running and self.start_at is not None:
+            self.guard(self._begin)()
+            return
         self.guard(self._tick)()
 
     def _on_command_realtime(self, stamp: int, value: float) -> None:

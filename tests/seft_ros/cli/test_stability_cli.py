@@ -74,3 +74,45 @@ def test_stability_verb_bad_predictor(seft_exe, run_process, tmp_path):
     assert proc.stderr.splitlines() == [
         "seft: error: predictor 'foo': expected one of 'none', 'polynomial', 'model', "
         "'adaptive', 'ats'"]
+
+
+TWO_STORY = """\
+predictor: [none, model]
+duration_s: 1.0
+structure:
+  physical: {floor_1: lab}
+  story_masses_kg: [52.7, 52.7]
+  story_stiffnesses_N_per_m: [2.11e5, 2.11e5]
+  story_damping_N_s_per_m: [903.278, 133.4]
+"""
+
+
+def test_a_structure_predicted_unstable_is_refused_then_forced(seft_exe, run_process,
+                                                               tmp_path):
+    """The guard of a structure: the coupled loop's eigenvalues; uncompensated the delay's
+    negative damping at the coupling makes this building unstable, 'model' not."""
+    (tmp_path / 'c.yaml').write_text(TWO_STORY)
+    proc = run_process([seft_exe, 'simulate', 'c.yaml', '--out', 'out'], cwd=tmp_path)
+    assert proc.returncode == 2 and proc.stdout == ''
+    assert re.fullmatch(r'seft: error: structure with predictor none is predicted UNSTABLE '
+                        r'\(spectral radius 1\.0[0-9]{3}; unstable already at 0\.1 times its '
+                        r'computational part\); use --force to run it anyway',
+                        proc.stderr.splitlines()[-1]), proc.stderr
+    proc = run_process([seft_exe, 'simulate', 'c.yaml', '--out', 'forced', '--force'],
+                       cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    runs = json.loads((tmp_path / 'forced' / 'summary.json').read_text())['runs']
+    assert [r['stable'] for r in runs] == [False, True]
+
+
+def test_stability_map_of_a_structure(seft_exe, run_process, tmp_path):
+    (tmp_path / 'c.yaml').write_text(TWO_STORY)
+    proc = run_process([seft_exe, 'stability', 'c.yaml', '--points', '2', '--out', 'map'],
+                       cwd=tmp_path, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    lines = proc.stdout.splitlines()
+    assert lines[0].split() == ['io_latency_s', '[ms]', 'none', 'model']
+    assert lines[1].split() == ['0.00', 'unstable', '>3']
+    doc = json.loads((tmp_path / 'map' / 'stability.json').read_text())
+    assert doc['quantity'] == 'largest stable coupling scale of the computational part'
+    assert (tmp_path / 'map' / 'stability.png').stat().st_size > 10_000

@@ -75,3 +75,52 @@ def test_network_delay_steps_rounds_and_refuses_where_there_is_no_network():
         network_delay_steps({**base, 'mode': 'lockstep', 'network_delay_s': 0.01})
     with pytest.raises(ParameterError, match="rig_model 'delay'"):
         network_delay_steps({**base, 'rig_model': 'delay', 'network_delay_s': 0.01})
+
+
+def _peak_acceleration_late(m: int, alpha: float) -> tuple[float, float]:
+    """Uncompensated, the reference force m steps late: the peak |acceleration| [m/s^2] over
+    the run and over its last 2 s (the record's quiet end: a stable loop has settled there,
+    an unstable one is still at the accelerometer's 4 g clip)."""
+    p = parameters.resolve({'rig_model': 'servohydraulic', 'alpha': alpha, 'mode': 'realtime',
+                            'predictor': 'none', 'duration_s': 20.0,
+                            'network_delay_s': m * DT})
+    ag = prepared_record(p).acceleration_m_s2
+    rig, ctrl = make_rig(p), make_valve_controller(p)
+    builder = ReferenceForceBuilder.from_parameters(p)
+    built = [builder.step([ag[0]], None)]
+    acc = []
+    for k in range(len(ag)):
+        assert not rig.limit_violation()
+        meas = rig.measure()
+        rig.apply(ctrl.step(built[max(k - m, 0)], meas.force_N, meas.velocity_m_s,
+                            meas.acceleration_m_s2))
+        acc.append(abs(meas.acceleration_m_s2))
+        built.append(builder.step([ag[k + 1] if k + 1 < len(ag) else 0.0], meas))
+    return max(acc), max(acc[-1000:])
+
+
+def test_the_guard_models_the_playout_delay():
+    """The pre-run guard's sampled loop has the reference force's playout delay in it, as
+    the test has: 'model' told the delay stays stable at alpha 1 and 1.5 (the stepped runs
+    above: within 1.2x of one host), and the uncompensated boundary shrinks with the delay
+    and is where the stepped loop turns: at 0.85 of it the response dies out in the record's
+    quiet end, at 1.15 it stays at the accelerometer's clip (an earlier guard without the
+    delay line refused alpha 1 with 14 ms and let 'none' run far past its boundary)."""
+    from seft_ros.core import stability
+
+    def params(predictor, m, alpha):
+        return parameters.resolve({'predictor': predictor, 'mode': 'realtime',
+                                   'rig_model': 'servohydraulic', 'network_delay_s': m * DT,
+                                   'alpha': alpha})
+    for m in (7, 25):
+        for alpha in (1.0, 1.5):
+            assert stability.spectral_radius(params('model', m, alpha)) < 0.995, (m, alpha)
+    boundaries = [stability.check_run(params('none', m, 0.5)).boundary_alpha
+                  for m in (0, 3, 7)]
+    assert boundaries[0] > boundaries[1] > boundaries[2]
+    assert boundaries[0] == pytest.approx(1.32, abs=0.01)       # one host (README)
+    b = boundaries[2]
+    peak, late = _peak_acceleration_late(7, 0.85 * b)
+    assert late < 0.2 * peak
+    peak, late = _peak_acceleration_late(7, 1.15 * b)
+    assert late > 0.9 * peak > 35.0                         # 4 g = 39.2 m/s^2

@@ -109,6 +109,19 @@ class BagSignals:
         self.estimates: dict[int, dict[str, float]] = {}
         self.recovery = None
         self.duplicates: dict[str, list[int]] = {}
+        #: The last link figures of a run over several hosts (``/seft/link``), or None.
+        self.link: dict | None = None
+
+
+def _link(data: str, path: Path) -> dict:
+    """One ``/seft/link`` message (JSON), checked to be an object."""
+    try:
+        doc = json.loads(data)
+    except ValueError as exc:
+        raise InputError(f'{path}: {signals.LINK.name}: invalid JSON ({exc})') from None
+    if not isinstance(doc, dict):
+        raise InputError(f'{path}: {signals.LINK.name}: expected a JSON object')
+    return doc
 
 
 def _node_parameters(data: str, where: str) -> tuple[str, dict]:
@@ -197,6 +210,7 @@ def read_signals(path) -> BagSignals:
     repeats: dict[str, list] = {}              # topic -> [(stamp, first value, repeated one)]
     live_repeats: dict[str, list] = {}         # the same for `live` (its keys)
     recovery = None
+    link = None
     try:
         if is_unclosed_bag(path):
             recovery = recover_bag(path)
@@ -210,6 +224,8 @@ def read_signals(path) -> BagSignals:
                 node, values = _node_parameters(
                     msg.data, f'{path}: {signals.NODE_PARAMETERS.name}')
                 node_params[node] = values
+            elif topic == signals.LINK.name:
+                link = _link(typestore.deserialize_cdr(raw, msgtype).data, path)
             elif topic in TIMING_PUBLISHER:
                 timing_rows.setdefault(TIMING_PUBLISHER[topic], []).append(
                     timing_row(typestore.deserialize_cdr(raw, msgtype)))
@@ -305,6 +321,7 @@ def read_signals(path) -> BagSignals:
     bag.estimates = {(key[1] if isinstance(key, tuple) else int(round(key / dt_ns))): values
                      for key, values in estimates.items()}
     bag.duplicates = {name: sorted(ks) for name, ks in steps.duplicates.items()}
+    bag.link = link
     if recovery is not None:
         recovery.messages = []       # read: the counts say how many
     bag.recovery = recovery
@@ -444,7 +461,10 @@ def recording_end(bag: BagSignals, n_steps: int) -> dict:
 
 def read_run(path) -> RunData:
     """Read a seft bag into a :class:`RunData`: its steps from 0 up to the first step a signal
-    lacks (the analysis needs contiguous samples), and what the bag misses after it.
+    lacks (the analysis needs contiguous samples), and what the bag misses after it. The bag
+    of a structure test gives a
+    :class:`~seft_ros.analysis.rundata.StructureRunData` instead
+    (:func:`~seft_ros.analysis.structure_bag.read_structure_run`).
 
     The parameters are ``BagSignals.params``; ``extra`` holds, besides ``'rig_final'`` and
     ``'counts'``, ``'node_params'`` (``{node: {parameter: value}}``, empty for a bag without
@@ -495,6 +515,9 @@ def read_run(path) -> RunData:
         As :func:`read_signals`, or the bag holds no complete step (a signal without a sample:
         the message names its topics; step 0 missing on some).
     """
+    from seft_ros.analysis.structure_bag import is_structure_bag, read_structure_run
+    if is_structure_bag(path):
+        return read_structure_run(path)
     bag = read_signals(path)
     p = bag.params
     valve = p['rig_model'] == 'servohydraulic'
@@ -568,6 +591,8 @@ def read_run(path) -> RunData:
     if p.get('mode') == 'realtime':
         extra['timing_data'] = bag.timing
         extra['timing'] = timing_summary(bag.timing)
+    if bag.link is not None:
+        extra['link'] = bag.link
     estimates = None
     if bag.estimates and all(k in bag.estimates for k in range(n)):
         names = list(bag.estimates[0])

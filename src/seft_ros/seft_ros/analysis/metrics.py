@@ -25,6 +25,7 @@ from seft_ros.analysis.criteria import as_1d as _as_1d
 from seft_ros.analysis.criteria import check_dt as _check_dt
 from seft_ros.analysis.reference import ReferenceResponse, reference_from_run
 from seft_ros.analysis.rundata import SIGNALS, RunData
+from seft_ros.analysis.timing import link_summary
 
 __all__ = [
     'SignalComparison', 'RunComparison', 'estimate_lag', 'shift', 'nrms_error', 'peak',
@@ -825,6 +826,9 @@ def summary_entry(run: RunData, comparison: RunComparison) -> dict[str, Any]:
         }
     if run.extra.get('timing') is not None:
         entry['timing'] = run.extra['timing']
+    link = link_summary(run.extra.get('link'), run.extra.get('timing'))
+    if link is not None:
+        entry['link'] = link
     if run.extra.get('bag_lost_messages') is not None:
         entry['bag_lost_messages'] = int(run.extra['bag_lost_messages'])
     if run.extra.get('recording') is not None:

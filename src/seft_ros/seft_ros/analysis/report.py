@@ -32,7 +32,12 @@ from seft_ros.analysis.metrics import (
 )
 from seft_ros.analysis.reference import reference_from_run
 from seft_ros.analysis.rundata import SIGNALS, RunData
-from seft_ros.analysis.timing import timing_figure, timing_table
+from seft_ros.analysis.timing import (
+    link_markdown,
+    link_summary,
+    timing_figure,
+    timing_table,
+)
 
 __all__ = ['ReportPaths', 'write_report', 'write_summary_json', 'plot_time_histories',
            'plot_criteria_vs_alpha', 'plot_runs_compared', 'software_versions',
@@ -557,6 +562,7 @@ def _timing_markdown(index: int, run: RunData, out_dir: Path, title: str) -> lis
         return []
     lines = [f'### Run {index}: timing (real time, wall {_fmt(run.extra.get("wall_s"), ".1f")}'
              ' s)', '', timing_table(timing), '']
+    lines += link_markdown(link_summary(run.extra.get('link'), timing))
     lost = run.extra.get('bag_lost_messages')
     if lost is not None:
         lines += [f'Messages published but not in the bag: {lost}.', '']
@@ -1339,6 +1345,10 @@ def write_report(runs: list[RunData], out_dir, *, title: str = 'seft comparison'
       ``hysteresis_<predictor>.png`` (:func:`plot_hysteresis`) with a caption; each such
       run's section names its residual displacements and both NRMS.
 
+    Structure tests (:class:`~seft_ros.analysis.rundata.StructureRunData`) get their report
+    per degree of freedom instead
+    (:func:`~seft_ros.analysis.structure_report.write_structure_report`).
+
     Parameters
     ----------
     runs : list of RunData
@@ -1358,8 +1368,8 @@ def write_report(runs: list[RunData], out_dir, *, title: str = 'seft comparison'
     Raises
     ------
     ParameterError
-        If `runs` is empty, a run's parameters are missing or out of range, or the cutoff is
-        not below a run's Nyquist frequency.
+        If `runs` is empty or mixes structure tests and single-rig tests, a run's parameters
+        are missing or out of range, or the cutoff is not below a run's Nyquist frequency.
 
     References
     ----------
@@ -1369,6 +1379,14 @@ def write_report(runs: list[RunData], out_dir, *, title: str = 'seft comparison'
     runs = list(runs)
     if not runs:
         raise ParameterError('runs: expected at least one run')
+    from seft_ros.analysis.rundata import StructureRunData
+    structures = [isinstance(run, StructureRunData) for run in runs]
+    if any(structures):
+        if not all(structures):
+            raise ParameterError('runs: structure tests and single-rig tests in one report; '
+                                 'expected one kind (compare them apart)')
+        from seft_ros.analysis.structure_report import write_structure_report
+        return write_structure_report(runs, out_dir, title=title)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     comparisons = [compare_run(run, reference_from_run(run),

@@ -5,7 +5,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ['RunData', 'SIGNALS']
+__all__ = ['RunData', 'SIGNALS', 'StructureRunData']
 
 #: Signals compared against the reference analysis, in report order.
 SIGNALS = ('displacement', 'force', 'acceleration')
@@ -95,3 +95,48 @@ class RunData:
         """Return the measured signal 'displacement', 'force' or 'acceleration'."""
         return {'displacement': self.displacement_m, 'force': self.measured_force_N,
                 'acceleration': self.acceleration_m_s2}[name]
+
+
+@dataclass
+class StructureRunData:
+    """Sampled signals of one run of a structure test: every rig's, and the computational
+    DOFs', one sample per control step, SI units (arrays of shape ``(n,)``).
+
+    Attributes
+    ----------
+    params : dict
+        The run's resolved parameters (with its ``structure``).
+    rigs : dict of str to RunData
+        Each rig's signals (its reference force, measured force and motion), keyed by rig
+        name in the structure's order of its physical DOFs; its ``params`` are the rig's
+        (the run's with the rig's section) with ``alpha`` = the rigid computational mass on
+        its DOF over its specimen mass.
+    time_s : ndarray (n,)
+        Sample times [s].
+    ground_acceleration_m_s2 : ndarray (n,)
+        Ground acceleration [m/s^2].
+    computational : dict of str to ndarray (n,)
+        The computational DOFs' state as the builder integrated it:
+        ``'<dof>/displacement_m'``, ``'<dof>/velocity_m_s'``, ``'<dof>/acceleration_m_s2'``
+        (NaN where not recorded: the last sample).
+    stable, unstable_at_s, abort_reason, record_name, source, extra
+        As :class:`RunData` (``extra['abort_node']``: the node that ended the run,
+        ``'<rig>/rig'`` for a rig).
+    """
+
+    params: dict[str, Any]
+    rigs: dict[str, RunData]
+    time_s: np.ndarray
+    ground_acceleration_m_s2: np.ndarray
+    computational: dict[str, np.ndarray]
+    stable: bool = True
+    unstable_at_s: float | None = None
+    abort_reason: str | None = None
+    record_name: str = ''
+    source: str = ''
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def n_steps(self) -> int:
+        """Number of samples."""
+        return int(self.time_s.shape[0])

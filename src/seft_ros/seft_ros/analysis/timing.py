@@ -19,7 +19,8 @@ from seft_msgs_py import signals
 from seft_msgs_py.errors import InputError
 
 __all__ = ['NodeTiming', 'read_timing', 'timing_row', 'node_timings', 'timing_summary',
-           'timing_figure', 'timing_table', 'percentiles_ms', 'TIMING_PUBLISHER']
+           'timing_figure', 'timing_table', 'percentiles_ms', 'TIMING_PUBLISHER',
+           'link_summary', 'PLAYOUT_MISS_FRACTION', 'link_markdown']
 
 _FIELDS = signals.TIMING_FIELDS
 #: Timing topic -> the node that publishes it.
@@ -130,16 +131,20 @@ def timing_summary(timing: dict[str, NodeTiming]) -> dict | None:
     -------
     dict
         ``loop_latency_ms`` and ``period_jitter_ms`` ({p50, p99, max} of the rig's loop latency
-        and absolute period jitter), ``missed_deadline_fraction`` (rig ticks whose sample was
+        and absolute period jitter; with several rigs, over the records of every rig),
+        ``missed_deadline_fraction`` (rig ticks whose sample was
         taken a period or more late), ``stale_command_fraction`` (rig ticks at which the
         command computed from the previous sample had not arrived), ``lost_commands`` (samples
         whose command never arrived), and ``nodes``: per node ``records``, ``compute_ms``,
         ``input_age_ms``, ``period_jitter_ms``, ``missed_deadline_fraction`` and
         ``stale_fraction``. Fractions are in 0..1.
     """
-    rig = timing.get('rig')
-    if rig is None or rig.n == 0:
+    rigs = [t for name, t in sorted(timing.items()) if _is_rig(name) and t.n]
+    if not rigs:
         return None
+
+    def joined(attr, skip_first=False):
+        return np.concatenate([getattr(t, attr)[1 if skip_first else 0:] for t in rigs])
     nodes = {}
     for name, t in sorted(timing.items()):
         nodes[name] = {
@@ -151,16 +156,21 @@ def timing_summary(timing: dict[str, NodeTiming]) -> dict | None:
             'stale_fraction': round(float(np.mean(t.stale)), 6),
         }
     # the rig waits for the commands of its last samples after its last tick (DRAIN_MIN_S)
-    lost = int(np.sum(~np.isfinite(rig.loop_latency_s)))
+    latency = joined('loop_latency_s')
+    stale = joined('stale', skip_first=True)
     return {
-        'loop_latency_ms': percentiles_ms(rig.loop_latency_s),
-        'period_jitter_ms': percentiles_ms(np.abs(rig.period_jitter_s)),
-        'missed_deadline_fraction': round(float(np.mean(rig.missed_deadline)), 6),
-        'stale_command_fraction': round(float(np.mean(rig.stale[1:])) if rig.n > 1 else 0.0,
-                                        6),
-        'lost_commands': lost,
+        'loop_latency_ms': percentiles_ms(latency),
+        'period_jitter_ms': percentiles_ms(np.abs(joined('period_jitter_s'))),
+        'missed_deadline_fraction': round(float(np.mean(joined('missed_deadline'))), 6),
+        'stale_command_fraction': round(float(np.mean(stale)) if stale.size else 0.0, 6),
+        'lost_commands': int(np.sum(~np.isfinite(latency))),
         'nodes': nodes,
     }
+
+
+def _is_rig(node: str) -> bool:
+    """Whether `node` is a rig (the study's ``rig``, or ``<rig>/rig`` of a structure)."""
+    return node == 'rig' or node.endswith('/rig')
 
 
 def timing_table(summary: dict) -> str:
@@ -202,14 +212,14 @@ def timing_figure(timing: dict[str, NodeTiming], path, *, title: str = '') -> Pa
     FigureCanvasAgg(fig)
     axes = fig.subplots(2, 2)
     panels = (
-        (axes[0, 0], 'loop latency at the rig [ms]', lambda t: t.loop_latency_s, ('rig',)),
+        (axes[0, 0], 'loop latency at the rig [ms]', lambda t: t.loop_latency_s, _is_rig),
         (axes[0, 1], 'period jitter [ms]', lambda t: t.period_jitter_s, None),
         (axes[1, 0], 'compute time per step [ms]', lambda t: t.compute_s, None),
         (axes[1, 1], 'age of the oldest input [ms]', lambda t: t.input_age_s, None),
     )
     for ax, label, get, only in panels:
         for name, t in sorted(timing.items()):
-            if only and name not in only:
+            if only and not only(name):
                 continue
             v = get(t) * 1e3
             v = v[np.isfinite(v)]
@@ -228,3 +238,73 @@ def timing_figure(timing: dict[str, NodeTiming], path, *, title: str = '') -> Pa
     path = Path(path)
     fig.savefig(path, dpi=90)
     return path
+
+
+#: A run whose commands missed their playout step (``network_delay_s``) more often than this
+#: fraction says so in its summary and report: the playout delay is too short for the link.
+PLAYOUT_MISS_FRACTION = 0.01
+
+
+def link_summary(link: dict | None, timing: dict | None) -> dict | None:
+    """The ``"link"`` block of ``summary.json`` of a run over several hosts (None on one host).
+
+    Parameters
+    ----------
+    link : dict or None
+        The last ``/seft/link`` figures of the bag (``seft_ros.cli.link``): per host the
+        round trip (p50/p99/max [ms]) and the clock offset [ms] to the reference host, the
+        emulation, the playout delay and the preview chosen.
+    timing : dict or None
+        The run's :func:`timing_summary`.
+
+    Returns
+    -------
+    dict
+        ``{'reference', 'emulation', 'hosts': {host: {'round_trip_ms', 'offset_ms',
+        'samples'}}, 'network_delay_s', 'preview_steps', 'playout',
+        'decided_round_trip_p99_ms', 'playout_missed_fraction', 'warning'}``: the round trip
+        the playout delay was sized from (the start-up measurement; ``hosts`` holds the whole
+        run's), the fraction of steps whose controller had not received the reference
+        force of its playout step (the force servo controllers' stale fraction, the largest),
+        and, above :data:`PLAYOUT_MISS_FRACTION`, a warning line.
+    """
+    if not link:
+        return None
+    out = {'reference': link.get('reference'), 'emulation': link.get('emulation', 'none'),
+           'hosts': {h: {k: v.get(k) for k in ('round_trip_ms', 'offset_ms', 'samples')}
+                     for h, v in (link.get('links') or {}).items()},
+           'network_delay_s': link.get('network_delay_s'),
+           'preview_steps': link.get('preview_steps'), 'playout': link.get('playout'),
+           'decided_round_trip_p99_ms': link.get('decided_round_trip_p99_ms')}
+    nodes = (timing or {}).get('nodes') or {}
+    stale = [v['stale_fraction'] for n, v in nodes.items()
+             if n.rpartition('/')[2] == 'force_servo_controller']
+    if stale and link.get('network_delay_s'):
+        missed = max(stale)
+        out['playout_missed_fraction'] = missed
+        if missed > PLAYOUT_MISS_FRACTION:
+            out['warning'] = (f'{100 * missed:.1f} % of the reference forces missed their '
+                              f'playout step (more than {100 * PLAYOUT_MISS_FRACTION:g} %): '
+                              'network_delay_s is short for this link')
+    return out
+
+
+def link_markdown(link: dict | None) -> list[str]:
+    """Report lines of a :func:`link_summary` (none on one host)."""
+    if not link:
+        return []
+    lines = [f'Links measured by the reference host {link.get("reference")} '
+             f'(emulation: {link.get("emulation")}; playout {link.get("playout")}, '
+             f'network_delay_s {link.get("network_delay_s")}, preview_steps '
+             f'{link.get("preview_steps")}):', '',
+             '| host | round trip ms (p50 / p99 / max) | clock offset ms | pings |',
+             '|---|---|---|---|']
+    for host, v in link['hosts'].items():
+        rtt = v.get('round_trip_ms') or {}
+        lines.append(f'| {host} | {rtt.get("p50", float("nan")):.2f} / '
+                     f'{rtt.get("p99", float("nan")):.2f} / {rtt.get("max", float("nan")):.2f}'
+                     f' | {v.get("offset_ms", float("nan")):+.3f} | {v.get("samples")} |')
+    lines.append('')
+    if link.get('warning'):
+        lines += [f'**Warning:** {link["warning"]}.', '']
+    return lines

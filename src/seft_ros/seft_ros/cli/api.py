@@ -94,8 +94,11 @@ def output_dir(*, out: str | None, name: str) -> Path:
 
 
 def _run_label(p: dict, runs: list[dict] | None = None) -> str:
-    """A run's directory name; with several records in `runs`, the record's file stem too."""
-    label = f'alpha_{p["alpha"]:g}_{p["rig_model"]}_{p["predictor"]}'
+    """A run's directory name (``alpha_<alpha>_<rig>_<predictor>``, a structure test's
+    ``structure_<predictor>``); with several records in `runs`, the record's file stem
+    too."""
+    label = (f'alpha_{p["alpha"]:g}_{p["rig_model"]}_{p["predictor"]}' if not has_structure(p)
+             else f'structure_{p["predictor"]}')
     if runs and len({r['record'] for r in runs}) > 1:
         stem = Path(str(p['record'])).stem
         label += '_' + ''.join(c if c.isalnum() or c in '-_.' else '_' for c in stem)
@@ -200,9 +203,23 @@ def simulate_runs(*, runs: list[dict], out_dir: Path,
     data = []
     for p, label in zip(runs, labels):
         progress(f'[{label}] simulating')
-        rd = simulate(p, progress=lambda k, n, lb=label: progress(f'[{lb}] step {k}/{n}'))
+        rd = simulate_any(p, progress=lambda k, n, lb=label: progress(f'[{lb}] step {k}/{n}'))
         data.append(_run_finished(p, rd, label, out_dir, progress))
     return data
+
+
+def has_structure(params) -> bool:
+    """Whether a run is a structure test (parameter ``structure``)."""
+    return params.get('structure', 'none') not in ('none', '', None)
+
+
+def simulate_any(params: dict, progress=None):
+    """One run in one process: :func:`~seft_ros.core.experiment.simulate`, or
+    :func:`~seft_ros.core.structure_experiment.simulate_structure` for a structure test."""
+    if has_structure(params):
+        from seft_ros.core.structure_experiment import simulate_structure
+        return simulate_structure(params, progress=progress)
+    return simulate(params, progress=progress)
 
 
 def _run_finished(params: dict, rd: RunData, label: str, out_dir: Path,
@@ -248,7 +265,7 @@ def _simulate_in_worker(index: int, params: dict, label: str) -> tuple[int, RunD
         lines.put(f'[{label}] step {k}/{n}')
 
     lines.put(f'[{label}] simulating')
-    return index, simulate(params, progress=report)
+    return index, simulate_any(params, progress=report)
 
 
 def _simulate_pool(runs: list[dict], labels: list[str], out_dir: Path,
@@ -366,14 +383,17 @@ def check_nodes(nodes: list[str], runs: list[dict]) -> list[str]:
     InputError
         A name that is no node of a run's graph (the message lists the valid ones).
     """
+    from seft_msgs_py.graph import Graph
     if not nodes:
         raise InputError('--nodes: expected one or more node names')
     for p in runs:
-        graph = ['recorder', *parameters.graph_nodes(p['rig_model'])]
+        graph = ['recorder', *Graph.from_parameters(p).nodes()]
+        what = (f'the {p["rig_model"]!r} rig\'s graph' if not has_structure(p)
+                else "the structure's graph")
         for name in nodes:
             if name not in graph:
-                raise InputError(f'--nodes {name}: not a node of the {p["rig_model"]!r} rig\'s '
-                                 f'graph; expected some of {", ".join(graph)}')
+                raise InputError(f'--nodes {name}: not a node of {what}; expected some of '
+                                 f'{", ".join(graph)}')
     if len(set(nodes)) != len(nodes):
         raise InputError(f'--nodes {",".join(nodes)}: a node is named twice')
     return list(nodes)
@@ -590,13 +610,59 @@ def compare_bags(*, bags: list[str], out_dir: Path, title: str = '') -> Result:
     return _finish(out_dir, data, title or 'seft compare', t0)
 
 
+def structure_table(summary: list[dict]) -> str:
+    """A plain-text table of structure runs' summary entries: one line per run and degree of
+    freedom (NRMS of displacement, acceleration, floor acceleration and interface force
+    [%], peak ratios of displacement and floor acceleration), then one line per run and rig
+    with the criteria J1 [ms], J2-J5 [%] and, in real time, the timing."""
+    def pct(c, key='nrms'):
+        v = (c or {}).get(key)
+        return f'{100 * v:8.2f}' if v is not None else f'{"-":>8}'
+
+    def ratio(c):
+        v = (c or {}).get('peak_ratio')
+        return f'{v:7.3f}' if v is not None else f'{"-":>7}'
+    lines = [f'{"run":>3} {"predictor":>10} {"stable":>7} {"abort_s":>8} {"dof":>12} '
+             f'{"rig":>10} {"nrms_x%":>8} {"nrms_a%":>8} {"nrms_fa%":>8} {"nrms_f%":>8} '
+             f'{"peak_x":>7} {"peak_fa":>7}']
+    for i, e in enumerate(summary, start=1):
+        abort = f'{e["unstable_at_s"]:8.3f}' if e['unstable_at_s'] is not None else f'{"-":>8}'
+        for dof in e['structure']['dofs']:
+            d = e['dofs'][dof]
+            lines.append(f'{i:3d} {e["predictor"]:>10} {str(e["stable"]):>7} {abort} '
+                         f'{dof[:12]:>12} {str(d["rig"] or "-")[:10]:>10} '
+                         f'{pct(d["displacement"])} {pct(d["acceleration"])} '
+                         f'{pct(d["floor_acceleration"])} {pct(d["interface_force"])} '
+                         f'{ratio(d["displacement"])} {ratio(d["floor_acceleration"])}')
+    lines.append(f'{"run":>3} {"rig":>10} {"J1_ms":>7} {"J2%":>8} {"J3%":>8} {"J4%":>8} '
+                 f'{"J5%":>8} {"lat50ms":>8} {"lat99ms":>8} {"stale%":>8}')
+    for i, e in enumerate(summary, start=1):
+        t = e.get('timing')
+        for rig, info in e['rigs'].items():
+            c = info['criteria']
+            cells = ' '.join(f'{c[k]:8.2f}' if c.get(k) is not None else f'{"-":>8}'
+                             for k in ('J2', 'J3', 'J4', 'J5'))
+            j1 = f'{c["J1"]:7.2f}' if c.get('J1') is not None else f'{"-":>7}'
+            timing = (f' {t["loop_latency_ms"]["p50"]:8.3f} {t["loop_latency_ms"]["p99"]:8.3f}'
+                      f' {100 * t["stale_command_fraction"]:8.2f}' if t else '')
+            lines.append(f'{i:3d} {rig[:10]:>10} {j1} {cells}{timing}')
+        if e.get('abort_reason'):
+            lines.append(f'note: run {i} ({e["predictor"]}): aborted: {e["abort_reason"]}')
+        if (e.get('link') or {}).get('warning'):
+            lines.append(f'note: run {i} ({e["predictor"]}): {e["link"]["warning"]}')
+    return '\n'.join(lines)
+
+
 def summary_table(summary: list[dict]) -> str:
     """A plain-text table of summary entries (one line per run); real-time runs add the loop
     latency (p50, p99), missed deadlines and stale commands; runs with a nonlinear specimen
     (``"nonlinear"`` of the entry) add the displacement NRMS with the drift removed and the
     residual displacement of test and reference [mm]. Below it, one ``note:`` line per
     run whose recording did not end with the run (``"recording"`` of the entry: the recorder
-    killed, the bag recovered; or stopped) or has a gap (steps after it not analysed)."""
+    killed, the bag recovered; or stopped) or has a gap (steps after it not analysed).
+    Structure runs: :func:`structure_table`."""
+    if summary and 'structure' in summary[0]:
+        return structure_table(summary)
     head = (f'{"alpha":>6} {"rig":>14} {"predictor":>10} {"stable":>7} {"abort_s":>8} '
             f'{"lag_ms":>7} {"nrms_x%":>8} {"nrms_a%":>8} {"nrms_f%":>8} {"peak_x":>7} '
             f'{"peak_a":>7} {"peak_f":>7}')
@@ -643,6 +709,9 @@ def summary_table(summary: list[dict]) -> str:
                           f'{mm(res.get("test"))} {mm(res.get("reference"))}' if nl
                           else f' {"-":>8} {"-":>8} {"-":>8}')
     for i, e in enumerate(summary, start=1):
+        if (e.get('link') or {}).get('warning'):
+            lines.append(f'note: run {i} (alpha {e["alpha"]:g}, {e["predictor"]}): '
+                         f'{e["link"]["warning"]}')
         rec = e.get('recording') or {}
         if rec.get('end') in ('crashed', 'stopped') or rec.get('gap_at_step') is not None:
             lines.append(f'note: run {i} (alpha {e["alpha"]:g}, {e["predictor"]}): '
@@ -653,7 +722,10 @@ def summary_table(summary: list[dict]) -> str:
 def criteria_table(summary: list[dict]) -> str:
     """A plain-text table of the RTHS benchmark's criteria (``"criteria"`` of each summary
     entry): J1 [ms], J2-J5 [%], and the NRMS of every signal after removing the common
-    (displacement) lag [%]."""
+    (displacement) lag [%]. Structure runs: empty (their criteria, per rig, are in
+    :func:`structure_table`)."""
+    if summary and 'structure' in summary[0]:
+        return ''
     head = (f'{"alpha":>6} {"predictor":>10} {"J1_ms":>6} {"J2%":>8} {"J3%":>8} {"J4%":>8} '
             f'{"J5%":>8} {"nrms_x%":>8} {"nrms_a%":>8} {"nrms_f%":>8}  (criteria: Silva et al. '
             '2020; NRMS after removing the displacement lag from every signal)')
@@ -703,7 +775,7 @@ def check_capacity(*, runs: list[dict], progress: Callable[[str], None] = print)
     """
     for p in runs:
         v_max = actuator_velocity_limit_m_s(p)
-        if v_max is None:
+        if v_max is None or has_structure(p):
             continue
         gm = prepared_record(p)
         ref = reference_response(alpha=p['alpha'], mass_kg=p['mass_kg'],
@@ -735,7 +807,9 @@ def check_stability(*, runs: list[dict], force: bool = False,
     PredictedUnstableError
         A run is predicted unstable and `force` is False (message of the first such run).
     """
-    checks = [stability.check_run(p) for p in runs]
+    from seft_ros.core.structure_stability import check_structure
+    checks = [stability.check_run(p) if not has_structure(p) else check_structure(p)
+              for p in runs]
     unstable = [c for c in checks if c.stable is False]
     for c in checks:
         if c.stable is None:
@@ -797,6 +871,7 @@ def stability_report(*, out_dir: Path, config: str | None = None,
     """
     runs = build_runs(config=config, overrides=overrides)
     params = runs[0]
+    structure = has_structure(params)
     rig = params['rig_model']
     knob = stability.DELAY_PARAMETER.get(rig)
     if knob is None:
@@ -808,28 +883,43 @@ def stability_report(*, out_dir: Path, config: str | None = None,
     if not (low_ok and hi > lo):
         raise ParameterError(f'--tau-min {lo:g} --tau-max {hi:g}: expected '
                              f'{"0 <" if rig == "delay" else "0 <="} tau-min < tau-max')
-    n = int(round((hi - lo) / 0.0005)) + 1 if points is None else int(points)
+    # a structure's map (coupling scale over the delay) takes seconds a point: fewer points
+    default_n = int(round((hi - lo) / 0.0005)) + 1 if not structure else 6
+    n = default_n if points is None else int(points)
     if n < 2:
         raise ParameterError(f'--points {n}: expected >= 2')
     if not alpha_max > 0:
         raise ParameterError(f'--alpha-max {alpha_max:g}: expected > 0')
-    names = list(predictors or PREDICTORS)
+    from seft_ros.core.substructure import STRUCTURE_PREDICTORS
+    registry = STRUCTURE_PREDICTORS if structure else PREDICTORS
+    names = list(predictors or registry)
     for name in names:
-        if name not in PREDICTORS:
-            choices = ', '.join(repr(c) for c in PREDICTORS)
-            raise ParameterError(f'predictor {name!r}: expected one of {choices}')
-    smap = stability.stability_map(params, np.linspace(lo, hi, n), names, alpha_max=alpha_max)
-    alphas = [float(p['alpha']) for p in runs]
+        if name not in registry:
+            choices = ', '.join(repr(c) for c in registry)
+            raise ParameterError(f'predictor {name!r}: expected one of {choices}'
+                                 + (' (with a structure)' if structure else ''))
+    taus = np.linspace(lo, hi, n)
+    if structure:
+        from seft_ros.core.structure_stability import structure_stability_map
+        smap = structure_stability_map(params, taus, names, scale_max=alpha_max)
+    else:
+        smap = stability.stability_map(params, taus, names, alpha_max=alpha_max)
+    # a structure's runs are at coupling scale 1
+    alphas = [1.0 if structure else float(p['alpha']) for p in runs]
     json_path = Path(out_dir) / 'stability.json'
     doc = smap.to_json()
     doc['configured'] = {'alpha': alphas, knob: float(params[knob])}
     json_path.write_text(json.dumps(doc, indent=1) + '\n')
-    png_path = _plot_stability(smap, alphas, float(params[knob]), Path(out_dir) / 'stability.png')
+    if structure:
+        doc['quantity'] = 'largest stable coupling scale of the computational part'
+        json_path.write_text(json.dumps(doc, indent=1) + '\n')
+    png_path = _plot_stability(smap, alphas, float(params[knob]), Path(out_dir) / 'stability.png',
+                               structure=structure)
     return StabilityResult(smap, alphas, float(params[knob]), json_path, png_path)
 
 
 def _plot_stability(smap: stability.StabilityMap, alphas: list[float], tau_s: float,
-                    path: Path) -> Path:
+                    path: Path, *, structure: bool = False) -> Path:
     from matplotlib.backends.backend_agg import FigureCanvasAgg  # only for the figure
     from matplotlib.figure import Figure
     fig = Figure(figsize=(7.5, 4.8))
@@ -842,12 +932,13 @@ def _plot_stability(smap: stability.StabilityMap, alphas: list[float], tau_s: fl
             continue
         y = np.minimum(smap.boundary_alpha[i], smap.alpha_max)
         ax.plot(t_ms, y, marker='.', label=f'{name}')
-    ax.axhline(1.0, color='k', ls='--', lw=1.0,
-               label='alpha = 1: neutral-type limit (pure delay, no compensation)')
+    if not structure:
+        ax.axhline(1.0, color='k', ls='--', lw=1.0,
+                   label='alpha = 1: neutral-type limit (pure delay, no compensation)')
     ax.plot([1e3 * tau_s] * len(alphas), alphas, 'rx', ms=8, label='configured runs')
     label = 'actuator delay tau_s' if smap.rig == 'delay' else 'I/O latency io_latency_s'
     ax.set_xlabel(f'{label} [ms]')
-    ax.set_ylabel('largest stable alpha')
+    ax.set_ylabel('largest stable coupling scale' if structure else 'largest stable alpha')
     ax.set_ylim(0.0, smap.alpha_max * 1.02)
     ax.set_title(f'Substructure EFT stability boundary, {smap.rig} rig '
                  f'(stable below the curve; capped at {smap.alpha_max:g})', fontsize=9)
@@ -870,7 +961,7 @@ def stability_table(result: StabilityResult) -> str:
         if smap.predictors[i] in smap.notes:
             return 'n/a'
         v = smap.boundary_alpha[i, j]
-        if v != v:
+        if v != v or v == 0.0:
             return 'unstable'
         return f'>{smap.alpha_max:g}' if v == float('inf') else f'{v:.3f}'
 

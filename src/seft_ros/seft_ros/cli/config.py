@@ -4,9 +4,18 @@ A configuration is a ROS 2 parameter file (``/**: ros__parameters: {...}``, the 
 ``--params-file``) or a plain mapping of the same parameters. For ``seft run`` and
 ``seft simulate`` only, ``alpha`` and ``predictor`` may be lists: one run per combination
 (predictors outer, alphas inner).
+
+A plain mapping may also hold a ``structure`` section (the whole structure, its physical
+degrees of freedom on rigs: :mod:`seft_ros.core.structure`) and a ``rigs`` section (each rig's
+own parameters: its rig model, specimen, controller). They become the ``structure`` parameter
+(the structure's JSON, with the rigs' sections); each run is then checked against them
+(:func:`expand_runs`). A structure that is the reference study's test (one rig, only a rigid
+mass on it) runs as that test, bit for bit, with ``alpha`` = the rigid mass over the
+specimen's.
 """
 
 from pathlib import Path
+import re
 from typing import Any
 
 import yaml
@@ -14,7 +23,23 @@ import yaml
 from seft_msgs_py import parameters
 from seft_msgs_py.errors import InputError, ParameterError
 
-__all__ = ['load_config', 'expand_runs', 'write_params_file']
+__all__ = ['load_config', 'expand_runs', 'write_params_file', 'ConfigLoader']
+
+
+class ConfigLoader(yaml.SafeLoader):
+    """``yaml.SafeLoader`` that reads floats as YAML 1.2 does: ``2.11e5`` and ``1e-12`` are
+    numbers (YAML 1.1, PyYAML's default, wants a dot and a signed exponent and reads them as
+    strings: a stiffness written ``2.11e5`` would be refused as text)."""
+
+
+ConfigLoader.add_implicit_resolver(
+    'tag:yaml.org,2002:float',
+    re.compile(r"""^(?:[-+]?(?:[0-9][0-9_]*)\.[0-9_]*(?:[eE][-+]?[0-9]+)?
+                  |[-+]?(?:[0-9][0-9_]*)(?:[eE][-+]?[0-9]+)
+                  |\.[0-9_]+(?:[eE][-+]?[0-9]+)?
+                  |[-+]?\.(?:inf|Inf|INF)
+                  |\.(?:nan|NaN|NAN))$""", re.X),
+    list('-+0123456789.'))
 
 
 def load_config(path) -> dict[str, Any]:
@@ -29,7 +54,7 @@ def load_config(path) -> dict[str, Any]:
     if not path.is_file():
         raise InputError(f'{path}: no such configuration file')
     try:
-        data = yaml.safe_load(path.read_text())
+        data = yaml.load(path.read_text(), Loader=ConfigLoader)
     except yaml.YAMLError as exc:
         mark = getattr(exc, 'problem_mark', None)
         where = f': line {mark.line + 1}' if mark is not None else ''
@@ -46,6 +71,16 @@ def load_config(path) -> dict[str, Any]:
             if not isinstance(data, dict):
                 raise InputError(f'{path}: {key}.ros__parameters: expected a mapping')
     data = {k: v for k, v in data.items() if k != 'use_sim_time'}
+    structure, rigs = data.pop('structure', None), data.pop('rigs', None)
+    if isinstance(structure, dict):
+        from seft_ros.core.structure import parse_structure  # numpy, scipy: only if needed
+        data['structure'] = parse_structure(structure, rigs=rigs,
+                                            where=f'{path}: structure').to_json()
+    elif rigs is not None:
+        raise InputError(f'{path}: rigs: a rigs section needs a structure section (the '
+                         'structure names the rig of each physical degree of freedom)')
+    elif structure is not None:
+        data['structure'] = structure
     known = parameters.defaults()
     for key in data:
         if key not in known:
@@ -76,8 +111,35 @@ def expand_runs(config: dict[str, Any], *, where: str = '') -> list[dict[str, An
         for predictor in predictors:
             for alpha in alphas:
                 values = dict(config, alpha=alpha, predictor=predictor, record=record)
-                runs.append(parameters.resolve(values, where=where))
+                runs.append(_with_structure(parameters.resolve(values, where=where), where))
     return runs
+
+
+def _with_structure(params: dict[str, Any], where: str) -> dict[str, Any]:
+    """A run with a structure, checked against its rigs (:func:`structure_setup`); the
+    study's test if it reduces to it (:func:`~seft_ros.core.structure.reduces_to_study`).
+
+    Raises
+    ------
+    ParameterError
+        The structure disagrees with a rig's parameters, or a rig section sets a parameter of
+        the whole test (the message names the field and `where`).
+    """
+    if params.get('structure', 'none') in ('none', '', None):
+        return params
+    from seft_msgs_py.graph import Graph
+    from seft_ros.core.structure import reduces_to_study, study_parameters
+    from seft_ros.core.substructure import loop_delay, structure_setup
+    try:
+        setup = structure_setup(params)
+        if reduces_to_study(setup.substructures):
+            return study_parameters(params, setup.substructures)
+        graph = Graph.from_parameters(params)
+        for builder in graph.builder_nodes():
+            loop_delay(setup, graph.local_rigs(builder), params['predictor'], params['dt'])
+    except ParameterError as exc:
+        raise ParameterError(f'{where}: {exc}' if where else str(exc)) from None
+    return params
 
 
 def write_params_file(params: dict[str, Any], path) -> Path:

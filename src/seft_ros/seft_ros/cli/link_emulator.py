@@ -14,9 +14,18 @@ Packets, not topics, are what is delayed: a process that only moves bytes betwee
 descriptors keeps up with a 500 Hz graph where a relay of ROS topics (deserializing and
 publishing each message again through rclpy) did not on this 2-core machine.
 
+**Several hosts** (``tools/hosts.sh``): a hub with one TUN device per host, the compute host
+in the middle. Each lab's device has its own link to the hub (``--port
+NAME,ADDRESS,DELAY_MS,JITTER_MS,LOSS``): a packet from lab A to the compute host waits A's
+delay, one from the compute host to lab B waits B's, one from A to B both (the star's route
+through the compute host); a multicast packet (DDS discovery) goes to every other host, each
+copy with its route's delay. Packets are routed by their IPv4 destination.
+
 Run (as root; the devices are created in this process's namespace, then moved):
-``ros2 run seft_ros link_emulator --devices tl0 tc0 --delay-ms 5 --jitter-ms 1 --loss 0.01``.
-Ctrl-C (or SIGTERM) ends it with one line of what it forwarded.
+``ros2 run seft_ros link_emulator --devices tl0 tc0 --delay-ms 5 --jitter-ms 1 --loss 0.01``
+(two hosts), or ``... --port tc0,10.9.0.1,0,0,0 --port ta0,10.9.0.2,5,1,0 --port
+tb0,10.9.0.3,20,4,0`` (a hub). Ctrl-C (or SIGTERM) ends it with one line of what it
+forwarded.
 
 References
 ----------
@@ -28,6 +37,8 @@ import argparse
 from collections import deque
 import errno
 import fcntl
+import heapq
+import ipaddress
 import os
 from pathlib import Path
 import select
@@ -38,7 +49,7 @@ import time
 
 from seft_ros.core.link import LinkModel
 
-__all__ = ['PacketWire', 'open_tun', 'main']
+__all__ = ['PacketWire', 'PacketHub', 'open_tun', 'main']
 
 #: ioctl request and flags of ``linux/if_tun.h``.
 TUNSETIFF = 0x400454CA
@@ -147,11 +158,125 @@ class PacketWire:
         return f'link emulator: first -> second: {side(0)}; second -> first: {side(1)}'
 
 
+class PacketHub:
+    """Routes IPv4 packets between several file descriptors, each through its host's link.
+
+    Parameters
+    ----------
+    fds : sequence of int
+        Non-blocking descriptors of the hosts' devices.
+    addresses : sequence of str
+        Each host's IPv4 address (a packet to it goes to its descriptor).
+    models : sequence of (LinkModel or None, LinkModel or None)
+        Each host's link to the hub: ``(up, down)``, the packets it sends and those it
+        receives (None: no delay, the compute host in the middle).
+    clock : callable
+        Monotonic time [s].
+
+    Attributes
+    ----------
+    forwarded, dropped, failed, unroutable : list of int
+        Per sending host: packets written (per copy), lost by a model, not written (the
+        receiving device down: a cut link), and with no host to go to (or not IPv4).
+    """
+
+    def __init__(self, fds, addresses, models, clock=time.monotonic):
+        self.fds = tuple(fds)
+        self.by_address = {ipaddress.IPv4Address(a).packed: i for i, a in enumerate(addresses)}
+        self.models = tuple(models)
+        self.clock = clock
+        self.queue: list = []                  # heap of (departure [s], seq, to, from, packet)
+        self._seq = 0
+        n = len(self.fds)
+        self.forwarded, self.dropped, self.failed, self.unroutable = ([0] * n for _ in range(4))
+
+    def routes(self, i: int, packet: bytes) -> list[int]:
+        """The hosts a packet from host `i` goes to: its IPv4 destination's, or every other
+        host for a multicast or broadcast one; none for anything else."""
+        if len(packet) < 20 or packet[0] >> 4 != 4:
+            return []
+        dst = packet[16:20]
+        if dst[0] >> 4 == 14 or dst == b'\xff\xff\xff\xff' or dst[3] == 255:
+            return [j for j in range(len(self.fds)) if j != i]
+        j = self.by_address.get(dst)
+        return [] if j is None or j == i else [j]
+
+    def _read(self, i: int) -> None:
+        while True:
+            try:
+                packet = os.read(self.fds[i], MAX_PACKET)
+            except (BlockingIOError, InterruptedError):
+                return
+            except OSError:
+                return
+            targets = self.routes(i, packet)
+            if not targets:
+                self.unroutable[i] += 1
+                continue
+            up = self.models[i][0]
+            t = self.clock() if up is None else up.departure(self.clock())
+            if t is None:
+                self.dropped[i] += 1
+                continue
+            for j in targets:
+                down = self.models[j][1]
+                out = t if down is None else down.departure(t)
+                if out is None:
+                    self.dropped[i] += 1
+                    continue
+                self._seq += 1
+                heapq.heappush(self.queue, (out, self._seq, j, i, packet))
+
+    def pump(self, max_wait_s: float = 0.1) -> None:
+        """Wait for packets at most until the next departure (or `max_wait_s`), read what
+        came, write what is due."""
+        now = self.clock()
+        wait = min(max_wait_s, max(0.0, self.queue[0][0] - now)) if self.queue else max_wait_s
+        readable, _, _ = select.select(self.fds, (), (), wait)
+        for i, fd in enumerate(self.fds):
+            if fd in readable:
+                self._read(i)
+        now = self.clock()
+        while self.queue and self.queue[0][0] <= now:
+            _, _, j, i, packet = heapq.heappop(self.queue)
+            try:
+                os.write(self.fds[j], packet)
+                self.forwarded[i] += 1
+            except OSError:
+                self.failed[i] += 1
+
+    def summary(self, names) -> str:
+        """One line: per host, what it sent that was forwarded, dropped, not delivered."""
+        return 'link emulator (hub): ' + '; '.join(
+            f'{n}: {self.forwarded[i]} forwarded, {self.dropped[i]} dropped, '
+            f'{self.failed[i]} undeliverable, {self.unroutable[i]} unroutable'
+            for i, n in enumerate(names))
+
+
+def _port(text: str):
+    """``NAME,ADDRESS,DELAY_MS,JITTER_MS,LOSS`` of ``--port``."""
+    parts = text.split(',')
+    if len(parts) != 5:
+        raise argparse.ArgumentTypeError(f'--port {text!r}: expected '
+                                         'NAME,ADDRESS,DELAY_MS,JITTER_MS,LOSS')
+    try:
+        ipaddress.IPv4Address(parts[1])
+        numbers = [float(v) for v in parts[2:]]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'--port {text!r}: expected an IPv4 address and '
+                                         'three numbers') from None
+    return parts[0], parts[1], *numbers
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The emulator's arguments."""
     p = argparse.ArgumentParser(prog='link_emulator', description=__doc__.splitlines()[0])
-    p.add_argument('--devices', nargs=2, required=True, metavar=('FIRST', 'SECOND'),
+    p.add_argument('--devices', nargs=2, metavar=('FIRST', 'SECOND'),
                    help='names of the two TUN devices to create (at most 15 characters)')
+    p.add_argument('--port', type=_port, action='append', default=[],
+                   metavar='NAME,ADDRESS,DELAY_MS,JITTER_MS,LOSS',
+                   help='a hub instead: one TUN device per host with its link to the hub '
+                   '(repeat; a host with delay 0 is the hub itself)')
     p.add_argument('--delay-ms', type=float, default=0.0, help='one-way delay [ms]')
     p.add_argument('--jitter-ms', type=float, default=0.0,
                    help='half-width of the uniform jitter [ms] (<= delay)')
@@ -163,9 +288,54 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _run_hub(a) -> int:
+    """``--port ...``: the hub (:class:`PacketHub`)."""
+    models = []
+    try:
+        for k, (name, _, delay, jitter, loss) in enumerate(a.port):
+            pair = tuple(None if delay == jitter == loss == 0 else LinkModel(
+                1e-3 * delay, 1e-3 * jitter, loss, seed=a.seed + 2 * k + d, resend=False)
+                for d in range(2))
+            models.append(pair)
+    except ValueError as exc:
+        print(f'link_emulator: error: {exc}', file=sys.stderr)
+        return 2
+    fds = []
+    for name, *_ in a.port:
+        try:
+            fds.append(open_tun(name))
+        except OSError as exc:
+            print(f'link_emulator: error: cannot create TUN device {name!r}: {exc.strerror} '
+                  '(needs root and /dev/net/tun; a free name of at most 15 characters)',
+                  file=sys.stderr)
+            return 2
+    hub = PacketHub(fds, [p[1] for p in a.port], models)
+    stop = []
+    for s in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(s, lambda *_: stop.append(True))
+    if a.ready_file is not None:
+        a.ready_file.write_text('ready\n')
+    print('link emulator (hub): ' + ', '.join(f'{n} ({addr}) {d} ms +/- {j} ms, loss {p}'
+                                              for n, addr, d, j, p in a.port),
+          file=sys.stderr, flush=True)
+    while not stop:
+        hub.pump()
+    print(hub.summary([p[0] for p in a.port]), file=sys.stderr, flush=True)
+    return 0
+
+
 def main(args=None) -> int:
     """Entry point of ``ros2 run seft_ros link_emulator``."""
     a = build_parser().parse_args(args)
+    if bool(a.port) == bool(a.devices):
+        print('link_emulator: error: give either --devices FIRST SECOND or --port ... (two '
+              'or more)', file=sys.stderr)
+        return 2
+    if a.port:
+        if len(a.port) < 2:
+            print('link_emulator: error: --port: expected two or more', file=sys.stderr)
+            return 2
+        return _run_hub(a)
     try:
         models = [LinkModel(1e-3 * a.delay_ms, 1e-3 * a.jitter_ms, a.loss, seed=a.seed + i,
                             resend=False) for i in range(2)]

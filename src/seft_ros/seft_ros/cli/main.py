@@ -6,6 +6,7 @@ Every :class:`SeftError` (bad file, bad parameter, failed node) is printed as on
 """
 
 import argparse
+import os
 import signal
 import sys
 import time
@@ -13,7 +14,7 @@ import time
 import yaml
 
 from seft_msgs_py.errors import InputError, SeftError
-from seft_ros.cli import api
+from seft_ros.cli import api, partition
 from seft_ros.cli.config import load_config
 
 __all__ = ['main', 'build_parser']
@@ -89,9 +90,22 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument('--nodes', type=_node_list, metavar='NAME[,NAME...]',
                      help='start only these nodes of the graph (recorder, '
                      'ground_motion_publisher, reference_force_builder, '
-                     'force_servo_controller, rig); the others run on another host with the '
-                     'same ROS_DOMAIN_ID and parameters. The host with the recorder writes '
-                     'the bag and the report')
+                     'force_servo_controller, rig; <rig>/<node> for a rig of a structure); '
+                     'the others run on another host with the same ROS_DOMAIN_ID and '
+                     'parameters. The host with the recorder writes the bag and the report')
+    run.add_argument('--partition', choices=partition.PARTITIONS,
+                     help="how the test is split over hosts: 'loop_local' (default with "
+                     '--site: the builder beside each rig, the network out of the loop) or '
+                     "'builder_remote' (the builder on the compute host)")
+    run.add_argument('--site', metavar='SITE', help="start the nodes of this site of the "
+                     "partition: 'compute', and 'lab' (the study's rig) or a structure's rig")
+    sites = sub.add_parser('sites', help='which nodes each host starts when a run is split over '
+                           'hosts (the options of seft run; one line per site)')
+    _experiment_options(sites)
+    sites.add_argument('--mode', choices=('lockstep', 'realtime'), help='as seft run')
+    sites.add_argument('--partition', choices=partition.PARTITIONS,
+                       default=partition.DEFAULT_PARTITION, help='the split (default: '
+                       f'{partition.DEFAULT_PARTITION})')
     sim = sub.add_parser('simulate', help='the same experiments in one process, without ROS')
     _experiment_options(sim)
     sim.add_argument('--bag', action='store_true', help="also write each run's bag "
@@ -145,7 +159,8 @@ def _progress(text: str) -> None:
     print(f'[seft] {text}', file=sys.stderr, flush=True)
 
 
-def _experiments(args):
+def _build(args):
+    """The runs of an experiment's options (config, options, --params, --set)."""
     overrides = {k: getattr(args, k) for k in ('record', 'rig_model', 'predictor',
                                                'amplitude_N', 'scale_factor', 'time_scale',
                                                'duration_s')}
@@ -158,7 +173,19 @@ def _experiments(args):
         if name == 'alpha':
             raise InputError('--set alpha: use --alpha')
         overrides[name] = value
-    runs = api.build_runs(config=args.config, overrides=overrides, alphas=args.alpha)
+    return api.build_runs(config=args.config, overrides=overrides, alphas=args.alpha)
+
+
+def _experiments(args):
+    runs = _build(args)
+    if getattr(args, 'site', None) or getattr(args, 'partition', None):
+        if args.nodes:
+            raise InputError('--nodes: give either --nodes or --partition/--site, not both')
+        chosen = args.partition or partition.DEFAULT_PARTITION
+        runs = [partition.partition_parameters(p, chosen) for p in runs]
+        if args.site:
+            args.nodes = partition.site_nodes(runs[0], chosen, args.site)
+            os.environ.setdefault('SEFT_SITE', args.site)    # this host in the link figures
     if args.verb == 'simulate' and any(p.get('mode') == 'realtime' for p in runs):
         raise InputError('parameter mode=realtime: seft simulate has no wall clock (it is the '
                          'lockstep graph in one process); use seft run --mode realtime')
@@ -213,6 +240,10 @@ def main(argv=None) -> int:
     try:
         if args.verb == 'stability':
             return _stability(args)
+        if args.verb == 'sites':
+            for site, nodes in partition.sites(_build(args)[0], args.partition).items():
+                print(f'{site}: {",".join(nodes)}')
+            return 0
         if args.verb == 'identify':
             return _identify(args)
         if args.verb == 'compare':
@@ -243,7 +274,9 @@ def main(argv=None) -> int:
         print('seft: interrupted; nodes stopped, bags closed', file=sys.stderr)
         return 130
     print(api.summary_table(result.summary))
-    print(api.criteria_table(result.summary))
+    criteria = api.criteria_table(result.summary)
+    if criteria:
+        print(criteria)
     print(f'report: {result.out_dir / "report.md"} (self-contained page: '
           f'{result.out_dir / "report.html"})')
     print(f'summary: {result.out_dir / "summary.json"}')

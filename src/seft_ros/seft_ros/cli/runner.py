@@ -32,6 +32,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
 from seft_msgs_py import parameters
+from seft_msgs_py.clock import OFFSET_ENV
 from seft_msgs_py.convert import (
     STATE_ABORTED,
     STATE_CLOSED,
@@ -43,6 +44,7 @@ from seft_msgs_py.convert import (
     status_values,
 )
 from seft_msgs_py.errors import SeftError
+from seft_msgs_py.graph import Graph, split_qualified
 from seft_msgs_py.topics import NODE_PARAMETERS, STATUS, TOPICS
 from seft_ros.cli.config import write_params_file
 
@@ -103,9 +105,28 @@ def discovery_settle_s() -> float:
 
 
 def node_command(node: str, params_file) -> list[str]:
-    """The command line that starts `node` with a parameter file."""
-    return [sys.executable, '-m', NODE_MODULES[node], '--ros-args', '--params-file',
-            str(params_file)]
+    """The command line that starts `node` (a qualified name: ``<rig>/<node>`` in the rig's
+    namespace, ``-r __ns:=/<rig>``) with a parameter file."""
+    rig, kind = split_qualified(node)
+    return ([sys.executable, '-m', NODE_MODULES[kind], '--ros-args', '--params-file',
+             str(params_file)] + (['-r', f'__ns:=/{rig}'] if rig else []))
+
+
+def log_name(node: str) -> str:
+    """The log file of a node (``<rig>.<node>.log`` for a namespaced one)."""
+    return node.replace('/', '.') + '.log'
+
+
+def rig_params_files(params: dict, run_dir: Path) -> dict[str, Path]:
+    """A structure run's parameter file per rig (``params_<rig>.yaml``: the run's parameters
+    updated by the rig's section, :func:`~seft_ros.core.structure.rig_parameters`, for the
+    rig's own nodes, ``parameters.RIG_SCOPED_NODES``); the study's test: none."""
+    if params.get('structure', 'none') in ('none', '', None):
+        return {}
+    from seft_ros.core.structure import Structure, rig_parameters
+    structure = Structure.from_json(params['structure'])
+    return {r: write_params_file(rig_parameters(params, structure, r),
+                                 run_dir / f'params_{r}.yaml') for r in structure.rig_names}
 
 
 @dataclass
@@ -153,6 +174,10 @@ class GraphRunner:
         self.executor.add_node(self.node)
         self.statuses = []
         self._bag_path: Path | None = None    # the bag of the run in progress
+        #: The graph of the run in progress (:meth:`run`).
+        self.graph = Graph(('',), {'': 'servohydraulic'})
+        #: The link measurement of a split run (:mod:`seft_ros.cli.link`), made on demand.
+        self.link = None
         self.node.create_subscription(STATUS.msg_type, STATUS.name, self._on_status, STATUS.qos)
         self.node_params: dict[str, dict] = {}
         self.node.create_subscription(NODE_PARAMETERS.msg_type, NODE_PARAMETERS.name,
@@ -166,14 +191,18 @@ class GraphRunner:
         `settle_s`: how long to listen first (default :func:`discovery_settle_s`).
         """
         self._spin(discovery_settle_s() if settle_s is None else settle_s)
-        return [t.name for t in TOPICS if t is not STATUS
-                and self.node.count_publishers(t.name) > 0]
+        names = {t.name for t in TOPICS if t is not STATUS}
+        # and the topics of a structure's rigs (/<rig>/seft/...)
+        names |= {n for n, _ in self.node.get_topic_names_and_types()
+                  if '/seft/' in n and n != STATUS.name}
+        return sorted(n for n in names if self.node.count_publishers(n) > 0)
 
     def present_nodes(self, names, settle_s: float | None = None) -> list[str]:
         """Which of the node `names` already run in this domain (on any host); `settle_s` as
         :meth:`busy_topics`."""
         self._spin(discovery_settle_s() if settle_s is None else settle_s)
-        present = {n for n, _ in self.node.get_node_names_and_namespaces()}
+        present = {f'{ns.strip("/")}/{n}' if ns.strip('/') else n
+                   for n, ns in self.node.get_node_names_and_namespaces()}
         return [n for n in names if n in present]
 
     def close(self) -> None:
@@ -250,31 +279,51 @@ class GraphRunner:
         bag_path = run_dir / 'bag'
         self._bag_path = bag_path
         params = dict(params, bag_path=str(bag_path.resolve()), wait_for_recorder=True)
-        params_file = write_params_file(params, run_dir / 'params.yaml')
-        graph = ['recorder', *parameters.graph_nodes(params['rig_model'])]
+        self.graph = Graph.from_parameters(params)
+        graph = ['recorder', *self.graph.nodes()]
         local = [n for n in graph if nodes is None or n in nodes]
         remote = [n for n in graph if n not in local]
         env = dict(self.env, ROS_LOG_DIR=str(log_dir / 'ros'))
+        decision = None
+        if remote:
+            # several hosts: measure the links, agree on the playout delay and the preview,
+            # and run this host's nodes in the reference host's clock (cli/link.py)
+            decision = self._agree(params, run_dir.name, local, label)
+            params = dict(params, network_delay_s=decision['network_delay_s'],
+                          preview_steps=decision['preview_steps'])
+            env[OFFSET_ENV] = str(self.link.offset_ns())
+        params_file = write_params_file(params, run_dir / 'params.yaml')
+        rig_files = rig_params_files(params, run_dir)
         self.statuses.clear()
         self.node_params.clear()
+        # a new status publisher per run: the reports are latched (transient local), and the
+        # nodes of this run must not receive the previous run's (an abort the runner sent
+        # when one of its nodes died would end this run at its start)
+        self.node.destroy_publisher(self.status_pub)
+        self.status_pub = self.node.create_publisher(STATUS.msg_type, STATUS.name, STATUS.qos)
         procs: dict[str, subprocess.Popen] = {}
         logs = {}
         start = time.monotonic()
-        outcome: dict = {'nodes': local, 'remote_nodes': remote}
+        outcome: dict = {'nodes': local, 'remote_nodes': remote, 'link': decision}
 
         def launch(name):
-            logs[name] = open(log_dir / f'{name}.log', 'w')
-            procs[name] = subprocess.Popen(node_command(name, params_file), env=env,
-                                           stdout=logs[name], stderr=subprocess.STDOUT)
+            logs[name] = open(log_dir / log_name(name), 'w')
+            rig, kind = split_qualified(name)
+            # a rig's own nodes take its parameters; a builder (even in the rig's namespace)
+            # and the other nodes the test's
+            own = rig_files.get(rig) if kind in parameters.RIG_SCOPED_NODES else None
+            procs[name] = subprocess.Popen(node_command(name, own or params_file),
+                                           env=env, stdout=logs[name], stderr=subprocess.STDOUT)
 
         try:
             # every node at once (the recorder first): the rig starts its clock only when the
             # parameters of every node are in, the recorder listens and, in real time, every
             # input path is matched, so the order of the start-ups does not matter; started
             # together they take the time of the slowest, not of all of them in turn
-            for name in sorted(local, key=lambda n: (n != 'recorder', n == 'rig')):
+            rigs = set(self.graph.rig_nodes())
+            for name in sorted(local, key=lambda n: (n != 'recorder', n in rigs)):
                 launch(name)
-            self._wait_ready([n for n in local if n != 'rig'], procs, log_dir)
+            self._wait_ready([n for n in local if n not in rigs], procs, log_dir)
             if remote:
                 self._wait_remote(remote, procs, log_dir, label)
             self.progress(f'{label}graph up in {time.monotonic() - start:.1f} s '
@@ -303,7 +352,8 @@ class GraphRunner:
                                      if st.get('state') not in (STATE_RUNNING, STATE_READY)])
             # the wall time of the rig's sample 0 [ns since the epoch] (real time): the
             # rig's times (abort_at_s) on the wall clock
-            t0 = [st['t0_ns'] for st in self.statuses if st['name'] == 'rig' and 't0_ns' in st]
+            t0 = [st['t0_ns'] for st in self.statuses
+                  if st['name'] == self.graph.master and 't0_ns' in st]
             if t0:
                 outcome['rig_t0_ns'] = int(t0[0])
             try:
@@ -311,6 +361,34 @@ class GraphRunner:
                                                                  default=str))
             except OSError as exc:      # the run directory is gone: say so, lose nothing else
                 self.progress(f'{label}could not write outcome.json: {exc}')
+
+    def _agree(self, params: dict, key: str, local: list[str], label: str) -> dict:
+        """The link phase of a split run (:class:`~seft_ros.cli.link.LinkPhase`); progress
+        lines say what was measured and decided."""
+        from seft_ros.cli.link import LinkPhase
+        if self.link is None:
+            self.link = LinkPhase(self.node, self._spin, self.progress)
+        decision = self.link.agree(params, key, local, self.graph, REMOTE_TIMEOUT_S)
+        for peer, link in decision.get('links', {}).items():
+            rtt = link['round_trip_ms']
+            self.progress(f'{label}link {decision["reference"]} - {peer}: round trip '
+                          f'{rtt["p50"]:.2f} / {rtt["p99"]:.2f} / {rtt["max"]:.2f} ms '
+                          f'(p50 / p99 / max), clock offset {link["offset_ms"]:+.3f} ms '
+                          f'({decision.get("emulation", "none")})')
+        if str(decision.get('playout')).startswith('dropped'):
+            self.progress(f'{label}note: network_delay_s set to 0: no builder is on another '
+                          'host than the controllers it commands (the loop stays local)')
+        if decision.get('playout') == 'auto':
+            self.progress(f'{label}network_delay_s auto: '
+                          f'{1e3 * decision["network_delay_s"]:.0f} ms (round trip p99 '
+                          f'{decision["round_trip_p99_ms"]:.2f} ms + margin, whole steps)')
+        if decision['preview_steps'] != int(params['preview_steps']):
+            self.progress(f'{label}preview_steps {decision["preview_steps"]} (the ground '
+                          'motion ahead of the round trip)')
+        if not self.link.reference:
+            self.progress(f"{label}this host's clock offset from the reference host: "
+                          f'{1e-6 * self.link.offset_ns():+.3f} ms (corrected)')
+        return decision
 
     def _publish_abort(self, reason: str, **values) -> None:
         """Report an abort on ``/seft/status``: the rig goes to its safe state and ends the
@@ -334,8 +412,8 @@ class GraphRunner:
             self._spin(0.05)
 
     def _when(self) -> str:
-        """When in the run, as the rig's latest report tells it."""
-        rig = self._latest('rig')
+        """When in the run, as the (first) rig's latest report tells it."""
+        rig = self._latest(self.graph.master)
         if not rig:
             return 'before the rig started'
         if 'abort_at_s' in rig:
@@ -355,20 +433,25 @@ class GraphRunner:
             saved = ('the bag was not closed: seft compare recovers it up to at most the '
                      'last 0.25 s' if name == 'recorder' else 'the recording up to then is '
                      'closed')
-            raise SeftError(f'node {name} {how} {self._when()}: '
-                            f'{_last_line(log_dir / f"{name}.log")} '
-                            f'(log: {log_dir / f"{name}.log"}; {saved})')
+            log = log_dir / log_name(name)
+            raise SeftError(f'node {name} {how} {self._when()}: {_last_line(log)} '
+                            f'(log: {log}; {saved})')
 
     def _rig_final(self):
-        """The rig's final status (done, aborted or failed), if heard."""
-        return self._latest('rig', (STATE_DONE, STATE_ABORTED, STATE_FAILED))
+        """The rigs' final status (done, aborted or failed) once every rig's is heard: the
+        first rig's, or the first that did not end done (its reason); None before."""
+        finals = [self._latest(r, (STATE_DONE, STATE_ABORTED, STATE_FAILED))
+                  for r in self.graph.rig_nodes()]
+        if not all(finals):
+            return None
+        return next((f for f in finals if f.get('state') != STATE_DONE), finals[0])
 
     def _over_here(self, procs) -> bool:
-        """The run is over as this host sees it: the rig's final status, this host's rig
+        """The run is over as this host sees it: every rig's final status, this host's rigs
         exited cleanly, or this host's bag closed on disk. A short run can end before this
         runner hears a node at all (a node's reports are not kept after it exits)."""
-        rig = procs.get('rig')
-        return bool(self._rig_final() or (rig is not None and rig.poll() == 0)
+        rigs = [procs[r] for r in self.graph.rig_nodes() if r in procs]
+        return bool(self._rig_final() or (rigs and all(p.poll() == 0 for p in rigs))
                     or self._closed_on_disk(procs))
 
     def _closed_on_disk(self, procs) -> bool:
@@ -397,7 +480,7 @@ class GraphRunner:
                     since = gone.setdefault(n, time.monotonic())
                     if time.monotonic() - since > EXITED_GRACE_S:
                         raise SeftError(f'node {n} exited before it was ready: '
-                                        f'{_last_line(log_dir / f"{n}.log")}')
+                                        f'{_last_line(log_dir / log_name(n))}')
             if time.monotonic() > deadline:
                 missing = [n for n in names if not self._latest(n, (STATE_READY,))]
                 raise SeftError(f'nodes not ready after {STARTUP_TIMEOUT_S:.0f} s: '
@@ -436,6 +519,8 @@ class GraphRunner:
         t0 = time.monotonic()
         while True:
             self._spin(0.1)
+            if self.link is not None:
+                self.link.tick()
             self._check_parameters()
             self._check_procs(procs, log_dir)
             new = self.statuses[seen:]
@@ -444,7 +529,7 @@ class GraphRunner:
                 last_progress = time.monotonic()
                 if s.get('state') in (STATE_ABORTED, STATE_FAILED):
                     self.progress(f'{label}{s["name"]}: {s.get("state")}: {s["message"]}')
-            rig = self._latest('rig')
+            rig = self._latest(self.graph.master)
             now = time.monotonic()
             if rig and rig.get('state') == STATE_RUNNING and now - last_print > 2.0:
                 last_print = now
@@ -461,7 +546,7 @@ class GraphRunner:
                 return final or {}
             if recorded_here and procs['recorder'].poll() is not None:
                 raise SeftError('the recorder exited before closing the bag: '
-                                f'{_last_line(log_dir / "recorder.log")}')
+                                f'{_last_line(log_dir / log_name("recorder"))}')
             if now - last_progress > STALL_TIMEOUT_S:
                 raise SeftError(f'the run stalled: no report for {STALL_TIMEOUT_S:.0f} s '
                                 f'(logs in {log_dir})')

@@ -50,7 +50,7 @@ from seft_plant_sim.delay_rig import delay_split
 from seft_plant_sim.servohydraulic import OUTPUTS, ServoHydraulicParams, sample
 from seft_plant_sim.specimen import LinearSpecimen
 from seft_ros.core.controller import ForceServoController
-from seft_ros.core.reference_force import PREDICTORS, make_predictor
+from seft_ros.core.reference_force import PREDICTORS, make_predictor, network_delay_steps
 
 __all__ = [
     'PREDICTOR_INPUTS', 'DELAY_PARAMETER', 'KNOWN_NONLINEAR', 'PredictorForm',
@@ -463,7 +463,10 @@ class LoopModel:
     Notes
     -----
     State ``X = [z (rig, past commands), x_c (controller; servohydraulic rig only),
-    w (prediction), w_W (command filter), F]``; the controller of
+    w (prediction), w_W (command filter), d (the reference force's playout delay line),
+    F]``. With ``network_delay_s`` (the builder on another host) the controller acts on
+    ``f_r[k - m]``, ``m = round(network_delay_s / dt)``: ``d`` holds ``f_r[k-1 .. k-m]``
+    (the delay the predictor compensates is then in the loop, as in the test); the controller of
     :class:`~seft_ros.core.controller.ForceServoController` (``force_controller``: its
     error path ``C_e(z)`` in controllable canonical form by ``scipy.signal.tf2ss`` and its
     velocity and acceleration feedback, :meth:`~ForceServoController.state_space`); the
@@ -491,6 +494,8 @@ class LoopModel:
                 ctrl = ctrl.frozen(tangent_ratio)
             ac, bc, cc, dc = ctrl.state_space()
         self._rig = (rig, a, b, cy, ac, bc, cc, dc)
+        #: the playout delay of the reference force before the controller [steps]
+        self.playout_steps = network_delay_steps(params) if rig != 'delay' else 0
         self._affine = None
         if not self.compensator.alpha_dependent:
             self._affine = self.matrices(self.compensator.form(0.0))
@@ -505,11 +510,13 @@ class LoopModel:
         """
         rig, a, b, cy, ac, bc, cc, dc = self._rig
         nz, nc, nw, nv = a.shape[0], ac.shape[0], form.order, form.command_order
-        n = nz + nc + nw + nv + 1
+        nd = self.playout_steps
+        n = nz + nc + nw + nv + nd + 1
         iz = slice(0, nz)
         ic = slice(nz, nz + nc)
         iw = slice(nz + nc, nz + nc + nw)
-        iv = slice(nz + nc + nw, n - 1)
+        iv = slice(nz + nc + nw, nz + nc + nw + nv)
+        i_d = nz + nc + nw + nv                            # first of the delay line
         i_f = n - 1
         q = np.zeros((5, n))                               # q[k] = Q X[k]
         q[:4, iz] = cy
@@ -517,7 +524,11 @@ class LoopModel:
         f_r = np.zeros(n)                                  # command sent, f_r[k]
         f_r[iv] = form.cmd_c
         f_r[i_f] = form.cmd_d
-        e = f_r.copy()                                     # force error f_r - f_m
+        applied = f_r                                      # what the controller acts on
+        if nd:                                             # f_r[k - m], the playout delay
+            applied = np.zeros(n)
+            applied[i_d + nd - 1] = 1.0
+        e = applied.copy()                                 # force error f_r - f_m
         e[iz] -= cy[3]
         # controller inputs (e, v, a) and output u = cc x_c + dc (e, v, a)
         w_in = np.vstack([e, np.zeros(n), np.zeros(n)])
@@ -537,6 +548,10 @@ class LoopModel:
         m0[iw] += form.b @ q
         m0[iv, iv] = form.cmd_a
         m0[iv, i_f] = form.cmd_b
+        if nd:                                             # d[k+1] = [f_r[k], d_1..d_m-1]
+            m0[i_d] = f_r
+            for j in range(1, nd):
+                m0[i_d + j, i_d + j - 1] = 1.0
         m1 = np.zeros((n, n))                              # F[k+1] = -alpha m a_hat[k+1]
         m1[i_f, iw] = -self.mass_kg * form.c
         m1[i_f] -= self.mass_kg * (form.d @ q)

@@ -17,6 +17,7 @@ Run by hand: ``ros2 run seft_ros force_servo_controller --ros-args --params-file
 import sys
 import time
 
+from seft_msgs_py import clock
 from seft_msgs_py.convert import (
     STATE_READY,
     SerializedStamped,
@@ -48,9 +49,11 @@ class ForceServoControllerNode(SeftNode):
         self.sync = StepSync((REFERENCE_FORCE.name, MEASURED_FORCE.name))
         self.ready = {}
         self.next_step = 0
-        self.pub = self.create_publisher(VALVE_COMMAND.msg_type, VALVE_COMMAND.name,
-                                         VALVE_COMMAND.qos)
-        self.out_msg = SerializedStamped.scalar(VALVE_COMMAND)
+        # the rig's topics: in its namespace for a rig of a structure
+        reference = self.scoped_spec(REFERENCE_FORCE)
+        valve = self.scoped_spec(VALVE_COMMAND)
+        self.pub = self.create_publisher(valve.msg_type, valve.name, valve.qos)
+        self.out_msg = SerializedStamped.scalar(valve)
         self.batch = self.record_stream()
         if self.realtime:
             self.timing = StepTiming(self)
@@ -58,12 +61,12 @@ class ForceServoControllerNode(SeftNode):
             self.latest_reference = (-1, 0.0)
             self.watchdog = InputWatchdog(self, (REFERENCE_FORCE.name, 'measurement'))
             self.watch_inputs([
-                self.scalar_subscription(REFERENCE_FORCE, self._on_reference_realtime),
+                self.scalar_subscription(reference, self._on_reference_realtime),
                 self.measurement_subscription(
                     lambda k, values: self._on_measured_realtime(k, *values))], [self.pub])
         else:
             self.scalar_subscription(
-                REFERENCE_FORCE, lambda k, value: self._on_force(REFERENCE_FORCE.name, k, value))
+                reference, lambda k, value: self._on_force(REFERENCE_FORCE.name, k, value))
             self.measurement_subscription(
                 lambda k, values: self._on_force(MEASURED_FORCE.name, k, values))
         self.publish_parameters()
@@ -100,7 +103,7 @@ class ForceServoControllerNode(SeftNode):
         self.pub.publish(self.out_msg(k * self.dt_ns, (u,)))
         self.batch.add(k, u)
         self.next_step = k + 1
-        now_ns = time.time_ns()
+        now_ns = clock.now_ns()
         oldest = min(k, fr_step) if fr_step >= 0 else k
         age = (now_ns - self.sample_time_ns(oldest)) * 1e-9
         missed = now_ns > self.sample_time_ns(k + 1)   # nan compares False before t0

@@ -22,6 +22,7 @@ import math
 import sys
 import time
 
+from seft_msgs_py import clock
 from seft_msgs_py.convert import STATE_READY, clock_ns_from_raw
 from seft_msgs_py.node_support import SeftNode, StepTiming, main_for
 from seft_msgs_py.topics import CLOCK, CLOCK_EVERY
@@ -66,7 +67,7 @@ class GroundMotionPublisher(SeftNode):
             self.batch.add(k, float(self.values[k]))
             self.next_step += 1
             if self.timing is not None:
-                now_ns = time.time_ns()
+                now_ns = clock.now_ns()
                 age = (math.nan if clock_step is None
                        else (now_ns - self.sample_time_ns(clock_step)) * 1e-9)
                 self.timing.publish(k * self.dt_ns, jitter, time.monotonic() - start, age,

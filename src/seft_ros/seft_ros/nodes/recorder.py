@@ -47,7 +47,6 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 from std_msgs.msg import String
 
-from seft_msgs_py import parameters
 from seft_msgs_py.convert import (
     STATE_ABORTED,
     STATE_CLOSED,
@@ -62,28 +61,19 @@ from seft_msgs_py.convert import (
 )
 from seft_msgs_py.errors import InputError
 from seft_msgs_py.node_support import SeftNode, main_for
-from seft_msgs_py.signals import RECORD_STREAMS, TIMING_FIELDS, record_streams_of
+from seft_msgs_py.signals import SCALAR_SIGNALS, TIMING_FIELDS
 from seft_msgs_py.topics import (
-    ACCELERATION,
-    BAG_TOPICS,
-    DISPLACEMENT,
     ESTIMATES,
-    GROUND_ACCELERATION,
-    MEASURED_FORCE,
+    LINK,
     NODE_PARAMETERS,
-    REFERENCE_FORCE,
     RUN_PARAMETERS,
-    SCALAR_TOPICS,
     STATUS,
-    TIMING,
-    VALVE_COMMAND,
-    VELOCITY,
     record_topic,
-    timing_topic,
+    spec_for,
 )
 from seft_ros.analysis.bag_recovery import FLUSH_EVERY_S, flush_bag
 
-__all__ = ['RecorderNode', 'main', 'FLUSH_TIMEOUT_S', 'TOPICS_OF_NODE']
+__all__ = ['RecorderNode', 'main', 'FLUSH_TIMEOUT_S', 'topics_of_node']
 
 #: Longest wait for late samples after the rig finished [s].
 FLUSH_TIMEOUT_S = 10.0
@@ -96,19 +86,19 @@ FLUSH_TIMEOUT_S = 10.0
 RIG_SILENT_S = 6.0
 #: The recorder acknowledges the recorded steps every this many steps (lockstep flow control).
 ACK_EVERY = 50
-#: Recorded topics (``topics.BAG_TOPICS``).
-RECORDED = BAG_TOPICS
-_LOCKSTEP = (MEASURED_FORCE.name, DISPLACEMENT.name, VELOCITY.name, ACCELERATION.name,
-             REFERENCE_FORCE.name)
-
-#: The data topics each node publishes (its final status says how many samples:
-#: ``published`` for its data topics, ``published_timing`` for its timing topic).
-TOPICS_OF_NODE = {node: tuple(t.name for t in RECORDED if t.publisher == node)
-                  for node in ('rig', 'ground_motion_publisher', 'reference_force_builder',
-                               'force_servo_controller')}
-_TIMING_NAMES = {t.name for t in TIMING}
+#: The scalar topic kinds (by ROS type and field) the recorder serializes from batch rows.
+_SCALAR_KINDS = {(s.type_name, s.field) for s in SCALAR_SIGNALS}
 
 _FINAL = (STATE_DONE, STATE_ABORTED, STATE_FAILED)
+
+
+def topics_of_node(graph) -> dict[str, tuple[str, ...]]:
+    """The bag topics each data node of `graph` publishes (its final status says how many
+    samples: ``published`` for its data topics, ``published_timing`` for its timing topic,
+    ``published_estimates`` for its fields topic)."""
+    signals = graph.bag_signals()
+    return {node: tuple(t.name for t in signals if t.publisher == node)
+            for node in graph.nodes()}
 
 class RecorderNode(SeftNode):
     """Writes the seft topics to a rosbag2 bag."""
@@ -124,10 +114,20 @@ class RecorderNode(SeftNode):
         storage = StoragePlugin.MCAP if p['bag_storage'] == 'mcap' else StoragePlugin.SQLITE3
         self.writer = Writer(self.bag_path, version=9, storage_plugin=storage)
         self.writer.open()
+        recorded = [spec_for(t) for t in self.graph.bag_signals()]
         self.connections = {t.name: self.writer.add_connection(t.name, t.type_name,
                                                                typestore=self.typestore)
-                            for t in RECORDED}
-        self.counts = {t.name: 0 for t in RECORDED}
+                            for t in recorded}
+        self.counts = {t.name: 0 for t in recorded}
+        self.topics_of_node = topics_of_node(self.graph)
+        streams = self.graph.record_streams()
+        self.timing_names = {self.graph.timing_topic(r) for r in streams if r.timing}
+        self.fields_names = {r.fields_topic for r in streams if r.fields_topic}
+        #: the topics whose counts the lockstep flow control acknowledges (every rig's sensors
+        #: and reference force)
+        self.lockstep_topics = tuple(
+            name for r in self.graph.rigs for name in
+            [s.name for s in self.graph.sensors(r)] + [self.graph.reference_force(r).name])
         self.acked = 0
         self.latest_ns = 0
         params_msg = self.typestore.types['std_msgs/msg/String'](data=parameters_json(p))
@@ -135,8 +135,7 @@ class RecorderNode(SeftNode):
                     self.typestore.serialize_cdr(params_msg, 'std_msgs/msg/String'))
         # crash safety: the topics, the types and the parameters on disk from the start; then a
         # flush every FLUSH_EVERY_S of complete steps (sample time) and of wall time
-        self.complete_topics = _LOCKSTEP + (GROUND_ACCELERATION.name,) + (
-            (VALVE_COMMAND.name,) if p['rig_model'] == 'servohydraulic' else ())
+        self.complete_topics = self.graph.complete_step_topics()
         self.flush_steps = max(1, int(round(FLUSH_EVERY_S / p['dt'])))
         self.flushed_steps = 0
         self._flush()
@@ -146,11 +145,16 @@ class RecorderNode(SeftNode):
             self.create_subscription(t.msg_type, t.name,
                                      self.guard(lambda raw, n=t.name: self._on_unstamped(n, raw)),
                                      t.qos, raw=True)
+        # a run over several hosts: the runners' link figures (the topic added to the bag
+        # with its first message: a run on one host has none)
+        self.create_subscription(LINK.msg_type, LINK.name, self.guard(self._on_link), LINK.qos,
+                                 raw=True)
         # the per-sample messages, serialized in place from the rows of the record batches
-        self.serialized = {t.name: SerializedStamped.scalar(t) for t in SCALAR_TOPICS}
+        self.serialized = {t.name: SerializedStamped.scalar(t) for t in recorded
+                           if (t.type_name, t.field) in _SCALAR_KINDS}
         self.serialized.update({t.name: SerializedStamped.fields(t.msg_type, TIMING_FIELDS)
-                                for t in TIMING})
-        for stream in RECORD_STREAMS:
+                                for t in recorded if t.name in self.timing_names})
+        for stream in self.graph.record_streams():
             spec = record_topic(stream)
             self.create_subscription(spec.msg_type, spec.name,
                                      self.guard(lambda msg, r=stream: self._on_batch(r, msg)),
@@ -160,7 +164,8 @@ class RecorderNode(SeftNode):
                                  STATUS.qos)
         self.finals = {}
         # the nodes of this run's graph: the recorder waits for each one's final count
-        self.participants = set(parameters.graph_nodes(p['rig_model']))
+        self.participants = set(self.graph.nodes())
+        self.rig_nodes = set(self.graph.rig_nodes())
         self.rig_final_at = None
         #: monotonic time of the first abort heard (or stop signal), None before
         self.abort_heard_at = None
@@ -176,8 +181,7 @@ class RecorderNode(SeftNode):
         together, and a short run could otherwise end, and its nodes exit, before this
         recorder heard of one of them."""
         for node in self.participants:
-            topic = record_streams_of(node)[0].name
-            if node not in {i.node_name for i in self.get_publishers_info_by_topic(topic)}:
+            if not self.publishes(node, self.graph.record_streams_of(node)[0].name):
                 return
         self.matched_timer.cancel()
         self.report(STATE_READY, 'every node discovered', inputs='matched')
@@ -212,7 +216,7 @@ class RecorderNode(SeftNode):
         width = 1 + len(columns)
         data, dt_ns, write = msg.data, self.dt_ns, self._write
         if stream.timing:
-            name = timing_topic(stream.node).name
+            name = self.graph.timing_topic(stream)
             serialize = self.serialized[name]
             for i in range(0, len(data), width):
                 stamp = int(data[i]) * dt_ns
@@ -224,14 +228,14 @@ class RecorderNode(SeftNode):
             stamp = int(data[i]) * dt_ns
             for j, name, serialize in columns:
                 write(name, stamp, serialize(stamp, (data[i + j],)))
-        if stream.node == 'rig':
+        if stream.node in self.rig_nodes:
             self.latest_ns = max(self.latest_ns, stamp)
         complete = min(self.counts[n] for n in self.complete_topics)
         if complete >= self.flushed_steps + self.flush_steps:
             self.flushed_steps = complete
             self._flush()
-        if self.counts[REFERENCE_FORCE.name] >= self.acked + ACK_EVERY:
-            recorded = min(self.counts[n] for n in _LOCKSTEP)
+        if self.counts[self.lockstep_topics[-1]] >= self.acked + ACK_EVERY:
+            recorded = min(self.counts[n] for n in self.lockstep_topics)
             if recorded >= self.acked + ACK_EVERY:
                 self.acked = recorded
                 self.report(STATE_RECORDING, recorded=recorded)
@@ -251,23 +255,31 @@ class RecorderNode(SeftNode):
     def _on_unstamped(self, name: str, raw: bytes) -> None:
         self._write(name, self.latest_ns, raw)
 
+    def _on_link(self, raw: bytes) -> None:
+        if self.writer is None:
+            return
+        if LINK.name not in self.connections:
+            self.connections[LINK.name] = self.writer.add_connection(
+                LINK.name, LINK.type_name, typestore=self.typestore)
+            self.counts[LINK.name] = 0
+        self._write(LINK.name, self.latest_ns, raw)
+
     def _on_status(self, msg) -> None:
         state = status_values(msg).get('state')
-        if state == STATE_READY and msg.name in TOPICS_OF_NODE:
+        if state == STATE_READY and msg.name in self.topics_of_node:
             self.participants.add(msg.name)
         if state in _FINAL:
             values = status_values(msg)
             self.finals[msg.name] = values
-            if msg.name == 'rig' and self.rig_final_at is None:
-                self.rig_final_at = time.monotonic()
             if state != STATE_DONE and self.abort_heard_at is None:
                 self.abort_heard_at = time.monotonic()
             # a runner's report of a node that died: that node will send no final count
             dead = values.get('failed_node')
             if dead and dead not in self.finals:
                 self.finals[dead] = {'state': STATE_FAILED}
-                if dead == 'rig' and self.rig_final_at is None:
-                    self.rig_final_at = time.monotonic()
+            # every rig has finished (the study's test: the rig)
+            if self.rig_final_at is None and self.rig_nodes <= set(self.finals):
+                self.rig_final_at = time.monotonic()
 
     def on_stop_signal(self, signame: str) -> None:
         """SIGINT/SIGTERM: record the rig's safe ramp, then close (at most ``safe_ramp_s`` +
@@ -279,9 +291,9 @@ class RecorderNode(SeftNode):
     def _published(self):
         """``(topic, recorded, published)`` of every topic of every node that has finished."""
         for node, values in self.finals.items():
-            for name in TOPICS_OF_NODE.get(node, ()):
-                key = ('published_timing' if name in _TIMING_NAMES else
-                       'published_estimates' if name == ESTIMATES.name else 'published')
+            for name in self.topics_of_node.get(node, ()):
+                key = ('published_timing' if name in self.timing_names else
+                       'published_estimates' if name in self.fields_names else 'published')
                 yield name, self.counts[name], int(values.get(key, 0))
 
     def _missing(self) -> list[str]:

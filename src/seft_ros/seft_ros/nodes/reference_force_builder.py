@@ -24,7 +24,7 @@ Run by hand: ``ros2 run seft_ros reference_force_builder --ros-args --params-fil
 import sys
 import time
 
-from seft_msgs_py import parameters
+from seft_msgs_py import clock, parameters
 from seft_msgs_py.convert import (
     STATE_READY,
     SerializedStamped,
@@ -43,6 +43,7 @@ from seft_msgs_py.signals import record_streams_of
 from seft_msgs_py.topics import REFERENCE_FORCE, STATUS, record_topic
 from seft_ros.core.monitor import InstabilityMonitor
 from seft_ros.core.reference_force import ReferenceForceBuilder, ground_window
+from seft_ros.nodes.structure_builder import StructureBuilding
 
 __all__ = ['ReferenceForceBuilderNode', 'main']
 
@@ -55,8 +56,9 @@ _MODEL_PARAMETERS = ('rig_model', 'tau_s', 'valve_limit_V', 'piston_area_m2',
                      'accelerometer_range_m_s2')
 
 
-class ReferenceForceBuilderNode(SeftNode):
-    """Lockstep shell around :class:`ReferenceForceBuilder`."""
+class ReferenceForceBuilderNode(StructureBuilding, SeftNode):
+    """Shell around :class:`ReferenceForceBuilder` (a structure's:
+    :class:`~seft_ros.nodes.structure_builder.StructureBuilding`)."""
 
     def __init__(self):
         super().__init__('reference_force_builder')
@@ -66,6 +68,9 @@ class ReferenceForceBuilderNode(SeftNode):
                 spec = parameters.spec(name)
                 value = self.declare_parameter(name, spec.default, descriptor_of(spec)).value
                 p[name] = parameters.validate_value(name, value)
+        if self.graph.is_structure:
+            self._init_structure()
+            return
         self.builder = ReferenceForceBuilder.from_parameters(p)
         # record length: n_steps, or as the ground-motion publisher reports it
         self.n_total = int(p['n_steps']) or None
@@ -174,11 +179,27 @@ class ReferenceForceBuilderNode(SeftNode):
                 return
             self.ground_stale = False
             self._publish_force(k, self._ground_or_latest, latest)
-            now_ns = time.time_ns()
+            if self.ground_lost(k):
+                return
+            now_ns = clock.now_ns()
             age = (now_ns - self.sample_time_ns(k - 1)) * 1e-9
             missed = now_ns > self.sample_time_ns(k)
             self.timing.publish(k * self.dt_ns, jitter, time.monotonic() - start, age,
                                 missed, self.ground_stale)
+
+    def ground_lost(self, k: int) -> bool:
+        """Real time: end the run when the record's samples have not come for longer than
+        ``watchdog_timeout_s`` (each step meanwhile built with the latest one): the
+        ground-motion publisher, or the link to its host, is lost (True: aborted)."""
+        self._ground_missing = self._ground_missing + 1 if self.ground_stale else 0
+        if self._ground_missing * self.dt <= float(self.params['watchdog_timeout_s']):
+            return False
+        self.abort_run(f'watchdog: no ground motion for {1e3 * self._ground_missing * self.dt:.0f}'
+                       f' ms (limit {1e3 * float(self.params["watchdog_timeout_s"]):.0f} ms; '
+                       'the ground-motion publisher or its link lost)', k)
+        return True
+
+    _ground_missing = 0
 
     def _ground_ready(self, k: int) -> bool:
         """Whether ``xg''[k..k+L]`` are all there (or known to lie after the record)."""

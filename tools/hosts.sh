@@ -1,0 +1,156 @@
+#!/usr/bin/env bash
+# Several emulated hosts on this machine, joined by network links, running one real-time test.
+#
+#   bash tools/hosts.sh [--partition loop_local|builder_remote] [--delay-ms D] [--jitter-ms J]
+#                       [--loss P] [--link SITE=D[,J[,P]]]... [--cut-after S] [--cut-site SITE]
+#                       [--out DIR] [-- seft run options (a config, --alpha, --set, ...)]
+#
+# One network namespace per site of the partition (`seft sites`): "compute" (the recorder
+# and the ground-motion publisher; with builder_remote the builder too) and one per lab
+# ("lab" for the study's rig, or one per rig of a structure, named after it). Each lab's link
+# to the compute host has its own one-way delay, jitter (half-width of a uniform jitter) and
+# loss (--link SITE=D,J,P; --delay-ms/--jitter-ms/--loss for every lab otherwise); lab to lab
+# goes through the compute host (a star). The links: a user-space hub (the link emulator,
+# seft_ros.cli.link_emulator: one TUN device per namespace; this kernel has no netem), the
+# namespaces' own addresses, multicast routed to the link (Fast DDS's discovery), UDP only
+# (shared memory would bypass the link). Each site runs
+# `seft run --mode realtime --partition P --site SITE ...`: the runners measure the links
+# (round trip, clock offset), agree on the playout delay and preview, and the compute host
+# writes the bag and the report. --cut-after S takes a lab's link device down S seconds after
+# the rigs started (--cut-site, default the first lab). Everything this script creates is
+# removed at the end, also on Ctrl-C or failure. Needs root (ip netns, /dev/net/tun).
+set -euo pipefail
+root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+partition=loop_local delay=0 jitter=0 loss=0 cut="" cut_site=""
+out="$root/runs/hosts"
+declare -A links=()
+usage() { sed -n '2,22p' "$0"; }
+while [[ $# -gt 0 ]]; do
+  case "$1" in
+    --partition) partition="$2"; shift 2 ;;
+    --delay-ms) delay="$2"; shift 2 ;;
+    --jitter-ms) jitter="$2"; shift 2 ;;
+    --loss) loss="$2"; shift 2 ;;
+    --link) links["${2%%=*}"]="${2#*=}"; [[ "$2" == *=* ]] || { echo "hosts.sh: error: --link $2: expected SITE=DELAY_MS[,JITTER_MS[,LOSS]]" >&2; exit 2; }; shift 2 ;;
+    --cut-after) cut="$2"; shift 2 ;;
+    --cut-site) cut_site="$2"; shift 2 ;;
+    --out) out="$2"; shift 2 ;;
+    --) shift; break ;;
+    -h|--help) usage; exit 0 ;;
+    *) echo "hosts.sh: error: unknown option $1 (seft run options go after --)" >&2; exit 2 ;;
+  esac
+done
+number() { [[ "$1" =~ ^[0-9]+([.][0-9]+)?$ ]] || { echo "hosts.sh: error: '$1': expected a number >= 0 ($2)" >&2; exit 2; }; }
+number "$delay" --delay-ms; number "$jitter" --jitter-ms; number "$loss" --loss
+[[ -z "$cut" ]] || number "$cut" --cut-after
+[[ "$(id -u)" == 0 ]] || { echo "hosts.sh: error: needs root (ip netns, /dev/net/tun); run it as root" >&2; exit 2; }
+command -v ip >/dev/null || { echo "hosts.sh: error: iproute2 (ip) is not installed" >&2; exit 2; }
+py="$root/.venv/bin/python"
+seft="$root/.venv/bin/seft"
+[[ -x "$seft" ]] || { echo "hosts.sh: error: $seft missing: run bash tools/setup.sh first" >&2; exit 2; }
+
+# the sites of the partition, as seft sees the run's options (one line "site: nodes" each)
+site_lines="$("$seft" sites --partition "$partition" "$@")" || exit 2
+mapfile -t sites < <(printf '%s\n' "$site_lines" | cut -d: -f1)
+labs=()
+for s in "${sites[@]}"; do [[ "$s" == compute ]] || labs+=("$s"); done
+for s in "${!links[@]}"; do
+  [[ " ${labs[*]} " == *" $s "* ]] || { echo "hosts.sh: error: --link $s: not a lab site of partition $partition (sites: ${labs[*]})" >&2; exit 2; }
+done
+[[ -z "$cut_site" || " ${labs[*]} " == *" $cut_site "* ]] || { echo "hosts.sh: error: --cut-site $cut_site: not a lab site (sites: ${labs[*]})" >&2; exit 2; }
+[[ -n "$cut_site" ]] || cut_site="${labs[0]}"
+
+id=$$
+net="10.$((200 + id % 50)).$(( (id / 50) % 250))"
+declare -A ns dev addr
+ports=()
+k=0
+for s in compute "${labs[@]}"; do
+  k=$((k + 1))
+  ns[$s]="seft-$k-$id"
+  dev[$s]="sh$(printf %06d $((id % 1000000)))$k"
+  addr[$s]="$net.$k"
+  if [[ "$s" == compute ]]; then
+    ports+=(--port "${dev[$s]},${addr[$s]},0,0,0")
+  else
+    IFS=, read -r d j p <<< "${links[$s]:-$delay,$jitter,$loss}"
+    d="${d:-$delay}" j="${j:-0}" p="${p:-0}"
+    number "$d" "--link $s delay"; number "$j" "--link $s jitter"; number "$p" "--link $s loss"
+    links[$s]="$d,$j,$p"
+    ports+=(--port "${dev[$s]},${addr[$s]},$d,$j,$p")
+  fi
+done
+
+hub=""
+cleanup() {
+  trap - EXIT INT TERM
+  for s in "${!ns[@]}"; do ip netns pids "${ns[$s]}" 2>/dev/null | xargs -r kill -INT 2>/dev/null || true; done
+  sleep 2
+  for s in "${!ns[@]}"; do
+    ip netns pids "${ns[$s]}" 2>/dev/null | xargs -r kill -KILL 2>/dev/null || true
+    ip netns del "${ns[$s]}" 2>/dev/null || true      # also deletes the devices in it
+  done
+  if [[ -n "$hub" ]]; then kill -INT "$hub" 2>/dev/null || true; wait "$hub" 2>/dev/null || true; fi
+}
+trap cleanup EXIT
+trap 'echo "hosts.sh: interrupted" >&2; exit 130' INT TERM
+
+for s in "${!ns[@]}"; do ip netns add "${ns[$s]}"; ip -n "${ns[$s]}" link set lo up; done
+mkdir -p "$out"
+ready="$(mktemp -u)"
+"$py" -m seft_ros.cli.link_emulator "${ports[@]}" --ready-file "$ready" 2> "$out/link_emulator.err" &
+hub=$!
+for _ in $(seq 100); do [[ -s "$ready" ]] && break; kill -0 "$hub" 2>/dev/null || break; sleep 0.1; done
+[[ -s "$ready" ]] || { echo "hosts.sh: error: the link emulator did not start: $(tail -1 "$out/link_emulator.err")" >&2; exit 1; }
+rm -f "$ready"
+for s in "${!ns[@]}"; do
+  ip link set "${dev[$s]}" netns "${ns[$s]}"
+  ip -n "${ns[$s]}" addr add "${addr[$s]}/24" dev "${dev[$s]}"
+  ip -n "${ns[$s]}" link set "${dev[$s]}" multicast on up
+  ip -n "${ns[$s]}" route add 224.0.0.0/4 dev "${dev[$s]}"
+done
+
+domain=$((100 + RANDOM % 100))
+emulation="link emulator"
+summary="link: $emulation (a hub at compute);"
+for s in "${labs[@]}"; do IFS=, read -r d j p <<< "${links[$s]}"; summary+=" $s ${d} ms +/- ${j} ms loss $p;"; done
+echo "hosts.sh: partition $partition, domain $domain; $summary" >&2
+
+pids=()
+for s in compute "${labs[@]}"; do
+  ip netns exec "${ns[$s]}" env ROS_DOMAIN_ID="$domain" ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET \
+    FASTDDS_BUILTIN_TRANSPORTS=UDPv4 PYTHONUNBUFFERED=1 SEFT_SITE="$s" \
+    SEFT_LINK_EMULATION="$emulation" "$seft" run --mode realtime --partition "$partition" \
+    --site "$s" "$@" --out "$out/$s" > "$out/$s.txt" 2> "$out/$s.err" &
+  pids+=($!)
+done
+
+if [[ -n "$cut" ]]; then
+  for _ in $(seq 1200); do
+    if grep -qs 'starting (' "$out/$cut_site"/*/logs/*rig.log; then break; fi
+    sleep 0.1
+  done
+  sleep "$cut"
+  ip -n "${ns[$cut_site]}" link set "${dev[$cut_site]}" down
+  echo "hosts.sh: link cut (${dev[$cut_site]} of $cut_site down) $cut s after the rigs started, at wall time $(date +%s%N) ns" >&2
+fi
+rc=0
+i=0
+for s in compute "${labs[@]}"; do
+  code=0
+  wait "${pids[$i]}" || code=$?
+  [[ $code == 0 ]] || rc=1
+  echo "$s exit $code" >> "$out/exits.txt"
+  i=$((i + 1))
+done
+for s in compute "${labs[@]}"; do
+  grep -v -e RTPS_TRANSPORT_SHM -e '^\s*$' "$out/$s.err" | sed "s/^/$s: /" >&2 || true
+done
+cat "$out/compute.txt"
+kill -INT "$hub" 2>/dev/null || true
+wait "$hub" 2>/dev/null || true
+hub=""
+grep -v '^\s*$' "$out/link_emulator.err" >&2 || true
+echo "$summary${cut:+ cut $cut_site after $cut s}"
+echo "exits: $(tr '\n' ' ' < "$out/exits.txt"); outputs in $out"
+exit $rc
