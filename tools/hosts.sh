@@ -88,7 +88,13 @@ cleanup() {
   sleep 2
   for s in "${!ns[@]}"; do
     ip netns pids "${ns[$s]}" 2>/dev/null | xargs -r kill -KILL 2>/dev/null || true
-    ip netns del "${ns[$s]}" 2>/dev/null || true      # also deletes the devices in it
+    # also deletes the devices in it; a namespace still being torn down can refuse (EBUSY)
+    for _ in $(seq 20); do
+      ip netns del "${ns[$s]}" 2>/dev/null || true
+      ip netns list | grep -qw "${ns[$s]}" || break
+      sleep 0.25
+    done
+    ip netns list | grep -qw "${ns[$s]}" && echo "hosts.sh: warning: could not remove network namespace ${ns[$s]}" >&2
   done
   if [[ -n "$hub" ]]; then kill -INT "$hub" 2>/dev/null || true; wait "$hub" 2>/dev/null || true; fi
 }
@@ -114,7 +120,7 @@ domain=$((100 + RANDOM % 100))
 emulation="link emulator"
 summary="link: $emulation (a hub at compute);"
 for s in "${labs[@]}"; do IFS=, read -r d j p <<< "${links[$s]}"; summary+=" $s ${d} ms +/- ${j} ms loss $p;"; done
-echo "hosts.sh: partition $partition, domain $domain; $summary" >&2
+echo "hosts.sh: partition $partition, domain $domain, network namespaces seft-*-$id; $summary" >&2
 
 pids=()
 for s in compute "${labs[@]}"; do

@@ -37,6 +37,14 @@ def _can_make_namespaces() -> str | None:
     return None
 
 
+def _left_behind(err: str) -> str:
+    """The pattern of the network namespaces the script run whose stderr is ``err`` made
+    (other runs may hold their own at the same time)."""
+    made = re.search(r'network namespaces seft-\*-(\d+)', err)
+    assert made, err
+    return rf'seft-\d+-{made.group(1)}\b'
+
+
 def _run_and_cut(cwd, ros_env, out):
     """Run the script with the cut; check what every run must show; return its stderr, the
     lab host's outcome and the time from the cut to the rig's abort [s] (< 0: before)."""
@@ -54,7 +62,7 @@ def _run_and_cut(cwd, ros_env, out):
     assert cut, err
     # nothing left behind: namespaces (and the devices in them) removed, no process
     names = subprocess.run(['ip', 'netns', 'list'], capture_output=True, text=True).stdout
-    assert not re.search(r'seft-\d+-\d+', names), names
+    assert not re.search(_left_behind(err), names), names
     leftover = subprocess.run(['pgrep', '-f', str(out)], capture_output=True, text=True)
     assert leftover.stdout.strip() == ''
     # the lab host: the rig went to its safe state on its own watchdog or the controller's
