@@ -6,6 +6,7 @@ import numpy as np
 from scipy import signal
 
 from seft_msgs_py.errors import ParameterError
+from seft_msgs_py.parameters import spec
 from seft_ros.core.controller import DiscreteFilter
 
 __all__ = ['InstabilityMonitor', 'open_loop_identification']
@@ -76,7 +77,10 @@ class InstabilityMonitor:
                  threshold: float = 1.0, floor_N: float = 50.0):
         if not cutoff_hz > 0:
             raise ParameterError(f'parameter monitor_cutoff_hz={cutoff_hz!r}: expected > 0')
-        if not cutoff_hz < 0.5 / dt:
+        if not cutoff_hz < 0.5 / dt and cutoff_hz != spec('monitor_cutoff_hz').default:
+            raise ParameterError(f'parameter monitor_cutoff_hz={cutoff_hz!r}: expected > 0 '
+                                 f'and below the Nyquist frequency {0.5 / dt:g} Hz')
+        if not cutoff_hz < 0.5 / dt:          # the default cut-off: dt is what the user set
             raise ParameterError(f'parameter dt={dt!r}: the sample period is too long for the '
                                  f'instability monitor, whose band split monitor_cutoff_hz='
                                  f'{cutoff_hz:g} Hz must lie below the Nyquist frequency '
