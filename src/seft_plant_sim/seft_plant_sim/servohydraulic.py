@@ -126,7 +126,7 @@ class ServoHydraulicParams:
         Flow-pressure coefficient K_c of the valve at null [m^3/(s Pa)]; 8e-12, chosen
         (the order of magnitude of a practical valve near null, Merritt 1967). Sets, with
         C_l, the damping of the oil column (ratio 0.12) and the finite DC gain of the force
-        loop (58, so |T(0)| = 0.983).
+        loop (58, so ``|T(0)| = 0.983``).
     leakage_coefficient_m3_per_s_Pa : float >= 0
         Cross-port leakage C_l past the piston seals [m^3/(s Pa)]; 2e-12, chosen small
         (a fatigue-rated actuator's seals); only ``K_c + C_l`` matters in the linear model.
@@ -789,7 +789,7 @@ class LoopMargins:
     Attributes
     ----------
     crossover_hz : float
-        First frequency where |L| falls through 1 [Hz] (nan if none).
+        First frequency where ``|L|`` falls through 1 [Hz] (nan if none).
     phase_margin_deg : float
         ``180 + arg L`` at the crossover [deg], in (-180, 180].
     gain_margin : float

@@ -534,7 +534,7 @@ def identify_run(run: RunData, *, window: str = 'hann', nperseg: int = DEFAULT_N
         ``phase_crossover_hz`` of ``L = C(z) H_fit(z)``; closed loop ``delay_ms`` (phase
         slope of H1 over `delay_band_hz`, coherence-weighted) and ``delay_xcorr_ms``
         (cross-correlation peak of the reference and measured force), ``magnitude_min``,
-        ``magnitude_max`` (|H1| from 0.5 to 25 Hz, the band of Fig. 4). Every figure also
+        ``magnitude_max`` (``|H1|`` from 0.5 to 25 Hz, the band of Fig. 4). Every figure also
         under ``model`` from the rig's known model (``seft_plant_sim.servohydraulic``:
         ``valve_to_force``, ``loop_margins``, ``equivalent_delay_s``; the delay rig: tau_s).
 

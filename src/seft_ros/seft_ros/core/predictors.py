@@ -894,7 +894,7 @@ class ForceLoopInverse:
         sum_{f <= band_hz} |W T - z^-d|^2 + mu sum_{f > band_hz} |W|^2
 
     (linear least squares, ``numpy.linalg.lstsq``): ``W T ~ z^-d`` in the band of the
-    response, and a bounded ``|W|`` above it, where the loop cannot push (|T| falls to 0.36
+    response, and a bounded ``|W|`` above it, where the loop cannot push (``|T|`` falls to 0.36
     at 50 Hz and 0.007 at 150 Hz) and an exact inverse would amplify noise a hundredfold.
 
     Parameters
