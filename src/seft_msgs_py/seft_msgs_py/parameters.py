@@ -1,8 +1,8 @@
 """The one parameter schema of a seft experiment.
 
 Every node declares its ROS parameters from this table (name, default, unit, range,
-description), the command-line runner validates a configuration against it, and the README
-table is checked against it. Values are SI floats (REP-103); the unit is in the name or in the
+description), the command-line runner validates a configuration against it, and the docs
+table is generated from it. Values are SI floats (REP-103); the unit is in the name or in the
 ``unit`` field.
 
 Imports no rclpy: the nodes turn a :class:`ParamSpec` into a ``ParameterDescriptor``.
@@ -45,7 +45,7 @@ class ParamSpec:
     unit : str
         SI unit ('' for dimensionless or text).
     description : str
-        One sentence for the ``ParameterDescriptor`` and the README.
+        One sentence for the ``ParameterDescriptor`` and the docs.
     minimum, maximum : float or None
         Inclusive range for numbers (``None``: unbounded).
     exclusive_minimum : bool

@@ -130,7 +130,7 @@ class ForceServoController:
         filter's delay late; the flow mismatch ``A tau a`` acts through the stiff oil column
         as a large added mass, and the loop has an unstable 2-5 Hz mode (spectral radius
         1.010-1.018 for f_c = 6-20 Hz), so this design is provided for rigs with a fast
-        valve and is not recommended here (README "Force control").
+        valve and is not recommended here (docs: design, "Force control").
 
     Discretization (``scipy.signal.cont2discrete``): the loop-shaping ``C_f`` by Tustin
     (bilinear) with frequency prewarping at its resonance ``w0 = sqrt(den[2])`` (sqrt(4002)
@@ -445,7 +445,7 @@ class TangentLoopShaping(ForceServoController):
     anchored on the measured restoring force and identified online
     (:mod:`seft_ros.core.hysteresis`). Measured on the default Bouc-Wen member, embedded
     record at 1000 N, alpha = 0: the displacement NRMS falls from 43.5 % (``loop_shaping``)
-    to about 2 % (README "Force control"); with the tangent of the present sample instead of
+    to about 2 % (docs: design, "Force control"); with the tangent of the present sample instead of
     the predicted one, 19 %.
 
     Discretization: the state ``(u, u')`` of ``u'' + 17.14 u' + 4002 rho u = g e`` by the
