@@ -175,3 +175,21 @@ def test_output_dir_removed_on_failure_only_when_empty(tmp_path):
     (out / 'node.log').write_text('kept: a failed run tells why\n')
     remove_empty_dirs(made)
     assert (out / 'node.log').is_file()
+
+
+@pytest.mark.parametrize('args, expected', [
+    (['--params', 'runs'], '--params runs: is a directory; expected the name of the parameter '
+                           'file to write'),
+    (['--window', 'foo'], "runs/run/alpha_0_servohydraulic_none/bag: option window='foo': "
+                          "expected a window of scipy.signal.get_window, e.g. 'hann', "
+                          "'hamming', 'boxcar' (Invalid window name 'foo' in parameter "
+                          "window='foo')"),
+])
+def test_identify_bad_option_is_one_line(identification, seft_exe, run_process, args,
+                                         expected):
+    cwd, _, _ = identification
+    before = sorted(p.relative_to(cwd) for p in cwd.rglob('*'))
+    proc = run_process([seft_exe, 'identify', 'runs/run', '--out', 'bad', *args], cwd=cwd,
+                       timeout=180)
+    assert error_line(proc) == expected
+    assert sorted(p.relative_to(cwd) for p in cwd.rglob('*')) == before

@@ -147,7 +147,9 @@ def h1_estimate(x, y, dt: float, *, window: str = 'hann', nperseg: int = DEFAULT
     try:
         signal.get_window(window, nperseg)
     except (ValueError, TypeError) as exc:
-        raise ParameterError(f'option window={window!r}: {exc}') from None
+        raise ParameterError(f'option window={window!r}: expected a window of '
+                             f"scipy.signal.get_window, e.g. 'hann', 'hamming', 'boxcar' "
+                             f'({str(exc).rstrip("!")})') from None
     fs = 1.0 / dt
     kw = dict(fs=fs, window=window, nperseg=nperseg, noverlap=noverlap, detrend='constant')
     f, pxy = signal.csd(x, y, **kw)

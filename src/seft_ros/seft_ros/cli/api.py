@@ -1056,6 +1056,9 @@ def identify_bags(*, bags: list[str], out_dir: Path, window: str = 'hann',
     from seft_ros.analysis import rig_identification as ri
     from seft_ros.analysis.identification_report import write_identification, write_params_yaml
     from seft_ros.analysis.report import software_versions
+    if params_out and Path(params_out).is_dir():
+        raise InputError(f'--params {params_out}: is a directory; expected the name of the '
+                         'parameter file to write')
     idents = []
     for path in find_bags(bags):
         rd = read_run(path)

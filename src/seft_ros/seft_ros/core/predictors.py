@@ -1880,8 +1880,12 @@ class AtsPredictor:
                  cutoff_hz: float = 20.0, law: 'HystereticModelPredictor | None' = None):
         from scipy.signal import butter
         dt = model.dt
+        if math.isfinite(window_s) and window_s > 0 and window_s / dt < 16:
+            raise ParameterError(f'parameter ats_window_s={window_s!r}: expected at least 16 '
+                                 f'samples, {16 * dt:g} s at dt={dt:g} s (a shorter dt or a '
+                                 'longer window)')
         for name, value, ok in (
-                ('ats_window_s', window_s, window_s > 0 and window_s / dt >= 16),
+                ('ats_window_s', window_s, window_s > 0),
                 ('adaptive_excitation_N', excitation_N, excitation_N >= 0),
                 ('adaptive_max_rate_per_s', max_rate_per_s, max_rate_per_s > 0),
                 ('adaptive_max_delay_s', max_delay_s, max_delay_s > 0),
