@@ -8,7 +8,7 @@ set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 bash "$root/tools/setup.sh"
 cd "$root"
-.venv/bin/sphinx-build -E -q -W --keep-going -b html docs docs/_build/html "$@"
+.venv/bin/sphinx-build -E -q -W --keep-going -j auto -b html docs docs/_build/html "$@"
 mkdir -p docs/figures
 cp docs/_generated/main/time_histories.png docs/figures/main_job.png
 echo "docs: $root/docs/_build/html/index.html"

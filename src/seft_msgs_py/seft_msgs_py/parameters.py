@@ -653,7 +653,7 @@ def shared_mismatches(node_params: Mapping[str, Mapping[str, Any]]) -> list[str]
     node_params : mapping of str to mapping of str to object
         ``{node name: {parameter name: value}}``, the parameters each node resolved (the JSON
         of ``/seft/node_parameters``). Names outside the schema (``use_sim_time``) and the
-        per-node parameters :data:`PER_NODE` are ignored.
+        per-node parameters ``PER_NODE`` are ignored.
 
     Returns
     -------

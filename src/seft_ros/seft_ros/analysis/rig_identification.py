@@ -644,7 +644,7 @@ def identified_parameters(runs: list[RunIdentification]) -> dict[str, Any]:
         ``polynomial`` and ``ats`` and the prior of ``adaptive``. From an open-loop run on the
         servohydraulic rig, the force-loop model: the physical parameters of
         ``seft_plant_sim.servohydraulic`` fitted to the measured ``H_fu``
-        (:func:`fit_hydraulics`), which ``model`` and ``adaptive`` build their force-loop
+        (``fit_hydraulics``), which ``model`` and ``adaptive`` build their force-loop
         inverse from. Empty if nothing was identified.
     """
     out: dict[str, Any] = {}
@@ -659,7 +659,7 @@ def identified_parameters(runs: list[RunIdentification]) -> dict[str, Any]:
     return out
 
 
-#: Parameters of the grey-box fit of :func:`fit_hydraulics`, in order.
+#: Parameters of the grey-box fit of ``fit_hydraulics``, in order.
 HYDRAULIC_FIT = ('valve_flow_gain_m3_per_s_V', 'actuator_volume_m3',
                  'valve_pressure_coefficient_m3_per_s_Pa', 'valve_time_constant_s',
                  'io_latency_s')

@@ -689,7 +689,7 @@ def summary_table(summary: list[dict]) -> str:
     residual displacement of test and reference [mm]. Below it, one ``note:`` line per
     run whose recording did not end with the run (``"recording"`` of the entry: the recorder
     killed, the bag recovered; or stopped) or has a gap (steps after it not analysed).
-    Structure runs: :func:`structure_table`."""
+    Structure runs: ``structure_table``."""
     if summary and 'structure' in summary[0]:
         return structure_table(summary)
     head = (f'{"alpha":>6} {"rig":>14} {"predictor":>10} {"stable":>7} {"abort_s":>8} '
@@ -752,7 +752,7 @@ def criteria_table(summary: list[dict]) -> str:
     """A plain-text table of the RTHS benchmark's criteria (``"criteria"`` of each summary
     entry): J1 [ms], J2-J5 [%], and the NRMS of every signal after removing the common
     (displacement) lag [%]. Structure runs: empty (their criteria, per rig, are in
-    :func:`structure_table`)."""
+    ``structure_table``)."""
     if summary and 'structure' in summary[0]:
         return ''
     head = (f'{"alpha":>6} {"predictor":>10} {"J1_ms":>6} {"J2%":>8} {"J3%":>8} {"J4%":>8} '

@@ -1,7 +1,8 @@
 """The ``seft`` command line: run, simulate, compare, stability, identify (thin verbs over
 ``seft_ros.cli.api``).
 
-Every :class:`SeftError` (bad file, bad parameter, failed node) is printed as one line
+Every :class:`~seft_msgs_py.errors.SeftError` (bad file, bad parameter, failed node) is printed as
+one line
 ``seft: error: ...`` with exit code 2; Ctrl-C stops the run safely with exit code 130.
 """
 

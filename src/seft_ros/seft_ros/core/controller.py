@@ -441,7 +441,8 @@ class TangentLoopShaping(ForceServoController):
     identified (so that an elastic member is ``rho = 1``, the study's controller, however
     well its stiffness is known). ``k_t(t + h)`` is the tangent stiffness predicted
     ``h = force_tangent_horizon_s`` after the sample, when the command acts on the flow
-    (I/O latency and valve lag), by :meth:`HystereticMember.tangent_ahead`: a Bouc-Wen model
+    (I/O latency and valve lag), by
+    :meth:`~seft_ros.core.hysteresis.HystereticMember.tangent_ahead`: a Bouc-Wen model
     anchored on the measured restoring force and identified online
     (:mod:`seft_ros.core.hysteresis`). Measured on the default Bouc-Wen member, embedded
     record at 1000 N, alpha = 0: the displacement NRMS falls from 43.5 % (``loop_shaping``)
@@ -453,7 +454,8 @@ class TangentLoopShaping(ForceServoController):
     :class:`ForceServoController`), with ``rho`` of the current sample: at ``rho = 1`` the
     output is that of ``loop_shaping`` to rounding, and a change of ``rho`` changes the
     command's curvature, not the command (no jump). ``bz``, ``az`` and
-    :meth:`state_space` are those of the elastic member (``rho = 1``): the stability map,
+    :meth:`~ForceServoController.state_space` are those of the elastic member (``rho = 1``):
+    the stability map,
     the guard and the ``model`` compensator's force-loop inverse use them.
 
     Parameters

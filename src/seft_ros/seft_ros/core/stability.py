@@ -469,7 +469,8 @@ class LoopModel:
     (the delay the predictor compensates is then in the loop, as in the test); the controller of
     :class:`~seft_ros.core.controller.ForceServoController` (``force_controller``: its
     error path ``C_e(z)`` in controllable canonical form by ``scipy.signal.tf2ss`` and its
-    velocity and acceleration feedback, :meth:`~ForceServoController.state_space`); the
+    velocity and acceleration feedback,
+    :meth:`~seft_ros.core.controller.ForceServoController.state_space`); the
     valve saturation and the accelerometer range are left out
     (small signal).
     """
