@@ -66,12 +66,13 @@ mathmpl_fontsize = 15.0
 #: docs/_generated/<name>/, which the pages include): name -> the ``seft`` arguments.
 FIGURES = {
     # the reference study's Figure 6: uncompensated, alpha 0 to 1.5 (1.5 goes unstable)
-    'main': ['simulate', '--alpha', '0', '0.5', '1', '1.5', '--force'],
+    'main': ['simulate', '--alpha', '0', '0.5', '1', '1.5', '--force', '--name',
+             'main job, uncompensated'],
     # adaptive compensation with m, c, k 10 % high at the start, the loop identified from data
     'adaptive': ['simulate', '--alpha', '1', '--rig', 'servohydraulic', '--predictor',
                  'adaptive', '--set', 'adaptive_loop=data', '--set', 'predictor_mass_kg=57.97',
                  '--set', 'predictor_stiffness_N_per_m=232100', '--set',
-                 'predictor_damping_N_s_per_m=993.6'],
+                 'predictor_damping_N_s_per_m=993.6', '--name', 'adaptive, m c k 10 % high'],
 }
 
 
