@@ -817,7 +817,7 @@ def test_identified_loop_parameter_errors(name, value, message):
 def test_identified_loop_from_parameters():
     """The configured loop: DC gain = the closed force loop's T(0) (the module of the rig),
     phase-slope delay that of the sampled loop less the half step of the step average,
-    order 8 / 9 (README), rate 5 x adaptive_max_rate_per_s, the adaptive_* settings."""
+    order 8 / 9 (docs), rate 5 x adaptive_max_rate_per_s, the adaptive_* settings."""
     from seft_plant_sim.servohydraulic import closed_loop_force_response, equivalent_delay_s
     params = parameters.resolve({'rig_model': 'servohydraulic', 'adaptive_memory_s': 2.0,
                                  'adaptive_excitation_N': 40.0, 'adaptive_max_deviation': 0.3,
