@@ -927,6 +927,11 @@ def stability_report(*, out_dir: Path, config: str | None = None,
             choices = ', '.join(repr(c) for c in registry)
             raise ParameterError(f'predictor {name!r}: expected one of {choices}'
                                  + (' (with a structure)' if structure else ''))
+    if not structure and rig == 'servohydraulic':
+        # a sample period too long for the force loop itself: said at once, not after a map
+        alone = stability.check_run(dict(params, alpha=0.0, predictor='none'))
+        if alone.stable is False:
+            raise ParameterError(alone.message)
     taus = np.linspace(lo, hi, n)
     if structure:
         from seft_ros.core.structure_stability import structure_stability_map
