@@ -1,6 +1,8 @@
-"""Regenerate config/default.yaml and the README parameter table from the parameter schema.
+"""Regenerate config/default.yaml, and make the parameter reference page, from the schema.
 
-Usage: .venv/bin/python tools/gen_param_docs.py   (tests/workspace checks both are current)
+Usage: .venv/bin/python tools/gen_param_docs.py   (tests/workspace checks default.yaml is
+current). The docs build (docs/conf.py) writes docs/reference/parameters.md with
+:func:`parameters_page` at every build, so the page is never stale.
 """
 
 from pathlib import Path
@@ -8,7 +10,6 @@ from pathlib import Path
 from seft_msgs_py import parameters as P
 
 ROOT = Path(__file__).resolve().parents[1]
-BEGIN, END = '<!-- parameters:begin -->', '<!-- parameters:end -->'
 SHORT = {'ground_motion_publisher': 'gm', 'reference_force_builder': 'rfb',
          'force_servo_controller': 'ctrl', 'rig': 'rig', 'recorder': 'rec'}
 
@@ -52,15 +53,30 @@ def readme_table() -> str:
     return '\n'.join(rows)
 
 
-def readme_with_table(text: str) -> str:
-    i, j = text.index(BEGIN) + len(BEGIN), text.index(END)
-    return text[:i] + '\n' + readme_table() + '\n' + text[j:]
+PAGE_HEAD = """# Parameters
+
+Every parameter is declared by the nodes that use it, with a `ParameterDescriptor` giving the
+description, unit and range. Values are checked at start-up, and run-time changes go through
+a validation callback. One schema holds them all: `seft_msgs_py/parameters.py`.
+`config/default.yaml` lists every one of them with its default, in `--params-file` format.
+On the command line (`--set NAME=VALUE`) a value is read by its type here: `1e-12` is a
+float, `true`/`false` a bool, text stays text.
+
+Node abbreviations used below: gm = ground_motion_publisher, rfb = reference_force_builder,
+ctrl = force_servo_controller, rec = recorder; the recorder stores all parameters. This page
+and `config/default.yaml` are generated from the schema (`tools/gen_param_docs.py`, at every
+docs build).
+
+"""
+
+
+def parameters_page() -> str:
+    """The parameter reference page (Markdown) of the docs."""
+    return PAGE_HEAD + readme_table() + '\n'
 
 
 def main() -> None:
     (ROOT / 'config' / 'default.yaml').write_text(default_yaml())
-    readme = ROOT / 'README.md'
-    readme.write_text(readme_with_table(readme.read_text()))
 
 
 if __name__ == '__main__':

@@ -5,4 +5,5 @@ root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 bash "$root/tools/setup.sh"
 cd "$root"
 .venv/bin/ruff check src tests benchmarks tools
+bash tools/docs.sh    # the docs, warnings as errors: a broken reference or docstring fails
 exec .venv/bin/python -m pytest tests -q -p no:cacheprovider "$@"

@@ -1,7 +1,7 @@
-"""The nodes started by hand as the README's 'Running the nodes by hand' does (issue 12).
+"""The nodes started by hand as the docs' 'Running the nodes by hand' does (issue 12).
 
 Five separate processes, the installed executables with ``--ros-args --params-file
-config/default.yaml`` plus ``-p`` overrides, in the test session's ROS domain. With the README's
+config/default.yaml`` plus ``-p`` overrides, in the test session's ROS domain. With the docs'
 former mistake (``-p alpha:=0.5`` on the reference-force builder only) the graph must refuse to
 run and every node must name the parameter, the nodes and their values; with alpha on every
 node the run completes and the bag holds each node's parameters.
@@ -25,16 +25,16 @@ from rosbags.typesys import Stores, get_typestore
 from seft_ros.analysis.bag import read_run
 
 REPO = Path(__file__).resolve().parents[2]
-PARAMS_FILE = 'config/default.yaml'   # relative to REPO, as in the README
+PARAMS_FILE = 'config/default.yaml'   # relative to REPO, as in the docs
 LIB = Path(sys.executable).parent.parent / 'lib'
 
-#: The README's start order (the recorder first) with each executable's package.
+#: The docs' start order (the recorder first) with each executable's package.
 NODES = (('recorder', 'seft_ros'), ('ground_motion_publisher', 'seft_ros'),
          ('reference_force_builder', 'seft_ros'), ('force_servo_controller', 'seft_ros'),
          ('rig', 'seft_plant_sim'))
 NODE_NAMES = tuple(n for n, _ in NODES)
 
-#: Every node, as the README's P: a short run (n_steps from the ground-motion publisher's
+#: Every node, as the docs' P: a short run (n_steps from the ground-motion publisher's
 #: record length), and the rig waits for the recorder (else a slow discovery lets the rig run
 #: and exit before the recorder heard it: no sample, no final status in the bag).
 SHORT = ('-p', 'duration_s:=1.0', '-p', 'wait_for_recorder:=true')
@@ -79,7 +79,7 @@ class Graph:
         self.started = 0.0
 
     def start(self, extra: dict[str, tuple[str, ...]]) -> None:
-        """Start every node as the README does, `extra[node]` appended to its ``-p`` list."""
+        """Start every node as the docs do, `extra[node]` appended to its ``-p`` list."""
         self.started = time.monotonic()
         for node, package in NODES:
             argv = [str(executable(node, package)), '--ros-args', '--params-file', PARAMS_FILE,
@@ -155,7 +155,7 @@ def read_bag(path: Path):
     return counts, messages
 
 
-#: The one line a node prints for the README's mistake: the nodes whose parameters it had
+#: The one line a node prints for the docs' mistake: the nodes whose parameters it had
 #: received by then with their alpha (the builder's 0.5, the others' 0.0), grouped by value.
 ALPHA_LINE = re.compile(r'(?P<node>\w+): error: parameter alpha differs: '
                         r'(?P<values>\w+=\d\.\d(, \w+=\d\.\d)+)')
@@ -194,7 +194,7 @@ def test_readme_mistake_alpha_on_one_node_is_refused(graph, tmp_path):
 
 def test_alpha_on_every_node_runs_and_records_each_nodes_parameters(
         graph, tmp_path, seft_exe, run_process):
-    """The README's command with alpha on every node: the run completes, the bag holds each
+    """The docs' command with alpha on every node: the run completes, the bag holds each
     node's parameters, and ``seft compare`` takes alpha from the reference-force builder."""
     bag = tmp_path / 'bag'
     alpha = ('-p', 'alpha:=0.5')

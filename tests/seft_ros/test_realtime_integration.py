@@ -171,7 +171,7 @@ def test_watchdog_takes_the_rig_to_its_safe_state(rt_dir, seft_exe, ros_env):
     time the rig ramps the actuator force to zero over safe_ramp_s and the run ends aborted.
 
     The watchdog is set to 0.2 s here, not its 20 ms default: this shared virtual machine
-    stalls a whole graph for tens of milliseconds now and then (README, real-time results),
+    stalls a whole graph for tens of milliseconds now and then (docs: results, real time),
     and such a stall before the freeze would trip the default first."""
     out = rt_dir / 'watchdog'
     proc = subprocess.Popen(

@@ -105,7 +105,7 @@ def controller_gain_V_per_N(params: Mapping) -> float:
 
 def valve_flow_gain_m3_per_s_V(params: Mapping) -> float:
     """The valve flow gain k_q [m^3/(s V)]: ``valve_flow_gain_m3_per_s_V``, or when it is
-    absent or 0, the configured reading's (:attr:`RigCalibration.valve_flow_gain_m3_per_s_V`).
+    absent or 0, the configured reading's (``RigCalibration.valve_flow_gain_m3_per_s_V``).
     """
     value = params.get('valve_flow_gain_m3_per_s_V', 0.0)
     if isinstance(value, (int, float)) and not isinstance(value, bool) and value == 0:

@@ -155,7 +155,8 @@ class Graph:
         return qualified('rig', self.rigs[0])
 
     def has_controller(self, rig: str) -> bool:
-        """Whether `rig` has a force servo controller (:func:`parameters.graph_nodes`: not
+        """Whether `rig` has a force servo controller
+        (:func:`~seft_msgs_py.parameters.graph_nodes`: not
         the delay rig, which takes the reference force)."""
         return 'force_servo_controller' in parameters.graph_nodes(self.rig_models[rig])
 

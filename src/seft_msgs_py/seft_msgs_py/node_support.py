@@ -2,7 +2,8 @@
 
 ``main`` follows ``ros2/demos`` ``demo_nodes_py/topics/talker.py``: spin in ``try``, catch
 ``KeyboardInterrupt`` and ``ExternalShutdownException``, destroy the node and
-``rclpy.try_shutdown()`` in ``finally``. A :class:`SeftError` (bad parameter or input file)
+``rclpy.try_shutdown()`` in ``finally``. A :class:`~seft_msgs_py.errors.SeftError` (bad parameter
+or input file)
 becomes a one-line message on stderr and exit code 2.
 """
 
@@ -98,7 +99,7 @@ class SeftNode(Node):
     """A node of the seft graph: declares its schema parameters and reports its state.
 
     A node of a rig of a structure runs in the rig's ROS namespace (``-r __ns:=/<rig>``,
-    :mod:`seft_msgs_py.graph`): its qualified name :attr:`seft_name` is ``<rig>/<node>``.
+    :mod:`seft_msgs_py.graph`): its qualified name ``seft_name`` is ``<rig>/<node>``.
 
     Parameters
     ----------
@@ -193,7 +194,7 @@ class SeftNode(Node):
     def apply_priority(self) -> None:
         """Real-time mode with ``realtime_priority`` > 0: run this process under SCHED_FIFO.
 
-        The priority is ``realtime_priority`` plus :data:`PRIORITY_OFFSET` of the node: the
+        The priority is ``realtime_priority`` plus ``PRIORITY_OFFSET`` of the node: the
         rig highest, then the controller and the builder, then the ground-motion publisher,
         and the recorder lowest: it must keep up (at the normal priority the loop's nodes
         starved it and the bag lost samples), but its bag writes must never delay the loop.
@@ -474,7 +475,8 @@ class SeftNode(Node):
     def guard(self, callback: Callable) -> Callable:
         """Wrap a callback so that an exception ends the node cleanly instead of the executor.
 
-        A :class:`SeftError` is reported as one line (status 'failed', exit code 2); anything
+        A :class:`~seft_msgs_py.errors.SeftError` is reported as one line (status 'failed', exit
+        code 2); anything
         else with its traceback (exit code 1).
         """
         def wrapper(*args):
@@ -601,7 +603,8 @@ class StepTiming:
 
     def publish(self, stamp_ns: int, jitter_s: float, compute_s: float, input_age_s: float,
                 missed: bool, stale: bool, loop_latency_s: float = math.nan) -> None:
-        """Record one step (fields as :data:`TIMING_FIELDS`; the stamp is the sample's)."""
+        """Record one step (fields as :data:`~seft_msgs_py.signals.TIMING_FIELDS`; the stamp is
+        the sample's)."""
         self.missed += bool(missed)
         self.stale += bool(stale)
         self.batch.add(stamp_ns // self.dt_ns, jitter_s, compute_s, input_age_s,

@@ -1,8 +1,8 @@
 """The one parameter schema of a seft experiment.
 
 Every node declares its ROS parameters from this table (name, default, unit, range,
-description), the command-line runner validates a configuration against it, and the README
-table is checked against it. Values are SI floats (REP-103); the unit is in the name or in the
+description), the command-line runner validates a configuration against it, and the docs
+table is generated from it. Values are SI floats (REP-103); the unit is in the name or in the
 ``unit`` field.
 
 Imports no rclpy: the nodes turn a :class:`ParamSpec` into a ``ParameterDescriptor``.
@@ -17,6 +17,7 @@ from seft_msgs_py.errors import ParameterError
 
 __all__ = [
     'ParamSpec', 'SCHEMA', 'NODES', 'spec', 'specs_for_node', 'defaults', 'validate_value',
+    'from_text',
     'resolve', 'graph_nodes', 'PER_NODE', 'shared_mismatches', 'VALUE_SOURCE', 'value_source',
 ]
 
@@ -44,7 +45,7 @@ class ParamSpec:
     unit : str
         SI unit ('' for dimensionless or text).
     description : str
-        One sentence for the ``ParameterDescriptor`` and the README.
+        One sentence for the ``ParameterDescriptor`` and the docs.
     minimum, maximum : float or None
         Inclusive range for numbers (``None``: unbounded).
     exclusive_minimum : bool
@@ -163,13 +164,13 @@ SCHEMA: tuple[ParamSpec, ...] = (
               "'noise' (band-limited Gaussian noise, amplitude = its standard deviation), "
               "'chirp' (logarithmic sweep over the band) or 'stepped_sine' (20 log-spaced "
               'sines of whole cycles over the band); the record is not played.',
-              choices=('none', 'noise', 'chirp', 'stepped_sine'), nodes=_EXC),
+              choices=('none', 'noise', 'chirp', 'stepped_sine'), nodes=_EXC + _RFB),
     ParamSpec('excitation_input', 'reference_force', '', "Where the excitation enters: "
               "'reference_force' (closed loop: it replaces the ground-motion term "
               '-(1+alpha) m xg_ddot of the reference force, so the bag holds it as the ground '
               "acceleration) or 'valve_command' (open loop, servohydraulic rig: the force "
               'controller is bypassed and the valve is driven directly; ground motion 0).',
-              choices=('reference_force', 'valve_command'), nodes=_EXC),
+              choices=('reference_force', 'valve_command'), nodes=_EXC + _RFB),
     ParamSpec('excitation_amplitude', 0.0, 'N or V', 'Excitation amplitude, in N on the '
               'reference force, in V on the valve (noise: standard deviation; chirp, '
               'stepped sine: peak; 0: 100 N, 0.05 V).', 0.0, None, nodes=_EXC),
@@ -290,7 +291,9 @@ SCHEMA: tuple[ParamSpec, ...] = (
               0.0, 10.0, True, nodes=_RFB),
     ParamSpec('monitor_threshold', 1.0, '', 'The run is aborted when the high-band RMS exceeds '
               'this times (low-band RMS + 5 % of the ground-motion force + monitor_floor_N); 0 '
-              'disables.', 0.0, 100.0, nodes=_RFB),
+              'disables. Disarmed in an open-loop identification run (excitation on the '
+              "valve: the loop it guards is open), where the rig's stroke_limit_m and "
+              'force_limit_N guard the run.', 0.0, 100.0, nodes=_RFB),
     ParamSpec('monitor_floor_N', 50.0, 'N', "Absolute floor of the monitor's comparison "
               '(keeps sensor noise from tripping it).', 0.0, None, nodes=_RFB),
     # -- force servo controller -------------------------------------------------------------
@@ -518,6 +521,66 @@ def validate_value(name: str, value: Any, *, where: str = '') -> Any:
     return value
 
 
+#: Parameters that may hold a list on the command line (one run per value).
+LIST_PARAMETERS = ('alpha', 'predictor', 'record')
+
+
+def from_text(name: str, text: str, *, where: str = '') -> Any:
+    """Read a value given as text (``--set NAME=VALUE``) by the parameter's type.
+
+    The schema's type decides, not YAML's guessing: ``1e-12`` is a float for a float
+    parameter (YAML 1.1 reads it as text), ``on`` is text for a text parameter. A bool is
+    ``true`` or ``false`` (any case); an int a whole number; a float any Python float
+    literal; text is taken as it is. For ``alpha``, ``predictor`` and ``record`` a list
+    ``[a, b]`` gives one run per value. The value is then checked by
+    :func:`validate_value`.
+
+    Parameters
+    ----------
+    name : str
+        Parameter name.
+    text : str
+        The value as typed.
+    where : str
+        Context for the message, prefixed as ``'<where>: '``.
+
+    Returns
+    -------
+    bool, int, float, str or list
+        The value in the parameter's type (a list of them for a list).
+
+    Raises
+    ------
+    ParameterError
+        Unknown parameter, or a text that is no value of the parameter's type or out of its
+        range; the message names the parameter and what was expected.
+    """
+    s = spec(name)
+    text = text.strip()
+    if name in LIST_PARAMETERS and text.startswith('[') and text.endswith(']'):
+        items = [t.strip() for t in text[1:-1].split(',') if t.strip()]
+        return [from_text(name, t, where=where) for t in items]
+    prefix = f'{where}: ' if where else ''
+    bad = ParameterError(f'{prefix}parameter {name}={text!r}: expected {s.expected()}')
+    if isinstance(s.default, bool):
+        if text.lower() not in ('true', 'false'):
+            raise bad
+        value: Any = text.lower() == 'true'
+    elif isinstance(s.default, int):
+        try:
+            value = int(text)
+        except ValueError:
+            raise bad from None
+    elif isinstance(s.default, float):
+        try:
+            value = float(text)
+        except ValueError:
+            raise bad from None
+    else:
+        value = text
+    return validate_value(name, value, where=where)
+
+
 def resolve(overrides: Mapping[str, Any] | Iterable[tuple[str, Any]] = (), *,
             where: str = '') -> dict[str, Any]:
     """Return the defaults updated with validated `overrides`.
@@ -590,7 +653,7 @@ def shared_mismatches(node_params: Mapping[str, Mapping[str, Any]]) -> list[str]
     node_params : mapping of str to mapping of str to object
         ``{node name: {parameter name: value}}``, the parameters each node resolved (the JSON
         of ``/seft/node_parameters``). Names outside the schema (``use_sim_time``) and the
-        per-node parameters :data:`PER_NODE` are ignored.
+        per-node parameters ``PER_NODE`` are ignored.
 
     Returns
     -------

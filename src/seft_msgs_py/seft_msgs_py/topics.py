@@ -5,7 +5,7 @@ this module adds the rclpy message classes and the QoS profiles.
 
 Every core signal is a scalar in a standard common_interfaces message with a header whose
 stamp is the sample time ``t_k = k*dt`` (REP-103 SI units). The table :data:`TOPICS` is what
-the nodes, the recorder, the bag reader and the README use.
+the nodes, the recorder, the bag reader and the docs use.
 """
 
 from dataclasses import dataclass

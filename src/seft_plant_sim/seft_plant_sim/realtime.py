@@ -79,7 +79,7 @@ class WallClockRig:
     -----
     A command's effect time is rounded up to the sub-step grid, so it acts at most one
     sub-step (default 0.1 ms) after the instant the timing rule gives. A command older than
-    the one already in effect is discarded (:attr:`discarded`).
+    the one already in effect is discarded (``discarded``).
     """
 
     def __init__(self, params: Mapping):

@@ -136,7 +136,7 @@ class RigNode(SeftNode):
                         else (self.graph.builder_of(self.rig_name),))
         self.controller = (qualified('force_servo_controller', self.rig_name)
                            if self.graph.has_controller(self.rig_name) else None)
-        #: Nodes that reported their inputs matched (real time, :data:`INPUT_NODES`).
+        #: Nodes that reported their inputs matched (real time, ``INPUT_NODES``).
         self.inputs_matched = set()
         self.create_subscription(STATUS.msg_type, STATUS.name, self.guard(self._on_status),
                                  STATUS.qos)

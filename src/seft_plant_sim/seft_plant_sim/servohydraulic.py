@@ -3,9 +3,10 @@
 The classic linear model of a valve-controlled actuator pushing on a structure (Merritt 1967,
 Ch. 5; Dyke et al. 1995; Carrion and Spencer 2007), plus the in-loop I/O latency a real digital
 controller has, sampled exactly at the control period. ROS-free: the rig node and the
-one-process simulator call :class:`ServoHydraulicRig` through the :class:`~seft_plant_sim.
-interface.Rig` protocol, and the analysis functions below give the sampled open- and
-closed-loop responses with the discrete force controller (paper Figs. 3-4) and the stability
+one-process simulator call :class:`ServoHydraulicRig` through the
+:class:`~seft_msgs_py.interface.Rig` protocol, and the analysis functions below give the
+sampled open- and closed-loop responses with the discrete force controller (paper Figs. 3-4) and
+the stability
 of the substructure EFT acceleration feedback (paper Eq. 5.3).
 
 Model (continuous time, states ``x [m], x' [m/s], p_L [Pa], x_v [V]``)::
@@ -126,7 +127,7 @@ class ServoHydraulicParams:
         Flow-pressure coefficient K_c of the valve at null [m^3/(s Pa)]; 8e-12, chosen
         (the order of magnitude of a practical valve near null, Merritt 1967). Sets, with
         C_l, the damping of the oil column (ratio 0.12) and the finite DC gain of the force
-        loop (58, so |T(0)| = 0.983).
+        loop (58, so ``|T(0)| = 0.983``).
     leakage_coefficient_m3_per_s_Pa : float >= 0
         Cross-port leakage C_l past the piston seals [m^3/(s Pa)]; 2e-12, chosen small
         (a fatigue-rated actuator's seals); only ``K_c + C_l`` matters in the linear model.
@@ -450,7 +451,7 @@ class ServoHydraulicRig:
     integrated with `rk4_substeps` classical Runge-Kutta substeps per step
     (:func:`~seft_plant_sim.specimen.rk4_hysteretic`), with the same held, delayed valve
     command (a substep boundary at ``delta``). The readings are those of the linear rig with
-    the acceleration ``(A p_L - c x' - f_s)/m``. :attr:`model` is then the rig sampled with
+    the acceleration ``(A p_L - c x' - f_s)/m``. ``model`` is then the rig sampled with
     the specimen's initial stiffness (its small-amplitude behaviour). The default 20
     substeps (0.1 ms; the 90 Hz oil column needs them, not the specimen) are RK4-convergent:
     halving the substep changes a closed-loop run on the default record by less than 3e-7
@@ -789,7 +790,7 @@ class LoopMargins:
     Attributes
     ----------
     crossover_hz : float
-        First frequency where |L| falls through 1 [Hz] (nan if none).
+        First frequency where ``|L|`` falls through 1 [Hz] (nan if none).
     phase_margin_deg : float
         ``180 + arg L`` at the crossover [deg], in (-180, 180].
     gain_margin : float

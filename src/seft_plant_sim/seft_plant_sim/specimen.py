@@ -367,9 +367,9 @@ class SafetyLimits:
     Parameters
     ----------
     stroke_limit_m : float > 0
-        Largest allowed |displacement| [m] (911D actuator: 152 mm total stroke, +/-76 mm).
+        Largest allowed ``abs(displacement)`` [m] (911D actuator: 152 mm total stroke, +/-76 mm).
     force_limit_N : float > 0
-        Largest allowed |actuator force| [N] (911D: 24.5 kN dynamic).
+        Largest allowed ``abs(actuator force)`` [N] (911D: 24.5 kN dynamic).
     """
 
     stroke_limit_m: float = 0.076

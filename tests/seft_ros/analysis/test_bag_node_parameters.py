@@ -145,7 +145,7 @@ def run_params():
 
 @pytest.fixture(scope='module')
 def issue_bag(tmp_path_factory, response, run_params):
-    """The README's run by hand with -p alpha:=0.5 on the reference-force builder and rig."""
+    """The docs' run by hand with -p alpha:=0.5 on the reference-force builder and rig."""
     path = tmp_path_factory.mktemp('bags') / 'issue_bag'
     nodes = node_parameters(reference_force_builder={'alpha': ALPHA_RUN},
                             rig={'alpha': ALPHA_RUN})

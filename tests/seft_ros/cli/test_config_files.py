@@ -28,7 +28,7 @@ def test_default_yaml_is_the_schema_defaults():
 
 
 def test_main_yaml_is_the_studys_experiment():
-    """README "Two commands": alpha 0, 0.5, 1, 1.5 with 'none' and 'model' on the
+    """docs "Your first test": alpha 0, 0.5, 1, 1.5 with 'none' and 'model' on the
     servohydraulic rig, the default record at time scale 0.5 and 1000 N."""
     runs = build_runs(config=str(CONFIG / 'main.yaml'))
     assert sorted((p['predictor'], p['alpha']) for p in runs) == sorted(

@@ -42,7 +42,7 @@ def uncompensated(reference_params):
 
 def test_alpha_half_underestimates_the_peaks(uncompensated):
     """Paper Sec. 4: with alpha = 0.5 the uncompensated test's peaks fall short of the
-    reference (README table: peak x 0.79)."""
+    reference (docs table: peak x 0.79)."""
     run = uncompensated[0.5]
     assert run.stable
     x_ref, _, f_ref = whole_structure(run.params, run.ground_acceleration_m_s2)
@@ -75,7 +75,7 @@ def test_alpha_one_and_a_half_is_stopped_by_the_monitor(uncompensated, reference
     assert not run.stable
     assert run.abort_reason.startswith('unstable at t=')
     assert 'high-frequency oscillation of the measured force' in run.abort_reason
-    assert 0.2 <= run.unstable_at_s <= 2.5            # README: trips within 0.2-2.5 s
+    assert 0.2 <= run.unstable_at_s <= 2.5            # docs: trips within 0.2-2.5 s
     assert np.max(np.abs(run.valve_command_V)) < 10.0
     assert np.max(np.abs(run.measured_force_N)) < reference_params['force_limit_N'] / 4
     assert np.max(np.abs(run.displacement_m)) < reference_params['stroke_limit_m'] / 4

@@ -297,7 +297,7 @@ def test_from_parameters_reads_the_monitor_parameters(reference_params):
             default.threshold, default.floor_N) == (25.0, 0.2, 1.0, 50.0)
 
 
-# -- the README's calibration claim over several records -----------------------------------
+# -- the docs' calibration claim over several records -----------------------------------
 
 class _RecordingMonitor(InstabilityMonitor):
     """The monitor of a run, observing (threshold 0) and keeping its largest ratio."""
@@ -347,7 +347,7 @@ def calibration_ratios(request):
 
 
 def test_calibration_stable_and_unstable_runs_are_separated(calibration_ratios):
-    """``benchmarks/monitor_margin.py``'s claim as a check. The README ("Safety") states a
+    """``benchmarks/monitor_margin.py``'s claim as a check. The docs (design, "Safety") states a
     largest stable ratio of 0.66 and 1.5 or more for every unstable run; with the current
     rig defaults (Eq. 3.1 read in V/lbf, ground preview) the default record alone gives 0.69
     (delay rig, alpha 0.9) and 1.46 (servohydraulic, alpha 1.5), and the seeds 2-3 records

@@ -118,7 +118,7 @@ def test_the_guard_models_the_playout_delay():
     boundaries = [stability.check_run(params('none', m, 0.5)).boundary_alpha
                   for m in (0, 3, 7)]
     assert boundaries[0] > boundaries[1] > boundaries[2]
-    assert boundaries[0] == pytest.approx(1.32, abs=0.01)       # one host (README)
+    assert boundaries[0] == pytest.approx(1.32, abs=0.01)       # one host (docs)
     b = boundaries[2]
     peak, late = _peak_acceleration_late(7, 0.85 * b)
     assert late < 0.2 * peak

@@ -817,7 +817,7 @@ def test_identified_loop_parameter_errors(name, value, message):
 def test_identified_loop_from_parameters():
     """The configured loop: DC gain = the closed force loop's T(0) (the module of the rig),
     phase-slope delay that of the sampled loop less the half step of the step average,
-    order 8 / 9 (README), rate 5 x adaptive_max_rate_per_s, the adaptive_* settings."""
+    order 8 / 9 (docs), rate 5 x adaptive_max_rate_per_s, the adaptive_* settings."""
     from seft_plant_sim.servohydraulic import closed_loop_force_response, equivalent_delay_s
     params = parameters.resolve({'rig_model': 'servohydraulic', 'adaptive_memory_s': 2.0,
                                  'adaptive_excitation_N': 40.0, 'adaptive_max_deviation': 0.3,
@@ -1181,8 +1181,14 @@ def ats(**kwargs):
     return AtsPredictor(DelayImpulseModel(M, C, K, DT, 0.0), 1.0, M, 0.01, **kwargs)
 
 
+def test_ats_window_shorter_than_16_steps_names_dt():
+    with pytest.raises(ParameterError, match=r'^parameter ats_window_s=0\.03: expected at least '
+                                             r'16 samples, 0\.032 s at dt=0\.002 s \(a shorter '
+                                             r'dt or a longer window\)$'):
+        ats(window_s=0.03)                          # 15 steps < 16
+
+
 @pytest.mark.parametrize('name, value, key', [
-    ('window_s', 0.03, 'ats_window_s'),            # 15 steps < 16
     ('window_s', 0.0, 'ats_window_s'), ('excitation_N', -1.0, 'adaptive_excitation_N'),
     ('max_rate_per_s', 0.0, 'adaptive_max_rate_per_s'),
     ('max_delay_s', 0.0, 'adaptive_max_delay_s'), ('max_delay_s', math.inf,

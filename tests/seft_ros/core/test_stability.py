@@ -272,3 +272,23 @@ def test_check_run(reference_params):
     assert skipped.stable is None and 'not linear time-invariant' in skipped.message
     skipped = st.check_run(dict(reference_params, alpha=1.5, predictor='adaptive'))
     assert skipped.stable is None and 'not predicted' in skipped.message
+
+
+def test_largest_stable_dt_of_the_force_loop():
+    """The servohydraulic force loop alone (alpha = 0) at a too-long sample period: the
+    bisection's period is stable, 2 % longer is not, and the default 2 ms is stable."""
+    from seft_msgs_py import parameters
+    assert st.largest_stable_dt(parameters.resolve({})) == math.inf
+    p = parameters.resolve({'dt': 0.01})
+    dt = st.largest_stable_dt(p)
+    assert 0.006 < dt < 0.008                      # check_run: 6 ms stable, 8 ms unstable
+
+    def rho(d):
+        q = dict(p, dt=d, alpha=0.0)
+        return float(st.LoopModel(q, st.compensator(q)).radii(0.0)[0])
+    assert rho(dt) < 1.0 < rho(1.02 * dt)
+    check = st.check_run(p)
+    assert check.stable is False
+    assert check.message.startswith('parameter dt=0.01: the force loop alone (alpha = 0, no '
+                                    'mass fed back) is predicted unstable on the '
+                                    'servohydraulic rig: the sample period is too long')

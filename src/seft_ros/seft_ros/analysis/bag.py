@@ -1,4 +1,5 @@
-"""Read a seft rosbag2 bag (written by the recorder node) back into a :class:`RunData`.
+"""Read a seft rosbag2 bag (written by the recorder node) back into a
+:class:`~seft_ros.analysis.rundata.RunData`.
 
 Uses rosbags (no rclpy): each parameter comes from the node that used it (the
 ``/seft/node_parameters`` message of its ``parameters.value_source`` node: alpha from the
@@ -72,7 +73,7 @@ class BagSignals:
     duplicates : dict of str -> list of int
         Per scalar topic, the steps recorded more than once with the same value (read as one
         sample); empty when none. A step recorded twice with different values is an
-        :class:`InputError` of :func:`read_signals`.
+        :class:`~seft_msgs_py.errors.InputError` of :func:`read_signals`.
     statuses : list of dict
         Every status report: ``name``, ``message`` and its key/values.
     node_params : dict of str -> dict
@@ -80,7 +81,7 @@ class BagSignals:
         ``/seft/node_parameters`` (the last message of a node); empty in an older bag.
     param_sources : dict of str -> str
         ``{parameter: where params took it from}``: a node name, ``'run_parameters'``
-        (:data:`RUN_PARAMETERS_SOURCE`) or ``'default'`` (:data:`DEFAULT_SOURCE`: in no
+        (``RUN_PARAMETERS_SOURCE``) or ``'default'`` (``DEFAULT_SOURCE``: in no
         message of the bag).
     parameter_mismatches : list of str
         ``parameters.shared_mismatches(node_params)``: one line per shared parameter on which
@@ -460,7 +461,8 @@ def recording_end(bag: BagSignals, n_steps: int) -> dict:
 
 
 def read_run(path) -> RunData:
-    """Read a seft bag into a :class:`RunData`: its steps from 0 up to the first step a signal
+    """Read a seft bag into a :class:`~seft_ros.analysis.rundata.RunData`: its steps from 0 up to
+    the first step a signal
     lacks (the analysis needs contiguous samples), and what the bag misses after it. The bag
     of a structure test gives a
     :class:`~seft_ros.analysis.rundata.StructureRunData` instead

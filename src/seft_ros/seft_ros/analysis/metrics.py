@@ -643,7 +643,8 @@ def compare_run(run: RunData, reference: ReferenceResponse | None = None, *,
     run : RunData
         The run (n samples; an aborted run is compared over the samples it has).
     reference : ReferenceResponse or None
-        The reference; computed with :func:`reference_from_run` if None. Only its first n
+        The reference; computed with :func:`~seft_ros.analysis.reference.reference_from_run` if
+        None. Only its first n
         samples are used.
     max_lag_s : float >= 0
         Bound of the lag search [s].

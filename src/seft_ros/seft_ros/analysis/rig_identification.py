@@ -147,7 +147,9 @@ def h1_estimate(x, y, dt: float, *, window: str = 'hann', nperseg: int = DEFAULT
     try:
         signal.get_window(window, nperseg)
     except (ValueError, TypeError) as exc:
-        raise ParameterError(f'option window={window!r}: {exc}') from None
+        raise ParameterError(f'option window={window!r}: expected a window of '
+                             f"scipy.signal.get_window, e.g. 'hann', 'hamming', 'boxcar' "
+                             f'({str(exc).rstrip("!")})') from None
     fs = 1.0 / dt
     kw = dict(fs=fs, window=window, nperseg=nperseg, noverlap=noverlap, detrend='constant')
     f, pxy = signal.csd(x, y, **kw)
@@ -534,7 +536,7 @@ def identify_run(run: RunData, *, window: str = 'hann', nperseg: int = DEFAULT_N
         ``phase_crossover_hz`` of ``L = C(z) H_fit(z)``; closed loop ``delay_ms`` (phase
         slope of H1 over `delay_band_hz`, coherence-weighted) and ``delay_xcorr_ms``
         (cross-correlation peak of the reference and measured force), ``magnitude_min``,
-        ``magnitude_max`` (|H1| from 0.5 to 25 Hz, the band of Fig. 4). Every figure also
+        ``magnitude_max`` (``|H1|`` from 0.5 to 25 Hz, the band of Fig. 4). Every figure also
         under ``model`` from the rig's known model (``seft_plant_sim.servohydraulic``:
         ``valve_to_force``, ``loop_margins``, ``equivalent_delay_s``; the delay rig: tau_s).
 
@@ -642,7 +644,7 @@ def identified_parameters(runs: list[RunIdentification]) -> dict[str, Any]:
         ``polynomial`` and ``ats`` and the prior of ``adaptive``. From an open-loop run on the
         servohydraulic rig, the force-loop model: the physical parameters of
         ``seft_plant_sim.servohydraulic`` fitted to the measured ``H_fu``
-        (:func:`fit_hydraulics`), which ``model`` and ``adaptive`` build their force-loop
+        (``fit_hydraulics``), which ``model`` and ``adaptive`` build their force-loop
         inverse from. Empty if nothing was identified.
     """
     out: dict[str, Any] = {}
@@ -657,7 +659,7 @@ def identified_parameters(runs: list[RunIdentification]) -> dict[str, Any]:
     return out
 
 
-#: Parameters of the grey-box fit of :func:`fit_hydraulics`, in order.
+#: Parameters of the grey-box fit of ``fit_hydraulics``, in order.
 HYDRAULIC_FIT = ('valve_flow_gain_m3_per_s_V', 'actuator_volume_m3',
                  'valve_pressure_coefficient_m3_per_s_Pa', 'valve_time_constant_s',
                  'io_latency_s')

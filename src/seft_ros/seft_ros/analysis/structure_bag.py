@@ -1,4 +1,5 @@
-"""Read the bag of a structure test (several rigs) back into a :class:`StructureRunData`.
+"""Read the bag of a structure test (several rigs) back into a
+:class:`~seft_ros.analysis.rundata.StructureRunData`.
 
 Uses rosbags (no rclpy). The graph of the run (:mod:`seft_msgs_py.graph`: each rig's topics
 in its namespace, the builders' computational state) comes from the run parameters the
@@ -82,7 +83,8 @@ def read_structure_run(path) -> StructureRunData:
     Returns
     -------
     StructureRunData
-        Every rig's signals (a :class:`RunData` each, with the rig's own parameters as its
+        Every rig's signals (a :class:`~seft_ros.analysis.rundata.RunData` each, with the rig's
+        own parameters as its
         node published them) and the computational degrees of freedom's state over the
         analysed steps; ``extra`` holds ``'node_params'``, ``'parameter_mismatches'``,
         ``'rig_finals'`` (each rig's final status), ``'counts'``, ``'recovered'`` (the bag

@@ -1,7 +1,8 @@
 """A structure test against its analytical reference, per degree of freedom (no rclpy).
 
-The reference is the whole structure (:func:`~seft_ros.analysis.structure_reference.
-structure_reference`, ``scipy.signal.lsim`` of Eq. 1 of :mod:`seft_ros.core.structure` from
+The reference is the whole structure
+(:func:`~seft_ros.analysis.structure_reference.structure_reference`, ``scipy.signal.lsim`` of Eq.
+1 of :mod:`seft_ros.core.structure` from
 the recorded record). Per degree of freedom (DOF) the test's displacement, relative
 acceleration and floor (absolute) acceleration are compared with the reference's — a
 physical DOF's from its rig's sensors, a computational DOF's from the builder's state — and,

@@ -27,8 +27,9 @@ from seft_ros.core.experiment import simulate
 from seft_ros.core.ground_motion import prepared_record
 from seft_ros.core.reference_force import PREDICTORS
 
-__all__ = ['build_runs', 'output_dir', 'run_experiments', 'simulate_experiments',
-           'simulate_runs', 'compare_bags', 'find_bags', 'summary_table', 'criteria_table',
+__all__ = ['build_runs', 'output_dir', 'remove_empty_dirs', 'run_experiments',
+           'simulate_experiments', 'simulate_runs', 'compare_bags', 'find_bags',
+           'summary_table', 'criteria_table',
            'Result', 'check_stability', 'check_domain',
            'stability_report', 'stability_table', 'StabilityResult', 'identify_bags']
 
@@ -69,8 +70,23 @@ def build_runs(*, config: str | None = None, overrides: dict[str, Any] | None = 
     return runs
 
 
-def output_dir(*, out: str | None, name: str) -> Path:
+def output_dir(*, out: str | None, name: str, created: list[Path] | None = None) -> Path:
     """The output directory: `out` (must be new or empty) or ``runs/<name>[-N]``.
+
+    Parameters
+    ----------
+    out : str or None
+        ``--out``; None for ``runs/<name>``, with ``-2``, ``-3``, ... if that exists.
+    name : str
+        Name of the default directory.
+    created : list of Path, optional
+        The directories this call makes (the output directory and any missing parent) are
+        appended to it, outermost first, for :func:`remove_empty_dirs` on a failure.
+
+    Returns
+    -------
+    Path
+        The directory, which exists and is empty.
 
     Raises
     ------
@@ -82,15 +98,28 @@ def output_dir(*, out: str | None, name: str) -> Path:
         if path.exists() and (not path.is_dir() or any(path.iterdir())):
             raise InputError(f'{path}: output directory exists and is not empty; expected a '
                              'new directory')
-        path.mkdir(parents=True, exist_ok=True)
-        return path
-    base = Path('runs') / name
-    path, i = base, 1
-    while path.exists():
-        i += 1
-        path = base.with_name(f'{base.name}-{i}')
-    path.mkdir(parents=True)
+    else:
+        base = Path('runs') / name
+        path, i = base, 1
+        while path.exists():
+            i += 1
+            path = base.with_name(f'{base.name}-{i}')
+    missing = [d for d in (*reversed(path.parents), path) if not d.exists()]
+    path.mkdir(parents=True, exist_ok=True)
+    if created is not None:
+        created.extend(missing)
     return path
+
+
+def remove_empty_dirs(dirs: list[Path]) -> None:
+    """Remove the directories of `dirs` that hold no file (innermost first), so that a
+    command that failed leaves nothing behind; a directory with a file in it (a node's log,
+    a bag of a run that was stopped) stays."""
+    for d in reversed(dirs):
+        if d.is_dir() and not any(f.is_file() or f.is_symlink() for f in d.rglob('*')):
+            for sub in sorted(d.rglob('*'), key=lambda q: len(q.parts), reverse=True):
+                sub.rmdir()
+            d.rmdir()
 
 
 def _run_label(p: dict, runs: list[dict] | None = None) -> str:
@@ -660,7 +689,7 @@ def summary_table(summary: list[dict]) -> str:
     residual displacement of test and reference [mm]. Below it, one ``note:`` line per
     run whose recording did not end with the run (``"recording"`` of the entry: the recorder
     killed, the bag recovered; or stopped) or has a gap (steps after it not analysed).
-    Structure runs: :func:`structure_table`."""
+    Structure runs: ``structure_table``."""
     if summary and 'structure' in summary[0]:
         return structure_table(summary)
     head = (f'{"alpha":>6} {"rig":>14} {"predictor":>10} {"stable":>7} {"abort_s":>8} '
@@ -723,7 +752,7 @@ def criteria_table(summary: list[dict]) -> str:
     """A plain-text table of the RTHS benchmark's criteria (``"criteria"`` of each summary
     entry): J1 [ms], J2-J5 [%], and the NRMS of every signal after removing the common
     (displacement) lag [%]. Structure runs: empty (their criteria, per rig, are in
-    :func:`structure_table`)."""
+    ``structure_table``)."""
     if summary and 'structure' in summary[0]:
         return ''
     head = (f'{"alpha":>6} {"predictor":>10} {"J1_ms":>6} {"J2%":>8} {"J3%":>8} {"J4%":>8} '
@@ -898,6 +927,11 @@ def stability_report(*, out_dir: Path, config: str | None = None,
             choices = ', '.join(repr(c) for c in registry)
             raise ParameterError(f'predictor {name!r}: expected one of {choices}'
                                  + (' (with a structure)' if structure else ''))
+    if not structure and rig == 'servohydraulic':
+        # a sample period too long for the force loop itself: said at once, not after a map
+        alone = stability.check_run(dict(params, alpha=0.0, predictor='none'))
+        if alone.stable is False:
+            raise ParameterError(alone.message)
     taus = np.linspace(lo, hi, n)
     if structure:
         from seft_ros.core.structure_stability import structure_stability_map
@@ -973,6 +1007,19 @@ def stability_table(result: StabilityResult) -> str:
     return '\n'.join(lines)
 
 
+def _planned_duration_s(params: dict) -> float | None:
+    """The length a run was set up for [s] (``n_steps`` or ``duration_s``; an excitation's
+    default when 0), None when it is the record's."""
+    dt = float(params.get('dt', 0.0) or 0.0)
+    if int(params.get('n_steps', 0) or 0) and dt:
+        return int(params['n_steps']) * dt
+    duration = float(params.get('duration_s', 0.0) or 0.0)
+    if not duration and params.get('excitation', 'none') != 'none':
+        from seft_ros.core.excitation import DEFAULT_DURATION_S
+        return DEFAULT_DURATION_S
+    return duration or None
+
+
 class IdentifyResult:
     """What ``seft identify`` produced: the JSON document and where the files are."""
 
@@ -1008,15 +1055,24 @@ def identify_bags(*, bags: list[str], out_dir: Path, window: str = 'hann',
     Raises
     ------
     InputError, ParameterError
-        Unreadable bag, a run too short for the segment length, bad options; the message
-        names the bag or the option.
+        Unreadable bag, a run that was aborted (when and why), a run too short for the
+        segment length, bad options; the message names the bag or the option.
     """
     from seft_ros.analysis import rig_identification as ri
     from seft_ros.analysis.identification_report import write_identification, write_params_yaml
     from seft_ros.analysis.report import software_versions
+    if params_out and Path(params_out).is_dir():
+        raise InputError(f'--params {params_out}: is a directory; expected the name of the '
+                         'parameter file to write')
     idents = []
     for path in find_bags(bags):
         rd = read_run(path)
+        if not rd.stable:
+            planned = _planned_duration_s(rd.params)
+            of = f' of {planned:g} s' if planned else ''
+            raise InputError(f'{path}: the run was aborted at {rd.unstable_at_s:.3f} s{of} '
+                             f'({rd.abort_reason or "no reason recorded"}); identification '
+                             'needs a run that completed: fix the cause and record it again')
         with single_blas_thread():
             idents.append(ri.identify_run(rd, window=window,
                                           nperseg=nperseg or ri.DEFAULT_NPERSEG,

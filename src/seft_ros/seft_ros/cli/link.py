@@ -76,7 +76,7 @@ def decide(params: dict, hosts: dict[str, list[str]], estimates: dict[str, dict]
     hosts : dict of str to list of str
         Host -> the nodes it starts (the reference's included).
     estimates : dict of str to dict
-        Host -> its link to the reference (:meth:`LinkEstimate.as_dict`).
+        Host -> its link to the reference (:meth:`~seft_ros.core.link_probe.LinkEstimate.as_dict`).
     reference : str
         The reference host.
 

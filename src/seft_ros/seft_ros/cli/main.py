@@ -1,7 +1,8 @@
 """The ``seft`` command line: run, simulate, compare, stability, identify (thin verbs over
 ``seft_ros.cli.api``).
 
-Every :class:`SeftError` (bad file, bad parameter, failed node) is printed as one line
+Every :class:`~seft_msgs_py.errors.SeftError` (bad file, bad parameter, failed node) is printed as
+one line
 ``seft: error: ...`` with exit code 2; Ctrl-C stops the run safely with exit code 130.
 """
 
@@ -11,8 +12,7 @@ import signal
 import sys
 import time
 
-import yaml
-
+from seft_msgs_py import parameters
 from seft_msgs_py.errors import InputError, SeftError
 from seft_ros.cli import api, partition
 from seft_ros.cli.config import load_config
@@ -28,14 +28,26 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _set_value(text: str):
+    """``NAME=VALUE`` split; the value stays text until :func:`_typed` reads it by the
+    schema's type."""
     if '=' not in text:
         raise argparse.ArgumentTypeError(f'--set {text!r}: expected NAME=VALUE')
     name, value = text.split('=', 1)
-    try:
-        return name.strip(), yaml.safe_load(value)
-    except yaml.YAMLError:
-        raise argparse.ArgumentTypeError(f'--set {text!r}: VALUE is not a YAML scalar') \
-            from None
+    return name.strip(), value
+
+
+def _typed(sets, *, alpha: bool = False):
+    """``--set`` values read by each parameter's type in the schema (not by YAML's guessing:
+    ``tau_s=1e-12`` is a float), checked against its range."""
+    out = []
+    for name, text in sets:
+        if name == 'alpha' and not alpha:
+            raise InputError('--set alpha: use --alpha')
+        if name not in parameters.defaults():
+            raise InputError(f'command line: --set {name}={text}: unknown parameter '
+                             f'{name!r} (the parameter reference lists them)')
+        out.append((name, parameters.from_text(name, text, where='command line')))
+    return out
 
 
 def _node_list(text: str) -> list[str]:
@@ -169,9 +181,7 @@ def _build(args):
         for name, value in load_config(path).items():
             if overrides.get(name) is None:
                 overrides[name] = value
-    for name, value in args.sets:
-        if name == 'alpha':
-            raise InputError('--set alpha: use --alpha')
+    for name, value in _typed(args.sets):
         overrides[name] = value
     return api.build_runs(config=args.config, overrides=overrides, alphas=args.alpha)
 
@@ -191,14 +201,14 @@ def _experiments(args):
                          'lockstep graph in one process); use seft run --mode realtime')
     from pathlib import Path
     name = args.name or (Path(args.config).stem if args.config else 'run')
-    return runs, api.output_dir(out=args.out, name=name), name
+    return runs, api.output_dir(out=args.out, name=name, created=args.created), name
 
 
 def _stability(args) -> int:
     overrides = {'rig_model': args.rig_model}
-    for name, value in args.sets:
+    for name, value in _typed(args.sets, alpha=True):
         overrides[name] = value
-    out = api.output_dir(out=args.out, name='stability')
+    out = api.output_dir(out=args.out, name='stability', created=args.created)
     result = api.stability_report(out_dir=out, config=args.config, overrides=overrides,
                                   predictors=args.predictors, tau_min=args.tau_min,
                                   tau_max=args.tau_max, points=args.points,
@@ -210,7 +220,7 @@ def _stability(args) -> int:
 
 
 def _identify(args) -> int:
-    out = api.output_dir(out=args.out, name='identify')
+    out = api.output_dir(out=args.out, name='identify', created=args.created)
     result = api.identify_bags(bags=args.bags, out_dir=out, window=args.window,
                                nperseg=args.nperseg, noverlap=args.noverlap,
                                orders=tuple(args.orders) if args.orders else None,
@@ -233,6 +243,15 @@ def _identify(args) -> int:
 def main(argv=None) -> int:
     """Entry point of ``seft``; returns the exit code."""
     args = build_parser().parse_args(argv)
+    args.created = []           # directories this command made: removed if it fails empty
+    try:
+        return _main(args)
+    except BaseException:
+        api.remove_empty_dirs(args.created)
+        raise
+
+
+def _main(args) -> int:
     t0 = time.monotonic()
     # SIGTERM ends a run as Ctrl-C does (rig to its safe state, bags closed), not the runner
     # alone with its nodes left running
@@ -247,12 +266,12 @@ def main(argv=None) -> int:
         if args.verb == 'identify':
             return _identify(args)
         if args.verb == 'compare':
-            out = api.output_dir(out=args.out, name='compare')
+            out = api.output_dir(out=args.out, name='compare', created=args.created)
             result = api.compare_bags(bags=args.bags, out_dir=out)
         else:
-            runs, out, name = _experiments(args)
             if args.verb == 'run':
                 api.check_domain(args.domain_id)        # a bad domain before anything runs
+            runs, out, name = _experiments(args)
             _progress(f'{len(runs)} run(s) -> {out}')
             if args.verb == 'run':
                 result = api.run_experiments(runs=runs, out_dir=out, progress=_progress,
@@ -268,9 +287,11 @@ def main(argv=None) -> int:
                                                   title=f'seft simulate {name}',
                                                   force=args.force, bag=args.bag)
     except SeftError as exc:
+        api.remove_empty_dirs(args.created)
         print(f'seft: error: {exc}', file=sys.stderr)
         return 2
     except KeyboardInterrupt:
+        api.remove_empty_dirs(args.created)
         print('seft: interrupted; nodes stopped, bags closed', file=sys.stderr)
         return 130
     print(api.summary_table(result.summary))

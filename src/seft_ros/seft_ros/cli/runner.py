@@ -188,7 +188,7 @@ class GraphRunner:
         """The seft topics that already have publishers in this domain (another run?).
 
         Two runs in one domain would mix their samples; the runner refuses to start then.
-        `settle_s`: how long to listen first (default :func:`discovery_settle_s`).
+        `settle_s`: how long to listen first (default ``discovery_settle_s``).
         """
         self._spin(discovery_settle_s() if settle_s is None else settle_s)
         names = {t.name for t in TOPICS if t is not STATUS}

@@ -130,7 +130,7 @@ class ForceServoController:
         filter's delay late; the flow mismatch ``A tau a`` acts through the stiff oil column
         as a large added mass, and the loop has an unstable 2-5 Hz mode (spectral radius
         1.010-1.018 for f_c = 6-20 Hz), so this design is provided for rigs with a fast
-        valve and is not recommended here (README "Force control").
+        valve and is not recommended here (docs: design, "Force control").
 
     Discretization (``scipy.signal.cont2discrete``): the loop-shaping ``C_f`` by Tustin
     (bilinear) with frequency prewarping at its resonance ``w0 = sqrt(den[2])`` (sqrt(4002)
@@ -441,11 +441,12 @@ class TangentLoopShaping(ForceServoController):
     identified (so that an elastic member is ``rho = 1``, the study's controller, however
     well its stiffness is known). ``k_t(t + h)`` is the tangent stiffness predicted
     ``h = force_tangent_horizon_s`` after the sample, when the command acts on the flow
-    (I/O latency and valve lag), by :meth:`HystereticMember.tangent_ahead`: a Bouc-Wen model
+    (I/O latency and valve lag), by
+    :meth:`~seft_ros.core.hysteresis.HystereticMember.tangent_ahead`: a Bouc-Wen model
     anchored on the measured restoring force and identified online
     (:mod:`seft_ros.core.hysteresis`). Measured on the default Bouc-Wen member, embedded
     record at 1000 N, alpha = 0: the displacement NRMS falls from 43.5 % (``loop_shaping``)
-    to about 2 % (README "Force control"); with the tangent of the present sample instead of
+    to about 2 % (docs: design, "Force control"); with the tangent of the present sample instead of
     the predicted one, 19 %.
 
     Discretization: the state ``(u, u')`` of ``u'' + 17.14 u' + 4002 rho u = g e`` by the
@@ -453,7 +454,8 @@ class TangentLoopShaping(ForceServoController):
     :class:`ForceServoController`), with ``rho`` of the current sample: at ``rho = 1`` the
     output is that of ``loop_shaping`` to rounding, and a change of ``rho`` changes the
     command's curvature, not the command (no jump). ``bz``, ``az`` and
-    :meth:`state_space` are those of the elastic member (``rho = 1``): the stability map,
+    :meth:`~ForceServoController.state_space` are those of the elastic member (``rho = 1``):
+    the stability map,
     the guard and the ``model`` compensator's force-loop inverse use them.
 
     Parameters

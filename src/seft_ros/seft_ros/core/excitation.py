@@ -254,7 +254,8 @@ def make_valve_controller(params):
     Raises
     ------
     ParameterError
-        As :meth:`ForceServoController.from_parameters` or :func:`excitation_signal`; or an
+        As :meth:`~seft_ros.core.controller.ForceServoController.from_parameters` or
+        :func:`excitation_signal`; or an
         open-loop excitation on the ``delay`` rig (it has no valve).
     """
     if not open_loop(params):

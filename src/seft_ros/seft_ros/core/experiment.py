@@ -48,7 +48,8 @@ def simulate(params, *, progress: Callable[[int, int], None] | None = None,
     progress : callable(step, n_steps), optional
         Called about every 0.5 s of wall time.
     record : GroundMotion, optional
-        Already prepared ground motion (default: :func:`prepared_record`).
+        Already prepared ground motion (default:
+        :func:`~seft_ros.core.ground_motion.prepared_record`).
 
     Returns
     -------

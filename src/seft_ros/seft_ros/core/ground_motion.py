@@ -338,9 +338,10 @@ def synthetic_default(*, duration_s: float = 20.0, dt: float = 0.01,
     1. Kanai-Tajimi ground filter (Kanai 1957, Tajimi 1960) in series with the
        Clough-Penzien high-pass (Clough & Penzien 1975),
 
-       .. math:: H(s) = \\frac{2\\zeta_g\\omega_g s + \\omega_g^2}
-                              {s^2 + 2\\zeta_g\\omega_g s + \\omega_g^2}
-                        \\cdot \\frac{s^2}{s^2 + 2\\zeta_f\\omega_f s + \\omega_f^2}
+       ::
+
+           H(s) = (2 zeta_g omega_g s + omega_g^2) / (s^2 + 2 zeta_g omega_g s + omega_g^2)
+                  * s^2 / (s^2 + 2 zeta_f omega_f s + omega_f^2)
 
        with ``omega_g = 2*pi*2.5 rad/s`` (15.7 rad/s) and ``zeta_g = 0.6``, Tajimi's values for
        firm ground (15.6 rad/s, 0.6), and ``omega_f = 0.2*omega_g`` (0.5 Hz, the lower edge of

@@ -305,7 +305,7 @@ class HystereticIdentifier:
     N_PARAMETERS = 5
     #: Floor of the residual variance [N^2].
     NOISE_FLOOR_N2 = 1.0
-    #: Below this |z| the member is far from yield: the one-step residual there is the
+    #: Below this ``|z|`` the member is far from yield: the one-step residual there is the
     #: sensors' noise (``sensor_var_N2``), not the model's error in the yield parameters.
     ELASTIC_Z = 0.3
     #: Weight of a residual in the running estimate of the sensors' noise (about the last

@@ -6,9 +6,29 @@ import numpy as np
 from scipy import signal
 
 from seft_msgs_py.errors import ParameterError
+from seft_msgs_py.parameters import spec
 from seft_ros.core.controller import DiscreteFilter
 
-__all__ = ['InstabilityMonitor']
+__all__ = ['InstabilityMonitor', 'open_loop_identification']
+
+
+def open_loop_identification(params) -> bool:
+    """Whether `params` describe an open-loop identification run.
+
+    Parameters
+    ----------
+    params : mapping
+        Run parameters (``excitation`` and ``excitation_input`` default to ``'none'`` and
+        ``'reference_force'`` when absent).
+
+    Returns
+    -------
+    bool
+        True when an excitation plays on the valve (``excitation_input: valve_command``):
+        the force controller is bypassed and the reference force drives nothing.
+    """
+    return (params.get('excitation', 'none') != 'none'
+            and params.get('excitation_input', 'reference_force') == 'valve_command')
 
 
 class InstabilityMonitor:
@@ -55,9 +75,17 @@ class InstabilityMonitor:
 
     def __init__(self, dt: float, cutoff_hz: float = 25.0, window_s: float = 0.2,
                  threshold: float = 1.0, floor_N: float = 50.0):
-        if not 0 < cutoff_hz < 0.5 / dt:
+        if not cutoff_hz > 0:
+            raise ParameterError(f'parameter monitor_cutoff_hz={cutoff_hz!r}: expected > 0')
+        if not cutoff_hz < 0.5 / dt and cutoff_hz != spec('monitor_cutoff_hz').default:
             raise ParameterError(f'parameter monitor_cutoff_hz={cutoff_hz!r}: expected > 0 '
                                  f'and below the Nyquist frequency {0.5 / dt:g} Hz')
+        if not cutoff_hz < 0.5 / dt:          # the default cut-off: dt is what the user set
+            raise ParameterError(f'parameter dt={dt!r}: the sample period is too long for the '
+                                 f'instability monitor, whose band split monitor_cutoff_hz='
+                                 f'{cutoff_hz:g} Hz must lie below the Nyquist frequency '
+                                 f'1/(2 dt) = {0.5 / dt:g} Hz; expected dt < '
+                                 f'{0.5 / cutoff_hz:g} s')
         if not window_s > 0:
             raise ParameterError(f'parameter monitor_window_s={window_s!r}: expected > 0')
         if not threshold >= 0:
@@ -77,9 +105,41 @@ class InstabilityMonitor:
 
     @classmethod
     def from_parameters(cls, params) -> 'InstabilityMonitor':
-        """Build from ``dt`` and the ``monitor_*`` parameters."""
+        """Build from ``dt`` and the ``monitor_*`` parameters.
+
+        In an open-loop identification run (``excitation`` other than ``'none'`` with
+        ``excitation_input: valve_command``) the monitor is built disarmed (threshold 0): the
+        loop it guards (measured acceleration, reference force, force controller) is open
+        there, since the valve plays the excitation and the reference force drives nothing,
+        so no oscillation can grow through it; and the broadband valve excitation puts force
+        above the cut-off by design (a healthy default rig reaches 4-10 times the threshold
+        with 0.05-0.5 V of noise). The run's amplitude limits guard it instead: the rig's
+        ``stroke_limit_m`` and ``force_limit_N``. A closed-loop identification run
+        (``excitation_input: reference_force``) keeps the monitor: the excitation is the
+        ground-motion term of the reference force, so the comparison scales with it (healthy
+        runs up to 0.68 of the threshold at alpha 0-1, an unstable alpha = 1.5 trips).
+
+        Parameters
+        ----------
+        params : mapping
+            Resolved parameters: ``dt``, ``monitor_cutoff_hz``, ``monitor_window_s``,
+            ``monitor_threshold``, ``monitor_floor_N`` and, if present, ``excitation`` and
+            ``excitation_input``.
+
+        Returns
+        -------
+        InstabilityMonitor
+
+        Raises
+        ------
+        ParameterError
+            A value out of range (the message names the parameter).
+        """
+        threshold = float(params['monitor_threshold'])
+        if open_loop_identification(params):
+            threshold = 0.0
         return cls(float(params['dt']), float(params['monitor_cutoff_hz']),
-                   float(params['monitor_window_s']), float(params['monitor_threshold']),
+                   float(params['monitor_window_s']), threshold,
                    float(params['monitor_floor_N']))
 
     def update(self, measured_force_N: float, ground_force_N: float,

@@ -894,7 +894,7 @@ class ForceLoopInverse:
         sum_{f <= band_hz} |W T - z^-d|^2 + mu sum_{f > band_hz} |W|^2
 
     (linear least squares, ``numpy.linalg.lstsq``): ``W T ~ z^-d`` in the band of the
-    response, and a bounded ``|W|`` above it, where the loop cannot push (|T| falls to 0.36
+    response, and a bounded ``|W|`` above it, where the loop cannot push (``|T|`` falls to 0.36
     at 50 Hz and 0.007 at 150 Hz) and an exact inverse would amplify noise a hundredfold.
 
     Parameters
@@ -1373,7 +1373,7 @@ class IdentifiedForceLoop:
 
     def refresh(self) -> bool:
         """Move the response in use toward the estimate's (guarded); refit the inverse if it
-        moved by more than ``refit_tolerance``. Returns whether :attr:`inverse` changed."""
+        moved by more than ``refit_tolerance``. Returns whether ``inverse`` changed."""
         ident = self.identifier
         ident.follow()
         self._estimates['loop_change'] = ident.deviation
@@ -1386,7 +1386,7 @@ class IdentifiedForceLoop:
         """``loop_gain`` [-] (DC gain of ``T_avg``), ``loop_delay_s`` [s] (its phase slope
         from 1 to 5 Hz, as :func:`seft_plant_sim.servohydraulic.equivalent_delay_s`) and
         ``loop_change`` [-] (``|H - H_0|`` up to ``band_hz``) of the loop in use (keys
-        :attr:`ESTIMATES`)."""
+        ``ESTIMATES``)."""
         return dict(self._estimates)
 
 
@@ -1628,7 +1628,7 @@ class AdaptivePredictor:
     def estimates(self) -> dict[str, float]:
         """The current guarded estimates: ``mass_kg`` [kg], ``damping_N_s_per_m`` [N s/m],
         ``stiffness_N_per_m`` [N/m], ``tau_s`` [s], ``gain`` [-], then those of the identified
-        force loop if any (:meth:`IdentifiedForceLoop.estimates`; keys :attr:`ESTIMATES`)."""
+        force loop if any (:meth:`IdentifiedForceLoop.estimates`; keys ``ESTIMATES``)."""
         out = {name: guard.value for name, guard in self._guards.items()}
         if self.loop_identification is not None:
             out.update(self.loop_identification.estimates())
@@ -1816,8 +1816,9 @@ class AtsPredictor:
     approximately inverts the force loop ``f_m(t) ~ u(t - tau) / a0`` (Taylor series of the
     advance). Every ``skip`` steps ``a0, a1, a2`` are refitted by least squares on the last
     ``window_s`` of commands u and measured forces ``f_m``,
-    ``u_j = a0 f_m,j + a1 f'_m,j + a2 f''_m,j`` (:func:`~seft_ros.core.identification.
-    ats_coefficients`), after both are low-passed by the same zero-phase Butterworth filter
+    ``u_j = a0 f_m,j + a1 f'_m,j + a2 f''_m,j``
+    (:func:`~seft_ros.core.identification.ats_coefficients`), after both are low-passed by the
+    same zero-phase Butterworth filter
     (``cutoff_hz``; Chae et al. filter the measured signals before differencing; the same
     filter on both sides keeps the relation). The fit is used only while the measured
     force's running RMS exceeds ``excitation_N`` (Chae et al.'s trigger threshold); the
@@ -1880,8 +1881,12 @@ class AtsPredictor:
                  cutoff_hz: float = 20.0, law: 'HystereticModelPredictor | None' = None):
         from scipy.signal import butter
         dt = model.dt
+        if math.isfinite(window_s) and window_s > 0 and window_s / dt < 16:
+            raise ParameterError(f'parameter ats_window_s={window_s!r}: expected at least 16 '
+                                 f'samples, {16 * dt:g} s at dt={dt:g} s (a shorter dt or a '
+                                 'longer window)')
         for name, value, ok in (
-                ('ats_window_s', window_s, window_s > 0 and window_s / dt >= 16),
+                ('ats_window_s', window_s, window_s > 0),
                 ('adaptive_excitation_N', excitation_N, excitation_N >= 0),
                 ('adaptive_max_rate_per_s', max_rate_per_s, max_rate_per_s > 0),
                 ('adaptive_max_delay_s', max_delay_s, max_delay_s > 0),
@@ -1935,7 +1940,7 @@ class AtsPredictor:
 
     def estimates(self) -> dict[str, float]:
         """``{'a0': [-], 'a1': [s], 'a2': [s^2]}`` in use, then the member's (keys
-        :attr:`ESTIMATES`)."""
+        ``ESTIMATES``)."""
         out = dict(zip(ATS_ESTIMATES, self.coefficients))
         if self._member is not None:
             out.update(self._member.estimates())

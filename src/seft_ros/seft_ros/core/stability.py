@@ -57,7 +57,7 @@ __all__ = [
     'LinearPredictor', 'Compensator', 'compensator', 'NoLinearModelError',
     'PredictedUnstableError', 'LoopModel', 'loop_model', 'closed_loop_matrix',
     'spectral_radius', 'largest_stable_alpha', 'StabilityMap', 'stability_map',
-    'StabilityCheck', 'check_run',
+    'StabilityCheck', 'check_run', 'largest_stable_dt',
 ]
 
 #: Inputs of a compensator's linear form at step k, in this order (:class:`PredictorForm`).
@@ -469,7 +469,8 @@ class LoopModel:
     (the delay the predictor compensates is then in the loop, as in the test); the controller of
     :class:`~seft_ros.core.controller.ForceServoController` (``force_controller``: its
     error path ``C_e(z)`` in controllable canonical form by ``scipy.signal.tf2ss`` and its
-    velocity and acceleration feedback, :meth:`~ForceServoController.state_space`); the
+    velocity and acceleration feedback,
+    :meth:`~seft_ros.core.controller.ForceServoController.state_space`); the
     valve saturation and the accelerometer range are left out
     (small signal).
     """
@@ -818,5 +819,60 @@ def check_run(params: Mapping) -> StabilityCheck:
     if rho < 1.0:
         return StabilityCheck(True, rho, bound, f'{where} is predicted stable{frozen} '
                               f'(spectral radius {rho:.4f}, largest stable alpha {bound:.3g})')
+    if math.isnan(bound) and max(float(loop.radii(0.0)[0]) for loop in loops) >= 1.0:
+        dt = float(params['dt'])
+        limit = largest_stable_dt(params)
+        hint = (f'; expected dt <= {limit:.3g} s' if math.isfinite(limit)
+                else '; no sample period makes it stable: check the rig and controller')
+        return StabilityCheck(False, rho, bound, f'parameter dt={dt:g}: the force loop alone '
+                              f'(alpha = 0, no mass fed back) is predicted unstable on the {rig} '
+                              f'rig: the sample period is too long for the force loop{hint}')
     return StabilityCheck(False, rho, bound, f'{where} is predicted unstable{frozen} '
                           f'(largest stable alpha {bound:.3g})')
+
+
+def largest_stable_dt(params: Mapping, *, dt_min: float = 1e-4, rtol: float = 0.01) -> float:
+    """The longest sample period at which the force loop alone (alpha = 0) is stable.
+
+    Bisection on a log scale between `dt_min` and ``params['dt']`` on the spectral radius of
+    the sampled loop at alpha = 0 (:class:`LoopModel`, the run's rig, controller and
+    predictor, rebuilt at each period).
+
+    Parameters
+    ----------
+    params : mapping
+        Resolved run parameters; ``dt`` [s] is the upper end of the search.
+    dt_min : float > 0
+        Lower end of the search [s].
+    rtol : float > 0
+        Relative width at which the bisection stops.
+
+    Returns
+    -------
+    float
+        The period [s] (the stable end of the last bracket); ``inf`` if the loop is stable at
+        ``params['dt']``, ``nan`` if it is unstable even at `dt_min` or has no linear form.
+    """
+    def stable(dt: float) -> bool:
+        p = dict(params, dt=dt, alpha=0.0)
+        try:
+            comp = compensator(p)
+            loops = [LoopModel(p, comp, tangent_ratio=None if len(r) == 1 else x)
+                     for r in (tangent_ratios(p),) for x in r]
+        except (NoLinearModelError, SeftError):
+            return False
+        return all(float(loop.radii(0.0)[0]) < 1.0 for loop in loops)
+
+    hi = float(params['dt'])
+    if stable(hi):
+        return math.inf
+    lo = dt_min
+    if not stable(lo):
+        return math.nan
+    while hi / lo > 1.0 + rtol:
+        mid = math.sqrt(lo * hi)
+        if stable(mid):
+            lo = mid
+        else:
+            hi = mid
+    return lo

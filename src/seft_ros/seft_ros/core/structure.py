@@ -528,7 +528,7 @@ class Substructures:
     rigid_mass_kg : ndarray (n_p,)
         ``mu_p = M_pp - m_p``: the computational mass riding on each physical DOF [kg].
     alpha : ndarray (n_p,)
-        ``mu_p / m_p`` (rounded to :data:`ALPHA_DECIMALS` decimals).
+        ``mu_p / m_p`` (rounded to ``ALPHA_DECIMALS`` decimals).
     mass_c_kg, damping_c_N_s_per_m, stiffness_c_N_per_m : ndarray (n, n)
         The computational part ``M_c``, ``C_c``, ``K_c``.
     """

@@ -46,7 +46,8 @@ def simulate_structure(params, *, progress: Callable[[int, int], None] | None = 
     progress : callable(step, n_steps), optional
         Called about every 0.5 s of wall time.
     record : GroundMotion, optional
-        Already prepared ground motion (default: :func:`prepared_record`).
+        Already prepared ground motion (default:
+        :func:`~seft_ros.core.ground_motion.prepared_record`).
 
     Returns
     -------

@@ -3,8 +3,9 @@
 The counterpart of :mod:`seft_ros.core.stability` for a structure
 (:mod:`seft_ros.core.structure`): every rig's sampled linear model (the servohydraulic rig
 with its I/O latency, or the delay rig), its force servo controller and, with ``model``, its
-force-loop inverse, and the builders' law (:class:`~seft_ros.core.substructure.
-StructureBuilder`: the computational degrees of freedom advanced by the exact Hermite step
+force-loop inverse, and the builders' law
+(:class:`~seft_ros.core.substructure.StructureBuilder`: the computational degrees of freedom
+advanced by the exact Hermite step
 from the measured motion, the forces from ``model``'s law or Eq. 2 for ``none``), closed in
 the lockstep order of one step (the rigs sample, the controllers act, the builders build the
 next forces). The homogeneous loop (no ground motion) is ``S[k+1] = A S[k]``; the test is
@@ -237,7 +238,7 @@ class StructureLoop:
 
     @property
     def spectral_radius(self) -> float:
-        """The largest eigenvalue modulus of :attr:`matrix` (< 1: stable)."""
+        """The largest eigenvalue modulus of ``matrix`` (< 1: stable)."""
         return float(np.max(np.abs(np.linalg.eigvals(self.matrix))))
 
 

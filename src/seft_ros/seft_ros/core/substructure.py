@@ -417,7 +417,7 @@ class StructureBuilder:
         [N] (the instability monitor's scale).
     computational_state : tuple of float
         ``x_Q, v_Q, a_Q`` of sample ``k-1`` as the latest :meth:`step` used them
-        [m, m/s, m/s^2], in the order of :attr:`state_names`.
+        [m, m/s, m/s^2], in the order of ``state_names``.
     state_names : tuple of str
         ``'<dof>/displacement_m'``, ``'<dof>/velocity_m_s'``, ``'<dof>/acceleration_m_s2'``
         per computational DOF.
@@ -634,7 +634,7 @@ class StructureBuilder:
         Parameters
         ----------
         rig : int
-            Index of the rig in :attr:`rig_names`.
+            Index of the rig in ``rig_names``.
         measurement : Measurement
             Its sample (``measurement.step``).
         """
@@ -724,7 +724,7 @@ class StructureBuilder:
 
     def step(self, window) -> list[float]:
         """The commands ``f_r[k]`` of the local rigs [N], from the record and what has been
-        observed (``k`` = :attr:`next_step`).
+        observed (``k`` = ``next_step``).
 
         Parameters
         ----------

@@ -57,7 +57,7 @@ _MODEL_PARAMETERS = ('rig_model', 'tau_s', 'valve_limit_V', 'piston_area_m2',
 
 
 class ReferenceForceBuilderNode(StructureBuilding, SeftNode):
-    """Shell around :class:`ReferenceForceBuilder` (a structure's:
+    """Shell around :class:`~seft_ros.core.reference_force.ReferenceForceBuilder` (a structure's:
     :class:`~seft_ros.nodes.structure_builder.StructureBuilding`)."""
 
     def __init__(self):

@@ -13,7 +13,8 @@ Lockstep: ``f_r[k]`` of every commanded rig once ``xg''[k .. k+L]`` and the meas
 sample ``k-1`` of **every** rig are in, so the run equals ``seft simulate`` bit for bit. Real
 time: as soon as the measurements of ``k-1`` of the commanded rigs are in; a rig commanded
 elsewhere whose measurement has not arrived (across the network) is predicted over the gap
-as the whole structure would move (:meth:`StructureBuilder.step`), and the gap is recorded in
+as the whole structure would move (:meth:`~seft_ros.core.substructure.StructureBuilder.step`), and
+the gap is recorded in
 the timing record's input age. The computational state it used goes to the bag's
 ``/seft/structure_state`` (``/<rig>/seft/structure_state`` for a builder in a rig's
 namespace).
@@ -37,7 +38,7 @@ __all__ = ['StructureBuilding']
 class StructureBuilding:
     """The structure part of the builder node (a mixin of
     :class:`~seft_ros.nodes.reference_force_builder.ReferenceForceBuilderNode`, which calls
-    :meth:`_init_structure` once its parameters are declared)."""
+    ``_init_structure`` once its parameters are declared)."""
 
     def _init_structure(self) -> None:
         p = self.params
