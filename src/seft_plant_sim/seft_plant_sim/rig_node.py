@@ -35,7 +35,7 @@ import math
 import sys
 import time
 
-from seft_msgs_py import clock
+from seft_msgs_py import clock, rig_contract
 from seft_msgs_py.convert import (
     STATE_ABORTED,
     STATE_DONE,
@@ -63,13 +63,13 @@ from seft_plant_sim.rigs import make_rig
 
 __all__ = ['RigNode', 'main', 'graph_nodes']
 
-#: Sim-time interval of progress reports [steps].
-PROGRESS_EVERY = 250
+#: Sim-time interval of progress reports [steps] (the rig contract's).
+PROGRESS_EVERY = rig_contract.PROGRESS_EVERY
 #: Smallest lockstep flow-control window but 0 [steps]: it must exceed the recorder's
 #: acknowledgement interval (50) plus a record batch of each node.
 MIN_WINDOW_STEPS = 100
 #: Real-time mode: how long the rig keeps sampling its safe state after the ramp [s].
-SAFE_HOLD_S = 0.05
+SAFE_HOLD_S = rig_contract.SAFE_HOLD_S
 #: Real time with several rigs: the clock master announces the common start instant this far
 #: ahead of its own clock [s], so that the announcement reaches every rig (on other hosts,
 #: across a network) before it.
@@ -163,7 +163,14 @@ class RigNode(SeftNode):
         self.start_timer = self.wall_timer(0.05, self._try_start)
         self.publish_parameters()
         self.report(STATE_READY, 'waiting for the graph: ' + ', '.join(self.graph_names),
-                    n_steps=self.n_steps, mode=p['mode'])
+                    n_steps=self.n_steps, **self.contract_values())
+
+    def contract_values(self) -> dict:
+        """What the rig contract asks in the ready report (``seft_msgs_py.rig_contract``):
+        the contract, the mode, the command kind and its latency."""
+        return {rig_contract.CONTRACT_KEY: rig_contract.CONTRACT, 'mode': self.params['mode'],
+                'command_kind': self.rig.command_kind,
+                'command_latency_s': repr(rig_contract.command_latency_s(self.params))}
 
     # -- start ------------------------------------------------------------------------------
 
@@ -384,7 +391,7 @@ class RigNode(SeftNode):
         else:
             reason = rig.limit_violation()
             if reason is None and start - self.last_command_at > self.watchdog_s:
-                reason = (f'watchdog: no {self.command_topic.name} for '
+                reason = (f'{rig_contract.WATCHDOG_REASON} no {self.command_topic.name} for '
                           f'{1e3 * (start - self.last_command_at):.1f} ms (limit '
                           f'{1e3 * self.watchdog_s:.0f} ms) at t = {rig.time_s:.3f} s')
             if reason:
@@ -471,7 +478,8 @@ class RigNode(SeftNode):
             extra['signal'] = self.stop_signal
         self.report(state, message, step=k, n_steps=self.n_steps,
                     time_s=f'{k * self.rig.dt:.6f}', published=self.published,
-                    mode=self.params['mode'], **extra)
+                    mode=self.params['mode'],
+                    **{rig_contract.CONTRACT_KEY: rig_contract.CONTRACT}, **extra)
         self.finish(0)
 
 
