@@ -342,6 +342,10 @@ class RigNode(SeftNode):
             return self.drain_until
         return self.t0 + (self.rig.step + 1) * self.rig.dt
 
+    def due_step(self, now: float) -> int:
+        """Real time: the ticks due by `now` [s, monotonic]: ``(now - t0) / dt``."""
+        return int((now - self.t0) / self.rig.dt)
+
     def run_due(self) -> None:
         """The next tick is due: catch up with the wall clock (or the common start)."""
         if not self.running and self.start_at is not None:
@@ -365,7 +369,7 @@ class RigNode(SeftNode):
         if self.drain_until is not None:
             self._end_realtime()            # the drain's deadline: the rest count lost
             return
-        due = int((now - self.t0) / self.rig.dt)
+        due = self.due_step(now)
         while self.running and self.drain_until is None and self.rig.step < due:
             start = time.monotonic()
             self.rig.advance()

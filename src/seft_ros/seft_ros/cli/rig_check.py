@@ -137,8 +137,8 @@ def check_parameters(base: Mapping, profile: rc.CheckProfile, record: Path, n_st
 
 
 class _Tap:
-    """The checker's own ears on the graph: every live measurement of the rig (arrival time,
-    stamp, fields), /clock, the rig's status; and the fault, fired from the measurement
+    """The checker's own ears on the graph: every measurement of the rig (when the rig sent
+    it, stamp, fields), /clock, the rig's status; and the fault, fired from the measurement
     callback when the fault's sample arrives."""
 
     def __init__(self, runner, graph: Graph):
@@ -161,19 +161,24 @@ class _Tap:
               fault_step: int | None = None) -> None:
         self.dt_ns = dt_ns
         self.steps, self.stamps, self.arrivals, self.values = [], [], [], []
+        self.received: list[float] = []
+        self.handled: list[float] = []
         self.names: tuple | None = None
         self.clock_ns: list[int] = []
         self.fault, self.fault_step, self.fault_ns = fault, fault_step, None
         self.stopped_pid: int | None = None
 
-    def _on_measurement(self, raw: bytes) -> None:
-        now = time.monotonic()
+    def _on_measurement(self, raw: bytes, info: dict) -> None:
         msg = self._deserialize(raw, self._msg_type)
         stamp = stamp_to_ns(msg.header.stamp)
         k = int(round(stamp / self.dt_ns))
         self.steps.append(k)
         self.stamps.append(stamp)
-        self.arrivals.append(now)
+        # when the rig's middleware sent it (its system clock, [s]): a sample the checker
+        # hears late (discovered after the rig started, delivered from the history) keeps it
+        self.arrivals.append(info['source_timestamp'] * 1e-9)
+        self.received.append(info['received_timestamp'] * 1e-9)
+        self.handled.append(clock.system_ns() * 1e-9)
         names = tuple(msg.name)
         if self.names is None:
             self.names = names
@@ -306,8 +311,30 @@ def _expected_error(name: str, command_node: str, message: str) -> bool:
 #: A fault run whose fault came more than this after its sample (the checker discovered the
 #: rig late and heard its first samples in a burst) is run again [s].
 LATE_FAULT_S = 0.05
-#: How many times a fault run is run again for a late fault.
+#: How many times a run is run again when it says nothing of the rig (:func:`_disturbed`).
 FAULT_RETRIES = 1
+
+
+def _disturbed(run: '_Run', profile: rc.CheckProfile) -> str | None:
+    """Why a run says nothing of the rig, or None: the checker heard the rig too late to time
+    the fault or heard less than half of the step run's samples (a slow discovery), or one of
+    seft's own nodes lost an input before the fault (its watchdog: this machine stalled the
+    graph, not the rig)."""
+    late = run.fault_late_s(profile)
+    if late is not None and late > LATE_FAULT_S:
+        return f'the checker heard the rig {late:.2f} s late: the fault came late'
+    final = run.final() or {}
+    published = int(final.get('published', 0) or 0)
+    if run.name == 'step' and published and run.steps.size < published // 2:
+        return (f'the checker heard {run.steps.size} of the {published} samples (it '
+                'discovered the rig late)')
+    before = run.fault_ns is None
+    for s in run.statuses:
+        if (s['name'] not in ('rig', 'seft_runner') and s.get('state') == 'aborted'
+                and str(s.get('message', '')).startswith(rig_contract.WATCHDOG_REASON)
+                and (before or run.name == 'step')):
+            return f'{s["name"]} lost an input ({s["message"]}): the graph stalled'
+    return None
 
 
 def _one_run(name: str, run_dir: Path, *, params: Mapping, profile: rc.CheckProfile, runner,
@@ -336,10 +363,12 @@ def _one_run(name: str, run_dir: Path, *, params: Mapping, profile: rc.CheckProf
                   else np.zeros((0, len(MEASUREMENT_FIELDS))))
     run.fault_ns = tap.fault_ns
     run.clock_ns = list(tap.clock_ns)
-    # what the checker heard, as it heard it (steps, stamps [ns], arrivals [s, monotonic],
-    # values; the fault's system time [ns], -1 if none)
+    # what the checker heard (steps, stamps [ns], when the rig sent each, when the checker's
+    # middleware received it and when the checker took it [s, system clock], values; the
+    # fault's system time [ns], -1 if none)
     np.savez(run_dir / 'live.npz', steps=run.steps, stamps_ns=run.stamps,
-             arrival_s=run.arrivals, values=run.values,
+             arrival_s=run.arrivals, received_s=np.array(tap.received),
+             handled_s=np.array(tap.handled), values=run.values,
              fault_ns=-1 if run.fault_ns is None else run.fault_ns)
     _read_bag(run, run_dir / 'bag')
     return run
@@ -403,11 +432,10 @@ def run_rig_check(*, params: Mapping, out_dir: Path, profile: rc.CheckProfile,
                                    name, runner, command_node, tap),
                                commands={'rig': argv} if argv else None,
                                command_node=command_node, progress=progress)
-                late = run.fault_late_s(profile)
-                if late is None or late <= LATE_FAULT_S:
+                why = _disturbed(run, profile)
+                if why is None:
                     break
-                progress(f'[{name}] the checker heard the rig {late:.2f} s late (a slow '
-                         'discovery): the fault came late; once more')
+                progress(f'[{name}] {why}; once more')
             done[name] = run
             if name == 'step' and run.error is not None:
                 progress('the step run failed: the other runs are not run')

@@ -134,9 +134,11 @@ class CheckProfile:
     The **step run**: ``quiet_s`` at rest, the static force ``amplitude_N`` for ``hold_s``,
     then ``release_s`` at rest. The **fault runs**: ``quiet_s`` at rest, then the sine
     ``amplitude_N sin(2 pi sine_hz (t - quiet_s))``; the fault comes ``fault_cycles`` cycles
-    into it (one cycle and 45 degrees: force and velocity both about 0.7 of their peaks, so
-    that a rig that holds its last command, force or valve opening, is seen), and the run
-    would go on ``after_fault_s`` longer.
+    into it (a whole number and 45 degrees: force and velocity both about 0.7 of their peaks,
+    so that a rig that holds its last command, force or valve opening, is seen), and the run
+    would go on ``after_fault_s`` longer. The default 4 cycles and 45 degrees at 2 Hz put the
+    fault 2.56 s into the run: a checker that discovers the rig late (measured here: up to
+    1.3 s after it started, on two loaded cores) hears it live by then.
 
     Parameters
     ----------
@@ -149,7 +151,7 @@ class CheckProfile:
     sine_hz : float > 0
         Frequency of the fault runs' sine [Hz], below a quarter of the sample rate.
     fault_cycles : float > 0
-        When the fault comes, in cycles of the sine [-].
+        When the fault comes, in cycles of the sine [-] (default 4.125).
 
     Raises
     ------
@@ -163,7 +165,7 @@ class CheckProfile:
     hold_s: float = 1.0
     release_s: float = 0.5
     sine_hz: float = 2.0
-    fault_cycles: float = 1.125
+    fault_cycles: float = 4.125
     after_fault_s: float = 1.0
 
     def __post_init__(self):
@@ -286,7 +288,8 @@ def check_clock(steps: Sequence[int], stamps_ns: Sequence[int], arrival_s: Seque
     stamps_ns : sequence of int, shape (n,)
         Their header stamps [ns].
     arrival_s : sequence of float, shape (n,)
-        When each arrived at the checker [s, monotonic].
+        When the rig sent each [s] (the DDS source timestamp: a sample the checker hears late
+        keeps it).
     dt : float > 0
         Control period [s].
     expected : int
@@ -383,7 +386,7 @@ def check_units(displacement_m, velocity_m_s, acceleration_m_s2, force_N, dt: fl
     CheckResult
         ``values``: ``velocity_gain`` (v against the central difference of x),
         ``acceleration_gain`` (a against that of v), ``stiffness_ratio`` (the static force
-        over ``k x``); each must lie in :data:`UNIT_RANGE`.
+        over ``k x``, in magnitude); each must lie in :data:`UNIT_RANGE`.
 
     Notes
     -----
@@ -395,14 +398,16 @@ def check_units(displacement_m, velocity_m_s, acceleration_m_s2, force_N, dt: fl
     gains = {'velocity_gain': _gain(v[1:-1], (x[2:] - x[:-2]) / (2 * dt)),
              'acceleration_gain': _gain(a[1:-1], (v[2:] - v[:-2]) / (2 * dt))}
     x_hold = float(np.mean(x[hold])) if x[hold].size else math.nan
-    gains['stiffness_ratio'] = (float(np.mean(f[hold])) / (stiffness_N_per_m * x_hold)
+    # magnitudes: a sign error is the static force check's, not a unit error
+    gains['stiffness_ratio'] = (abs(float(np.mean(f[hold]))) / (stiffness_N_per_m * abs(x_hold))
                                 if x_hold else math.nan)
     lo, hi = UNIT_RANGE
     passed = all(lo <= g <= hi for g in gains.values())
     return CheckResult(
         'units', passed,
         f'v / dx/dt = {gains["velocity_gain"]:.3g}, a / dv/dt = '
-        f'{gains["acceleration_gain"]:.3g}, static f / (k x) = {gains["stiffness_ratio"]:.3g} '
+        f'{gains["acceleration_gain"]:.3g}, static |f| / (k |x|) = '
+        f'{gains["stiffness_ratio"]:.3g} '
         f'(k = {stiffness_N_per_m:g} N/m; each expected {lo:g}..{hi:g})', gains)
 
 
