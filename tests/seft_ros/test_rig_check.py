@@ -99,7 +99,7 @@ def test_broken_rigs_fail_naming_the_check(mode, model, runs, check, measured, t
     (['--amplitude', '-5'], 'amplitude_N=-5.0: expected a number > 0'),
     (['--rig-command', 'rig "unclosed'], '--rig-command \'rig "unclosed\': No closing '
      'quotation'),
-    (['--set', 'alpha=[0.5, 1]'], 'seft rig-check checks one rig: expected one alpha and '
+    (['--set', 'alpha=[0.5, 1]'], 'seft rig-check takes one rig: expected one alpha and '
      'no structure'),
     (['--set', 'dt=-1'], 'command line: parameter dt=-1: expected float > 1e-05 <= 1'),
 ])
