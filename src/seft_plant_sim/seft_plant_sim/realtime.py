@@ -258,7 +258,11 @@ class WallClockRig(CommandArrivals):
 
     @property
     def held_command(self) -> float:
-        """The command in effect at the current sub-step [V or N]."""
+        """The command in effect at the current sub-step [V or N] (in the safe state, the
+        ramp's value once the ramp has reached the actuator)."""
+        sub = self._sub + self._lead
+        if self._safe_from_sub is not None and sub >= self._ramp_sub:
+            return self._safe_command(sub)
         return self._held
 
     def measure(self) -> Measurement:

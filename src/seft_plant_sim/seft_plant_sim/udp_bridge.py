@@ -25,7 +25,7 @@ Faults at the socket:
   (:class:`~seft_plant_sim.udp_layout.SequenceFilter`): duplicates and older ones are dropped
   and counted, gaps counted as lost; a sample whose datagram was lost is not published;
 * a sample that arrives more than ``dt`` after its place on the controller's clock (as the
-  arrival of the first sample set it) is counted late (and published);
+  least delayed sample so far places it) is counted late (and published);
 * a silent controller (no datagram for ``watchdog_timeout_s``) ends the run: the rig node
   reports it, and asks the controller (if it still hears) for its safe state; a silent PC is
   the controller's to notice (its own watchdog), which it reports in its state.
@@ -223,8 +223,11 @@ class UdpBridgeRig(CommandArrivals):
             if source >= 0 and math.isfinite(latency):
                 self._arrivals.setdefault(source, source * self.dt + latency)
         if d.kind == ul.KIND_MEASUREMENT and d.session == self.session:
-            if self._t0 is None:
-                self._t0 = now - d.sample * self.dt
+            # the controller's clock as the PC sees it: its sample 0 at the earliest arrival
+            # less k dt (the least delayed sample so far)
+            origin = now - d.sample * self.dt
+            if self._t0 is None or origin < self._t0:
+                self._t0 = origin
             elif now - (self._t0 + d.sample * self.dt) > self.dt:
                 self.counts['late'] += 1
             self._pending.append(d)

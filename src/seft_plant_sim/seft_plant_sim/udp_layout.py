@@ -83,7 +83,7 @@ REASON_NAMES = {REASON_NONE: 'none', REASON_REQUESTED: 'requested by the PC',
                 REASON_LIMIT: 'limit', REASON_DT_MISMATCH: 'dt mismatch'}
 
 #: How many (source sample, latency) pairs a datagram to the PC carries.
-LATENCY_SLOTS = 4
+LATENCY_SLOTS = 8
 
 
 @dataclass(frozen=True)
