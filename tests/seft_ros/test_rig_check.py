@@ -18,8 +18,15 @@ from seft_ros.core.rig_check import CHECKS
 BROKEN = Path(__file__).with_name('broken_rig.py')
 
 
+#: The rigs' watchdog in these tests [s]: this shared machine stalls the graph for 20-30 ms
+#: at times, and the default 20 ms then ends a run before its fault (the check runs it again,
+#: but a test should not depend on that).
+WATCHDOG_S = 0.05
+
+
 def rig_check(run_process, seft_exe, out, *args, timeout=300):
-    proc = run_process([seft_exe, 'rig-check', '--out', out, *args], cwd=out.parent,
+    proc = run_process([seft_exe, 'rig-check', '--out', out, '--set',
+                        f'watchdog_timeout_s={WATCHDOG_S}', *args], cwd=out.parent,
                        timeout=timeout)
     assert 'Traceback' not in proc.stderr, proc.stderr
     assert leftover_processes(str(out)) == []
@@ -51,9 +58,10 @@ def test_seft_rigs_pass_every_check(model, tmp_path, run_process, seft_exe):
         == (5 if model == 'delay' else 2)
     for name in ('safe state: abort', 'safe state: stopped controller',
                  'safe state: watchdog'):
-        assert checks[name]['reaction_s'] <= 0.024 and \
+        assert checks[name]['reaction_s'] <= WATCHDOG_S + 0.004 and \
             checks[name]['rest_value'] <= checks[name]['rest_limit'], name
-    assert checks['safe state: watchdog']['reaction_s'] >= 0.02 - 0.002  # the watchdog's 20 ms
+    # the watchdog's own time, less at most a period (abort_at_s is a sample's time)
+    assert checks['safe state: watchdog']['reaction_s'] >= WATCHDOG_S - 0.002
     for run in ('step', 'abort', 'stopped_controller', 'watchdog'):
         assert (out / run / 'bag' / 'metadata.yaml').is_file(), run
 

@@ -72,6 +72,8 @@ PROGRESS_EVERY = rig_contract.PROGRESS_EVERY
 MIN_WINDOW_STEPS = 100
 #: Real-time mode: how long the rig keeps sampling its safe state after the ramp [s].
 SAFE_HOLD_S = rig_contract.SAFE_HOLD_S
+#: UDP bridge: the interpreter's thread switch interval [s] (sys.setswitchinterval).
+SWITCH_INTERVAL_S = 1e-4
 #: Real time with several rigs: the clock master announces the common start instant this far
 #: ahead of its own clock [s], so that the announcement reaches every rig (on other hosts,
 #: across a network) before it.
@@ -177,6 +179,9 @@ class RigNode(SeftNode):
             # the PC's heartbeat from the executor (a frozen node sends none), the
             # controller's datagrams taken by a thread of their own
             self.wall_timer(float(p['udp_heartbeat_s']), self.rig.heartbeat)
+            # two threads share the interpreter: hand it over within 0.1 ms, not Python's
+            # default 5 ms (a measurement or a command waiting for it would wait that long)
+            sys.setswitchinterval(SWITCH_INTERVAL_S)
             threading.Thread(target=self._receive_loop, name='udp_bridge', daemon=True).start()
         self.publish_parameters()
         self.report(STATE_READY, 'waiting for the graph: ' + ', '.join(self.graph_names),

@@ -68,7 +68,7 @@ class ControllerEmulator:
         self.params = dict(params)
         self.dt = float(params['dt'])
         self.dt_ns = int(round(self.dt * 1e9))
-        WallClockRig(self.params)                 # the rig's parameters, checked now
+        self._next_rig = WallClockRig(self.params)    # the next run's plant (checked now)
         kind = rig_contract.command_kind(params)
         self.wire_kind = ul.COMMAND_VALVE if kind == COMMAND_VALVE else ul.COMMAND_FORCE
         # the instant a command of source sample j is output (latched), after t_j
@@ -148,10 +148,11 @@ class ControllerEmulator:
                          'command_kind': d.command_kind, 'own_command_kind': self.wire_kind})
             self._send(ul.KIND_CONTROLLER_HEARTBEAT)
             return
-        self.rig = WallClockRig(self.params)
+        # the plant was built beforehand (a few ms): sample 0 is now, not behind the clock
+        self.rig, self._next_rig = self._next_rig or WallClockRig(self.params), None
         self.n_steps = int(d.n_steps)
         self.state, self.reason = ul.STATE_RUNNING, ul.REASON_NONE
-        self.t0 = now
+        self.t0 = time.monotonic()
         self.ticking = True
         self.events({'event': 'start', 'session': d.session, 'n_steps': self.n_steps})
 
@@ -172,6 +173,7 @@ class ControllerEmulator:
             self.runs += 1
         self.ticking = False
         self.state = ul.STATE_IDLE
+        self.session = 0            # idle: the next run's PC hears it as free
 
     def _tick(self) -> None:
         """Sample k: integrate up to t_k (k > 0), check, send it; then k + 1."""
@@ -196,6 +198,11 @@ class ControllerEmulator:
             self._end('safe state held, no end from the PC')
             self.state = ul.STATE_SAFE
         self.k += 1
+
+    def _prepare(self) -> None:
+        """Between runs: build the next run's plant, so that a start does not wait for it."""
+        if self._next_rig is None and not self.ticking:
+            self._next_rig = WallClockRig(self.params)
 
     def _take(self, data: bytes, address, now: float) -> None:
         try:
@@ -261,6 +268,7 @@ class ControllerEmulator:
             if not self.ticking and now >= next_beat:
                 self._send(ul.KIND_CONTROLLER_HEARTBEAT)
                 next_beat = now + self.heartbeat_s
+                self._prepare()
 
     def close(self) -> None:
         """Close the socket."""

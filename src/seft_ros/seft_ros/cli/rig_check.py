@@ -312,14 +312,15 @@ def _expected_error(name: str, command_node: str, message: str) -> bool:
 #: rig late and heard its first samples in a burst) is run again [s].
 LATE_FAULT_S = 0.05
 #: How many times a run is run again when it says nothing of the rig (:func:`_disturbed`).
-FAULT_RETRIES = 1
+FAULT_RETRIES = 2
 
 
 def _disturbed(run: '_Run', profile: rc.CheckProfile) -> str | None:
     """Why a run says nothing of the rig, or None: the checker heard the rig too late to time
-    the fault or heard less than half of the step run's samples (a slow discovery), or one of
-    seft's own nodes lost an input before the fault (its watchdog: this machine stalled the
-    graph, not the rig)."""
+    the fault or heard less than half of the step run's samples (a slow discovery), one of
+    seft's own nodes lost an input before the fault, or the rig lost its commands in the step
+    run (a watchdog: this machine stalled the graph; a rig that never gets its commands fails
+    the second time too)."""
     late = run.fault_late_s(profile)
     if late is not None and late > LATE_FAULT_S:
         return f'the checker heard the rig {late:.2f} s late: the fault came late'
@@ -328,6 +329,9 @@ def _disturbed(run: '_Run', profile: rc.CheckProfile) -> str | None:
     if run.name == 'step' and published and run.steps.size < published // 2:
         return (f'the checker heard {run.steps.size} of the {published} samples (it '
                 'discovered the rig late)')
+    if run.name == 'step' and str(final.get('message', '')).startswith(
+            rig_contract.WATCHDOG_REASON):
+        return f'the rig lost its commands ({final["message"]}): the graph stalled'
     before = run.fault_ns is None
     for s in run.statuses:
         if (s['name'] not in ('rig', 'seft_runner') and s.get('state') == 'aborted'
