@@ -210,7 +210,9 @@ def test_shared_parameters_have_an_explicit_source():
       'valve_pressure_coefficient_m3_per_s_Pa', 'leakage_coefficient_m3_per_s_Pa',
       'io_latency_s', 'anti_alias_cutoff_hz', 'accelerometer_range_m_s2',
       'watchdog_timeout_s', 'safe_ramp_s', 'realtime_output', 'realtime_substep_s',
-      'wait_for_recorder', 'recorder_window_steps', 'dt', 'mode', 'n_steps'], 'rig'),
+      'rig_interface', 'udp_controller_address', 'udp_local_port', 'udp_heartbeat_s',
+      'udp_max_bad_datagrams', 'wait_for_recorder', 'recorder_window_steps', 'dt', 'mode',
+      'n_steps'], 'rig'),
     (['record', 'amplitude_N', 'scale_factor', 'time_scale', 'duration_s', 'preview_steps'],
      'ground_motion_publisher'),
     (['excitation', 'excitation_input', 'excitation_amplitude', 'excitation_band_low_hz',
@@ -226,8 +228,8 @@ def test_value_source_of_each_parameter(names, node):
 
 def test_value_source_lists_cover_the_schema():
     # + 1: realtime_priority, per node (the rig's value is the one reported); the second 6:
-    # the excitation of identification runs
-    assert len(VALUE_SOURCE) == len(SCHEMA) == 28 + 38 + 6 + 6 + 9 + 2 + 1 + 2 + 1
+    # the excitation of identification runs; the rig's 43: 38 and the UDP bridge's 5
+    assert len(VALUE_SOURCE) == len(SCHEMA) == 28 + 43 + 6 + 6 + 9 + 2 + 1 + 2 + 1
 
 
 def test_value_source_of_unknown_name_is_an_error():

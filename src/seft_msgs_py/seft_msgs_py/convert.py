@@ -13,6 +13,16 @@ from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from rclpy.serialization import deserialize_message, serialize_message
 from rosgraph_msgs.msg import Clock
 
+# the node states live in the ROS-free table (re-exported here)
+from seft_msgs_py.signals import (
+    STATE_ABORTED,
+    STATE_CLOSED,
+    STATE_DONE,
+    STATE_FAILED,
+    STATE_READY,
+    STATE_RECORDING,
+    STATE_RUNNING,
+)
 from seft_msgs_py.topics import FRAME_ID, TopicSpec
 
 __all__ = [
@@ -21,15 +31,6 @@ __all__ = [
     'STATE_ABORTED', 'STATE_CLOSED', 'STATE_FAILED', 'STATE_RECORDING', 'parameters_json',
     'ScalarMessage', 'ScalarReader', 'clock_ns_from_raw', 'SerializedStamped', 'FieldsReader',
 ]
-
-STATE_READY = 'ready'
-STATE_RUNNING = 'running'
-STATE_DONE = 'done'
-STATE_ABORTED = 'aborted'
-STATE_CLOSED = 'closed'
-STATE_FAILED = 'failed'
-STATE_RECORDING = 'recording'
-
 
 def dt_to_ns(dt: float) -> int:
     """Sample period [s] as integer nanoseconds."""

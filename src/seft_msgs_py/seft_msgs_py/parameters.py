@@ -411,6 +411,23 @@ SCHEMA: tuple[ParamSpec, ...] = (
     ParamSpec('realtime_substep_s', 1e-4, 's', "Real-time mode: sub-step of the rig's plant "
               'integration between ticks (command changes are applied on this grid).', 1e-6,
               1.0, True, nodes=_RIG),
+    ParamSpec('rig_interface', 'simulated', '', "What the rig node is: 'simulated' (seft's "
+              "rig_model in the node) or 'udp_bridge' (real time only: a bridge to a lab's "
+              'real-time controller, or seft emulate-controller, over UDP; the controller is '
+              "the test's clock and rig_model says what it takes: the valve voltage "
+              "('servohydraulic': the graph closes the force loop) or the force reference "
+              "('delay': the controller does). docs: the rig contract).",
+              choices=('simulated', 'udp_bridge'), nodes=_RIG),
+    ParamSpec('udp_controller_address', '127.0.0.1:47101', '', "UDP bridge: host:port of the "
+              "lab's real-time controller (seft emulate-controller binds it).", nodes=_RIG),
+    ParamSpec('udp_local_port', 0, '', "UDP bridge: the rig node's own port (0: any; the "
+              'controller answers the address it hears from).', 0, 65535, nodes=_RIG),
+    ParamSpec('udp_heartbeat_s', 0.005, 's', 'UDP bridge: each side sends a heartbeat this '
+              'often when it has nothing else to send; silence for watchdog_timeout_s brings '
+              'both sides to the safe state.', 1e-4, 1.0, True, nodes=_RIG),
+    ParamSpec('udp_max_bad_datagrams', 10, '', 'UDP bridge: a datagram of the wrong length, '
+              'magic, version or kind is rejected with one log line; this many end the run '
+              'safely.', 1, 1000000, nodes=_RIG),
     ParamSpec('wait_for_recorder', False, '', 'The rig starts stepping only once the recorder '
               'subscribes to its topics (set by seft run, so no sample precedes the recorder).',
               nodes=_RIG),

@@ -12,8 +12,23 @@ __all__ = [
     'SIGNALS', 'SCALAR_SIGNALS', 'NODE_PARAMETERS', 'TIMING', 'TIMING_FIELDS', 'TIMING_TYPE',
     'timing_signal', 'MEASUREMENT', 'MEASUREMENT_FIELDS', 'RecordStream', 'RECORD_STREAMS',
     'RECORD_TYPE', 'RECORD_ROWS', 'BAG_SIGNALS', 'record_streams_of', 'ESTIMATES',
-    'record_signal', 'LINK',
+    'record_signal', 'LINK', 'STATE_READY', 'STATE_RUNNING', 'STATE_DONE', 'STATE_ABORTED',
+    'STATE_CLOSED', 'STATE_FAILED', 'STATE_RECORDING', 'FINAL_STATES', 'CLOCK_EVERY',
 ]
+
+#: The rig publishes /clock every this many steps (``seft_msgs_py.topics`` says why).
+CLOCK_EVERY = 10
+
+#: The states of a node's ``/seft/status`` report (``DiagnosticStatus.values['state']``).
+STATE_READY = 'ready'
+STATE_RUNNING = 'running'
+STATE_DONE = 'done'
+STATE_ABORTED = 'aborted'
+STATE_CLOSED = 'closed'
+STATE_FAILED = 'failed'
+STATE_RECORDING = 'recording'
+#: The states that end a node's run.
+FINAL_STATES = (STATE_DONE, STATE_ABORTED, STATE_FAILED)
 
 
 @dataclass(frozen=True)

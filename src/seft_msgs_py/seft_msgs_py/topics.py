@@ -35,10 +35,11 @@ __all__ = [
 
 #: ``header.frame_id`` of every seft signal: the actuator axis (x: positive extension).
 FRAME_ID = 'actuator'
-#: The rig publishes /clock every this many steps: the ground-motion publisher, ahead of it
-#: by ``preview_steps`` + CLOCK_EVERY - 1, then wakes up once for that many samples (on two
-#: cores every wake-up of a process costs about 0.1 ms of CPU, more than the work it does).
-CLOCK_EVERY = 10
+#: The rig publishes /clock every this many steps (``signals.CLOCK_EVERY``): the ground-motion
+#: publisher, ahead of it by ``preview_steps`` + CLOCK_EVERY - 1, then wakes up once for that
+#: many samples (on two cores every wake-up of a process costs about 0.1 ms of CPU, more than
+#: the work it does).
+CLOCK_EVERY = sig.CLOCK_EVERY
 
 #: Lockstep data topics: every sample matters, so reliable, and transient-local with a deep
 #: history so that a subscriber matched a little late still receives the first samples.

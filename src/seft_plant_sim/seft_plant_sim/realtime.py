@@ -37,14 +37,44 @@ from seft_msgs_py.errors import ParameterError
 from seft_msgs_py.interface import COMMAND_VALVE, Measurement
 from seft_plant_sim.rigs import make_rig
 
-__all__ = ['WallClockRig', 'OUTPUT_TIMINGS']
+__all__ = ['WallClockRig', 'OUTPUT_TIMINGS', 'CommandArrivals']
 
 #: Values of the ``realtime_output`` parameter.
 OUTPUT_TIMINGS = ('latched', 'on_arrival')
 _EPS = 1e-9
 
 
-class WallClockRig:
+class CommandArrivals:
+    """When the command of each sample arrived at the rig: a real-time rig's loop latency and
+    stale commands (on the rig's time axis, ``t = 0`` at sample 0).
+
+    Subclasses set ``dt`` [s] and fill ``_arrivals`` (source sample -> first arrival [s]).
+    """
+
+    dt: float
+    _arrivals: dict
+
+    def arrival_s(self, source: int) -> float | None:
+        """First arrival time [s] of the command computed from sample `source` (or None)."""
+        return self._arrivals.get(source)
+
+    def loop_latency_s(self, source: int) -> float | None:
+        """Sample `source` to the arrival of its command at the rig [s] (None: not arrived)."""
+        a = self._arrivals.get(source)
+        return None if a is None else a - source * self.dt
+
+    def stale(self, tick: int) -> bool:
+        """The command computed from sample ``tick - 1`` had not arrived by ``t_tick``."""
+        a = self._arrivals.get(tick - 1)
+        return a is None or a > tick * self.dt
+
+    def forget_before(self, source: int) -> None:
+        """Drop the arrival times of samples before `source` (bounded memory)."""
+        for j in [j for j in self._arrivals if j < source]:
+            del self._arrivals[j]
+
+
+class WallClockRig(CommandArrivals):
     """A simulated rig sub-stepped between wall-clock ticks, commanded by arrival time.
 
     Parameters
@@ -155,25 +185,6 @@ class WallClockRig:
         heapq.heappush(self._events, (math.ceil(effect / self.substep_s - _EPS), stamp,
                                       float(value)))
 
-    def arrival_s(self, source: int) -> float | None:
-        """First arrival time [s] of the command computed from sample `source` (or None)."""
-        return self._arrivals.get(source)
-
-    def loop_latency_s(self, source: int) -> float | None:
-        """Sample `source` to the arrival of its command at the rig [s] (None: not arrived)."""
-        a = self._arrivals.get(source)
-        return None if a is None else a - source * self.dt
-
-    def stale(self, tick: int) -> bool:
-        """The command computed from sample ``tick - 1`` had not arrived by ``t_tick``."""
-        a = self._arrivals.get(tick - 1)
-        return a is None or a > tick * self.dt
-
-    def forget_before(self, source: int) -> None:
-        """Drop the arrival times of samples before `source` (bounded memory)."""
-        for j in [j for j in self._arrivals if j < source]:
-            del self._arrivals[j]
-
     # -- safe state -------------------------------------------------------------------------
 
     def enter_safe_state(self) -> None:
@@ -247,7 +258,11 @@ class WallClockRig:
 
     @property
     def held_command(self) -> float:
-        """The command in effect at the current sub-step [V or N]."""
+        """The command in effect at the current sub-step [V or N] (in the safe state, the
+        ramp's value once the ramp has reached the actuator)."""
+        sub = self._sub + self._lead
+        if self._safe_from_sub is not None and sub >= self._ramp_sub:
+            return self._safe_command(sub)
         return self._held
 
     def measure(self) -> Measurement:

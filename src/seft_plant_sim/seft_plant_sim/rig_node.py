@@ -33,9 +33,10 @@ Run by hand: ``ros2 run seft_plant_sim rig --ros-args --params-file config/defau
 
 import math
 import sys
+import threading
 import time
 
-from seft_msgs_py import clock
+from seft_msgs_py import clock, rig_contract
 from seft_msgs_py.convert import (
     STATE_ABORTED,
     STATE_DONE,
@@ -60,16 +61,19 @@ from seft_msgs_py.topics import (
 )
 from seft_plant_sim.realtime import WallClockRig
 from seft_plant_sim.rigs import make_rig
+from seft_plant_sim.udp_bridge import UdpBridgeRig
 
 __all__ = ['RigNode', 'main', 'graph_nodes']
 
-#: Sim-time interval of progress reports [steps].
-PROGRESS_EVERY = 250
+#: Sim-time interval of progress reports [steps] (the rig contract's).
+PROGRESS_EVERY = rig_contract.PROGRESS_EVERY
 #: Smallest lockstep flow-control window but 0 [steps]: it must exceed the recorder's
 #: acknowledgement interval (50) plus a record batch of each node.
 MIN_WINDOW_STEPS = 100
 #: Real-time mode: how long the rig keeps sampling its safe state after the ramp [s].
-SAFE_HOLD_S = 0.05
+SAFE_HOLD_S = rig_contract.SAFE_HOLD_S
+#: UDP bridge: the interpreter's thread switch interval [s] (sys.setswitchinterval).
+SWITCH_INTERVAL_S = 1e-4
 #: Real time with several rigs: the clock master announces the common start instant this far
 #: ahead of its own clock [s], so that the announcement reaches every rig (on other hosts,
 #: across a network) before it.
@@ -96,9 +100,19 @@ class RigNode(SeftNode):
     :class:`~seft_plant_sim.realtime.WallClockRig` (real-time)."""
 
     def __init__(self):
+        #: Serializes the callbacks with the UDP bridge's receive thread (uncontended else).
+        self.lock = threading.RLock()
         super().__init__('rig')
         p = self.params
-        self.rig = WallClockRig(p) if self.realtime else make_rig(p)
+        #: The rig is a UDP bridge to a lab's real-time controller (its clock is the test's).
+        self.bridge = p['rig_interface'] == 'udp_bridge'
+        if self.bridge and not self.realtime:
+            raise ParameterError('parameter rig_interface=udp_bridge: expected mode realtime '
+                                 "(the lab's controller runs on its own clock)")
+        if self.bridge:
+            self.rig = UdpBridgeRig(p, log=self.get_logger().error)
+        else:
+            self.rig = WallClockRig(p) if self.realtime else make_rig(p)
         self.n_steps = int(p['n_steps'])
         self.command_topic = self.scoped_spec(
             VALVE_COMMAND if self.rig.command_kind == COMMAND_VALVE else REFERENCE_FORCE)
@@ -161,15 +175,44 @@ class RigNode(SeftNode):
         self.armed = False
         self.start_at = None
         self.start_timer = self.wall_timer(0.05, self._try_start)
+        if self.bridge:
+            # the PC's heartbeat from the executor (a frozen node sends none), the
+            # controller's datagrams taken by a thread of their own
+            self.wall_timer(float(p['udp_heartbeat_s']), self.rig.heartbeat)
+            # two threads share the interpreter: hand it over within 0.1 ms, not Python's
+            # default 5 ms (a measurement or a command waiting for it would wait that long)
+            sys.setswitchinterval(SWITCH_INTERVAL_S)
+            threading.Thread(target=self._receive_loop, name='udp_bridge', daemon=True).start()
         self.publish_parameters()
         self.report(STATE_READY, 'waiting for the graph: ' + ', '.join(self.graph_names),
-                    n_steps=self.n_steps, mode=p['mode'])
+                    n_steps=self.n_steps, **self.contract_values())
+
+    def contract_values(self) -> dict:
+        """What the rig contract asks in the ready report (``seft_msgs_py.rig_contract``):
+        the contract, the mode, the command kind and its latency."""
+        return {rig_contract.CONTRACT_KEY: rig_contract.CONTRACT, 'mode': self.params['mode'],
+                'command_kind': self.rig.command_kind,
+                'command_latency_s': repr(rig_contract.command_latency_s(self.params))}
 
     # -- start ------------------------------------------------------------------------------
+
+    def guard(self, callback):
+        """As :meth:`SeftNode.guard`, under :attr:`lock` (the UDP bridge's thread)."""
+        guarded = super().guard(callback)
+
+        def locked(*args):
+            lock = getattr(self, 'lock', None)
+            if lock is None:
+                return guarded(*args)
+            with lock:
+                return guarded(*args)
+        return locked
 
     def _try_start(self) -> None:
         if self.running or self.done or self.n_steps <= 0:
             return
+        if self.bridge and not self.rig.controller_heard:
+            return              # the lab's controller is not up (or not reachable)
         if self.command_sub.get_publisher_count() < 1:
             return
         # the recorder listens to this rig and has discovered the record batches of every
@@ -313,7 +356,13 @@ class RigNode(SeftNode):
     # -- real time --------------------------------------------------------------------------
 
     def _start_realtime(self) -> None:
-        """Sample 0 now; the next ticks come at t0 + k dt (:meth:`next_due`, :meth:`run_due`)."""
+        """Sample 0 now; the next ticks come at t0 + k dt (:meth:`next_due`, :meth:`run_due`).
+        Through the UDP bridge: the controller starts, and its sample 0 starts the clock
+        (:meth:`_on_datagram`)."""
+        if self.bridge:
+            self.last_command_at = time.monotonic()
+            self.rig.start(self.n_steps)
+            return
         self.t0 = time.monotonic()
         self.t0_ns = clock.now_ns()
         self.last_command_at = self.t0
@@ -333,7 +382,59 @@ class RigNode(SeftNode):
             return None
         if self.drain_until is not None:
             return self.drain_until
+        if self.bridge:
+            return None             # the controller's samples drive it (_on_datagram)
         return self.t0 + (self.rig.step + 1) * self.rig.dt
+
+    def due_step(self, now: float) -> int:
+        """Real time: the ticks due by `now` [s, monotonic]: ``(now - t0) / dt``; through
+        the UDP bridge the newest sample the controller sent."""
+        if self.bridge:
+            return self.rig.due_step()
+        return int((now - self.t0) / self.rig.dt)
+
+    # -- the UDP bridge -----------------------------------------------------------------------
+
+    def _receive_loop(self) -> None:
+        """The bridge's thread: take the controller's datagrams as they come; each sample
+        is a tick (:meth:`_on_datagram`)."""
+        while not self.done:
+            taken = self.rig.receive()
+            if self.done:
+                return
+            self.guard(self._on_datagram)(taken)
+
+    def _on_datagram(self, taken: bool) -> None:
+        """A datagram was taken (or the wait timed out): start the clock on the first
+        sample, tick every sample, end on the controller's silence or after the drain."""
+        if not self.running:
+            return
+        now = time.monotonic()
+        silent = self.rig.silent_s(now)
+        if silent > self.watchdog_s:
+            reason = (f'udp_bridge: no datagram from the controller for {1e3 * silent:.0f} '
+                      f'ms (limit {1e3 * self.watchdog_s:.0f} ms) after t = '
+                      f'{self.rig.time_s:.3f} s')
+            self._abort_realtime(reason)
+            self._flush_timing(final=True)
+            self._end(STATE_ABORTED, reason)
+            return
+        if self.t0 is None:
+            if not self.rig.has_sample:
+                return
+            self.rig.advance()
+            k = self.rig.step
+            self.t0 = now - k * self.rig.dt
+            self.t0_ns = clock.now_ns() - int(round(k * self.rig.dt * 1e9))
+            self.last_command_at = now
+            self.report(STATE_RUNNING, step=k, n_steps=self.n_steps,
+                        time_s=f'{self.rig.time_s:.3f}', t0_ns=self.t0_ns)
+            self._sample_realtime(now, now)
+        if self.drain_until is not None:
+            if self._drained():
+                self._end_realtime()
+            return
+        self._tick()
 
     def run_due(self) -> None:
         """The next tick is due: catch up with the wall clock (or the common start)."""
@@ -358,7 +459,7 @@ class RigNode(SeftNode):
         if self.drain_until is not None:
             self._end_realtime()            # the drain's deadline: the rest count lost
             return
-        due = int((now - self.t0) / self.rig.dt)
+        due = self.due_step(now)
         while self.running and self.drain_until is None and self.rig.step < due:
             start = time.monotonic()
             self.rig.advance()
@@ -384,7 +485,7 @@ class RigNode(SeftNode):
         else:
             reason = rig.limit_violation()
             if reason is None and start - self.last_command_at > self.watchdog_s:
-                reason = (f'watchdog: no {self.command_topic.name} for '
+                reason = (f'{rig_contract.WATCHDOG_REASON} no {self.command_topic.name} for '
                           f'{1e3 * (start - self.last_command_at):.1f} ms (limit '
                           f'{1e3 * self.watchdog_s:.0f} ms) at t = {rig.time_s:.3f} s')
             if reason:
@@ -460,6 +561,9 @@ class RigNode(SeftNode):
         else:
             self.get_logger().info(message)
         extra = {}
+        if self.bridge:
+            extra.update(self.rig.wire_counts())
+            self.rig.close()
         if self.realtime:
             extra.update(self.timing.counts())
             if self.abort_at_s is not None:
@@ -471,7 +575,8 @@ class RigNode(SeftNode):
             extra['signal'] = self.stop_signal
         self.report(state, message, step=k, n_steps=self.n_steps,
                     time_s=f'{k * self.rig.dt:.6f}', published=self.published,
-                    mode=self.params['mode'], **extra)
+                    mode=self.params['mode'],
+                    **{rig_contract.CONTRACT_KEY: rig_contract.CONTRACT}, **extra)
         self.finish(0)
 
 

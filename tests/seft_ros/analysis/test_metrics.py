@@ -299,7 +299,9 @@ def test_summary_entry_keys_and_values(ground_motion):
                           'lag_s', 'nrms', 'nrms_common_lag', 'nrms_unshifted', 'criteria',
                           'peak_ratio', 'high_frequency_force_fraction',
                           'high_frequency_force_fraction_reference',
-                          'high_frequency_cutoff_hz', 'abort_reason', 'mode', 'wall_s'}
+                          'high_frequency_cutoff_hz', 'abort_reason', 'mode', 'wall_s',
+                          'rig_contract'}
+    assert entry['rig_contract'] is None           # a RunData not read from a bag
     assert list(entry['criteria']) == ['J1', 'J2', 'J3', 'J4', 'J5']
     assert entry['criteria']['J1'] == pytest.approx(10.0)  # the 5-sample delay, in ms
     assert entry['nrms_common_lag']['force'] < 1e-4

@@ -13,7 +13,7 @@ import pytest
 from rosbags.rosbag2 import Reader, StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 
-from seft_msgs_py import parameters, signals
+from seft_msgs_py import parameters, rig_contract, signals
 from seft_msgs_py.errors import InputError
 from seft_ros.analysis.bag import read_run
 from seft_ros.analysis.bagwrite import write_run_bag
@@ -98,6 +98,18 @@ def test_the_intact_bag_reads_every_step(source, run):
     assert rd.extra['gaps'] is None and rd.extra['duplicates'] == {}
     assert rd.extra['recording']['end'] == 'closed'
     assert 'gap' not in rd.extra['recording']['note']
+    # the rig's final status says which rig contract it followed
+    assert rd.extra['rig_contract'] == rig_contract.CONTRACT == 'seft-rig/1.0'
+
+
+def test_a_bag_without_the_contract_reads_with_none(source, tmp_path):
+    """A bag recorded before the rig contract: its rig reported none."""
+    def edit(topic, ns, msg):
+        if topic == signals.STATUS.name:
+            msg.values = [v for v in msg.values if v.key != rig_contract.CONTRACT_KEY]
+        return [(ns, msg)]
+    rd = read_run(rewrite(source, tmp_path / 'old', edit))
+    assert rd.extra['rig_contract'] is None and rd.stable
 
 
 def test_a_gap_ends_the_analysis_and_is_reported(source, run, tmp_path):

@@ -28,6 +28,7 @@ from rosbags.typesys import Stores, get_typestore
 
 from seft_msgs_py import parameters, signals
 from seft_msgs_py.errors import InputError
+from seft_msgs_py.rig_contract import CONTRACT_KEY
 from seft_ros.analysis.bag_recovery import FLUSH_EVERY_S, is_unclosed_bag, recover_bag
 from seft_ros.analysis.rundata import RunData
 from seft_ros.analysis.timing import (
@@ -37,7 +38,7 @@ from seft_ros.analysis.timing import (
     timing_summary,
 )
 
-__all__ = ['read_run', 'BagSignals', 'read_signals', 'recording_end']
+__all__ = ['read_run', 'BagSignals', 'read_signals', 'recording_end', 'rig_contract_of']
 
 _SCALARS = {s.name: s.field for s in (signals.CLOCK,) + signals.SCALAR_SIGNALS}
 _RECORD = {r.name: r for r in signals.RECORD_STREAMS}
@@ -586,7 +587,8 @@ def read_run(path) -> RunData:
              'recording': recording, 'gaps': gaps, 'duplicates': bag.duplicates,
              'node_params': bag.node_params, 'param_sources': bag.param_sources,
              'parameter_mismatches': bag.parameter_mismatches,
-             'wall_s': float(final['wall_s']) if 'wall_s' in final else None}
+             'wall_s': float(final['wall_s']) if 'wall_s' in final else None,
+             'rig_contract': rig_contract_of(bag.statuses)}
     closed = [s for s in bag.statuses if s['name'] == 'recorder' and s.get('state') == 'closed']
     if closed and 'lost' in closed[-1]:
         extra['bag_lost_messages'] = int(closed[-1]['lost'])
@@ -614,6 +616,14 @@ def read_run(path) -> RunData:
         unstable_at_s=unstable_at_s,
         abort_reason=reason, record_name=record_name, source=str(path), extra=extra,
         estimates=estimates)
+
+
+def rig_contract_of(statuses, rig: str = 'rig') -> str | None:
+    """The rig contract (``seft_msgs_py.rig_contract.CONTRACT``, e.g. ``'seft-rig/1.0'``) that
+    the rig node `rig` reported in its status (its last report with one), or None: a bag
+    recorded before the contract existed, or a rig that does not follow it."""
+    found = [s[CONTRACT_KEY] for s in statuses if s['name'] == rig and CONTRACT_KEY in s]
+    return found[-1] if found else None
 
 
 def _rig_end_step(final: dict, abort_at_s: float | None, dt: float) -> int | None:

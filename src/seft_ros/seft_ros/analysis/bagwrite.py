@@ -25,7 +25,7 @@ import numpy as np
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 
-from seft_msgs_py import parameters, signals
+from seft_msgs_py import parameters, rig_contract, signals
 from seft_msgs_py.errors import InputError
 from seft_ros.analysis.rundata import RunData
 
@@ -147,7 +147,8 @@ def write_run_bag(run: RunData, path, *, storage: str | None = None) -> Path:
                     ns, names, [run.estimates[m][k] for m in names]))
         wall = run.extra.get('wall_s')
         final = {'step': n, 'n_steps': n, 'time_s': f'{n * float(p["dt"]):.6f}',
-                 'published': n, 'mode': p.get('mode', 'lockstep')}
+                 'published': n, 'mode': p.get('mode', 'lockstep'),
+                 rig_contract.CONTRACT_KEY: rig_contract.CONTRACT}
         if wall is not None:
             final['wall_s'] = f'{float(wall):.3f}'
         if run.stable:

@@ -768,10 +768,12 @@ def summary_entry(run: RunData, comparison: RunComparison) -> dict[str, Any]:
         bag does not hold, and ``'recording'``, how the recording ended
         (``seft_ros.analysis.bag.recording_end``: closed, stopped, or crashed and recovered),
         from ``run.extra``; ``wall_s`` [s], the wall time of the stepping, from
-        ``run.extra['wall_s']``) where rig is ``params['rig_model']``, predictor is
-        ``params['predictor']``, record is ``run.record_name`` (``params['record']`` if
-        empty), ``lag_s`` [s] is the displacement lag, ``nrms`` is after removing each
-        signal's own lag, ``nrms_common_lag`` after removing ``lag_s`` from every signal,
+        ``run.extra['wall_s']``; ``rig_contract``, the rig contract its rig reported,
+        ``'seft-rig/1.0'``, None for a bag before it, from ``run.extra``) where rig is
+        ``params['rig_model']``, predictor is ``params['predictor']``, record is
+        ``run.record_name`` (``params['record']`` if empty), ``lag_s`` [s] is the
+        displacement lag, ``nrms`` is after removing each signal's own lag,
+        ``nrms_common_lag`` after removing ``lag_s`` from every signal,
         ``nrms_unshifted`` as recorded, ``criteria`` are the RTHS benchmark's J1 [ms] and
         J2-J5 [%] (``criteria.CRITERIA``), nrms values and the high-frequency
         fractions (of the measured and of the reference force's power above the cutoff
@@ -811,6 +813,7 @@ def summary_entry(run: RunData, comparison: RunComparison) -> dict[str, Any]:
         'abort_reason': run.abort_reason,
         'mode': params.get('mode', 'lockstep'),
         'wall_s': _finite_or_none(run.extra.get('wall_s')),
+        'rig_contract': run.extra.get('rig_contract'),
     }
     residual = comparison.residual
     if is_nonlinear(params) and residual is not None:

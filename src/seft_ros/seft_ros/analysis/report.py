@@ -510,6 +510,7 @@ def _run_markdown(index: int, run: RunData, comparison: RunComparison) -> list[s
             if run.params.get('rig_model') == 'delay' else
             f"I/O latency = {_param(run, 'io_latency_s', 1e3, ' ms')}, ")
         + f'{run.n_steps} samples' + (f', source {run.source}' if run.source else ''),
+        f"- rig contract: {run.extra.get('rig_contract') or 'not reported (a bag before it)'}",
     ]
     sources = _sources_line(run)
     if sources is not None:

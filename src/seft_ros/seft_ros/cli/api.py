@@ -30,7 +30,7 @@ from seft_ros.core.reference_force import PREDICTORS
 __all__ = ['build_runs', 'output_dir', 'remove_empty_dirs', 'run_experiments',
            'simulate_experiments', 'simulate_runs', 'compare_bags', 'find_bags',
            'summary_table', 'criteria_table',
-           'Result', 'check_stability', 'check_domain',
+           'Result', 'check_stability', 'check_domain', 'open_runner',
            'stability_report', 'stability_table', 'StabilityResult', 'identify_bags']
 
 
@@ -478,6 +478,72 @@ def _run_here(runs, out_dir, progress, domain, nodes) -> Result | None:
     return _finish(out_dir, data, 'seft run (several hosts)', t0)
 
 
+def open_runner(*, domain_id: int | None = None, progress: Callable[[str], None] = print,
+                checks: Callable[[], None] = lambda: None):
+    """A :class:`~seft_ros.cli.runner.GraphRunner` in a ROS domain of its own: claimed on this
+    machine (``seft_msgs_py.domain``) and carrying no seft topics (nodes started by hand).
+
+    `domain_id` (else ``ROS_DOMAIN_ID``, else a free one of ``RUN_DOMAINS``); `checks` runs
+    once while discovery settles (the pre-run checks). Returns ``(runner, claim)``; close
+    both when done.
+
+    Raises
+    ------
+    SeftError
+        The domain chosen is claimed or busy, or no free domain was found.
+    """
+    from seft_ros.cli.runner import GraphRunner, discovery_settle_s  # rclpy for this verb
+
+    settle = discovery_settle_s()
+    chosen = _checked_domain(domain_id, '--domain-id') if domain_id is not None else (
+        _domain_id() if os.environ.get('ROS_DOMAIN_ID') else None)
+    # claim the domain (seft_msgs_py.domain: no two seft processes of this machine meet),
+    # then check that nothing else (nodes started by hand) publishes seft topics there
+    claim, checked = None, False
+    for _ in range(5):
+        if claim is not None:
+            claim.close()
+        try:
+            if chosen is None:
+                domain, claim = claim_domain(RUN_DOMAINS,
+                                             start=random.SystemRandom().randrange(100))
+            elif held_by_ancestor(chosen):       # e.g. a test session's run: its claim
+                domain, claim = chosen, _InheritedClaim()
+            else:
+                domain, claim = claim_domain([chosen])
+        except RuntimeError:
+            if chosen is not None:
+                raise SeftError(f'ROS_DOMAIN_ID={chosen} is claimed by another seft process '
+                                f'on this machine (lock {LOCK_DIR}/{chosen}.lock): choose '
+                                'another --domain-id') from None
+            raise SeftError(f'no free ROS domain in {RUN_DOMAINS[0]}-{RUN_DOMAINS[-1]}: every '
+                            f'one is claimed (lock files in {LOCK_DIR})') from None
+        runner = GraphRunner(domain, progress)
+        joined = time.monotonic()
+        if not checked:
+            # the pre-run checks while discovery settles in the background (DDS threads):
+            # the busy-topic wait below is then what is left of DISCOVERY_SETTLE_S
+            try:
+                checks()
+            except BaseException:
+                runner.close()
+                claim.close()
+                raise
+            checked = True
+        busy = runner.busy_topics(max(0.0, settle - (time.monotonic() - joined)))
+        if not busy:
+            break
+        runner.close()
+        if chosen is not None:
+            claim.close()
+            raise SeftError(f'ROS_DOMAIN_ID={chosen} already carries seft topics '
+                            f'({", ".join(busy)}): another run? Choose another --domain-id')
+    else:
+        claim.close()
+        raise SeftError('no free ROS domain found for the run (5 random tries)')
+    return runner, claim
+
+
 def run_experiments(*, runs: list[dict], out_dir: Path,
                     progress: Callable[[str], None] = print, title: str = '',
                     domain_id: int | None = None, force: bool = False,
@@ -507,57 +573,12 @@ def run_experiments(*, runs: list[dict], out_dir: Path,
         check_stability(runs=runs, force=force, progress=progress)
         check_capacity(runs=runs, progress=progress)
         return _run_here(runs, out_dir, progress, _shared_domain(domain_id), nodes)
-    from seft_ros.cli.runner import GraphRunner, discovery_settle_s  # rclpy for this verb
-
     t0 = time.monotonic()
-    settle = discovery_settle_s()
-    chosen = _checked_domain(domain_id, '--domain-id') if domain_id is not None else (
-        _domain_id() if os.environ.get('ROS_DOMAIN_ID') else None)
-    # claim the domain (seft_msgs_py.domain: no two seft processes of this machine meet),
-    # then check that nothing else (nodes started by hand) publishes seft topics there
-    claim = checks = None
-    for _ in range(5):
-        if claim is not None:
-            claim.close()
-        try:
-            if chosen is None:
-                domain, claim = claim_domain(RUN_DOMAINS,
-                                             start=random.SystemRandom().randrange(100))
-            elif held_by_ancestor(chosen):       # e.g. a test session's run: its claim
-                domain, claim = chosen, _InheritedClaim()
-            else:
-                domain, claim = claim_domain([chosen])
-        except RuntimeError:
-            if chosen is not None:
-                raise SeftError(f'ROS_DOMAIN_ID={chosen} is claimed by another seft process '
-                                f'on this machine (lock {LOCK_DIR}/{chosen}.lock): choose '
-                                'another --domain-id') from None
-            raise SeftError(f'no free ROS domain in {RUN_DOMAINS[0]}-{RUN_DOMAINS[-1]}: every '
-                            f'one is claimed (lock files in {LOCK_DIR})') from None
-        runner = GraphRunner(domain, progress)
-        joined = time.monotonic()
-        if checks is None:
-            # the pre-run checks while discovery settles in the background (DDS threads):
-            # the busy-topic wait below is then what is left of DISCOVERY_SETTLE_S
-            try:
-                check_stability(runs=runs, force=force, progress=progress)
-                check_capacity(runs=runs, progress=progress)
-            except BaseException:
-                runner.close()
-                claim.close()
-                raise
-            checks = True
-        busy = runner.busy_topics(max(0.0, settle - (time.monotonic() - joined)))
-        if not busy:
-            break
-        runner.close()
-        if chosen is not None:
-            claim.close()
-            raise SeftError(f'ROS_DOMAIN_ID={chosen} already carries seft topics '
-                            f'({", ".join(busy)}): another run? Choose another --domain-id')
-    else:
-        claim.close()
-        raise SeftError('no free ROS domain found for the run (5 random tries)')
+
+    def checks():
+        check_stability(runs=runs, force=force, progress=progress)
+        check_capacity(runs=runs, progress=progress)
+    runner, claim = open_runner(domain_id=domain_id, progress=progress, checks=checks)
     data = []
     try:
         for p in runs:

@@ -141,6 +141,46 @@ def build_parser() -> argparse.ArgumentParser:
     cmp_.add_argument('bags', nargs='+', metavar='BAG', help='a bag, a run directory '
                       '(with bag/) or a folder of run directories (one report of the sweep)')
     cmp_.add_argument('--out', help='output directory (default runs/compare/)')
+    rcheck = sub.add_parser('rig-check', help='check a rig node against the rig contract: '
+                            'short real-time runs of the rest of the graph at a small force, '
+                            'one line per check (docs/rig_contract.md)')
+    rcheck.add_argument('config', nargs='?', help='configuration YAML of the test (the rig, '
+                        'the specimen, dt)')
+    rcheck.add_argument('--rig', dest='rig_model', choices=('delay', 'servohydraulic'),
+                        help='rig model (what the graph sends the rig: the reference force, '
+                        'or the valve command of the force servo controller)')
+    rcheck.add_argument('--rig-command', metavar='CMD', help='the command that starts the '
+                        'rig node (any language; {params} is replaced by the parameter file, '
+                        "else --ros-args --params-file FILE is appended); default seft's "
+                        'simulated rig')
+    rcheck.add_argument('--amplitude', type=float, default=100.0, metavar='N',
+                        help="static force and sine amplitude [N] (default 100; the rig's "
+                        'force limit becomes 5 times this during the check)')
+    rcheck.add_argument('--sine-hz', type=float, default=2.0, metavar='HZ',
+                        help="frequency of the safe-state runs' sine [Hz] (default 2)")
+    rcheck.add_argument('--runs', type=_node_list, metavar='RUN[,RUN...]',
+                        help='only these runs: step, abort, stopped_controller, watchdog '
+                        '(default all; the checks of the others fail as not measured)')
+    rcheck.add_argument('--params', dest='params_files', action='append', default=[],
+                        metavar='FILE', help='parameter file layered over CONFIG')
+    rcheck.add_argument('--set', dest='sets', type=_set_value, action='append', default=[],
+                        metavar='NAME=VALUE', help='any other parameter (repeatable)')
+    rcheck.add_argument('--out', help='output directory (default runs/rig-check/)')
+    rcheck.add_argument('--domain-id', type=int, help='ROS_DOMAIN_ID (as seft run)')
+    emu = sub.add_parser('emulate-controller', help="emulate a lab's real-time controller "
+                         "at the far end of the UDP bridge: seft's simulated rig on its own "
+                         'clock behind udp_controller_address (JSON lines of what happens)')
+    emu.add_argument('config', nargs='?', help='configuration YAML (the rig, the specimen, '
+                     'dt, udp_* parameters): the one the rig node takes')
+    emu.add_argument('--rig', dest='rig_model', choices=('delay', 'servohydraulic'),
+                     help="the plant: 'servohydraulic' takes the valve voltage, 'delay' the "
+                     'force reference')
+    emu.add_argument('--runs', type=int, metavar='N', help='serve N runs, then exit (default: '
+                     'until Ctrl-C)')
+    emu.add_argument('--params', dest='params_files', action='append', default=[],
+                     metavar='FILE', help='parameter file layered over CONFIG')
+    emu.add_argument('--set', dest='sets', type=_set_value, action='append', default=[],
+                     metavar='NAME=VALUE', help='any other parameter (repeatable)')
     stab = sub.add_parser('stability', help='largest stable alpha over the delay per predictor '
                           "from the sampled loop's eigenvalues (stability.png, .json, table)")
     stab.add_argument('config', nargs='?', help='configuration YAML (rig, specimen, dt; '
@@ -240,6 +280,58 @@ def _identify(args) -> int:
     return 0
 
 
+def _one_rig(args, verb: str) -> dict:
+    """The parameters of one rig (config, --rig, --params, --set) for rig-check and
+    emulate-controller."""
+    overrides = {'rig_model': args.rig_model}
+    for path in args.params_files:
+        for name, value in load_config(path).items():
+            if overrides.get(name) is None:
+                overrides[name] = value
+    overrides.update(dict(args.sets))
+    runs = api.build_runs(config=args.config, overrides=overrides)
+    if len(runs) != 1 or runs[0].get('structure', 'none') != 'none':
+        raise InputError(f'seft {verb} takes one rig: expected one alpha and no structure')
+    return runs[0]
+
+
+def _emulate(args) -> int:
+    from seft_plant_sim.udp_emulator import ControllerEmulator, realtime_priority
+    params = _one_rig(args, 'emulate-controller')
+    if args.runs is not None and args.runs < 1:
+        raise InputError(f'--runs {args.runs}: expected a number of runs >= 1')
+    emulator = ControllerEmulator(params)
+    host, port = emulator.address
+    _progress(f"emulating the lab's controller at {host}:{port}: {params['rig_model']} rig, "
+              f"dt {1e3 * params['dt']:g} ms, watchdog {1e3 * params['watchdog_timeout_s']:g} "
+              'ms (Ctrl-C ends)')
+    realtime_priority(int(params['realtime_priority']))
+    try:
+        emulator.serve(runs=args.runs)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        emulator.close()
+    return 0
+
+
+def _rig_check(args) -> int:
+    from seft_ros.cli import rig_check
+    from seft_ros.core.rig_check import CheckProfile
+    params = _one_rig(args, 'rig-check')
+    profile = CheckProfile(dt=float(params['dt']), amplitude_N=args.amplitude,
+                           sine_hz=args.sine_hz)
+    api.check_domain(args.domain_id)
+    out = api.output_dir(out=args.out, name='rig-check')
+    report = rig_check.run_rig_check(params=params, out_dir=out, profile=profile,
+                                     rig_command=args.rig_command,
+                                     runs=args.runs or rig_check.RUNS,
+                                     domain_id=args.domain_id, progress=_progress)
+    for line in rig_check.main_lines(report):
+        print(line)
+    return 0 if report.passed else 1
+
+
 def main(argv=None) -> int:
     """Entry point of ``seft``; returns the exit code."""
     args = build_parser().parse_args(argv)
@@ -265,6 +357,10 @@ def _main(args) -> int:
             return 0
         if args.verb == 'identify':
             return _identify(args)
+        if args.verb == 'rig-check':
+            return _rig_check(args)
+        if args.verb == 'emulate-controller':
+            return _emulate(args)
         if args.verb == 'compare':
             out = api.output_dir(out=args.out, name='compare', created=args.created)
             result = api.compare_bags(bags=args.bags, out_dir=out)

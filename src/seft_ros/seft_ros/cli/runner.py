@@ -173,6 +173,8 @@ class GraphRunner:
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         self.statuses = []
+        #: The processes of the run in progress (:meth:`run`).
+        self.procs: dict[str, subprocess.Popen] = {}
         self._bag_path: Path | None = None    # the bag of the run in progress
         #: The graph of the run in progress (:meth:`run`).
         self.graph = Graph(('',), {'': 'servohydraulic'})
@@ -249,7 +251,8 @@ class GraphRunner:
                 return s
         return None
 
-    def run(self, params: dict, run_dir, *, label: str = '', nodes=None) -> RunOutcome:
+    def run(self, params: dict, run_dir, *, label: str = '', nodes=None,
+            commands: dict[str, Callable[[Path], list[str]]] | None = None) -> RunOutcome:
         """Run one experiment; return where its bag is.
 
         Parameters
@@ -264,6 +267,10 @@ class GraphRunner:
         nodes : sequence of str, optional
             The nodes this host starts (default: the whole graph); the others are started by
             another host in the same ROS domain.
+        commands : dict of str to callable, optional
+            Node -> ``command(params_file) -> argv``: start that node with this command line
+            instead of seft's (``seft rig-check`` starts a lab's rig node so). During the run
+            :attr:`procs` holds the started processes.
 
         Raises
         ------
@@ -302,6 +309,7 @@ class GraphRunner:
         self.node.destroy_publisher(self.status_pub)
         self.status_pub = self.node.create_publisher(STATUS.msg_type, STATUS.name, STATUS.qos)
         procs: dict[str, subprocess.Popen] = {}
+        self.procs = procs
         logs = {}
         start = time.monotonic()
         outcome: dict = {'nodes': local, 'remote_nodes': remote, 'link': decision}
@@ -312,8 +320,10 @@ class GraphRunner:
             # a rig's own nodes take its parameters; a builder (even in the rig's namespace)
             # and the other nodes the test's
             own = rig_files.get(rig) if kind in parameters.RIG_SCOPED_NODES else None
-            procs[name] = subprocess.Popen(node_command(name, own or params_file),
-                                           env=env, stdout=logs[name], stderr=subprocess.STDOUT)
+            argv = (commands[name](own or params_file) if commands and name in commands
+                    else node_command(name, own or params_file))
+            procs[name] = subprocess.Popen(argv, env=env, stdout=logs[name],
+                                           stderr=subprocess.STDOUT)
 
         try:
             # every node at once (the recorder first): the rig starts its clock only when the

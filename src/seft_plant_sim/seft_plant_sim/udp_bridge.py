@@ -1,0 +1,315 @@
+"""The PC's end of the UDP bridge to a laboratory's real-time controller (``rig_interface:
+udp_bridge``).
+
+The lab's controller (an NI PXI under LabVIEW Real-Time, a Speedgoat or dSPACE target, or
+``seft emulate-controller``) is the master clock of the test: it takes sample ``k`` at its own
+``t_k = k dt`` and sends it (:class:`~seft_plant_sim.udp_layout.ToPC`); the rig node publishes
+it on the graph stamped ``t_k`` as a simulated rig would, and sends each command of the graph
+back (:class:`~seft_plant_sim.udp_layout.ToController`) the moment it arrives. What the
+controller does with a command, and when, is the rig contract's promise (``docs/
+rig_contract.md``): a command of sample j computed from sample ``j - lag`` is held from
+``t_j`` and reaches the actuator ``command_latency_s`` after ``t_j`` (``io_latency_s`` of a
+valve rig, ``tau_s`` of a force-controlled one), or from its arrival if it comes later.
+
+:class:`UdpBridgeRig` is the rig object of the rig node in real-time mode, with the interface
+of :class:`~seft_plant_sim.realtime.WallClockRig` (measure, arrive, advance, the safe state,
+the loop latency of each sample), except that a step is taken when the controller's sample
+arrives, not on the PC's clock (:attr:`external_clock`). It imports no rclpy; the node runs
+:meth:`receive` in a thread of its own.
+
+Faults at the socket:
+
+* a datagram of the wrong length, magic, version or kind is rejected with one log line and
+  counted (``bad``); :data:`udp_max_bad_datagrams` of them end the run safely;
+* datagrams are applied in the order of their sequence numbers only
+  (:class:`~seft_plant_sim.udp_layout.SequenceFilter`): duplicates and older ones are dropped
+  and counted, gaps counted as lost; a sample whose datagram was lost is not published;
+* a sample that arrives more than ``dt`` after its place on the controller's clock (as the
+  least delayed sample so far places it) is counted late (and published);
+* a silent controller (no datagram for ``watchdog_timeout_s``) ends the run: the rig node
+  reports it, and asks the controller (if it still hears) for its safe state; a silent PC is
+  the controller's to notice (its own watchdog), which it reports in its state.
+"""
+
+from collections import deque
+import math
+import random
+import socket
+import time
+from typing import Callable, Mapping
+
+from seft_msgs_py import rig_contract
+from seft_msgs_py.errors import ParameterError
+from seft_msgs_py.interface import COMMAND_VALVE, Measurement
+from seft_plant_sim import udp_layout as ul
+from seft_plant_sim.realtime import CommandArrivals
+from seft_plant_sim.specimen import SafetyLimits
+
+__all__ = ['UdpBridgeRig', 'parse_address', 'RECEIVE_BYTES']
+
+#: Receive buffer of one datagram [bytes] (larger than either layout: a longer datagram is
+#: seen whole and rejected for its length).
+RECEIVE_BYTES = 2048
+
+
+def parse_address(text: str, name: str = 'udp_controller_address') -> tuple[str, int]:
+    """``'host:port'`` as ``(host, port)``.
+
+    Raises
+    ------
+    ParameterError
+        Not ``host:port`` with a port 1-65535 (the message names the parameter).
+    """
+    host, _, port = str(text).rpartition(':')
+    try:
+        number = int(port)
+    except ValueError:
+        number = -1
+    if not host or not 0 < number < 65536:
+        raise ParameterError(f'parameter {name}={text!r}: expected host:port with a port '
+                             '1-65535')
+    return host, number
+
+
+class UdpBridgeRig(CommandArrivals):
+    """A rig behind a UDP socket: the controller's samples in, the graph's commands out.
+
+    Parameters
+    ----------
+    params : mapping
+        Resolved parameters: ``dt`` [s], ``rig_model`` (the command kind: valve voltage for
+        'servohydraulic', force reference for 'delay'), ``udp_controller_address``,
+        ``udp_local_port`` (0: any), ``udp_heartbeat_s`` [s], ``udp_max_bad_datagrams``,
+        ``watchdog_timeout_s`` [s], ``stroke_limit_m`` [m], ``force_limit_N`` [N].
+    log : callable(str), optional
+        Receives one line per rejected datagram.
+
+    Attributes
+    ----------
+    external_clock : bool
+        True: a step is the controller's sample arriving (the rig node does not tick).
+    step : int
+        The sample in effect (the latest taken; 0 before the first).
+    counts : dict
+        ``late``, ``lost``, ``duplicate``, ``reordered``, ``bad``, ``other_session`` of the
+        controller's datagrams at the PC.
+
+    Raises
+    ------
+    ParameterError
+        A bad address, or the local port cannot be bound.
+    """
+
+    external_clock = True
+
+    def __init__(self, params: Mapping, *, log: Callable[[str], None] | None = None):
+        self.dt = float(params['dt'])
+        self.dt_ns = int(round(self.dt * 1e9))
+        kind = rig_contract.command_kind(params)
+        self.command_kind = kind
+        self.source_lag = rig_contract.COMMAND_SOURCE_LAG[kind]
+        self._wire_kind = ul.COMMAND_VALVE if kind == COMMAND_VALVE else ul.COMMAND_FORCE
+        self.peer = parse_address(params['udp_controller_address'])
+        self.heartbeat_s = float(params['udp_heartbeat_s'])
+        self.max_bad = int(params['udp_max_bad_datagrams'])
+        self.limits = SafetyLimits.from_parameters(params)
+        self.log = log or (lambda line: None)
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        try:
+            self.sock.bind(('', int(params['udp_local_port'])))
+        except OSError as exc:
+            self.sock.close()
+            raise ParameterError(f"parameter udp_local_port={params['udp_local_port']!r}: "
+                                 f'cannot bind it ({exc.strerror})') from None
+        self.sock.settimeout(self.heartbeat_s)
+        self.session = random.SystemRandom().randrange(1, 2 ** 32)
+        self._sequence = 0
+        self.filter = ul.SequenceFilter()
+        self.counts = {'late': 0, 'bad': 0, 'other_session': 0}
+        self.last_bad = ''
+        self.n_steps = 0
+        self.started = self.ended = self.safe_requested = False
+        self.discarded = 0
+        self._arrivals: dict[int, float] = {}
+        self._pending: deque = deque()
+        self.current: ul.ToPC | None = None
+        self.step = 0
+        self.controller: ul.ToPC | None = None     # the newest datagram of the controller
+        self.last_heard: float | None = None        # when [s, monotonic]
+        self._t0: float | None = None                # PC time of the controller's sample 0
+
+    # -- sending ----------------------------------------------------------------------------
+
+    def _flags(self) -> int:
+        return ((ul.FLAG_START if self.started and not self.ended else 0)
+                | (ul.FLAG_SAFE if self.safe_requested else 0)
+                | (ul.FLAG_END if self.ended else 0))
+
+    def _send(self, kind: int, sample: int, source: int, value: float) -> None:
+        self._sequence = (self._sequence + 1) % 2 ** 32
+        data = ul.encode(ul.ToController(
+            kind, self._flags(), self.session, self._sequence, sample, source, float(value),
+            self.dt_ns, self.n_steps, self._wire_kind))
+        try:
+            self.sock.sendto(data, self.peer)
+        except OSError:
+            pass            # an unreachable controller is its silence: the watchdogs act
+
+    def heartbeat(self) -> None:
+        """Send the PC's heartbeat (with the run's flags)."""
+        newest = self.controller.sample if self.controller is not None else -1
+        self._send(ul.KIND_HEARTBEAT, newest, -1, 0.0)
+
+    def start(self, n_steps: int) -> None:
+        """Start the run: the controller takes sample 0 at its next tick."""
+        self.n_steps = int(n_steps)
+        self.started = True
+        self.heartbeat()
+
+    def arrive(self, stamp: int, value: float, arrival_s: float) -> None:
+        """Send the command stamped `stamp` (value [V or N]) to the controller at once (none
+        after the safe state was asked for: counted in :attr:`discarded`)."""
+        if self.safe_requested or self.ended:
+            self.discarded += 1
+            return
+        self._send(ul.KIND_COMMAND, stamp, stamp - self.source_lag, value)
+
+    def enter_safe_state(self) -> None:
+        """Ask the controller for its safe state (now, and in every datagram from now on)."""
+        if not self.safe_requested:
+            self.safe_requested = True
+            self.heartbeat()
+
+    def close(self) -> None:
+        """The run is over: tell the controller (three times: UDP may lose one), close."""
+        if self.sock.fileno() < 0:
+            return
+        self.ended = True
+        for _ in range(3):
+            self.heartbeat()
+        self.sock.close()
+
+    # -- receiving --------------------------------------------------------------------------
+
+    def receive(self) -> bool:
+        """Wait up to ``udp_heartbeat_s`` for a datagram of the controller and take it.
+
+        Returns
+        -------
+        bool
+            A datagram was taken (a sample may be pending: :meth:`due_step`).
+        """
+        try:
+            data, _ = self.sock.recvfrom(RECEIVE_BYTES)
+        except (socket.timeout, OSError):
+            return False
+        now = time.monotonic()
+        try:
+            d = ul.decode_to_pc(data)
+        except ul.DatagramError as exc:
+            self.counts['bad'] += 1
+            self.last_bad = str(exc)
+            self.log(f'udp_bridge: rejected {exc} ({self.counts["bad"]} of at most '
+                     f'{self.max_bad})')
+            return False
+        if d.session != self.session and d.session != 0:
+            self.counts['other_session'] += 1      # a previous run's: not this one's
+            return False
+        if not self.filter.take(d.sequence):
+            return False
+        self.controller = d
+        self.last_heard = now
+        for source, latency in zip(d.latency_sources, d.latency_s):
+            if source >= 0 and math.isfinite(latency):
+                self._arrivals.setdefault(source, source * self.dt + latency)
+        if d.kind == ul.KIND_MEASUREMENT and d.session == self.session:
+            # the controller's clock as the PC sees it: its sample 0 at the earliest arrival
+            # less k dt (the least delayed sample so far)
+            origin = now - d.sample * self.dt
+            if self._t0 is None or origin < self._t0:
+                self._t0 = origin
+            elif now - (self._t0 + d.sample * self.dt) > self.dt:
+                self.counts['late'] += 1
+            self._pending.append(d)
+        return True
+
+    @property
+    def controller_heard(self) -> bool:
+        """A valid datagram of the controller has arrived (it is up)."""
+        return self.last_heard is not None
+
+    def silent_s(self, now: float) -> float:
+        """Time since the controller's last valid datagram [s] (inf: never heard)."""
+        return math.inf if self.last_heard is None else now - self.last_heard
+
+    def due_step(self) -> int:
+        """The newest sample received (the rig node advances to it)."""
+        return self._pending[-1].sample if self._pending else self.step
+
+    @property
+    def has_sample(self) -> bool:
+        """A sample is taken or pending."""
+        return self.current is not None or bool(self._pending)
+
+    def advance(self) -> None:
+        """Take the next sample received (a lost one is skipped)."""
+        self.current = self._pending.popleft()
+        self.step = self.current.sample
+
+    # -- the rig interface ------------------------------------------------------------------
+
+    @property
+    def time_s(self) -> float:
+        """Time of the sample in effect [s]."""
+        return self.step * self.dt
+
+    def measure(self) -> Measurement:
+        """The controller's sensor readings of the sample in effect (SI units)."""
+        c = self.current
+        return Measurement(self.step, self.time_s, c.displacement_m, c.velocity_m_s,
+                           c.acceleration_m_s2, c.force_N)
+
+    @property
+    def held_source(self) -> int:
+        """The sample the command in effect at the actuator was computed from (-1: none)."""
+        return self.current.held_source if self.current is not None else -1
+
+    @property
+    def in_safe_state(self) -> bool:
+        """The safe state was asked for (:meth:`enter_safe_state`). A controller that went to
+        its own is a :meth:`limit_violation`: the rig node then asks for it, with the
+        reason."""
+        return self.safe_requested
+
+    @property
+    def safe_ramp_done(self) -> bool:
+        """The controller reports its command at zero (:data:`~udp_layout.STATE_SAFE`)."""
+        return self.current is not None and self.current.state == ul.STATE_SAFE
+
+    def limit_violation(self) -> str | None:
+        """Why the run must end safely at the sample in effect, or None: too many rejected
+        datagrams, the controller's own fault or safe state, or the measured stroke or force
+        beyond the limits."""
+        if self.counts['bad'] >= self.max_bad:
+            return (f'udp_bridge: {self.counts["bad"]} datagrams of the controller rejected '
+                    f'(limit {self.max_bad}; last: {self.last_bad})')
+        c = self.current
+        if c is not None and c.state in (ul.STATE_FAULT, ul.STATE_SAFE_RAMP, ul.STATE_SAFE):
+            what = 'refused the run' if c.state == ul.STATE_FAULT else 'went to its safe state'
+            return f'udp_bridge: the controller {what} ({ul.REASON_NAMES.get(c.reason, c.reason)})'
+        if c is None:
+            return None
+        return self.limits.violation(self.time_s, c.displacement_m, c.force_N)
+
+    def wire_counts(self) -> dict:
+        """Counts for the final status: the PC's (``udp_*``) and the controller's
+        (``controller_*``) of the datagrams each received."""
+        out = {f'udp_{k}': v for k, v in self.counts.items()}
+        out.update(udp_lost=self.filter.lost, udp_duplicate=self.filter.duplicate,
+                   udp_reordered=self.filter.reordered)
+        c = self.controller
+        if c is not None:
+            out.update(controller_late=c.late, controller_lost=c.lost,
+                       controller_duplicate=c.duplicate, controller_reordered=c.reordered,
+                       controller_bad=c.bad)
+        return out

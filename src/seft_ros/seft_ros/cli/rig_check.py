@@ -1,0 +1,575 @@
+"""``seft rig-check``: run the rest of the graph against a rig node and check the rig contract.
+
+The DDS shell of :mod:`seft_ros.core.rig_check`: it runs short real-time tests with the
+ground-motion publisher, the reference-force builder, the force servo controller (valve rigs)
+and the recorder of seft against the rig node that ``rig_command`` starts (any program that
+takes ``--ros-args --params-file FILE`` and talks DDS; default: seft's own rig node), listens
+to the rig's measurement, ``/clock`` and status as they arrive, injects the faults, reads the
+bags back and hands the arrays to the checks.
+
+The runs (:data:`RUNS`), each a graph of its own, bounded in time and force:
+
+``step``
+    at rest, then the static reference force ``amplitude_N``, then at rest again;
+``abort``, ``stopped_controller``, ``watchdog``
+    a sine of ``amplitude_N``; one cycle and 45 degrees into it, ``seft rig-check`` publishes
+    an abort on /seft/status, stops the node that commands the rig with SIGTERM (it reports
+    itself aborted), or freezes it with SIGSTOP (silent: the rig's watchdog must notice).
+
+The reference force reaches the rig through seft's own graph: a record of ground
+acceleration ``-f_r / m`` played with ``alpha = 0`` and no compensation gives the reference
+force ``f_r`` (paper Eq. 2.5); the instability monitor is off, and the rig's force and stroke
+limits are tightened to :data:`FORCE_LIMIT_FACTOR` times the amplitude and
+:data:`STROKE_LIMIT_FACTOR` times its static displacement (at least :data:`MIN_STROKE_M`).
+"""
+
+from dataclasses import dataclass, field
+import json
+import math
+import os
+from pathlib import Path
+import shlex
+import signal
+import time
+from typing import Callable, Mapping, Sequence
+
+import numpy as np
+
+from seft_msgs_py import clock, rig_contract
+from seft_msgs_py.convert import STATE_RUNNING, stamp_to_ns, status_values
+from seft_msgs_py.errors import InputError, SeftError
+from seft_msgs_py.graph import Graph
+from seft_msgs_py.signals import FINAL_STATES, MEASUREMENT_FIELDS
+from seft_ros.core import rig_check as rc
+
+__all__ = ['RUNS', 'RigCheckReport', 'run_rig_check', 'rig_command_factory',
+           'check_parameters', 'write_force_record', 'evaluate', 'main_lines',
+           'FORCE_LIMIT_FACTOR', 'STROKE_LIMIT_FACTOR', 'MIN_STROKE_M']
+
+#: The runs of a rig check, in order.
+RUNS = ('step', 'abort', 'stopped_controller', 'watchdog')
+#: The rig's force limit during the check: this times the amplitude (or its own, if lower).
+FORCE_LIMIT_FACTOR = 5.0
+#: The rig's stroke limit during the check: this times the static displacement F / k of the
+#: amplitude (or its own, if lower), and at least :data:`MIN_STROKE_M`.
+STROKE_LIMIT_FACTOR = 10.0
+#: Least stroke limit during the check [m].
+MIN_STROKE_M = 0.001
+
+
+@dataclass
+class RigCheckReport:
+    """What ``seft rig-check`` found.
+
+    Attributes
+    ----------
+    results : list of CheckResult
+        One per check, in :data:`~seft_ros.core.rig_check.CHECKS` order.
+    wall_s : float
+        How long the check took [s].
+    out_dir : Path
+        Where the runs' bags and logs and ``rig_check.json`` are.
+    """
+
+    results: list
+    wall_s: float
+    out_dir: Path
+
+    @property
+    def passed(self) -> bool:
+        """Every check passed."""
+        return all(r.passed for r in self.results)
+
+
+def rig_command_factory(command: str | None) -> Callable[[Path], list[str]] | None:
+    """The argv that starts the rig for a parameter file (``GraphRunner.run``'s `commands`).
+
+    `command` is a shell-like command line; ``{params}`` in it is replaced by the parameter
+    file, else ``--ros-args --params-file FILE`` is appended. None or '': seft's rig node.
+
+    Raises
+    ------
+    InputError
+        The command line cannot be split (unbalanced quotes) or is empty.
+    """
+    if not command:
+        return None
+    try:
+        words = shlex.split(command)
+    except ValueError as exc:
+        raise InputError(f'--rig-command {command!r}: {exc}') from None
+    if not words:
+        raise InputError(f'--rig-command {command!r}: expected a command line')
+
+    def argv(params_file: Path) -> list[str]:
+        if any('{params}' in w for w in words):
+            return [w.replace('{params}', str(params_file)) for w in words]
+        return words + ['--ros-args', '--params-file', str(params_file)]
+    return argv
+
+
+def write_force_record(path: Path, reference_N: np.ndarray, dt: float, mass_kg: float) -> Path:
+    """Write the ground acceleration ``-f_r / m`` [m/s^2] that makes the reference force
+    `reference_N` [N] with alpha 0 (paper Eq. 2.5) as a two-column CSV record (time [s],
+    acceleration [m/s^2])."""
+    t = np.arange(len(reference_N)) * dt
+    rows = '\n'.join(f'{float(ti)!r},{float(-fi / mass_kg)!r}'
+                     for ti, fi in zip(t, reference_N))
+    path.write_text('time_s,acceleration_m_s2\n' + rows + '\n')
+    return path
+
+
+def check_parameters(base: Mapping, profile: rc.CheckProfile, record: Path, n_steps: int
+                     ) -> dict:
+    """The parameters of one rig-check run: `base` (the user's configuration) in real time,
+    alpha 0, no compensation, the monitor off, the record played as it is, and the rig's
+    limits tightened (module notes)."""
+    p = dict(base)
+    force_limit = min(float(p['force_limit_N']), FORCE_LIMIT_FACTOR * profile.amplitude_N)
+    static = profile.amplitude_N / float(p['stiffness_N_per_m'])
+    stroke = min(float(p['stroke_limit_m']), max(STROKE_LIMIT_FACTOR * static, MIN_STROKE_M))
+    p.update(mode='realtime', alpha=0.0, predictor='none', excitation='none',
+             record=str(record), amplitude_N=0.0, scale_factor=1.0, time_scale=1.0,
+             duration_s=0.0, n_steps=int(n_steps), monitor_threshold=0.0,
+             force_limit_N=force_limit, stroke_limit_m=stroke, structure='none',
+             network_delay_s=0.0)
+    return p
+
+
+class _Tap:
+    """The checker's own ears on the graph: every measurement of the rig (when the rig sent
+    it, stamp, fields), /clock, the rig's status; and the fault, fired from the measurement
+    callback when the fault's sample arrives."""
+
+    def __init__(self, runner, graph: Graph):
+        from rclpy.serialization import deserialize_message
+
+        from seft_msgs_py.topics import CLOCK, MEASUREMENT, STATUS
+        self.runner = runner
+        self._deserialize = deserialize_message
+        self._msg_type = MEASUREMENT.msg_type
+        self.dt_ns = 1
+        self.reset()
+        node = runner.node
+        node.create_subscription(MEASUREMENT.msg_type, graph.measurement('').name,
+                                 self._on_measurement, MEASUREMENT.qos, raw=True)
+        node.create_subscription(CLOCK.msg_type, CLOCK.name, self._on_clock, CLOCK.qos,
+                                 raw=True)
+        node.create_subscription(STATUS.msg_type, STATUS.name, self._on_status, STATUS.qos)
+
+    def reset(self, dt_ns: int = 1, fault: Callable[[], None] | None = None,
+              fault_step: int | None = None) -> None:
+        self.dt_ns = dt_ns
+        self.steps, self.stamps, self.arrivals, self.values = [], [], [], []
+        self.received: list[float] = []
+        self.handled: list[float] = []
+        self.names: tuple | None = None
+        self.clock_ns: list[int] = []
+        self.fault, self.fault_step, self.fault_ns = fault, fault_step, None
+        self.stopped_pid: int | None = None
+
+    def _on_measurement(self, raw: bytes, info: dict) -> None:
+        msg = self._deserialize(raw, self._msg_type)
+        stamp = stamp_to_ns(msg.header.stamp)
+        k = int(round(stamp / self.dt_ns))
+        self.steps.append(k)
+        self.stamps.append(stamp)
+        # when the rig's middleware sent it (its system clock, [s]): a sample the checker
+        # hears late (discovered after the rig started, delivered from the history) keeps it
+        self.arrivals.append(info['source_timestamp'] * 1e-9)
+        self.received.append(info['received_timestamp'] * 1e-9)
+        self.handled.append(clock.system_ns() * 1e-9)
+        names = tuple(msg.name)
+        if self.names is None:
+            self.names = names
+        elif names != self.names:
+            self.names = tuple('' for _ in names)      # messages disagree: a failed check
+        self.values.append(list(msg.position))
+        if self.fault is not None and self.fault_ns is None and k >= self.fault_step:
+            self.fault_ns = clock.now_ns()
+            self.fault()
+
+    def _on_clock(self, raw: bytes) -> None:
+        from seft_msgs_py.convert import clock_ns_from_raw
+        self.clock_ns.append(clock_ns_from_raw(raw))
+
+    def _on_status(self, msg) -> None:
+        # a node frozen by the watchdog run goes on once the rig has ended the run: it
+        # hears the rig's final report and ends as after any run
+        if (self.stopped_pid is not None and msg.name == 'rig'
+                and status_values(msg).get('state') in FINAL_STATES):
+            try:
+                os.kill(self.stopped_pid, signal.SIGCONT)
+            except ProcessLookupError:
+                pass
+            self.stopped_pid = None
+
+
+@dataclass
+class _Run:
+    """What one run left: the live tap's data, the bag, the rig's reports, the error."""
+
+    name: str
+    params: dict
+    steps: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
+    stamps: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
+    arrivals: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    names: tuple = ()
+    values: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
+    fault_ns: int | None = None
+    clock_ns: list = field(default_factory=list)
+    statuses: list = field(default_factory=list)
+    bag: object = None
+    bag_closed: bool = False
+    error: str | None = None
+
+    def rig_reports(self) -> list[dict]:
+        return [s for s in self.statuses if s['name'] == 'rig']
+
+    def final(self) -> dict | None:
+        found = [s for s in self.rig_reports() if s.get('state') in FINAL_STATES]
+        return found[-1] if found else None
+
+    def ready(self) -> dict | None:
+        return next((s for s in self.rig_reports() if s.get('state') == 'ready'
+                     and rig_contract.CONTRACT_KEY in s), None)
+
+    def t0_ns(self) -> int | None:
+        return next((int(s['t0_ns']) for s in self.rig_reports()
+                     if s.get('state') == STATE_RUNNING and 't0_ns' in s), None)
+
+    def series(self, *topics: str) -> list[np.ndarray]:
+        """The bag's samples of `topics` from step 0 up to the first step one misses."""
+        if self.bag is None:
+            return [np.zeros(0) for _ in topics]
+        samples = [self.bag.samples.get(t, {}) for t in topics]
+        n = 0
+        while all(n in s for s in samples):
+            n += 1
+        return [np.array([s[k] for k in range(n)]) for s in samples]
+
+    def fault_late_s(self, profile: rc.CheckProfile) -> float | None:
+        """How late the fault came after its sample's instant ``t0 + fault_step dt`` [s]
+        (inf: never, though the rig ran past it; None: no fault run or no t0)."""
+        t0 = self.t0_ns()
+        if self.name == 'step' or t0 is None:
+            return None
+        if self.fault_ns is None:
+            return math.inf
+        return (self.fault_ns - t0) * 1e-9 - profile.fault_step * profile.dt
+
+    def command(self, topic: str, n: int) -> np.ndarray:
+        s = self.bag.samples.get(topic, {}) if self.bag is not None else {}
+        return np.array([s.get(k, np.nan) for k in range(n)])
+
+
+#: The checker's SCHED_FIFO priority above the graph's ``realtime_priority`` (the rig's is +3):
+#: it times the rig's samples and injects the faults, so the graph must not starve it (on two
+#: cores a real-time graph under SCHED_FIFO delayed a checker at the normal priority by
+#: seconds, and it heard the rig's samples in bursts).
+CHECKER_PRIORITY_OFFSET = 4
+
+
+def _above_the_graph(base: int, progress: Callable[[str], None]) -> None:
+    """Run this process under SCHED_FIFO above the graph's nodes, where it may."""
+    if base <= 0:
+        return
+    priority = min(99, base + CHECKER_PRIORITY_OFFSET)
+    try:
+        # the nodes it starts must not inherit it (they take their own priorities): reset
+        # on fork
+        policy = os.SCHED_FIFO | os.SCHED_RESET_ON_FORK
+        for tid in os.listdir('/proc/self/task'):
+            os.sched_setscheduler(int(tid), policy, os.sched_param(priority))
+    except (OSError, AttributeError) as exc:
+        progress(f'note: SCHED_FIFO {priority} refused ({exc}): the checker keeps the normal '
+                 'scheduler; its timing of the rig may suffer under load')
+
+
+def _fault_of(name: str, runner, command_node: str, tap: _Tap) -> Callable[[], None]:
+    """The fault of a run (module notes)."""
+    def abort():
+        runner._publish_abort('seft rig-check: abort (the safe-state check)')
+
+    def signal_node(sig):
+        def send():
+            proc = runner.procs.get(command_node)
+            if proc is not None and proc.poll() is None:
+                if sig == signal.SIGSTOP:
+                    tap.stopped_pid = proc.pid
+                os.kill(proc.pid, sig)
+        return send
+    return {'abort': abort, 'stopped_controller': signal_node(signal.SIGTERM),
+            'watchdog': signal_node(signal.SIGSTOP)}[name]
+
+
+def _expected_error(name: str, command_node: str, message: str) -> bool:
+    """The runner's error that the fault itself causes (a node stopped on purpose)."""
+    return name != 'step' and f'node {command_node} ' in message
+
+
+#: A fault run whose fault came more than this after its sample (the checker discovered the
+#: rig late and heard its first samples in a burst) is run again [s].
+LATE_FAULT_S = 0.05
+#: How many times a run is run again when it says nothing of the rig (:func:`_disturbed`).
+FAULT_RETRIES = 2
+
+
+def _disturbed(run: '_Run', profile: rc.CheckProfile) -> str | None:
+    """Why a run says nothing of the rig, or None: the checker heard the rig too late to time
+    the fault or heard less than half of the step run's samples (a slow discovery), one of
+    seft's own nodes lost an input before the fault, or the rig lost its commands in the step
+    run (a watchdog: this machine stalled the graph; a rig that never gets its commands fails
+    the second time too)."""
+    late = run.fault_late_s(profile)
+    if late is not None and late > LATE_FAULT_S:
+        return f'the checker heard the rig {late:.2f} s late: the fault came late'
+    final = run.final() or {}
+    published = int(final.get('published', 0) or 0)
+    if run.name == 'step' and published and run.steps.size < published // 2:
+        return (f'the checker heard {run.steps.size} of the {published} samples (it '
+                'discovered the rig late)')
+    if run.name == 'step' and str(final.get('message', '')).startswith(
+            rig_contract.WATCHDOG_REASON):
+        return f'the rig lost its commands ({final["message"]}): the graph stalled'
+    before = run.fault_ns is None
+    for s in run.statuses:
+        if (s['name'] not in ('rig', 'seft_runner') and s.get('state') == 'aborted'
+                and str(s.get('message', '')).startswith(rig_contract.WATCHDOG_REASON)
+                and (before or run.name == 'step')):
+            return f'{s["name"]} lost an input ({s["message"]}): the graph stalled'
+    return None
+
+
+def _one_run(name: str, run_dir: Path, *, params: Mapping, profile: rc.CheckProfile, runner,
+             tap: '_Tap', fault, commands, command_node: str,
+             progress: Callable[[str], None]) -> '_Run':
+    """One run of the check: the graph against the rig, the tap listening, the bag read."""
+    reference = profile.step_reference() if name == 'step' else profile.sine_reference()
+    run_dir.mkdir(parents=True)
+    record = write_force_record(run_dir / 'force_record.csv', reference, profile.dt,
+                                float(params['mass_kg']))
+    p = check_parameters(params, profile, record, len(reference))
+    run = _Run(name, p)
+    tap.reset(int(round(profile.dt * 1e9)), fault, profile.fault_step)
+    progress(f'[{name}] {len(reference)} samples of {1e3 * profile.dt:g} ms, amplitude '
+             f'{profile.amplitude_N:g} N')
+    try:
+        runner.run(p, run_dir, label=f'[{name}] ', commands=commands)
+    except SeftError as exc:
+        if not _expected_error(name, command_node, str(exc)):
+            run.error = str(exc)
+            progress(f'[{name}] {exc}')
+    run.statuses = [dict(s) for s in runner.statuses]
+    run.steps, run.stamps = np.array(tap.steps, int), np.array(tap.stamps, int)
+    run.arrivals, run.names = np.array(tap.arrivals), tap.names or ()
+    run.values = (np.array(tap.values, dtype=float) if tap.values
+                  else np.zeros((0, len(MEASUREMENT_FIELDS))))
+    run.fault_ns = tap.fault_ns
+    run.clock_ns = list(tap.clock_ns)
+    # what the checker heard (steps, stamps [ns], when the rig sent each, when the checker's
+    # middleware received it and when the checker took it [s, system clock], values; the
+    # fault's system time [ns], -1 if none)
+    np.savez(run_dir / 'live.npz', steps=run.steps, stamps_ns=run.stamps,
+             arrival_s=run.arrivals, received_s=np.array(tap.received),
+             handled_s=np.array(tap.handled), values=run.values,
+             fault_ns=-1 if run.fault_ns is None else run.fault_ns)
+    _read_bag(run, run_dir / 'bag')
+    return run
+
+
+def run_rig_check(*, params: Mapping, out_dir: Path, profile: rc.CheckProfile,
+                  rig_command: str | None = None, runs: Sequence[str] = RUNS,
+                  domain_id: int | None = None,
+                  progress: Callable[[str], None] = print) -> RigCheckReport:
+    """Check a rig node against the rig contract.
+
+    Parameters
+    ----------
+    params : mapping
+        The resolved parameters of the test (the rig's, the specimen's, ``dt``, ...).
+    out_dir : Path
+        A new directory: a folder per run (bag, logs, parameter file) and ``rig_check.json``.
+    profile : CheckProfile
+        The reference forces (amplitude [N], durations [s], sine [Hz]).
+    rig_command : str, optional
+        How to start the rig node (:func:`rig_command_factory`); default seft's rig node
+        with ``params['rig_model']``.
+    runs : sequence of str
+        Which of :data:`RUNS` to run (the checks of the others are not measured).
+    domain_id : int, optional
+        ROS domain (default as ``seft run``).
+    progress : callable(str)
+        Receives progress lines.
+
+    Returns
+    -------
+    RigCheckReport
+
+    Raises
+    ------
+    InputError
+        An unknown run name, or a bad ``rig_command``.
+    SeftError
+        No ROS domain could be claimed (as ``seft run``).
+    """
+    from seft_ros.cli.api import open_runner
+    unknown = [r for r in runs if r not in RUNS]
+    if unknown or not runs:
+        raise InputError(f'--runs {",".join(runs)}: expected some of {", ".join(RUNS)}')
+    argv = rig_command_factory(rig_command)
+    t_start = time.monotonic()
+    graph = Graph.from_parameters(params)
+    kind = rig_contract.command_kind(params)
+    command_node = (graph.controller_nodes()[0] if kind == rig_contract.COMMAND_KINDS[0]
+                    else graph.builder_of(''))
+    runner, claim = open_runner(domain_id=domain_id, progress=progress)
+    _above_the_graph(int(params.get('realtime_priority', 0)), progress)
+    done: dict[str, _Run] = {}
+    try:
+        tap = _Tap(runner, graph)
+        for name in [r for r in RUNS if r in runs]:
+            for attempt in range(1 + FAULT_RETRIES):
+                run_dir = out_dir / (name if attempt == 0 else f'{name}-{attempt + 1}')
+                run = _one_run(name, run_dir, params=params, profile=profile, runner=runner,
+                               tap=tap, fault=None if name == 'step' else _fault_of(
+                                   name, runner, command_node, tap),
+                               commands={'rig': argv} if argv else None,
+                               command_node=command_node, progress=progress)
+                why = _disturbed(run, profile)
+                if why is None:
+                    break
+                progress(f'[{name}] {why}; once more')
+            done[name] = run
+            if name == 'step' and run.error is not None:
+                progress('the step run failed: the other runs are not run')
+                break
+    finally:
+        runner.close()
+        claim.close()
+    results = evaluate(done, params=params, profile=profile, command_kind=kind)
+    report = RigCheckReport(results, time.monotonic() - t_start, out_dir)
+    (out_dir / 'rig_check.json').write_text(json.dumps({
+        'contract': rig_contract.CONTRACT, 'passed': report.passed,
+        'wall_s': report.wall_s, 'amplitude_N': profile.amplitude_N,
+        'checks': [{'name': r.name, 'passed': r.passed, 'measured': r.measured,
+                    'values': r.values} for r in results],
+        'errors': {n: r.error for n, r in done.items() if r.error}},
+        indent=1, default=_json_default))
+    return report
+
+
+def _json_default(value):
+    if isinstance(value, (np.integer,)):
+        return int(value)
+    if isinstance(value, (np.floating,)):
+        return None if not math.isfinite(value) else float(value)
+    return str(value)
+
+
+def _read_bag(run: _Run, bag: Path) -> None:
+    from seft_ros.analysis.bag import read_signals
+    run.bag_closed = (bag / 'metadata.yaml').is_file()
+    if not bag.exists():
+        return
+    try:
+        run.bag = read_signals(bag)
+    except SeftError as exc:
+        run.error = run.error or f'bag: {exc}'
+        return
+    closed = any(s['name'] == 'recorder' and s.get('state') == 'closed'
+                 for s in run.bag.statuses)
+    run.bag_closed = run.bag_closed and closed
+    # the bag holds every report, also those this checker missed
+    if not run.final():
+        run.statuses = run.bag.statuses
+
+
+def evaluate(runs: Mapping[str, _Run], *, params: Mapping, profile: rc.CheckProfile,
+             command_kind: str) -> list:
+    """The results of every check (:data:`~seft_ros.core.rig_check.CHECKS` order) from the
+    runs done; a check whose run failed or was not run is a failure that says why."""
+    from seft_msgs_py.signals import (
+        ACCELERATION,
+        DISPLACEMENT,
+        MEASURED_FORCE,
+        VELOCITY,
+    )
+    dt = profile.dt
+    sensors = (DISPLACEMENT.name, VELOCITY.name, ACCELERATION.name, MEASURED_FORCE.name)
+    command_topic = rig_contract.command_signal(command_kind).name
+    out = {}
+    step = runs.get('step')
+    onset = profile.onset_step
+    quiet = slice(0, onset)
+    hold_n = int(round(profile.hold_s / dt))
+    hold = slice(onset + hold_n // 2, onset + hold_n)
+    latency = math.nan
+    if step is None:
+        for name in ('contract', 'clock', 'measurement', 'units', 'static force',
+                     'command timing'):
+            out[name] = rc.not_run(name, 'the step run was not run')
+    else:
+        rig_params = step.bag.node_params.get('rig') if step.bag is not None else None
+        out['contract'] = rc.check_contract(step.ready(), rig_params, command_kind)
+        latency = out['contract'].values.get('command_latency_s', math.nan)
+        final = step.final() or {}
+        expected = int(final.get('published', step.params['n_steps']))
+        out['clock'] = rc.check_clock(step.steps, step.stamps, step.arrivals, dt,
+                                      expected=expected, clock_ns=step.clock_ns)
+        out['measurement'] = rc.check_measurement(step.names, step.values)
+        x, v, a, f = step.series(*sensors)
+        why = step.error or 'the bag holds too few samples'
+        if f.size >= hold.stop:
+            out['units'] = rc.check_units(x, v, a, f, dt, float(params['stiffness_N_per_m']),
+                                          hold)
+            out['static force'] = rc.check_static_force(f, hold, quiet, profile.amplitude_N)
+            if math.isfinite(latency):
+                out['command timing'] = rc.check_command_timing(
+                    step.command(command_topic, f.size), f, quiet, onset, dt, latency,
+                    profile.amplitude_N)
+            else:
+                out['command timing'] = rc.not_run('command timing', 'no command latency')
+        else:
+            for name in ('units', 'static force', 'command timing'):
+                out[name] = rc.not_run(name, why)
+    for run_name, check in rc.FAULT_RUNS.items():
+        run = runs.get(run_name)
+        if run is None:
+            out[check] = rc.not_run(check, f'the {run_name} run was not run')
+            continue
+        if run.error is not None and run.final() is None:
+            out[check] = rc.not_run(check, run.error)
+            continue
+        late = run.fault_late_s(profile)
+        if late is not None and late > LATE_FAULT_S:
+            out[check] = rc.not_run(check, f'the fault came {late:.2f} s after its sample '
+                                    '(the checker heard the rig late)')
+            continue
+        x, v, a, f = run.series(*sensors)
+        cycle = int(round(1.0 / (profile.sine_hz * dt)))
+        fault = profile.fault_step
+        lat = latency if math.isfinite(latency) else rig_contract.command_latency_s(params)
+        out[check] = rc.check_safe_state(
+            check, final=run.final(), command_kind=command_kind, time_s=np.arange(f.size) * dt,
+            force_N=f, velocity_m_s=v, quiet=slice(0, onset), before=slice(fault - cycle,
+                                                                            fault),
+            fault_ns=run.fault_ns, t0_ns=run.t0_ns(), params=run.params, latency_s=lat,
+            amplitude_N=profile.amplitude_N,
+            reason_prefix=rig_contract.WATCHDOG_REASON if run_name == 'watchdog' else '')
+    out['final status'] = rc.check_final_status(
+        {n: r.final() for n, r in runs.items()},
+        int(step.params['n_steps']) if step is not None else 0)
+    out['bag closed'] = rc.check_bags_closed({n: r.bag_closed for n, r in runs.items()})
+    return [out[name] for name in rc.CHECKS]
+
+
+def main_lines(report: RigCheckReport) -> list[str]:
+    """The lines ``seft rig-check`` prints: one per check, then the verdict."""
+    lines = [rc.format_line(r) for r in report.results]
+    failed = [r.name for r in report.results if not r.passed]
+    lines.append(f'rig-check: {len(report.results) - len(failed)} of {len(report.results)} '
+                 'checks passed' + (f'; failed: {", ".join(failed)}' if failed else '')
+                 + f' ({report.wall_s:.0f} s; runs in {report.out_dir})')
+    return lines
+
