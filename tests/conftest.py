@@ -83,3 +83,14 @@ def reference_params():
     p = parameters.resolve()
     assert p['mass_kg'] == 52.7 and p['stiffness_N_per_m'] == 2.11e5 and p['dt'] == 0.002
     return p
+
+
+def pytest_collection_modifyitems(config, items):
+    """Under pytest-xdist (``--dist loadgroup``), the tests that run the node graph over DDS in
+    real time or across network namespaces (the modules directly under tests/seft_ros/) go to
+    one worker, one after the other, so that two real-time graphs never share the two cores;
+    the rest (numerics, lockstep CLI runs, analysis) is spread over the workers."""
+    graph_dir = Path(__file__).resolve().parent / 'seft_ros'
+    for item in items:
+        if Path(str(item.fspath)).resolve().parent == graph_dir:
+            item.add_marker(pytest.mark.xdist_group('node_graph'))

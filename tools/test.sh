@@ -6,4 +6,5 @@ bash "$root/tools/setup.sh"
 cd "$root"
 .venv/bin/ruff check src tests benchmarks tools
 bash tools/docs.sh    # the docs, warnings as errors: a broken reference or docstring fails
-exec .venv/bin/python -m pytest tests -q -p no:cacheprovider "$@"
+# two workers (this machine's cores); the node-graph tests on one of them (tests/conftest.py)
+exec .venv/bin/python -m pytest tests -q -p no:cacheprovider -n 2 --dist loadgroup "$@"

@@ -197,7 +197,7 @@ class RigNode(SeftNode):
     # -- start ------------------------------------------------------------------------------
 
     def guard(self, callback):
-        """As :meth:`SeftNode.guard`, under :attr:`lock` (the UDP bridge's thread)."""
+        """As :meth:`seft_msgs_py.node_support.SeftNode.guard`, under :attr:`lock` (the UDP bridge's thread)."""
         guarded = super().guard(callback)
 
         def locked(*args):
