@@ -197,7 +197,8 @@ class RigNode(SeftNode):
     # -- start ------------------------------------------------------------------------------
 
     def guard(self, callback):
-        """As :meth:`seft_msgs_py.node_support.SeftNode.guard`, under :attr:`lock` (the UDP bridge's thread)."""
+        """As :meth:`seft_msgs_py.node_support.SeftNode.guard`, under :attr:`lock` (the UDP
+        bridge's thread)."""
         guarded = super().guard(callback)
 
         def locked(*args):
