@@ -163,15 +163,30 @@ def test_a_clean_run(link):
     assert events[0]['event'] == 'start' and events[0]['n_steps'] == 300
 
 
+class Swap:
+    """Reorder two datagrams: hold one, send it after the next."""
+
+    def __init__(self):
+        self.held = None
+
+    def hold(self, data):
+        self.held = data
+        return []
+
+    def release(self, data):
+        held, self.held = self.held, None
+        return [(0.0, data), (0.0, held)]
+
+
 def test_faults_to_the_pc_are_counted_and_never_applied_out_of_order(link):
     bridge, emulator, proxy, events, lines = link()
-
+    swap = Swap()
     stall = {}
 
     def fault(i, data):
-        # a stall: every datagram from the 200th on held for 12 ms, then let go in order
+        # a stall: every datagram from the 200th on held for 30 ms, then let go in order
         if i == 200:
-            stall['until'] = time.monotonic() + 0.012
+            stall['until'] = time.monotonic() + 0.03
         if 'until' in stall and time.monotonic() < stall['until']:
             return [(stall['until'] - time.monotonic(), data)]
         if i < 20 or 190 <= i < 230:
@@ -181,7 +196,9 @@ def test_faults_to_the_pc_are_counted_and_never_applied_out_of_order(link):
         if i % 37 == 0:
             return [(0.0, data), (0.0, data)]                # duplicated
         if i % 41 == 0:
-            return [(0.003, data)]                           # overtaken: reordered
+            return swap.hold(data)                           # overtaken: reordered
+        if swap.held is not None:
+            return swap.release(data)
         return [(0.0, data)]
     proxy.to_pc = fault
     taken = play(bridge, 400)
@@ -189,24 +206,26 @@ def test_faults_to_the_pc_are_counted_and_never_applied_out_of_order(link):
     c = bridge.wire_counts()
     assert c['udp_duplicate'] >= 8 and c['udp_reordered'] >= 8
     # a sample is missing where its datagram was lost or came after a newer one (dropped):
-    # each one a gap of the sequence
-    assert len(set(range(401)) - set(taken)) == c['udp_lost'] >= 12
+    # each one a gap of the sequence (so are the controller's heartbeats dropped so)
+    missing = set(range(401)) - set(taken)
+    assert 10 <= len(missing) <= c['udp_lost']
     assert c['udp_late'] >= 4                        # the stalled ones
     assert lines == []
 
 
 def test_faults_to_the_controller_are_counted_and_never_applied_out_of_order(link):
     bridge, emulator, proxy, events, lines = link()
-    order = []
+    swap = Swap()
 
     def fault(i, data):
         d = ul.decode_to_controller(data)
         if d.kind == ul.KIND_COMMAND:
-            order.append(d.sequence)
             if d.source % 29 == 0:
                 return [(0.0, data), (0.0, data)]
             if d.source % 31 == 0:
-                return [(0.002, data)]
+                return swap.hold(data)
+            if swap.held is not None:
+                return swap.release(data)
             if d.source % 43 == 0:
                 return []
         return [(0.0, data)]

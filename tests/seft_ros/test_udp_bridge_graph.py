@@ -253,3 +253,23 @@ def test_a_silent_pc_brings_the_controller_to_its_safe_state(emulator, bridge_se
     assert run.extra['rig_final']['state'] == 'aborted'      # the PC ended it too
     assert not run.stable
     assert Path(out).exists() and leftover_processes(str(out)) == []
+
+
+def test_emulator_and_bridge_errors_are_one_line(tmp_path, run_process, seft_exe):
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as taken:
+        taken.bind(('127.0.0.1', 0))
+        port = taken.getsockname()[1]
+        proc = run_process([seft_exe, 'emulate-controller', '--set',
+                            f'udp_controller_address=127.0.0.1:{port}'], cwd=tmp_path)
+    assert proc.returncode == 2 and 'Traceback' not in proc.stderr
+    assert proc.stderr.strip().splitlines()[-1] == (
+        f'seft: error: parameter udp_controller_address=127.0.0.1:{port}: cannot bind it '
+        '(Address already in use)')
+    proc = run_process([seft_exe, 'emulate-controller', '--set',
+                        'udp_controller_address=lab-pxi'], cwd=tmp_path)
+    assert proc.returncode == 2 and proc.stderr.strip().splitlines()[-1] == (
+        "seft: error: parameter udp_controller_address='lab-pxi': expected host:port with a "
+        'port 1-65535')
+    proc = run_process([seft_exe, 'emulate-controller', '--runs', '0'], cwd=tmp_path)
+    assert proc.returncode == 2 and proc.stderr.strip().splitlines()[-1] == (
+        'seft: error: --runs 0: expected a number of runs >= 1')

@@ -106,6 +106,7 @@ class ControllerEmulator:
         self.last_pc: float | None = None
         self.safe_since: float | None = None
         self.latencies: deque = deque(maxlen=ul.LATENCY_SLOTS)
+        self._unreported = 0            # latencies not yet sent
 
     # -- sending ----------------------------------------------------------------------------
 
@@ -127,6 +128,7 @@ class ControllerEmulator:
                     self.reason, self.late, self.filter.lost, self.filter.duplicate,
                     self.filter.reordered, self.bad, tuple(sources[:ul.LATENCY_SLOTS]),
                     tuple(lat[:ul.LATENCY_SLOTS]))
+        self._unreported = 0
         try:
             self.sock.sendto(ul.encode(d), self.pc)
         except OSError:
@@ -234,8 +236,11 @@ class ControllerEmulator:
                 self.late += 1
             self.rig.arrive(d.sample, d.value, arrival)
             self.latencies.appendleft((d.source, arrival - d.source * self.dt))
-            if not self.ticking:
-                self._send(ul.KIND_CONTROLLER_HEARTBEAT)     # its latency, at once
+            self._unreported += 1
+            # after its last sample, or when commands come in a burst (a PC that caught up
+            # after a stall) faster than the samples report them: their latency at once
+            if not self.ticking or self._unreported >= ul.LATENCY_SLOTS // 2:
+                self._send(ul.KIND_CONTROLLER_HEARTBEAT)
 
     # -- the loop ---------------------------------------------------------------------------
 
