@@ -109,7 +109,7 @@ def test_broken_rigs_fail_naming_the_check(mode, model, runs, check, measured, t
      'quotation'),
     (['--set', 'alpha=[0.5, 1]'], 'seft rig-check takes one rig: expected one alpha and '
      'no structure'),
-    (['--set', 'dt=-1'], 'command line: parameter dt=-1: expected float > 1e-05 <= 1'),
+    (['--set', 'dt=-1'], 'command line: parameter dt=-1.0: expected float > 1e-05 <= 1'),
 ])
 def test_rig_check_errors_are_one_line(args, message, tmp_path, run_process, seft_exe):
     proc = run_process([seft_exe, 'rig-check', '--out', tmp_path / 'c', *args], cwd=tmp_path)

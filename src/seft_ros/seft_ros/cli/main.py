@@ -288,7 +288,7 @@ def _one_rig(args, verb: str) -> dict:
         for name, value in load_config(path).items():
             if overrides.get(name) is None:
                 overrides[name] = value
-    overrides.update(dict(args.sets))
+    overrides.update(dict(_typed(args.sets, alpha=True)))
     runs = api.build_runs(config=args.config, overrides=overrides)
     if len(runs) != 1 or runs[0].get('structure', 'none') != 'none':
         raise InputError(f'seft {verb} takes one rig: expected one alpha and no structure')
