@@ -590,7 +590,7 @@ def test_summary_entry_of_a_hand_made_comparison():
         'high_frequency_force_fraction': 0.25,
         'high_frequency_force_fraction_reference': None, 'high_frequency_cutoff_hz': 30.0,
         'abort_reason': 'force limit', 'mode': 'realtime', 'wall_s': 3.25,
-        'bag_lost_messages': 4, 'recording': {'end': 'crashed'}}
+        'bag_lost_messages': 4, 'recording': {'end': 'crashed'}, 'rig_contract': None}
     assert list(entry['nrms']) == list(signals) and type(entry['bag_lost_messages']) is int
     assert entry['recording'] is not run.extra['recording']      # a copy
     assert json.loads(json.dumps(entry, allow_nan=False)) == entry
