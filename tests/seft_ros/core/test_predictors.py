@@ -537,7 +537,8 @@ def test_ats_update_is_the_least_squares_of_the_filtered_window():
 
 
 def test_ats_parameter_errors():
-    with pytest.raises(ParameterError, match=r'^parameter ats_window_s=0.01: expected at least 16 samples'):
+    with pytest.raises(ParameterError,
+                       match=r'^parameter ats_window_s=0.01: expected at least 16 samples'):
         ats(window_s=0.01)
     with pytest.raises(ParameterError, match=r'^ats: the model law must have tau_s = 0'):
         AtsPredictor(DelayImpulseModel(M, C, K, DT, 0.01), 1.0, M, 0.01)
