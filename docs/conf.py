@@ -73,6 +73,10 @@ FIGURES = {
                  'adaptive', '--set', 'adaptive_loop=data', '--set', 'predictor_mass_kg=57.97',
                  '--set', 'predictor_stiffness_N_per_m=232100', '--set',
                  'predictor_damping_N_s_per_m=993.6', '--name', 'adaptive, m c k 10 % high'],
+    # the two-pier bridge (docs/structures.md): every DOF, uncompensated (it goes unstable)
+    # and with the model-based compensator
+    'two_piers': ['simulate', 'config/two_piers.yaml', '--predictor', 'none', 'model',
+                  '--force', '--name', 'two piers'],
 }
 
 

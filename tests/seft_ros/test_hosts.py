@@ -16,6 +16,8 @@ import pytest
 from test_two_hosts import ROOT, _can_make_namespaces, _left_behind
 
 from seft_ros.analysis.bag import read_run
+from seft_ros.analysis.metrics import nrms_error
+from seft_ros.analysis.structure_metrics import dof_signals, reference_of
 
 
 def test_a_bridge_over_three_hosts_and_a_cut_link(tmp_path, ros_env):
@@ -47,8 +49,18 @@ def test_a_bridge_over_three_hosts_and_a_cut_link(tmp_path, ros_env):
     run = read_run(next(out.glob('compute/*/bag')))
     assert 2.5 < run.n_steps * 0.002 < 4.0
     assert set(run.rigs) == {'pier_a', 'pier_b'}
-    for d in entry['dofs'].values():
-        assert d['displacement']['nrms'] < 0.02              # up to the cut: within 2 %
+    # before the cut (3 s of wall time after the rigs started, their clock starting 0.5 s
+    # later: 2 s of the run are surely before it) every DOF follows the whole structure's
+    # reference; after it, until the watchdogs end the run, a lab builds on the lost lab's
+    # last measurement, and the summary's whole-run errors include that. Measured over the
+    # first 2 s: 0.12-0.14 % with the machine otherwise quiet, 6-7 % once under other load
+    # (8 nodes at 500 Hz, the hub and 3 runners on 2 cores: the accuracy across hosts is
+    # benchmarks/network_delay.py's, on a quiet machine); uncompensated, or with a wrong
+    # coupling, the bridge is unstable within 0.7 s
+    ref = reference_of(run)
+    n = int(2.0 / 0.002)
+    for i, (dof, sig) in enumerate(dof_signals(run).items()):
+        assert nrms_error(sig['displacement'][:n], ref.displacement_m[:n, i]) < 0.10, dof
     # the links the runners measured: each lab's round trip at least twice its delay
     link = entry['link']
     assert link['emulation'] == 'link emulator' and link['reference'] == 'compute'

@@ -60,11 +60,12 @@ def test_a_stalled_graph_ends_in_one_error_line_and_a_closed_bag(tmp_path, ros_e
         _wait_for_rig(out)
         # the runner has heard every node ready and watches the run (a node stopped before
         # that is a start-up failure: 'nodes not ready after 60 s')
+        # and the run has made steps (its progress line past step 0: on a loaded machine
+        # the first steps can take longer than a fixed wait, and the bag would hold none)
         deadline = time.monotonic() + 60.0
-        while 'running' not in log.read_text():
+        while not re.search(r'step [1-9]\d*/', log.read_text()):
             assert proc.poll() is None and time.monotonic() < deadline, log.read_text()
             time.sleep(0.05)
-        time.sleep(0.5)
         pid = _pid_of('force_servo_controller', str(out))
         os.kill(pid, signal.SIGSTOP)
         deadline = time.monotonic() + 90.0

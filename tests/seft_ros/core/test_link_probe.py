@@ -64,8 +64,9 @@ def test_the_playout_delay_covers_the_measured_round_trip():
         n = playout_steps(trip, dt)
         assert n * dt >= trip + PLAYOUT_MARGIN_S - 1e-12
         assert (n - 1) * dt < trip + PLAYOUT_MARGIN_S
-    assert preview_steps(0.001, dt, at_least=50) == 50          # the default covers it
-    assert preview_steps(0.2, dt, at_least=50) == 125           # (0.2 + 0.05) / 0.002
+    assert preview_steps(0.001, dt, at_least=50) == 251         # (0.001 + 0.5) / 0.002
+    assert preview_steps(0.2, dt, at_least=50) == 350           # (0.2 + 0.5) / 0.002
+    assert preview_steps(0.2, dt, at_least=400) == 400          # a larger one is kept
 
 
 def test_decide_puts_the_playout_where_the_loop_crosses_hosts():
@@ -81,17 +82,18 @@ def test_decide_puts_the_playout_where_the_loop_crosses_hosts():
                         'lab': ['force_servo_controller', 'rig']}, links, 'compute')
     assert remote['playout'] == 'auto'
     assert remote['network_delay_s'] == pytest.approx(0.016)     # ceil((12 + 3) / 2) * 2 ms
-    assert remote['preview_steps'] == 50
+    # the publisher follows the rig's /clock, which crosses once: 6 ms + 500 ms
+    assert remote['preview_steps'] == 253
     local = decide(p, {'compute': ['recorder', 'ground_motion_publisher'],
                        'lab': ['reference_force_builder', 'force_servo_controller', 'rig']},
                    links, 'compute')
     assert local['playout'] == 'none' and local['network_delay_s'] == 0.0
-    # the ground motion crosses twice (the clock out, the samples back): 12 ms + 50 ms
-    assert local['preview_steps'] == 50
+    # the ground motion crosses twice (the clock out, the samples back): 12 ms + 500 ms
+    assert local['preview_steps'] == 256
     far = {'lab': {'round_trip_ms': {'p50': 180.0, 'p99': 210.0, 'max': 230.0}}}
     assert decide(p, {'compute': ['recorder', 'ground_motion_publisher'],
                       'lab': ['reference_force_builder', 'force_servo_controller', 'rig']},
-                  far, 'compute')['preview_steps'] == 130      # (210 + 50) / 2
+                  far, 'compute')['preview_steps'] == 355      # (210 + 500) / 2
     given = decide(dict(p, network_delay_s=0.03), {
         'compute': ['recorder', 'ground_motion_publisher', 'reference_force_builder'],
         'lab': ['force_servo_controller', 'rig']}, links, 'compute')

@@ -35,8 +35,13 @@ __all__ = ['PingSample', 'LinkEstimate', 'estimate', 'playout_steps', 'preview_s
 #: wake-up) and a tail beyond the p99 of a short measurement.
 PLAYOUT_MARGIN_S = 0.003
 #: Added to the round trip's p99 for the ground motion's preview [s]: generous, the preview
-#: costs nothing (the record is known) and a late ground sample is replaced by the latest.
-PREVIEW_MARGIN_S = 0.05
+#: costs nothing (the record is known before the test), and it keeps the ground motion out of
+#: the loop's timing: the publisher's host or its link may stall this long before a ground
+#: sample is late (then replaced by the latest, and the builder's watchdog counts it). A lost
+#: lab is found by the builders' measurement watchdogs, not by this preview running dry.
+#: 50 ms was too little on a loaded host: a lab's builder ran out of samples 0.2 s into a
+#: 3-host run (the publisher's host and the link emulator starved, load average 3.5).
+PREVIEW_MARGIN_S = 0.5
 
 
 @dataclass(frozen=True)
