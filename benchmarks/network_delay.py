@@ -79,7 +79,7 @@ def _entry(summary: Path, proc) -> dict:
 def state(e: dict) -> str:
     """'completed', 'refused: ...', 'aborted at ...' or 'failed (exit N)'."""
     if 'nrms' not in e:
-        refused = [ln for ln in e.get('stderr', '').splitlines() if 'unstable' in ln]
+        refused = [ln for ln in e.get('stderr', '').splitlines() if 'unstable' in ln.lower()]
         return (f'refused: {refused[-1].split("error: ")[-1][:80]}' if refused
                 else f'failed (exit {e["exit"]})')
     if e['stable'] and e['exit'] == 0:
