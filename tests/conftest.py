@@ -94,3 +94,27 @@ def pytest_collection_modifyitems(config, items):
     for item in items:
         if Path(str(item.fspath)).resolve().parent == graph_dir:
             item.add_marker(pytest.mark.xdist_group('node_graph'))
+            if _on_the_wall_clock(item):
+                item.add_marker(pytest.mark.flaky(reruns=REALTIME_RERUNS, reruns_delay=5))
+
+
+#: A test that runs the graph in real time on this shared 2-core machine is run once more
+#: when it fails (pytest-rerunfailures; the summary counts the reruns): a stall of the host
+#: (other tenants; load averages of 2-6 measured while the suite ran alone) can miss a
+#: deadline the test asserts. A test that fails twice fails. Measured in the serial suite
+#: of 2026-11-23: 4 of about 60 real-time tests failed once (a 100 ms watchdog, a playout
+#: 0.2 ms short of the round trip re-measured during the run, a rig-check watchdog reaction,
+#: the two-pier bridge diverging at 0.84 s: see docs/network.md), each passing alone.
+REALTIME_RERUNS = 1
+#: The modules whose every test runs on the wall clock (real time, several hosts).
+REALTIME_MODULES = frozenset({'test_hosts', 'test_two_hosts', 'test_link_phase',
+                              'test_udp_bridge_graph',
+                              'test_realtime_integration', 'test_rig_check',
+                              'test_runner_errors'})
+
+
+def _on_the_wall_clock(item) -> bool:
+    """Whether a node-graph test runs in real time (its module, or its name says so)."""
+    name = item.name.lower()
+    return (Path(str(item.fspath)).stem in REALTIME_MODULES or 'realtime' in name
+            or 'real_time' in name)
