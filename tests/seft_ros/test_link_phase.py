@@ -58,8 +58,15 @@ def test_the_hosts_measure_their_link_and_run_in_one_clock(tmp_path, seft_exe, r
     assert link['hosts']['lab']['offset_ms'] == pytest.approx(1e3 * OFFSET_S, abs=2.0)
     rtt = link['hosts']['lab']['round_trip_ms']
     assert 0.0 < rtt['p50'] <= rtt['p99'] <= rtt['max'] < 50.0
-    # network_delay_s covers the round trip's p99 plus the margin, in whole steps
-    assert link['network_delay_s'] >= (rtt['p99'] + 3.0) * 1e-3 - 1e-9
+    # network_delay_s covers the round trip's p99 measured at start-up (the one it was chosen
+    # from) plus the margin, in whole steps; the pings of the whole run (in `rtt`) may reach
+    # past it on this shared host (7.7 ms against 7 ms measured once), which the summary
+    # counts as commands that missed their playout step
+    decided = link['decided_round_trip_p99_ms']
+    assert 0.0 < decided < 50.0
+    assert link['network_delay_s'] >= (decided + 3.0) * 1e-3 - 1e-9
+    assert (link['network_delay_s'] - 2e-3) < (decided + 3.0) * 1e-3   # the least whole steps
+    assert 0.0 <= link['playout_missed_fraction'] < 0.01
     assert run.params['network_delay_s'] == pytest.approx(link['network_delay_s'])
     # ages across the hosts in the reference clock: the builder (compute) takes the rig's
     # samples (lab) a fraction of a millisecond old, not 50 ms
