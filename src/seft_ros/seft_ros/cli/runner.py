@@ -451,9 +451,9 @@ class GraphRunner:
         """The rigs' final status (done, aborted or failed) once every rig's is heard: the
         first rig's, or the first that did not end done (its reason); None before.
 
-        With ``heard_only`` the rigs whose final status this runner heard (a lab whose link
-        to another lab is cut never hears that lab's rig end: its own rig's is the one it
-        reports); None if none."""
+        With ``heard_only`` the rigs whose final status this runner heard (the same when it
+        heard every rig's; a lab whose link to another lab is cut never hears that lab's rig
+        end: its own rig's is the one it reports); None if none."""
         finals = [self._latest(r, (STATE_DONE, STATE_ABORTED, STATE_FAILED))
                   for r in self.graph.rig_nodes()]
         if heard_only:
@@ -554,12 +554,11 @@ class GraphRunner:
                 speed = sim_t / max(now - t0, 1e-9)
                 self.progress(f'{label}step {step}/{n} ({100 * step / n:.0f} %), '
                               f't = {sim_t:.2f} s sim, {speed:.2f}x real time')
-            final = self._rig_final() or self._rig_final(heard_only=True)
             over = (self._latest('recorder', (STATE_CLOSED,)) or (
                 not recorded_here and all(p.poll() is not None for p in procs.values())))
             if over or (recorded_here and self._closed_on_disk(procs)):
                 self._check_stopped()
-                return final or {}
+                return self._rig_final(heard_only=True) or {}
             if recorded_here and procs['recorder'].poll() is not None:
                 raise SeftError('the recorder exited before closing the bag: '
                                 f'{_last_line(log_dir / log_name("recorder"))}')
