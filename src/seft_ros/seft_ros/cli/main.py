@@ -336,11 +336,13 @@ def main(argv=None) -> int:
     """Entry point of ``seft``; returns the exit code."""
     args = build_parser().parse_args(argv)
     args.created = []           # directories this command made: removed if it fails empty
+    code = 1
     try:
-        return _main(args)
-    except BaseException:
-        api.remove_empty_dirs(args.created)
-        raise
+        code = _main(args)
+        return code
+    finally:
+        if code != 0:
+            api.remove_empty_dirs(args.created)
 
 
 def _main(args) -> int:
@@ -383,11 +385,9 @@ def _main(args) -> int:
                                                   title=f'seft simulate {name}',
                                                   force=args.force, bag=args.bag)
     except SeftError as exc:
-        api.remove_empty_dirs(args.created)
         print(f'seft: error: {exc}', file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        api.remove_empty_dirs(args.created)
         print('seft: interrupted; nodes stopped, bags closed', file=sys.stderr)
         return 130
     print(api.summary_table(result.summary))
