@@ -219,7 +219,7 @@ def test_shared_parameters_have_an_explicit_source():
       'excitation_band_hz', 'excitation_seed'], 'ground_motion_publisher'),
     (['valve_limit_V', 'saturation_window_s', 'saturation_abort_fraction', 'force_controller',
       'force_integral_hz', 'force_crossover_hz', 'velocity_lead_s', 'velocity_filter_hz',
-      'force_tangent_horizon_s'], 'force_servo_controller'),
+      'force_tangent_horizon_s', 'reference_extrapolation_steps'], 'force_servo_controller'),
     (['bag_path', 'bag_storage'], 'recorder'),
 ])
 def test_value_source_of_each_parameter(names, node):
@@ -229,7 +229,7 @@ def test_value_source_of_each_parameter(names, node):
 def test_value_source_lists_cover_the_schema():
     # + 1: realtime_priority, per node (the rig's value is the one reported); the second 6:
     # the excitation of identification runs; the rig's 43: 38 and the UDP bridge's 5
-    assert len(VALUE_SOURCE) == len(SCHEMA) == 28 + 43 + 6 + 6 + 9 + 2 + 1 + 2 + 1
+    assert len(VALUE_SOURCE) == len(SCHEMA) == 28 + 43 + 6 + 6 + 10 + 2 + 1 + 2 + 1
 
 
 def test_value_source_of_unknown_name_is_an_error():

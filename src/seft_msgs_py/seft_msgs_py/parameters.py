@@ -258,6 +258,12 @@ SCHEMA: tuple[ParamSpec, ...] = (
               'further ahead. Set it to the longest round trip plus about 1 ms (0: one '
               'host).', 0.0, 1.0,
               nodes=_RFB + _CTRL + ('recorder',)),
+    ParamSpec('reference_extrapolation_steps', 2, 'steps', 'Real-time mode: when the '
+              'reference force of a step has not arrived as the force servo controller acts '
+              '(a stale step), the controller extrapolates it linearly from the two newest, '
+              'over at most this many steps beyond the newest (then held); 0: hold the newest '
+              '(seft_ros.core.controller.ReferencePlayout).', 0, 100,
+              nodes=_CTRL),
     ParamSpec('adaptive_window_s', 0.5, 's', "Identification window of the 'adaptive' "
               'predictor.', 0.0, 100.0, True, nodes=_RFB + ('recorder',)),
     ParamSpec('adaptive_max_delay_s', 0.03, 's', "Largest delay the 'adaptive' predictor "

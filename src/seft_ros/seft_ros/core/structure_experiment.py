@@ -16,17 +16,18 @@ the builder does what the one reference-force builder node does::
 """
 
 import time
-from typing import Callable
+from typing import Callable, Collection, Mapping
 
 import numpy as np
 
 from seft_msgs_py import parameters
+from seft_msgs_py.errors import ParameterError
 from seft_msgs_py.graph import Graph
 from seft_msgs_py.interface import COMMAND_VALVE
 from seft_msgs_py.sampling import single_blas_thread
 from seft_plant_sim.rigs import make_rig
 from seft_ros.analysis.rundata import RunData, StructureRunData
-from seft_ros.core.controller import SaturationInterlock
+from seft_ros.core.controller import ReferencePlayout, SaturationInterlock
 from seft_ros.core.excitation import make_valve_controller
 from seft_ros.core.ground_motion import GroundMotion, prepared_record
 from seft_ros.core.monitor import InstabilityMonitor
@@ -36,7 +37,9 @@ __all__ = ['simulate_structure']
 
 
 def simulate_structure(params, *, progress: Callable[[int, int], None] | None = None,
-                       record: GroundMotion | None = None) -> StructureRunData:
+                       record: GroundMotion | None = None,
+                       stale_steps: Mapping[str, Collection[int]] | None = None
+                       ) -> StructureRunData:
     """Run one structure test without ROS and return its signals.
 
     Parameters
@@ -48,6 +51,13 @@ def simulate_structure(params, *, progress: Callable[[int, int], None] | None = 
     record : GroundMotion, optional
         Already prepared ground motion (default:
         :func:`~seft_ros.core.ground_motion.prepared_record`).
+    stale_steps : mapping of str to collection of int, optional
+        Rig name -> the steps at which its force servo controller acts before the reference
+        force of the step has arrived (a real-time run's stale steps, its bag's timing
+        records, replayed in process). At those steps the controller acts as in real time
+        (:class:`~seft_ros.core.controller.ReferencePlayout` with the rig's
+        ``reference_extrapolation_steps``) and the force arrives just after. Servohydraulic
+        rigs only; default none (lockstep).
 
     Returns
     -------
@@ -58,7 +68,7 @@ def simulate_structure(params, *, progress: Callable[[int, int], None] | None = 
     Raises
     ------
     InputError, ParameterError
-        Bad record, parameter or structure.
+        Bad record, parameter or structure; `stale_steps` of a rig the structure has not.
     """
     params = parameters.resolve(params)
     gm = record if record is not None else prepared_record(params)
@@ -79,6 +89,14 @@ def simulate_structure(params, *, progress: Callable[[int, int], None] | None = 
         locks = [SaturationInterlock.from_parameters(rig_params[r]) if v else None
                  for r, v in zip(names, valve)]
         monitors = [InstabilityMonitor.from_parameters(rig_params[r]) for r in names]
+        stale = stale_steps or {}
+        unknown = sorted(set(stale) - set(names))
+        if unknown:
+            raise ParameterError(f'stale steps of rig(s) {", ".join(unknown)}: the structure '
+                                 f'has the rigs {", ".join(names)}')
+        playouts = [ReferencePlayout(0, int(rig_params[r]['reference_extrapolation_steps']))
+                    if v and r in stale else None for r, v in zip(names, valve)]
+        stale = [frozenset(stale.get(r, ())) for r in names]
     look = max(b.lookahead_steps for b in builders)
     padded = ag.tolist() + [0.0] * (look + 1)
 
@@ -108,7 +126,16 @@ def simulate_structure(params, *, progress: Callable[[int, int], None] | None = 
             m = rig.measure()
             meas[r] = m
             if valve[r]:
-                u = ctrls[r].step(commands[r], m.force_N, m.velocity_m_s, m.acceleration_m_s2,
+                reference = commands[r]
+                playout = playouts[r]
+                if playout is not None:
+                    late = k in stale[r]
+                    if not late:
+                        playout.receive(k, reference)
+                    reference = playout.due(k)[0]
+                    if late:
+                        playout.receive(k, commands[r])
+                u = ctrls[r].step(reference, m.force_N, m.velocity_m_s, m.acceleration_m_s2,
                                   m.displacement_m)
                 reason = locks[r].update(ctrls[r].saturated, m.time_s)
                 if reason:

@@ -3,8 +3,9 @@
 Lockstep mode: when the reference force and the measured force of step k have both arrived it
 publishes the valve command of step k. Real-time mode: it acts on the arrival of each measured
 force ``f_m[k]`` (in the rig's measurement) with the newest reference force it has
-(normally ``f_r[k]``, built in parallel during step k-1; an older one counts as stale), never
-waits, and records one timing record per step (the bag's
+(normally ``f_r[k]``, built in parallel during step k-1; when it is late the step counts as
+stale and the force is extrapolated from the newest ones, ``reference_extrapolation_steps``),
+never waits, and records one timing record per step (the bag's
 ``/seft/timing/force_servo_controller``, through its record stream).
 
 Its loss-of-control interlock (``seft_ros.core.controller.SaturationInterlock``) aborts the
@@ -25,7 +26,7 @@ from seft_msgs_py.convert import (
 from seft_msgs_py.node_support import InputWatchdog, SeftNode, StepTiming, main_for
 from seft_msgs_py.sync import StepSync
 from seft_msgs_py.topics import MEASURED_FORCE, REFERENCE_FORCE, VALVE_COMMAND
-from seft_ros.core.controller import SaturationInterlock
+from seft_ros.core.controller import ReferencePlayout, SaturationInterlock
 from seft_ros.core.excitation import make_valve_controller
 from seft_ros.core.reference_force import network_delay_steps
 
@@ -57,8 +58,9 @@ class ForceServoControllerNode(SeftNode):
         self.batch = self.record_stream()
         if self.realtime:
             self.timing = StepTiming(self)
-            self.reference = {}            # step -> f_r (the newest few)
-            self.latest_reference = (-1, 0.0)
+            #: f_r[k - m] of each step, or its extrapolation when it is late
+            self.playout = ReferencePlayout(self.playout_steps,
+                                            int(p['reference_extrapolation_steps']))
             self.watchdog = InputWatchdog(self, (REFERENCE_FORCE.name, 'measurement'))
             self.watch_inputs([
                 self.scalar_subscription(reference, self._on_reference_realtime),
@@ -74,27 +76,19 @@ class ForceServoControllerNode(SeftNode):
 
     def _on_reference_realtime(self, k: int, value: float) -> None:
         self.watchdog.feed(REFERENCE_FORCE.name)
-        self.reference[k] = value
-        if k > self.latest_reference[0]:
-            self.latest_reference = (k, value)
+        self.playout.receive(k, value)
 
     def _on_measured_realtime(self, k: int, fm: float, x: float = 0.0, v: float = 0.0,
                               a: float = 0.0) -> None:
         """u[k] from the measurement of k (f_m, x, v, a) and the reference force of step k
-        (``network_delay_s``: of step k - m), else the newest one: act at once, never wait."""
+        (``network_delay_s``: of step k - m), else its extrapolation from the newest ones
+        (:class:`~seft_ros.core.controller.ReferencePlayout`): act at once, never wait."""
         start, jitter = self.timing.start()
         self.watchdog.feed('measurement', k)
         self.watchdog.arm()
         if k < self.next_step:
             return                          # a duplicate: each step is computed once
-        # the reference force of this step: f_r[k], or with a network delay f_r[k - m]
-        # (f_r[0] until then); if it has not arrived, the newest there is
-        due = max(k - self.playout_steps, 0)
-        stale = due not in self.reference
-        fr_step, fr = (due, self.reference[due]) if not stale else self.latest_reference
-        done = due if k >= self.playout_steps else due - 1     # f_r[0] serves steps 0..m
-        for j in [j for j in self.reference if j <= done]:
-            del self.reference[j]
+        fr, stale, fr_step = self.playout.due(k)
         u = self.controller.step(fr, fm, v, a, x)
         reason = self.interlock.update(self.controller.saturated, k * self.dt)
         if reason:
