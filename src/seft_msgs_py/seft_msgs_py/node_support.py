@@ -11,7 +11,6 @@ from dataclasses import replace
 import gc
 import json
 import math
-import os
 import signal
 import sys
 import time
@@ -48,6 +47,7 @@ from seft_msgs_py.convert import (
 )
 from seft_msgs_py.errors import ParameterError, SeftError
 from seft_msgs_py.graph import Graph, qualified, scoped, split_qualified
+from seft_msgs_py.scheduling import set_fifo
 from seft_msgs_py.signals import (
     MEASUREMENT_FIELDS,
     RECORD_ROWS,
@@ -206,11 +206,7 @@ class SeftNode(Node):
             return
         priority = max(1, min(99, base + PRIORITY_OFFSET[self.kind]))
         try:
-            # every thread of the process: the middleware's receive threads exist already
-            # (they deliver the samples; at the normal priority they would delay them), and
-            # threads created later inherit the policy
-            for tid in os.listdir('/proc/self/task'):
-                os.sched_setscheduler(int(tid), os.SCHED_FIFO, os.sched_param(priority))
+            set_fifo(priority)
         except (OSError, AttributeError) as exc:
             self.get_logger().warning(f'realtime_priority={priority}: SCHED_FIFO refused '
                                       f'({exc}); keeping the normal scheduler')

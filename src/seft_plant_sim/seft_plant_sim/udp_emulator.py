@@ -21,7 +21,6 @@ Imports no rclpy.
 
 from collections import deque
 import json
-import os
 import select
 import socket
 import sys
@@ -31,6 +30,7 @@ from typing import Callable, Mapping
 from seft_msgs_py import rig_contract
 from seft_msgs_py.errors import ParameterError
 from seft_msgs_py.interface import COMMAND_VALVE
+from seft_msgs_py.scheduling import set_fifo
 from seft_plant_sim import udp_layout as ul
 from seft_plant_sim.realtime import WallClockRig
 from seft_plant_sim.udp_bridge import RECEIVE_BYTES, parse_address
@@ -312,7 +312,7 @@ def realtime_priority(base: int) -> None:
     if base <= 0:
         return
     try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(min(99, base + 3)))
+        set_fifo(base + 3)
     except (OSError, AttributeError):
         pass
 

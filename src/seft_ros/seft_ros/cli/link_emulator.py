@@ -47,6 +47,7 @@ import struct
 import sys
 import time
 
+from seft_msgs_py.scheduling import set_fifo
 from seft_ros.core.link import LinkModel
 
 __all__ = ['PacketWire', 'PacketHub', 'open_tun', 'main']
@@ -304,7 +305,7 @@ def _set_priority(priority: int) -> None:
     if priority <= 0:
         return
     try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(min(priority, 99)))
+        set_fifo(priority)
     except (OSError, AttributeError) as exc:
         print(f'link_emulator: warning: SCHED_FIFO {priority} refused ({exc}); the normal '
               'scheduler: a loaded host delays the packets more than the link does',

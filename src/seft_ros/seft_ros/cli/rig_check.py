@@ -39,6 +39,7 @@ from seft_msgs_py import clock, rig_contract
 from seft_msgs_py.convert import STATE_RUNNING, stamp_to_ns, status_values
 from seft_msgs_py.errors import InputError, SeftError
 from seft_msgs_py.graph import Graph
+from seft_msgs_py.scheduling import set_fifo
 from seft_msgs_py.signals import FINAL_STATES, MEASUREMENT_FIELDS
 from seft_ros.core import rig_check as rc
 
@@ -276,11 +277,8 @@ def _above_the_graph(base: int, progress: Callable[[str], None]) -> None:
         return
     priority = min(99, base + CHECKER_PRIORITY_OFFSET)
     try:
-        # the nodes it starts must not inherit it (they take their own priorities): reset
-        # on fork
-        policy = os.SCHED_FIFO | os.SCHED_RESET_ON_FORK
-        for tid in os.listdir('/proc/self/task'):
-            os.sched_setscheduler(int(tid), policy, os.sched_param(priority))
+        # the nodes it starts must not inherit it (they take their own priorities)
+        set_fifo(priority, reset_on_fork=True)
     except (OSError, AttributeError) as exc:
         progress(f'note: SCHED_FIFO {priority} refused ({exc}): the checker keeps the normal '
                  'scheduler; its timing of the rig may suffer under load')

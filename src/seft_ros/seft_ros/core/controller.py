@@ -697,7 +697,7 @@ class ReferencePlayout:
         Returns
         -------
         force_N : float
-            ``f_r[k - m]``; when it has not arrived, the extrapolation (module notes) or,
+            ``f_r[k - m]``; when it has not arrived, its extrapolation (class notes) or,
             before two forces have arrived, the newest (0 before any).
         stale : bool
             ``f_r[k - m]`` had not arrived.

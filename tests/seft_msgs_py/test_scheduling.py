@@ -1,0 +1,46 @@
+"""SCHED_FIFO for every thread of a process (seft_msgs_py.scheduling), checked in a child
+process so that the test process keeps its scheduler."""
+
+import subprocess
+import sys
+
+import pytest
+
+CHILD = r'''
+import os, subprocess, sys, threading
+from seft_msgs_py.scheduling import set_fifo
+worker = threading.Thread(target=threading.Event().wait, args=(5,), daemon=True)
+worker.start()
+try:
+    got = set_fifo(int(sys.argv[1]), reset_on_fork=sys.argv[2] == '1')
+except OSError as exc:
+    print('refused', exc)
+    sys.exit(0)
+tids = os.listdir('/proc/self/task')
+policies = {os.sched_getscheduler(int(t)) & ~os.SCHED_RESET_ON_FORK for t in tids}
+priorities = {os.sched_getparam(int(t)).sched_priority for t in tids}
+child = subprocess.run([sys.executable, '-c', 'import os; print(os.sched_getscheduler(0))'],
+                       capture_output=True, text=True, check=True).stdout.strip()
+print(got, len(tids), policies == {os.SCHED_FIFO}, sorted(priorities), int(child) == os.SCHED_FIFO)
+'''
+
+
+def _child(priority, reset_on_fork):
+    out = subprocess.run([sys.executable, '-c', CHILD, str(priority), str(int(reset_on_fork))],
+                         capture_output=True, text=True, timeout=30, check=True).stdout.split()
+    if out[0] == 'refused':
+        pytest.skip('SCHED_FIFO refused on this host (needs root or CAP_SYS_NICE): '
+                    + ' '.join(out[1:]))
+    return out
+
+
+def test_every_thread_runs_fifo_at_the_clipped_priority_and_children_inherit_it():
+    got, threads, all_fifo, priorities, child_fifo = _child(150, False)
+    assert got == '99' and int(threads) >= 2 and all_fifo == 'True'
+    assert priorities == '[99]' and child_fifo == 'True'
+
+
+def test_reset_on_fork_keeps_children_on_the_normal_scheduler():
+    got, threads, all_fifo, priorities, child_fifo = _child(7, True)
+    assert got == '7' and all_fifo == 'True' and priorities == '[7]'
+    assert child_fifo == 'False'
