@@ -1,25 +1,26 @@
-"""What late reference forces cost a structure test, held or extrapolated.
+"""What late reference forces cost a test, held or extrapolated.
 
 In real time the force servo controller never waits: when the builder's force of a step has
 not arrived as the controller acts (a *stale* step: the builder's host was late), it held the
 newest force; it now extrapolates it (``reference_extrapolation_steps``,
 :class:`seft_ros.core.controller.ReferencePlayout`). This replays stale steps in process
-(:func:`seft_ros.core.structure_experiment.simulate_structure`, ``stale_steps``) with the
-force held (``reference_extrapolation_steps`` 0) and extrapolated (the configured value, or
-``--extrapolate``) and prints the NRMS of displacement per DOF against the run without stale
-steps:
+(``stale_steps`` of :func:`seft_ros.core.experiment.simulate` for the study's test,
+:func:`seft_ros.core.structure_experiment.simulate_structure` for a structure) with the force
+held (``reference_extrapolation_steps`` 0) and extrapolated (the configured value, or
+``--extrapolate``) and prints the NRMS errors against the run without stale steps
+(displacement per DOF for a structure; displacement / acceleration / force for the study's
+test), predictor ``model``:
 
-- given real-time bags (``seft run CONFIG --mode realtime``; the bag is under the output
-  folder), their controllers' stale steps (the timing records) are replayed, and the bag's
-  own NRMS is printed beside them: it shows how much of a real-time run's error the late
-  forces explain;
+- given real-time bags (``seft run CONFIG --mode realtime``), their controllers' stale steps
+  (the timing records) are replayed, and the bag's own NRMS is printed beside them: it shows
+  how much of a real-time run's error the late forces explain;
 - without bags, a synthetic pattern: one stale step every ``--every`` steps on each rig (the
   rigs offset by a third of it).
 
 No ROS; deterministic (it times nothing). Asserts nothing.
 
 Usage: .venv/bin/python benchmarks/stale_reference.py [--config config/two_piers.yaml]
-       [--every 37] [--extrapolate 2] [BAG ...]
+       [--alpha A] [--every 37] [--extrapolate 2] [BAG ...]
 """
 
 import argparse
@@ -27,16 +28,49 @@ from pathlib import Path
 import sys
 
 from seft_msgs_py.errors import SeftError
+from seft_ros.analysis.bag import read_run
+from seft_ros.analysis.metrics import compare_run
+from seft_ros.analysis.reference import reference_from_run
 from seft_ros.analysis.structure_bag import read_structure_run
 from seft_ros.analysis.structure_metrics import compare_structure
 from seft_ros.cli.config import expand_runs, load_config
+from seft_ros.core.experiment import simulate
 from seft_ros.core.structure_experiment import simulate_structure
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def _nrms(run) -> dict:
-    return {d.dof: 100.0 * d.displacement.nrms for d in compare_structure(run).dofs}
+    """NRMS [%]: displacement per DOF (a structure), else displacement / acceleration / force."""
+    if hasattr(run, 'rigs'):
+        return {d.dof: 100.0 * d.displacement.nrms for d in compare_structure(run).dofs}
+    c = compare_run(run, reference_from_run(run))
+    return {name: 100.0 * getattr(c, name).nrms
+            for name in ('displacement', 'acceleration', 'force')}
+
+
+def _run(params: dict, stale: dict | None):
+    """Simulate `params` with the stale steps of each rig (None: none)."""
+    if params.get('structure', 'none') != 'none':
+        return simulate_structure(params, stale_steps=stale)
+    return simulate(params, stale_steps=None if stale is None else stale['rig'])
+
+
+def _stale_of_bag(bag: Path) -> tuple:
+    """The real-time run of `bag` and its controllers' stale steps (rig name -> steps)."""
+    try:
+        run = read_structure_run(bag)
+        nodes = {rig: f'{rig}/force_servo_controller' for rig in run.rigs}
+    except SeftError:
+        run = read_run(bag)
+        nodes = {'rig': 'force_servo_controller'}
+    timing = run.extra['timing_data']
+    missing = [n for n in nodes.values() if n not in timing]
+    if missing:
+        raise SeftError(f'{bag}: no timing records of {", ".join(missing)} (a real-time run '
+                        'of the servohydraulic rig is needed)')
+    return run, {rig: set(timing[n].step[timing[n].stale].tolist())
+                 for rig, n in nodes.items()}
 
 
 def _row(label: str, stable: bool, nrms: dict, stale_fraction: float | None) -> str:
@@ -45,12 +79,11 @@ def _row(label: str, stable: bool, nrms: dict, stale_fraction: float | None) -> 
     return f'| {label} | {stale} | {"yes" if stable else "NO"} | {cells} |'
 
 
-def replay(params: dict, stale: dict, n_steps: int, extrapolate: int) -> list[tuple]:
-    """(label, stable, nrms per DOF [%]) held and extrapolated."""
+def replay(params: dict, stale: dict, extrapolate: int) -> list[tuple]:
+    """(label, stable, NRMS [%]) held and extrapolated."""
     out = []
     for label, steps in (('held', 0), (f'extrapolated ({extrapolate})', extrapolate)):
-        run = simulate_structure(dict(params, reference_extrapolation_steps=steps),
-                                 stale_steps=stale)
+        run = _run(dict(params, reference_extrapolation_steps=steps), stale)
         out.append((label, run.stable, _nrms(run)))
     return out
 
@@ -59,6 +92,8 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     parser.add_argument('bags', nargs='*', type=Path, help='real-time structure bags')
     parser.add_argument('--config', type=Path, default=ROOT / 'config' / 'two_piers.yaml')
+    parser.add_argument('--alpha', type=float, default=None,
+                        help="the study's test: its mass ratio (default the config's first)")
     parser.add_argument('--every', type=int, default=37,
                         help='synthetic pattern: one stale step every this many steps')
     parser.add_argument('--extrapolate', type=int, default=None,
@@ -67,37 +102,43 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     try:
         runs = [p for p in expand_runs(load_config(args.config)) if p['predictor'] == 'model']
+        if args.alpha is not None:
+            runs = [dict(p, alpha=args.alpha) for p in runs]
         if not runs:
             raise SeftError(f'{args.config}: no run with predictor model')
         params = runs[0]
+        if params.get('rig_model') != 'servohydraulic' and 'structure' not in params:
+            raise SeftError(f'{args.config}: rig_model {params.get("rig_model")!r}: the '
+                            'servohydraulic rig is needed (the delay rig has no controller)')
         extrapolate = (int(params['reference_extrapolation_steps']) if args.extrapolate is None
                        else args.extrapolate)
-        clean = simulate_structure(params)
-        dofs = list(_nrms(clean))
-        print(f'{args.config.name}, predictor model: displacement NRMS per DOF [%]')
-        print(f'| replay | stale steps [%] | stable | {" | ".join(dofs)} |')
-        print('|---|---|---|' + '---|' * len(dofs))
+        clean = _run(params, None)
+        columns = list(_nrms(clean))
+        what = ('displacement NRMS per DOF' if hasattr(clean, 'rigs') else
+                f'alpha {params["alpha"]:g}, NRMS')
+        print(f'{args.config.name}, predictor model: {what} [%]')
+        print(f'| replay | stale steps [%] | stable | {" | ".join(columns)} |')
+        print('|---|---|---|' + '---|' * len(columns))
         print(_row('no stale step (lockstep)', clean.stable, _nrms(clean), 0.0))
         n = clean.time_s.shape[0]
+        rigs = list(clean.rigs) if hasattr(clean, 'rigs') else ['rig']
         if not args.bags:
             offset = max(1, args.every // 3)
             stale = {r: set(range(args.every + i * offset, n, args.every))
-                     for i, r in enumerate(clean.rigs)}
+                     for i, r in enumerate(rigs)}
             fraction = sum(len(s) for s in stale.values()) / (n * len(stale))
-            for label, stable, nrms in replay(params, stale, n, extrapolate):
+            for label, stable, nrms in replay(params, stale, extrapolate):
                 print(_row(f'every {args.every} steps, {label}', stable, nrms, fraction))
         for bag in args.bags:
-            measured = read_structure_run(bag)
-            timing = measured.extra['timing_data']
-            stale = {}
-            for rig in measured.rigs:
-                t = timing[f'{rig}/force_servo_controller']
-                stale[rig] = set(t.step[t.stale].tolist())
+            measured, stale = _stale_of_bag(bag)
+            if sorted(stale) != sorted(rigs):
+                raise SeftError(f'{bag}: its rigs {", ".join(sorted(stale))} are not those of '
+                                f'{args.config} ({", ".join(rigs)})')
             fraction = sum(len(s) for s in stale.values()) / (n * len(stale))
-            name = bag.resolve().parent.parent.name
+            name = '/'.join(bag.resolve().parts[-3:-1])     # <out>/<run>
             print(_row(f'{name}: the real-time run itself', measured.stable, _nrms(measured),
                        fraction))
-            for label, stable, nrms in replay(params, stale, n, extrapolate):
+            for label, stable, nrms in replay(params, stale, extrapolate):
                 print(_row(f'{name}: its stale steps, {label}', stable, nrms, fraction))
     except SeftError as exc:
         print(f'stale_reference: error: {exc}', file=sys.stderr)

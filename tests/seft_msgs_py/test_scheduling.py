@@ -6,7 +6,7 @@ import sys
 
 import pytest
 
-CHILD = r'''
+CHILD = r"""
 import os, subprocess, sys, threading
 from seft_msgs_py.scheduling import set_fifo
 worker = threading.Thread(target=threading.Event().wait, args=(5,), daemon=True)
@@ -22,7 +22,7 @@ priorities = {os.sched_getparam(int(t)).sched_priority for t in tids}
 child = subprocess.run([sys.executable, '-c', 'import os; print(os.sched_getscheduler(0))'],
                        capture_output=True, text=True, check=True).stdout.strip()
 print(got, len(tids), policies == {os.SCHED_FIFO}, sorted(priorities), int(child) == os.SCHED_FIFO)
-'''
+"""
 
 
 def _child(priority, reset_on_fork):

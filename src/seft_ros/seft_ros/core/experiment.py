@@ -19,7 +19,7 @@ One step k (the node that does it in the graph in brackets)::
 """
 
 import time
-from typing import Callable
+from typing import Callable, Collection
 
 import numpy as np
 
@@ -28,7 +28,7 @@ from seft_msgs_py.interface import COMMAND_VALVE
 from seft_msgs_py.sampling import single_blas_thread
 from seft_plant_sim.rigs import make_rig
 from seft_ros.analysis.rundata import RunData
-from seft_ros.core.controller import SaturationInterlock
+from seft_ros.core.controller import ReferencePlayout, SaturationInterlock
 from seft_ros.core.excitation import make_valve_controller
 from seft_ros.core.ground_motion import GroundMotion, prepared_record
 from seft_ros.core.monitor import InstabilityMonitor
@@ -38,7 +38,8 @@ __all__ = ['simulate']
 
 
 def simulate(params, *, progress: Callable[[int, int], None] | None = None,
-             record: GroundMotion | None = None) -> RunData:
+             record: GroundMotion | None = None,
+             stale_steps: Collection[int] | None = None) -> RunData:
     """Run one experiment without ROS and return its signals.
 
     Parameters
@@ -50,6 +51,14 @@ def simulate(params, *, progress: Callable[[int, int], None] | None = None,
     record : GroundMotion, optional
         Already prepared ground motion (default:
         :func:`~seft_ros.core.ground_motion.prepared_record`).
+    stale_steps : collection of int, optional
+        The steps at which the force servo controller acts before the reference force of the
+        step has arrived (a real-time run's stale steps, from its bag's timing records,
+        replayed in process): it then acts as in real time
+        (:class:`~seft_ros.core.controller.ReferencePlayout` with
+        ``reference_extrapolation_steps``) and the force arrives just after. Servohydraulic
+        rig only (ignored on the delay rig, which has no controller); default none
+        (lockstep).
 
     Returns
     -------
@@ -87,6 +96,9 @@ def simulate(params, *, progress: Callable[[int, int], None] | None = None,
         watch = monitor.update
         if valve:
             control, interlock_update = ctrl.step, interlock.update
+        stale = frozenset(stale_steps or ())
+        playout = (ReferencePlayout(0, int(params['reference_extrapolation_steps']))
+                   if valve and stale_steps is not None else None)
         # the compensator's online estimates (if it has any), in effect for each f_r[k]
         estimates = getattr(builder.predictor, 'estimates', None)
         est_rec = []
@@ -102,7 +114,15 @@ def simulate(params, *, progress: Callable[[int, int], None] | None = None,
             meas = measure()
             fm = meas.force_N
             if valve:
-                u = control(fr, fm, meas.velocity_m_s, meas.acceleration_m_s2,
+                acted = fr
+                if playout is not None:
+                    late = k in stale
+                    if not late:
+                        playout.receive(k, fr)
+                    acted = playout.due(k)[0]
+                    if late:
+                        playout.receive(k, fr)
+                u = control(acted, fm, meas.velocity_m_s, meas.acceleration_m_s2,
                             meas.displacement_m)
                 reason = interlock_update(ctrl.saturated, meas.time_s)
                 if reason:
