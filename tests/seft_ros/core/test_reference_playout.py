@@ -91,6 +91,17 @@ def test_before_two_forces_and_after_a_newer_one_the_newest_is_used():
     assert playout.due(2) == (7.0, True, 3)
 
 
+def test_a_repeat_replaces_the_force_it_repeats():
+    playout = ReferencePlayout(0, 2)
+    playout.receive(0, 1.0)
+    playout.receive(1, 2.0)
+    playout.receive(1, 3.0)                     # the newest, repeated
+    playout.receive(0, 0.0)                     # the one before, repeated
+    for k in (0, 1):
+        playout.due(k)
+    assert playout.due(2) == (6.0, True, 1)     # 3 + (3 - 0)
+
+
 @pytest.mark.parametrize('playout_steps, extrapolate_steps', [(-1, 0), (0, -1)])
 def test_negative_steps_are_refused(playout_steps, extrapolate_steps):
     with pytest.raises(ParameterError, match='expected >= 0'):

@@ -686,9 +686,12 @@ class ReferencePlayout:
     def receive(self, step: int, force_N: float) -> None:
         """A reference force arrived (any order; a repeat replaces it)."""
         self._forces[step] = force_N
-        if step > self._newest[0]:
+        newest, before = self._newest[0], self._before[0]
+        if step > newest:
             self._before, self._newest = self._newest, (step, force_N)
-        elif self._before[0] < step < self._newest[0]:
+        elif step == newest:
+            self._newest = (step, force_N)
+        elif step >= before:
             self._before = (step, force_N)
 
     def due(self, k: int) -> tuple[float, bool, int]:
