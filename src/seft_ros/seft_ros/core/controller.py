@@ -724,3 +724,14 @@ class ReferencePlayout:
         for j in [j for j in forces if j <= done]:
             del forces[j]
         return value, stale, source
+
+    def replay(self, k: int, force_N: float, late: bool) -> float:
+        """One step of an in-process replay of a real-time run: the force of step `k` arrives
+        before the controller acts on step `k`, or with `late` just after; returns the force
+        acted on [N] (:meth:`due`'s)."""
+        if not late:
+            self.receive(k, force_N)
+        value = self.due(k)[0]
+        if late:
+            self.receive(k, force_N)
+        return value

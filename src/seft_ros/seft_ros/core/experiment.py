@@ -114,14 +114,7 @@ def simulate(params, *, progress: Callable[[int, int], None] | None = None,
             meas = measure()
             fm = meas.force_N
             if valve:
-                acted = fr
-                if playout is not None:
-                    late = k in stale
-                    if not late:
-                        playout.receive(k, fr)
-                    acted = playout.due(k)[0]
-                    if late:
-                        playout.receive(k, fr)
+                acted = fr if playout is None else playout.replay(k, fr, k in stale)
                 u = control(acted, fm, meas.velocity_m_s, meas.acceleration_m_s2,
                             meas.displacement_m)
                 reason = interlock_update(ctrl.saturated, meas.time_s)

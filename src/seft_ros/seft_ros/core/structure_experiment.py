@@ -126,15 +126,9 @@ def simulate_structure(params, *, progress: Callable[[int, int], None] | None = 
             m = rig.measure()
             meas[r] = m
             if valve[r]:
-                reference = commands[r]
                 playout = playouts[r]
-                if playout is not None:
-                    late = k in stale[r]
-                    if not late:
-                        playout.receive(k, reference)
-                    reference = playout.due(k)[0]
-                    if late:
-                        playout.receive(k, commands[r])
+                reference = (commands[r] if playout is None
+                             else playout.replay(k, commands[r], k in stale[r]))
                 u = ctrls[r].step(reference, m.force_N, m.velocity_m_s, m.acceleration_m_s2,
                                   m.displacement_m)
                 reason = locks[r].update(ctrls[r].saturated, m.time_s)
