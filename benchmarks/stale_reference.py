@@ -33,6 +33,7 @@ from seft_ros.analysis.metrics import compare_run
 from seft_ros.analysis.reference import reference_from_run
 from seft_ros.analysis.structure_bag import read_structure_run
 from seft_ros.analysis.structure_metrics import compare_structure
+from seft_ros.cli.api import has_structure
 from seft_ros.cli.config import expand_runs, load_config
 from seft_ros.core.experiment import simulate
 from seft_ros.core.structure_experiment import simulate_structure
@@ -51,7 +52,7 @@ def _nrms(run) -> dict:
 
 def _run(params: dict, stale: dict | None):
     """Simulate `params` with the stale steps of each rig (None: none)."""
-    if params.get('structure', 'none') != 'none':
+    if has_structure(params):
         return simulate_structure(params, stale_steps=stale)
     return simulate(params, stale_steps=None if stale is None else stale['rig'])
 
@@ -107,7 +108,7 @@ def main(argv=None) -> int:
         if not runs:
             raise SeftError(f'{args.config}: no run with predictor model')
         params = runs[0]
-        if params.get('rig_model') != 'servohydraulic' and 'structure' not in params:
+        if params.get('rig_model') != 'servohydraulic' and not has_structure(params):
             raise SeftError(f'{args.config}: rig_model {params.get("rig_model")!r}: the '
                             'servohydraulic rig is needed (the delay rig has no controller)')
         extrapolate = (int(params['reference_extrapolation_steps']) if args.extrapolate is None
