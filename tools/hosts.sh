@@ -132,13 +132,27 @@ for s in compute "${labs[@]}"; do
 done
 
 if [[ -n "$cut" ]]; then
-  for _ in $(seq 1200); do
-    if grep -qs 'starting (' "$out/$cut_site"/*/logs/*rig.log; then break; fi
-    sleep 0.1
-  done
-  sleep "$cut"
-  ip -n "${ns[$cut_site]}" link set "${dev[$cut_site]}" down
-  echo "hosts.sh: link cut (${dev[$cut_site]} of $cut_site down) $cut s after the rigs started, at wall time $(date +%s%N) ns" >&2
+  # The cut is timed from the rig's own "starting" line (the wall time of its sample 0), not
+  # from when this script saw it: with the graph's nodes on SCHED_FIFO and the host busy, a
+  # normal process (this script, grep, sleep) was seen to wake 1-1.5 s late, and the cut,
+  # asked for 1 s after the start, came 2.5 s after it. The watcher runs above the graph's
+  # priorities (SCHED_FIFO 99, where this host allows it; it sleeps nearly all the time).
+  (
+    chrt -f -p 99 "$BASHPID" >/dev/null 2>&1 || true
+    start=""
+    for _ in $(seq 6000); do
+      start="$(grep -hs -m1 'starting (' "$out/$cut_site"/*/logs/*rig.log \
+               | sed -n 's/^[^[]*\[[A-Z]*\] \[\([0-9.]*\)\].*/\1/p' | head -n1)" || true
+      [[ -z "$start" ]] || break
+      sleep 0.02
+    done
+    [[ -n "$start" ]] || { echo "hosts.sh: no rig of $cut_site started within 120 s: link not cut" >&2; exit 0; }
+    wait_s="$(awk -v t0="$start" -v c="$cut" -v now="$(date +%s.%N)" 'BEGIN { d = t0 + c - now; printf "%.3f", (d > 0 ? d : 0) }')"
+    sleep "$wait_s"
+    ip -n "${ns[$cut_site]}" link set "${dev[$cut_site]}" down
+    at="$(date +%s.%N)"
+    echo "hosts.sh: link cut (${dev[$cut_site]} of $cut_site down) $(awk -v t0="$start" -v t="$at" 'BEGIN { printf "%.3f", t - t0 }') s after the rigs started (asked: $cut s), at wall time ${at/./} ns" >&2
+  )
 fi
 rc=0
 i=0
