@@ -45,6 +45,7 @@ from seft_msgs_py.convert import (
     status_msg,
     status_values,
 )
+from seft_msgs_py.dds import use_seft_profile
 from seft_msgs_py.errors import ParameterError, SeftError
 from seft_msgs_py.graph import Graph, qualified, scoped, split_qualified
 from seft_msgs_py.scheduling import set_fifo
@@ -698,6 +699,7 @@ def main_for(factory: Callable[[], SeftNode], name: str, args=None) -> int:
     # SIGINT and SIGTERM are this loop's (rclpy's handlers would shut the context down at
     # once): the first one asks the node to stop safely (:meth:`SeftNode.on_stop_signal`),
     # a second one ends the process now
+    use_seft_profile()            # before the first participant (seft_msgs_py.dds)
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     stop: list[str] = []
 

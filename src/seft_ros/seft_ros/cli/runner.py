@@ -43,6 +43,7 @@ from seft_msgs_py.convert import (
     status_msg,
     status_values,
 )
+from seft_msgs_py.dds import use_seft_profile
 from seft_msgs_py.errors import SeftError
 from seft_msgs_py.graph import Graph, split_qualified
 from seft_msgs_py.topics import NODE_PARAMETERS, STATUS, TOPICS
@@ -160,6 +161,7 @@ class GraphRunner:
                  localhost_default: bool = True):
         self.domain_id = domain_id
         self.progress = progress or (lambda text: None)
+        use_seft_profile()    # this process's participant and the nodes it starts
         self.env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id))
         if localhost_default:
             # one host: stay on it unless the environment says otherwise

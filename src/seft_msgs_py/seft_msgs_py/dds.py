@@ -1,0 +1,50 @@
+"""The DDS settings a seft process starts with (no rclpy).
+
+Fast DDS (rmw_fastrtps, ROS 2 Jazzy's default middleware) reads its default profiles from the
+XML file named by ``FASTRTPS_DEFAULT_PROFILES_FILE`` when the process creates its first
+participant. seft ships one (``fastdds_profile.xml`` beside this module) that shortens a
+reliable writer's heartbeat period from Fast DDS's 3 s to :data:`HEARTBEAT_PERIOD_S`: a
+reader delivers a writer's samples in order, so a packet lost on the link holds back every
+later sample of that writer until the next heartbeat makes the reader ask for it again
+(RTPS 2.5, section 8.4.15.5: a reliable reader requests the missing sequence numbers only
+when a HEARTBEAT says they exist). Over a 1 % lossy 5 ms link the default stopped three real-time
+runs of three at 0.4-1.2 s (a builder's 20 ms watchdog), the 50 ms period completed all three.
+
+A file the user names in the environment is kept (theirs wins); other middlewares ignore the
+variable.
+"""
+
+import os
+from pathlib import Path
+
+__all__ = ['PROFILE_ENV', 'HEARTBEAT_PERIOD_S', 'profile_path', 'use_seft_profile']
+
+#: The variable Fast DDS 2.x reads its default XML profiles from.
+PROFILE_ENV = 'FASTRTPS_DEFAULT_PROFILES_FILE'
+#: A reliable writer's periodic heartbeat in seft's profile [s] (Fast DDS's default: 3 s).
+HEARTBEAT_PERIOD_S = 0.05
+
+
+def profile_path() -> Path:
+    """The Fast DDS profile seft ships (an XML file beside this module)."""
+    return Path(__file__).with_name('fastdds_profile.xml')
+
+
+def use_seft_profile(environ=None) -> str:
+    """Name seft's Fast DDS profile in `environ` unless a profile is named there already.
+
+    Call it before the process creates its first DDS participant (``rclpy.init`` and the
+    first node); processes started later with a copy of `environ` inherit it.
+
+    Parameters
+    ----------
+    environ : MutableMapping[str, str], optional
+        The environment to set (default ``os.environ``).
+
+    Returns
+    -------
+    str
+        The profile file in effect (the user's, or seft's).
+    """
+    env = os.environ if environ is None else environ
+    return env.setdefault(PROFILE_ENV, str(profile_path()))
