@@ -17,8 +17,9 @@
 # `seft run --mode realtime --partition P --site SITE ...`: the runners measure the links
 # (round trip, clock offset), agree on the playout delay and preview, and the compute host
 # writes the bag and the report. --cut-after S takes a lab's link device down S seconds after
-# the rigs started (--cut-site, default the first lab). Everything this script creates is
-# removed at the end, also on Ctrl-C or failure. Needs root (ip netns, /dev/net/tun).
+# the rigs started (--cut-site, default the first lab). At the end it prints what each host's
+# kernel lost (UDP receive-buffer overflows, the link device's drops). Everything this script
+# creates is removed at the end, also on Ctrl-C or failure. Needs root (ip netns, /dev/net/tun).
 set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 partition=loop_local delay=0 jitter=0 loss=0 cut="" cut_site=""
@@ -162,6 +163,13 @@ for s in compute "${labs[@]}"; do
   [[ $code == 0 ]] || rc=1
   echo "$s exit $code" >> "$out/exits.txt"
   i=$((i + 1))
+done
+# what each host's kernel lost: UDP datagrams dropped for a full socket buffer (a process too
+# busy to read, DDS then resends) and packets its link device dropped on the way in
+for s in compute "${labs[@]}"; do
+  udp="$(ip netns exec "${ns[$s]}" awk '/^Udp:/ { if (h) { for (i = 2; i <= NF; i++) v[n[i]] = $i } else { h = 1; for (i = 2; i <= NF; i++) n[i] = $i } } END { printf "%s received, %s receive-buffer overflows, %s in errors", v["InDatagrams"], v["RcvbufErrors"], v["InErrors"] }' /proc/net/snmp 2>/dev/null)" || udp="not read"
+  rxdrop="$(ip netns exec "${ns[$s]}" cat "/sys/class/net/${dev[$s]}/statistics/rx_dropped" 2>/dev/null)" || rxdrop=""
+  echo "hosts.sh: $s: UDP $udp; link device ${rxdrop:-?} packets dropped in" >&2
 done
 for s in compute "${labs[@]}"; do
   grep -v -e RTPS_TRANSPORT_SHM -e '^\s*$' "$out/$s.err" | sed "s/^/$s: /" >&2 || true

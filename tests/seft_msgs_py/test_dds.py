@@ -2,6 +2,8 @@
 that a user's own profile is kept. Its effect on a lossy link is tested over real DDS in
 ``tests/seft_ros/test_two_hosts.py`` (a run over a 1 % lossy link completes)."""
 
+from pathlib import Path
+import shutil
 import subprocess
 import sys
 import xml.etree.ElementTree as ET
@@ -23,6 +25,15 @@ def test_the_profile_is_the_default_writer_profile_with_a_short_heartbeat():
     assert seconds < 3.0                       # Fast DDS's own default, which it replaces
 
 
+def test_the_profile_asks_for_large_receive_buffers():
+    root = ET.parse(dds.profile_path()).getroot()
+    participants = root.findall('f:participant', NS)
+    assert len(participants) == 1 and participants[0].get('is_default_profile') == 'true'
+    size = int(participants[0].find('f:rtps/f:listenSocketBufferSize', NS).text)
+    assert size == dds.RECEIVE_BUFFER_BYTES
+    assert size >= 4 * 212992                  # Linux's usual default (net.core.rmem_default)
+
+
 def test_the_profile_is_named_unless_the_user_named_one():
     env = {}
     assert dds.use_seft_profile(env) == str(dds.profile_path())
@@ -32,24 +43,64 @@ def test_the_profile_is_named_unless_the_user_named_one():
     assert mine == {dds.PROFILE_ENV: '/lab/my_profiles.xml'}
 
 
-def test_fast_dds_loads_the_profile_without_complaint(tmp_path):
-    """A participant created with the profile named: Fast DDS parses it (a file it cannot
-    parse gets an XMLPARSER error on its output, as a broken file is checked to give)."""
-    code = ('from seft_msgs_py.dds import use_seft_profile; use_seft_profile(); import rclpy; '
-            'rclpy.init(); n = rclpy.create_node("dds_profile_probe"); '
-            'n.create_publisher(__import__("std_msgs.msg").msg.String, "probe", 10); '
-            'n.destroy_node(); rclpy.shutdown()')
-    env = {k: v for k, v in __import__('os').environ.items() if k != dds.PROFILE_ENV}
-    env['ROS_LOG_DIR'] = str(tmp_path)
+def _probe(env):
+    """Start a participant with a subscription in a process of its own; return its output
+    and the receive buffers of its UDP sockets [bytes] (``ss``: the kernel's doubled size)."""
+    code = (
+        'import os, subprocess, time\n'
+        'from seft_msgs_py.dds import use_seft_profile\n'
+        'use_seft_profile()\n'
+        'import rclpy\n'
+        'from std_msgs.msg import String\n'
+        'rclpy.init()\n'
+        'n = rclpy.create_node("dds_profile_probe")\n'
+        'n.create_subscription(String, "probe", lambda m: None, 10)\n'
+        'time.sleep(0.3)\n'
+        'out = subprocess.run(["ss", "-ulmnp"], capture_output=True, text=True).stdout\n'
+        'lines = out.splitlines()\n'
+        'me = f"pid={os.getpid()},"\n'
+        'for i, line in enumerate(lines[:-1]):\n'
+        '    if me in line:\n'
+        '        print("RB", lines[i + 1].split("rb")[1].split(",")[0])\n'
+        'n.destroy_node()\n'
+        'rclpy.shutdown()\n')
     proc = subprocess.run([sys.executable, '-c', code], env=env, capture_output=True,
                           text=True, timeout=60)
     out = proc.stdout + proc.stderr            # Fast DDS logs its errors on stdout
-    assert proc.returncode == 0, out
+    buffers = [int(line.split()[1]) for line in proc.stdout.splitlines()
+               if line.startswith('RB ')]
+    return proc.returncode, out, buffers
+
+
+def test_fast_dds_loads_the_profile_and_applies_it(tmp_path, ros_env):
+    """A participant created with the profile named: Fast DDS parses it (a file it cannot
+    parse gets an XMLPARSER error on its output, as a broken file is checked to give) and its
+    sockets get the receive buffer asked for (capped by the kernel at net.core.rmem_max)."""
+    if shutil.which('ss') is None:
+        pytest.skip('iproute2 (ss) is not installed')
+    env = {k: v for k, v in ros_env.items() if k != dds.PROFILE_ENV}
+    # SUBNET, as the hosts of a split run (tools/hosts.sh): with LOCALHOST rmw_fastrtps sets
+    # up its own localhost-only transport, which keeps the system's buffers (a run on one
+    # host goes over shared memory)
+    env.update(ROS_LOG_DIR=str(tmp_path), ROS_AUTOMATIC_DISCOVERY_RANGE='SUBNET')
+    code, out, buffers = _probe(env)
+    assert code == 0, out
     assert 'XML' not in out, out
+    rmem_max = int(Path('/proc/sys/net/core/rmem_max').read_text())
+    rmem_default = int(Path('/proc/sys/net/core/rmem_default').read_text())
+    asked = 2 * min(dds.RECEIVE_BUFFER_BYTES, rmem_max)   # the kernel doubles what it grants
+    assert buffers and max(buffers) == asked, (buffers, asked)
+    # without the profile the same sockets keep the system's default (the check can fail)
+    plain = tmp_path / 'plain.xml'
+    plain.write_text('<?xml version="1.0" encoding="UTF-8" ?>\n<profiles xmlns='
+                     '"http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles"></profiles>\n')
+    env[dds.PROFILE_ENV] = str(plain)
+    code, out, buffers = _probe(env)
+    assert code == 0 and buffers, out
+    if asked > rmem_default:
+        assert max(buffers) < asked, (buffers, asked)
     broken = tmp_path / 'broken.xml'
     broken.write_text(dds.profile_path().read_text().replace('</profiles>', ''))
     env[dds.PROFILE_ENV] = str(broken)
-    proc = subprocess.run([sys.executable, '-c', code], env=env, capture_output=True,
-                          text=True, timeout=60)
-    out = proc.stdout + proc.stderr
-    assert 'XMLPARSER' in out and 'broken.xml' in out, out    # the check above can fail
+    _, out, _ = _probe(env)
+    assert 'XMLPARSER' in out and 'broken.xml' in out, out    # the first check can fail

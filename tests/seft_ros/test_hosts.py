@@ -3,8 +3,7 @@ each in their own lab (links of 5 and 20 ms +/- 20 %) and whose deck and recorde
 compute host, the default partition (loop_local: each lab's builder integrates a replica of
 the deck and closes its rig's loop locally). Pier b's link is cut 0.5 s into the run: every
 rig goes to its safe state and the run ends with the reason on every host; the bag holds
-everything up to the cut (one known defect, open: see the test) and the links the runners
-measured.
+everything up to the cut, nothing lost on the way, and the links the runners measured.
 
 Needs root (network namespaces, TUN devices); skipped with the reason elsewhere.
 """
@@ -24,24 +23,45 @@ from seft_ros.analysis.structure_metrics import dof_signals
 DT = 0.002
 
 
-def test_a_bridge_over_three_hosts_and_a_cut_link(tmp_path, ros_env):
-    why = _can_make_namespaces()
-    if why:
-        pytest.skip(why)
-    out = tmp_path / 'hosts'
+def _run_and_cut(cwd, ros_env, out):
+    """Run the bridge over three hosts with pier b's link cut 0.5 s in; check what every run
+    must show; return the script's stderr and the cut's time after the rigs' start [s]."""
     proc = subprocess.run(
         ['bash', str(ROOT / 'tools' / 'hosts.sh'), '--link', 'pier_a=5,1',
          '--link', 'pier_b=20,4', '--cut-after', '0.5', '--cut-site', 'pier_b', '--out',
          str(out), '--', str(ROOT / 'config' / 'two_piers.yaml'), '--predictor', 'model',
          '--duration', '8', '--set', 'monitor_threshold=0',
          '--set', 'watchdog_timeout_s=0.1'],
-        cwd=tmp_path, env=ros_env, capture_output=True, text=True, timeout=400)
+        cwd=cwd, env=ros_env, capture_output=True, text=True, timeout=400)
     err = proc.stderr
     assert 'Traceback' not in err
     assert proc.returncode == 0, err          # a safety function ended the run: a result
-    assert re.search(r'link cut \(\S+ of pier_b down\)', err), err
+    cut = re.search(r'link cut \(\S+ of pier_b down\) ([0-9.]+) s after the rigs started', err)
+    assert cut, err
     names = subprocess.run(['ip', 'netns', 'list'], capture_output=True, text=True).stdout
     assert not re.search(_left_behind(err), names), names
+    return err, float(cut.group(1))
+
+
+def test_a_bridge_over_three_hosts_and_a_cut_link(tmp_path, ros_env):
+    why = _can_make_namespaces()
+    if why:
+        pytest.skip(why)
+    for attempt in (1, 2):
+        out = tmp_path / f'hosts_{attempt}'
+        err, cut_s = _run_and_cut(tmp_path, ros_env, out)
+        ended_s = min(float(json.loads(next(out.glob(f'{site}/*/outcome.json')).read_text())
+                            ['rig_final'].get('abort_at_s') or 1e9)
+                      for site in ('pier_a', 'pier_b'))
+        if ended_s >= cut_s:
+            break
+        # the run ended before the cut: the bridge over three hosts on this 2-core machine
+        # diverges at times (0.4-2.3 s into the record, docs/network.md); run it once more
+        print(f'attempt {attempt}: the run ended at {ended_s:.3f} s, before the cut at '
+              f'{cut_s:.3f} s')
+    else:
+        pytest.fail('both runs ended before the link was cut (the saturated three-host '
+                    'bridge, docs/network.md): the cut was not tested')
     # every lab: its rig went to its safe state, and says why
     for site, other in (('pier_a', 'pier_b'), ('pier_b', 'pier_a')):
         outcome = json.loads(next(out.glob(f'{site}/*/outcome.json')).read_text())
@@ -63,21 +83,18 @@ def test_a_bridge_over_three_hosts_and_a_cut_link(tmp_path, ros_env):
     # (0.9-2.3 s into the record, docs/network.md); a cut timed from when the script saw the
     # start came 1.5-2.5 s after it on a busy host and made this a test of that divergence
     bag = next(out.glob('compute/*/bag'))
-    cut_s = float(re.search(r'link cut \(.+ down\) ([0-9.]+) s after the rigs started',
-                            err).group(1))
     with AnyReader([bag]) as reader:
         samples = {c.topic: c.msgcount for c in reader.connections}
     pier_a_s = samples['/pier_a/seft/measured_force'] * DT
     pier_b_s = samples['/pier_b/seft/measured_force'] * DT
     # pier a's link stayed up: its samples run past the cut, to the abort the cut caused
     assert cut_s < pier_a_s < cut_s + 1.0, (cut_s, pier_a_s)
-    if pier_b_s < cut_s - 0.1:
-        # Known defect, open (docs/network.md): in about one run in three on this saturated
-        # host the recorder stops receiving the cut lab's samples 0.1-0.2 s into the run,
-        # long before the cut, and they are not resent before it; its other assertions hold
-        pytest.xfail(f"the bag has pier b's samples up to {pier_b_s:.2f} s only, the link "
-                     f'was cut at {cut_s:.2f} s (known defect: the recorder on a saturated '
-                     'host)')
+    # and pier b's up to the cut: none lost on the way (the recorder's host, busy with the
+    # labs' nodes on this machine, overflowed its 208 KiB socket buffers 500-560 times a run
+    # and lost pier b's samples from 0.1-0.2 s on in 2 runs of 4, before the 4 MiB of
+    # seft_msgs_py.dds)
+    assert re.search(r'compute: UDP \d+ received, 0 receive-buffer overflows', err), err
+    assert cut_s - 0.15 < pier_b_s <= cut_s + 0.05, (cut_s, pier_b_s)
     run = read_run(bag)
     assert cut_s - 0.1 < run.n_steps * DT < cut_s + 1.0
     assert set(run.rigs) == {'pier_a', 'pier_b'}
