@@ -145,9 +145,11 @@ if [[ -n "$cut" ]]; then
       start="$(grep -hs -m1 'starting (' "$out/$cut_site"/*/logs/*rig.log \
                | sed -n 's/^[^[]*\[[A-Z]*\] \[\([0-9.]*\)\].*/\1/p' | head -n1)" || true
       [[ -z "$start" ]] || break
+      alive=0; for p in "${pids[@]}"; do kill -0 "$p" 2>/dev/null && alive=1; done
+      [[ $alive == 1 ]] || break                 # every runner gone: no rig will start
       sleep 0.02
     done
-    [[ -n "$start" ]] || { echo "hosts.sh: no rig of $cut_site started within 120 s: link not cut" >&2; exit 0; }
+    [[ -n "$start" ]] || { echo "hosts.sh: no rig of $cut_site started: link not cut" >&2; exit 0; }
     wait_s="$(awk -v t0="$start" -v c="$cut" -v now="$(date +%s.%N)" 'BEGIN { d = t0 + c - now; printf "%.3f", (d > 0 ? d : 0) }')"
     sleep "$wait_s"
     ip -n "${ns[$cut_site]}" link set "${dev[$cut_site]}" down

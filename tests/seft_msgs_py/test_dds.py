@@ -11,6 +11,7 @@ import xml.etree.ElementTree as ET
 import pytest
 
 from seft_msgs_py import dds
+from seft_msgs_py.errors import SeftError
 
 NS = {'f': 'http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles'}
 
@@ -41,6 +42,16 @@ def test_the_profile_is_named_unless_the_user_named_one():
     mine = {dds.PROFILE_ENV: '/lab/my_profiles.xml'}
     assert dds.use_seft_profile(mine) == '/lab/my_profiles.xml'
     assert mine == {dds.PROFILE_ENV: '/lab/my_profiles.xml'}
+
+
+def test_a_missing_profile_is_a_clear_error(monkeypatch, tmp_path):
+    monkeypatch.setattr(dds, 'profile_path', lambda: tmp_path / 'fastdds_profile.xml')
+    env = {}
+    with pytest.raises(SeftError, match=r"fastdds_profile.xml: seft's Fast DDS profile is "
+                                        'missing'):
+        dds.use_seft_profile(env)
+    assert env == {}
+    assert dds.use_seft_profile({dds.PROFILE_ENV: 'mine.xml'}) == 'mine.xml'
 
 
 def _probe(env):

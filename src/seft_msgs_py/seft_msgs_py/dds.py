@@ -28,6 +28,8 @@ variable.
 import os
 from pathlib import Path
 
+from seft_msgs_py.errors import SeftError
+
 __all__ = ['PROFILE_ENV', 'HEARTBEAT_PERIOD_S', 'RECEIVE_BUFFER_BYTES', 'profile_path',
            'use_seft_profile']
 
@@ -59,6 +61,17 @@ def use_seft_profile(environ=None) -> str:
     -------
     str
         The profile file in effect (the user's, or seft's).
+
+    Raises
+    ------
+    SeftError
+        seft's profile is to be used and its file is missing (a broken install).
     """
     env = os.environ if environ is None else environ
-    return env.setdefault(PROFILE_ENV, str(profile_path()))
+    if PROFILE_ENV not in env:
+        path = profile_path()
+        if not path.is_file():
+            raise SeftError(f"{path}: seft's Fast DDS profile is missing (a broken install of "
+                            'seft_msgs_py: install it again)')
+        env[PROFILE_ENV] = str(path)
+    return env[PROFILE_ENV]
