@@ -16,16 +16,17 @@
 # (shared memory would bypass the link). Each site runs
 # `seft run --mode realtime --partition P --site SITE ...`: the runners measure the links
 # (round trip, clock offset), agree on the playout delay and preview, and the compute host
-# writes the bag and the report. --cut-after S takes a lab's link device down S seconds after
-# the rigs started (--cut-site, default the first lab). At the end it prints what each host's
-# kernel lost (UDP receive-buffer overflows, the link device's drops). Everything this script
-# creates is removed at the end, also on Ctrl-C or failure. Needs root (ip netns, /dev/net/tun).
+# writes the bag and the report. --cut-after S cuts a lab's link (both ways, in the link
+# emulator) S seconds after the rigs started (--cut-site, default the first lab). At the end it
+# prints what each host's kernel lost (UDP receive-buffer overflows, the link device's drops).
+# Everything this script creates is removed at the end, also on Ctrl-C or failure. Needs root
+# (ip netns, /dev/net/tun).
 set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 partition=loop_local delay=0 jitter=0 loss=0 cut="" cut_site=""
 out="$root/runs/hosts"
 declare -A links=()
-usage() { sed -n '2,22p' "$0"; }
+usage() { sed -n '2,23p' "$0"; }
 while [[ $# -gt 0 ]]; do
   case "$1" in
     --partition) partition="$2"; shift 2 ;;
@@ -105,7 +106,8 @@ trap 'echo "hosts.sh: interrupted" >&2; exit 130' INT TERM
 for s in "${!ns[@]}"; do ip netns add "${ns[$s]}"; ip -n "${ns[$s]}" link set lo up; done
 mkdir -p "$out"
 ready="$(mktemp -u)"
-"$py" -m seft_ros.cli.link_emulator "${ports[@]}" --ready-file "$ready" 2> "$out/link_emulator.err" &
+"$py" -m seft_ros.cli.link_emulator "${ports[@]}" ${cut:+--cut-on-signal "${dev[$cut_site]}"} \
+  --ready-file "$ready" 2> "$out/link_emulator.err" &
 hub=$!
 for _ in $(seq 100); do [[ -s "$ready" ]] && break; kill -0 "$hub" 2>/dev/null || break; sleep 0.1; done
 [[ -s "$ready" ]] || { echo "hosts.sh: error: the link emulator did not start: $(tail -1 "$out/link_emulator.err")" >&2; exit 1; }
@@ -137,7 +139,11 @@ if [[ -n "$cut" ]]; then
   # from when this script saw it: with the graph's nodes on SCHED_FIFO and the host busy, a
   # normal process (this script, grep, sleep) was seen to wake 1-1.5 s late, and the cut,
   # asked for 1 s after the start, came 2.5 s after it. The watcher runs above the graph's
-  # priorities (SCHED_FIFO 99, where this host allows it; it sleeps nearly all the time).
+  # priorities (SCHED_FIFO 99, where this host allows it; it sleeps nearly all the time) and
+  # cuts the wire, not the device: the link emulator drops the lab's packets from SIGUSR1 on
+  # ('ip link set DEV down' waits for the kernel's RCU grace periods, which the saturated
+  # host stretched: the cut came 40-170 ms after the command). No fork on the way (bash's
+  # own clock and kill).
   (
     chrt -f -p 99 "$BASHPID" >/dev/null 2>&1 || true
     start=""
@@ -150,11 +156,11 @@ if [[ -n "$cut" ]]; then
       sleep 0.02
     done
     [[ -n "$start" ]] || { echo "hosts.sh: no rig of $cut_site started: link not cut" >&2; exit 0; }
-    wait_s="$(awk -v t0="$start" -v c="$cut" -v now="$(date +%s.%N)" 'BEGIN { d = t0 + c - now; printf "%.3f", (d > 0 ? d : 0) }')"
+    wait_s="$(awk -v t0="$start" -v c="$cut" -v now="$EPOCHREALTIME" 'BEGIN { d = t0 + c - now; printf "%.3f", (d > 0 ? d : 0) }')"
     sleep "$wait_s"
-    ip -n "${ns[$cut_site]}" link set "${dev[$cut_site]}" down
-    at="$(date +%s.%N)"
-    echo "hosts.sh: link cut (${dev[$cut_site]} of $cut_site down) $(awk -v t0="$start" -v t="$at" 'BEGIN { printf "%.3f", t - t0 }') s after the rigs started (asked: $cut s), at wall time ${at/./} ns" >&2
+    kill -USR1 "$hub"
+    at="$EPOCHREALTIME"
+    echo "hosts.sh: link cut (${dev[$cut_site]} of $cut_site, both ways) $(awk -v t0="$start" -v t="$at" 'BEGIN { printf "%.3f", t - t0 }') s after the rigs started (asked: $cut s), at wall time ${at/./}000 ns" >&2
   )
 fi
 rc=0

@@ -36,7 +36,8 @@ def _run_and_cut(cwd, ros_env, out):
     err = proc.stderr
     assert 'Traceback' not in err
     assert proc.returncode == 0, err          # a safety function ended the run: a result
-    cut = re.search(r'link cut \(\S+ of pier_b down\) ([0-9.]+) s after the rigs started', err)
+    cut = re.search(r'link cut \(\S+ of pier_b, both ways\) ([0-9.]+) s after the rigs '
+                    r'started', err)
     assert cut, err
     names = subprocess.run(['ip', 'netns', 'list'], capture_output=True, text=True).stdout
     assert not re.search(_left_behind(err), names), names

@@ -116,9 +116,13 @@ def test_a_closed_receiver_counts_undeliverable(ends):
     (['--devices', 'a', 'b', '--delay-ms', '1', '--jitter-ms', '2'],
      'link_emulator: error: jitter 0.002 s: expected 0 .. delay'),
     (['--devices', 'x' * 20, 'b'], "link_emulator: error: cannot create TUN device 'xxxx"),
+    (['--devices', 'a', 'b', '--cut-on-signal', 'a'],
+     'link_emulator: error: --cut-on-signal: expected a hub (--port ...)'),
+    (['--port', 'hc,10.9.0.1,0,0,0', '--port', 'ha,10.9.0.2,5,1,0', '--cut-on-signal', 'hb'],
+     'link_emulator: error: --cut-on-signal hb: not a --port name (ports: hc, ha)'),
 ])
 def test_bad_arguments_are_one_line(args, text, capsys):
-    if os.geteuid() != 0 and '--jitter-ms' not in args:
+    if os.geteuid() != 0 and '--jitter-ms' not in args and '--cut-on-signal' not in args:
         text = 'link_emulator: error: cannot create TUN device'
     assert main(args) == 2
     err = capsys.readouterr().err.strip()
@@ -183,3 +187,38 @@ def test_the_hub_routes_through_the_compute_host_with_each_links_delay(star):
         assert want <= arrivals[host, payload] < want + 0.02, (host, payload)
     assert hub.unroutable == [0, 0, 2]
     assert hub.forwarded == [1, 4, 0]            # per copy: the discovery packet twice
+
+
+def test_a_cut_link_drops_everything_both_ways_at_once(star):
+    """Lab b's link (20 ms) cut while a packet to it and one from it are on their way: both
+    are lost, and so is what b sends or is sent after; lab a and the compute host go on."""
+    from seft_ros.cli.link_emulator import PacketHub
+    hosts, fds = star
+    models = [(None, None),
+              (LinkModel(0.010, seed=1, resend=False), LinkModel(0.010, seed=2, resend=False)),
+              (LinkModel(0.020, seed=3, resend=False), LinkModel(0.020, seed=4, resend=False))]
+    hub = PacketHub(fds, ADDRS, models)
+    hosts[0].send(_ipv4(ADDRS[0], ADDRS[2], b'to b, in flight'))
+    hosts[2].send(_ipv4(ADDRS[2], ADDRS[0], b'from b, in flight'))
+    hub.pump(0.0)
+    assert len(hub.queue) == 2
+    at = hub.cut(2)
+    assert hub.queue == [] and hub.cut(2) == at           # a cut link stays cut, once
+    hosts[0].send(_ipv4(ADDRS[0], ADDRS[2], b'to b, after'))
+    hosts[2].send(_ipv4(ADDRS[2], '239.255.0.1', b'from b, after'))   # 2 copies
+    hosts[1].send(_ipv4(ADDRS[1], '239.255.0.1', b'a, multicast'))    # b's copy lost
+    got = {i: [] for i in range(3)}
+
+    def receive():
+        for i in range(3):
+            got[i].extend(p[20:] for _, p in _recv_all(hosts[i]))
+    _pump_until(hub, lambda: got[0], receive)
+    time.sleep(0.05)
+    hub.pump(0.0)
+    receive()
+    assert got == {0: [b'a, multicast'], 1: [], 2: []}
+    assert hub.cut_off == [2, 1, 3] and hub.forwarded == [0, 1, 0]
+    assert hub.summary(['compute', 'lab_a', 'lab_b']).endswith(
+        'lab_b: 0 forwarded, 0 dropped, 0 undeliverable, 0 unroutable, 3 lost to the cut')
+    with pytest.raises(IndexError, match='host 3: expected 0..2'):
+        hub.cut(3)

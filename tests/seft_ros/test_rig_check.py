@@ -10,10 +10,12 @@ from pathlib import Path
 import re
 import sys
 
+import numpy as np
 import pytest
 from test_node_graph_integration import leftover_processes
 
-from seft_ros.core.rig_check import CHECKS
+from seft_ros.analysis.bag import read_signals
+from seft_ros.core.rig_check import CHECKS, TIMING_TOLERANCE_STEPS
 
 BROKEN = Path(__file__).with_name('broken_rig.py')
 
@@ -54,8 +56,20 @@ def test_seft_rigs_pass_every_check(model, tmp_path, run_process, seft_exe):
     # the numbers behind the lines
     assert checks['clock']['missing'] == 0 and abs(checks['clock']['period_s'] - 0.002) < 4e-5
     assert 0.95 < checks['static force']['gain'] <= 1.0
-    assert checks['command timing']['first_effect'] - checks['command timing']['command_step'] \
-        == (5 if model == 'delay' else 2)
+    # the step shows 5 (delay rig) or 2 (servohydraulic) samples after its command when the
+    # command reached the rig by the tick that applies it; one that missed it (its loop
+    # latency, in the rig's own timing record, over a period: this shared machine) acts from
+    # its arrival, later, within the check's tolerance
+    timing = checks['command timing']
+    nominal = 5 if model == 'delay' else 2
+    source = timing['command_step'] - (1 if model == 'delay' else 0)
+    rig_timing = read_signals(out / 'step' / 'bag').timing['rig']
+    latency_s = rig_timing.loop_latency_s[np.searchsorted(rig_timing.step, source)]
+    shown = timing['first_effect'] - timing['command_step']
+    if latency_s <= 0.002:
+        assert shown == nominal, (shown, latency_s)
+    else:
+        assert nominal < shown <= nominal + TIMING_TOLERANCE_STEPS, (shown, latency_s)
     for name in ('safe state: abort', 'safe state: stopped controller',
                  'safe state: watchdog'):
         assert checks[name]['reaction_s'] <= WATCHDOG_S + 0.004 and \
@@ -115,3 +129,20 @@ def test_rig_check_errors_are_one_line(args, message, tmp_path, run_process, sef
     proc = run_process([seft_exe, 'rig-check', '--out', tmp_path / 'c', *args], cwd=tmp_path)
     assert proc.returncode == 2 and 'Traceback' not in proc.stderr
     assert proc.stderr.strip().splitlines()[-1] == f'seft: error: {message}'
+
+
+def test_a_step_run_whose_clock_the_checker_missed_is_run_again():
+    """/clock is volatile and the rig does not wait for the checker's reader: a step run
+    whose samples the checker heard but none of whose /clock messages says nothing of the
+    rig's clock and is run again; one with /clock heard (from any tick on) is not."""
+    from seft_ros.cli.rig_check import _disturbed, _Run
+    from seft_ros.core.rig_check import CheckProfile
+    profile = CheckProfile(dt=0.002)
+    final = {'name': 'rig', 'state': 'done', 'published': '1000', 'message': 'done'}
+    run = _Run('step', {}, steps=np.arange(1000), statuses=[final])
+    assert 'none of the /clock messages' in _disturbed(run, profile)
+    run.clock_ns = [40_000_000, 60_000_000]        # matched late, from t = 0.04 s on
+    assert _disturbed(run, profile) is None
+    # a run with no samples heard at all is judged by the samples, not /clock
+    assert 'heard 0 of the 1000 samples' in _disturbed(_Run('step', {}, statuses=[final]),
+                                                     profile)

@@ -19,7 +19,11 @@ in the middle. Each lab's device has its own link to the hub (``--port
 NAME,ADDRESS,DELAY_MS,JITTER_MS,LOSS``): a packet from lab A to the compute host waits A's
 delay, one from the compute host to lab B waits B's, one from A to B both (the star's route
 through the compute host); a multicast packet (DDS discovery) goes to every other host, each
-copy with its route's delay. Packets are routed by their IPv4 destination.
+copy with its route's delay. Packets are routed by their IPv4 destination. ``--cut-on-signal
+NAME``: on SIGUSR1 the hub cuts NAME's link, both ways and at once (the packets on their way
+too; a cut link stays cut), and prints the wall time of the cut. Cutting the wire, not taking
+the device down: ``ip link set DEV down`` waits for the kernel's RCU grace periods, which a
+host saturated by SCHED_FIFO nodes stretched to 40-170 ms.
 
 Run (as root; the devices are created in this process's namespace, then moved):
 ``ros2 run seft_ros link_emulator --devices tl0 tc0 --delay-ms 5 --jitter-ms 1 --loss 0.01``
@@ -176,9 +180,12 @@ class PacketHub:
 
     Attributes
     ----------
-    forwarded, dropped, failed, unroutable : list of int
+    forwarded, dropped, failed, unroutable, cut_off : list of int
         Per sending host: packets written (per copy), lost by a model, not written (the
-        receiving device down: a cut link), and with no host to go to (or not IPv4).
+        receiving device down), with no host to go to (or not IPv4), and lost to a cut link
+        (:meth:`cut`: from or to a cut host, per copy).
+    cut_at : dict of int -> float
+        The hosts whose link is cut, and when [s, `clock`].
     """
 
     def __init__(self, fds, addresses, models, clock=time.monotonic):
@@ -189,7 +196,33 @@ class PacketHub:
         self.queue: list = []                  # heap of (departure [s], seq, to, from, packet)
         self._seq = 0
         n = len(self.fds)
-        self.forwarded, self.dropped, self.failed, self.unroutable = ([0] * n for _ in range(4))
+        self.forwarded, self.dropped, self.failed, self.unroutable, self.cut_off = (
+            [0] * n for _ in range(5))
+        self.cut_at: dict[int, float] = {}
+
+    def cut(self, i: int) -> float:
+        """Cut host `i`'s link to the hub, both ways, now: the packets it sent and those on
+        their way to it are dropped, and so is everything after (a cut link stays cut).
+        Returns the time of the cut [s, `clock`] (the first one's, if already cut).
+
+        Raises
+        ------
+        IndexError
+            No host `i`.
+        """
+        if not 0 <= i < len(self.fds):
+            raise IndexError(f'host {i}: expected 0..{len(self.fds) - 1}')
+        if i not in self.cut_at:
+            self.cut_at[i] = self.clock()
+            kept = []
+            for entry in self.queue:
+                if i in (entry[2], entry[3]):
+                    self.cut_off[entry[3]] += 1
+                else:
+                    kept.append(entry)
+            heapq.heapify(kept)
+            self.queue = kept
+        return self.cut_at[i]
 
     def routes(self, i: int, packet: bytes) -> list[int]:
         """The hosts a packet from host `i` goes to: its IPv4 destination's, or every other
@@ -214,12 +247,18 @@ class PacketHub:
             if not targets:
                 self.unroutable[i] += 1
                 continue
+            if i in self.cut_at:
+                self.cut_off[i] += len(targets)
+                continue
             up = self.models[i][0]
             t = self.clock() if up is None else up.departure(self.clock())
             if t is None:
                 self.dropped[i] += 1
                 continue
             for j in targets:
+                if j in self.cut_at:
+                    self.cut_off[i] += 1
+                    continue
                 down = self.models[j][1]
                 out = t if down is None else down.departure(t)
                 if out is None:
@@ -251,6 +290,7 @@ class PacketHub:
         return 'link emulator (hub): ' + '; '.join(
             f'{n}: {self.forwarded[i]} forwarded, {self.dropped[i]} dropped, '
             f'{self.failed[i]} undeliverable, {self.unroutable[i]} unroutable'
+            + (f', {self.cut_off[i]} lost to the cut' if self.cut_at else '')
             for i, n in enumerate(names))
 
 
@@ -284,6 +324,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--loss', type=float, default=0.0,
                    help='packet loss probability (a lost packet is dropped; DDS resends it)')
     p.add_argument('--seed', type=int, default=0, help='seed of the jitter and loss draws')
+    p.add_argument('--cut-on-signal', metavar='NAME',
+                   help="a hub's port (its device's name) whose link SIGUSR1 cuts, both ways")
     p.add_argument('--ready-file', type=Path,
                    help='written once both devices exist (for the script that moves them)')
     p.add_argument('--realtime-priority', type=int, default=WIRE_PRIORITY, metavar='N',
@@ -314,6 +356,11 @@ def _set_priority(priority: int) -> None:
 
 def _run_hub(a) -> int:
     """``--port ...``: the hub (:class:`PacketHub`)."""
+    names = [p[0] for p in a.port]
+    if a.cut_on_signal is not None and a.cut_on_signal not in names:
+        print(f'link_emulator: error: --cut-on-signal {a.cut_on_signal}: not a --port name '
+              f'(ports: {", ".join(names)})', file=sys.stderr)
+        return 2
     models = []
     try:
         for k, (name, _, delay, jitter, loss) in enumerate(a.port):
@@ -338,6 +385,16 @@ def _run_hub(a) -> int:
     stop = []
     for s in (signal.SIGINT, signal.SIGTERM):
         signal.signal(s, lambda *_: stop.append(True))
+    if a.cut_on_signal is not None:
+        k = names.index(a.cut_on_signal)
+
+        def cut(*_):
+            # in the signal handler: the cut takes effect before select() is entered again
+            if k not in hub.cut_at:
+                hub.cut(k)
+                print(f'link emulator (hub): {a.cut_on_signal} cut, both ways, at wall time '
+                      f'{time.time_ns()} ns', file=sys.stderr, flush=True)
+        signal.signal(signal.SIGUSR1, cut)
     if a.ready_file is not None:
         a.ready_file.write_text('ready\n')
     print('link emulator (hub): ' + ', '.join(f'{n} ({addr}) {d} ms +/- {j} ms, loss {p}'
@@ -355,6 +412,10 @@ def main(args=None) -> int:
     if bool(a.port) == bool(a.devices):
         print('link_emulator: error: give either --devices FIRST SECOND or --port ... (two '
               'or more)', file=sys.stderr)
+        return 2
+    if a.cut_on_signal is not None and not a.port:
+        print('link_emulator: error: --cut-on-signal: expected a hub (--port ...)',
+              file=sys.stderr)
         return 2
     if a.port:
         if len(a.port) < 2:

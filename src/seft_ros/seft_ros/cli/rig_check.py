@@ -315,10 +315,10 @@ FAULT_RETRIES = 2
 
 def _disturbed(run: '_Run', profile: rc.CheckProfile) -> str | None:
     """Why a run says nothing of the rig, or None: the checker heard the rig too late to time
-    the fault or heard less than half of the step run's samples (a slow discovery), one of
-    seft's own nodes lost an input before the fault, or the rig lost its commands in the step
-    run (a watchdog: this machine stalled the graph; a rig that never gets its commands fails
-    the second time too)."""
+    the fault, heard less than half of the step run's samples or none of its /clock messages
+    (a slow discovery), one of seft's own nodes lost an input before the fault, or the rig
+    lost its commands in the step run (a watchdog: this machine stalled the graph; a rig that
+    never gets its commands fails the second time too)."""
     late = run.fault_late_s(profile)
     if late is not None and late > LATE_FAULT_S:
         return f'the checker heard the rig {late:.2f} s late: the fault came late'
@@ -327,6 +327,12 @@ def _disturbed(run: '_Run', profile: rc.CheckProfile) -> str | None:
     if run.name == 'step' and published and run.steps.size < published // 2:
         return (f'the checker heard {run.steps.size} of the {published} samples (it '
                 'discovered the rig late)')
+    if run.name == 'step' and run.steps.size and not run.clock_ns:
+        # /clock is volatile (a sample is for the readers matched when it is sent) and the
+        # rig starts without waiting for the checker's reader: on a busy host it matched
+        # after the 2 s run (a rig that never publishes /clock fails the third time too)
+        return ('the checker heard the samples but none of the /clock messages (it '
+                "discovered the rig's /clock late)")
     if run.name == 'step' and str(final.get('message', '')).startswith(
             rig_contract.WATCHDOG_REASON):
         return f'the rig lost its commands ({final["message"]}): the graph stalled'
