@@ -74,8 +74,13 @@ def test_seft_rigs_pass_every_check(model, tmp_path, run_process, seft_exe):
                  'safe state: watchdog'):
         assert checks[name]['reaction_s'] <= WATCHDOG_S + 0.004 and \
             checks[name]['rest_value'] <= checks[name]['rest_limit'], name
-    # the watchdog's own time, less at most a period (abort_at_s is a sample's time)
-    assert checks['safe state: watchdog']['reaction_s'] >= WATCHDOG_S - 0.002
+    # the watchdog's own time: the rig's silence when it fired is never short of the limit
+    # (counted from the fault instead, this shared machine made it 46.3 ms: the checker
+    # heard the fault's sample, and stopped the node, a few ms after its last command)
+    silence = re.search(r'reason: watchdog: no \S+ for ([\d.]+) ms \(limit 50 ms\)',
+                        lines['safe state: watchdog'][1])
+    assert silence and float(silence.group(1)) >= 1e3 * WATCHDOG_S, \
+        lines['safe state: watchdog']
     for run in ('step', 'abort', 'stopped_controller', 'watchdog'):
         assert (out / run / 'bag' / 'metadata.yaml').is_file(), run
 

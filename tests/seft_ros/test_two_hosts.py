@@ -58,7 +58,7 @@ def _run_and_cut(cwd, ros_env, out):
     assert 'Traceback' not in err
     # a safety function ended the run: a result, as any aborted run (exit 0 on both hosts)
     assert proc.returncode == 0, err
-    cut = re.search(r'link cut \(.+ down\) .* at wall time (\d+) ns', err)
+    cut = re.search(r'link cut \(.+ of lab, both ways\) .* at wall time (\d+) ns', err)
     assert cut, err
     # nothing left behind: namespaces (and the devices in them) removed, no process
     names = subprocess.run(['ip', 'netns', 'list'], capture_output=True, text=True).stdout
