@@ -142,8 +142,8 @@ if [[ -n "$cut" ]]; then
   # priorities (SCHED_FIFO 99, where this host allows it; it sleeps nearly all the time) and
   # cuts the wire, not the device: the link emulator drops the lab's packets from SIGUSR1 on
   # ('ip link set DEV down' waits for the kernel's RCU grace periods, which the saturated
-  # host stretched: the cut came 40-170 ms after the command). No fork on the way (bash's
-  # own clock and kill).
+  # host stretched: the cut came 40-170 ms after the command). No fork between the wake-up
+  # and the cut (bash's own clock and kill).
   (
     chrt -f -p 99 "$BASHPID" >/dev/null 2>&1 || true
     start=""
@@ -158,7 +158,7 @@ if [[ -n "$cut" ]]; then
     [[ -n "$start" ]] || { echo "hosts.sh: no rig of $cut_site started: link not cut" >&2; exit 0; }
     wait_s="$(awk -v t0="$start" -v c="$cut" -v now="$EPOCHREALTIME" 'BEGIN { d = t0 + c - now; printf "%.3f", (d > 0 ? d : 0) }')"
     sleep "$wait_s"
-    kill -USR1 "$hub"
+    kill -USR1 "$hub" 2>/dev/null || { echo "hosts.sh: the link emulator is gone: link not cut" >&2; exit 0; }
     at="$EPOCHREALTIME"
     echo "hosts.sh: link cut (${dev[$cut_site]} of $cut_site, both ways) $(awk -v t0="$start" -v t="$at" 'BEGIN { printf "%.3f", t - t0 }') s after the rigs started (asked: $cut s), at wall time ${at/./}000 ns" >&2
   )

@@ -221,7 +221,7 @@ class PacketHub:
                 else:
                     kept.append(entry)
             heapq.heapify(kept)
-            self.queue = kept
+            self.queue[:] = kept               # in place: a signal handler may call this
         return self.cut_at[i]
 
     def routes(self, i: int, packet: bytes) -> list[int]:
@@ -279,6 +279,9 @@ class PacketHub:
         now = self.clock()
         while self.queue and self.queue[0][0] <= now:
             _, _, j, i, packet = heapq.heappop(self.queue)
+            if i in self.cut_at or j in self.cut_at:
+                self.cut_off[i] += 1           # queued as the cut came (from a signal)
+                continue
             try:
                 os.write(self.fds[j], packet)
                 self.forwarded[i] += 1
