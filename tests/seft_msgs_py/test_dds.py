@@ -35,6 +35,18 @@ def test_the_profile_asks_for_large_receive_buffers():
     assert size >= 4 * 212992                  # Linux's usual default (net.core.rmem_default)
 
 
+def test_the_profile_announces_a_new_participant_for_two_seconds():
+    root = ET.parse(dds.profile_path()).getroot()
+    first = root.find('f:participant/f:rtps/f:builtin/f:discovery_config/'
+                      'f:initialAnnouncements', NS)
+    count = int(first.find('f:count', NS).text)
+    period = first.find('f:period', NS)
+    seconds = int(period.find('f:sec', NS).text) + 1e-9 * int(period.find('f:nanosec', NS).text)
+    assert (count, seconds) == (dds.INITIAL_ANNOUNCEMENTS,
+                                pytest.approx(dds.INITIAL_ANNOUNCEMENT_PERIOD_S))
+    assert count * seconds >= 2.0               # Fast DDS's own: 5 every 0.1 s
+
+
 def test_the_profile_is_named_unless_the_user_named_one():
     env = {}
     assert dds.use_seft_profile(env) == str(dds.profile_path())
