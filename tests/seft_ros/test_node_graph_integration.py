@@ -117,9 +117,11 @@ def leftover_processes(marker: str) -> list[str]:
     return found
 
 
-def seft_run(seft_exe, run_process, out, *args):
-    """Run ``seft run`` and check it succeeded with every node in the bag."""
-    proc = run_process([seft_exe, 'run', *args, '--out', out], cwd=out.parent, timeout=120)
+def seft_run(seft_exe, run_process, out, *args, env=None):
+    """Run ``seft run`` (environment `env`, default the session's) and check it succeeded
+    with every node in the bag."""
+    proc = run_process([seft_exe, 'run', *args, '--out', out], cwd=out.parent, timeout=120,
+                       env=env)
     run = Run(out, proc)
     unheard = run.unheard_nodes()
     assert not unheard, RECORDER_RACE.format(', '.join(unheard)) + '\n' + proc.stderr
@@ -138,13 +140,15 @@ def servo(graph_dir, seft_exe, run_process):
 
 
 @pytest.fixture(scope='module')
-def servo_window(graph_dir, seft_exe, run_process):
+def servo_window(graph_dir, seft_exe, run_process, ros_env):
     # the lockstep flow control at work: 1000 steps with the smallest window the rig accepts
     # (it waits for the recorder's acknowledgements, which follow the record batches), into
-    # a sqlite3 bag
+    # a sqlite3 bag; the nodes executed as ros2 run would (SEFT_NODE_START=exec), not forked
+    # from the runner's fork server as in the other runs (seft_ros.cli.spawn)
     return seft_run(seft_exe, run_process, graph_dir / 'servo_window', '--alpha', '0.5',
                     '--duration', '2.0', '--rig', 'servohydraulic', '--set',
-                    'recorder_window_steps=100', '--set', 'bag_storage=sqlite3')
+                    'recorder_window_steps=100', '--set', 'bag_storage=sqlite3',
+                    env=dict(ros_env, SEFT_NODE_START='exec'))
 
 
 @pytest.fixture(scope='module')

@@ -152,6 +152,16 @@ def test_a_bad_ros_domain_id_is_one_error_line(tmp_path, ros_env, seft_exe, run_
     assert not list((tmp_path / 'out').rglob('*'))               # nothing started
 
 
+def test_an_unknown_node_start_method_is_one_error_line(tmp_path, ros_env, seft_exe,
+                                                      run_process):
+    proc = run_process([seft_exe, 'run', '--duration', '0.2', '--out', tmp_path / 'out'],
+                       cwd=tmp_path, env=dict(ros_env, SEFT_NODE_START='thread'))
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stderr.strip().splitlines() == [
+        "seft: error: SEFT_NODE_START='thread': expected one of fork, exec"]
+    assert not list((tmp_path / 'out').rglob('*'))               # nothing started
+
+
 def test_a_sweep_over_two_predictors_runs_both_graphs(tmp_path, seft_exe, run_process):
     """``--predictor none model`` at alpha = 1.5 on the delay rig: two graphs one after the
     other in one domain. 'none' diverges and is aborted (a result, not an error), 'model' then

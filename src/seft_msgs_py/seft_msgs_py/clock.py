@@ -17,7 +17,8 @@ import math
 import os
 import time
 
-__all__ = ['now_ns', 'system_ns', 'offset_ns', 'OFFSET_ENV', 'TEST_OFFSET_ENV']
+__all__ = ['now_ns', 'system_ns', 'offset_ns', 'read_environment', 'OFFSET_ENV',
+           'TEST_OFFSET_ENV']
 
 #: This host's clock minus the reference host's [ns] (set by ``seft run`` for its nodes).
 OFFSET_ENV = 'SEFT_CLOCK_OFFSET_NS'
@@ -38,8 +39,26 @@ def _env_ns(name: str, scale: float) -> int:
     return int(round(value))
 
 
-_TEST_NS = _env_ns(TEST_OFFSET_ENV, 1e9)
-_OFFSET_NS = _env_ns(OFFSET_ENV, 1.0)
+_TEST_NS = 0
+_OFFSET_NS = 0
+
+
+def read_environment() -> None:
+    """Take this process's offsets from its environment (:data:`OFFSET_ENV`,
+    :data:`TEST_OFFSET_ENV`): at import, and again when a node starts (a node forked from a
+    process that imported this module earlier, ``seft_ros.cli.spawn``, has its own).
+
+    Raises
+    ------
+    ValueError
+        A variable is set to something else than a finite number.
+    """
+    global _TEST_NS, _OFFSET_NS
+    _TEST_NS = _env_ns(TEST_OFFSET_ENV, 1e9)
+    _OFFSET_NS = _env_ns(OFFSET_ENV, 1.0)
+
+
+read_environment()
 
 
 def system_ns() -> int:

@@ -31,7 +31,7 @@ from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension, String
 
-from seft_msgs_py import parameters
+from seft_msgs_py import clock, parameters
 from seft_msgs_py.convert import (
     STATE_ABORTED,
     STATE_CLOSED,
@@ -700,6 +700,7 @@ def main_for(factory: Callable[[], SeftNode], name: str, args=None) -> int:
     # once): the first one asks the node to stop safely (:meth:`SeftNode.on_stop_signal`),
     # a second one ends the process now
     use_seft_profile()            # before the first participant (seft_msgs_py.dds)
+    clock.read_environment()      # this process's (a forked node's, seft_ros.cli.spawn)
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     stop: list[str] = []
 

@@ -16,6 +16,7 @@ from seft_msgs_py import parameters
 from seft_msgs_py.errors import InputError, SeftError
 from seft_ros.cli import api, partition
 from seft_ros.cli.config import load_config
+from seft_ros.cli.spawn import node_start
 
 __all__ = ['main', 'build_parser']
 
@@ -322,6 +323,7 @@ def _rig_check(args) -> int:
     profile = CheckProfile(dt=float(params['dt']), amplitude_N=args.amplitude,
                            sine_hz=args.sine_hz)
     api.check_domain(args.domain_id)
+    node_start()                                   # $SEFT_NODE_START, before anything runs
     out = api.output_dir(out=args.out, name='rig-check')
     report = rig_check.run_rig_check(params=params, out_dir=out, profile=profile,
                                      rig_command=args.rig_command,
@@ -369,6 +371,7 @@ def _main(args) -> int:
         else:
             if args.verb == 'run':
                 api.check_domain(args.domain_id)        # a bad domain before anything runs
+                node_start()                            # and a bad $SEFT_NODE_START
             runs, out, name = _experiments(args)
             _progress(f'{len(runs)} run(s) -> {out}')
             if args.verb == 'run':

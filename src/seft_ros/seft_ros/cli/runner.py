@@ -48,6 +48,8 @@ from seft_msgs_py.errors import SeftError
 from seft_msgs_py.graph import Graph, split_qualified
 from seft_msgs_py.topics import NODE_PARAMETERS, STATUS, TOPICS
 from seft_ros.cli.config import write_params_file
+from seft_ros.cli.spawn import prepare as prepare_nodes
+from seft_ros.cli.spawn import start_node
 
 __all__ = ['NODE_MODULES', 'RunOutcome', 'GraphRunner', 'node_command', 'RUNNER_NAME']
 
@@ -161,6 +163,8 @@ class GraphRunner:
                  localhost_default: bool = True):
         self.domain_id = domain_id
         self.progress = progress or (lambda text: None)
+        # the nodes' imports, once, while this runner starts and listens (cli/spawn.py)
+        prepare_nodes(tuple(NODE_MODULES.values()))
         use_seft_profile()    # this process's participant and the nodes it starts
         self.env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id))
         if localhost_default:
@@ -324,8 +328,8 @@ class GraphRunner:
             own = rig_files.get(rig) if kind in parameters.RIG_SCOPED_NODES else None
             argv = (commands[name](own or params_file) if commands and name in commands
                     else node_command(name, own or params_file))
-            procs[name] = subprocess.Popen(argv, env=env, stdout=logs[name],
-                                           stderr=subprocess.STDOUT)
+            procs[name] = start_node(argv, env, log_dir / log_name(name),
+                                     tuple(NODE_MODULES.values()))
 
         try:
             # every node at once (the recorder first): the rig starts its clock only when the
