@@ -157,7 +157,10 @@ def test_two_runners_split_the_graph_and_equal_simulate(tmp_path, seft_exe, ros_
     """``seft run --nodes`` twice in one domain, as on two hosts: the recorder's host writes
     the bag and the report, the other host's runner ends with the run; lockstep over the two
     equals ``seft simulate`` bit for bit."""
-    common = ['--alpha', '1', '--predictor', 'model', '--duration', '2']
+    # 10 s of record: the lockstep run lasts a few seconds, time for the lab's runner to hear
+    # its own rig (the 2 s record, forked nodes, ended in 0.4 s: 2 runs of 6 over before the
+    # lab's runner had discovered the rig: 'rig not heard', no final status in its outcome)
+    common = ['--alpha', '1', '--predictor', 'model', '--duration', '10']
     lab = subprocess.Popen(
         [str(seft_exe), 'run', '--nodes', 'force_servo_controller,rig', *common, '--out',
          str(tmp_path / 'lab')], cwd=tmp_path, env=ros_env, stdout=subprocess.PIPE,
@@ -185,9 +188,9 @@ def test_two_runners_split_the_graph_and_equal_simulate(tmp_path, seft_exe, ros_
     bag = next((tmp_path / 'compute').glob('*/bag'))
     assert (tmp_path / 'compute' / 'report.html').is_file()
     run = read_run(bag)
-    p = parameters.resolve({'alpha': 1.0, 'predictor': 'model', 'duration_s': 2.0})
+    p = parameters.resolve({'alpha': 1.0, 'predictor': 'model', 'duration_s': 10.0})
     sim = simulate(p)
-    assert run.n_steps == sim.n_steps
+    assert run.n_steps == sim.n_steps == 5000
     assert np.array_equal(run.displacement_m, sim.displacement_m)
     assert np.array_equal(run.reference_force_N, sim.reference_force_N)
 

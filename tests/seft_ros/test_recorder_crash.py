@@ -42,9 +42,17 @@ def _wait_for_rig(out, timeout=90.0) -> None:
 def test_a_killed_recorder_leaves_a_bag_that_seft_compare_reads(tmp_path, seft_exe, ros_env,
                                                                 run_process):
     out = tmp_path / 'run'
+    # a 60 s record of its own: the kill, 1.5 s after the rig starts, comes in the middle of
+    # the run (the embedded 10 s record ran in lockstep in 0.9-6 s on this machine and had at
+    # times ended before it)
+    record = tmp_path / 'long.csv'
+    t = np.arange(0.0, 60.0, 0.01)
+    record.write_text('time,acceleration\n' + '\n'.join(
+        f'{ti:.2f},{a:.6f}' for ti, a in zip(t, 2.0 * np.sin(2 * np.pi * 1.5 * t))))
     proc = subprocess.Popen(
-        [str(seft_exe), 'run', '--alpha', '0.5', '--duration', '10', '--rig', 'servohydraulic',
-         '--set', f'recorder_window_steps={WINDOW}', '--out', str(out)], cwd=tmp_path,
+        [str(seft_exe), 'run', '--alpha', '0.5', '--record', str(record), '--rig',
+         'servohydraulic', '--set', f'recorder_window_steps={WINDOW}', '--out', str(out)],
+        cwd=tmp_path,
         env=ros_env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
         start_new_session=True)
     try:

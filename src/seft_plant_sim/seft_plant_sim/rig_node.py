@@ -413,7 +413,7 @@ class RigNode(SeftNode):
         now = time.monotonic()
         silent = self.rig.silent_s(now)
         if silent > self.watchdog_s:
-            reason = (f'udp_bridge: no datagram from the controller for {1e3 * silent:.0f} '
+            reason = (f'udp_bridge: no datagram from the controller for {1e3 * silent:.1f} '
                       f'ms (limit {1e3 * self.watchdog_s:.0f} ms) after t = '
                       f'{self.rig.time_s:.3f} s')
             self._abort_realtime(reason)
