@@ -70,3 +70,40 @@ def test_the_last_steps_measurement_ends_the_watch(clock):
     clock[0] += 1.0
     dog.check()
     assert node.aborts == []
+
+
+def test_a_check_held_up_by_the_nodes_own_stall_reads_the_queue_first(clock):
+    """The node was stopped 1 s (its timer too): the first check after it judges nothing, the
+    measurements that waited in the queue are read, and the next check finds them in time;
+    a second held-up check in a row judges."""
+    node = FakeNode(0.2)
+    dog = InputWatchdog(node, ('measurement',))
+    dog.arm()
+    dog.feed('measurement', 0)
+    dog.check()
+    clock[0] += 1.0                           # SIGSTOP ... SIGCONT
+    dog.check()
+    assert node.aborts == []
+    dog.feed('measurement', 1)                # the queue, read after the held-up check
+    clock[0] += 0.01
+    dog.check()
+    assert node.aborts == []
+    clock[0] += 1.0                           # silent again, and the check held up again:
+    dog.check()                               # deferred once only
+    clock[0] += 0.25
+    dog.check()
+    assert len(node.aborts) == 1 and 'no measurement for 1260 ms' in node.aborts[0]
+
+
+def test_an_input_lost_while_the_node_stalled_is_caught_one_period_later(clock):
+    node = FakeNode(0.02)
+    dog = InputWatchdog(node, ('measurement',))
+    dog.arm()
+    dog.feed('measurement', 0)
+    dog.check()
+    clock[0] += 0.5                           # the node stalled, and nothing is queued
+    dog.check()
+    assert node.aborts == []
+    clock[0] += node.period_s
+    dog.check()
+    assert len(node.aborts) == 1 and 'no measurement for 510 ms (limit 20 ms' in node.aborts[0]

@@ -166,18 +166,18 @@ def _pid_of(node: str, marker: str) -> int:
     raise AssertionError(f'no {node} process for {marker}')
 
 
-def test_watchdog_takes_the_rig_to_its_safe_state(rt_dir, seft_exe, ros_env):
+def test_watchdog_takes_the_rig_to_its_safe_state(tmp_path, seft_exe, ros_env):
     """Freeze the reference-force builder (SIGSTOP, 1 s) on the delay rig: within the watchdog
     time the rig ramps the actuator force to zero over safe_ramp_s and the run ends aborted.
 
     The watchdog is set to 0.2 s here, not its 20 ms default: this shared virtual machine
     stalls a whole graph for tens of milliseconds now and then (docs: results, real time),
     and such a stall before the freeze would trip the default first."""
-    out = rt_dir / 'watchdog'
+    out = tmp_path / 'watchdog'       # a new folder when the test runs again (conftest)
     proc = subprocess.Popen(
         [str(seft_exe), 'run', '--mode', 'realtime', '--rig', 'delay', '--alpha', '0',
          '--duration', '8', '--amplitude', '400', '--set', 'safe_ramp_s=0.1', '--set',
-         'watchdog_timeout_s=0.2', '--out', str(out)], cwd=rt_dir, env=ros_env,
+         'watchdog_timeout_s=0.2', '--out', str(out)], cwd=tmp_path, env=ros_env,
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
     frozen = None
     try:
