@@ -24,7 +24,6 @@ def start(request, monkeypatch, tmp_path):
 
     def run(*args, env=None):
         log = tmp_path / f'{request.param}-{len(list(tmp_path.glob("*.log")))}.log'
-        log.write_text('')
         argv = [sys.executable, '-m', PROBE, *args]
         proc = spawn.start_node(argv, dict(env or {'SPAWN_PROBE': 'set'},
                                            PYTHONPATH=str(HERE)), log, (PROBE,))

@@ -316,12 +316,10 @@ class GraphRunner:
         self.status_pub = self.node.create_publisher(STATUS.msg_type, STATUS.name, STATUS.qos)
         procs: dict[str, subprocess.Popen] = {}
         self.procs = procs
-        logs = {}
         start = time.monotonic()
         outcome: dict = {'nodes': local, 'remote_nodes': remote, 'link': decision}
 
         def launch(name):
-            logs[name] = open(log_dir / log_name(name), 'w')
             rig, kind = split_qualified(name)
             # a rig's own nodes take its parameters; a builder (even in the rig's namespace)
             # and the other nodes the test's
@@ -361,8 +359,6 @@ class GraphRunner:
             raise
         finally:
             self._stop(procs)
-            for f in logs.values():
-                f.close()
             outcome.update(statuses=[{k: v for k, v in st.items() if k != 'received'}
                                      for st in self.statuses
                                      if st.get('state') not in (STATE_RUNNING, STATE_READY)])

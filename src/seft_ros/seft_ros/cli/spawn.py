@@ -124,10 +124,10 @@ def prepare(modules: Sequence[str]) -> None:
 
 
 def _run_module(module: str, argv: Sequence[str], env: Mapping[str, str],
-                log_fd_path: str) -> None:
+                log_path: str) -> None:
     """In the forked child: become ``python -m module argv...`` with `env`, output to the
     log, and exit with what the module's ``main()`` returns."""
-    fd = os.open(log_fd_path, os.O_WRONLY | os.O_APPEND)
+    fd = os.open(log_path, os.O_WRONLY | os.O_APPEND)
     os.dup2(fd, 1)
     os.dup2(fd, 2)
     os.close(fd)
@@ -148,7 +148,7 @@ def _run_module(module: str, argv: Sequence[str], env: Mapping[str, str],
 def start_node(argv: Sequence[str], env: Mapping[str, str], log_path, preload: Sequence[str]
                ) -> subprocess.Popen | NodeProcess:
     """Start a node whose command line is `argv` with environment `env`, its output (stdout
-    and stderr) appended to the file `log_path`.
+    and stderr) written to the file `log_path` (created, or emptied).
 
     `argv` of the form ``[python, '-m', module, *args]`` whose module is in `preload` is
     forked (``$SEFT_NODE_START`` fork); any other command, or ``exec``, is executed.
@@ -161,8 +161,8 @@ def start_node(argv: Sequence[str], env: Mapping[str, str], log_path, preload: S
     argv = [str(a) for a in argv]
     fork = (node_start() == 'fork' and len(argv) >= 3 and argv[0] == sys.executable
             and argv[1] == '-m' and argv[2] in preload)
-    if not fork:
-        with open(log_path, 'a') as log:
+    with open(log_path, 'w') as log:
+        if not fork:
             return subprocess.Popen(argv, env=dict(env), stdout=log, stderr=subprocess.STDOUT)
     ctx = _fork_context(preload)
     process = ctx.Process(target=_run_module, args=(argv[2], argv[3:], dict(env),
