@@ -85,16 +85,30 @@ def reference_params():
     return p
 
 
+def pytest_configure(config):
+    config.addinivalue_line(
+        'markers', 'wall_clock: runs the node graph on the wall clock (real time, several '
+        'hosts, rig-check); given by the module or the test name, not by hand. tools/test.sh '
+        'runs these one at a time after the rest (-m wall_clock / -m "not wall_clock")')
+
+
+@pytest.hookimpl(tryfirst=True)       # before pytest's own -m selection reads the markers
 def pytest_collection_modifyitems(config, items):
-    """Under pytest-xdist (``--dist loadgroup``), the tests that run the node graph over DDS in
-    real time or across network namespaces (the modules directly under tests/seft_ros/) go to
-    one worker, one after the other, so that two real-time graphs never share the two cores;
-    the rest (numerics, lockstep CLI runs, analysis) is spread over the workers."""
+    """Mark the node-graph tests (the modules directly under tests/seft_ros/) that run on the
+    wall clock ``wall_clock`` and give them a rerun (:data:`REALTIME_RERUNS`).
+
+    ``tools/test.sh`` runs the rest (numerics, CLI, analysis, lockstep graphs: nothing in
+    them depends on how fast the host is) on two pytest-xdist workers, then the
+    ``wall_clock`` tests alone, one after the other: two real-time graphs, or one and another
+    worker's load, on the two cores miss their deadlines. Under ``--dist loadgroup`` the
+    node-graph tests also go to one worker together (``xdist_group``).
+    """
     graph_dir = Path(__file__).resolve().parent / 'seft_ros'
     for item in items:
         if Path(str(item.fspath)).resolve().parent == graph_dir:
             item.add_marker(pytest.mark.xdist_group('node_graph'))
             if _on_the_wall_clock(item):
+                item.add_marker(pytest.mark.wall_clock)
                 item.add_marker(pytest.mark.flaky(reruns=REALTIME_RERUNS, reruns_delay=5))
 
 
@@ -113,8 +127,22 @@ REALTIME_MODULES = frozenset({'test_hosts', 'test_two_hosts', 'test_link_phase',
                               'test_runner_errors'})
 
 
+#: Tests of those modules that start no real-time graph: a bad option's one error line, a
+#: lockstep sweep, a unit test of a helper.
+OFF_THE_WALL_CLOCK = frozenset({
+    'test_rig_check_errors_are_one_line',
+    'test_a_step_run_whose_clock_the_checker_missed_is_run_again',
+    'test_a_bad_ros_domain_id_is_one_error_line',
+    'test_an_unknown_node_start_method_is_one_error_line',
+    'test_a_sweep_over_two_predictors_runs_both_graphs',
+    'test_discovery_settle_time_from_the_environment',
+    'test_emulator_and_bridge_errors_are_one_line'})
+
+
 def _on_the_wall_clock(item) -> bool:
     """Whether a node-graph test runs in real time (its module, or its name says so)."""
     name = item.name.lower()
+    if item.originalname in OFF_THE_WALL_CLOCK:
+        return False
     return (Path(str(item.fspath)).stem in REALTIME_MODULES or 'realtime' in name
             or 'real_time' in name)
