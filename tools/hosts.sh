@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Several emulated hosts on this machine, joined by network links, running one real-time test.
 #
-#   bash tools/hosts.sh [--partition loop_local|builder_remote] [--delay-ms D] [--jitter-ms J]
+#   bash tools/hosts.sh [--partition loop_local|builder_remote] [--processes loop|node]
+#                       [--delay-ms D] [--jitter-ms J]
 #                       [--loss P] [--link SITE=D[,J[,P]]]... [--cut-after S] [--cut-site SITE]
 #                       [--out DIR] [-- seft run options (a config, --alpha, --set, ...)]
 #
@@ -16,20 +17,25 @@
 # (shared memory would bypass the link). Each site runs
 # `seft run --mode realtime --partition P --site SITE ...`: the runners measure the links
 # (round trip, clock offset), agree on the playout delay and preview, and the compute host
-# writes the bag and the report. --cut-after S cuts a lab's link (both ways, in the link
-# emulator) S seconds after the rigs started (--cut-site, default the first lab). At the end it
-# prints what each host's kernel lost (UDP receive-buffer overflows, the link device's drops).
+# writes the bag and the report. Each lab's loop (its rig, force servo controller and
+# builder) runs in one process (--processes loop, the default: the bridge over three hosts
+# on two cores completed every run with it, and missed deadlines without; docs/network.md);
+# --processes node runs one process per node. --cut-after S cuts a lab's link (both ways,
+# in the link emulator) S seconds after the rigs started (--cut-site, default the first lab).
+# At the end it prints what each host's kernel lost (UDP receive-buffer overflows, the link
+# device's drops).
 # Everything this script creates is removed at the end, also on Ctrl-C or failure. Needs root
 # (ip netns, /dev/net/tun).
 set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
-partition=loop_local delay=0 jitter=0 loss=0 cut="" cut_site=""
+partition=loop_local processes=loop delay=0 jitter=0 loss=0 cut="" cut_site=""
 out="$root/runs/hosts"
 declare -A links=()
-usage() { sed -n '2,23p' "$0"; }
+usage() { sed -n '2,28p' "$0"; }
 while [[ $# -gt 0 ]]; do
   case "$1" in
     --partition) partition="$2"; shift 2 ;;
+    --processes) processes="$2"; shift 2 ;;
     --delay-ms) delay="$2"; shift 2 ;;
     --jitter-ms) jitter="$2"; shift 2 ;;
     --loss) loss="$2"; shift 2 ;;
@@ -42,6 +48,7 @@ while [[ $# -gt 0 ]]; do
     *) echo "hosts.sh: error: unknown option $1 (seft run options go after --)" >&2; exit 2 ;;
   esac
 done
+[[ "$processes" == loop || "$processes" == node ]] || { echo "hosts.sh: error: --processes $processes: expected loop or node" >&2; exit 2; }
 number() { [[ "$1" =~ ^[0-9]+([.][0-9]+)?$ ]] || { echo "hosts.sh: error: '$1': expected a number >= 0 ($2)" >&2; exit 2; }; }
 number "$delay" --delay-ms; number "$jitter" --jitter-ms; number "$loss" --loss
 [[ -z "$cut" ]] || number "$cut" --cut-after
@@ -123,14 +130,14 @@ domain=$((100 + RANDOM % 100))
 emulation="link emulator"
 summary="link: $emulation (a hub at compute);"
 for s in "${labs[@]}"; do IFS=, read -r d j p <<< "${links[$s]}"; summary+=" $s ${d} ms +/- ${j} ms loss $p;"; done
-echo "hosts.sh: partition $partition, domain $domain, network namespaces seft-*-$id; $summary" >&2
+echo "hosts.sh: partition $partition, processes $processes, domain $domain, network namespaces seft-*-$id; $summary" >&2
 
 pids=()
 for s in compute "${labs[@]}"; do
   ip netns exec "${ns[$s]}" env ROS_DOMAIN_ID="$domain" ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET \
     FASTDDS_BUILTIN_TRANSPORTS=UDPv4 PYTHONUNBUFFERED=1 SEFT_SITE="$s" \
     SEFT_LINK_EMULATION="$emulation" "$seft" run --mode realtime --partition "$partition" \
-    --site "$s" "$@" --out "$out/$s" > "$out/$s.txt" 2> "$out/$s.err" &
+    --processes "$processes" --site "$s" "$@" --out "$out/$s" > "$out/$s.txt" 2> "$out/$s.err" &
   pids+=($!)
 done
 

@@ -2,7 +2,8 @@
 # Two emulated hosts on this machine, joined by a network link, running one real-time test:
 # tools/hosts.sh with the study's single rig (a "lab" host and a "compute" host).
 #
-#   bash tools/two_hosts.sh [--partition loop_local|builder_remote] [--delay-ms D]
+#   bash tools/two_hosts.sh [--partition loop_local|builder_remote] [--processes loop|node]
+#                           [--delay-ms D]
 #                           [--jitter-ms J] [--loss P] [--cut-after S] [--out DIR]
 #                           [-- seft run options]
 #
@@ -20,7 +21,7 @@ while [[ $# -gt 0 ]]; do
   case "$1" in
     --out) out="$2"; shift 2 ;;
     --) break ;;
-    -h|--help) sed -n '2,14p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,15p' "$0"; exit 0 ;;
     *) args+=("$1"); shift ;;
   esac
 done

@@ -23,6 +23,7 @@ setup(
             'reference_force_builder = seft_ros.nodes.reference_force_builder:main',
             'force_servo_controller = seft_ros.nodes.force_servo_controller:main',
             'recorder = seft_ros.nodes.recorder:main',
+            'loop = seft_ros.nodes.loop:main',
             'link_emulator = seft_ros.cli.link_emulator:main',
         ],
     },

@@ -10,6 +10,7 @@ from collections import defaultdict
 import json
 import os
 from pathlib import Path
+import re
 
 import numpy as np
 import pytest
@@ -182,6 +183,15 @@ def servo_model(graph_dir, seft_exe, run_process):
 
 
 @pytest.fixture(scope='module')
+def servo_model_loop(graph_dir, seft_exe, run_process):
+    # servo_model with the rig, the controller and the builder in one process (seft run
+    # --processes loop, seft_ros.nodes.loop): the same graph, so the same run bit for bit
+    return seft_run(seft_exe, run_process, graph_dir / 'servo_model_loop', '--alpha', '1.5',
+                    '--duration', '1.0', '--rig', 'servohydraulic', '--predictor', 'model',
+                    '--processes', 'loop')
+
+
+@pytest.fixture(scope='module')
 def delay_adaptive(graph_dir, seft_exe, run_process):
     # compensated, nonlinear predictor, with the ground-motion preview (look-ahead samples)
     return seft_run(seft_exe, run_process, graph_dir / 'delay_adaptive', '--alpha', '1.0',
@@ -267,7 +277,7 @@ def test_servo_run_parameters_in_the_bag(servo):
 
 @pytest.mark.parametrize('which', ['servo', 'delay', 'servo_model', 'delay_adaptive',
                                    'servo_window', 'servo_velocity', 'servo_open_loop',
-                                   'servo_yielding'])
+                                   'servo_yielding', 'servo_model_loop'])
 def test_bag_equals_simulate(request, which):
     run = request.getfixturevalue(which)
     sim = run.sim
@@ -449,3 +459,22 @@ def test_simulate_bag_is_the_graph_bag(servo_open_loop, tmp_path):
         b = getattr(graph, attr)
         np.testing.assert_allclose(getattr(sim, attr), b, rtol=0,
                                    atol=1e-9 * np.max(np.abs(b)), err_msg=attr)
+
+
+def test_the_loop_nodes_ran_in_one_process(servo_model_loop):
+    """With --processes loop the study's rig, controller and builder were one process: each
+    node's log is a link to loop.log, which holds the three nodes' own lines, and each node
+    still reported (and recorded) under its own name."""
+    logs = servo_model_loop.bag.parent / 'logs'
+    for node in ('rig', 'force_servo_controller', 'reference_force_builder'):
+        assert (logs / f'{node}.log').is_symlink(), node
+        assert (logs / f'{node}.log').resolve() == (logs / 'loop.log').resolve()
+    assert not (logs / 'recorder.log').is_symlink()
+    assert not (logs / 'ground_motion_publisher.log').is_symlink()
+    text = (logs / 'loop.log').read_text()
+    assert re.search(r'^loop: reference_force_builder, force_servo_controller, rig in one '
+                     r'process \(pid \d+\)$', text, re.M), text
+    assert '[rig]: completed 500 steps' in text, text
+    finals = {m.name for _, m in servo_model_loop.messages['/seft/status']
+              if status_values(m).get('state') == 'done'}
+    assert {'rig', 'force_servo_controller', 'reference_force_builder'} <= finals

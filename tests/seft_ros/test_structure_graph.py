@@ -120,15 +120,39 @@ def test_two_story_graph_equals_simulate(runner, tmp_path):
     _same_run(rd, simulate_structure(rd.params))
 
 
-@pytest.mark.parametrize('builders,predictor,rig_b', [
-    ('central', 'model', 'servohydraulic'),
-    ('per_rig', 'model', 'servohydraulic'),
-    ('per_rig', 'model', 'delay'),
-])
-def test_bridge_on_two_rigs_equals_simulate(runner, tmp_path, builders, predictor, rig_b):
+@pytest.fixture
+def processes(request, runner):
+    """How the runner starts the nodes for this test (``node`` unless parametrized)."""
+    runner.processes = getattr(request, 'param', 'node')
+    yield runner.processes
+    runner.processes = 'node'
+
+
+@pytest.mark.parametrize('builders,predictor,rig_b,processes', [
+    ('central', 'model', 'servohydraulic', 'node'),
+    ('per_rig', 'model', 'servohydraulic', 'node'),
+    ('per_rig', 'model', 'delay', 'node'),
+    # each pier's builder, controller and rig in one process (seft run --processes loop)
+    ('per_rig', 'model', 'servohydraulic', 'loop'),
+    ('central', 'model', 'servohydraulic', 'loop'),
+], indirect=['processes'])
+def test_bridge_on_two_rigs_equals_simulate(runner, tmp_path, builders, predictor, rig_b,
+                                            processes):
     params = _params(tmp_path, BRIDGE.format(builders=builders, predictor=predictor,
                                              rig_b=rig_b))
     out = runner.run(params, tmp_path / 'run')
+    logs = tmp_path / 'run' / 'logs'
+    # the loop processes: a pier's nodes that run in its namespace, each node's log a link
+    together = {'pier_a': ['rig', 'force_servo_controller'] + (
+                    ['reference_force_builder'] if builders == 'per_rig' else []),
+                'pier_b': (['rig'] if rig_b == 'delay' else ['rig', 'force_servo_controller'])
+                + (['reference_force_builder'] if builders == 'per_rig' else [])}
+    for rig, kinds in together.items():
+        alone = processes == 'node' or len(kinds) == 1
+        for kind in kinds:
+            assert (logs / f'{rig}.{kind}.log').is_symlink() is not alone, (rig, kind)
+        assert (logs / f'{rig}.loop.log').exists() is not alone, rig
+    assert not (logs / 'recorder.log').is_symlink()
     assert out.rig_state in ('done', ''), out.message
     node_params = json.loads((tmp_path / 'run' / 'outcome.json').read_text())
     assert set(node_params['nodes']) >= {'pier_a/rig', 'pier_b/rig',

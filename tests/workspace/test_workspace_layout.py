@@ -16,7 +16,7 @@ PACKAGES = ('seft_msgs_py', 'seft_plant_sim', 'seft_ros')
 EXECUTABLES = {
     'seft_plant_sim': ('rig',),
     'seft_ros': ('ground_motion_publisher', 'reference_force_builder', 'force_servo_controller',
-                 'recorder', 'seft'),
+                 'recorder', 'loop', 'seft'),
 }
 
 

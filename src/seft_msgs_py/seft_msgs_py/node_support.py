@@ -15,7 +15,7 @@ import signal
 import sys
 import time
 import traceback
-from typing import Callable
+from typing import Callable, Sequence
 
 from rcl_interfaces.msg import (
     FloatingPointRange,
@@ -56,8 +56,8 @@ from seft_msgs_py.signals import (
 )
 from seft_msgs_py.topics import MEASUREMENT, NODE_PARAMETERS, STATUS, record_topic
 
-__all__ = ['SeftNode', 'StepTiming', 'RecordBatch', 'InputWatchdog', 'main_for', 'descriptor_of',
-           'LINGER_S']
+__all__ = ['SeftNode', 'StepTiming', 'RecordBatch', 'InputWatchdog', 'main_for',
+           'main_for_nodes', 'descriptor_of', 'LINGER_S']
 
 #: How long a finished node keeps serving its publishers before it exits [s].
 LINGER_S = 1.0
@@ -74,6 +74,9 @@ PRIORITY_OFFSET = {'rig': 3, 'force_servo_controller': 2, 'reference_force_build
                    'ground_motion_publisher': 1, 'recorder': -1}
 #: Start of the 'failed' status message of a node that refused differing parameters.
 MISMATCH_MESSAGE = 'parameters differ between nodes: '
+#: The ROS arguments of the node being created by :func:`main_for_nodes` (None: the
+#: process's own, as ``ros2 run`` gives them).
+_node_arguments: list[str] | None = None
 
 
 def descriptor_of(spec: parameters.ParamSpec) -> ParameterDescriptor:
@@ -126,6 +129,10 @@ class SeftNode(Node):
     """
 
     def __init__(self, node_name: str, **kwargs):
+        if _node_arguments is not None:
+            # one of several nodes of a process (main_for_nodes): its own ROS arguments
+            kwargs.setdefault('cli_args', list(_node_arguments))
+            kwargs.setdefault('use_global_arguments', False)
         super().__init__(node_name, **kwargs)
         self.kind = node_name
         namespace = self.get_namespace().strip('/')
@@ -708,13 +715,43 @@ class InputWatchdog:
 def main_for(factory: Callable[[], SeftNode], name: str, args=None) -> int:
     """Create the node, spin it until it finishes, shut down cleanly; return the exit code.
 
-    Uses rclpy's ``EventsExecutor`` (about twice the lockstep rate of the default executor
-    on two cores). It cannot be stopped from inside a callback, so the node sets ``done``
-    and this loop stops spinning. A node with a schedule (:meth:`SeftNode.next_due`) gets its
-    :meth:`SeftNode.run_due` called from this loop at absolute deadlines.
+    One node in its process, as ``ros2 run`` starts it: :func:`main_for_nodes` with the
+    process's arguments `args` (None: ``sys.argv``).
     """
+    return main_for_nodes([(factory, name, None)], args)
+
+
+def main_for_nodes(specs: Sequence[tuple[Callable[[], SeftNode], str, Sequence[str] | None]],
+                   args=None) -> int:
+    """Create the nodes, spin them in one executor until each has finished, shut down
+    cleanly; return the exit code (the first node's that is not 0, else 0).
+
+    Several nodes in one process are ROS 2's composition (``rclcpp_components``' container;
+    in Python, one executor with several nodes): the messages between them stay in the
+    process (Fast DDS delivers them within the participant), and one thread does the work
+    of all of them. Measured on the two-pier bridge over three hosts on this 2-core machine,
+    a lab's rig, force servo controller and builder in one process take 47 % of a core
+    against 55-60 % as three, and their links' round-trip p99 was 18-77 ms instead of
+    130-540 ms (``seft run --processes loop``, docs/network.md).
+
+    Uses rclpy's ``EventsExecutor`` (about twice the lockstep rate of the default executor
+    on two cores). It cannot be stopped from inside a callback, so a node sets ``done``
+    and this loop stops spinning it. A node with a schedule (:meth:`SeftNode.next_due`) gets
+    its :meth:`SeftNode.run_due` called from this loop at absolute deadlines (the earliest
+    of all the nodes' first). The process runs at the highest real-time priority of its
+    nodes (:meth:`SeftNode.apply_priority`).
+
+    Parameters
+    ----------
+    specs : sequence of (factory, name, node_args)
+        Each node's constructor, its name (error messages) and its ROS arguments
+        (``['--ros-args', '--params-file', ...]``; None: the process's own, `args`).
+    args : list of str, optional
+        The process's arguments for ``rclpy.init`` (None: ``sys.argv``).
+    """
+    global _node_arguments
     # SIGINT and SIGTERM are this loop's (rclpy's handlers would shut the context down at
-    # once): the first one asks the node to stop safely (:meth:`SeftNode.on_stop_signal`),
+    # once): the first one asks every node to stop safely (:meth:`SeftNode.on_stop_signal`),
     # a second one ends the process now
     use_seft_profile()            # before the first participant (seft_msgs_py.dds)
     clock.read_environment()      # this process's (a forked node's, seft_ros.cli.spawn)
@@ -727,25 +764,34 @@ def main_for(factory: Callable[[], SeftNode], name: str, args=None) -> int:
         stop.append(signal.Signals(signum).name)
 
     previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
-    node = None
+    nodes: list[SeftNode] = []
     code = 0
+    name = specs[0][1]
     try:
-        node = factory()
-        node.apply_priority()
-        if node.realtime:
+        for factory, name, node_args in specs:
+            _node_arguments = None if node_args is None else list(node_args)
+            try:
+                nodes.append(factory())
+            finally:
+                _node_arguments = None
+        max(nodes, key=lambda n: PRIORITY_OFFSET.get(n.kind, -99)).apply_priority()
+        if any(n.realtime for n in nodes):
             # the set-up's objects never need collecting again: move them out of the
             # collector's way, so that a run's collections stay short
             gc.collect()
             gc.freeze()
         executor = EventsExecutor()
-        executor.add_node(node)
+        for node in nodes:
+            executor.add_node(node)
         stop_handled = False
-        while not node.done:
+        while not all(n.done for n in nodes):
             if stop and not stop_handled:
                 stop_handled = True
-                node.guard(node.on_stop_signal)(stop[0])
+                for node in nodes:
+                    if not node.done:
+                        node.guard(node.on_stop_signal)(stop[0])
                 continue
-            due = node.next_due()
+            due, node = _next_due(nodes)
             if due is None:
                 executor.spin_once(timeout_sec=0.1)
                 continue
@@ -754,40 +800,65 @@ def main_for(factory: Callable[[], SeftNode], name: str, args=None) -> int:
                 executor.spin_once(timeout_sec=min(wait, 0.1))
             else:
                 node.run_due()
-        code = node.exit_code
+        code = _exit_code(nodes)
         # linger, so that the last samples and the final status reach their subscribers: with a
         # recorder in the graph, until it has closed the bag (a publisher that exits earlier
         # takes its unsent samples with it)
         start = time.monotonic()
-        heard_at = None
+        heard_at: dict[int, float] = {}
         while True:
             now = time.monotonic()
             waited = now - start
             if stop and (not stop_handled or waited > LINGER_S):
                 break                 # stopped by a signal: serve the final status briefly
-            if node.refused:
-                # a refusal: until every node of the graph has heard it (a node started later
-                # names the mismatch too, instead of waiting for a graph that is gone)
-                if heard_at is None and node.refusal_heard():
-                    heard_at = now
-                if waited > RECORDER_WAIT_S or (heard_at is not None
-                                                and now - heard_at > LINGER_S):
-                    break
-            else:
-                if waited > (RECORDER_WAIT_S if node.recorder_ready else LINGER_S):
-                    break
-                if node.recorder_ready and node.recorder_closed and waited > 0.2:
-                    break
+            if all(_lingered(n, now, waited, heard_at) for n in nodes):
+                break
             executor.spin_once(timeout_sec=0.05)
     except (KeyboardInterrupt, ExternalShutdownException):
-        code = 0 if node is None else node.exit_code
+        code = _exit_code(nodes)
     except SeftError as exc:
         print(f'{name}: error: {exc}', file=sys.stderr)
         code = 2
     finally:
-        if node is not None:
+        for node in nodes:
             node.destroy_node()
         rclpy.try_shutdown()
         for sig, handler in previous.items():
             signal.signal(sig, handler)
     return code
+
+
+def _next_due(nodes: Sequence[SeftNode]) -> tuple[float | None, SeftNode | None]:
+    """The earliest scheduled work of the unfinished nodes: (monotonic time, node), or
+    (None, None) when none has a schedule."""
+    best: tuple[float | None, SeftNode | None] = (None, None)
+    for node in nodes:
+        if node.done:
+            continue
+        due = node.next_due()
+        if due is not None and (best[0] is None or due < best[0]):
+            best = (due, node)
+    return best
+
+
+def _exit_code(nodes: Sequence[SeftNode]) -> int:
+    """The first node's exit code that is not 0, else 0."""
+    return next((n.exit_code for n in nodes if n.exit_code), 0)
+
+
+def _lingered(node: SeftNode, now: float, waited: float, heard_at: dict[int, float]) -> bool:
+    """Whether `node` has lingered long enough after the run (`waited` [s] since it ended).
+
+    After a refusal: until every node of the graph has heard it (a node started later names
+    the mismatch too, instead of waiting for a graph that is gone), at most
+    ``RECORDER_WAIT_S``. Otherwise until the recorder has closed the bag (at most
+    ``RECORDER_WAIT_S``), or ``LINGER_S`` without a recorder.
+    """
+    if node.refused:
+        if id(node) not in heard_at and node.refusal_heard():
+            heard_at[id(node)] = now
+        return waited > RECORDER_WAIT_S or (id(node) in heard_at
+                                            and now - heard_at[id(node)] > LINGER_S)
+    if waited > (RECORDER_WAIT_S if node.recorder_ready else LINGER_S):
+        return True
+    return node.recorder_ready and node.recorder_closed and waited > 0.2

@@ -448,12 +448,12 @@ def _read_outcome(outcome, label: str, progress: Callable[[str], None]) -> RunDa
     return rd
 
 
-def _run_here(runs, out_dir, progress, domain, nodes) -> Result | None:
+def _run_here(runs, out_dir, progress, domain, nodes, processes) -> Result | None:
     """Run this host's `nodes` of every run (the others run on other hosts); the report
     where the recorder runs (None elsewhere)."""
     from seft_ros.cli.runner import GraphRunner  # rclpy only for this verb
     t0 = time.monotonic()
-    runner = GraphRunner(domain, progress, localhost_default=False)
+    runner = GraphRunner(domain, progress, localhost_default=False, processes=processes)
     try:
         present = runner.present_nodes(nodes)
         if present:
@@ -547,9 +547,12 @@ def open_runner(*, domain_id: int | None = None, progress: Callable[[str], None]
 def run_experiments(*, runs: list[dict], out_dir: Path,
                     progress: Callable[[str], None] = print, title: str = '',
                     domain_id: int | None = None, force: bool = False,
-                    nodes: list[str] | None = None) -> Result | None:
+                    nodes: list[str] | None = None, processes: str = 'node') -> Result | None:
     """Run each parameter set as a node graph (separate processes over DDS), record a bag
     per run, read the bags back and write the report.
+
+    `processes` (``seft run --processes``): ``node``, one process per node; ``loop``, the
+    nodes of each rig's loop in one process (:data:`seft_ros.cli.runner.PROCESSES`).
 
     Before any node starts, :func:`check_stability` (`force`: warn instead of refusing).
 
@@ -563,22 +566,26 @@ def run_experiments(*, runs: list[dict], out_dir: Path,
     PredictedUnstableError
         A run is predicted unstable and `force` is False (nothing started).
     InputError
-        `nodes` names no node of the graph, or several hosts without a shared domain.
+        `nodes` names no node of the graph, several hosts without a shared domain, or
+        `processes` is not one of ``node``, ``loop``.
     SeftError
         A node failed, died, was stopped or the graph stalled (message names the node, when,
         and its log).
     """
+    if processes not in ('node', 'loop'):
+        raise InputError(f'--processes {processes}: expected node or loop')
     if nodes is not None:
         nodes = check_nodes(nodes, runs)
         check_stability(runs=runs, force=force, progress=progress)
         check_capacity(runs=runs, progress=progress)
-        return _run_here(runs, out_dir, progress, _shared_domain(domain_id), nodes)
+        return _run_here(runs, out_dir, progress, _shared_domain(domain_id), nodes, processes)
     t0 = time.monotonic()
 
     def checks():
         check_stability(runs=runs, force=force, progress=progress)
         check_capacity(runs=runs, progress=progress)
     runner, claim = open_runner(domain_id=domain_id, progress=progress, checks=checks)
+    runner.processes = processes
     data = []
     try:
         for p in runs:

@@ -112,6 +112,12 @@ def build_parser() -> argparse.ArgumentParser:
                      "'builder_remote' (the builder on the compute host)")
     run.add_argument('--site', metavar='SITE', help="start the nodes of this site of the "
                      "partition: 'compute', and 'lab' (the study's rig) or a structure's rig")
+    run.add_argument('--processes', choices=('node', 'loop'), default='node',
+                     help="'node' (default): one process per node, as ros2 run starts them; "
+                     "'loop': the nodes that close each rig's loop (its rig, force servo "
+                     'controller and the builder of its namespace) in one process, ROS 2 '
+                     'composition: less CPU, no transport between them (tools/hosts.sh '
+                     'uses it)')
     sites = sub.add_parser('sites', help='which nodes each host starts when a run is split over '
                            'hosts (the options of seft run; one line per site)')
     _experiment_options(sites)
@@ -377,7 +383,8 @@ def _main(args) -> int:
             if args.verb == 'run':
                 result = api.run_experiments(runs=runs, out_dir=out, progress=_progress,
                                              title=f'seft run {name}', domain_id=args.domain_id,
-                                             force=args.force, nodes=args.nodes)
+                                             force=args.force, nodes=args.nodes,
+                                             processes=args.processes)
                 if result is None:
                     print(f'this host ran {", ".join(args.nodes)}; the bag and the report are '
                           'on the host that ran the recorder')

@@ -62,6 +62,20 @@ NODE_MODULES = {
     'rig': 'seft_plant_sim.rig_node',
 }
 
+#: The module of the process that holds the nodes of one rig's loop (``--processes loop``).
+LOOP_MODULE = 'seft_ros.nodes.loop'
+#: What the fork server imports before the first node starts (cli/spawn.py).
+PRELOAD = (*NODE_MODULES.values(), LOOP_MODULE)
+#: How a runner starts the nodes of its host: ``node``, one process each (``ros2 run``'s
+#: way: a node can be stopped or killed alone); ``loop``, the nodes that close each rig's
+#: loop (the rig, its force servo controller and the builder of the rig's namespace; for the
+#: study's single rig, the three of the root namespace) in one process each (ROS 2
+#: composition, :mod:`seft_ros.nodes.loop`: less CPU and no transport between them; measured
+#: in docs/network.md). The recorder and the ground-motion publisher always run alone.
+PROCESSES = ('node', 'loop')
+#: The nodes ``--processes loop`` puts in a rig's loop process.
+LOOP_KINDS = ('reference_force_builder', 'force_servo_controller', 'rig')
+
 #: How long a node that exited cleanly without a report may take to be heard [s].
 EXITED_GRACE_S = 3.0
 #: Longest wait for the nodes to report ready [s].
@@ -120,6 +134,27 @@ def log_name(node: str) -> str:
     return node.replace('/', '.') + '.log'
 
 
+def loop_log_name(node: str) -> str:
+    """The log file of the loop process of `node`'s rig (``<rig>.loop.log``; ``loop.log``
+    for the study's single rig); each node's own log name links to it."""
+    rig, _ = split_qualified(node)
+    return f'{rig}.loop.log' if rig else 'loop.log'
+
+
+def loop_groups(nodes, exclude=()) -> list[list[str]]:
+    """The loop processes of ``--processes loop``: the nodes of :data:`LOOP_KINDS` among
+    `nodes`, grouped by namespace (a rig's, or the root namespace's for the study's single
+    rig), in that order; groups of one node, and the nodes in `exclude` (started with a
+    command of their own), are left to run alone."""
+    groups: dict[str, list[str]] = {}
+    for name in nodes:
+        rig, kind = split_qualified(name)
+        if kind in LOOP_KINDS and name not in exclude:
+            groups.setdefault(rig, []).append(name)
+    return [sorted(g, key=lambda n: LOOP_KINDS.index(split_qualified(n)[1]))
+            for g in groups.values() if len(g) > 1]
+
+
 def rig_params_files(params: dict, run_dir: Path) -> dict[str, Path]:
     """A structure run's parameter file per rig (``params_<rig>.yaml``: the run's parameters
     updated by the rig's section, :func:`~seft_ros.core.structure.rig_parameters`, for the
@@ -157,14 +192,26 @@ class GraphRunner:
     localhost_default : bool
         Where ``ROS_AUTOMATIC_DISCOVERY_RANGE`` is unset, keep discovery on this host (one
         host); False leaves ROS's default (the subnet), for runs over several hosts.
+    processes : {'node', 'loop'}
+        One process per node (``ros2 run``'s way, the default), or the nodes of each rig's
+        loop that run on this host (its rig, force servo controller and the builder of its
+        namespace) in one process (:mod:`seft_ros.nodes.loop`); see :data:`PROCESSES`.
+
+    Raises
+    ------
+    SeftError
+        `processes` is not one of :data:`PROCESSES`.
     """
 
     def __init__(self, domain_id: int, progress: Callable[[str], None] | None = None, *,
-                 localhost_default: bool = True):
+                 localhost_default: bool = True, processes: str = 'node'):
+        if processes not in PROCESSES:
+            raise SeftError(f'--processes {processes}: expected one of {", ".join(PROCESSES)}')
+        self.processes = processes
         self.domain_id = domain_id
         self.progress = progress or (lambda text: None)
         # the nodes' imports, once, while this runner starts and listens (cli/spawn.py)
-        prepare_nodes(tuple(NODE_MODULES.values()))
+        prepare_nodes(PRELOAD)
         use_seft_profile()    # this process's participant and the nodes it starts
         self.env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id))
         if localhost_default:
@@ -326,8 +373,22 @@ class GraphRunner:
             own = rig_files.get(rig) if kind in parameters.RIG_SCOPED_NODES else None
             argv = (commands[name](own or params_file) if commands and name in commands
                     else node_command(name, own or params_file))
-            procs[name] = start_node(argv, env, log_dir / log_name(name),
-                                     tuple(NODE_MODULES.values()))
+            procs[name] = start_node(argv, env, log_dir / log_name(name), PRELOAD)
+
+        def launch_loop(names):
+            # one process for the nodes of a rig's loop; each node's log is a link to its log
+            argv = [sys.executable, '-m', LOOP_MODULE]
+            for name in names:
+                rig, kind = split_qualified(name)
+                own = rig_files.get(rig) if kind in parameters.RIG_SCOPED_NODES else None
+                argv += ['--node', kind, *node_command(name, own or params_file)[3:]]
+            log = log_dir / loop_log_name(names[0])
+            proc = start_node(argv, env, log, PRELOAD)
+            for name in names:
+                link = log_dir / log_name(name)
+                link.unlink(missing_ok=True)
+                link.symlink_to(log.name)
+                procs[name] = proc
 
         try:
             # every node at once (the recorder first): the rig starts its clock only when the
@@ -335,8 +396,12 @@ class GraphRunner:
             # input path is matched, so the order of the start-ups does not matter; started
             # together they take the time of the slowest, not of all of them in turn
             rigs = set(self.graph.rig_nodes())
+            for names in (loop_groups(local, exclude=commands or ())
+                          if self.processes == 'loop' else []):
+                launch_loop(names)
             for name in sorted(local, key=lambda n: (n != 'recorder', n in rigs)):
-                launch(name)
+                if name not in procs:
+                    launch(name)
             self._wait_ready([n for n in local if n not in rigs], procs, log_dir)
             if remote:
                 self._wait_remote(remote, procs, log_dir, label)
@@ -441,6 +506,9 @@ class GraphRunner:
                 continue
             how = (f'was killed by {signal.Signals(-code).name}' if code < 0
                    else f'exited with code {code}')
+            together = [n for n, p in procs.items() if p is proc]
+            if len(together) > 1:
+                how = f'(one process with {", ".join(n for n in together if n != name)}) {how}'
             self._end_run(f'node {name} {how}', procs, failed_node=name)
             saved = ('the bag was not closed: seft compare recovers it up to at most the '
                      'last 0.25 s' if name == 'recorder' else 'the recording up to then is '
@@ -583,7 +651,9 @@ class GraphRunner:
         while time.monotonic() < deadline and any(p.poll() is None for p in procs.values()):
             self._spin(0.05)
         for sig, wait in ((signal.SIGINT, 10.0), (signal.SIGTERM, 5.0), (signal.SIGKILL, 5.0)):
-            alive = [p for p in procs.values() if p.poll() is None]
+            # one signal per process (a loop process holds several nodes: a second SIGINT
+            # would end it at once instead of safely)
+            alive = list({id(p): p for p in procs.values() if p.poll() is None}.values())
             if not alive:
                 return
             for p in alive:
