@@ -552,7 +552,7 @@ def run_experiments(*, runs: list[dict], out_dir: Path,
     per run, read the bags back and write the report.
 
     `processes` (``seft run --processes``): ``node``, one process per node; ``loop``, the
-    nodes of each rig's loop in one process (:data:`seft_ros.cli.runner.PROCESSES`).
+    nodes of each rig's loop in one process (``seft_ros.cli.runner.PROCESSES``).
 
     Before any node starts, :func:`check_stability` (`force`: warn instead of refusing).
 

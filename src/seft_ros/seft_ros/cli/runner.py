@@ -142,7 +142,7 @@ def loop_log_name(node: str) -> str:
 
 
 def loop_groups(nodes, exclude=()) -> list[list[str]]:
-    """The loop processes of ``--processes loop``: the nodes of :data:`LOOP_KINDS` among
+    """The loop processes of ``--processes loop``: the nodes of ``LOOP_KINDS`` among
     `nodes`, grouped by namespace (a rig's, or the root namespace's for the study's single
     rig), in that order; groups of one node, and the nodes in `exclude` (started with a
     command of their own), are left to run alone."""
@@ -195,12 +195,12 @@ class GraphRunner:
     processes : {'node', 'loop'}
         One process per node (``ros2 run``'s way, the default), or the nodes of each rig's
         loop that run on this host (its rig, force servo controller and the builder of its
-        namespace) in one process (:mod:`seft_ros.nodes.loop`); see :data:`PROCESSES`.
+        namespace) in one process (:mod:`seft_ros.nodes.loop`); see ``PROCESSES``.
 
     Raises
     ------
     SeftError
-        `processes` is not one of :data:`PROCESSES`.
+        `processes` is not one of ``PROCESSES``.
     """
 
     def __init__(self, domain_id: int, progress: Callable[[str], None] | None = None, *,
