@@ -38,11 +38,12 @@ def _wait_for_rig(out, timeout=90.0) -> float:
     raise AssertionError('the rig did not start')
 
 
-def _run_and_hit(seft_exe, ros_env, cwd, out, node, sig, extra, after_s=2.0, sim_s=1.5):
-    """``seft run`` the servohydraulic rig (30 s of record), send `sig` to `node` `after_s`
-    after the rig started and once the runner's progress lines report at least `sim_s` of
-    the record stepped (a lockstep graph on a loaded machine steps slower than real time);
-    return the finished process's (returncode, stdout, stderr)."""
+def _run_and_hit(seft_exe, ros_env, cwd, out, node, sig, extra, after_s=2.0, sim_s=1.5,
+                 module=None):
+    """``seft run`` the servohydraulic rig (30 s of record), send `sig` to `node` (or the
+    process of `module`) `after_s` after the rig started and once the runner's progress lines
+    report at least `sim_s` of the record stepped (a lockstep graph on a loaded machine steps
+    slower than real time); return the finished process's (returncode, stdout, stderr)."""
     proc = subprocess.Popen(
         [str(seft_exe), 'run', '--alpha', '0.5', '--duration', '30', '--out', str(out),
          *extra], cwd=cwd, env=ros_env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
@@ -67,7 +68,8 @@ def _run_and_hit(seft_exe, ros_env, cwd, out, node, sig, extra, after_s=2.0, sim
                 break
             time.sleep(0.05)
         try:
-            os.kill(_pid_of(node, str(out)), sig)
+            os.kill(_pid_of_module(module, str(out)) if module else _pid_of(node, str(out)),
+                    sig)
         except (AssertionError, ProcessLookupError):
             # the node has gone already: the run ended before the fault (a stall of this
             # shared machine in real time); the test sees that in the bag and skips
@@ -80,6 +82,20 @@ def _run_and_hit(seft_exe, ros_env, cwd, out, node, sig, extra, after_s=2.0, sim
             os.killpg(proc.pid, signal.SIGKILL)
             proc.wait()
     return proc.returncode, ''.join(lines), ''.join(errors)
+
+
+def _pid_of_module(module: str, marker: str) -> int:
+    """The process running ``python -m module`` for the run whose output path is `marker`."""
+    for cmd_pid in os.listdir('/proc'):
+        if not cmd_pid.isdigit():
+            continue
+        try:
+            cmd = open(f'/proc/{cmd_pid}/cmdline', 'rb').read().replace(b'\0', b' ').decode()
+        except OSError:
+            continue
+        if f'-m {module} ' in cmd and marker in cmd:
+            return int(cmd_pid)
+    raise AssertionError(f'no {module} process for {marker}')
 
 
 CASES = [
@@ -151,6 +167,36 @@ def test_a_failed_node_ends_the_run_safely_and_the_bag_reads(node, sig, mode, tm
         assert len(messages[topic]) >= run.n_steps, topic
     outcome = json.loads(next(out.glob('*/outcome.json')).read_text())
     assert node in outcome['error']
+
+
+def test_a_killed_loop_process_ends_the_run_and_names_its_nodes(tmp_path, seft_exe, ros_env):
+    """``--processes loop``: SIGKILL to the process that holds the study's builder, controller
+    and rig (lockstep) ends the run like a killed node: one error line naming the three and
+    when, no process left, the bag up to then readable and closed by the recorder. The kill
+    comes 0.3 s after the rig started: in one process the lockstep loop stepped the whole
+    30 s of record in 2 s (15,000 steps; 700-2,700 steps/s as three processes)."""
+    out = tmp_path / 'run'
+    code, stdout, stderr = _run_and_hit(
+        seft_exe, ros_env, tmp_path, out, None, signal.SIGKILL,
+        ['--mode', 'lockstep', '--time-scale', '2', '--processes', 'loop'],
+        module='seft_ros.nodes.loop', after_s=0.3, sim_s=0.0)
+    lines = [ln for ln in stderr.splitlines() if ln.startswith('seft: error:')]
+    assert 'Traceback' not in stderr
+    assert code == 2 and len(lines) == 1, stderr
+    assert lines[0].startswith('seft: error: node reference_force_builder (one process with '
+                               'force_servo_controller, rig) was killed by SIGKILL at t = '), \
+        lines[0]
+    assert leftover_processes(str(out)) == []
+    bag = next(out.glob('*/bag'))
+    run = read_run(bag)
+    assert run.stable is False and 'reference_force_builder' in (run.abort_reason or '')
+    assert 1.0 < run.unstable_at_s < 29.0
+    _, messages = read_bag(bag)
+    closed = [m for _, m in messages['/seft/status'] if m.name == 'recorder'
+              and dict((v.key, v.value) for v in m.values).get('state') == 'closed']
+    assert len(closed) == 1
+    for topic in DATA:
+        assert len(messages[topic]) >= run.n_steps, topic
 
 
 def test_two_runners_split_the_graph_and_equal_simulate(tmp_path, seft_exe, ros_env):
