@@ -12,7 +12,8 @@ bash tools/docs.sh    # the docs, warnings as errors: a broken reference or docs
 #    module on one worker (--dist loadscope: a module's shared graph runs once);
 # 2. the real-time tests (real time, several hosts, rig-check), one at a time and alone: a
 #    real-time graph sharing the two cores with another test misses its deadlines.
-# Measured on this 2-core host: 232 s + 346 s, against about 700 s in one process.
+# Measured on this 2-core host (fresh-clone CI, 2026-11-25): 249 s + 313 s, against about
+# 690 s in one process.
 # Options are passed to both phases (a -m or -n of yours replaces ours); both always run.
 workers="${SEFT_TEST_WORKERS:-2}"
 if ! [[ "$workers" =~ ^[1-9][0-9]*$ ]]; then
