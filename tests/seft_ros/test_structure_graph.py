@@ -274,6 +274,7 @@ def test_seft_run_and_compare_of_a_structure_config(seft_exe, run_process, tmp_p
     assert any(re.match(r'\s+1\s+model\s+True\s+-\s+story_2\s+-\s', ln) for ln in lines)
     summary = json.loads((out / 'summary.json').read_text())['runs']
     assert summary[0]['structure']['physical'] == {'story_1': 'lab'}
+    assert summary[0]['bag_lost_messages'] == 0         # the recorder's count, as for one rig
     assert (out / 'structure_model' / 'bag' / 'metadata.yaml').is_file()
     assert (out / 'report.html').is_file()
     again = tmp_path / 'compared'

@@ -88,8 +88,10 @@ def read_structure_run(path) -> StructureRunData:
         node published them) and the computational degrees of freedom's state over the
         analysed steps; ``extra`` holds ``'node_params'``, ``'parameter_mismatches'``,
         ``'rig_finals'`` (each rig's final status), ``'counts'``, ``'recovered'`` (the bag
-        was not closed), ``'node_statuses'`` (every status report, in order) and, in real
-        time, ``'timing_data'`` and ``'timing'`` per node.
+        was not closed), ``'node_statuses'`` (every status report, in order),
+        ``'bag_lost_messages'`` (what the nodes published and the bag does not hold, from
+        the recorder's 'closed' report; absent without one) and, in real time,
+        ``'timing_data'`` and ``'timing'`` per node.
 
     Raises
     ------
@@ -227,6 +229,9 @@ def read_structure_run(path) -> StructureRunData:
              'abort_node': aborted[0]['name'] if aborted else None}
     if link is not None:
         extra['link'] = link
+    closed = [s for s in statuses if s['name'] == 'recorder' and s.get('state') == 'closed']
+    if closed and 'lost' in closed[-1]:
+        extra['bag_lost_messages'] = int(closed[-1]['lost'])
     if params.get('mode') == 'realtime':
         rows = {}
         for stream in graph.record_streams():

@@ -285,10 +285,11 @@ def structure_summary_entry(run: StructureRunData,
         'nrms': {'displacement'}, 'dofs': {dof: {'rig', 'displacement', 'acceleration',
         'floor_acceleration', 'interface_force'}}, 'links': {name: {...}}, 'rigs': {rig:
         {'rig_model', 'criteria': {'J1', ..., 'J5'}}}}`` (and ``'timing'`` of a real-time
-        run). Each signal: ``nrms`` (after removing its own lag, a fraction),
-        ``peak_ratio``, ``lag_s`` [s], ``peak_test`` and ``peak_reference`` (SI),
-        ``nrms_unshifted``; ``interface_force`` is None at a computational DOF;
-        ``nrms.displacement`` is the largest over the DOFs. NaN and inf are None.
+        run, ``'bag_lost_messages'`` of a bag the recorder closed). Each signal: ``nrms``
+        (after removing its own lag, a fraction), ``peak_ratio``, ``lag_s`` [s],
+        ``peak_test`` and ``peak_reference`` (SI), ``nrms_unshifted``; ``interface_force``
+        is None at a computational DOF; ``nrms.displacement`` is the largest over the DOFs.
+        NaN and inf are None.
     """
     from seft_msgs_py.graph import Graph
     from seft_ros.core.structure import Structure
@@ -317,6 +318,8 @@ def structure_summary_entry(run: StructureRunData,
     }
     if run.extra.get('timing') is not None:
         entry['timing'] = run.extra['timing']
+    if run.extra.get('bag_lost_messages') is not None:
+        entry['bag_lost_messages'] = int(run.extra['bag_lost_messages'])
     link = link_summary(run.extra.get('link'), run.extra.get('timing'))
     if link is not None:
         entry['link'] = link
