@@ -727,12 +727,12 @@ def main_for_nodes(specs: Sequence[tuple[Callable[[], SeftNode], str, Sequence[s
     cleanly; return the exit code (the first node's that is not 0, else 0).
 
     Several nodes in one process are ROS 2's composition (``rclcpp_components``' container;
-    in Python, one executor with several nodes): the messages between them stay in the
-    process (Fast DDS delivers them within the participant), and one thread does the work
-    of all of them. Measured on the two-pier bridge over three hosts on this 2-core machine,
-    a lab's rig, force servo controller and builder in one process take 47 % of a core
-    against 55-60 % as three, and their links' round-trip p99 was 18-77 ms instead of
-    130-540 ms (``seft run --processes loop``, docs/network.md).
+    in Python, one executor with several nodes): one participant, so Fast DDS's
+    intra-process delivery (on by default) hands the messages between them over without a
+    transport, and one thread does the work of all of them, with no task switch between
+    them. Measured on the two-pier bridge over three hosts on this 2-core machine: a lab's
+    rig, force servo controller and builder take 47 % of a core as one process against
+    55-60 % as three (``seft run --processes loop``; docs/network.md, "Processes").
 
     Uses rclpy's ``EventsExecutor`` (about twice the lockstep rate of the default executor
     on two cores). It cannot be stopped from inside a callback, so a node sets ``done``
