@@ -20,7 +20,7 @@ if ! [[ "$workers" =~ ^[1-9][0-9]*$ ]]; then
     echo "tools/test.sh: error: SEFT_TEST_WORKERS=$workers: expected a number of workers >= 1" >&2
     exit 2
 fi
-pytest=(.venv/bin/python -m pytest tests -q -p no:cacheprovider)
+pytest=(.venv/bin/python -m pytest tests -q -p no:cacheprovider -rfER)   # -rfER: name failures, errors and reruns
 status=0
 "${pytest[@]}" -n "$workers" --dist loadscope -m 'not wall_clock' "$@" || status1=$?
 "${pytest[@]}" -m wall_clock "$@" || status2=$?
