@@ -68,8 +68,7 @@ def _run_and_hit(seft_exe, ros_env, cwd, out, node, sig, extra, after_s=2.0, sim
                 break
             time.sleep(0.05)
         try:
-            os.kill(_pid_of_module(module, str(out)) if module else _pid_of(node, str(out)),
-                    sig)
+            os.kill(_pid_of(node, str(out), module), sig)
         except (AssertionError, ProcessLookupError):
             # the node has gone already: the run ended before the fault (a stall of this
             # shared machine in real time); the test sees that in the bag and skips
@@ -82,20 +81,6 @@ def _run_and_hit(seft_exe, ros_env, cwd, out, node, sig, extra, after_s=2.0, sim
             os.killpg(proc.pid, signal.SIGKILL)
             proc.wait()
     return proc.returncode, ''.join(lines), ''.join(errors)
-
-
-def _pid_of_module(module: str, marker: str) -> int:
-    """The process running ``python -m module`` for the run whose output path is `marker`."""
-    for cmd_pid in os.listdir('/proc'):
-        if not cmd_pid.isdigit():
-            continue
-        try:
-            cmd = open(f'/proc/{cmd_pid}/cmdline', 'rb').read().replace(b'\0', b' ').decode()
-        except OSError:
-            continue
-        if f'-m {module} ' in cmd and marker in cmd:
-            return int(cmd_pid)
-    raise AssertionError(f'no {module} process for {marker}')
 
 
 CASES = [

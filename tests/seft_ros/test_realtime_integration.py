@@ -153,7 +153,10 @@ def test_realtime_summary_has_the_timing_block(rt_run):
     assert 'lat50ms' in proc.stdout
 
 
-def _pid_of(node: str, marker: str) -> int:
+def _pid_of(node: str, marker: str, module: str | None = None) -> int:
+    """The process of `node` (or of ``python -m module``) of the run whose output path is
+    `marker`."""
+    module = module or NODE_MODULES[node]
     for pid in os.listdir('/proc'):
         if not pid.isdigit():
             continue
@@ -161,9 +164,9 @@ def _pid_of(node: str, marker: str) -> int:
             cmd = Path(f'/proc/{pid}/cmdline').read_bytes().replace(b'\0', b' ').decode()
         except OSError:
             continue
-        if f'-m {NODE_MODULES[node]} ' in cmd and marker in cmd:
+        if f'-m {module} ' in cmd and marker in cmd:
             return int(pid)
-    raise AssertionError(f'no {node} process for {marker}')
+    raise AssertionError(f'no {node or module} process for {marker}')
 
 
 def test_watchdog_takes_the_rig_to_its_safe_state(tmp_path, seft_exe, ros_env):

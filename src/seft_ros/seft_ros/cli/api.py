@@ -21,6 +21,7 @@ from seft_msgs_py.sampling import single_blas_thread
 from seft_ros.analysis.bag import read_run
 from seft_ros.analysis.reference import reference_response
 from seft_ros.analysis.rundata import RunData
+from seft_ros.cli import partition
 from seft_ros.cli.config import expand_runs, load_config, write_params_file
 from seft_ros.core import stability
 from seft_ros.core.experiment import simulate
@@ -479,12 +480,13 @@ def _run_here(runs, out_dir, progress, domain, nodes, processes) -> Result | Non
 
 
 def open_runner(*, domain_id: int | None = None, progress: Callable[[str], None] = print,
-                checks: Callable[[], None] = lambda: None):
+                checks: Callable[[], None] = lambda: None, processes: str = 'node'):
     """A :class:`~seft_ros.cli.runner.GraphRunner` in a ROS domain of its own: claimed on this
     machine (``seft_msgs_py.domain``) and carrying no seft topics (nodes started by hand).
 
     `domain_id` (else ``ROS_DOMAIN_ID``, else a free one of ``RUN_DOMAINS``); `checks` runs
-    once while discovery settles (the pre-run checks). Returns ``(runner, claim)``; close
+    once while discovery settles (the pre-run checks); `processes`: how the runner starts
+    the nodes (``seft_ros.cli.partition.PROCESSES``). Returns ``(runner, claim)``; close
     both when done.
 
     Raises
@@ -518,7 +520,7 @@ def open_runner(*, domain_id: int | None = None, progress: Callable[[str], None]
                                 'another --domain-id') from None
             raise SeftError(f'no free ROS domain in {RUN_DOMAINS[0]}-{RUN_DOMAINS[-1]}: every '
                             f'one is claimed (lock files in {LOCK_DIR})') from None
-        runner = GraphRunner(domain, progress)
+        runner = GraphRunner(domain, progress, processes=processes)
         joined = time.monotonic()
         if not checked:
             # the pre-run checks while discovery settles in the background (DDS threads):
@@ -552,7 +554,7 @@ def run_experiments(*, runs: list[dict], out_dir: Path,
     per run, read the bags back and write the report.
 
     `processes` (``seft run --processes``): ``node``, one process per node; ``loop``, the
-    nodes of each rig's loop in one process (``seft_ros.cli.runner.PROCESSES``).
+    nodes of each rig's loop in one process (``seft_ros.cli.partition.PROCESSES``).
 
     Before any node starts, :func:`check_stability` (`force`: warn instead of refusing).
 
@@ -572,8 +574,9 @@ def run_experiments(*, runs: list[dict], out_dir: Path,
         A node failed, died, was stopped or the graph stalled (message names the node, when,
         and its log).
     """
-    if processes not in ('node', 'loop'):
-        raise InputError(f'--processes {processes}: expected node or loop')
+    if processes not in partition.PROCESSES:
+        raise InputError(f'--processes {processes}: expected '
+                         f'{" or ".join(partition.PROCESSES)}')
     if nodes is not None:
         nodes = check_nodes(nodes, runs)
         check_stability(runs=runs, force=force, progress=progress)
@@ -584,8 +587,8 @@ def run_experiments(*, runs: list[dict], out_dir: Path,
     def checks():
         check_stability(runs=runs, force=force, progress=progress)
         check_capacity(runs=runs, progress=progress)
-    runner, claim = open_runner(domain_id=domain_id, progress=progress, checks=checks)
-    runner.processes = processes
+    runner, claim = open_runner(domain_id=domain_id, progress=progress, checks=checks,
+                                processes=processes)
     data = []
     try:
         for p in runs:

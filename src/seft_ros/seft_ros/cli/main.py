@@ -112,7 +112,7 @@ def build_parser() -> argparse.ArgumentParser:
                      "'builder_remote' (the builder on the compute host)")
     run.add_argument('--site', metavar='SITE', help="start the nodes of this site of the "
                      "partition: 'compute', and 'lab' (the study's rig) or a structure's rig")
-    run.add_argument('--processes', choices=('node', 'loop'), default='node',
+    run.add_argument('--processes', choices=partition.PROCESSES, default=partition.PROCESSES[0],
                      help="'node' (default): one process per node, as ros2 run starts them; "
                      "'loop': the nodes that close each rig's loop (its rig, force servo "
                      'controller and the builder of its namespace) in one process, ROS 2 '

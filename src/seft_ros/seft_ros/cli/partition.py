@@ -31,11 +31,19 @@ from typing import Any, Mapping
 from seft_msgs_py.errors import InputError
 from seft_msgs_py.graph import CENTRAL, PER_RIG, Graph, qualified
 
-__all__ = ['PARTITIONS', 'DEFAULT_PARTITION', 'COMPUTE', 'LAB', 'partition_parameters',
-           'sites', 'site_nodes', 'loop_crosses_hosts']
+__all__ = ['PARTITIONS', 'DEFAULT_PARTITION', 'COMPUTE', 'LAB', 'PROCESSES',
+           'partition_parameters', 'sites', 'site_nodes', 'loop_crosses_hosts']
 
 #: The named partitions.
 PARTITIONS = ('loop_local', 'builder_remote')
+#: How a runner starts the nodes of its host (``seft run --processes``): ``node``, one
+#: process each (``ros2 run``'s way: a node can be stopped or killed alone); ``loop``, the
+#: nodes that close each rig's loop (the rig, its force servo controller and the builder of
+#: the rig's namespace; for the study's single rig, the three of the root namespace) in one
+#: process each (ROS 2 composition, :mod:`seft_ros.nodes.loop`: less CPU and no transport
+#: between them; measured in docs/network.md). The recorder and the ground-motion publisher
+#: always run alone. The first is the default.
+PROCESSES = ('node', 'loop')
 #: The partition of ``seft run --site`` and ``tools/two_hosts.sh`` unless told otherwise.
 DEFAULT_PARTITION = 'loop_local'
 #: The compute host's site.

@@ -48,6 +48,7 @@ from seft_msgs_py.errors import SeftError
 from seft_msgs_py.graph import Graph, split_qualified
 from seft_msgs_py.topics import NODE_PARAMETERS, STATUS, TOPICS
 from seft_ros.cli.config import write_params_file
+from seft_ros.cli.partition import PROCESSES
 from seft_ros.cli.spawn import prepare as prepare_nodes
 from seft_ros.cli.spawn import start_node
 
@@ -66,13 +67,6 @@ NODE_MODULES = {
 LOOP_MODULE = 'seft_ros.nodes.loop'
 #: What the fork server imports before the first node starts (cli/spawn.py).
 PRELOAD = (*NODE_MODULES.values(), LOOP_MODULE)
-#: How a runner starts the nodes of its host: ``node``, one process each (``ros2 run``'s
-#: way: a node can be stopped or killed alone); ``loop``, the nodes that close each rig's
-#: loop (the rig, its force servo controller and the builder of the rig's namespace; for the
-#: study's single rig, the three of the root namespace) in one process each (ROS 2
-#: composition, :mod:`seft_ros.nodes.loop`: less CPU and no transport between them; measured
-#: in docs/network.md). The recorder and the ground-motion publisher always run alone.
-PROCESSES = ('node', 'loop')
 #: The nodes ``--processes loop`` puts in a rig's loop process.
 LOOP_KINDS = ('reference_force_builder', 'force_servo_controller', 'rig')
 
@@ -195,12 +189,13 @@ class GraphRunner:
     processes : {'node', 'loop'}
         One process per node (``ros2 run``'s way, the default), or the nodes of each rig's
         loop that run on this host (its rig, force servo controller and the builder of its
-        namespace) in one process (:mod:`seft_ros.nodes.loop`); see ``PROCESSES``.
+        namespace) in one process (:mod:`seft_ros.nodes.loop`); see
+        ``seft_ros.cli.partition.PROCESSES``.
 
     Raises
     ------
     SeftError
-        `processes` is not one of ``PROCESSES``.
+        `processes` is not one of ``seft_ros.cli.partition.PROCESSES``.
     """
 
     def __init__(self, domain_id: int, progress: Callable[[str], None] | None = None, *,
@@ -366,22 +361,24 @@ class GraphRunner:
         start = time.monotonic()
         outcome: dict = {'nodes': local, 'remote_nodes': remote, 'link': decision}
 
-        def launch(name):
-            rig, kind = split_qualified(name)
+        def params_of(name):
             # a rig's own nodes take its parameters; a builder (even in the rig's namespace)
             # and the other nodes the test's
+            rig, kind = split_qualified(name)
             own = rig_files.get(rig) if kind in parameters.RIG_SCOPED_NODES else None
-            argv = (commands[name](own or params_file) if commands and name in commands
-                    else node_command(name, own or params_file))
+            return own or params_file
+
+        def launch(name):
+            argv = (commands[name](params_of(name)) if commands and name in commands
+                    else node_command(name, params_of(name)))
             procs[name] = start_node(argv, env, log_dir / log_name(name), PRELOAD)
 
         def launch_loop(names):
             # one process for the nodes of a rig's loop; each node's log is a link to its log
             argv = [sys.executable, '-m', LOOP_MODULE]
             for name in names:
-                rig, kind = split_qualified(name)
-                own = rig_files.get(rig) if kind in parameters.RIG_SCOPED_NODES else None
-                argv += ['--node', kind, *node_command(name, own or params_file)[3:]]
+                argv += ['--node', split_qualified(name)[1],
+                         *node_command(name, params_of(name))[3:]]
             log = log_dir / loop_log_name(names[0])
             proc = start_node(argv, env, log, PRELOAD)
             for name in names:

@@ -16,8 +16,9 @@ Usage (each ``--node`` is followed by that node's own ROS arguments)::
                            --node force_servo_controller --ros-args --params-file rig.yaml \\
                            -r __ns:=/pier_a
 
-A node that fails ends the process's other nodes with it (as a lab PC that stops): the
-runner then names every node of the process.
+A node that fails reports it on ``/seft/status`` as it would alone, and the others end
+the run as they would; a process that dies takes all its nodes with it (as a lab PC that
+stops), and the runner then names every node of the process.
 """
 
 import importlib
