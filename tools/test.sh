@@ -10,8 +10,9 @@ bash tools/docs.sh    # the docs, warnings as errors: a broken reference or docs
 # 1. everything that does not depend on how fast the host is (numerics, CLI, analysis,
 #    lockstep node graphs) on $SEFT_TEST_WORKERS pytest-xdist workers (default 2), each
 #    module on one worker (--dist loadscope: a module's shared graph runs once);
-# 2. the real-time tests (real time, several hosts, rig-check), one at a time and alone: a
-#    real-time graph sharing the two cores with another test misses its deadlines.
+# 2. the real-time tests (real time, several hosts, rig-check, the UDP bridge and the link
+#    emulator at their sockets), one at a time and alone: a real-time test sharing the two
+#    cores with another test misses its deadlines.
 # Measured on this 2-core host (fresh-clone CI, 2026-11-25): 249 s + 313 s, against about
 # 690 s in one process.
 # Options are passed to both phases (a -m or -n of yours replaces ours); both always run.
