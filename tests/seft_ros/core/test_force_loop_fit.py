@@ -40,3 +40,25 @@ def test_the_finer_fit_makes_model_closer_to_the_reference(alpha):
         errors[name] = compare_run(run).displacement.nrms
     assert errors['default'] > 0.003
     assert errors['fine'] < 0.5 * errors['default']
+
+
+def test_a_repeated_fit_is_the_same_inverse_with_its_own_state():
+    """The fits are kept by their exact inputs (a structure's stability check builds the same
+    inverse dozens of times): a kept fit equals a new one bit for bit, each inverse filters
+    with its own state and taps, and other inputs make another fit."""
+    from seft_ros.core import predictors
+    predictors._fit_loop_inverse.cache_clear()
+    first = _inverse()
+    again = _inverse()
+    assert predictors._fit_loop_inverse.cache_info().hits >= 1
+    predictors._fit_loop_inverse.cache_clear()
+    fresh = _inverse()
+    for inv in (again, fresh):
+        assert np.array_equal(inv.taps, first.taps) and inv.taps is not first.taps
+        assert (inv.band_error, inv.max_gain) == (first.band_error, first.max_gain)
+    again.taps[0] += 1.0                          # one inverse's taps are its own
+    assert _inverse().taps[0] == first.taps[0]
+    # each filters from its own empty state
+    assert [first.step(v) for v in (100.0, -50.0)] == [fresh.step(v) for v in (100.0, -50.0)]
+    assert fresh._x[:2] == [-50.0, 100.0] and again._x[0] == 0.0
+    assert not np.array_equal(_inverse(predictor_loop_delay_steps=12).taps, first.taps)
