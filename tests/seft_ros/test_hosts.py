@@ -63,6 +63,12 @@ def test_a_bridge_over_three_hosts_and_a_cut_link(tmp_path, ros_env):
     else:
         pytest.fail('both runs ended before the link was cut (the saturated three-host '
                     'bridge, docs/network.md): the cut was not tested')
+    # pier b, cut off from the recorder's host, ends its nodes once that host has been silent
+    # for REFERENCE_SILENT_S after they ended; pier a still hears it and waits for the bag
+    assert re.search(r'^pier_b: .*no word from the host with the recorder for [\d.]+ s '
+                     r'after the nodes here ended', err, re.MULTILINE), err
+    assert not re.search(r'^pier_a: .*no word from the host with the recorder', err,
+                         re.MULTILINE), err
     # every lab: its rig went to its safe state, and says why
     for site, other in (('pier_a', 'pier_b'), ('pier_b', 'pier_a')):
         outcome = json.loads(next(out.glob(f'{site}/*/outcome.json')).read_text())

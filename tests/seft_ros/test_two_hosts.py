@@ -93,6 +93,10 @@ def test_a_cut_link_ends_the_run_safely_on_both_hosts(tmp_path, ros_env):
     print(f'link cut detected {1e3 * detected_s:.1f} ms after the cut: '
           f'{lab["rig_final"]["message"]}')
     assert detected_s < 0.1, detected_s
+    # the lab, cut off from the recorder's host, ends its nodes once that host has been
+    # silent for REFERENCE_SILENT_S after they ended (they lingered 20 s for the bag before)
+    assert re.search(r'^lab: .*no word from the host with the recorder for [\d.]+ s after '
+                     r'the nodes here ended \(link or host lost\)', err, re.MULTILINE), err
 
     # the compute host: the run recorded as aborted, the bag complete up to the cut
     entry = json.loads((out / 'compute' / 'summary.json').read_text())['runs'][0]

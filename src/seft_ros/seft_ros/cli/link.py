@@ -16,7 +16,9 @@ Before their nodes start, the runners of a run over several hosts meet on DDS:
 4. every other runner waits for the decision and starts its nodes with it (the parameters of
    all hosts then agree) and its host's offset (:data:`~seft_msgs_py.clock.OFFSET_ENV`).
 
-During the run the reference pings every host once a second and publishes the link figures
+During the run the reference pings every host once a second (a host that stops hearing them
+after its own nodes have ended takes the reference for lost: :data:`REFERENCE_SILENT_S` in
+:mod:`seft_ros.cli.runner`) and publishes the link figures
 (``/seft/link``), which the recorder writes into the bag: round trip p50/p99/max and offset
 per host pair, and the emulation used (:data:`EMULATION_ENV`, which ``tools/hosts.sh`` sets).
 """
@@ -164,6 +166,8 @@ class LinkPhase:
         self.label = ''
         self.reference = False
         self.decision: dict | None = None
+        #: When this host last heard the reference (monotonic [s]; its decision, its pings)
+        self.reference_heard_at: float | None = None
         self.hello_pub = node.create_publisher(String, HELLO, _LATCHED)
         self.decision_pub = node.create_publisher(String, DECISION, _LATCHED)
         self.link_pub = node.create_publisher(String, LINK, _LATCHED)
@@ -193,6 +197,7 @@ class LinkPhase:
         doc = json.loads(msg.data)
         if doc.get('to') != self.site:
             return
+        self.reference_heard_at = time.monotonic()
         self._send(self.pong_pub, to=doc['from'], frm=self.site, seq=doc['seq'], t1=doc['t1'],
                    t2=t2, t3=clock.system_ns())
 
@@ -242,6 +247,7 @@ class LinkPhase:
                                     'there, in the same ROS domain?)')
                 self.spin(0.05)
             self.decision = self.decisions[label]
+            self.reference_heard_at = time.monotonic()
             return self.decision
         wanted = set(['recorder', *graph.nodes()])
         said = 0.0
@@ -289,6 +295,13 @@ class LinkPhase:
         return int(self.decision.get('offsets_ns', {}).get(self.site, 0))
 
     # -- during the run ---------------------------------------------------------------------
+
+    def reference_silent_s(self) -> float:
+        """How long this host has not heard the reference host [s]: since its last ping (once
+        a second during the run) or its decision; 0 on the reference itself."""
+        if self.reference or self.reference_heard_at is None:
+            return 0.0
+        return time.monotonic() - self.reference_heard_at
 
     def tick(self) -> None:
         """The reference: a ping to every host each second, the figures every 2 s."""

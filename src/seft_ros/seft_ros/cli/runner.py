@@ -78,6 +78,12 @@ STARTUP_TIMEOUT_S = 60.0
 REMOTE_TIMEOUT_S = 600.0
 #: Longest wait for the bag to close after the runner ended a run (a node died, Ctrl-C) [s].
 END_TIMEOUT_S = 15.0
+#: A host without the recorder whose nodes have all ended ends them at once when it has not
+#: heard the host with the recorder (its runner pings every host once a second) for this
+#: long [s]: the link or that host is lost, and nothing more reaches the bag. Otherwise its
+#: nodes linger until the recorder closes the bag (``RECORDER_WAIT_S`` of
+#: seft_msgs_py.node_support, 20 s): a lab whose link was cut waited those 20 s.
+REFERENCE_SILENT_S = 5.0
 #: Name of the runner's status reports.
 RUNNER_NAME = 'seft_runner'
 
@@ -626,12 +632,31 @@ class GraphRunner:
             if over or (recorded_here and self._closed_on_disk(procs)):
                 self._check_stopped()
                 return self._rig_final(heard_only=True) or {}
+            if not recorded_here and self._reference_lost(procs, label):
+                self._check_stopped()
+                return self._rig_final(heard_only=True) or {}
             if recorded_here and procs['recorder'].poll() is not None:
                 raise SeftError('the recorder exited before closing the bag: '
                                 f'{_last_line(log_dir / log_name("recorder"))}')
             if now - last_progress > STALL_TIMEOUT_S:
                 raise SeftError(f'the run stalled: no report for {STALL_TIMEOUT_S:.0f} s '
                                 f'(logs in {log_dir})')
+
+    def _reference_lost(self, procs, label: str) -> bool:
+        """On a host without the recorder: every node here has ended (a final status) and
+        the host with the recorder has been silent for :data:`REFERENCE_SILENT_S`; then say
+        so and stop this host's lingering nodes (one SIGINT each: they have ended, so they
+        exit at once, with their exit codes)."""
+        if self.link is None or self.link.reference_silent_s() <= REFERENCE_SILENT_S:
+            return False
+        if not all(self._latest(n, (STATE_DONE, STATE_ABORTED, STATE_FAILED)) for n in procs):
+            return False
+        self.progress(f'{label}no word from the host with the recorder for '
+                      f'{self.link.reference_silent_s():.1f} s after the nodes here ended '
+                      '(link or host lost): ending them; its bag holds what reached it')
+        for p in {id(p): p for p in procs.values() if p.poll() is None}.values():
+            p.send_signal(signal.SIGINT)
+        return True
 
     def _check_stopped(self) -> None:
         """A node stopped by a signal (SIGINT, SIGTERM) ended the run safely; the runner still
