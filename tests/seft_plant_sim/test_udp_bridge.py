@@ -23,7 +23,8 @@ WATCHDOG = 0.05
 
 class Proxy:
     """Forwards datagrams between the PC and the controller, each through a fault function
-    ``(index, data) -> [(delay_s, data), ...]`` per direction (default: as is)."""
+    ``(index, data) -> [(delay_s, data), ...]`` per direction (default: as is); what it
+    holds back (a delay) goes out in the order it came, later datagrams behind it."""
 
     def __init__(self, controller):
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -63,8 +64,16 @@ class Proxy:
             for delay, out in (fault(i, data) if fault else [(0.0, data)]):
                 if to is None:
                     continue
-                if delay > 0:
-                    self.held.append((time.monotonic() + delay, out, to))
+                # a link keeps the order of what it holds back: nothing overtakes a held
+                # datagram to the same address (the send time of one held after another is
+                # never earlier; with the test's busy loop holding the GIL, the thread took
+                # ms between a fault's delay and its hold, and a datagram that came after
+                # the stall's end went first, so that the bridge dropped the whole stall as
+                # older ones, 1 run in 8)
+                queued = [h[0] for h in self.held if h[2] == to]
+                if delay > 0 or queued:
+                    at = max([time.monotonic() + delay, *queued])
+                    self.held.append((at, out, to))
                 else:
                     self.sock.sendto(out, to)
 
