@@ -17,8 +17,8 @@ Before their nodes start, the runners of a run over several hosts meet on DDS:
    all hosts then agree) and its host's offset (:data:`~seft_msgs_py.clock.OFFSET_ENV`).
 
 During the run the reference pings every host once a second (a host that stops hearing them
-after its own nodes have ended takes the reference for lost: :data:`REFERENCE_SILENT_S` in
-:mod:`seft_ros.cli.runner`) and publishes the link figures
+after its own nodes have ended takes the reference for lost:
+``REFERENCE_SILENT_S`` of seft_ros.cli.runner) and publishes the link figures
 (``/seft/link``), which the recorder writes into the bag: round trip p50/p99/max and offset
 per host pair, and the emulation used (:data:`EMULATION_ENV`, which ``tools/hosts.sh`` sets).
 """
