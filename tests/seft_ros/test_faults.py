@@ -130,6 +130,12 @@ def test_a_failed_node_ends_the_run_safely_and_the_bag_reads(node, sig, mode, tm
     closed = [m for _, m in messages['/seft/status'] if m.name == 'recorder'
               and dict((v.key, v.value) for v in m.values).get('state') == 'closed']
     assert len(closed) == 1
+    # every node that lived reported its end (and its counts) before the bag closed: with the
+    # rig killed, the others take the runner's report of it for the rig's end (they waited
+    # for the rig's own, and the recorder closed the bag without them after 10 s)
+    alive = {'ground_motion_publisher', 'reference_force_builder', 'force_servo_controller',
+             'rig'} - {node}
+    assert alive <= set(done), (sorted(done), node)
     if node != 'rig':
         # the rig itself ended the run (its final status in the bag)
         assert rig.get('state') == 'aborted'

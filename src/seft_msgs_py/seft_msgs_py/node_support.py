@@ -376,10 +376,19 @@ class SeftNode(Node):
             self.t0_ns = int(values['t0_ns'])
         if master and state == STATE_RUNNING and 'n_steps' in values:
             self.run_steps = int(values['n_steps'])
+        ended = None
         if msg.name in self.graph.rig_nodes() and state in (STATE_DONE, STATE_ABORTED,
                                                             STATE_FAILED):
-            self.rigs_final.add(msg.name)
-        if (self.kind not in ('rig', 'recorder') and msg.name in self.graph.rig_nodes()
+            ended = msg.name
+        elif values.get('failed_node') in self.graph.rig_nodes() and state in (
+                STATE_ABORTED, STATE_FAILED):
+            # a runner's report of a rig that died: it will send no final status of its own
+            # (waiting for one, this node sent none either, and the recorder closed the bag
+            # without them after its FLUSH_TIMEOUT_S)
+            ended = values['failed_node']
+        if ended is not None:
+            self.rigs_final.add(ended)
+        if (self.kind not in ('rig', 'recorder') and ended is not None
                 and set(self.own_rigs()) <= self.rigs_final):
             self.report(STATE_DONE, 'rig finished', **self.final_counts())
             self.finish(0)
