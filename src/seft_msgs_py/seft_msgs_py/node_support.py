@@ -356,6 +356,8 @@ class SeftNode(Node):
             self.recorder_ready = True
             self.recorder_closed = (self.recorder_closed or status_values(msg).get('state')
                                     in (STATE_CLOSED, STATE_FAILED))
+        elif status_values(msg).get('failed_node') == 'recorder':
+            self.recorder_closed = True     # a runner's report: the recorder died
         self.guard(self._watch_run)(msg)
 
     def own_rigs(self) -> tuple[str, ...]:
