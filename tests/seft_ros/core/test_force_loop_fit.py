@@ -62,3 +62,9 @@ def test_a_repeated_fit_is_the_same_inverse_with_its_own_state():
     assert [first.step(v) for v in (100.0, -50.0)] == [fresh.step(v) for v in (100.0, -50.0)]
     assert fresh._x[:2] == [-50.0, 100.0] and again._x[0] == 0.0
     assert not np.array_equal(_inverse(predictor_loop_delay_steps=12).taps, first.taps)
+
+
+def test_an_impulse_response_of_two_dimensions_is_refused():
+    with pytest.raises(ValueError, match=r'impulse_response: expected one dimension, got '
+                                         r'shape \(2, 500\)'):
+        ForceLoopInverse(np.zeros((2, 500)), 0.002, 10)

@@ -917,11 +917,23 @@ class ForceLoopInverse:
         ``max |W T - z^-d|`` up to 25 Hz [-].
     max_gain : float
         ``max |W|`` [-].
+
+    Raises
+    ------
+    ValueError
+        `impulse_response` is not one-dimensional.
+
+    Notes
+    -----
+    The fits are kept by their exact inputs (the last 16): a second inverse of the same
+    response costs no least squares and has the same taps, bit for bit.
     """
 
     def __init__(self, impulse_response, dt: float, delay_steps: int, n_taps: int = 48,
                  band_hz: float = 40.0, hf_weight: float = 1e-3):
         y = np.asarray(impulse_response, dtype=float)
+        if y.ndim != 1:
+            raise ValueError(f'impulse_response: expected one dimension, got shape {y.shape}')
         taps, band_error, max_gain = _fit_loop_inverse(
             y.tobytes(), float(dt), int(delay_steps), int(n_taps), float(band_hz),
             float(hf_weight))
