@@ -390,8 +390,6 @@ class SeftNode(Node):
             ended = values['failed_node']
         if ended is not None:
             self.rigs_final.add(ended)
-        if self.done:
-            return                  # it has reported its end (lingering): not a second one
         if (self.kind not in ('rig', 'recorder') and ended is not None
                 and set(self.own_rigs()) <= self.rigs_final):
             self.report(STATE_DONE, 'rig finished', **self.final_counts())
