@@ -38,7 +38,8 @@ from seft_ros.analysis.timing import (
     timing_summary,
 )
 
-__all__ = ['read_run', 'BagSignals', 'read_signals', 'recording_end', 'rig_contract_of']
+__all__ = ['read_run', 'BagSignals', 'read_signals', 'recording_end', 'rig_contract_of',
+           'bag_lost_messages']
 
 _SCALARS = {s.name: s.field for s in (signals.CLOCK,) + signals.SCALAR_SIGNALS}
 _RECORD = {r.name: r for r in signals.RECORD_STREAMS}
@@ -589,9 +590,9 @@ def read_run(path) -> RunData:
              'parameter_mismatches': bag.parameter_mismatches,
              'wall_s': float(final['wall_s']) if 'wall_s' in final else None,
              'rig_contract': rig_contract_of(bag.statuses)}
-    closed = [s for s in bag.statuses if s['name'] == 'recorder' and s.get('state') == 'closed']
-    if closed and 'lost' in closed[-1]:
-        extra['bag_lost_messages'] = int(closed[-1]['lost'])
+    lost = bag_lost_messages(bag.statuses)
+    if lost is not None:
+        extra['bag_lost_messages'] = lost
     if p.get('mode') == 'realtime':
         extra['timing_data'] = bag.timing
         extra['timing'] = timing_summary(bag.timing)
@@ -624,6 +625,14 @@ def rig_contract_of(statuses, rig: str = 'rig') -> str | None:
     recorded before the contract existed, or a rig that does not follow it."""
     found = [s[CONTRACT_KEY] for s in statuses if s['name'] == rig and CONTRACT_KEY in s]
     return found[-1] if found else None
+
+
+def bag_lost_messages(statuses) -> int | None:
+    """What the nodes published and the bag does not hold, from the recorder's 'closed'
+    report (its last), or None: a bag the recorder did not close, or one recorded before it
+    reported the count."""
+    closed = [s for s in statuses if s['name'] == 'recorder' and s.get('state') == 'closed']
+    return int(closed[-1]['lost']) if closed and 'lost' in closed[-1] else None
 
 
 def _rig_end_step(final: dict, abort_at_s: float | None, dt: float) -> int | None:

@@ -229,9 +229,10 @@ def read_structure_run(path) -> StructureRunData:
              'abort_node': aborted[0]['name'] if aborted else None}
     if link is not None:
         extra['link'] = link
-    closed = [s for s in statuses if s['name'] == 'recorder' and s.get('state') == 'closed']
-    if closed and 'lost' in closed[-1]:
-        extra['bag_lost_messages'] = int(closed[-1]['lost'])
+    from seft_ros.analysis.bag import bag_lost_messages
+    lost = bag_lost_messages(statuses)
+    if lost is not None:
+        extra['bag_lost_messages'] = lost
     if params.get('mode') == 'realtime':
         rows = {}
         for stream in graph.record_streams():
