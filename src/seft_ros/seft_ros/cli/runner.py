@@ -647,14 +647,15 @@ class GraphRunner:
         the host with the recorder has been silent for :data:`REFERENCE_SILENT_S`; then say
         so and stop this host's lingering nodes (one SIGINT each: they have ended, so they
         exit at once, with their exit codes)."""
-        if self.link is None or self.link.reference_silent_s() <= REFERENCE_SILENT_S:
+        silent_s = 0.0 if self.link is None else self.link.reference_silent_s()
+        if silent_s <= REFERENCE_SILENT_S:
             return False
         if not all(self._latest(n, (STATE_DONE, STATE_ABORTED, STATE_FAILED)) for n in procs):
             return False
         self.progress(f'{label}no word from the host with the recorder for '
-                      f'{self.link.reference_silent_s():.1f} s after the nodes here ended '
+                      f'{silent_s:.1f} s after the nodes here ended '
                       '(link or host lost): ending them; its bag holds what reached it')
-        for p in {id(p): p for p in procs.values() if p.poll() is None}.values():
+        for p in _running(procs):
             p.send_signal(signal.SIGINT)
         return True
 
@@ -675,7 +676,7 @@ class GraphRunner:
         for sig, wait in ((signal.SIGINT, 10.0), (signal.SIGTERM, 5.0), (signal.SIGKILL, 5.0)):
             # one signal per process (a loop process holds several nodes: a second SIGINT
             # would end it at once instead of safely)
-            alive = list({id(p): p for p in procs.values() if p.poll() is None}.values())
+            alive = _running(procs)
             if not alive:
                 return
             for p in alive:
@@ -683,6 +684,12 @@ class GraphRunner:
             deadline = time.monotonic() + wait
             while time.monotonic() < deadline and any(p.poll() is None for p in alive):
                 time.sleep(0.05)
+
+
+def _running(procs) -> list:
+    """The processes of `procs` (node -> process) still running, each once (a loop process
+    holds several nodes, and a second SIGINT would end it at once instead of safely)."""
+    return list({id(p): p for p in procs.values() if p.poll() is None}.values())
 
 
 def _last_line(path: Path) -> str:
