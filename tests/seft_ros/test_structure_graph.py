@@ -194,6 +194,50 @@ def test_a_rig_at_its_limit_ends_every_rig_and_the_bag_reads(runner, tmp_path):
     assert not rd.stable and rd.abort_reason == f'pier_b/rig: {sim.abort_reason}'
     assert rd.unstable_at_s == pytest.approx(sim.n_steps * 0.002)
     _same_run(rd, sim)
+    # pier a ended on pier b's abort (it says so), after its samples of every step the run
+    # holds: its controller's valve command of the last step too, whichever report came first
+    assert finals['pier_a/rig']['ended_by'] == 'pier_b/rig'
+    assert 'ended_by' not in finals['pier_b/rig']
+    assert int(finals['pier_b/rig']['published']) == sim.n_steps
+    with Reader(out.bag_path) as reader:
+        counts = {c.topic: c.msgcount for c in reader.connections}
+    for topic in ('/pier_a/seft/valve_command', '/pier_a/seft/measured_force',
+                  '/pier_a/seft/reference_force', '/pier_b/seft/reference_force'):
+        assert counts[topic] >= sim.n_steps, topic
+    # a bag without that last valve command (a node lost with it) and with pier a's report
+    # first: the run still ended where pier b aborted, named as the cause
+    cut = _rewritten(out.bag_path, tmp_path / 'cut', sim.n_steps - 1)
+    rd = read_run(cut)
+    assert rd.n_steps == sim.n_steps - 1
+    assert rd.abort_reason == f'pier_b/rig: {sim.abort_reason}'
+    assert rd.unstable_at_s == pytest.approx(sim.n_steps * 0.002)
+
+
+def _rewritten(bag, dst, last_step):
+    """Copy `bag` without pier a's valve commands from `last_step` on, with pier b's final
+    status moved after every other message (the order a recorder may hear them in)."""
+    from rosbags.rosbag2 import Writer
+    from rosbags.typesys import Stores, get_typestore
+    store = get_typestore(Stores.ROS2_JAZZY)
+    held, end_ns = [], 0
+    with Reader(bag) as reader, Writer(dst, version=9) as writer:
+        conns = {c.topic: writer.add_connection(c.topic, c.msgtype, typestore=store)
+                 for c in reader.connections}
+        for conn, ns, raw in reader.messages():
+            end_ns = max(end_ns, ns)
+            msg = store.deserialize_cdr(raw, conn.msgtype)
+            if (conn.topic == '/pier_a/seft/valve_command'
+                    and msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
+                    >= last_step * 2_000_000):
+                continue
+            if conn.topic == '/seft/status' and msg.name == 'pier_b/rig' and any(
+                    kv.key == 'state' and kv.value == 'aborted' for kv in msg.values):
+                held.append((conns[conn.topic], raw))
+                continue
+            writer.write(conns[conn.topic], ns, raw)
+        assert len(held) == 1
+        writer.write(*held[0][:1], end_ns + 1, held[0][1])
+    return dst
 
 
 def test_a_rig_whose_specimen_disagrees_with_the_structure_is_refused(tmp_path):

@@ -72,6 +72,9 @@ RECORDER_WAIT_S = 20.0
 #: The study's single rig: unchanged (alpha 1, model: 0.40 %, 0.04 % stale).
 PRIORITY_OFFSET = {'rig': 3, 'force_servo_controller': 2, 'reference_force_builder': 2,
                    'ground_motion_publisher': 1, 'recorder': -1}
+#: Lockstep, a rig aborted the run: the longest a node waits for the inputs of the steps the
+#: run holds before it ends anyway (:meth:`SeftNode.end_after_drain`) [s].
+DRAIN_TIMEOUT_S = 2.0
 #: Start of the 'failed' status message of a node that refused differing parameters.
 MISMATCH_MESSAGE = 'parameters differ between nodes: '
 #: The ROS arguments of the node being created by :func:`main_for_nodes` (None: the
@@ -175,6 +178,12 @@ class SeftNode(Node):
         self.records: list[RecordBatch] = []
         #: The rigs (qualified names) whose final status has been heard.
         self.rigs_final: set[str] = set()
+        #: Lockstep, a rig aborted the run: that rig (named by its own final status or by
+        #: another rig's that passed it on) and, once its own final status is in, the steps
+        #: the run holds (its samples published; :meth:`note_run_end`).
+        self.run_end_rig: str | None = None
+        self.run_end_step: int | None = None
+        self.draining = False
 
     def record_stream(self, stream: RecordStream | None = None,
                       columns: tuple[str, ...] = ()) -> 'RecordBatch':
@@ -390,15 +399,75 @@ class SeftNode(Node):
             ended = values['failed_node']
         if ended is not None:
             self.rigs_final.add(ended)
+            self.note_run_end(msg)
         if (self.kind not in ('rig', 'recorder') and ended is not None
                 and set(self.own_rigs()) <= self.rigs_final):
-            self.report(STATE_DONE, 'rig finished', **self.final_counts())
-            self.finish(0)
+            self.end_after_drain(self._rig_finished)
         elif (msg.name == 'recorder' and state == STATE_CLOSED
               and self.kind not in ('rig', 'recorder')):
             # the bag closed without the rig's final status (rig or link lost): over too
             self.report(STATE_DONE, 'the recorder closed the bag', **self.final_counts())
             self.finish(0)
+
+    def note_run_end(self, msg) -> None:
+        """Lockstep: from a rig's 'aborted' or 'failed' final status, the rig whose abort
+        ended the run and the steps the run holds.
+
+        A rig that ends on another node's abort names it (``ended_by``); the rig that aborted
+        the run on its own names none, and its ``published`` is the run's steps: ``seft
+        simulate`` stops at the same step (its ``n_steps``), and every other node has the
+        inputs to publish its samples of those steps (:meth:`end_after_drain`). Status reports
+        from several writers arrive in any order: a rig that passed the abort on may be heard
+        before the rig that aborted.
+        """
+        values = status_values(msg)
+        if (self.realtime or msg.name not in self.graph.rig_nodes()
+                or values.get('state') not in (STATE_ABORTED, STATE_FAILED)):
+            return
+        by = values.get('ended_by')
+        if by is None:
+            self.run_end_rig = self.run_end_rig or msg.name
+            if 'published' in values:
+                step = int(values['published'])
+                self.run_end_step = step if self.run_end_step is None else min(
+                    self.run_end_step, step)
+        elif self.run_end_rig in (None, msg.name):
+            self.run_end_rig = by
+
+    def end_after_drain(self, end: Callable[[], None]) -> None:
+        """Call `end` now, or (lockstep, a rig aborted the run) once this node has published
+        its samples of every step the run holds.
+
+        The other nodes end on the aborting rig's report, which can reach them before their
+        last inputs (another writer, another topic): a controller then never sent the valve
+        command of the run's last step, and the bag lacked a step that ``seft simulate``
+        holds. Every input of those steps exists (the aborting rig took them in), so the wait
+        is short; after ``DRAIN_TIMEOUT_S`` (an input lost with a node) the node ends
+        anyway, and the bag holds what it holds.
+        """
+        if self.draining or self.done:
+            return
+        deadline = time.monotonic() + DRAIN_TIMEOUT_S
+
+        def drained() -> bool:
+            step = self.run_end_step
+            return (self.realtime or self.run_end_rig not in self.graph.rig_nodes()
+                    or (step is not None and self.published_count() >= step)
+                    or time.monotonic() > deadline)
+
+        def check():
+            if drained():
+                timer.cancel()
+                end()
+        if drained():
+            end()
+            return
+        self.draining = True
+        timer = self.wall_timer(0.002, check)
+
+    def _rig_finished(self) -> None:
+        self.report(STATE_DONE, 'rig finished', **self.final_counts())
+        self.finish(0)
 
     def abort_run(self, reason: str, step: int, **values) -> None:
         """Stop the run safely from this node: log, report 'aborted' with the step (and

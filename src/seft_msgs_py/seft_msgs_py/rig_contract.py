@@ -159,6 +159,10 @@ STATUS_KEYS = (
     StatusKey('abort_at_s', (sig.STATE_ABORTED,), 's', 'sample time at which the rig entered '
               'its safe state', 'real time'),
     StatusKey('published', _FINAL, '', 'samples published'),
+    StatusKey('ended_by', (sig.STATE_ABORTED,), '', 'the node whose abort ended the '
+              "rig's run (absent: the rig's own abort). Lockstep: a rig ending on "
+              "another rig's abort first publishes the samples the run holds, up to "
+              "that rig's `published`", 'another node aborted'),
 )
 
 #: The parameters every rig must accept (declare) and publish on /seft/node_parameters: the

@@ -144,6 +144,10 @@ class RigNode(SeftNode):
         self.running = False
         #: The signal that stopped the rig (SIGINT, SIGTERM), reported in its final status.
         self.stop_signal = None
+        #: The node whose abort ended this rig's run (None: its own), in its final status.
+        self.ended_by = None
+        #: Real time: why the rig went to its safe state (None: it has not).
+        self.abort_reason = None
         self.graph_names = graph_nodes(p, self.seft_name)
         #: The builders that read this rig's measurement, and its controller (if any).
         self.readers = (self.graph.builder_nodes() if self.graph.per_rig_builders
@@ -161,7 +165,6 @@ class RigNode(SeftNode):
             self.t0 = None                   # monotonic time of sample 0 [s]
             self.last_command_at = None      # monotonic time of the latest command [s]
             self.early_commands = []         # (stamp, value) received before the start
-            self.abort_reason = None
             self.abort_at_s = None
             self.safe_since = None           # plant time the safe ramp ended [s]
             self.timing_pending = {}         # sample -> record fields without the latency
@@ -298,12 +301,17 @@ class RigNode(SeftNode):
             self._schedule_start(int(values['start_at_ns']))
         if msg.name == 'ground_motion_publisher' and self.n_steps <= 0 and 'n_steps' in values:
             self.n_steps = int(values['n_steps'])
-        if msg.name != self.seft_name and state in (STATE_ABORTED, STATE_FAILED):
+        if (msg.name != self.seft_name and state in (STATE_ABORTED, STATE_FAILED)
+                and self.ended_by is None and self.abort_reason is None):
+            self.ended_by = msg.name
             reason = f'{msg.name}: {msg.message}'
             if self.realtime and self.running:
                 self._abort_realtime(reason)
             else:
-                self._end(STATE_ABORTED, reason)
+                # lockstep, on another rig's abort: first the samples of the steps the run
+                # holds (that rig took its commands of them in), as seft simulate has them
+                self.note_run_end(msg)
+                self.end_after_drain(lambda: self._end(STATE_ABORTED, reason))
 
     # -- lockstep ---------------------------------------------------------------------------
 
@@ -552,6 +560,10 @@ class RigNode(SeftNode):
         else:
             self._end(STATE_ABORTED, reason)
 
+    def published_count(self) -> int:
+        """Samples this rig published (its final status reports it)."""
+        return self.published
+
     def _end(self, state: str, message: str) -> None:
         if self.done:
             return
@@ -574,6 +586,8 @@ class RigNode(SeftNode):
             extra['wall_s'] = f'{time.monotonic() - self.wall_start:.3f}'
         if self.stop_signal:
             extra['signal'] = self.stop_signal
+        if self.ended_by is not None:
+            extra['ended_by'] = self.ended_by
         self.report(state, message, step=k, n_steps=self.n_steps,
                     time_s=f'{k * self.rig.dt:.6f}', published=self.published,
                     mode=self.params['mode'],

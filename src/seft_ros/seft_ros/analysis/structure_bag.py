@@ -68,6 +68,17 @@ def is_structure_bag(path) -> bool:
     return bool(params) and params.get('structure', 'none') not in ('none', '', None)
 
 
+def _first_abort(aborted: list[dict]) -> dict | None:
+    """The report of the node that aborted first, of the 'aborted'/'failed' reports in bag
+    order: the first whose message does not pass on another's (a node ending on another's
+    abort reports ``'<that node>: <its message>'``, and the bag may hold it first)."""
+    names = {s['name'] for s in aborted}
+    for s in aborted:
+        if not any(s['message'].startswith(f'{name}: ') for name in names - {s['name']}):
+            return s
+    return aborted[0] if aborted else None
+
+
 def _stamp(msg) -> int:
     return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
 
@@ -176,9 +187,9 @@ def read_structure_run(path) -> StructureRunData:
     if aborts:
         n = max(1, min(n, int(round(min(aborts) / dt))))
     aborted = [s for s in statuses if s.get('state') in ('aborted', 'failed')]
-    stable, reason = not aborted, None
-    if aborted:
-        reason = f"{aborted[0]['name']}: {aborted[0]['message']}"
+    stable, reason, first = not aborted, None, _first_abort(aborted)
+    if first is not None:
+        reason = f"{first['name']}: {first['message']}"
     elif not all(rig_finals.values()):
         stable = False
         reason = ('recorder: the recording ended in a crash (recorder killed)'
@@ -200,6 +211,13 @@ def read_structure_run(path) -> StructureRunData:
                         if s['name'] == 'ground_motion_publisher' and s.get('record')),
                        Path(str(params['record'])).stem)
     unstable_at_s = None if stable else (min(aborts) if aborts else n * dt)
+    origin = rig_finals.get(first['name']) if first is not None else None
+    if not aborts and origin is not None and 'step' in origin:
+        # lockstep: the rig that aborted first says where the run ended; the other nodes
+        # end on its report, which may overtake their last inputs (the bag then lacks
+        # that step of, say, a controller's valve command), as read_run does
+        unstable_at_s = max(n, min(int(origin['step']),
+                                   int(origin.get('n_steps', origin['step'])))) * dt
     rigs = {}
     for j, r in enumerate(graph.rigs):
         names = per_rig[r]
