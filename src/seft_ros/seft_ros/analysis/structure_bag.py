@@ -213,9 +213,9 @@ def read_structure_run(path) -> StructureRunData:
     unstable_at_s = None if stable else (min(aborts) if aborts else n * dt)
     origin = rig_finals.get(first['name']) if first is not None else None
     if not aborts and origin is not None and 'step' in origin:
-        # lockstep: the rig that aborted first says where the run ended; the other nodes
-        # end on its report, which may overtake their last inputs (the bag then lacks
-        # that step of, say, a controller's valve command), as read_run does
+        # lockstep: the rig that aborted first says where the run ended, even where the bag
+        # lacks a node's last samples (a node that ended without them: lost, or past
+        # DRAIN_TIMEOUT_S), as read_run does
         unstable_at_s = max(n, min(int(origin['step']),
                                    int(origin.get('n_steps', origin['step'])))) * dt
     rigs = {}
