@@ -109,14 +109,14 @@ def test_broken_rigs_fail_naming_the_check(mode, model, runs, check, measured, t
     measured_checks = {n: v for n, (v, t) in lines.items() if not t.startswith('not measured')}
     failed = sorted(n for n, v in measured_checks.items() if v == 'FAIL')
     if mode == 'late_clock':      # a slow clock also makes the commands late
-        assert set(failed) <= {'clock', 'command timing'} and 'clock' in failed
+        assert set(failed) <= {'clock', 'command timing'} and 'clock' in failed, proc.stdout
     elif mode == 'no_safe_state' and model == 'servohydraulic':
         rest = json.loads((out / 'rig_check.json').read_text())
         values = {c['name']: c['values'] for c in rest['checks']}[check]
         assert values['rest_value'] > values['rest_limit']
-        assert failed == [check]
+        assert failed == [check], proc.stdout
     else:
-        assert failed == [check]
+        assert failed == [check], proc.stdout
     assert f'failed: {check}' in proc.stdout or f', {check}' in proc.stdout
 
 
