@@ -136,6 +136,56 @@ def test_rig_check_errors_are_one_line(args, message, tmp_path, run_process, sef
     assert proc.stderr.strip().splitlines()[-1] == f'seft: error: {message}'
 
 
+def test_the_tap_drops_what_an_earlier_run_sent():
+    """A reader matched late takes the rig's history at once, and what the middleware holds
+    is taken in the next spin: samples and /clock of an earlier run or attempt reach the tap
+    after it began the next one. They are told apart by their send time and dropped (taken,
+    they would count as this run's: samples repeated, /clock off its grid)."""
+    from rclpy.serialization import serialize_message
+    from rosgraph_msgs.msg import Clock
+
+    from seft_msgs_py import parameters
+    from seft_msgs_py.graph import Graph
+    from seft_msgs_py.topics import MEASUREMENT
+    from seft_ros.cli.rig_check import _Tap
+
+    class Node:
+        callbacks = {}
+
+        def create_subscription(self, msg_type, topic, callback, qos, raw=False):
+            self.callbacks[topic] = callback
+
+    runner = type('Runner', (), {'node': Node()})()
+    tap = _Tap(runner, Graph.from_parameters(parameters.resolve({})))
+    tap.reset(2_000_000)
+    began = tap.since_ns
+
+    def measurement(k):
+        msg = MEASUREMENT.msg_type()
+        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(k * 2_000_000, 10**9)
+        msg.name, msg.position = ['force_N'], [float(k)]
+        return serialize_message(msg)
+
+    def clock_msg(k):
+        msg = Clock()
+        msg.clock.sec, msg.clock.nanosec = divmod(k * 2_000_000, 10**9)
+        return serialize_message(msg)
+
+    def info(sent_ns):
+        return {'source_timestamp': sent_ns, 'received_timestamp': began + 5_000_000}
+
+    on_measurement = Node.callbacks[MEASUREMENT.name]
+    on_clock = Node.callbacks['/clock']
+    for k in (998, 999):                    # the earlier attempt's last samples, taken late
+        on_measurement(measurement(k), info(began - 1_000_000))
+    on_clock(clock_msg(990), info(began - 1_000_000))
+    for k in (0, 1):
+        on_measurement(measurement(k), info(began + 500_000_000 + k * 2_000_000))
+    on_clock(clock_msg(0), info(began + 500_000_000))
+    assert tap.steps == [0, 1] and tap.values == [[0.0], [1.0]]
+    assert tap.clock_ns == [0] and tap.stale == 3
+
+
 def test_a_step_run_whose_clock_the_checker_missed_is_run_again():
     """/clock is volatile and the rig does not wait for the checker's reader: a step run
     whose samples the checker heard but none of whose /clock messages says nothing of the

@@ -168,8 +168,23 @@ class _Tap:
         self.clock_ns: list[int] = []
         self.fault, self.fault_step, self.fault_ns = fault, fault_step, None
         self.stopped_pid: int | None = None
+        #: This run began here [ns, system clock]: what was sent before is an earlier run's.
+        self.since_ns = clock.system_ns()
+        #: Messages of an earlier run taken during this one (dropped).
+        self.stale = 0
+
+    def _earlier(self, info: dict) -> bool:
+        """Whether a message was sent before this run began (by the rig of an earlier run or
+        attempt: a reader matched late takes its history at once, and what the middleware
+        holds is taken in the next spin, which may be this run's); counted in ``stale``."""
+        if info['source_timestamp'] < self.since_ns:
+            self.stale += 1
+            return True
+        return False
 
     def _on_measurement(self, raw: bytes, info: dict) -> None:
+        if self._earlier(info):
+            return
         msg = self._deserialize(raw, self._msg_type)
         stamp = stamp_to_ns(msg.header.stamp)
         k = int(round(stamp / self.dt_ns))
@@ -190,7 +205,9 @@ class _Tap:
             self.fault_ns = clock.now_ns()
             self.fault()
 
-    def _on_clock(self, raw: bytes) -> None:
+    def _on_clock(self, raw: bytes, info: dict) -> None:
+        if self._earlier(info):
+            return
         from seft_msgs_py.convert import clock_ns_from_raw
         self.clock_ns.append(clock_ns_from_raw(raw))
 
@@ -373,11 +390,11 @@ def _one_run(name: str, run_dir: Path, *, params: Mapping, profile: rc.CheckProf
     run.clock_ns = list(tap.clock_ns)
     # what the checker heard (steps, stamps [ns], when the rig sent each, when the checker's
     # middleware received it and when the checker took it [s, system clock], values; the
-    # fault's system time [ns], -1 if none)
+    # fault's system time [ns], -1 if none; how many messages of an earlier run it dropped)
     np.savez(run_dir / 'live.npz', steps=run.steps, stamps_ns=run.stamps,
              arrival_s=run.arrivals, received_s=np.array(tap.received),
              handled_s=np.array(tap.handled), values=run.values,
-             fault_ns=-1 if run.fault_ns is None else run.fault_ns)
+             fault_ns=-1 if run.fault_ns is None else run.fault_ns, stale=tap.stale)
     _read_bag(run, run_dir / 'bag')
     return run
 
