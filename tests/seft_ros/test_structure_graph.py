@@ -210,6 +210,7 @@ def test_a_rig_at_its_limit_ends_every_rig_and_the_bag_reads(runner, tmp_path):
     rd = read_run(cut)
     assert rd.n_steps == sim.n_steps - 1
     assert rd.abort_reason == f'pier_b/rig: {sim.abort_reason}'
+    assert rd.extra['abort_node'] == sim.extra['abort_node'] == 'pier_b/rig'
     assert rd.unstable_at_s == pytest.approx(sim.n_steps * 0.002)
 
 

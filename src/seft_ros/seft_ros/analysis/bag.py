@@ -39,7 +39,7 @@ from seft_ros.analysis.timing import (
 )
 
 __all__ = ['read_run', 'BagSignals', 'read_signals', 'recording_end', 'rig_contract_of',
-           'bag_lost_messages']
+           'bag_lost_messages', 'rig_end_step']
 
 _SCALARS = {s.name: s.field for s in (signals.CLOCK,) + signals.SCALAR_SIGNALS}
 _RECORD = {r.name: r for r in signals.RECORD_STREAMS}
@@ -554,7 +554,7 @@ def read_run(path) -> RunData:
     final = rig_final[-1] if rig_final else {}
     dt = p['dt']
     abort_at_s = float(final['abort_at_s']) if 'abort_at_s' in final else None
-    end_step = _rig_end_step(final, abort_at_s, dt)
+    end_step = rig_end_step(final, abort_at_s, dt)
     gaps = _gaps(bag, needed, n, complete, end_step, dt)
     if abort_at_s is not None:
         # real time: the rig kept sampling its safe-state ramp after the abort
@@ -635,7 +635,7 @@ def bag_lost_messages(statuses) -> int | None:
     return int(closed[-1]['lost']) if closed and 'lost' in closed[-1] else None
 
 
-def _rig_end_step(final: dict, abort_at_s: float | None, dt: float) -> int | None:
+def rig_end_step(final: dict, abort_at_s: float | None, dt: float) -> int | None:
     """The step at which the rig says the run ended (its final status): the safe state of a
     real-time abort (`abort_at_s`), else the final ``step`` (at most ``n_steps``); None
     without a final status or a step in it."""

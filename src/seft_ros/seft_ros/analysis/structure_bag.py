@@ -22,6 +22,7 @@ from rosbags.typesys import Stores, get_typestore
 from seft_msgs_py import parameters, signals
 from seft_msgs_py.errors import InputError, ParameterError
 from seft_msgs_py.graph import Graph
+from seft_ros.analysis.bag import _messages, bag_lost_messages, rig_end_step
 from seft_ros.analysis.bag_recovery import is_unclosed_bag, recover_bag
 from seft_ros.analysis.rundata import RunData, StructureRunData
 from seft_ros.analysis.timing import node_timings, timing_row, timing_summary
@@ -29,12 +30,6 @@ from seft_ros.analysis.timing import node_timings, timing_row, timing_summary
 __all__ = ['read_structure_run', 'is_structure_bag', 'run_parameters']
 
 _FINAL = ('done', 'aborted', 'failed')
-
-
-def _messages(path: Path, recovery):
-    """``(topic, message type, CDR bytes)`` of every message (closed or recovered bag)."""
-    from seft_ros.analysis.bag import _messages as messages
-    return messages(path, recovery)
 
 
 def run_parameters(path) -> dict | None:
@@ -210,14 +205,12 @@ def read_structure_run(path) -> StructureRunData:
     record_name = next((s.get('record') for s in statuses
                         if s['name'] == 'ground_motion_publisher' and s.get('record')),
                        Path(str(params['record'])).stem)
-    unstable_at_s = None if stable else (min(aborts) if aborts else n * dt)
-    origin = rig_finals.get(first['name']) if first is not None else None
-    if not aborts and origin is not None and 'step' in origin:
-        # lockstep: the rig that aborted first says where the run ended, even where the bag
-        # lacks a node's last samples (a node that ended without them: lost, or past
-        # DRAIN_TIMEOUT_S), as read_run does
-        unstable_at_s = max(n, min(int(origin['step']),
-                                   int(origin.get('n_steps', origin['step'])))) * dt
+    # lockstep: the rig that aborted first says where the run ended, even where the bag lacks
+    # a node's last samples (a node that ended without them: lost, or past DRAIN_TIMEOUT_S),
+    # as read_run does
+    end_step = (rig_end_step(rig_finals.get(first['name']) or {}, None, dt)
+                if first is not None and not aborts else None)
+    unstable_at_s = None if stable else (min(aborts) if aborts else max(n, end_step or 0) * dt)
     rigs = {}
     for j, r in enumerate(graph.rigs):
         names = per_rig[r]
@@ -244,10 +237,9 @@ def read_structure_run(path) -> StructureRunData:
              'node_statuses': statuses,
              'parameter_mismatches': parameters.shared_mismatches(node_params),
              'recovered': recovery is not None,
-             'abort_node': aborted[0]['name'] if aborted else None}
+             'abort_node': first['name'] if first is not None else None}
     if link is not None:
         extra['link'] = link
-    from seft_ros.analysis.bag import bag_lost_messages
     lost = bag_lost_messages(statuses)
     if lost is not None:
         extra['bag_lost_messages'] = lost
