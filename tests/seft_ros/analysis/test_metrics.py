@@ -69,7 +69,7 @@ def _delayed(x, d):
 
 
 def _run_from(ref, ag, alpha, d, **kwargs):
-    return RunData(params=_params(alpha), time_s=np.arange(ag.shape[0]) * DT,
+    return RunData.one_rig(params=_params(alpha), time_s=np.arange(ag.shape[0]) * DT,
                    ground_acceleration_m_s2=ag, reference_force_N=ref.force_N,
                    measured_force_N=_delayed(ref.force_N, d),
                    displacement_m=_delayed(ref.displacement_m, d),

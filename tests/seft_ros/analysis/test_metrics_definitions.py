@@ -383,7 +383,7 @@ def _test_of(reference, delay=0, offset_m=0.0):
     """The reference delayed by whole samples (at rest before), the displacement offset."""
     def late(v):
         return np.concatenate([np.full(delay, v[0]), v[:N - delay]])
-    return RunData(params={'dt': DT}, time_s=T, ground_acceleration_m_s2=np.zeros(N),
+    return RunData.one_rig(params={'dt': DT}, time_s=T, ground_acceleration_m_s2=np.zeros(N),
                    reference_force_N=reference.force_N, measured_force_N=late(reference.force_N),
                    displacement_m=late(reference.displacement_m) + offset_m,
                    velocity_m_s=np.zeros(N), acceleration_m_s2=late(reference.acceleration_m_s2))
@@ -497,7 +497,7 @@ def test_drift_matches_its_definition(n, cutoff_hz):
 
 def _member_run(mass, damping, n_time=3):
     """A run of 3 samples (its signals 4 long: the sample count is that of time_s)."""
-    return RunData(params={'dt': DT, 'mass_kg': mass, 'damping_N_s_per_m': damping},
+    return RunData.one_rig(params={'dt': DT, 'mass_kg': mass, 'damping_N_s_per_m': damping},
                    time_s=np.arange(n_time) * DT, ground_acceleration_m_s2=np.zeros(n_time),
                    reference_force_N=np.zeros(n_time),
                    measured_force_N=np.array([10.0, -4.0, 2.5, 99.0]),
@@ -555,7 +555,7 @@ def _signal(base):
 
 def _hand_made(params, criteria=None, **run_fields):
     zeros = np.zeros(3)
-    run = RunData(params=params, time_s=np.arange(3) * DT, ground_acceleration_m_s2=zeros,
+    run = RunData.one_rig(params=params, time_s=np.arange(3) * DT, ground_acceleration_m_s2=zeros,
                   reference_force_N=zeros, measured_force_N=zeros, displacement_m=zeros,
                   velocity_m_s=zeros, acceleration_m_s2=zeros, **run_fields)
     reference = ReferenceResponse(time_s=run.time_s, displacement_m=zeros, velocity_m_s=zeros,

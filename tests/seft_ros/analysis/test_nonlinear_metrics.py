@@ -84,7 +84,7 @@ def _run_and_reference(x_test, x_ref, params=None):
          'stiffness_N_per_m': K, 'rig_model': 'delay', 'predictor': 'none',
          'specimen_model': 'bouc_wen'}
     p.update(params or {})
-    run = RunData(params=p, time_s=t, ground_acceleration_m_s2=np.zeros(n),
+    run = RunData.one_rig(params=p, time_s=t, ground_acceleration_m_s2=np.zeros(n),
                   reference_force_N=100.0 * wave, measured_force_N=100.0 * wave,
                   displacement_m=x_test, velocity_m_s=np.gradient(x_test, DT),
                   acceleration_m_s2=wave, record_name='synthetic')
@@ -253,7 +253,7 @@ def _driven(rig, commands):
         rig.apply(u)
     f, x, v, a = (np.array(col) for col in zip(*rows))
     n = f.shape[0]
-    run = RunData(params={'mass_kg': M, 'damping_N_s_per_m': C}, time_s=np.arange(n) * DT,
+    run = RunData.one_rig(params={'mass_kg': M, 'damping_N_s_per_m': C}, time_s=np.arange(n) * DT,
                   ground_acceleration_m_s2=np.zeros(n), reference_force_N=np.zeros(n),
                   measured_force_N=f, displacement_m=x, velocity_m_s=v, acceleration_m_s2=a)
     return run, np.array(z)

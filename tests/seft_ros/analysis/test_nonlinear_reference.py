@@ -140,7 +140,7 @@ def test_edge_cases_and_errors(member):
 def _run(params, ag):
     n = ag.shape[0]
     zeros = np.zeros(n)
-    return RunData(params=params, time_s=np.arange(n) * DT, ground_acceleration_m_s2=ag,
+    return RunData.one_rig(params=params, time_s=np.arange(n) * DT, ground_acceleration_m_s2=ag,
                    reference_force_N=zeros, measured_force_N=zeros, displacement_m=zeros,
                    velocity_m_s=zeros, acceleration_m_s2=zeros)
 

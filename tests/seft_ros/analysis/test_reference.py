@@ -122,7 +122,7 @@ def test_bad_ground_acceleration(rig, ag, match):
 def _run(params, n=200):
     t = np.arange(n) * DT
     z = np.zeros(n)
-    return RunData(params=params, time_s=t, ground_acceleration_m_s2=np.sin(20 * t),
+    return RunData.one_rig(params=params, time_s=t, ground_acceleration_m_s2=np.sin(20 * t),
                    reference_force_N=z, measured_force_N=z, displacement_m=z, velocity_m_s=z,
                    acceleration_m_s2=z)
 

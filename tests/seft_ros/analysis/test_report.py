@@ -42,7 +42,7 @@ def runs():
 
         tt = t[:n_run]
         hf = vibration * np.sin(2 * np.pi * 45 * tt)
-        run = RunData(params=params, time_s=tt, ground_acceleration_m_s2=ag[:n_run],
+        run = RunData.one_rig(params=params, time_s=tt, ground_acceleration_m_s2=ag[:n_run],
                       reference_force_N=ref.force_N[:n_run],
                       measured_force_N=delayed(ref.force_N) + 1000 * hf,
                       displacement_m=delayed(ref.displacement_m),
@@ -132,7 +132,7 @@ def _predictor_run(alpha, predictor, ag, *, scale=1.0, delay=0, vibration=0.0, n
 
     t = np.arange(n_run) * DT
     hf = vibration * np.sin(2 * np.pi * 45 * t)
-    run = RunData(params=params, time_s=t, ground_acceleration_m_s2=ag[:n_run],
+    run = RunData.one_rig(params=params, time_s=t, ground_acceleration_m_s2=ag[:n_run],
                   reference_force_N=ref.force_N[:n_run],
                   measured_force_N=test(ref.force_N) + 1000 * hf,
                   displacement_m=test(ref.displacement_m),

@@ -15,7 +15,7 @@ import pytest
 from seft_msgs_py import parameters
 from seft_msgs_py.errors import ParameterError
 from seft_ros.analysis.report import write_report
-from seft_ros.analysis.rundata import RunData, StructureRunData
+from seft_ros.analysis.rundata import RigData, RunData
 from seft_ros.analysis.structure_metrics import compare_structure, structure_summary_entry
 from seft_ros.core.ground_motion import prepared_record
 from seft_ros.core.structure import parse_structure
@@ -35,13 +35,13 @@ def _params(**over):
 
 
 def _run_from_reference(params, scale=1.0, delay_steps=0):
-    """A StructureRunData whose every signal is the reference's, times `scale`, `delay_steps`
+    """A RunData whose every signal is the reference's, times `scale`, `delay_steps`
     late (zeros before), the computational state's last sample NaN as the builder records."""
     from seft_ros.analysis.structure_metrics import reference_of
     gm = prepared_record(params)
     ag = gm.acceleration_m_s2
     n = ag.shape[0]
-    stub = StructureRunData(params=params, rigs={}, time_s=np.arange(n) * params['dt'],
+    stub = RunData(params=params, rigs={}, time_s=np.arange(n) * params['dt'],
                             ground_acceleration_m_s2=ag, computational={})
     ref = reference_of(stub)
 
@@ -51,8 +51,8 @@ def _run_from_reference(params, scale=1.0, delay_steps=0):
         return out
     sub = structure_setup(params).substructures
     force = ref.interface_force_N[:, 0]
-    rig = RunData(params=dict(params), time_s=stub.time_s, ground_acceleration_m_s2=ag,
-                  reference_force_N=test(force), measured_force_N=test(force),
+    rig = RigData(params=dict(params), reference_force_N=test(force),
+                  measured_force_N=test(force),
                   displacement_m=test(ref.displacement_m[:, 0]),
                   velocity_m_s=test(ref.velocity_m_s[:, 0]),
                   acceleration_m_s2=test(ref.acceleration_m_s2[:, 0]), valve_command_V=None)
@@ -60,7 +60,7 @@ def _run_from_reference(params, scale=1.0, delay_steps=0):
         ('displacement_m', ref.displacement_m), ('velocity_m_s', ref.velocity_m_s),
         ('acceleration_m_s2', ref.acceleration_m_s2))}
     assert sub.rigid_mass_kg[0] == 0.0
-    return StructureRunData(params=params, rigs={'lab': rig}, time_s=stub.time_s,
+    return RunData(params=params, rigs={'lab': rig}, time_s=stub.time_s,
                             ground_acceleration_m_s2=ag, computational=state)
 
 

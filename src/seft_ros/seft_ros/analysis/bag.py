@@ -467,7 +467,7 @@ def read_run(path) -> RunData:
     the first step a signal
     lacks (the analysis needs contiguous samples), and what the bag misses after it. The bag
     of a structure test gives a
-    :class:`~seft_ros.analysis.rundata.StructureRunData` instead
+    :class:`~seft_ros.analysis.rundata.RunData` instead
     (:func:`~seft_ros.analysis.structure_bag.read_structure_run`).
 
     The parameters are ``BagSignals.params``; ``extra`` holds, besides ``'rig_final'`` and
@@ -608,7 +608,7 @@ def read_run(path) -> RunData:
         extra['estimates_missing_steps'] = lost
         recording['note'] += (f'; {signals.ESTIMATES.name} misses steps {_ranges(lost)}: the '
                               "compensator's estimates were not read")
-    return RunData(
+    return RunData.one_rig(
         params=p, time_s=np.arange(n) * dt, ground_acceleration_m_s2=arr(needed[0]),
         reference_force_N=arr(needed[1]), measured_force_N=arr(needed[2]),
         displacement_m=arr(needed[3]), velocity_m_s=arr(needed[4]),
@@ -616,7 +616,7 @@ def read_run(path) -> RunData:
         valve_command_V=arr(signals.VALVE_COMMAND.name) if valve else None, stable=stable,
         unstable_at_s=unstable_at_s,
         abort_reason=reason, record_name=record_name, source=str(path), extra=extra,
-        estimates=estimates)
+        estimates=estimates, rig_extra={'rig_final': rig_final[-1] if rig_final else None})
 
 
 def rig_contract_of(statuses, rig: str = 'rig') -> str | None:

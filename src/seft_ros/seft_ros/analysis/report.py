@@ -1346,7 +1346,7 @@ def write_report(runs: list[RunData], out_dir, *, title: str = 'seft comparison'
       ``hysteresis_<predictor>.png`` (:func:`plot_hysteresis`) with a caption; each such
       run's section names its residual displacements and both NRMS.
 
-    Structure tests (:class:`~seft_ros.analysis.rundata.StructureRunData`) get their report
+    Structure tests (:class:`~seft_ros.analysis.rundata.RunData` with a structure) get their report
     per degree of freedom instead
     (:func:`~seft_ros.analysis.structure_report.write_structure_report`).
 
@@ -1380,8 +1380,7 @@ def write_report(runs: list[RunData], out_dir, *, title: str = 'seft comparison'
     runs = list(runs)
     if not runs:
         raise ParameterError('runs: expected at least one run')
-    from seft_ros.analysis.rundata import StructureRunData
-    structures = [isinstance(run, StructureRunData) for run in runs]
+    structures = [not run.is_study for run in runs]
     if any(structures):
         if not all(structures):
             raise ParameterError('runs: structure tests and single-rig tests in one report; '

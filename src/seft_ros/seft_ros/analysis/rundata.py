@@ -1,41 +1,121 @@
-"""The recorded signals of one substructure EFT run, whatever produced them (bag or simulate)."""
+"""The recorded signals of one substructure EFT run, whatever produced them (bag or simulate).
 
-from dataclasses import dataclass, field
+Every test is a structure (:mod:`seft_ros.core.structure`): one or more rigs, each testing a
+physical degree of freedom (DOF), and possibly computational DOFs integrated by the
+reference-force builder. The reference study's test is the one-rig case: one physical DOF
+carrying a rigid computational mass ``alpha m``, its rig in the root namespace (rig name
+``''``). A run is a :class:`RunData` holding one :class:`RigData` per rig; a run of one rig
+also reads as that rig (``run.displacement_m`` is its rig's), so the study's analysis is the
+general one with one rig.
+"""
+
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
-__all__ = ['RunData', 'SIGNALS', 'StructureRunData']
+__all__ = ['RunData', 'RigData', 'SIGNALS', 'RIG_SIGNALS', 'rig_label']
 
 #: Signals compared against the reference analysis, in report order.
 SIGNALS = ('displacement', 'force', 'acceleration')
+#: The per-sample signals of a rig (attributes of :class:`RigData`), in bag order.
+RIG_SIGNALS = ('reference_force_N', 'measured_force_N', 'displacement_m', 'velocity_m_s',
+               'acceleration_m_s2', 'valve_command_V')
+
+
+def rig_label(name: str) -> str:
+    """How a rig is named to the user: its name, ``'rig'`` for the study's rig (``''``, the
+    root namespace)."""
+    return name or 'rig'
 
 
 @dataclass
-class RunData:
-    """Sampled signals of one run, one sample per control step, SI units.
+class RigData:
+    """Sampled signals of one rig of a run, one sample per control step, SI units.
 
-    All arrays have shape ``(n,)`` where n is the number of steps that were completed (an
-    aborted run is shorter than its record). Sample k is at ``time_s[k] = k*dt``.
+    All arrays have shape ``(n,)``, n the run's completed steps (:attr:`RunData.n_steps`).
 
     Attributes
     ----------
     params : dict
-        Resolved run parameters (schema of ``seft_msgs_py.parameters``): ``alpha``, ``dt``,
-        ``mass_kg``, ``damping_N_s_per_m``, ``stiffness_N_per_m``, ``rig_model``,
-        ``predictor``, ``record``, ...
-    time_s : ndarray (n,)
-        Sample times [s].
-    ground_acceleration_m_s2 : ndarray (n,)
-        Ground acceleration xg'' after scaling and resampling [m/s^2].
+        The rig's resolved parameters (the run's, updated by the rig's section of the
+        structure), with ``alpha`` = the rigid computational mass on its DOF over its specimen
+        mass.
     reference_force_N : ndarray (n,)
-        Reference force f_r commanded at each step [N] (paper Eq. 5.3).
+        Reference force f_r commanded at each step [N] (paper Eq. 5.3; Eq. 2 of
+        :mod:`seft_ros.core.structure`).
     measured_force_N : ndarray (n,)
         Load-cell force [N].
     displacement_m, velocity_m_s, acceleration_m_s2 : ndarray (n,)
         Measured specimen response [m], [m/s], [m/s^2] (relative to the ground).
     valve_command_V : ndarray (n,) or None
         Servo-valve command [V] (None for the 'delay' rig).
+    estimates : dict of str to ndarray (n,), or None
+        The rig's compensator's online estimates in effect for each sample's reference
+        force, keyed by the compensator's ``ESTIMATES`` names (units in the name, e.g.
+        ``mass_kg``, ``tau_s``; ATS ``a0`` [-], ``a1`` [s], ``a2`` [s^2]); None for a
+        compensator without estimates.
+    extra : dict
+        Further data of the rig from its source (a bag: ``'rig_final'``, the rig's final
+        status).
+    """
+
+    params: dict[str, Any]
+    reference_force_N: np.ndarray
+    measured_force_N: np.ndarray
+    displacement_m: np.ndarray
+    velocity_m_s: np.ndarray
+    acceleration_m_s2: np.ndarray
+    valve_command_V: np.ndarray | None = None
+    estimates: dict[str, np.ndarray] | None = None
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def signal(self, name: str) -> np.ndarray:
+        """Return the measured signal 'displacement', 'force' or 'acceleration'."""
+        return {'displacement': self.displacement_m, 'force': self.measured_force_N,
+                'acceleration': self.acceleration_m_s2}[name]
+
+
+def _single_rig(name: str):
+    """A property of a one-rig run that reads its rig's attribute `name`."""
+    def get(self):
+        return getattr(self.rig, name)
+
+    def set_(self, value):
+        setattr(self.rig, name, value)
+    return property(get, set_, doc=f"The rig's ``{name}`` (a run of one rig only; "
+                    ':attr:`RunData.rigs` otherwise).')
+
+
+@dataclass
+class RunData:
+    """Sampled signals of one run: every rig's and the computational DOFs', SI units.
+
+    All arrays have shape ``(n,)`` where n is the number of steps that were completed (an
+    aborted run is shorter than its record). Sample k is at ``time_s[k] = k*dt``.
+
+    A run of one rig reads as that rig: ``run.displacement_m``, ``run.reference_force_N``,
+    ``run.valve_command_V``, ``run.estimates``, ``run.signal(...)`` are its rig's
+    (:attr:`rig`); with several rigs they raise ``AttributeError`` naming the rigs, and
+    :meth:`rig_view` gives one rig as a run of its own.
+
+    Attributes
+    ----------
+    params : dict
+        The run's resolved parameters (schema of ``seft_msgs_py.parameters``): ``alpha``,
+        ``dt``, ``mass_kg``, ``rig_model``, ``predictor``, ``record``, ``structure``
+        ('none' for the study's test), ...
+    time_s : ndarray (n,)
+        Sample times [s].
+    ground_acceleration_m_s2 : ndarray (n,)
+        Ground acceleration xg'' after scaling and resampling [m/s^2].
+    rigs : dict of str to RigData
+        Each rig's signals, keyed by rig name in the structure's order of its physical DOFs
+        (``''``: the study's single rig in the root namespace).
+    computational : dict of str to ndarray (n,)
+        The computational DOFs' state as the builder integrated it:
+        ``'<dof>/displacement_m'``, ``'<dof>/velocity_m_s'``, ``'<dof>/acceleration_m_s2'``
+        (NaN where not recorded: the last sample); empty without computational DOFs.
     stable : bool
         False if the run was aborted (limit exceeded or instability detected).
     unstable_at_s : float or None
@@ -47,96 +127,97 @@ class RunData:
     source : str
         Where the data came from (bag path or 'simulate').
     extra : dict
-        Further data of the source. A run read from a bag (``analysis.bag.read_run``) has
-        ``'rig_final'`` (the rig's final status), ``'counts'`` (messages per topic),
-        ``'node_params'`` (``{node: {parameter: value}}`` as each node published them; empty
-        for a bag without node parameters), ``'param_sources'`` (``{parameter: node,
-        'run_parameters' or 'default'}``: where each value of `params` was taken from) and
+        Further data of the source. ``'abort_node'``: the node that ended the run
+        (``'<rig>/rig'`` for a rig of a structure). A run read from a bag
+        (``analysis.bag.read_run``) has ``'counts'`` (messages per topic), ``'node_params'``
+        (``{node: {parameter: value}}`` as each node published them), ``'param_sources'``
+        (``{parameter: node, 'run_parameters' or 'default'}``),
         ``'parameter_mismatches'`` (one line per shared parameter on which the nodes
-        disagreed, ``seft_msgs_py.parameters.shared_mismatches``; empty when they agree) and
-        ``'recording'`` (how the recording ended: ``'end'`` is ``'closed'``, ``'stopped'``
-        before the run's end, ``'crashed'``, the recorder killed and the bag recovered from
-        its file, or ``'unknown'``; with the steps, messages and a one-line ``'note'``,
-        ``seft_ros.analysis.bag.recording_end``; a gap adds ``'gap_at_step'`` and
-        ``'steps_not_analysed'``), and, where the bag has them, ``'gaps'`` (the steps each
-        topic misses and the complete steps after the first gap, not analysed),
-        ``'duplicates'`` (steps recorded twice with the same value, read once) and
-        ``'estimates_missing_steps'`` (``seft_ros.analysis.bag.read_run``).
-    estimates : dict of str to ndarray (n,), or None
-        The compensator's online estimates in effect for each sample's reference force,
-        keyed by the compensator's ``ESTIMATES`` names (units in the name, e.g. ``mass_kg``,
-        ``tau_s``; ATS ``a0`` [-], ``a1`` [s], ``a2`` [s^2]); None for a compensator without
-        estimates.
+        disagreed), ``'recording'`` (how the recording ended, ``analysis.bag.recording_end``)
+        and, where the bag has them, ``'gaps'``, ``'duplicates'``,
+        ``'estimates_missing_steps'``, ``'timing'``, ``'link'``.
     """
 
     params: dict[str, Any]
     time_s: np.ndarray
     ground_acceleration_m_s2: np.ndarray
-    reference_force_N: np.ndarray
-    measured_force_N: np.ndarray
-    displacement_m: np.ndarray
-    velocity_m_s: np.ndarray
-    acceleration_m_s2: np.ndarray
-    valve_command_V: np.ndarray | None = None
+    rigs: dict[str, RigData]
+    computational: dict[str, np.ndarray] = field(default_factory=dict)
     stable: bool = True
     unstable_at_s: float | None = None
     abort_reason: str | None = None
     record_name: str = ''
     source: str = ''
     extra: dict[str, Any] = field(default_factory=dict)
-    estimates: dict[str, np.ndarray] | None = None
+
+    @classmethod
+    def one_rig(cls, *, params: dict[str, Any], time_s, ground_acceleration_m_s2,
+                reference_force_N, measured_force_N, displacement_m, velocity_m_s,
+                acceleration_m_s2, valve_command_V=None, estimates=None, rig: str = '',
+                rig_extra: dict[str, Any] | None = None, **run) -> 'RunData':
+        """A run of one rig from its signals (the study's test: `rig` ``''``).
+
+        The rig's parameters are the run's. Keyword arguments: the signals of
+        :class:`RigData` and the run's fields (``stable``, ``abort_reason``, ...).
+        """
+        data = RigData(params, reference_force_N, measured_force_N, displacement_m,
+                       velocity_m_s, acceleration_m_s2, valve_command_V, estimates,
+                       dict(rig_extra or {}))
+        return cls(params=params, time_s=time_s,
+                   ground_acceleration_m_s2=ground_acceleration_m_s2, rigs={rig: data}, **run)
 
     @property
     def n_steps(self) -> int:
         """Number of samples."""
         return int(self.time_s.shape[0])
+
+    @property
+    def rig_names(self) -> tuple[str, ...]:
+        """The rigs, in the structure's order."""
+        return tuple(self.rigs)
+
+    @property
+    def is_study(self) -> bool:
+        """Whether the run is the reference study's test (no ``structure`` parameter: one
+        rig in the root namespace, only a rigid mass computational)."""
+        return self.params.get('structure', 'none') in ('none', '', None)
+
+    @property
+    def rig(self) -> RigData:
+        """The run's only rig.
+
+        Raises
+        ------
+        AttributeError
+            The run has several rigs (the message names them).
+        """
+        if len(self.rigs) != 1:
+            names = ', '.join(rig_label(r) for r in self.rigs)
+            raise AttributeError(f'a run of {len(self.rigs)} rigs ({names}) has no single '
+                                 'rig: use run.rigs[name] or run.rig_view(name)')
+        return next(iter(self.rigs.values()))
+
+    reference_force_N = _single_rig('reference_force_N')
+    measured_force_N = _single_rig('measured_force_N')
+    displacement_m = _single_rig('displacement_m')
+    velocity_m_s = _single_rig('velocity_m_s')
+    acceleration_m_s2 = _single_rig('acceleration_m_s2')
+    valve_command_V = _single_rig('valve_command_V')
+    estimates = _single_rig('estimates')
 
     def signal(self, name: str) -> np.ndarray:
-        """Return the measured signal 'displacement', 'force' or 'acceleration'."""
-        return {'displacement': self.displacement_m, 'force': self.measured_force_N,
-                'acceleration': self.acceleration_m_s2}[name]
+        """Return the measured signal 'displacement', 'force' or 'acceleration' of the
+        run's only rig."""
+        return self.rig.signal(name)
 
+    def rig_view(self, name: str) -> 'RunData':
+        """One rig as a run of its own: its signals, its parameters as the run's, no
+        computational DOFs, the run's time, record and outcome (arrays shared).
 
-@dataclass
-class StructureRunData:
-    """Sampled signals of one run of a structure test: every rig's, and the computational
-    DOFs', one sample per control step, SI units (arrays of shape ``(n,)``).
-
-    Attributes
-    ----------
-    params : dict
-        The run's resolved parameters (with its ``structure``).
-    rigs : dict of str to RunData
-        Each rig's signals (its reference force, measured force and motion), keyed by rig
-        name in the structure's order of its physical DOFs; its ``params`` are the rig's
-        (the run's with the rig's section) with ``alpha`` = the rigid computational mass on
-        its DOF over its specimen mass.
-    time_s : ndarray (n,)
-        Sample times [s].
-    ground_acceleration_m_s2 : ndarray (n,)
-        Ground acceleration [m/s^2].
-    computational : dict of str to ndarray (n,)
-        The computational DOFs' state as the builder integrated it:
-        ``'<dof>/displacement_m'``, ``'<dof>/velocity_m_s'``, ``'<dof>/acceleration_m_s2'``
-        (NaN where not recorded: the last sample).
-    stable, unstable_at_s, abort_reason, record_name, source, extra
-        As :class:`RunData` (``extra['abort_node']``: the node that ended the run,
-        ``'<rig>/rig'`` for a rig).
-    """
-
-    params: dict[str, Any]
-    rigs: dict[str, RunData]
-    time_s: np.ndarray
-    ground_acceleration_m_s2: np.ndarray
-    computational: dict[str, np.ndarray]
-    stable: bool = True
-    unstable_at_s: float | None = None
-    abort_reason: str | None = None
-    record_name: str = ''
-    source: str = ''
-    extra: dict[str, Any] = field(default_factory=dict)
-
-    @property
-    def n_steps(self) -> int:
-        """Number of samples."""
-        return int(self.time_s.shape[0])
+        Raises
+        ------
+        KeyError
+            No such rig.
+        """
+        data = self.rigs[name]
+        return replace(self, params=data.params, rigs={name: data}, computational={})

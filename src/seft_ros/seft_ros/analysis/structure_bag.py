@@ -1,5 +1,5 @@
 """Read the bag of a structure test (several rigs) back into a
-:class:`~seft_ros.analysis.rundata.StructureRunData`.
+:class:`~seft_ros.analysis.rundata.RunData`.
 
 Uses rosbags (no rclpy). The graph of the run (:mod:`seft_msgs_py.graph`: each rig's topics
 in its namespace, the builders' computational state) comes from the run parameters the
@@ -24,7 +24,7 @@ from seft_msgs_py.errors import InputError, ParameterError
 from seft_msgs_py.graph import Graph
 from seft_ros.analysis.bag import _messages, bag_lost_messages, rig_end_step
 from seft_ros.analysis.bag_recovery import is_unclosed_bag, recover_bag
-from seft_ros.analysis.rundata import RunData, StructureRunData
+from seft_ros.analysis.rundata import RigData, RunData
 from seft_ros.analysis.timing import node_timings, timing_row, timing_summary
 
 __all__ = ['read_structure_run', 'is_structure_bag', 'run_parameters']
@@ -78,7 +78,7 @@ def _stamp(msg) -> int:
     return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
 
 
-def read_structure_run(path) -> StructureRunData:
+def read_structure_run(path) -> RunData:
     """Read the bag of a structure test.
 
     Parameters
@@ -88,7 +88,7 @@ def read_structure_run(path) -> StructureRunData:
 
     Returns
     -------
-    StructureRunData
+    RunData
         Every rig's signals (a :class:`~seft_ros.analysis.rundata.RunData` each, with the rig's
         own parameters as its
         node published them) and the computational degrees of freedom's state over the
@@ -224,14 +224,12 @@ def read_structure_run(path) -> StructureRunData:
             except ParameterError as exc:
                 raise InputError(str(exc)) from None
         rig_p['alpha'] = float(setup.substructures.alpha[j])
-        rigs[r] = RunData(
-            params=rig_p, time_s=t, ground_acceleration_m_s2=ag,
-            reference_force_N=arr(names['fr']), measured_force_N=arr(names['fm']),
+        rigs[r] = RigData(
+            params=rig_p, reference_force_N=arr(names['fr']), measured_force_N=arr(names['fm']),
             displacement_m=arr(names['x']), velocity_m_s=arr(names['v']),
             acceleration_m_s2=arr(names['a']),
-            valve_command_V=arr(names['u']) if 'u' in names else None, stable=stable,
-            unstable_at_s=unstable_at_s, abort_reason=reason, record_name=record_name,
-            source=str(path), extra={'rig_final': rig_finals[f'{r}/rig']})
+            valve_command_V=arr(names['u']) if 'u' in names else None,
+            extra={'rig_final': rig_finals[f'{r}/rig']})
     computational = _structure_state(raw_by_topic, graph, typestore, dt_ns, n)
     extra = {'node_params': node_params, 'rig_finals': rig_finals, 'counts': counts,
              'node_statuses': statuses,
@@ -252,7 +250,7 @@ def read_structure_run(path) -> StructureRunData:
                         timing_row(typestore.deserialize_cdr(raw, msgtype)))
         extra['timing_data'] = node_timings(rows, dt)
         extra['timing'] = timing_summary(extra['timing_data'])
-    return StructureRunData(
+    return RunData(
         params=params, rigs=rigs, time_s=t, ground_acceleration_m_s2=ag,
         computational=computational, stable=stable, unstable_at_s=unstable_at_s,
         abort_reason=reason, record_name=record_name, source=str(path), extra=extra)

@@ -34,7 +34,7 @@ from seft_ros.analysis.metrics import (
     peak_ratio,
     shift,
 )
-from seft_ros.analysis.rundata import StructureRunData
+from seft_ros.analysis.rundata import RunData
 from seft_ros.analysis.structure_reference import StructureReference, structure_reference
 from seft_ros.analysis.timing import link_summary
 
@@ -146,7 +146,7 @@ class StructureComparison:
         return max(values) if values else math.nan
 
 
-def reference_of(run: StructureRunData) -> StructureReference:
+def reference_of(run: RunData) -> StructureReference:
     """The whole structure's reference of a run, from its parameters and its record.
 
     Raises
@@ -163,7 +163,7 @@ def reference_of(run: StructureRunData) -> StructureReference:
                                run.ground_acceleration_m_s2)
 
 
-def dof_signals(run: StructureRunData) -> dict[str, dict[str, np.ndarray]]:
+def dof_signals(run: RunData) -> dict[str, dict[str, np.ndarray]]:
     """The test's signals per DOF: ``{dof: {'displacement', 'velocity', 'acceleration',
     'floor_acceleration', ['interface_force']}}``, arrays of shape (n,) (a computational DOF's
     last sample is NaN: the builder's state of sample k comes with the force of k+1).
@@ -198,13 +198,13 @@ def dof_signals(run: StructureRunData) -> dict[str, dict[str, np.ndarray]]:
     return out
 
 
-def compare_structure(run: StructureRunData, reference: StructureReference | None = None, *,
+def compare_structure(run: RunData, reference: StructureReference | None = None, *,
                       max_lag_s: float = MAX_LAG_S) -> StructureComparison:
     """Compare a structure test with the whole structure's reference (module notes).
 
     Parameters
     ----------
-    run : StructureRunData
+    run : RunData
         The run (n samples; an aborted run is compared over the samples it has).
     reference : StructureReference, optional
         Default: :func:`reference_of` the run.
@@ -273,7 +273,7 @@ def _signal_entry(c: SignalComparison | None) -> dict[str, Any] | None:
             'nrms_unshifted': c.nrms_unshifted}
 
 
-def structure_summary_entry(run: StructureRunData,
+def structure_summary_entry(run: RunData,
                             comparison: StructureComparison) -> dict[str, Any]:
     """A structure run and its comparison as a JSON-safe dict (``summary.json``).
 

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from seft_msgs_py.errors import ParameterError
-from seft_ros.analysis.rundata import StructureRunData
+from seft_ros.analysis.rundata import RunData
 from seft_ros.analysis.structure_metrics import (
     StructureComparison,
     compare_structure,
@@ -39,7 +39,7 @@ def _num(value, spec='.3f') -> str:
     return '–' if value is None or not np.isfinite(value) else format(value, spec)
 
 
-def plot_structure_time_histories(run: StructureRunData, comparison: StructureComparison,
+def plot_structure_time_histories(run: RunData, comparison: StructureComparison,
                                   path, *, title: str = '') -> Path:
     """Test against reference per degree of freedom: rows the DOFs, columns displacement
     [mm], floor acceleration [m/s^2] and, at a physical DOF, the interface force [N]; the
@@ -99,7 +99,7 @@ def plot_structure_time_histories(run: StructureRunData, comparison: StructureCo
     return path
 
 
-def _run_markdown(index: int, run: StructureRunData, comparison: StructureComparison,
+def _run_markdown(index: int, run: RunData, comparison: StructureComparison,
                   entry: dict, png: Path) -> list[str]:
     p = run.params
     state = ('stable' if run.stable else
@@ -150,7 +150,7 @@ def _run_markdown(index: int, run: StructureRunData, comparison: StructureCompar
     return lines
 
 
-def _structure_markdown(run: StructureRunData) -> list[str]:
+def _structure_markdown(run: RunData) -> list[str]:
     from seft_ros.core.structure import Structure
     s = Structure.from_json(run.params['structure'])
     freqs = s.modes()[0]
@@ -171,14 +171,14 @@ def _structure_markdown(run: StructureRunData) -> list[str]:
     return lines
 
 
-def write_structure_report(runs: list[StructureRunData], out_dir, *,
+def write_structure_report(runs: list[RunData], out_dir, *,
                            title: str = 'seft comparison'):
     """Compare structure runs with the whole structure's reference; write summary.json,
     report.md, report.html and the figures (module notes).
 
     Parameters
     ----------
-    runs : list of StructureRunData
+    runs : list of RunData
         At least one, in report order.
     out_dir : str or Path
         Output directory (created if needed).

@@ -155,7 +155,7 @@ def simulate(params, *, progress: Callable[[int, int], None] | None = None,
         estimate_signals = {name: np.array([e[name] for e in est_rec[:n]], dtype=float)
                             for name in est_rec[0]}
 
-    return RunData(
+    return RunData.one_rig(
         params=dict(params), time_s=np.arange(n) * dt,
         ground_acceleration_m_s2=np.array(ag[:n]), reference_force_N=signal(fr_rec),
         measured_force_N=signal(fm_rec), displacement_m=signal(x_rec),

@@ -26,7 +26,7 @@ from seft_msgs_py.graph import Graph
 from seft_msgs_py.interface import COMMAND_VALVE
 from seft_msgs_py.sampling import single_blas_thread
 from seft_plant_sim.rigs import make_rig
-from seft_ros.analysis.rundata import RunData, StructureRunData
+from seft_ros.analysis.rundata import RigData, RunData
 from seft_ros.core.controller import ReferencePlayout, SaturationInterlock
 from seft_ros.core.excitation import make_valve_controller
 from seft_ros.core.ground_motion import GroundMotion, prepared_record
@@ -39,7 +39,7 @@ __all__ = ['simulate_structure']
 def simulate_structure(params, *, progress: Callable[[int, int], None] | None = None,
                        record: GroundMotion | None = None,
                        stale_steps: Mapping[str, Collection[int]] | None = None
-                       ) -> StructureRunData:
+                       ) -> RunData:
     """Run one structure test without ROS and return its signals.
 
     Parameters
@@ -61,7 +61,7 @@ def simulate_structure(params, *, progress: Callable[[int, int], None] | None = 
 
     Returns
     -------
-    StructureRunData
+    RunData
         n samples of every rig and of the computational DOFs (fewer than the record if the
         run was aborted).
 
@@ -177,15 +177,12 @@ def simulate_structure(params, *, progress: Callable[[int, int], None] | None = 
 
         def signal(values):
             return np.array(values[:n], dtype=float)
-        runs[name] = RunData(
+        runs[name] = RigData(
             params=dict(rig_params[name], alpha=float(builder.setup.substructures.alpha[r])),
-            time_s=t, ground_acceleration_m_s2=np.array(ag[:n]),
             reference_force_N=signal(out['fr']), measured_force_N=signal(out['fm']),
             displacement_m=signal(out['x']), velocity_m_s=signal(out['v']),
             acceleration_m_s2=signal(out['a']),
-            valve_command_V=signal(out['u']) if valve[r] else None,
-            stable=reason is None, unstable_at_s=None if reason is None else n * dt,
-            abort_reason=reason, record_name=gm.name, source='simulate')
+            valve_command_V=signal(out['u']) if valve[r] else None)
     states = np.array(state_rec[:n], dtype=float).reshape(len(state_rec[:n]),
                                                           len(builder.state_names))
     # the computational state of sample k is recorded by the step of k+1: the last sample's
@@ -195,7 +192,7 @@ def simulate_structure(params, *, progress: Callable[[int, int], None] | None = 
         column = np.full(n, np.nan)
         column[:states.shape[0]] = states[:n, i]
         computational[name] = column
-    return StructureRunData(
+    return RunData(
         params=dict(params), rigs=runs, time_s=t, ground_acceleration_m_s2=np.array(ag[:n]),
         computational=computational, stable=reason is None,
         unstable_at_s=None if reason is None else n * dt, abort_reason=reason,
