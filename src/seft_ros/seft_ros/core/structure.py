@@ -71,10 +71,15 @@ from seft_msgs_py.parameters import TEST_PARAMETERS
 
 __all__ = ['Structure', 'parse_structure', 'Substructures', 'split', 'STRUCTURE_KEYS',
            'NAME_PATTERN', 'Link', 'NO_STRUCTURE', 'structure_of', 'rig_parameters',
-           'reduces_to_study', 'study_parameters']
+           'reduces_to_study', 'study_parameters', 'study_structure', 'STUDY_DOF', 'STUDY_RIG',
+           'TestSetup', 'test_setup']
 
 #: The ``structure`` parameter of a run without one (the reference study's single rig).
 NO_STRUCTURE = 'none'
+#: The degree of freedom of the reference study's test (:func:`study_structure`).
+STUDY_DOF = 'specimen'
+#: The rig of the reference study's test: the root namespace (its topics ``/seft/...``).
+STUDY_RIG = ''
 #: Names of DOFs and rigs: a ROS name token (a rig's name is its nodes' namespace).
 NAME_PATTERN = re.compile(r'^[A-Za-z][A-Za-z0-9_]*$')
 #: The keys of a ``structure`` section.
@@ -552,7 +557,7 @@ class Substructures:
 
 
 def split(structure: Structure, specimens: Mapping[str, Mapping[str, Any]], *,
-          where: str = 'structure') -> Substructures:
+          where: str = 'structure', study_alpha: float | None = None) -> Substructures:
     """Split the structure into the specimens of its rigs and the computational part.
 
     Parameters
@@ -560,9 +565,12 @@ def split(structure: Structure, specimens: Mapping[str, Mapping[str, Any]], *,
     structure : Structure
     specimens : mapping of str to mapping
         Rig name -> its resolved parameters (``mass_kg``, ``damping_N_s_per_m``,
-        ``stiffness_N_per_m``, ``specimen_model``).
+        ``stiffness_N_per_m``: a yielding member's elastic stiffness).
     where : str
         Prefix of the error messages.
+    study_alpha : float, optional
+        The mass ratio of a one-DOF structure as the user gave it (the study's ``alpha``):
+        kept exactly instead of ``mu / m`` rounded.
 
     Returns
     -------
@@ -571,10 +579,10 @@ def split(structure: Structure, specimens: Mapping[str, Mapping[str, Any]], *,
     Raises
     ------
     ParameterError
-        A rig without parameters, a specimen that is not linear, a physical DOF coupled by
-        mass to another DOF, a mass smaller than the specimen's, or a stiffness to the ground
-        (the row sum of ``K``) that differs from the specimen's: the structure's physical part
-        disagrees with the rig's specimen (the message gives both values).
+        A rig without parameters, a physical DOF coupled by mass to another DOF, a mass
+        smaller than the specimen's, or a stiffness to the ground (the row sum of ``K``)
+        that differs from the specimen's: the structure's physical part disagrees with the
+        rig's specimen (the message gives both values).
     """
     idx = structure.physical_index
     m = np.zeros(len(idx))
@@ -589,10 +597,6 @@ def split(structure: Structure, specimens: Mapping[str, Mapping[str, Any]], *,
         if rig not in specimens:
             raise ParameterError(f'{where}.physical.{dof}: rig {rig!r} has no parameters')
         p = specimens[rig]
-        model = p.get('specimen_model', 'linear')
-        if model != 'linear':
-            raise ParameterError(f'rig {rig}: parameter specimen_model={model!r}: a structure '
-                                 "needs a 'linear' specimen (its reference is linear)")
         m[j], c[j], k[j] = (float(p['mass_kg']), float(p['damping_N_s_per_m']),
                             float(p['stiffness_N_per_m']))
         others = [o for o in range(structure.n) if o != i and mass[i, o] != 0.0]
@@ -614,6 +618,8 @@ def split(structure: Structure, specimens: Mapping[str, Mapping[str, Any]], *,
                 f'stiffness_N_per_m={float(k[j])!r}: the structure disagrees with the specimen')
     rigid = np.array([max(mass[i, i] - m[j], 0.0) for j, i in enumerate(idx)])
     alpha = np.round(rigid / m, ALPHA_DECIMALS)
+    if study_alpha is not None and len(idx) == 1:
+        alpha = np.array([float(study_alpha)])
     mc = mass.copy()
     cc = structure.damping_N_s_per_m.copy()
     kc = stiff.copy()
@@ -631,18 +637,41 @@ def split(structure: Structure, specimens: Mapping[str, Mapping[str, Any]], *,
 # -- runs ----------------------------------------------------------------------------------
 
 
-def structure_of(params: Mapping[str, Any]) -> Structure | None:
-    """The run's structure (its ``structure`` parameter), None for the study's single rig.
+def study_structure(params: Mapping[str, Any]) -> Structure:
+    """The reference study's test as a structure: one physical DOF (:data:`STUDY_DOF`)
+    carrying the rigid computational mass ``alpha m``, tested on the rig of the root
+    namespace (:data:`STUDY_RIG`).
+
+    ``M = [(1 + alpha) m]``, ``C = [c]``, ``K = [k]`` from ``alpha``, ``mass_kg``,
+    ``damping_N_s_per_m`` and ``stiffness_N_per_m`` (a yielding member's elastic
+    stiffness); Eq. 2 of this module is then paper Eq. 2.5.
+    """
+    m, c, k = (float(params['mass_kg']), float(params['damping_N_s_per_m']),
+               float(params['stiffness_N_per_m']))
+    total = (1.0 + float(params['alpha'])) * m
+    return Structure((STUDY_DOF,), np.array([[total]]), np.array([[c]]), np.array([[k]]),
+                     np.ones(1), MappingProxyType({STUDY_DOF: STUDY_RIG}),
+                     MappingProxyType({STUDY_RIG: MappingProxyType({})}),
+                     (Link(0, None, f'{STUDY_DOF}-ground'),))
+
+
+def is_study(params: Mapping[str, Any]) -> bool:
+    """Whether a run is the reference study's test (no ``structure`` parameter)."""
+    return params.get('structure', NO_STRUCTURE) in (None, '', NO_STRUCTURE)
+
+
+def structure_of(params: Mapping[str, Any]) -> Structure:
+    """The run's structure: its ``structure`` parameter, or the study's one-DOF structure
+    (:func:`study_structure`) without one.
 
     Raises
     ------
     ParameterError
         The parameter is not the JSON of a valid structure.
     """
-    text = params.get('structure', NO_STRUCTURE)
-    if text in (None, '', NO_STRUCTURE):
-        return None
-    return Structure.from_json(text)
+    if is_study(params):
+        return study_structure(params)
+    return Structure.from_json(params['structure'])
 
 
 def rig_parameters(params: Mapping[str, Any], structure: Structure, rig: str, *,
@@ -680,6 +709,58 @@ def rig_parameters(params: Mapping[str, Any], structure: Structure, rig: str, *,
                                  'one rig; set it for all')
         out[name] = parameters.validate_value(name, value, where=f'{where}.{rig}')
     return out
+
+
+@dataclass(frozen=True)
+class TestSetup:
+    """What a test is made of: the split structure and each rig's parameters.
+
+    Attributes
+    ----------
+    substructures : Substructures
+    rig_params : dict of str to dict
+        Rig name -> its resolved parameters, in the order of the structure's rigs (the
+        study's rig ``''``: the run's parameters).
+    """
+
+    substructures: Substructures
+    rig_params: dict
+
+    @property
+    def structure(self) -> Structure:
+        """The :class:`Structure`."""
+        return self.substructures.structure
+
+    @property
+    def rig_names(self) -> tuple:
+        """The rigs, in the structure's order of its physical DOFs."""
+        return self.substructures.structure.rig_names
+
+    @property
+    def is_study(self) -> bool:
+        """Whether this is the reference study's test (its one rig in the root
+        namespace)."""
+        return self.rig_names == (STUDY_RIG,)
+
+
+def test_setup(params: Mapping[str, Any]) -> TestSetup:
+    """The :class:`TestSetup` of a run: its structure split against its rigs' specimens.
+
+    The study's test (no ``structure``) is the one-DOF structure of :func:`study_structure`
+    whose rig has the run's parameters and whose mass ratio is the run's ``alpha`` exactly.
+
+    Raises
+    ------
+    ParameterError
+        An invalid structure, or a rig whose parameters disagree with it.
+    """
+    structure = structure_of(params)
+    if is_study(params):
+        rig_params = {STUDY_RIG: dict(params)}
+        return TestSetup(split(structure, rig_params, study_alpha=float(params['alpha'])),
+                         rig_params)
+    rig_params = {r: rig_parameters(params, structure, r) for r in structure.rig_names}
+    return TestSetup(split(structure, rig_params), rig_params)
 
 
 def reduces_to_study(sub: Substructures) -> bool:

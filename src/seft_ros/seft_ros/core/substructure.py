@@ -60,7 +60,6 @@ testing, NSEL Report 006 (model-based delay compensation). A. K. Chopra, Dynamic
 Structures, Ch. 9-11 (multi-degree-of-freedom systems).
 """
 
-from dataclasses import dataclass
 from typing import Mapping, Sequence
 
 import numpy as np
@@ -68,12 +67,7 @@ import numpy as np
 from seft_msgs_py.errors import ParameterError
 from seft_msgs_py.interface import Measurement
 from seft_msgs_py.sampling import linear_map, single_blas_thread, split_delay, zoh
-from seft_ros.core.structure import (
-    Substructures,
-    rig_parameters,
-    split,
-    structure_of,
-)
+from seft_ros.core.structure import Substructures, TestSetup, test_setup
 
 __all__ = ['StructureBuilder', 'STRUCTURE_PREDICTORS', 'Timeline', 'hermite_step',
            'CoupledModel', 'structure_setup', 'StructureSetup', 'loop_delay']
@@ -82,44 +76,29 @@ __all__ = ['StructureBuilder', 'STRUCTURE_PREDICTORS', 'Timeline', 'hermite_step
 STRUCTURE_PREDICTORS = ('none', 'model')
 
 
-@dataclass(frozen=True)
-class StructureSetup:
-    """What a structure run is made of: the split structure and each rig's parameters.
-
-    Attributes
-    ----------
-    substructures : Substructures
-    rig_params : dict of str to dict
-        Rig name -> its resolved parameters, in the order of the structure's rigs.
-    """
-
-    substructures: Substructures
-    rig_params: dict
-
-    @property
-    def structure(self):
-        """The :class:`~seft_ros.core.structure.Structure`."""
-        return self.substructures.structure
-
-    @property
-    def rig_names(self) -> tuple:
-        """The rigs, in the structure's order of its physical DOFs."""
-        return self.substructures.structure.rig_names
+#: The setup of a test (:class:`~seft_ros.core.structure.TestSetup`).
+StructureSetup = TestSetup
 
 
-def structure_setup(params: Mapping) -> StructureSetup:
-    """The :class:`StructureSetup` of a run with a ``structure`` parameter.
+def structure_setup(params: Mapping) -> TestSetup:
+    """The :class:`~seft_ros.core.structure.TestSetup` of a run with a ``structure``
+    parameter (:func:`~seft_ros.core.structure.test_setup`).
 
     Raises
     ------
     ParameterError
-        No structure, or an invalid one, or a rig whose parameters disagree with it.
+        No structure, an invalid one, a rig whose parameters disagree with it, or a specimen
+        that is not linear.
     """
-    structure = structure_of(params)
-    if structure is None:
+    if params.get('structure', 'none') in (None, '', 'none'):
         raise ParameterError('parameter structure: this run has no structure')
-    rig_params = {r: rig_parameters(params, structure, r) for r in structure.rig_names}
-    return StructureSetup(split(structure, rig_params), rig_params)
+    setup = test_setup(params)
+    for rig, p in setup.rig_params.items():
+        model = p.get('specimen_model', 'linear')
+        if model != 'linear':
+            raise ParameterError(f'rig {rig}: parameter specimen_model={model!r}: a structure '
+                                 "needs a 'linear' specimen (its reference is linear)")
+    return setup
 
 
 def _rows(structure, unknown: Sequence[int]):
