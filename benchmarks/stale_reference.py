@@ -5,7 +5,7 @@ not arrived as the controller acts (a *stale* step: the builder's host was late)
 newest force; it now extrapolates it (``reference_extrapolation_steps``,
 :class:`seft_ros.core.controller.ReferencePlayout`). This replays stale steps in process
 (``stale_steps`` of :func:`seft_ros.core.experiment.simulate` for the study's test,
-:func:`seft_ros.core.structure_experiment.simulate_structure` for a structure) with the force
+:func:`seft_ros.core.structure_experiment.simulate` for a structure) with the force
 held (``reference_extrapolation_steps`` 0) and extrapolated (the configured value, or
 ``--extrapolate``) and prints the NRMS errors against the run without stale steps
 (displacement per DOF for a structure; displacement / acceleration / force for the study's
@@ -36,7 +36,6 @@ from seft_ros.analysis.structure_metrics import compare_structure
 from seft_ros.cli.api import has_structure
 from seft_ros.cli.config import expand_runs, load_config
 from seft_ros.core.experiment import simulate
-from seft_ros.core.structure_experiment import simulate_structure
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -53,7 +52,7 @@ def _nrms(run) -> dict:
 def _run(params: dict, stale: dict | None):
     """Simulate `params` with the stale steps of each rig (None: none)."""
     if has_structure(params):
-        return simulate_structure(params, stale_steps=stale)
+        return simulate(params, stale_steps=stale)
     return simulate(params, stale_steps=None if stale is None else stale['rig'])
 
 

@@ -1,5 +1,5 @@
 """A structure test as a node graph: every rig and its controller in the rig's namespace, over
-real DDS in lockstep, checked from the bag on disk against ``simulate_structure``.
+real DDS in lockstep, checked from the bag on disk against ``simulate``.
 
 Two structures: a two-story building whose first story is the study's specimen on the
 servohydraulic rig (one rig, a computational story), and a bridge deck on two piers of
@@ -19,7 +19,7 @@ from seft_msgs_py import parameters
 from seft_ros.analysis.bag import read_run
 from seft_ros.analysis.rundata import RunData
 from seft_ros.cli.config import expand_runs, load_config
-from seft_ros.core.structure_experiment import simulate_structure
+from seft_ros.core.experiment import simulate
 
 TWO_STORY = """\
 predictor: model
@@ -118,7 +118,7 @@ def test_two_story_graph_equals_simulate(runner, tmp_path):
                                      'story_2/acceleration_m_s2'}
     assert np.isnan(rd.computational['story_2/displacement_m'][-1])
     assert np.ptp(rd.computational['story_2/displacement_m'][:-1]) > 1e-4
-    _same_run(rd, simulate_structure(rd.params))
+    _same_run(rd, simulate(rd.params))
 
 
 @pytest.fixture
@@ -133,6 +133,9 @@ def processes(request, runner):
     ('central', 'model', 'servohydraulic', 'node'),
     ('per_rig', 'model', 'servohydraulic', 'node'),
     ('per_rig', 'model', 'delay', 'node'),
+    # one builder for rigs of different delays (20 ms force loop, 10 ms delay rig): each
+    # rig's compensator predicts over its own delay
+    ('central', 'model', 'delay', 'node'),
     # each pier's builder, controller and rig in one process (seft run --processes loop)
     ('per_rig', 'model', 'servohydraulic', 'loop'),
     ('central', 'model', 'servohydraulic', 'loop'),
@@ -166,7 +169,7 @@ def test_bridge_on_two_rigs_equals_simulate(runner, tmp_path, builders, predicto
     assert stiffness == {'pier_a': 2.11e5, 'pier_b': 3.376e5}
     assert rd.extra['parameter_mismatches'] == []
     assert (rd.rigs['pier_b'].valve_command_V is None) == (rig_b == 'delay')
-    _same_run(rd, simulate_structure(rd.params))
+    _same_run(rd, simulate(rd.params))
     if builders == 'per_rig':
         with Reader(out.bag_path) as reader:
             topics = {c.topic for c in reader.connections}
@@ -177,11 +180,11 @@ def test_bridge_on_two_rigs_equals_simulate(runner, tmp_path, builders, predicto
 def test_a_rig_at_its_limit_ends_every_rig_and_the_bag_reads(runner, tmp_path):
     """Uncompensated, the delay of the force loops destabilises the deck's coupling (negative
     damping): pier b reaches its stroke limit, and every rig ends there, aborted with that
-    reason; the bag up to then equals simulate_structure, which stops at the same step."""
+    reason; the bag up to then equals simulate, which stops at the same step."""
     params = _params(tmp_path, BRIDGE.format(builders='central', predictor='none',
                                              rig_b='delay').replace('duration_s: 1.0',
                                                                     'duration_s: 3.0'))
-    sim = simulate_structure(params)
+    sim = simulate(params)
     assert not sim.stable and sim.extra['abort_node'] == 'pier_b/rig'
     assert sim.abort_reason.startswith('stroke limit exceeded at t=')
     out = runner.run(params, tmp_path / 'run')
@@ -250,17 +253,6 @@ def test_a_rig_whose_specimen_disagrees_with_the_structure_is_refused(tmp_path):
             r"337600.0 N/m \(the row sum of the stiffness matrix\), but rig pier_b's specimen "
             r'has stiffness_N_per_m=300000.0: the structure disagrees with the specimen$')):
         _params(tmp_path, text)
-
-
-def test_one_builder_for_rigs_of_different_delays_is_refused_before_the_run(tmp_path):
-    text = BRIDGE.format(builders='central', predictor='model', rig_b='delay')
-    with pytest.raises(parameters.ParameterError, match=re.escape(
-            'config.yaml: predictor model with a structure: the rigs of one builder need the '
-            'same loop delay, got pier_a 20 ms, pier_b 10 ms (set predictor_tau_s or '
-            'predictor_loop_delay_steps in the rigs sections to one delay, or '
-            'structure_builders: per_rig)')):
-        _params(tmp_path, text)
-    _params(tmp_path, text.replace('rig_model: delay', 'rig_model: delay, tau_s: 0.02'))
 
 
 def test_a_structure_that_is_the_study_runs_as_the_study(tmp_path):

@@ -87,6 +87,12 @@ def _scoped_signal(signal: sig.Signal, rig: str, publisher: str | None = None) -
                       publisher or qualified(signal.publisher, rig), signal.description)
 
 
+def _rig_of_topic(topic: str) -> str:
+    """The rig of a topic in a rig's namespace (``/<rig>/seft/...``; '' for ``/seft/...``)."""
+    head = topic.split('/')[1] if topic.count('/') >= 3 else ''
+    return '' if head == 'seft' else head
+
+
 def _rigs(params: Mapping[str, Any]) -> tuple[tuple[str, ...], dict[str, str]]:
     """The rigs of a run (in the structure's order of its physical DOFs) and their models."""
     text = params.get('structure', 'none')
@@ -206,6 +212,10 @@ class Graph:
         """The reference force of `rig` (published by its builder)."""
         return _scoped_signal(sig.REFERENCE_FORCE, rig, self.builder_of(rig))
 
+    def estimates(self, rig: str) -> sig.Signal:
+        """The compensator's online estimates of `rig` (published by its builder)."""
+        return _scoped_signal(sig.ESTIMATES, rig, self.builder_of(rig))
+
     def valve_command(self, rig: str) -> sig.Signal:
         """The valve command of `rig` (published by its controller)."""
         return _scoped_signal(sig.VALVE_COMMAND, rig)
@@ -242,6 +252,10 @@ class Graph:
             out.append(sig.RecordStream(
                 scoped('/seft/record/reference_force_builder/structure', rig), builder, (),
                 fields_topic=scoped(STRUCTURE_STATE.name, rig)))
+        for r in self.rigs:
+            out.append(sig.RecordStream(
+                scoped('/seft/record/reference_force_builder/estimates', r), self.builder_of(r),
+                (), fields_topic=self.estimates(r).name))
         return tuple(out)
 
     def record_streams_of(self, node: str) -> tuple[sig.RecordStream, ...]:
@@ -269,9 +283,11 @@ class Graph:
                 out.append(sig.Signal(self.timing_topic(stream), sig.TIMING_TYPE, 'position',
                                       's', stream.node, sig.timing_signal(
                                           split_qualified(stream.node)[1]).description))
-            elif stream.fields_topic:
+            elif stream.fields_topic.endswith(STRUCTURE_STATE.name):
                 out.append(_scoped_signal(STRUCTURE_STATE, self.rig_of(stream.node) or '',
                                           stream.node))
+            elif stream.fields_topic:
+                out.append(self.estimates(_rig_of_topic(stream.fields_topic)))
         return tuple(out)
 
     def complete_step_topics(self) -> tuple[str, ...]:

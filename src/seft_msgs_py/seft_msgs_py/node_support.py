@@ -50,6 +50,7 @@ from seft_msgs_py.errors import ParameterError, SeftError
 from seft_msgs_py.graph import Graph, qualified, scoped, split_qualified
 from seft_msgs_py.scheduling import set_fifo
 from seft_msgs_py.signals import (
+    ESTIMATES,
     MEASUREMENT_FIELDS,
     RECORD_ROWS,
     RecordStream,
@@ -496,7 +497,11 @@ class SeftNode(Node):
             counts.update(self.timing.counts())
         for batch in self.records:
             if batch.stream.fields_topic:
-                counts['published_estimates'] = batch.added
+                # each fields topic's rows (a builder may have several: the structure's state,
+                # each rig's estimates); the study's estimates also as 'published_estimates'
+                counts[f'published:{batch.stream.fields_topic}'] = batch.added
+                if batch.stream.fields_topic == ESTIMATES.name:
+                    counts['published_estimates'] = batch.added
         return counts
 
     def sample_time_ns(self, step: int) -> float:

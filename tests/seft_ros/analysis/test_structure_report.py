@@ -17,10 +17,10 @@ from seft_msgs_py.errors import ParameterError
 from seft_ros.analysis.report import write_report
 from seft_ros.analysis.rundata import RigData, RunData
 from seft_ros.analysis.structure_metrics import compare_structure, structure_summary_entry
+from seft_ros.core.experiment import simulate
 from seft_ros.core.ground_motion import prepared_record
 from seft_ros.core.structure import parse_structure
-from seft_ros.core.structure_experiment import simulate_structure
-from seft_ros.core.substructure import structure_setup
+from seft_ros.core.structure import test_setup as structure_setup
 
 M, K, C = 52.7, 2.11e5, 903.278
 TWO_STORY = {'dofs': ['story_1', 'story_2'], 'physical': {'story_1': 'lab'},
@@ -100,7 +100,7 @@ def test_scaled_and_delayed_signals_give_known_errors():
 
 def test_a_delay_rig_run_follows_the_structure_and_the_summary_is_strict_json():
     params = _params()
-    run = simulate_structure(params)
+    run = simulate(params)
     c = compare_structure(run)
     for d in c.dofs:
         # the delay rig's force is exactly the command, delayed: the model compensator's
@@ -123,7 +123,7 @@ def test_a_delay_rig_run_follows_the_structure_and_the_summary_is_strict_json():
 
 
 def test_report_files_hold_the_summary_numbers(tmp_path):
-    runs = [simulate_structure(_params(predictor=p)) for p in ('none', 'model')]
+    runs = [simulate(_params(predictor=p)) for p in ('none', 'model')]
     assert not runs[0].stable         # uncompensated, the coupling's negative damping
     paths = write_report(runs, tmp_path, title='two stories')
     summary = json.loads(paths.summary_json.read_text())['runs']
@@ -146,7 +146,7 @@ def test_report_files_hold_the_summary_numbers(tmp_path):
 def test_one_report_does_not_mix_structures_and_single_rigs(tmp_path):
     from seft_ros.core.experiment import simulate
     single = simulate(parameters.resolve({'duration_s': 1.0}))
-    structure = simulate_structure(_params(duration_s=1.0))
+    structure = simulate(_params(duration_s=1.0))
     with pytest.raises(ParameterError, match='structure tests and single-rig tests in one '
                                              'report'):
         write_report([single, structure], tmp_path)

@@ -111,8 +111,10 @@ def test_stability_map_of_a_structure(seft_exe, run_process, tmp_path):
                        cwd=tmp_path, timeout=120)
     assert proc.returncode == 0, proc.stderr
     lines = proc.stdout.splitlines()
-    assert lines[0].split() == ['io_latency_s', '[ms]', 'none', 'model']
-    assert lines[1].split() == ['0.00', 'unstable', '>3']
+    # every compensator, in the registry's order (adaptive: no linear model)
+    assert lines[0].split() == ['io_latency_s', '[ms]', 'none', 'polynomial', 'model',
+                                'adaptive', 'ats']
+    assert lines[1].split() == ['0.00', 'unstable', '>3', '>3', 'n/a', '>3']
     doc = json.loads((tmp_path / 'map' / 'stability.json').read_text())
     assert doc['quantity'] == 'largest stable coupling scale of the computational part'
     assert (tmp_path / 'map' / 'stability.png').stat().st_size > 10_000

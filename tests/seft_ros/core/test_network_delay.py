@@ -17,7 +17,7 @@ from seft_ros.analysis.metrics import nrms_error
 from seft_ros.analysis.reference import reference_response
 from seft_ros.core.excitation import make_valve_controller
 from seft_ros.core.ground_motion import prepared_record
-from seft_ros.core.reference_force import ReferenceForceBuilder, network_delay_steps
+from seft_ros.core.reference_force import RigReferenceForce, network_delay_steps
 
 DT = 0.002
 
@@ -31,7 +31,7 @@ def run_across_network(predictor: str, m: int, network_delay_s: float, alpha=0.5
                             'network_delay_s': network_delay_s})
     ag = prepared_record(p).acceleration_m_s2
     rig, ctrl = make_rig(p), make_valve_controller(p)
-    builder = ReferenceForceBuilder.from_parameters(p)
+    builder = RigReferenceForce.from_parameters(p)
     look = builder.lookahead_steps
     padded = ag.tolist() + [0.0] * (look + 1)
     built = [builder.step(padded[0:1 + look], None)]       # f_r[0], before the clock
@@ -86,7 +86,7 @@ def _peak_acceleration_late(m: int, alpha: float) -> tuple[float, float]:
                             'network_delay_s': m * DT})
     ag = prepared_record(p).acceleration_m_s2
     rig, ctrl = make_rig(p), make_valve_controller(p)
-    builder = ReferenceForceBuilder.from_parameters(p)
+    builder = RigReferenceForce.from_parameters(p)
     built = [builder.step([ag[0]], None)]
     acc = []
     for k in range(len(ag)):

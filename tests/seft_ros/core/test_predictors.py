@@ -28,7 +28,7 @@ from seft_ros.core.predictors import (
 from seft_ros.core.reference_force import (
     PREDICTORS,
     Predictor,
-    ReferenceForceBuilder,
+    RigReferenceForce,
     ground_window,
     make_predictor,
 )
@@ -207,7 +207,7 @@ def test_registry_schema_and_protocol():
 def test_ground_window_pads_after_the_record():
     ag = [1.0, 2.0, 3.0]
     assert ground_window(ag.__getitem__, 1, 3, 3) == [2.0, 3.0, 0.0, 0.0]
-    b = ReferenceForceBuilder(1.0, M, ModelPredictor(DelayImpulseModel(M, C, K, DT, 0.01),
+    b = RigReferenceForce(1.0, M, ModelPredictor(DelayImpulseModel(M, C, K, DT, 0.01),
                                                      1.0, M), dt=DT, ground_preview=True)
     assert b.lookahead_steps == 6
     with pytest.raises(ParameterError, match=r'^ground window of 1 samples: expected 7'):

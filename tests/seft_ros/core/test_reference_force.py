@@ -19,7 +19,7 @@ from seft_ros.core.reference_force import (
     PREDICTORS,
     NoPredictor,
     Predictor,
-    ReferenceForceBuilder,
+    RigReferenceForce,
     ground_window,
     make_predictor,
     with_loop_latency,
@@ -34,7 +34,7 @@ def meas(k, acceleration):
 
 
 def test_formula_by_hand():
-    b = ReferenceForceBuilder(0.5, M, NoPredictor())
+    b = RigReferenceForce(0.5, M, NoPredictor())
     # step 0, specimen at rest: -(1 + 0.5) * 52.7 * 2.0 = -158.1
     assert b.step(2.0, None) == pytest.approx(-158.1, rel=1e-15)
     # step 1: -(1.5) 52.7 (-1.0) - 0.5 * 52.7 * (-3.0) = 79.05 + 79.05 = 158.1
@@ -45,7 +45,7 @@ def test_formula_by_hand():
 
 
 def test_alpha_zero_is_the_effective_force():
-    b = ReferenceForceBuilder(0.0, M, NoPredictor())
+    b = RigReferenceForce(0.0, M, NoPredictor())
     ag = np.random.default_rng(4).standard_normal(50)
     forces = [b.step(a, meas(k, 1e3 * (k + 1))) for k, a in enumerate(ag)]
     np.testing.assert_array_equal(forces, -M * ag)
@@ -53,7 +53,7 @@ def test_alpha_zero_is_the_effective_force():
 
 def test_none_predictor_uses_the_previous_measurement():
     alpha = 1.3
-    b = ReferenceForceBuilder(alpha, M, make_predictor({'predictor': 'none'}))
+    b = RigReferenceForce(alpha, M, make_predictor({'predictor': 'none'}))
     rng = np.random.default_rng(8)
     ag, am = rng.standard_normal(200), rng.standard_normal(200) * 5.0
     got = [b.step(ag[0], None)]
@@ -83,7 +83,7 @@ def test_predictor_registry_and_protocol(reference_params):
         assert q.name == name and isinstance(q.step_average, bool)
         assert isinstance(q.delay_s, float) and q.delay_s >= 0.0
         assert callable(q.predict) and callable(q.command)
-    b = ReferenceForceBuilder.from_parameters(dict(reference_params, alpha=2))
+    b = RigReferenceForce.from_parameters(dict(reference_params, alpha=2))
     assert (b.alpha, b.mass_kg, b.predictor.name) == (2.0, 52.7, 'none')
 
 
@@ -103,7 +103,7 @@ def test_unknown_predictor():
 ])
 def test_builder_parameter_errors(alpha, mass, message):
     with pytest.raises(ParameterError, match=message):
-        ReferenceForceBuilder(alpha, mass, NoPredictor())
+        RigReferenceForce(alpha, mass, NoPredictor())
 
 
 def test_loop_latency_moves_the_modelled_delay_by_latency_minus_dt():
@@ -239,7 +239,7 @@ def test_step_average_reference_by_hand():
 def test_step_average_ground_without_preview():
     """g[k] = (xg[k] + xg[k+1]) / 2: F = -(1.5)(52.7)(2) - 0.5 (52.7)(4) = -158.1 - 105.4."""
     pred = RecordingPredictor(delay_s=0.003, a_hat=4.0, gain=-3.0)
-    b = ReferenceForceBuilder(0.5, M, pred, dt=0.002)
+    b = RigReferenceForce(0.5, M, pred, dt=0.002)
     assert (b.ground_preview, b.lookahead_steps, b.last_ground_force_N) == (False, 1, 0.0)
     assert b.ground([1.0, 3.0]) == 2.0
     latest = meas(0, 9.0)
@@ -258,7 +258,7 @@ def test_ground_preview_shifts_the_step_average_by_the_delay():
     G = -(1.5)(52.7)(0.25) = -19.7625 N and F = G - 0.5 (52.7)(2) = -72.4625 N.
     """
     pred = RecordingPredictor(delay_s=0.003, a_hat=2.0, gain=2.0)
-    b = ReferenceForceBuilder(0.5, M, pred, dt=0.002, ground_preview=True)
+    b = RigReferenceForce(0.5, M, pred, dt=0.002, ground_preview=True)
     assert (b.ground_preview, b.dt, b.lookahead_steps) == (True, 0.002, 3)
     window = [1.0, 3.0, -1.0, 5.0]
     assert b.ground(window) == pytest.approx(0.25, rel=1e-14)
@@ -279,7 +279,7 @@ def test_ground_preview_shifts_the_step_average_by_the_delay():
 def test_ground_method_matches_the_step_average(delay_s):
     """ground() and step() use the same g[k], the step average shifted by tau / dt."""
     rng = np.random.default_rng(11)
-    b = ReferenceForceBuilder(1.0, M, RecordingPredictor(delay_s=delay_s), dt=0.001,
+    b = RigReferenceForce(1.0, M, RecordingPredictor(delay_s=delay_s), dt=0.001,
                               ground_preview=True)
     # 1 + ceil(tau / dt) samples after xg[k]
     assert b.lookahead_steps == 1 + math.ceil(round(delay_s / 0.001, 9))
@@ -291,7 +291,7 @@ def test_ground_method_matches_the_step_average(delay_s):
 
 
 def test_ground_of_the_sample_predictor_is_the_sample():
-    b = ReferenceForceBuilder(0.5, M, NoPredictor(), dt=0.002, ground_preview=True)
+    b = RigReferenceForce(0.5, M, NoPredictor(), dt=0.002, ground_preview=True)
     assert (b.ground_preview, b.lookahead_steps) == (True, 0)
     assert b.ground([-0.7]) == -0.7 and b.ground([0.3, 5.0]) == 0.3
 
@@ -306,15 +306,15 @@ def test_ground_of_the_sample_predictor_is_the_sample():
 def test_preview_window_length(delay_s, max_delay_s, dt, look):
     """lookahead = 1 + ceil(tau_max / dt) (rounding errors of the division aside)."""
     pred = RecordingPredictor(delay_s=delay_s, max_delay_s=max_delay_s)
-    b = ReferenceForceBuilder(0.5, M, pred, dt=dt, ground_preview=True)
+    b = RigReferenceForce(0.5, M, pred, dt=dt, ground_preview=True)
     assert b.lookahead_steps == look
     b.step([0.0] * (look + 1), None)                      # long enough to be read
-    assert ReferenceForceBuilder(0.5, M, pred, dt=dt).lookahead_steps == 1
+    assert RigReferenceForce(0.5, M, pred, dt=dt).lookahead_steps == 1
 
 
 def test_preview_needs_dt():
     """Without dt (the default 0) the preview is off: the window is 2 samples, no division."""
-    b = ReferenceForceBuilder(0.5, M, RecordingPredictor(delay_s=0.003), ground_preview=True)
+    b = RigReferenceForce(0.5, M, RecordingPredictor(delay_s=0.003), ground_preview=True)
     assert (b.dt, b.ground_preview, b.lookahead_steps) == (0.0, False, 1)
     assert b.ground([1.0, 3.0, -1.0]) == 2.0
 
@@ -324,14 +324,14 @@ def test_from_parameters_preview():
     from seft_msgs_py import parameters
     p = parameters.resolve({'rig_model': 'delay', 'predictor': 'model'})
     assert (p['tau_s'], p['dt'], p['ground_preview']) == (0.01, 0.002, True)
-    b = ReferenceForceBuilder.from_parameters(p)
+    b = RigReferenceForce.from_parameters(p)
     assert (b.dt, b.ground_preview, b.lookahead_steps) == (0.002, True, 6)
-    b = ReferenceForceBuilder.from_parameters(dict(p, ground_preview=False))
+    b = RigReferenceForce.from_parameters(dict(p, ground_preview=False))
     assert (b.dt, b.ground_preview, b.lookahead_steps) == (0.002, False, 1)
 
 
 def test_short_ground_window():
-    b = ReferenceForceBuilder(0.5, M, RecordingPredictor(), dt=0.002)
+    b = RigReferenceForce(0.5, M, RecordingPredictor(), dt=0.002)
     message = r'^ground window of 1 samples: expected 2 \(xg\[k\.\.k\+1\]\)$'
     with pytest.raises(ParameterError, match=message):
         b.step([0.5], None)
@@ -343,13 +343,13 @@ def test_short_ground_window():
 @pytest.mark.parametrize('ground', [[2.0], np.array([2.0]), (2.0, 7.0), np.float64(2.0), 2])
 def test_sample_predictor_takes_a_float_or_a_window(ground):
     """-(1 + 0.5) 52.7 2 = -158.1 N whatever the form of xg[k]."""
-    b = ReferenceForceBuilder(0.5, M, NoPredictor())
+    b = RigReferenceForce(0.5, M, NoPredictor())
     assert b.step(ground, None) == pytest.approx(-158.1, rel=1e-15)
 
 
 def test_small_mass():
     """A 0.5 kg specimen is valid: -(1 + 0) 0.5 2 = -1 N."""
-    assert ReferenceForceBuilder(0.0, 0.5, NoPredictor()).step(2.0, None) == -1.0
+    assert RigReferenceForce(0.0, 0.5, NoPredictor()).step(2.0, None) == -1.0
 
 
 # -- ground_window ----------------------------------------------------------------------------

@@ -14,7 +14,6 @@ from seft_ros.analysis.structure_metrics import compare_structure
 from seft_ros.cli.config import expand_runs, load_config
 from seft_ros.core.controller import ReferencePlayout
 from seft_ros.core.experiment import simulate
-from seft_ros.core.structure_experiment import simulate_structure
 
 CONFIG = Path(__file__).resolve().parents[3] / 'config'
 DT = 0.002
@@ -114,7 +113,7 @@ def _bridge():
 
 
 def _nrms(params, **kwargs):
-    run = simulate_structure(params, **kwargs)
+    run = simulate(params, **kwargs)
     assert run.stable
     return {d.dof: d.displacement.nrms for d in compare_structure(run).dofs}
 
@@ -137,8 +136,8 @@ def test_stale_steps_replayed_in_process_hold_degrades_extrapolation_restores():
 
 def test_no_stale_step_is_the_lockstep_run_bit_for_bit():
     params = _bridge()
-    plain = simulate_structure(params)
-    replayed = simulate_structure(params, stale_steps={'pier_a': set(), 'pier_b': set()})
+    plain = simulate(params)
+    replayed = simulate(params, stale_steps={'pier_a': set(), 'pier_b': set()})
     for rig in ('pier_a', 'pier_b'):
         np.testing.assert_array_equal(plain.rigs[rig].displacement_m,
                                       replayed.rigs[rig].displacement_m)
@@ -146,7 +145,7 @@ def test_no_stale_step_is_the_lockstep_run_bit_for_bit():
 
 def test_stale_steps_of_an_unknown_rig_are_refused():
     with pytest.raises(ParameterError, match='stale steps of rig.*pier_c'):
-        simulate_structure(_bridge(), stale_steps={'pier_c': {3}})
+        simulate(_bridge(), stale_steps={'pier_c': {3}})
 
 
 def test_the_study_test_replayed_with_stale_steps_held_and_extrapolated():

@@ -6,8 +6,8 @@ import pytest
 
 from seft_ros.analysis.structure_metrics import compare_structure
 from seft_ros.cli.config import expand_runs, load_config
-from seft_ros.core.structure_experiment import simulate_structure
-from seft_ros.core.structure_stability import StructureLoop
+from seft_ros.core.experiment import simulate as simulate_structure
+from seft_ros.core.stability import TestLoop as StructureLoop
 
 CONFIG = Path(__file__).resolve().parents[3] / 'config'
 

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from scipy import signal
 
+from seft_msgs_py import parameters
 from seft_msgs_py.errors import ParameterError
 from seft_plant_sim.servohydraulic import (
     ServoHydraulicParams,
@@ -19,6 +20,7 @@ from seft_ros.core import stability as st
 from seft_ros.core.controller import ForceServoController
 from seft_ros.core.experiment import simulate
 from seft_ros.core.reference_force import PREDICTORS
+from seft_ros.core.structure import parse_structure, test_setup
 
 
 @pytest.fixture(scope='module')
@@ -292,3 +294,72 @@ def test_largest_stable_dt_of_the_force_loop():
     assert check.message.startswith('parameter dt=0.01: the force loop alone (alpha = 0, no '
                                     'mass fed back) is predicted unstable on the '
                                     'servohydraulic rig: the sample period is too long')
+
+
+# -- structures: the whole loop, the coupling scale --------------------------------------------
+
+M_S, K_S, C_S = 52.7, 2.11e5, 903.278
+
+
+def _two_story(mu, fr, predictor, rig='servohydraulic', **rig_section):
+    m2, k2 = mu * M_S, mu * fr ** 2 * K_S
+    s = parse_structure({'dofs': ['s1', 's2'], 'physical': {'s1': 'lab'},
+                         'story_masses_kg': [M_S, m2], 'story_stiffnesses_N_per_m': [K_S, k2],
+                         'story_damping_N_s_per_m': [C_S, 0.04 * np.sqrt(k2 * m2)]},
+                        rigs={'lab': dict(rig_model=rig, **rig_section)})
+    return parameters.resolve({'structure': s.to_json(), 'predictor': predictor,
+                               'duration_s': 20.0, 'monitor_threshold': 0.0})
+
+
+@pytest.mark.parametrize('rig', ['servohydraulic', 'delay'])
+def test_the_rigid_limit_has_the_studys_boundary(rig):
+    """One physical DOF carrying the rigid mass alpha m = m: the coupling scale is alpha, and
+    uncompensated the boundary is the study's largest stable alpha (1.32 / 0.93)."""
+    s = parse_structure({'physical': {'floor_1': 'lab'}, 'story_masses_kg': [2 * M_S],
+                         'story_stiffnesses_N_per_m': [K_S], 'story_damping_N_s_per_m': [C_S]},
+                        rigs={'lab': {'rig_model': rig}})
+    p = parameters.resolve({'structure': s.to_json(), 'predictor': 'none'})
+    study = st.largest_stable_alpha(parameters.resolve(
+        {'alpha': 1.0, 'predictor': 'none', 'rig_model': rig}))
+    assert st.largest_stable_scale(p, step=0.05, tol=1e-4) == pytest.approx(study, abs=2e-4)
+
+
+def test_scaling_keeps_the_specimens_and_scales_the_rest():
+    p = _two_story(1.0, 2.0, 'model')
+    sub = test_setup(st.scaled_parameters(p, 0.5)).substructures
+    whole = test_setup(p).substructures
+    assert sub.specimen_stiffness_N_per_m == pytest.approx(whole.specimen_stiffness_N_per_m)
+    np.testing.assert_allclose(sub.stiffness_c_N_per_m, 0.5 * whole.stiffness_c_N_per_m)
+    np.testing.assert_allclose(sub.mass_c_kg, 0.5 * whole.mass_c_kg)
+    with pytest.raises(parameters.ParameterError, match='coupling scale 0: expected > 0'):
+        st.scaled_parameters(p, 0)
+
+
+def _grows(params) -> bool:
+    """Stepped (monitor off): the story's motion still near its peak in the record's quiet
+    end, or a limit reached."""
+    run = simulate(params)
+    x = run.rigs['lab'].displacement_m
+    return (not run.stable) or np.max(np.abs(x[-1000:])) > 0.5 * np.max(np.abs(x))
+
+
+@pytest.mark.parametrize('mu, fr, predictor, stable', [
+    (1.0, 1.0, 'model', True),
+    (1.5, 3.0, 'model', False),     # the second mode at 48 Hz, beyond the force loop's band
+    (0.5, 0.5, 'none', True),       # a soft coupling survives the delay's negative damping
+    (1.0, 1.0, 'none', False),
+])
+def test_the_guard_says_what_the_stepped_run_does(mu, fr, predictor, stable):
+    p = _two_story(mu, fr, predictor)
+    radius = st.TestLoop(p).spectral_radius
+    assert (radius < 1.0) == stable
+    assert _grows(p) == (not stable)
+
+
+def test_check_structure_says_it_in_one_line():
+    check = st.check_run(_two_story(1.0, 1.0, 'none'))
+    assert check.stable is False
+    assert check.message.startswith('structure with predictor none is predicted UNSTABLE '
+                                    '(spectral radius 1.0')
+    ok = st.check_run(_two_story(1.0, 1.0, 'model'))
+    assert ok.stable and 'predicted stable' in ok.message

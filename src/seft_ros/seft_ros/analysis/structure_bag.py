@@ -197,7 +197,7 @@ def read_structure_run(path) -> RunData:
         return np.array([d[k] for k in range(n)], dtype=float)
 
     ag = arr(signals.GROUND_ACCELERATION.name)
-    from seft_ros.core.substructure import structure_setup
+    from seft_ros.core.structure import test_setup as structure_setup
     try:
         setup = structure_setup(params)
     except ParameterError as exc:

@@ -154,7 +154,7 @@ def reference_of(run: RunData) -> StructureReference:
     ParameterError
         The run's ``structure`` is missing or invalid.
     """
-    from seft_ros.core.substructure import structure_setup
+    from seft_ros.core.structure import test_setup as structure_setup
     setup = structure_setup(run.params)
     sub = setup.substructures
     specimens = list(zip(sub.specimen_mass_kg, sub.specimen_damping_N_s_per_m,

@@ -244,11 +244,7 @@ def has_structure(params) -> bool:
 
 
 def simulate_any(params: dict, progress=None):
-    """One run in one process: :func:`~seft_ros.core.experiment.simulate`, or
-    :func:`~seft_ros.core.structure_experiment.simulate_structure` for a structure test."""
-    if has_structure(params):
-        from seft_ros.core.structure_experiment import simulate_structure
-        return simulate_structure(params, progress=progress)
+    """One run in one process: :func:`~seft_ros.core.experiment.simulate`."""
     return simulate(params, progress=progress)
 
 
@@ -867,9 +863,7 @@ def check_stability(*, runs: list[dict], force: bool = False,
     PredictedUnstableError
         A run is predicted unstable and `force` is False (message of the first such run).
     """
-    from seft_ros.core.structure_stability import check_structure
-    checks = [stability.check_run(p) if not has_structure(p) else check_structure(p)
-              for p in runs]
+    checks = [stability.check_run(p) for p in runs]
     unstable = [c for c in checks if c.stable is False]
     for c in checks:
         if c.stable is None:
@@ -950,25 +944,18 @@ def stability_report(*, out_dir: Path, config: str | None = None,
         raise ParameterError(f'--points {n}: expected >= 2')
     if not alpha_max > 0:
         raise ParameterError(f'--alpha-max {alpha_max:g}: expected > 0')
-    from seft_ros.core.substructure import STRUCTURE_PREDICTORS
-    registry = STRUCTURE_PREDICTORS if structure else PREDICTORS
-    names = list(predictors or registry)
+    names = list(predictors or PREDICTORS)
     for name in names:
-        if name not in registry:
-            choices = ', '.join(repr(c) for c in registry)
-            raise ParameterError(f'predictor {name!r}: expected one of {choices}'
-                                 + (' (with a structure)' if structure else ''))
+        if name not in PREDICTORS:
+            choices = ', '.join(repr(c) for c in PREDICTORS)
+            raise ParameterError(f'predictor {name!r}: expected one of {choices}')
     if not structure and rig == 'servohydraulic':
         # a sample period too long for the force loop itself: said at once, not after a map
         alone = stability.check_run(dict(params, alpha=0.0, predictor='none'))
         if alone.stable is False:
             raise ParameterError(alone.message)
     taus = np.linspace(lo, hi, n)
-    if structure:
-        from seft_ros.core.structure_stability import structure_stability_map
-        smap = structure_stability_map(params, taus, names, scale_max=alpha_max)
-    else:
-        smap = stability.stability_map(params, taus, names, alpha_max=alpha_max)
+    smap = stability.stability_map(params, taus, names, alpha_max=alpha_max)
     # a structure's runs are at coupling scale 1
     alphas = [1.0 if structure else float(p['alpha']) for p in runs]
     json_path = Path(out_dir) / 'stability.json'

@@ -116,8 +116,9 @@ def expand_runs(config: dict[str, Any], *, where: str = '') -> list[dict[str, An
 
 
 def _with_structure(params: dict[str, Any], where: str) -> dict[str, Any]:
-    """A run with a structure, checked against its rigs (:func:`structure_setup`); the
-    study's test if it reduces to it (:func:`~seft_ros.core.structure.reduces_to_study`).
+    """A run with a structure, checked against its rigs
+    (:func:`~seft_ros.core.structure.test_setup`); the study's test if it reduces to it
+    (:func:`~seft_ros.core.structure.reduces_to_study`).
 
     Raises
     ------
@@ -127,16 +128,11 @@ def _with_structure(params: dict[str, Any], where: str) -> dict[str, Any]:
     """
     if params.get('structure', 'none') in ('none', '', None):
         return params
-    from seft_msgs_py.graph import Graph
-    from seft_ros.core.structure import reduces_to_study, study_parameters
-    from seft_ros.core.substructure import loop_delay, structure_setup
+    from seft_ros.core.structure import reduces_to_study, study_parameters, test_setup
     try:
-        setup = structure_setup(params)
+        setup = test_setup(params)
         if reduces_to_study(setup.substructures):
             return study_parameters(params, setup.substructures)
-        graph = Graph.from_parameters(params)
-        for builder in graph.builder_nodes():
-            loop_delay(setup, graph.local_rigs(builder), params['predictor'], params['dt'])
     except ParameterError as exc:
         raise ParameterError(f'{where}: {exc}' if where else str(exc)) from None
     return params

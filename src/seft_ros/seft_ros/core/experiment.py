@@ -1,33 +1,40 @@
-"""A substructure EFT experiment in one process, from the same classes the nodes use.
+"""A substructure EFT test in one process, from the same classes the nodes use.
 
 This is ``seft simulate`` and the independent check of the node graph: the lockstep graph and
 :func:`simulate` execute the same calls in the same order, so they give the same samples.
+Every test is a structure (:mod:`seft_ros.core.structure`); the reference study's test is its
+one-rig case.
 
-One step k (the node that does it in the graph in brackets)::
+One step k (the node that does it in the graph in brackets), each rig in the structure's
+order of its physical DOFs::
 
-    [rig]                     stop if rig.limit_violation(); m_k = rig.measure()
-    [force_servo_controller]  u_k = C_e(f_r[k] - f_m[k]) + g_v (v_k + T_v a_k) (m_k's velocity
-                              and acceleration; g_v = 0 for loop shaping; the tangent design
-                              schedules C_e on m_k), or u_k = e[k] in an open-loop
-                              identification run; stop if the interlock trips
-    [rig]                     rig.apply(u_k)            (delay rig: rig.apply(f_r[k]))
-    [reference_force_builder] stop if the instability monitor trips on m_k (k+1 < N);
-                              f_r[k+1] = -(1+alpha) m g[k+1] - alpha m a_hat(m_k, ...)
-                              from xg''[k+1 .. k+1+L] (the record is known ahead)
+    for each rig r:
+      [rig]                     stop if rig.limit_violation(); m_r = rig.measure()
+      [force_servo_controller]  u_r = C_e(f_r[k] - f_m,r[k]) + g_v (v + T_v a) (m_r's
+                                velocity and acceleration; g_v = 0 for loop shaping; the
+                                tangent design schedules C_e on m_r), or u_r = e[k] in an
+                                open-loop identification run; stop if the interlock trips
+      [rig]                     rig.apply(u_r)            (delay rig: rig.apply(f_r[k]))
+    [reference_force_builder]   stop if a rig's instability monitor trips on m_r (k+1 < N);
+                                builder.observe(r, m_r) for every rig r (every builder);
+                                f[k+1] = builder.step(xg''[k+1 .. k+1+L]) (each builder: its
+                                rigs' forces; the study: -(1+alpha) m g[k+1] - alpha m a_hat)
 
-``f_r[0]`` is built from ``xg''[0]`` with the specimen at rest.
+``f[0]`` is built from ``xg''[0..]`` with the structure at rest.
 """
 
 import time
-from typing import Callable, Collection
+from typing import Callable, Collection, Mapping
 
 import numpy as np
 
 from seft_msgs_py import parameters
+from seft_msgs_py.errors import ParameterError
+from seft_msgs_py.graph import Graph, qualified
 from seft_msgs_py.interface import COMMAND_VALVE
 from seft_msgs_py.sampling import single_blas_thread
 from seft_plant_sim.rigs import make_rig
-from seft_ros.analysis.rundata import RunData
+from seft_ros.analysis.rundata import RigData, RunData
 from seft_ros.core.controller import ReferencePlayout, SaturationInterlock
 from seft_ros.core.excitation import make_valve_controller
 from seft_ros.core.ground_motion import GroundMotion, prepared_record
@@ -39,128 +46,194 @@ __all__ = ['simulate']
 
 def simulate(params, *, progress: Callable[[int, int], None] | None = None,
              record: GroundMotion | None = None,
-             stale_steps: Collection[int] | None = None) -> RunData:
-    """Run one experiment without ROS and return its signals.
+             stale_steps: Mapping[str, Collection[int]] | Collection[int] | None = None
+             ) -> RunData:
+    """Run one test without ROS and return its signals.
 
     Parameters
     ----------
     params : mapping
-        Parameter values (validated against ``seft_msgs_py.parameters``).
+        Parameter values (validated against ``seft_msgs_py.parameters``), with a
+        ``structure`` or the study's ``alpha``.
     progress : callable(step, n_steps), optional
         Called about every 0.5 s of wall time.
     record : GroundMotion, optional
         Already prepared ground motion (default:
         :func:`~seft_ros.core.ground_motion.prepared_record`).
-    stale_steps : collection of int, optional
-        The steps at which the force servo controller acts before the reference force of the
-        step has arrived (a real-time run's stale steps, from its bag's timing records,
-        replayed in process): it then acts as in real time
-        (:class:`~seft_ros.core.controller.ReferencePlayout` with
-        ``reference_extrapolation_steps``) and the force arrives just after. Servohydraulic
-        rig only (ignored on the delay rig, which has no controller); default none
-        (lockstep).
+    stale_steps : mapping of str to collection of int, or collection of int, optional
+        Rig name -> the steps at which its force servo controller acts before the reference
+        force of the step has arrived (a real-time run's stale steps, from its bag's timing
+        records, replayed in process); a plain collection for a test of one rig. At those
+        steps the controller acts as in real time
+        (:class:`~seft_ros.core.controller.ReferencePlayout` with the rig's
+        ``reference_extrapolation_steps``) and the force arrives just after.
+        Servohydraulic rigs only (ignored on the delay rig, which has no controller);
+        default none (lockstep).
 
     Returns
     -------
     RunData
-        n samples (fewer than the record if the run was aborted).
+        n samples of every rig and of the computational DOFs (fewer than the record if the
+        run was aborted).
 
     Raises
     ------
     InputError, ParameterError
-        Bad record or parameter.
+        Bad record, parameter or structure; `stale_steps` of a rig the test has not.
     """
     params = parameters.resolve(params)
     gm = record if record is not None else prepared_record(params)
     ag = gm.acceleration_m_s2
     n_total = ag.shape[0]
     with single_blas_thread():                 # see there: faster set-up, no spinning threads
-        rig = make_rig(params)
-        builder = ReferenceForceBuilder.from_parameters(params)
-        valve = rig.command_kind == COMMAND_VALVE
+        # one builder for every rig, or (structure_builders per_rig) one per rig, as the graph
+        graph = Graph.from_parameters(params)
+        local_sets = [[r] for r in graph.rigs] if graph.per_rig_builders else [None]
+        builders = [ReferenceForceBuilder.from_parameters(params, local=lr)
+                    for lr in local_sets]
+        builder = builders[0]           # its computational state is the one recorded
+        names = builder.rig_names
+        rig_params = builder.setup.rig_params
+        rigs = [make_rig(rig_params[r]) for r in names]
+        valve = [rig.command_kind == COMMAND_VALVE for rig in rigs]
         # the force controller, or the excitation itself in an open-loop identification run
-        ctrl = make_valve_controller(params) if valve else None
-        interlock = SaturationInterlock.from_parameters(params) if valve else None
-        monitor = InstabilityMonitor.from_parameters(params)
-        reason = abort_node = None
-        n_done = n_total
-        look = builder.lookahead_steps
-        # the ground window xg''[j..j+look] of every step as a slice (the numbers of
-        # reference_force.ground_window: the record as Python floats, zeros after its end)
-        padded = ag.tolist() + [0.0] * (look + 1)
-        # per-step signals as Python lists (a list store is a few times cheaper than an array's)
-        fr_rec, fm_rec, u_rec, x_rec, v_rec, a_rec = ([] for _ in range(6))
-        # bound methods and attributes looked up once (the per-step calls are the nodes' calls)
-        limit_violation, measure, apply = rig.limit_violation, rig.measure, rig.apply
-        build = builder.step
-        watch = monitor.update
-        if valve:
-            control, interlock_update = ctrl.step, interlock.update
-        stale = frozenset(stale_steps or ())
-        playout = (ReferencePlayout(0, int(params['reference_extrapolation_steps']))
-                   if valve and stale_steps is not None else None)
-        # the compensator's online estimates (if it has any), in effect for each f_r[k]
-        estimates = getattr(builder.predictor, 'estimates', None)
-        est_rec = []
+        ctrls = [make_valve_controller(rig_params[r]) if v else None
+                 for r, v in zip(names, valve)]
+        locks = [SaturationInterlock.from_parameters(rig_params[r]) if v else None
+                 for r, v in zip(names, valve)]
+        monitors = [InstabilityMonitor.from_parameters(rig_params[r]) for r in names]
+        if stale_steps is not None and not isinstance(stale_steps, Mapping):
+            if len(names) != 1:
+                raise ParameterError(f'stale steps of a test of {len(names)} rigs: expected '
+                                     'them per rig (a mapping of rig names to steps)')
+            stale_steps = {names[0]: stale_steps}
+        stale = stale_steps or {}
+        unknown = sorted(set(stale) - set(names))
+        if unknown:
+            raise ParameterError(f'stale steps of rig(s) {", ".join(unknown)}: the test '
+                                 f'has the rigs {", ".join(names)}')
+        playouts = [ReferencePlayout(0, int(rig_params[r]['reference_extrapolation_steps']))
+                    if v and r in stale else None for r, v in zip(names, valve)]
+        stale = [frozenset(stale.get(r, ())) for r in names]
+    look = max(b.lookahead_steps for b in builders)
+    # the ground window xg''[j..j+L] of every step as a slice (the numbers of
+    # reference_force.ground_window: the record as Python floats, zeros after its end)
+    padded = ag.tolist() + [0.0] * (look + 1)
+    # the compensators' online estimates (if they have any), in effect for each f_r[k]
+    estimators = [getattr(law.predictor, 'estimates', None) for b in builders for law in b.laws]
 
-        fr = build(padded[0:1 + look], None)
-        est = estimates() if estimates is not None else None
-        t_last = t_start = time.monotonic()
-        for k in range(n_total):
-            reason = limit_violation()
+    def build(j):
+        """The commands of step j of every rig, in rig order (xg''[j .. j + L] each)."""
+        return [c for b in builders for c in b.step(padded[j:j + 1 + b.lookahead_steps])]
+
+    def ground_forces():
+        return [g for b in builders for g in b.last_ground_forces_N]
+
+    def estimates():
+        return [None if fn is None else fn() for fn in estimators]
+
+    n_r = len(rigs)
+    # per-step signals as Python lists (a list store is a few times cheaper than an array's)
+    rec = {name: {k: [] for k in ('fr', 'fm', 'u', 'x', 'v', 'a', 'est')} for name in names}
+    state_rec = []
+    reason = abort_node = None
+    n_done = n_total
+    commands = build(0)
+    est = estimates()
+    observers = [b.observe for b in builders]
+    t_last = t_start = time.monotonic()
+    for k in range(n_total):
+        meas = [None] * n_r
+        for r in range(n_r):
+            rig = rigs[r]
+            reason = rig.limit_violation()
             if reason:
-                n_done, abort_node = k, 'rig'
+                abort_node = qualified('rig', names[r])
                 break
-            meas = measure()
-            fm = meas.force_N
-            if valve:
-                acted = fr if playout is None else playout.replay(k, fr, k in stale)
-                u = control(acted, fm, meas.velocity_m_s, meas.acceleration_m_s2,
-                            meas.displacement_m)
-                reason = interlock_update(ctrl.saturated, meas.time_s)
+            m = rig.measure()
+            meas[r] = m
+            if valve[r]:
+                playout = playouts[r]
+                reference = (commands[r] if playout is None
+                             else playout.replay(k, commands[r], k in stale[r]))
+                u = ctrls[r].step(reference, m.force_N, m.velocity_m_s, m.acceleration_m_s2,
+                                  m.displacement_m)
+                reason = locks[r].update(ctrls[r].saturated, m.time_s)
                 if reason:
-                    n_done, abort_node = k, 'force_servo_controller'
+                    abort_node = qualified('force_servo_controller', names[r])
                     break
             else:
-                u = fr
-            fr_rec.append(fr)
-            if estimates is not None:
-                est_rec.append(est)
-            fm_rec.append(fm)
-            u_rec.append(u)
-            x_rec.append(meas.displacement_m)
-            v_rec.append(meas.velocity_m_s)
-            a_rec.append(meas.acceleration_m_s2)
-            apply(u)
-            if k + 1 < n_total:
-                reason = watch(fm, builder.last_ground_force_N, meas.time_s)
+                u = commands[r]
+            out = rec[names[r]]
+            out['fr'].append(commands[r])
+            if est[r] is not None:
+                out['est'].append(est[r])
+            out['fm'].append(m.force_N)
+            out['u'].append(u)
+            out['x'].append(m.displacement_m)
+            out['v'].append(m.velocity_m_s)
+            out['a'].append(m.acceleration_m_s2)
+            rig.apply(u)
+        if reason:
+            n_done = k
+            break
+        if k + 1 < n_total:
+            scale = ground_forces()
+            for r in range(n_r):
+                reason = monitors[r].update(meas[r].force_N, scale[r], meas[r].time_s)
                 if reason:
-                    n_done, abort_node = k + 1, 'reference_force_builder'
+                    reason = f'{names[r]}: {reason}' if names[r] else reason
+                    abort_node = 'reference_force_builder'
                     break
-                fr = build(padded[k + 1:k + 2 + look], meas)
-                if estimates is not None:
-                    est = estimates()
-            if progress is not None and not k & 255 and time.monotonic() - t_last > 0.5:
-                t_last = time.monotonic()
-                progress(k + 1, n_total)
+            if reason:
+                n_done = k + 1
+                break
+            for observe in observers:
+                for r in range(n_r):
+                    observe(r, meas[r])
+            commands = build(k + 1)
+            est = estimates()
+            state_rec.append(builder.computational_state)
+        if progress is not None and not k & 255 and time.monotonic() - t_last > 0.5:
+            t_last = time.monotonic()
+            progress(k + 1, n_total)
     wall_s = time.monotonic() - t_start
     n = n_done
     dt = float(params['dt'])
+    t = np.arange(n) * dt
 
     def signal(values):
         return np.array(values[:n], dtype=float)
 
-    estimate_signals = None
-    if estimates is not None and est_rec:
-        estimate_signals = {name: np.array([e[name] for e in est_rec[:n]], dtype=float)
-                            for name in est_rec[0]}
-
-    return RunData.one_rig(
-        params=dict(params), time_s=np.arange(n) * dt,
-        ground_acceleration_m_s2=np.array(ag[:n]), reference_force_N=signal(fr_rec),
-        measured_force_N=signal(fm_rec), displacement_m=signal(x_rec),
-        velocity_m_s=signal(v_rec), acceleration_m_s2=signal(a_rec),
-        valve_command_V=signal(u_rec) if valve else None,
-        stable=reason is None, unstable_at_s=None if reason is None else n * dt,
-        abort_reason=reason, record_name=gm.name, source='simulate',
-        extra={'wall_s': wall_s, 'abort_node': abort_node}, estimates=estimate_signals)
+    rig_data = {}
+    for r, name in enumerate(names):
+        out = rec[name]
+        estimate_signals = None
+        if out['est']:
+            estimate_signals = {key: np.array([e[key] for e in out['est'][:n]], dtype=float)
+                                for key in out['est'][0]}
+        p = rig_params[name]
+        if not builder.setup.is_study:
+            p = dict(p, alpha=float(builder.setup.substructures.alpha[r]))
+        rig_data[name] = RigData(
+            params=dict(p), reference_force_N=signal(out['fr']),
+            measured_force_N=signal(out['fm']), displacement_m=signal(out['x']),
+            velocity_m_s=signal(out['v']), acceleration_m_s2=signal(out['a']),
+            valve_command_V=signal(out['u']) if valve[r] else None,
+            estimates=estimate_signals)
+    # the computational state of sample k is recorded by the step of k+1: the last sample's
+    # is not (the run ends there); it is NaN
+    computational = {}
+    if builder.state_names:
+        states = np.array(state_rec[:n], dtype=float).reshape(len(state_rec[:n]),
+                                                              len(builder.state_names))
+        for i, name in enumerate(builder.state_names):
+            column = np.full(n, np.nan)
+            column[:states.shape[0]] = states[:n, i]
+            computational[name] = column
+    return RunData(
+        params=dict(params), time_s=t, ground_acceleration_m_s2=np.array(ag[:n]),
+        rigs=rig_data, computational=computational, stable=reason is None,
+        unstable_at_s=None if reason is None else n * dt, abort_reason=reason,
+        record_name=gm.name, source='simulate',
+        extra={'wall_s': wall_s, 'abort_node': abort_node})

@@ -165,6 +165,8 @@ class NoPredictor:
 
     name = 'none'
     step_average = False
+    #: A structure's interface force at sample k-1, as the acceleration (the study's timing).
+    interface = 'sampled'
     delay_s = 0.0
 
     @classmethod
@@ -220,6 +222,8 @@ class PolynomialPredictor:
 
     name = 'polynomial'
     step_average = True
+    #: A structure's interface force extrapolated with the same weights as the acceleration.
+    interface = 'extrapolated'
 
     def __init__(self, dt: float, tau_s: float, order: int = 2):
         if order not in (1, 2, 3):

@@ -1,22 +1,47 @@
-"""The reference-force builder of substructure EFT and its delay-compensation plug-in point."""
+"""The reference-force builder of substructure EFT and its delay-compensation plug-in point.
 
+Every test is a structure (:mod:`seft_ros.core.structure`); the reference study's test is its
+one-DOF case. :class:`ReferenceForceBuilder` builds the reference forces of the rigs it
+commands, one step at a time, from the record and the measured responses of every rig: for
+each rig, :class:`RigReferenceForce` (paper Eq. 2.5 with that rig's delay compensator, a
+:class:`Predictor`), with the interface force of the computational part added
+(:mod:`seft_ros.core.substructure`: the computational DOFs integrated from the measured
+motion, the interface force as the rig's compensator sees it). With one rig and nothing
+computational but its rigid mass (the study), the interface force is zero and the builder
+is :class:`RigReferenceForce` itself, bit for bit.
+"""
+
+from collections import deque
 import math
-from typing import Callable, Protocol, runtime_checkable
+from typing import Callable, Mapping, NamedTuple, Protocol, Sequence, runtime_checkable
+
+import numpy as np
 
 from seft_msgs_py.errors import ParameterError
 from seft_msgs_py.interface import Measurement
+from seft_msgs_py.sampling import linear_map, single_blas_thread
 from seft_ros.core.predictors import (
     AdaptivePredictor,
     AtsPredictor,
+    DelayImpulseModel,
     NoPredictor,
     PolynomialPredictor,
     foh_step_average,
+    model_parameters,
     model_predictor,
     network_delay_steps,
 )
+from seft_ros.core.structure import TestSetup, test_setup
+from seft_ros.core.substructure import (
+    InterfacePredictor,
+    SpecimenModel,
+    StructureState,
+    structure_matrices,
+)
 
 __all__ = ['Predictor', 'NoPredictor', 'PREDICTORS', 'make_predictor', 'ReferenceForceBuilder',
-           'ground_window', 'with_loop_latency', 'network_delay_steps']
+           'RigReferenceForce', 'ground_window', 'with_loop_latency', 'network_delay_steps',
+           'specimen_model_of', 'Coupling']
 
 
 @runtime_checkable
@@ -40,6 +65,9 @@ class Predictor(Protocol):
         ``xg''[k]`` (paper Eq. 5.3).
     delay_s : float
         Loop delay the compensator assumes [s] (the shift of the ground-motion preview).
+    interface : {'sampled', 'extrapolated', 'predicted'}, optional
+        How the rig's interface force in a structure is formed for it
+        (:mod:`seft_ros.core.substructure`); default 'predicted'.
     """
 
     name: str
@@ -140,12 +168,14 @@ def make_predictor(params) -> Predictor:
     return factory(params)
 
 
-class ReferenceForceBuilder:
-    """Reference force of substructure EFT from the ground motion and fed-back acceleration.
+class RigReferenceForce:
+    """Reference force of one rig from the ground motion and its fed-back acceleration.
 
-    ``F[k] = -(1 + alpha) m g[k] - alpha m a_hat[k]`` (paper Eq. 2.5 with the measured
-    acceleration, Eq. 5.3), where ``a_hat[k]`` is the predictor's estimate (``none``: the
-    measured acceleration of step k-1) and ``g[k]`` is the ground acceleration: the sample
+    ``F[k] = -(1 + alpha) m iota g[k] + I[k] - alpha m a_hat[k]`` (paper Eq. 2.5 with the
+    measured acceleration, Eq. 5.3; ``I`` the interface force of a structure's computational
+    part, Eq. 2 of :mod:`seft_ros.core.structure`, 0 in the study's test), where
+    ``a_hat[k]`` is the predictor's estimate (``none``: the measured acceleration of step
+    k-1) and ``g[k]`` is the ground acceleration: the sample
     ``xg''[k]`` for ``none``, the step average of the linearly interpolated record over
     ``[t_k + s, t_k+1 + s]`` for the hold-consistent predictors, with ``s = 0`` or, with the
     ground-motion preview, ``s`` = the predictor's loop delay: the record is known before the
@@ -163,6 +193,8 @@ class ReferenceForceBuilder:
         Control period [s]; needed by the preview.
     ground_preview : bool
         Shift the ground term ahead by the predictor's delay.
+    influence : float
+        The DOF's ground-motion influence ``iota`` [-] (1 in the study's test).
 
     Attributes
     ----------
@@ -180,7 +212,7 @@ class ReferenceForceBuilder:
     """
 
     def __init__(self, alpha: float, mass_kg: float, predictor: Predictor, *,
-                 dt: float = 0.0, ground_preview: bool = False):
+                 dt: float = 0.0, ground_preview: bool = False, influence: float = 1.0):
         if not alpha >= 0:
             raise ParameterError(f'parameter alpha={alpha!r}: expected float >= 0')
         if not mass_kg > 0:
@@ -192,7 +224,8 @@ class ReferenceForceBuilder:
         self.ground_preview = bool(ground_preview) and self.dt > 0
         self.commanded_N: list[float] = []
         self.last_ground_force_N = 0.0
-        self._ground_gain = -(1.0 + self.alpha) * self.mass_kg    # G = ground_gain g
+        # G = ground_gain g (iota = 1: the product is exact, the study's number)
+        self._ground_gain = -(1.0 + self.alpha) * self.mass_kg * float(influence)
         self._alpha_m = self.alpha * self.mass_kg
         self.lookahead_steps = 0
         if getattr(predictor, 'step_average', False):
@@ -202,10 +235,11 @@ class ReferenceForceBuilder:
                 self.lookahead_steps = 1 + int(math.ceil(most / self.dt - 1e-9))
 
     @classmethod
-    def from_parameters(cls, params) -> 'ReferenceForceBuilder':
+    def from_parameters(cls, params, influence: float = 1.0) -> 'RigReferenceForce':
         """Build from ``alpha``, ``mass_kg``, ``dt``, ``ground_preview`` and ``predictor``."""
         return cls(float(params['alpha']), float(params['mass_kg']), make_predictor(params),
-                   dt=float(params['dt']), ground_preview=bool(params['ground_preview']))
+                   dt=float(params['dt']), ground_preview=bool(params['ground_preview']),
+                   influence=influence)
 
     def ground(self, window) -> float:
         """The ground acceleration g[k] [m/s^2] of the new force from ``xg''[k..k+L]``."""
@@ -214,17 +248,21 @@ class ReferenceForceBuilder:
         shift = self.predictor.delay_s / self.dt if self.ground_preview else 0.0
         return foh_step_average(window, shift)
 
-    def step(self, ground, latest: Measurement | None) -> float:
+    def step(self, ground, latest: Measurement | None,
+             interface_N: float | None = None) -> float:
         """Return the command ``f_r[k]`` [N] from the ground motion and the measurement of k-1.
 
         Parameters
         ----------
-        ground : float or sequence of float, shape (lookahead_steps + 1,)
+        ground : float or sequence of float, shape (>= lookahead_steps + 1,)
             ``xg''[k]`` [m/s^2], or the window ``xg''[k], ..., xg''[k + lookahead_steps]``
             (zeros after the end of the record); a float is enough when
             ``lookahead_steps == 0``.
         latest : Measurement or None
             The measurement of step k-1 (None for k = 0).
+        interface_N : float, optional
+            The interface force ``I[k]`` [N] as the compensator sees it (a structure's rig
+            coupled to its computational part); None: none (the study's test).
         """
         window = (ground,) if isinstance(ground, (int, float)) else ground
         if len(window) <= self.lookahead_steps:
@@ -238,10 +276,388 @@ class ReferenceForceBuilder:
         else:
             g = 0.5 * (window[0] + window[1])      # foh_step_average(window, 0.0)
         ground_force = self.last_ground_force_N = self._ground_gain * g
+        if interface_N is not None:
+            ground_force += interface_N
         a_hat = predictor.predict(latest, self.commanded_N, ground_force)
         force = ground_force - self._alpha_m * a_hat
         self.commanded_N.append(force)
         return predictor.command(force)
+
+
+def specimen_model_of(predictor, params) -> SpecimenModel:
+    """The specimen model a rig's compensator works with (its identified one for
+    ``adaptive``), or the configured one (``predictor_*``, 0: the specimen's) for a
+    compensator without a model (``none``, ``polynomial``) or with a nonlinear one (a
+    yielding member: its elastic stiffness)."""
+    model = getattr(predictor, 'model', None)
+    if not isinstance(model, DelayImpulseModel):
+        law = getattr(predictor, '_law', None)
+        model = getattr(law, 'model', None)
+    if isinstance(model, DelayImpulseModel):
+        return SpecimenModel(model.mass_kg, model.damping_N_s_per_m, model.stiffness_N_per_m)
+    mp = model_parameters(params)
+    return SpecimenModel(mp['mass_kg'], mp['damping_N_s_per_m'], mp['stiffness_N_per_m'])
+
+
+class Coupling(NamedTuple):
+    """How a builder's local rigs see the interface force (:meth:`ReferenceForceBuilder.coupling`).
+
+    Attributes
+    ----------
+    modes : list of str or None
+        Per local rig: None (not coupled), 'sampled', 'extrapolated' or 'predicted'.
+    sampled : ndarray, shape (n_l, 2 n), or None
+        ``I = sampled [x, v]`` at a sample (every DOF's x, then v) [N].
+    predicted : ndarray, shape (n_targets, width), or None
+        :attr:`~seft_ros.core.substructure.InterfacePredictor.matrix` of the targets.
+    targets : list of int
+        The local rigs (indices) whose interface is predicted, in the rows' order.
+    history_steps, ground_steps : int
+        ``nh`` and ``ng`` of the prediction's ``q``.
+    weights : dict of int to list of float
+        Per extrapolated local rig: the weights on ``I[k], I[k-1], ...``.
+    """
+
+    modes: list
+    sampled: 'np.ndarray | None'
+    predicted: 'np.ndarray | None'
+    targets: list
+    history_steps: int
+    ground_steps: int
+    weights: dict
+
+
+#: A rig's specimen model or loop delay that moved by more than this (relative; the delay:
+#: ``dt / 64``) rebuilds the interface prediction (an ``adaptive`` compensator's estimates).
+MODEL_TOLERANCE = 0.01
+
+
+class ReferenceForceBuilder:
+    """The reference forces of the rigs of a test, one step at a time.
+
+    Every test is a structure (:mod:`seft_ros.core.structure`); the reference study's test is
+    its one-DOF case. Measurements are handed in as they come (:meth:`observe`, any rig, any
+    order); :meth:`step` then returns the commands ``f_r[k]`` of the **local** rigs (those
+    this builder commands: every rig on one host, its own rig for a lab's replica). Each
+    local rig ``p`` gets :class:`RigReferenceForce` with its own compensator (``predictor``
+    and its parameters from the rig's section) and, where the computational part is
+    attached to its DOF, the interface force ``I_p`` of Eq. 2
+    (:mod:`seft_ros.core.substructure`: ``'sampled'`` at ``k-1`` for ``none``,
+    ``'extrapolated'`` for ``polynomial``, ``'predicted'`` over the interval where the new
+    force acts for the model-based compensators, from the coupled model with each local
+    rig's current specimen model). The computational DOFs are integrated from every rig's
+    measured motion (:class:`~seft_ros.core.substructure.StructureState`); in the study's
+    test there is nothing to integrate and the builder is the rig's
+    :class:`RigReferenceForce`, bit for bit.
+
+    Parameters
+    ----------
+    setup : TestSetup
+    dt : float > 0
+        Control period [s].
+    laws : sequence of RigReferenceForce
+        One per local rig, in structure order.
+    rig_params : sequence of mapping
+        Each local rig's parameters (its compensator's), in the same order.
+    local : sequence of str, optional
+        The rigs this builder commands (default: all, in structure order).
+
+    Attributes
+    ----------
+    rig_names : tuple of str
+        Every rig of the structure (the order of :meth:`observe`'s index).
+    local_rigs : tuple of str
+        The rigs :meth:`step` returns commands for, in structure order.
+    laws : list of RigReferenceForce
+        Their reference forces and compensators.
+    next_step : int
+        The step ``k`` of the next :meth:`step`.
+    lookahead_steps : int
+        How many samples after ``xg''[k]`` :meth:`step` reads.
+    last_ground_forces_N : list of float
+        The effective force ``-(m_p + mu_p) iota_p xg''`` of each local rig's latest command
+        [N] (the instability monitor's scale).
+    computational_state : tuple of float
+        ``x_Q, v_Q, a_Q`` of sample ``k-1`` as the latest :meth:`step` used them
+        [m, m/s, m/s^2], in the order of ``state_names``.
+    state_names : tuple of str
+        ``'<dof>/displacement_m'``, ``'<dof>/velocity_m_s'``, ``'<dof>/acceleration_m_s2'``
+        per computational DOF.
+    window_steps : int
+        The window of the latest :meth:`step` (0: every measurement of ``k-1`` was in).
+    interface_N : list of float or None
+        The interface force of each local rig in the latest step [N] (None: not coupled).
+
+    Raises
+    ------
+    ParameterError
+        An unknown local rig, or laws and parameters that do not match the local rigs.
+    """
+
+    def __init__(self, setup: TestSetup, dt: float, laws: Sequence[RigReferenceForce],
+                 rig_params: Sequence[Mapping], local: Sequence[str] | None = None):
+        self.setup = setup
+        sub = setup.substructures
+        s = sub.structure
+        self.dt = float(dt)
+        self.rig_names = setup.rig_names
+        names = self.rig_names
+        local = names if local is None else tuple(local)
+        unknown_rigs = [r for r in local if r not in names]
+        if unknown_rigs or not local:
+            raise ParameterError(f'local rigs {list(local)!r}: expected some of '
+                                 f'{", ".join(repr(r) for r in names)}')
+        self.local_rigs = tuple(r for r in names if r in local)
+        self.laws = list(laws)
+        self._rig_params = [dict(p) for p in rig_params]
+        if len(self.laws) != len(self.local_rigs) or len(self._rig_params) != len(self.laws):
+            raise ParameterError(f'reference-force builder: {len(self.laws)} laws for the '
+                                 f'local rigs {", ".join(self.local_rigs)}')
+        pi = list(s.physical_index)
+        self._local_pos = [names.index(r) for r in self.local_rigs]
+        self._local_dof = [pi[j] for j in self._local_pos]
+        self.n_l = len(self.laws)
+        self.predictor = self.laws[0].predictor if self.n_l == 1 else None
+        self.next_step = 0
+        self.window_steps = 0
+        self.last_ground_forces_N = [0.0] * self.n_l
+        # the interface force of each local rig: coupled when the computational part holds
+        # springs or dashpots on its DOF (Eq. 2)
+        kc, cc = sub.stiffness_c_N_per_m, sub.damping_c_N_s_per_m
+        self._coupled = [bool(kc[i].any() or cc[i].any()) for i in self._local_dof]
+        self._modes = [getattr(law.predictor, 'interface', 'predicted') if c else None
+                       for law, c in zip(self.laws, self._coupled)]
+        self.interface_N = [0.0 if c else None for c in self._coupled]
+        self._tracking = bool(s.computational_index) or any(self._coupled)
+        self.state = StructureState(sub, self.dt) if self._tracking else None
+        self.state_names = self.state.state_names if self.state is not None else ()
+        self.computational_state = tuple([0.0] * len(self.state_names))
+        self._latest: list[dict] = [{} for _ in self.laws]
+        self._qi = list(s.computational_index)
+        look = max(law.lookahead_steps for law in self.laws)
+        self._sampled = None
+        self._history = {}
+        self._interface = None
+        self._targets = [r for r, m in enumerate(self._modes) if m == 'predicted']
+        if any(self._coupled):
+            with single_blas_thread():
+                rows = [[-v for v in kc[i]] + [-v for v in cc[i]] for i in self._local_dof]
+                self._sampled = linear_map(rows, name='interface')
+            for r, mode in enumerate(self._modes):
+                if mode == 'extrapolated':
+                    weights = [float(w) for w in self.laws[r].predictor.weights]
+                    self._history[r] = (weights, deque([0.0] * len(weights),
+                                                       maxlen=len(weights)))
+        if self._targets:
+            self._interface_key = None
+            self._build_interface()
+            taus = [float(getattr(law.predictor, 'max_delay_s', law.predictor.delay_s))
+                    for law in self.laws]
+            look = max(look, int(math.floor(2.0 + max(taus) / self.dt - 1e-9)))
+        self.lookahead_steps = look
+
+    # -- construction -----------------------------------------------------------------------
+
+    @classmethod
+    def from_parameters(cls, params, local: Sequence[str] | None = None
+                        ) -> 'ReferenceForceBuilder':
+        """Build from a run's parameters (the structure, or the study's ``alpha``; each rig's
+        parameters with its ``predictor``).
+
+        Raises
+        ------
+        ParameterError
+            As :func:`~seft_ros.core.structure.test_setup` and :func:`make_predictor`.
+        """
+        setup = test_setup(params)
+        sub = setup.substructures
+        s = sub.structure
+        names = setup.rig_names
+        chosen = names if local is None else [r for r in names if r in local]
+        laws, rig_params = [], []
+        with single_blas_thread():
+            for r in chosen:
+                j = names.index(r)
+                p = setup.rig_params[r]
+                if not setup.is_study:
+                    p = dict(p, alpha=float(sub.alpha[j]))
+                laws.append(RigReferenceForce.from_parameters(
+                    p, influence=float(s.influence[s.physical_index[j]])))
+                rig_params.append(p)
+        return cls(setup, float(params['dt']), laws, rig_params, local=local)
+
+    def _build_interface(self) -> None:
+        """(Re)build the interface prediction from the local rigs' current specimen models
+        and delays, when they moved (:data:`MODEL_TOLERANCE`)."""
+        models = [specimen_model_of(law.predictor, p)
+                  for law, p in zip(self.laws, self._rig_params)]
+        taus = [float(law.predictor.delay_s) for law in self.laws]
+        key = self._interface_key
+        if key is not None:
+            old_models, old_taus = key
+            if not any(m.moved(o, MODEL_TOLERANCE) for m, o in zip(models, old_models)) and all(
+                    abs(t - o) <= self.dt / 64 for t, o in zip(taus, old_taus)):
+                return
+        with single_blas_thread():
+            self._interface = InterfacePredictor(
+                self.setup.substructures, self._local_pos, models, taus, self._targets,
+                self.dt, self.state.matrices)
+        self._interface_key = (models, taus)
+
+    def set_specimen_model(self, rig: str, model: SpecimenModel) -> None:
+        """Model rig `rig` (commanded elsewhere) with an identified specimen from now on: its
+        DOF, when its measurement is late, and in the interface prediction, moves with
+        `model` (another lab's estimate, exchanged over the network).
+
+        Raises
+        ------
+        ParameterError
+            No such rig, or a rig this builder commands (its compensator identifies it).
+        """
+        if rig not in self.rig_names or rig in self.local_rigs:
+            raise ParameterError(f'rig {rig!r}: not a rig commanded elsewhere (rigs '
+                                 f'{", ".join(repr(r) for r in self.rig_names)})')
+        if self.state is None:
+            return
+        models = dict(getattr(self, '_remote_models', {}))
+        models[self.rig_names.index(rig)] = model
+        self._remote_models = models
+        self.state.set_matrices(structure_matrices(self.setup.substructures, models))
+        if self._targets:
+            self._interface_key = None
+            self._build_interface()
+
+    def coupling(self) -> 'Coupling':
+        """The linear maps from the structure's state to the local rigs' interface forces
+        (the stability analysis closes the loop with them)."""
+        sampled = None
+        if self._sampled is not None:
+            n = self.setup.structure.n
+            sub = self.setup.substructures
+            sampled = np.array([np.concatenate([-sub.stiffness_c_N_per_m[i],
+                                                -sub.damping_c_N_s_per_m[i]])
+                                for i in self._local_dof]).reshape(self.n_l, 2 * n)
+        ip = self._interface
+        return Coupling(list(self._modes), sampled,
+                        None if ip is None else ip.matrix, list(self._targets),
+                        0 if ip is None else ip.history_steps,
+                        0 if ip is None else ip.ground_steps,
+                        {r: list(w) for r, (w, _) in self._history.items()})
+
+    # -- stepping ---------------------------------------------------------------------------
+
+    def observe(self, rig: int, measurement: Measurement) -> None:
+        """Hand in one rig's measurement (any rig, any order; a repeat replaces it).
+
+        Parameters
+        ----------
+        rig : int
+            Index of the rig in ``rig_names``.
+        measurement : Measurement
+            Its sample (``measurement.step``).
+        """
+        if self.state is not None:
+            self.state.observe(rig, measurement)
+        try:
+            r = self._local_pos.index(rig)
+        except ValueError:
+            return
+        self._latest[r][measurement.step] = measurement
+
+    def estimates(self) -> list:
+        """Each local rig's compensator's online estimates (a dict, keys its
+        ``ESTIMATES``), or None for a compensator without estimates."""
+        out = []
+        for law in self.laws:
+            fn = getattr(law.predictor, 'estimates', None)
+            out.append(fn() if fn is not None else None)
+        return out
+
+    def step(self, window) -> list[float]:
+        """The commands ``f_r[k]`` of the local rigs [N], from the record and what has been
+        observed (``k`` = ``next_step``).
+
+        Parameters
+        ----------
+        window : sequence of float, length lookahead_steps + 1
+            ``xg''[k .. k + lookahead_steps]`` [m/s^2] (zeros after the record).
+
+        Returns
+        -------
+        list of float, length n_l
+            The command of each local rig: the desired force (through its force-loop
+            inverse, if any) [N].
+
+        Raises
+        ------
+        ParameterError
+            A short window, or a local rig's measurement of ``k-1`` not observed.
+        """
+        if len(window) <= self.lookahead_steps:
+            raise ParameterError(f'ground window of {len(window)} samples: expected '
+                                 f'{self.lookahead_steps + 1} (xg[k..k+{self.lookahead_steps}])')
+        k = self.next_step
+        latest = [None] * self.n_l
+        if k > 0:
+            for r, seen in enumerate(self._latest):
+                m = seen.pop(k - 1, None)
+                if m is None:
+                    raise ParameterError(f'rig {self.local_rigs[r] or "rig"}: no measurement '
+                                         f'of sample {k - 1} observed')
+                latest[r] = m
+                for old in [j for j in seen if j < k - 1]:
+                    del seen[old]
+        if self._tracking:
+            self._couple(k, window)
+        out = []
+        for r, law in enumerate(self.laws):
+            out.append(law.step(window, latest[r], self.interface_N[r]))
+            self.last_ground_forces_N[r] = law.last_ground_force_N
+        self.next_step = k + 1
+        return out
+
+    def _couple(self, k: int, window) -> None:
+        """The computational state of sample ``k-1`` and the local rigs' interface forces."""
+        state = self.state
+        for j, g in enumerate(window[:self.lookahead_steps + 1]):
+            state.ground[k + j] = float(g)
+        n = self.setup.structure.n
+        if k == 0:
+            x, v = [0.0] * n, [0.0] * n
+            self.window_steps = 0
+        else:
+            x, v, self.window_steps = state.state_at(k - 1)
+            if self._qi:
+                a_q = state.computational_acceleration(x, v, state.ground.get(k - 1, 0.0))
+                self.computational_state = (tuple(x[i] for i in self._qi)
+                                            + tuple(v[i] for i in self._qi) + tuple(a_q))
+        if self._sampled is None:
+            return
+        sampled = self._sampled(x + v)
+        predicted = None
+        if self._targets:
+            self._build_interface()
+            ip = self._interface
+            nh = ip.history_steps
+            q = x + v
+            for law in self.laws:
+                past = law.commanded_N[-nh:]
+                q.extend([0.0] * (nh - len(past)) + past)
+            q.append(0.0 if k == 0 else state.ground.get(k - 1, 0.0))
+            q.extend(window[:ip.ground_steps - 1])
+            predicted = dict(zip(self._targets, ip(q)))
+        for r, mode in enumerate(self._modes):
+            if mode is None:
+                continue
+            if mode == 'sampled':
+                self.interface_N[r] = sampled[r]
+            elif mode == 'extrapolated':
+                weights, hist = self._history[r]
+                if k > 0:
+                    hist.appendleft(sampled[r])
+                self.interface_N[r] = sum(w * h for w, h in zip(weights, hist))
+            else:
+                self.interface_N[r] = predicted[r]
 
 
 def ground_window(lookup: Callable[[int], float], k: int, lookahead_steps: int,

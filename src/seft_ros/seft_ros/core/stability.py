@@ -37,32 +37,42 @@ NSEL Report 006, University of Illinois, 2007 (delay compensation).
 """
 
 import copy
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+import json
 import math
 from typing import Any, Mapping, Protocol, runtime_checkable
 
 import numpy as np
 
-from seft_msgs_py.errors import SeftError
+from seft_msgs_py.errors import ParameterError, SeftError
+from seft_msgs_py.graph import Graph
 from seft_msgs_py.interface import Measurement
 from seft_msgs_py.sampling import zoh as _zoh
 from seft_plant_sim.delay_rig import delay_split
 from seft_plant_sim.servohydraulic import OUTPUTS, ServoHydraulicParams, sample
 from seft_plant_sim.specimen import LinearSpecimen
 from seft_ros.core.controller import ForceServoController
-from seft_ros.core.reference_force import PREDICTORS, make_predictor, network_delay_steps
+from seft_ros.core.reference_force import (
+    PREDICTORS,
+    ReferenceForceBuilder,
+    make_predictor,
+    network_delay_steps,
+)
+from seft_ros.core.structure import test_setup
+from seft_ros.core.substructure import hermite_step
 
 __all__ = [
     'PREDICTOR_INPUTS', 'DELAY_PARAMETER', 'KNOWN_NONLINEAR', 'PredictorForm',
     'LinearPredictor', 'Compensator', 'compensator', 'NoLinearModelError',
     'PredictedUnstableError', 'LoopModel', 'loop_model', 'closed_loop_matrix',
     'spectral_radius', 'largest_stable_alpha', 'StabilityMap', 'stability_map',
-    'StabilityCheck', 'check_run', 'largest_stable_dt',
+    'StabilityCheck', 'check_run', 'largest_stable_dt', 'TestLoop', 'scaled_parameters',
+    'largest_stable_scale', 'RobustnessMargin', 'robustness_margin',
 ]
 
 #: Inputs of a compensator's linear form at step k, in this order (:class:`PredictorForm`).
 PREDICTOR_INPUTS = ('displacement_m', 'velocity_m_s', 'acceleration_m_s2', 'force_N',
-                    'commanded_N')
+                    'commanded_N', 'external_force_N')
 
 #: The delay knob of each linear rig model (the ``tau`` axis of the stability map).
 DELAY_PARAMETER = {'delay': 'tau_s', 'servohydraulic': 'io_latency_s'}
@@ -72,7 +82,7 @@ KNOWN_NONLINEAR = ('adaptive',)
 
 #: Probe lengths of the identification [steps]: warm-up, impulse window.
 _WARM_UP, _WINDOW = 16, 192
-_PROBE_SCALE = np.array([1e-3, 5e-2, 5.0, 500.0, 500.0])   # typical sizes of the inputs
+_PROBE_SCALE = np.array([1e-3, 5e-2, 5.0, 500.0, 500.0, 500.0])   # typical input sizes
 #: alphas at which a compensator's dependence on alpha is tested.
 _ALPHA_PROBES = (0.5, 1.5)
 
@@ -111,9 +121,11 @@ def _shift_register(taps: np.ndarray):
 class PredictorForm:
     """Linear form of a delay compensator at one alpha (zero ground input), builder timing.
 
-    Prediction, from the step-k inputs ``q[k] = (x, v, a, f_m, F)[k]``
-    (:data:`PREDICTOR_INPUTS`: the measurement of step k and the newest desired force, the
-    arguments of ``predict(latest, commanded_N, 0.0)`` that returns ``a_hat[k+1]``)::
+    Prediction, from the step-k inputs ``q[k] = (x, v, a, f_m, F, E)[k]``
+    (:data:`PREDICTOR_INPUTS`: the measurement of step k, the newest desired force and the
+    external force of the new step, the arguments of ``predict(latest, commanded_N, E)``
+    that returns ``a_hat[k+1]``; ``E`` is a structure's interface force, the ground force
+    being zero in the homogeneous loop)::
 
         w[k+1] = a w[k] + b q[k],   a_hat[k+1] = c w[k] + d q[k]
 
@@ -124,10 +136,10 @@ class PredictorForm:
     Attributes
     ----------
     a : ndarray, shape (nw, nw)
-    b : ndarray, shape (nw, 5)
+    b : ndarray, shape (nw, 6)
     c : ndarray, shape (nw,)
-    d : ndarray, shape (5,)
-        Units: ``a_hat`` [m/s^2] over the input units (m, m/s, m/s^2, N, N).
+    d : ndarray, shape (6,)
+        Units: ``a_hat`` [m/s^2] over the input units (m, m/s, m/s^2, N, N, N).
     cmd_a : ndarray, shape (nv, nv)
     cmd_b, cmd_c : ndarray, shape (nv,)
     cmd_d : float
@@ -153,8 +165,9 @@ class PredictorForm:
 
         Parameters
         ----------
-        taps : array_like, shape (5, L)
-            Weight of input i (:data:`PREDICTOR_INPUTS`) j steps back.
+        taps : array_like, shape (6, L) or (5, L)
+            Weight of input i (:data:`PREDICTOR_INPUTS`) j steps back (5 rows: no weight on
+            the external force).
         command_taps : array_like, shape (Lc,)
         source : str
 
@@ -165,8 +178,10 @@ class PredictorForm:
             taps without trailing zeros).
         """
         taps = np.atleast_2d(np.asarray(taps, dtype=float))
+        if taps.shape[0] == len(PREDICTOR_INPUTS) - 1:
+            taps = np.vstack([taps, np.zeros((1, taps.shape[1]))])
         if taps.shape[0] != len(PREDICTOR_INPUTS):
-            raise ValueError(f'taps: expected shape (5, L), got {taps.shape}')
+            raise ValueError(f'taps: expected shape (6, L), got {taps.shape}')
         a, b, c, d = _shift_register(taps)
         ca, cb, cc, cd = _shift_register(np.atleast_2d(command_taps))
         return cls(a, b, c, d, ca, cb[:, 0], cc, float(cd[0]), source)
@@ -202,7 +217,8 @@ class LinearPredictor(Protocol):
 def _drive(predictor, q: np.ndarray, dt: float):
     """Feed a copy of a compensator as the builder does; return ``(a_hat[1..N], f_r[0..N-1])``.
 
-    ``q`` (N, 5): measurement of step k and desired force ``F[k]``; zero ground force.
+    ``q`` (N, 6): measurement of step k, desired force ``F[k]`` and the external force of the
+    step after (the interface force; zero ground force).
     """
     pred = copy.deepcopy(predictor)
     commanded: list[float] = []
@@ -214,7 +230,7 @@ def _drive(predictor, q: np.ndarray, dt: float):
         cmd[k] = pred.command(float(q[k, 4]))
         meas = Measurement(k, k * dt, float(q[k, 0]), float(q[k, 1]), float(q[k, 2]),
                            float(q[k, 3]))
-        a_hat[k] = pred.predict(meas, commanded, 0.0)
+        a_hat[k] = pred.predict(meas, commanded, float(q[k, 5]))
     return a_hat, cmd
 
 
@@ -235,13 +251,14 @@ def _trim(name: str, taps: np.ndarray, scale: np.ndarray) -> np.ndarray:
 
 
 def _identify(predictor, name: str, dt: float, check: bool, window: int = _WINDOW) -> tuple:
-    """Taps ``(5, window)`` and command taps ``(window,)`` of a compensator (module notes)."""
+    """Taps ``(6, window)`` and command taps ``(window,)`` of a compensator (module notes)."""
+    ni = len(PREDICTOR_INPUTS)
     n = _WARM_UP + window
-    base_a, base_c = _drive(predictor, np.zeros((n, 5)), dt)
-    taps = np.zeros((5, window))
+    base_a, base_c = _drive(predictor, np.zeros((n, ni)), dt)
+    taps = np.zeros((ni, window))
     cmd_taps = np.zeros(window)
-    for i in range(5):
-        q = np.zeros((n, 5))
+    for i in range(ni):
+        q = np.zeros((n, ni))
         q[_WARM_UP, i] = _PROBE_SCALE[i]
         ah, cm = _drive(predictor, q, dt)
         taps[i] = (ah - base_a)[_WARM_UP:] / _PROBE_SCALE[i]
@@ -256,13 +273,13 @@ def _identify(predictor, name: str, dt: float, check: bool, window: int = _WINDO
     if check:
         # superposition on a random input after the warm-up
         n = _WARM_UP + 2 * window
-        q = np.zeros((n, 5))
-        q[_WARM_UP:] = (np.random.default_rng(1).standard_normal((n - _WARM_UP, 5))
+        q = np.zeros((n, ni))
+        q[_WARM_UP:] = (np.random.default_rng(1).standard_normal((n - _WARM_UP, ni))
                         * _PROBE_SCALE)
-        base_a, base_c = _drive(predictor, np.zeros((n, 5)), dt)
+        base_a, base_c = _drive(predictor, np.zeros((n, ni)), dt)
         got_a, got_c = _drive(predictor, q, dt)
         u = q[_WARM_UP:]
-        want_a = sum(np.convolve(u[:, i], taps[i])[:n - _WARM_UP] for i in range(5))
+        want_a = sum(np.convolve(u[:, i], taps[i])[:n - _WARM_UP] for i in range(ni))
         want_c = np.convolve(u[:, 4], cmd_taps)[:n - _WARM_UP]
         err_a = float(np.max(np.abs((got_a - base_a)[_WARM_UP:] - want_a)))
         err_c = float(np.max(np.abs((got_c - base_c)[_WARM_UP:] - want_c)))
@@ -297,7 +314,7 @@ class Compensator:
 
     Notes
     -----
-    Identification: after 16 zero steps one input at a time (x, v, a, f_m, F) is pulsed and
+    Identification: after 16 zero steps one input at a time (x, v, a, f_m, F, E) is pulsed and
     ``a_hat`` and the command recorded over 192 steps; the responses must vanish over the
     last 48 (finite memory) and superpose to the response to a random input within 1e-6.
     The form is compared at alpha = 0.5 and 1.5 to tell whether it depends on alpha.
@@ -356,9 +373,29 @@ def _same_form(f: PredictorForm, g: PredictorForm) -> bool:
                for p in parts) and math.isclose(f.cmd_d, g.cmd_d, rel_tol=1e-9)
 
 
+#: The compensators :func:`compensator` made last, by their parameters (but ``alpha``, which
+#: their forms take as an argument, and a structure's JSON, which they do not read): a
+#: structure's stability search builds the same rigs' compensators at every coupling scale.
+_COMPENSATORS: dict = {}
+_COMPENSATORS_KEPT = 16
+
+
 def compensator(params: Mapping) -> Compensator:
-    """:class:`Compensator` of ``params['predictor']`` (see there)."""
-    return Compensator(params)
+    """:class:`Compensator` of ``params['predictor']`` (see there); kept by its parameters
+    (:data:`_COMPENSATORS`)."""
+    try:
+        key = tuple(sorted((k, v) for k, v in params.items()
+                           if k not in ('alpha', 'structure')))
+        hash(key)
+    except TypeError:
+        return Compensator(params)
+    comp = _COMPENSATORS.get(key)
+    if comp is None:
+        comp = Compensator(params)
+        if len(_COMPENSATORS) >= _COMPENSATORS_KEPT:
+            _COMPENSATORS.pop(next(iter(_COMPENSATORS)))
+        _COMPENSATORS[key] = comp
+    return comp
 
 
 # -- rig models -------------------------------------------------------------------------------
@@ -501,6 +538,19 @@ class LoopModel:
         if not self.compensator.alpha_dependent:
             self._affine = self.matrices(self.compensator.form(0.0))
 
+    def layout(self, form: PredictorForm) -> dict:
+        """Where each part of the state ``X`` is for a compensator form: slices ``'z'``
+        (rig), ``'c'`` (controller), ``'w'`` (prediction), ``'v'`` (command filter), the
+        first index ``'d'`` of the playout delay line, the index ``'F'`` of the newest
+        desired force, ``'size'`` N, and ``'outputs'``: the rows ``(x, v, a, f_m)`` of the
+        rig's measurement on ``X[z]`` (shape (4, nz))."""
+        _, a, _, cy, ac, *_ = self._rig
+        nz, nc, nw, nv = a.shape[0], ac.shape[0], form.order, form.command_order
+        n = nz + nc + nw + nv + self.playout_steps + 1
+        return {'z': slice(0, nz), 'c': slice(nz, nz + nc), 'w': slice(nz + nc, nz + nc + nw),
+                'v': slice(nz + nc + nw, nz + nc + nw + nv), 'd': nz + nc + nw + nv,
+                'F': n - 1, 'size': n, 'outputs': cy}
+
     def matrices(self, form: PredictorForm):
         """``(M_0, M_1)`` with ``M = M_0 + alpha M_1`` for a compensator form.
 
@@ -510,16 +560,10 @@ class LoopModel:
             Only the last row (``F``) of ``m1`` is nonzero.
         """
         rig, a, b, cy, ac, bc, cc, dc = self._rig
-        nz, nc, nw, nv = a.shape[0], ac.shape[0], form.order, form.command_order
-        nd = self.playout_steps
-        n = nz + nc + nw + nv + nd + 1
-        iz = slice(0, nz)
-        ic = slice(nz, nz + nc)
-        iw = slice(nz + nc, nz + nc + nw)
-        iv = slice(nz + nc + nw, nz + nc + nw + nv)
-        i_d = nz + nc + nw + nv                            # first of the delay line
-        i_f = n - 1
-        q = np.zeros((5, n))                               # q[k] = Q X[k]
+        lay = self.layout(form)
+        n, iz, ic, iw, iv = lay['size'], lay['z'], lay['c'], lay['w'], lay['v']
+        nd, i_d, i_f = self.playout_steps, lay['d'], lay['F']
+        q = np.zeros((len(PREDICTOR_INPUTS), n))          # q[k] = Q X[k] (no external force)
         q[:4, iz] = cy
         q[4, i_f] = 1.0
         f_r = np.zeros(n)                                  # command sent, f_r[k]
@@ -715,8 +759,8 @@ class StabilityMap:
         }
 
 
-def stability_map(params: Mapping, taus, predictors, *, alpha_max: float = 3.0,
-                  step: float = 0.01, tol: float = 1e-4) -> StabilityMap:
+def _study_map(params: Mapping, taus, predictors, *, alpha_max: float = 3.0,
+               step: float = 0.01, tol: float = 1e-4) -> StabilityMap:
     """Largest stable alpha over the rig's delay for each predictor (eigenvalues only).
 
     Parameters
@@ -777,19 +821,23 @@ class StabilityCheck:
     spectral_radius : float
         Of the closed-loop matrix at the configured alpha (nan if not predictable).
     boundary_alpha : float
-        :func:`largest_stable_alpha` (nan if not predictable).
+        :func:`largest_stable_alpha` (nan if not predictable); for a structure the largest
+        stable coupling scale.
     message : str
         One line for the user.
+    margin : RobustnessMargin or None
+        The :func:`robustness_margin`, when asked for.
     """
 
     stable: bool | None
     spectral_radius: float
     boundary_alpha: float
     message: str
+    margin: 'RobustnessMargin | None' = None
 
 
-def check_run(params: Mapping) -> StabilityCheck:
-    """Predict whether a run's loop is stable at its configured alpha and predictor.
+def _check_study(params: Mapping) -> StabilityCheck:
+    """Predict whether the study's loop is stable at its configured alpha and predictor.
 
     Parameters
     ----------
@@ -876,3 +924,504 @@ def largest_stable_dt(params: Mapping, *, dt_min: float = 1e-4, rtol: float = 0.
         else:
             hi = mid
     return lo
+
+
+# -- any test: the structure's loop, the coupling scale, the robustness margin ---------------
+
+def scaled_parameters(params: Mapping, scale: float) -> dict:
+    """The run's parameters with its computational part scaled by `scale`.
+
+    A structure's ``M_c``, ``C_c``, ``K_c`` (:func:`~seft_ros.core.structure.split`) are
+    scaled, the specimens kept: ``M(s) = diag_P(m) + s M_c``, ... The study's test (no
+    ``structure``), whose computational part is the rigid mass ``alpha m``, gets
+    ``alpha = s alpha``.
+
+    Raises
+    ------
+    ParameterError
+        `scale` not > 0.
+    """
+    if not scale > 0:
+        raise ParameterError(f'coupling scale {scale!r}: expected > 0')
+    setup = test_setup(params)
+    if setup.is_study:
+        return dict(params, alpha=float(scale) * float(params['alpha']))
+    sub = setup.substructures
+    s = sub.structure
+    idx = list(s.physical_index)
+    doc = json.loads(s.to_json())
+    for key, spec, part in (('mass_matrix_kg', sub.specimen_mass_kg, sub.mass_c_kg),
+                            ('damping_matrix_N_s_per_m', sub.specimen_damping_N_s_per_m,
+                             sub.damping_c_N_s_per_m),
+                            ('stiffness_matrix_N_per_m', sub.specimen_stiffness_N_per_m,
+                             sub.stiffness_c_N_per_m)):
+        whole = float(scale) * np.asarray(part, dtype=float)
+        for j, i in enumerate(idx):
+            whole[i, i] += spec[j]
+        doc[key] = whole.tolist()
+    return dict(params, structure=json.dumps(doc, sort_keys=True, separators=(',', ':')))
+
+
+class TestLoop:
+    """The closed sampled loop ``S[k+1] = A S[k]`` of any test (no ground motion).
+
+    Every rig's block is its :class:`LoopModel` (the rig sampled with its delay, its force
+    servo controller, its compensator's linear form at its mass ratio, the command filter,
+    the playout delay); the builders' coupling closes them in the lockstep order of one step:
+    the computational DOFs advanced by the exact Hermite step from the measured motion
+    (:func:`~seft_ros.core.substructure.hermite_step`), each rig's interface force as its
+    compensator sees it (sampled, extrapolated or predicted,
+    :meth:`~seft_ros.core.reference_force.ReferenceForceBuilder.coupling`) entering its
+    compensator as the external force ``E`` and its new desired force as
+    ``F = E - mu a_hat``. The test is stable when the spectral radius of ``A`` is below 1.
+    Valve saturation and the accelerometer's range are left out (small signal).
+
+    Parameters
+    ----------
+    params : mapping
+        The run's resolved parameters.
+    scale : float > 0
+        Coupling scale of the computational part (:func:`scaled_parameters`).
+    stiffness_ratio : float > 0, optional
+        Every rig's specimen stiffness as this fraction of the declared one, the compensators
+        keeping their models (the robustness margin; a scheduling force controller follows
+        the specimen, :meth:`~seft_ros.core.controller.TangentLoopShaping.frozen`).
+
+    Attributes
+    ----------
+    matrix : ndarray, shape (N, N)
+        ``A``.
+
+    Raises
+    ------
+    NoLinearModelError
+        A rig or compensator without a linear model (a yielding member, ``adaptive``).
+    ParameterError
+        As the builder.
+    """
+
+    def __init__(self, params: Mapping, scale: float = 1.0, *,
+                 stiffness_ratio: float | None = None):
+        p = scaled_parameters(params, scale) if scale != 1.0 else dict(params)
+        setup = test_setup(p)
+        sub = setup.substructures
+        s = sub.structure
+        graph = Graph.from_parameters(p)
+        rigs = list(setup.rig_names)
+        pi, qi = list(s.physical_index), list(s.computational_index)
+        n_p, n_c = len(pi), len(qi)
+        builders = [ReferenceForceBuilder.from_parameters(p, local=graph.local_rigs(b))
+                    for b in graph.builder_nodes()]
+        couplings = [b.coupling() for b in builders]
+        hist = max([c.history_steps for c in couplings] + [1])
+        n_ext = max([len(w) for c in couplings for w in c.weights.values()] + [0])
+        # each rig's own loop at its mass ratio
+        blocks = []
+        pos = 0
+        for j, r in enumerate(rigs):
+            rp = setup.rig_params[r]
+            if not setup.is_study:
+                rp = dict(rp, alpha=float(sub.alpha[j]))
+            loop = LoopModel(rp, compensator(rp), tangent_ratio=stiffness_ratio)
+            form = loop.compensator.form(float(rp['alpha']))
+            m0, m1 = loop.matrices(form)
+            lay = loop.layout(form)
+            blocks.append((pos, lay, form, m0 + float(rp['alpha']) * m1, loop.mass_kg,
+                           float(rp['alpha'])))
+            pos += lay['size']
+        # the force histories F[k-1 .. k-hist+1], the sampled interface histories, the
+        # computational state of sample k-1 and the physical DOFs' x, v of sample k-1
+        f_hist = []
+        for _ in rigs:
+            f_hist.append(pos)
+            pos += hist - 1
+        i_hist = []
+        for _ in rigs:
+            i_hist.append(pos)
+            pos += n_ext
+        zq, xp = pos, pos + 2 * n_c
+        size = xp + 2 * n_p
+        m = np.zeros((size, size))
+        for (start, lay, _, block, *_rest) in blocks:
+            m[start:start + lay['size'], start:start + lay['size']] = block
+        # every DOF's x, v at sample k, as rows on S[k]
+        x_now = np.zeros((n_p, size))
+        v_now = np.zeros((n_p, size))
+        for j, (start, lay, *_rest) in enumerate(blocks):
+            z = lay['z']
+            x_now[j, start + z.start:start + z.stop] = lay['outputs'][0]
+            v_now[j, start + z.start:start + z.stop] = lay['outputs'][1]
+        x_all = np.zeros((s.n, size))
+        v_all = np.zeros((s.n, size))
+        for j, i in enumerate(pi):
+            x_all[i], v_all[i] = x_now[j], v_now[j]
+        if n_c:
+            step = hermite_step(sub, pi, float(p['dt']))
+            inputs = np.zeros((step.shape[1], size))
+            inputs[:2 * n_c, zq:zq + 2 * n_c] = np.eye(2 * n_c)
+            o = 2 * n_c
+            inputs[o:o + 2 * n_p, xp:xp + 2 * n_p] = np.eye(2 * n_p)
+            inputs[o + 2 * n_p:o + 3 * n_p] = x_now
+            inputs[o + 3 * n_p:o + 4 * n_p] = v_now
+            zq_now = step @ inputs
+            m[zq:zq + 2 * n_c] = zq_now
+            for j, i in enumerate(qi):
+                x_all[i], v_all[i] = zq_now[j], zq_now[n_c + j]
+        m[xp:xp + n_p] = x_now
+        m[xp + n_p:xp + 2 * n_p] = v_now
+
+        def force_rows(j, count):
+            """Rows of F_j[k], F_j[k-1], ..., F_j[k-count+1] on S[k]."""
+            start, lay = blocks[j][0], blocks[j][1]
+            rows = np.zeros((count, size))
+            rows[0, start + lay['F']] = 1.0
+            for i in range(1, count):
+                rows[i, f_hist[j] + i - 1] = 1.0
+            return rows
+
+        state_rows = np.vstack([x_all, v_all])
+        for j in range(len(rigs)):                  # shift the force histories
+            start, lay = blocks[j][0], blocks[j][1]
+            if hist > 1:
+                m[f_hist[j]] = 0.0
+                m[f_hist[j], start + lay['F']] = 1.0
+                for i in range(1, hist - 1):
+                    m[f_hist[j] + i, f_hist[j] + i - 1] = 1.0
+        for builder, c in zip(builders, couplings):
+            local = [rigs.index(r) for r in builder.local_rigs]
+            sampled = c.sampled @ state_rows if c.sampled is not None else None
+            predicted = None
+            if c.predicted is not None:
+                nh = c.history_steps
+                q_rows = [state_rows]
+                for j in local:
+                    q_rows.append(force_rows(j, nh)[::-1])         # F[k-nh+1 .. k]
+                q_rows.append(np.zeros((c.ground_steps, size)))    # no ground motion
+                predicted = c.predicted @ np.vstack(q_rows)
+            for jj, j in enumerate(local):
+                mode = c.modes[jj]
+                if mode is None:
+                    continue
+                if mode == 'sampled':
+                    e_row = sampled[jj]
+                elif mode == 'extrapolated':
+                    weights = c.weights[jj]
+                    e_row = weights[0] * sampled[jj]
+                    for i, w in enumerate(weights[1:]):
+                        e_row = e_row.copy()
+                        e_row[i_hist[j] + i] += w
+                    # the history: I_s[k] newest
+                    m[i_hist[j]] = sampled[jj]
+                    for i in range(1, n_ext):
+                        m[i_hist[j] + i] = 0.0
+                        m[i_hist[j] + i, i_hist[j] + i - 1] = 1.0
+                else:
+                    e_row = predicted[c.targets.index(jj)]
+                start, lay, form, _, mass, alpha = blocks[j]
+                # w[k+1] += b_E E; F[k+1] = E - mu (c w + d q) = (1 - mu d_E) E + ...
+                iw = slice(start + lay['w'].start, start + lay['w'].stop)
+                m[iw] += np.outer(form.b[:, 5], e_row)
+                m[start + lay['F']] += (1.0 - alpha * mass * form.d[5]) * e_row
+        self.matrix = m
+        self.scale = float(scale)
+
+    @property
+    def spectral_radius(self) -> float:
+        """The largest eigenvalue modulus of ``matrix`` (< 1: stable)."""
+        return float(np.max(np.abs(np.linalg.eigvals(self.matrix))))
+
+
+TestLoop.__test__ = False         # not a test, whatever its name (pytest)
+
+
+def _coupled(params: Mapping) -> bool:
+    """Whether a test couples its rigs through a computational part (DOFs, springs or
+    dashpots): otherwise its loop is one block per rig."""
+    return test_setup(params).substructures.coupled
+
+
+def largest_stable_scale(params: Mapping, predictor: str | None = None, *,
+                         scale_max: float = 3.0, step: float = 0.1,
+                         tol: float = 2e-3) -> float:
+    """The coupling scale up to which a test is stable (:func:`scaled_parameters`).
+
+    Parameters
+    ----------
+    params : mapping
+        The run's parameters.
+    predictor : str, optional
+        Default ``params['predictor']``.
+    scale_max : float > 0
+        Upper end of the search.
+    step, tol : float > 0
+        Grid step of the scan and bisection tolerance on the boundary.
+
+    Returns
+    -------
+    float
+        The first scale where the spectral radius reaches 1; ``inf`` if stable up to
+        `scale_max`; ``0`` if unstable at the smallest scale of the grid (`step`).
+
+    Raises
+    ------
+    NoLinearModelError
+        A rig or compensator without a linear model.
+    """
+    if predictor is not None:
+        params = dict(params, predictor=predictor)
+
+    def stable(s):
+        return TestLoop(params, s).spectral_radius < 1.0
+    grid = np.arange(step, scale_max + 0.5 * step, step)
+    previous = None
+    for s in grid:
+        ok = stable(s)
+        if not ok:
+            if previous is None:
+                return 0.0
+            lo, hi = previous, s
+            while hi - lo > tol:
+                mid = 0.5 * (lo + hi)
+                lo, hi = (mid, hi) if stable(mid) else (lo, mid)
+            return 0.5 * (lo + hi)
+        previous = s
+    return math.inf
+
+
+#: Compensators whose margin is that of the ``model`` law they start from (their
+#: identification then moves it).
+MARGIN_OF_INITIAL_LAW = ('adaptive',)
+#: The stiffness ratios :func:`robustness_margin` searches between [-].
+MARGIN_RANGE = (0.1, 10.0)
+
+
+@dataclass(frozen=True)
+class RobustnessMargin:
+    """The range of specimen stiffness over which a test's compensation stays stable.
+
+    Attributes
+    ----------
+    low, high : float
+        Fractions of the declared stiffness (every rig's specimen together; the compensators
+        keep their models): stable for ``low < k / k_declared < high`` (``nan``: not
+        predicted; :data:`MARGIN_RANGE` ends: stable up to there).
+    note : str
+        What the margin is of (e.g. the initial law of ``adaptive``), or why there is none.
+    """
+
+    low: float
+    high: float
+    note: str = ''
+
+    @property
+    def known(self) -> bool:
+        """Whether the margin was predicted."""
+        return not (math.isnan(self.low) or math.isnan(self.high))
+
+    def text(self) -> str:
+        """One line: ``0.62-1.85 x the declared specimen stiffness``."""
+        if not self.known:
+            return f'robustness margin not predicted ({self.note})'
+        if self.low >= 1.0 >= self.high:
+            return 'no robustness margin: unstable as declared'
+        lo = f'<{self.low:.3g}' if self.low <= MARGIN_RANGE[0] else f'{self.low:.3g}'
+        hi = f'>{self.high:.3g}' if self.high >= MARGIN_RANGE[1] else f'{self.high:.3g}'
+        return (f'stable for a specimen stiffness {lo}-{hi} x the declared one'
+                + (f' ({self.note})' if self.note else ''))
+
+    def to_json(self) -> dict:
+        """JSON-ready dict (``nan`` as null)."""
+        def num(v):
+            return None if math.isnan(v) else float(v)
+        return {'stiffness_ratio_low': num(self.low), 'stiffness_ratio_high': num(self.high),
+                'note': self.note}
+
+
+def robustness_margin(params: Mapping, *, rtol: float = 0.01) -> RobustnessMargin:
+    """The range of specimen stiffness (a fraction of the declared one) over which the
+    test's compensation stays stable.
+
+    Every rig's specimen stiffness is scaled by the same ratio ``r`` while the compensators
+    keep their models (the declared specimen, ``predictor_*``) and the force controllers
+    their design (a scheduling one follows the specimen); the margin is the interval of
+    ``r`` around 1 where the closed loop's spectral radius stays below 1 (a geometric scan
+    of :data:`MARGIN_RANGE`, then bisection to `rtol`). A compensator that identifies the
+    specimen (``adaptive``) gets the margin of the ``model`` law it starts from. A test
+    already unstable as declared has no margin (``low = high = 1``).
+
+    Parameters
+    ----------
+    params : mapping
+        The run's resolved parameters.
+    rtol : float > 0
+        Relative width of the bisection on each edge.
+
+    Returns
+    -------
+    RobustnessMargin
+
+    References
+    ----------
+    K. Zhou, J. C. Doyle and K. Glover, Robust and Optimal Control (1996), Ch. 9 (a
+    parametric uncertainty scanned on the closed loop's eigenvalues).
+    """
+    pred = params['predictor']
+    note = ''
+    if pred in MARGIN_OF_INITIAL_LAW:
+        params = dict(params, predictor='model')
+        note = f"of {pred}'s initial law: model at the declared specimen"
+    study = not _coupled(params)
+    try:
+        if study:
+            setup = test_setup(params)
+            loops = []
+            for j, r in enumerate(setup.rig_names):
+                rp = setup.rig_params[r]
+                if not setup.is_study:
+                    rp = dict(rp, alpha=float(setup.substructures.alpha[j]))
+                loops.append((rp, compensator(rp)))
+
+            def radius(ratio):
+                return max(float(LoopModel(rp, comp, tangent_ratio=ratio).radii(
+                    float(rp['alpha']))[0]) for rp, comp in loops)
+        else:
+            def radius(ratio):
+                return TestLoop(params, stiffness_ratio=ratio).spectral_radius
+        if radius(1.0) >= 1.0:
+            return RobustnessMargin(1.0, 1.0, note or 'unstable as declared')
+    except NoLinearModelError as exc:
+        return RobustnessMargin(math.nan, math.nan, str(exc))
+
+    def edge(inside: float, outside: float) -> float:
+        while abs(outside / inside - 1.0) > rtol:
+            mid = math.sqrt(inside * outside)
+            if radius(mid) < 1.0:
+                inside = mid
+            else:
+                outside = mid
+        return inside
+
+    def search(direction: int) -> float:
+        last = 1.0
+        bound = MARGIN_RANGE[1] if direction > 0 else MARGIN_RANGE[0]
+        factor = 1.25 if direction > 0 else 0.8
+        r = last * factor
+        while (r < bound) if direction > 0 else (r > bound):
+            if radius(r) >= 1.0:
+                return edge(last, r)
+            last, r = r, r * factor
+        return bound if radius(bound) < 1.0 else edge(last, bound)
+
+    return RobustnessMargin(search(-1), search(+1), note)
+
+
+def check_run(params: Mapping, *, margin: bool = False) -> StabilityCheck:
+    """Predict whether a run's loop is stable as configured, for any test.
+
+    The study's test (and any test whose rigs are not coupled through a computational part)
+    is checked at its mass ratio on each rig's own loop (:class:`LoopModel`: the largest
+    stable alpha); a structure on its whole loop (:class:`TestLoop`: the largest stable
+    coupling scale).
+
+    Parameters
+    ----------
+    params : mapping
+        Resolved run parameters.
+    margin : bool
+        Also predict the :func:`robustness_margin` (``StabilityCheck.margin``).
+
+    Returns
+    -------
+    StabilityCheck
+        ``stable`` False when the spectral radius as configured is >= 1; None where there
+        is no linear model (a nonlinear compensator or specimen; the message says why).
+    """
+    if test_setup(params).is_study:
+        check = _check_study(params)
+    else:
+        check = _check_structure(params)
+    if margin and check.stable is not None:
+        check = replace(check, margin=robustness_margin(params))
+    return check
+
+
+def _check_structure(params: Mapping) -> StabilityCheck:
+    """:func:`check_run` of a structure (coupling scale 1; ``boundary_alpha`` holds the
+    largest stable coupling scale)."""
+    predictor = params['predictor']
+    try:
+        radius = TestLoop(params).spectral_radius
+    except NoLinearModelError as exc:
+        return StabilityCheck(None, math.nan, math.nan,
+                              f'structure with predictor {predictor}: no stability '
+                              f'prediction ({exc})')
+    # a coarse search (each point is an eigenvalue problem of a few hundred states)
+    step = 0.1 if radius >= 1.0 else 0.25
+    boundary = largest_stable_scale(params, step=step, tol=0.02)
+    stable = radius < 1.0
+    limit = ('stable up to at least 3 times its computational part' if math.isinf(boundary)
+             else f'unstable already at {step:g} times its computational part'
+             if boundary == 0.0 else
+             f'largest stable coupling {boundary:.3g} times its computational part')
+    message = (f'structure with predictor {predictor} is predicted '
+               f'{"stable" if stable else "UNSTABLE"} (spectral radius {radius:.4f}; '
+               f'{limit})')
+    return StabilityCheck(stable, radius, boundary, message)
+
+
+def stability_map(params: Mapping, taus, predictors, *, alpha_max: float = 3.0,
+                  step: float | None = None, tol: float | None = None) -> StabilityMap:
+    """The stability boundary over the rigs' delay, one curve per predictor, for any test.
+
+    The study's test: the largest stable alpha (:func:`_study_map`, steps of 0.01); a
+    structure: the largest stable coupling scale (:func:`largest_stable_scale`, steps of
+    0.25), the delay varied on every rig whose section does not set its own.
+
+    Parameters
+    ----------
+    params : mapping
+        Run parameters; ``rig_model`` 'delay' (varies ``tau_s``) or 'servohydraulic'
+        (varies ``io_latency_s``).
+    taus : array_like, shape (nt,)
+        Delays [s].
+    predictors : sequence of str
+        Predictor names (registry ``PREDICTORS``).
+    alpha_max : float > 0
+        Upper end of the search (alpha, or coupling scale).
+    step, tol : float, optional
+        Grid step and bisection tolerance of the search.
+
+    Returns
+    -------
+    StabilityMap
+        For a structure its ``boundary_alpha`` holds the largest stable coupling scale
+        (``inf``: stable up to `alpha_max`; ``0``: unstable at the smallest scale).
+
+    Raises
+    ------
+    NoLinearModelError
+        The rig has no linear model.
+    ParameterError
+        Unknown predictor or bad parameter.
+    """
+    if test_setup(params).is_study:
+        return _study_map(params, taus, predictors, alpha_max=alpha_max,
+                          step=step or 0.01, tol=tol or 1e-4)
+    rig = params['rig_model']
+    knob = DELAY_PARAMETER[rig]
+    taus = np.asarray(taus, dtype=float)
+    predictors = tuple(predictors)
+    bound = np.full((len(predictors), taus.size), math.nan)
+    notes = {}
+    for i, name in enumerate(predictors):
+        for j, tau in enumerate(taus):
+            p = dict(params, predictor=name, **{knob: float(tau)})
+            try:
+                bound[i, j] = largest_stable_scale(p, scale_max=alpha_max, step=step or 0.25,
+                                                   tol=tol or 0.01)
+            except NoLinearModelError as exc:
+                notes[name] = f'n/a: {exc}'
+                break
+    intervals = [[[(0.0, float(b))] for b in row] for row in bound]
+    return StabilityMap(rig, knob, taus, predictors, bound, intervals, notes, alpha_max,
+                        dict(params))

@@ -763,6 +763,11 @@ def test_setup(params: Mapping[str, Any]) -> TestSetup:
     return TestSetup(split(structure, rig_params), rig_params)
 
 
+#: Not tests, whatever their names (pytest collects ``test*`` names a test module imports).
+TestSetup.__test__ = False
+test_setup.__test__ = False
+
+
 def reduces_to_study(sub: Substructures) -> bool:
     """Whether the structure is the reference study's test: one physical DOF, nothing
     computational but a rigid mass on it (then it runs as the study's single rig, bit for

@@ -95,7 +95,7 @@ _FINAL = (STATE_DONE, STATE_ABORTED, STATE_FAILED)
 def topics_of_node(graph) -> dict[str, tuple[str, ...]]:
     """The bag topics each data node of `graph` publishes (its final status says how many
     samples: ``published`` for its data topics, ``published_timing`` for its timing topic,
-    ``published_estimates`` for its fields topic)."""
+    ``published:<topic>`` for each of its fields topics)."""
     signals = graph.bag_signals()
     return {node: tuple(t.name for t in signals if t.publisher == node)
             for node in graph.nodes()}
@@ -293,7 +293,7 @@ class RecorderNode(SeftNode):
         for node, values in self.finals.items():
             for name in self.topics_of_node.get(node, ()):
                 key = ('published_timing' if name in self.timing_names else
-                       'published_estimates' if name in self.fields_names else 'published')
+                       f'published:{name}' if name in self.fields_names else 'published')
                 yield name, self.counts[name], int(values.get(key, 0))
 
     def _missing(self) -> list[str]:

@@ -1,22 +1,32 @@
-"""reference_force_builder node: f_r[k] = -(1+alpha) m xg''[k] - alpha m a_hat[k].
+"""reference_force_builder node: the reference forces of the rigs it commands.
 
-Subscribes to the ground acceleration (the ground-motion publisher's record batches) and to
-the rig's measurement; when the measurement of step k has arrived and ``xg''[k+1 .. k+1+L]``
-have arrived (``L`` = ``builder.lookahead_steps``: the hold-consistent predictors and the
-ground-motion preview read the record ahead; samples after its end, known from ``n_steps``
-or the publisher's status, are 0) it publishes ``f_r[k+1]`` stamped ``t_k+1`` (``f_r[0]``
-as soon as ``xg''[0..L]`` are there, the specimen at rest). ``a_hat`` comes from the
-``predictor`` (``none``: the measured acceleration of the previous step, paper Eq. 5.3).
-Before each new reference force, the online instability monitor
-(``seft_ros.core.monitor``) checks the measurement for a growing high-frequency oscillation;
-when it trips, the builder reports 'aborted' instead and the rig stops. The numerics are
-``seft_ros.core.reference_force``.
+Every test is a structure (:mod:`seft_msgs_py.graph`); the reference study's test is its
+one-rig case (``f_r[k] = -(1+alpha) m xg''[k] - alpha m a_hat[k]``, paper Eq. 2.5). The node
+subscribes to the ground acceleration (the ground-motion publisher's record batches) and to
+the measurement of every rig (``/seft/measurement`` in the study's test,
+``/<rig>/seft/measurement`` in a structure's), integrates the computational degrees of freedom
+and publishes the reference force of each rig it commands (``/seft/reference_force``,
+``/<rig>/seft/reference_force``): every rig for the central builder, its own rig for a
+builder in a rig's namespace (``structure_builders: per_rig``). The numerics are
+:class:`~seft_ros.core.reference_force.ReferenceForceBuilder`: each rig's delay compensator
+(``predictor``; ``none``: the measured acceleration of the previous step, paper Eq. 5.3) and
+the interface force of the computational part. Before each new force, one instability
+monitor per commanded rig (``seft_ros.core.monitor``) checks that rig's measured force for a
+growing high-frequency oscillation; when it trips, the builder reports 'aborted' and the rigs
+stop.
 
-Real-time mode: the builder works in parallel with the force loop. As soon as the measurement
-of step k is complete it publishes ``f_r[k+1]`` (needed at ``t_k+1``); a ground acceleration
-that has not arrived is replaced by the latest one it has (counted as stale), and nothing
-waits. One timing record per step goes to the bag's ``/seft/timing/reference_force_builder``
-(through its record stream, as its reference forces do).
+Lockstep: ``f_r[k]`` of every commanded rig once ``xg''[k .. k+L]`` (``L`` =
+``builder.lookahead_steps``: the hold-consistent compensators and the ground-motion preview
+read the record ahead; samples after its end, known from ``n_steps`` or the publisher's
+status, are 0) and the measurement of sample ``k-1`` of **every** rig are in (``f_r[0]`` as
+soon as ``xg''[0..L]`` are there, the structure at rest), stamped ``t_k``: the run equals
+``seft simulate`` bit for bit. Real time: as soon as the measurements of ``k-1`` of the
+commanded rigs are in; a ground acceleration that has not arrived is replaced by the latest
+one (counted as stale), and a rig commanded elsewhere whose measurement has not arrived
+(across the network) is predicted over the gap as the whole structure would move; the gap is
+recorded in the timing record's input age. One timing record per step goes to the bag's
+``/[<rig>/]seft/timing/reference_force_builder``; the computational state it used to
+``/seft/structure_state``, each compensator's online estimates to ``/[<rig>/]seft/estimates``.
 
 Run by hand: ``ros2 run seft_ros reference_force_builder --ros-args --params-file ...``.
 """
@@ -25,12 +35,9 @@ import sys
 import time
 
 from seft_msgs_py import clock, parameters
-from seft_msgs_py.convert import (
-    STATE_READY,
-    SerializedStamped,
-    status_values,
-)
+from seft_msgs_py.convert import STATE_READY, SerializedStamped, status_values
 from seft_msgs_py.errors import InputError
+from seft_msgs_py.graph import STRUCTURE_STATE, qualified
 from seft_msgs_py.interface import Measurement
 from seft_msgs_py.node_support import (
     InputWatchdog,
@@ -39,11 +46,9 @@ from seft_msgs_py.node_support import (
     descriptor_of,
     main_for,
 )
-from seft_msgs_py.signals import record_streams_of
 from seft_msgs_py.topics import REFERENCE_FORCE, STATUS, record_topic
 from seft_ros.core.monitor import InstabilityMonitor
 from seft_ros.core.reference_force import ReferenceForceBuilder, ground_window
-from seft_ros.nodes.structure_builder import StructureBuilding
 
 __all__ = ['ReferenceForceBuilderNode', 'main']
 
@@ -56,9 +61,8 @@ _MODEL_PARAMETERS = ('rig_model', 'tau_s', 'valve_limit_V', 'piston_area_m2',
                      'accelerometer_range_m_s2')
 
 
-class ReferenceForceBuilderNode(StructureBuilding, SeftNode):
-    """Shell around :class:`~seft_ros.core.reference_force.ReferenceForceBuilder` (a structure's:
-    :class:`~seft_ros.nodes.structure_builder.StructureBuilding`)."""
+class ReferenceForceBuilderNode(SeftNode):
+    """Shell around :class:`~seft_ros.core.reference_force.ReferenceForceBuilder`."""
 
     def __init__(self):
         super().__init__('reference_force_builder')
@@ -68,44 +72,70 @@ class ReferenceForceBuilderNode(StructureBuilding, SeftNode):
                 spec = parameters.spec(name)
                 value = self.declare_parameter(name, spec.default, descriptor_of(spec)).value
                 p[name] = parameters.validate_value(name, value)
-        if self.graph.is_structure:
-            self._init_structure()
-            return
-        self.builder = ReferenceForceBuilder.from_parameters(p)
+        graph = self.graph
+        self.local = graph.local_rigs(self.seft_name)
+        self.builder = ReferenceForceBuilder.from_parameters(p, local=self.local)
+        self.rig_index = {r: i for i, r in enumerate(self.builder.rig_names)}
+        self.local_index = [self.rig_index[r] for r in self.local]
         # record length: n_steps, or as the ground-motion publisher reports it
         self.n_total = int(p['n_steps']) or None
-        self.monitor = InstabilityMonitor.from_parameters(p)
         self.dt = float(p['dt'])
+        self.monitors = [InstabilityMonitor.from_parameters(self.builder.setup.rig_params[r])
+                         for r in self.local]
         self.ground = {}
-        self.measurements = {}
-        self.next_step = 0          # step of the next reference force to publish
-        self.pub = self.create_publisher(REFERENCE_FORCE.msg_type, REFERENCE_FORCE.name,
-                                         REFERENCE_FORCE.qos)
-        self.out_msg = SerializedStamped.scalar(REFERENCE_FORCE)
+        #: sample -> the set of rigs whose measurement of it has arrived
+        self.arrived: dict[int, set] = {}
+        self.latest: dict[int, dict[int, Measurement]] = {}     # sample -> local rig -> meas
+        self.next_step = 0          # step of the next reference forces to publish
+        spec = self.scoped_spec(REFERENCE_FORCE, self.local[0])
+        self.pubs = [self.create_publisher(spec.msg_type, self.scoped_spec(REFERENCE_FORCE, r)
+                                           .name, spec.qos) for r in self.local]
+        self.out_msg = SerializedStamped.scalar(spec)
         self.batch = self.record_stream()
-        # an adaptive compensator's estimates in effect for each f_r[k] (as seft simulate)
-        self.estimates = getattr(self.builder.predictor, 'estimates', None)
-        self.estimates_batch = None
-        if self.estimates is not None:
-            names = tuple(self.builder.predictor.ESTIMATES)
-            self.estimates_batch = self.record_stream(
-                next(r for r in record_streams_of(self.seft_name) if r.fields_topic), names)
-        ground = record_streams_of('ground_motion_publisher')[0]
-        spec = record_topic(ground)
+        streams = graph.record_streams_of(self.seft_name)
+        self.state_batch = None
+        if self.builder.state_names:
+            stream = next(r for r in streams if r.fields_topic.endswith(STRUCTURE_STATE.name))
+            self.state_batch = self.record_stream(stream, self.builder.state_names)
+        # each compensator's online estimates in effect for each f_r[k] (as seft simulate)
+        self.estimates_batches = []
+        for r, law in zip(self.local, self.builder.laws):
+            names = getattr(law.predictor, 'ESTIMATES', None)
+            batch = None
+            if names is not None and getattr(law.predictor, 'estimates', None) is not None:
+                topic = graph.estimates(r).name
+                stream = next(s for s in streams if s.fields_topic == topic)
+                batch = self.record_stream(stream, tuple(names))
+            self.estimates_batches.append(batch)
+        ground = graph.record_streams()[0] if graph.is_structure else next(
+            s for s in graph.record_streams() if s.node == 'ground_motion_publisher')
+        gspec = record_topic(ground)
         ground_sub = self.create_subscription(
-            spec.msg_type, spec.name, self.guard(lambda msg: self._on_ground_batch(ground, msg)),
-            spec.qos)
-        measurement = self.measurement_subscription(self._on_measurement)
+            gspec.msg_type, gspec.name,
+            self.guard(lambda msg: self._on_ground_batch(ground, msg)), gspec.qos)
+        subs = [self.measurement_subscription(
+            lambda k, values, r=r: self._on_measurement(r, k, values), rig=r)
+            for r in self.builder.rig_names]
         self.create_subscription(STATUS.msg_type, STATUS.name, self.guard(self._on_status),
                                  STATUS.qos)
         if self.realtime:
-            self.watch_inputs([measurement, ground_sub], [self.pub])
+            self.watch_inputs(subs + [ground_sub], self.pubs)
             self.timing = StepTiming(self)
             self.latest_ground = (-1, 0.0)
-            self.ground_stale = False
-            self.watchdog = InputWatchdog(self, ('measurement',))
+            # every rig's measurement is watched: a rig commanded elsewhere (its lab, its link)
+            # silent for longer than the watchdog is lost, and its motion is not predicted on
+            # without end (the limit must exceed the link's delay: watchdog_timeout_s)
+            self.watchdog = InputWatchdog(self, tuple(f'{qualified("measurement", r)}'
+                                                      for r in self.builder.rig_names))
         self.publish_parameters()
-        self.report(STATE_READY, f'predictor {self.builder.predictor.name}')
+        names = sorted({law.predictor.name for law in self.builder.laws})
+        if graph.is_structure:
+            self.report(STATE_READY, f'predictor {", ".join(names)} for '
+                        f'{", ".join(self.local)}', rigs=','.join(self.local))
+        else:
+            self.report(STATE_READY, f'predictor {names[0]}')
+
+    # -- inputs -----------------------------------------------------------------------------
 
     def _on_ground_batch(self, stream, msg) -> None:
         """The ground-motion publisher's batch: ``xg''[k]`` of every row, in order."""
@@ -115,29 +145,55 @@ class ReferenceForceBuilderNode(StructureBuilding, SeftNode):
             raise InputError(str(exc)) from None
         data = msg.data
         for i in range(0, len(data), 2):
-            self._on_ground(int(data[i]), data[i + 1])
-
-    def _on_ground(self, k: int, value: float) -> None:
-        self.ground[k] = value
-        if self.realtime:
-            if k > self.latest_ground[0]:
-                self.latest_ground = (k, value)
-            if self.next_step == 0:
-                self._advance()
-            return
-        self._advance()
-
-    def _on_measurement(self, k: int, values: tuple) -> None:
-        force, x, v, a = values
-        self.measurements[k] = Measurement(k, k * self.dt, x, v, a, force)
-        if self.realtime:
-            self.watchdog.feed('measurement', k)
-            self.watchdog.arm()
-            self._advance_realtime()
-        else:
+            k = int(data[i])
+            self.ground[k] = data[i + 1]
+            if self.realtime and k > self.latest_ground[0]:
+                self.latest_ground = (k, data[i + 1])
+        if not self.realtime or self.next_step == 0:
             self._advance()
 
-    def _ground_or_latest(self, j: int) -> float:
+    def _on_measurement(self, rig: str, k: int, values: tuple) -> None:
+        force, x, v, a = values
+        m = Measurement(k, k * self.dt, x, v, a, force)
+        r = self.rig_index[rig]
+        self.builder.observe(r, m)
+        if k >= self.next_step - 1:                 # (a late one of a step already built)
+            self.arrived.setdefault(k, set()).add(r)
+        if self.realtime:
+            self.watchdog.feed(qualified('measurement', rig), k)
+        if rig in self.local:
+            self.latest.setdefault(k, {})[r] = m
+            if self.realtime:
+                self.watchdog.arm()
+        self._advance()
+
+    def _on_status(self, msg) -> None:
+        if msg.name == 'ground_motion_publisher' and self.n_total is None:
+            n = status_values(msg).get('n_steps')
+            if n is not None:
+                self.n_total = int(n)
+                self._advance()
+
+    # -- stepping ---------------------------------------------------------------------------
+
+    def _ground_ready(self, k: int) -> bool:
+        """Whether ``xg''[k..k+L]`` are all there (or known to lie after the record)."""
+        for j in range(k, k + self.builder.lookahead_steps + 1):
+            if j not in self.ground and (self.n_total is None or j < self.n_total):
+                return False
+        return True
+
+    def _inputs_ready(self, k: int) -> bool:
+        """Lockstep: every rig's sample k-1; real time: the commanded rigs'."""
+        if k == 0:
+            return True
+        got = self.arrived.get(k - 1, ())
+        need = self.local_index if self.realtime else range(len(self.builder.rig_names))
+        return all(r in got for r in need)
+
+    ground_stale = False
+
+    def _ground_at(self, j: int) -> float:
         """xg''[j], or the latest ground acceleration received if it has not arrived."""
         value = self.ground.get(j)
         if value is None:
@@ -147,45 +203,63 @@ class ReferenceForceBuilderNode(StructureBuilding, SeftNode):
             return self.latest_ground[1]
         return value
 
-    def _publish_force(self, k: int, ground, latest: Measurement | None) -> None:
-        """Build f_r[k] from ``ground(j)`` (xg''[j]) and the measurement of k-1; publish it."""
-        look = self.builder.lookahead_steps
-        n_total = self.n_total if self.n_total is not None else k + look + 1
-        force = self.builder.step(ground_window(ground, k, look, n_total), latest)
-        self.ground.pop(k, None)
-        self.pub.publish(self.out_msg(k * self.dt_ns, (force,)))
-        self.batch.add(k, force)
-        if self.estimates_batch is not None:
-            self.estimates_batch.add(k, *self.estimates().values())
-        self.next_step += 1
-
-    def _monitor_trips(self, latest: Measurement, k: int) -> bool:
-        """The instability monitor on sample k-1; on a trip the run is aborted (True)."""
-        reason = self.monitor.update(latest.force_N, self.builder.last_ground_force_N,
-                                     latest.time_s)
-        if reason:
-            self.abort_run(reason, k)
-        return bool(reason)
-
-    def _advance_realtime(self) -> None:
-        """f_r[k+1] for every complete measurement k, in order, with the latest inputs."""
-        while self.next_step - 1 in self.measurements and not self.done:
-            start, jitter = self.timing.start()
+    def _advance(self) -> None:
+        """Publish every reference force whose inputs are in, in step order."""
+        while not self.done:
             k = self.next_step
-            latest = self.measurements.pop(k - 1)
-            if self._monitor_trips(latest, k):
-                return
             if self.n_total is not None and k >= self.n_total:
                 return
-            self.ground_stale = False
-            self._publish_force(k, self._ground_or_latest, latest)
-            if self.ground_lost(k):
+            if not self._inputs_ready(k):
                 return
-            now_ns = clock.now_ns()
-            age = (now_ns - self.sample_time_ns(k - 1)) * 1e-9
-            missed = now_ns > self.sample_time_ns(k)
-            self.timing.publish(k * self.dt_ns, jitter, time.monotonic() - start, age,
-                                missed, self.ground_stale)
+            if not self.realtime and not self._ground_ready(k):
+                return
+            if self.realtime and k == 0 and not self._ground_ready(k):
+                return
+            start, jitter = self.timing.start() if self.timing is not None else (0.0, 0.0)
+            if k > 0 and self._monitors_trip(k):
+                return
+            self.ground_stale = False
+            look = self.builder.lookahead_steps
+            n_total = self.n_total if self.n_total is not None else k + look + 1
+            lookup = self._ground_at if self.realtime else self.ground.__getitem__
+            forces = self.builder.step(ground_window(lookup, k, look, n_total))
+            stamp = k * self.dt_ns
+            for pub, force in zip(self.pubs, forces):
+                pub.publish(self.out_msg(stamp, (force,)))
+            self.batch.add(k, *forces)
+            for batch, est in zip(self.estimates_batches, self.builder.estimates()):
+                if batch is not None:
+                    batch.add(k, *est.values())
+            if self.state_batch is not None and k > 0:
+                self.state_batch.add(k - 1, *self.builder.computational_state)
+            if self.realtime and self.ground_lost(k):
+                return
+            self.ground.pop(k - 1, None)
+            self.arrived.pop(k - 1, None)
+            self.latest.pop(k - 1, None)
+            self.next_step = k + 1
+            if self.timing is not None:
+                now_ns = clock.now_ns()
+                oldest = k - 1 - self.builder.window_steps
+                age = (now_ns - self.sample_time_ns(oldest)) * 1e-9
+                self.timing.publish(stamp, jitter, time.monotonic() - start, age,
+                                    now_ns > self.sample_time_ns(k), self.ground_stale)
+
+    def _monitors_trip(self, k: int) -> bool:
+        """Each commanded rig's instability monitor on its sample k-1 (True: aborted)."""
+        latest = self.latest.get(k - 1, {})
+        for i, (r, monitor) in enumerate(zip(self.local_index, self.monitors)):
+            m = latest.get(r)
+            if m is None:
+                continue
+            reason = monitor.update(m.force_N, self.builder.last_ground_forces_N[i], m.time_s)
+            if reason:
+                name = self.local[i]
+                self.abort_run(f'{name}: {reason}' if name else reason, k)
+                return True
+        return False
+
+    _ground_missing = 0
 
     def ground_lost(self, k: int) -> bool:
         """Real time: end the run when the record's samples have not come for longer than
@@ -198,40 +272,6 @@ class ReferenceForceBuilderNode(StructureBuilding, SeftNode):
                        f' ms (limit {1e3 * float(self.params["watchdog_timeout_s"]):.0f} ms; '
                        'the ground-motion publisher or its link lost)', k)
         return True
-
-    _ground_missing = 0
-
-    def _ground_ready(self, k: int) -> bool:
-        """Whether ``xg''[k..k+L]`` are all there (or known to lie after the record)."""
-        for j in range(k, k + self.builder.lookahead_steps + 1):
-            if j not in self.ground and (self.n_total is None or j < self.n_total):
-                return False
-        return True
-
-    def _advance(self) -> None:
-        """Publish every reference force whose inputs are all there, in step order."""
-        while True:
-            k = self.next_step
-            if self.realtime and k > 0:
-                return                    # real time: _advance_realtime from here on
-            if k not in self.ground or not self._ground_ready(k):
-                return
-            if k == 0:
-                latest = None
-            elif k - 1 in self.measurements:
-                latest = self.measurements.pop(k - 1)
-                if self._monitor_trips(latest, k):
-                    return
-            else:
-                return
-            self._publish_force(k, self.ground.__getitem__, latest)
-
-    def _on_status(self, msg) -> None:
-        if msg.name == 'ground_motion_publisher' and self.n_total is None:
-            n = status_values(msg).get('n_steps')
-            if n is not None:
-                self.n_total = int(n)
-                self._advance()
 
 
 def main(args=None) -> int:
