@@ -624,16 +624,15 @@ def resolve(overrides: Mapping[str, Any] | Iterable[tuple[str, Any]] = (), *,
 #: (``use_sim_time`` is rclpy's, not the schema's).
 #: Parameters that are the test's, not a rig's: a structure's ``rigs`` section may not set
 #: them, and nodes in different namespaces must agree on them (:func:`shared_mismatches`).
+#: Each rig's delay compensator (``predictor`` and its parameters) is the rig's: one rig of
+#: a structure may identify its specimen online while another uses its model.
 TEST_PARAMETERS = frozenset({
     'dt', 'alpha', 'mode', 'n_steps', 'record', 'amplitude_N', 'scale_factor', 'time_scale',
     'duration_s', 'preview_steps', 'excitation', 'excitation_input', 'excitation_amplitude',
-    'excitation_band_low_hz', 'excitation_band_hz', 'excitation_seed', 'predictor',
-    'ground_preview', 'polynomial_order', 'predictor_restoring_force', 'predictor_loop_latency_s',
-    'network_delay_s', 'monitor_cutoff_hz', 'monitor_window_s', 'monitor_threshold',
-    'monitor_floor_N', 'wait_for_recorder', 'recorder_window_steps', 'bag_path', 'bag_storage',
-    'structure', 'structure_builders', 'realtime_priority', 'adaptive_window_s',
-    'adaptive_max_delay_s', 'adaptive_memory_s', 'adaptive_excitation_N', 'adaptive_max_deviation',
-    'adaptive_max_rate_per_s', 'adaptive_loop', 'ats_window_s',
+    'excitation_band_low_hz', 'excitation_band_hz', 'excitation_seed',
+    'predictor_loop_latency_s', 'network_delay_s', 'monitor_cutoff_hz', 'monitor_window_s',
+    'monitor_threshold', 'monitor_floor_N', 'wait_for_recorder', 'recorder_window_steps',
+    'bag_path', 'bag_storage', 'structure', 'structure_builders', 'realtime_priority',
 })
 
 

@@ -21,6 +21,7 @@ from seft_msgs_py.errors import ParameterError
 from seft_msgs_py.interface import Measurement
 from seft_msgs_py.sampling import linear_map, single_blas_thread
 from seft_ros.core.predictors import (
+    TANGENT_STIFFNESS_RATIOS,
     AdaptivePredictor,
     AtsPredictor,
     DelayImpulseModel,
@@ -284,11 +285,29 @@ class RigReferenceForce:
         return predictor.command(force)
 
 
+#: The compensators' estimate of a yielding member's tangent stiffness (its model's).
+TANGENT_ESTIMATE = 'tangent_stiffness_N_per_m'
+
+
+def yields(predictor) -> bool:
+    """Whether a compensator models a member that yields (it estimates its tangent
+    stiffness: ``predictor_restoring_force`` 'measured' or 'hysteretic')."""
+    return TANGENT_ESTIMATE in getattr(predictor, 'ESTIMATES', ())
+
+
 def specimen_model_of(predictor, params) -> SpecimenModel:
-    """The specimen model a rig's compensator works with (its identified one for
-    ``adaptive``), or the configured one (``predictor_*``, 0: the specimen's) for a
-    compensator without a model (``none``, ``polynomial``) or with a nonlinear one (a
-    yielding member: its elastic stiffness)."""
+    """The specimen model a rig's compensator works with: its identified one for
+    ``adaptive``; for a member that yields, the configured ``m, c`` with its current tangent
+    stiffness (on a table 5 % apart, ``TANGENT_STIFFNESS_RATIOS``); the configured one
+    (``predictor_*``, 0: the specimen's) for a compensator without a model (``none``,
+    ``polynomial``)."""
+    if yields(predictor):
+        mp = model_parameters(params)
+        k = mp['stiffness_N_per_m']
+        k_t = float(predictor.estimates()[TANGENT_ESTIMATE])
+        ratios = TANGENT_STIFFNESS_RATIOS
+        i = int(np.argmin(np.abs(np.log(ratios) - math.log(max(k_t / k, ratios[0])))))
+        return SpecimenModel(mp['mass_kg'], mp['damping_N_s_per_m'], k * float(ratios[i]))
     model = getattr(predictor, 'model', None)
     if not isinstance(model, DelayImpulseModel):
         law = getattr(predictor, '_law', None)
@@ -326,6 +345,10 @@ class Coupling(NamedTuple):
     ground_steps: int
     weights: dict
 
+
+#: The interface predictions a builder keeps, by their models (a yielding member's tangent
+#: stiffness moves between a few values of its table).
+INTERFACE_CACHE = 64
 
 #: A rig's specimen model or loop delay that moved by more than this (relative; the delay:
 #: ``dt / 64``) rebuilds the interface prediction (an ``adaptive`` compensator's estimates).
@@ -448,6 +471,8 @@ class ReferenceForceBuilder:
                     weights = [float(w) for w in self.laws[r].predictor.weights]
                     self._history[r] = (weights, deque([0.0] * len(weights),
                                                        maxlen=len(weights)))
+        self._yields = [yields(law.predictor) for law in self.laws]
+        self._interface_cache = {}
         if self._targets:
             self._interface_key = None
             self._build_interface()
@@ -498,10 +523,19 @@ class ReferenceForceBuilder:
             if not any(m.moved(o, MODEL_TOLERANCE) for m, o in zip(models, old_models)) and all(
                     abs(t - o) <= self.dt / 64 for t, o in zip(taus, old_taus)):
                 return
-        with single_blas_thread():
-            self._interface = InterfacePredictor(
-                self.setup.substructures, self._local_pos, models, taus, self._targets,
-                self.dt, self.state.matrices)
+        exact = (tuple((m.mass_kg, m.damping_N_s_per_m, m.stiffness_N_per_m) for m in models),
+                 tuple(round(t / self.dt * 64) for t in taus))
+        ip = self._interface_cache.get(exact)
+        if ip is None:
+            with single_blas_thread():
+                ip = InterfacePredictor(
+                    self.setup.substructures, self._local_pos, models, taus, self._targets,
+                    self.dt, self.state.matrices, offsets=self._yields)
+            if len(self._interface_cache) >= INTERFACE_CACHE:
+                self._interface_cache.pop(next(iter(self._interface_cache)))
+            self._interface_cache[exact] = ip
+        self._interface = ip
+        self._interface_models = models
         self._interface_key = (models, taus)
 
     def set_specimen_model(self, rig: str, model: SpecimenModel) -> None:
@@ -525,6 +559,7 @@ class ReferenceForceBuilder:
         self.state.set_matrices(structure_matrices(self.setup.substructures, models))
         if self._targets:
             self._interface_key = None
+            self._interface_cache.clear()
             self._build_interface()
 
     def coupling(self) -> 'Coupling':
@@ -608,7 +643,7 @@ class ReferenceForceBuilder:
                 for old in [j for j in seen if j < k - 1]:
                     del seen[old]
         if self._tracking:
-            self._couple(k, window)
+            self._couple(k, window, latest)
         out = []
         for r, law in enumerate(self.laws):
             out.append(law.step(window, latest[r], self.interface_N[r]))
@@ -616,8 +651,9 @@ class ReferenceForceBuilder:
         self.next_step = k + 1
         return out
 
-    def _couple(self, k: int, window) -> None:
-        """The computational state of sample ``k-1`` and the local rigs' interface forces."""
+    def _couple(self, k: int, window, latest) -> None:
+        """The computational state of sample ``k-1`` and the local rigs' interface forces
+        (`latest`: each local rig's measurement of ``k-1``, None at the start)."""
         state = self.state
         for j, g in enumerate(window[:self.lookahead_steps + 1]):
             state.ground[k + j] = float(g)
@@ -645,6 +681,12 @@ class ReferenceForceBuilder:
                 q.extend([0.0] * (nh - len(past)) + past)
             q.append(0.0 if k == 0 else state.ground.get(k - 1, 0.0))
             q.extend(window[:ip.ground_steps - 1])
+            for r in ip.offset_rigs:          # a yielding member: measured less modelled
+                m, mod = latest[r], self._interface_models[r]
+                q.append(0.0 if m is None else (
+                    m.force_N - mod.mass_kg * m.acceleration_m_s2
+                    - mod.damping_N_s_per_m * m.velocity_m_s
+                    - mod.stiffness_N_per_m * m.displacement_m))
             predicted = dict(zip(self._targets, ip(q)))
         for r, mode in enumerate(self._modes):
             if mode is None:

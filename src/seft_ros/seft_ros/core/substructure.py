@@ -268,6 +268,11 @@ class InterfacePredictor:
         Control period [s].
     matrices : Matrices, optional
         The whole structure the other DOFs move in (default the declared one).
+    offsets : sequence of bool, optional
+        Per local rig: whether its model carries a restoring-force offset ``d`` (a member
+        that yields: its model is the tangent stiffness, and ``d`` = the measured restoring
+        force less the model's at ``t_k-1``, held over the prediction:
+        ``m x'' + c x' + k_t x + d = F``).
 
     Attributes
     ----------
@@ -276,22 +281,22 @@ class InterfacePredictor:
     ground_steps : int
         ``ng``: the record ``g[k-1 .. k+ng-2]`` is read.
     width : int
-        Length of ``q``: ``2 n + n_l nh + ng``.
+        Length of ``q``: ``2 n + n_l nh + ng + n_d`` (``n_d`` the rigs with an offset).
     matrix : ndarray, shape (n_targets, width)
         ``I = matrix q`` [N].
 
     Notes
     -----
-    ``q = [x (n), v (n), F_0[k-nh .. k-1], ..., F_{n_l-1}[...], g[k-1 .. k+ng-2]]``, every
-    DOF's displacement and velocity at ``t_k-1`` in structure order. The interface force of
-    target rig ``r`` at DOF ``p`` is the average over its interval,
+    ``q = [x (n), v (n), F_0[k-nh .. k-1], ..., F_{n_l-1}[...], g[k-1 .. k+ng-2], d...]``,
+    every DOF's displacement and velocity at ``t_k-1`` in structure order, then the offsets.
+    The interface force of target rig ``r`` at DOF ``p`` is the average over its interval,
     ``I_r = -(1/dt) [C_c[p, :] (x(b) - x(a)) + K_c[p, :] (X(b) - X(a))]`` with ``X = int x``
     and ``[a, b) = [t_k + tau_r, t_k+1 + tau_r)``.
     """
 
     def __init__(self, sub: Substructures, local: Sequence[int], models: Sequence[SpecimenModel],
                  taus_s: Sequence[float], targets: Sequence[int], dt: float,
-                 matrices: Matrices | None = None):
+                 matrices: Matrices | None = None, offsets: Sequence[bool] | None = None):
         s = sub.structure
         dt = float(dt)
         n = s.n
@@ -306,9 +311,11 @@ class InterfacePredictor:
         if any(not (t >= 0.0 and math.isfinite(t)) for t in taus):
             raise ParameterError(f'interface predictor: loop delays {taus!r}: expected >= 0')
         matrices = matrices or structure_matrices(sub)
+        with_offset = [r for r in range(n_l) if offsets is not None and offsets[r]]
+        n_d = len(with_offset)
         size = 3 * n + 1
         a = np.zeros((size, size))
-        b = np.zeros((size, n_l + 1))
+        b = np.zeros((size, n_l + 1 + n_d))
         xs, vs, ixs, ig = slice(0, n), slice(n, 2 * n), slice(2 * n, 3 * n), 3 * n
         a[xs, vs] = np.eye(n)
         for r, (i, mod) in enumerate(zip(li, models)):
@@ -321,6 +328,8 @@ class InterfacePredictor:
                 a[n + i, :n] = ax[row]
                 a[n + i, n:2 * n] = av[row]
                 a[n + i, ig] = -iota[row]
+        for col, r in enumerate(with_offset):
+            b[n + li[r], n_l + 1 + col] = -1.0 / models[r].mass_kg
         a[ixs, xs] = np.eye(n)
         b[ig, n_l] = 1.0
         splits = [split_delay(t, dt) for t in taus]
@@ -343,9 +352,10 @@ class InterfacePredictor:
             if not times or t - times[-1] > eps:
                 times.append(t)
         ng = int(math.floor((end - eps) / dt)) + 2
-        width = 2 * n + n_l * nh + ng
+        width = 2 * n + n_l * nh + ng + n_d
         col_f = 2 * n
         col_g = col_f + n_l * nh
+        col_d = col_g + ng
         y = np.zeros((size, width))
         y[:2 * n, :2 * n] = np.eye(2 * n)
         y[ig, col_g] = 1.0
@@ -366,7 +376,9 @@ class InterfacePredictor:
                 cache[hk] = zoh(a, b, h)
             phi, gamma = cache[hk]
             mid = 0.5 * (t0 + t1)
-            u = np.zeros((n_l + 1, width))
+            u = np.zeros((n_l + 1 + n_d, width))
+            for col in range(n_d):
+                u[n_l + 1 + col, col_d + col] = 1.0
             for r, tau in enumerate(taus):
                 i = int(math.floor((mid - dt - tau) / dt))      # F_r[k + i] acts
                 base = col_f + r * nh + nh
@@ -392,6 +404,7 @@ class InterfacePredictor:
             rows[row] = -(sub.damping_c_N_s_per_m[p] @ diff[xs]
                           + sub.stiffness_c_N_per_m[p] @ diff[ixs]) / dt
         self.history_steps, self.ground_steps, self.width = nh, ng, width
+        self.offset_rigs = tuple(with_offset)
         self.matrix = rows
         self._map = linear_map(rows, name='interface_prediction')
 
