@@ -300,6 +300,16 @@ SCHEMA: tuple[ParamSpec, ...] = (
               'disables. Disarmed in an open-loop identification run (excitation on the '
               "valve: the loop it guards is open), where the rig's stroke_limit_m and "
               'force_limit_N guard the run.', 0.0, 100.0, nodes=_RFB),
+    ParamSpec('specimen_uncertainty', 0.0, '', 'How far the specimens may be from their '
+              'declared stiffness, as a fraction (0.2: 0.8 to 1.2 times it; 0: not declared). '
+              'The pre-run guard refuses a run whose compensation is not stable over that range '
+              '(its robustness margin, printed before every run).', 0.0, 0.95, nodes=_RFB),
+    ParamSpec('specimen_check', 'warn', '', "What the builder does when a rig identifies its "
+              'specimen (its load-cell force against its motion, Eq. 5.1) outside the declared '
+              'stiffness by more than specimen_uncertainty (0: 10 %; adaptive: at least '
+              "adaptive_max_deviation): 'warn' (one line, in the report and the bag), 'abort' "
+              "(stop the run safely with the reason) or 'off'.",
+              choices=('warn', 'abort', 'off'), nodes=_RFB),
     ParamSpec('monitor_floor_N', 50.0, 'N', "Absolute floor of the monitor's comparison "
               '(keeps sensor noise from tripping it).', 0.0, None, nodes=_RFB),
     # -- force servo controller -------------------------------------------------------------
@@ -633,6 +643,7 @@ TEST_PARAMETERS = frozenset({
     'predictor_loop_latency_s', 'network_delay_s', 'monitor_cutoff_hz', 'monitor_window_s',
     'monitor_threshold', 'monitor_floor_N', 'wait_for_recorder', 'recorder_window_steps',
     'bag_path', 'bag_storage', 'structure', 'structure_builders', 'realtime_priority',
+    'specimen_uncertainty',
 })
 
 

@@ -31,7 +31,7 @@ from seft_ros.core.reference_force import PREDICTORS
 __all__ = ['build_runs', 'output_dir', 'remove_empty_dirs', 'run_experiments',
            'simulate_experiments', 'simulate_runs', 'compare_bags', 'find_bags',
            'summary_table', 'criteria_table',
-           'Result', 'check_stability', 'check_domain', 'open_runner',
+           'Result', 'check_stability', 'check_domain', 'open_runner', 'stability_entry',
            'stability_report', 'stability_table', 'StabilityResult', 'identify_bags']
 
 
@@ -195,9 +195,11 @@ def simulate_experiments(*, runs: list[dict], out_dir: Path,
     for path in bags:
         if path.exists():
             raise InputError(f'{path}: the bag exists already; expected a new --out directory')
-    check_stability(runs=runs, force=force, progress=progress)
+    checks = check_stability(runs=runs, force=force, progress=progress)
     check_capacity(runs=runs, progress=progress)
     data = simulate_runs(runs=runs, out_dir=out_dir, progress=progress, workers=workers)
+    for rd, check in zip(data, checks):
+        rd.extra['stability'] = stability_entry(check)
     if bags:
         from seft_ros.analysis.bagwrite import write_run_bag
         for rd, path in zip(data, bags):
@@ -254,6 +256,8 @@ def _run_finished(params: dict, rd: RunData, label: str, out_dir: Path,
     run_dir = out_dir / label
     run_dir.mkdir(parents=True, exist_ok=True)
     write_params_file(params, run_dir / 'params.yaml')
+    for warning in rd.extra.get('warnings') or ():
+        progress(f'[{label}] warning: {warning}')
     state = 'stable' if rd.stable else 'ABORTED: ' + str(rd.abort_reason)
     progress(f'[{label}] {state}{note}')
     return rd
@@ -580,8 +584,10 @@ def run_experiments(*, runs: list[dict], out_dir: Path,
         return _run_here(runs, out_dir, progress, _shared_domain(domain_id), nodes, processes)
     t0 = time.monotonic()
 
+    predicted = []
+
     def checks():
-        check_stability(runs=runs, force=force, progress=progress)
+        predicted.extend(check_stability(runs=runs, force=force, progress=progress))
         check_capacity(runs=runs, progress=progress)
     runner, claim = open_runner(domain_id=domain_id, progress=progress, checks=checks,
                                 processes=processes)
@@ -594,6 +600,8 @@ def run_experiments(*, runs: list[dict], out_dir: Path,
     finally:
         runner.close()
         claim.close()
+    for rd, check in zip(data, predicted):
+        rd.extra['stability'] = stability_entry(check)
     return _finish(out_dir, data, title or 'seft run', t0)
 
 
@@ -847,34 +855,63 @@ def check_capacity(*, runs: list[dict], progress: Callable[[str], None] = print)
 
 def check_stability(*, runs: list[dict], force: bool = False,
                     progress: Callable[[str], None] = print) -> list[stability.StabilityCheck]:
-    """Refuse (or with `force` warn about) runs predicted unstable at their alpha.
+    """Refuse (or with `force` warn about) runs predicted unstable as configured, or whose
+    declared specimen uncertainty exceeds their robustness margin.
 
-    Each run with a linear rig and a predictor with a linear form is checked by
-    :func:`seft_ros.core.stability.check_run` (spectral radius of the sampled loop at the
-    configured alpha); the others get a note through `progress`.
+    Each run with a linear rig and a compensator with a linear form is checked by
+    :func:`seft_ros.core.stability.check_run` (spectral radius of the sampled loop as
+    configured) with its robustness margin (the specimen stiffness range, as a fraction of
+    the declared one, over which it stays stable: one line per run through `progress`); the
+    others get a note. A run with ``specimen_uncertainty`` u > 0 whose margin does not hold
+    ``1 +- u`` is refused like an unstable one.
 
     Returns
     -------
     list of StabilityCheck
-        One per run.
+        One per run (with its ``margin``).
 
     Raises
     ------
     PredictedUnstableError
-        A run is predicted unstable and `force` is False (message of the first such run).
+        A run is predicted unstable, or its uncertainty exceeds its margin, and `force` is
+        False (message of the first such run).
     """
-    checks = [stability.check_run(p) for p in runs]
-    unstable = [c for c in checks if c.stable is False]
-    for c in checks:
+    checks = [stability.check_run(p, margin=True) for p in runs]
+    refused = []
+    for p, c in zip(runs, checks):
         if c.stable is None:
             progress(f'note: {c.message}')
-    if unstable and not force:
-        more = f' (and {len(unstable) - 1} more run(s))' if len(unstable) > 1 else ''
+            continue
+        label = _run_label(p, runs)
+        if c.margin is not None:
+            progress(f'robustness: [{label}] {c.margin.text()}')
+        if c.stable is False:
+            refused.append(c.message)
+            continue
+        u = float(p.get('specimen_uncertainty', 0.0) or 0.0)
+        if u > 0 and c.margin is not None and not c.margin.covers(u):
+            refused.append(
+                f'[{label}] parameter specimen_uncertainty={u:g}: the specimens may be '
+                f'{1 - u:.3g}-{1 + u:.3g} x their declared stiffness, but predictor '
+                f'{p["predictor"]} stays stable only for {c.margin.text(bare=True)} '
+                '(its robustness margin); use predictor adaptive, narrow the uncertainty '
+                '(identify the specimens first: seft identify)')
+    if refused and not force:
+        more = f' (and {len(refused) - 1} more run(s))' if len(refused) > 1 else ''
         raise stability.PredictedUnstableError(
-            f'{unstable[0].message}{more}; use --force to run it anyway')
-    for c in unstable:
-        progress(f'warning: {c.message}; running it anyway (--force)')
+            f'{refused[0]}{more}; use --force to run it anyway')
+    for message in refused:
+        progress(f'warning: {message}; running it anyway (--force)')
     return checks
+
+
+def stability_entry(check: stability.StabilityCheck) -> dict:
+    """A run's pre-run prediction for its ``summary.json`` (``extra['stability']``)."""
+    def num(v):
+        return None if v != v else ('inf' if v == float('inf') else float(v))
+    return {'predicted_stable': check.stable, 'spectral_radius': num(check.spectral_radius),
+            'boundary': num(check.boundary_alpha), 'message': check.message,
+            'robustness_margin': None if check.margin is None else check.margin.to_json()}
 
 
 class StabilityResult:

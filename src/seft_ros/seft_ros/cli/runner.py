@@ -618,6 +618,8 @@ class GraphRunner:
                 last_progress = time.monotonic()
                 if s.get('state') in (STATE_ABORTED, STATE_FAILED):
                     self.progress(f'{label}{s["name"]}: {s.get("state")}: {s["message"]}')
+                elif s.get('warning'):
+                    self.progress(f'{label}{s["name"]}: warning: {s["warning"]}')
             rig = self._latest(self.graph.master)
             now = time.monotonic()
             if rig and rig.get('state') == STATE_RUNNING and now - last_print > 2.0:

@@ -38,7 +38,7 @@ from seft_ros.analysis.rundata import RigData, RunData
 from seft_ros.core.controller import ReferencePlayout, SaturationInterlock
 from seft_ros.core.excitation import make_valve_controller
 from seft_ros.core.ground_motion import GroundMotion, prepared_record
-from seft_ros.core.monitor import InstabilityMonitor
+from seft_ros.core.monitor import InstabilityMonitor, SpecimenCheck
 from seft_ros.core.reference_force import ReferenceForceBuilder
 
 __all__ = ['simulate']
@@ -102,6 +102,11 @@ def simulate(params, *, progress: Callable[[int, int], None] | None = None,
         locks = [SaturationInterlock.from_parameters(rig_params[r]) if v else None
                  for r, v in zip(names, valve)]
         monitors = [InstabilityMonitor.from_parameters(rig_params[r]) for r in names]
+        # each rig's specimen against its compensator's model (specimen_check)
+        local_params = {r: p for b in builders for r, p in zip(b.local_rigs, b.rig_params)}
+        checks = [SpecimenCheck.from_parameters(local_params[r], rig=r) for r in names]
+        check_abort = [local_params[r].get('specimen_check', 'warn') == 'abort'
+                       for r in names]
         if stale_steps is not None and not isinstance(stale_steps, Mapping):
             if len(names) != 1:
                 raise ParameterError(f'stale steps of a test of {len(names)} rigs: expected '
@@ -136,6 +141,7 @@ def simulate(params, *, progress: Callable[[int, int], None] | None = None,
     # per-step signals as Python lists (a list store is a few times cheaper than an array's)
     rec = {name: {k: [] for k in ('fr', 'fm', 'u', 'x', 'v', 'a', 'est')} for name in names}
     state_rec = []
+    warnings = []
     reason = abort_node = None
     n_done = n_total
     commands = build(0)
@@ -181,6 +187,12 @@ def simulate(params, *, progress: Callable[[int, int], None] | None = None,
             scale = ground_forces()
             for r in range(n_r):
                 reason = monitors[r].update(meas[r].force_N, scale[r], meas[r].time_s)
+                if not reason and checks[r] is not None:
+                    finding = checks[r].update(meas[r])
+                    if finding and check_abort[r]:
+                        reason = finding
+                    elif finding:
+                        warnings.append(finding)
                 if reason:
                     reason = f'{names[r]}: {reason}' if names[r] else reason
                     abort_node = 'reference_force_builder'
@@ -236,4 +248,6 @@ def simulate(params, *, progress: Callable[[int, int], None] | None = None,
         rigs=rig_data, computational=computational, stable=reason is None,
         unstable_at_s=None if reason is None else n * dt, abort_reason=reason,
         record_name=gm.name, source='simulate',
-        extra={'wall_s': wall_s, 'abort_node': abort_node})
+        extra={'wall_s': wall_s, 'abort_node': abort_node, 'warnings': warnings,
+               'specimen_ratios': {r: c.stiffness_ratio for r, c in zip(names, checks)
+                                   if c is not None}})

@@ -9,7 +9,8 @@ from seft_msgs_py.errors import ParameterError
 from seft_msgs_py.parameters import spec
 from seft_ros.core.controller import DiscreteFilter
 
-__all__ = ['InstabilityMonitor', 'open_loop_identification']
+__all__ = ['InstabilityMonitor', 'open_loop_identification', 'SpecimenCheck',
+           'SPECIMEN_CHECK_ACTIONS', 'DEFAULT_SPECIMEN_TOLERANCE']
 
 
 def open_loop_identification(params) -> bool:
@@ -180,3 +181,135 @@ class InstabilityMonitor:
                     f'force, RMS above the cut-off {self.ratio:.2f} x the response band '
                     f'(threshold {self.threshold:g})')
         return None
+
+
+#: ``specimen_check``: what the builder does when a rig's specimen is not the declared one.
+SPECIMEN_CHECK_ACTIONS = ('warn', 'abort', 'off')
+#: The tolerance of the check when no ``specimen_uncertainty`` is declared [-].
+DEFAULT_SPECIMEN_TOLERANCE = 0.1
+
+
+class SpecimenCheck:
+    """Is the rig's specimen the one its compensator models? Its stiffness from its own data.
+
+    The specimen's equation of motion ``f_m = m x'' + c x' + k x`` (paper Eq. 5.1) is
+    regressed on each sample's load-cell force, acceleration, velocity and displacement by
+    recursive least squares with forgetting (memory ``memory_s``; unknowns normalised by the
+    declared ``m0, c0, k0``, the damping scale at least 5 % of critical), only while the
+    measured force's running RMS exceeds ``excitation_N``. Once the rig has been excited for
+    ``settle_s``, a stiffness estimate outside ``(1 +- tolerance) k0`` for ``persist_s`` in a
+    row gives one line naming the rig's declared and identified stiffness; the caller warns
+    or stops the run (``specimen_check``). This is what a lab cannot see in the test's own
+    signals: with a wrong model the ``model`` compensator makes a stable but wrong test (two
+    piers, a pier's model 10 % soft: 84 % error) unless the loop goes unstable and the
+    :class:`InstabilityMonitor` stops it.
+
+    Parameters
+    ----------
+    mass_kg, damping_N_s_per_m, stiffness_N_per_m : float > 0 (damping >= 0)
+        The declared specimen m0 [kg], c0 [N s/m], k0 [N/m] (the compensator's model).
+    dt : float > 0
+        Control period [s].
+    tolerance : float in (0, 1)
+        Allowed relative deviation of the stiffness [-].
+    rig : str
+        The rig's name, for the message ('' for the study's rig).
+    excitation_N : float >= 0
+        Running-RMS level of the measured force below which nothing is learnt [N].
+    memory_s, settle_s, persist_s : float > 0
+        RLS memory, excitation needed before judging, and how long a deviation must last [s].
+
+    Attributes
+    ----------
+    stiffness_ratio : float
+        The identified stiffness over the declared one [-] (1 before any excitation).
+
+    Raises
+    ------
+    ParameterError
+        A value out of range (the message names the parameter).
+
+    References
+    ----------
+    L. Ljung, System Identification, 2nd ed. (1999), Sec. 11.2 (RLS with forgetting);
+    Nakata and Combs, Eq. 5.1 (the specimen's equation of motion).
+    """
+
+    def __init__(self, mass_kg: float, damping_N_s_per_m: float, stiffness_N_per_m: float,
+                 dt: float, tolerance: float, *, rig: str = '', excitation_N: float = 20.0,
+                 memory_s: float = 2.0, settle_s: float = 1.0, persist_s: float = 0.5):
+        from seft_ros.core import identification as ident
+        m0, c0, k0 = float(mass_kg), float(damping_N_s_per_m), float(stiffness_N_per_m)
+        if not (m0 > 0 and c0 >= 0 and k0 > 0):
+            raise ParameterError(f'specimen check: expected m > 0, c >= 0, k > 0, got {m0!r}, '
+                                 f'{c0!r}, {k0!r}')
+        if not 0 < tolerance < 1:
+            raise ParameterError(f'parameter specimen_uncertainty={tolerance!r}: expected a '
+                                 'fraction in (0, 1) for the specimen check')
+        self.k0 = k0
+        self.tolerance = float(tolerance)
+        self.rig = rig
+        self._scale = np.array([m0, max(c0, 0.1 * math.sqrt(k0 * m0)), k0])
+        level = max(float(excitation_N), 1.0)
+        self._rls = ident.RecursiveLeastSquares([1.0, c0 / self._scale[1], 1.0],
+                                                float(dt) / (0.01 * level * level),
+                                                ident.forgetting_factor(float(dt), memory_s))
+        self._gate = ident.ExcitationGate(float(dt), 0.5, excitation_N)
+        self._settle = int(round(settle_s / float(dt)))
+        self._persist = int(round(persist_s / float(dt)))
+        self._excited = 0
+        self._off = 0
+        self.stiffness_ratio = 1.0
+        self.reported = False
+
+    @classmethod
+    def from_parameters(cls, params, rig: str = '') -> 'SpecimenCheck | None':
+        """The check of one rig from its parameters, or None when it cannot judge: turned off
+        (``specimen_check: off``), a member that yields (its stiffness changes by design;
+        the hysteretic compensator identifies it), or an open-loop identification run.
+
+        The declared specimen is the compensator's model (``predictor_*``, 0: the
+        specimen's); the tolerance ``specimen_uncertainty`` (0: 10 %), for ``adaptive`` at
+        least its identification's range ``adaptive_max_deviation``.
+        """
+        from seft_ros.core.predictors import model_parameters
+        if (params.get('specimen_check', 'warn') == 'off'
+                or params.get('specimen_model', 'linear') != 'linear'
+                or params.get('predictor_restoring_force', 'model') != 'model'
+                or open_loop_identification(params)):
+            return None
+        mp = model_parameters(params)
+        tolerance = float(params.get('specimen_uncertainty', 0.0) or 0.0) or \
+            DEFAULT_SPECIMEN_TOLERANCE
+        if params.get('predictor') == 'adaptive':
+            tolerance = max(tolerance, float(params.get('adaptive_max_deviation', 0.5)))
+        return cls(mp['mass_kg'], mp['damping_N_s_per_m'], mp['stiffness_N_per_m'],
+                   float(params['dt']), tolerance, rig=rig,
+                   excitation_N=float(params.get('adaptive_excitation_N', 20.0)))
+
+    def update(self, measurement) -> str | None:
+        """Take one sample (a :class:`~seft_msgs_py.interface.Measurement`); return the
+        one-line finding the first time the specimen is judged not the declared one."""
+        f = measurement.force_N
+        if not self._gate.update(f):
+            self._off = 0
+            return None
+        s = self._scale
+        self._rls.update((s[0] * measurement.acceleration_m_s2, s[1] * measurement.velocity_m_s,
+                          s[2] * measurement.displacement_m), f)
+        self._excited += 1
+        self.stiffness_ratio = float(self._rls.theta[2])
+        if self._excited < self._settle or self.reported:
+            return None
+        if abs(self.stiffness_ratio - 1.0) <= self.tolerance:
+            self._off = 0
+            return None
+        self._off += 1
+        if self._off < self._persist:
+            return None
+        self.reported = True
+        who = f'rig {self.rig}' if self.rig else 'the rig'
+        return (f'specimen check at t={measurement.time_s:.3f} s: {who} identifies its specimen '
+                f'at {self.stiffness_ratio:.3g} x the declared stiffness {self.k0:.4g} N/m '
+                f'(tolerance +-{100 * self.tolerance:.0f} %): the compensation models another '
+                'specimen; identify it (seft identify) or declare it')

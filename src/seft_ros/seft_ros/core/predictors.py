@@ -884,6 +884,12 @@ def model_predictor(params):
     return ModelPredictor.from_parameters(params)
 
 
+#: The largest miss ``max |W T - z^-d|`` up to 25 Hz a force-loop inverse may have [-]: beyond
+#: it the modelled loop cannot be followed (a declared specimen 1.25 times the one the
+#: study's loop-shaping controller cancels: 0.54; exact: 0.01; +-20 %: 0.20-0.40).
+MAX_BAND_ERROR = 0.5
+
+
 class ForceLoopInverse:
     """Feedforward FIR ``W(z)`` so that the servo-hydraulic force loop acts as a pure delay.
 
@@ -1023,9 +1029,23 @@ class ForceLoopInverse:
         ctrl = ForceServoController.from_parameters(params)
         resp = step_average_force_impulse_response(
             ServoHydraulicParams.from_parameters(params), spec, ctrl, 1000)
-        return cls(resp, ctrl.dt, int(params['predictor_loop_delay_steps']),
-                   int(params['predictor_loop_taps']),
-                   hf_weight=float(params.get('predictor_loop_hf_weight', 1e-3)))
+        delay = int(params['predictor_loop_delay_steps'])
+        inverse = None
+        if np.all(np.isfinite(resp)):
+            inverse = cls(resp, ctrl.dt, delay, int(params['predictor_loop_taps']),
+                          hf_weight=float(params.get('predictor_loop_hf_weight', 1e-3)))
+        if inverse is None or not inverse.band_error <= MAX_BAND_ERROR:
+            miss = 'its response diverges' if inverse is None else (
+                f'the best inverse misses it by {100 * inverse.band_error:.0f} % up to 25 Hz')
+            raise ParameterError(
+                f"predictor model on the servohydraulic rig: the force loop of force_controller "
+                f"{params.get('force_controller', 'loop_shaping')} with the declared specimen "
+                f"(m={mp['mass_kg']:.4g} kg, c={mp['damping_N_s_per_m']:.4g} N s/m, "
+                f"k={mp['stiffness_N_per_m']:.4g} N/m) cannot be inverted to a {delay}-step "
+                f'delay ({miss}): the declared specimen and the force controller do not make a '
+                'loop the compensation can follow; check predictor_stiffness_N_per_m and the '
+                'specimen, or identify the rig (seft identify)')
+        return inverse
 
     def step(self, force_N: float) -> float:
         """Filter one sample of the desired force [N]; return the command [N]."""
@@ -1703,10 +1723,16 @@ class AdaptivePredictor:
                         est['tau_s'])
         if self._loop_factory is not None:
             if self._loop_model is None or _moved((m, c, k), self._loop_model, 0.01):
-                fresh = self._loop_factory(m, c, k)
-                if self.loop_inverse is not None:     # keep the filter's past inputs
-                    fresh._x = self.loop_inverse._x
-                self.loop_inverse = fresh
+                try:
+                    fresh = self._loop_factory(m, c, k)
+                except ParameterError:
+                    if self.loop_inverse is None:     # the declared model: say so at start
+                        raise
+                    fresh = None                      # an estimate on the way: keep the last
+                if fresh is not None:
+                    if self.loop_inverse is not None:     # keep the filter's past inputs
+                        fresh._x = self.loop_inverse._x
+                    self.loop_inverse = fresh
                 self._loop_model = (m, c, k)
         key = (m, c, k, round(tau / self.dt * 64))
         if key == self._model_key:

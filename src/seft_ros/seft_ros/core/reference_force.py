@@ -433,6 +433,8 @@ class ReferenceForceBuilder:
         self.local_rigs = tuple(r for r in names if r in local)
         self.laws = list(laws)
         self._rig_params = [dict(p) for p in rig_params]
+        #: each local rig's parameters (its compensator's), in the order of `local_rigs`
+        self.rig_params = self._rig_params
         if len(self.laws) != len(self.local_rigs) or len(self._rig_params) != len(self.laws):
             raise ParameterError(f'reference-force builder: {len(self.laws)} laws for the '
                                  f'local rigs {", ".join(self.local_rigs)}')
@@ -506,8 +508,13 @@ class ReferenceForceBuilder:
                 p = setup.rig_params[r]
                 if not setup.is_study:
                     p = dict(p, alpha=float(sub.alpha[j]))
-                laws.append(RigReferenceForce.from_parameters(
-                    p, influence=float(s.influence[s.physical_index[j]])))
+                try:
+                    laws.append(RigReferenceForce.from_parameters(
+                        p, influence=float(s.influence[s.physical_index[j]])))
+                except ParameterError as exc:
+                    if setup.is_study:
+                        raise
+                    raise ParameterError(f'rigs.{r}: {exc}') from None
                 rig_params.append(p)
         return cls(setup, float(params['dt']), laws, rig_params, local=local)
 

@@ -1218,16 +1218,25 @@ class RobustnessMargin:
         """Whether the margin was predicted."""
         return not (math.isnan(self.low) or math.isnan(self.high))
 
-    def text(self) -> str:
-        """One line: ``0.62-1.85 x the declared specimen stiffness``."""
+    def text(self, bare: bool = False) -> str:
+        """One line: ``stable for a specimen stiffness 0.62-1.85 x the declared one`` (with
+        `bare`, ``0.62-1.85 x``)."""
         if not self.known:
             return f'robustness margin not predicted ({self.note})'
         if self.low >= 1.0 >= self.high:
-            return 'no robustness margin: unstable as declared'
+            return 'unstable as declared' if bare else ('no robustness margin: unstable as '
+                                                        'declared')
         lo = f'<{self.low:.3g}' if self.low <= MARGIN_RANGE[0] else f'{self.low:.3g}'
         hi = f'>{self.high:.3g}' if self.high >= MARGIN_RANGE[1] else f'{self.high:.3g}'
+        if bare:
+            return f'{lo}-{hi} x'
         return (f'stable for a specimen stiffness {lo}-{hi} x the declared one'
                 + (f' ({self.note})' if self.note else ''))
+
+    def covers(self, uncertainty: float) -> bool:
+        """Whether the margin holds the stiffness range ``1 +- uncertainty`` (not known:
+        False)."""
+        return self.known and self.low < 1.0 - uncertainty and 1.0 + uncertainty < self.high
 
     def to_json(self) -> dict:
         """JSON-ready dict (``nan`` as null)."""
@@ -1235,6 +1244,21 @@ class RobustnessMargin:
             return None if math.isnan(v) else float(v)
         return {'stiffness_ratio_low': num(self.low), 'stiffness_ratio_high': num(self.high),
                 'note': self.note}
+
+
+def _with_predictor(params: Mapping, old: str, new: str) -> dict:
+    """`params` with compensator `old` replaced by `new`, in the run's parameters and in every
+    rig section of a structure."""
+    out = dict(params)
+    if out.get('predictor') == old:
+        out['predictor'] = new
+    if not test_setup(params).is_study:
+        doc = json.loads(params['structure'])
+        for section in doc.get('rigs', {}).values():
+            if section.get('predictor') == old:
+                section['predictor'] = new
+        out['structure'] = json.dumps(doc, sort_keys=True, separators=(',', ':'))
+    return out
 
 
 def robustness_margin(params: Mapping, *, rtol: float = 0.01) -> RobustnessMargin:
@@ -1246,8 +1270,12 @@ def robustness_margin(params: Mapping, *, rtol: float = 0.01) -> RobustnessMargi
     their design (a scheduling one follows the specimen); the margin is the interval of
     ``r`` around 1 where the closed loop's spectral radius stays below 1 (a geometric scan
     of :data:`MARGIN_RANGE`, then bisection to `rtol`). A compensator that identifies the
-    specimen (``adaptive``) gets the margin of the ``model`` law it starts from. A test
-    already unstable as declared has no margin (``low = high = 1``).
+    specimen (``adaptive``) compensates any stiffness within its identification's range
+    (``1 +- adaptive_max_deviation``) once it has identified it; its margin is that range,
+    and its note gives the margin of the ``model`` law it starts from (a specimen outside
+    that needs the identification to converge before the loop diverges: the instability
+    monitor stops the run otherwise). A test already unstable as declared has no margin
+    (``low = high = 1``).
 
     Parameters
     ----------
@@ -1266,10 +1294,13 @@ def robustness_margin(params: Mapping, *, rtol: float = 0.01) -> RobustnessMargi
     parametric uncertainty scanned on the closed loop's eigenvalues).
     """
     pred = params['predictor']
-    note = ''
     if pred in MARGIN_OF_INITIAL_LAW:
-        params = dict(params, predictor='model')
-        note = f"of {pred}'s initial law: model at the declared specimen"
+        initial = robustness_margin(_with_predictor(params, pred, 'model'), rtol=rtol)
+        d = float(params.get('adaptive_max_deviation', 0.5))
+        return RobustnessMargin(1.0 - d, 1.0 + d, f'{pred} identifies the stiffness within '
+                                f'+-{100 * d:.0f} %; its initial law, model at the declared '
+                                f'specimen, alone: {initial.text(bare=True)}')
+    note = ''
     study = not _coupled(params)
     try:
         if study:

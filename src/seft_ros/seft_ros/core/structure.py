@@ -57,7 +57,7 @@ coupling to other DOFs, and a stiffness to the ground (the row sum of ``K``) equ
 specimen's; each rig tests one DOF; every rig section names a rig of ``physical``.
 """
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 import json
 import math
 import re
@@ -141,6 +141,9 @@ class Structure:
         empty).
     links : tuple of Link
         The springs whose deformation the report gives (story drifts of a shear building).
+    damping_from : str
+        The key of the ``structure`` section the damping came from (error messages name
+        what the user wrote).
 
     Attributes
     ----------
@@ -162,6 +165,7 @@ class Structure:
     physical: Mapping[str, str]
     rigs: Mapping[str, Mapping[str, Any]]
     links: tuple = field(default=())
+    damping_from: str = 'damping_matrix_N_s_per_m'
 
     @property
     def n(self) -> int:
@@ -211,6 +215,7 @@ class Structure:
             'physical': dict(self.physical),
             'rigs': {r: dict(v) for r, v in self.rigs.items()},
             'links': [[lk.i, lk.j, lk.name] for lk in self.links],
+            'damping_from': self.damping_from,
         }
         return json.dumps(doc, sort_keys=True, separators=(',', ':'))
 
@@ -231,7 +236,9 @@ class Structure:
             raise ParameterError(f'{where}: expected the JSON object of a structure')
         links = doc.pop('links', None)
         rigs = doc.pop('rigs', {})
+        damping_from = doc.pop('damping_from', 'damping_matrix_N_s_per_m')
         out = parse_structure(doc, rigs=rigs, where=where)
+        out = replace(out, damping_from=str(damping_from))
         if links is not None:
             try:
                 parsed = tuple(Link(int(i), None if j is None else int(j), str(name))
@@ -239,9 +246,7 @@ class Structure:
             except (TypeError, ValueError):
                 raise ParameterError(f'{where}: links: expected [i, j, name] triples') \
                     from None
-            out = Structure(out.dofs, out.mass_kg, out.damping_N_s_per_m,
-                            out.stiffness_N_per_m, out.influence, out.physical, out.rigs,
-                            parsed)
+            out = replace(out, links=parsed)
         return out
 
 
@@ -510,7 +515,8 @@ def parse_structure(section: Mapping, *, rigs: Mapping | None = None,
     rig_values = MappingProxyType({r: MappingProxyType(dict(rigs.get(r, {})))
                                    for r in ordered.values()})
     return Structure(tuple(dofs), mass, damping, stiff, influence,
-                     MappingProxyType(ordered), rig_values, _links(stiff, dofs, bool(shear)))
+                     MappingProxyType(ordered), rig_values, _links(stiff, dofs, bool(shear)),
+                     damping_keys[0] if damping_keys else 'damping_matrix_N_s_per_m')
 
 
 def _rigs_where(where: str) -> str:
@@ -610,6 +616,14 @@ def split(structure: Structure, specimens: Mapping[str, Mapping[str, Any]], *,
                 f'{where}: the mass at physical dof {dof!r} is {float(mass[i, i])!r} kg, less '
                 f"than rig {rig}'s specimen mass_kg={float(m[j])!r}: the structure disagrees "
                 'with the specimen')
+        damped = float(structure.damping_N_s_per_m[i, i])
+        if damped < c[j] * (1.0 - 1e-6):
+            raise ParameterError(
+                f'{where}.{structure.damping_from}: gives physical dof {dof!r} a damping of '
+                f'{damped:.6g} N s/m (the diagonal of the damping matrix), less than rig '
+                f"{rig}'s specimen alone, damping_N_s_per_m={float(c[j]):.6g}: the computational "
+                'part would add negative damping there (give the structure at least the '
+                "specimen's damping at that dof, or declare the specimen's own)")
         ground = float(np.sum(stiff[i]))
         if abs(ground - k[j]) > 1e-6 * max(scale, k[j]):
             raise ParameterError(

@@ -35,7 +35,7 @@ import sys
 import time
 
 from seft_msgs_py import clock, parameters
-from seft_msgs_py.convert import STATE_READY, SerializedStamped, status_values
+from seft_msgs_py.convert import STATE_READY, STATE_RUNNING, SerializedStamped, status_values
 from seft_msgs_py.errors import InputError
 from seft_msgs_py.graph import STRUCTURE_STATE, qualified
 from seft_msgs_py.interface import Measurement
@@ -47,7 +47,7 @@ from seft_msgs_py.node_support import (
     main_for,
 )
 from seft_msgs_py.topics import REFERENCE_FORCE, STATUS, record_topic
-from seft_ros.core.monitor import InstabilityMonitor
+from seft_ros.core.monitor import InstabilityMonitor, SpecimenCheck
 from seft_ros.core.reference_force import ReferenceForceBuilder, ground_window
 
 __all__ = ['ReferenceForceBuilderNode', 'main']
@@ -82,6 +82,11 @@ class ReferenceForceBuilderNode(SeftNode):
         self.dt = float(p['dt'])
         self.monitors = [InstabilityMonitor.from_parameters(self.builder.setup.rig_params[r])
                          for r in self.local]
+        # each commanded rig's specimen against its compensator's model (specimen_check)
+        self.checks = [SpecimenCheck.from_parameters(p, rig=r)
+                       for r, p in zip(self.local, self.builder.rig_params)]
+        self.check_abort = [p.get('specimen_check', 'warn') == 'abort'
+                            for p in self.builder.rig_params]
         self.ground = {}
         #: sample -> the set of rigs whose measurement of it has arrived
         self.arrived: dict[int, set] = {}
@@ -253,6 +258,16 @@ class ReferenceForceBuilderNode(SeftNode):
             if m is None:
                 continue
             reason = monitor.update(m.force_N, self.builder.last_ground_forces_N[i], m.time_s)
+            check = self.checks[i]
+            if not reason and check is not None:
+                finding = check.update(m)
+                if finding and self.check_abort[i]:
+                    reason = finding
+                elif finding:
+                    name = self.local[i]
+                    warning = f'{name}: {finding}' if name else finding
+                    self.get_logger().warning(warning)
+                    self.report(STATE_RUNNING, warning, warning=warning, step=k)
             if reason:
                 name = self.local[i]
                 self.abort_run(f'{name}: {reason}' if name else reason, k)
