@@ -40,7 +40,14 @@ from seft_msgs_py.convert import STATE_RUNNING, stamp_to_ns, status_values
 from seft_msgs_py.errors import InputError, SeftError
 from seft_msgs_py.graph import Graph
 from seft_msgs_py.scheduling import set_fifo
-from seft_msgs_py.signals import FINAL_STATES, MEASUREMENT_FIELDS
+from seft_msgs_py.signals import (
+    ACCELERATION,
+    DISPLACEMENT,
+    FINAL_STATES,
+    MEASURED_FORCE,
+    MEASUREMENT_FIELDS,
+    VELOCITY,
+)
 from seft_ros.core import rig_check as rc
 
 __all__ = ['RUNS', 'RigCheckReport', 'run_rig_check', 'rig_command_factory',
@@ -256,29 +263,89 @@ class _Run:
         return next((int(s['t0_ns']) for s in self.rig_reports()
                      if s.get('state') == STATE_RUNNING and 't0_ns' in s), None)
 
-    def series(self, *topics: str) -> list[np.ndarray]:
-        """The bag's samples of `topics` from step 0 up to the first step one misses."""
-        if self.bag is None:
-            return [np.zeros(0) for _ in topics]
-        samples = [self.bag.samples.get(t, {}) for t in topics]
-        n = 0
-        while all(n in s for s in samples):
-            n += 1
-        return [np.array([s[k] for k in range(n)]) for s in samples]
+    def ended_before_fault(self, profile: rc.CheckProfile) -> str | None:
+        """How the rig ended a fault run before its fault's sample (its final report), or
+        None."""
+        final = self.final() or {}
+        if self.name == 'step' or self.fault_ns is not None or not final:
+            return None
+        try:
+            end = float(final.get('abort_at_s', final.get('time_s', 'inf')))
+        except ValueError:
+            return None
+        if end < profile.fault_step * profile.dt:
+            return (f"the rig ended the run {final.get('state')} at t = {end:.3f} s, before "
+                    f"its fault at {profile.fault_step * profile.dt:.3f} s "
+                    f"({final.get('message', '')})")
+        return None
 
     def fault_late_s(self, profile: rc.CheckProfile) -> float | None:
         """How late the fault came after its sample's instant ``t0 + fault_step dt`` [s]
-        (inf: never, though the rig ran past it; None: no fault run or no t0)."""
+        (inf: never, though the rig ran past it; None: no fault run, no t0, or the rig
+        ended before the fault's sample)."""
         t0 = self.t0_ns()
-        if self.name == 'step' or t0 is None:
+        if self.name == 'step' or t0 is None or self.ended_before_fault(profile):
             return None
         if self.fault_ns is None:
             return math.inf
         return (self.fault_ns - t0) * 1e-9 - profile.fault_step * profile.dt
 
+    def sample_count(self) -> int:
+        """How many samples the rig published (its final report; else the last step the
+        checker heard, + 1)."""
+        final = self.final() or {}
+        try:
+            return int(final['published'])
+        except (KeyError, ValueError):
+            return int(self.steps.max()) + 1 if self.steps.size else 0
+
+    def record(self, n: int) -> np.ndarray:
+        """The bag's sensor rows of steps 0 .. n-1, shape (n, 4) in the contract's field
+        order (NaN where the bag lacks a sample)."""
+        out = np.full((n, len(MEASUREMENT_FIELDS)), np.nan)
+        if self.bag is None:
+            return out
+        for i, topic in enumerate(_SENSOR_TOPICS):
+            for k, value in self.bag.samples.get(topic, {}).items():
+                if 0 <= k < n:
+                    out[k, i] = value
+        return out
+
+    def fields(self, n: int, record: np.ndarray | None = None) -> list[np.ndarray] | None:
+        """The four fields by step 0 .. n-1 (the contract's order), as the graph had them:
+        the live measurement the checker heard (its columns by the message's names when they
+        are the contract's in another order), a sample it missed from the bag's record
+        (`record`, default :meth:`record`), one neither has interpolated; None if there is
+        none at all."""
+        out = np.full((n, len(MEASUREMENT_FIELDS)), np.nan)
+        if self.values.ndim == 2 and self.values.shape[1] == len(MEASUREMENT_FIELDS):
+            names = tuple(self.names)
+            cols = ([names.index(f) for f in MEASUREMENT_FIELDS]
+                    if sorted(names) == sorted(MEASUREMENT_FIELDS) else list(range(4)))
+            k = self.steps
+            inside = np.flatnonzero((k >= 0) & (k < n))
+            _, first = np.unique(k[inside], return_index=True)    # the first of a repeat
+            rows = inside[first]
+            out[k[rows]] = self.values[rows][:, cols]
+        missing = np.isnan(out)
+        if missing.any():
+            rec = self.record(n) if record is None else record
+            out[missing] = rec[missing]
+        for i in range(out.shape[1]):
+            ok = np.isfinite(out[:, i])
+            if not ok.any():
+                return None
+            if not ok.all():
+                out[:, i] = np.interp(np.arange(n), np.flatnonzero(ok), out[ok, i])
+        return [out[:, i] for i in range(out.shape[1])]
+
     def command(self, topic: str, n: int) -> np.ndarray:
         s = self.bag.samples.get(topic, {}) if self.bag is not None else {}
         return np.array([s.get(k, np.nan) for k in range(n)])
+
+
+#: The bag's topics of the four fields, in the contract's order.
+_SENSOR_TOPICS = (MEASURED_FORCE.name, DISPLACEMENT.name, VELOCITY.name, ACCELERATION.name)
 
 
 #: The checker's SCHED_FIFO priority above the graph's ``realtime_priority`` (the rig's is +3):
@@ -506,54 +573,95 @@ def _read_bag(run: _Run, bag: Path) -> None:
         run.statuses = run.bag.statuses
 
 
+def _cut_short(step: _Run, n: int, needed: int, command_kind: str) -> str | None:
+    """Why the step run says nothing of the signals: the rig ended it before the static
+    force had held (`needed` samples of `n`), or None."""
+    count = step.sample_count()
+    if count >= needed:
+        return None
+    final = step.final() or {}
+    why = (f"the rig ended the step run {final.get('state', '')} after {count} of {n} "
+           f"samples, before the static force held ({final.get('message', 'no final report')})")
+    if command_kind == rig_contract.COMMAND_KINDS[0] and 'force limit' in why:
+        why += ('; a force loop closed on a load cell of the wrong sign or unit runs away: '
+                'check the force first')
+    return why
+
+
+def _step_checks(step: _Run, *, params: Mapping, profile: rc.CheckProfile, command_kind: str,
+                 sine: list | None) -> dict:
+    """The checks of the step run (contract, clock, stamps, measurement, the signals, stuck
+    sensor, sensor noise, command timing)."""
+    dt = profile.dt
+    out = {}
+    rig_params = step.bag.node_params.get('rig') if step.bag is not None else None
+    out['contract'] = rc.check_contract(step.ready(), rig_params, command_kind)
+    latency = out['contract'].values.get('command_latency_s', math.nan)
+    final = step.final() or {}
+    expected = int(final.get('published', step.params['n_steps']))
+    out['clock'] = rc.check_clock(step.steps, step.arrivals, dt, clock_ns=step.clock_ns)
+    out['stamps'] = rc.check_stamps(step.stamps, step.arrivals, dt, expected=expected,
+                                    t0_ns=step.t0_ns())
+    n = int(step.params['n_steps'])
+    record = step.record(n)
+    live_rows = np.full((step.steps.size, len(MEASUREMENT_FIELDS)), np.nan)
+    inside = (step.steps >= 0) & (step.steps < n)
+    live_rows[inside] = record[step.steps[inside]]
+    out['measurement'] = rc.check_measurement(step.names, step.values, live_rows)
+    fields = step.fields(n, record)
+    why = _cut_short(step, n, profile.hold.stop, command_kind)
+    if fields is None or why is not None:
+        why = why or step.error or 'no samples of the step run'
+        for name in (*rc.SIGNAL_CHECKS, 'swapped fields', 'stuck sensor', 'sensor noise',
+                     'command timing'):
+            out[name] = rc.not_run(name, why)
+        return out
+    for r in rc.check_signals(fields, dt=dt, amplitude_N=profile.amplitude_N,
+                              stiffness_N_per_m=float(params['stiffness_N_per_m']),
+                              hold=profile.hold, rest=profile.rest):
+        out[r.name] = r
+    out['stuck sensor'] = rc.check_stuck(fields, sine)
+    out['sensor noise'] = rc.check_noise(
+        fields[0], fields[3], profile.quiet, dt=dt, alpha=float(params.get('alpha', 0.0)),
+        mass_kg=float(params['mass_kg']), cutoff_hz=float(params['monitor_cutoff_hz']),
+        threshold=float(params['monitor_threshold']), floor_N=float(params['monitor_floor_N']))
+    if math.isfinite(latency):
+        command = step.command(rig_contract.command_signal(command_kind).name, n)
+        out['command timing'] = rc.check_command_timing(
+            command, fields[0], profile.quiet, profile.onset_step, dt, latency,
+            profile.amplitude_N)
+    else:
+        out['command timing'] = rc.not_run('command timing', 'no command latency')
+    return out
+
+
 def evaluate(runs: Mapping[str, _Run], *, params: Mapping, profile: rc.CheckProfile,
              command_kind: str) -> list:
     """The results of every check (:data:`~seft_ros.core.rig_check.CHECKS` order) from the
-    runs done; a check whose run failed or was not run is a failure that says why."""
-    from seft_msgs_py.signals import (
-        ACCELERATION,
-        DISPLACEMENT,
-        MEASURED_FORCE,
-        VELOCITY,
-    )
+    runs done; a check whose run failed or was not run is a failure that says why.
+
+    The signals are judged on the live measurement the graph used (the checker's own
+    subscription), completed from the bag where the checker missed a sample."""
     dt = profile.dt
-    sensors = (DISPLACEMENT.name, VELOCITY.name, ACCELERATION.name, MEASURED_FORCE.name)
-    command_topic = rig_contract.command_signal(command_kind).name
     out = {}
     step = runs.get('step')
     onset = profile.onset_step
-    quiet = slice(0, onset)
-    hold_n = int(round(profile.hold_s / dt))
-    hold = slice(onset + hold_n // 2, onset + hold_n)
-    latency = math.nan
+    sine = None
+    for run_name in rc.FAULT_RUNS:
+        run = runs.get(run_name)
+        fields = (run.fields(profile.fault_step)
+                  if run is not None and run.sample_count() >= profile.fault_step else None)
+        if fields is not None:
+            sine = [s[onset:profile.fault_step] for s in fields]
+            break
     if step is None:
-        for name in ('contract', 'clock', 'measurement', 'units', 'static force',
-                     'command timing'):
+        for name in rc.CHECKS[:rc.CHECKS.index('command timing') + 1]:
             out[name] = rc.not_run(name, 'the step run was not run')
+        latency = math.nan
     else:
-        rig_params = step.bag.node_params.get('rig') if step.bag is not None else None
-        out['contract'] = rc.check_contract(step.ready(), rig_params, command_kind)
+        out.update(_step_checks(step, params=params, profile=profile,
+                                command_kind=command_kind, sine=sine))
         latency = out['contract'].values.get('command_latency_s', math.nan)
-        final = step.final() or {}
-        expected = int(final.get('published', step.params['n_steps']))
-        out['clock'] = rc.check_clock(step.steps, step.stamps, step.arrivals, dt,
-                                      expected=expected, clock_ns=step.clock_ns)
-        out['measurement'] = rc.check_measurement(step.names, step.values)
-        x, v, a, f = step.series(*sensors)
-        why = step.error or 'the bag holds too few samples'
-        if f.size >= hold.stop:
-            out['units'] = rc.check_units(x, v, a, f, dt, float(params['stiffness_N_per_m']),
-                                          hold)
-            out['static force'] = rc.check_static_force(f, hold, quiet, profile.amplitude_N)
-            if math.isfinite(latency):
-                out['command timing'] = rc.check_command_timing(
-                    step.command(command_topic, f.size), f, quiet, onset, dt, latency,
-                    profile.amplitude_N)
-            else:
-                out['command timing'] = rc.not_run('command timing', 'no command latency')
-        else:
-            for name in ('units', 'static force', 'command timing'):
-                out[name] = rc.not_run(name, why)
     for run_name, check in rc.FAULT_RUNS.items():
         run = runs.get(run_name)
         if run is None:
@@ -562,12 +670,17 @@ def evaluate(runs: Mapping[str, _Run], *, params: Mapping, profile: rc.CheckProf
         if run.error is not None and run.final() is None:
             out[check] = rc.not_run(check, run.error)
             continue
+        early = run.ended_before_fault(profile)
+        if early is not None:
+            out[check] = rc.not_run(check, early)
+            continue
         late = run.fault_late_s(profile)
         if late is not None and late > LATE_FAULT_S:
             out[check] = rc.not_run(check, f'the fault came {late:.2f} s after its sample '
                                     '(the checker heard the rig late)')
             continue
-        x, v, a, f = run.series(*sensors)
+        fields = run.fields(run.sample_count())
+        f, v = (fields[0], fields[2]) if fields is not None else (np.zeros(0),) * 2
         cycle = int(round(1.0 / (profile.sine_hz * dt)))
         fault = profile.fault_step
         lat = latency if math.isfinite(latency) else rig_contract.command_latency_s(params)
