@@ -234,8 +234,8 @@ def test_seft_rigs_pass_the_signals_and_timing(model, profile):
         assert results[name].values['ratio'] == pytest.approx(1.0, abs=0.05), name
     for q in ('velocity', 'acceleration'):
         assert results[f'{q} sign'].values['correlation'] > 0.99
-    assert results['displacement sign'].measured == (
-        'displacement / f / k = +1' if model == 'delay' else 'displacement / f / k = +0.988')
+    assert re.fullmatch(r'k x / f_r = \+(1|0\.98\d) \(x 0\.000(47|46)\d\d m for f_r 100 N\)',
+                        results['displacement sign'].measured)
     quiet = profile.quiet
     timing = rc.check_command_timing(command, f, quiet, 250, DT,
                                      rig_contract.command_latency_s(p), 100.0)
@@ -263,20 +263,20 @@ G = 9.80665
     # the issue's case: one transducer mounted the other way round, v and a taken from it
     (lambda f, x, v, a: (f, -x, -v, -a), {'displacement sign', 'velocity sign',
                                           'acceleration sign'},
-     {'displacement sign': 'displacement / f / k = -1: displacement reversed against the '
-      "force: check the transducer's mounting or the sign in your rig node; the velocity "
-      'and acceleration read reversed too: one transducer mounted the other way round'}),
+     {'displacement sign': "N): displacement reversed against the force: check the "
+      "transducer's mounting or the sign in your rig node; the velocity and acceleration "
+      'read reversed too: one transducer mounted the other way round'}),
     (lambda f, x, v, a: (-f, x, v, a), {'force sign'},
-     {'force sign': "force / the reference force = -1: the measured force is reversed "
+     {'force sign': "f / f_r = -1 (f -100 N for f_r 100 N): the measured force is reversed "
       "against the reference: check the load cell's sign"}),
     (lambda f, x, v, a: (f / 1e3, x, v, a), {'force scale'},
-     {'force scale': '|force / the reference force| = 0.001 (expected 0.8..1.2): the force '
-      'reads 0.001 times what it should: kN instead of N?'}),
+     {'force scale': '|f / f_r| = 0.001 (expected 0.8..1.2): the force reads 0.001 times '
+      'what it should: kN instead of N?'}),
     (lambda f, x, v, a: (f, -x, v, a), {'displacement sign'}, {}),
     (lambda f, x, v, a: (f, 1e3 * x, v, a), {'displacement scale'},
-     {'displacement scale': '|displacement / f / k| = 1e+03 (expected 0.5..2; k = 211000 '
-      'N/m): the displacement reads 1e+03 times what it should: mm instead of m?',
-      'velocity scale': '|velocity / dx/dt| = 1 (expected 0.5..2)'}),
+     {'displacement scale': '|k x / f_r| = 1e+03 (expected 0.5..2; k = 211000 N/m): the '
+      'displacement reads 1e+03 times what it should: mm instead of m?',
+      'velocity scale': '|v / (dx/dt)| = 1 (expected 0.5..2)'}),
     (lambda f, x, v, a: (f, x, -v, a), {'velocity sign'}, {}),
     (lambda f, x, v, a: (f, x, 100 * v, a), {'velocity scale'},
      {'velocity scale': 'cm/s instead of m/s?'}),

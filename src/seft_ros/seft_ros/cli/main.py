@@ -14,6 +14,7 @@ import time
 
 from seft_msgs_py import parameters
 from seft_msgs_py.errors import InputError, SeftError
+from seft_plant_sim.faults import FAULTS, SENSOR_FAULTS
 from seft_ros.cli import api, partition
 from seft_ros.cli.config import load_config
 from seft_ros.cli.spawn import node_start
@@ -172,6 +173,9 @@ def build_parser() -> argparse.ArgumentParser:
                         metavar='FILE', help='parameter file layered over CONFIG')
     rcheck.add_argument('--set', dest='sets', type=_set_value, action='append', default=[],
                         metavar='NAME=VALUE', help='any other parameter (repeatable)')
+    rcheck.add_argument('--inject', metavar='FAULT', choices=FAULTS, help="wrap seft's "
+                        'simulated rig with one wiring fault, to see what it looks like: '
+                        + ', '.join(FAULTS) + ' (docs/rig_contract.md)')
     rcheck.add_argument('--out', help='output directory (default runs/rig-check/)')
     rcheck.add_argument('--domain-id', type=int, help='ROS_DOMAIN_ID (as seft run)')
     emu = sub.add_parser('emulate-controller', help="emulate a lab's real-time controller "
@@ -184,6 +188,9 @@ def build_parser() -> argparse.ArgumentParser:
                      'force reference')
     emu.add_argument('--runs', type=int, metavar='N', help='serve N runs, then exit (default: '
                      'until Ctrl-C)')
+    emu.add_argument('--inject', metavar='FAULT', choices=SENSOR_FAULTS, help='send the '
+                     "measurement with one wiring fault (a lab controller's): "
+                     + ', '.join(SENSOR_FAULTS))
     emu.add_argument('--params', dest='params_files', action='append', default=[],
                      metavar='FILE', help='parameter file layered over CONFIG')
     emu.add_argument('--set', dest='sets', type=_set_value, action='append', default=[],
@@ -307,11 +314,12 @@ def _emulate(args) -> int:
     params = _one_rig(args, 'emulate-controller')
     if args.runs is not None and args.runs < 1:
         raise InputError(f'--runs {args.runs}: expected a number of runs >= 1')
-    emulator = ControllerEmulator(params)
+    emulator = ControllerEmulator(params, fault=FAULTS[args.inject] if args.inject else None)
     host, port = emulator.address
     _progress(f"emulating the lab's controller at {host}:{port}: {params['rig_model']} rig, "
               f"dt {1e3 * params['dt']:g} ms, watchdog {1e3 * params['watchdog_timeout_s']:g} "
-              'ms (Ctrl-C ends)')
+              'ms' + (f'; fault injected: {args.inject}' if args.inject else '')
+              + ' (Ctrl-C ends)')
     realtime_priority(int(params['realtime_priority']))
     try:
         emulator.serve(runs=args.runs)
@@ -332,7 +340,7 @@ def _rig_check(args) -> int:
     node_start()                                   # $SEFT_NODE_START, before anything runs
     out = api.output_dir(out=args.out, name='rig-check')
     report = rig_check.run_rig_check(params=params, out_dir=out, profile=profile,
-                                     rig_command=args.rig_command,
+                                     rig_command=args.rig_command, inject=args.inject,
                                      runs=args.runs or rig_check.RUNS,
                                      domain_id=args.domain_id, progress=_progress)
     for line in rig_check.main_lines(report):

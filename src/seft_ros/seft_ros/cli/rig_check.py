@@ -30,6 +30,7 @@ import os
 from pathlib import Path
 import shlex
 import signal
+import sys
 import time
 from typing import Callable, Mapping, Sequence
 
@@ -51,7 +52,8 @@ from seft_msgs_py.signals import (
 from seft_ros.core import rig_check as rc
 
 __all__ = ['RUNS', 'RigCheckReport', 'run_rig_check', 'rig_command_factory',
-           'check_parameters', 'write_force_record', 'evaluate', 'main_lines',
+           'fault_rig_command', 'check_parameters', 'write_force_record', 'evaluate',
+           'main_lines',
            'FORCE_LIMIT_FACTOR', 'STROKE_LIMIT_FACTOR', 'MIN_STROKE_M']
 
 #: The runs of a rig check, in order.
@@ -77,11 +79,14 @@ class RigCheckReport:
         How long the check took [s].
     out_dir : Path
         Where the runs' bags and logs and ``rig_check.json`` are.
+    injected_fault : str or None
+        The fault injected into seft's rig node (``--inject``).
     """
 
     results: list
     wall_s: float
     out_dir: Path
+    injected_fault: str | None = None
 
     @property
     def passed(self) -> bool:
@@ -466,9 +471,29 @@ def _one_run(name: str, run_dir: Path, *, params: Mapping, profile: rc.CheckProf
     return run
 
 
+def fault_rig_command(name: str, params: Mapping) -> Callable[[Path], list[str]]:
+    """The argv that starts seft's rig node with the fault `name` injected
+    (``seft_plant_sim.fault_rig``; forked like seft's own nodes).
+
+    Raises
+    ------
+    ParameterError
+        An unknown fault, or a rig node that cannot take it (a UDP bridge: its controller
+        injects it).
+    """
+    from seft_plant_sim.faults import check_supported, fault
+    from seft_ros.cli.runner import FAULT_RIG_MODULE
+    check_supported(fault(name), params)
+
+    def argv(params_file: Path) -> list[str]:
+        return [sys.executable, '-m', FAULT_RIG_MODULE, name, '--ros-args', '--params-file',
+                str(params_file)]
+    return argv
+
+
 def run_rig_check(*, params: Mapping, out_dir: Path, profile: rc.CheckProfile,
-                  rig_command: str | None = None, runs: Sequence[str] = RUNS,
-                  domain_id: int | None = None,
+                  rig_command: str | None = None, inject: str | None = None,
+                  runs: Sequence[str] = RUNS, domain_id: int | None = None,
                   progress: Callable[[str], None] = print) -> RigCheckReport:
     """Check a rig node against the rig contract.
 
@@ -483,6 +508,9 @@ def run_rig_check(*, params: Mapping, out_dir: Path, profile: rc.CheckProfile,
     rig_command : str, optional
         How to start the rig node (:func:`rig_command_factory`); default seft's rig node
         with ``params['rig_model']``.
+    inject : str, optional
+        A fault of :data:`seft_plant_sim.faults.FAULTS` to inject into seft's rig node
+        (:func:`fault_rig_command`; not with `rig_command`).
     runs : sequence of str
         Which of :data:`RUNS` to run (the checks of the others are not measured).
     domain_id : int, optional
@@ -497,7 +525,9 @@ def run_rig_check(*, params: Mapping, out_dir: Path, profile: rc.CheckProfile,
     Raises
     ------
     InputError
-        An unknown run name, or a bad ``rig_command``.
+        An unknown run name, a bad ``rig_command``, or both it and `inject`.
+    ParameterError
+        A fault `inject` the rig node cannot take.
     SeftError
         No ROS domain could be claimed (as ``seft run``).
     """
@@ -505,7 +535,13 @@ def run_rig_check(*, params: Mapping, out_dir: Path, profile: rc.CheckProfile,
     unknown = [r for r in runs if r not in RUNS]
     if unknown or not runs:
         raise InputError(f'--runs {",".join(runs)}: expected some of {", ".join(RUNS)}')
-    argv = rig_command_factory(rig_command)
+    if inject and rig_command:
+        raise InputError("--inject and --rig-command: the fault goes into seft's own rig "
+                         'node; give one of them')
+    argv = fault_rig_command(inject, params) if inject else rig_command_factory(rig_command)
+    if inject:
+        from seft_plant_sim.faults import FAULTS
+        progress(f'fault injected into the rig node: {inject} ({FAULTS[inject].description})')
     t_start = time.monotonic()
     graph = Graph.from_parameters(params)
     kind = rig_contract.command_kind(params)
@@ -536,9 +572,9 @@ def run_rig_check(*, params: Mapping, out_dir: Path, profile: rc.CheckProfile,
         runner.close()
         claim.close()
     results = evaluate(done, params=params, profile=profile, command_kind=kind)
-    report = RigCheckReport(results, time.monotonic() - t_start, out_dir)
+    report = RigCheckReport(results, time.monotonic() - t_start, out_dir, inject)
     (out_dir / 'rig_check.json').write_text(json.dumps({
-        'contract': rig_contract.CONTRACT, 'passed': report.passed,
+        'contract': rig_contract.CONTRACT, 'passed': report.passed, 'injected_fault': inject,
         'wall_s': report.wall_s, 'amplitude_N': profile.amplitude_N,
         'checks': [{'name': r.name, 'passed': r.passed, 'measured': r.measured,
                     'values': r.values} for r in results],
@@ -704,6 +740,8 @@ def main_lines(report: RigCheckReport) -> list[str]:
     failed = [r.name for r in report.results if not r.passed]
     lines.append(f'rig-check: {len(report.results) - len(failed)} of {len(report.results)} '
                  'checks passed' + (f'; failed: {", ".join(failed)}' if failed else '')
-                 + f' ({report.wall_s:.0f} s; runs in {report.out_dir})')
+                 + f' ({report.wall_s:.0f} s; runs in {report.out_dir}'
+                 + (f'; fault injected: {report.injected_fault}' if report.injected_fault
+                    else '') + ')')
     return lines
 

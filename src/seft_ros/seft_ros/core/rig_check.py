@@ -539,6 +539,7 @@ class _Fit:
     correlation: float = math.nan
     judged: bool = True
     why: str = ''
+    detail: str = ''
 
 
 def _slip(quantity: str, ratio: float) -> tuple[float, str] | None:
@@ -562,8 +563,10 @@ def _reading(quantity: str, fit: _Fit) -> float | None:
     return math.copysign(slip[0] if slip else 1.0, fit.ratio)
 
 
-def _static_fit(s: np.ndarray, hold: slice, rest: Sequence[slice], per_unit: float) -> _Fit:
-    """The change of `s` from rest to the static force, over `per_unit` (what it must be)."""
+def _static_fit(s: np.ndarray, hold: slice, rest: Sequence[slice], per_unit: float,
+                detail: str = '') -> _Fit:
+    """The change of `s` from rest to the static force, over `per_unit` (what it must be);
+    `detail` is formatted with the change."""
     h = s[hold]
     r = np.concatenate([s[sl] for sl in rest])
     if not h.size or not r.size:
@@ -576,7 +579,7 @@ def _static_fit(s: np.ndarray, hold: slice, rest: Sequence[slice], per_unit: flo
         return _Fit(change / per_unit, judged=False,
                     why=f'it did not move under the static force (a change of {change:.3g} '
                     f'against a noise of {noise:.3g}): a stuck or disconnected channel?')
-    return _Fit(change / per_unit)
+    return _Fit(change / per_unit, detail=detail.format(change=change))
 
 
 def _lowpass(dt: float):
@@ -629,9 +632,11 @@ _CALIBRATION = {
     'velocity': "check the velocity channel's calibration",
     'acceleration': "check the accelerometer's calibration",
 }
-#: What each quantity is compared with, in words.
-_AGAINST = {'force': 'the reference force', 'displacement': 'f / k',
+#: What each quantity is compared with, in words, and the ratio reported.
+_AGAINST = {'force': 'the reference force f_r', 'displacement': 'the static f_r / k',
             'velocity': 'dx/dt', 'acceleration': 'd2x/dt2'}
+_RATIO = {'force': 'f / f_r', 'displacement': 'k x / f_r', 'velocity': 'v / (dx/dt)',
+          'acceleration': 'a / (d2x/dt2)'}
 
 
 def _signal_fits(fields: Sequence[np.ndarray], *, dt: float, amplitude_N: float,
@@ -640,8 +645,10 @@ def _signal_fits(fields: Sequence[np.ndarray], *, dt: float, amplitude_N: float,
     """Quantity -> its :class:`_Fit`, and ``'reading'`` -> the displacement's reading (the
     reference of the velocity and acceleration: `displacement`, default the field's)."""
     f, x, v, a = fields
-    fits = {'force': _static_fit(f, hold, rest, amplitude_N),
-            'displacement': _static_fit(x, hold, rest, amplitude_N / stiffness_N_per_m)}
+    fits = {'force': _static_fit(f, hold, rest, amplitude_N,
+                                 f' (f {{change:.4g}} N for f_r {amplitude_N:g} N)'),
+            'displacement': _static_fit(x, hold, rest, amplitude_N / stiffness_N_per_m,
+                                        f' (x {{change:.4g}} m for f_r {amplitude_N:g} N)')}
     if displacement is None:
         displacement, reading = x, _reading('displacement', fits['displacement'])
     else:
@@ -666,20 +673,20 @@ def _sign_and_scale(quantity: str, fit: _Fit, reading: float | None,
                      'displacement sign and scale)')
     corr = (f', correlation {fit.correlation:+.2f}' if math.isfinite(fit.correlation)
             else '')
+    values = {'ratio': fit.ratio, 'correlation': fit.correlation}
     if not fit.judged:
-        values = {'ratio': fit.ratio, 'correlation': fit.correlation}
         return (CheckResult(sign, False, f'{quantity} against {against}: {fit.why}', values),
                 CheckResult(scale, False, f'{quantity} against {against}: {fit.why}',
                             values))
-    values = {'ratio': fit.ratio, 'correlation': fit.correlation}
-    measured = f'{quantity} / {against} = {fit.ratio:+.3g}{corr}{corrected}'
+    ratio = _RATIO[quantity]
+    measured = f'{ratio} = {fit.ratio:+.3g}{fit.detail}{corr}{corrected}'
     positive = fit.ratio > 0
     sign_result = CheckResult(sign, positive, measured + ('' if positive else
                                                           f': {_REVERSED[quantity]}'), values)
     lo, hi = GAIN_RANGE if quantity == 'force' else UNIT_RANGE
     size = abs(fit.ratio)
     ok = lo <= size <= hi
-    text = f'|{quantity} / {against}| = {size:.3g} (expected {lo:g}..{hi:g}'
+    text = f'|{ratio}| = {size:.3g} (expected {lo:g}..{hi:g}'
     text += f'; k = {stiffness_N_per_m:g} N/m)' if quantity == 'displacement' else ')'
     if not ok:
         slip = _slip(quantity, size)
