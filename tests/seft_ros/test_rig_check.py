@@ -8,6 +8,7 @@ runs a fault needs only, to keep the tests short. Every fault against every chec
 """
 
 import json
+from pathlib import Path
 import re
 
 import numpy as np
@@ -16,6 +17,9 @@ from test_node_graph_integration import leftover_processes
 
 from seft_ros.analysis.bag import read_signals
 from seft_ros.core.rig_check import CHECKS, TIMING_TOLERANCE_STEPS
+
+#: The two-pier bridge: a structure whose two rigs rig-check checks in turn.
+TWO_PIERS = Path(__file__).resolve().parents[2] / 'config' / 'two_piers.yaml'
 
 #: The rigs' watchdog in these tests [s]: this shared machine stalls the graph for 20-30 ms
 #: at times, and the default 20 ms then ends a run before its fault (the check runs it again,
@@ -123,14 +127,37 @@ def test_injected_faults_fail_their_checks(fault, model, runs, failing, check, m
         assert values['rest_value'] > values['rest_limit']
 
 
+def test_a_rig_of_a_structure_is_checked_in_its_namespace(tmp_path, run_process, seft_exe):
+    """``seft rig-check config/two_piers.yaml --rig-name pier_b``: the pier's rig node in
+    /pier_b with the pier's own parameters (its stiffness, its controller) passes every check
+    its runs measure; its watchdog run stops /pier_b/force_servo_controller."""
+    out = tmp_path / 'check'
+    proc, lines = rig_check(run_process, seft_exe, out, str(TWO_PIERS), '--rig-name', 'pier_b',
+                            '--runs', 'step,watchdog')
+    assert proc.stdout.startswith('rig pier_b (namespace /pier_b, its parameters from '
+                                  'rigs.pier_b):'), proc.stdout
+    measured = {n: v for n, (v, t) in lines.items() if not t.startswith('not measured')}
+    assert set(lines) - set(measured) == {'safe state: abort', 'safe state: stopped controller'}
+    assert all(v == 'PASS' for v in measured.values()), proc.stdout
+    assert 'k = 337600 N/m' in lines['displacement scale'][1]
+    assert re.search(r'reason: watchdog: no /pier_b/seft/valve_command for',
+                     lines['safe state: watchdog'][1])
+    assert re.search(r'^rig-check pier_b: 19 of 21 checks passed', proc.stdout, re.MULTILINE)
+    report = json.loads((out / 'pier_b' / 'rig_check.json').read_text())
+    assert {c['name']: c['values'] for c in report['checks']}['measurement'][
+        'record_differs'] == 0
+
+
 @pytest.mark.parametrize('args, message', [
     (['--runs', 'step,nap'], '--runs step,nap: expected some of step, abort, '
      'stopped_controller, watchdog'),
     (['--amplitude', '-5'], 'amplitude_N=-5.0: expected a number > 0'),
     (['--rig-command', 'rig "unclosed'], '--rig-command \'rig "unclosed\': No closing '
      'quotation'),
-    (['--set', 'alpha=[0.5, 1]'], 'seft rig-check takes one rig: expected one alpha and '
-     'no structure'),
+    (['--rig-name', 'pier_a'], '--rig-name pier_a: the configuration has no structure (its '
+     'one rig runs in the root namespace)'),
+    ([str(TWO_PIERS), '--rig-name', 'pier_c'], '--rig-name pier_c: expected one of '
+     'pier_a, pier_b'),
     (['--set', 'dt=-1'], 'command line: parameter dt=-1.0: expected float > 1e-05 <= 1'),
     (['--inject', 'force_kN', '--rig-command', 'my_rig'], "--inject and --rig-command: the "
      "fault goes into seft's own rig node; give one of them"),

@@ -127,3 +127,60 @@ def test_the_docs_table_is_the_tests():
                     'final status', name
             else:
                 assert cell == ', '.join(c for c in rc.CHECKS if c in expected), name
+
+
+# -- a structure's rigs, each in its namespace ------------------------------------------------
+
+TWO_PIERS = Path(__file__).resolve().parents[3] / 'config' / 'two_piers.yaml'
+
+
+@pytest.fixture(scope='module')
+def piers():
+    from seft_ros.cli import api
+    from seft_ros.cli.rig_check import structure_rigs
+    return structure_rigs(api.build_runs(config=str(TWO_PIERS), overrides={})[0])
+
+
+def test_each_rig_of_a_structure_is_checked_with_its_own_parameters(piers):
+    from seft_msgs_py.graph import Graph
+    assert [r for r, _ in piers] == ['pier_a', 'pier_b']
+    for rig, p in piers:
+        graph = Graph.from_parameters(p)
+        assert graph.rigs == (rig,) and graph.rig_nodes() == (f'{rig}/rig',)
+        assert graph.measurement(rig).name == f'/{rig}/seft/measurement'
+        assert p['force_controller'] == 'specimen_loop_shaping' and p['alpha'] == 0.0
+    assert [p['stiffness_N_per_m'] for _, p in piers] == [2.11e5, 3.376e5]
+
+
+def test_a_rigs_one_dof_structure_commands_the_check_s_reference_force(piers, tmp_path):
+    """The structure builder of a rig's one-DOF structure (its specimen alone) gives the
+    rig-check's reference force exactly (paper Eq. 2.5 with alpha 0), as the study's graph
+    does: played in lockstep by seft simulate's structure path."""
+    import numpy as np
+
+    from seft_ros.cli.rig_check import check_parameters, write_force_record
+    from seft_ros.core.structure_experiment import simulate_structure
+    rig, p = piers[1]
+    profile = rc.CheckProfile(dt=p['dt'])
+    reference = profile.step_reference()
+    record = write_force_record(tmp_path / 'record.csv', reference, profile.dt, p['mass_kg'])
+    run = simulate_structure(dict(check_parameters(p, profile, record, reference.size),
+                                  mode='lockstep'))
+    np.testing.assert_array_equal(run.rigs[rig].reference_force_N,
+                                  reference[:run.rigs[rig].n_steps])
+
+
+@pytest.mark.parametrize('watchdog_s', [0.02, 0.05])
+def test_both_piers_pass_every_check(piers, watchdog_s, tmp_path):
+    """The stiffer pier creeps, valve closed, at 0.28 of its sine's peak velocity: a seft rig
+    that passes (core.rig_check.REST_VELOCITY_FRACTION), while a valve held open fails."""
+    for rig, p in piers:
+        p = dict(p, mode='realtime', watchdog_timeout_s=watchdog_s)
+        profile = rc.CheckProfile(dt=p['dt'])
+        kind = rig_contract.command_kind(p)
+        results = evaluate(recorded_runs(p, profile, tmp_path), params=p, profile=profile,
+                           command_kind=kind)
+        assert [r.measured for r in results if not r.passed] == [], rig
+        held = evaluate(recorded_runs(p, profile, tmp_path, 'no_safe_state'), params=p,
+                        profile=profile, command_kind=kind)
+        assert {r.name for r in held if not r.passed} == SAFE, rig

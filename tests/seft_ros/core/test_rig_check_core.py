@@ -433,7 +433,7 @@ def test_safe_state_of_a_valve_rig():
     ok = _safe(final, np.zeros(700), v, fault_ns=int(0.98e9), kind='valve_command_V',
                reason_prefix='watchdog:')
     assert ok.passed, ok.measured
-    assert ok.values['rest_limit'] == pytest.approx(0.25 * 0.01, rel=1e-3)
+    assert ok.values['rest_limit'] == pytest.approx(0.35 * 0.01, rel=1e-3)
     moving = _safe(final, np.zeros(700), np.where(t < 1.0, v, 0.007), fault_ns=int(0.98e9),
                    kind='valve_command_V')
     assert not moving.passed and '|velocity| <= 7 mm/s' in moving.measured

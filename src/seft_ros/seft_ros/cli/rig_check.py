@@ -32,6 +32,7 @@ import shlex
 import signal
 import sys
 import time
+from types import SimpleNamespace
 from typing import Callable, Mapping, Sequence
 
 import numpy as np
@@ -39,7 +40,7 @@ import numpy as np
 from seft_msgs_py import clock, rig_contract
 from seft_msgs_py.convert import STATE_RUNNING, stamp_to_ns, status_values
 from seft_msgs_py.errors import InputError, SeftError
-from seft_msgs_py.graph import Graph
+from seft_msgs_py.graph import Graph, qualified, scoped
 from seft_msgs_py.scheduling import set_fifo
 from seft_msgs_py.signals import (
     ACCELERATION,
@@ -52,9 +53,9 @@ from seft_msgs_py.signals import (
 from seft_ros.core import rig_check as rc
 
 __all__ = ['RUNS', 'RigCheckReport', 'run_rig_check', 'rig_command_factory',
-           'fault_rig_command', 'check_parameters', 'write_force_record', 'evaluate',
-           'main_lines',
-           'FORCE_LIMIT_FACTOR', 'STROKE_LIMIT_FACTOR', 'MIN_STROKE_M']
+           'fault_rig_command', 'structure_rigs', 'check_parameters', 'write_force_record',
+           'evaluate', 'main_lines', 'FORCE_LIMIT_FACTOR', 'STROKE_LIMIT_FACTOR',
+           'MIN_STROKE_M']
 
 #: The runs of a rig check, in order.
 RUNS = ('step', 'abort', 'stopped_controller', 'watchdog')
@@ -136,17 +137,63 @@ def check_parameters(base: Mapping, profile: rc.CheckProfile, record: Path, n_st
                      ) -> dict:
     """The parameters of one rig-check run: `base` (the user's configuration) in real time,
     alpha 0, no compensation, the monitor off, the record played as it is, and the rig's
-    limits tightened (module notes)."""
+    limits tightened (module notes); a rig of a structure stays the one rig of its one-DOF
+    structure (:func:`structure_rigs`)."""
     p = dict(base)
+    structure = p.get('structure', 'none') if Graph.from_parameters(p).is_structure else 'none'
     force_limit = min(float(p['force_limit_N']), FORCE_LIMIT_FACTOR * profile.amplitude_N)
     static = profile.amplitude_N / float(p['stiffness_N_per_m'])
     stroke = min(float(p['stroke_limit_m']), max(STROKE_LIMIT_FACTOR * static, MIN_STROKE_M))
     p.update(mode='realtime', alpha=0.0, predictor='none', excitation='none',
              record=str(record), amplitude_N=0.0, scale_factor=1.0, time_scale=1.0,
              duration_s=0.0, n_steps=int(n_steps), monitor_threshold=0.0,
-             force_limit_N=force_limit, stroke_limit_m=stroke, structure='none',
+             force_limit_N=force_limit, stroke_limit_m=stroke, structure=structure,
              network_delay_s=0.0)
     return p
+
+
+def structure_rigs(params: Mapping, rig_name: str | None = None) -> list[tuple[str, dict]]:
+    """The rigs a rig check of a test checks, each with the parameters of its check.
+
+    The study's test: its one rig, ``('', params)``. A structure test: each rig (or
+    `rig_name` alone), in its namespace, with its own parameters (the test's updated by its
+    section of ``rigs``, :func:`~seft_ros.core.structure.rig_parameters`) and, as its
+    ``structure``, a structure of its one DOF whose mass, damping and stiffness are its
+    specimen's: the graph is the structure test's for that rig (its namespace, its topics,
+    its qualified name; the reference force is its effective force, paper Eq. 2.5 with
+    alpha 0), and nothing waits for the other rigs. ``alpha`` is set to the computational
+    mass on the rig's DOF over its specimen's (``M[p, p] / m_p - 1``): what the rig's
+    acceleration weighs in its reference force (the ``sensor noise`` check).
+
+    Raises
+    ------
+    InputError
+        `rig_name` given for a test without a structure, or not one of its rigs.
+    ParameterError
+        A rig's section the schema refuses.
+    """
+    graph = Graph.from_parameters(params)
+    if not graph.is_structure:
+        if rig_name:
+            raise InputError(f'--rig-name {rig_name}: the configuration has no structure (its '
+                             'one rig runs in the root namespace)')
+        return [('', dict(params))]
+    from seft_ros.core.structure import Structure, rig_parameters
+    structure = Structure.from_json(params['structure'])
+    rigs = structure.rig_names
+    if rig_name and rig_name not in rigs:
+        raise InputError(f'--rig-name {rig_name}: expected one of {", ".join(rigs)}')
+    out = []
+    for rig in rigs if not rig_name else (rig_name,):
+        p = rig_parameters(params, structure, rig)
+        i = structure.dofs.index(structure.dof_of_rig(rig))
+        m, c, k = (float(p[n]) for n in ('mass_kg', 'damping_N_s_per_m', 'stiffness_N_per_m'))
+        one = Structure((structure.dofs[i],), np.array([[m]]), np.array([[c]]),
+                        np.array([[k]]), np.ones(1), {structure.dofs[i]: rig}, {rig: {}})
+        p.update(structure=one.to_json(), structure_builders='central',
+                 alpha=max(float(structure.mass_kg[i, i]) / m - 1.0, 0.0))
+        out.append((rig, p))
+    return out
 
 
 class _Tap:
@@ -159,12 +206,14 @@ class _Tap:
 
         from seft_msgs_py.topics import CLOCK, MEASUREMENT, STATUS
         self.runner = runner
+        self.rig = graph.rigs[0]
+        self.rig_node = graph.rig_nodes()[0]
         self._deserialize = deserialize_message
         self._msg_type = MEASUREMENT.msg_type
         self.dt_ns = 1
         self.reset()
         node = runner.node
-        node.create_subscription(MEASUREMENT.msg_type, graph.measurement('').name,
+        node.create_subscription(MEASUREMENT.msg_type, graph.measurement(graph.rigs[0]).name,
                                  self._on_measurement, MEASUREMENT.qos, raw=True)
         node.create_subscription(CLOCK.msg_type, CLOCK.name, self._on_clock, CLOCK.qos,
                                  raw=True)
@@ -226,7 +275,7 @@ class _Tap:
     def _on_status(self, msg) -> None:
         # a node frozen by the watchdog run goes on once the rig has ended the run: it
         # hears the rig's final report and ends as after any run
-        if (self.stopped_pid is not None and msg.name == 'rig'
+        if (self.stopped_pid is not None and msg.name == self.rig_node
                 and status_values(msg).get('state') in FINAL_STATES):
             try:
                 os.kill(self.stopped_pid, signal.SIGCONT)
@@ -252,9 +301,20 @@ class _Run:
     bag: object = None
     bag_closed: bool = False
     error: str | None = None
+    #: The rig's namespace ('' for the study's single rig).
+    rig: str = ''
+
+    @property
+    def rig_node(self) -> str:
+        """The rig's qualified node name."""
+        return qualified('rig', self.rig)
+
+    def sensor_topics(self) -> tuple[str, ...]:
+        """The bag's topics of the four fields, in the contract's order."""
+        return tuple(scoped(t, self.rig) for t in _SENSOR_TOPICS)
 
     def rig_reports(self) -> list[dict]:
-        return [s for s in self.statuses if s['name'] == 'rig']
+        return [s for s in self.statuses if s['name'] == self.rig_node]
 
     def final(self) -> dict | None:
         found = [s for s in self.rig_reports() if s.get('state') in FINAL_STATES]
@@ -310,7 +370,7 @@ class _Run:
         out = np.full((n, len(MEASUREMENT_FIELDS)), np.nan)
         if self.bag is None:
             return out
-        for i, topic in enumerate(_SENSOR_TOPICS):
+        for i, topic in enumerate(self.sensor_topics()):
             for k, value in self.bag.samples.get(topic, {}).items():
                 if 0 <= k < n:
                     out[k, i] = value
@@ -427,7 +487,7 @@ def _disturbed(run: '_Run', profile: rc.CheckProfile) -> str | None:
         return f'the rig lost its commands ({final["message"]}): the graph stalled'
     before = run.fault_ns is None
     for s in run.statuses:
-        if (s['name'] not in ('rig', 'seft_runner') and s.get('state') == 'aborted'
+        if (s['name'] not in (run.rig_node, 'seft_runner') and s.get('state') == 'aborted'
                 and str(s.get('message', '')).startswith(rig_contract.WATCHDOG_REASON)
                 and (before or run.name == 'step')):
             return f'{s["name"]} lost an input ({s["message"]}): the graph stalled'
@@ -443,7 +503,7 @@ def _one_run(name: str, run_dir: Path, *, params: Mapping, profile: rc.CheckProf
     record = write_force_record(run_dir / 'force_record.csv', reference, profile.dt,
                                 float(params['mass_kg']))
     p = check_parameters(params, profile, record, len(reference))
-    run = _Run(name, p)
+    run = _Run(name, p, rig=tap.rig)
     tap.reset(int(round(profile.dt * 1e9)), fault, profile.fault_step)
     progress(f'[{name}] {len(reference)} samples of {1e3 * profile.dt:g} ms, amplitude '
              f'{profile.amplitude_N:g} N')
@@ -544,9 +604,10 @@ def run_rig_check(*, params: Mapping, out_dir: Path, profile: rc.CheckProfile,
         progress(f'fault injected into the rig node: {inject} ({FAULTS[inject].description})')
     t_start = time.monotonic()
     graph = Graph.from_parameters(params)
+    rig = graph.rigs[0]
     kind = rig_contract.command_kind(params)
     command_node = (graph.controller_nodes()[0] if kind == rig_contract.COMMAND_KINDS[0]
-                    else graph.builder_of(''))
+                    else graph.builder_of(rig))
     runner, claim = open_runner(domain_id=domain_id, progress=progress)
     _above_the_graph(int(params.get('realtime_priority', 0)), progress)
     done: dict[str, _Run] = {}
@@ -558,7 +619,7 @@ def run_rig_check(*, params: Mapping, out_dir: Path, profile: rc.CheckProfile,
                 run = _one_run(name, run_dir, params=params, profile=profile, runner=runner,
                                tap=tap, fault=None if name == 'step' else _fault_of(
                                    name, runner, command_node, tap),
-                               commands={'rig': argv} if argv else None,
+                               commands={graph.rig_nodes()[0]: argv} if argv else None,
                                command_node=command_node, progress=progress)
                 why = _disturbed(run, profile)
                 if why is None:
@@ -591,13 +652,33 @@ def _json_default(value):
     return str(value)
 
 
+def _structure_bag(path: Path, run: _Run) -> SimpleNamespace:
+    """The bag of a structure rig's run as the checks read a bag (``samples`` of the rig's
+    four sensor topics and command topic by step, ``node_params``, ``statuses``), from
+    :func:`~seft_ros.analysis.structure_bag.read_structure_run`."""
+    from seft_ros.analysis.structure_bag import read_structure_run
+    data = read_structure_run(path)
+    r = data.rigs[run.rig]
+    series = [r.measured_force_N, r.displacement_m, r.velocity_m_s, r.acceleration_m_s2]
+    topics = list(run.sensor_topics())
+    kind = rig_contract.command_kind(run.params)
+    series.append(r.valve_command_V if kind == rig_contract.COMMAND_KINDS[0]
+                  else r.reference_force_N)
+    topics.append(scoped(rig_contract.command_signal(kind).name, run.rig))
+    return SimpleNamespace(
+        samples={t: dict(enumerate(np.asarray(s, dtype=float).tolist()))
+                 for t, s in zip(topics, series) if s is not None},
+        node_params=data.extra.get('node_params', {}),
+        statuses=data.extra.get('node_statuses', []))
+
+
 def _read_bag(run: _Run, bag: Path) -> None:
     from seft_ros.analysis.bag import read_signals
     run.bag_closed = (bag / 'metadata.yaml').is_file()
     if not bag.exists():
         return
     try:
-        run.bag = read_signals(bag)
+        run.bag = _structure_bag(bag, run) if run.rig else read_signals(bag)
     except SeftError as exc:
         run.error = run.error or f'bag: {exc}'
         return
@@ -630,7 +711,7 @@ def _step_checks(step: _Run, *, params: Mapping, profile: rc.CheckProfile, comma
     sensor, sensor noise, command timing)."""
     dt = profile.dt
     out = {}
-    rig_params = step.bag.node_params.get('rig') if step.bag is not None else None
+    rig_params = step.bag.node_params.get(step.rig_node) if step.bag is not None else None
     out['contract'] = rc.check_contract(step.ready(), rig_params, command_kind)
     latency = out['contract'].values.get('command_latency_s', math.nan)
     final = step.final() or {}
@@ -662,7 +743,8 @@ def _step_checks(step: _Run, *, params: Mapping, profile: rc.CheckProfile, comma
         mass_kg=float(params['mass_kg']), cutoff_hz=float(params['monitor_cutoff_hz']),
         threshold=float(params['monitor_threshold']), floor_N=float(params['monitor_floor_N']))
     if math.isfinite(latency):
-        command = step.command(rig_contract.command_signal(command_kind).name, n)
+        command = step.command(scoped(rig_contract.command_signal(command_kind).name,
+                                      step.rig), n)
         out['command timing'] = rc.check_command_timing(
             command, fields[0], profile.quiet, profile.onset_step, dt, latency,
             profile.amplitude_N)
@@ -734,11 +816,13 @@ def evaluate(runs: Mapping[str, _Run], *, params: Mapping, profile: rc.CheckProf
     return [out[name] for name in rc.CHECKS]
 
 
-def main_lines(report: RigCheckReport) -> list[str]:
-    """The lines ``seft rig-check`` prints: one per check, then the verdict."""
+def main_lines(report: RigCheckReport, rig: str = '') -> list[str]:
+    """The lines ``seft rig-check`` prints: one per check, then the verdict (naming the
+    `rig` of a structure)."""
     lines = [rc.format_line(r) for r in report.results]
     failed = [r.name for r in report.results if not r.passed]
-    lines.append(f'rig-check: {len(report.results) - len(failed)} of {len(report.results)} '
+    who = f'rig-check {rig}' if rig else 'rig-check'
+    lines.append(f'{who}: {len(report.results) - len(failed)} of {len(report.results)} '
                  'checks passed' + (f'; failed: {", ".join(failed)}' if failed else '')
                  + f' ({report.wall_s:.0f} s; runs in {report.out_dir}'
                  + (f'; fault injected: {report.injected_fault}' if report.injected_fault

@@ -139,8 +139,12 @@ TIMING_TOLERANCE_STEPS = 3
 REST_FORCE_FRACTION = 0.1
 #: At rest on a valve-commanded rig (valve closed, the actuator holds): |v| at most this
 #: fraction of the peak velocity of the last cycle before the fault (+ noise); the oil that
-#: the specimen's force pushes through the closed valve and the seals lets it creep.
-REST_VELOCITY_FRACTION = 0.25
+#: the specimen's force pushes through the closed valve and the seals lets it creep. The
+#: creep follows the held force, the sine's peak velocity falls as 1/k: measured on both
+#: piers of config/two_piers.yaml (k and 1.6 k), watchdog 20 and 50 ms, a closed valve
+#: creeps at 0.16-0.28 of the peak and a valve held open moves at 0.43-0.59 (0.25 failed
+#: the stiffer pier's watchdog run).
+REST_VELOCITY_FRACTION = 0.35
 #: A departure from rest is this many standard deviations of the quiet samples, at least
 #: ``1e-3`` of the step (noise-free simulated rigs).
 _DEPARTURE_SIGMAS = 6.0
