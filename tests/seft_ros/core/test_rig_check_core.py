@@ -152,17 +152,22 @@ def test_stamps_pass():
     assert r.measured == ('0 off the grid, 0 missing, 0 repeated, 0 outside 0..999 of 1000 '
                           'samples, sent a median 0.10 ms after t0 + k dt (limit +/-3 ms)')
     # the sending is not judged without the rig's t0
-    assert rc.check_stamps(*_stamped(sent_after_s=1.0), DT, expected=1000, t0_ns=None).passed
+    r = rc.check_stamps(*_stamped(sent_after_s=1.0), DT, expected=1000, t0_ns=None)
+    assert r.passed and r.measured.endswith('no t0_ns in the running reports: the sending '
+                                            'not judged')
 
 
 @pytest.mark.parametrize('change, expected', [
     ('off_grid', r'^1000 off the grid.*; stamps off the grid of k dt: stamp each sample '
      r'with k dt_ns'),
-    ('gap', r'2 missing.*the stamps are not 0 \.\. 999 once each'),
-    ('repeat', r'1 repeated'),
-    ('ahead', r'2 missing, 0 repeated, 2 outside.*sent 3\.9 ms before their stamps\' '
-     r'instants: the stamps run 1\.9 samples ahead'),
+    ('gap', r'2 missing.*; 2 samples never published: a late tick is caught up, never '
+     r'skipped$'),
+    ('repeat', r'1 repeated.*; 1 steps published more than once$'),
+    ('ahead', r'2 missing, 0 repeated, 2 outside.*; the stamps are not 0 \.\. 999 \(the '
+     r'first says step 2\): number the samples from 0, one step each; sent 3\.9 ms before '
+     r"their stamps' instants: the stamps run 1\.9 samples ahead"),
     ('buffered', r'sent a median 4\.10 ms after t0.*: the samples are 2\.0 samples late'),
+    ('behind', r'the first says step -2.*sent 4\.1 ms after their stamps'),
 ])
 def test_stamps_fail(change, expected):
     stamps, sent = _stamped()
@@ -175,6 +180,8 @@ def test_stamps_fail(change, expected):
         stamps, sent = np.insert(stamps, 5, stamps[5]), np.insert(sent, 5, sent[5])
     if change == 'ahead':              # sample k stamped k + 2, sent at its own instant
         stamps = stamps + 2 * DT_NS
+    if change == 'behind':             # sample k stamped k - 2, sent at its own instant
+        stamps = stamps - 2 * DT_NS
     if change == 'buffered':           # sample k sent two periods late
         sent = sent + 2 * DT
     r = rc.check_stamps(stamps, sent, DT, expected=1000, t0_ns=T0_NS)

@@ -464,10 +464,15 @@ def check_stamps(stamps_ns: Sequence[int], sent_s: Sequence[float], dt: float, *
     if off_grid:
         faults.append('stamps off the grid of k dt: stamp each sample with k dt_ns in '
                       'integer ns, not with a clock reading')
-    if missing or outside or repeated:
+    if outside:
         first = int(steps.min())
-        faults.append(f'the stamps are not 0 .. {expected - 1} once each (the first says '
-                      f'step {first}): number the samples from 0, one step each')
+        faults.append(f'the stamps are not 0 .. {expected - 1} (the first says step '
+                      f'{first}): number the samples from 0, one step each')
+    elif missing:
+        faults.append(f'{missing} samples never published: a late tick is caught up, never '
+                      'skipped')
+    if repeated:
+        faults.append(f'{repeated} steps published more than once')
     if offset < -limit:
         faults.append(f"sent {-1e3 * offset:.1f} ms before their stamps' instants: the "
                       f'stamps run {-offset / dt:.1f} samples ahead of the samples')
@@ -475,8 +480,9 @@ def check_stamps(stamps_ns: Sequence[int], sent_s: Sequence[float], dt: float, *
         faults.append(f"sent {1e3 * offset:.1f} ms after their stamps' instants: the "
                       f'samples are {offset / dt:.1f} samples late (a buffer between the '
                       'sensors and the node?) or stamped early')
-    when = ('' if t0_ns is None else f', sent a median {1e3 * offset:.2f} ms after t0 + k dt '
-            f'(limit +/-{1e3 * limit:g} ms)')
+    when = (', no t0_ns in the running reports: the sending not judged' if t0_ns is None
+            else f', sent a median {1e3 * offset:.2f} ms after t0 + k dt (limit '
+            f'+/-{1e3 * limit:g} ms)')
     text = (f'{off_grid} off the grid, {missing} missing, {repeated} repeated, {outside} '
             f'outside 0..{expected - 1} of {stamps.size} samples{when}')
     return CheckResult('stamps', not faults, text + ''.join(f'; {f}' for f in faults),
