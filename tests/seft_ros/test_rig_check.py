@@ -1,14 +1,15 @@
-"""``seft rig-check`` against real rig nodes over DDS (issue 21).
+"""``seft rig-check`` against real rig nodes over DDS (issues 21, 33).
 
-seft's simulated rigs pass every check; rigs broken on purpose (``broken_rig.py``: a load cell
-of the wrong sign, the displacement in mm, no safe state, a clock 25 % slow) fail, each naming
-its check with the measured value; the runs a broken rig needs only, to keep the tests short.
+seft's simulated rigs pass every check; seft's rig with a wiring fault injected
+(``--inject``: one transducer mounted the other way round, a clock 25 % slow, no safe state)
+fails the checks it should and no other, each naming its check with the measured value; the
+runs a fault needs only, to keep the tests short. Every fault against every check is
+``cli/test_rig_check_faults.py``'s, on recorded runs.
 """
 
 import json
 from pathlib import Path
 import re
-import sys
 
 import numpy as np
 import pytest
@@ -17,8 +18,8 @@ from test_node_graph_integration import leftover_processes
 from seft_ros.analysis.bag import read_signals
 from seft_ros.core.rig_check import CHECKS, TIMING_TOLERANCE_STEPS
 
-BROKEN = Path(__file__).with_name('broken_rig.py')
-
+#: The two-pier bridge: a structure whose two rigs rig-check checks in turn.
+TWO_PIERS = Path(__file__).resolve().parents[2] / 'config' / 'two_piers.yaml'
 
 #: The rigs' watchdog in these tests [s]: this shared machine stalls the graph for 20-30 ms
 #: at times, and the default 20 ms then ends a run before its fault (the check runs it again,
@@ -48,14 +49,19 @@ def test_seft_rigs_pass_every_check(model, tmp_path, run_process, seft_exe):
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert list(lines) == list(CHECKS)
     assert all(verdict == 'PASS' for verdict, _ in lines.values()), proc.stdout
-    assert re.search(r'^rig-check: 11 of 11 checks passed \(\d+ s; runs in ', proc.stdout,
+    assert re.search(r'^rig-check: 21 of 21 checks passed \(\d+ s; runs in ', proc.stdout,
                      re.MULTILINE)
     report = json.loads((out / 'rig_check.json').read_text())
     assert report['passed'] is True and report['contract'] == 'seft-rig/1.0'
     checks = {c['name']: c['values'] for c in report['checks']}
     # the numbers behind the lines
-    assert checks['clock']['missing'] == 0 and abs(checks['clock']['period_s'] - 0.002) < 4e-5
-    assert 0.95 < checks['static force']['gain'] <= 1.0
+    assert abs(checks['clock']['period_s'] - 0.002) < 4e-5
+    assert checks['stamps']['missing'] == checks['stamps']['off_grid'] == 0
+    assert 0 < checks['stamps']['median_offset_s'] < 0.002
+    assert 0.95 < checks['force scale']['ratio'] <= 1.0
+    for q in ('displacement', 'velocity', 'acceleration'):
+        assert 0.95 < checks[f'{q} scale']['ratio'] < 1.05, q
+    assert checks['measurement']['record_differs'] == 0
     # the step shows 5 (delay rig) or 2 (servohydraulic) samples after its command when the
     # command reached the rig by the tick that applies it; one that missed it (its loop
     # latency, in the rig's own timing record, over a period: this shared machine) acts from
@@ -85,39 +91,61 @@ def test_seft_rigs_pass_every_check(model, tmp_path, run_process, seft_exe):
         assert (out / run / 'bag' / 'metadata.yaml').is_file(), run
 
 
-@pytest.mark.parametrize('mode, model, runs, check, measured', [
-    ('wrong_sign', 'delay', 'step', 'static force',
-     r'gain -1\.000 \(f_m -100 N for 100 N, the opposite sign; expected 0\.8\.\.1\.2\)'),
-    ('unit_error', 'delay', 'step', 'units',
-     r'v / dx/dt = 0\.001, .*static \|f\| / \(k \|x\|\) = 0\.001 '),
-    ('late_clock', 'delay', 'step', 'clock',
+@pytest.mark.parametrize('fault, model, runs, failing, check, measured', [
+    # the issue's fault: the displacement, velocity and acceleration reversed against the force
+    ('transducer_reversed', 'delay', 'step',
+     {'displacement sign', 'velocity sign', 'acceleration sign'}, 'acceleration sign',
+     r'a / \(d2x/dt2\) = -1\.0\d, correlation -1\.00, against the displacement corrected by '
+     r'-1 .*the builder would feed back -a'),
+    ('slow_clock', 'delay', 'step', {'clock', 'stamps'}, 'clock',
      r'period 2\.[3-7]\d+ ms \(\+[12]\d\.\d+ % of dt 2 ms, limit 2 %\)'),
-    ('no_safe_state', 'delay', 'abort', 'safe state: abort',
+    ('no_safe_state', 'delay', 'abort', {'safe state: abort'}, 'safe state: abort',
      r'then \|force\| <= 7\d\.\d N after the ramp \(limit 10 N\)'),
-    ('no_safe_state', 'servohydraulic', 'watchdog', 'safe state: watchdog',
-     r'then \|velocity\| <= [\d.]+ mm/s after the ramp'),
+    ('no_safe_state', 'servohydraulic', 'watchdog', {'safe state: watchdog'},
+     'safe state: watchdog', r'then \|velocity\| <= [\d.]+ mm/s after the ramp'),
 ])
-def test_broken_rigs_fail_naming_the_check(mode, model, runs, check, measured, tmp_path,
-                                           run_process, seft_exe):
+def test_injected_faults_fail_their_checks(fault, model, runs, failing, check, measured,
+                                           tmp_path, run_process, seft_exe):
     out = tmp_path / 'check'
     proc, lines = rig_check(run_process, seft_exe, out, '--rig', model, '--runs', runs,
-                            '--rig-command', f'{sys.executable} {BROKEN} {mode}')
+                            '--inject', fault)
     assert proc.returncode == 1, proc.stdout + proc.stderr
     verdict, text = lines[check]
     assert verdict == 'FAIL' and re.search(measured, text), text
-    # what the run measured besides is right: the fault is the one check's
+    # what the run measured besides is right: the fault fails its checks and no other
     measured_checks = {n: v for n, (v, t) in lines.items() if not t.startswith('not measured')}
-    failed = sorted(n for n, v in measured_checks.items() if v == 'FAIL')
-    if mode == 'late_clock':      # a slow clock also makes the commands late
-        assert set(failed) <= {'clock', 'command timing'} and 'clock' in failed, proc.stdout
-    elif mode == 'no_safe_state' and model == 'servohydraulic':
-        rest = json.loads((out / 'rig_check.json').read_text())
-        values = {c['name']: c['values'] for c in rest['checks']}[check]
-        assert values['rest_value'] > values['rest_limit']
-        assert failed == [check], proc.stdout
+    failed = {n for n, v in measured_checks.items() if v == 'FAIL'}
+    if fault == 'slow_clock':      # a slow clock may also make the commands late
+        assert failing <= failed <= failing | {'command timing'}, proc.stdout
     else:
-        assert failed == [check], proc.stdout
-    assert f'failed: {check}' in proc.stdout or f', {check}' in proc.stdout
+        assert failed == failing, proc.stdout
+    assert f'fault injected: {fault})' in proc.stdout
+    report = json.loads((out / 'rig_check.json').read_text())
+    assert report['injected_fault'] == fault and report['passed'] is False
+    if fault == 'no_safe_state':
+        values = {c['name']: c['values'] for c in report['checks']}[check]
+        assert values['rest_value'] > values['rest_limit']
+
+
+def test_a_rig_of_a_structure_is_checked_in_its_namespace(tmp_path, run_process, seft_exe):
+    """``seft rig-check config/two_piers.yaml --rig-name pier_b``: the pier's rig node in
+    /pier_b with the pier's own parameters (its stiffness, its controller) passes every check
+    its runs measure; its watchdog run stops /pier_b/force_servo_controller."""
+    out = tmp_path / 'check'
+    proc, lines = rig_check(run_process, seft_exe, out, str(TWO_PIERS), '--rig-name', 'pier_b',
+                            '--runs', 'step,watchdog')
+    assert proc.stdout.startswith('rig pier_b (namespace /pier_b, its parameters from '
+                                  'rigs.pier_b):'), proc.stdout
+    measured = {n: v for n, (v, t) in lines.items() if not t.startswith('not measured')}
+    assert set(lines) - set(measured) == {'safe state: abort', 'safe state: stopped controller'}
+    assert all(v == 'PASS' for v in measured.values()), proc.stdout
+    assert 'k = 337600 N/m' in lines['displacement scale'][1]
+    assert re.search(r'reason: watchdog: no /pier_b/seft/valve_command for',
+                     lines['safe state: watchdog'][1])
+    assert re.search(r'^rig-check pier_b: 19 of 21 checks passed', proc.stdout, re.MULTILINE)
+    report = json.loads((out / 'pier_b' / 'rig_check.json').read_text())
+    assert {c['name']: c['values'] for c in report['checks']}['measurement'][
+        'record_differs'] == 0
 
 
 @pytest.mark.parametrize('args, message', [
@@ -126,9 +154,16 @@ def test_broken_rigs_fail_naming_the_check(mode, model, runs, check, measured, t
     (['--amplitude', '-5'], 'amplitude_N=-5.0: expected a number > 0'),
     (['--rig-command', 'rig "unclosed'], '--rig-command \'rig "unclosed\': No closing '
      'quotation'),
-    (['--set', 'alpha=[0.5, 1]'], 'seft rig-check takes one rig: expected one alpha and '
-     'no structure'),
+    (['--rig-name', 'pier_a'], '--rig-name pier_a: the configuration has no structure (its '
+     'one rig runs in the root namespace)'),
+    ([str(TWO_PIERS), '--rig-name', 'pier_c'], '--rig-name pier_c: expected one of '
+     'pier_a, pier_b'),
     (['--set', 'dt=-1'], 'command line: parameter dt=-1.0: expected float > 1e-05 <= 1'),
+    (['--inject', 'force_kN', '--rig-command', 'my_rig'], "--inject and --rig-command: the "
+     "fault goes into seft's own rig node; give one of them"),
+    (['--inject', 'force_kN', '--set', 'rig_interface=udp_bridge'], '--inject force_kN: with '
+     "rig_interface=udp_bridge the fault is the lab controller's: seft emulate-controller "
+     '--inject force_kN'),
 ])
 def test_rig_check_errors_are_one_line(args, message, tmp_path, run_process, seft_exe):
     proc = run_process([seft_exe, 'rig-check', '--out', tmp_path / 'c', *args], cwd=tmp_path)

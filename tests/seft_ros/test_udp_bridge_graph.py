@@ -14,7 +14,8 @@ user runs it, every node a process over DDS.
   1 % and 5 %, checked when at most 1 % of the commands came late (on a noisy day this host
   made 3-10 % late: force 12-27 %; the exact replay checks those runs). The simulated rig in
   real time: 0.00-0.05 % and 0.0-0.3 % (a hop less).
-* ``seft rig-check`` passes through the bridge.
+* ``seft rig-check`` passes through the bridge, and catches a controller that sends a channel
+  scaled or reversed (``seft emulate-controller --inject``).
 * A silent controller (SIGSTOP) ends the run within the watchdog, and the controller, once it
   runs again, reads the PC's safe request; a silent PC (SIGSTOP of the rig node) brings the
   controller to its safe state within the watchdog, and the PC ends the run aborted.
@@ -190,7 +191,31 @@ def test_rig_check_passes_through_the_bridge(emulator, bridge_sets, tmp_path, ru
     proc = run_process([seft_exe, 'rig-check', '--rig', 'servohydraulic', *bridge_sets,
                         *watchdog, '--out', out], cwd=tmp_path, timeout=400)
     assert proc.returncode == 0, proc.stdout + proc.stderr
-    assert re.search(r'^rig-check: 11 of 11 checks passed', proc.stdout, re.MULTILINE)
+    assert re.search(r'^rig-check: 21 of 21 checks passed', proc.stdout, re.MULTILINE)
+
+
+@pytest.mark.parametrize('fault, model, failing, words', [
+    # a target that closes the force loop itself and sends the force in kN
+    ('force_kN', 'delay', 'force scale', 'kN instead of N?'),
+    # the PC closes the force loop; the target sends the acceleration reversed
+    ('acceleration_reversed', 'servohydraulic', 'acceleration sign',
+     'the builder would feed back -a'),
+])
+def test_rig_check_catches_a_faulty_controller_through_the_bridge(
+        fault, model, failing, words, emulator, bridge_sets, tmp_path, run_process, seft_exe):
+    """A lab's controller that sends a channel scaled or reversed (``seft emulate-controller
+    --inject``) fails that channel's check through the bridge, and no other check of the step
+    run (the safe-state runs are not run: they are not the fault's)."""
+    sets = ['--rig', model, '--set', 'watchdog_timeout_s=0.05']
+    emulator(*sets, '--inject', fault)
+    out = tmp_path / 'check'
+    proc = run_process([seft_exe, 'rig-check', *bridge_sets, *sets, '--runs', 'step',
+                        '--out', out], cwd=tmp_path, timeout=200)
+    assert proc.returncode == 1, proc.stdout + proc.stderr
+    failed = [line for line in proc.stdout.splitlines() if line.startswith('FAIL ')
+              and ': not measured: the ' not in line]
+    assert len(failed) == 1 and failed[0].startswith(f'FAIL {failing}: '), proc.stdout
+    assert words in failed[0], failed[0]
 
 
 def _start_run(seft_exe, env, cwd, out, sets):

@@ -338,20 +338,26 @@ class RigNode(SeftNode):
     def _publish_sample(self) -> None:
         """Publish /clock and the sensor readings of the rig's current step."""
         k = self.rig.step
-        stamp = k * self.dt_ns
+        stamp = self.sample_stamp_ns(k)
         m = self.rig.measure()
         values = (m.force_N, m.displacement_m, m.velocity_m_s, m.acceleration_m_s2)
         self.measurement_pub.publish(self.measurement_msg(stamp, values))
-        self.batch.add(k, *values)
+        self.batch.add(round(stamp / self.dt_ns), *values)
         if k % CLOCK_EVERY == 0 and self.clock_master:
-            self.clock_msg.clock.sec = int(stamp // 1_000_000_000)
-            self.clock_msg.clock.nanosec = int(stamp % 1_000_000_000)
+            clock_ns = k * self.dt_ns
+            self.clock_msg.clock.sec = int(clock_ns // 1_000_000_000)
+            self.clock_msg.clock.nanosec = int(clock_ns % 1_000_000_000)
             self.clock_pub.publish(self.clock_msg)
         self.published = k + 1
         if k % PROGRESS_EVERY == 0:
             extra = {'t0_ns': self.t0_ns} if self.realtime else {}
             self.report(STATE_RUNNING, step=k, n_steps=self.n_steps, time_s=f'{m.time_s:.3f}',
                         **extra)
+
+    def sample_stamp_ns(self, k: int) -> int:
+        """The stamp of sample `k` [ns]: ``k dt`` (the rig contract; the fault rig of
+        ``seft rig-check --inject`` shifts it)."""
+        return k * self.dt_ns
 
     def _on_command(self, k: int, value: float) -> None:
         self.pending[k] = value

@@ -32,6 +32,7 @@ from seft_msgs_py.errors import ParameterError
 from seft_msgs_py.interface import COMMAND_VALVE
 from seft_msgs_py.scheduling import set_fifo
 from seft_plant_sim import udp_layout as ul
+from seft_plant_sim.faults import Fault, FaultyRig, check_supported
 from seft_plant_sim.realtime import WallClockRig
 from seft_plant_sim.udp_bridge import RECEIVE_BYTES, parse_address
 
@@ -56,19 +57,26 @@ class ControllerEmulator:
         Receives each event (default: one JSON line on stdout).
     bind : (str, int), optional
         Bind this address instead of ``udp_controller_address`` (a test's proxy).
+    fault : Fault, optional
+        A wiring fault in what it sends (one of :data:`~seft_plant_sim.faults.SENSOR_FAULTS`:
+        a lab controller sending a channel reversed, in another unit, stuck, swapped).
 
     Raises
     ------
     ParameterError
-        A bad address or rig parameter, or the address cannot be bound.
+        A bad address or rig parameter, the address cannot be bound, or a fault it cannot
+        send.
     """
 
     def __init__(self, params: Mapping, *, events: Callable[[dict], None] | None = None,
-                 bind: tuple[str, int] | None = None):
+                 bind: tuple[str, int] | None = None, fault: Fault | None = None):
         self.params = dict(params)
         self.dt = float(params['dt'])
         self.dt_ns = int(round(self.dt * 1e9))
-        self._next_rig = WallClockRig(self.params)    # the next run's plant (checked now)
+        if fault is not None:
+            check_supported(fault, params, emulator=True)
+        self.fault = fault
+        self._next_rig = self._plant()    # the next run's plant (checked now)
         kind = rig_contract.command_kind(params)
         self.wire_kind = ul.COMMAND_VALVE if kind == COMMAND_VALVE else ul.COMMAND_FORCE
         # the instant a command of source sample j is output (latched), after t_j
@@ -151,7 +159,7 @@ class ControllerEmulator:
             self._send(ul.KIND_CONTROLLER_HEARTBEAT)
             return
         # the plant was built beforehand (a few ms): sample 0 is now, not behind the clock
-        self.rig, self._next_rig = self._next_rig or WallClockRig(self.params), None
+        self.rig, self._next_rig = self._next_rig or self._plant(), None
         self.n_steps = int(d.n_steps)
         self.state, self.reason = ul.STATE_RUNNING, ul.REASON_NONE
         self.t0 = time.monotonic()
@@ -204,7 +212,14 @@ class ControllerEmulator:
     def _prepare(self) -> None:
         """Between runs: build the next run's plant, so that a start does not wait for it."""
         if self._next_rig is None and not self.ticking:
-            self._next_rig = WallClockRig(self.params)
+            self._next_rig = self._plant()
+
+    def _plant(self) -> WallClockRig:
+        """A run's plant: seft's simulated rig on the wall clock, with the fault if any."""
+        rig = WallClockRig(self.params)
+        if self.fault is None:
+            return rig
+        return FaultyRig(rig, self.fault, seed=int(self.params['noise_seed']))
 
     def _take(self, data: bytes, address, now: float) -> None:
         try:

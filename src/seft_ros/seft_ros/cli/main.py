@@ -14,6 +14,7 @@ import time
 
 from seft_msgs_py import parameters
 from seft_msgs_py.errors import InputError, SeftError
+from seft_plant_sim.faults import FAULTS, SENSOR_FAULTS
 from seft_ros.cli import api, partition
 from seft_ros.cli.config import load_config
 from seft_ros.cli.spawn import node_start
@@ -152,7 +153,7 @@ def build_parser() -> argparse.ArgumentParser:
                             'short real-time runs of the rest of the graph at a small force, '
                             'one line per check (docs/rig_contract.md)')
     rcheck.add_argument('config', nargs='?', help='configuration YAML of the test (the rig, '
-                        'the specimen, dt)')
+                        'the specimen, dt; a structure: each of its rigs in turn)')
     rcheck.add_argument('--rig', dest='rig_model', choices=('delay', 'servohydraulic'),
                         help='rig model (what the graph sends the rig: the reference force, '
                         'or the valve command of the force servo controller)')
@@ -172,6 +173,12 @@ def build_parser() -> argparse.ArgumentParser:
                         metavar='FILE', help='parameter file layered over CONFIG')
     rcheck.add_argument('--set', dest='sets', type=_set_value, action='append', default=[],
                         metavar='NAME=VALUE', help='any other parameter (repeatable)')
+    rcheck.add_argument('--rig-name', metavar='RIG', help='a structure test: check this rig '
+                        '(in its namespace, with its own parameters) only; default every rig '
+                        'in turn')
+    rcheck.add_argument('--inject', metavar='FAULT', choices=FAULTS, help="wrap seft's "
+                        'simulated rig with one wiring fault, to see what it looks like: '
+                        + ', '.join(FAULTS) + ' (docs/rig_contract.md)')
     rcheck.add_argument('--out', help='output directory (default runs/rig-check/)')
     rcheck.add_argument('--domain-id', type=int, help='ROS_DOMAIN_ID (as seft run)')
     emu = sub.add_parser('emulate-controller', help="emulate a lab's real-time controller "
@@ -184,6 +191,9 @@ def build_parser() -> argparse.ArgumentParser:
                      'force reference')
     emu.add_argument('--runs', type=int, metavar='N', help='serve N runs, then exit (default: '
                      'until Ctrl-C)')
+    emu.add_argument('--inject', metavar='FAULT', choices=SENSOR_FAULTS, help='send the '
+                     "measurement with one wiring fault (a lab controller's): "
+                     + ', '.join(SENSOR_FAULTS))
     emu.add_argument('--params', dest='params_files', action='append', default=[],
                      metavar='FILE', help='parameter file layered over CONFIG')
     emu.add_argument('--set', dest='sets', type=_set_value, action='append', default=[],
@@ -287,8 +297,8 @@ def _identify(args) -> int:
     return 0
 
 
-def _one_rig(args, verb: str) -> dict:
-    """The parameters of one rig (config, --rig, --params, --set) for rig-check and
+def _rig_runs(args) -> list[dict]:
+    """The runs of a rig's options (config, --rig, --params, --set) for rig-check and
     emulate-controller."""
     overrides = {'rig_model': args.rig_model}
     for path in args.params_files:
@@ -296,7 +306,12 @@ def _one_rig(args, verb: str) -> dict:
             if overrides.get(name) is None:
                 overrides[name] = value
     overrides.update(dict(_typed(args.sets, alpha=True)))
-    runs = api.build_runs(config=args.config, overrides=overrides)
+    return api.build_runs(config=args.config, overrides=overrides)
+
+
+def _one_rig(args, verb: str) -> dict:
+    """The parameters of one rig (:func:`_rig_runs`), for emulate-controller."""
+    runs = _rig_runs(args)
     if len(runs) != 1 or runs[0].get('structure', 'none') != 'none':
         raise InputError(f'seft {verb} takes one rig: expected one alpha and no structure')
     return runs[0]
@@ -307,11 +322,12 @@ def _emulate(args) -> int:
     params = _one_rig(args, 'emulate-controller')
     if args.runs is not None and args.runs < 1:
         raise InputError(f'--runs {args.runs}: expected a number of runs >= 1')
-    emulator = ControllerEmulator(params)
+    emulator = ControllerEmulator(params, fault=FAULTS[args.inject] if args.inject else None)
     host, port = emulator.address
     _progress(f"emulating the lab's controller at {host}:{port}: {params['rig_model']} rig, "
               f"dt {1e3 * params['dt']:g} ms, watchdog {1e3 * params['watchdog_timeout_s']:g} "
-              'ms (Ctrl-C ends)')
+              'ms' + (f'; fault injected: {args.inject}' if args.inject else '')
+              + ' (Ctrl-C ends)')
     realtime_priority(int(params['realtime_priority']))
     try:
         emulator.serve(runs=args.runs)
@@ -322,22 +338,42 @@ def _emulate(args) -> int:
     return 0
 
 
+def _check_params(args) -> dict:
+    """The test's parameters for rig-check (:func:`_rig_runs`): a sweep's first run, with its
+    largest alpha (the check runs at alpha 0; its noise check weighs the fed-back
+    acceleration by the test's alpha)."""
+    runs = _rig_runs(args)
+    return dict(runs[0], alpha=max(float(r.get('alpha', 0.0)) for r in runs))
+
+
 def _rig_check(args) -> int:
     from seft_ros.cli import rig_check
     from seft_ros.core.rig_check import CheckProfile
-    params = _one_rig(args, 'rig-check')
-    profile = CheckProfile(dt=float(params['dt']), amplitude_N=args.amplitude,
+    rigs = rig_check.structure_rigs(_check_params(args), args.rig_name)
+    profile = CheckProfile(dt=float(rigs[0][1]['dt']), amplitude_N=args.amplitude,
                            sine_hz=args.sine_hz)
+    for _, p in rigs:
+        if args.inject:
+            rig_check.fault_rig_command(args.inject, p)       # a fault it cannot take: now
     api.check_domain(args.domain_id)
     node_start()                                   # $SEFT_NODE_START, before anything runs
     out = api.output_dir(out=args.out, name='rig-check')
-    report = rig_check.run_rig_check(params=params, out_dir=out, profile=profile,
-                                     rig_command=args.rig_command,
-                                     runs=args.runs or rig_check.RUNS,
-                                     domain_id=args.domain_id, progress=_progress)
-    for line in rig_check.main_lines(report):
-        print(line)
-    return 0 if report.passed else 1
+    passed = []
+    for rig, params in rigs:
+        if rig:
+            print(f'rig {rig} (namespace /{rig}, its parameters from rigs.{rig}):', flush=True)
+        report = rig_check.run_rig_check(params=params, out_dir=out / rig if rig else out,
+                                         profile=profile, rig_command=args.rig_command,
+                                         inject=args.inject, runs=args.runs or rig_check.RUNS,
+                                         domain_id=args.domain_id, progress=_progress)
+        for line in rig_check.main_lines(report, rig):
+            print(line, flush=True)
+        passed.append(report.passed)
+    if len(rigs) > 1:
+        failed = [r for (r, _), ok in zip(rigs, passed) if not ok]
+        print(f'rig-check: {len(rigs) - len(failed)} of {len(rigs)} rigs passed'
+              + (f'; failed: {", ".join(failed)}' if failed else ''))
+    return 0 if all(passed) else 1
 
 
 def main(argv=None) -> int:

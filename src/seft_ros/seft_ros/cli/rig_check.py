@@ -30,7 +30,9 @@ import os
 from pathlib import Path
 import shlex
 import signal
+import sys
 import time
+from types import SimpleNamespace
 from typing import Callable, Mapping, Sequence
 
 import numpy as np
@@ -38,14 +40,22 @@ import numpy as np
 from seft_msgs_py import clock, rig_contract
 from seft_msgs_py.convert import STATE_RUNNING, stamp_to_ns, status_values
 from seft_msgs_py.errors import InputError, SeftError
-from seft_msgs_py.graph import Graph
+from seft_msgs_py.graph import Graph, qualified, scoped
 from seft_msgs_py.scheduling import set_fifo
-from seft_msgs_py.signals import FINAL_STATES, MEASUREMENT_FIELDS
+from seft_msgs_py.signals import (
+    ACCELERATION,
+    DISPLACEMENT,
+    FINAL_STATES,
+    MEASURED_FORCE,
+    MEASUREMENT_FIELDS,
+    VELOCITY,
+)
 from seft_ros.core import rig_check as rc
 
 __all__ = ['RUNS', 'RigCheckReport', 'run_rig_check', 'rig_command_factory',
-           'check_parameters', 'write_force_record', 'evaluate', 'main_lines',
-           'FORCE_LIMIT_FACTOR', 'STROKE_LIMIT_FACTOR', 'MIN_STROKE_M']
+           'fault_rig_command', 'structure_rigs', 'check_parameters', 'write_force_record',
+           'evaluate', 'main_lines', 'FORCE_LIMIT_FACTOR', 'STROKE_LIMIT_FACTOR',
+           'MIN_STROKE_M']
 
 #: The runs of a rig check, in order.
 RUNS = ('step', 'abort', 'stopped_controller', 'watchdog')
@@ -70,11 +80,14 @@ class RigCheckReport:
         How long the check took [s].
     out_dir : Path
         Where the runs' bags and logs and ``rig_check.json`` are.
+    injected_fault : str or None
+        The fault injected into seft's rig node (``--inject``).
     """
 
     results: list
     wall_s: float
     out_dir: Path
+    injected_fault: str | None = None
 
     @property
     def passed(self) -> bool:
@@ -124,17 +137,63 @@ def check_parameters(base: Mapping, profile: rc.CheckProfile, record: Path, n_st
                      ) -> dict:
     """The parameters of one rig-check run: `base` (the user's configuration) in real time,
     alpha 0, no compensation, the monitor off, the record played as it is, and the rig's
-    limits tightened (module notes)."""
+    limits tightened (module notes); a rig of a structure stays the one rig of its one-DOF
+    structure (:func:`structure_rigs`)."""
     p = dict(base)
+    structure = p.get('structure', 'none') if Graph.from_parameters(p).is_structure else 'none'
     force_limit = min(float(p['force_limit_N']), FORCE_LIMIT_FACTOR * profile.amplitude_N)
     static = profile.amplitude_N / float(p['stiffness_N_per_m'])
     stroke = min(float(p['stroke_limit_m']), max(STROKE_LIMIT_FACTOR * static, MIN_STROKE_M))
     p.update(mode='realtime', alpha=0.0, predictor='none', excitation='none',
              record=str(record), amplitude_N=0.0, scale_factor=1.0, time_scale=1.0,
              duration_s=0.0, n_steps=int(n_steps), monitor_threshold=0.0,
-             force_limit_N=force_limit, stroke_limit_m=stroke, structure='none',
+             force_limit_N=force_limit, stroke_limit_m=stroke, structure=structure,
              network_delay_s=0.0)
     return p
+
+
+def structure_rigs(params: Mapping, rig_name: str | None = None) -> list[tuple[str, dict]]:
+    """The rigs a rig check of a test checks, each with the parameters of its check.
+
+    The study's test: its one rig, ``('', params)``. A structure test: each rig (or
+    `rig_name` alone), in its namespace, with its own parameters (the test's updated by its
+    section of ``rigs``, :func:`~seft_ros.core.structure.rig_parameters`) and, as its
+    ``structure``, a structure of its one DOF whose mass, damping and stiffness are its
+    specimen's: the graph is the structure test's for that rig (its namespace, its topics,
+    its qualified name; the reference force is its effective force, paper Eq. 2.5 with
+    alpha 0), and nothing waits for the other rigs. ``alpha`` is set to the computational
+    mass on the rig's DOF over its specimen's (``M[p, p] / m_p - 1``): what the rig's
+    acceleration weighs in its reference force (the ``sensor noise`` check).
+
+    Raises
+    ------
+    InputError
+        `rig_name` given for a test without a structure, or not one of its rigs.
+    ParameterError
+        A rig's section the schema refuses.
+    """
+    graph = Graph.from_parameters(params)
+    if not graph.is_structure:
+        if rig_name:
+            raise InputError(f'--rig-name {rig_name}: the configuration has no structure (its '
+                             'one rig runs in the root namespace)')
+        return [('', dict(params))]
+    from seft_ros.core.structure import Structure, rig_parameters
+    structure = Structure.from_json(params['structure'])
+    rigs = structure.rig_names
+    if rig_name and rig_name not in rigs:
+        raise InputError(f'--rig-name {rig_name}: expected one of {", ".join(rigs)}')
+    out = []
+    for rig in rigs if not rig_name else (rig_name,):
+        p = rig_parameters(params, structure, rig)
+        i = structure.dofs.index(structure.dof_of_rig(rig))
+        m, c, k = (float(p[n]) for n in ('mass_kg', 'damping_N_s_per_m', 'stiffness_N_per_m'))
+        one = Structure((structure.dofs[i],), np.array([[m]]), np.array([[c]]),
+                        np.array([[k]]), np.ones(1), {structure.dofs[i]: rig}, {rig: {}})
+        p.update(structure=one.to_json(), structure_builders='central',
+                 alpha=max(float(structure.mass_kg[i, i]) / m - 1.0, 0.0))
+        out.append((rig, p))
+    return out
 
 
 class _Tap:
@@ -147,12 +206,14 @@ class _Tap:
 
         from seft_msgs_py.topics import CLOCK, MEASUREMENT, STATUS
         self.runner = runner
+        self.rig = graph.rigs[0]
+        self.rig_node = graph.rig_nodes()[0]
         self._deserialize = deserialize_message
         self._msg_type = MEASUREMENT.msg_type
         self.dt_ns = 1
         self.reset()
         node = runner.node
-        node.create_subscription(MEASUREMENT.msg_type, graph.measurement('').name,
+        node.create_subscription(MEASUREMENT.msg_type, graph.measurement(graph.rigs[0]).name,
                                  self._on_measurement, MEASUREMENT.qos, raw=True)
         node.create_subscription(CLOCK.msg_type, CLOCK.name, self._on_clock, CLOCK.qos,
                                  raw=True)
@@ -214,7 +275,7 @@ class _Tap:
     def _on_status(self, msg) -> None:
         # a node frozen by the watchdog run goes on once the rig has ended the run: it
         # hears the rig's final report and ends as after any run
-        if (self.stopped_pid is not None and msg.name == 'rig'
+        if (self.stopped_pid is not None and msg.name == self.rig_node
                 and status_values(msg).get('state') in FINAL_STATES):
             try:
                 os.kill(self.stopped_pid, signal.SIGCONT)
@@ -240,9 +301,20 @@ class _Run:
     bag: object = None
     bag_closed: bool = False
     error: str | None = None
+    #: The rig's namespace ('' for the study's single rig).
+    rig: str = ''
+
+    @property
+    def rig_node(self) -> str:
+        """The rig's qualified node name."""
+        return qualified('rig', self.rig)
+
+    def sensor_topics(self) -> tuple[str, ...]:
+        """The bag's topics of the four fields, in the contract's order."""
+        return tuple(scoped(t, self.rig) for t in _SENSOR_TOPICS)
 
     def rig_reports(self) -> list[dict]:
-        return [s for s in self.statuses if s['name'] == 'rig']
+        return [s for s in self.statuses if s['name'] == self.rig_node]
 
     def final(self) -> dict | None:
         found = [s for s in self.rig_reports() if s.get('state') in FINAL_STATES]
@@ -256,29 +328,89 @@ class _Run:
         return next((int(s['t0_ns']) for s in self.rig_reports()
                      if s.get('state') == STATE_RUNNING and 't0_ns' in s), None)
 
-    def series(self, *topics: str) -> list[np.ndarray]:
-        """The bag's samples of `topics` from step 0 up to the first step one misses."""
-        if self.bag is None:
-            return [np.zeros(0) for _ in topics]
-        samples = [self.bag.samples.get(t, {}) for t in topics]
-        n = 0
-        while all(n in s for s in samples):
-            n += 1
-        return [np.array([s[k] for k in range(n)]) for s in samples]
+    def ended_before_fault(self, profile: rc.CheckProfile) -> str | None:
+        """How the rig ended a fault run before its fault's sample (its final report), or
+        None."""
+        final = self.final() or {}
+        if self.name == 'step' or self.fault_ns is not None or not final:
+            return None
+        try:
+            end = float(final.get('abort_at_s', final.get('time_s', 'inf')))
+        except ValueError:
+            return None
+        if end < profile.fault_step * profile.dt:
+            return (f"the rig ended the run {final.get('state')} at t = {end:.3f} s, before "
+                    f"its fault at {profile.fault_step * profile.dt:.3f} s "
+                    f"({final.get('message', '')})")
+        return None
 
     def fault_late_s(self, profile: rc.CheckProfile) -> float | None:
         """How late the fault came after its sample's instant ``t0 + fault_step dt`` [s]
-        (inf: never, though the rig ran past it; None: no fault run or no t0)."""
+        (inf: never, though the rig ran past it; None: no fault run, no t0, or the rig
+        ended before the fault's sample)."""
         t0 = self.t0_ns()
-        if self.name == 'step' or t0 is None:
+        if self.name == 'step' or t0 is None or self.ended_before_fault(profile):
             return None
         if self.fault_ns is None:
             return math.inf
         return (self.fault_ns - t0) * 1e-9 - profile.fault_step * profile.dt
 
+    def sample_count(self) -> int:
+        """How many samples the rig published (its final report; else the last step the
+        checker heard, + 1)."""
+        final = self.final() or {}
+        try:
+            return int(final['published'])
+        except (KeyError, ValueError):
+            return int(self.steps.max()) + 1 if self.steps.size else 0
+
+    def record(self, n: int) -> np.ndarray:
+        """The bag's sensor rows of steps 0 .. n-1, shape (n, 4) in the contract's field
+        order (NaN where the bag lacks a sample)."""
+        out = np.full((n, len(MEASUREMENT_FIELDS)), np.nan)
+        if self.bag is None:
+            return out
+        for i, topic in enumerate(self.sensor_topics()):
+            for k, value in self.bag.samples.get(topic, {}).items():
+                if 0 <= k < n:
+                    out[k, i] = value
+        return out
+
+    def fields(self, n: int, record: np.ndarray | None = None) -> list[np.ndarray] | None:
+        """The four fields by step 0 .. n-1 (the contract's order), as the graph had them:
+        the live measurement the checker heard (its columns by the message's names when they
+        are the contract's in another order), a sample it missed from the bag's record
+        (`record`, default :meth:`record`), one neither has interpolated; None if there is
+        none at all."""
+        out = np.full((n, len(MEASUREMENT_FIELDS)), np.nan)
+        if self.values.ndim == 2 and self.values.shape[1] == len(MEASUREMENT_FIELDS):
+            names = tuple(self.names)
+            cols = ([names.index(f) for f in MEASUREMENT_FIELDS]
+                    if sorted(names) == sorted(MEASUREMENT_FIELDS) else list(range(4)))
+            k = self.steps
+            inside = np.flatnonzero((k >= 0) & (k < n))
+            _, first = np.unique(k[inside], return_index=True)    # the first of a repeat
+            rows = inside[first]
+            out[k[rows]] = self.values[rows][:, cols]
+        missing = np.isnan(out)
+        if missing.any():
+            rec = self.record(n) if record is None else record
+            out[missing] = rec[missing]
+        for i in range(out.shape[1]):
+            ok = np.isfinite(out[:, i])
+            if not ok.any():
+                return None
+            if not ok.all():
+                out[:, i] = np.interp(np.arange(n), np.flatnonzero(ok), out[ok, i])
+        return [out[:, i] for i in range(out.shape[1])]
+
     def command(self, topic: str, n: int) -> np.ndarray:
         s = self.bag.samples.get(topic, {}) if self.bag is not None else {}
         return np.array([s.get(k, np.nan) for k in range(n)])
+
+
+#: The bag's topics of the four fields, in the contract's order.
+_SENSOR_TOPICS = (MEASURED_FORCE.name, DISPLACEMENT.name, VELOCITY.name, ACCELERATION.name)
 
 
 #: The checker's SCHED_FIFO priority above the graph's ``realtime_priority`` (the rig's is +3):
@@ -355,7 +487,7 @@ def _disturbed(run: '_Run', profile: rc.CheckProfile) -> str | None:
         return f'the rig lost its commands ({final["message"]}): the graph stalled'
     before = run.fault_ns is None
     for s in run.statuses:
-        if (s['name'] not in ('rig', 'seft_runner') and s.get('state') == 'aborted'
+        if (s['name'] not in (run.rig_node, 'seft_runner') and s.get('state') == 'aborted'
                 and str(s.get('message', '')).startswith(rig_contract.WATCHDOG_REASON)
                 and (before or run.name == 'step')):
             return f'{s["name"]} lost an input ({s["message"]}): the graph stalled'
@@ -371,7 +503,7 @@ def _one_run(name: str, run_dir: Path, *, params: Mapping, profile: rc.CheckProf
     record = write_force_record(run_dir / 'force_record.csv', reference, profile.dt,
                                 float(params['mass_kg']))
     p = check_parameters(params, profile, record, len(reference))
-    run = _Run(name, p)
+    run = _Run(name, p, rig=tap.rig)
     tap.reset(int(round(profile.dt * 1e9)), fault, profile.fault_step)
     progress(f'[{name}] {len(reference)} samples of {1e3 * profile.dt:g} ms, amplitude '
              f'{profile.amplitude_N:g} N')
@@ -399,9 +531,29 @@ def _one_run(name: str, run_dir: Path, *, params: Mapping, profile: rc.CheckProf
     return run
 
 
+def fault_rig_command(name: str, params: Mapping) -> Callable[[Path], list[str]]:
+    """The argv that starts seft's rig node with the fault `name` injected
+    (``seft_plant_sim.fault_rig``; forked like seft's own nodes).
+
+    Raises
+    ------
+    ParameterError
+        An unknown fault, or a rig node that cannot take it (a UDP bridge: its controller
+        injects it).
+    """
+    from seft_plant_sim.faults import check_supported, fault
+    from seft_ros.cli.runner import FAULT_RIG_MODULE
+    check_supported(fault(name), params)
+
+    def argv(params_file: Path) -> list[str]:
+        return [sys.executable, '-m', FAULT_RIG_MODULE, name, '--ros-args', '--params-file',
+                str(params_file)]
+    return argv
+
+
 def run_rig_check(*, params: Mapping, out_dir: Path, profile: rc.CheckProfile,
-                  rig_command: str | None = None, runs: Sequence[str] = RUNS,
-                  domain_id: int | None = None,
+                  rig_command: str | None = None, inject: str | None = None,
+                  runs: Sequence[str] = RUNS, domain_id: int | None = None,
                   progress: Callable[[str], None] = print) -> RigCheckReport:
     """Check a rig node against the rig contract.
 
@@ -416,6 +568,9 @@ def run_rig_check(*, params: Mapping, out_dir: Path, profile: rc.CheckProfile,
     rig_command : str, optional
         How to start the rig node (:func:`rig_command_factory`); default seft's rig node
         with ``params['rig_model']``.
+    inject : str, optional
+        A fault of :data:`seft_plant_sim.faults.FAULTS` to inject into seft's rig node
+        (:func:`fault_rig_command`; not with `rig_command`).
     runs : sequence of str
         Which of :data:`RUNS` to run (the checks of the others are not measured).
     domain_id : int, optional
@@ -430,7 +585,9 @@ def run_rig_check(*, params: Mapping, out_dir: Path, profile: rc.CheckProfile,
     Raises
     ------
     InputError
-        An unknown run name, or a bad ``rig_command``.
+        An unknown run name, a bad ``rig_command``, or both it and `inject`.
+    ParameterError
+        A fault `inject` the rig node cannot take.
     SeftError
         No ROS domain could be claimed (as ``seft run``).
     """
@@ -438,12 +595,19 @@ def run_rig_check(*, params: Mapping, out_dir: Path, profile: rc.CheckProfile,
     unknown = [r for r in runs if r not in RUNS]
     if unknown or not runs:
         raise InputError(f'--runs {",".join(runs)}: expected some of {", ".join(RUNS)}')
-    argv = rig_command_factory(rig_command)
+    if inject and rig_command:
+        raise InputError("--inject and --rig-command: the fault goes into seft's own rig "
+                         'node; give one of them')
+    argv = fault_rig_command(inject, params) if inject else rig_command_factory(rig_command)
+    if inject:
+        from seft_plant_sim.faults import FAULTS
+        progress(f'fault injected into the rig node: {inject} ({FAULTS[inject].description})')
     t_start = time.monotonic()
     graph = Graph.from_parameters(params)
+    rig = graph.rigs[0]
     kind = rig_contract.command_kind(params)
     command_node = (graph.controller_nodes()[0] if kind == rig_contract.COMMAND_KINDS[0]
-                    else graph.builder_of(''))
+                    else graph.builder_of(rig))
     runner, claim = open_runner(domain_id=domain_id, progress=progress)
     _above_the_graph(int(params.get('realtime_priority', 0)), progress)
     done: dict[str, _Run] = {}
@@ -455,7 +619,7 @@ def run_rig_check(*, params: Mapping, out_dir: Path, profile: rc.CheckProfile,
                 run = _one_run(name, run_dir, params=params, profile=profile, runner=runner,
                                tap=tap, fault=None if name == 'step' else _fault_of(
                                    name, runner, command_node, tap),
-                               commands={'rig': argv} if argv else None,
+                               commands={graph.rig_nodes()[0]: argv} if argv else None,
                                command_node=command_node, progress=progress)
                 why = _disturbed(run, profile)
                 if why is None:
@@ -469,9 +633,9 @@ def run_rig_check(*, params: Mapping, out_dir: Path, profile: rc.CheckProfile,
         runner.close()
         claim.close()
     results = evaluate(done, params=params, profile=profile, command_kind=kind)
-    report = RigCheckReport(results, time.monotonic() - t_start, out_dir)
+    report = RigCheckReport(results, time.monotonic() - t_start, out_dir, inject)
     (out_dir / 'rig_check.json').write_text(json.dumps({
-        'contract': rig_contract.CONTRACT, 'passed': report.passed,
+        'contract': rig_contract.CONTRACT, 'passed': report.passed, 'injected_fault': inject,
         'wall_s': report.wall_s, 'amplitude_N': profile.amplitude_N,
         'checks': [{'name': r.name, 'passed': r.passed, 'measured': r.measured,
                     'values': r.values} for r in results],
@@ -488,13 +652,33 @@ def _json_default(value):
     return str(value)
 
 
+def _structure_bag(path: Path, run: _Run) -> SimpleNamespace:
+    """The bag of a structure rig's run as the checks read a bag (``samples`` of the rig's
+    four sensor topics and command topic by step, ``node_params``, ``statuses``), from
+    :func:`~seft_ros.analysis.structure_bag.read_structure_run`."""
+    from seft_ros.analysis.structure_bag import read_structure_run
+    data = read_structure_run(path)
+    r = data.rigs[run.rig]
+    series = [r.measured_force_N, r.displacement_m, r.velocity_m_s, r.acceleration_m_s2]
+    topics = list(run.sensor_topics())
+    kind = rig_contract.command_kind(run.params)
+    series.append(r.valve_command_V if kind == rig_contract.COMMAND_KINDS[0]
+                  else r.reference_force_N)
+    topics.append(scoped(rig_contract.command_signal(kind).name, run.rig))
+    return SimpleNamespace(
+        samples={t: dict(enumerate(np.asarray(s, dtype=float).tolist()))
+                 for t, s in zip(topics, series) if s is not None},
+        node_params=data.extra.get('node_params', {}),
+        statuses=data.extra.get('node_statuses', []))
+
+
 def _read_bag(run: _Run, bag: Path) -> None:
     from seft_ros.analysis.bag import read_signals
     run.bag_closed = (bag / 'metadata.yaml').is_file()
     if not bag.exists():
         return
     try:
-        run.bag = read_signals(bag)
+        run.bag = _structure_bag(bag, run) if run.rig else read_signals(bag)
     except SeftError as exc:
         run.error = run.error or f'bag: {exc}'
         return
@@ -506,54 +690,96 @@ def _read_bag(run: _Run, bag: Path) -> None:
         run.statuses = run.bag.statuses
 
 
+def _cut_short(step: _Run, n: int, needed: int, command_kind: str) -> str | None:
+    """Why the step run says nothing of the signals: the rig ended it before the static
+    force had held (`needed` samples of `n`), or None."""
+    count = step.sample_count()
+    if count >= needed:
+        return None
+    final = step.final() or {}
+    why = (f"the rig ended the step run {final.get('state', '')} after {count} of {n} "
+           f"samples, before the static force held ({final.get('message', 'no final report')})")
+    if command_kind == rig_contract.COMMAND_KINDS[0] and 'force limit' in why:
+        why += ('; a force loop closed on a load cell of the wrong sign or unit runs away: '
+                'check the force first')
+    return why
+
+
+def _step_checks(step: _Run, *, params: Mapping, profile: rc.CheckProfile, command_kind: str,
+                 sine: list | None) -> dict:
+    """The checks of the step run (contract, clock, stamps, measurement, the signals, stuck
+    sensor, sensor noise, command timing)."""
+    dt = profile.dt
+    out = {}
+    rig_params = step.bag.node_params.get(step.rig_node) if step.bag is not None else None
+    out['contract'] = rc.check_contract(step.ready(), rig_params, command_kind)
+    latency = out['contract'].values.get('command_latency_s', math.nan)
+    final = step.final() or {}
+    expected = int(final.get('published', step.params['n_steps']))
+    out['clock'] = rc.check_clock(step.steps, step.arrivals, dt, clock_ns=step.clock_ns)
+    out['stamps'] = rc.check_stamps(step.stamps, step.arrivals, dt, expected=expected,
+                                    t0_ns=step.t0_ns())
+    n = int(step.params['n_steps'])
+    record = step.record(n)
+    live_rows = np.full((step.steps.size, len(MEASUREMENT_FIELDS)), np.nan)
+    inside = (step.steps >= 0) & (step.steps < n)
+    live_rows[inside] = record[step.steps[inside]]
+    out['measurement'] = rc.check_measurement(step.names, step.values, live_rows)
+    fields = step.fields(n, record)
+    why = _cut_short(step, n, profile.hold.stop, command_kind)
+    if fields is None or why is not None:
+        why = why or step.error or 'no samples of the step run'
+        for name in (*rc.SIGNAL_CHECKS, 'swapped fields', 'stuck sensor', 'sensor noise',
+                     'command timing'):
+            out[name] = rc.not_run(name, why)
+        return out
+    for r in rc.check_signals(fields, dt=dt, amplitude_N=profile.amplitude_N,
+                              stiffness_N_per_m=float(params['stiffness_N_per_m']),
+                              hold=profile.hold, rest=profile.rest):
+        out[r.name] = r
+    out['stuck sensor'] = rc.check_stuck(fields, sine)
+    out['sensor noise'] = rc.check_noise(
+        fields[0], fields[3], profile.quiet, dt=dt, alpha=float(params.get('alpha', 0.0)),
+        mass_kg=float(params['mass_kg']), cutoff_hz=float(params['monitor_cutoff_hz']),
+        threshold=float(params['monitor_threshold']), floor_N=float(params['monitor_floor_N']))
+    if math.isfinite(latency):
+        command = step.command(scoped(rig_contract.command_signal(command_kind).name,
+                                      step.rig), n)
+        out['command timing'] = rc.check_command_timing(
+            command, fields[0], profile.quiet, profile.onset_step, dt, latency,
+            profile.amplitude_N)
+    else:
+        out['command timing'] = rc.not_run('command timing', 'no command latency')
+    return out
+
+
 def evaluate(runs: Mapping[str, _Run], *, params: Mapping, profile: rc.CheckProfile,
              command_kind: str) -> list:
     """The results of every check (:data:`~seft_ros.core.rig_check.CHECKS` order) from the
-    runs done; a check whose run failed or was not run is a failure that says why."""
-    from seft_msgs_py.signals import (
-        ACCELERATION,
-        DISPLACEMENT,
-        MEASURED_FORCE,
-        VELOCITY,
-    )
+    runs done; a check whose run failed or was not run is a failure that says why.
+
+    The signals are judged on the live measurement the graph used (the checker's own
+    subscription), completed from the bag where the checker missed a sample."""
     dt = profile.dt
-    sensors = (DISPLACEMENT.name, VELOCITY.name, ACCELERATION.name, MEASURED_FORCE.name)
-    command_topic = rig_contract.command_signal(command_kind).name
     out = {}
     step = runs.get('step')
     onset = profile.onset_step
-    quiet = slice(0, onset)
-    hold_n = int(round(profile.hold_s / dt))
-    hold = slice(onset + hold_n // 2, onset + hold_n)
-    latency = math.nan
+    sine = None
+    for run_name in rc.FAULT_RUNS:
+        run = runs.get(run_name)
+        fields = (run.fields(profile.fault_step)
+                  if run is not None and run.sample_count() >= profile.fault_step else None)
+        if fields is not None:
+            sine = [s[onset:profile.fault_step] for s in fields]
+            break
     if step is None:
-        for name in ('contract', 'clock', 'measurement', 'units', 'static force',
-                     'command timing'):
+        for name in rc.CHECKS[:rc.CHECKS.index('command timing') + 1]:
             out[name] = rc.not_run(name, 'the step run was not run')
+        latency = math.nan
     else:
-        rig_params = step.bag.node_params.get('rig') if step.bag is not None else None
-        out['contract'] = rc.check_contract(step.ready(), rig_params, command_kind)
+        out.update(_step_checks(step, params=params, profile=profile,
+                                command_kind=command_kind, sine=sine))
         latency = out['contract'].values.get('command_latency_s', math.nan)
-        final = step.final() or {}
-        expected = int(final.get('published', step.params['n_steps']))
-        out['clock'] = rc.check_clock(step.steps, step.stamps, step.arrivals, dt,
-                                      expected=expected, clock_ns=step.clock_ns)
-        out['measurement'] = rc.check_measurement(step.names, step.values)
-        x, v, a, f = step.series(*sensors)
-        why = step.error or 'the bag holds too few samples'
-        if f.size >= hold.stop:
-            out['units'] = rc.check_units(x, v, a, f, dt, float(params['stiffness_N_per_m']),
-                                          hold)
-            out['static force'] = rc.check_static_force(f, hold, quiet, profile.amplitude_N)
-            if math.isfinite(latency):
-                out['command timing'] = rc.check_command_timing(
-                    step.command(command_topic, f.size), f, quiet, onset, dt, latency,
-                    profile.amplitude_N)
-            else:
-                out['command timing'] = rc.not_run('command timing', 'no command latency')
-        else:
-            for name in ('units', 'static force', 'command timing'):
-                out[name] = rc.not_run(name, why)
     for run_name, check in rc.FAULT_RUNS.items():
         run = runs.get(run_name)
         if run is None:
@@ -562,12 +788,17 @@ def evaluate(runs: Mapping[str, _Run], *, params: Mapping, profile: rc.CheckProf
         if run.error is not None and run.final() is None:
             out[check] = rc.not_run(check, run.error)
             continue
+        early = run.ended_before_fault(profile)
+        if early is not None:
+            out[check] = rc.not_run(check, early)
+            continue
         late = run.fault_late_s(profile)
         if late is not None and late > LATE_FAULT_S:
             out[check] = rc.not_run(check, f'the fault came {late:.2f} s after its sample '
                                     '(the checker heard the rig late)')
             continue
-        x, v, a, f = run.series(*sensors)
+        fields = run.fields(run.sample_count())
+        f, v = (fields[0], fields[2]) if fields is not None else (np.zeros(0),) * 2
         cycle = int(round(1.0 / (profile.sine_hz * dt)))
         fault = profile.fault_step
         lat = latency if math.isfinite(latency) else rig_contract.command_latency_s(params)
@@ -585,12 +816,16 @@ def evaluate(runs: Mapping[str, _Run], *, params: Mapping, profile: rc.CheckProf
     return [out[name] for name in rc.CHECKS]
 
 
-def main_lines(report: RigCheckReport) -> list[str]:
-    """The lines ``seft rig-check`` prints: one per check, then the verdict."""
+def main_lines(report: RigCheckReport, rig: str = '') -> list[str]:
+    """The lines ``seft rig-check`` prints: one per check, then the verdict (naming the
+    `rig` of a structure)."""
     lines = [rc.format_line(r) for r in report.results]
     failed = [r.name for r in report.results if not r.passed]
-    lines.append(f'rig-check: {len(report.results) - len(failed)} of {len(report.results)} '
+    who = f'rig-check {rig}' if rig else 'rig-check'
+    lines.append(f'{who}: {len(report.results) - len(failed)} of {len(report.results)} '
                  'checks passed' + (f'; failed: {", ".join(failed)}' if failed else '')
-                 + f' ({report.wall_s:.0f} s; runs in {report.out_dir})')
+                 + f' ({report.wall_s:.0f} s; runs in {report.out_dir}'
+                 + (f'; fault injected: {report.injected_fault}' if report.injected_fault
+                    else '') + ')')
     return lines
 

@@ -65,8 +65,10 @@ NODE_MODULES = {
 
 #: The module of the process that holds the nodes of one rig's loop (``--processes loop``).
 LOOP_MODULE = 'seft_ros.nodes.loop'
+#: The module of seft's rig node with a fault injected (``seft rig-check --inject``).
+FAULT_RIG_MODULE = 'seft_plant_sim.fault_rig'
 #: What the fork server imports before the first node starts (cli/spawn.py).
-PRELOAD = (*NODE_MODULES.values(), LOOP_MODULE)
+PRELOAD = (*NODE_MODULES.values(), LOOP_MODULE, FAULT_RIG_MODULE)
 #: The nodes ``--processes loop`` puts in a rig's loop process.
 LOOP_KINDS = ('reference_force_builder', 'force_servo_controller', 'rig')
 
