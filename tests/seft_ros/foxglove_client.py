@@ -39,7 +39,7 @@ class FoxgloveClient:
                 context.check_hostname = False
                 context.verify_mode = ssl.CERT_NONE
         self.ws = connect(url, subprotocols=SUBPROTOCOLS, ssl=context, open_timeout=10,
-                          max_size=None)
+                          max_size=None).__enter__()
         self.advertised: dict[str, dict] = {}
         self.messages: dict[str, list] = defaultdict(list)
         self.server_info: dict = {}

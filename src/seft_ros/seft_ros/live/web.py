@@ -13,7 +13,8 @@ package) serves:
   machine only): ``ws[s]://HOST:PORT/?token=...``, each message passed through unchanged.
 
 A request without the token (``?token=`` of the page's URL, passed on by the page to its
-feed) is refused (403) and said in one line, once a minute per client address. The feed
+feed) is refused (403) and said in one line, once a minute per client address and kind
+(page, Foxglove client). The feed
 also refuses a page of another origin (a browser's cross-site WebSocket).
 """
 
@@ -92,7 +93,7 @@ class WebServer:
         self.request_stop = stop
         self.foxglove_port = foxglove_port
         self.files = resources.files('seft_ros.live') / 'static'
-        self.refused_at: dict[str, float] = {}
+        self.refused_at: dict[tuple, float] = {}
         self.loop: asyncio.AbstractEventLoop | None = None
         self.thread: threading.Thread | None = None
         self.ready = threading.Event()
@@ -161,8 +162,8 @@ class WebServer:
             return True
         client = _client(connection)
         now = time.monotonic()
-        if now - self.refused_at.get(client, -1e9) >= REFUSED_QUIET_S:
-            self.refused_at[client] = now
+        if now - self.refused_at.get((client, what), -1e9) >= REFUSED_QUIET_S:
+            self.refused_at[(client, what)] = now
             self.say(f'live view: refused {what} from {client}: '
                      f'{"wrong" if given else "no"} token')
         return False

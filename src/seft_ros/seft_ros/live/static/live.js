@@ -12,6 +12,7 @@
   const COLORS = { test: ['#60a5fa', '#f472b6', '#34d399', '#fbbf24', '#a78bfa', '#f87171'],
                    command: '#fbbf24', reference: '#e5e7eb' };
   const REDRAW_MS = 200;
+  const PLOT_HEIGHT = 230;
   const st = { runId: null, decim: 1, dt: 0.002, x: [], plots: [], byKey: {},
                latest: {}, status: {}, timer: null, stopAsked: false };
 
@@ -81,8 +82,8 @@
         (st.byKey[s.key] = st.byKey[s.key] || []).push({ plot, idx: i + 1,
                                                         test: s.style !== 'reference' });
       });
-      const opts = {
-        width: Math.max(300, div.clientWidth - 12), height: 230,
+      plot.opts = {
+        width: 300, height: PLOT_HEIGHT,
         scales: { x: { time: false } },
         series,
         axes: [
@@ -91,8 +92,12 @@
         ],
         legend: { show: true },
       };
-      plot.u = new uPlot(opts, plot.data, div);
       st.plots.push(plot);
+    });
+    // every panel placed first, so that each plot takes its own panel's width
+    st.plots.forEach((p) => {
+      p.opts.width = plotWidth(p);
+      p.u = new uPlot(p.opts, p.data, p.div);
     });
     addSeries(msg.series || {});
     showStatus(msg.status || {}, msg.events || [], run);
@@ -217,9 +222,10 @@
     st.ws.send(JSON.stringify({ op: 'stop' }));
   });
 
+  function plotWidth(p) { return Math.max(300, p.div.clientWidth - 16); }
+
   window.addEventListener('resize', () => {
-    st.plots.forEach((p) => p.u.setSize({ width: Math.max(300, p.div.clientWidth - 12),
-                                          height: 230 }));
+    st.plots.forEach((p) => p.u.setSize({ width: plotWidth(p), height: PLOT_HEIGHT }));
   });
 
   connect();
