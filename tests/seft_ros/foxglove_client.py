@@ -43,6 +43,8 @@ class FoxgloveClient:
         self.advertised: dict[str, dict] = {}
         self.messages: dict[str, list] = defaultdict(list)
         self.server_info: dict = {}
+        #: The text operations received (channels by id and topic), for a failure's message.
+        self.ops: list[dict] = []
         self._by_sub: dict[int, dict] = {}
         self._next = 1
         self.lock = threading.Lock()
@@ -68,6 +70,8 @@ class FoxgloveClient:
             return
 
     def _on_text(self, op: dict) -> None:
+        self.ops.append({k: v for k, v in op.items() if k != 'channels'}
+                        | {'channels': [(c['id'], c['topic']) for c in op.get('channels', [])]})
         if op.get('op') == 'serverInfo':
             self.server_info = op
         elif op.get('op') == 'advertise':

@@ -182,7 +182,8 @@ def check_channels_against_bag(client: FoxgloveClient, messages) -> dict:
     received = {t: client.json_messages(t) if t != '/seft/live/events' else
                 client.messages.get(t, []) for t in client.advertised}
     empty = [t for t, ms in received.items() if not ms]
-    assert not empty, f'advertised but never received: {empty}'
+    assert not empty, (f'advertised but never received: {empty}',
+                       {t: len(ms) for t, ms in received.items()}, client.ops)
     for (channel, name), (topic, path) in SPOT.items():
         if channel not in received:
             continue
@@ -293,8 +294,8 @@ def test_realtime_run_live_with_the_operator_stop(tmp_path, seft_exe, ros_env, c
         client = FoxgloveClient(fox)
         page.goto(web)
         page.wait_for_function("document.querySelector('.plot') && "
-                               "+document.querySelector('.plot').dataset.points > 100",
-                               timeout=60_000)          # 2 s of the test drawn
+                               "+document.querySelector('.plot').dataset.points > 50",
+                               timeout=60_000)          # 1 s of the test drawn
         before = plot_points(page)
         page.click('#stop')
         page.wait_for_function(
@@ -330,7 +331,7 @@ def test_realtime_run_live_with_the_operator_stop(tmp_path, seft_exe, ros_env, c
     from seft_ros.analysis.bag import read_run
     rd = read_run(bag)
     abort_at = float(rig['abort_at_s'])
-    assert 1.5 < abort_at < 9.0
+    assert 1.0 < abort_at < 9.0
     v = np.array([m.twist.linear.x for _, m in messages['/seft/velocity']])
     f = np.array([m.wrench.force.x for _, m in messages['/seft/measured_force']])
     p = rd.params
@@ -380,12 +381,13 @@ def test_live_view_bad_input_is_one_line_and_the_test_runs_on(tmp_path, seft_exe
                         '--out', tmp_path / 'far'], cwd=tmp_path, timeout=120)
     assert proc.returncode == 0, proc.stderr
     lines = [ln for ln in proc.stderr.splitlines() if 'live view:' in ln]
-    assert lines == [
+    # (another address than this machine's: a token, so Foxglove is behind the proxy)
+    assert sorted(lines[:2]) == [
         f'[seft] live view: Foxglove cannot listen on 192.0.2.1:{port}: 192.0.2.1 is not an '
         'address of this host',
         f'[seft] live view: the web page cannot listen on 192.0.2.1:{port + 1}: 192.0.2.1 is '
-        'not an address of this host',
-        '[seft] live view: off; the test runs without it'], proc.stderr
+        'not an address of this host'], proc.stderr
+    assert lines[2:] == ['[seft] live view: off; the test runs without it'], proc.stderr
     assert (tmp_path / 'far' / 'report.md').is_file()
 
 
@@ -435,7 +437,7 @@ def test_live_view_over_tls(token, tmp_path, ros_env):
         html = urllib.request.urlopen(f'https://127.0.0.1:{port + 1}/{query}',
                                       context=context, timeout=10).read()
         assert b'seft live view' in html
-        with pytest.raises(urllib.error.URLError):        # not served without TLS
+        with pytest.raises(OSError):        # not served without TLS (the server hangs up)
             urllib.request.urlopen(f'http://127.0.0.1:{port + 1}/{query}', timeout=10)
         client = FoxgloveClient(f'wss://127.0.0.1:{port}/{query}', insecure_tls=True)
         deadline = time.monotonic() + 10

@@ -4,7 +4,8 @@
  * sample so far, the state) and then {type: "data"} with what is new. Samples are placed on
  * the run's grid of shown steps (step / decimation), so the test, its commands and the
  * analytical reference (drawn ahead, dashed) line up; a sample the view missed is a gap.
- * Each plot's container carries data-points (test samples drawn) for a test to read.
+ * Each plot's container carries data-points (the samples of its first series of the test
+ * drawn) for a test to read.
  */
 (function () {
   'use strict';
@@ -79,8 +80,10 @@
         series.push({ label: s.label, stroke: color, width: s.style === 'test' ? 2 : 1.5,
                       dash: s.style === 'reference' ? [8, 5] : undefined, spanGaps: false,
                       value: (u, v) => (v == null ? '–' : v.toPrecision(4)) });
-        (st.byKey[s.key] = st.byKey[s.key] || []).push({ plot, idx: i + 1,
-                                                        test: s.style !== 'reference' });
+        // data-points counts the samples of the plot's first series of the test
+        const counted = s.style !== 'reference' && !plot.counted;
+        if (counted) plot.counted = true;
+        (st.byKey[s.key] = st.byKey[s.key] || []).push({ plot, idx: i + 1, counted });
       });
       plot.opts = {
         width: 300, height: PLOT_HEIGHT,
@@ -125,7 +128,7 @@
         targets.forEach((t) => {
           const v = values[i];
           t.plot.data[t.idx][slot] = v === null ? null : v * t.plot.spec.scale;
-          if (t.test) { t.plot.points++; t.plot.lastT = steps[i] * st.dt; }
+          if (t.counted) { t.plot.points++; t.plot.lastT = steps[i] * st.dt; }
           t.plot.dirty = true;
         });
       }
