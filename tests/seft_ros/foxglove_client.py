@@ -5,10 +5,16 @@ The protocol (foxglove.sdk.v1 / foxglove.websocket.v1): text frames carry JSON o
 (``serverInfo``, ``advertise``, ``unadvertise``, ...); the client subscribes with
 ``{"op": "subscribe", "subscriptions": [{"id", "channelId"}]}``; binary frames of opcode 1
 carry a message: ``uint32`` subscription id, ``uint64`` log time [ns], the payload.
+
+foxglove-sdk 0.30.3 advertises a channel made while a client is connected a moment before it
+takes subscriptions to it: a client that subscribes at once is told ``Unknown channel ID``
+now and then (5 of 200 channels made 5 ms apart, here) and would never receive that channel.
+This client subscribes again 50 ms later when told so.
 """
 
 from collections import defaultdict
 import json
+import re
 import ssl
 import struct
 import threading
@@ -46,6 +52,7 @@ class FoxgloveClient:
         #: The text operations received (channels by id and topic), for a failure's message.
         self.ops: list[dict] = []
         self._by_sub: dict[int, dict] = {}
+        self._by_id: dict[int, dict] = {}
         self._next = 1
         self.lock = threading.Lock()
         self.thread = threading.Thread(target=self._run, daemon=True)
@@ -75,14 +82,28 @@ class FoxgloveClient:
         if op.get('op') == 'serverInfo':
             self.server_info = op
         elif op.get('op') == 'advertise':
-            subs = []
             for channel in op['channels']:
                 self.advertised[channel['topic']] = channel
+                self._by_id[channel['id']] = channel
+            self._subscribe(op['channels'])
+        elif op.get('op') == 'status':
+            unknown = re.match(r'Unknown channel ID: (\d+)', op.get('message', ''))
+            if unknown and int(unknown.group(1)) in self._by_id:
+                channel = self._by_id[int(unknown.group(1))]
+                threading.Timer(0.05, self._subscribe, ([channel],)).start()
+
+    def _subscribe(self, channels) -> None:
+        subs = []
+        with self.lock:
+            for channel in channels:
                 sub = self._next
                 self._next += 1
                 self._by_sub[sub] = channel
                 subs.append({'id': sub, 'channelId': channel['id']})
+        try:
             self.ws.send(json.dumps({'op': 'subscribe', 'subscriptions': subs}))
+        except ConnectionClosed:
+            return
 
     def json_messages(self, topic: str) -> list[dict]:
         """The JSON payloads received on `topic`, in order."""

@@ -391,23 +391,37 @@ def test_live_view_bad_input_is_one_line_and_the_test_runs_on(tmp_path, seft_exe
     assert (tmp_path / 'far' / 'report.md').is_file()
 
 
+def test_a_bad_live_option_is_one_line_and_nothing_runs(tmp_path, seft_exe, run_process):
+    proc = run_process([seft_exe, 'run', '--live', 'lab:port', '--duration', '1', '--out',
+                        tmp_path / 'x'], cwd=tmp_path, timeout=60)
+    assert proc.returncode == 2
+    assert proc.stderr.strip().splitlines() == [
+        'seft: error: --live lab:port: expected [HOST][:PORT] with PORT 1-65534 (the web page '
+        'takes PORT+1), e.g. --live 0.0.0.0:8765']
+    assert not (tmp_path / 'x').exists()
+
+
 @pytest.mark.parametrize('args,expected', [
-    (['--live', 'lab:port'], '--live lab:port: expected [HOST][:PORT] with PORT 1-65534'),
     (['--live', ':65535'], '--live :65535: expected [HOST][:PORT]'),
+    (['config/main.yaml', '--live'], None),
     (['--live', 'config/main.yaml'], '--live config/main.yaml: expected [HOST][:PORT], not a '
      'configuration file'),
     (['--live-stop'], '--live-stop and --live-tls need --live [ADDRESS]'),
     (['--live', '--live-tls', 'nocert.pem', 'nokey.pem'],
      '--live-tls: nocert.pem: no such certificate file'),
 ])
-def test_live_view_option_errors_are_one_line(args, expected, tmp_path, seft_exe,
-                                              run_process):
-    proc = run_process([seft_exe, 'run', *args, '--duration', '1', '--out', tmp_path / 'x'],
-                       cwd=tmp_path, timeout=60)
-    assert proc.returncode == 2
-    lines = proc.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith(f'seft: error: {expected}'), proc.stderr
-    assert not (tmp_path / 'x').exists()
+def test_live_options(args, expected):
+    """What seft run's parser and the live view's options make of the command line."""
+    from seft_msgs_py.errors import InputError
+    from seft_ros.cli.live import options_from_args
+    from seft_ros.cli.main import build_parser
+    parsed = build_parser().parse_args(['run', *args])
+    if expected is None:
+        assert parsed.config == 'config/main.yaml'
+        assert options_from_args(parsed).urls()[0] == 'http://127.0.0.1:8766/'
+        return
+    with pytest.raises(InputError, match=re.escape(expected)):
+        options_from_args(parsed)
 
 
 @pytest.mark.parametrize('token', ['', TOKEN], ids=['direct', 'token proxy'])

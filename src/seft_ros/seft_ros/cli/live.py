@@ -1,11 +1,12 @@
 """``seft run --live``: start the live view's process beside the runs, print where it is.
 
-The live view (:mod:`seft_ros.live`) runs in a process of its own in the run's ROS domain
-for the whole command (every run of a sweep), started once the domain is known and stopped
-after the last run. Its lines go to the command's progress lines (the web page's URL and the
-Foxglove address at start; a refused client, an operator's stop as they happen) and to
-``live.log`` in the output directory. Nothing it does can end a test: a port in use or an
-address that cannot be bound is one line, and the runs go on without (that part of) it.
+The live view (``seft_ros.live``, :mod:`seft_ros.live.node`) runs in a process of its own in
+the run's ROS domain for the whole command (every run of a sweep), started once the domain
+is known and stopped after the last run. Its lines go to the command's progress lines (the
+web page's URL and the Foxglove address at start; a refused client, an operator's stop as
+they happen) and to ``live.log`` in the output directory. Nothing it does can end a test: a
+port in use or an address that cannot be bound is one line, and the runs go on without (that
+part of) it.
 """
 
 import os

@@ -35,7 +35,8 @@ TOKEN_ENV = 'SEFT_LIVE_TOKEN'
 
 
 def parse_address(text: str | None) -> tuple[str, int]:
-    """``HOST``, ``HOST:PORT``, ``:PORT`` or ``[IPv6]:PORT`` -> ``(host, port)``.
+    """``HOST``, ``HOST:PORT``, ``:PORT``, ``[IPv6]:PORT`` or a bare IPv6 address ->
+    ``(host, port)``.
 
     Raises
     ------
@@ -44,20 +45,25 @@ def parse_address(text: str | None) -> tuple[str, int]:
         naming ``--live``.
     """
     text = (text or '').strip()
-    host, port = text, ''
+    host, port, ok = text, None, True
     if text.startswith('['):
         inside, _, rest = text[1:].partition(']')
-        host, port = inside, rest[1:] if rest.startswith(':') else rest
-        if rest and not rest.startswith(':'):
-            port = 'x'
+        host = inside
+        if rest:
+            ok, port = rest.startswith(':'), rest[1:]
     elif text.count(':') == 1:
         host, port = text.split(':')
+    elif ':' in text:                        # a bare IPv6 address, no port
+        try:
+            ipaddress.IPv6Address(text)
+        except ValueError:
+            ok = False
     host = host or DEFAULT_HOST
     try:
-        number = int(port) if port else DEFAULT_PORT
+        number = DEFAULT_PORT if port is None else int(port)
     except ValueError:
         number = -1
-    if not 1 <= number <= 65534 or not host or any(c in host for c in '/?#@ '):
+    if not ok or not 1 <= number <= 65534 or any(c in host for c in '/?#@ '):
         raise InputError(f'--live {text}: expected [HOST][:PORT] with PORT 1-65534 (the web '
                          'page takes PORT+1), e.g. --live 0.0.0.0:8765')
     return host, number

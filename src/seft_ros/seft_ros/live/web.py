@@ -7,7 +7,8 @@ package) serves:
   shipped with the package: no CDN, nothing fetched from elsewhere);
 * the feed, a WebSocket at ``/live``: first ``{"type": "hello", ...}`` (the run, its plots,
   the analytical reference, every sample shown so far, the state), then every
-  ``PUSH_PERIOD_S`` ``{"type": "data", ...}`` with what is new (:meth:`LiveView.delta`);
+  ``PUSH_PERIOD_S`` ``{"type": "data", ...}`` with what is new
+  (:meth:`seft_ros.live.view.LiveView.delta`);
   the page sends ``{"op": "stop"}`` for the operator's stop, refused unless ``--live-stop``;
 * with a token, the proxy of the Foxglove server (which then listens on a port of this
   machine only): ``ws[s]://HOST:PORT/?token=...``, each message passed through unchanged.
