@@ -185,7 +185,7 @@ def check_channels_against_bag(client: FoxgloveClient, messages) -> dict:
     assert not empty, (f'advertised but never received: {empty}',
                        {t: len(ms) for t, ms in received.items()}, client.ops)
     for (channel, name), (topic, path) in SPOT.items():
-        if channel not in received:
+        if channel not in received or topic not in messages:
             continue
         bag = bag_values(messages, topic, path)
         shown = received[channel]

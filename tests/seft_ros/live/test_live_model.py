@@ -149,6 +149,16 @@ def test_the_run_state_from_status_reports():
     assert status.missed == {'rig': 4} and status.time_s == 1.9
     status.update('recorder', 'bag closed', {'state': 'closed', 'lost': '0'})
     assert status.closed and status.lost == 0
+    # a rig cut off: its final report never comes; the bag's closing ends the run
+    cut = RunStatus(('a/rig', 'b/rig'), 'realtime')
+    cut.update('a/rig', 'watchdog: no command for 100 ms', {'state': 'aborted'})
+    assert cut.state == 'starting'
+    cut.update('recorder', 'bag closed', {'state': 'closed', 'lost': '0'})
+    assert cut.state == 'aborted' and cut.reason == 'watchdog: no command for 100 ms'
+    lost = RunStatus(('a/rig',), 'realtime')
+    lost.update('recorder', 'bag closed', {'state': 'closed'})
+    assert lost.state == 'aborted'
+    assert lost.reason == 'the bag closed without the final report of a/rig'
     done = RunStatus(('a/rig', 'b/rig'), 'lockstep')
     done.update('a/rig', 'completed', {'state': 'done'})
     assert done.state == 'starting'                        # every rig's end is needed

@@ -24,7 +24,8 @@ topic                                 fields
                                       and ``loop_latency_max_s`` since the last shown sample
 ``/seft/live/ground_acceleration``    ``ground_acceleration_m_s2``
 ``/seft/live/dof/<dof>``              ``displacement_m`` of a DOF of a structure (physical:
-                                      the rig's; computational: the builder's integration)
+                                      the rig's; computational: the builder's integration,
+                                      the first rig's builder's with one per rig)
 ``/seft/live/run``                    the run's state (:mod:`seft_ros.live.view`)
 ``/seft/live/events``                 the safety events (``foxglove.Log``)
 ``/seft/live/link``                   per host: round trip p50/p99/max [ms], clock offset
@@ -199,6 +200,8 @@ class RunChannels:
                 targets = ()
                 if not stream.fields_topic.endswith(STRUCTURE_STATE.name):
                     continue              # the compensator's estimates: not shown
+                if stream.node != self.graph.builder_nodes()[0]:
+                    continue              # per-rig builders' replicas: the first one's shown
                 for dof in self.dofs:
                     if dof not in self.physical:
                         self.fields[dof_channel(dof)] = ['displacement_m']

@@ -9,7 +9,8 @@ sinks (the Foxglove server, :mod:`seft_ros.live.foxglove_sink`) as it comes.
 ``/seft/status`` reports: ``waiting`` (no run yet), ``starting`` (the recorder published the
 run's parameters), ``running`` (the clock master reported running), then, once every rig has
 sent its final report, ``done`` when all ended done, else the state of the first rig that did
-not (``aborted`` or ``failed``) with its reason. Every ``aborted`` or ``failed`` report of any
+not (``aborted`` or ``failed``) with its reason; when the bag closes first (a rig or its link
+lost), the state of the final reports that came. Every ``aborted`` or ``failed`` report of any
 node is a safety event (a node's interlock, a watchdog, a stopped node, the runner, the
 operator's stop), with the node, the reason and the sample time.
 """
@@ -123,6 +124,15 @@ class RunStatus:
         if name == 'recorder' and state == STATE_CLOSED:
             self.closed = True
             self.lost = int(values['lost']) if 'lost' in values else None
+            if self.state in ('starting', 'running'):
+                # the bag closed without some rig's final report (a rig or its link lost):
+                # the end is what the reports that came say
+                missing = [r for r in self.rigs if r not in self.finals]
+                ended = [f for f in self.finals.values() if f[0] != STATE_DONE]
+                self.state, self.reason = ended[0] if ended else (
+                    STATE_ABORTED, 'the bag closed without the final report of '
+                    + ', '.join(missing))
+                events.append(self._event('error', name, f'run {self.state}: {self.reason}'))
         return events
 
     def _event(self, level: str, node: str, message: str) -> dict:
