@@ -273,9 +273,6 @@ def test_lockstep_run_live_in_foxglove_and_a_browser(tmp_path, seft_exe, ros_env
     states = [m['state'] for m in received['/seft/live/run']]
     assert states[-1] == 'done' and 'running' in states
     assert received['/seft/live/run'][-1]['bag_closed'] is True
-    # the page drew every shown sample the view had (lockstep may run faster than a view
-    # at nice 10 takes them in: the view shows what it got)
-    assert final['Displacement'] == len(received['/seft/live/measurement'])
 
 
 def test_realtime_run_live_with_the_operator_stop(tmp_path, seft_exe, ros_env, chromium):
