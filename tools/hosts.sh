@@ -4,6 +4,7 @@
 #   bash tools/hosts.sh [--partition loop_local|builder_remote] [--processes loop|node]
 #                       [--delay-ms D] [--jitter-ms J]
 #                       [--loss P] [--link SITE=D[,J[,P]]]... [--cut-after S] [--cut-site SITE]
+#                       [--live PORT] [--live-stop]
 #                       [--out DIR] [-- seft run options (a config, --alpha, --set, ...)]
 #
 # One network namespace per site of the partition (`seft sites`): "compute" (the recorder
@@ -23,12 +24,15 @@
 # --processes node runs one process per node. --cut-after S cuts a lab's link (both ways,
 # in the link emulator) S seconds after the rigs started (--cut-site, default the first lab).
 # At the end it prints what each host's kernel lost (UDP receive-buffer overflows, the link
-# device's drops).
+# device's drops). --live PORT starts the live view on the compute host (seft run --live:
+# Foxglove at PORT, the web page at PORT+1; --live-stop adds the operator's stop button)
+# and forwards both ports from this machine's 127.0.0.1 into its namespace
+# (tools/netns_forward.py); the URLs are printed once it listens.
 # Everything this script creates is removed at the end, also on Ctrl-C or failure. Needs root
 # (ip netns, /dev/net/tun).
 set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
-partition=loop_local processes=loop delay=0 jitter=0 loss=0 cut="" cut_site=""
+partition=loop_local processes=loop delay=0 jitter=0 loss=0 cut="" cut_site="" live="" live_stop=""
 out="$root/runs/hosts"
 declare -A links=()
 usage() { sed -n '2,28p' "$0"; }
@@ -43,6 +47,8 @@ while [[ $# -gt 0 ]]; do
     --cut-after) cut="$2"; shift 2 ;;
     --cut-site) cut_site="$2"; shift 2 ;;
     --out) out="$2"; shift 2 ;;
+    --live) live="$2"; shift 2 ;;
+    --live-stop) live_stop=1; shift ;;
     --) shift; break ;;
     -h|--help) usage; exit 0 ;;
     *) echo "hosts.sh: error: unknown option $1 (seft run options go after --)" >&2; exit 2 ;;
@@ -52,6 +58,8 @@ done
 number() { [[ "$1" =~ ^[0-9]+([.][0-9]+)?$ ]] || { echo "hosts.sh: error: '$1': expected a number >= 0 ($2)" >&2; exit 2; }; }
 number "$delay" --delay-ms; number "$jitter" --jitter-ms; number "$loss" --loss
 [[ -z "$cut" ]] || number "$cut" --cut-after
+[[ -z "$live" || ( "$live" =~ ^[0-9]+$ && "$live" -ge 1 && "$live" -le 65534 ) ]] || { echo "hosts.sh: error: --live $live: expected a port 1-65534 (the web page takes PORT+1)" >&2; exit 2; }
+[[ -z "$live_stop" || -n "$live" ]] || { echo "hosts.sh: error: --live-stop needs --live PORT" >&2; exit 2; }
 [[ "$(id -u)" == 0 ]] || { echo "hosts.sh: error: needs root (ip netns, /dev/net/tun); run it as root" >&2; exit 2; }
 command -v ip >/dev/null || { echo "hosts.sh: error: iproute2 (ip) is not installed" >&2; exit 2; }
 py="$root/.venv/bin/python"
@@ -91,8 +99,10 @@ for s in compute "${labs[@]}"; do
 done
 
 hub=""
+forward=""
 cleanup() {
   trap - EXIT INT TERM
+  if [[ -n "$forward" ]]; then kill -TERM "$forward" 2>/dev/null || true; fi
   for s in "${!ns[@]}"; do ip netns pids "${ns[$s]}" 2>/dev/null | xargs -r kill -INT 2>/dev/null || true; done
   sleep 2
   for s in "${!ns[@]}"; do
@@ -134,12 +144,27 @@ echo "hosts.sh: partition $partition, processes $processes, domain $domain, netw
 
 pids=()
 for s in compute "${labs[@]}"; do
+  viewer=()
+  if [[ "$s" == compute && -n "$live" ]]; then
+    viewer=(--live "127.0.0.1:$live" ${live_stop:+--live-stop})
+  fi
   ip netns exec "${ns[$s]}" env ROS_DOMAIN_ID="$domain" ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET \
     FASTDDS_BUILTIN_TRANSPORTS=UDPv4 PYTHONUNBUFFERED=1 SEFT_SITE="$s" \
     SEFT_LINK_EMULATION="$emulation" "$seft" run --mode realtime --partition "$partition" \
-    --processes "$processes" --site "$s" "$@" --out "$out/$s" > "$out/$s.txt" 2> "$out/$s.err" &
+    --processes "$processes" --site "$s" "${viewer[@]}" "$@" --out "$out/$s" > "$out/$s.txt" \
+    2> "$out/$s.err" &
   pids+=($!)
 done
+if [[ -n "$live" ]]; then
+  # the compute host's live view, reached from this machine's 127.0.0.1
+  "$py" "$root/tools/netns_forward.py" "${ns[compute]}" "$live" "$((live + 1))" &
+  forward=$!
+  for _ in $(seq 300); do
+    grep -q 'live view: \(Foxglove\|off\)' "$out/compute.err" 2>/dev/null && break
+    sleep 0.1
+  done
+  grep -h 'live view: ' "$out/compute.err" | sed 's/^\[seft\] /hosts.sh: compute: /' >&2 || true
+fi
 
 if [[ -n "$cut" ]]; then
   # The cut is timed from the rig's own "starting" line (the wall time of its sample 0), not

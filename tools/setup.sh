@@ -9,6 +9,19 @@ if ! command -v "$py" >/dev/null 2>&1; then
   echo "setup: $py not found; install Python 3.11 or set SEFT_PYTHON" >&2
   exit 2
 fi
+# The live view's browser test (tests/seft_ros/test_live_view.py) drives Debian's headless
+# Chromium: installed where it runs (CI=true, or SEFT_BROWSER=1 on a developer's machine),
+# once; elsewhere that test is skipped. Playwright's own browser download cannot work here.
+if [ "${CI:-}" = true ] || [ "${SEFT_BROWSER:-}" = 1 ]; then
+  if [ ! -x /usr/bin/chromium ]; then
+    echo "setup: installing Debian's chromium for the browser test" >&2
+    if [ "$(id -u)" = 0 ]; then
+      apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null
+    else
+      sudo apt-get update -qq && sudo DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null
+    fi
+  fi
+fi
 stamp=.venv/.seft-setup-stamp
 want="$(cat constraints.txt requirements.txt src/*/setup.py | sha256sum | cut -d' ' -f1)"
 if [ -x .venv/bin/python ] && [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ]; then

@@ -5,6 +5,7 @@
 #   bash tools/two_hosts.sh [--partition loop_local|builder_remote] [--processes loop|node]
 #                           [--delay-ms D]
 #                           [--jitter-ms J] [--loss P] [--cut-after S] [--out DIR]
+#                           [--live PORT] [--live-stop]
 #                           [-- seft run options]
 #
 # The default partition is loop_local: the lab host runs the rig, the force servo controller
@@ -12,7 +13,9 @@
 # out of it), the compute host the ground-motion publisher (its samples reach the lab ahead
 # of their use) and the recorder. --partition builder_remote is the earlier split (the
 # builder on the compute host, the loop across the link with a playout delay the runners
-# size from the measured round trip). See tools/hosts.sh for the rest (it needs root).
+# size from the measured round trip). --live PORT: the live view of the compute host, at
+# 127.0.0.1:PORT (Foxglove) and PORT+1 (the page). See tools/hosts.sh for the rest (it
+# needs root).
 set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 out="$root/runs/two_hosts"
@@ -21,7 +24,7 @@ while [[ $# -gt 0 ]]; do
   case "$1" in
     --out) out="$2"; shift 2 ;;
     --) break ;;
-    -h|--help) sed -n '2,15p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,18p' "$0"; exit 0 ;;
     *) args+=("$1"); shift ;;
   esac
 done

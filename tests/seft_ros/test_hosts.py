@@ -4,6 +4,9 @@ compute host, the default partition (loop_local: each lab's builder integrates a
 the deck and closes its rig's loop locally). Pier b's link is cut 0.5 s into the run: every
 rig goes to its safe state and the run ends with the reason on every host; the bag holds
 everything up to the cut, nothing lost on the way, and the links the runners measured.
+The compute host's live view (``hosts.sh --live``) is watched from this machine by a
+Foxglove client through the script's forwarder: every rig's and DOF's channels, the links
+and the run's end, against the bag.
 
 Needs root (network namespaces, TUN devices); skipped with the reason elsewhere.
 """
@@ -11,10 +14,13 @@ Needs root (network namespaces, TUN devices); skipped with the reason elsewhere.
 import json
 import re
 import subprocess
+import threading
 
+from foxglove_client import FoxgloveClient
 import numpy as np
 import pytest
 from rosbags.highlevel import AnyReader
+from test_live_view import check_channels_against_bag, free_port_pair
 from test_two_hosts import ROOT, _can_make_namespaces, _left_behind
 
 from seft_ros.analysis.bag import read_run
@@ -24,16 +30,29 @@ DT = 0.002
 
 
 def _run_and_cut(cwd, ros_env, out):
-    """Run the bridge over three hosts with pier b's link cut 0.5 s in; check what every run
-    must show; return the script's stderr and the cut's time after the rigs' start [s]."""
-    proc = subprocess.run(
+    """Run the bridge over three hosts with pier b's link cut 0.5 s in, watched live; check
+    what every run must show; return the script's output, the cut's time after the rigs'
+    start [s] and the Foxglove client (closed)."""
+    port = free_port_pair()
+    proc = subprocess.Popen(
         ['bash', str(ROOT / 'tools' / 'hosts.sh'), '--link', 'pier_a=5,1',
-         '--link', 'pier_b=20,4', '--cut-after', '0.5', '--cut-site', 'pier_b', '--out',
-         str(out), '--', str(ROOT / 'config' / 'two_piers.yaml'), '--predictor', 'model',
-         '--duration', '8', '--set', 'monitor_threshold=0',
+         '--link', 'pier_b=20,4', '--cut-after', '0.5', '--cut-site', 'pier_b', '--live',
+         str(port), '--out', str(out), '--', str(ROOT / 'config' / 'two_piers.yaml'),
+         '--predictor', 'model', '--duration', '8', '--set', 'monitor_threshold=0',
          '--set', 'watchdog_timeout_s=0.1'],
-        cwd=cwd, env=ros_env, capture_output=True, text=True, timeout=400)
-    err = proc.stderr
+        cwd=cwd, env=ros_env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    timer = threading.Timer(400, proc.kill)
+    timer.start()
+    lines, client = [], None
+    for line in proc.stdout:
+        lines.append(line)
+        if client is None and 'compute: live view: Foxglove ws://127.0.0.1:' in line:
+            client = FoxgloveClient(f'ws://127.0.0.1:{port}')
+    proc.wait()
+    timer.cancel()
+    err = ''.join(lines)
+    assert client is not None, err
+    client.close()
     assert 'Traceback' not in err
     assert proc.returncode == 0, err          # a safety function ended the run: a result
     cut = re.search(r'link cut \(\S+ of pier_b, both ways\) ([0-9.]+) s after the rigs '
@@ -41,7 +60,7 @@ def _run_and_cut(cwd, ros_env, out):
     assert cut, err
     names = subprocess.run(['ip', 'netns', 'list'], capture_output=True, text=True).stdout
     assert not re.search(_left_behind(err), names), names
-    return err, float(cut.group(1))
+    return err, float(cut.group(1)), client
 
 
 def test_a_bridge_over_three_hosts_and_a_cut_link(tmp_path, ros_env):
@@ -50,7 +69,7 @@ def test_a_bridge_over_three_hosts_and_a_cut_link(tmp_path, ros_env):
         pytest.skip(why)
     for attempt in (1, 2):
         out = tmp_path / f'hosts_{attempt}'
-        err, cut_s = _run_and_cut(tmp_path, ros_env, out)
+        err, cut_s, client = _run_and_cut(tmp_path, ros_env, out)
         ended_s = min(float(json.loads(next(out.glob(f'{site}/*/outcome.json')).read_text())
                             ['rig_final'].get('abort_at_s') or 1e9)
                       for site in ('pier_a', 'pier_b'))
@@ -109,3 +128,20 @@ def test_a_bridge_over_three_hosts_and_a_cut_link(tmp_path, ros_env):
     for dof, sig in dof_signals(run).items():
         x = sig['displacement'][:run.n_steps - 1]
         assert np.all(np.isfinite(x)) and np.max(np.abs(x)) > 0.0, dof
+    # the live view of the compute host: every channel it advertised, the rigs' against the
+    # bag, every DOF, the links, and the end with its reason
+    with AnyReader([bag]) as reader:
+        x = {}
+        for conn, stamp, raw in reader.messages(
+                [c for c in reader.connections if c.topic == '/pier_a/seft/displacement']):
+            x[stamp // 2_000_000] = reader.deserialize(raw, conn.msgtype).point.x
+    received = check_channels_against_bag(client, {})
+    shown = received['/pier_a/seft/live/measurement']
+    assert shown and all(x[m['step']] == m['displacement_m'] for m in shown)
+    assert {'/seft/live/dof/pier_a', '/seft/live/dof/pier_b', '/seft/live/dof/deck'} <= \
+        set(received)
+    links = received['/seft/live/link']
+    assert {m['host'] for m in links} == {'pier_a', 'pier_b'}
+    assert all(m['round_trip_p50_ms'] > 8.0 for m in links if m['host'] == 'pier_a')
+    final = received['/seft/live/run'][-1]
+    assert final['state'] == 'aborted' and 'watchdog' in final['reason'], final

@@ -449,12 +449,13 @@ def _read_outcome(outcome, label: str, progress: Callable[[str], None]) -> RunDa
     return rd
 
 
-def _run_here(runs, out_dir, progress, domain, nodes, processes) -> Result | None:
+def _run_here(runs, out_dir, progress, domain, nodes, processes, live) -> Result | None:
     """Run this host's `nodes` of every run (the others run on other hosts); the report
     where the recorder runs (None elsewhere)."""
     from seft_ros.cli.runner import GraphRunner  # rclpy only for this verb
     t0 = time.monotonic()
     runner = GraphRunner(domain, progress, localhost_default=False, processes=processes)
+    viewer = _start_live(live, runner, out_dir, progress)
     try:
         present = runner.present_nodes(nodes)
         if present:
@@ -473,6 +474,8 @@ def _run_here(runs, out_dir, progress, domain, nodes, processes) -> Result | Non
                          + (f': {outcome.message}' if outcome.message else '')
                          + f'; outcome in {outcome.run_dir / "outcome.json"}')
     finally:
+        if viewer is not None:
+            viewer.close()
         runner.close()
     if 'recorder' not in nodes:
         return None
@@ -546,15 +549,27 @@ def open_runner(*, domain_id: int | None = None, progress: Callable[[str], None]
     return runner, claim
 
 
+def _start_live(live, runner, out_dir: Path, progress: Callable[[str], None]):
+    """The live view of ``seft run --live`` in the runner's domain (None without)."""
+    if live is None:
+        return None
+    from seft_ros.cli.live import start_live
+    return start_live(live, runner.env, out_dir, progress)
+
+
 def run_experiments(*, runs: list[dict], out_dir: Path,
                     progress: Callable[[str], None] = print, title: str = '',
                     domain_id: int | None = None, force: bool = False,
-                    nodes: list[str] | None = None, processes: str = 'node') -> Result | None:
+                    nodes: list[str] | None = None, processes: str = 'node',
+                    live=None) -> Result | None:
     """Run each parameter set as a node graph (separate processes over DDS), record a bag
     per run, read the bags back and write the report.
 
     `processes` (``seft run --processes``): ``node``, one process per node; ``loop``, the
     nodes of each rig's loop in one process (``seft_ros.cli.partition.PROCESSES``).
+
+    `live` (``seft run --live``, a :class:`~seft_ros.live.access.LiveOptions`): the live
+    view of the runs (:mod:`seft_ros.cli.live`), in the run's domain for every run.
 
     Before any node starts, :func:`check_stability` (`force`: warn instead of refusing).
 
@@ -581,7 +596,8 @@ def run_experiments(*, runs: list[dict], out_dir: Path,
         nodes = check_nodes(nodes, runs)
         check_stability(runs=runs, force=force, progress=progress)
         check_capacity(runs=runs, progress=progress)
-        return _run_here(runs, out_dir, progress, _shared_domain(domain_id), nodes, processes)
+        return _run_here(runs, out_dir, progress, _shared_domain(domain_id), nodes, processes,
+                         live)
     t0 = time.monotonic()
 
     predicted = []
@@ -592,12 +608,16 @@ def run_experiments(*, runs: list[dict], out_dir: Path,
     runner, claim = open_runner(domain_id=domain_id, progress=progress, checks=checks,
                                 processes=processes)
     data = []
+    viewer = None
     try:
+        viewer = _start_live(live, runner, out_dir, progress)
         for p in runs:
             label = _run_label(p, runs)
             outcome = runner.run(p, out_dir / label, label=f'[{label}] ')
             data.append(_read_outcome(outcome, label, progress))
     finally:
+        if viewer is not None:
+            viewer.close()
         runner.close()
         claim.close()
     for rd, check in zip(data, predicted):

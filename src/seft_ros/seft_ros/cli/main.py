@@ -17,6 +17,7 @@ from seft_msgs_py.errors import InputError, SeftError
 from seft_plant_sim.faults import FAULTS, SENSOR_FAULTS
 from seft_ros.cli import api, partition
 from seft_ros.cli.config import load_config
+from seft_ros.cli.live import options_from_args
 from seft_ros.cli.spawn import node_start
 
 __all__ = ['main', 'build_parser']
@@ -119,6 +120,17 @@ def build_parser() -> argparse.ArgumentParser:
                      'controller and the builder of its namespace) in one process, ROS 2 '
                      'composition: less CPU, no transport between them (tools/hosts.sh '
                      'uses it)')
+    run.add_argument('--live', nargs='?', const='', metavar='HOST[:PORT]',
+                     help='watch the runs live: a Foxglove WebSocket server at HOST:PORT and a '
+                     'web page at HOST:PORT+1 (default 127.0.0.1:8765, this machine only; '
+                     'another address needs the token of $SEFT_LIVE_TOKEN, made and printed '
+                     'if unset); the URLs are printed at start')
+    run.add_argument('--live-tls', nargs=2, metavar=('CERT', 'KEY'),
+                     help='serve the live view over TLS (https, wss) with this PEM '
+                     'certificate and private key')
+    run.add_argument('--live-stop', action='store_true',
+                     help="put an operator's stop button on the live view's page (the rig "
+                     'goes to its safe state; the bag names who stopped it)')
     sites = sub.add_parser('sites', help='which nodes each host starts when a run is split over '
                            'hosts (the options of seft run; one line per site)')
     _experiment_options(sites)
@@ -411,16 +423,18 @@ def _main(args) -> int:
             out = api.output_dir(out=args.out, name='compare', created=args.created)
             result = api.compare_bags(bags=args.bags, out_dir=out)
         else:
+            live = None
             if args.verb == 'run':
                 api.check_domain(args.domain_id)        # a bad domain before anything runs
                 node_start()                            # and a bad $SEFT_NODE_START
+                live = options_from_args(args)          # and a bad --live address or pair
             runs, out, name = _experiments(args)
             _progress(f'{len(runs)} run(s) -> {out}')
             if args.verb == 'run':
                 result = api.run_experiments(runs=runs, out_dir=out, progress=_progress,
                                              title=f'seft run {name}', domain_id=args.domain_id,
                                              force=args.force, nodes=args.nodes,
-                                             processes=args.processes)
+                                             processes=args.processes, live=live)
                 if result is None:
                     print(f'this host ran {", ".join(args.nodes)}; the bag and the report are '
                           'on the host that ran the recorder')
