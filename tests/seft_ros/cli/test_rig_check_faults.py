@@ -153,21 +153,20 @@ def test_each_rig_of_a_structure_is_checked_with_its_own_parameters(piers):
 
 
 def test_a_rigs_one_dof_structure_commands_the_check_s_reference_force(piers, tmp_path):
-    """The structure builder of a rig's one-DOF structure (its specimen alone) gives the
-    rig-check's reference force exactly (paper Eq. 2.5 with alpha 0), as the study's graph
-    does: played in lockstep by seft simulate's structure path."""
+    """The builder of a rig's one-DOF structure (its specimen alone) gives the rig-check's
+    reference force exactly (paper Eq. 2.5 with alpha 0), as the study's graph does: played
+    in lockstep by seft simulate."""
     import numpy as np
 
     from seft_ros.cli.rig_check import check_parameters, write_force_record
-    from seft_ros.core.structure_experiment import simulate_structure
+    from seft_ros.core.experiment import simulate
     rig, p = piers[1]
     profile = rc.CheckProfile(dt=p['dt'])
     reference = profile.step_reference()
     record = write_force_record(tmp_path / 'record.csv', reference, profile.dt, p['mass_kg'])
-    run = simulate_structure(dict(check_parameters(p, profile, record, reference.size),
-                                  mode='lockstep'))
-    np.testing.assert_array_equal(run.rigs[rig].reference_force_N,
-                                  reference[:run.rigs[rig].n_steps])
+    run = simulate(dict(check_parameters(p, profile, record, reference.size),
+                        mode='lockstep'))
+    np.testing.assert_array_equal(run.rigs[rig].reference_force_N, reference[:run.n_steps])
 
 
 @pytest.mark.parametrize('watchdog_s', [0.02, 0.05])
