@@ -19,7 +19,7 @@ import numpy as np
 
 from seft_msgs_py.errors import ParameterError
 from seft_msgs_py.interface import Measurement
-from seft_msgs_py.sampling import linear_map, single_blas_thread
+from seft_msgs_py.sampling import single_blas_thread
 from seft_ros.core.predictors import (
     TANGENT_STIFFNESS_RATIOS,
     AdaptivePredictor,
@@ -36,7 +36,7 @@ from seft_ros.core.structure import TestSetup, test_setup
 from seft_ros.core.substructure import (
     InterfacePredictor,
     SpecimenModel,
-    StructureState,
+    computational_part,
     structure_matrices,
 )
 
@@ -454,20 +454,16 @@ class ReferenceForceBuilder:
                        for law, c in zip(self.laws, self._coupled)]
         self.interface_N = [0.0 if c else None for c in self._coupled]
         self._tracking = bool(s.computational_index) or any(self._coupled)
-        self.state = StructureState(sub, self.dt) if self._tracking else None
+        self.state = computational_part(sub, self.dt) if self._tracking else None
         self.state_names = self.state.state_names if self.state is not None else ()
         self.computational_state = tuple([0.0] * len(self.state_names))
         self._latest: list[dict] = [{} for _ in self.laws]
         self._qi = list(s.computational_index)
         look = max(law.lookahead_steps for law in self.laws)
-        self._sampled = None
         self._history = {}
         self._interface = None
         self._targets = [r for r, m in enumerate(self._modes) if m == 'predicted']
         if any(self._coupled):
-            with single_blas_thread():
-                rows = [[-v for v in kc[i]] + [-v for v in cc[i]] for i in self._local_dof]
-                self._sampled = linear_map(rows, name='interface')
             for r, mode in enumerate(self._modes):
                 if mode == 'extrapolated':
                     weights = [float(w) for w in self.laws[r].predictor.weights]
@@ -573,7 +569,7 @@ class ReferenceForceBuilder:
         """The linear maps from the structure's state to the local rigs' interface forces
         (the stability analysis closes the loop with them)."""
         sampled = None
-        if self._sampled is not None:
+        if any(self._coupled):
             n = self.setup.structure.n
             sub = self.setup.substructures
             sampled = np.array([np.concatenate([-sub.stiffness_c_N_per_m[i],
@@ -663,20 +659,18 @@ class ReferenceForceBuilder:
         (`latest`: each local rig's measurement of ``k-1``, None at the start)."""
         state = self.state
         for j, g in enumerate(window[:self.lookahead_steps + 1]):
-            state.ground[k + j] = float(g)
+            state.set_ground(k + j, g)
         n = self.setup.structure.n
         if k == 0:
             x, v = [0.0] * n, [0.0] * n
             self.window_steps = 0
         else:
             x, v, self.window_steps = state.state_at(k - 1)
-            if self._qi:
-                a_q = state.computational_acceleration(x, v, state.ground.get(k - 1, 0.0))
-                self.computational_state = (tuple(x[i] for i in self._qi)
-                                            + tuple(v[i] for i in self._qi) + tuple(a_q))
-        if self._sampled is None:
+            if self.state_names:
+                self.computational_state = state.recorded_state(x, v, k - 1)
+        if not any(self._coupled):
             return
-        sampled = self._sampled(x + v)
+        sampled = state.interface_forces(x, v, self._local_dof)
         predicted = None
         if self._targets:
             self._build_interface()
@@ -686,7 +680,7 @@ class ReferenceForceBuilder:
             for law in self.laws:
                 past = law.commanded_N[-nh:]
                 q.extend([0.0] * (nh - len(past)) + past)
-            q.append(0.0 if k == 0 else state.ground.get(k - 1, 0.0))
+            q.append(0.0 if k == 0 else state.ground.get(k - 1, 0.0))  # g[k-1]
             q.extend(window[:ip.ground_steps - 1])
             for r in ip.offset_rigs:          # a yielding member: measured less modelled
                 m, mod = latest[r], self._interface_models[r]

@@ -50,7 +50,7 @@ Structures, Ch. 9-11 (multi-degree-of-freedom systems).
 
 from dataclasses import dataclass
 import math
-from typing import Mapping, Sequence
+from typing import Mapping, Protocol, Sequence, runtime_checkable
 
 import numpy as np
 
@@ -59,7 +59,8 @@ from seft_msgs_py.sampling import linear_map, single_blas_thread, split_delay, z
 from seft_ros.core.structure import Substructures
 
 __all__ = ['Matrices', 'structure_matrices', 'hermite_step', 'InterfacePredictor',
-           'StructureState', 'SpecimenModel', 'INTERFACE_MODES']
+           'StructureState', 'SpecimenModel', 'INTERFACE_MODES', 'ComputationalPart',
+           'computational_part']
 
 #: How a rig's compensator sees the interface force (module notes).
 INTERFACE_MODES = ('sampled', 'extrapolated', 'predicted')
@@ -413,8 +414,57 @@ class InterfacePredictor:
         return self._map(q)
 
 
+@runtime_checkable
+class ComputationalPart(Protocol):
+    """The computational part of a test as a builder integrates it: the plug-in point of a
+    computational substructure (matrices, :class:`StructureState`; or a model of another
+    program stepped once per sample).
+
+    Sample ``j`` of every DOF is known once every rig's measurement of ``j`` is in
+    (:meth:`observe`); the interface forces at the physical DOFs are what the computational
+    part exerts on them there (Eq. 2's ``I``); :attr:`matrices` is its linear model for the
+    compensators' prediction (the ``predicted`` interface forces, the stability analysis).
+
+    Attributes
+    ----------
+    state_names : tuple of str
+        The names of :meth:`recorded_state`'s values (``'<dof>/displacement_m'``, ...).
+    matrices : Matrices
+        The whole structure as the builder models it (its linearization).
+    """
+
+    state_names: tuple
+    matrices: Matrices
+
+    def observe(self, rig: int, measurement) -> None:
+        """Hand in one rig's measurement (any rig, any order)."""
+
+    def set_ground(self, step: int, acceleration_m_s2: float) -> None:
+        """Hand in the ground acceleration of a sample [m/s^2]."""
+
+    def state_at(self, j: int) -> tuple[list, list, int]:
+        """Every DOF's displacement and velocity at sample `j` [m, m/s], and how many
+        samples of it were predicted (measurements not in yet)."""
+
+    def interface_forces(self, x, v, dofs) -> tuple:
+        """The interface force [N] at each of `dofs` for the state `x`, `v` (Eq. 2)."""
+
+    def recorded_state(self, x, v, j: int) -> tuple:
+        """The computational DOFs' values named :attr:`state_names` at sample `j`."""
+
+    def set_matrices(self, matrices: Matrices) -> None:
+        """Model the DOFs not measured with `matrices` (an identified specimen)."""
+
+
+def computational_part(sub: Substructures, dt: float) -> 'ComputationalPart':
+    """The computational part of a split structure (:class:`StructureState`, the matrices of
+    Eq. 1)."""
+    return StructureState(sub, dt)
+
+
 class StructureState:
-    """Every DOF's displacement and velocity as a builder knows them, sample by sample.
+    """Every DOF's displacement and velocity as a builder knows them, sample by sample: the
+    :class:`ComputationalPart` of a structure given by its matrices.
 
     Measurements are handed in as they come (:meth:`observe`, any rig, any order).
 
@@ -457,6 +507,7 @@ class StructureState:
         self._x = [0.0] * s.n           # displacement and velocity of every DOF at _settled
         self._v = [0.0] * s.n
         self._maps: dict[tuple, object] = {}          # unknown DOFs -> compiled step
+        self._interface: dict[tuple, object] = {}     # DOFs -> compiled interface forces
         self._acc = None
         if self._qi:
             with single_blas_thread():
@@ -471,6 +522,29 @@ class StructureState:
         self.matrices = matrices
         self._maps = {k: v for k, v in self._maps.items()
                       if not set(k) & set(self._pi)}
+
+    def set_ground(self, step: int, acceleration_m_s2: float) -> None:
+        """Hand in the ground acceleration of a sample [m/s^2]."""
+        self.ground[step] = float(acceleration_m_s2)
+
+    def interface_forces(self, x, v, dofs) -> tuple:
+        """``-[C_c v + K_c x]`` [N] at each of `dofs` (Eq. 2), from every DOF's x and v."""
+        key = tuple(dofs)
+        fn = self._interface.get(key)
+        if fn is None:
+            sub = self.sub
+            rows = [[-c for c in sub.stiffness_c_N_per_m[i]]
+                    + [-c for c in sub.damping_c_N_s_per_m[i]] for i in key]
+            fn = self._interface[key] = linear_map(rows, name='interface')
+        return fn(list(x) + list(v))
+
+    def recorded_state(self, x, v, j: int) -> tuple:
+        """``x_Q, v_Q, a_Q`` of sample `j` [m, m/s, m/s^2] (:attr:`state_names`)."""
+        qi = self._qi
+        if not qi:
+            return ()
+        a_q = self.computational_acceleration(x, v, self.ground.get(j, 0.0))
+        return tuple(x[i] for i in qi) + tuple(v[i] for i in qi) + tuple(a_q)
 
     def observe(self, rig: int, measurement) -> None:
         """Hand in one rig's measurement (a :class:`~seft_msgs_py.interface.Measurement`;
