@@ -1,9 +1,7 @@
 """A structure test against its analytical reference, per degree of freedom (no rclpy).
 
-The reference is the whole structure
-(:func:`~seft_ros.analysis.structure_reference.structure_reference`, ``scipy.signal.lsim`` of Eq.
-1 of :mod:`seft_ros.core.structure` from
-the recorded record). Per degree of freedom (DOF) the test's displacement, relative
+The reference is the whole structure (:func:`~seft_ros.analysis.reference.run_reference`).
+Per degree of freedom (DOF) the test's displacement, relative
 acceleration and floor (absolute) acceleration are compared with the reference's — a
 physical DOF's from its rig's sensors, a computational DOF's from the builder's state — and,
 at a physical DOF, the interface force (the rig's load cell against the force the reference
@@ -34,8 +32,8 @@ from seft_ros.analysis.metrics import (
     peak_ratio,
     shift,
 )
+from seft_ros.analysis.reference import StructureReference, run_reference
 from seft_ros.analysis.rundata import RunData
-from seft_ros.analysis.structure_reference import StructureReference, structure_reference
 from seft_ros.analysis.timing import link_summary
 
 __all__ = ['DofComparison', 'LinkComparison', 'StructureComparison', 'compare_structure',
@@ -147,20 +145,8 @@ class StructureComparison:
 
 
 def reference_of(run: RunData) -> StructureReference:
-    """The whole structure's reference of a run, from its parameters and its record.
-
-    Raises
-    ------
-    ParameterError
-        The run's ``structure`` is missing or invalid.
-    """
-    from seft_ros.core.substructure import structure_setup
-    setup = structure_setup(run.params)
-    sub = setup.substructures
-    specimens = list(zip(sub.specimen_mass_kg, sub.specimen_damping_N_s_per_m,
-                         sub.specimen_stiffness_N_per_m))
-    return structure_reference(sub.structure, specimens, float(run.params['dt']),
-                               run.ground_acceleration_m_s2)
+    """The whole structure's reference of a run (:func:`~.reference.run_reference`)."""
+    return run_reference(run)
 
 
 def dof_signals(run: RunData) -> dict[str, dict[str, np.ndarray]]:
