@@ -123,6 +123,11 @@ class StructureReference:
         The rig of each physical DOF, in the structure's order (``('',)``: the study's).
     physical_index : tuple of int, length n_p
         The DOF index of each rig.
+    influence : ndarray (n_dof,)
+        The structure's influence vector iota [-].
+    links : tuple of Link
+        The structure's links (springs between DOFs or to the ground) whose deformation a
+        comparison gives (:class:`~seft_ros.core.structure.Link`: story drifts).
     displacement_m, velocity_m_s, acceleration_m_s2 : ndarray (n, n_dof)
         Per DOF, in the structure's DOF order.
     absolute_acceleration_m_s2 : ndarray (n, n_dof)
@@ -143,6 +148,8 @@ class StructureReference:
     dofs: tuple
     rigs: tuple
     physical_index: tuple
+    influence: np.ndarray
+    links: tuple
     displacement_m: np.ndarray
     velocity_m_s: np.ndarray
     acceleration_m_s2: np.ndarray
@@ -361,7 +368,8 @@ def structure_reference(structure: Structure, specimens: Sequence, dt: float,
                            + members[:, j])
     return StructureReference(
         time_s=t, dofs=tuple(structure.dofs), rigs=tuple(structure.rig_names),
-        physical_index=tuple(idx), displacement_m=x, velocity_m_s=v, acceleration_m_s2=acc,
+        physical_index=tuple(idx), influence=np.array(iota, dtype=float),
+        links=tuple(structure.links), displacement_m=x, velocity_m_s=v, acceleration_m_s2=acc,
         absolute_acceleration_m_s2=absolute, interface_force_N=interface,
         restoring_force_N=members,
         hysteretic_z={structure.rig_names[j]: z[:, q] for q, j in enumerate(hysteretic)},
