@@ -691,7 +691,7 @@ def _one_rig(name: str):
     def get(self):
         return getattr(self.rig, name)
     return property(get, doc=f"The rig's ``{name}`` (a run of one rig only; "
-                    ':attr:`RunComparison.rigs` otherwise).')
+                    '``comparison.rigs[name]`` otherwise).')
 
 
 @dataclass(frozen=True)

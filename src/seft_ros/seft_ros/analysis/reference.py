@@ -307,12 +307,18 @@ def structure_reference(structure: Structure, specimens: Sequence, dt: float,
     Petzold 1983) on ``[x, x', z]``, steps capped at ``dt`` so that no sample of the record is
     stepped over, and the samples taken at ``t_eval`` (the integrator's own interpolant of its
     order, within the tolerance). The test's discretization (its rig's substeps, the
-    builder's hold) plays no part. Measured error (``rtol = atol = 1e-9``, against the same
-    integration at ``1e-12``, :mod:`tests.seft_ros.analysis.test_nonlinear_reference`): below
-    1e-7 of the peak displacement for the study's member (agrees with classical RK4 at 40
-    steps per sample to 1e-5) and for the two-pier bridge with a yielding pier; a Bouc-Wen
-    member with ``post_yield_stiffness_ratio = 1`` (a linear spring) agrees with the linear
-    solution to 1e-7 of the peaks. 5000 samples of the study's member take about 1.5 s.
+    builder's hold) plays no part. Measured error of the default ``rtol = atol = 1e-9``
+    against the same integration at ``1e-12`` on the default record (5000 samples, the
+    members yielding to 3-7 times ``D_y``), largest difference over the peak: the study's
+    member 2.5e-8 to 2.8e-8 (displacement), 2.5e-8 to 3.5e-8 (acceleration) at alpha 0 and
+    1; the two-pier bridge with pier a yielding 1.5e-8 to 1.9e-8 (displacement), 3e-8 to
+    6e-8 (floor acceleration), 1.5e-8 to 2e-8 (interface force) per DOF; the two-story
+    building with its first story yielding 1.7e-8 to 1.8e-8, 5e-8 to 6.5e-8, 3.5e-8. A Bouc-Wen
+    member with ``post_yield_stiffness_ratio = 1`` (a linear spring) agrees with the exact
+    linear solution to 1e-7 of the peaks, and the study's member with a classical RK4 at 40
+    steps per sample to 1e-5 (``tests/seft_ros/analysis/test_nonlinear_reference.py`` checks
+    each bound). 5000 samples take about 1.2 s (the study's member) to 1.5 s (the bridge)
+    on this project's 2-core machine.
 
     With one DOF and ``M = (1 + alpha) m`` this is the study's reference: the lumped masses
     divide (``x'' = -(c x' + k x) / ((1 + alpha) m) - xg''``), so the one-DOF case is the
@@ -402,28 +408,41 @@ def _nonlinear(structure: Structure, specimens: list, hysteretic: list, stiff: n
     idx = structure.physical_index
     members = [(idx[j], specimens[j].restoring_force, specimens[j].hysteretic_rate)
                for j in hysteretic]
-    damping, iota = structure.damping_N_s_per_m, structure.influence
-    coupled = bool(np.any(stiff))
+    # the rows of C and K_l as their nonzero terms, for a right-hand side in plain floats
+    # (small structures: a few terms a row; numpy's per-call overhead would dominate)
+    rows = [[(j, float(c)) for j, c in enumerate(structure.damping_N_s_per_m[i]) if c != 0.0]
+            + [(n_dof + j, float(k)) for j, k in enumerate(stiff[i]) if k != 0.0]
+            for i in range(n_dof)]
+    iota = structure.influence.tolist()
     diagonal = np.diag(structure.mass_kg)
     lumped = np.count_nonzero(structure.mass_kg - np.diag(diagonal)) == 0
-    mass = structure.mass_kg
+    masses, mass = diagonal.tolist(), structure.mass_kg
     samples = ag.tolist()
     last = n - 2
 
     def rhs(time, y):
-        x, v, z = y[:n_dof], y[n_dof:2 * n_dof], y[2 * n_dof:]
+        values = y.tolist()          # [x (n_dof), v (n_dof), z (n_h)]
+        x, v = values[:n_dof], values[n_dof:2 * n_dof]
+        z = values[2 * n_dof:]
         pos = time / dt
         i = min(max(int(pos), 0), last)
         xg = samples[i] + (pos - i) * (samples[i + 1] - samples[i])
-        force = damping @ v
-        if coupled:
-            force = force + stiff @ x
+        state = v + x                # C acts on v (columns 0..n-1), K_l on x (n..2n-1)
+        force = []
+        for terms in rows:
+            f = 0.0
+            for j, coefficient in terms:
+                f += coefficient * state[j]
+            force.append(f)
         rates = []
         for q, (dof, restoring, rate) in enumerate(members):
             force[dof] += restoring(x[dof], z[q])
             rates.append(rate(v[dof], z[q]))
-        acc = (-force / diagonal if lumped else -np.linalg.solve(mass, force)) - iota * xg
-        return np.concatenate([v, acc, rates])
+        if lumped:
+            acc = [-f / m - g * xg for f, m, g in zip(force, masses, iota)]
+        else:
+            acc = (-np.linalg.solve(mass, force) - np.array(iota) * xg).tolist()
+        return v + acc + rates
 
     dy = min(specimens[j].yield_displacement_m for j in hysteretic)
     w0 = max(2.0 * np.pi * specimens[j].natural_frequency_hz for j in hysteretic)
@@ -548,7 +567,7 @@ def hysteretic_reference_response(*, alpha: float, specimen: BoucWenSpecimen, dt
     ``scipy.integrate.solve_ivp``, LSODA, steps capped at ``dt``, the record linear between
     samples). With the default tolerances the result agrees with a classical RK4 solution at
     80 steps per sample to 5e-7 (relative to the peaks) on the default record; 5000 samples
-    take about 1.5 s.
+    take about 1.2 s.
 
     Parameters
     ----------

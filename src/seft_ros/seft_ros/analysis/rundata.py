@@ -99,7 +99,7 @@ def _single_rig(name: str):
     def set_(self, value):
         setattr(self.rig, name, value)
     return property(get, set_, doc=f"The rig's ``{name}`` (a run of one rig only; "
-                    ':attr:`RunData.rigs` otherwise).')
+                    '``run.rigs[name]`` otherwise).')
 
 
 @dataclass
