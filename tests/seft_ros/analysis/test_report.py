@@ -359,7 +359,7 @@ def test_one_report_mixes_the_study_and_structure_tests(tmp_path):
     assert paths.time_histories_png.name == 'time_histories.png'
     assert set(paths.structure_time_histories) == {1}
     assert (tmp_path / 'structure_run_1.png').is_file()
-    assert 'Parameters of the run:' in md                # the study's run's parameters
+    assert 'Parameters of run 2:' in md                  # the study's run's parameters
 
 
 def test_structure_report_of_a_yielding_rig_has_its_hysteresis(tmp_path):

@@ -1103,9 +1103,11 @@ def _value_text(value: Any) -> str:
     return 'n/a' if value is None else str(value)
 
 
-def _parameters_markdown(runs: list[RunData], numbers: list[int] | None = None) -> list[str]:
+def _parameters_markdown(runs: list[RunData], numbers: list[int] | None = None,
+                         named: bool = False) -> list[str]:
     """The runs' parameters (one table of the common values, one of those that differ) and
-    the software versions."""
+    the software versions; `named`: the table of common values names the runs (the study's
+    among structure tests)."""
     from seft_msgs_py import parameters as schema
 
     def unit(name):
@@ -1133,7 +1135,10 @@ def _parameters_markdown(runs: list[RunData], numbers: list[int] | None = None) 
                   + ' |', '|---|---|' + '---:|' * len(runs)]
         lines += [f'| `{n}` | {unit(n)} | ' + ' | '.join(texts[n]) + ' |' for n in differ]
         lines.append('')
-    lines += ['Parameters of ' + ('every run' if len(runs) > 1 else 'the run') + ':', '',
+    whose = ('every run' if len(runs) > 1 else 'the run') if not named else (
+        'run' + ('s ' if len(runs) > 1 else ' ')
+        + ', '.join(str(_number(numbers, j)) for j in range(len(runs))))
+    lines += [f'Parameters of {whose}:', '',
               '| parameter | unit | value |', '|---|---|---:|']
     lines += [f'| `{n}` | {unit(n)} | {texts[n][0]} |' for n in common]
     lines.append('')
@@ -1691,7 +1696,8 @@ def write_report(runs: list[RunData], out_dir, *, title: str = 'seft comparison'
             heading=bool(study))
         lines += part
     if study:
-        lines += _parameters_markdown([runs[j] for j in study], [j + 1 for j in study])
+        lines += _parameters_markdown([runs[j] for j in study], [j + 1 for j in study],
+                                      named=bool(others))
     else:
         versions = software_versions()
         lines += ['## Software', '', ', '.join(f'{k} {v}' for k, v in versions.items()), '']
