@@ -148,9 +148,11 @@ class RunData:
         (``{node: {parameter: value}}`` as each node published them), ``'param_sources'``
         (``{parameter: node, 'run_parameters' or 'default'}``),
         ``'parameter_mismatches'`` (one line per shared parameter on which the nodes
-        disagreed), ``'recording'`` (how the recording ended, ``analysis.bag.recording_end``)
-        and, where the bag has them, ``'gaps'``, ``'duplicates'``,
-        ``'estimates_missing_steps'``, ``'timing'``, ``'link'``.
+        disagreed), ``'recording'`` (how the recording ended, ``analysis.bag.recording_end``),
+        ``'rig_final'`` and ``'rig_finals'`` (the rigs' final status reports),
+        ``'node_statuses'``, ``'recovered'`` and, where the bag has them, ``'gaps'``,
+        ``'duplicates'``, ``'estimates_missing_steps'``, ``'timing'``, ``'link'`` (the
+        whole list: ``analysis.bag.read_run``).
     """
 
     params: dict[str, Any]
