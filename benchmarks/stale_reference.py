@@ -5,7 +5,7 @@ not arrived as the controller acts (a *stale* step: the builder's host was late)
 newest force; it now extrapolates it (``reference_extrapolation_steps``,
 :class:`seft_ros.core.controller.ReferencePlayout`). This replays stale steps in process
 (``stale_steps`` of :func:`seft_ros.core.experiment.simulate` for the study's test,
-:func:`seft_ros.core.structure_experiment.simulate` for a structure) with the force
+:func:`seft_ros.core.experiment.simulate`, any test) with the force
 held (``reference_extrapolation_steps`` 0) and extrapolated (the configured value, or
 ``--extrapolate``) and prints the NRMS errors against the run without stale steps
 (displacement per DOF for a structure; displacement / acceleration / force for the study's
@@ -30,9 +30,6 @@ import sys
 from seft_msgs_py.errors import SeftError
 from seft_ros.analysis.bag import read_run
 from seft_ros.analysis.metrics import compare_run
-from seft_ros.analysis.reference import reference_from_run
-from seft_ros.analysis.structure_bag import read_structure_run
-from seft_ros.analysis.structure_metrics import compare_structure
 from seft_ros.cli.api import has_structure
 from seft_ros.cli.config import expand_runs, load_config
 from seft_ros.core.experiment import simulate
@@ -42,9 +39,9 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def _nrms(run) -> dict:
     """NRMS [%]: displacement per DOF (a structure), else displacement / acceleration / force."""
-    if hasattr(run, 'rigs'):
-        return {d.dof: 100.0 * d.displacement.nrms for d in compare_structure(run).dofs}
-    c = compare_run(run, reference_from_run(run))
+    c = compare_run(run)
+    if not run.is_study:
+        return {d.dof: 100.0 * d.displacement.nrms for d in c.dofs}
     return {name: 100.0 * getattr(c, name).nrms
             for name in ('displacement', 'acceleration', 'force')}
 
@@ -58,12 +55,9 @@ def _run(params: dict, stale: dict | None):
 
 def _stale_of_bag(bag: Path) -> tuple:
     """The real-time run of `bag` and its controllers' stale steps (rig name -> steps)."""
-    try:
-        run = read_structure_run(bag)
-        nodes = {rig: f'{rig}/force_servo_controller' for rig in run.rigs}
-    except SeftError:
-        run = read_run(bag)
-        nodes = {'rig': 'force_servo_controller'}
+    run = read_run(bag)
+    nodes = ({'rig': 'force_servo_controller'} if run.is_study else
+             {rig: f'{rig}/force_servo_controller' for rig in run.rigs})
     timing = run.extra['timing_data']
     missing = [n for n in nodes.values() if n not in timing]
     if missing:

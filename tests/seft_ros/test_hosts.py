@@ -24,7 +24,7 @@ from test_live_view import check_channels_against_bag, free_port_pair
 from test_two_hosts import ROOT, _can_make_namespaces, _left_behind
 
 from seft_ros.analysis.bag import read_run
-from seft_ros.analysis.structure_metrics import dof_signals
+from seft_ros.analysis.metrics import dof_signals
 
 DT = 0.002
 

@@ -1,4 +1,6 @@
-"""Metrics against signals with a known lag, scale and spectrum."""
+"""Metrics against signals with a known lag, scale and spectrum: per rig (the study's test)
+and per degree of freedom (structure tests, whose runs here are the reference itself, scaled
+or delayed by known amounts, or a run on the delay rig compared within a stated tolerance)."""
 
 import json
 import math
@@ -7,10 +9,12 @@ import numpy as np
 import pytest
 from scipy import signal as sps
 
+from seft_msgs_py import parameters
 from seft_msgs_py.errors import ParameterError
 from seft_ros.analysis.metrics import (
     best_runs,
     compare_run,
+    dof_signals,
     estimate_lag,
     high_frequency_fraction,
     json_safe,
@@ -20,8 +24,11 @@ from seft_ros.analysis.metrics import (
     shift,
     summary_entry,
 )
-from seft_ros.analysis.reference import reference_response
-from seft_ros.analysis.rundata import RunData
+from seft_ros.analysis.reference import reference_response, run_reference
+from seft_ros.analysis.rundata import RigData, RunData
+from seft_ros.core.experiment import simulate as simulate_structure
+from seft_ros.core.ground_motion import prepared_record
+from seft_ros.core.structure import parse_structure
 
 # The reference rig (paper Sec. 3.1).
 M = 52.7
@@ -222,7 +229,8 @@ def test_compare_run_of_the_delayed_reference(ground_motion, alpha):
                   'displacement_m', 'velocity_m_s', 'acceleration_m_s2'):
         setattr(short, field, getattr(short, field)[:6000])
     cut = compare_run(short, ref)
-    assert cut.reference is ref
+    for name in ('displacement', 'force', 'acceleration'):      # the rig's reference: ref's
+        np.testing.assert_array_equal(cut.reference.signal(name), ref.signal(name))
     assert cut.displacement.lag_s == pytest.approx(5 * DT, abs=1e-5)
     with pytest.raises(ParameterError, match='expected at least as many'):
         compare_run(run, compare_run(short).reference)
@@ -295,12 +303,13 @@ def test_summary_entry_keys_and_values(ground_motion):
     ref = _reference(0.5, ground_motion)
     run = _run_from(ref, ground_motion, 0.5, d=5)
     entry = summary_entry(run, compare_run(run))
-    assert set(entry) == {'alpha', 'rig', 'predictor', 'record', 'stable', 'unstable_at_s',
-                          'lag_s', 'nrms', 'nrms_common_lag', 'nrms_unshifted', 'criteria',
-                          'peak_ratio', 'high_frequency_force_fraction',
-                          'high_frequency_force_fraction_reference',
-                          'high_frequency_cutoff_hz', 'abort_reason', 'mode', 'wall_s',
-                          'rig_contract'}
+    study_keys = ['alpha', 'rig', 'predictor', 'record', 'stable', 'unstable_at_s', 'lag_s',
+                  'nrms', 'nrms_common_lag', 'nrms_unshifted', 'criteria', 'peak_ratio',
+                  'high_frequency_force_fraction', 'high_frequency_force_fraction_reference',
+                  'high_frequency_cutoff_hz', 'abort_reason', 'mode', 'wall_s', 'rig_contract']
+    # the study's keys first, in their order; then the sections every run has
+    assert list(entry) == study_keys + ['abort_node', 'n_steps', 'structure', 'worst_nrms',
+                                        'dofs', 'links', 'rigs']
     assert entry['rig_contract'] is None           # a RunData not read from a bag
     assert list(entry['criteria']) == ['J1', 'J2', 'J3', 'J4', 'J5']
     assert entry['criteria']['J1'] == pytest.approx(10.0)  # the 5-sample delay, in ms
@@ -318,6 +327,44 @@ def test_summary_entry_keys_and_values(ground_motion):
     assert entry['stable'] is True and entry['unstable_at_s'] is None
     assert entry['lag_s'] == pytest.approx(0.01, abs=1e-5)
     assert json.loads(json.dumps(entry, allow_nan=False)) == entry
+
+
+def test_a_study_run_is_its_one_dof_structure(ground_motion):
+    """The study's test per degree of freedom: one DOF, 'specimen', on the rig '' of the root
+    namespace; its displacement, acceleration and interface force are the rig's comparisons,
+    its floor acceleration is x'' + xg''; its one link is the displacement."""
+    ref = _reference(0.5, ground_motion)
+    run = _run_from(ref, ground_motion, 0.5, d=5)
+    c = compare_run(run)
+    (dof,) = c.dofs
+    assert (dof.dof, dof.rig) == ('specimen', '')
+    assert (dof.displacement, dof.acceleration, dof.interface_force) == \
+        (c.displacement, c.acceleration, c.force)
+    # the floor acceleration: the test's x'' + xg'' (the ground not delayed) against the
+    # reference's, over the samples both have
+    floor = dof.floor_acceleration
+    assert floor.peak_reference == pytest.approx(
+        np.max(np.abs(ref.acceleration_m_s2 + ground_motion)), rel=1e-12)
+    assert floor.peak_test == pytest.approx(
+        np.max(np.abs(_delayed(ref.acceleration_m_s2, 5) + ground_motion)), rel=1e-12)
+    assert 0 < floor.nrms < 0.5 and math.isnan(floor.nrms_common_lag)
+    (link,) = c.links
+    assert link.name == 'specimen-ground'
+    assert link.drift.nrms == pytest.approx(c.displacement.nrms, rel=1e-12)
+    assert c.worst_nrms('displacement') == c.displacement.nrms
+    entry = summary_entry(run, c)
+    assert entry['structure'] == {'dofs': ['specimen'], 'physical': {'specimen': ''},
+                                  'builders': 'central'}
+    assert entry['n_steps'] == run.n_steps and entry['abort_node'] is None
+    rig = entry['rigs']['']
+    assert (rig['dof'], rig['rig_model'], rig['specimen_model']) == \
+        ('specimen', 'delay', 'linear')
+    for key in ('alpha', 'lag_s', 'nrms', 'nrms_common_lag', 'nrms_unshifted', 'peak_ratio',
+                'criteria', 'high_frequency_force_fraction'):
+        assert rig[key] == entry[key], key
+    assert entry['dofs']['specimen']['displacement']['nrms'] == entry['nrms']['displacement']
+    assert entry['dofs']['specimen']['interface_force']['nrms'] == entry['nrms']['force']
+    assert entry['worst_nrms']['displacement'] == entry['nrms']['displacement']
 
 
 def test_summary_entry_of_a_realtime_run_has_the_timing_block(ground_motion):
@@ -396,3 +443,154 @@ def test_best_runs_picks_stable_compensated_with_smallest_displacement_nrms():
     assert best_runs([]) == {}
     with pytest.raises(ParameterError, match='expected a dict'):
         best_runs(['x'])
+
+
+# -- structure tests, per degree of freedom --------------------------------------------------
+
+#: A two-story shear building, the first story tested on rig 'lab', the second computational.
+TWO_STORY = {'dofs': ['story_1', 'story_2'], 'physical': {'story_1': 'lab'},
+             'story_masses_kg': [M, M], 'story_stiffnesses_N_per_m': [K, K],
+             'story_damping_N_s_per_m': [C, 133.4]}
+
+
+def _structure_params(**over):
+    s = parse_structure(TWO_STORY, rigs={'lab': {'rig_model': 'delay'}})
+    return parameters.resolve(dict({'structure': s.to_json(), 'predictor': 'model',
+                                    'duration_s': 6.0}, **over))
+
+
+def _structure_run_from_reference(params, scale=1.0, delay_steps=0):
+    """A RunData whose every signal is the reference's, times `scale`, `delay_steps` late
+    (zeros before), the computational state's last sample NaN as the builder records."""
+    ag = prepared_record(params).acceleration_m_s2
+    n = ag.shape[0]
+    stub = RunData(params=params, rigs={}, time_s=np.arange(n) * params['dt'],
+                   ground_acceleration_m_s2=ag)
+    ref = run_reference(stub)
+
+    def test(x):
+        out = np.zeros_like(x)
+        out[delay_steps:] = scale * x[:n - delay_steps]
+        return out
+    force = ref.interface_force_N[:, 0]
+    rig = RigData(params=dict(params), reference_force_N=test(force),
+                  measured_force_N=test(force),
+                  displacement_m=test(ref.displacement_m[:, 0]),
+                  velocity_m_s=test(ref.velocity_m_s[:, 0]),
+                  acceleration_m_s2=test(ref.acceleration_m_s2[:, 0]), valve_command_V=None)
+    state = {f'story_2/{q}': np.append(test(a[:, 1])[:-1], np.nan) for q, a in (
+        ('displacement_m', ref.displacement_m), ('velocity_m_s', ref.velocity_m_s),
+        ('acceleration_m_s2', ref.acceleration_m_s2))}
+    return RunData(params=params, rigs={'lab': rig}, time_s=stub.time_s,
+                   ground_acceleration_m_s2=ag, computational=state)
+
+
+def test_the_structure_reference_itself_compares_perfectly():
+    c = compare_run(_structure_run_from_reference(_structure_params()))
+    assert [d.dof for d in c.dofs] == ['story_1', 'story_2']
+    assert [d.rig for d in c.dofs] == ['lab', None]
+    for d in c.dofs:
+        assert d.displacement.nrms == pytest.approx(0.0, abs=1e-12)
+        assert d.floor_acceleration.peak_ratio == pytest.approx(1.0, rel=1e-12)
+    assert c.dof('story_1').interface_force.nrms == pytest.approx(0.0, abs=1e-12)
+    assert c.dof('story_2').interface_force is None
+    assert [lk.name for lk in c.links] == ['story_1', 'story_2']
+    assert c.rigs['lab'].criteria.j4_pct == pytest.approx(0.0, abs=1e-9)
+    # one rig: the comparison reads as the rig's, whose DOF is story_1
+    assert c.displacement is c.dof('story_1').displacement
+    with pytest.raises(KeyError):
+        c.dof('story_3')
+
+
+def test_scaled_and_delayed_structure_signals_give_known_errors():
+    params = _structure_params()
+    scaled = compare_run(_structure_run_from_reference(params, scale=1.02))
+    for d in scaled.dofs:
+        # a 2 % gain: NRMS 2 %, peaks 1.02, no lag
+        assert d.displacement.nrms == pytest.approx(0.02, rel=1e-6)
+        assert d.displacement.peak_ratio == pytest.approx(1.02, rel=1e-9)
+        assert d.displacement.lag_s == pytest.approx(0.0, abs=1e-12)
+    # the relative displacement of both floors scaled: the drift too
+    assert scaled.links[1].drift.nrms == pytest.approx(0.02, rel=1e-6)
+    # the floor acceleration is x'' + xg'': the ground is not scaled, so it is not 2 %
+    assert 0.0 < scaled.dof('story_1').floor_acceleration.nrms < 0.02
+    late = compare_run(_structure_run_from_reference(params, delay_steps=6))
+    for d in late.dofs:
+        # 12 ms late: the lag is found and removed (the first 6 samples are the loss)
+        assert d.displacement.lag_s == pytest.approx(0.012, abs=1e-4)
+        assert d.displacement.nrms < 1e-3
+        assert d.displacement.nrms_unshifted > 0.1
+
+
+def test_a_delay_rig_structure_run_follows_the_structure_and_its_entry_is_strict_json():
+    run = simulate_structure(_structure_params())
+    c = compare_run(run)
+    for d in c.dofs:
+        # the delay rig's force is exactly the command, delayed: the model compensator's
+        # impulse matching leaves 0.1-0.2 % (substructure.py)
+        assert d.displacement.nrms < 0.005, d.dof
+        # held over each step, the force makes the sampled acceleration differ from the
+        # reference's by about its change within a step (the study's SDOF on this rig:
+        # 3.8-5.2 %); the computational story's, driven by the smooth motion, much less
+        assert d.floor_acceleration.nrms < (0.06 if d.rig else 0.01), d.dof
+    entry = summary_entry(run, c)
+    back = json.loads(json.dumps(entry, allow_nan=False))
+    assert back['structure'] == {'dofs': ['story_1', 'story_2'],
+                                 'physical': {'story_1': 'lab'}, 'builders': 'central'}
+    assert back['dofs']['story_2']['interface_force'] is None
+    assert back['dofs']['story_2']['rig'] is None and back['dofs']['story_1']['rig'] == 'lab'
+    assert back['worst_nrms']['displacement'] == pytest.approx(
+        max(d.displacement.nrms for d in c.dofs))
+    assert back['worst_nrms']['interface_force'] == pytest.approx(c.force.nrms)
+    assert back['rigs']['lab']['rig_model'] == 'delay'
+    assert set(back['rigs']['lab']['criteria']) == {'J1', 'J2', 'J3', 'J4', 'J5'}
+    # one rig: the study's keys are the rig's
+    assert back['rig'] == 'delay' and back['nrms'] == back['rigs']['lab']['nrms']
+    assert back['alpha'] == 0.0                              # no rigid mass on story 1
+    assert back['n_steps'] == run.n_steps
+
+
+def test_a_run_of_several_rigs_has_the_study_keys_empty():
+    from pathlib import Path
+
+    from seft_ros.cli.config import load_config
+    config = load_config(Path(__file__).parents[3] / 'config' / 'two_piers.yaml')
+    run = simulate_structure(parameters.resolve(dict(config, predictor='model',
+                                                     duration_s=1.0)))
+    c = compare_run(run)
+    assert list(c.rigs) == ['pier_a', 'pier_b']
+    with pytest.raises(AttributeError, match='2 rigs'):
+        c.displacement
+    entry = summary_entry(run, c)
+    assert entry['nrms'] == {'displacement': None, 'acceleration': None, 'force': None}
+    assert entry['criteria'] == {key: None for key in ('J1', 'J2', 'J3', 'J4', 'J5')}
+    assert entry['alpha'] is None and entry['rig'] is None and entry['lag_s'] is None
+    assert set(entry['rigs']) == {'pier_a', 'pier_b'}
+    for rig in ('pier_a', 'pier_b'):
+        assert entry['rigs'][rig]['nrms']['displacement'] == pytest.approx(
+            c.rigs[rig].displacement.nrms)
+        assert entry['rigs'][rig]['nrms']['displacement'] < 0.01
+    assert entry['worst_nrms']['displacement'] == pytest.approx(
+        max(d.displacement.nrms for d in c.dofs))
+    signals = dof_signals(run)
+    assert set(signals) == {'pier_a', 'pier_b', 'deck'}
+    np.testing.assert_array_equal(signals['pier_b']['interface_force'],
+                                  run.rigs['pier_b'].measured_force_N)
+    assert set(signals['deck']) == {'displacement', 'velocity', 'acceleration',
+                                    'floor_acceleration'}
+
+
+def test_structure_comparison_errors():
+    params = _structure_params()
+    run = _structure_run_from_reference(params)
+    short = run_reference(RunData(params=params, rigs={}, time_s=run.time_s[:10],
+                                  ground_acceleration_m_s2=run.ground_acceleration_m_s2[:10]))
+    with pytest.raises(ParameterError, match='reference has 10 samples'):
+        compare_run(run, short)
+    with pytest.raises(ParameterError, match='give a structure test its StructureReference'):
+        compare_run(run, reference_response(alpha=0.0, mass_kg=M, damping_N_s_per_m=C,
+                                            stiffness_N_per_m=K, dt=DT,
+                                            ground_acceleration_m_s2=run.ground_acceleration_m_s2))
+    run.computational.clear()
+    with pytest.raises(ParameterError, match="computational dof 'story_2'"):
+        compare_run(run)

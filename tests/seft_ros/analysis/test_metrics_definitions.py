@@ -22,6 +22,9 @@ from scipy import signal as sps
 from seft_msgs_py.errors import ParameterError
 from seft_ros.analysis.criteria import Criteria
 from seft_ros.analysis.metrics import (
+    DofComparison,
+    LinkComparison,
+    RigComparison,
     RunComparison,
     SignalComparison,
     best_runs,
@@ -560,12 +563,23 @@ def _hand_made(params, criteria=None, **run_fields):
                   velocity_m_s=zeros, acceleration_m_s2=zeros, **run_fields)
     reference = ReferenceResponse(time_s=run.time_s, displacement_m=zeros, velocity_m_s=zeros,
                                   acceleration_m_s2=zeros, force_N=zeros)
-    comparison = RunComparison(displacement=_signal(1.0), force=_signal(2.0),
-                               acceleration=_signal(3.0), reference=reference,
-                               high_frequency_force_fraction=0.25,
-                               high_frequency_force_fraction_reference=math.nan,
-                               high_frequency_cutoff_hz=30.0, criteria=criteria)
+    rig = RigComparison(displacement=_signal(1.0), force=_signal(2.0),
+                        acceleration=_signal(3.0), reference=reference,
+                        high_frequency_force_fraction=0.25,
+                        high_frequency_force_fraction_reference=math.nan,
+                        high_frequency_cutoff_hz=30.0, criteria=criteria)
+    dof = DofComparison('specimen', '', rig.displacement, rig.acceleration, _signal(4.0),
+                        rig.force)
+    comparison = RunComparison({'': rig}, (dof,), (LinkComparison('specimen-ground',
+                                                                  _signal(5.0)),),
+                               n_steps=3)
     return run, comparison
+
+
+def _signal_entry(base):
+    """The summary of :func:`_signal`."""
+    return {'nrms': base + 0.4, 'peak_ratio': base + 0.5, 'lag_s': base + 0.3,
+            'peak_test': base + 0.1, 'peak_reference': base + 0.2, 'nrms_unshifted': base + 0.6}
 
 
 def test_summary_entry_of_a_hand_made_comparison():
@@ -579,7 +593,15 @@ def test_summary_entry_of_a_hand_made_comparison():
     entry = summary_entry(run, comparison)
     signals = ('displacement', 'acceleration', 'force')
     base = {'displacement': 1.0, 'force': 2.0, 'acceleration': 3.0}
-    assert entry == {
+    rig = {key: entry[key] for key in ('alpha', 'rig', 'lag_s', 'nrms', 'nrms_common_lag',
+                                       'nrms_unshifted', 'criteria', 'peak_ratio',
+                                       'high_frequency_force_fraction',
+                                       'high_frequency_force_fraction_reference',
+                                       'high_frequency_cutoff_hz')}
+    study = {key: value for key, value in entry.items()
+             if key not in ('abort_node', 'n_steps', 'structure', 'worst_nrms', 'dofs',
+                            'links', 'rigs')}
+    assert study == {
         'alpha': 1.5, 'rig': 'servohydraulic', 'predictor': 'model', 'record': 'kobe',
         'stable': False, 'unstable_at_s': None, 'lag_s': 1.3,
         'nrms': {s: base[s] + 0.4 for s in signals},
@@ -591,6 +613,19 @@ def test_summary_entry_of_a_hand_made_comparison():
         'high_frequency_force_fraction_reference': None, 'high_frequency_cutoff_hz': 30.0,
         'abort_reason': 'force limit', 'mode': 'realtime', 'wall_s': 3.25,
         'bag_lost_messages': 4, 'recording': {'end': 'crashed'}, 'rig_contract': None}
+    # the sections of every run: the one DOF, its link, the rig (the study's keys again)
+    assert (entry['abort_node'], entry['n_steps']) == (None, 3)
+    assert entry['structure'] == {'dofs': ['specimen'], 'physical': {'specimen': ''},
+                                  'builders': 'central'}
+    assert entry['dofs'] == {'specimen': {
+        'rig': '', 'displacement': _signal_entry(1.0), 'acceleration': _signal_entry(3.0),
+        'floor_acceleration': _signal_entry(4.0), 'interface_force': _signal_entry(2.0)}}
+    assert entry['links'] == {'specimen-ground': _signal_entry(5.0)}
+    assert entry['worst_nrms'] == {'displacement': 1.4, 'acceleration': 3.4,
+                                   'floor_acceleration': 4.4, 'interface_force': 2.4}
+    rig['rig_model'] = rig.pop('rig')
+    assert entry['rigs'] == {'': {'dof': 'specimen', **rig, 'specimen_model': 'linear',
+                                  'rig_contract': None}}
     assert list(entry['nrms']) == list(signals) and type(entry['bag_lost_messages']) is int
     assert entry['recording'] is not run.extra['recording']      # a copy
     assert json.loads(json.dumps(entry, allow_nan=False)) == entry
@@ -605,7 +640,8 @@ def test_summary_entry_defaults():
         (None, None, None, '')
     assert (entry['mode'], entry['wall_s'], entry['stable'], entry['unstable_at_s']) == \
         ('lockstep', None, True, None)
-    assert not {'timing', 'bag_lost_messages', 'recording', 'nonlinear'} & set(entry)
+    assert not {'timing', 'bag_lost_messages', 'recording', 'nonlinear',
+                'parameter_mismatches'} & set(entry)
     run, comparison = _hand_made({'alpha': 0, 'record': 'kobe'}, record_name='kobe_x2',
                                  unstable_at_s=7.5, extra={'timing': None})
     entry = summary_entry(run, comparison)

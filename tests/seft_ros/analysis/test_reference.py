@@ -143,3 +143,53 @@ def test_signal_names(rig):
     assert ref.signal('force') is ref.force_N
     with pytest.raises(ParameterError, match="signal 'velocity'"):
         ref.signal('velocity')
+
+
+def _study_reference_before_structures(alpha, ag, hysteretic=None):
+    """The study's reference as it was computed before every test was a structure (the
+    one-DOF code, kept here to hold the general one to it): ``(x, v, a, force)``."""
+    from scipy import integrate, signal
+    total, n = (1.0 + alpha) * M, ag.shape[0]
+    t = np.arange(n) * DT
+    if hysteretic is None:
+        a_mat = np.array([[0.0, 1.0], [-K / total, -C / total]])
+        system = signal.StateSpace(a_mat, np.array([[0.0], [-1.0]]), np.eye(2), np.zeros((2, 1)))
+        _, _, states = signal.lsim(system, ag, t, interp=True)
+        x, v = np.ascontiguousarray(states[:, 0]), np.ascontiguousarray(states[:, 1])
+        a = -(C * v + K * x) / total - ag
+        return x, v, a, M * a + C * v + K * x
+    samples, last = ag.tolist(), n - 2
+    restoring, rate = hysteretic.restoring_force, hysteretic.hysteretic_rate
+
+    def rhs(time, y):
+        x, v, z = y
+        pos = time / DT
+        i = min(max(int(pos), 0), last)
+        xg = samples[i] + (pos - i) * (samples[i + 1] - samples[i])
+        return [v, -(C * v + restoring(x, z)) / total - xg, rate(v, z)]
+
+    w0, dy = 2.0 * np.pi * hysteretic.natural_frequency_hz, hysteretic.yield_displacement_m
+    sol = integrate.solve_ivp(rhs, (0.0, t[-1]), [0.0, 0.0, 0.0], method='LSODA', t_eval=t,
+                              rtol=1e-9, atol=1e-9 * np.array([dy, dy * w0, 1.0]), max_step=DT)
+    x, v, z = (np.ascontiguousarray(row) for row in sol.y)
+    fs = restoring(x, z)
+    a = -(C * v + fs) / total - ag
+    return x, v, a, M * a + C * v + fs
+
+
+@pytest.mark.parametrize('alpha', [0.0, 0.5, 1.5])
+@pytest.mark.parametrize('model', ['linear', 'bouc_wen'])
+def test_the_one_dof_structure_is_the_study_reference_bit_for_bit(rig, alpha, model):
+    """The general structure reference, one DOF with M = (1 + alpha) m: the study's numbers
+    exactly (the main job's table does not move)."""
+    from seft_plant_sim.specimen import BoucWenSpecimen
+    t = np.arange(1000) * DT
+    ag = 30.0 * np.sin(2 * np.pi * 3.0 * t) + np.random.default_rng(5).normal(size=t.shape)
+    ref = reference_response(alpha=alpha, ground_acceleration_m_s2=ag, specimen_model=model,
+                             **rig)
+    member = BoucWenSpecimen(M, C, K) if model == 'bouc_wen' else None
+    if member is not None:
+        assert np.max(np.abs(ref.hysteretic_z)) > 0.9                 # it yields
+    for got, want in zip((ref.displacement_m, ref.velocity_m_s, ref.acceleration_m_s2,
+                          ref.force_N), _study_reference_before_structures(alpha, ag, member)):
+        np.testing.assert_array_equal(got, want)

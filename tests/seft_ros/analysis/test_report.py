@@ -1,7 +1,9 @@
-"""The report writes strict JSON, Markdown tables per run and across predictors, PNG figures."""
+"""The report writes strict JSON, Markdown tables per run and across predictors, PNG figures;
+structure tests per degree of freedom, in one report with the study's."""
 
 import json
 import math
+import re
 
 import numpy as np
 import pytest
@@ -281,3 +283,117 @@ def test_write_report_single_predictor_keeps_one_grid(runs, tmp_path):
 def test_write_report_cutoff_error(predictor_runs, tmp_path):
     with pytest.raises(ParameterError, match='cutoff_hz=300'):
         write_report(predictor_runs[:1], tmp_path, high_frequency_cutoff_hz=300.0)
+
+
+# -- structure tests and mixed reports -----------------------------------------------------
+
+#: A two-story shear building, the first story tested on rig 'lab', the second computational.
+TWO_STORY = {'dofs': ['story_1', 'story_2'], 'physical': {'story_1': 'lab'},
+             'story_masses_kg': [M, M], 'story_stiffnesses_N_per_m': [K, K],
+             'story_damping_N_s_per_m': [C, 133.4]}
+
+
+def _structure_params(lab=None, **over):
+    from seft_msgs_py import parameters
+    from seft_ros.core.structure import parse_structure
+    s = parse_structure(TWO_STORY, rigs={'lab': {'rig_model': 'delay', **(lab or {})}})
+    return parameters.resolve(dict({'structure': s.to_json(), 'predictor': 'model',
+                                    'duration_s': 6.0}, **over))
+
+
+def test_report_of_structure_runs_holds_the_summary_numbers(tmp_path):
+    """Per degree of freedom: the tables hold summary.json's numbers, one figure per run,
+    the structure's M, K, C as tables (not '<br>' text in a cell)."""
+    from seft_ros.analysis.htmlreport import check_html
+    from seft_ros.core.experiment import simulate as simulate_structure
+    runs = [simulate_structure(_structure_params(predictor=p)) for p in ('none', 'model')]
+    assert not runs[0].stable         # uncompensated, the coupling's negative damping
+    paths = write_report(runs, tmp_path, title='two stories')
+    summary = json.loads(paths.summary_json.read_text())['runs']
+    assert [e['predictor'] for e in summary] == ['none', 'model']
+    assert summary[0]['stable'] is False and summary[0]['abort_reason']
+    report = paths.report_md.read_text()
+    nrms = summary[1]['dofs']['story_2']['displacement']['nrms']
+    run_2 = report[report.index('## Run 2'):]
+    row = next(line for line in run_2.splitlines()
+               if line.startswith('| story_2 | computational |'))
+    assert f'{100 * nrms:.2f} %' in row
+    assert paths.time_histories_png is None and paths.hysteresis == {}
+    assert set(paths.structure_time_histories) == {1, 2}
+    for i in (1, 2):
+        assert (tmp_path / f'structure_run_{i}.png').stat().st_size > 10_000
+        assert f'structure_run_{i}.png' in report
+    assert re.search(r'natural frequencies [0-9.]+, [0-9.]+ Hz', report)
+    assert '| M [kg] | story_1 | story_2 |' in report
+    assert '| **story_2** | 0 | 52.7 |' in report                  # the mass matrix's row
+    assert '<br>' not in report and '## Software' in report
+    html = paths.report_html.read_text()
+    assert 'data:image/png;base64,' in html and '&lt;br&gt;' not in html
+    assert '<th>K [N/m]</th><th class="r">story_1</th><th class="r">story_2</th>' in html
+    assert '<td><strong>story_1</strong></td><td class="r">422000</td>' in html
+    check = check_html(html)
+    # the summary, the three matrices, three tables per run (DOFs, links, rigs)
+    assert check.self_contained and check.tables == 1 + 3 + 2 * 3
+
+
+def test_one_report_mixes_the_study_and_structure_tests(tmp_path):
+    """A study run and a structure run in one report: each gets its own tables and figures,
+    numbered in the given order, and summary.json one layout for both."""
+    from seft_msgs_py import parameters
+    from seft_ros.core.experiment import simulate
+    from seft_ros.core.experiment import simulate as simulate_structure
+    structure = simulate_structure(_structure_params(duration_s=1.0))
+    single = simulate(parameters.resolve({'duration_s': 1.0, 'rig_model': 'delay'}))
+    paths = write_report([structure, single], tmp_path, title='mixed')
+    summary = json.loads(paths.summary_json.read_text())['runs']
+    assert [set(e) == set(summary[0]) for e in summary] == [True, True]
+    assert summary[0]['structure']['dofs'] == ['story_1', 'story_2']
+    assert summary[1]['structure']['dofs'] == ['specimen']
+    assert summary[1]['nrms'] == summary[1]['rigs']['']['nrms']
+    md = paths.report_md.read_text()
+    assert md.index('## Evaluation criteria') < md.index('## Structure tests')
+    assert '## Run 2: alpha = 0, rig delay, predictor none' in md   # the study's run: 2
+    assert '## Run 1: predictor model, builders central' in md      # the structure's: 1
+    criteria = md[md.index('## Evaluation criteria'):md.index('## Structure tests')]
+    assert '| 2 | 0 | delay | none |' in criteria
+    assert paths.time_histories_png.name == 'time_histories.png'
+    assert set(paths.structure_time_histories) == {1}
+    assert (tmp_path / 'structure_run_1.png').is_file()
+    assert 'Parameters of run 2:' in md                  # the study's run's parameters
+
+
+def test_structure_report_of_a_yielding_rig_has_its_hysteresis(tmp_path):
+    """A structure whose rig's specimen is Bouc-Wen: compared against the nonlinear
+    reference (here the run is that reference, so every NRMS is 0), with the rig's
+    hysteresis loops and its 'nonlinear' block."""
+    from seft_ros.analysis.reference import run_reference
+    from seft_ros.analysis.rundata import RigData
+    from seft_ros.core.ground_motion import prepared_record
+    params = _structure_params({'specimen_model': 'bouc_wen', 'yield_displacement_m': 0.002},
+                               duration_s=4.0)
+    ag = prepared_record(params).acceleration_m_s2
+    t = np.arange(ag.shape[0]) * DT
+    ref = run_reference(RunData(params=params, rigs={}, time_s=t, ground_acceleration_m_s2=ag))
+    assert set(ref.hysteretic_z) == {'lab'} and 'solve_ivp' in ref.method
+    lab = ref.rig('lab')
+    rig_params = dict(params, specimen_model='bouc_wen', yield_displacement_m=0.002,
+                      rig_model='delay')
+    run = RunData(params=params, time_s=t, ground_acceleration_m_s2=ag, rigs={'lab': RigData(
+        params=rig_params, reference_force_N=lab.force_N, measured_force_N=lab.force_N,
+        displacement_m=lab.displacement_m, velocity_m_s=lab.velocity_m_s,
+        acceleration_m_s2=lab.acceleration_m_s2)}, computational={
+        f'story_2/{q}': np.append(a[:-1, 1], np.nan) for q, a in (
+            ('displacement_m', ref.displacement_m), ('velocity_m_s', ref.velocity_m_s),
+            ('acceleration_m_s2', ref.acceleration_m_s2))})
+    paths = write_report([run], tmp_path, title='yielding story')
+    (entry,) = json.loads(paths.summary_json.read_text())['runs']
+    block = entry['rigs']['lab']['nonlinear']
+    assert entry['nonlinear'] == block and block['specimen_model'] == 'bouc_wen'
+    assert block['nrms_displacement'] == pytest.approx(0.0, abs=1e-12)
+    assert entry['worst_nrms']['displacement'] == pytest.approx(0.0, abs=1e-12)
+    assert np.max(np.abs(lab.hysteretic_z)) > 0.99                     # it yields
+    assert paths.structure_hysteresis[1].name == 'hysteresis_run_1.png'
+    assert paths.structure_hysteresis[1].stat().st_size > 10_000
+    md = paths.report_md.read_text()
+    assert '(hysteresis_run_1.png)' in md and 'rig lab, nonlinear specimen (bouc_wen)' in md
+    assert 'Reference: scipy.integrate.solve_ivp, LSODA' in md

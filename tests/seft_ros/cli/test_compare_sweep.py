@@ -94,3 +94,31 @@ def test_criteria_table_of_missing_values():
                                  'nrms_common_lag': {'displacement': 0.01}}])
     row = table.splitlines()[1].split()
     assert row == ['0.5', 'none', '-', '1.00', '-', '2.00', '3.00', '1.00', '-', '-']
+
+
+def test_compare_a_study_bag_and_a_structure_bag(tmp_path, capsys):
+    """One report for both kinds: the table per degree of freedom, the study's run on its
+    one DOF 'specimen' of the rig of the root namespace ('rig'), the bridge's per pier and
+    deck; no criteria table of the study's kind (the criteria are per rig)."""
+    from pathlib import Path
+
+    from seft_ros.analysis.bagwrite import write_run_bag
+    from seft_ros.cli.config import load_config
+    from seft_ros.core.experiment import simulate as simulate_structure
+    config = load_config(Path(__file__).resolve().parents[3] / 'config' / 'two_piers.yaml')
+    bridge = simulate_structure(parameters.resolve(dict(config, predictor='model',
+                                                        duration_s=0.6)))
+    study = simulate(parameters.resolve({'rig_model': 'delay', 'duration_s': 0.6}))
+    bags = [write_run_bag(study, tmp_path / 'study'), write_run_bag(bridge, tmp_path / 'bridge')]
+    out = tmp_path / 'cmp'
+    assert main(['compare', *map(str, bags), '--out', str(out)]) == 0
+    printed = capsys.readouterr().out
+    rows = [line.split() for line in printed.splitlines()]
+    assert ['1', 'none', 'True', '-', 'specimen', 'rig'] == rows[1][:6]
+    assert [r[4:6] for r in rows[2:5]] == [['pier_a', 'pier_a'], ['pier_b', 'pier_b'],
+                                          ['deck', '-']]
+    assert 'J1_ms' in printed and '(criteria: Silva et al. 2020' not in printed
+    assert api.criteria_table(json.loads((out / 'summary.json').read_text())['runs']) == ''
+    summary = json.loads((out / 'summary.json').read_text())['runs']
+    assert [e['structure']['dofs'] for e in summary] == [['specimen'],
+                                                         ['pier_a', 'pier_b', 'deck']]

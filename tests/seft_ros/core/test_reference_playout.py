@@ -10,7 +10,6 @@ import pytest
 from seft_msgs_py.errors import ParameterError
 from seft_ros.analysis.metrics import compare_run
 from seft_ros.analysis.reference import reference_from_run
-from seft_ros.analysis.structure_metrics import compare_structure
 from seft_ros.cli.config import expand_runs, load_config
 from seft_ros.core.controller import ReferencePlayout
 from seft_ros.core.experiment import simulate
@@ -115,7 +114,7 @@ def _bridge():
 def _nrms(params, **kwargs):
     run = simulate(params, **kwargs)
     assert run.stable
-    return {d.dof: d.displacement.nrms for d in compare_structure(run).dofs}
+    return {d.dof: d.displacement.nrms for d in compare_run(run).dofs}
 
 
 def test_stale_steps_replayed_in_process_hold_degrades_extrapolation_restores():

@@ -4,7 +4,7 @@ from pathlib import Path
 
 import pytest
 
-from seft_ros.analysis.structure_metrics import compare_structure
+from seft_ros.analysis.metrics import compare_run
 from seft_ros.cli.config import expand_runs, load_config
 from seft_ros.core.experiment import simulate as simulate_structure
 from seft_ros.core.stability import TestLoop as StructureLoop
@@ -25,7 +25,7 @@ def test_model_follows_every_dof_and_none_goes_unstable_as_predicted(name, dofs)
     assert StructureLoop(runs['model']).spectral_radius < 1.0
     run = simulate_structure(runs['model'])
     assert run.stable
-    comparison = compare_structure(run)
+    comparison = compare_run(run)
     assert [d.dof for d in comparison.dofs] == dofs
     for d in comparison.dofs:
         assert d.displacement.nrms < 0.01, d.dof

@@ -1,12 +1,18 @@
 """Read a seft rosbag2 bag (written by the recorder node) back into a
-:class:`~seft_ros.analysis.rundata.RunData`.
+:class:`~seft_ros.analysis.rundata.RunData`: any bag, the reference study's and a structure
+test's alike.
 
-Uses rosbags (no rclpy): each parameter comes from the node that used it (the
+Uses rosbags (no rclpy). The run's graph (:class:`seft_msgs_py.graph.Graph`, from its
+parameters) says where each rig's signals are: the study's one rig in the root namespace
+(``/seft/measured_force``, ...), each rig of a structure in its namespace
+(``/<rig>/seft/measured_force``, ...), and a builder's computational state
+(``/[<rig>/]seft/structure_state``). Each parameter comes from the node that used it (the
 ``/seft/node_parameters`` message of its ``parameters.value_source`` node: alpha from the
 reference-force builder, the specimen and the rig from the rig, ...), from the next node that
 declared it when that node is not in the bag, and from ``/seft/run_parameters`` in a bag
-without node parameters; the signals from the scalar topics (one message per step, stamped
-``t_k``), the abort reason from the final ``/seft/status`` reports.
+without node parameters; a structure's rig takes its own from its rig node. The signals come
+from the scalar topics (one message per step, stamped ``t_k``), the abort reason from the
+final ``/seft/status`` reports.
 
 A bag its recorder never closed (killed with SIGKILL: no ``metadata.yaml``, an MCAP file
 without its summary, an uncommitted sqlite3 transaction) reads too: every message of its
@@ -27,24 +33,25 @@ from rosbags.rosbag2 import Reader
 from rosbags.typesys import Stores, get_typestore
 
 from seft_msgs_py import parameters, signals
-from seft_msgs_py.errors import InputError
+from seft_msgs_py.errors import InputError, ParameterError
+from seft_msgs_py.graph import STRUCTURE_STATE, Graph, qualified, scoped
 from seft_msgs_py.rig_contract import CONTRACT_KEY
 from seft_ros.analysis.bag_recovery import FLUSH_EVERY_S, is_unclosed_bag, recover_bag
-from seft_ros.analysis.rundata import RunData
+from seft_ros.analysis.rundata import RigData, RunData
 from seft_ros.analysis.timing import (
-    TIMING_PUBLISHER,
     node_timings,
     timing_row,
     timing_summary,
 )
+from seft_ros.core.structure import test_setup
 
 __all__ = ['read_run', 'BagSignals', 'read_signals', 'recording_end', 'rig_contract_of',
            'bag_lost_messages', 'rig_end_step']
 
+#: The scalar topics of the study's bag (``/clock`` and the sample signals) and their fields.
 _SCALARS = {s.name: s.field for s in (signals.CLOCK,) + signals.SCALAR_SIGNALS}
-_RECORD = {r.name: r for r in signals.RECORD_STREAMS}
-_MEASURED = (signals.MEASURED_FORCE.name, signals.DISPLACEMENT.name, signals.VELOCITY.name,
-             signals.ACCELERATION.name)
+#: The states of a node's final status report.
+_FINAL = ('done', 'aborted', 'failed')
 
 
 def _get(msg, path: str):
@@ -68,8 +75,12 @@ class BagSignals:
         Run parameters, every schema parameter validated: each from its source node (see
         `param_sources`), in a bag without node parameters the JSON of
         ``/seft/run_parameters``.
+    graph : Graph
+        The run's node graph (:class:`~seft_msgs_py.graph.Graph`, from the parameters): its
+        rigs and their topics.
     samples : dict of str -> dict of int -> float
-        Per topic, the value of each step (stamp // dt); ``/clock`` maps step -> step.
+        Per scalar topic of the graph (every rig's), the value of each step (stamp // dt);
+        ``/clock`` maps step -> step.
     counts : dict of str -> int
         Messages per topic (duplicates included).
     duplicates : dict of str -> list of int
@@ -91,9 +102,13 @@ class BagSignals:
     timing : dict of str -> NodeTiming
         The real-time timing records per node (:mod:`seft_ros.analysis.timing`; empty for a
         lockstep run).
+    fields : dict of str -> dict of int -> dict of str -> float
+        Per fields topic of the graph (one ``JointState`` per step: the compensator's
+        estimates, a builder's computational state ``/[<rig>/]seft/structure_state``), each
+        step's values by name.
     estimates : dict of int -> dict of str -> float
         The compensator's estimates in effect for each step's reference force
-        (``/seft/estimates``; empty without an adaptive compensator).
+        (``/seft/estimates``, ``fields``; empty without an adaptive compensator).
     recovery : RecoveredBag or None
         For a bag that was not closed, what :func:`~seft_ros.analysis.bag_recovery.recover_bag`
         read (its messages emptied once read); None for a closed bag.
@@ -109,6 +124,8 @@ class BagSignals:
         self.param_sources = {} if param_sources is None else param_sources
         self.parameter_mismatches = [] if parameter_mismatches is None else parameter_mismatches
         self.timing = {} if timing is None else timing
+        self.graph: Graph | None = None
+        self.fields: dict[str, dict[int, dict[str, float]]] = {}
         self.estimates: dict[int, dict[str, float]] = {}
         self.recovery = None
         self.duplicates: dict[str, list[int]] = {}
@@ -142,10 +159,11 @@ def _node_parameters(data: str, where: str) -> tuple[str, dict]:
 
 def _candidates(name: str, node_params: dict) -> list[str]:
     """The nodes to take parameter `name` from, in order: its source node, then the graph's
-    other nodes in ``parameters.NODES`` order, then any other node by name."""
+    other nodes in ``parameters.NODES`` order, then any other node of the root namespace by
+    name (a structure's rig nodes, ``<rig>/rig``, hold their rig's values, not the run's)."""
     first = parameters.value_source(name)
     rest = [n for n in parameters.NODES if n != first]
-    rest += sorted(n for n in node_params if n not in parameters.NODES)
+    rest += sorted(n for n in node_params if n not in parameters.NODES and '/' not in n)
     return [first] + rest
 
 
@@ -172,7 +190,7 @@ def _resolve_sources(node_params: dict, run_params: dict | None,
 
 
 def read_signals(path) -> BagSignals:
-    """Read every seft topic of the bag at `path`.
+    """Read every seft topic of the bag at `path`, of every rig.
 
     Parameters
     ----------
@@ -184,8 +202,9 @@ def read_signals(path) -> BagSignals:
     -------
     BagSignals
         The parameters (each from the node that used it, see ``BagSignals.param_sources``),
-        the samples per step, the message counts and the status reports. Nodes that disagree
-        on a shared parameter do not stop the reading: the lines are in
+        the run's graph (:class:`~seft_msgs_py.graph.Graph`: its rigs and their topics), the
+        samples per step of every rig's topics, the message counts and the status reports.
+        Nodes that disagree on a shared parameter do not stop the reading: the lines are in
         ``BagSignals.parameter_mismatches``. A step recorded more than once with the same
         value reads as one sample (listed in ``BagSignals.duplicates``).
 
@@ -196,22 +215,25 @@ def read_signals(path) -> BagSignals:
         parameter message, a parameter out of its schema range, unreadable, or a step of a
         signal recorded more than once with different values (the error names the topic,
         the step and both values: which one the test saw cannot be known).
+
+    Notes
+    -----
+    The bag is read once: the parameters, statuses and link figures as they come, every
+    other message kept as it is. Then, the parameters giving the graph, each kept message
+    is read in bag order by its topic: the scalar signals of each rig (stamp -> step), a
+    rig's live measurement and the nodes' record batches (a bag recorded from the live
+    topics), the fields topics (the compensator's estimates, a builder's computational
+    state: one ``JointState`` per step) and the timing records.
     """
     path = Path(path)
     if not path.exists():
         raise InputError(f'{path}: no such bag')
     typestore = get_typestore(Stores.ROS2_JAZZY)
-    samples = {name: {} for name in _SCALARS}
     counts = {}
     statuses = []
     params = None
     node_params = {}
-    timing_rows: dict[str, list] = {}
-    live = {name: {} for name in _SCALARS}      # topic -> {step or ('ns', stamp): value}
-    live_timing: dict[str, list] = {}          # node -> [(step, values)]
-    estimates: dict = {}                       # stamp [ns] or ('step', k) -> {name: value}
-    repeats: dict[str, list] = {}              # topic -> [(stamp, first value, repeated one)]
-    live_repeats: dict[str, list] = {}         # the same for `live` (its keys)
+    kept: list[tuple] = []                     # (topic, type, CDR) of the data, in bag order
     recovery = None
     link = None
     try:
@@ -229,43 +251,13 @@ def read_signals(path) -> BagSignals:
                 node_params[node] = values
             elif topic == signals.LINK.name:
                 link = _link(typestore.deserialize_cdr(raw, msgtype).data, path)
-            elif topic in TIMING_PUBLISHER:
-                timing_rows.setdefault(TIMING_PUBLISHER[topic], []).append(
-                    timing_row(typestore.deserialize_cdr(raw, msgtype)))
             elif topic == signals.STATUS.name:
                 msg = typestore.deserialize_cdr(raw, msgtype)
                 entry = {kv.key: kv.value for kv in msg.values}
                 entry.update(name=msg.name, message=msg.message)
                 statuses.append(entry)
-            elif topic == signals.MEASUREMENT.name:
-                msg = typestore.deserialize_cdr(raw, msgtype)
-                by_name = dict(zip(msg.name, msg.position))
-                stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-                for name, field in zip(_MEASURED, signals.MEASUREMENT_FIELDS):
-                    if field in by_name:
-                        _store(live[name], ('ns', stamp), float(by_name[field]), name,
-                               live_repeats)
-            elif topic == signals.ESTIMATES.name:
-                msg = typestore.deserialize_cdr(raw, msgtype)
-                stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-                estimates[stamp] = dict(zip(msg.name, (float(v) for v in msg.position)))
-            elif topic in _RECORD and _RECORD[topic].fields_topic:
-                msg = typestore.deserialize_cdr(raw, msgtype)
-                names = _RECORD[topic].columns_of(msg)
-                rows = np.asarray(msg.data, dtype=float).reshape(-1, 1 + len(names))
-                for r in rows:
-                    estimates.setdefault(('step', int(r[0])), dict(zip(names, r[1:])))
-            elif topic in _RECORD:
-                _read_batch(_RECORD[topic], typestore.deserialize_cdr(raw, msgtype),
-                            live, live_timing, path, live_repeats)
-            elif topic in _SCALARS:
-                msg = typestore.deserialize_cdr(raw, msgtype)
-                if topic == signals.CLOCK.name:
-                    stamp, value = msg.clock, None
-                else:
-                    stamp, value = msg.header.stamp, float(_get(msg, _SCALARS[topic]))
-                _store(samples[topic], stamp.sec * 1_000_000_000 + stamp.nanosec, value,
-                       topic, repeats)
+            else:
+                kept.append((topic, msgtype, bytes(raw)))
     except InputError:
         raise
     except Exception as exc:  # rosbags raises several types for a damaged bag
@@ -290,14 +282,24 @@ def read_signals(path) -> BagSignals:
         sources = {name: RUN_PARAMETERS_SOURCE if name in given else DEFAULT_SOURCE
                    for name in params}
         mismatches = []
+    try:
+        graph = Graph.from_parameters(params)
+    except parameters.ParameterError as exc:
+        raise InputError(f'{path}: {exc}') from None
+    try:
+        data = _read_data(graph, kept, typestore, path)
+    except InputError:
+        raise
+    except Exception as exc:  # a damaged message
+        raise InputError(f'{path}: cannot read the bag: {exc}') from None
     dt_ns = int(round(params['dt'] * 1e9))
     steps = _Steps(dt_ns)
     by_step = {name: steps.of(name, vals.items(), listed=True)
-               for name, vals in samples.items()}
-    for name, entries in repeats.items():
+               for name, vals in data.samples.items()}
+    for name, entries in data.repeats.items():
         for key, first, other in entries:
             steps.repeat(name, key, first, other, step_keys=False)
-    for name, vals in live.items():
+    for name, vals in data.live.items():
         if vals and not by_step[name]:     # recorded from the live topics only
             # the rig's measurement and its record batches: two sources of the same samples
             measured = steps.of(name, ((k, v) for k, v in vals.items() if isinstance(k, tuple)),
@@ -306,7 +308,7 @@ def read_signals(path) -> BagSignals:
                                       if not isinstance(k, tuple)), listed=True, step_keys=True)
             by_step[name] = steps.of(name, list(measured.items()) + list(batches.items()),
                                      listed=False, step_keys=True)
-            for key, first, other in live_repeats.get(name, ()):
+            for key, first, other in data.live_repeats.get(name, ()):
                 steps.repeat(name, key, first, other, step_keys=True)
     if steps.conflicts:
         topic, k, first, other = steps.conflicts[0]
@@ -315,20 +317,101 @@ def read_signals(path) -> BagSignals:
             f'{path}: {topic}: step {k} (t = {k * dt_ns * 1e-9:.6f} s) recorded more than once '
             f'with different values ({first!r} and {other!r})'
             + (f'; {more} more such sample{"s" if more > 1 else ""}' if more else ''))
-    for node, rows in live_timing.items():
+    timing_rows = data.timing_rows
+    for node, rows in data.live_timing.items():
         if node not in timing_rows:
             timing_rows[node] = [(step * dt_ns, values) for step, values in rows]
     bag = BagSignals(params, by_step, counts, statuses, node_params=node_params,
                      param_sources=sources, parameter_mismatches=mismatches,
                      timing=node_timings(timing_rows, params['dt']))
-    bag.estimates = {(key[1] if isinstance(key, tuple) else int(round(key / dt_ns))): values
-                     for key, values in estimates.items()}
+    bag.graph = graph
+    bag.fields = {topic: {(key[1] if isinstance(key, tuple) else int(round(key / dt_ns))):
+                          values for key, values in rows.items()}
+                  for topic, rows in data.fields.items()}
+    bag.estimates = bag.fields.get(signals.ESTIMATES.name, {})
     bag.duplicates = {name: sorted(ks) for name, ks in steps.duplicates.items()}
     bag.link = link
     if recovery is not None:
         recovery.messages = []       # read: the counts say how many
     bag.recovery = recovery
     return bag
+
+
+def _scalar_topics(graph: Graph) -> dict[str, str]:
+    """``{topic: field}`` of the scalar signals of the run (``/clock``, the ground motion,
+    each rig's reference force, valve command and sensors), in the order of
+    :data:`seft_msgs_py.signals.SCALAR_SIGNALS` per rig."""
+    out = {signals.CLOCK.name: signals.CLOCK.field,
+           signals.GROUND_ACCELERATION.name: signals.GROUND_ACCELERATION.field}
+    for r in graph.rigs:
+        for s in (graph.reference_force(r), graph.valve_command(r)) + graph.sensors(r):
+            out[s.name] = s.field
+    return out
+
+
+class _Data:
+    """What :func:`_read_data` read: per topic its samples (``samples``: stamp [ns] ->
+    value; ``live``: ``('ns', stamp)`` or step -> value), the repeated stamps, the fields
+    topics' rows (stamp or ``('step', k)`` -> ``{name: value}``) and the timing rows."""
+
+    def __init__(self, scalars):
+        self.samples = {name: {} for name in scalars}
+        self.live = {name: {} for name in scalars}
+        self.repeats: dict[str, list] = {}          # topic -> [(stamp, first, repeated)]
+        self.live_repeats: dict[str, list] = {}     # the same for `live` (its keys)
+        self.fields: dict[str, dict] = {}           # topic -> {stamp or ('step', k): values}
+        self.timing_rows: dict[str, list] = {}      # node -> [(stamp, values)]
+        self.live_timing: dict[str, list] = {}      # node -> [(step, values)]
+
+
+def _read_data(graph: Graph, kept: list, typestore, path: Path) -> _Data:
+    """The data messages of a bag (``(topic, type, CDR)`` in bag order) by their topics in
+    the run's graph (:func:`read_signals`, Notes); a topic of no seft signal is skipped."""
+    scalars = _scalar_topics(graph)
+    data = _Data(scalars)
+    measurements = {graph.measurement(r).name: tuple(s.name for s in graph.sensors(r))
+                    for r in graph.rigs}
+    streams = {s.name: s for s in graph.record_streams()}
+    fields_topics = {s.fields_topic for s in graph.record_streams() if s.fields_topic}
+    fields_topics |= {scoped(signals.ESTIMATES.name, r) for r in graph.rigs}
+    timing = {graph.timing_topic(s): s.node for s in graph.record_streams() if s.timing}
+    for topic, msgtype, raw in kept:
+        if topic in timing:
+            data.timing_rows.setdefault(timing[topic], []).append(
+                timing_row(typestore.deserialize_cdr(raw, msgtype)))
+        elif topic in measurements:
+            msg = typestore.deserialize_cdr(raw, msgtype)
+            by_name = dict(zip(msg.name, msg.position))
+            stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+            for name, field in zip(measurements[topic], signals.MEASUREMENT_FIELDS):
+                if field in by_name:
+                    _store(data.live[name], ('ns', stamp), float(by_name[field]), name,
+                           data.live_repeats)
+        elif topic in fields_topics:
+            msg = typestore.deserialize_cdr(raw, msgtype)
+            stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+            data.fields.setdefault(topic, {})[stamp] = dict(
+                zip(msg.name, (float(v) for v in msg.position)))
+        elif topic in streams and streams[topic].fields_topic:
+            stream = streams[topic]
+            msg = typestore.deserialize_cdr(raw, msgtype)
+            names = stream.columns_of(msg)
+            rows = np.asarray(msg.data, dtype=float).reshape(-1, 1 + len(names))
+            rows_of = data.fields.setdefault(stream.fields_topic, {})
+            for r in rows:
+                rows_of.setdefault(('step', int(r[0])), dict(zip(names, r[1:])))
+        elif topic in streams:
+            _read_batch(streams[topic], typestore.deserialize_cdr(raw, msgtype), data.live,
+                        data.live_timing, path, data.live_repeats)
+        elif topic in scalars:
+            msg = typestore.deserialize_cdr(raw, msgtype)
+            if topic == signals.CLOCK.name:
+                stamp, value = msg.clock, None
+            else:
+                stamp, value = msg.header.stamp, float(_get(msg, scalars[topic]))
+            _store(data.samples[topic], stamp.sec * 1_000_000_000 + stamp.nanosec, value,
+                   topic, data.repeats)
+    return data
 
 
 def _messages(path: Path, recovery):
@@ -424,9 +507,9 @@ def recording_end(bag: BagSignals, n_steps: int) -> dict:
     Returns
     -------
     dict
-        ``'end'``: ``'closed'`` (the recorder closed the bag after the rig's final status),
-        ``'stopped'`` (the recorder closed the bag, but the run's end is not in it: no final
-        status of the rig; the recorder was stopped by a signal, or lost the rig),
+        ``'end'``: ``'closed'`` (the recorder closed the bag after every rig's final
+        status), ``'stopped'`` (the recorder closed the bag, but the run's end is not in it:
+        no final status of a rig; the recorder was stopped by a signal, or lost the rig),
         ``'crashed'`` (never closed: recovered from the file, the recorder was killed) or
         ``'unknown'`` (no recorder status: a bag not written by the recorder);
         ``'steps'`` and ``'duration_s'``: the complete steps and their time span [s];
@@ -439,8 +522,9 @@ def recording_end(bag: BagSignals, n_steps: int) -> dict:
     dt = bag.params['dt']
     recorder = [s for s in bag.statuses if s['name'] == 'recorder']
     closed = any(s.get('state') == 'closed' for s in recorder)
-    run_ended = any(s['name'] == 'rig' and s.get('state') in ('done', 'aborted', 'failed')
-                    for s in bag.statuses)
+    rigs = bag.graph.rig_nodes() if bag.graph is not None else ('rig',)
+    run_ended = all(any(s['name'] == rig and s.get('state') in _FINAL for s in bag.statuses)
+                    for rig in rigs)
     out = {'steps': n_steps, 'duration_s': n_steps * dt,
            'messages': int(sum(bag.counts.values()))}
     held = f'{n_steps * dt:.3f} s ({n_steps} steps, {out["messages"]} messages)'
@@ -463,73 +547,88 @@ def recording_end(bag: BagSignals, n_steps: int) -> dict:
 
 
 def read_run(path) -> RunData:
-    """Read a seft bag into a :class:`~seft_ros.analysis.rundata.RunData`: its steps from 0 up to
-    the first step a signal
-    lacks (the analysis needs contiguous samples), and what the bag misses after it. The bag
-    of a structure test gives a
-    :class:`~seft_ros.analysis.rundata.RunData` instead
-    (:func:`~seft_ros.analysis.structure_bag.read_structure_run`).
+    """Read any seft bag into a :class:`~seft_ros.analysis.rundata.RunData`: every rig's
+    signals (the study's test: its one rig, ``''``, in the root namespace; a structure's: each
+    rig in its namespace) and a structure's computational state, from step 0 up to the first
+    step a signal lacks (the analysis needs contiguous samples), and what the bag misses after
+    it.
 
-    The parameters are ``BagSignals.params``; ``extra`` holds, besides ``'rig_final'`` and
-    ``'counts'``, ``'node_params'`` (``{node: {parameter: value}}``, empty for a bag without
-    node parameters), ``'param_sources'`` (``{parameter: node, 'run_parameters' or
-    'default'}``), ``'parameter_mismatches'`` (one line per shared parameter on which the
-    nodes disagree; empty when they agree), ``'recording'`` (how the recording ended and what
-    it holds, :func:`recording_end`: a bag whose recorder was killed reads too, from its
-    complete records), ``'gaps'`` and ``'duplicates'`` (below), ``'wall_s'`` (the rig's wall
-    time of the stepping [s], or None), ``'bag_lost_messages'`` (what the nodes published and
-    the bag does not hold, from the recorder's closing status) and, for a real-time run,
-    ``'timing_data'`` (``BagSignals.timing``) and ``'timing'`` (its
-    :func:`~seft_ros.analysis.timing.timing_summary`). A real-time run aborted into the
-    rig's safe state ends at the abort (``abort_at_s`` of the rig's final status): the ramp
-    after it is not part of the test. A bag that ends before the run did (no final status of
-    the rig; the recorder killed or stopped) is a run cut short: not ``stable``, ended at its
-    last complete step, with the reason ``'recorder: the recording ended in a crash (recorder
+    The parameters are ``BagSignals.params``; each rig's (``RigData.params``) are those the
+    run declares for it (:func:`~seft_ros.core.structure.test_setup`: the study's rig, the
+    run's), updated, for a rig in a namespace of its own, with what its rig node published,
+    and its ``alpha`` the rigid computational mass on its DOF over its specimen mass. A
+    builder's computational state (``/[<rig>/]seft/structure_state``, the first builder's)
+    gives ``RunData.computational``, NaN where the bag has none (the last sample).
+    ``extra`` holds ``'rig_final'`` (the first rig's final status) and ``'rig_finals'``
+    (``{rig node: final status}``), ``'counts'``, ``'node_params'`` (``{node: {parameter:
+    value}}``, empty for a bag without node parameters), ``'param_sources'``
+    (``{parameter: node, 'run_parameters' or 'default'}``), ``'parameter_mismatches'`` (one
+    line per shared parameter on which the nodes disagree; empty when they agree),
+    ``'node_statuses'`` (every status report, in bag order), ``'recording'`` (how the
+    recording ended and what it holds, :func:`recording_end`: a bag whose recorder was killed
+    reads too, from its complete records; ``'recovered'`` says so), ``'gaps'`` and
+    ``'duplicates'`` (below), ``'wall_s'`` (the rigs' longest wall time of the stepping [s],
+    or None), ``'rig_contract'`` (the contract the rigs reported, None when they did not, or
+    did not all report the same), ``'abort_node'`` (the node whose abort ended the run, or
+    None), ``'bag_lost_messages'`` (what the nodes published and the bag does not hold,
+    from the recorder's closing status) and, for a real-time run, ``'timing_data'``
+    (``BagSignals.timing``) and ``'timing'`` (its
+    :func:`~seft_ros.analysis.timing.timing_summary`). Each rig's ``extra`` holds its
+    ``'rig_final'`` and ``'rig_contract'``. A real-time run aborted into the rigs' safe
+    state ends at the first abort (``abort_at_s`` of a rig's final status): the ramp after it
+    is not part of the test. A bag that ends before the run did (no final status of a rig;
+    the recorder killed or stopped) is a run cut short: not ``stable``, ended at its last
+    complete step, with the reason ``'recorder: the recording ended in a crash (recorder
     killed)'`` (or ``'... was stopped before the run ended'``).
 
-    **Gaps.** A step missing on a signal before the run's end (the rig's final ``step``, the
-    safe state of a real-time abort, else the last step every signal has) ends the analysed
-    run there, and nothing after it is dropped unsaid: ``extra['gaps']`` is ``{'at_step',
-    'at_s', 'missing': {topic: [steps]}, 'steps_after_gap', 'last_step', 'note'}`` (the first
-    incomplete step and its time [s], the steps each signal misses up to the run's last
-    step, the complete steps after the gap that were not analysed, that last step and one
-    line), and ``extra['recording']`` gains ``'gap_at_step'``, ``'steps_not_analysed'`` and
-    the line at the end of its ``'note'`` (``'gap at step 12 (t = 0.024 s):
-    /seft/measured_force misses steps 12-14; 25 complete steps after it (to step 39) were not
-    analysed'``); None without a gap. Samples past the run's end on some topics only (the
-    ground motion's preview, the rig's sample after an abort) are no gap. A gap does not
-    change ``stable``; an aborted run whose bag lost the steps before the abort keeps the
-    rig's abort time as ``unstable_at_s``. Compensator estimates missing for an analysed step
-    are not read (``estimates`` None): ``extra['estimates_missing_steps']`` lists the steps
-    and the note says so.
+    **Gaps.** A step missing on a signal before the run's end (the step at which the rig
+    that ended the run stopped: its final ``step``, the safe state of a real-time abort,
+    else the last step every signal has) ends the analysed run there, and nothing after it
+    is dropped unsaid: ``extra['gaps']`` is ``{'at_step', 'at_s', 'missing': {topic:
+    [steps]}, 'steps_after_gap', 'last_step', 'note'}`` (the first incomplete step and its
+    time [s], the steps each signal misses up to the run's last step, the complete steps
+    after the gap that were not analysed, that last step and one line), and
+    ``extra['recording']`` gains ``'gap_at_step'``, ``'steps_not_analysed'`` and the line at
+    the end of its ``'note'`` (``'gap at step 12 (t = 0.024 s): /seft/measured_force misses
+    steps 12-14; 25 complete steps after it (to step 39) were not analysed'``); None without
+    a gap. Samples past the run's end on some topics only (the ground motion's preview, the
+    rig's sample after an abort) are no gap. A gap does not change ``stable``; an aborted
+    run whose bag lost the steps before the abort keeps the rig's abort time as
+    ``unstable_at_s``. Compensator estimates missing for an analysed step are not read
+    (``estimates`` None): ``extra['estimates_missing_steps']`` lists the steps and the note
+    says so.
 
     **Duplicates.** A step recorded more than once with the same value is one sample
     (``extra['duplicates']``: ``{topic: [steps]}``, empty when none); with different values
     the bag is refused (:func:`read_signals`).
 
-    **Aborts.** The first 'aborted' or 'failed' report, of any node, makes the run not
-    ``stable``; the reason is the message of a rig's report, else ``'<node>: <message>'``
-    (``'reference_force_builder: unstable at t=...'`` when its instability monitor trips);
-    ``unstable_at_s`` is the real-time rig's ``abort_at_s``, else the end of the analysed
-    steps (in the graph, where the rig stopped stepping).
+    **Aborts.** An 'aborted' or 'failed' report, of any node, makes the run not ``stable``;
+    the node that aborted is the first whose report does not pass on another's (a node that
+    ends on another's abort reports ``'<that node>: <its message>'``, and the bag may hold it
+    first); the reason is the message of the study's rig (``rig``), else ``'<node>:
+    <message>'`` (``'reference_force_builder: unstable at t=...'`` when its instability
+    monitor trips, ``'pier_b/rig: stroke limit exceeded ...'``); ``unstable_at_s`` is the
+    real-time abort's ``abort_at_s``, else the end of the analysed steps (in the graph,
+    where the rigs stopped stepping).
 
     Raises
     ------
     InputError
-        As :func:`read_signals`, or the bag holds no complete step (a signal without a sample:
-        the message names its topics; step 0 missing on some).
+        As :func:`read_signals`, the structure disagrees with a rig's parameters, or the bag
+        holds no complete step (a signal without a sample: the message names its topics;
+        step 0 missing on some).
     """
-    from seft_ros.analysis.structure_bag import is_structure_bag, read_structure_run
-    if is_structure_bag(path):
-        return read_structure_run(path)
     bag = read_signals(path)
     p = bag.params
-    valve = p['rig_model'] == 'servohydraulic'
-    needed = [s.name for s in (signals.GROUND_ACCELERATION, signals.REFERENCE_FORCE,
-                               signals.MEASURED_FORCE, signals.DISPLACEMENT, signals.VELOCITY,
-                               signals.ACCELERATION)]
-    if valve:
-        needed.append(signals.VALVE_COMMAND.name)
+    graph = bag.graph
+    dt = p['dt']
+    needed = [signals.GROUND_ACCELERATION.name]
+    per_rig = {}
+    for r in graph.rigs:
+        per_rig[r] = [graph.reference_force(r).name] + [s.name for s in graph.sensors(r)]
+        if graph.has_controller(r):
+            per_rig[r].append(graph.valve_command(r).name)
+        needed += per_rig[r]
     n = 0
     while all(n in bag.samples[name] for name in needed):
         n += 1
@@ -542,22 +641,20 @@ def read_run(path) -> RunData:
                          + (f'no samples on {", ".join(missing)}' if missing else
                             f'step 0 missing on {", ".join(first)}'
                             + (f' ({later} complete steps after it)' if later else '')))
-
-    def arr(name):
-        d = bag.samples[name]
-        return np.array([d[k] for k in range(n)])
-
+    try:
+        setup = test_setup(p)
+    except ParameterError as exc:
+        raise InputError(f'{path}: {exc}') from None
+    finals = {node: next((s for s in reversed(bag.statuses) if s['name'] == node
+                          and s.get('state') in _FINAL), None) for node in graph.rig_nodes()}
     aborted = [s for s in bag.statuses if s.get('state') in ('aborted', 'failed')]
-    rig_final = [s for s in bag.statuses
-                 if s['name'] == 'rig' and s.get('state') in ('done', 'aborted', 'failed')]
     recording = recording_end(bag, n)
-    final = rig_final[-1] if rig_final else {}
-    dt = p['dt']
-    abort_at_s = float(final['abort_at_s']) if 'abort_at_s' in final else None
-    end_step = rig_end_step(final, abort_at_s, dt)
+    aborts = [float(f['abort_at_s']) for f in finals.values() if f and 'abort_at_s' in f]
+    abort_at_s = min(aborts) if aborts else None
+    end_step, ended = _end_step(finals, abort_at_s, dt)
     gaps = _gaps(bag, needed, n, complete, end_step, dt)
     if abort_at_s is not None:
-        # real time: the rig kept sampling its safe-state ramp after the abort
+        # real time: the rigs kept sampling their safe-state ramp after the abort
         n = max(1, min(n, int(round(abort_at_s / dt))))
     if gaps is not None:
         recording.update(gap_at_step=gaps['at_step'],
@@ -565,11 +662,11 @@ def read_run(path) -> RunData:
         recording['note'] += f'; {gaps["note"]}'
     stable = not aborted
     reason = None
-    if aborted:
-        first = aborted[0]
+    first = _first_abort(aborted)
+    if first is not None:
         reason = first['message'] if first['name'] == 'rig' else (
             f"{first['name']}: {first['message']}")
-    elif not rig_final and recording['end'] in ('crashed', 'stopped'):
+    elif not all(finals.values()) and recording['end'] in ('crashed', 'stopped'):
         # the bag ends before the run did: the test is cut short at its last complete step
         stable = False
         reason = ('recorder: the recording ended in a crash (recorder killed)'
@@ -581,15 +678,19 @@ def read_run(path) -> RunData:
     unstable_at_s = None
     if not stable:
         unstable_at_s = abort_at_s if abort_at_s is not None else n * dt
-        if (abort_at_s is None and end_step is not None and end_step > n
-                and final.get('state') in ('aborted', 'failed')):
+        if abort_at_s is None and end_step is not None and end_step > n and ended:
             unstable_at_s = end_step * dt      # the bag lost steps before the rig's abort
-    extra = {'rig_final': rig_final[-1] if rig_final else None, 'counts': bag.counts,
+    contracts = {rig_contract_of(bag.statuses, node) for node in graph.rig_nodes()}
+    walls = [float(f['wall_s']) for f in finals.values() if f and 'wall_s' in f]
+    extra = {'rig_final': finals[graph.master], 'counts': bag.counts,
              'recording': recording, 'gaps': gaps, 'duplicates': bag.duplicates,
              'node_params': bag.node_params, 'param_sources': bag.param_sources,
              'parameter_mismatches': bag.parameter_mismatches,
-             'wall_s': float(final['wall_s']) if 'wall_s' in final else None,
-             'rig_contract': rig_contract_of(bag.statuses)}
+             'wall_s': max(walls) if walls else None,
+             'rig_contract': contracts.pop() if len(contracts) == 1 else None,
+             'rig_finals': finals, 'node_statuses': bag.statuses,
+             'recovered': bag.recovery is not None,
+             'abort_node': first['name'] if first is not None else None}
     lost = bag_lost_messages(bag.statuses)
     if lost is not None:
         extra['bag_lost_messages'] = lost
@@ -598,25 +699,105 @@ def read_run(path) -> RunData:
         extra['timing'] = timing_summary(bag.timing)
     if bag.link is not None:
         extra['link'] = bag.link
-    estimates = None
-    if bag.estimates and all(k in bag.estimates for k in range(n)):
-        names = list(bag.estimates[0])
-        estimates = {name: np.array([bag.estimates[k].get(name, np.nan) for k in range(n)])
-                     for name in names}
-    elif bag.estimates:
-        lost = [k for k in range(n) if k not in bag.estimates]
-        extra['estimates_missing_steps'] = lost
-        recording['note'] += (f'; {signals.ESTIMATES.name} misses steps {_ranges(lost)}: the '
-                              "compensator's estimates were not read")
-    return RunData.one_rig(
+
+    def arr(name):
+        d = bag.samples[name]
+        return np.array([d[k] for k in range(n)])
+
+    rigs = {}
+    for j, r in enumerate(graph.rigs):
+        node = qualified('rig', r)
+        names = per_rig[r]
+        rigs[r] = RigData(
+            params=_rig_params(bag, setup, r, j, path), reference_force_N=arr(names[0]),
+            measured_force_N=arr(names[1]), displacement_m=arr(names[2]),
+            velocity_m_s=arr(names[3]), acceleration_m_s2=arr(names[4]),
+            valve_command_V=arr(names[5]) if graph.has_controller(r) else None,
+            estimates=_estimates(bag, scoped(signals.ESTIMATES.name, r), n, extra, recording),
+            extra={'rig_final': finals[node],
+                   'rig_contract': rig_contract_of(bag.statuses, node)})
+    return RunData(
         params=p, time_s=np.arange(n) * dt, ground_acceleration_m_s2=arr(needed[0]),
-        reference_force_N=arr(needed[1]), measured_force_N=arr(needed[2]),
-        displacement_m=arr(needed[3]), velocity_m_s=arr(needed[4]),
-        acceleration_m_s2=arr(needed[5]),
-        valve_command_V=arr(signals.VALVE_COMMAND.name) if valve else None, stable=stable,
-        unstable_at_s=unstable_at_s,
-        abort_reason=reason, record_name=record_name, source=str(path), extra=extra,
-        estimates=estimates, rig_extra={'rig_final': rig_final[-1] if rig_final else None})
+        rigs=rigs, computational=_computational(bag, n), stable=stable,
+        unstable_at_s=unstable_at_s, abort_reason=reason, record_name=record_name,
+        source=str(path), extra=extra)
+
+
+def _first_abort(aborted: list[dict]) -> dict | None:
+    """The report of the node that aborted first, of the 'aborted'/'failed' reports in bag
+    order: the first whose message does not pass on another's (a node ending on another's
+    abort reports ``'<that node>: <its message>'``, and the bag may hold it first)."""
+    names = {s['name'] for s in aborted}
+    for s in aborted:
+        if not any(s['message'].startswith(f'{name}: ') for name in names - {s['name']}):
+            return s
+    return aborted[0] if aborted else None
+
+
+def _end_step(finals: dict, abort_at_s: float | None, dt: float) -> tuple[int | None, bool]:
+    """``(step, aborted)``: where the rigs say the run ended (:func:`rig_end_step` of the
+    rig that aborted on its own, else of every rig's final status, the earliest) and whether
+    that rig's final status is an abort."""
+    if abort_at_s is not None:
+        return int(round(abort_at_s / dt)), True
+    reported = [f for f in finals.values() if f]
+    own = [f for f in reported if f.get('state') in ('aborted', 'failed')
+           and 'ended_by' not in f]
+    chosen = own or reported
+    steps = [s for s in (rig_end_step(f, None, dt) for f in chosen) if s is not None]
+    if not steps:
+        return None, False
+    return min(steps), any(f.get('state') in ('aborted', 'failed') for f in chosen)
+
+
+def _rig_params(bag: BagSignals, setup, rig: str, index: int, path) -> dict:
+    """A rig's parameters: the run's declaration of it, updated (a rig in a namespace of its
+    own) with what its rig node published; its ``alpha`` the split's."""
+    out = dict(setup.rig_params[rig])
+    own = bag.node_params.get(qualified('rig', rig)) if rig else None
+    known = parameters.defaults()
+    for name, value in (own or {}).items():
+        if name in known:           # only what it declared: the rest is the run's, not a default
+            try:
+                out[name] = parameters.validate_value(
+                    name, value, where=f'{path}: node {qualified("rig", rig)}')
+            except parameters.ParameterError as exc:
+                raise InputError(str(exc)) from None
+    out['alpha'] = float(setup.substructures.alpha[index])
+    return out
+
+
+def _estimates(bag: BagSignals, topic: str, n: int, extra: dict,
+               recording: dict) -> dict | None:
+    """A rig's compensator's estimates over the first `n` steps from its fields topic, or
+    None: none in the bag, or missing for an analysed step (``extra`` and the recording's
+    note then say which)."""
+    rows = bag.fields.get(topic)
+    if not rows:
+        return None
+    if all(k in rows for k in range(n)):
+        names = list(rows[0])
+        return {name: np.array([rows[k].get(name, np.nan) for k in range(n)])
+                for name in names}
+    lost = [k for k in range(n) if k not in rows]
+    extra['estimates_missing_steps'] = lost
+    recording['note'] += (f'; {topic} misses steps {_ranges(lost)}: the compensator'
+                          "'s estimates were not read")
+    return None
+
+
+def _computational(bag: BagSignals, n: int) -> dict[str, np.ndarray]:
+    """The computational DOFs' state over the first `n` steps (NaN where not recorded) from
+    the first builder's ``structure_state`` topic; empty without one."""
+    topic = next((s.fields_topic for s in bag.graph.record_streams()
+                  if s.fields_topic.endswith(STRUCTURE_STATE.name)), None)
+    values: dict[str, np.ndarray] = {}
+    for k, row in sorted(bag.fields.get(topic, {}).items()):
+        if k >= n:
+            continue
+        for name, value in row.items():
+            values.setdefault(name, np.full(n, np.nan))[k] = float(value)
+    return values
 
 
 def rig_contract_of(statuses, rig: str = 'rig') -> str | None:

@@ -1,18 +1,24 @@
 """Write a run computed in one process (``seft simulate --bag``) as the bag the graph records.
 
 Same topics, types, stamps and parameter messages as the recorder node writes
-(``seft_ros.nodes.recorder``), through rosbags (no rclpy), so that ``seft compare`` and
-``seft identify`` read a simulated run and a recorded one alike:
+(``seft_ros.nodes.recorder``) for the run's graph (:class:`seft_msgs_py.graph.Graph`: the
+study's one rig in the root namespace, a structure's rigs each in its namespace), through
+rosbags (no rclpy), so that ``seft compare`` and ``seft identify`` read a simulated run and a
+recorded one alike:
 
 - ``/seft/run_parameters``: the run's parameters as JSON (sorted keys), at t = 0;
 - ``/seft/node_parameters``: for each node of the run's graph and the recorder, the schema
-  parameters it declares (``parameters.specs_for_node``) with the run's values;
-- one message per sample on each scalar topic of ``seft_msgs_py.signals.SCALAR_SIGNALS``
-  (the valve command only on the servohydraulic rig), stamped ``t_k = k dt`` (log time = the
-  stamp, frame ``actuator``), and ``/seft/estimates`` with an online compensator;
+  parameters it declares (``parameters.specs_for_node``) with the run's values (a
+  structure's rig and controller nodes: their rig's);
+- one message per sample on each scalar topic of every rig (``graph.bag_signals``: the
+  ground motion, the reference force, the valve command only on the servohydraulic rig,
+  the sensors), stamped ``t_k = k dt`` (log time = the stamp, frame ``actuator``),
+  ``/seft/estimates`` with an online compensator and a structure's computational state
+  (``/[<rig>/]seft/structure_state``);
 - ``/seft/status``: each node 'ready' (the ground-motion publisher with its record name and
   length), then the final reports: 'done' or 'aborted' with the reason (the aborting node's
-  report first, then the rig's, as in the graph), and the recorder's 'closed' (nothing lost).
+  report first, then the rigs', as in the graph), and the recorder's 'closed' (nothing
+  lost).
 
 What the graph's bag has and this one does not: the progress reports ('running',
 'recording') and, in the graph, the ground acceleration ``preview_steps`` past an abort.
@@ -27,7 +33,9 @@ from rosbags.typesys import Stores, get_typestore
 
 from seft_msgs_py import parameters, rig_contract, signals
 from seft_msgs_py.errors import InputError
+from seft_msgs_py.graph import RIG_NODES, STRUCTURE_STATE, Graph, scoped, split_qualified
 from seft_ros.analysis.rundata import RunData
+from seft_ros.core.structure import test_setup
 
 __all__ = ['write_run_bag', 'FRAME_ID']
 
@@ -69,11 +77,24 @@ def _builders(ts):
 def write_run_bag(run: RunData, path, *, storage: str | None = None) -> Path:
     """Write `run` to a new rosbag2 bag at `path`, as the recorder node would.
 
+    The run's graph (:class:`~seft_msgs_py.graph.Graph`) gives the layout: the study's test
+    its one rig in the root namespace (``/seft/...``), a structure test each rig in its
+    namespace (``/<rig>/seft/...``) and the computational state on the builder's
+    ``structure_state`` topic (a sample whose state is not finite, the last, not written);
+    each rig node publishes its rig's parameters (the run's with its ``rigs`` section). An
+    aborted run's rigs report 'aborted', the one that stopped the run with the reason, the
+    others passing it on (``'<node>: <reason>'``, ``ended_by``), as in the graph.
+    :func:`~seft_ros.analysis.bag.read_run` of the bag gives the run back: its parameters,
+    every sample (bit for bit), the outcome (the abort reason of a node other than the
+    study's rig prefixed with ``'<node>: '``) and the estimates.
+
     Parameters
     ----------
     run : RunData
-        A run of ``seft_ros.core.experiment.simulate`` (``extra['abort_node']`` names the
-        node that stopped an aborted run; default the rig).
+        A run of ``seft_ros.core.experiment.simulate`` or
+        ``seft_ros.core.experiment.simulate``
+        (``extra['abort_node']`` names the node that stopped an aborted run; default the
+        first rig).
     path : str or Path
         Bag directory; must not exist.
     storage : {'mcap', 'sqlite3'}, optional
@@ -88,26 +109,35 @@ def write_run_bag(run: RunData, path, *, storage: str | None = None) -> Path:
     ------
     InputError
         `path` exists already.
+    ParameterError
+        The run's structure is invalid.
     """
     path = Path(path)
     if path.exists():
         raise InputError(f'{path}: the bag exists already; expected a new directory name')
     p = dict(run.params)
     storage = storage or p.get('bag_storage', 'mcap')
+    graph = Graph.from_parameters(p)
+    setup = test_setup(p)
     ts = get_typestore(Stores.ROS2_JAZZY)
     build = _builders(ts)
     t = ts.types
     dt_ns = int(round(float(p['dt']) * 1e9))
     n = run.n_steps
-    valve = p['rig_model'] == 'servohydraulic'
     plugin = StoragePlugin.MCAP if storage == 'mcap' else StoragePlugin.SQLITE3
-    topics = [s for s in signals.BAG_SIGNALS if not s.name.startswith('/seft/timing/')]
+    timing = {graph.timing_topic(s) for s in graph.record_streams() if s.timing}
+    topics = [s for s in graph.bag_signals() if s.name not in timing]
+    state_topic = next((s.fields_topic for s in graph.record_streams()
+                        if s.fields_topic.endswith(STRUCTURE_STATE.name)), None)
+    rig_nodes = graph.rig_nodes()
     end_ns = max(n - 1, 0) * dt_ns
     with Writer(path, version=9, storage_plugin=plugin) as writer:
         conns = {s.name: writer.add_connection(s.name, s.type_name, typestore=ts)
                  for s in topics}
 
         def write(name, ns, msg):
+            if name not in conns:       # a rig's estimates in its namespace
+                conns[name] = writer.add_connection(name, msg.__msgtype__, typestore=ts)
             writer.write(conns[name], ns, ts.serialize_cdr(msg, msg.__msgtype__))
 
         def status(node, state, message='', **values):
@@ -120,50 +150,66 @@ def write_run_bag(run: RunData, path, *, storage: str | None = None) -> Path:
 
         string = t['std_msgs/msg/String']
         write(signals.RUN_PARAMETERS.name, 0, string(data=json.dumps(p, sort_keys=True)))
-        graph = parameters.graph_nodes(p['rig_model'])
-        for node in ('recorder',) + graph:
-            values = {s.name: p[s.name] for s in parameters.specs_for_node(node)}
+        nodes = ('recorder',) + graph.nodes()
+        for node in nodes:
+            rig, kind = split_qualified(node)
+            own = setup.rig_params[rig] if graph.rig_of(node) is not None and kind in RIG_NODES \
+                else p
+            values = {s.name: own[s.name] for s in parameters.specs_for_node(kind)}
             write(signals.NODE_PARAMETERS.name, 0, string(data=json.dumps(
                 {'node': node, 'parameters': values}, sort_keys=True)))
-        for node in ('recorder',) + graph:
+        for node in nodes:
             extra = ({'n_steps': n, 'record': run.record_name}
                      if node == 'ground_motion_publisher' else {})
             write(signals.STATUS.name, 0, status(node, 'ready', **extra))
-        series = [(signals.GROUND_ACCELERATION, run.ground_acceleration_m_s2),
-                  (signals.REFERENCE_FORCE, run.reference_force_N),
-                  (signals.MEASURED_FORCE, run.measured_force_N),
-                  (signals.DISPLACEMENT, run.displacement_m),
-                  (signals.VELOCITY, run.velocity_m_s),
-                  (signals.ACCELERATION, run.acceleration_m_s2)]
-        if valve and run.valve_command_V is not None:
-            series.append((signals.VALVE_COMMAND, run.valve_command_V))
-        names = list(run.estimates) if run.estimates else []
+        series = [(signals.GROUND_ACCELERATION, run.ground_acceleration_m_s2)]
+        estimates = []
+        for r in graph.rigs:
+            rig = run.rigs[r]
+            sensors = graph.sensors(r)
+            series += [(graph.reference_force(r), rig.reference_force_N),
+                       (sensors[0], rig.measured_force_N), (sensors[1], rig.displacement_m),
+                       (sensors[2], rig.velocity_m_s), (sensors[3], rig.acceleration_m_s2)]
+            if graph.has_controller(r) and rig.valve_command_V is not None:
+                series.append((graph.valve_command(r), rig.valve_command_V))
+            if rig.estimates:
+                estimates.append((scoped(signals.ESTIMATES.name, r), rig.estimates))
+        state = [(name, np.asarray(values, dtype=float))
+                 for name, values in run.computational.items()]
         for k in range(n):
             ns = k * dt_ns
             for sig, values in series:
                 write(sig.name, ns, build[sig.type_name](ns, float(values[k])))
-            if names:
-                write(signals.ESTIMATES.name, ns, build['joint_state'](
-                    ns, names, [run.estimates[m][k] for m in names]))
+            for topic, values in estimates:
+                write(topic, ns, build['joint_state'](ns, list(values),
+                                                      [values[m][k] for m in values]))
+            if state_topic and state and all(np.isfinite(v[k]) for _, v in state):
+                write(state_topic, ns, build['joint_state'](ns, [name for name, _ in state],
+                                                            [v[k] for _, v in state]))
         wall = run.extra.get('wall_s')
         final = {'step': n, 'n_steps': n, 'time_s': f'{n * float(p["dt"]):.6f}',
                  'published': n, 'mode': p.get('mode', 'lockstep'),
                  rig_contract.CONTRACT_KEY: rig_contract.CONTRACT}
         if wall is not None:
             final['wall_s'] = f'{float(wall):.3f}'
+        stopped_by = None if run.stable else (run.extra.get('abort_node') or graph.master)
         if run.stable:
-            write(signals.STATUS.name, end_ns, status('rig', 'done', f'completed {n} steps',
-                                                      **final))
+            for node in rig_nodes:
+                write(signals.STATUS.name, end_ns, status(node, 'done', f'completed {n} steps',
+                                                          **final))
         else:
-            node = run.extra.get('abort_node') or 'rig'
             reason = run.abort_reason or 'aborted'
-            if node != 'rig':
-                write(signals.STATUS.name, end_ns, status(node, 'aborted', reason))
-                reason = f'{node}: {reason}'
-            write(signals.STATUS.name, end_ns, status('rig', 'aborted', reason, **final))
-        stopped_by = None if run.stable else run.extra.get('abort_node')
-        for node in graph[:-1]:
-            if node != stopped_by:
+            if stopped_by not in rig_nodes:
+                write(signals.STATUS.name, end_ns, status(stopped_by, 'aborted', reason))
+            for node in rig_nodes:
+                if node == stopped_by:
+                    write(signals.STATUS.name, end_ns, status(node, 'aborted', reason, **final))
+                else:
+                    write(signals.STATUS.name, end_ns, status(
+                        node, 'aborted', f'{stopped_by}: {reason}', **final,
+                        ended_by=stopped_by))
+        for node in graph.nodes():
+            if node not in rig_nodes and node != stopped_by:
                 write(signals.STATUS.name, end_ns, status(node, 'done', published=n))
         write(signals.STATUS.name, end_ns, status('recorder', 'closed', f'bag {path} closed',
                                                   incomplete='', lost=0))

@@ -1,15 +1,30 @@
 """Error metrics of a substructure EFT run against the analytical reference.
 
-Imports no rclpy. The test lags the reference by the actuator's loop delay (paper Eq. 5.2), so
-each signal is compared after removing its lag: the lag is estimated from the cross-correlation
-peak, the test is advanced by it, and the normalized RMS error is computed over the samples
-both signals share. Each signal's NRMS is also given unshifted and after removing one common
-lag (the displacement's) from every signal: a lag of its own can hide a signal's phase error.
-The RTHS benchmark's criteria J1-J5 come from ``seft_ros.analysis.criteria``. For a yielding
-(nonlinear) member the displacement is also compared after removing each signal's slowly
-varying permanent offset (:func:`drift`), with the residual (permanent) displacement
-(:func:`residual_displacement`) and the member's restoring force (:func:`restoring_force`) for
-its hysteresis loops.
+Imports no rclpy. Every test is a structure (:mod:`seft_ros.core.structure`; the reference
+study's test is its one-DOF case), and a run is compared with the whole structure's reference
+(:func:`~seft_ros.analysis.reference.run_reference`) two ways (:func:`compare_run`):
+
+- **per rig** (:class:`RigComparison`): the rig's displacement, load-cell force and
+  acceleration against the reference at its degree of freedom (DOF). The test lags the
+  reference by the actuator's loop delay (paper Eq. 5.2), so each signal is compared after
+  removing its lag: the lag is estimated from the cross-correlation peak, the test is advanced
+  by it, and the normalized RMS error is computed over the samples both signals share. Each
+  signal's NRMS is also given unshifted and after removing one common lag (the
+  displacement's) from every signal: a lag of its own can hide a signal's phase error. The
+  RTHS benchmark's criteria J1-J5 come from ``seft_ros.analysis.criteria``. For a yielding
+  (nonlinear) member the displacement is also compared after removing each signal's slowly
+  varying permanent offset (:func:`drift`), with the residual (permanent) displacement
+  (:func:`residual_displacement`) and the member's restoring force (:func:`restoring_force`)
+  for its hysteresis loops;
+- **per DOF** (:class:`DofComparison`): displacement, relative and floor (absolute)
+  acceleration of every DOF — a physical DOF's from its rig's sensors (the rig's comparison),
+  a computational DOF's from the state the builder integrated — and at a physical DOF the
+  interface force (the load cell against ``m_p x'' + c_p x' + k_p x``, paper Eq. 2.4 per
+  rig); per link of the structure (a story, a bearing) its deformation
+  (:class:`LinkComparison`, the story drift).
+
+A run of one rig reads as its rig's comparison (``comparison.displacement.nrms``), as the run
+reads as its rig. :func:`summary_entry` gives every run one layout in ``summary.json``.
 """
 
 from dataclasses import dataclass
@@ -23,16 +38,17 @@ from seft_msgs_py.errors import ParameterError
 from seft_ros.analysis.criteria import J1_MAX_LAG_S, Criteria, evaluation_criteria
 from seft_ros.analysis.criteria import as_1d as _as_1d
 from seft_ros.analysis.criteria import check_dt as _check_dt
-from seft_ros.analysis.reference import ReferenceResponse, reference_from_run
-from seft_ros.analysis.rundata import SIGNALS, RunData
+from seft_ros.analysis.reference import ReferenceResponse, StructureReference, run_reference
+from seft_ros.analysis.rundata import SIGNALS, RigData, RunData, only_rig, rig_label
 from seft_ros.analysis.timing import link_summary
+from seft_ros.core.structure import STUDY_DOF, Link, structure_of
 
 __all__ = [
-    'SignalComparison', 'RunComparison', 'estimate_lag', 'shift', 'nrms_error', 'peak',
-    'peak_ratio', 'high_frequency_fraction', 'compare_run', 'summary_entry',
-    'json_safe', 'best_runs', 'UNCOMPENSATED', 'residual_displacement', 'drift',
-    'restoring_force', 'ResidualComparison', 'is_nonlinear', 'DRIFT_CUTOFF_HZ',
-    'RESIDUAL_WINDOW_S',
+    'SignalComparison', 'RigComparison', 'RunComparison', 'DofComparison', 'LinkComparison',
+    'estimate_lag', 'shift', 'nrms_error', 'peak', 'peak_ratio', 'high_frequency_fraction',
+    'compare_run', 'summary_entry', 'dof_signals', 'DOF_SIGNALS', 'json_safe', 'best_runs',
+    'UNCOMPENSATED', 'residual_displacement', 'drift', 'restoring_force',
+    'ResidualComparison', 'is_nonlinear', 'DRIFT_CUTOFF_HZ', 'RESIDUAL_WINDOW_S',
 ]
 
 #: Default bound of the lag search [s] (ten times the reference rig's 10 ms delay).
@@ -576,15 +592,17 @@ class ResidualComparison:
 
 
 @dataclass(frozen=True)
-class RunComparison:
-    """Comparison of a run with the reference, one :class:`SignalComparison` per signal.
+class RigComparison:
+    """Comparison of one rig's signals with the reference at its DOF, one
+    :class:`SignalComparison` per signal.
 
     Attributes
     ----------
     displacement, force, acceleration : SignalComparison
-        Displacement [m], load-cell force versus member force [N], acceleration [m/s^2].
+        Displacement [m], load-cell force versus the member (interface) force [N],
+        acceleration [m/s^2].
     reference : ReferenceResponse
-        The reference over the run's n samples.
+        The reference at the rig's DOF over the run's n samples.
     high_frequency_force_fraction : float
         Fraction of the test force's power above `high_frequency_cutoff_hz`
         (:func:`high_frequency_fraction`).
@@ -596,7 +614,7 @@ class RunComparison:
         The RTHS benchmark's criteria J1-J5 (``criteria.evaluation_criteria``).
     residual : ResidualComparison or None
         Peak and residual displacements and the displacement NRMS with the permanent offsets
-        removed (computed for every run; reported for a nonlinear specimen).
+        removed (computed for every rig; reported for a nonlinear specimen).
     """
 
     displacement: SignalComparison
@@ -616,72 +634,140 @@ class RunComparison:
         return getattr(self, name)
 
 
-def compare_run(run: RunData, reference: ReferenceResponse | None = None, *,
-                max_lag_s: float = MAX_LAG_S,
-                high_frequency_cutoff_hz: float = HIGH_FREQUENCY_CUTOFF_HZ,
-                j1_max_lag_s: float = J1_MAX_LAG_S,
-                drift_cutoff_hz: float = DRIFT_CUTOFF_HZ,
-                residual_window_s: float = RESIDUAL_WINDOW_S) -> RunComparison:
-    """Compare a run's displacement, force and acceleration with the reference analysis.
+#: The compared signals of a DOF, in report order (``interface_force`` at physical DOFs).
+DOF_SIGNALS = ('displacement', 'acceleration', 'floor_acceleration', 'interface_force')
 
-    For each signal: the lag of the test behind the reference is estimated
-    (:func:`estimate_lag`), the test is advanced by that lag (:func:`shift`), and the
-    normalized RMS error (:func:`nrms_error`) is computed over the samples both share; the
-    peaks are those of the unshifted signals. Each signal is aligned by its own lag (all
-    three share the loop delay in a well-behaved test; a different force or acceleration lag
-    reveals the phase error of acceleration feedback). The NRMS is also computed unshifted
-    and after advancing every signal by the displacement's lag (the common lag), and the
-    RTHS benchmark's criteria J1-J5 (``criteria.evaluation_criteria``: the reference force
-    commanded versus the load-cell force, and the displacement versus the reference, as
-    recorded). The displacement is also compared without the permanent offsets
-    (:class:`ResidualComparison`): peaks, residual displacements
-    (:func:`residual_displacement`) and the NRMS, after removing the displacement's lag, of
-    ``x - drift(x)`` against ``x_ref - drift(x_ref)`` (:func:`drift`).
 
-    Parameters
+@dataclass(frozen=True)
+class DofComparison:
+    """One degree of freedom of a run against the reference.
+
+    Attributes
     ----------
-    run : RunData
-        The run (n samples; an aborted run is compared over the samples it has).
-    reference : ReferenceResponse or None
-        The reference; computed with :func:`~seft_ros.analysis.reference.reference_from_run` if
-        None. Only its first n
-        samples are used.
-    max_lag_s : float >= 0
-        Bound of the lag search [s].
-    high_frequency_cutoff_hz : float > 0
-        Cutoff of the high-frequency content of the force [Hz], below the Nyquist frequency
-        ``1/(2 dt)`` (:func:`high_frequency_fraction`).
-    j1_max_lag_s : float >= 0
-        Bound of the search of criterion J1 [s] (``criteria.J1_MAX_LAG_S``).
-    drift_cutoff_hz : float > 0
-        Cut-off of the drift low-pass [Hz], below the Nyquist frequency (:func:`drift`).
-    residual_window_s : float > 0
-        Window of the residual displacement [s] (:func:`residual_displacement`).
-
-    Returns
-    -------
-    RunComparison
-
-    Raises
-    ------
-    ParameterError
-        If a run parameter is missing or out of range, a cutoff is not below the Nyquist
-        frequency, `residual_window_s` is not > 0, or the reference has fewer samples than
-        the run.
-
-    References
-    ----------
-    N. Nakata and S. Combs, Substructure Effective Force Testing, Sec. 4 (Figure 6) and
-    Eq. 5.2.
+    dof : str
+        Its name.
+    rig : str or None
+        The rig that tests it (None: computational; ``''``: the study's rig).
+    displacement, acceleration, floor_acceleration : SignalComparison
+        Displacement relative to the ground [m], relative and absolute acceleration [m/s^2]
+        (a physical DOF's displacement and acceleration are its rig's comparisons).
+    interface_force : SignalComparison or None
+        Physical DOF: the rig's load-cell force against the reference specimen's force [N]
+        (its rig's force comparison).
     """
-    if reference is None:
-        reference = reference_from_run(run)
-    n = run.n_steps
-    if reference.n_steps < n:
-        raise ParameterError(f'reference has {reference.n_steps} samples, the run {n}; '
-                             'expected at least as many as the run')
-    dt = _check_dt(run.params.get('dt'))
-    pairs = {name: (np.asarray(run.signal(name), dtype=float)[:n],
+
+    dof: str
+    rig: str | None
+    displacement: SignalComparison
+    acceleration: SignalComparison
+    floor_acceleration: SignalComparison
+    interface_force: SignalComparison | None = None
+
+    def signal(self, name: str) -> SignalComparison | None:
+        """The comparison of one of :data:`DOF_SIGNALS`."""
+        if name not in DOF_SIGNALS:
+            raise ParameterError(f'signal {name!r}: expected one of {", ".join(DOF_SIGNALS)}')
+        return getattr(self, name)
+
+
+@dataclass(frozen=True)
+class LinkComparison:
+    """The deformation of one link (a story, a bearing) against the reference.
+
+    Attributes
+    ----------
+    name : str
+        ``story_<i>`` of a shear building, ``<dof>-<dof>`` or ``<dof>-ground``.
+    drift : SignalComparison
+        Its deformation [m] (the story drift: the relative displacement of its ends).
+    """
+
+    name: str
+    drift: SignalComparison
+
+
+def _one_rig(name: str):
+    """A property of a one-rig comparison that reads its rig's attribute `name`."""
+    def get(self):
+        return getattr(self.rig, name)
+    return property(get, doc=f"The rig's ``{name}`` (a run of one rig only; "
+                    '``comparison.rigs[name]`` otherwise).')
+
+
+@dataclass(frozen=True)
+class RunComparison:
+    """A run against the whole structure's reference: per rig and per DOF (module notes).
+
+    A comparison of a run of one rig reads as that rig's (``comparison.displacement``,
+    ``.force``, ``.acceleration``, ``.reference``, ``.criteria``, ``.residual``,
+    ``.high_frequency_*``, ``.signal(name)`` are its :class:`RigComparison`'s); with several
+    rigs they raise ``AttributeError`` naming the rigs.
+
+    Attributes
+    ----------
+    rigs : dict of str to RigComparison
+        Per rig, in the structure's order.
+    dofs : tuple of DofComparison
+        In the structure's DOF order.
+    links : tuple of LinkComparison
+        The structure's links (story drifts).
+    structure_reference : StructureReference or None
+        The whole structure's reference over the run's samples.
+    n_steps : int
+        The samples compared.
+    """
+
+    rigs: dict
+    dofs: tuple = ()
+    links: tuple = ()
+    structure_reference: StructureReference | None = None
+    n_steps: int = 0
+
+    @property
+    def rig(self) -> RigComparison:
+        """The comparison of the run's only rig.
+
+        Raises
+        ------
+        AttributeError
+            The run has several rigs (the message names them).
+        """
+        return only_rig(self.rigs, 'comparison', 'use comparison.rigs[name]')
+
+    displacement = _one_rig('displacement')
+    force = _one_rig('force')
+    acceleration = _one_rig('acceleration')
+    reference = _one_rig('reference')
+    high_frequency_force_fraction = _one_rig('high_frequency_force_fraction')
+    high_frequency_force_fraction_reference = _one_rig('high_frequency_force_fraction_reference')
+    high_frequency_cutoff_hz = _one_rig('high_frequency_cutoff_hz')
+    criteria = _one_rig('criteria')
+    residual = _one_rig('residual')
+
+    def signal(self, name: str) -> SignalComparison:
+        """The only rig's comparison of 'displacement', 'force' or 'acceleration'."""
+        return self.rig.signal(name)
+
+    def dof(self, name: str) -> DofComparison:
+        """The comparison of DOF `name` (KeyError if none)."""
+        for d in self.dofs:
+            if d.dof == name:
+                return d
+        raise KeyError(name)
+
+    def worst_nrms(self, name: str = 'displacement') -> float:
+        """The largest NRMS over the DOFs of one of :data:`DOF_SIGNALS` (a fraction; NaN if
+        none is finite)."""
+        values = [c.nrms for c in (d.signal(name) for d in self.dofs)
+                  if c is not None and math.isfinite(c.nrms)]
+        return max(values) if values else math.nan
+
+
+def _compare_rig(rig: RigData, reference: ReferenceResponse, dt: float, n: int, *,
+                 max_lag_s: float, high_frequency_cutoff_hz: float, j1_max_lag_s: float,
+                 drift_cutoff_hz: float, residual_window_s: float) -> RigComparison:
+    """One rig's signals against the reference at its DOF (:func:`compare_run`)."""
+    pairs = {name: (np.asarray(rig.signal(name), dtype=float)[:n],
                     np.asarray(reference.signal(name), dtype=float)[:n]) for name in SIGNALS}
     common_lag = estimate_lag(*pairs['displacement'], dt, max_lag_s)
     results = {}
@@ -704,17 +790,219 @@ def compare_run(run: RunData, reference: ReferenceResponse | None = None, *,
             x_ref - drift(x_ref, dt, drift_cutoff_hz)),
         drift_cutoff_hz=float(drift_cutoff_hz), residual_window_s=float(residual_window_s))
     criteria = evaluation_criteria(
-        target_force=np.asarray(run.reference_force_N, dtype=float)[:n],
-        measured_force=np.asarray(run.measured_force_N, dtype=float)[:n],
+        target_force=np.asarray(rig.reference_force_N, dtype=float)[:n],
+        measured_force=np.asarray(rig.measured_force_N, dtype=float)[:n],
         displacement=pairs['displacement'][0], reference_displacement=pairs['displacement'][1],
         dt=dt, j1_max_lag_s=j1_max_lag_s)
-    return RunComparison(
+    return RigComparison(
         **results, reference=reference, criteria=criteria,
         high_frequency_force_fraction=high_frequency_fraction(
-            np.asarray(run.measured_force_N, dtype=float)[:n], dt, high_frequency_cutoff_hz),
+            np.asarray(rig.measured_force_N, dtype=float)[:n], dt, high_frequency_cutoff_hz),
         high_frequency_force_fraction_reference=high_frequency_fraction(
             reference.force_N[:n], dt, high_frequency_cutoff_hz),
         high_frequency_cutoff_hz=float(high_frequency_cutoff_hz), residual=residual)
+
+
+def _signal_comparison(test, reference, dt: float, max_lag_s: float) -> SignalComparison:
+    """:class:`SignalComparison` of two signals over the samples finite in both (no common
+    lag: NaN)."""
+    test = np.asarray(test, dtype=float)
+    reference = np.asarray(reference, dtype=float)
+    good = np.isfinite(test) & np.isfinite(reference)
+    n = int(np.argmin(good)) if not np.all(good) else test.shape[0]
+    test, reference = test[:n], reference[:n]
+    if n < 2:
+        return SignalComparison(math.nan, math.nan, math.nan, math.nan, math.nan, math.nan,
+                                math.nan)
+    lag = estimate_lag(test, reference, dt, max_lag_s)
+    return SignalComparison(
+        peak_test=peak(test), peak_reference=peak(reference), lag_s=lag,
+        nrms=nrms_error(shift(test, lag, dt), reference),
+        peak_ratio=peak_ratio(test, reference), nrms_unshifted=nrms_error(test, reference),
+        nrms_common_lag=math.nan)
+
+
+def _dof_signals(run: RunData, dofs, rigs, physical_index, influence) -> dict:
+    """:func:`dof_signals` of a structure given by its DOFs, rigs, their DOFs and iota."""
+    ag = np.asarray(run.ground_acceleration_m_s2, dtype=float)
+    physical = {physical_index[j]: r for j, r in enumerate(rigs)}
+    out = {}
+    for i, dof in enumerate(dofs):
+        if i in physical:
+            rig = run.rigs.get(physical[i])
+            if rig is None:
+                raise ParameterError(f'rig {rig_label(physical[i])}: its signals are not in '
+                                     f'the run (rigs: {", ".join(map(rig_label, run.rigs))})')
+            x, v, a = rig.displacement_m, rig.velocity_m_s, rig.acceleration_m_s2
+            extra = {'interface_force': np.asarray(rig.measured_force_N, dtype=float)}
+        else:
+            try:
+                x, v, a = (run.computational[f'{dof}/{q}'] for q in (
+                    'displacement_m', 'velocity_m_s', 'acceleration_m_s2'))
+            except KeyError:
+                raise ParameterError(f'computational dof {dof!r}: its state is not in the '
+                                     'run') from None
+            extra = {}
+        a = np.asarray(a, dtype=float)
+        out[dof] = {'displacement': np.asarray(x, dtype=float),
+                    'velocity': np.asarray(v, dtype=float), 'acceleration': a,
+                    'floor_acceleration': a + float(influence[i]) * ag, **extra}
+    return out
+
+
+def dof_signals(run: RunData) -> dict[str, dict[str, np.ndarray]]:
+    """The test's signals per DOF: ``{dof: {'displacement', 'velocity', 'acceleration',
+    'floor_acceleration', ['interface_force']}}``, arrays of shape (n,) [m, m/s, m/s^2, N]
+    (a physical DOF's from its rig's sensors and load cell; a computational DOF's as the
+    builder integrated it, its last sample NaN: the builder's state of sample k comes with
+    the force of k+1).
+
+    Raises
+    ------
+    ParameterError
+        The run's structure is invalid, or a DOF's signals are missing.
+    """
+    s = structure_of(run.params)
+    rigs = s.rig_names
+    return _dof_signals(run, s.dofs, rigs, s.physical_index, s.influence)
+
+
+def _one_dof_reference(reference: ReferenceResponse, run: RunData) -> StructureReference:
+    """The one-DOF structure reference of a run of one rig whose rig's reference is
+    `reference` (its absolute acceleration from the run's record; NaN past it)."""
+    if len(run.rigs) != 1 or not run.is_study:
+        raise ParameterError("reference: a ReferenceResponse is the reference of the study's "
+                             'one-DOF test; give a structure test its StructureReference '
+                             '(run_reference)')
+    rig = next(iter(run.rigs))
+    n = reference.n_steps
+    ground = np.full(n, np.nan)
+    ag = np.asarray(run.ground_acceleration_m_s2, dtype=float)[:n]
+    ground[:ag.shape[0]] = ag
+
+    def column(values):
+        return np.asarray(values, dtype=float)[:, None]
+    restoring = (reference.restoring_force_N if reference.restoring_force_N is not None
+                 else np.full(n, np.nan))
+    return StructureReference(
+        time_s=reference.time_s, dofs=(STUDY_DOF,), rigs=(rig,), physical_index=(0,),
+        influence=np.ones(1), links=(Link(0, None, f'{STUDY_DOF}-ground'),),
+        displacement_m=column(reference.displacement_m),
+        velocity_m_s=column(reference.velocity_m_s),
+        acceleration_m_s2=column(reference.acceleration_m_s2),
+        absolute_acceleration_m_s2=column(reference.acceleration_m_s2) + ground[:, None],
+        interface_force_N=column(reference.force_N), restoring_force_N=column(restoring),
+        hysteretic_z={} if reference.hysteretic_z is None else {rig: reference.hysteretic_z})
+
+
+def compare_run(run: RunData, reference: StructureReference | ReferenceResponse | None = None,
+                *, max_lag_s: float = MAX_LAG_S,
+                high_frequency_cutoff_hz: float = HIGH_FREQUENCY_CUTOFF_HZ,
+                j1_max_lag_s: float = J1_MAX_LAG_S,
+                drift_cutoff_hz: float = DRIFT_CUTOFF_HZ,
+                residual_window_s: float = RESIDUAL_WINDOW_S) -> RunComparison:
+    """Compare a run with the whole structure's reference, per rig and per DOF.
+
+    **Per rig** (:class:`RigComparison`), the rig's displacement, force and acceleration
+    against the reference at its DOF: for each signal the lag of the test behind the
+    reference is estimated (:func:`estimate_lag`), the test is advanced by that lag
+    (:func:`shift`), and the normalized RMS error (:func:`nrms_error`) is computed over the
+    samples both share; the peaks are those of the unshifted signals. Each signal is aligned
+    by its own lag (all three share the loop delay in a well-behaved test; a different force
+    or acceleration lag reveals the phase error of acceleration feedback). The NRMS is also
+    computed unshifted and after advancing every signal by the displacement's lag (the common
+    lag), and the RTHS benchmark's criteria J1-J5 (``criteria.evaluation_criteria``: the
+    reference force commanded versus the load-cell force, and the displacement versus the
+    reference, as recorded). The displacement is also compared without the permanent offsets
+    (:class:`ResidualComparison`): peaks, residual displacements
+    (:func:`residual_displacement`) and the NRMS, after removing the displacement's lag, of
+    ``x - drift(x)`` against ``x_ref - drift(x_ref)`` (:func:`drift`).
+
+    **Per DOF** (:class:`DofComparison`): a physical DOF's displacement, acceleration and
+    interface force are its rig's comparisons; its floor acceleration ``x'' + iota xg''``
+    and a computational DOF's signals (:func:`dof_signals`) are compared the same way over
+    the samples finite in both (no common lag). **Per link** (:class:`LinkComparison`): the
+    relative displacement of its ends.
+
+    Parameters
+    ----------
+    run : RunData
+        The run (n samples; an aborted run is compared over the samples it has).
+    reference : StructureReference, ReferenceResponse or None
+        The reference; :func:`~seft_ros.analysis.reference.run_reference` of the run if None;
+        for the study's one-DOF test also its rig's ReferenceResponse. Only its first n
+        samples are used.
+    max_lag_s : float >= 0
+        Bound of the lag search [s].
+    high_frequency_cutoff_hz : float > 0
+        Cutoff of the high-frequency content of the force [Hz], below the Nyquist frequency
+        ``1/(2 dt)`` (:func:`high_frequency_fraction`).
+    j1_max_lag_s : float >= 0
+        Bound of the search of criterion J1 [s] (``criteria.J1_MAX_LAG_S``).
+    drift_cutoff_hz : float > 0
+        Cut-off of the drift low-pass [Hz], below the Nyquist frequency (:func:`drift`).
+    residual_window_s : float > 0
+        Window of the residual displacement [s] (:func:`residual_displacement`).
+
+    Returns
+    -------
+    RunComparison
+
+    Raises
+    ------
+    ParameterError
+        If a run parameter is missing or out of range, a cutoff is not below the Nyquist
+        frequency, `residual_window_s` is not > 0, the reference has fewer samples than the
+        run, or a rig's or computational DOF's signals are missing from the run.
+
+    References
+    ----------
+    N. Nakata and S. Combs, Substructure Effective Force Testing, Sec. 4 (Figure 6) and
+    Eq. 5.2.
+    """
+    if reference is None:
+        reference = run_reference(run)
+    elif isinstance(reference, ReferenceResponse):
+        reference = _one_dof_reference(reference, run)
+    n = run.n_steps
+    if reference.n_steps < n:
+        raise ParameterError(f'reference has {reference.n_steps} samples, the run {n}; '
+                             'expected at least as many as the run')
+    dt = _check_dt(run.params.get('dt'))
+    test = _dof_signals(run, reference.dofs, reference.rigs, reference.physical_index,
+                        reference.influence)
+    rigs = {r: _compare_rig(run.rigs[r], reference.rig(r), dt, n, max_lag_s=max_lag_s,
+                            high_frequency_cutoff_hz=high_frequency_cutoff_hz,
+                            j1_max_lag_s=j1_max_lag_s, drift_cutoff_hz=drift_cutoff_hz,
+                            residual_window_s=residual_window_s)
+            for r in reference.rigs}
+    physical = {i: r for r, i in zip(reference.rigs, reference.physical_index)}
+    refs = {'displacement': reference.displacement_m,
+            'acceleration': reference.acceleration_m_s2}
+    dofs = []
+    for i, dof in enumerate(reference.dofs):
+        floor = _signal_comparison(test[dof]['floor_acceleration'][:n],
+                                   reference.absolute_acceleration_m_s2[:n, i], dt, max_lag_s)
+        if i in physical:
+            c = rigs[physical[i]]
+            dofs.append(DofComparison(dof, physical[i], c.displacement, c.acceleration, floor,
+                                      c.force))
+            continue
+        own = {name: _signal_comparison(test[dof][name][:n], values[:n, i], dt, max_lag_s)
+               for name, values in refs.items()}
+        dofs.append(DofComparison(dof, None, floor_acceleration=floor, **own))
+    links = []
+    for link in reference.links:
+        x_i, r_i = test[reference.dofs[link.i]]['displacement'][:n], \
+            reference.displacement_m[:n, link.i]
+        if link.j is None:
+            x_j, r_j = np.zeros(n), np.zeros(n)
+        else:
+            x_j, r_j = test[reference.dofs[link.j]]['displacement'][:n], \
+                reference.displacement_m[:n, link.j]
+        links.append(LinkComparison(link.name, _signal_comparison(x_i - x_j, r_i - r_j, dt,
+                                                                  max_lag_s)))
+    return RunComparison(rigs, tuple(dofs), tuple(links), reference, n)
 
 
 def _finite_or_none(value) -> float | None:
@@ -743,8 +1031,68 @@ def json_safe(value: Any) -> Any:
     return value
 
 
+#: The signals of a rig's entry, in summary order.
+_ENTRY_SIGNALS = ('displacement', 'acceleration', 'force')
+#: The criteria of a rig's entry.
+_CRITERIA = ('J1', 'J2', 'J3', 'J4', 'J5')
+
+
+def _rig_entry(params, comparison: RigComparison | None) -> dict[str, Any]:
+    """The one-rig keys of a summary entry of one rig (its parameters `params`), or every
+    value None (`comparison` None: a run of several rigs)."""
+    if comparison is None:
+        nothing = {name: None for name in _ENTRY_SIGNALS}
+        return {'alpha': None, 'rig': None, 'lag_s': None, 'nrms': dict(nothing),
+                'nrms_common_lag': dict(nothing), 'nrms_unshifted': dict(nothing),
+                'criteria': {key: None for key in _CRITERIA}, 'peak_ratio': dict(nothing),
+                'high_frequency_force_fraction': None,
+                'high_frequency_force_fraction_reference': None,
+                'high_frequency_cutoff_hz': None}
+    c = comparison
+    return {
+        'alpha': _finite_or_none(params.get('alpha')),
+        'rig': params.get('rig_model'),
+        'lag_s': c.displacement.lag_s,
+        'nrms': {name: c.signal(name).nrms for name in _ENTRY_SIGNALS},
+        'nrms_common_lag': {name: c.signal(name).nrms_common_lag for name in _ENTRY_SIGNALS},
+        'nrms_unshifted': {name: c.signal(name).nrms_unshifted for name in _ENTRY_SIGNALS},
+        'criteria': (c.criteria.as_dict() if c.criteria is not None
+                     else {key: None for key in _CRITERIA}),
+        'peak_ratio': {name: c.signal(name).peak_ratio for name in _ENTRY_SIGNALS},
+        'high_frequency_force_fraction': c.high_frequency_force_fraction,
+        'high_frequency_force_fraction_reference': c.high_frequency_force_fraction_reference,
+        'high_frequency_cutoff_hz': c.high_frequency_cutoff_hz,
+    }
+
+
+def _nonlinear_entry(params, comparison: RigComparison) -> dict[str, Any] | None:
+    """The ``'nonlinear'`` block of a rig with a nonlinear specimen (None otherwise)."""
+    residual = comparison.residual
+    if not is_nonlinear(params) or residual is None:
+        return None
+    return {
+        'specimen_model': params.get('specimen_model'),
+        'nrms_displacement': residual.nrms,
+        'nrms_displacement_residual_removed': residual.nrms_residual_removed,
+        'peak_displacement_m': {'test': residual.peak_test_m,
+                                'reference': residual.peak_reference_m},
+        'residual_displacement_m': {'test': residual.residual_test_m,
+                                    'reference': residual.residual_reference_m},
+        'drift_cutoff_hz': residual.drift_cutoff_hz,
+        'residual_window_s': residual.residual_window_s,
+    }
+
+
+def _signal_entry(c: SignalComparison | None) -> dict[str, Any] | None:
+    if c is None:
+        return None
+    return {'nrms': c.nrms, 'peak_ratio': c.peak_ratio, 'lag_s': c.lag_s,
+            'peak_test': c.peak_test, 'peak_reference': c.peak_reference,
+            'nrms_unshifted': c.nrms_unshifted}
+
+
 def summary_entry(run: RunData, comparison: RunComparison) -> dict[str, Any]:
-    """Summarize a run and its comparison as a JSON-safe dict.
+    """Summarize a run and its comparison as a JSON-safe dict: one layout for every run.
 
     Parameters
     ----------
@@ -756,78 +1104,73 @@ def summary_entry(run: RunData, comparison: RunComparison) -> dict[str, Any]:
     Returns
     -------
     dict
+        **The run's rig** (the keys of the study's test, for any run of one rig):
         ``{'alpha', 'rig', 'predictor', 'record', 'stable', 'unstable_at_s', 'lag_s',
         'nrms': {'displacement', 'acceleration', 'force'},
         'nrms_common_lag': {...}, 'nrms_unshifted': {...},
         'peak_ratio': {'displacement', 'acceleration', 'force'},
         'criteria': {'J1', 'J2', 'J3', 'J4', 'J5'},
         'high_frequency_force_fraction', 'high_frequency_force_fraction_reference',
-        'high_frequency_cutoff_hz', 'abort_reason', 'mode', 'wall_s'}`` (and ``'timing'``, the
-        :func:`seft_ros.analysis.timing.timing_summary` of a real-time run, from
-        ``run.extra['timing']``, ``'bag_lost_messages'``, what the nodes published and the
-        bag does not hold, and ``'recording'``, how the recording ended
-        (``seft_ros.analysis.bag.recording_end``: closed, stopped, or crashed and recovered),
-        from ``run.extra``; ``wall_s`` [s], the wall time of the stepping, from
-        ``run.extra['wall_s']``; ``rig_contract``, the rig contract its rig reported,
-        ``'seft-rig/1.0'``, None for a bag before it, from ``run.extra``) where rig is
-        ``params['rig_model']``, predictor is ``params['predictor']``, record is
-        ``run.record_name`` (``params['record']`` if empty), ``lag_s`` [s] is the
+        'high_frequency_cutoff_hz', 'abort_reason', 'mode', 'wall_s', 'rig_contract'}``
+        (and ``'timing'``, the :func:`seft_ros.analysis.timing.timing_summary` of a
+        real-time run, from ``run.extra['timing']``, ``'link'``, ``'bag_lost_messages'``,
+        what the nodes published and the bag does not hold, and ``'recording'``, how the
+        recording ended (``seft_ros.analysis.bag.recording_end``: closed, stopped, or crashed
+        and recovered), from ``run.extra``; ``wall_s`` [s], the wall time of the stepping,
+        from ``run.extra['wall_s']``; ``rig_contract``, the rig contract its rig reported,
+        ``'seft-rig/1.0'``, None for a bag before it, from ``run.extra``) where alpha and rig
+        are the rig's ``alpha`` and ``rig_model``, predictor is ``params['predictor']``,
+        record is ``run.record_name`` (``params['record']`` if empty), ``lag_s`` [s] is the
         displacement lag, ``nrms`` is after removing each signal's own lag,
-        ``nrms_common_lag`` after removing ``lag_s`` from every signal,
-        ``nrms_unshifted`` as recorded, ``criteria`` are the RTHS benchmark's J1 [ms] and
-        J2-J5 [%] (``criteria.CRITERIA``), nrms values and the high-frequency
-        fractions (of the measured and of the reference force's power above the cutoff
-        [Hz]) are fractions, and every NaN or inf is None, so that
-        ``json.dumps(entry, allow_nan=False)`` succeeds.
-
-        A run with a nonlinear specimen (:func:`is_nonlinear`) has in addition
+        ``nrms_common_lag`` after removing ``lag_s`` from every signal, ``nrms_unshifted`` as
+        recorded, ``criteria`` are the RTHS benchmark's J1 [ms] and J2-J5 [%]
+        (``criteria.CRITERIA``), nrms values and the high-frequency fractions (of the
+        measured and of the reference force's power above the cutoff [Hz]) are fractions.
+        A rig with a nonlinear specimen (:func:`is_nonlinear`) has in addition
         ``'nonlinear'``: ``{'specimen_model', 'nrms_displacement',
         'nrms_displacement_residual_removed', 'peak_displacement_m': {'test', 'reference'},
         'residual_displacement_m': {'test', 'reference'}, 'drift_cutoff_hz',
-        'residual_window_s'}`` from ``comparison.residual`` (:class:`ResidualComparison`):
-        the displacement NRMS after removing the lag as it is (the ``nrms`` displacement) and
-        with each signal's drift removed (fractions), peaks and residual (permanent)
-        displacements [m], the drift's cut-off [Hz] and the residual's window [s]. A linear
-        run's entry has no such key.
+        'residual_window_s'}`` from its :class:`ResidualComparison`: the displacement NRMS
+        after removing the lag as it is and with each signal's drift removed (fractions),
+        peaks and residual (permanent) displacements [m], the drift's cut-off [Hz] and the
+        residual's window [s]. A run of several rigs has these keys with every value None
+        (``nrms`` ``{'displacement': None, ...}``; each rig's are in ``'rigs'``).
+
+        **Every run** in addition: ``'abort_node'`` (the node that ended the run, or None),
+        ``'n_steps'`` (the samples compared), ``'structure': {'dofs', 'physical',
+        'builders'}`` (the DOFs, ``{dof: rig}`` of the physical ones, the builders' layout;
+        the study's ``{'dofs': ['specimen'], 'physical': {'specimen': ''}}``),
+        ``'worst_nrms': {'displacement', 'acceleration', 'floor_acceleration',
+        'interface_force'}`` (the largest NRMS over the DOFs),
+        ``'dofs': {dof: {'rig', 'displacement', 'acceleration', 'floor_acceleration',
+        'interface_force'}}``, ``'links': {name: {...}}`` (each signal ``{'nrms',
+        'peak_ratio', 'lag_s', 'peak_test', 'peak_reference', 'nrms_unshifted'}``, SI;
+        ``interface_force`` None at a computational DOF; ``rig`` None there, ``''`` for the
+        study's rig), ``'rigs': {rig: {...}}`` (each rig's one-rig keys above, with
+        ``'rig_contract'`` and ``'nonlinear'``, and ``'dof'``, ``'specimen_model'``) and,
+        when the nodes disagreed, ``'parameter_mismatches'``.
+
+        Every NaN or inf is None, so that ``json.dumps(entry, allow_nan=False)`` succeeds.
     """
     params = run.params
-    order = ('displacement', 'acceleration', 'force')
+    single = len(comparison.rigs) == 1
+    only = next(iter(comparison.rigs)) if single else None
+    rig_params = run.rigs[only].params if single and only in run.rigs else params
+    entry = _rig_entry(rig_params, comparison.rigs[only] if single else None)
     entry = {
-        'alpha': _finite_or_none(params.get('alpha')),
-        'rig': params.get('rig_model'),
-        'predictor': params.get('predictor'),
-        'record': run.record_name or params.get('record', ''),
-        'stable': bool(run.stable),
+        'alpha': entry['alpha'], 'rig': entry['rig'], 'predictor': params.get('predictor'),
+        'record': run.record_name or params.get('record', ''), 'stable': bool(run.stable),
         'unstable_at_s': _finite_or_none(run.unstable_at_s),
-        'lag_s': comparison.displacement.lag_s,
-        'nrms': {name: comparison.signal(name).nrms for name in order},
-        'nrms_common_lag': {name: comparison.signal(name).nrms_common_lag for name in order},
-        'nrms_unshifted': {name: comparison.signal(name).nrms_unshifted for name in order},
-        'criteria': (comparison.criteria.as_dict() if comparison.criteria is not None
-                     else {key: None for key in ('J1', 'J2', 'J3', 'J4', 'J5')}),
-        'peak_ratio': {name: comparison.signal(name).peak_ratio for name in order},
-        'high_frequency_force_fraction': comparison.high_frequency_force_fraction,
-        'high_frequency_force_fraction_reference':
-            comparison.high_frequency_force_fraction_reference,
-        'high_frequency_cutoff_hz': comparison.high_frequency_cutoff_hz,
+        **{k: v for k, v in entry.items() if k not in ('alpha', 'rig')},
         'abort_reason': run.abort_reason,
         'mode': params.get('mode', 'lockstep'),
         'wall_s': _finite_or_none(run.extra.get('wall_s')),
         'rig_contract': run.extra.get('rig_contract'),
     }
-    residual = comparison.residual
-    if is_nonlinear(params) and residual is not None:
-        entry['nonlinear'] = {
-            'specimen_model': params.get('specimen_model'),
-            'nrms_displacement': residual.nrms,
-            'nrms_displacement_residual_removed': residual.nrms_residual_removed,
-            'peak_displacement_m': {'test': residual.peak_test_m,
-                                    'reference': residual.peak_reference_m},
-            'residual_displacement_m': {'test': residual.residual_test_m,
-                                        'reference': residual.residual_reference_m},
-            'drift_cutoff_hz': residual.drift_cutoff_hz,
-            'residual_window_s': residual.residual_window_s,
-        }
+    if single:
+        block = _nonlinear_entry(rig_params, comparison.rigs[only])
+        if block is not None:
+            entry['nonlinear'] = block
     if run.extra.get('timing') is not None:
         entry['timing'] = run.extra['timing']
     link = link_summary(run.extra.get('link'), run.extra.get('timing'))
@@ -837,7 +1180,42 @@ def summary_entry(run: RunData, comparison: RunComparison) -> dict[str, Any]:
         entry['bag_lost_messages'] = int(run.extra['bag_lost_messages'])
     if run.extra.get('recording') is not None:
         entry['recording'] = dict(run.extra['recording'])
+    entry.update(_structure_entries(run, comparison))
     return json_safe(entry)
+
+
+def _structure_entries(run: RunData, comparison: RunComparison) -> dict[str, Any]:
+    """The per-DOF, per-link and per-rig sections of :func:`summary_entry`."""
+    rigs = {}
+    dof_of = {d.rig: d.dof for d in comparison.dofs if d.rig is not None}
+    for name, c in comparison.rigs.items():
+        data = run.rigs.get(name)
+        p = data.params if data is not None else run.params
+        own = _rig_entry(p, c)
+        rig = {'dof': dof_of.get(name), 'rig_model': own.pop('rig'), **own,
+               'specimen_model': p.get('specimen_model', 'linear'),
+               'rig_contract': (data.extra.get('rig_contract') if data is not None else None)
+               or run.extra.get('rig_contract')}
+        block = _nonlinear_entry(p, c)
+        if block is not None:
+            rig['nonlinear'] = block
+        rigs[name] = rig
+    out = {
+        'abort_node': run.extra.get('abort_node'),
+        'n_steps': comparison.n_steps,
+        'structure': {'dofs': [d.dof for d in comparison.dofs],
+                      'physical': {d.dof: d.rig for d in comparison.dofs if d.rig is not None},
+                      'builders': run.params.get('structure_builders', 'central')},
+        'worst_nrms': {name: comparison.worst_nrms(name) for name in DOF_SIGNALS},
+        'dofs': {d.dof: {'rig': d.rig, **{name: _signal_entry(d.signal(name))
+                                           for name in DOF_SIGNALS}}
+                 for d in comparison.dofs},
+        'links': {lk.name: _signal_entry(lk.drift) for lk in comparison.links},
+        'rigs': rigs,
+    }
+    if run.extra.get('parameter_mismatches'):
+        out['parameter_mismatches'] = list(run.extra['parameter_mismatches'])
+    return out
 
 
 def best_runs(summary_entries) -> dict[tuple[Any, Any], dict[str, Any]]:

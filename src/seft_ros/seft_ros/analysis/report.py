@@ -1,5 +1,11 @@
 """Comparison report of substructure EFT runs against the reference: JSON, Markdown, figures.
 
+One report for any runs (:func:`write_report`): the reference study's tests (one rig, the
+one-DOF structure) with the study's tables and figures (Figure 6, the criteria, the predictors
+compared, hysteresis), structure tests per degree of freedom (tables per DOF, link and rig,
+the structure's matrices, time histories per DOF, hysteresis of a yielding rig), one
+``summary.json`` layout for all (:func:`~seft_ros.analysis.metrics.summary_entry`).
+
 Imports no rclpy and no pyplot: figures are drawn on ``matplotlib.figure.Figure`` objects with
 the Agg canvas, so the report works without a display and leaves the global backend alone.
 """
@@ -23,6 +29,7 @@ from seft_ros.analysis.metrics import (
     RunComparison,
     best_runs,
     compare_run,
+    dof_signals,
     drift,
     is_nonlinear,
     json_safe,
@@ -30,18 +37,19 @@ from seft_ros.analysis.metrics import (
     restoring_force,
     summary_entry,
 )
-from seft_ros.analysis.reference import reference_from_run
-from seft_ros.analysis.rundata import SIGNALS, RunData
+from seft_ros.analysis.rundata import SIGNALS, RunData, rig_label
 from seft_ros.analysis.timing import (
     link_markdown,
     link_summary,
     timing_figure,
     timing_table,
 )
+from seft_ros.core.structure import structure_of
 
 __all__ = ['ReportPaths', 'write_report', 'write_summary_json', 'plot_time_histories',
            'plot_criteria_vs_alpha', 'plot_runs_compared', 'software_versions',
-           'plot_predictor_comparison', 'plot_estimates', 'plot_hysteresis']
+           'plot_predictor_comparison', 'plot_estimates', 'plot_hysteresis',
+           'plot_structure_time_histories']
 
 #: Figure files written by :func:`write_report` (single predictor).
 TIME_HISTORIES_PNG = 'time_histories.png'
@@ -89,9 +97,9 @@ class ReportPaths:
     report_md : Path
         ``report.md``: one table per run and links to the figures.
     time_histories_png, zoom_png : Path or None
-        Whole-record figure of all runs (as the reference study's Figure 6) and the zoom
-        around the reference's displacement peak, written when the runs share one predictor;
-        None otherwise (see `predictor_time_histories`).
+        Whole-record figure of all the study's runs (as the reference study's Figure 6) and
+        the zoom around the reference's displacement peak, written when they share one
+        predictor; None otherwise (see `predictor_time_histories`) and without such runs.
     predictor_time_histories : dict of str to (Path, Path)
         With several predictors: ``{predictor: (whole record, zoom)}``, the Figure-6 grid of
         that predictor's runs (``time_histories_<predictor>.png`` and ``..._zoom.png``);
@@ -110,9 +118,15 @@ class ReportPaths:
         ``runs_compared.png`` (:func:`plot_runs_compared`) for 2 to ``MAX_COMPARED_RUNS``
         runs of one record and dt.
     hysteresis : dict of str to Path
-        ``{predictor: path}``: the hysteresis loops and drift of the runs with a nonlinear
-        specimen (:func:`plot_hysteresis`), ``hysteresis.png`` when they share one predictor,
-        else ``hysteresis_<predictor>.png``; empty without a nonlinear run.
+        ``{predictor: path}``: the hysteresis loops and drift of the study's runs with a
+        nonlinear specimen (:func:`plot_hysteresis`), ``hysteresis.png`` when they share one
+        predictor, else ``hysteresis_<predictor>.png``; empty without a nonlinear run.
+    structure_time_histories : dict of int to Path
+        ``{run number: path}``: each structure run's time histories per degree of freedom
+        (``structure_run_<i>.png``, :func:`plot_structure_time_histories`).
+    structure_hysteresis : dict of int to Path
+        ``{run number: path}``: the hysteresis loops of each structure run with a hysteretic
+        rig (``hysteresis_run_<i>.png``).
     """
 
     out_dir: Path
@@ -126,6 +140,8 @@ class ReportPaths:
     criteria_png: Path | None = None
     runs_png: Path | None = None
     hysteresis: dict[str, Path] = field(default_factory=dict)
+    structure_time_histories: dict[int, Path] = field(default_factory=dict)
+    structure_hysteresis: dict[int, Path] = field(default_factory=dict)
 
     @property
     def figures(self) -> tuple[Path, ...]:
@@ -136,6 +152,10 @@ class ReportPaths:
             out += list(pair)
         out += list(self.predictor_comparisons.values())
         out += list(self.hysteresis.values())
+        for number, path in self.structure_time_histories.items():
+            out.append(path)
+            if number in self.structure_hysteresis:
+                out.append(self.structure_hysteresis[number])
         return tuple(out)
 
 
@@ -646,7 +666,7 @@ def _estimates_markdown(index: int, run: RunData, out_dir: Path, title: str) -> 
 
 
 def plot_hysteresis(runs: list[RunData], comparisons: list[RunComparison], path, *,
-                    title: str = '') -> Path:
+                    title: str = '', labels: list[str] | None = None) -> Path:
     """Draw the member's hysteresis loops and the displacement's drift, test over reference.
 
     One column per run. Top: restoring force [N] against displacement [mm], the test's
@@ -661,13 +681,16 @@ def plot_hysteresis(runs: list[RunData], comparisons: list[RunComparison], path,
     ----------
     runs : list of RunData
         The runs (one column each), at least one; their parameters give m and c.
-    comparisons : list of RunComparison
+    comparisons : list of RunComparison or RigComparison
         Their comparisons (same order): the reference responses and
         ``comparison.residual`` (drift cut-off, residual window, residuals, NRMS).
     path : str or Path
         Output PNG.
     title : str
         Figure title.
+    labels : list of str, optional
+        Column titles (default: each run's alpha, and its rig and predictor where they
+        differ); a rig of a structure: ``run.rig_view(rig)``, labelled by its name.
 
     Returns
     -------
@@ -714,7 +737,7 @@ def plot_hysteresis(runs: list[RunData], comparisons: list[RunComparison], path,
                 if math.isfinite(top) and top > 0:
                     setter(-3.0 * top, 3.0 * top)
         ax.set_xlabel('displacement [mm]')
-        ax.set_title(_alpha_title(run, label_setup)
+        ax.set_title((labels[j] if labels else _alpha_title(run, label_setup))
                      + ('' if run.stable else f' ({_abort_label(run)})'))
         ax.grid(True, lw=0.3, alpha=0.5)
         ax = axes[1, j]
@@ -758,7 +781,8 @@ def plot_hysteresis(runs: list[RunData], comparisons: list[RunComparison], path,
 
 def _nonlinear_markdown(runs: list[RunData], entries: list[dict[str, Any]],
                         comparisons: list[RunComparison], out_dir: Path,
-                        title: str) -> tuple[list[str], dict[str, Path]]:
+                        title: str, numbers: list[int] | None = None
+                        ) -> tuple[list[str], dict[str, Path]]:
     """The section of the runs with a nonlinear specimen: the table of peak and residual
     displacements and of the NRMS with and without the drift, and the hysteresis figures
     (one per predictor). No lines and no figure without such a run."""
@@ -793,7 +817,7 @@ def _nonlinear_markdown(runs: list[RunData], entries: list[dict[str, Any]],
         peaks = block.get('peak_displacement_m') or {}
         residuals = block.get('residual_displacement_m') or {}
         lines.append(
-            f"| {j + 1} | {_alpha_text(e.get('alpha'))} | {e.get('rig') or 'n/a'} | "
+            f"| {_number(numbers, j)} | {_alpha_text(e.get('alpha'))} | {e.get('rig') or 'n/a'} | "
             f"{_predictor(runs[j])} | {block.get('specimen_model') or 'n/a'} | "
             f"{_fmt(block.get('nrms_displacement'), '.2f', 100)} | "
             f"{_fmt(block.get('nrms_displacement_residual_removed'), '.2f', 100)} | "
@@ -831,6 +855,11 @@ def _safe_name(text: Any) -> str:
     return re.sub(r'[^A-Za-z0-9_.+-]+', '_', str(text)).strip('_') or 'na'
 
 
+def _number(numbers: list[int] | None, j: int) -> int:
+    """The report's number of run `j` of a list: ``numbers[j]``, or ``j + 1``."""
+    return numbers[j] if numbers else j + 1
+
+
 def _alpha_text(alpha: Any) -> str:
     if isinstance(alpha, (int, float)) and not isinstance(alpha, bool):
         return f'{alpha:g}'
@@ -865,10 +894,11 @@ def _figure_key(run: RunData) -> tuple[Any, Any, str]:
     return (run.params.get('alpha'), run.params.get('rig_model'), _record(run))
 
 
-def _comparison_labels(runs: list[RunData], indices: list[int]) -> list[str]:
+def _comparison_labels(runs: list[RunData], indices: list[int],
+                       numbers: list[int] | None = None) -> list[str]:
     """Legend labels: the predictor, with the run number when a predictor repeats."""
     names = [_predictor(runs[j]) for j in indices]
-    return [f'{name} (run {j + 1})' if names.count(name) > 1 else name
+    return [f'{name} (run {_number(numbers, j)})' if names.count(name) > 1 else name
             for name, j in zip(names, indices)]
 
 
@@ -881,7 +911,7 @@ def _entry_status(entry: dict[str, Any]) -> str:
 
 def _cross_predictor_markdown(runs: list[RunData], entries: list[dict[str, Any]],
                               figures: dict[tuple[Any, Any, str], Path],
-                              cutoff_hz: float) -> list[str]:
+                              cutoff_hz: float, numbers: list[int] | None = None) -> list[str]:
     lines = [
         '## Comparison across predictors',
         '',
@@ -908,7 +938,7 @@ def _cross_predictor_markdown(runs: list[RunData], entries: list[dict[str, Any]]
             e = entries[j]
             nrms, ratio = e['nrms'], e['peak_ratio']
             lines.append(
-                f'| {j + 1} | {_predictor(runs[j])} | {_record(runs[j])} | '
+                f'| {_number(numbers, j)} | {_predictor(runs[j])} | {_record(runs[j])} | '
                 + ' | '.join(_fmt(nrms[s], '.2f', 100)
                              for s in ('displacement', 'acceleration', 'force')) + ' | '
                 + ' | '.join(_fmt(ratio[s], '.3f')
@@ -1022,7 +1052,8 @@ def software_versions() -> dict[str, str]:
 
 
 def _criteria_markdown(runs: list[RunData], entries: list[dict[str, Any]],
-                       comparisons: list[RunComparison]) -> list[str]:
+                       comparisons: list[RunComparison],
+                       numbers: list[int] | None = None) -> list[str]:
     """The table of the RTHS benchmark's criteria, one row per run."""
     from seft_ros.analysis.criteria import BENCHMARK_J1_LAG_SAMPLES
 
@@ -1055,7 +1086,7 @@ def _criteria_markdown(runs: list[RunData], entries: list[dict[str, Any]],
         common = e.get('nrms_common_lag') or {}
         unshifted = e.get('nrms_unshifted') or {}
         lines.append(
-            f"| {j + 1} | {_alpha_text(e.get('alpha'))} | {e.get('rig') or 'n/a'} "
+            f"| {_number(numbers, j)} | {_alpha_text(e.get('alpha'))} | {e.get('rig') or 'n/a'} "
             f'| {_predictor(run)} | {_record(run)} | {_fmt(crit.get("J1"), ".1f")} | '
             + ' | '.join(_fmt(crit.get(k), '.2f') for k in ('J2', 'J3', 'J4', 'J5')) + ' | '
             + ' | '.join(_fmt(common.get(s), '.2f', 100)
@@ -1072,9 +1103,11 @@ def _value_text(value: Any) -> str:
     return 'n/a' if value is None else str(value)
 
 
-def _parameters_markdown(runs: list[RunData]) -> list[str]:
+def _parameters_markdown(runs: list[RunData], numbers: list[int] | None = None,
+                         named: bool = False) -> list[str]:
     """The runs' parameters (one table of the common values, one of those that differ) and
-    the software versions."""
+    the software versions; `named`: the table of common values names the runs (the study's
+    among structure tests)."""
     from seft_msgs_py import parameters as schema
 
     def unit(name):
@@ -1097,11 +1130,15 @@ def _parameters_markdown(runs: list[RunData]) -> list[str]:
     ]
     if differ:
         lines += ['Parameters that differ between the runs:', '',
-                  '| parameter | unit | ' + ' | '.join(f'run {j + 1}' for j in range(len(runs)))
+                  '| parameter | unit | '
+                  + ' | '.join(f'run {_number(numbers, j)}' for j in range(len(runs)))
                   + ' |', '|---|---|' + '---:|' * len(runs)]
         lines += [f'| `{n}` | {unit(n)} | ' + ' | '.join(texts[n]) + ' |' for n in differ]
         lines.append('')
-    lines += ['Parameters of ' + ('every run' if len(runs) > 1 else 'the run') + ':', '',
+    whose = ('every run' if len(runs) > 1 else 'the run') if not named else (
+        'run' + ('s ' if len(runs) > 1 else ' ')
+        + ', '.join(str(_number(numbers, j)) for j in range(len(runs))))
+    lines += [f'Parameters of {whose}:', '',
               '| parameter | unit | value |', '|---|---|---:|']
     lines += [f'| `{n}` | {unit(n)} | {texts[n][0]} |' for n in common]
     lines.append('')
@@ -1294,36 +1331,281 @@ def _write_html(markdown: str, out_dir: Path, title: str) -> Path:
     return path
 
 
+# -- structure tests: per degree of freedom ---------------------------------------------------
+
+#: Time histories of structure run i, one row per degree of freedom.
+STRUCTURE_PNG = 'structure_run_{index}.png'
+#: Hysteresis loops of the hysteretic rigs of structure run i.
+STRUCTURE_HYSTERESIS_PNG = 'hysteresis_run_{index}.png'
+
+_DOF_COLUMNS = (('displacement', 'displacement [mm]', 1e3),
+                ('floor_acceleration', 'floor acceleration [m/s$^2$]', 1.0),
+                ('interface_force', 'interface force [N]', 1.0))
+
+
+def _pct(value) -> str:
+    return '–' if value is None or not np.isfinite(value) else f'{100 * value:.2f} %'
+
+
+def _num(value, spec='.3f') -> str:
+    return '–' if value is None or not np.isfinite(value) else format(value, spec)
+
+
+def _dof_rig(rig: str | None) -> str:
+    """How a DOF's rig is named in a table: its rig, ``computational`` without one."""
+    return 'computational' if rig is None else rig_label(rig)
+
+
+def plot_structure_time_histories(run: RunData, comparison: RunComparison, path, *,
+                                  title: str = '') -> Path:
+    """Test against reference per degree of freedom, and save a PNG.
+
+    Rows: the DOFs; columns: displacement [mm], floor acceleration [m/s^2] and, at a
+    physical DOF, the interface force [N] (the rig's load cell against the force the
+    reference specimen carries); the difference test - reference in grey.
+
+    Parameters
+    ----------
+    run : RunData
+        The run.
+    comparison : RunComparison
+        Its comparison (:func:`~seft_ros.analysis.metrics.compare_run`), which carries the
+        whole structure's reference.
+    path : str or Path
+        Output PNG.
+    title : str
+        Figure title.
+
+    Returns
+    -------
+    Path
+        The written file.
+    """
+    n = comparison.n_steps
+    t = np.asarray(run.time_s, dtype=float)[:n]
+    test = dof_signals(run)
+    ref = comparison.structure_reference
+    refs = {'displacement': ref.displacement_m,
+            'floor_acceleration': ref.absolute_acceleration_m_s2}
+    dofs = comparison.dofs
+    fig = Figure(figsize=(13, 2.4 * len(dofs) + 0.8), layout='constrained')
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(len(dofs), 3, squeeze=False, sharex=True)
+    for row, d in enumerate(dofs):
+        for col, (name, label, factor) in enumerate(_DOF_COLUMNS):
+            ax = axes[row, col]
+            if name == 'interface_force':
+                if d.rig is None:
+                    ax.set_axis_off()
+                    continue
+                r = ref.interface_force_N[:n, ref.rigs.index(d.rig)]
+            else:
+                r = refs[name][:n, row]
+            y = test[d.dof][name][:n]
+            ax.plot(*_decimate(t, r * factor), color='k', lw=1.0, label='reference')
+            ax.plot(*_decimate(t, y * factor), color='tab:red', lw=0.8, ls='--', label='test')
+            diff = (y - r) * factor
+            good = np.isfinite(diff)
+            ax.plot(*_decimate(t[good], diff[good]), color='0.6', lw=0.6, label='difference')
+            c = d.signal(name)
+            ax.set_title(f'{d.dof}' + (f' (rig {rig_label(d.rig)})' if d.rig is not None
+                                       else ' (computational)')
+                         + f': NRMS {_pct(c.nrms)}', fontsize=9)
+            ax.set_ylabel(label, fontsize=8)
+            ax.grid(True, alpha=0.3)
+            if row == 0 and col == 0:
+                ax.legend(fontsize=7, loc='upper right')
+    for ax in axes[-1]:
+        ax.set_xlabel('time [s]')
+    if title:
+        fig.suptitle(title)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=100)
+    return path
+
+
+def _matrix_table(label: str, dofs, matrix) -> list[str]:
+    """A matrix as a table: a row and a column per DOF (an HTML table in report.html)."""
+    lines = [f'| {label} | ' + ' | '.join(dofs) + ' |', '|---|' + '---:|' * len(dofs)]
+    for dof, row in zip(dofs, np.asarray(matrix, dtype=float)):
+        lines.append(f'| **{dof}** | ' + ' | '.join(f'{v:.6g}' for v in row) + ' |')
+    return lines + ['']
+
+
+def _structures_markdown(runs: list[RunData], numbers: list[int]) -> list[str]:
+    """The structure of the runs (one section per distinct structure): DOFs, rigs, natural
+    frequencies, ``M``, ``K``, ``C`` as matrices and the rig sections."""
+    groups: dict[str, list[int]] = {}
+    for run, number in zip(runs, numbers):
+        groups.setdefault(str(run.params.get('structure')), []).append(number)
+    lines = []
+    for text, members in groups.items():
+        run = runs[numbers.index(members[0])]
+        s = structure_of(run.params)
+        freqs = s.modes()[0]
+        heading = ('## The structure' if len(groups) == 1 else
+                   '## The structure of run' + ('s ' if len(members) > 1 else ' ')
+                   + ', '.join(map(str, members)))
+        lines += [heading, '',
+                  f'Degrees of freedom {", ".join(s.dofs)}; physical: '
+                  + ', '.join(f'{d} on rig {r}' for d, r in s.physical.items())
+                  + '; natural frequencies ' + ', '.join(f'{f:.3g}' for f in freqs) + ' Hz.',
+                  '']
+        lines += _matrix_table('M [kg]', s.dofs, s.mass_kg)
+        lines += _matrix_table('K [N/m]', s.dofs, s.stiffness_N_per_m)
+        lines += _matrix_table('C [N s/m]', s.dofs, s.damping_N_s_per_m)
+        if any(s.rigs.values()):
+            lines += ['Rig sections: ' + '; '.join(
+                f'{r}: ' + ', '.join(f'{k}={v!r}' for k, v in sorted(vals.items()))
+                for r, vals in s.rigs.items() if vals) + '.', '']
+    return lines
+
+
+def _structure_run_markdown(index: int, run: RunData, comparison: RunComparison,
+                            entry: dict, png: Path,
+                            hysteresis: Path | None) -> list[str]:
+    """A structure run's section: outcome, the per-DOF, per-link and per-rig tables, the
+    figure of the time histories and, with a hysteretic rig, its hysteresis loops."""
+    p = run.params
+    state = ('stable' if run.stable else
+             f'**aborted** at {_num(run.unstable_at_s)} s: {run.abort_reason}')
+    lines = [f'## Run {index}: predictor {p.get("predictor", "n/a")}, builders '
+             f'{p.get("structure_builders", "central")}, {p.get("mode", "lockstep")}', '',
+             f'Record {entry["record"]}, {comparison.n_steps} steps of {p["dt"]} s; {state}. '
+             f'Reference: {comparison.structure_reference.method}.', '']
+    recording = run.extra.get('recording') or {}
+    if recording.get('end') in ('crashed', 'stopped'):
+        lines += [f'- **recording {recording["end"]}**: {recording.get("note")}']
+    elif recording.get('gap_at_step') is not None:
+        lines += [f'- **recording with a gap**: {recording.get("note")}']
+    lines += _mismatch_lines(run)
+    if lines[-1]:
+        lines.append('')
+    lines += ['| dof | rig | NRMS x | NRMS ẍ | NRMS floor ẍ | NRMS force | peak x | '
+              'peak floor ẍ | peak force | lag x [ms] |',
+              '|---|---|---|---|---|---|---|---|---|---|']
+    for d in comparison.dofs:
+        f = d.interface_force
+        lines.append(
+            f'| {d.dof} | {_dof_rig(d.rig)} | {_pct(d.displacement.nrms)} | '
+            f'{_pct(d.acceleration.nrms)} | {_pct(d.floor_acceleration.nrms)} | '
+            f'{_pct(f.nrms) if f else "–"} | {_num(d.displacement.peak_ratio)} | '
+            f'{_num(d.floor_acceleration.peak_ratio)} | '
+            f'{_num(f.peak_ratio) if f else "–"} | {_num(1e3 * d.displacement.lag_s, ".2f")} |')
+    lines += ['', '| link (story drift) | NRMS | peak ratio | peak test [mm] | '
+              'peak reference [mm] |', '|---|---|---|---|---|']
+    for lk in comparison.links:
+        lines.append(f'| {lk.name} | {_pct(lk.drift.nrms)} | {_num(lk.drift.peak_ratio)} | '
+                     f'{_num(1e3 * lk.drift.peak_test, ".2f")} | '
+                     f'{_num(1e3 * lk.drift.peak_reference, ".2f")} |')
+    lines += ['', '| rig | rig model | specimen | J1 [ms] | J2 [%] | J3 [%] | J4 [%] | '
+              'J5 [%] |', '|---|---|---|---|---|---|---|---|']
+    for rig, info in entry['rigs'].items():
+        c = info['criteria']
+        lines.append(f'| {rig_label(rig)} | {info["rig_model"]} | {info["specimen_model"]} | '
+                     + ' | '.join(_num(c.get(k), '.2f') for k in ('J1', 'J2', 'J3', 'J4', 'J5'))
+                     + ' |')
+    lines += ['', f'![Run {index}: time histories per degree of freedom]({png.name})', '']
+    if hysteresis is not None:
+        for rig, info in entry['rigs'].items():
+            block = info.get('nonlinear')
+            if block:
+                res = block['residual_displacement_m']
+                lines.append(
+                    f'- rig {rig_label(rig)}, nonlinear specimen ({block["specimen_model"]}): '
+                    f'residual displacement test {_fmt(res["test"], ".2f", 1e3)} mm, reference '
+                    f'{_fmt(res["reference"], ".2f", 1e3)} mm; displacement NRMS '
+                    f'{_fmt(block["nrms_displacement"], ".2f", 100)} %, '
+                    f'{_fmt(block["nrms_displacement_residual_removed"], ".2f", 100)} % with '
+                    f'the drift (< {block["drift_cutoff_hz"]:g} Hz) removed')
+        lines += ['', f'![Run {index}: hysteresis loops and drift of the yielding rigs]'
+                  f'({hysteresis.name})', '',
+                  f'**Hysteresis, run {index}.** Per hysteretic rig, top: the restoring force '
+                  'of its member against its displacement, the test (red: f_m - m a - c v) '
+                  'over the reference (black: the Bouc-Wen f_s(x, z) of the whole structure '
+                  'integrated with the yielding member); bottom: the displacement of test and '
+                  'reference (thin), their drifts (thick) and the residual displacements.', '']
+    return lines
+
+
+def _structure_report(runs: list[RunData], comparisons: list[RunComparison],
+                      entries: list[dict[str, Any]], numbers: list[int], out_dir: Path,
+                      title: str, *, heading: bool) -> tuple[list[str], dict, dict]:
+    """The structure tests' part of the report: the summary table, the structures, and one
+    section per run (:func:`_structure_run_markdown`, timing). Returns the lines and the
+    figures ``({number: time histories}, {number: hysteresis})``."""
+    dofs = list(dict.fromkeys(d for e in entries for d in e['structure']['dofs']))
+    lines = ['## Structure tests', ''] if heading else []
+    lines += ['A structure test against its analytical reference: the whole structure '
+              "M x'' + C x' + K x = -M iota xg'' simulated from the recorded ground motion "
+              '(scipy.signal.lsim; with a yielding member, scipy.integrate.solve_ivp with the '
+              'Bouc-Wen member). Per degree of freedom: displacement relative to the ground, '
+              'relative and floor (absolute) acceleration, and at a physical degree of freedom '
+              "the interface force (the rig's load cell against the force the reference "
+              'specimen carries); per link, its deformation (story drift); per rig, the RTHS '
+              "benchmark's criteria J1-J5. NRMS = rms(test - reference) / rms(reference) "
+              "after advancing the test by its own lag; a computational degree of freedom's "
+              'test values are the state the builder integrated.', '',
+              '| run | predictor | stable | worst NRMS x | '
+              + ' | '.join(f'NRMS x {d}' for d in dofs) + ' |',
+              '|---|---|---|---|' + '---|' * len(dofs)]
+    for number, entry in zip(numbers, entries):
+        lines.append(f'| {number} | {entry["predictor"]} | '
+                     f'{"yes" if entry["stable"] else "**no**"} | '
+                     f'{_pct(entry["worst_nrms"]["displacement"])} | ' + ' | '.join(
+                         _pct(((entry['dofs'].get(d) or {}).get('displacement') or {})
+                              .get('nrms')) for d in dofs) + ' |')
+    lines.append('')
+    lines += _structures_markdown(runs, numbers)
+    figures, loops = {}, {}
+    for number, run, c, entry in zip(numbers, runs, comparisons, entries):
+        png = plot_structure_time_histories(
+            run, c, out_dir / STRUCTURE_PNG.format(index=number),
+            title=f'{title}: run {number} ({run.params.get("predictor")})')
+        figures[number] = png
+        hysteretic = [r for r in c.rigs if is_nonlinear(run.rigs[r].params)]
+        if hysteretic:
+            loops[number] = plot_hysteresis(
+                [run.rig_view(r) for r in hysteretic], [c.rigs[r] for r in hysteretic],
+                out_dir / STRUCTURE_HYSTERESIS_PNG.format(index=number),
+                title=f'{title}: run {number}, hysteresis loops and drift',
+                labels=[f'rig {rig_label(r)}' for r in hysteretic])
+        lines += _structure_run_markdown(number, run, c, entry, png, loops.get(number))
+        lines += _timing_markdown(number, run, out_dir, title)
+    return lines, figures, loops
+
 
 def write_report(runs: list[RunData], out_dir, *, title: str = 'seft comparison',
                  high_frequency_cutoff_hz: float = HIGH_FREQUENCY_CUTOFF_HZ) -> ReportPaths:
     """Compare runs with the reference analysis and write summary.json, report.md and figures.
 
-    For each run the reference (``reference.reference_from_run``) and the comparison
-    (``metrics.compare_run``) are computed; then
+    Any runs, the reference study's tests and structure tests alike, in one report: each
+    run is compared with its whole structure's reference
+    (:func:`~seft_ros.analysis.metrics.compare_run`, per rig and per degree of freedom), and
+    ``summary.json`` holds one :func:`~seft_ros.analysis.metrics.summary_entry` per run in the
+    given order, one layout for every run, strict JSON (NaN/inf as null). A run read from a
+    bag with node parameters (``run.extra['node_params']``) has its
+    ``run.extra['param_sources']`` in the entry as ``"parameter_sources"``
+    (``{parameter: node}``). ``report.html`` is report.md as one self-contained HTML page,
+    every figure embedded as a base64 ``data:`` URI (``htmlreport.markdown_to_html``).
 
-    - in report.md, after the introduction: the table of the RTHS benchmark's criteria
-      J1-J5 (``criteria``) with the NRMS after removing the common lag, one row per run;
-      with several alphas ``criteria_vs_alpha.png`` (:func:`plot_criteria_vs_alpha`); for 2
-      to ``MAX_COMPARED_RUNS`` runs of one record ``runs_compared.png``
+    **The study's tests** (``RunData.is_study``: one rig, the one-DOF structure) get, in
+    report.md after the introduction:
+
+    - the table of the RTHS benchmark's criteria J1-J5 (``criteria``) with the NRMS after
+      removing the common lag, one row per run; with several alphas
+      ``criteria_vs_alpha.png`` (:func:`plot_criteria_vs_alpha`); for 2 to
+      ``MAX_COMPARED_RUNS`` runs of one record ``runs_compared.png``
       (:func:`plot_runs_compared`); at the end the parameters (common and differing) and
       the software versions (:func:`software_versions`);
-    - ``report.html``: report.md as one self-contained HTML page, every figure embedded as
-      a base64 ``data:`` URI (``htmlreport.markdown_to_html``);
-
-    - ``summary.json``: ``{"runs": [entry, ...]}``, one ``metrics.summary_entry`` per run in
-      the given order (with the predictor name and the high-frequency fractions of the
-      measured and the reference force above the cutoff), strict JSON (NaN/inf as null);
-      A run read from a bag with node parameters (``run.extra['node_params']``) has its
-      ``run.extra['param_sources']`` in the entry as ``"parameter_sources"``
-      (``{parameter: node}``);
-    - ``report.md``: per run, the parameters that matter (alpha, rig, predictor, record, dt,
-      tau), for a run read from a bag with node parameters the node each key value was taken
-      from (``parameters: alpha, predictor from reference_force_builder; mass, ... from
-      rig; ...``) and a marked warning listing ``run.extra['parameter_mismatches']``, the
-      shared parameters on which the nodes disagreed; stable or aborted (time and reason)
-      and a table signal | peak test | peak ref | peak ratio | lag [ms] | NRMS [%] (own
-      lag) | NRMS common lag [%] | NRMS as recorded [%]; links to the figures;
+    - per run, the parameters that matter (alpha, rig, predictor, record, dt, tau), for a
+      run read from a bag with node parameters the node each key value was taken from
+      (``parameters: alpha, predictor from reference_force_builder; mass, ... from rig;
+      ...``) and a marked warning listing ``run.extra['parameter_mismatches']``, the shared
+      parameters on which the nodes disagreed; stable or aborted (time and reason) and a
+      table signal | peak test | peak ref | peak ratio | lag [ms] | NRMS [%] (own lag) |
+      NRMS common lag [%] | NRMS as recorded [%]; links to the figures;
     - one predictor: ``time_histories.png``, test versus reference, rows displacement [mm],
       force [N], acceleration [m/s^2], one column per run (as the reference study's
       Figure 6), and ``time_histories_zoom.png``, the same in a 2 s window around each
@@ -1346,9 +1628,16 @@ def write_report(runs: list[RunData], out_dir, *, title: str = 'seft comparison'
       ``hysteresis_<predictor>.png`` (:func:`plot_hysteresis`) with a caption; each such
       run's section names its residual displacements and both NRMS.
 
-    Structure tests (:class:`~seft_ros.analysis.rundata.RunData` with a structure) get their report
-    per degree of freedom instead
-    (:func:`~seft_ros.analysis.structure_report.write_structure_report`).
+    **Structure tests** (the other runs; after the study's, under "Structure tests" when
+    both are in the report) get a table of the worst and per-DOF displacement NRMS, the
+    structure (DOFs, rigs, natural frequencies, ``M``, ``K``, ``C`` as tables) and per run
+    the tables per DOF, per link (story drift) and per rig (J1-J5), the figure of the time
+    histories per DOF (``structure_run_<i>.png``, :func:`plot_structure_time_histories`)
+    and, with a hysteretic rig, its hysteresis loops (``hysteresis_run_<i>.png``).
+
+    A real-time run's section has its timing (tables and ``timing_run_<i>.png``); a run with
+    online estimates their figure (``estimates_run_<i>.png``). Runs are numbered in the
+    given order throughout.
 
     Parameters
     ----------
@@ -1369,8 +1658,8 @@ def write_report(runs: list[RunData], out_dir, *, title: str = 'seft comparison'
     Raises
     ------
     ParameterError
-        If `runs` is empty or mixes structure tests and single-rig tests, a run's parameters
-        are missing or out of range, or the cutoff is not below a run's Nyquist frequency.
+        If `runs` is empty, a run's parameters are missing or out of range, or the cutoff is
+        not below a run's Nyquist frequency.
 
     References
     ----------
@@ -1380,28 +1669,59 @@ def write_report(runs: list[RunData], out_dir, *, title: str = 'seft comparison'
     runs = list(runs)
     if not runs:
         raise ParameterError('runs: expected at least one run')
-    structures = [not run.is_study for run in runs]
-    if any(structures):
-        if not all(structures):
-            raise ParameterError('runs: structure tests and single-rig tests in one report; '
-                                 'expected one kind (compare them apart)')
-        from seft_ros.analysis.structure_report import write_structure_report
-        return write_structure_report(runs, out_dir, title=title)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    comparisons = [compare_run(run, reference_from_run(run),
-                               high_frequency_cutoff_hz=high_frequency_cutoff_hz)
+    comparisons = [compare_run(run, high_frequency_cutoff_hz=high_frequency_cutoff_hz)
                    for run in runs]
     entries = [summary_entry(run, c) for run, c in zip(runs, comparisons)]
     for run, entry in zip(runs, entries):
         if run.extra.get('node_params') and run.extra.get('param_sources'):
             entry['parameter_sources'] = dict(run.extra['param_sources'])
     summary = write_summary_json(entries, out_dir / 'summary.json')
-    predictors = _predictor_order(runs)
+    study = [j for j, run in enumerate(runs) if run.is_study]
+    others = [j for j in range(len(runs)) if j not in study]
+    lines = [f'# {title}', '']
+    paths: dict[str, Any] = {}
+    if study:
+        part, paths = _study_report([runs[j] for j in study], [comparisons[j] for j in study],
+                                    [entries[j] for j in study], [j + 1 for j in study],
+                                    out_dir, title, high_frequency_cutoff_hz)
+        lines += part
+    structure_figures: dict[int, Path] = {}
+    structure_loops: dict[int, Path] = {}
+    if others:
+        part, structure_figures, structure_loops = _structure_report(
+            [runs[j] for j in others], [comparisons[j] for j in others],
+            [entries[j] for j in others], [j + 1 for j in others], out_dir, title,
+            heading=bool(study))
+        lines += part
+    if study:
+        lines += _parameters_markdown([runs[j] for j in study], [j + 1 for j in study],
+                                      named=bool(others))
+    else:
+        versions = software_versions()
+        lines += ['## Software', '', ', '.join(f'{k} {v}' for k, v in versions.items()), '']
+    report = out_dir / 'report.md'
+    markdown = '\n'.join(lines)
+    report.write_text(markdown, encoding='utf-8')
+    return ReportPaths(out_dir=out_dir, summary_json=summary, report_md=report,
+                       time_histories_png=paths.get('figure'), zoom_png=paths.get('zoom'),
+                       predictor_time_histories=paths.get('grids', {}),
+                       predictor_comparisons=paths.get('comparisons', {}),
+                       report_html=_write_html(markdown, out_dir, title),
+                       criteria_png=paths.get('criteria'), runs_png=paths.get('runs'),
+                       hysteresis=paths.get('hysteresis', {}),
+                       structure_time_histories=structure_figures,
+                       structure_hysteresis=structure_loops)
 
+
+def _study_report(runs: list[RunData], comparisons: list[RunComparison],
+                  entries: list[dict[str, Any]], numbers: list[int], out_dir: Path,
+                  title: str, high_frequency_cutoff_hz: float) -> tuple[list[str], dict]:
+    """The study's tests' part of the report (:func:`write_report`): its lines and figures
+    (``{'figure', 'zoom', 'grids', 'comparisons', 'criteria', 'runs', 'hysteresis'}``)."""
+    predictors = _predictor_order(runs)
     lines = [
-        f'# {title}',
-        '',
         'Test versus the analytical reference: the whole structure '
         "(1+alpha) m x'' + c x' + k x = -(1+alpha) m xg'' (paper Eq. 2.1) simulated from "
         'the recorded ground motion. The reference force is the member force '
@@ -1411,42 +1731,45 @@ def write_report(runs: list[RunData], out_dir, *, title: str = 'seft comparison'
         'advancing the test by its lag, over the samples both share.',
         '',
     ]
-    lines += _criteria_markdown(runs, entries, comparisons)
-    criteria_png = runs_png = None
+    lines += _criteria_markdown(runs, entries, comparisons, numbers)
+    out: dict[str, Any] = {}
     if len({e.get('alpha') for e in entries}) > 1:
-        criteria_png = plot_criteria_vs_alpha(entries, out_dir / CRITERIA_PNG,
-                                              title=f'{title}: criteria against alpha')
-        lines += [f'![Evaluation criteria against alpha, per predictor]({criteria_png.name})',
-                  '']
+        out['criteria'] = plot_criteria_vs_alpha(entries, out_dir / CRITERIA_PNG,
+                                                 title=f'{title}: criteria against alpha')
+        lines += ['![Evaluation criteria against alpha, per predictor]'
+                  f'({out["criteria"].name})', '']
     if 1 < len(runs) <= MAX_COMPARED_RUNS and _same_record(runs):
-        runs_png = plot_runs_compared(runs, comparisons, out_dir / RUNS_COMPARED_PNG,
-                                      title=f'{title}: the runs side by side, record '
-                                            f'{_record(runs[0])}')
+        labels = [f'run {number}: {_predictor(r)}, '
+                  f'alpha = {_alpha_text(r.params.get("alpha"))}'
+                  for number, r in zip(numbers, runs)]
+        out['runs'] = plot_runs_compared(runs, comparisons, out_dir / RUNS_COMPARED_PNG,
+                                         labels=labels,
+                                         title=f'{title}: the runs side by side, record '
+                                               f'{_record(runs[0])}')
         lines += ['The runs side by side, aligned by sample (no lag removed), with their '
                   'differences to the reference:', '',
-                  f'![Runs side by side and their differences]({runs_png.name})', '']
-    figure = zoom = None
-    grids: dict[str, tuple[Path, Path]] = {}
-    comparison_figures: dict[tuple[Any, Any, str], Path] = {}
+                  f'![Runs side by side and their differences]({out["runs"].name})', '']
     if len(predictors) == 1:
-        figure = plot_time_histories(runs, comparisons, out_dir / TIME_HISTORIES_PNG,
-                                     title=title)
-        zoom = plot_time_histories(runs, comparisons, out_dir / ZOOM_PNG, title=title,
-                                   zoom=True)
-        lines += [f'![Time histories]({figure.name})', '',
-                  f'![Zoom around the reference displacement peak]({zoom.name})', '']
+        out['figure'] = plot_time_histories(runs, comparisons, out_dir / TIME_HISTORIES_PNG,
+                                            title=title)
+        out['zoom'] = plot_time_histories(runs, comparisons, out_dir / ZOOM_PNG, title=title,
+                                          zoom=True)
+        lines += [f'![Time histories]({out["figure"].name})', '',
+                  f'![Zoom around the reference displacement peak]({out["zoom"].name})', '']
     else:
         files = _comparison_files(runs)
+        out['comparisons'] = {}
         for key, indices in _groups(runs, _figure_key).items():
-            comparison_figures[key] = plot_predictor_comparison(
+            out['comparisons'][key] = plot_predictor_comparison(
                 [runs[j] for j in indices], [comparisons[j] for j in indices],
-                out_dir / files[key], labels=_comparison_labels(runs, indices),
+                out_dir / files[key], labels=_comparison_labels(runs, indices, numbers),
                 title=f'{title}: alpha = {_alpha_text(key[0])}, rig {key[1] or "n/a"}, '
                       f'record {key[2]}: reference vs uncompensated vs compensated')
         lines += _best_markdown(entries)
-        lines += _cross_predictor_markdown(runs, entries, comparison_figures,
-                                           high_frequency_cutoff_hz)
+        lines += _cross_predictor_markdown(runs, entries, out['comparisons'],
+                                           high_frequency_cutoff_hz, numbers)
         lines += ['## Time histories per predictor', '']
+        out['grids'] = {}
         for name in predictors:
             indices = [j for j, run in enumerate(runs) if _predictor(run) == name]
             sub_runs = [runs[j] for j in indices]
@@ -1459,23 +1782,15 @@ def write_report(runs: list[RunData], out_dir, *, title: str = 'seft comparison'
             grid_zoom = plot_time_histories(
                 sub_runs, sub_comparisons, out_dir / PREDICTOR_ZOOM_PNG.format(predictor=stem),
                 title=f'{title}: predictor {name}', zoom=True)
-            grids[name] = (grid, grid_zoom)
+            out['grids'][name] = (grid, grid_zoom)
             lines += [f'### Predictor {name}', '', f'![Time histories, {name}]({grid.name})',
                       '', f'![Zoom around the reference displacement peak, {name}]'
                       f'({grid_zoom.name})', '']
-    nonlinear_lines, hysteresis = _nonlinear_markdown(runs, entries, comparisons, out_dir,
-                                                      title)
+    nonlinear_lines, out['hysteresis'] = _nonlinear_markdown(runs, entries, comparisons,
+                                                             out_dir, title, numbers)
     lines += nonlinear_lines
-    for index, (run, comparison) in enumerate(zip(runs, comparisons), start=1):
+    for index, run, comparison in zip(numbers, runs, comparisons):
         lines += _run_markdown(index, run, comparison)
         lines += _timing_markdown(index, run, out_dir, title)
         lines += _estimates_markdown(index, run, out_dir, title)
-    lines += _parameters_markdown(runs)
-    report = out_dir / 'report.md'
-    markdown = '\n'.join(lines)
-    report.write_text(markdown, encoding='utf-8')
-    return ReportPaths(out_dir=out_dir, summary_json=summary, report_md=report,
-                       time_histories_png=figure, zoom_png=zoom,
-                       predictor_time_histories=grids, predictor_comparisons=comparison_figures,
-                       report_html=_write_html(markdown, out_dir, title),
-                       criteria_png=criteria_png, runs_png=runs_png, hysteresis=hysteresis)
+    return lines, out

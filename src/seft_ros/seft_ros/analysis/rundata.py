@@ -10,11 +10,11 @@ general one with one rig.
 """
 
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import Any, Mapping
 
 import numpy as np
 
-__all__ = ['RunData', 'RigData', 'SIGNALS', 'RIG_SIGNALS', 'rig_label']
+__all__ = ['RunData', 'RigData', 'SIGNALS', 'RIG_SIGNALS', 'rig_label', 'only_rig']
 
 #: Signals compared against the reference analysis, in report order.
 SIGNALS = ('displacement', 'force', 'acceleration')
@@ -27,6 +27,21 @@ def rig_label(name: str) -> str:
     """How a rig is named to the user: its name, ``'rig'`` for the study's rig (``''``, the
     root namespace)."""
     return name or 'rig'
+
+
+def only_rig(rigs: Mapping[str, Any], what: str, hint: str) -> Any:
+    """The value of the only rig of `rigs` (a run's rigs, a comparison's).
+
+    Raises
+    ------
+    AttributeError
+        Several rigs: ``'a <what> of 2 rigs (pier_a, pier_b) has no single rig: <hint>'``.
+    """
+    if len(rigs) != 1:
+        names = ', '.join(rig_label(r) for r in rigs)
+        raise AttributeError(f'a {what} of {len(rigs)} rigs ({names}) has no single rig: '
+                             f'{hint}')
+    return next(iter(rigs.values()))
 
 
 @dataclass
@@ -84,7 +99,7 @@ def _single_rig(name: str):
     def set_(self, value):
         setattr(self.rig, name, value)
     return property(get, set_, doc=f"The rig's ``{name}`` (a run of one rig only; "
-                    ':attr:`RunData.rigs` otherwise).')
+                    '``run.rigs[name]`` otherwise).')
 
 
 @dataclass
@@ -133,9 +148,11 @@ class RunData:
         (``{node: {parameter: value}}`` as each node published them), ``'param_sources'``
         (``{parameter: node, 'run_parameters' or 'default'}``),
         ``'parameter_mismatches'`` (one line per shared parameter on which the nodes
-        disagreed), ``'recording'`` (how the recording ended, ``analysis.bag.recording_end``)
-        and, where the bag has them, ``'gaps'``, ``'duplicates'``,
-        ``'estimates_missing_steps'``, ``'timing'``, ``'link'``.
+        disagreed), ``'recording'`` (how the recording ended, ``analysis.bag.recording_end``),
+        ``'rig_final'`` and ``'rig_finals'`` (the rigs' final status reports),
+        ``'node_statuses'``, ``'recovered'`` and, where the bag has them, ``'gaps'``,
+        ``'duplicates'``, ``'estimates_missing_steps'``, ``'timing'``, ``'link'`` (the
+        whole list: ``analysis.bag.read_run``).
     """
 
     params: dict[str, Any]
@@ -191,11 +208,7 @@ class RunData:
         AttributeError
             The run has several rigs (the message names them).
         """
-        if len(self.rigs) != 1:
-            names = ', '.join(rig_label(r) for r in self.rigs)
-            raise AttributeError(f'a run of {len(self.rigs)} rigs ({names}) has no single '
-                                 'rig: use run.rigs[name] or run.rig_view(name)')
-        return next(iter(self.rigs.values()))
+        return only_rig(self.rigs, 'run', 'use run.rigs[name] or run.rig_view(name)')
 
     reference_force_N = _single_rig('reference_force_N')
     measured_force_N = _single_rig('measured_force_N')

@@ -694,11 +694,21 @@ def compare_bags(*, bags: list[str], out_dir: Path, title: str = '') -> Result:
     return _finish(out_dir, data, title or 'seft compare', t0)
 
 
+def _one_dof(entry: dict) -> bool:
+    """Whether a summary entry is of the reference study's one-DOF test."""
+    return len((entry.get('structure') or {}).get('dofs') or [None]) == 1
+
+
+def _rig_name(rig) -> str:
+    """A rig in a table: its name, 'rig' for the study's (root namespace), '-' for none."""
+    return '-' if rig is None else (rig or 'rig')
+
+
 def structure_table(summary: list[dict]) -> str:
-    """A plain-text table of structure runs' summary entries: one line per run and degree of
-    freedom (NRMS of displacement, acceleration, floor acceleration and interface force
-    [%], peak ratios of displacement and floor acceleration), then one line per run and rig
-    with the criteria J1 [ms], J2-J5 [%] and, in real time, the timing."""
+    """A plain-text table of summary entries per degree of freedom, for any runs: one line
+    per run and degree of freedom (NRMS of displacement, acceleration, floor acceleration and
+    interface force [%], peak ratios of displacement and floor acceleration), then one line
+    per run and rig with the criteria J1 [ms], J2-J5 [%] and, in real time, the timing."""
     def pct(c, key='nrms'):
         v = (c or {}).get(key)
         return f'{100 * v:8.2f}' if v is not None else f'{"-":>8}'
@@ -714,7 +724,7 @@ def structure_table(summary: list[dict]) -> str:
         for dof in e['structure']['dofs']:
             d = e['dofs'][dof]
             lines.append(f'{i:3d} {e["predictor"]:>10} {str(e["stable"]):>7} {abort} '
-                         f'{dof[:12]:>12} {str(d["rig"] or "-")[:10]:>10} '
+                         f'{dof[:12]:>12} {_rig_name(d["rig"])[:10]:>10} '
                          f'{pct(d["displacement"])} {pct(d["acceleration"])} '
                          f'{pct(d["floor_acceleration"])} {pct(d["interface_force"])} '
                          f'{ratio(d["displacement"])} {ratio(d["floor_acceleration"])}')
@@ -729,7 +739,7 @@ def structure_table(summary: list[dict]) -> str:
             j1 = f'{c["J1"]:7.2f}' if c.get('J1') is not None else f'{"-":>7}'
             timing = (f' {t["loop_latency_ms"]["p50"]:8.3f} {t["loop_latency_ms"]["p99"]:8.3f}'
                       f' {100 * t["stale_command_fraction"]:8.2f}' if t else '')
-            lines.append(f'{i:3d} {rig[:10]:>10} {j1} {cells}{timing}')
+            lines.append(f'{i:3d} {_rig_name(rig)[:10]:>10} {j1} {cells}{timing}')
         if e.get('abort_reason'):
             lines.append(f'note: run {i} ({e["predictor"]}): aborted: {e["abort_reason"]}')
         if (e.get('link') or {}).get('warning'):
@@ -744,8 +754,9 @@ def summary_table(summary: list[dict]) -> str:
     residual displacement of test and reference [mm]. Below it, one ``note:`` line per
     run whose recording did not end with the run (``"recording"`` of the entry: the recorder
     killed, the bag recovered; or stopped) or has a gap (steps after it not analysed).
-    Structure runs: ``structure_table``."""
-    if summary and 'structure' in summary[0]:
+    With a structure test among them (more than one degree of freedom): ``structure_table``
+    of every run."""
+    if not all(_one_dof(e) for e in summary):
         return structure_table(summary)
     head = (f'{"alpha":>6} {"rig":>14} {"predictor":>10} {"stable":>7} {"abort_s":>8} '
             f'{"lag_ms":>7} {"nrms_x%":>8} {"nrms_a%":>8} {"nrms_f%":>8} {"peak_x":>7} '
@@ -806,9 +817,9 @@ def summary_table(summary: list[dict]) -> str:
 def criteria_table(summary: list[dict]) -> str:
     """A plain-text table of the RTHS benchmark's criteria (``"criteria"`` of each summary
     entry): J1 [ms], J2-J5 [%], and the NRMS of every signal after removing the common
-    (displacement) lag [%]. Structure runs: empty (their criteria, per rig, are in
-    ``structure_table``)."""
-    if summary and 'structure' in summary[0]:
+    (displacement) lag [%]. With a structure test among them: empty (the criteria, per rig,
+    are in ``structure_table``)."""
+    if not all(_one_dof(e) for e in summary):
         return ''
     head = (f'{"alpha":>6} {"predictor":>10} {"J1_ms":>6} {"J2%":>8} {"J3%":>8} {"J4%":>8} '
             f'{"J5%":>8} {"nrms_x%":>8} {"nrms_a%":>8} {"nrms_f%":>8}  (criteria: Silva et al. '

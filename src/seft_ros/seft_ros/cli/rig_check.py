@@ -655,9 +655,9 @@ def _json_default(value):
 def _structure_bag(path: Path, run: _Run) -> SimpleNamespace:
     """The bag of a structure rig's run as the checks read a bag (``samples`` of the rig's
     four sensor topics and command topic by step, ``node_params``, ``statuses``), from
-    :func:`~seft_ros.analysis.structure_bag.read_structure_run`."""
-    from seft_ros.analysis.structure_bag import read_structure_run
-    data = read_structure_run(path)
+    :func:`~seft_ros.analysis.bag.read_run`."""
+    from seft_ros.analysis.bag import read_run
+    data = read_run(path)
     r = data.rigs[run.rig]
     series = [r.measured_force_N, r.displacement_m, r.velocity_m_s, r.acceleration_m_s2]
     topics = list(run.sensor_topics())

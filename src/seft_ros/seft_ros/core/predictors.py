@@ -884,10 +884,12 @@ def model_predictor(params):
     return ModelPredictor.from_parameters(params)
 
 
-#: The largest miss ``max |W T - z^-d|`` up to 25 Hz a force-loop inverse may have [-]: beyond
-#: it the modelled loop cannot be followed (a declared specimen 1.25 times the one the
-#: study's loop-shaping controller cancels: 0.54; exact: 0.01; +-20 %: 0.20-0.40).
-MAX_BAND_ERROR = 0.5
+#: The largest miss ``max |W T - z^-d|`` up to 25 Hz a force-loop inverse may have [-]: near
+#: 1 the fit has given up (``W`` about 0: the test would command no force at all). Measured
+#: on the study's rig: exact 0.01; the model's k +-20 % 0.20-0.40, 1.3 k 0.69, its mass 30 %
+#: light 0.83 (usable: the stability map holds for it); 1.6 k and beyond 1.01, as a 1.6 k
+#: pier under the study's loop-shaping controller (which cancels the study's specimen).
+MAX_BAND_ERROR = 0.9
 
 
 class ForceLoopInverse:
