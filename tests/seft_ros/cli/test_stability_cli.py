@@ -1,6 +1,7 @@
 """``seft stability`` and the pre-run stability guard of ``seft simulate``/``seft run``."""
 
 import json
+from pathlib import Path
 import re
 
 import pytest
@@ -118,3 +119,31 @@ def test_stability_map_of_a_structure(seft_exe, run_process, tmp_path):
     doc = json.loads((tmp_path / 'map' / 'stability.json').read_text())
     assert doc['quantity'] == 'largest stable coupling scale of the computational part'
     assert (tmp_path / 'map' / 'stability.png').stat().st_size > 10_000
+
+
+def test_a_declared_uncertainty_wider_than_the_margin_is_refused(seft_exe, run_process,
+                                                                   tmp_path):
+    """The guard prints each run's robustness margin; specimen_uncertainty 0.2 on the two
+    piers with 'model' (stable for 0.38-1.17 x) is one error line naming both ranges and
+    exits 2, nothing run; 'adaptive' (identifies within +-50 %) runs."""
+    config = Path(__file__).resolve().parents[3] / 'config' / 'two_piers.yaml'
+    common = [seft_exe, 'simulate', config, '--set', 'specimen_uncertainty=0.2',
+              '--duration', '1']
+    proc = run_process(common + ['--predictor', 'model', '--out', 'model'], cwd=tmp_path,
+                       timeout=120)
+    assert proc.returncode == 2, proc.stderr
+    assert re.search(r'robustness: \[structure_model\] stable for a specimen stiffness '
+                     r'0\.3\d\d-1\.1\d x the declared one', proc.stderr), proc.stderr
+    errors = [ln for ln in proc.stderr.splitlines() if ln.startswith('seft: error:')]
+    assert len(errors) == 1 and 'Traceback' not in proc.stderr
+    assert re.search(r'parameter specimen_uncertainty=0\.2: the specimens may be 0\.8-1\.2 x '
+                     r'their declared stiffness, but predictor model stays stable only for '
+                     r'0\.3\d\d-1\.1\d x', errors[0]), errors[0]
+    assert not (tmp_path / 'model' / 'summary.json').exists()
+    proc = run_process(common + ['--predictor', 'adaptive', '--out', 'adaptive'],
+                       cwd=tmp_path, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert 'robustness: [structure_adaptive] stable for a specimen stiffness 0.5-1.5 x' \
+        in proc.stderr
+    summary = json.loads((tmp_path / 'adaptive' / 'summary.json').read_text())['runs'][0]
+    assert summary['stability']['robustness_margin']['stiffness_ratio_high'] == 1.5

@@ -361,3 +361,69 @@ def test_calibration_stable_and_unstable_runs_are_separated(calibration_ratios):
     # on the default record the delay rig's unstable runs are far beyond (neutral-type loop)
     assert min(r for seed, _, rig, _, s, r in calibration_ratios
                if rig == 'delay' and not s) > 3.0
+
+
+# -- the specimen check -------------------------------------------------------------------
+
+def _piers_on_delay_rigs(ratio, **run):
+    """The two-pier bridge on delay rigs, each specimen `ratio` times as stiff as declared
+    (the compensator's model)."""
+    import json
+    from pathlib import Path
+
+    from seft_ros.cli.config import expand_runs, load_config
+    config = Path(__file__).resolve().parents[3] / 'config' / 'two_piers.yaml'
+    params = expand_runs(dict(load_config(config), rig_model='delay', **run))[0]
+    doc = json.loads(params['structure'])
+    for rig in ('pier_a', 'pier_b'):
+        section = doc['rigs'][rig]
+        section['rig_model'] = 'delay'
+        section['predictor_stiffness_N_per_m'] = section.get('stiffness_N_per_m', 2.11e5) / ratio
+    return dict(params, structure=json.dumps(doc))
+
+
+@pytest.mark.parametrize('ratio', [0.5, 2.0])
+def test_a_specimen_far_from_its_declaration_is_reported(ratio):
+    """Each pier half or twice as stiff as declared: 'model' runs on a wrong model (stable,
+    not right); each rig identifies its specimen from its own force and motion, and the run
+    says so (warn: the run goes on, its warnings name the rig and the ratio)."""
+    run = simulate(_piers_on_delay_rigs(ratio, predictor='model', duration_s=6.0))
+    assert run.stable
+    assert run.extra['specimen_ratios'] == {'pier_a': pytest.approx(ratio, rel=0.01),
+                                            'pier_b': pytest.approx(ratio, rel=0.01)}
+    assert len(run.extra['warnings']) == 2
+    for rig in ('pier_a', 'pier_b'):
+        line = next(w for w in run.extra['warnings'] if f'rig {rig} ' in w)
+        assert f'at {ratio:.3g} x the declared stiffness' in line
+        assert '(tolerance +-10 %)' in line
+
+
+def test_a_specimen_far_from_its_declaration_stops_the_run_with_abort():
+    """specimen_check: abort: the builder stops the run safely at the finding, naming the
+    rig; the exact declaration passes (identified within 1 %, no warning)."""
+    run = simulate(_piers_on_delay_rigs(0.5, predictor='model', duration_s=6.0,
+                                        specimen_check='abort'))
+    assert not run.stable and run.extra['abort_node'] == 'reference_force_builder'
+    assert run.abort_reason.startswith('pier_b: specimen check at t=')
+    assert 1.5 < run.unstable_at_s < 3.0        # 1 s of excitation, then 0.5 s off
+    exact = simulate(_piers_on_delay_rigs(1.0, predictor='model', duration_s=6.0,
+                                          specimen_check='abort'))
+    assert exact.stable and exact.extra['warnings'] == []
+    assert exact.extra['specimen_ratios']['pier_a'] == pytest.approx(1.0, abs=0.01)
+
+
+def test_the_specimen_check_judges_only_what_it_can():
+    """Off, a yielding member and an open-loop identification run have no check; adaptive's
+    tolerance is its identification's range; bad values are one line."""
+    from seft_msgs_py import parameters
+    from seft_ros.core.monitor import SpecimenCheck
+    p = parameters.resolve()
+    assert SpecimenCheck.from_parameters(dict(p, specimen_check='off')) is None
+    assert SpecimenCheck.from_parameters(dict(p, specimen_model='bouc_wen')) is None
+    assert SpecimenCheck.from_parameters(dict(p, excitation='noise',
+                                              excitation_input='valve_command')) is None
+    assert SpecimenCheck.from_parameters(p).tolerance == 0.1
+    assert SpecimenCheck.from_parameters(dict(p, specimen_uncertainty=0.2)).tolerance == 0.2
+    assert SpecimenCheck.from_parameters(dict(p, predictor='adaptive')).tolerance == 0.5
+    with pytest.raises(ParameterError, match=r'specimen_uncertainty=1\.5: expected a fraction'):
+        SpecimenCheck(52.7, 903.0, 2.11e5, 0.002, 1.5)

@@ -363,3 +363,49 @@ def test_check_structure_says_it_in_one_line():
                                     '(spectral radius 1.0')
     ok = st.check_run(_two_story(1.0, 1.0, 'model'))
     assert ok.stable and 'predicted stable' in ok.message
+
+
+# -- the robustness margin ------------------------------------------------------------------
+
+def test_the_margin_is_where_the_loop_turns_unstable_and_a_run_does():
+    """The study's alpha = 1.5 with 'model': the margin's edges bracket the spectral radius
+    crossing 1 (every rig's specimen scaled, the compensator keeping its model), and a
+    stepped run with the specimen just outside the upper edge grows while one just inside
+    holds."""
+    p = parameters.resolve({'alpha': 1.5, 'predictor': 'model', 'duration_s': 8.0})
+    margin = st.robustness_margin(p)
+    assert 0.3 < margin.low < 0.45 and 1.6 < margin.high < 2.0
+    comp = st.compensator(p)
+
+    def radius(ratio):
+        return float(st.LoopModel(p, comp, tangent_ratio=ratio).radii(1.5)[0])
+    for edge in (margin.low, margin.high):
+        inside = edge * (1.005 if edge < 1 else 0.995)
+        outside = edge * (0.98 if edge < 1 else 1.02)
+        assert radius(inside) < 1.0 < radius(outside)
+    k = p['stiffness_N_per_m']
+
+    def run(ratio):
+        # the specimen ratio x as stiff as declared, the compensator's model the declared one
+        return simulate(dict(p, stiffness_N_per_m=ratio * k, predictor_stiffness_N_per_m=k))
+    assert run(0.95 * margin.high).stable
+    assert not run(1.1 * margin.high).stable
+    assert margin.covers(0.2) and not margin.covers(0.9)
+
+
+def test_the_margin_of_a_structure_and_of_adaptive():
+    """two_piers with 'model': the whole loop's margin (both piers scaled together);
+    'adaptive' compensates what it identifies (+-adaptive_max_deviation) and says what its
+    initial law alone holds."""
+    from seft_ros.cli.api import build_runs
+    model = build_runs(config='config/two_piers.yaml', overrides={'predictor': 'model'})[0]
+    margin = st.robustness_margin(model)
+    assert 0.3 < margin.low < 0.45 and 1.1 < margin.high < 1.25
+    assert st.TestLoop(model, stiffness_ratio=0.98 * margin.high).spectral_radius < 1.0
+    assert st.TestLoop(model, stiffness_ratio=1.03 * margin.high).spectral_radius > 1.0
+    adaptive = st.robustness_margin(dict(model, predictor='adaptive'))
+    assert (adaptive.low, adaptive.high) == (0.5, 1.5)
+    assert 'initial law' in adaptive.note and adaptive.note.endswith(
+        margin.text(bare=True))
+    unstable = st.robustness_margin(dict(model, predictor='none'))
+    assert unstable.text() == 'no robustness margin: unstable as declared'

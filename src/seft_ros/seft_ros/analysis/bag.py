@@ -690,7 +690,9 @@ def read_run(path) -> RunData:
              'rig_contract': contracts.pop() if len(contracts) == 1 else None,
              'rig_finals': finals, 'node_statuses': bag.statuses,
              'recovered': bag.recovery is not None,
-             'abort_node': first['name'] if first is not None else None}
+             'abort_node': first['name'] if first is not None else None,
+             # what the builders reported during the run (a specimen not the declared one)
+             'warnings': [s['warning'] for s in bag.statuses if s.get('warning')]}
     lost = bag_lost_messages(bag.statuses)
     if lost is not None:
         extra['bag_lost_messages'] = lost

@@ -1116,7 +1116,11 @@ def summary_entry(run: RunData, comparison: RunComparison) -> dict[str, Any]:
         real-time run, from ``run.extra['timing']``, ``'link'``, ``'bag_lost_messages'``,
         what the nodes published and the bag does not hold, and ``'recording'``, how the
         recording ended (``seft_ros.analysis.bag.recording_end``: closed, stopped, or crashed
-        and recovered), from ``run.extra``; ``wall_s`` [s], the wall time of the stepping,
+        and recovered), ``'stability'``, the pre-run guard's prediction with its robustness
+        margin (``cli.api.stability_entry``), ``'warnings'``, what the builders reported
+        during the run (a specimen that is not the declared one), and
+        ``'specimen_stiffness_ratios'``, each rig's identified specimen stiffness over the
+        declared one, from ``run.extra``; ``wall_s`` [s], the wall time of the stepping,
         from ``run.extra['wall_s']``; ``rig_contract``, the rig contract its rig reported,
         ``'seft-rig/1.0'``, None for a bag before it, from ``run.extra``) where alpha and rig
         are the rig's ``alpha`` and ``rig_model``, predictor is ``params['predictor']``,
@@ -1180,6 +1184,13 @@ def summary_entry(run: RunData, comparison: RunComparison) -> dict[str, Any]:
         entry['bag_lost_messages'] = int(run.extra['bag_lost_messages'])
     if run.extra.get('recording') is not None:
         entry['recording'] = dict(run.extra['recording'])
+    # the pre-run guard's prediction (its robustness margin), and what the builder found
+    # during the run (a specimen not the declared one)
+    if run.extra.get('stability') is not None:
+        entry['stability'] = dict(run.extra['stability'])
+    entry['warnings'] = list(run.extra.get('warnings') or [])
+    if run.extra.get('specimen_ratios'):
+        entry['specimen_stiffness_ratios'] = dict(run.extra['specimen_ratios'])
     entry.update(_structure_entries(run, comparison))
     return json_safe(entry)
 

@@ -912,7 +912,6 @@ def check_stability(*, runs: list[dict], force: bool = False,
     for p, c in zip(runs, checks):
         if c.stable is None:
             progress(f'note: {c.message}')
-            continue
         label = _run_label(p, runs)
         if c.margin is not None:
             progress(f'robustness: [{label}] {c.margin.text()}')

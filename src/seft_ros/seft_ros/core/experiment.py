@@ -128,8 +128,17 @@ def simulate(params, *, progress: Callable[[int, int], None] | None = None,
     estimators = [getattr(law.predictor, 'estimates', None) for b in builders for law in b.laws]
 
     def build(j):
-        """The commands of step j of every rig, in rig order (xg''[j .. j + L] each)."""
-        return [c for b in builders for c in b.step(padded[j:j + 1 + b.lookahead_steps])]
+        """The commands of step j of every rig, in rig order (xg''[j .. j + L] each); the
+        builders' specimen models exchanged as the graph's builders exchange them."""
+        out = [c for b in builders for c in b.step(padded[j:j + 1 + b.lookahead_steps])]
+        if len(builders) > 1:
+            for b in builders:
+                if b.outbox is not None and b.outbox[0] == j:
+                    for other in builders:
+                        if other is not b:
+                            for rig, model in b.outbox[1].items():
+                                other.receive_models(j, rig, model)
+        return out
 
     def ground_forces():
         return [g for b in builders for g in b.last_ground_forces_N]

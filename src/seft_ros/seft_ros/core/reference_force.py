@@ -350,6 +350,13 @@ class Coupling(NamedTuple):
 #: stiffness moves between a few values of its table).
 INTERFACE_CACHE = 64
 
+#: Builders of one test exchange their rigs' specimen models every this many steps (a lab's
+#: replica of the computational part then models another lab's pier as identified there)...
+EXCHANGE_EVERY_STEPS = 50
+#: ... and take those sent after step j in at step j + this (lockstep waits for them: the
+#: same steps in ``seft simulate`` and the graph, bit for bit).
+EXCHANGE_LAG_STEPS = 25
+
 #: A rig's specimen model or loop delay that moved by more than this (relative; the delay:
 #: ``dt / 64``) rebuilds the interface prediction (an ``adaptive`` compensator's estimates).
 MODEL_TOLERANCE = 0.01
@@ -458,6 +465,12 @@ class ReferenceForceBuilder:
         self.state_names = self.state.state_names if self.state is not None else ()
         self.computational_state = tuple([0.0] * len(self.state_names))
         self._latest: list[dict] = [{} for _ in self.laws]
+        #: the rigs other builders command (their models come by :meth:`receive_models`)
+        self.remote_rigs = tuple(r for r in names if r not in self.local_rigs)
+        self._inbox: dict[int, dict] = {}
+        #: ``(step, {rig: SpecimenModel})`` of the local rigs, set every
+        #: EXCHANGE_EVERY_STEPS steps for the other builders (None before)
+        self.outbox = None
         self._qi = list(s.computational_index)
         look = max(law.lookahead_steps for law in self.laws)
         self._history = {}
@@ -645,14 +658,59 @@ class ReferenceForceBuilder:
                 latest[r] = m
                 for old in [j for j in seen if j < k - 1]:
                     del seen[old]
+        due = self.models_due(k)
+        if due is not None:
+            for rig, model in self._inbox.pop(due, {}).items():
+                self._receive(rig, model)
         if self._tracking:
             self._couple(k, window, latest)
         out = []
         for r, law in enumerate(self.laws):
             out.append(law.step(window, latest[r], self.interface_N[r]))
             self.last_ground_forces_N[r] = law.last_ground_force_N
+        if self.remote_rigs and k % EXCHANGE_EVERY_STEPS == 0:
+            self.outbox = (k, self.local_models())
         self.next_step = k + 1
         return out
+
+    # -- the exchange of identified models between builders --------------------------------
+
+    def local_models(self) -> dict:
+        """Each local rig's specimen model as its compensator has it now (``adaptive``: its
+        identified one), by rig name."""
+        return {r: specimen_model_of(law.predictor, p)
+                for r, law, p in zip(self.local_rigs, self.laws, self._rig_params)}
+
+    def models_due(self, k: int) -> int | None:
+        """The step whose models of the other builders' rigs step `k` takes in (None: none
+        due; :data:`EXCHANGE_EVERY_STEPS`, :data:`EXCHANGE_LAG_STEPS`)."""
+        stamp = k - EXCHANGE_LAG_STEPS
+        if not self.remote_rigs or stamp < 0 or stamp % EXCHANGE_EVERY_STEPS:
+            return None
+        return stamp
+
+    def receive_models(self, step: int, rig: str, model: SpecimenModel) -> None:
+        """Hand in another builder's model of its rig `rig`, sent after its step `step`
+        (applied at step ``step + EXCHANGE_LAG_STEPS``; a stamp off the exchange's grid or of
+        a local rig is ignored)."""
+        if rig in self.remote_rigs and step % EXCHANGE_EVERY_STEPS == 0:
+            self._inbox.setdefault(step, {})[rig] = model
+
+    def has_models(self, step: int) -> bool:
+        """Whether every other builder's models of `step` are in (lockstep waits for them)."""
+        return set(self._inbox.get(step, {})) >= set(self.remote_rigs)
+
+    def _receive(self, rig: str, model: SpecimenModel) -> None:
+        """Take another builder's model of `rig` when it moved (:data:`MODEL_TOLERANCE`)."""
+        j = self.rig_names.index(rig)
+        current = getattr(self, '_remote_models', {}).get(j)
+        if current is None:
+            sub = self.setup.substructures
+            current = SpecimenModel(float(sub.specimen_mass_kg[j]),
+                                    float(sub.specimen_damping_N_s_per_m[j]),
+                                    float(sub.specimen_stiffness_N_per_m[j]))
+        if model.moved(current, MODEL_TOLERANCE):
+            self.set_specimen_model(rig, model)
 
     def _couple(self, k: int, window, latest) -> None:
         """The computational state of sample ``k-1`` and the local rigs' interface forces

@@ -1371,7 +1371,7 @@ def check_run(params: Mapping, *, margin: bool = False) -> StabilityCheck:
         check = _check_study(params)
     else:
         check = _check_structure(params)
-    if margin and check.stable is not None:
+    if margin and (check.stable is not None or params['predictor'] in MARGIN_OF_INITIAL_LAW):
         check = replace(check, margin=robustness_margin(params))
     return check
 

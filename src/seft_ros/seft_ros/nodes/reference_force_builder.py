@@ -37,7 +37,7 @@ import time
 from seft_msgs_py import clock, parameters
 from seft_msgs_py.convert import STATE_READY, STATE_RUNNING, SerializedStamped, status_values
 from seft_msgs_py.errors import InputError
-from seft_msgs_py.graph import STRUCTURE_STATE, qualified
+from seft_msgs_py.graph import STRUCTURE_STATE, qualified, scoped
 from seft_msgs_py.interface import Measurement
 from seft_msgs_py.node_support import (
     InputWatchdog,
@@ -49,6 +49,11 @@ from seft_msgs_py.node_support import (
 from seft_msgs_py.topics import REFERENCE_FORCE, STATUS, record_topic
 from seft_ros.core.monitor import InstabilityMonitor, SpecimenCheck
 from seft_ros.core.reference_force import ReferenceForceBuilder, ground_window
+from seft_ros.core.substructure import SpecimenModel
+
+#: The topic of a rig's specimen model (in its namespace), sent by its builder to the builders
+#: of the other rigs every EXCHANGE_EVERY_STEPS steps (``structure_builders: per_rig``).
+SPECIMEN_MODEL_TOPIC = '/seft/specimen_model'
 
 __all__ = ['ReferenceForceBuilderNode', 'main']
 
@@ -123,6 +128,20 @@ class ReferenceForceBuilderNode(SeftNode):
             for r in self.builder.rig_names]
         self.create_subscription(STATUS.msg_type, STATUS.name, self.guard(self._on_status),
                                  STATUS.qos)
+        # the builders of one test (one per rig) exchange their rigs' specimen models
+        self.model_pubs = {}
+        if self.builder.remote_rigs:
+            from sensor_msgs.msg import JointState
+
+            from seft_msgs_py.topics import DATA_QOS
+            self._joint_state = JointState
+            for r in self.local:
+                self.model_pubs[r] = self.create_publisher(
+                    JointState, scoped(SPECIMEN_MODEL_TOPIC, r), DATA_QOS)
+            for r in self.builder.remote_rigs:
+                self.create_subscription(
+                    JointState, scoped(SPECIMEN_MODEL_TOPIC, r),
+                    self.guard(lambda msg, r=r: self._on_model(r, msg)), DATA_QOS)
         if self.realtime:
             self.watch_inputs(subs + [ground_sub], self.pubs)
             self.timing = StepTiming(self)
@@ -172,6 +191,27 @@ class ReferenceForceBuilderNode(SeftNode):
                 self.watchdog.arm()
         self._advance()
 
+    def _on_model(self, rig: str, msg) -> None:
+        """Another builder's model of its rig (``name``: m, c, k; stamp: the step it was
+        sent after)."""
+        values = dict(zip(msg.name, msg.position))
+        step = int(round((msg.header.stamp.sec * 1e9 + msg.header.stamp.nanosec)
+                         / self.dt_ns))
+        self.builder.receive_models(step, rig, SpecimenModel(
+            values['mass_kg'], values['damping_N_s_per_m'], values['stiffness_N_per_m']))
+        self._advance()
+
+    def _publish_models(self) -> None:
+        """Send the local rigs' models of the latest step to the other builders."""
+        step, models = self.builder.outbox
+        stamp_ns = step * self.dt_ns
+        for r, model in models.items():
+            msg = self._joint_state()
+            msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
+            msg.name = ['mass_kg', 'damping_N_s_per_m', 'stiffness_N_per_m']
+            msg.position = [model.mass_kg, model.damping_N_s_per_m, model.stiffness_N_per_m]
+            self.model_pubs[r].publish(msg)
+
     def _on_status(self, msg) -> None:
         if msg.name == 'ground_motion_publisher' and self.n_total is None:
             n = status_values(msg).get('n_steps')
@@ -194,7 +234,10 @@ class ReferenceForceBuilderNode(SeftNode):
             return True
         got = self.arrived.get(k - 1, ())
         need = self.local_index if self.realtime else range(len(self.builder.rig_names))
-        return all(r in got for r in need)
+        if not all(r in got for r in need):
+            return False
+        due = self.builder.models_due(k)        # lockstep: the other labs' models too
+        return self.realtime or due is None or self.builder.has_models(due)
 
     ground_stale = False
 
@@ -228,6 +271,9 @@ class ReferenceForceBuilderNode(SeftNode):
             n_total = self.n_total if self.n_total is not None else k + look + 1
             lookup = self._ground_at if self.realtime else self.ground.__getitem__
             forces = self.builder.step(ground_window(lookup, k, look, n_total))
+            if self.model_pubs and self.builder.outbox is not None \
+                    and self.builder.outbox[0] == k:
+                self._publish_models()
             stamp = k * self.dt_ns
             for pub, force in zip(self.pubs, forces):
                 pub.publish(self.out_msg(stamp, (force,)))
