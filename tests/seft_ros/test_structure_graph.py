@@ -320,3 +320,35 @@ def test_seft_run_and_compare_of_a_structure_config(seft_exe, run_process, tmp_p
     assert proc.returncode == 0, proc.stderr
     assert json.loads((again / 'summary.json').read_text())['runs'][0]['dofs'] == \
         summary[0]['dofs']
+
+
+def test_labs_exchange_their_identified_piers_in_lockstep_as_simulate_does(runner, tmp_path,
+                                                                           monkeypatch):
+    """One builder per pier ('per_rig', each lab's), 'adaptive' with each pier's model 10 %
+    stiff: the builders send their identified models every 50 steps and take the others' in
+    25 steps later (/<rig>/seft/specimen_model; lockstep waits for them), so the bag equals
+    seft simulate bit for bit, and the exchange changed the run (without it, simulate
+    differs). Each rig's estimates are in the bag on /<rig>/seft/estimates."""
+    from seft_ros.core import reference_force
+    text = (BRIDGE.format(builders='per_rig', predictor='adaptive', rig_b='servohydraulic')
+            .replace('duration_s: 1.0', 'duration_s: 2.5')
+            .replace('pier_a: {force_controller: specimen_loop_shaping}',
+                     'pier_a: {force_controller: specimen_loop_shaping, '
+                     'predictor_stiffness_N_per_m: 232100.0}')
+            .replace('rig_model: servohydraulic}',
+                     'rig_model: servohydraulic, predictor_stiffness_N_per_m: 371360.0}'))
+    params = _params(tmp_path, text)
+    out = runner.run(params, tmp_path / 'run')
+    assert out.rig_state in ('done', ''), out.message
+    rd = read_run(out.bag_path)
+    assert rd.stable
+    sim = simulate(rd.params)
+    _same_run(rd, sim)
+    for rig in ('pier_a', 'pier_b'):
+        k = rd.rigs[rig].estimates['stiffness_N_per_m']
+        np.testing.assert_array_equal(k, sim.rigs[rig].estimates['stiffness_N_per_m'])
+        assert k[-1] < 0.97 * k[0]                          # identified towards the truth
+    monkeypatch.setattr(reference_force, 'EXCHANGE_EVERY_STEPS', 10 ** 9)
+    alone = simulate(rd.params)
+    assert not np.array_equal(alone.rigs['pier_a'].reference_force_N,
+                              sim.rigs['pier_a'].reference_force_N)
