@@ -201,7 +201,7 @@ def test_shared_parameters_have_an_explicit_source():
       'monitor_threshold', 'monitor_floor_N', 'network_delay_s',
       'predictor_restoring_force', 'hysteresis_post_yield_ratio',
       'hysteresis_yield_displacement_m', 'hysteresis_n', 'specimen_uncertainty',
-      'specimen_check'],
+      'specimen_check', 'predictor_io_latency_s'],
      'reference_force_builder'),
     (['mass_kg', 'stiffness_N_per_m', 'damping_N_s_per_m', 'specimen_model',
       'post_yield_stiffness_ratio', 'yield_displacement_m', 'bouc_wen_n', 'bouc_wen_beta',
@@ -231,8 +231,8 @@ def test_value_source_of_each_parameter(names, node):
 def test_value_source_lists_cover_the_schema():
     # + 1: realtime_priority, per node (the rig's value is the one reported); the second 6:
     # the excitation of identification runs; the rig's 43: 38 and the UDP bridge's 5; the
-    # builder's 30 with specimen_uncertainty and specimen_check
-    assert len(VALUE_SOURCE) == len(SCHEMA) == 30 + 43 + 6 + 6 + 10 + 2 + 1 + 2 + 1
+    # builder's 31 with specimen_uncertainty, specimen_check and predictor_io_latency_s
+    assert len(VALUE_SOURCE) == len(SCHEMA) == 31 + 43 + 6 + 6 + 10 + 2 + 1 + 2 + 1
 
 
 def test_value_source_of_unknown_name_is_an_error():

@@ -211,6 +211,10 @@ SCHEMA: tuple[ParamSpec, ...] = (
     ParamSpec('predictor_tau_s', 0.0, 's', "Actuator delay assumed by the predictor on the "
               "'delay' rig, the prior of 'adaptive' (0: tau_s).", 0.0, 1.0,
               nodes=_RFB + ('recorder',)),
+    ParamSpec('predictor_io_latency_s', 0.0, 's', "The servohydraulic rig's I/O latency as the "
+              "compensators model its force loop (0: io_latency_s, the rig's own): a lab's "
+              'declared value, which may differ from its rig (the loop delay off).', 0.0, 0.1,
+              nodes=_RFB + ('recorder',)),
     ParamSpec('predictor_restoring_force', 'model', '', "'model': the restoring force in "
               "the 'model' predictor is k x (the linear specimen, the study's); 'measured': it "
               'is the measured one, f_m - m a - c v at the latest sample, extrapolated with '

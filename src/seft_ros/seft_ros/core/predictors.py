@@ -57,7 +57,7 @@ __all__ = [
     'ATS_ESTIMATES', 'IdentifiedForceLoop', 'LOOP_ESTIMATES', 'LoopImpulseResponses',
     'force_loop_impulse_responses', 'step_average_force_impulse_response',
     'network_delay_steps', 'TangentModelPredictor', 'model_predictor',
-    'TANGENT_STIFFNESS_RATIOS', 'HystereticModelPredictor',
+    'TANGENT_STIFFNESS_RATIOS', 'HystereticModelPredictor', 'model_rig',
 ]
 
 
@@ -130,6 +130,16 @@ def _number(params, name: str, fallback: str | None = None) -> float:
     if value == 0.0 and fallback is not None:
         value = float(params[fallback])
     return value
+
+
+def model_rig(params):
+    """The servohydraulic rig as the compensators model it: its parameters, the I/O latency
+    ``predictor_io_latency_s`` when set (the lab's declared latency), else the rig's own
+    (:class:`~seft_plant_sim.servohydraulic.ServoHydraulicParams`)."""
+    from seft_plant_sim.servohydraulic import ServoHydraulicParams
+    latency = float(params.get('predictor_io_latency_s', 0.0) or 0.0)
+    return ServoHydraulicParams.from_parameters(
+        dict(params, io_latency_s=latency) if latency > 0 else params)
 
 
 def model_parameters(params) -> dict:
@@ -1019,7 +1029,6 @@ class ForceLoopInverse:
         predictor (``predictor_*``).
         """
         try:  # the plant models are optional on a lab's controller host
-            from seft_plant_sim.servohydraulic import ServoHydraulicParams
             from seft_plant_sim.specimen import LinearSpecimen
         except ImportError as exc:
             raise ParameterError(
@@ -1029,8 +1038,7 @@ class ForceLoopInverse:
         mp = model_parameters(params)
         spec = LinearSpecimen(mp['mass_kg'], mp['damping_N_s_per_m'], mp['stiffness_N_per_m'])
         ctrl = ForceServoController.from_parameters(params)
-        resp = step_average_force_impulse_response(
-            ServoHydraulicParams.from_parameters(params), spec, ctrl, 1000)
+        resp = step_average_force_impulse_response(model_rig(params), spec, ctrl, 1000)
         delay = int(params['predictor_loop_delay_steps'])
         inverse = None
         if np.all(np.isfinite(resp)):
@@ -1354,7 +1362,7 @@ class IdentifiedForceLoop:
             range.
         """
         try:
-            from seft_plant_sim.servohydraulic import ServoHydraulicParams, continuous_model
+            from seft_plant_sim.servohydraulic import continuous_model
             from seft_plant_sim.specimen import LinearSpecimen
         except ImportError as exc:
             raise ParameterError(
@@ -1363,7 +1371,7 @@ class IdentifiedForceLoop:
         from seft_ros.core.controller import ForceServoController
         mp = model_parameters(params)
         ctrl = ForceServoController.from_parameters(params)
-        rig = ServoHydraulicParams.from_parameters(params)
+        rig = model_rig(params)
         spec = LinearSpecimen(mp['mass_kg'], mp['damping_N_s_per_m'], mp['stiffness_N_per_m'])
         prior = force_loop_impulse_responses(rig, spec, ctrl, 1000)
         n_delay, _ = _split_delay(rig.io_latency_s, ctrl.dt)

@@ -148,6 +148,9 @@ def with_loop_latency(params) -> dict:
     out['predictor_tau_s'] = max(tau + extra + network, 1e-6)
     if 'io_latency_s' in params and latency > 0.0:
         out['io_latency_s'] = max(float(params['io_latency_s']) + extra, 0.0)
+        if float(params.get('predictor_io_latency_s', 0.0) or 0.0) > 0.0:
+            out['predictor_io_latency_s'] = max(
+                float(params['predictor_io_latency_s']) + extra, 1e-9)
     return out
 
 
