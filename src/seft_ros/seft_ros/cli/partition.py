@@ -14,7 +14,7 @@ node list to get right by hand (``--nodes`` remains for any other split).
     (``structure_builders: per_rig``): each lab integrates a replica of the computational
     part from every rig's measurements and predicts the other rigs' motion over the link's
     delay with the whole structure's model (
-    :class:`~seft_ros.core.substructure.StructureBuilder`).
+    :class:`~seft_ros.core.reference_force.ReferenceForceBuilder`).
 ``builder_remote``
     The split of earlier releases: the lab host runs the rig and its controller, the compute
     host the ground-motion publisher, the builder (one for every rig) and the recorder. The

@@ -331,7 +331,8 @@ class Coupling(NamedTuple):
     sampled : ndarray, shape (n_l, 2 n), or None
         ``I = sampled [x, v]`` at a sample (every DOF's x, then v) [N].
     predicted : ndarray, shape (n_targets, width), or None
-        :attr:`~seft_ros.core.substructure.InterfacePredictor.matrix` of the targets.
+        The ``matrix`` of the :class:`~seft_ros.core.substructure.InterfacePredictor` of the
+        targets.
     targets : list of int
         The local rigs (indices) whose interface is predicted, in the rows' order.
     history_steps, ground_steps : int
@@ -686,7 +687,7 @@ class ReferenceForceBuilder:
 
     def models_due(self, k: int) -> int | None:
         """The step whose models of the other builders' rigs step `k` takes in (None: none
-        due; :data:`EXCHANGE_EVERY_STEPS`, :data:`EXCHANGE_LAG_STEPS`)."""
+        due; ``EXCHANGE_EVERY_STEPS``, ``EXCHANGE_LAG_STEPS``)."""
         stamp = k - EXCHANGE_LAG_STEPS
         if not self.remote_rigs or stamp < 0 or stamp % EXCHANGE_EVERY_STEPS:
             return None

@@ -382,7 +382,7 @@ _COMPENSATORS_KEPT = 16
 
 def compensator(params: Mapping) -> Compensator:
     """:class:`Compensator` of ``params['predictor']`` (see there); kept by its parameters
-    (:data:`_COMPENSATORS`)."""
+    (``_COMPENSATORS``)."""
     try:
         key = tuple(sorted((k, v) for k, v in params.items()
                            if k not in ('alpha', 'structure')))
@@ -1204,7 +1204,7 @@ class RobustnessMargin:
     low, high : float
         Fractions of the declared stiffness (every rig's specimen together; the compensators
         keep their models): stable for ``low < k / k_declared < high`` (``nan``: not
-        predicted; :data:`MARGIN_RANGE` ends: stable up to there).
+        predicted; ``MARGIN_RANGE`` ends: stable up to there).
     note : str
         What the margin is of (e.g. the initial law of ``adaptive``), or why there is none.
     """
@@ -1269,7 +1269,7 @@ def robustness_margin(params: Mapping, *, rtol: float = 0.01) -> RobustnessMargi
     keep their models (the declared specimen, ``predictor_*``) and the force controllers
     their design (a scheduling one follows the specimen); the margin is the interval of
     ``r`` around 1 where the closed loop's spectral radius stays below 1 (a geometric scan
-    of :data:`MARGIN_RANGE`, then bisection to `rtol`). A compensator that identifies the
+    of ``MARGIN_RANGE``, then bisection to `rtol`). A compensator that identifies the
     specimen (``adaptive``) compensates any stiffness within its identification's range
     (``1 +- adaptive_max_deviation``) once it has identified it; its margin is that range,
     and its note gives the margin of the ``model`` law it starts from (a specimen outside
@@ -1404,7 +1404,7 @@ def stability_map(params: Mapping, taus, predictors, *, alpha_max: float = 3.0,
                   step: float | None = None, tol: float | None = None) -> StabilityMap:
     """The stability boundary over the rigs' delay, one curve per predictor, for any test.
 
-    The study's test: the largest stable alpha (:func:`_study_map`, steps of 0.01); a
+    The study's test: the largest stable alpha (``_study_map``, steps of 0.01); a
     structure: the largest stable coupling scale (:func:`largest_stable_scale`, steps of
     0.25), the delay varied on every rig whose section does not set its own.
 

@@ -422,7 +422,7 @@ class ComputationalPart(Protocol):
 
     Sample ``j`` of every DOF is known once every rig's measurement of ``j`` is in
     (:meth:`observe`); the interface forces at the physical DOFs are what the computational
-    part exerts on them there (Eq. 2's ``I``); :attr:`matrices` is its linear model for the
+    part exerts on them there (Eq. 2's ``I``); ``matrices`` is its linear model for the
     compensators' prediction (the ``predicted`` interface forces, the stability analysis).
 
     Attributes
@@ -450,7 +450,7 @@ class ComputationalPart(Protocol):
         """The interface force [N] at each of `dofs` for the state `x`, `v` (Eq. 2)."""
 
     def recorded_state(self, x, v, j: int) -> tuple:
-        """The computational DOFs' values named :attr:`state_names` at sample `j`."""
+        """The computational DOFs' values named ``state_names`` at sample `j`."""
 
     def set_matrices(self, matrices: Matrices) -> None:
         """Model the DOFs not measured with `matrices` (an identified specimen)."""
@@ -539,7 +539,7 @@ class StructureState:
         return fn(list(x) + list(v))
 
     def recorded_state(self, x, v, j: int) -> tuple:
-        """``x_Q, v_Q, a_Q`` of sample `j` [m, m/s, m/s^2] (:attr:`state_names`)."""
+        """``x_Q, v_Q, a_Q`` of sample `j` [m, m/s, m/s^2] (``state_names``)."""
         qi = self._qi
         if not qi:
             return ()
