@@ -46,7 +46,8 @@ def _run_and_cut(cwd, ros_env, out):
     lines, client = [], None
     for line in proc.stdout:
         lines.append(line)
-        if client is None and 'compute: live view: Foxglove ws://127.0.0.1:' in line:
+        if client is None and re.search(r'compute: (\[seft\] )?live view: Foxglove '
+                                        r'ws://127\.0\.0\.1:', line):
             client = FoxgloveClient(f'ws://127.0.0.1:{port}')
     proc.wait()
     timer.cancel()
