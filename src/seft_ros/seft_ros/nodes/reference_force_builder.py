@@ -263,7 +263,9 @@ class ReferenceForceBuilderNode(SeftNode):
                 return
             if self.realtime and k == 0 and not self._ground_ready(k):
                 return
-            start, jitter = self.timing.start() if self.timing is not None else (0.0, 0.0)
+            # f_r[0] is built before the rigs' clock starts: no timing record of it
+            timed = self.timing is not None and k > 0
+            start, jitter = self.timing.start() if timed else (0.0, 0.0)
             if k > 0 and self._monitors_trip(k):
                 return
             self.ground_stale = False
@@ -289,7 +291,7 @@ class ReferenceForceBuilderNode(SeftNode):
             self.arrived.pop(k - 1, None)
             self.latest.pop(k - 1, None)
             self.next_step = k + 1
-            if self.timing is not None:
+            if timed:
                 now_ns = clock.now_ns()
                 oldest = k - 1 - self.builder.window_steps
                 age = (now_ns - self.sample_time_ns(oldest)) * 1e-9
