@@ -660,18 +660,21 @@ class ReferenceForceBuilder:
                     raise ParameterError(f'rig {self.local_rigs[r] or "rig"}: no measurement '
                                          f'of sample {k - 1} observed')
                 latest[r] = m
-                for old in [j for j in seen if j < k - 1]:
-                    del seen[old]
-        due = self.models_due(k)
-        if due is not None:
-            for rig, model in self._inbox.pop(due, {}).items():
-                self._receive(rig, model)
+                if len(seen) > 4:                  # forget what came too late to be used
+                    for old in [j for j in seen if j < k - 1]:
+                        del seen[old]
+        if self.remote_rigs:
+            due = self.models_due(k)
+            if due is not None:
+                for rig, model in self._inbox.pop(due, {}).items():
+                    self._receive(rig, model)
         if self._tracking:
             self._couple(k, window, latest)
         out = []
+        interface, ground = self.interface_N, self.last_ground_forces_N
         for r, law in enumerate(self.laws):
-            out.append(law.step(window, latest[r], self.interface_N[r]))
-            self.last_ground_forces_N[r] = law.last_ground_force_N
+            out.append(law.step(window, latest[r], interface[r]))
+            ground[r] = law.last_ground_force_N
         if self.remote_rigs and k % EXCHANGE_EVERY_STEPS == 0:
             self.outbox = (k, self.local_models())
         self.next_step = k + 1
