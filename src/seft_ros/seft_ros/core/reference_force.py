@@ -665,9 +665,10 @@ class ReferenceForceBuilder:
                         del seen[old]
         if self.remote_rigs:
             due = self.models_due(k)
-            if due is not None:
-                for rig, model in self._inbox.pop(due, {}).items():
-                    self._receive(rig, model)
+            if due is not None:     # (in real time, one that came late: at the next due step)
+                for stamp in sorted(j for j in self._inbox if j <= due):
+                    for rig, model in self._inbox.pop(stamp).items():
+                        self._receive(rig, model)
         if self._tracking:
             self._couple(k, window, latest)
         out = []
