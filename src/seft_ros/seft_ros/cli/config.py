@@ -118,7 +118,9 @@ def expand_runs(config: dict[str, Any], *, where: str = '') -> list[dict[str, An
 def _with_structure(params: dict[str, Any], where: str) -> dict[str, Any]:
     """A run with a structure, checked against its rigs
     (:func:`~seft_ros.core.structure.test_setup`); the study's test if it reduces to it
-    (:func:`~seft_ros.core.structure.reduces_to_study`).
+    (:func:`~seft_ros.core.structure.reduces_to_study`); an identification run (an
+    ``excitation``) of any other structure tests its rigs alone, each in its namespace
+    (:func:`~seft_ros.core.excitation.rigs_alone`).
 
     Raises
     ------
@@ -133,6 +135,9 @@ def _with_structure(params: dict[str, Any], where: str) -> dict[str, Any]:
         setup = test_setup(params)
         if reduces_to_study(setup.substructures):
             return study_parameters(params, setup.substructures)
+        if params.get('excitation', 'none') != 'none':
+            from seft_ros.core.excitation import rigs_alone
+            return rigs_alone(params)
     except ParameterError as exc:
         raise ParameterError(f'{where}: {exc}' if where else str(exc)) from None
     return params
