@@ -16,7 +16,6 @@ from seft_msgs_py import parameters
 from seft_msgs_py.errors import InputError, SeftError
 from seft_plant_sim.faults import FAULTS, SENSOR_FAULTS
 from seft_ros.cli import api, partition
-from seft_ros.cli.config import load_config
 from seft_ros.cli.live import options_from_args
 from seft_ros.cli.spawn import node_start
 
@@ -246,13 +245,10 @@ def _build(args):
                                                'amplitude_N', 'scale_factor', 'time_scale',
                                                'duration_s')}
     overrides['mode'] = getattr(args, 'mode', None)
-    for path in args.params_files:
-        for name, value in load_config(path).items():
-            if overrides.get(name) is None:
-                overrides[name] = value
     for name, value in _typed(args.sets):
         overrides[name] = value
-    return api.build_runs(config=args.config, overrides=overrides, alphas=args.alpha)
+    return api.build_runs(config=args.config, overrides=overrides, alphas=args.alpha,
+                          params_files=args.params_files)
 
 
 def _experiments(args):
@@ -294,14 +290,7 @@ def _identify(args) -> int:
                                nperseg=args.nperseg, noverlap=args.noverlap,
                                orders=tuple(args.orders) if args.orders else None,
                                params_out=args.params_out)
-    doc = result.document
-    for key in ('zero_hz', 'resonance_hz', 'crossover_hz', 'phase_margin_deg', 'gain_margin',
-                'delay_ms', 'delay_xcorr_ms'):
-        if doc.get(key) is not None:
-            model = next((r['figures']['model'].get(key) for r in doc['runs']
-                          if key in r['figures']), None)
-            known = f'  (known model {model:.4g})' if model is not None else ''
-            print(f'{key:18s} {doc[key]:10.4g}{known}')
+    print(api.identification_table(result.document))
     print(f'report: {out / "identification.md"}')
     print(f'figures: {out / "identification.json"}')
     if result.params_path is not None:
@@ -313,12 +302,9 @@ def _rig_runs(args) -> list[dict]:
     """The runs of a rig's options (config, --rig, --params, --set) for rig-check and
     emulate-controller."""
     overrides = {'rig_model': args.rig_model}
-    for path in args.params_files:
-        for name, value in load_config(path).items():
-            if overrides.get(name) is None:
-                overrides[name] = value
     overrides.update(dict(_typed(args.sets, alpha=True)))
-    return api.build_runs(config=args.config, overrides=overrides)
+    return api.build_runs(config=args.config, overrides=overrides,
+                          params_files=args.params_files)
 
 
 def _one_rig(args, verb: str) -> dict:
