@@ -1260,13 +1260,20 @@ def identification_table(doc: dict) -> str:
                               if key in r['figures']), None)
                 known = f'  (known model {model:.4g})' if model is not None else ''
                 lines.append(f'{key:18s} {figures[key]:10.4g}{known}')
-        for r in runs:
-            spec = r['figures'].get('specimen')
-            if not spec:
-                continue
-            for key, label in (('mass_kg', 'm [kg]'), ('damping_N_s_per_m', 'c [N s/m]'),
-                               ('stiffness_N_per_m', 'k [N/m]')):
-                lines.append(f'{"specimen " + label:18s} {spec[key]:10.5g}  (rig model '
-                             f'{spec["model"][key]:.5g}, declared {spec["declared"][key]:.5g})')
-            lines.append(f'{"specimen":18s} {spec["verdict"]}')
+        specs = [(r['kind'], r['figures']['specimen']) for r in runs
+                 if r['figures'].get('specimen')]
+        if specs:
+            keys = ('mass_kg', 'damping_N_s_per_m', 'stiffness_N_per_m')
+            lines.append(f'{"specimen":18s} {"m [kg]":>10s} {"c [N s/m]":>11s} '
+                         f'{"k [N/m]":>11s}')
+
+            def row(label, values, note=''):
+                return (f'  {label:16s} {values[keys[0]]:10.5g} {values[keys[1]]:11.5g} '
+                        f'{values[keys[2]]:11.5g}{note}').rstrip()
+            for kind, spec in specs:
+                note = (f'   linear (residual {100 * spec["residual"]:.2g} %)'
+                        if spec['linear'] else f'   {spec["verdict"]}')
+                lines.append(row(f'{kind} run', spec, note))
+            lines.append(row('rig model', specs[0][1]['model']))
+            lines.append(row('declared', specs[0][1]['declared']))
     return '\n'.join(lines)

@@ -78,8 +78,9 @@ def _experiment_options(p: argparse.ArgumentParser) -> None:
     p.add_argument('--duration', dest='duration_s', type=float, metavar='S',
                    help='run length after time scaling [s] (0: whole record)')
     p.add_argument('--params', dest='params_files', action='append', default=[],
-                   metavar='FILE', help='parameter file layered over CONFIG (repeatable; e.g. '
-                   'the --params file of seft identify); the options above and --set win')
+                   metavar='FILE', help='parameter file layered over CONFIG (repeatable, '
+                   'the first wins; e.g. the --params file of seft identify: its rigs '
+                   "sections merge into CONFIG's); the options above and --set win")
     p.add_argument('--set', dest='sets', type=_set_value, action='append', default=[],
                    metavar='NAME=VALUE', help='any other parameter (repeatable)')
     p.add_argument('--out', help='output directory (default runs/<name>/)')
@@ -141,8 +142,9 @@ def build_parser() -> argparse.ArgumentParser:
     _experiment_options(sim)
     sim.add_argument('--bag', action='store_true', help="also write each run's bag "
                      '(DIR/<run>/bag), the bag the node graph records')
-    ident = sub.add_parser('identify', help='identify the rig from the bags of identification '
-                           'runs (frequency responses, fits, delay, loop margins)')
+    ident = sub.add_parser('identify', help='identify each rig from the bags of '
+                           'identification runs (frequency responses, fits, delay, loop '
+                           'margins, its specimen m, c, k)')
     ident.add_argument('bags', nargs='+', metavar='BAG', help='a bag, a run directory or a '
                        'folder of run directories')
     ident.add_argument('--out', help='output directory (default runs/identify/)')
@@ -154,7 +156,9 @@ def build_parser() -> argparse.ArgumentParser:
     ident.add_argument('--orders', type=int, nargs=2, metavar=('NB', 'NA'), help='orders of '
                        'the rational fit in z^-1 (default 6 4 open loop, 8 6 closed loop)')
     ident.add_argument('--params', dest='params_out', metavar='FILE', help='write the '
-                       'identified delay and force-loop model as a parameter file')
+                       'identified delay and force-loop model as a parameter file; of a '
+                       "structure's bags, a rigs section per rig with its specimen too (for "
+                       'seft run CONFIG --params FILE)')
     cmp_ = sub.add_parser('compare', help='compare recorded bags against the analytical '
                           'reference (figures, table, summary.json)')
     cmp_.add_argument('bags', nargs='+', metavar='BAG', help='a bag, a run directory '
