@@ -40,7 +40,8 @@ from seft_ros.analysis.specimen_identification import SpecimenFit, fit_specimen
 __all__ = ['FrequencyResponse', 'RationalFit', 'LoopFigures', 'RunIdentification',
            'h1_estimate', 'fit_rational', 'loop_figures', 'phase_slope_delay_s',
            'xcorr_delay_s', 'identify_run', 'identified_parameters', 'identify_rigs',
-           'identified_rig_parameters', 'SPECIMEN_PARAMETERS', 'DEFAULT_NPERSEG',
+           'identified_rig_parameters', 'specimen_figures', 'fit_hydraulics', 'HYDRAULIC_FIT',
+           'SPECIMEN_PARAMETERS', 'DEFAULT_NPERSEG',
            'DEFAULT_ORDERS_OPEN', 'DEFAULT_ORDERS_CLOSED', 'DELAY_BAND_HZ', 'MIN_COHERENCE']
 
 #: Default Welch segment length [samples] (0.49 Hz resolution at dt = 2 ms).
