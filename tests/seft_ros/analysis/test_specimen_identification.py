@@ -142,3 +142,13 @@ def test_a_band_beyond_nyquist_is_one_line():
     with pytest.raises(ParameterError, match=r'^band 1-300 Hz: expected 0 < low < high < the '
                        r'Nyquist frequency 250 Hz$'):
         fit_specimen(f, x, v, a, 0.002, band_hz=(1.0, 300.0))
+
+
+def test_a_run_too_short_for_a_specimen_has_its_loop_only():
+    """0.5 s (250 samples): the force loop with short segments, no specimen fit."""
+    run, = build_runs(overrides=dict(excitation='noise', duration_s=0.5,
+                                     excitation_band_low_hz=5.0, excitation_band_hz=100.0))
+    (ident,) = identify_rigs(simulate(run), nperseg=128, delay_band_hz=(5.0, 25.0))
+    assert ident.specimen is None and 'specimen' not in ident.figures
+    assert math.isfinite(ident.figures['delay_ms'])
+    assert set(identified_rig_parameters([ident])['']) == {'predictor_tau_s'}

@@ -35,13 +35,18 @@ from scipy import optimize, signal
 
 from seft_msgs_py.errors import InputError, ParameterError
 from seft_ros.analysis.rundata import RunData
-from seft_ros.analysis.specimen_identification import SpecimenFit, fit_specimen
+from seft_ros.analysis.specimen_identification import (
+    FIT_PARTS,
+    MIN_PART_SAMPLES,
+    SpecimenFit,
+    fit_specimen,
+)
 
 __all__ = ['FrequencyResponse', 'RationalFit', 'LoopFigures', 'RunIdentification',
            'h1_estimate', 'fit_rational', 'loop_figures', 'phase_slope_delay_s',
            'xcorr_delay_s', 'identify_run', 'identified_parameters', 'identify_rigs',
            'identified_rig_parameters', 'specimen_figures', 'fit_hydraulics', 'HYDRAULIC_FIT',
-           'SPECIMEN_PARAMETERS', 'DEFAULT_NPERSEG',
+           'SPECIMEN_PARAMETERS', 'MIN_SPECIMEN_SAMPLES', 'DEFAULT_NPERSEG',
            'DEFAULT_ORDERS_OPEN', 'DEFAULT_ORDERS_CLOSED', 'DELAY_BAND_HZ', 'MIN_COHERENCE']
 
 #: Default Welch segment length [samples] (0.49 Hz resolution at dt = 2 ms).
@@ -56,6 +61,8 @@ DEFAULT_ORDERS_CLOSED = (8, 6)
 DELAY_BAND_HZ = (1.0, 5.0)
 #: Frequencies whose coherence is below this are left out of fits and figures' values.
 MIN_COHERENCE = 0.9
+#: Fewer samples than this give no specimen fit.
+MIN_SPECIMEN_SAMPLES = MIN_PART_SAMPLES * FIT_PARTS
 #: The compensators' specimen parameters an identified specimen sets, per
 #: :class:`~seft_ros.analysis.specimen_identification.SpecimenFit` attribute.
 SPECIMEN_PARAMETERS = {'mass_kg': 'predictor_mass_kg',
@@ -563,7 +570,8 @@ def identify_run(run: RunData, *, window: str = 'hann', nperseg: int = DEFAULT_N
         ``magnitude_max`` (``|H1|`` from 0.5 to 25 Hz, the band of Fig. 4). Every figure also
         under ``model`` from the rig's known model (``seft_plant_sim.servohydraulic``:
         ``valve_to_force``, ``loop_margins``, ``equivalent_delay_s``; the delay rig: tau_s).
-        ``specimen``: the rig's specimen (:func:`specimen_figures`).
+        ``specimen``: the rig's specimen (:func:`specimen_figures`; none for a run of fewer
+        than :data:`MIN_SPECIMEN_SAMPLES` samples).
 
     Raises
     ------
@@ -611,13 +619,15 @@ def identify_run(run: RunData, *, window: str = 'hann', nperseg: int = DEFAULT_N
     except ParameterError as exc:
         raise ParameterError(f'{src}: {exc}') from None
     known = _known_model(p) if servo else None
-    where = f'{src}: rig {rig}' if rig else src
-    specimen = fit_specimen(run.measured_force_N, run.displacement_m, run.velocity_m_s,
-                            run.acceleration_m_s2, dt, band_hz=_specimen_band(p), where=where)
-    ident = RunIdentification(src, kind, fr, fit, None, dict(p), rig=rig, specimen=specimen)
-    ident.restoring = (run.displacement_m, run.measured_force_N
-                       - specimen.mass_kg * run.acceleration_m_s2
-                       - specimen.damping_N_s_per_m * run.velocity_m_s)
+    ident = RunIdentification(src, kind, fr, fit, None, dict(p), rig=rig)
+    if run.n_steps >= MIN_SPECIMEN_SAMPLES:         # else no specimen (a short H1 run)
+        specimen = fit_specimen(run.measured_force_N, run.displacement_m, run.velocity_m_s,
+                                run.acceleration_m_s2, dt, band_hz=_specimen_band(p),
+                                where=f'{src}: rig {rig}' if rig else src)
+        ident.specimen = specimen
+        ident.restoring = (run.displacement_m, run.measured_force_N
+                           - specimen.mass_kg * run.acceleration_m_s2
+                           - specimen.damping_N_s_per_m * run.velocity_m_s)
     figs: dict[str, Any] = {'fit': fit.to_json(), 'estimator': fr.settings(),
                             'coherence_mean_in_band': float(np.mean(fr.coherence[
                                 (fr.freqs_hz >= band[0]) & (fr.freqs_hz <= band[1])]))}
@@ -661,7 +671,8 @@ def identify_run(run: RunData, *, window: str = 'hann', nperseg: int = DEFAULT_N
             ident.model_response = np.exp(-2j * np.pi * f * tau)
             model['delay_ms'] = 1e3 * tau
     figs['model'] = model
-    figs['specimen'] = specimen_figures(specimen, p)
+    if ident.specimen is not None:
+        figs['specimen'] = specimen_figures(ident.specimen, p)
     ident.figures = figs
     return ident
 

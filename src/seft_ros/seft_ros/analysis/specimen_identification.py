@@ -22,7 +22,7 @@ from scipy import signal
 from seft_msgs_py.errors import InputError, ParameterError
 
 __all__ = ['SpecimenFit', 'fit_specimen', 'NONLINEAR_TOLERANCE', 'FIT_PARTS', 'FILTER_ORDER',
-           'SMALL_QUANTILE', 'LARGE_QUANTILE']
+           'SMALL_QUANTILE', 'LARGE_QUANTILE', 'MIN_PART_SAMPLES']
 
 #: Largest relative difference between the stiffness over the largest displacements and over
 #: the smallest ones for a linear specimen [-]. Measured on the simulated rig (20 s of noise,
@@ -34,6 +34,8 @@ __all__ = ['SpecimenFit', 'fit_specimen', 'NONLINEAR_TOLERANCE', 'FIT_PARTS', 'F
 NONLINEAR_TOLERANCE = 0.03
 #: Consecutive parts of the record fitted apart for the standard errors.
 FIT_PARTS = 4
+#: Fewest samples of each part.
+MIN_PART_SAMPLES = 64
 #: Order of the zero-phase Butterworth band-pass applied to every signal alike.
 FILTER_ORDER = 4
 #: The samples whose displacement magnitude is below this quantile are the "small" ones and
@@ -164,8 +166,8 @@ def fit_specimen(force_N, displacement_m, velocity_m_s, acceleration_m_s2, dt: f
     Raises
     ------
     InputError
-        Signals of different lengths, not finite, or too short (fewer than 64 samples per
-        part).
+        Signals of different lengths, not finite, or too short (fewer than
+        :data:`MIN_PART_SAMPLES` samples per part).
     ParameterError
         A band not within (0, Nyquist).
 
@@ -211,8 +213,9 @@ def fit_specimen(force_N, displacement_m, velocity_m_s, acceleration_m_s2, dt: f
     parts = int(parts)
     if parts < 2:
         raise ParameterError(f'parts={parts!r}: expected an integer >= 2')
-    if n < 64 * parts:
-        raise InputError(f'{pre}{n} samples; expected at least {64 * parts} to fit the specimen')
+    if n < MIN_PART_SAMPLES * parts:
+        raise InputError(f'{pre}{n} samples; expected at least {MIN_PART_SAMPLES * parts} to '
+                         'fit the specimen')
     nyquist = 0.5 / dt
     lo, hi = (0.2, 0.8 * nyquist) if band_hz is None else (float(b) for b in band_hz)
     if not 0 < lo < hi < nyquist:
