@@ -13,7 +13,7 @@ emulates a wrong model). The path a lab takes, as ``seft`` runs it:
    worst displacement NRMS per DOF with the exact model, with the wrong declaration and with
    ``--params FILE`` of step 2.
 
-Prints figures; asserts nothing. About 3 minutes (two records; more with --record).
+Prints figures; asserts nothing. About 20 s (two records; more with --record).
 
 Usage: .venv/bin/python benchmarks/identify_structure.py [--record default X.AT2 ...]
        [--duration 15] [--id-duration 20] [--stiffer 1.15]
