@@ -177,6 +177,28 @@ def test_bridge_on_two_rigs_equals_simulate(runner, tmp_path, builders, predicto
                 '/pier_a/seft/timing/reference_force_builder'} <= topics
 
 
+@pytest.mark.parametrize('excitation_input', ['reference_force', 'valve_command'])
+def test_an_identification_run_of_the_bridge_equals_simulate(runner, tmp_path,
+                                                              excitation_input):
+    """seft run of the piers' identification run: each rig alone in its namespace (no
+    computational state), every rig excited (closed loop: its reference force is the
+    excitation; open loop: its controller node drives the valve with it), bit for bit
+    simulate's."""
+    text = BRIDGE.format(builders='central', predictor='none', rig_b='servohydraulic')
+    params = _params(tmp_path, text + 'excitation: noise\nexcitation_band_low_hz: 2.0\n'
+                     f'excitation_input: {excitation_input}\n')
+    out = runner.run(params, tmp_path / 'run')
+    assert out.rig_state in ('done', ''), out.message
+    rd = read_run(out.bag_path)
+    assert list(rd.rigs) == ['pier_a', 'pier_b'] and not rd.computational and rd.stable
+    _same_run(rd, simulate(rd.params))
+    name = 'reference_force_N' if excitation_input == 'reference_force' else 'valve_command_V'
+    excited = [getattr(rig, name) for rig in rd.rigs.values()]
+    np.testing.assert_array_equal(excited[0], excited[1])     # one excitation for every rig
+    assert np.std(excited[0]) > 0
+    assert all(np.ptp(rig.displacement_m) > 1e-5 for rig in rd.rigs.values())
+
+
 def test_a_rig_at_its_limit_ends_every_rig_and_the_bag_reads(runner, tmp_path):
     """Uncompensated, the delay of the force loops destabilises the deck's coupling (negative
     damping): pier b reaches its stroke limit, and every rig ends there, aborted with that

@@ -99,3 +99,54 @@ def test_open_loop_needs_the_servohydraulic_rig():
         excitation_record(p)
     with pytest.raises(ParameterError, match='delay rig has no valve'):
         make_valve_controller(p)
+
+
+FRAME = """
+structure:
+  dofs: [a, b, top]
+  physical: {a: rig_a, b: rig_b}
+  mass_matrix_kg: [[60, 0, 0], [0, 80, 0], [0, 0, 100]]
+  stiffness_matrix_N_per_m: [[3.0e5, 0, -1.0e5], [0, 4.0e5, -1.0e5], [-1.0e5, -1.0e5, 2.0e5]]
+  damping_matrix_N_s_per_m: [[900, 0, 0], [0, 1000, 0], [0, 0, 100]]
+rigs:
+  rig_a: {rig_model: delay, mass_kg: 50.0, stiffness_N_per_m: 2.0e5, damping_N_s_per_m: 800}
+  rig_b: {rig_model: delay, mass_kg: 80.0, stiffness_N_per_m: 3.0e5, damping_N_s_per_m: 900}
+"""
+
+
+def test_a_structure_identification_run_tests_each_rig_alone(tmp_path):
+    """The computational part off: each rig's DOF alone with its specimen, every rig's
+    reference force the excitation itself (predictor none), whatever its specimen mass."""
+    from seft_ros.cli.config import expand_runs, load_config
+    from seft_ros.core.structure import Structure
+    path = tmp_path / 'frame.yaml'
+    path.write_text(FRAME)
+    config = dict(load_config(path), predictor='none', excitation='chirp',
+                  excitation_band_hz=30.0, duration_s=2.0, excitation_amplitude=50.0)
+    run, = expand_runs(config)
+    s = Structure.from_json(run['structure'])
+    assert s.dofs == ('a', 'b') and dict(s.physical) == {'a': 'rig_a', 'b': 'rig_b'}
+    assert np.array_equal(s.mass_kg, np.diag([50.0, 80.0]))
+    assert np.array_equal(s.stiffness_N_per_m, np.diag([2.0e5, 3.0e5]))
+    assert np.array_equal(s.damping_N_s_per_m, np.diag([800.0, 900.0]))
+    assert s.rigs['rig_b']['mass_kg'] == 80.0
+    rd = simulate(run)
+    assert rd.stable and rd.rig_names == ('rig_a', 'rig_b') and not rd.computational
+    e = excitation_signal(run)
+    for name in rd.rig_names:
+        assert np.allclose(rd.rigs[name].reference_force_N, e, rtol=1e-12, atol=1e-9)
+    # without an excitation the test is the coupled structure
+    test, = expand_runs(dict(config, excitation='none'))
+    assert Structure.from_json(test['structure']).dofs == ('a', 'b', 'top')
+
+
+def test_a_one_rig_structure_identifies_its_rig_in_its_namespace():
+    """two_story's rig 'lab' alone is not the study's rig: it keeps its namespace."""
+    from pathlib import Path
+
+    from seft_ros.cli.config import expand_runs, load_config
+    config = load_config(Path(__file__).resolve().parents[3] / 'config' / 'two_story.yaml')
+    run = expand_runs(dict(config, excitation='noise', duration_s=2.0))[0]
+    rd = simulate(run)
+    assert rd.rig_names == ('lab',) and rd.stable
+    assert not rd.is_study

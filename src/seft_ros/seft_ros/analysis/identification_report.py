@@ -1,7 +1,8 @@
 """Outputs of ``seft identify``: ``identification.json``, Bode plots and a Markdown report.
 
 The numbers come from :mod:`seft_ros.analysis.rig_identification`; this module only writes
-them (matplotlib's Agg canvas, no display).
+them (matplotlib's Agg canvas, no display). A structure's report and parameter file are per
+rig (:func:`write_identification` with ``rig_parameters``, :func:`write_rig_params_yaml`).
 """
 
 import json
@@ -15,8 +16,10 @@ import numpy as np
 import yaml
 
 from seft_ros.analysis.rig_identification import MIN_COHERENCE, RunIdentification
+from seft_ros.analysis.rundata import rig_label
 
-__all__ = ['write_identification', 'write_params_yaml', 'SUMMARY_KEYS']
+__all__ = ['write_identification', 'write_params_yaml', 'write_rig_params_yaml',
+           'SUMMARY_KEYS']
 
 #: The top-level figures of ``identification.json`` (the first bag that gives each).
 SUMMARY_KEYS = ('zero_hz', 'resonance_hz', 'crossover_hz', 'phase_margin_deg', 'gain_margin',
@@ -56,7 +59,7 @@ def _bode(ident: RunIdentification, path: Path, index: int) -> Path:
     ax_c.axhline(MIN_COHERENCE, color='0.6', lw=0.8, ls=':')
     what = ('valve command -> measured force [N/V] (paper Fig. 3a)' if ident.kind ==
             'open_loop' else 'reference -> measured force [N/N] (paper Fig. 4)')
-    ax_m.set_title(f'run {index}: {what}', fontsize=10)
+    ax_m.set_title(f'run {index}{_of_rig(ident)}: {what}', fontsize=10)
     ax_m.set_ylabel('magnitude')
     ax_p.set_ylabel('phase [deg]')
     ax_c.set_ylabel('coherence')
@@ -90,14 +93,43 @@ def _loop_plot(ident: RunIdentification, path: Path, index: int) -> Path:
     if fc is not None and math.isfinite(fc):
         for ax in (ax_m, ax_p):
             ax.axvline(fc, color='C0', lw=0.8, ls=':')
-    ax_m.set_title(f'run {index}: loop transfer function with the configured controller '
-                   '(paper Fig. 3c)', fontsize=10)
+    ax_m.set_title(f'run {index}{_of_rig(ident)}: loop transfer function with the configured '
+                   'controller (paper Fig. 3c)', fontsize=10)
     ax_m.set_ylabel('|L|')
     ax_p.set_ylabel('phase [deg]')
     ax_p.set_xlabel('frequency [Hz]')
     for ax in (ax_m, ax_p):
         ax.grid(True, which='both', alpha=0.3)
     ax_m.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    return path
+
+
+def _of_rig(ident: RunIdentification) -> str:
+    """`` (rig <name>)`` for a structure's rig, nothing for the study's."""
+    return f' (rig {ident.rig})' if ident.rig else ''
+
+
+def _specimen_plot(ident: RunIdentification, path: Path, index: int) -> Path:
+    """The restoring force ``f - m a - c v`` over the displacement, with the fitted ``k x``:
+    a straight line for a linear specimen, loops for a member that yields."""
+    x, restoring = ident.restoring
+    fit = ident.specimen
+    fig = Figure(figsize=(6.5, 5))
+    FigureCanvasAgg(fig)
+    ax = fig.subplots()
+    ax.plot(1e3 * x, restoring, color='0.35', lw=0.5, label='measured f - m a - c v')
+    span = np.array([np.min(x), np.max(x)])
+    ax.plot(1e3 * span, fit.stiffness_N_per_m * span, color='C0', lw=1.4,
+            label=f'k x, k = {fit.stiffness_N_per_m:.4g} N/m')
+    verdict = 'linear' if fit.linear else 'NOT linear'
+    ax.set_title(f'run {index}{_of_rig(ident)}: specimen ({verdict}, residual '
+                 f'{100 * fit.residual:.2g} %)', fontsize=10)
+    ax.set_xlabel('displacement [mm]')
+    ax.set_ylabel('restoring force [N]')
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     return path
@@ -111,25 +143,34 @@ def _fmt(v, spec='.3g'):
 
 def write_identification(idents: list[RunIdentification], out_dir, *,
                          identified: dict[str, Any] | None = None,
+                         rig_parameters: dict[str, dict[str, Any]] | None = None,
                          version: str = '') -> dict[str, Any]:
-    """Write ``identification.json``, the Bode PNGs and ``identification.md`` to `out_dir`.
+    """Write ``identification.json``, the PNGs and ``identification.md`` to `out_dir`.
 
     Parameters
     ----------
     idents : list of RunIdentification
-        One per bag.
+        One per rig of each bag.
     out_dir : str or Path
         Created if missing.
     identified : dict, optional
-        The parameters for the compensators (``rig_identification.identified_parameters``).
+        The parameters for the compensators of the study's rig
+        (``rig_identification.identified_parameters``).
+    rig_parameters : dict of str to dict, optional
+        A structure's: each rig's parameters
+        (``rig_identification.identified_rig_parameters``).
     version : str
         Software version, for the report.
 
     Returns
     -------
     dict
-        The JSON document: ``{"runs": [{"bag", "kind", "excitation", "figures", "plots"}],
-        <SUMMARY_KEYS>: the first run's value of each, "parameters": identified, "version"}``.
+        The JSON document: ``{"runs": [{"bag", "rig", "kind", "excitation", "figures",
+        "plots"}], "parameters": identified, "version"}`` and, for the study's rig, its
+        figures (:data:`SUMMARY_KEYS`: the first run's value of each); for a structure,
+        ``"rigs": {rig: {<SUMMARY_KEYS>, "specimen": [the fits], "parameters"}}`` instead.
+        PNGs: ``bode_run_<i>.png``, ``loop_run_<i>.png`` (open loop) and
+        ``specimen_run_<i>.png`` per run ``i`` (a rig of a bag).
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -138,43 +179,107 @@ def write_identification(idents: list[RunIdentification], out_dir, *,
         plots = [_bode(ident, out / f'bode_run_{i}.png', i).name]
         if ident.loop is not None:
             plots.append(_loop_plot(ident, out / f'loop_run_{i}.png', i).name)
+        if ident.specimen is not None and ident.restoring is not None:
+            plots.append(_specimen_plot(ident, out / f'specimen_run_{i}.png', i).name)
         p = ident.params
         doc['runs'].append({
-            'bag': ident.source, 'kind': ident.kind, 'rig_model': p.get('rig_model'),
+            'bag': ident.source, 'rig': ident.rig, 'kind': ident.kind,
+            'rig_model': p.get('rig_model'),
             'excitation': {k: p.get(k) for k in (
                 'excitation', 'excitation_input', 'excitation_amplitude',
                 'excitation_band_low_hz', 'excitation_band_hz', 'excitation_seed',
                 'duration_s')},
             'figures': ident.figures, 'plots': plots})
-    for key in SUMMARY_KEYS:
-        doc[key] = next((r['figures'][key] for r in doc['runs'] if key in r['figures']), None)
-    doc['parameters'] = {k: v for k, v in (identified or {}).items()}
+    structure = rig_parameters is not None
+    if structure:
+        doc['rigs'] = {}
+        for r in doc['runs']:
+            entry = doc['rigs'].setdefault(r['rig'], {'specimen': []})
+            for key in SUMMARY_KEYS:
+                if key in r['figures'] and key not in entry:
+                    entry[key] = r['figures'][key]
+            if 'specimen' in r['figures']:
+                entry['specimen'].append(r['figures']['specimen'])
+        for rig, entry in doc['rigs'].items():
+            entry['parameters'] = dict(rig_parameters.get(rig, {}))
+        doc['parameters'] = {}
+    else:
+        for key in SUMMARY_KEYS:
+            doc[key] = next((r['figures'][key] for r in doc['runs'] if key in r['figures']),
+                            None)
+        doc['parameters'] = {k: v for k, v in (identified or {}).items()}
     doc = _clean(doc)
     (out / 'identification.json').write_text(json.dumps(doc, indent=2) + '\n')
+    (out / 'identification.md').write_text('\n'.join(_markdown(doc, version)) + '\n')
+    return doc
+
+
+def _markdown(doc: dict[str, Any], version: str) -> list[str]:
+    """The lines of ``identification.md``."""
+    structure = 'rigs' in doc
+    rig_col = '| rig ' if structure else ''
     lines = ['# seft identify', '', f'seft {version}' if version else '', '',
-             '| bag | kind | figure | identified | known model |', '|---|---|---|---|---|']
+             f'{rig_col}| bag | kind | figure | identified | known model |',
+             '|---' * (6 if structure else 5) + '|']
     for r in doc['runs']:
         figs = r['figures']
         model = figs.get('model') or {}
+        rig = f"| {rig_label(r['rig'])} " if structure else ''
         for key in SUMMARY_KEYS + ('magnitude_min', 'magnitude_max'):
             if key in figs:
-                lines.append(f"| {r['bag']} | {r['kind']} | {key} | {_fmt(figs[key], '.4g')} | "
-                             f"{_fmt(model.get(key), '.4g')} |")
+                lines.append(f"{rig}| {r['bag']} | {r['kind']} | {key} | "
+                             f"{_fmt(figs[key], '.4g')} | {_fmt(model.get(key), '.4g')} |")
         fit = figs['fit']
-        lines.append(f"| {r['bag']} | {r['kind']} | fit error (orders {fit['orders']}) | "
+        lines.append(f"{rig}| {r['bag']} | {r['kind']} | fit error (orders {fit['orders']}) | "
                      f"{_fmt(fit['fit_error'], '.2%')} | |")
     lines += ['', 'Estimates: H1 = P_xy/P_xx (Welch: ' + ', '.join(
         f'{k} {v}' for k, v in (doc['runs'][0]['figures']['estimator'].items()
                                 if doc['runs'] else [])) + '); frequencies with coherence '
               f'below {MIN_COHERENCE} are left out of the fits.', '']
-    if doc['parameters']:
+    lines += _specimen_lines(doc['runs'])
+    if structure:
+        written = {rig: e['parameters'] for rig, e in doc['rigs'].items() if e['parameters']}
+        if written:
+            lines += ['Parameters of each rig for the structure test (`--params`: its `rigs` '
+                      'sections):', '']
+            for rig, values in written.items():
+                shown = ', '.join(f'`{k}` {_fmt(v, ".6g")}' for k, v in values.items()
+                                  if not k.startswith('_'))
+                lines.append(f'- `{rig}`: {shown or "nothing"}'
+                             + (f" ({values['_specimen']})" if '_specimen' in values else ''))
+            lines.append('')
+    elif doc['parameters']:
         lines += ['Parameters for the compensators (`--params`):', '']
         lines += [f'- `{k}`: {_fmt(v, ".6g")}' for k, v in doc['parameters'].items()]
         lines.append('')
     for r in doc['runs']:
         lines += [f'![{name}]({name})' for name in r['plots']]
-    (out / 'identification.md').write_text('\n'.join(lines) + '\n')
-    return doc
+    return lines
+
+
+def _specimen_lines(runs: list[dict[str, Any]]) -> list[str]:
+    """The table of the specimens (f = m a + c v + k x, paper Eq. 5.1) and their verdicts."""
+    rows = [r for r in runs if r['figures'].get('specimen')]
+    if not rows:
+        return []
+    lines = ["Specimens: f = m a + c v + k x (paper Eq. 5.1) by least squares on each rig's "
+             'measured force and motion (band-passed alike), standard errors from four parts '
+             'of the record; "rig model" is the rig\'s configured specimen, "declared" the '
+             "compensators' (`predictor_*`).", '',
+             '| rig | bag | figure | identified | standard error | rig model | declared |',
+             '|---|---|---|---|---|---|---|']
+    names = (('mass_kg', 'm [kg]'), ('damping_N_s_per_m', 'c [N s/m]'),
+             ('stiffness_N_per_m', 'k [N/m]'))
+    verdicts = []
+    for r in rows:
+        spec = r['figures']['specimen']
+        for key, label in names:
+            lines.append(f"| {rig_label(r['rig'])} | {r['bag']} | {label} | "
+                         f"{_fmt(spec[key], '.5g')} | {_fmt(spec['standard_errors'][key], '.2g')}"
+                         f" | {_fmt(spec['model'][key], '.5g')} | "
+                         f"{_fmt(spec['declared'][key], '.5g')} |")
+        verdicts.append(f"- {rig_label(r['rig'])} ({r['bag']}): {spec['verdict']}")
+    return lines + [''] + verdicts + ['']
 
 
 def write_params_yaml(identified: dict[str, Any], path) -> Path:
@@ -191,4 +296,35 @@ def write_params_yaml(identified: dict[str, Any], path) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text('# seft identify: the identified delay and force-loop model\n' + notes
                     + yaml.safe_dump(body, sort_keys=True))
+    return path
+
+
+def write_rig_params_yaml(rig_parameters: dict[str, dict[str, Any]], path) -> Path:
+    """Write a structure's identified rigs as a parameter file of its ``rigs`` sections.
+
+    Each rig's section has its parameters (keys starting with '_' go to a comment). The
+    file is a ``--params FILE`` of ``seft run`` / ``seft simulate`` with the structure's
+    configuration: its rig sections are merged into the configuration's
+    (:func:`seft_ros.cli.config.layer_rigs`).
+
+    Returns
+    -------
+    Path
+    """
+    path = Path(path)
+    rigs = {}
+    notes = ''
+    for rig, values in rig_parameters.items():
+        section = {k: float(v) for k, v in values.items() if not k.startswith('_')}
+        if section:
+            rigs[rig] = section
+        for k, v in values.items():
+            if k.startswith('_'):
+                text = v if isinstance(v, str) else format(v, '.4g')
+                notes += f'# {rig}: {k[1:]}: {text}\n'
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("# seft identify: each rig's identified specimen (predictor_*), delay and "
+                    'force-loop model\n# for the structure test: seft run CONFIG --params '
+                    f"{path.name} (its rigs sections are merged into CONFIG's)\n" + notes
+                    + yaml.safe_dump({'rigs': rigs}, sort_keys=True))
     return path

@@ -18,6 +18,12 @@ identification``): this is what a test engineer measures before a test, from who
   beside it (``seft_plant_sim``; the simulated rig's, or the model a lab configured).
 - :func:`identified_parameters`: the identified delay and force-loop model as parameters
   the compensators load (``seft identify --params out.yaml``).
+- Every rig's specimen, from its own measured force and motion
+  (:func:`~seft_ros.analysis.specimen_identification.fit_specimen`, paper Eq. 5.1), beside
+  its force loop. A structure's run is identified rig by rig (:func:`identify_rigs`), and
+  :func:`identified_rig_parameters` gives each rig's section of the parameter file: its
+  specimen (``predictor_mass_kg``, ``predictor_damping_N_s_per_m``,
+  ``predictor_stiffness_N_per_m``) with its delay and force-loop model.
 """
 
 from dataclasses import dataclass, field
@@ -29,10 +35,18 @@ from scipy import optimize, signal
 
 from seft_msgs_py.errors import InputError, ParameterError
 from seft_ros.analysis.rundata import RunData
+from seft_ros.analysis.specimen_identification import (
+    FIT_PARTS,
+    MIN_PART_SAMPLES,
+    SpecimenFit,
+    fit_specimen,
+)
 
 __all__ = ['FrequencyResponse', 'RationalFit', 'LoopFigures', 'RunIdentification',
            'h1_estimate', 'fit_rational', 'loop_figures', 'phase_slope_delay_s',
-           'xcorr_delay_s', 'identify_run', 'identified_parameters', 'DEFAULT_NPERSEG',
+           'xcorr_delay_s', 'identify_run', 'identified_parameters', 'identify_rigs',
+           'identified_rig_parameters', 'specimen_figures', 'fit_hydraulics', 'HYDRAULIC_FIT',
+           'SPECIMEN_PARAMETERS', 'MIN_SPECIMEN_SAMPLES', 'DEFAULT_NPERSEG',
            'DEFAULT_ORDERS_OPEN', 'DEFAULT_ORDERS_CLOSED', 'DELAY_BAND_HZ', 'MIN_COHERENCE']
 
 #: Default Welch segment length [samples] (0.49 Hz resolution at dt = 2 ms).
@@ -47,6 +61,13 @@ DEFAULT_ORDERS_CLOSED = (8, 6)
 DELAY_BAND_HZ = (1.0, 5.0)
 #: Frequencies whose coherence is below this are left out of fits and figures' values.
 MIN_COHERENCE = 0.9
+#: Fewer samples than this give no specimen fit.
+MIN_SPECIMEN_SAMPLES = MIN_PART_SAMPLES * FIT_PARTS
+#: The compensators' specimen parameters an identified specimen sets, per
+#: :class:`~seft_ros.analysis.specimen_identification.SpecimenFit` attribute.
+SPECIMEN_PARAMETERS = {'mass_kg': 'predictor_mass_kg',
+                       'damping_N_s_per_m': 'predictor_damping_N_s_per_m',
+                       'stiffness_N_per_m': 'predictor_stiffness_N_per_m'}
 
 
 def _check_nperseg(nperseg, n):
@@ -493,7 +514,14 @@ class RunIdentification:
     figures : dict
         The JSON figures (see :func:`identify_run`).
     params : dict
-        The run's parameters.
+        The rig's parameters.
+    rig : str
+        The rig (``''``: the study's rig in the root namespace).
+    specimen : SpecimenFit or None
+        The rig's specimen fitted to its measured force and motion.
+    restoring : (ndarray, ndarray) or None, each shape (n,)
+        The measured displacement [m] and restoring force ``f - m a - c v`` [N] with the
+        fit's m and c (unfiltered), for the plot of the specimen.
     """
 
     source: str
@@ -506,6 +534,9 @@ class RunIdentification:
     figures: dict = field(default_factory=dict)
     loop_fit: Any = None
     loop_model: Any = None
+    rig: str = ''
+    specimen: SpecimenFit | None = None
+    restoring: tuple | None = None
 
 
 def identify_run(run: RunData, *, window: str = 'hann', nperseg: int = DEFAULT_NPERSEG,
@@ -539,17 +570,24 @@ def identify_run(run: RunData, *, window: str = 'hann', nperseg: int = DEFAULT_N
         ``magnitude_max`` (``|H1|`` from 0.5 to 25 Hz, the band of Fig. 4). Every figure also
         under ``model`` from the rig's known model (``seft_plant_sim.servohydraulic``:
         ``valve_to_force``, ``loop_margins``, ``equivalent_delay_s``; the delay rig: tau_s).
+        ``specimen``: the rig's specimen (:func:`specimen_figures`; none for a run of fewer
+        than :data:`MIN_SPECIMEN_SAMPLES` samples).
 
     Raises
     ------
     InputError
-        The run has no valve command where one is needed, or is too short for `nperseg`.
+        The run has several rigs (:func:`identify_rigs`), no valve command where one is
+        needed, or is too short for `nperseg`.
     ParameterError
         Bad estimator options.
     """
     p = run.params
     dt = float(p['dt'])
     src = run.source
+    if len(run.rigs) != 1:
+        raise InputError(f'{src}: a run of {len(run.rigs)} rigs ({", ".join(run.rigs)}); '
+                         'identify_rigs identifies each')
+    rig = run.rig_names[0]
     open_loop = p.get('excitation', 'none') != 'none' and \
         p.get('excitation_input') == 'valve_command'
     servo = p.get('rig_model') == 'servohydraulic'
@@ -581,7 +619,15 @@ def identify_run(run: RunData, *, window: str = 'hann', nperseg: int = DEFAULT_N
     except ParameterError as exc:
         raise ParameterError(f'{src}: {exc}') from None
     known = _known_model(p) if servo else None
-    ident = RunIdentification(src, kind, fr, fit, None, dict(p))
+    ident = RunIdentification(src, kind, fr, fit, None, dict(p), rig=rig)
+    if run.n_steps >= MIN_SPECIMEN_SAMPLES:         # else no specimen (a short H1 run)
+        specimen = fit_specimen(run.measured_force_N, run.displacement_m, run.velocity_m_s,
+                                run.acceleration_m_s2, dt, band_hz=_specimen_band(p),
+                                where=f'{src}: rig {rig}' if rig else src)
+        ident.specimen = specimen
+        ident.restoring = (run.displacement_m, run.measured_force_N
+                           - specimen.mass_kg * run.acceleration_m_s2
+                           - specimen.damping_N_s_per_m * run.velocity_m_s)
     figs: dict[str, Any] = {'fit': fit.to_json(), 'estimator': fr.settings(),
                             'coherence_mean_in_band': float(np.mean(fr.coherence[
                                 (fr.freqs_hz >= band[0]) & (fr.freqs_hz <= band[1])]))}
@@ -625,16 +671,82 @@ def identify_run(run: RunData, *, window: str = 'hann', nperseg: int = DEFAULT_N
             ident.model_response = np.exp(-2j * np.pi * f * tau)
             model['delay_ms'] = 1e3 * tau
     figs['model'] = model
+    if ident.specimen is not None:
+        figs['specimen'] = specimen_figures(ident.specimen, p)
     ident.figures = figs
     return ident
 
 
-def identified_parameters(runs: list[RunIdentification]) -> dict[str, Any]:
+def _specimen_band(params) -> tuple[float, float] | None:
+    """The band of the specimen fit: the excitation's, or None (the fit's default)."""
+    if params.get('excitation', 'none') == 'none':
+        return None
+    return (float(params['excitation_band_low_hz']), float(params['excitation_band_hz']))
+
+
+def specimen_figures(fit: SpecimenFit, params) -> dict[str, Any]:
+    """The JSON of a rig's identified specimen beside what the run declared.
+
+    Returns
+    -------
+    dict
+        :meth:`~seft_ros.analysis.specimen_identification.SpecimenFit.to_json`, with
+        ``model``: the rig's specimen as configured (``mass_kg``, ``damping_N_s_per_m``,
+        ``stiffness_N_per_m``: on the simulated rig the true one), and ``declared``: the
+        compensators' model of it (``predictor_*``, 0 meaning the rig's).
+    """
+    model = {k: float(params[k]) for k in SPECIMEN_PARAMETERS}
+    declared = {k: float(params.get(name, 0.0)) or model[k]
+                for k, name in SPECIMEN_PARAMETERS.items()}
+    return dict(fit.to_json(), model=model, declared=declared)
+
+
+def identify_rigs(run: RunData, **options) -> list[RunIdentification]:
+    """Identify every rig of a run from its own signals (:func:`identify_run` per rig).
+
+    Parameters
+    ----------
+    run : RunData
+        A run of one rig or of a structure (each rig's parameters and signals its own).
+    **options
+        As :func:`identify_run`.
+
+    Returns
+    -------
+    list of RunIdentification
+        One per rig, in the structure's order (``rig`` set).
+
+    Raises
+    ------
+    InputError, ParameterError
+        As :func:`identify_run` (the message names the bag and the rig).
+    """
+    if len(run.rigs) == 1:
+        return [identify_run(run, **options)]
+    out = []
+    for name in run.rig_names:
+        try:
+            out.append(identify_run(run.rig_view(name), **options))
+        except (InputError, ParameterError) as exc:
+            text = str(exc)
+            if not text.startswith(f'{run.source}: rig {name}'):
+                text = text.replace(f'{run.source}: ', f'{run.source}: rig {name}: ', 1) \
+                    if text.startswith(f'{run.source}: ') else f'rig {name}: {text}'
+            raise type(exc)(text) from None
+    return out
+
+
+def identified_parameters(runs: list[RunIdentification], *,
+                          specimen: tuple[float, float, float] | None = None) -> dict[str, Any]:
     """The identified delay and force-loop model as parameters the compensators load.
 
     Parameters
     ----------
     runs : list of RunIdentification
+        One rig's.
+    specimen : (float, float, float), optional
+        The rig's identified specimen ``(m [kg], c [N s/m], k [N/m])`` for the force-loop
+        model (default: the run's configured specimen, :func:`fit_hydraulics`).
 
     Returns
     -------
@@ -654,8 +766,48 @@ def identified_parameters(runs: list[RunIdentification]) -> dict[str, Any]:
         out['predictor_tau_s'] = float(np.mean(delays)) * 1e-3
     for r in runs:
         if r.kind == 'open_loop' and r.params.get('rig_model') == 'servohydraulic':
-            out.update(fit_hydraulics(r))
+            out.update(fit_hydraulics(r, specimen=specimen))
             break
+    return out
+
+
+def identified_rig_parameters(runs: list[RunIdentification]) -> dict[str, dict[str, Any]]:
+    """Each rig's identified specimen, delay and force-loop model: the ``rigs`` sections of
+    a structure's parameter file.
+
+    Parameters
+    ----------
+    runs : list of RunIdentification
+        Any rigs' (:func:`identify_rigs` of each bag).
+
+    Returns
+    -------
+    dict of str to dict
+        Rig -> its parameters, in the order the rigs first appear: the specimen
+        (:data:`SPECIMEN_PARAMETERS`: the mean of the rig's fits, if every one is linear;
+        ``_specimen_residual``, the largest relative residual, as a note), then
+        :func:`identified_parameters` with that specimen in the force-loop model. A rig
+        whose specimen is not linear gets no m, c, k, and the reason under ``_specimen``.
+        Keys starting with ``'_'`` are notes, not parameters.
+    """
+    by_rig: dict[str, list[RunIdentification]] = {}
+    for r in runs:
+        by_rig.setdefault(r.rig, []).append(r)
+    out: dict[str, dict[str, Any]] = {}
+    for rig, own in by_rig.items():
+        fits = [r.specimen for r in own if r.specimen is not None]
+        values: dict[str, Any] = {}
+        specimen = None
+        if fits and all(f.linear for f in fits):
+            specimen = tuple(float(np.mean([getattr(f, k) for f in fits]))
+                             for k in SPECIMEN_PARAMETERS)
+            values.update(zip(SPECIMEN_PARAMETERS.values(), specimen))
+            values['_specimen_residual'] = max(f.residual for f in fits)
+        elif fits:
+            bad = next(f for f in fits if not f.linear)
+            values['_specimen'] = f'm, c, k not written: {bad.verdict()}'
+        values.update(identified_parameters(own, specimen=specimen))
+        out[rig] = values
     return out
 
 
@@ -665,16 +817,18 @@ HYDRAULIC_FIT = ('valve_flow_gain_m3_per_s_V', 'actuator_volume_m3',
                  'io_latency_s')
 
 
-def fit_hydraulics(run: RunIdentification) -> dict[str, float]:
+def fit_hydraulics(run: RunIdentification, *,
+                   specimen: tuple[float, float, float] | None = None) -> dict[str, float]:
     """Fit the servohydraulic rig's physical parameters to a measured ``H_fu``.
 
     The model is the sampled rig of ``seft_plant_sim.servohydraulic.sample`` (valve,
     compressible oil column, specimen, I/O latency, zero-order hold) with the run's specimen
-    (m, c, k) and the configured piston area A (``H_fu`` depends on ``k_q/A``, ``C_h/A^2``
-    and ``K/A^2`` only, so A is not identifiable apart from them: the lab knows it); fitted
-    (nonlinear least squares, ``scipy.optimize.least_squares`` on the log of each, from the
-    configured values) are the valve flow gain k_q, the
-    hydraulic capacitance ``C_h = V_t/(4 beta)`` (written as ``actuator_volume_m3`` at the
+    (m, c, k; or `specimen`, the identified ``(m [kg], c [N s/m], k [N/m])``: the zero of
+    ``H_fu`` is the specimen's) and the configured piston area A (``H_fu`` depends on
+    ``k_q/A``, ``C_h/A^2`` and ``K/A^2`` only, so A is not identifiable apart from them: the
+    lab knows it); fitted (nonlinear least squares, ``scipy.optimize.least_squares`` on the
+    log of each, from the configured values) are the valve flow gain k_q, the hydraulic
+    capacitance ``C_h = V_t/(4 beta)`` (written as ``actuator_volume_m3`` at the
     configured bulk modulus: only their ratio is identifiable), the total flow-pressure
     coefficient ``K = K_c + C_l`` (written as ``valve_pressure_coefficient_m3_per_s_Pa`` at
     the configured leakage C_l, at least 0), the spool time constant and the I/O latency, on
@@ -695,8 +849,8 @@ def fit_hydraulics(run: RunIdentification) -> dict[str, float]:
     p = run.params
     fr = run.response
     dt = fr.dt
-    spec = LinearSpecimen(float(p['mass_kg']), float(p['damping_N_s_per_m']),
-                          float(p['stiffness_N_per_m']))
+    spec = LinearSpecimen(*(specimen if specimen is not None else (
+        float(p['mass_kg']), float(p['damping_N_s_per_m']), float(p['stiffness_N_per_m']))))
     base = ServoHydraulicParams.from_parameters(p)
     lo, hi = run.fit.band_hz
     use = (fr.freqs_hz >= lo) & (fr.freqs_hz <= hi) & (fr.coherence >= MIN_COHERENCE)

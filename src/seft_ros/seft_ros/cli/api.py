@@ -22,7 +22,7 @@ from seft_ros.analysis.bag import read_run
 from seft_ros.analysis.reference import reference_response
 from seft_ros.analysis.rundata import RunData
 from seft_ros.cli import partition
-from seft_ros.cli.config import expand_runs, load_config, write_params_file
+from seft_ros.cli.config import RIGS, expand_runs, layer_rigs, load_config, write_params_file
 from seft_ros.core import stability
 from seft_ros.core.experiment import simulate
 from seft_ros.core.ground_motion import prepared_record
@@ -32,7 +32,8 @@ __all__ = ['build_runs', 'output_dir', 'remove_empty_dirs', 'run_experiments',
            'simulate_experiments', 'simulate_runs', 'compare_bags', 'find_bags',
            'summary_table', 'criteria_table',
            'Result', 'check_stability', 'check_domain', 'open_runner', 'stability_entry',
-           'stability_report', 'stability_table', 'StabilityResult', 'identify_bags']
+           'stability_report', 'stability_table', 'StabilityResult', 'identify_bags',
+           'identification_table']
 
 
 class Result:
@@ -47,16 +48,46 @@ class Result:
 
 
 def build_runs(*, config: str | None = None, overrides: dict[str, Any] | None = None,
-               alphas: list[float] | None = None) -> list[dict[str, Any]]:
-    """Parameter sets of the runs: defaults < config file < overrides < alphas.
+               alphas: list[float] | None = None,
+               params_files: list[str] | None = None) -> list[dict[str, Any]]:
+    """Parameter sets of the runs: defaults < config file < parameter files < overrides <
+    alphas.
+
+    Parameters
+    ----------
+    config : str, optional
+        The configuration file.
+    overrides : dict, optional
+        Parameter values (the command line's options and ``--set``); None values are left
+        out.
+    alphas : list of float, optional
+        ``--alpha``.
+    params_files : list of str, optional
+        ``--params`` files, layered over `config` (the first file's value of a parameter
+        wins over a later file's). A file's ``rigs`` section (``seft identify``'s file of a
+        structure's rigs) is merged into the configuration's rigs sections
+        (:func:`~seft_ros.cli.config.layer_rigs`).
 
     Raises
     ------
     InputError, ParameterError
-        Bad configuration file or value.
+        Bad configuration file or value; a ``rigs`` section of a parameter file without a
+        structure to merge into, or for a rig the structure has not.
     """
     values = load_config(config) if config else {}
+    layered: dict[str, Any] = {}
+    rig_layers = []
+    for path in params_files or ():
+        data = load_config(path, layer=True)
+        sections = data.pop(RIGS, None)
+        if sections:
+            rig_layers.append((path, sections))
+        for name, value in data.items():
+            layered.setdefault(name, value)
+    values.update({k: v for k, v in layered.items() if v is not None})
     values.update({k: v for k, v in (overrides or {}).items() if v is not None})
+    for path, sections in reversed(rig_layers):      # the first file's values last: they win
+        values = layer_rigs(values, sections, where=str(path))
     if alphas:
         values['alpha'] = list(alphas)
     runs = expand_runs(values, where=config or 'command line')
@@ -1118,7 +1149,13 @@ def identify_bags(*, bags: list[str], out_dir: Path, window: str = 'hann',
                   nperseg: int | None = None, noverlap: int | None = None,
                   orders: tuple[int, int] | None = None,
                   params_out: str | None = None) -> IdentifyResult:
-    """Identify the rig from the bags of identification runs (``seft identify``).
+    """Identify the rigs from the bags of identification runs (``seft identify``).
+
+    Each rig of each bag is identified from its own signals: its force loop (H1 responses,
+    fits, delay, loop margins) and its specimen (``f = m a + c v + k x``). The bags of the
+    study's rig give one parameter file for its compensators; the bags of a structure's
+    identification run (each rig alone, :func:`seft_ros.core.excitation.rigs_alone`) give
+    one ``rigs`` section per rig, for the structure's test (``--params``).
 
     Parameters
     ----------
@@ -1131,7 +1168,9 @@ def identify_bags(*, bags: list[str], out_dir: Path, window: str = 'hann',
     orders : (int, int), optional
         Orders (nb, na) of the rational fits (default per kind of run).
     params_out : str, optional
-        Write the identified delay and force-loop model there as a parameter file.
+        Write the identified parameters there as a parameter file: the study's rig's delay
+        and force-loop model, or each structure rig's specimen, delay and force-loop model
+        in its ``rigs`` section.
 
     Returns
     -------
@@ -1141,15 +1180,21 @@ def identify_bags(*, bags: list[str], out_dir: Path, window: str = 'hann',
     ------
     InputError, ParameterError
         Unreadable bag, a run that was aborted (when and why), a run too short for the
-        segment length, bad options; the message names the bag or the option.
+        segment length, bad options, bags of the study's rig and of a structure together;
+        the message names the bag (and the rig) or the option.
     """
     from seft_ros.analysis import rig_identification as ri
-    from seft_ros.analysis.identification_report import write_identification, write_params_yaml
+    from seft_ros.analysis.identification_report import (
+        write_identification,
+        write_params_yaml,
+        write_rig_params_yaml,
+    )
     from seft_ros.analysis.report import software_versions
     if params_out and Path(params_out).is_dir():
         raise InputError(f'--params {params_out}: is a directory; expected the name of the '
                          'parameter file to write')
     idents = []
+    kinds = {}
     for path in find_bags(bags):
         rd = read_run(path)
         if not rd.stable:
@@ -1158,18 +1203,76 @@ def identify_bags(*, bags: list[str], out_dir: Path, window: str = 'hann',
             raise InputError(f'{path}: the run was aborted at {rd.unstable_at_s:.3f} s{of} '
                              f'({rd.abort_reason or "no reason recorded"}); identification '
                              'needs a run that completed: fix the cause and record it again')
+        kinds[str(path)] = 'study' if rd.is_study else 'structure'
         with single_blas_thread():
-            idents.append(ri.identify_run(rd, window=window,
-                                          nperseg=nperseg or ri.DEFAULT_NPERSEG,
-                                          noverlap=noverlap, orders=orders))
-    identified = ri.identified_parameters(idents)
-    doc = write_identification(idents, out_dir, identified=identified,
-                               version=', '.join(f'{k} {v}' for k, v in
-                                                 software_versions().items()))
+            idents += ri.identify_rigs(rd, window=window, nperseg=nperseg or ri.DEFAULT_NPERSEG,
+                                       noverlap=noverlap, orders=orders)
+    if len(set(kinds.values())) > 1:
+        study = next(b for b, k in kinds.items() if k == 'study')
+        other = next(b for b, k in kinds.items() if k == 'structure')
+        raise InputError(f"{study} is a bag of the study's rig and {other} one of a "
+                         "structure's rigs: identify them apart (their parameter files "
+                         'differ)')
+    structure = 'structure' in kinds.values()
+    version = ', '.join(f'{k} {v}' for k, v in software_versions().items())
+    if structure:
+        per_rig = ri.identified_rig_parameters(idents)
+        doc = write_identification(idents, out_dir, rig_parameters=per_rig, version=version)
+        identified = {r: v for r, v in per_rig.items()
+                      if any(not k.startswith('_') for k in v)}
+    else:
+        identified = ri.identified_parameters(idents)
+        doc = write_identification(idents, out_dir, identified=identified, version=version)
     params_path = None
     if params_out:
         if not identified:
-            raise InputError(f'--params {params_out}: nothing to write (no closed-loop delay '
+            raise InputError(f'--params {params_out}: nothing to write (no closed-loop delay, '
+                             'no open-loop servohydraulic run and no linear specimen among '
+                             'the bags)' if structure else
+                             f'--params {params_out}: nothing to write (no closed-loop delay '
                              'and no open-loop servohydraulic run among the bags)')
-        params_path = write_params_yaml(identified, params_out)
+        params_path = (write_rig_params_yaml(per_rig, params_out) if structure
+                       else write_params_yaml(identified, params_out))
     return IdentifyResult(out_dir, doc, params_path)
+
+
+#: The figures ``seft identify`` prints, in order.
+_IDENTIFY_FIGURES = ('zero_hz', 'resonance_hz', 'crossover_hz', 'phase_margin_deg',
+                     'gain_margin', 'delay_ms', 'delay_xcorr_ms')
+
+
+def identification_table(doc: dict) -> str:
+    """What ``seft identify`` prints of its JSON document: the study's rig's figures with its
+    known model's, then each rig's specimen and verdict (a structure's: per rig, with the
+    figures of its force loop).
+    """
+    lines = []
+    rigs = list(doc.get('rigs') or {'': doc})
+    for rig in rigs:
+        figures = doc['rigs'][rig] if 'rigs' in doc else doc
+        runs = [r for r in doc['runs'] if r.get('rig', '') == rig]
+        if rig:
+            lines.append(f'rig {rig}:')
+        for key in _IDENTIFY_FIGURES:
+            if figures.get(key) is not None:
+                model = next((r['figures']['model'].get(key) for r in runs
+                              if key in r['figures']), None)
+                known = f'  (known model {model:.4g})' if model is not None else ''
+                lines.append(f'{key:18s} {figures[key]:10.4g}{known}')
+        specs = [(r['kind'], r['figures']['specimen']) for r in runs
+                 if r['figures'].get('specimen')]
+        if specs:
+            keys = ('mass_kg', 'damping_N_s_per_m', 'stiffness_N_per_m')
+            lines.append(f'{"specimen":18s} {"m [kg]":>10s} {"c [N s/m]":>11s} '
+                         f'{"k [N/m]":>11s}')
+
+            def row(label, values, note=''):
+                return (f'  {label:16s} {values[keys[0]]:10.5g} {values[keys[1]]:11.5g} '
+                        f'{values[keys[2]]:11.5g}{note}').rstrip()
+            for kind, spec in specs:
+                note = (f'   linear (residual {100 * spec["residual"]:.2g} %)'
+                        if spec['linear'] else f'   {spec["verdict"]}')
+                lines.append(row(f'{kind} run', spec, note))
+            lines.append(row('rig model', specs[0][1]['model']))
+            lines.append(row('declared', specs[0][1]['declared']))
+    return '\n'.join(lines)

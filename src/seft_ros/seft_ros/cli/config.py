@@ -12,8 +12,16 @@ own parameters: its rig model, specimen, controller). They become the ``structur
 (:func:`expand_runs`). A structure that is the reference study's test (one rig, only a rigid
 mass on it) runs as that test, bit for bit, with ``alpha`` = the rigid mass over the
 specimen's.
+
+A parameter file layered over a configuration (``--params FILE``, :func:`load_config` with
+``layer=True``) may hold a ``rigs`` section without a structure (``seft identify``'s file of a
+structure's rigs): each of its rig sections is merged into the configuration's section of
+that rig (:func:`layer_rigs`), its values over the configuration's. A rig section holds
+only a rig's parameters, never one of the whole test
+(``seft_msgs_py.parameters.TEST_PARAMETERS``).
 """
 
+from dataclasses import replace
 from pathlib import Path
 import re
 from typing import Any
@@ -23,7 +31,11 @@ import yaml
 from seft_msgs_py import parameters
 from seft_msgs_py.errors import InputError, ParameterError
 
-__all__ = ['load_config', 'expand_runs', 'write_params_file', 'ConfigLoader']
+__all__ = ['load_config', 'expand_runs', 'write_params_file', 'ConfigLoader', 'layer_rigs',
+           'RIGS']
+
+#: The key of :func:`load_config`'s result that holds a layered file's ``rigs`` section.
+RIGS = 'rigs'
 
 
 class ConfigLoader(yaml.SafeLoader):
@@ -42,13 +54,25 @@ ConfigLoader.add_implicit_resolver(
     list('-+0123456789.'))
 
 
-def load_config(path) -> dict[str, Any]:
+def load_config(path, *, layer: bool = False) -> dict[str, Any]:
     """Read a configuration file into ``{name: value}`` (not yet validated).
+
+    Parameters
+    ----------
+    path : str or Path
+    layer : bool
+        The file is layered over a configuration (``--params``): a ``rigs`` section without
+        a ``structure`` section is returned under :data:`RIGS` (rig name -> its parameters,
+        checked against the schema), for :func:`layer_rigs`.
 
     Raises
     ------
     InputError
-        Missing file, invalid YAML, or not a mapping of parameters.
+        Missing file, invalid YAML, not a mapping of parameters, or a ``rigs`` section
+        without a structure (`layer` False), not a mapping of rig names to mappings, or
+        that sets a parameter of the whole test.
+    ParameterError
+        A rig section's value out of range (`layer`).
     """
     path = Path(path)
     if not path.is_file():
@@ -76,7 +100,7 @@ def load_config(path) -> dict[str, Any]:
         from seft_ros.core.structure import parse_structure  # numpy, scipy: only if needed
         data['structure'] = parse_structure(structure, rigs=rigs,
                                             where=f'{path}: structure').to_json()
-    elif rigs is not None:
+    elif rigs is not None and not layer:
         raise InputError(f'{path}: rigs: a rigs section needs a structure section (the '
                          'structure names the rig of each physical degree of freedom)')
     elif structure is not None:
@@ -85,7 +109,73 @@ def load_config(path) -> dict[str, Any]:
     for key in data:
         if key not in known:
             raise InputError(f'{path}: unknown parameter {key!r}')
+    if rigs is not None and not isinstance(structure, dict):
+        data[RIGS] = _rig_sections(rigs, where=f'{path}: rigs')
     return data
+
+
+def _rig_sections(rigs, *, where: str) -> dict[str, dict[str, Any]]:
+    """A layered file's ``rigs`` section, checked: rig -> {parameter: value}."""
+    if not isinstance(rigs, dict):
+        raise InputError(f'{where}: expected a mapping of rig names to their parameters, got '
+                         f'{rigs!r}')
+    known = parameters.defaults()
+    out = {}
+    for rig, values in rigs.items():
+        if not isinstance(values, dict):
+            raise InputError(f'{where}.{rig}: expected a mapping of parameters, got {values!r}')
+        section = {}
+        for name, value in values.items():
+            if name not in known:
+                raise InputError(f'{where}.{rig}: unknown parameter {name!r}')
+            if name in parameters.TEST_PARAMETERS:
+                raise InputError(f'{where}.{rig}.{name}: a parameter of the whole test, not of '
+                                 'one rig; set it for all')
+            section[name] = parameters.validate_value(name, value, where=f'{where}.{rig}')
+        out[str(rig)] = section
+    return out
+
+
+def layer_rigs(values: dict[str, Any], sections: dict[str, dict[str, Any]], *,
+               where: str) -> dict[str, Any]:
+    """Merge rig sections over the rigs sections of a configuration's structure.
+
+    Parameters
+    ----------
+    values : dict
+        A configuration (:func:`load_config`) with a ``structure``.
+    sections : dict of str to dict
+        Rig name -> parameters (a layered file's :data:`RIGS`); each value replaces the
+        configuration's for that rig.
+    where : str
+        The layered file, for the error messages.
+
+    Returns
+    -------
+    dict
+        `values` with the structure's rigs sections updated.
+
+    Raises
+    ------
+    InputError
+        The configuration has no structure, or its structure has no rig of that name (the
+        message names `where`, the rig and the structure's rigs).
+    """
+    structure = values.get('structure', 'none')
+    if structure in ('none', '', None):
+        raise InputError(f'{where}: rigs: a rigs section needs a structure, and the '
+                         'configuration has none (layer it over the configuration of the '
+                         'structure: seft run CONFIG --params FILE)')
+    from types import MappingProxyType
+
+    from seft_ros.core.structure import Structure
+    s = Structure.from_json(structure)
+    for rig in sections:
+        if rig not in s.rigs:
+            raise InputError(f'{where}: rigs.{rig}: the structure has no rig {rig!r} (its '
+                             f'rigs: {", ".join(s.rigs)})')
+    rigs = {r: MappingProxyType(dict(v, **sections.get(r, {}))) for r, v in s.rigs.items()}
+    return dict(values, structure=replace(s, rigs=MappingProxyType(rigs)).to_json())
 
 
 def expand_runs(config: dict[str, Any], *, where: str = '') -> list[dict[str, Any]]:
@@ -118,7 +208,9 @@ def expand_runs(config: dict[str, Any], *, where: str = '') -> list[dict[str, An
 def _with_structure(params: dict[str, Any], where: str) -> dict[str, Any]:
     """A run with a structure, checked against its rigs
     (:func:`~seft_ros.core.structure.test_setup`); the study's test if it reduces to it
-    (:func:`~seft_ros.core.structure.reduces_to_study`).
+    (:func:`~seft_ros.core.structure.reduces_to_study`); an identification run (an
+    ``excitation``) of any other structure tests its rigs alone, each in its namespace
+    (:func:`~seft_ros.core.excitation.rigs_alone`).
 
     Raises
     ------
@@ -133,6 +225,9 @@ def _with_structure(params: dict[str, Any], where: str) -> dict[str, Any]:
         setup = test_setup(params)
         if reduces_to_study(setup.substructures):
             return study_parameters(params, setup.substructures)
+        if params.get('excitation', 'none') != 'none':
+            from seft_ros.core.excitation import rigs_alone
+            return rigs_alone(params)
     except ParameterError as exc:
         raise ParameterError(f'{where}: {exc}' if where else str(exc)) from None
     return params

@@ -16,7 +16,6 @@ from seft_msgs_py import parameters
 from seft_msgs_py.errors import InputError, SeftError
 from seft_plant_sim.faults import FAULTS, SENSOR_FAULTS
 from seft_ros.cli import api, partition
-from seft_ros.cli.config import load_config
 from seft_ros.cli.live import options_from_args
 from seft_ros.cli.spawn import node_start
 
@@ -79,8 +78,9 @@ def _experiment_options(p: argparse.ArgumentParser) -> None:
     p.add_argument('--duration', dest='duration_s', type=float, metavar='S',
                    help='run length after time scaling [s] (0: whole record)')
     p.add_argument('--params', dest='params_files', action='append', default=[],
-                   metavar='FILE', help='parameter file layered over CONFIG (repeatable; e.g. '
-                   'the --params file of seft identify); the options above and --set win')
+                   metavar='FILE', help='parameter file layered over CONFIG (repeatable, '
+                   'the first wins; e.g. the --params file of seft identify: its rigs '
+                   "sections merge into CONFIG's); the options above and --set win")
     p.add_argument('--set', dest='sets', type=_set_value, action='append', default=[],
                    metavar='NAME=VALUE', help='any other parameter (repeatable)')
     p.add_argument('--out', help='output directory (default runs/<name>/)')
@@ -142,8 +142,9 @@ def build_parser() -> argparse.ArgumentParser:
     _experiment_options(sim)
     sim.add_argument('--bag', action='store_true', help="also write each run's bag "
                      '(DIR/<run>/bag), the bag the node graph records')
-    ident = sub.add_parser('identify', help='identify the rig from the bags of identification '
-                           'runs (frequency responses, fits, delay, loop margins)')
+    ident = sub.add_parser('identify', help='identify each rig from the bags of '
+                           'identification runs (frequency responses, fits, delay, loop '
+                           'margins, its specimen m, c, k)')
     ident.add_argument('bags', nargs='+', metavar='BAG', help='a bag, a run directory or a '
                        'folder of run directories')
     ident.add_argument('--out', help='output directory (default runs/identify/)')
@@ -155,7 +156,9 @@ def build_parser() -> argparse.ArgumentParser:
     ident.add_argument('--orders', type=int, nargs=2, metavar=('NB', 'NA'), help='orders of '
                        'the rational fit in z^-1 (default 6 4 open loop, 8 6 closed loop)')
     ident.add_argument('--params', dest='params_out', metavar='FILE', help='write the '
-                       'identified delay and force-loop model as a parameter file')
+                       'identified delay and force-loop model as a parameter file; of a '
+                       "structure's bags, a rigs section per rig with its specimen too (for "
+                       'seft run CONFIG --params FILE)')
     cmp_ = sub.add_parser('compare', help='compare recorded bags against the analytical '
                           'reference (figures, table, summary.json)')
     cmp_.add_argument('bags', nargs='+', metavar='BAG', help='a bag, a run directory '
@@ -246,13 +249,10 @@ def _build(args):
                                                'amplitude_N', 'scale_factor', 'time_scale',
                                                'duration_s')}
     overrides['mode'] = getattr(args, 'mode', None)
-    for path in args.params_files:
-        for name, value in load_config(path).items():
-            if overrides.get(name) is None:
-                overrides[name] = value
     for name, value in _typed(args.sets):
         overrides[name] = value
-    return api.build_runs(config=args.config, overrides=overrides, alphas=args.alpha)
+    return api.build_runs(config=args.config, overrides=overrides, alphas=args.alpha,
+                          params_files=args.params_files)
 
 
 def _experiments(args):
@@ -294,14 +294,7 @@ def _identify(args) -> int:
                                nperseg=args.nperseg, noverlap=args.noverlap,
                                orders=tuple(args.orders) if args.orders else None,
                                params_out=args.params_out)
-    doc = result.document
-    for key in ('zero_hz', 'resonance_hz', 'crossover_hz', 'phase_margin_deg', 'gain_margin',
-                'delay_ms', 'delay_xcorr_ms'):
-        if doc.get(key) is not None:
-            model = next((r['figures']['model'].get(key) for r in doc['runs']
-                          if key in r['figures']), None)
-            known = f'  (known model {model:.4g})' if model is not None else ''
-            print(f'{key:18s} {doc[key]:10.4g}{known}')
+    print(api.identification_table(result.document))
     print(f'report: {out / "identification.md"}')
     print(f'figures: {out / "identification.json"}')
     if result.params_path is not None:
@@ -313,12 +306,9 @@ def _rig_runs(args) -> list[dict]:
     """The runs of a rig's options (config, --rig, --params, --set) for rig-check and
     emulate-controller."""
     overrides = {'rig_model': args.rig_model}
-    for path in args.params_files:
-        for name, value in load_config(path).items():
-            if overrides.get(name) is None:
-                overrides[name] = value
     overrides.update(dict(_typed(args.sets, alpha=True)))
-    return api.build_runs(config=args.config, overrides=overrides)
+    return api.build_runs(config=args.config, overrides=overrides,
+                          params_files=args.params_files)
 
 
 def _one_rig(args, verb: str) -> dict:

@@ -18,19 +18,30 @@ rig's frequency responses from its bag:
 
 The signal depends only on the parameters (seeded), so every node that generates it gets the
 same samples, bit for bit.
+
+**A structure's identification run tests each rig alone** (:func:`rigs_alone`): the
+computational part is switched off (no interface forces, no rigid computational mass, no
+computational DOFs), so no coupling can drive a rig and nothing but the excitation does; the
+rigs are excited together, each in its namespace with its own parameters (its rig, specimen,
+force controller), all by the same excitation ``e[k]``: with the computational part off they
+share no force, and each rig is identified from its own measured force and motion alone.
+Every rig's ground-motion term is ``e[k]`` in N whatever its specimen mass (the structure's
+influence vector is scaled for it), as the study's rig at alpha = 0.
 """
 
 import math
+from types import MappingProxyType
 
 import numpy as np
 from scipy import signal
 
 from seft_msgs_py.errors import ParameterError
 from seft_ros.core.controller import ControllerDesign, ForceServoController
+from seft_ros.core.structure import Link, Structure, test_setup
 
 __all__ = ['EXCITATIONS', 'EXCITATION_INPUTS', 'DEFAULT_DURATION_S', 'DEFAULT_AMPLITUDE',
            'STEPPED_SINE_STEPS', 'FADE_S', 'excitation_signal', 'excitation_record',
-           'open_loop', 'OpenLoopValve', 'make_valve_controller']
+           'open_loop', 'OpenLoopValve', 'make_valve_controller', 'rigs_alone']
 
 #: Excitation signals (parameter ``excitation``).
 EXCITATIONS = ('none', 'noise', 'chirp', 'stepped_sine')
@@ -265,3 +276,49 @@ def make_valve_controller(params):
                              "'servohydraulic' (the delay rig has no valve)")
     return OpenLoopValve(excitation_signal(params), float(params['dt']),
                          float(params['valve_limit_V']))
+
+
+def rigs_alone(params) -> dict:
+    """The parameters of a structure's identification run: each rig alone (module notes).
+
+    Parameters
+    ----------
+    params : mapping
+        Resolved parameters of a run with a ``structure`` (the JSON of
+        :class:`~seft_ros.core.structure.Structure`) and ``excitation`` other than ``'none'``.
+
+    Returns
+    -------
+    dict
+        `params` with the structure replaced by the structure of the rigs alone: one DOF per
+        rig (the physical DOFs of the structure, their names and rigs kept, with their rig
+        sections), ``M = diag(m_p)``, ``C = diag(c_p)``, ``K = diag(k_p)`` of the rigs'
+        specimens, nothing computational, influence ``iota_p = m / m_p`` (``m`` the run's
+        ``mass_kg``, with which :func:`excitation_record` scales the ground motion, so that
+        every rig's ground-motion term ``-m_p iota_p xg''`` is the excitation ``e`` [N]).
+
+    Raises
+    ------
+    ParameterError
+        The structure disagrees with a rig's parameters (as the test would), or the run sets
+        ``alpha`` (a structure's computational mass is the structure's).
+
+    Notes
+    -----
+    The run then needs no stability margin from the coupling (there is none): each rig's
+    loop is its force loop at alpha = 0, the loop a lab checks its rig with. Its bag is a
+    structure bag (each rig in its namespace), which ``seft identify`` identifies rig by rig.
+    """
+    if float(params.get('alpha', 0.0)) != 0.0:
+        raise ParameterError(f'parameter alpha={params["alpha"]!r}: with a structure the '
+                             "computational mass is the structure's; leave alpha at 0")
+    sub = test_setup(params).substructures
+    s = sub.structure
+    dofs = tuple(s.dofs[i] for i in s.physical_index)
+    m = np.asarray(sub.specimen_mass_kg, dtype=float)
+    alone = Structure(
+        dofs, np.diag(m), np.diag(np.asarray(sub.specimen_damping_N_s_per_m, dtype=float)),
+        np.diag(np.asarray(sub.specimen_stiffness_N_per_m, dtype=float)),
+        float(params['mass_kg']) / m, MappingProxyType({d: s.physical[d] for d in dofs}),
+        s.rigs, tuple(Link(j, None, f'{d}-ground') for j, d in enumerate(dofs)))
+    return dict(params, structure=alone.to_json())
