@@ -612,7 +612,8 @@ def test_summary_entry_of_a_hand_made_comparison():
         'high_frequency_force_fraction': 0.25,
         'high_frequency_force_fraction_reference': None, 'high_frequency_cutoff_hz': 30.0,
         'abort_reason': 'force limit', 'mode': 'realtime', 'wall_s': 3.25,
-        'bag_lost_messages': 4, 'recording': {'end': 'crashed'}, 'rig_contract': None}
+        'bag_lost_messages': 4, 'recording': {'end': 'crashed'}, 'rig_contract': None,
+        'warnings': []}
     # the sections of every run: the one DOF, its link, the rig (the study's keys again)
     assert (entry['abort_node'], entry['n_steps']) == (None, 3)
     assert entry['structure'] == {'dofs': ['specimen'], 'physical': {'specimen': ''},
