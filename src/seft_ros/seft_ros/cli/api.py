@@ -722,6 +722,13 @@ def compare_bags(*, bags: list[str], out_dir: Path, title: str = '') -> Result:
     """
     t0 = time.monotonic()
     data = [read_run(b) for b in find_bags(bags)]
+    for rd in data:
+        # the pre-run guard's prediction, as seft run put it in the summary (deterministic:
+        # the run's parameters are in its bag)
+        try:
+            rd.extra['stability'] = stability_entry(stability.check_run(rd.params, margin=True))
+        except SeftError:
+            pass
     return _finish(out_dir, data, title or 'seft compare', t0)
 
 

@@ -1029,6 +1029,7 @@ class ForceLoopInverse:
         predictor (``predictor_*``).
         """
         try:  # the plant models are optional on a lab's controller host
+            from seft_plant_sim.servohydraulic import ServoHydraulicParams  # noqa: F401
             from seft_plant_sim.specimen import LinearSpecimen
         except ImportError as exc:
             raise ParameterError(
