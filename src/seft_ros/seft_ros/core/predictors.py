@@ -2016,6 +2016,12 @@ class AtsPredictor:
                    max_delay_s=float(params.get('adaptive_max_delay_s', 0.03)), law=law)
 
     @property
+    def model(self) -> 'DelayImpulseModel | None':
+        """The specimen model of the law of the one-step lag (None for a yielding member's
+        hysteretic law)."""
+        return getattr(self._law, 'model', None)
+
+    @property
     def coefficients(self) -> tuple[float, float, float]:
         """``(a0, a1, a2)`` [-, s, s^2] in use."""
         return tuple(g.value for g in self._guards)

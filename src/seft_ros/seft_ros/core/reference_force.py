@@ -312,9 +312,6 @@ def specimen_model_of(predictor, params) -> SpecimenModel:
         i = int(np.argmin(np.abs(np.log(ratios) - math.log(max(k_t / k, ratios[0])))))
         return SpecimenModel(mp['mass_kg'], mp['damping_N_s_per_m'], k * float(ratios[i]))
     model = getattr(predictor, 'model', None)
-    if not isinstance(model, DelayImpulseModel):
-        law = getattr(predictor, '_law', None)
-        model = getattr(law, 'model', None)
     if isinstance(model, DelayImpulseModel):
         return SpecimenModel(model.mass_kg, model.damping_N_s_per_m, model.stiffness_N_per_m)
     mp = model_parameters(params)
@@ -472,6 +469,7 @@ class ReferenceForceBuilder:
         #: the rigs other builders command (their models come by :meth:`receive_models`)
         self.remote_rigs = tuple(r for r in names if r not in self.local_rigs)
         self._inbox: dict[int, dict] = {}
+        self._remote_models: dict[int, SpecimenModel] = {}    # rig position -> its model
         #: ``(step, {rig: SpecimenModel})`` of the local rigs, set every
         #: EXCHANGE_EVERY_STEPS steps for the other builders (None before)
         self.outbox = None
@@ -573,7 +571,7 @@ class ReferenceForceBuilder:
                                  f'{", ".join(repr(r) for r in self.rig_names)})')
         if self.state is None:
             return
-        models = dict(getattr(self, '_remote_models', {}))
+        models = dict(self._remote_models)
         models[self.rig_names.index(rig)] = model
         self._remote_models = models
         self.state.set_matrices(structure_matrices(self.setup.substructures, models))
@@ -711,7 +709,7 @@ class ReferenceForceBuilder:
     def _receive(self, rig: str, model: SpecimenModel) -> None:
         """Take another builder's model of `rig` when it moved (:data:`MODEL_TOLERANCE`)."""
         j = self.rig_names.index(rig)
-        current = getattr(self, '_remote_models', {}).get(j)
+        current = self._remote_models.get(j)
         if current is None:
             sub = self.setup.substructures
             current = SpecimenModel(float(sub.specimen_mass_kg[j]),
