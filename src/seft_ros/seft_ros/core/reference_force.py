@@ -689,6 +689,11 @@ class ReferenceForceBuilder:
                     - mod.damping_N_s_per_m * m.velocity_m_s
                     - mod.stiffness_N_per_m * m.displacement_m))
             predicted = dict(zip(self._targets, ip(q)))
+            offset = getattr(state, 'prediction_offset', None)
+            if offset is not None:       # a model that is not its linearization (OpenSees)
+                dofs = [self._local_dof[r] for r in self._targets]
+                for r, d in zip(self._targets, offset(x, v, dofs)):
+                    predicted[r] += d
         for r, mode in enumerate(self._modes):
             if mode is None:
                 continue
