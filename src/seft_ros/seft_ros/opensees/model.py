@@ -393,7 +393,7 @@ def check_connected(spec: ModelSpec, interfaces: Mapping[str, tuple[int, int]]) 
                 raise ParameterError(
                     f'{spec.where}.physical_elements.{rig}: element {t} (nodes '
                     f'{", ".join(str(n) for n in ops.eleNodes(t))}) is not connected to the '
-                    f'interface node {node} of rig {rig}: a specimen acts on its rig\'s DOF')
+                    f"interface node {node} of rig {rig}: a specimen acts on its rig's DOF")
 
 
 def remove_specimens(spec: ModelSpec) -> list[int]:
@@ -501,7 +501,7 @@ def linearize(where: str = 'structure.opensees') -> Linearization:
         except Exception as exc:
             error = exc
     if error is not None or not mats or mats[0].size == 0:
-        raise ModelError(f'{where}: OpenSees could not assemble the model\'s M, C, K '
+        raise ModelError(f"{where}: OpenSees could not assemble the model's M, C, K "
                          f'(OpenSees: {last_message(log.text) or error})')
     return Linearization(mats[0], mats[1], mats[2], equations)
 
@@ -536,7 +536,7 @@ def condense(lin: Linearization, keep, *, where: str = 'structure.opensees'):
     k_oo = k[np.ix_(other, other)]
     scale = max(float(np.max(np.abs(k))), 1e-300)
     if np.linalg.cond(k_oo) * 1e-14 > 1.0 or np.max(np.abs(k_oo)) < 1e-12 * scale:
-        raise ParameterError(f'{where}: the model\'s DOFs without mass are not all held by '
+        raise ParameterError(f"{where}: the model's DOFs without mass are not all held by "
                              'stiffness (their stiffness matrix is singular): a node without '
                              'elements, or a mechanism')
     t = np.zeros((n, len(keep)))
@@ -637,7 +637,7 @@ def model_structure(section: Mapping, *, rigs: Mapping | None = None,
     for rig in used:
         if rig not in spec.physical_elements:
             raise ParameterError(f'{spec.where}.physical_elements: no elements for rig {rig!r} '
-                                 "(its specimen: the elements it replaces in the model)")
+                                 '(its specimen: the elements it replaces in the model)')
     interfaces = {rig: spec.interface(dof) for dof, rig in physical.items()}
     # the whole structure
     build_model(spec)
@@ -671,7 +671,8 @@ def model_structure(section: Mapping, *, rigs: Mapping | None = None,
     rig_values = {}
     rigs = {} if rigs is None else rigs
     if not isinstance(rigs, Mapping):
-        raise ParameterError(f'rigs: expected a mapping of rig names to their parameters, got {rigs!r}')
+        raise ParameterError(f'rigs: expected a mapping of rig names to their parameters, '
+                             f'got {rigs!r}')
     for rig, values in rigs.items():
         if rig not in used:
             raise ParameterError(f'rigs.{rig}: no dof of {where}.physical names this rig '
@@ -691,7 +692,7 @@ def model_structure(section: Mapping, *, rigs: Mapping | None = None,
         {'damping_matrix_N_s_per_m': c_c, 'stiffness_matrix_N_per_m': k_c}))
     w = np.linalg.eigvalsh(k)
     if w.min() <= 1e-9 * max(abs(w.max()), 1e-300):
-        raise ParameterError(f'{spec.where}: the whole model\'s condensed stiffness is not '
+        raise ParameterError(f"{spec.where}: the whole model's condensed stiffness is not "
                              f'positive definite (smallest eigenvalue {w.min():.6g}): it must '
                              'stand on the ground')
     lateral = [i for i, (_, _, d) in enumerate(dofs[:n_named]) if d == spec.excitation_dof]
@@ -762,9 +763,9 @@ def split_model(structure: Structure, specimens: Mapping[str, Mapping[str, Any]]
                                  'lumped mass')
         if mass[i, i] < m[j] * (1.0 - 1e-9):
             raise ParameterError(
-                f'{where}.opensees: the model\'s mass at physical dof {dof!r} is '
-                f'{float(mass[i, i])!r} kg, less than rig {rig}\'s specimen mass_kg='
-                f'{float(m[j])!r}: the mass at the interface node is the specimen\'s plus the '
+                f"{where}.opensees: the model's mass at physical dof {dof!r} is "
+                f"{float(mass[i, i])!r} kg, less than rig {rig}'s specimen mass_kg="
+                f"{float(m[j])!r}: the mass at the interface node is the specimen's plus the "
                 'computational mass it carries')
         node, d = spec.interface(dof)
         where_el = f'{where}.opensees.physical_elements.{rig}'
@@ -772,12 +773,12 @@ def split_model(structure: Structure, specimens: Mapping[str, Mapping[str, Any]]
             raise ParameterError(
                 f"{where_el}: the specimen's elements give node {node} dof {d} a stiffness of "
                 f"{dk[i, i]:.6g} N/m, but rig {rig}'s stiffness_N_per_m={k[j]:.6g}: the model "
-                'and the rig disagree (leave it out of the rig section to take the model\'s)')
+                "and the rig disagree (leave it out of the rig section to take the model's)")
         if abs(dc[i, i] - c[j]) > _TOL * max(abs(c[j]), abs(dc[i, i]), 1e-9 * cscale):
             raise ParameterError(
                 f"{where_el}: the specimen's elements give node {node} dof {d} a damping of "
                 f"{dc[i, i]:.6g} N s/m, but rig {rig}'s damping_N_s_per_m={c[j]:.6g}: the model "
-                'and the rig disagree (leave it out of the rig section to take the model\'s)')
+                "and the rig disagree (leave it out of the rig section to take the model's)")
     for name, delta, scale, unit in (('stiffness', dk, kscale, 'N/m'),
                                      ('damping', dc, cscale, 'N s/m')):
         rest = delta.copy()
@@ -787,7 +788,7 @@ def split_model(structure: Structure, specimens: Mapping[str, Mapping[str, Any]]
             a, b = np.unravel_index(int(np.argmax(np.abs(rest))), rest.shape)
             raise ParameterError(
                 f'{where}.opensees.physical_elements: the specimens act on other dofs than '
-                f'their rigs\' ({name} {rest[a, b]:.6g} {unit} between {structure.dofs[a]} '
+                f"their rigs' ({name} {rest[a, b]:.6g} {unit} between {structure.dofs[a]} "
                 f'and {structure.dofs[b]}): a rig drives one dof, so its specimen must act on '
                 'that dof only (e.g. a zeroLength or twoNodeLink element in that direction)')
     rigid = np.array([max(mass[i, i] - m[j], 0.0) for j, i in enumerate(idx)])
