@@ -157,6 +157,10 @@ def reference_of(run: RunData) -> StructureReference:
     from seft_ros.core.structure import test_setup as structure_setup
     setup = structure_setup(run.params)
     sub = setup.substructures
+    if sub.structure.opensees is not None:
+        # hook (issue 32): an OpenSees model's reference is OpenSees' own analysis of it
+        from seft_ros.opensees.reference import opensees_reference
+        return opensees_reference(sub, float(run.params['dt']), run.ground_acceleration_m_s2)
     specimens = list(zip(sub.specimen_mass_kg, sub.specimen_damping_N_s_per_m,
                          sub.specimen_stiffness_N_per_m))
     return structure_reference(sub.structure, specimens, float(run.params['dt']),
