@@ -78,10 +78,10 @@ class OpenSeesPart:
     step_times_s : list of float
         Each OpenSees step's wall time [s].
 
-    Raises
-    ------
-    ModelError
-        The model does not build or its analysis cannot be set up (OpenSees' message).
+    Notes
+    -----
+    The model is built in OpenSees by :meth:`prepare` (or the first step), not here: one
+    model per process, and a builder made for its linear model only never builds it.
     """
 
     def __init__(self, sub: Substructures, dt: float):
@@ -109,8 +109,22 @@ class OpenSeesPart:
         self._forces = [0.0] * len(self._pi)
         self._linear_forces = [0.0] * len(self._pi)
         self._substeps = max(1, int(spec.substeps))
-        build_model(spec, test=True)
-        self._setup()
+        self._ready = False
+
+    def prepare(self) -> None:
+        """Build the model in OpenSees and set up seft's analysis of it (done by the first
+        step otherwise: a real-time builder calls it before the run; a builder made only
+        for its linear model, as the pre-run guard's, never does).
+
+        Raises
+        ------
+        ModelError
+            The model does not build or its analysis cannot be set up (OpenSees' message).
+        """
+        if not self._ready:
+            build_model(self.spec, test=True)
+            self._setup()
+            self._ready = True
 
     # -- OpenSees ---------------------------------------------------------------------------
 
@@ -154,6 +168,7 @@ class OpenSeesPart:
 
     def _opensees_step(self, j: int) -> None:
         """Step the model from sample j to j+1 with every rig's measurements of both."""
+        self.prepare()
         ops = opensees()
         t0 = time.perf_counter()
         n_sub = self._substeps
@@ -235,6 +250,7 @@ class OpenSeesPart:
         motion and the record (Eq. 3 of :mod:`seft_ros.core.substructure` with the
         linearization; Newmark's step needs them)."""
         qi = self._qi
+        self.prepare()
         if not qi:
             return
         ops = opensees()
