@@ -465,10 +465,12 @@ class Linearization:
         return self.equations.get((node, dof))
 
 
-def linearize(where: str = 'structure.opensees') -> Linearization:
+def linearize(where: str = 'structure.opensees', *, stiffness_only: bool = False
+              ) -> Linearization:
     """The model in OpenSees linearized at its current state (module notes).
 
-    The analysis is wiped before and after (a test sets its own).
+    The analysis is wiped before and after (a test sets its own). With `stiffness_only`
+    only ``K`` is assembled (``M`` and ``C`` are zeros).
 
     Raises
     ------
@@ -485,6 +487,8 @@ def linearize(where: str = 'structure.opensees') -> Linearization:
             ops.constraints('Transformation')
             ops.algorithm('Linear')
             for factors in ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0)):
+                if stiffness_only and factors[2] == 0.0:
+                    continue
                 ops.integrator('GimmeMCK', *factors)
                 ops.analysis('Transient')
                 ops.analyze(1, 0.0)          # the solve may fail (M singular): A is assembled
@@ -503,6 +507,8 @@ def linearize(where: str = 'structure.opensees') -> Linearization:
     if error is not None or not mats or mats[0].size == 0:
         raise ModelError(f"{where}: OpenSees could not assemble the model's M, C, K "
                          f'(OpenSees: {last_message(log.text) or error})')
+    if stiffness_only:
+        return Linearization(np.zeros_like(mats[0]), np.zeros_like(mats[0]), mats[0], equations)
     return Linearization(mats[0], mats[1], mats[2], equations)
 
 

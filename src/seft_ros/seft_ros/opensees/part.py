@@ -123,6 +123,7 @@ class OpenSeesPart:
         """
         if not self._ready:
             build_model(self.spec, test=True)
+            self._series = False
             self._setup()
             self._ready = True
 
@@ -151,7 +152,9 @@ class OpenSeesPart:
         with captured() as log:
             try:
                 ops.wipeAnalysis()
-                ops.timeSeries('Constant', _SERIES)
+                if not self._series:
+                    ops.timeSeries('Constant', _SERIES)
+                    self._series = True
                 ops.constraints('Penalty', self._penalty, self._penalty)
                 ops.numberer('RCM')
                 ops.system('BandGeneral')
@@ -290,8 +293,8 @@ class OpenSeesPart:
 
     def prediction_offset(self, x, v, dofs) -> tuple:
         """The model's interface force less the linearization's, ``-[C_c v + K_c x]_p``, at
-        each of `dofs` [N] (0 for a linear model up to the integrator's difference): added to
-        the compensators' linear prediction (module notes)."""
+        each of `dofs` at the latest sample [N] (0 for a linear model, up to the integrator's
+        difference): added to the compensators' linear prediction (module notes)."""
         sub = self.sub
         xa, va = np.asarray(x, dtype=float), np.asarray(v, dtype=float)
         return tuple(self._forces[self._pi.index(i)]
