@@ -329,4 +329,8 @@ def structure_summary_entry(run: RunData,
         entry['link'] = link
     if run.extra.get('parameter_mismatches'):
         entry['parameter_mismatches'] = list(run.extra['parameter_mismatches'])
+    if structure.opensees is not None:
+        # hook (issue 32): an OpenSees model's step times and overruns
+        from seft_ros.opensees.report import opensees_entry
+        entry['opensees'] = opensees_entry(run)
     return json_safe(entry)

@@ -132,6 +132,10 @@ def _run_markdown(index: int, run: RunData, comparison: StructureComparison,
                      + ' | '.join(_num(c.get(k), '.2f') for k in ('J1', 'J2', 'J3', 'J4', 'J5'))
                      + ' |')
     lines += ['', f'![Run {index}: time histories per degree of freedom]({png.name})', '']
+    if 'opensees' in entry:
+        # hook (issue 32): the model's step times and its members' hysteresis
+        from seft_ros.opensees.report import opensees_markdown
+        lines += opensees_markdown(index, run, entry, png.parent)
     timing = run.extra.get('timing')
     if timing:
         from seft_ros.analysis.timing import (

@@ -17,6 +17,8 @@ kept apart from the analysis seft drives (after OpenSees' own split of ``model``
           lab: [901]
         excitation_dof: 1          # the ground motion's direction (default 1)
         substeps: 1                # OpenSees steps per sample in the test (default 1)
+        elements: [111]            # computational elements whose response is recorded (their
+                                   # hysteresis in the report; optional)
       physical: {floor_1: lab}     # the DOF each rig tests
 
 seft's degrees of freedom are the model's DOFs **with mass** (the others are condensed
@@ -75,7 +77,7 @@ __all__ = ['ModelSpec', 'SECTION_KEYS', 'parse_model_section', 'build_model', 'L
 
 #: The keys of a ``structure.opensees`` section.
 SECTION_KEYS = ('model', 'function', 'arguments', 'dofs', 'physical_elements', 'excitation_dof',
-                'substeps')
+                'substeps', 'elements')
 #: Relative tolerance of the specimen checks against the model.
 _TOL = 1e-6
 
@@ -108,6 +110,8 @@ class ModelSpec:
     computational : mapping
         ``damping_matrix_N_s_per_m``, ``stiffness_matrix_N_per_m`` of the computational model
         (specimens removed), condensed to `dofs` (after parsing).
+    elements : tuple of int
+        Computational elements whose response the test records and the report draws.
     where : str
         The section's name in error messages.
     """
@@ -120,6 +124,7 @@ class ModelSpec:
     excitation_dof: int = 1
     substeps: int = 1
     computational: Mapping = field(default_factory=dict)
+    elements: tuple = ()
     where: str = 'structure.opensees'
 
     def interface(self, dof_name: str) -> tuple[int, int]:
@@ -137,6 +142,7 @@ class ModelSpec:
                 'physical_elements': {r: [int(e) for e in v]
                                       for r, v in self.physical_elements.items()},
                 'excitation_dof': int(self.excitation_dof), 'substeps': int(self.substeps),
+                'elements': [int(e) for e in self.elements],
                 'computational': {k: np.asarray(v).tolist()
                                   for k, v in self.computational.items()}}
 
@@ -157,7 +163,8 @@ class ModelSpec:
                                          (doc.get('physical_elements') or {}).items()}),
                        int(doc.get('excitation_dof', 1)), int(doc.get('substeps', 1)),
                        MappingProxyType({k: np.asarray(v, dtype=float) for k, v in
-                                         (doc.get('computational') or {}).items()}), where)
+                                         (doc.get('computational') or {}).items()}),
+                       tuple(int(e) for e in doc.get('elements', ())), where)
         except (KeyError, TypeError, ValueError) as exc:
             raise ParameterError(f'{where}: expected the model section seft wrote ({exc!r})') \
                 from None
@@ -265,9 +272,14 @@ def parse_model_section(section, *, where: str = 'structure.opensees',
         elements[str(rig)] = tuple(int(t) for t in tags)
     excitation = _int(where, 'excitation_dof', section.get('excitation_dof', 1))
     substeps = _int(where, 'substeps', section.get('substeps', 1))
+    recorded = section.get('elements', [])
+    if (not isinstance(recorded, (list, tuple))
+            or not all(isinstance(t, int) and not isinstance(t, bool) for t in recorded)):
+        raise ParameterError(f'{where}.elements: expected a list of element tags, got '
+                             f'{recorded!r}')
     return ModelSpec(source, function, MappingProxyType(dict(arguments)), tuple(dofs),
                      MappingProxyType(elements), excitation, substeps, MappingProxyType({}),
-                     where)
+                     tuple(int(t) for t in recorded), where)
 
 
 def _builder(spec: ModelSpec):
@@ -354,6 +366,14 @@ def _check_model(spec: ModelSpec, name: str) -> None:
             raise ParameterError(f'{spec.where}.dofs.{dof_name}: node {node} has {ndf} dofs '
                                  f'(1..{ndf}), no dof {dof}')
     elements = set(ops.getEleTags())
+    physical = {t for tags in spec.physical_elements.values() for t in tags}
+    for tag in spec.elements:
+        if tag not in elements:
+            raise ParameterError(f'{spec.where}.elements: element {tag} is not in the model '
+                                 f'({len(elements)} elements: {_some(sorted(elements))})')
+        if tag in physical:
+            raise ParameterError(f'{spec.where}.elements: element {tag} is a physical element '
+                                 '(the rig measures the specimen); name computational ones')
     for rig, tags in spec.physical_elements.items():
         for tag in tags:
             if tag not in elements:

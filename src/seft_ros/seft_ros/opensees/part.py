@@ -48,7 +48,8 @@ from seft_ros.core.substructure import structure_matrices
 from seft_ros.opensees.loader import captured, last_message, opensees
 from seft_ros.opensees.model import ModelError, ModelSpec, build_model
 
-__all__ = ['OpenSeesPart', 'STEP_TIME', 'dry_run', 'DryRun', 'BUDGET_FRACTION']
+__all__ = ['OpenSeesPart', 'STEP_TIME', 'dry_run', 'DryRun', 'BUDGET_FRACTION', 'element_names',
+           'element_response']
 
 #: The recorded state of each step's OpenSees wall time [s].
 STEP_TIME = 'opensees/step_time_s'
@@ -72,7 +73,8 @@ class OpenSeesPart:
     ----------
     state_names : tuple of str
         ``'<dof>/displacement_m'``, ``'<dof>/velocity_m_s'``, ``'<dof>/acceleration_m_s2'``
-        per computational DOF, then :data:`STEP_TIME`.
+        per computational DOF, then :data:`STEP_TIME`, then the recorded elements'
+        (:func:`element_names`).
     matrices : Matrices
         The model's linearization (the structure's matrices).
     step_times_s : list of float
@@ -95,7 +97,8 @@ class OpenSeesPart:
         self._pi, self._qi = list(s.physical_index), list(s.computational_index)
         self.state_names = tuple(f'{s.dofs[i]}/{q}' for q in (
             'displacement_m', 'velocity_m_s', 'acceleration_m_s2') for i in self._qi) + (
-            STEP_TIME,)
+            STEP_TIME,) + tuple(name for e in spec.elements for name in element_names(e))
+        self._element_values = [0.0] * (2 * len(spec.elements))
         self.matrices = structure_matrices(sub)
         self.step_times_s: list[float] = []
         self._nodes = [(node, dof) for _, node, dof in spec.dofs]
@@ -214,6 +217,8 @@ class OpenSeesPart:
             self._x[i] = float(ops.nodeDisp(node, dof))
             self._v[i] = float(ops.nodeVel(node, dof))
             self._a[i] = float(ops.nodeAccel(node, dof))
+        for n, tag in enumerate(self.spec.elements):
+            self._element_values[2 * n:2 * n + 2] = element_response(ops, tag)
         for r, p in enumerate(self._pi):       # the physical DOFs as measured
             self._x[p], self._v[p], self._a[p] = end[r][0], end[r][1], end[r][2]
         self.step_times_s.append(time.perf_counter() - t0)
@@ -307,12 +312,29 @@ class OpenSeesPart:
         qi = self._qi
         step = self.step_times_s[-1] if self.step_times_s else math.nan
         return (tuple(self._x[i] for i in qi) + tuple(self._v[i] for i in qi)
-                + tuple(self._a[i] for i in qi) + (step,))
+                + tuple(self._a[i] for i in qi) + (step,) + tuple(self._element_values))
 
     def set_matrices(self, matrices) -> None:
         """Kept for the protocol: the model itself moves the DOFs; `matrices` only replace
         the linearization the compensators see."""
         self.matrices = matrices
+
+
+def element_names(tag: int) -> tuple[str, str]:
+    """The recorded states of element `tag`: its force at its first node's last DOF (a
+    2-D beam-column's end moment [N m]; a link's force [N]) and its first rotation (a
+    beam-column's basic rotation at that end [rad]; a link's deformation [m])."""
+    return f'opensees/ele{tag}/force', f'opensees/ele{tag}/deformation'
+
+
+def element_response(ops, tag: int) -> tuple[float, float]:
+    """The values of :func:`element_names` of element `tag` in the model now."""
+    force = ops.eleForce(tag)
+    nodes = ops.eleNodes(tag)
+    ndf = len(force) // max(len(nodes), 1)
+    basic = ops.eleResponse(tag, 'basicDeformation')
+    deformation = basic[1] if len(basic) >= 3 else (basic[0] if basic else math.nan)
+    return float(force[ndf - 1]), float(deformation)
 
 
 def _hermite(m0, m1, dt: float, t: float) -> tuple[float, float, float]:

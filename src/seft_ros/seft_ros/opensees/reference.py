@@ -21,6 +21,7 @@ from seft_msgs_py.errors import ParameterError
 from seft_ros.core.structure import Substructures
 from seft_ros.opensees.loader import captured, last_message, opensees
 from seft_ros.opensees.model import ModelError, ModelSpec, build_model
+from seft_ros.opensees.part import element_response
 
 __all__ = ['opensees_reference', 'REFERENCE_SUBSTEPS', 'OpenSeesReference']
 
@@ -42,10 +43,10 @@ class OpenSeesReference:
     interface_force_N : ndarray (n, n_p)
         At each physical DOF, the force its specimen carries: the specimen mass times the
         DOF's acceleration plus the physical elements' resisting force there.
-    element_forces : dict of int to ndarray (n, k)
-        Per element asked for: ``eleForce`` (its nodes' forces, global axes) [N, N m].
-    element_deformations : dict of int to ndarray (n, k)
-        Per element asked for: ``eleResponse(tag, 'basicDeformation')``.
+    element_forces, element_deformations : dict of int to ndarray (n,)
+        Per element asked for: the values of
+        :func:`~seft_ros.opensees.part.element_response` (a beam-column's end moment [N m]
+        and basic rotation [rad]).
     """
 
     def __init__(self, **fields):
@@ -54,7 +55,7 @@ class OpenSeesReference:
 
 
 def opensees_reference(sub: Substructures, dt: float, ground_acceleration_m_s2, *,
-                       substeps: int = REFERENCE_SUBSTEPS, elements=()) -> OpenSeesReference:
+                       substeps: int = REFERENCE_SUBSTEPS, elements=None) -> OpenSeesReference:
     """OpenSees' analysis of the whole structure under a sampled ground acceleration.
 
     Parameters
@@ -68,9 +69,9 @@ def opensees_reference(sub: Substructures, dt: float, ground_acceleration_m_s2, 
         xg'' at ``k dt`` [m/s^2], finite.
     substeps : int >= 1
         OpenSees steps per sample.
-    elements : sequence of int
-        Elements whose forces and basic deformations to record (e.g. a yielding member's
-        hysteresis).
+    elements : sequence of int, optional
+        Elements whose response to record (a yielding member's hysteresis; default the
+        model's ``elements``).
 
     Returns
     -------
@@ -107,7 +108,7 @@ def opensees_reference(sub: Substructures, dt: float, ground_acceleration_m_s2, 
             if node in ele_nodes:
                 offset = sum(len(ops.nodeDisp(nd)) for nd in ele_nodes[:ele_nodes.index(node)])
                 physical.append((j, tag, offset + dof - 1))
-    elements = [int(e) for e in elements]
+    elements = [int(e) for e in (elements if elements is not None else spec.elements)]
     ele_f = {e: [] for e in elements}
     ele_d = {e: [] for e in elements}
     h = dt / int(substeps)
@@ -149,8 +150,9 @@ def opensees_reference(sub: Substructures, dt: float, ground_acceleration_m_s2, 
                 for j, tag, index in physical:
                     forces[k, j] += ops.eleForce(tag)[index]
                 for e in elements:
-                    ele_f[e].append(list(ops.eleForce(e)))
-                    ele_d[e].append(list(ops.eleResponse(e, 'basicDeformation')))
+                    force, deformation = element_response(ops, e)
+                    ele_f[e].append(force)
+                    ele_d[e].append(deformation)
             error = None
         except Exception as exc:
             error = exc
