@@ -859,7 +859,7 @@ def check_capacity(*, runs: list[dict], progress: Callable[[str], None] = print)
     model is first checked by :func:`seft_ros.opensees.checks.check_runs` (refused in one
     line where it cannot run as configured).
     """
-    from seft_ros.opensees.checks import check_runs as check_opensees   # issue 32
+    from seft_ros.opensees.checks import check_runs as check_opensees  # issue 32
     check_opensees(runs, progress=progress)
     for p in runs:
         v_max = actuator_velocity_limit_m_s(p)

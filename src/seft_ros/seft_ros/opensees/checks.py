@@ -59,7 +59,7 @@ def check_runs(runs, *, progress: Callable[[str], None] = print) -> None:
         if p.get('structure_builders', 'central') != 'central':
             raise ParameterError(
                 f'parameter structure_builders={p["structure_builders"]!r}: the OpenSees model '
-                f'{name} is stepped on every rig\'s measured motion by one builder; use '
+                f"{name} is stepped on every rig's measured motion by one builder; use "
                 "'central' (one host, or the builder on a compute host of its own)")
         if p.get('mode', 'lockstep') != 'realtime':
             continue
