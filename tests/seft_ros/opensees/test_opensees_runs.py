@@ -1,0 +1,58 @@
+"""Tests with an OpenSees computational part as a user runs them: the two-story building
+through OpenSees against the matrix path, the steel frame elastic, ``seft simulate``'s
+report."""
+
+import json
+from pathlib import Path
+import subprocess
+
+import numpy as np
+
+from seft_ros.analysis.structure_metrics import compare_structure
+from seft_ros.cli.config import expand_runs, load_config
+from seft_ros.core.experiment import simulate
+
+ROOT = Path(__file__).resolve().parents[3]
+
+
+def _nrms_per_dof(path, **overrides) -> np.ndarray:
+    params = expand_runs(dict(load_config(path), **overrides))[0]
+    run = simulate(params)
+    assert run.stable, run.abort_reason
+    return np.array([d.displacement.nrms for d in compare_structure(run).dofs])
+
+
+def test_two_story_through_opensees_equals_the_matrix_path():
+    """config/opensees/two_story.yaml (OpenSees, against OpenSees' reference) and
+    config/two_story.yaml (matrices, against lsim) with 'model': per-DOF displacement NRMS
+    within 0.05 percentage points."""
+    model = _nrms_per_dof(ROOT / 'config' / 'opensees' / 'two_story.yaml', predictor='model')
+    matrix = _nrms_per_dof(ROOT / 'config' / 'two_story.yaml', predictor='model')
+    assert np.all(matrix < 0.004)
+    assert np.all(np.abs(model - matrix) < 0.0005), (model, matrix)
+
+
+def test_steel_frame_elastic_within_one_percent():
+    """The three-story frame at 1000 N (elastic) with 'model': every floor within 1 % of
+    OpenSees' analysis of the whole frame (the first 5 s of the default record)."""
+    nrms = _nrms_per_dof(ROOT / 'config' / 'opensees' / 'steel_frame.yaml', duration_s=5.0)
+    assert nrms.shape == (3,)
+    assert np.all(nrms < 0.01), nrms
+
+
+def test_simulate_reports_the_model(tmp_path, seft_exe):
+    """seft simulate: the summary's OpenSees entry (step times) and the hysteresis figure."""
+    out = tmp_path / 'out'
+    result = subprocess.run([str(seft_exe), 'simulate',
+                             str(ROOT / 'config' / 'opensees' / 'steel_frame.yaml'),
+                             '--out', str(out), '--duration', '2'],
+                            capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr[-2000:]
+    summary = json.loads((out / 'summary.json').read_text())
+    entry = summary['runs'][0]['opensees']
+    assert entry['model'] == 'steel_frame.py:build' and entry['substeps'] == 2
+    st = entry['step_time']
+    assert st['steps'] == 998            # samples 1 .. n-2: sample k-1's state comes with k
+    assert 0 < st['p50_s'] <= st['p99_s'] <= st['max_s']
+    assert (out / 'hysteresis_run_1_ele111.png').stat().st_size > 10_000
+    assert '### Run 1: the OpenSees model' in (out / 'report.md').read_text()
