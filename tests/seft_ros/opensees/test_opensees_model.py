@@ -137,6 +137,25 @@ def test_element_not_connected_to_its_interface(tmp_path):
         parse_structure(_section(model=path, physical_elements={'lab': [3]}))
 
 
+def test_interface_in_a_constraint(tmp_path):
+    path = _model(tmp_path, '''
+        import openseespy.opensees as ops
+        def build():
+            ops.wipe(); ops.model('basic', '-ndm', 1, '-ndf', 1)
+            for n in range(4):
+                ops.node(n, 0.0)
+            ops.fix(0, 1)
+            ops.mass(1, 60.0); ops.mass(2, 50.0)
+            ops.uniaxialMaterial('Elastic', 1, 2.11e5, 903.278)
+            ops.element('zeroLength', 1, 0, 1, '-mat', 1, '-dir', 1)
+            ops.element('zeroLength', 2, 1, 2, '-mat', 1, '-dir', 1)
+            ops.equalDOF(1, 3, 1)
+    ''')
+    with pytest.raises(ParameterError, match=r'rig lab tests node 1, which a multi-point '
+                       'constraint'):
+        parse_structure(_section(model=path))
+
+
 def test_a_model_that_fails_keeps_opensees_message(tmp_path):
     path = _model(tmp_path, '''
         import openseespy.opensees as ops

@@ -668,6 +668,7 @@ def model_structure(section: Mapping, *, rigs: Mapping | None = None,
     # the whole structure
     build_model(spec)
     check_connected(spec, interfaces)
+    _check_interfaces(spec, interfaces)
     whole = linearize(spec.where)
     for rig, (node, dof) in interfaces.items():
         if whole.equation(node, dof) is None:
@@ -727,6 +728,21 @@ def model_structure(section: Mapping, *, rigs: Mapping | None = None,
     return Structure(names, m, c, k, influence, MappingProxyType(ordered),
                      MappingProxyType(rig_values), links, 'opensees',
                      opensees=MappingProxyType(spec.to_doc()))
+
+
+def _check_interfaces(spec: ModelSpec, interfaces: Mapping[str, tuple[int, int]]) -> None:
+    """An interface node in a multi-point constraint is refused: the test reads the interface
+    force from the reactions of the elements at that node, and a constraint's force is none
+    of them."""
+    ops = opensees()
+    tied = set(ops.getConstrainedNodes()) | set(ops.getRetainedNodes())
+    for rig, (node, dof) in interfaces.items():
+        if node in tied:
+            raise ParameterError(
+                f'{spec.where}.dofs: rig {rig} tests node {node}, which a multi-point '
+                'constraint (equalDOF, rigidLink, rigidDiaphragm) ties to other nodes: the '
+                "interface force is read from the elements at that node; join the floor's "
+                'nodes by elements (e.g. axially stiff beams) or test another node')
 
 
 def _check_elements_mass(lin: Linearization, spec: ModelSpec) -> None:
