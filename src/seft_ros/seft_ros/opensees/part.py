@@ -308,7 +308,7 @@ class OpenSeesPart:
 
     def recorded_state(self, x, v, j: int) -> tuple:
         """The computational DOFs' ``x, v, a`` at sample `j` and the step's OpenSees time
-        (:attr:`state_names`)."""
+        (``state_names``)."""
         qi = self._qi
         step = self.step_times_s[-1] if self.step_times_s else math.nan
         return (tuple(self._x[i] for i in qi) + tuple(self._v[i] for i in qi)
