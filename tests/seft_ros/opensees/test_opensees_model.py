@@ -198,17 +198,35 @@ def test_specimen_acting_on_other_dofs():
         test_setup(params)
 
 
-def test_runs_that_cannot_run_are_refused():
+def test_runs_that_cannot_run_are_refused(tmp_path):
     """A builder per rig, and a real-time run whose model does not fit the period."""
     s = parse_structure(_section(substeps=400))
     base = dict(expand_runs({'predictor': 'model'})[0], structure=s.to_json())
+    check_runs([dict(base, structure_builders='per_rig')], progress=lambda _: None)  # one rig
+    piers = _model(tmp_path, '''
+        import openseespy.opensees as ops
+        def build():
+            ops.wipe(); ops.model('basic', '-ndm', 1, '-ndf', 1)
+            for n in range(3):
+                ops.node(n, 0.0)
+            ops.fix(0, 1)
+            ops.mass(1, 60.0); ops.mass(2, 60.0)
+            ops.uniaxialMaterial('Elastic', 1, 2.11e5, 903.278)
+            ops.element('zeroLength', 1, 0, 1, '-mat', 1, '-dir', 1)
+            ops.element('zeroLength', 2, 0, 2, '-mat', 1, '-dir', 1)
+            ops.element('zeroLength', 3, 1, 2, '-mat', 1, '-dir', 1)
+    ''')
+    two = parse_structure({'opensees': {
+        'model': piers, 'dofs': {'pier_a': [1, 1], 'pier_b': [2, 1]},
+        'physical_elements': {'a': [1], 'b': [2]}}, 'physical': {'pier_a': 'a', 'pier_b': 'b'}})
     with pytest.raises(ParameterError, match=r"structure_builders='per_rig': the OpenSees model "
-                       r'two_story\.py:build is stepped'):
-        check_runs([dict(base, structure_builders='per_rig')], progress=lambda _: None)
+                       r'model\.py:build is stepped .* not as a replica per rig \(2 rigs\)'):
+        check_runs([dict(base, structure=two.to_json(), structure_builders='per_rig')],
+                   progress=lambda _: None)
     lines = []
     with pytest.raises(ParameterError, match=r'structure\.opensees: two_story\.py:build: a '
-                       r'timed dry run took p99 [0-9.]+ ms per step, more than 0\.5 of the '
-                       r'sample period dt = 2 ms'):
+                       r'timed dry run took [0-9.]+ ms per step \(median\), more than 0\.5 of '
+                       r'the sample period dt = 2 ms'):
         check_runs([dict(base, mode='realtime')], progress=lines.append)
     assert lines and lines[0].startswith('opensees: two_story.py:build: a dry run of 500 steps')
     check_runs([dict(base, structure=parse_structure(_section()).to_json(),
