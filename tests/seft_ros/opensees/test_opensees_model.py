@@ -119,7 +119,7 @@ def test_bad_sections_are_one_line(change, match):
 
 def test_element_not_connected_to_its_interface(tmp_path):
     """A specimen element away from its rig's interface node is named."""
-    path = _model(tmp_path, '''
+    path = _model(tmp_path, """
         import openseespy.opensees as ops
         def build():
             ops.wipe(); ops.model('basic', '-ndm', 1, '-ndf', 1)
@@ -131,14 +131,14 @@ def test_element_not_connected_to_its_interface(tmp_path):
             ops.element('zeroLength', 1, 0, 1, '-mat', 1, '-dir', 1)
             ops.element('zeroLength', 2, 1, 2, '-mat', 1, '-dir', 1)
             ops.element('zeroLength', 3, 2, 3, '-mat', 1, '-dir', 1)
-    ''')
+    """)
     with pytest.raises(ParameterError, match=r'physical_elements\.lab: element 3 \(nodes 2, 3\) '
                        r'is not connected to the interface node 1 of rig lab'):
         parse_structure(_section(model=path, physical_elements={'lab': [3]}))
 
 
 def test_interface_in_a_constraint(tmp_path):
-    path = _model(tmp_path, '''
+    path = _model(tmp_path, """
         import openseespy.opensees as ops
         def build():
             ops.wipe(); ops.model('basic', '-ndm', 1, '-ndf', 1)
@@ -150,30 +150,30 @@ def test_interface_in_a_constraint(tmp_path):
             ops.element('zeroLength', 1, 0, 1, '-mat', 1, '-dir', 1)
             ops.element('zeroLength', 2, 1, 2, '-mat', 1, '-dir', 1)
             ops.equalDOF(1, 3, 1)
-    ''')
+    """)
     with pytest.raises(ParameterError, match=r'rig lab tests node 1, which a multi-point '
                        'constraint'):
         parse_structure(_section(model=path))
 
 
 def test_a_model_that_fails_keeps_opensees_message(tmp_path):
-    path = _model(tmp_path, '''
+    path = _model(tmp_path, """
         import openseespy.opensees as ops
         def build():
             ops.wipe(); ops.model('basic', '-ndm', 1, '-ndf', 1)
             ops.node(0, 0.0); ops.node(1, 0.0)
             ops.element('zeroLength', 1, 0, 1, '-mat', 42, '-dir', 1)
-    ''')
+    """)
     with pytest.raises(ModelError, match=r'structure\.opensees\.model: model\.py: build\(\) '
                        r'failed: OpenSees: .*(tag: 42|material 42)'):
         parse_structure(_section(model=path))
 
 
 def test_a_model_that_raises_is_named(tmp_path):
-    path = _model(tmp_path, '''
+    path = _model(tmp_path, """
         def build():
             raise ValueError('no such section W14x90')
-    ''')
+    """)
     with pytest.raises(ModelError, match=r'model\.py: build\(\) failed: ValueError: no such '
                        'section W14x90'):
         parse_structure(_section(model=path))
@@ -203,7 +203,7 @@ def test_runs_that_cannot_run_are_refused(tmp_path):
     s = parse_structure(_section(substeps=400))
     base = dict(expand_runs({'predictor': 'model'})[0], structure=s.to_json())
     check_runs([dict(base, structure_builders='per_rig')], progress=lambda _: None)  # one rig
-    piers = _model(tmp_path, '''
+    piers = _model(tmp_path, """
         import openseespy.opensees as ops
         def build():
             ops.wipe(); ops.model('basic', '-ndm', 1, '-ndf', 1)
@@ -215,7 +215,7 @@ def test_runs_that_cannot_run_are_refused(tmp_path):
             ops.element('zeroLength', 1, 0, 1, '-mat', 1, '-dir', 1)
             ops.element('zeroLength', 2, 0, 2, '-mat', 1, '-dir', 1)
             ops.element('zeroLength', 3, 1, 2, '-mat', 1, '-dir', 1)
-    ''')
+    """)
     two = parse_structure({'opensees': {
         'model': piers, 'dofs': {'pier_a': [1, 1], 'pier_b': [2, 1]},
         'physical_elements': {'a': [1], 'b': [2]}}, 'physical': {'pier_a': 'a', 'pier_b': 'b'}})
