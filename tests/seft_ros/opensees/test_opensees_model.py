@@ -137,7 +137,8 @@ def test_element_not_connected_to_its_interface(tmp_path):
         parse_structure(_section(model=path, physical_elements={'lab': [3]}))
 
 
-def test_interface_in_a_constraint(tmp_path):
+def test_interface_on_the_constrained_side(tmp_path):
+    """The rig must test the retained node of an equalDOF, not the node tied to it."""
     path = _model(tmp_path, """
         import openseespy.opensees as ops
         def build():
@@ -149,10 +150,10 @@ def test_interface_in_a_constraint(tmp_path):
             ops.uniaxialMaterial('Elastic', 1, 2.11e5, 903.278)
             ops.element('zeroLength', 1, 0, 1, '-mat', 1, '-dir', 1)
             ops.element('zeroLength', 2, 1, 2, '-mat', 1, '-dir', 1)
-            ops.equalDOF(1, 3, 1)
+            ops.equalDOF(3, 1, 1)
     """)
-    with pytest.raises(ParameterError, match=r'rig lab tests node 1, which a multi-point '
-                       'constraint'):
+    with pytest.raises(ParameterError, match=r'rig lab tests node 1 dof 1, which a multi-point '
+                       r'constraint ties to node 3: name the retained node'):
         parse_structure(_section(model=path))
 
 

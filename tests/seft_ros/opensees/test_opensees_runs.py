@@ -5,12 +5,15 @@ report."""
 import json
 from pathlib import Path
 import subprocess
+import textwrap
 
 import numpy as np
+import yaml
 
 from seft_ros.analysis.structure_metrics import compare_structure
 from seft_ros.cli.config import expand_runs, load_config
 from seft_ros.core.experiment import simulate
+from seft_ros.core.structure import Structure
 
 ROOT = Path(__file__).resolve().parents[3]
 
@@ -30,6 +33,38 @@ def test_two_story_through_opensees_equals_the_matrix_path():
     matrix = _nrms_per_dof(ROOT / 'config' / 'two_story.yaml', predictor='model')
     assert np.all(matrix < 0.004)
     assert np.all(np.abs(model - matrix) < 0.0005), (model, matrix)
+
+
+def test_a_rigid_floor_through_an_equal_dof(tmp_path):
+    """The two-story building with its first floor as two nodes tied by an equalDOF (the
+    specimen on one, story 2 on the other, the mass split): the same structure and the same
+    test as the matrix path, within 0.05 percentage points per DOF."""
+    model = tmp_path / 'split_floor.py'
+    model.write_text(textwrap.dedent("""
+        import openseespy.opensees as ops
+        def build():
+            ops.wipe(); ops.model('basic', '-ndm', 1, '-ndf', 1)
+            for n in range(4):
+                ops.node(n, 0.0)
+            ops.fix(0, 1)
+            ops.mass(1, 30.0); ops.mass(3, 22.7); ops.mass(2, 52.7)
+            ops.uniaxialMaterial('Elastic', 1, 2.11e5, 903.278)
+            ops.uniaxialMaterial('Elastic', 2, 2.11e5, 333.5)
+            ops.element('zeroLength', 1, 0, 1, '-mat', 1, '-dir', 1)
+            ops.element('zeroLength', 2, 3, 2, '-mat', 2, '-dir', 1)
+            ops.equalDOF(1, 3, 1)
+    """))
+    config = load_config(ROOT / 'config' / 'opensees' / 'two_story.yaml')
+    section = yaml.safe_load((ROOT / 'config' / 'opensees' / 'two_story.yaml').read_text())
+    section['structure']['opensees']['model'] = str(model)
+    path = tmp_path / 'split_floor.yaml'
+    path.write_text(yaml.safe_dump(section))
+    config = load_config(path)
+    s = Structure.from_json(config['structure'])
+    np.testing.assert_allclose(np.diag(s.mass_kg), [52.7, 52.7])
+    split = _nrms_per_dof(path, predictor='model')
+    matrix = _nrms_per_dof(ROOT / 'config' / 'two_story.yaml', predictor='model')
+    assert np.all(np.abs(split - matrix) < 0.0005), (split, matrix)
 
 
 def test_steel_frame_elastic_within_one_percent():

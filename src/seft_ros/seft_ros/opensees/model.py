@@ -73,7 +73,7 @@ from seft_ros.opensees.loader import captured, last_message, opensees
 
 __all__ = ['ModelSpec', 'SECTION_KEYS', 'parse_model_section', 'build_model', 'Linearization',
            'linearize', 'condense', 'model_structure', 'split_model', 'ModelError',
-           'remove_specimens']
+           'remove_specimens', 'interface_group']
 
 #: The keys of a ``structure.opensees`` section.
 SECTION_KEYS = ('model', 'function', 'arguments', 'dofs', 'physical_elements', 'excitation_dof',
@@ -731,18 +731,30 @@ def model_structure(section: Mapping, *, rigs: Mapping | None = None,
 
 
 def _check_interfaces(spec: ModelSpec, interfaces: Mapping[str, tuple[int, int]]) -> None:
-    """An interface node in a multi-point constraint is refused: the test reads the interface
-    force from the reactions of the elements at that node, and a constraint's force is none
-    of them."""
+    """An interface DOF constrained to another node's (the constrained side of an
+    ``equalDOF``) is refused: the rig tests the retained node's DOF, and the nodes tied to it
+    in that direction move with it (:func:`interface_group`)."""
     ops = opensees()
-    tied = set(ops.getConstrainedNodes()) | set(ops.getRetainedNodes())
+    constrained = set(ops.getConstrainedNodes())
     for rig, (node, dof) in interfaces.items():
-        if node in tied:
+        if node in constrained and dof in ops.getConstrainedDOFs(node):
+            retained = [r for r in ops.getRetainedNodes() if node in ops.getConstrainedNodes(r)]
             raise ParameterError(
-                f'{spec.where}.dofs: rig {rig} tests node {node}, which a multi-point '
-                'constraint (equalDOF, rigidLink, rigidDiaphragm) ties to other nodes: the '
-                "interface force is read from the elements at that node; join the floor's "
-                'nodes by elements (e.g. axially stiff beams) or test another node')
+                f'{spec.where}.dofs: rig {rig} tests node {node} dof {dof}, which a multi-point '
+                f'constraint ties to node {", ".join(str(r) for r in retained) or "?"}: name '
+                'the retained node (the nodes tied to it move with it)')
+
+
+def interface_group(node: int, dof: int) -> list[int]:
+    """The interface node and the nodes an ``equalDOF`` ties to it in `dof` (they move with
+    it: their forces in that direction act on the interface), in the model in OpenSees."""
+    ops = opensees()
+    group = [node]
+    if node in set(ops.getRetainedNodes()):
+        for c in ops.getConstrainedNodes(node):
+            if dof in ops.getConstrainedDOFs(c) and c not in group:
+                group.append(int(c))
+    return group
 
 
 def _check_elements_mass(lin: Linearization, spec: ModelSpec) -> None:

@@ -21,7 +21,9 @@ rig's measurement of a sample is in:
   inertia of the interface node's mass (``reactions('-dynamic')``: the elements' restoring
   and damping forces with their Rayleigh damping, and the node's; its mass is the specimen's
   and the rigid mass ``mu`` of seft's reference force, ``- mu a_hat``, so its inertia is
-  seft's, not the model's).
+  seft's, not the model's), summed over the nodes an ``equalDOF`` ties to the interface node
+  in that direction (a rigid floor: they move with it, and neither their ground-motion load
+  nor their inertia is the model's).
 
 Exact and approximate: for a linear model the step is Newmark's (second order; period error
 about ``(omega dt)^2 / 12`` per mode, 0.35 % for a 16 Hz mode at 500 Hz, less with
@@ -46,7 +48,7 @@ from seft_msgs_py.errors import ParameterError
 from seft_ros.core.structure import Substructures
 from seft_ros.core.substructure import structure_matrices
 from seft_ros.opensees.loader import captured, last_message, opensees
-from seft_ros.opensees.model import ModelError, ModelSpec, build_model
+from seft_ros.opensees.model import ModelError, ModelSpec, build_model, interface_group
 
 __all__ = ['OpenSeesPart', 'STEP_TIME', 'dry_run', 'DryRun', 'BUDGET_FRACTION', 'element_names',
            'element_response']
@@ -136,7 +138,9 @@ class OpenSeesPart:
         """seft's analysis of the computational model: loads, handler, integrator."""
         ops = opensees()
         spec = self.spec
-        interface = set(self._interface)
+        self._groups = [interface_group(node, dof) for node, dof in self._interface]
+        interface = {(n, dof) for (node, dof), group in zip(self._interface, self._groups)
+                     for n in group}
         loads = []
         for node in ops.getNodeTags():
             mass = ops.nodeMass(node)
@@ -144,8 +148,8 @@ class OpenSeesPart:
             if len(mass) >= d and mass[d - 1] > 0.0 and (node, d) not in interface:
                 loads.append((node, len(mass), -float(mass[d - 1])))
         self._loads = loads
-        self._interface_mass = [float(ops.nodeMass(node)[dof - 1]) for node, dof in
-                                self._interface]
+        self._interface_mass = [[float(ops.nodeMass(n)[dof - 1]) for n in group]
+                                for (_, dof), group in zip(self._interface, self._groups)]
         m = np.diag(self.sub.structure.mass_kg)
         k = np.diag(self.sub.stiffness_c_N_per_m)
         c = np.diag(self.sub.damping_c_N_s_per_m)
@@ -211,8 +215,8 @@ class OpenSeesPart:
                                  'model cannot follow the measured motion')
         ops.reactions('-dynamic')
         for r, (node, dof) in enumerate(self._interface):
-            inertia = self._interface_mass[r] * float(ops.nodeAccel(node, dof))
-            self._forces[r] = -(float(ops.nodeReaction(node, dof)) - inertia)
+            self._forces[r] = -sum(float(ops.nodeReaction(n, dof)) - m * float(ops.nodeAccel(
+                n, dof)) for n, m in zip(self._groups[r], self._interface_mass[r]))
         for i, (node, dof) in enumerate(self._nodes):
             self._x[i] = float(ops.nodeDisp(node, dof))
             self._v[i] = float(ops.nodeVel(node, dof))
