@@ -66,6 +66,25 @@ def test_two_story_model_is_the_matrix_structure():
     assert again.opensees['physical_elements'] == {'lab': [1]}
 
 
+def test_a_script_without_a_function(tmp_path):
+    """A model file that builds the model as a script (function: null), its arguments as
+    globals: the same structure as the two-story function."""
+    path = _model(tmp_path, """
+        import openseespy.opensees as ops
+        ops.wipe(); ops.model('basic', '-ndm', 1, '-ndf', 1)
+        ops.node(0, 0.0); ops.fix(0, 1)
+        for i, c in ((1, 903.278), (2, 333.5)):
+            ops.node(i, 0.0); ops.mass(i, 52.7)
+            ops.uniaxialMaterial('Elastic', i, k, c)
+            ops.element('zeroLength', i, i - 1, i, '-mat', i, '-dir', 1)
+    """)
+    script = parse_structure(_section(model=path, function=None, arguments={'k': 2.11e5}))
+    function = parse_structure(_section())
+    np.testing.assert_allclose(script.stiffness_N_per_m, function.stiffness_N_per_m)
+    np.testing.assert_allclose(script.damping_N_s_per_m, function.damping_N_s_per_m)
+    assert script.opensees['function'] == ''
+
+
 def test_frame_is_condensed_to_its_floors():
     """The steel frame's 24 equations condense to its three floors (Guyan): the condensed
     stiffness gives the model's own static floor displacements under a lateral load."""

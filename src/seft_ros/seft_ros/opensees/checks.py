@@ -15,7 +15,6 @@
   scheduler's, not the model's).
 """
 
-from pathlib import Path
 from typing import Callable
 
 from seft_msgs_py.errors import ParameterError
@@ -28,8 +27,9 @@ DRY_RUN_STEPS = 500
 
 
 def _model_name(structure) -> str:
+    from seft_ros.opensees.model import model_name
     model = structure.opensees
-    return f'{Path(model["model"]).name}:{model.get("function", "build")}'
+    return model_name(model['model'], model.get('function', 'build'))
 
 
 def check_runs(runs, *, progress: Callable[[str], None] = print) -> None:

@@ -8,7 +8,8 @@ kept apart from the analysis seft drives (after OpenSees' own split of ``model``
     structure:
       opensees:
         model: frame.py            # a file beside the configuration, or 'package.module'
-        function: build            # the function that builds the model (default 'build')
+        function: build            # the function that builds the model (default 'build';
+                                   # null: the file is a script that builds it)
         arguments: {}              # its keyword arguments (optional)
         dofs:                      # the degrees of freedom seft names: name -> [node, dof]
           floor_1: [12, 1]
@@ -73,7 +74,7 @@ from seft_ros.opensees.loader import captured, last_message, opensees
 
 __all__ = ['ModelSpec', 'SECTION_KEYS', 'parse_model_section', 'build_model', 'Linearization',
            'linearize', 'condense', 'model_structure', 'split_model', 'ModelError',
-           'remove_specimens', 'interface_group']
+           'remove_specimens', 'interface_group', 'model_name']
 
 #: The keys of a ``structure.opensees`` section.
 SECTION_KEYS = ('model', 'function', 'arguments', 'dofs', 'physical_elements', 'excitation_dof',
@@ -95,7 +96,8 @@ class ModelSpec:
     source : str
         An absolute path of a ``.py`` file, or a module name.
     function : str
-        The function of `source` that builds the whole structure.
+        The function of `source` that builds the whole structure ('': `source` is a script
+        that builds it, run as a whole each time).
     arguments : mapping
         Its keyword arguments.
     dofs : tuple of (str, int, int)
@@ -218,9 +220,14 @@ def parse_model_section(section, *, where: str = 'structure.opensees',
             raise ParameterError(f'{where}.function: {section["function"]!r} and the model\'s '
                                  f'{function_in!r}: give the function once')
         function = function_in
-    if not isinstance(function, str) or not function.isidentifier():
-        raise ParameterError(f'{where}.function: expected a Python function name, got '
-                             f'{function!r}')
+    if function is None or function == '':
+        if not model.endswith('.py'):
+            raise ParameterError(f'{where}.function: a module needs the function that builds '
+                                 'the model (only a .py file may be run as a script)')
+        function = ''                     # the file is a script that builds the model
+    elif not isinstance(function, str) or not function.isidentifier():
+        raise ParameterError(f'{where}.function: expected a Python function name (or null: '
+                             f'the file is a script that builds the model), got {function!r}')
     if model.endswith('.py'):
         path = Path(model)
         if not path.is_absolute():
@@ -286,6 +293,12 @@ def _builder(spec: ModelSpec):
     """The model function of `spec` (imported; OpenSeesPy loaded first)."""
     opensees()
     where = f'{spec.where}.model'
+    if not spec.function:             # a script: run as a whole, its arguments as globals
+        import runpy
+
+        def script(**arguments):
+            runpy.run_path(spec.source, init_globals=arguments, run_name='__seft_model__')
+        return script
     try:
         if spec.source.endswith('.py'):
             name = 'seft_opensees_model_' + str(abs(hash(spec.source)))
@@ -313,6 +326,15 @@ def _builder(spec: ModelSpec):
     return fn
 
 
+def model_name(source: str, function: str, *, sep: str = ':') -> str:
+    """How messages name a model: ``frame.py:build`` (``frame.py: build()`` with
+    ``sep=': '``), or ``frame.py`` for a script."""
+    base = Path(source).name
+    if not function:
+        return base
+    return f'{base}{sep}{function}' + ('()' if sep != ':' else '')
+
+
 def build_model(spec: ModelSpec, *, test: bool = False) -> None:
     """Build the model of `spec` in OpenSees (``wipe()`` first: one model per process).
 
@@ -333,7 +355,7 @@ def build_model(spec: ModelSpec, *, test: bool = False) -> None:
     """
     ops = opensees()
     fn = _builder(spec)
-    name = f'{Path(spec.source).name}: {spec.function}()'
+    name = model_name(spec.source, spec.function, sep=': ')
     with captured() as log:
         try:
             ops.wipe()

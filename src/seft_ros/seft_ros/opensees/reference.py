@@ -123,6 +123,7 @@ def opensees_reference(sub: Substructures, dt: float, ground_acceleration_m_s2, 
     with captured() as log:
         try:
             ops.wipeAnalysis()
+            ops.setTime(0.0)          # the record from 0 (after a gravity analysis, say)
             # the last sample once more: a series ends there, and rounding of the time may step
             # just past it
             ops.timeSeries('Path', _SERIES, '-dt', float(dt), '-values', *ag.tolist(),

@@ -52,7 +52,8 @@ def opensees_entry(run) -> dict[str, Any]:
     from seft_ros.core.structure import Structure
     structure = Structure.from_json(run.params['structure'])
     model = structure.opensees
-    entry = {'model': f'{Path(model["model"]).name}:{model.get("function", "build")}',
+    from seft_ros.opensees.model import model_name
+    entry = {'model': model_name(model['model'], model.get('function', 'build')),
              'substeps': int(model.get('substeps', 1)),
              'step_time': step_time_summary(run.computational.get(STEP_TIME, ()),
                                             float(run.params['dt']))}
