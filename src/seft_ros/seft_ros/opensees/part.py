@@ -29,10 +29,10 @@ Exact and approximate: for a linear model the step is Newmark's (second order; p
 about ``(omega dt)^2 / 12`` per mode, 0.35 % for a 16 Hz mode at 500 Hz, less with
 ``substeps``), where the matrix path integrates the computational DOFs exactly for the
 interpolated motion. The compensators predict the interface force with the model's
-linearization (the structure's matrices) plus the difference, at the last sample, between
-the model's interface force and the linearization's (:meth:`OpenSeesPart.prediction_offset`):
-exact for a linear model, and for a yielding one exact at the sample and approximate over the
-loop delay (the change is predicted with the initial tangent).
+linearization (the structure's matrices) with the model's nonlinear restoring forces at the
+last sample held over the prediction (:meth:`OpenSeesPart.prediction_state`): exact for a
+linear model; for a yielding one exact at the sample and approximate over the loop delay
+(the change is predicted with the initial tangent).
 
 Each step's wall time (``time.perf_counter``) is recorded as the state
 ``opensees/step_time_s``; :func:`dry_run` times the model before a real-time run.
@@ -115,6 +115,9 @@ class OpenSeesPart:
         self._linear_forces = [0.0] * len(self._pi)
         self._substeps = max(1, int(spec.substeps))
         self._ready = False
+        qi = self._qi
+        self._k_uu_inv = (np.linalg.inv(self.matrices.stiffness_N_per_m[np.ix_(qi, qi)])
+                          if qi else None)
 
     def prepare(self) -> None:
         """Build the model in OpenSees and set up seft's analysis of it (done by the first
@@ -300,15 +303,40 @@ class OpenSeesPart:
         the latest :meth:`state_at` (`x`, `v` are that state; the model has its own)."""
         return tuple(self._forces[self._pi.index(i)] for i in dofs)
 
-    def prediction_offset(self, x, v, dofs) -> tuple:
-        """The model's interface force less the linearization's, ``-[C_c v + K_c x]_p``, at
-        each of `dofs` at the latest sample [N] (0 for a linear model, up to the integrator's
-        difference): added to the compensators' linear prediction (module notes)."""
-        sub = self.sub
+    def prediction_state(self, x, v, dofs) -> tuple[list, tuple]:
+        """The state the compensators' linear prediction starts from, and what to add to
+        its interface forces at `dofs` (module notes: the linearization with the model's
+        nonlinear restoring forces held over the prediction).
+
+        The model's restoring forces at the computational DOFs ``U`` differ from the
+        linearization's by ``d_U = -M_UU (a_U + iota_U g) - C_U. v - K_U. x`` (the model's
+        own accelerations at the sample); held constant, they are the linear model's with
+        ``x_U`` shifted by ``K_UU^-1 d_U``. At an interface DOF ``p`` the rest,
+        ``r_p = I_p + C_c[p] v + K_c[p] x_s`` (``x_s`` the shifted state, ``I_p`` the model's
+        interface force), is added to the prediction. For a linear model both are zero up
+        to the integrators' difference.
+
+        Returns
+        -------
+        shifted : list of float, length n
+            Every DOF's displacement with ``x_U`` shifted [m].
+        residual : tuple of float
+            ``r_p`` per DOF of `dofs` [N].
+        """
+        sub, qi = self.sub, self._qi
         xa, va = np.asarray(x, dtype=float), np.asarray(v, dtype=float)
-        return tuple(self._forces[self._pi.index(i)]
-                     + float(sub.stiffness_c_N_per_m[i] @ xa + sub.damping_c_N_s_per_m[i] @ va)
-                     for i in dofs)
+        shifted = xa.copy()
+        if qi:
+            m = self.matrices
+            g = self.ground.get(self._settled, 0.0)
+            a_u = np.array([self._a[i] for i in qi])
+            d_u = (-m.mass_kg[np.ix_(qi, qi)] @ (a_u + m.influence[qi] * g)
+                   - m.damping_N_s_per_m[qi] @ va - m.stiffness_N_per_m[qi] @ xa)
+            shifted[qi] += self._k_uu_inv @ d_u
+        residual = tuple(self._forces[self._pi.index(i)]
+                         + float(sub.stiffness_c_N_per_m[i] @ shifted
+                                 + sub.damping_c_N_s_per_m[i] @ va) for i in dofs)
+        return shifted.tolist(), residual
 
     def recorded_state(self, x, v, j: int) -> tuple:
         """The computational DOFs' ``x, v, a`` at sample `j` and the step's OpenSees time
