@@ -76,18 +76,26 @@ def test_steel_frame_elastic_within_one_percent():
 
 
 def test_simulate_reports_the_model(tmp_path, seft_exe):
-    """seft simulate: the summary's OpenSees entry (step times) and the hysteresis figure."""
+    """seft simulate: the summary's OpenSees entry (step times) and the recorded element's
+    hysteresis figure (the two-story building, story 2's spring recorded)."""
+    section = yaml.safe_load((ROOT / 'config' / 'opensees' / 'two_story.yaml').read_text())
+    model = section['structure']['opensees']
+    model['model'] = str(ROOT / 'config' / 'opensees' / 'two_story.py')
+    model['elements'] = [2]
+    section['predictor'] = 'model'
+    config = tmp_path / 'two_story.yaml'
+    config.write_text(yaml.safe_dump(section))
     out = tmp_path / 'out'
-    result = subprocess.run([str(seft_exe), 'simulate',
-                             str(ROOT / 'config' / 'opensees' / 'steel_frame.yaml'),
-                             '--out', str(out), '--duration', '2'],
-                            capture_output=True, text=True, timeout=300)
+    result = subprocess.run([str(seft_exe), 'simulate', str(config), '--out', str(out),
+                             '--duration', '2'], capture_output=True, text=True, timeout=300)
     assert result.returncode == 0, result.stderr[-2000:]
     summary = json.loads((out / 'summary.json').read_text())
-    entry = summary['runs'][0]['opensees']
-    assert entry['model'] == 'steel_frame.py:build' and entry['substeps'] == 2
+    run = summary['runs'][0]
+    entry = run['opensees']
+    assert entry['model'] == 'two_story.py:build' and entry['substeps'] == 4
     st = entry['step_time']
     assert st['steps'] == 998            # samples 1 .. n-2: sample k-1's state comes with k
     assert 0 < st['p50_s'] <= st['p99_s'] <= st['max_s']
-    assert (out / 'hysteresis_run_1_ele111.png').stat().st_size > 10_000
+    assert run['dofs']['story_2']['displacement']['nrms'] < 0.01
+    assert (out / 'hysteresis_run_1_ele2.png').stat().st_size > 10_000
     assert '### Run 1: the OpenSees model' in (out / 'report.md').read_text()
