@@ -43,6 +43,10 @@ Configuration (YAML; the ``structure`` section of a run configuration)::
     rigs:                                   # per-rig parameters (its namespace's nodes)
       story_1: {rig_model: servohydraulic, stiffness_N_per_m: 2.11e5}
 
+Or an OpenSeesPy model of the whole structure (``opensees``: the model file or module, the
+DOFs it names, each rig's specimen elements; :mod:`seft_ros.opensees.model`), with
+``physical``; the matrices are then the model's linearization.
+
 Damping, one of: ``story_damping_N_s_per_m`` (shear building: a dashpot per story),
 ``damping_matrix_N_s_per_m``, ``modal_damping_ratios`` (one ratio per mode in order of
 frequency, or one for all: ``C = M Phi diag(2 zeta_i omega_i) Phi^T M`` with mass-normalised
