@@ -28,6 +28,7 @@ reads as its rig. :func:`summary_entry` gives every run one layout in ``summary.
 """
 
 from dataclasses import dataclass
+import json
 import math
 from typing import Any
 
@@ -1224,6 +1225,10 @@ def _structure_entries(run: RunData, comparison: RunComparison) -> dict[str, Any
         'links': {lk.name: _signal_entry(lk.drift) for lk in comparison.links},
         'rigs': rigs,
     }
+    if not run.is_study and json.loads(run.params['structure']).get('opensees') is not None:
+        # an OpenSees model's step times and overruns (issue 32)
+        from seft_ros.opensees.report import opensees_entry
+        out['opensees'] = opensees_entry(run)
     if run.extra.get('parameter_mismatches'):
         out['parameter_mismatches'] = list(run.extra['parameter_mismatches'])
     return out

@@ -141,7 +141,11 @@ class StructureReference:
     hysteretic_z : dict of str to ndarray (n,)
         The Bouc-Wen variable of each hysteretic rig's member [-] (empty: all linear).
     method : str
-        How it was computed (:data:`LINEAR_METHOD` or :data:`NONLINEAR_METHOD`).
+        How it was computed (:data:`LINEAR_METHOD`, :data:`NONLINEAR_METHOD`, or an OpenSees
+        model's own analysis, :func:`seft_ros.opensees.reference.opensees_reference`).
+    element_forces, element_deformations : dict of int to ndarray (n,)
+        An OpenSees model's elements asked for: a member's force and deformation (empty
+        otherwise).
     """
 
     time_s: np.ndarray
@@ -158,6 +162,8 @@ class StructureReference:
     restoring_force_N: np.ndarray
     hysteretic_z: dict = field(default_factory=dict)
     method: str = LINEAR_METHOD
+    element_forces: dict = field(default_factory=dict)
+    element_deformations: dict = field(default_factory=dict)
 
     @property
     def n_steps(self) -> int:
@@ -660,6 +666,11 @@ def run_reference(run) -> StructureReference:
     else:
         setup = test_setup(params)
         structure = setup.structure
+        if structure.opensees is not None:
+            # an OpenSees model's reference is OpenSees' own analysis of it (issue 32)
+            from seft_ros.opensees.reference import opensees_reference
+            return opensees_reference(setup.substructures, _positive('dt', params.get('dt')),
+                                      run.ground_acceleration_m_s2)
         specimens = [make_specimen(setup.rig_params[r]) for r in setup.rig_names]
     return structure_reference(structure, specimens, _positive('dt', params.get('dt')),
                                run.ground_acceleration_m_s2)

@@ -1526,6 +1526,11 @@ def _structure_run_markdown(index: int, run: RunData, comparison: RunComparison,
                   'over the reference (black: the Bouc-Wen f_s(x, z) of the whole structure '
                   'integrated with the yielding member); bottom: the displacement of test and '
                   'reference (thin), their drifts (thick) and the residual displacements.', '']
+    if 'opensees' in entry:
+        # an OpenSees model's step times and its members' hysteresis (issue 32)
+        from seft_ros.opensees.report import opensees_markdown
+        lines += opensees_markdown(index, run, entry, png.parent,
+                                   reference=comparison.structure_reference)
     return lines
 
 

@@ -904,8 +904,12 @@ def check_capacity(*, runs: list[dict], progress: Callable[[str], None] = print)
     The analytical reference of the whole structure (linear model, the prepared record) is
     what a perfectly compensated test reproduces; if its peak velocity exceeds
     :func:`actuator_velocity_limit_m_s`, the valve will saturate and the loss-of-control
-    interlock is likely to end the run. A warning, not a refusal.
+    interlock is likely to end the run. A warning, not a refusal. A run with an OpenSees
+    model is first checked by :func:`seft_ros.opensees.checks.check_runs` (refused in one
+    line where it cannot run as configured).
     """
+    from seft_ros.opensees.checks import check_runs as check_opensees  # issue 32
+    check_opensees(runs, progress=progress)
     for p in runs:
         v_max = actuator_velocity_limit_m_s(p)
         if v_max is None or has_structure(p):

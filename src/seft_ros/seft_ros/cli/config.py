@@ -98,8 +98,8 @@ def load_config(path, *, layer: bool = False) -> dict[str, Any]:
     structure, rigs = data.pop('structure', None), data.pop('rigs', None)
     if isinstance(structure, dict):
         from seft_ros.core.structure import parse_structure  # numpy, scipy: only if needed
-        data['structure'] = parse_structure(structure, rigs=rigs,
-                                            where=f'{path}: structure').to_json()
+        data['structure'] = parse_structure(structure, rigs=rigs, where=f'{path}: structure',
+                                            base=path.parent).to_json()
     elif rigs is not None and not layer:
         raise InputError(f'{path}: rigs: a rigs section needs a structure section (the '
                          'structure names the rig of each physical degree of freedom)')

@@ -741,6 +741,11 @@ class ReferenceForceBuilder:
             ip = self._interface
             nh = ip.history_steps
             q = x + v
+            adjust = getattr(state, 'prediction_state', None)
+            residual = None
+            if adjust is not None:       # a model that is not its linearization (OpenSees)
+                shifted, residual = adjust(x, v, [self._local_dof[r] for r in self._targets])
+                q = list(shifted) + list(v)
             for law in self.laws:
                 past = law.commanded_N[-nh:]
                 q.extend([0.0] * (nh - len(past)) + past)
@@ -753,6 +758,9 @@ class ReferenceForceBuilder:
                     - mod.damping_N_s_per_m * m.velocity_m_s
                     - mod.stiffness_N_per_m * m.displacement_m))
             predicted = dict(zip(self._targets, ip(q)))
+            if residual is not None:
+                for r, d in zip(self._targets, residual):
+                    predicted[r] += d
         for r, mode in enumerate(self._modes):
             if mode is None:
                 continue

@@ -43,6 +43,10 @@ Configuration (YAML; the ``structure`` section of a run configuration)::
     rigs:                                   # per-rig parameters (its namespace's nodes)
       story_1: {rig_model: servohydraulic, stiffness_N_per_m: 2.11e5}
 
+Or an OpenSeesPy model of the whole structure (``opensees``: the model file or module, the
+DOFs it names, each rig's specimen elements; :mod:`seft_ros.opensees.model`), with
+``physical``; the matrices are then the model's linearization.
+
 Damping, one of: ``story_damping_N_s_per_m`` (shear building: a dashpot per story),
 ``damping_matrix_N_s_per_m``, ``modal_damping_ratios`` (one ratio per mode in order of
 frequency, or one for all: ``C = M Phi diag(2 zeta_i omega_i) Phi^T M`` with mass-normalised
@@ -86,7 +90,7 @@ NAME_PATTERN = re.compile(r'^[A-Za-z][A-Za-z0-9_]*$')
 STRUCTURE_KEYS = ('dofs', 'physical', 'story_masses_kg', 'story_stiffnesses_N_per_m',
                   'story_damping_N_s_per_m', 'mass_matrix_kg', 'stiffness_matrix_N_per_m',
                   'damping_matrix_N_s_per_m', 'modal_damping_ratios', 'rayleigh_damping',
-                  'influence')
+                  'influence', 'opensees')
 _SHEAR = ('story_masses_kg', 'story_stiffnesses_N_per_m')
 _MATRICES = ('mass_matrix_kg', 'stiffness_matrix_N_per_m')
 _DAMPING = ('story_damping_N_s_per_m', 'damping_matrix_N_s_per_m', 'modal_damping_ratios',
@@ -144,6 +148,10 @@ class Structure:
     damping_from : str
         The key of the ``structure`` section the damping came from (error messages name
         what the user wrote).
+    opensees : mapping or None
+        A structure from an OpenSeesPy model: the model and how seft sees it
+        (:meth:`seft_ros.opensees.model.ModelSpec.to_doc`); the matrices are then its
+        linearization (:func:`seft_ros.opensees.model.model_structure`). None: matrices.
 
     Attributes
     ----------
@@ -166,6 +174,7 @@ class Structure:
     rigs: Mapping[str, Mapping[str, Any]]
     links: tuple = field(default=())
     damping_from: str = 'damping_matrix_N_s_per_m'
+    opensees: Mapping[str, Any] | None = None
 
     @property
     def n(self) -> int:
@@ -217,6 +226,8 @@ class Structure:
             'links': [[lk.i, lk.j, lk.name] for lk in self.links],
             'damping_from': self.damping_from,
         }
+        if self.opensees is not None:
+            doc['opensees'] = dict(self.opensees)
         return json.dumps(doc, sort_keys=True, separators=(',', ':'))
 
     @classmethod
@@ -237,8 +248,11 @@ class Structure:
         links = doc.pop('links', None)
         rigs = doc.pop('rigs', {})
         damping_from = doc.pop('damping_from', 'damping_matrix_N_s_per_m')
+        model = doc.pop('opensees', None)
         out = parse_structure(doc, rigs=rigs, where=where)
         out = replace(out, damping_from=str(damping_from))
+        if model is not None:
+            out = replace(out, opensees=MappingProxyType(dict(model)))
         if links is not None:
             try:
                 parsed = tuple(Link(int(i), None if j is None else int(j), str(name))
@@ -378,7 +392,7 @@ def _links(stiff: np.ndarray, dofs, shear: bool) -> tuple:
 
 
 def parse_structure(section: Mapping, *, rigs: Mapping | None = None,
-                    where: str = 'structure') -> Structure:
+                    where: str = 'structure', base=None) -> Structure:
     """Check a ``structure`` section (and its ``rigs`` section) and build the model.
 
     Parameters
@@ -391,10 +405,13 @@ def parse_structure(section: Mapping, *, rigs: Mapping | None = None,
     where : str
         Prefix of the error messages (the file and section, e.g.
         ``'config/two_story.yaml: structure'``).
+    base : path, optional
+        The configuration's directory (an OpenSees model file is found there).
 
     Returns
     -------
     Structure
+        With an ``opensees`` model: :func:`seft_ros.opensees.model.model_structure`.
 
     Raises
     ------
@@ -411,6 +428,9 @@ def parse_structure(section: Mapping, *, rigs: Mapping | None = None,
     if unknown:
         raise _fail(where, unknown[0], 'unknown key (expected one of '
                     + ', '.join(STRUCTURE_KEYS) + ')')
+    if 'opensees' in section:            # a model of OpenSeesPy (its own package)
+        from seft_ros.opensees.model import model_structure
+        return model_structure(section, rigs=rigs, where=where, base=base)
     shear = [k for k in _SHEAR if k in section]
     general = [k for k in _MATRICES if k in section]
     if shear and general:
@@ -590,6 +610,9 @@ def split(structure: Structure, specimens: Mapping[str, Mapping[str, Any]], *,
         that differs from the specimen's: the structure's physical part disagrees with the
         rig's specimen (the message gives both values).
     """
+    if structure.opensees is not None:   # the specimens are the model's elements
+        from seft_ros.opensees.model import split_model
+        return split_model(structure, specimens, where=where)
     idx = structure.physical_index
     m = np.zeros(len(idx))
     c = np.zeros(len(idx))

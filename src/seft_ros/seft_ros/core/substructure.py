@@ -457,8 +457,12 @@ class ComputationalPart(Protocol):
 
 
 def computational_part(sub: Substructures, dt: float) -> 'ComputationalPart':
-    """The computational part of a split structure (:class:`StructureState`, the matrices of
-    Eq. 1)."""
+    """The computational part of a split structure: :class:`StructureState` (the matrices of
+    Eq. 1), or for a structure from an OpenSees model
+    :class:`~seft_ros.opensees.part.OpenSeesPart` (the model stepped once per sample)."""
+    if sub.structure.opensees is not None:
+        from seft_ros.opensees.part import OpenSeesPart
+        return OpenSeesPart(sub, dt)
     return StructureState(sub, dt)
 
 

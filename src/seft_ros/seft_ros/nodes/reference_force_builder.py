@@ -80,6 +80,9 @@ class ReferenceForceBuilderNode(SeftNode):
         graph = self.graph
         self.local = graph.local_rigs(self.seft_name)
         self.builder = ReferenceForceBuilder.from_parameters(p, local=self.local)
+        prepare = getattr(self.builder.state, 'prepare', None)
+        if prepare is not None:          # an OpenSees model: built before the first step
+            prepare()
         self.rig_index = {r: i for i, r in enumerate(self.builder.rig_names)}
         self.local_index = [self.rig_index[r] for r in self.local]
         # record length: n_steps, or as the ground-motion publisher reports it

@@ -1,0 +1,104 @@
+"""Loading OpenSeesPy, and keeping OpenSees' own messages (no rclpy).
+
+The Linux wheel of ``openseespy`` (3.7.1.2, its binary package ``openseespylinux``) fails to
+import on a machine without a system BLAS: its bundled ``liblapack.so.3`` needs the bundled
+``libblas.so.3``, which is not on the loader's path ("Failed to import openseespy on Linux").
+:func:`opensees` loads that library first (``ctypes.CDLL(..., RTLD_GLOBAL)``, found without
+importing the package), then imports ``openseespy.opensees``: a model script that does
+``import openseespy.opensees as ops`` afterwards gets the loaded module.
+
+OpenSees writes its messages to the process's standard error and raises ``OpenSeesError('See
+stderr output')``. :func:`captured` sends them to a file instead (OpenSees' ``logFile`` with
+``-noEcho``) so that an error names OpenSees' own words in one line.
+"""
+
+from contextlib import contextmanager
+import ctypes
+import importlib
+import importlib.util
+import os
+from pathlib import Path
+import tempfile
+
+from seft_msgs_py.errors import ParameterError
+
+__all__ = ['opensees', 'captured', 'Capture', 'last_message']
+
+_MODULE = None
+
+
+def opensees():
+    """The ``openseespy.opensees`` module, its bundled BLAS loaded first (module notes).
+
+    Returns
+    -------
+    module
+        ``openseespy.opensees`` (one interpreter per process: one model at a time).
+
+    Raises
+    ------
+    ParameterError
+        ``openseespy`` is not installed, or its library does not load (the loader's message).
+    """
+    global _MODULE
+    if _MODULE is not None:
+        return _MODULE
+    spec = importlib.util.find_spec('openseespylinux')
+    if spec is not None and spec.origin:
+        blas = Path(spec.origin).parent / 'lib' / 'libblas.so.3'
+        if blas.is_file():
+            try:
+                ctypes.CDLL(str(blas), mode=ctypes.RTLD_GLOBAL)
+            except OSError as exc:
+                raise ParameterError(f'openseespy: cannot load its {blas} ({exc})') from None
+    try:
+        _MODULE = importlib.import_module('openseespy.opensees')
+    except ImportError as exc:
+        raise ParameterError(f'openseespy: cannot import it ({exc}); tools/setup.sh installs '
+                             'the pinned version') from None
+    except Exception as exc:              # openseespy raises a bare Exception on Linux
+        raise ParameterError(f'openseespy: cannot import it ({exc})') from None
+    return _MODULE
+
+
+class Capture:
+    """OpenSees' messages while :func:`captured` is active (``text`` after it ends)."""
+
+    text = ''
+
+
+@contextmanager
+def captured():
+    """Send OpenSees' messages to a temporary file while the block runs.
+
+    Yields
+    ------
+    Capture
+        Its ``text`` holds the messages once the block has ended (also when it raised).
+    """
+    ops = opensees()
+    fd, path = tempfile.mkstemp(prefix='seft-opensees-', suffix='.log')
+    os.close(fd)
+    out = Capture()
+    try:
+        ops.logFile(path, '-noEcho')
+        yield out
+    finally:
+        try:
+            ops.logFile(os.devnull, '-noEcho')
+        except Exception:          # pragma: no cover - OpenSees refused its own log file
+            pass
+        try:
+            out.text = Path(path).read_text(errors='replace')
+        finally:
+            os.unlink(path)
+
+
+def last_message(text: str, limit: int = 240) -> str:
+    """OpenSees' first message line of `text` (where it names the fault), whitespace
+    collapsed and cut to `limit` characters ('' if none)."""
+    for line in text.splitlines():
+        line = ' '.join(line.split())
+        if line and not line.startswith('Process 0 Terminating'):
+            return line if len(line) <= limit else line[:limit - 3] + '...'
+    return ''

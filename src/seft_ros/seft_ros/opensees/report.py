@@ -1,0 +1,148 @@
+"""What a run's report says about its OpenSees model: step times, overruns, hysteresis (no
+rclpy, no pyplot: Agg canvas on ``matplotlib.figure.Figure``).
+
+The analysis calls :func:`opensees_entry` where it forms a run's summary entry
+(:func:`seft_ros.analysis.metrics.summary_entry`, key ``'opensees'``) and
+:func:`opensees_markdown` where it writes a structure run's section of the report
+(:mod:`seft_ros.analysis.report`), for a structure with an ``opensees`` model.
+"""
+
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from seft_ros.opensees.part import BUDGET_FRACTION, STEP_TIME, element_names
+
+__all__ = ['opensees_entry', 'opensees_markdown', 'hysteresis_figure', 'step_time_summary']
+
+
+def step_time_summary(step_times_s, dt: float) -> dict[str, Any]:
+    """p50, p99 and max of the OpenSees step times [s], and the overruns: steps longer than
+    ``BUDGET_FRACTION dt`` (the budget a real-time run is refused against) and than ``dt``.
+
+    Parameters
+    ----------
+    step_times_s : array_like (n,)
+        Each step's wall time [s] (NaN: none).
+    dt : float > 0
+        Control period [s].
+    """
+    t = np.asarray(step_times_s, dtype=float)
+    t = t[np.isfinite(t)]
+    if t.size == 0:
+        return {'steps': 0}
+    return {'steps': int(t.size), 'p50_s': float(np.percentile(t, 50)),
+            'p99_s': float(np.percentile(t, 99)), 'max_s': float(np.max(t)),
+            'budget_s': BUDGET_FRACTION * dt,
+            'over_budget': int(np.sum(t > BUDGET_FRACTION * dt)),
+            'over_period': int(np.sum(t > dt))}
+
+
+def opensees_entry(run) -> dict[str, Any]:
+    """The ``'opensees'`` entry of a run's summary: the model, its substeps and
+    :func:`step_time_summary` of the recorded step times.
+
+    Parameters
+    ----------
+    run : RunData
+        A run whose structure has an OpenSees model.
+    """
+    from seft_ros.core.structure import Structure
+    structure = Structure.from_json(run.params['structure'])
+    model = structure.opensees
+    from seft_ros.opensees.model import model_name
+    entry = {'model': model_name(model['model'], model.get('function', 'build')),
+             'substeps': int(model.get('substeps', 1)),
+             'step_time': step_time_summary(run.computational.get(STEP_TIME, ()),
+                                            float(run.params['dt']))}
+    return entry
+
+
+def hysteresis_figure(run, reference, tag: int, path, *, title: str = ''):
+    """Draw an element's hysteresis in the test and in the reference (its force against its
+    deformation: a beam-column's end moment against its basic rotation).
+
+    Parameters
+    ----------
+    run : RunData
+        With the element's recorded states (:func:`~seft_ros.opensees.part.element_names`).
+    reference : OpenSeesReference
+        With the element's responses.
+    tag : int
+    path : path
+        The PNG to write.
+    title : str
+
+    Returns
+    -------
+    Path
+    """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+    force_name, deformation_name = element_names(tag)
+    fig = Figure(figsize=(6.0, 4.5))
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot(1, 1, 1)
+    if tag in reference.element_forces:
+        ax.plot(reference.element_deformations[tag], reference.element_forces[tag],
+                color='0.6', lw=2.0, label='reference (OpenSees, whole structure)')
+    if force_name in run.computational:
+        ax.plot(run.computational[deformation_name], run.computational[force_name],
+                color='C0', lw=0.8, label='test (computational part)')
+    ax.set_xlabel(f'element {tag}: deformation (rotation at end i) [rad]')
+    ax.set_ylabel(f'element {tag}: force (moment at end i) [N m]')
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc='best', fontsize='small')
+    if title:
+        ax.set_title(title)
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=100)
+    return path
+
+
+def _ms(value) -> str:
+    return '–' if value is None or not math.isfinite(value) else f'{1e3 * value:.3f}'
+
+
+def opensees_markdown(index: int, run, entry: dict, out_dir, reference=None) -> list[str]:
+    """The report's lines on a run's OpenSees model: its step times and overruns, and the
+    hysteresis of each recorded element (test against reference).
+
+    Parameters
+    ----------
+    index : int
+        The run's number in the report.
+    run : RunData
+    entry : dict
+        Its summary entry (with ``'opensees'``).
+    out_dir : path
+        Where the figures go.
+    reference : OpenSeesReference, optional
+        The run's reference with the recorded elements (default: computed).
+    """
+    info = entry['opensees']
+    st = info['step_time']
+    lines = [f'### Run {index}: the OpenSees model', '',
+             f'Model {info["model"]}, {info["substeps"]} step(s) per sample. Step time over '
+             f'{st.get("steps", 0)} steps [ms]:', '',
+             '| p50 | p99 | max | budget | over budget | over dt |', '|---|---|---|---|---|---|',
+             f'| {_ms(st.get("p50_s"))} | {_ms(st.get("p99_s"))} | {_ms(st.get("max_s"))} | '
+             f'{_ms(st.get("budget_s"))} | {st.get("over_budget", "–")} | '
+             f'{st.get("over_period", "–")} |', '']
+    from seft_ros.core.structure import test_setup
+    setup = test_setup(run.params)
+    tags = [int(e) for e in setup.structure.opensees.get('elements', ())]
+    if tags:
+        if reference is None:
+            from seft_ros.opensees.reference import opensees_reference
+            reference = opensees_reference(setup.substructures, float(run.params['dt']),
+                                           run.ground_acceleration_m_s2, elements=tags)
+        for tag in tags:
+            png = hysteresis_figure(run, reference, tag,
+                                    Path(out_dir) / f'hysteresis_run_{index}_ele{tag}.png',
+                                    title=f'run {index}: element {tag}')
+            lines += [f'![Run {index}: hysteresis of element {tag}]({png.name})', '']
+    return lines

@@ -1,0 +1,101 @@
+"""Tests with an OpenSees computational part as a user runs them: the two-story building
+through OpenSees against the matrix path, the steel frame elastic, ``seft simulate``'s
+report."""
+
+import json
+from pathlib import Path
+import subprocess
+import textwrap
+
+import numpy as np
+import yaml
+
+from seft_ros.analysis.metrics import compare_run
+from seft_ros.cli.config import expand_runs, load_config
+from seft_ros.core.experiment import simulate
+from seft_ros.core.structure import Structure
+
+ROOT = Path(__file__).resolve().parents[3]
+
+
+def _nrms_per_dof(path, **overrides) -> np.ndarray:
+    params = expand_runs(dict(load_config(path), **overrides))[0]
+    run = simulate(params)
+    assert run.stable, run.abort_reason
+    return np.array([d.displacement.nrms for d in compare_run(run).dofs])
+
+
+def test_two_story_through_opensees_equals_the_matrix_path():
+    """config/opensees/two_story.yaml (OpenSees, against OpenSees' reference) and
+    config/two_story.yaml (matrices, against lsim) with 'model': per-DOF displacement NRMS
+    within 0.05 percentage points."""
+    model = _nrms_per_dof(ROOT / 'config' / 'opensees' / 'two_story.yaml', predictor='model')
+    matrix = _nrms_per_dof(ROOT / 'config' / 'two_story.yaml', predictor='model')
+    assert np.all(matrix < 0.004)
+    assert np.all(np.abs(model - matrix) < 0.0005), (model, matrix)
+
+
+def test_a_rigid_floor_through_an_equal_dof(tmp_path):
+    """The two-story building with its first floor as two nodes tied by an equalDOF (the
+    specimen on one, story 2 on the other, the mass split): the same structure and the same
+    test as the matrix path, within 0.05 percentage points per DOF."""
+    model = tmp_path / 'split_floor.py'
+    model.write_text(textwrap.dedent("""
+        import openseespy.opensees as ops
+        def build():
+            ops.wipe(); ops.model('basic', '-ndm', 1, '-ndf', 1)
+            for n in range(4):
+                ops.node(n, 0.0)
+            ops.fix(0, 1)
+            ops.mass(1, 30.0); ops.mass(3, 22.7); ops.mass(2, 52.7)
+            ops.uniaxialMaterial('Elastic', 1, 2.11e5, 903.278)
+            ops.uniaxialMaterial('Elastic', 2, 2.11e5, 333.5)
+            ops.element('zeroLength', 1, 0, 1, '-mat', 1, '-dir', 1)
+            ops.element('zeroLength', 2, 3, 2, '-mat', 2, '-dir', 1)
+            ops.equalDOF(1, 3, 1)
+    """))
+    config = load_config(ROOT / 'config' / 'opensees' / 'two_story.yaml')
+    section = yaml.safe_load((ROOT / 'config' / 'opensees' / 'two_story.yaml').read_text())
+    section['structure']['opensees']['model'] = str(model)
+    path = tmp_path / 'split_floor.yaml'
+    path.write_text(yaml.safe_dump(section))
+    config = load_config(path)
+    s = Structure.from_json(config['structure'])
+    np.testing.assert_allclose(np.diag(s.mass_kg), [52.7, 52.7])
+    split = _nrms_per_dof(path, predictor='model')
+    matrix = _nrms_per_dof(ROOT / 'config' / 'two_story.yaml', predictor='model')
+    assert np.all(np.abs(split - matrix) < 0.0005), (split, matrix)
+
+
+def test_steel_frame_elastic_within_one_percent():
+    """The three-story frame at 1000 N (elastic) with 'model': every floor within 1 % of
+    OpenSees' analysis of the whole frame (the first 5 s of the default record)."""
+    nrms = _nrms_per_dof(ROOT / 'config' / 'opensees' / 'steel_frame.yaml', duration_s=5.0)
+    assert nrms.shape == (3,)
+    assert np.all(nrms < 0.01), nrms
+
+
+def test_simulate_reports_the_model(tmp_path, seft_exe):
+    """seft simulate: the summary's OpenSees entry (step times) and the recorded element's
+    hysteresis figure (the two-story building, story 2's spring recorded)."""
+    section = yaml.safe_load((ROOT / 'config' / 'opensees' / 'two_story.yaml').read_text())
+    model = section['structure']['opensees']
+    model['model'] = str(ROOT / 'config' / 'opensees' / 'two_story.py')
+    model['elements'] = [2]
+    section['predictor'] = 'model'
+    config = tmp_path / 'two_story.yaml'
+    config.write_text(yaml.safe_dump(section))
+    out = tmp_path / 'out'
+    result = subprocess.run([str(seft_exe), 'simulate', str(config), '--out', str(out),
+                             '--duration', '2'], capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr[-2000:]
+    summary = json.loads((out / 'summary.json').read_text())
+    run = summary['runs'][0]
+    entry = run['opensees']
+    assert entry['model'] == 'two_story.py:build' and entry['substeps'] == 4
+    st = entry['step_time']
+    assert st['steps'] == 998            # samples 1 .. n-2: sample k-1's state comes with k
+    assert 0 < st['p50_s'] <= st['p99_s'] <= st['max_s']
+    assert run['dofs']['story_2']['displacement']['nrms'] < 0.01
+    assert (out / 'hysteresis_run_1_ele2.png').stat().st_size > 10_000
+    assert '### Run 1: the OpenSees model' in (out / 'report.md').read_text()
