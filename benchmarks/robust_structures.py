@@ -21,9 +21,10 @@ them all to a file.
    specimen and its force controller); the modelled loop's equivalent delay is printed as a check.
 2. (``--network-runs N``, as root) The bridge with each pier in its own lab
    (``tools/hosts.sh`` through ``benchmarks/network_delay.py``: 20 ms one-way links, +-20 %
-   jitter, ``structure_builders: per_rig``, loop processes), every pier's model (m, c, k and
-   loop delay) +10 % off, ``adaptive``, N runs on the first record, each beside the same test
-   in lockstep in one process (target: <= 2 % per pier, nothing lost).
+   jitter, ``structure_builders: per_rig``, loop processes), every pier's model (m, c, k;
+   ``--network-errors`` may add the loop delay) +10 % off, ``adaptive``, N runs on the
+   first record, each beside the same test in lockstep in one process (target: <= 2 % per
+   pier, nothing lost).
 3. ``config/two_piers_yielding.yaml`` (pier_a Bouc-Wen) and ``config/two_story_yielding.yaml``
    (story 1 Bouc-Wen) at 700 N, ``model`` and ``adaptive``, against the nonlinear reference
    (solve_ivp; target: stable, <= 5 % per DOF), and the yielding pier's force-loop inverse of
@@ -289,8 +290,10 @@ def part1(out: Tables, records, quick: bool, noise: dict) -> None:
     out.load('after')
 
 
-def part2(out: Tables, records, runs: int, duration_s: float, keep: str | None) -> None:
-    """The bridge over three emulated hosts, every pier +10 % off, adaptive."""
+def part2(out: Tables, records, runs: int, duration_s: float, keep: str | None,
+          names: tuple) -> None:
+    """The bridge over three emulated hosts, every pier's `names` (of :data:`ERRORS`) +10 %
+    off, adaptive."""
     out('## 2. The bridge with each pier in its own lab')
     out()
     if os.geteuid() != 0:
@@ -299,7 +302,7 @@ def part2(out: Tables, records, runs: int, duration_s: float, keep: str | None) 
     label, rec = records[0]
     values = yaml.safe_load((CONFIG / 'two_piers.yaml').read_text())
     base = config_params('two_piers', amplitude_N=1000.0, **rec)
-    for rig, section in error_sections(base, {n: 0.1 for n in ERRORS}).items():
+    for rig, section in error_sections(base, {n: 0.1 for n in names}).items():
         values['rigs'].setdefault(rig, {}).update(section)
     values.update(predictor='adaptive', structure_builders='per_rig', amplitude_N=1000.0,
                   **rec)
@@ -311,7 +314,7 @@ def part2(out: Tables, records, runs: int, duration_s: float, keep: str | None) 
         config = Path(tmp) / 'two_piers_off.yaml'
         config.write_text(yaml.safe_dump(values, sort_keys=False))
         lockstep = run(config_params(config))
-        out(f"{label}, {duration_s:g} s at most; every pier's m, c, k and loop delay +10 %, "
+        out(f"{label}, {duration_s:g} s at most; every pier's {', '.join(names)} +10 %, "
             f'`adaptive`, `structure_builders: per_rig`; links {delay_ms:g} ms one way '
             f'+-{0.2 * delay_ms:g} ms. Lockstep in one process: {lockstep.cell()} % '
             f'({lockstep.estimates}).')
@@ -455,6 +458,8 @@ def main() -> int:
                    help='sensor noise in parts 1 and 3 too (part 4 runs with and without)')
     p.add_argument('--network-runs', type=int, default=0,
                    help='part 2: this many runs over three emulated hosts (root)')
+    p.add_argument('--network-errors', nargs='+', choices=tuple(ERRORS), default=['m', 'c', 'k'],
+                   help="part 2: the pier model's parameters +10 %% off (default m c k)")
     p.add_argument('--keep', metavar='DIR',
                    help="part 2: keep each run's outputs (tools/hosts.sh --out) in DIR")
     p.add_argument('--md', help='write the tables to this Markdown file')
@@ -470,7 +475,8 @@ def main() -> int:
             if part == 1:
                 part1(out, records, a.quick, noise)
             elif part == 2:
-                part2(out, records, max(a.network_runs, 1), a.duration, a.keep)
+                part2(out, records, max(a.network_runs, 1), a.duration, a.keep,
+                      tuple(a.network_errors))
             elif part == 3:
                 part3(out, records, a.quick, noise)
             else:
