@@ -26,7 +26,7 @@ from seft_ros.opensees.loader import captured, last_message, opensees
 from seft_ros.opensees.model import ModelError, ModelSpec, build_model
 from seft_ros.opensees.part import element_response
 
-__all__ = ['opensees_reference', 'REFERENCE_SUBSTEPS', 'OpenSeesReference']
+__all__ = ['opensees_reference', 'REFERENCE_SUBSTEPS']
 
 #: OpenSees steps per sample of the reference analysis.
 REFERENCE_SUBSTEPS = 5
@@ -38,12 +38,10 @@ _PATTERN, _SERIES = 2_000_000_021, 2_000_000_022
 #: How :func:`opensees_reference` computes (``StructureReference.method``).
 METHOD = ("OpenSees' own transient analysis of the whole model (Newmark average acceleration, "
           'Newton to 1e-12 m, dt/{substeps})')
-#: The reference's type (the analysis' :class:`StructureReference`, with element responses).
-OpenSeesReference = StructureReference
 
 
 def opensees_reference(sub: Substructures, dt: float, ground_acceleration_m_s2, *,
-                       substeps: int = REFERENCE_SUBSTEPS, elements=None) -> OpenSeesReference:
+                       substeps: int = REFERENCE_SUBSTEPS, elements=None) -> StructureReference:
     """OpenSees' analysis of the whole structure under a sampled ground acceleration.
 
     Parameters
@@ -63,7 +61,7 @@ def opensees_reference(sub: Substructures, dt: float, ground_acceleration_m_s2, 
 
     Returns
     -------
-    OpenSeesReference
+    seft_ros.analysis.reference.StructureReference
 
     Raises
     ------

@@ -68,7 +68,7 @@ def hysteresis_figure(run, reference, tag: int, path, *, title: str = ''):
     ----------
     run : RunData
         With the element's recorded states (:func:`~seft_ros.opensees.part.element_names`).
-    reference : OpenSeesReference
+    reference : seft_ros.analysis.reference.StructureReference
         With the element's responses.
     tag : int
     path : path
@@ -120,7 +120,7 @@ def opensees_markdown(index: int, run, entry: dict, out_dir, reference=None) -> 
         Its summary entry (with ``'opensees'``).
     out_dir : path
         Where the figures go.
-    reference : OpenSeesReference, optional
+    reference : seft_ros.analysis.reference.StructureReference, optional
         The run's reference with the recorded elements (default: computed).
     """
     info = entry['opensees']
