@@ -288,9 +288,11 @@ SCHEMA: tuple[ParamSpec, ...] = (
               'changes by at most this fraction of its configured (initial) value per second.',
               0.0, 100.0, True, nodes=_RFB + ('recorder',)),
     ParamSpec('adaptive_loop', 'model', '', "'adaptive' on the servohydraulic rig: the force "
-              "loop it inverts is identified from data ('data': command vs measured force) or "
-              "refitted from the rig model with the identified specimen ('model').",
-              choices=('data', 'model'), nodes=_RFB + ('recorder',)),
+              "loop it inverts is identified from data ('data': command vs measured force), "
+              "refitted from the rig model with the identified specimen ('model'), or with the "
+              "identified specimen and I/O latency ('model_latency': for a rig whose I/O "
+              'delay is not known to a fraction of a sample).',
+              choices=('data', 'model', 'model_latency'), nodes=_RFB + ('recorder',)),
     ParamSpec('ats_window_s', 1.0, 's', "'ats': sliding window of the least-squares fit of "
               'a0, a1, a2 (refitted every 16 steps, Chae et al. 2013).', 0.0, 100.0, True,
               nodes=_RFB + ('recorder',)),

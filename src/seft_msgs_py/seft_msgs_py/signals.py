@@ -136,7 +136,8 @@ ESTIMATES = Signal(
     'reference_force_builder',
     "The compensator's online estimates in effect for f_r[k] ('adaptive': mass_kg, "
     "damping_N_s_per_m, stiffness_N_per_m, tau_s, gain, with adaptive_loop 'data' also "
-    "loop_gain, loop_delay_s, loop_change; 'ats': a0, a1, a2), by name.")
+    "loop_gain, loop_delay_s, loop_change, with 'model_latency' loop_latency_s; 'ats': a0, "
+    "a1, a2), by name.")
 
 
 @dataclass(frozen=True)

@@ -58,6 +58,7 @@ __all__ = [
     'force_loop_impulse_responses', 'step_average_force_impulse_response',
     'network_delay_steps', 'TangentModelPredictor', 'model_predictor',
     'TANGENT_STIFFNESS_RATIOS', 'HystereticModelPredictor', 'model_rig',
+    'LoopLatencyFit', 'LATENCY_ESTIMATES',
 ]
 
 
@@ -1466,6 +1467,181 @@ class IdentifiedForceLoop:
         return dict(self._estimates)
 
 
+#: Name of the identified I/O latency's estimate (servohydraulic rig, ``adaptive_loop``
+#: 'model_latency') [s].
+LATENCY_ESTIMATES = ('loop_latency_s',)
+
+
+class LoopLatencyFit:
+    """The servohydraulic rig's I/O latency identified from the command and the measured force.
+
+    A lab knows its rig's hydraulics far better than the delay of its I/O chain (filters,
+    conversion, the controller's own cycle), and the force loop that the ``adaptive``
+    compensator inverts is sensitive to that delay near the oil-column resonance. With
+    ``adaptive_loop: model_latency`` the inverse is refitted from the rig model with the
+    identified specimen *and* this latency.
+
+    Over the last ``window_s`` of excited motion the measured force is compared with the
+    model's sampled closed loop driven by the commands actually sent::
+
+        f_m[j] ~ g sum_{i=1}^{n-1} h_L[i] u[j - i]
+
+    (``h_L``: :func:`force_loop_impulse_responses` ``.sampled`` of the rig with I/O latency
+    ``L`` and the current specimen estimate, ``n`` samples; ``g`` the least-squares scale, so
+    that a gain error does not move ``L``). ``L`` minimises the relative residual over
+    ``bounds_s`` (bounded Brent search, :func:`scipy.optimize.minimize_scalar`, to
+    ``dt / 200``); a fit counts if the model explains the measured force to
+    ``max_residual`` (noise and a force near the excitation threshold do not), and the
+    estimate is the median of the last three that count. The window is the excited input so
+    far, from ``min_window_s`` (a first fit early in the strong motion) up to ``window_s``
+    (accuracy under sensor noise). A fit is made every ``every_s`` of excited input, only
+    when every step of the window is there and excited; once the
+    estimate stays within ``dt / 100`` the interval doubles up to ``8 every_s``, and is
+    ``every_s`` again when it moves. A fit costs about 20 impulse responses (about 15 ms on
+    the reference host, in the builder's step).
+
+    Parameters
+    ----------
+    rig_params : ServoHydraulicParams
+        The rig as modelled (its own ``io_latency_s`` is replaced by each candidate).
+    controller : ForceServoController
+        The force controller (its ``dt`` is the sample period).
+    latency0_s : float >= 0
+        The declared I/O latency [s] (the estimate before any fit).
+    window_s : float > 0
+        Longest window of the fit [s].
+    every_s : float > 0
+        Excited time between fits [s].
+    n_response : int >= 8
+        Samples of the loop's impulse response (its memory).
+    bounds_s : (float, float), optional
+        Search range [s]; default ``[0, L0 + max(L0, 2 dt)]``.
+    min_window_s : float in (0, window_s]
+        Shortest window [s].
+    max_residual : float in (0, 1]
+        Largest relative residual of a fit that counts [-].
+
+    Attributes
+    ----------
+    latency_s : float
+        The current estimate [s].
+    fits : list of (int, float, float)
+        ``(step, latency_s, relative residual)`` of every fit.
+
+    Raises
+    ------
+    ParameterError
+        A value out of range (the message names it).
+
+    References
+    ----------
+    L. Ljung, System Identification, 2nd ed. (1999), Sec. 7.3 (output-error fit of a model
+    parameter); M. Nakata and E. Combs (the study), Sec. 3 (the force loop and its delay).
+    """
+
+    ESTIMATES = LATENCY_ESTIMATES
+
+    def __init__(self, rig_params, controller, latency0_s: float, window_s: float = 1.0,
+                 every_s: float = 0.1, n_response: int = 128, bounds_s=None,
+                 min_window_s: float = 0.25, max_residual: float = 0.05):
+        self.dt = float(controller.dt)
+        for name, value, ok in (('predictor_io_latency_s', latency0_s, latency0_s >= 0),
+                                ('window_s', window_s, window_s > 0),
+                                ('every_s', every_s, every_s > 0),
+                                ('min_window_s', min_window_s, 0 < min_window_s <= window_s),
+                                ('max_residual', max_residual, 0 < max_residual <= 1),
+                                ('n_response', n_response, n_response >= 8)):
+            if not (ok and math.isfinite(value)):
+                raise ParameterError(f'loop latency fit: {name}={value!r}: out of range')
+        self.rig_params = rig_params
+        self.controller = controller
+        self.latency0_s = float(latency0_s)
+        self.latency_s = float(latency0_s)
+        self.window = max(16, int(round(window_s / self.dt)))
+        self.min_window = max(16, min(self.window, int(round(min_window_s / self.dt))))
+        self.max_residual = float(max_residual)
+        self.every = max(1, int(round(every_s / self.dt)))
+        self._every = self.every
+        self.n = int(n_response)
+        lo, hi = bounds_s if bounds_s is not None else (
+            0.0, latency0_s + max(latency0_s, 2.0 * self.dt))
+        self.bounds_s = (float(lo), float(hi))
+        self._u = {}
+        self._y = {}
+        self._n_sent = 0
+        self._excited = 0
+        self._since = 0
+        self._recent = deque(maxlen=3)
+        self.fits = []
+
+    def record(self, command: float) -> None:
+        """Note the command ``u[j]`` sent to the force controller (one call per step, from
+        step 0)."""
+        j = self._n_sent
+        self._u[j] = float(command)
+        self._n_sent = j + 1
+        self._u.pop(j - self.window - self.n - 4, None)
+
+    def observe(self, step: int, force_N: float, excited: bool) -> bool:
+        """Take the measured force ``f_m[step]``; returns whether a fit is due (call
+        :meth:`fit` with the current specimen estimate)."""
+        self._y[step] = float(force_N)
+        self._y.pop(step - self.window - 4, None)
+        self._excited = self._excited + 1 if excited else 0
+        if not excited:
+            return False
+        self._since += 1
+        return self._since >= self._every and self._excited >= self.min_window
+
+    def _segments(self):
+        last = max(self._y)
+        first = last - min(self._excited, self.window) + 1
+        y = [self._y.get(j) for j in range(first, last + 1)]
+        u = [self._u.get(j, 0.0 if j < 0 else None) for j in range(first - self.n + 1, last + 1)]
+        if None in y or None in u:
+            return None
+        return np.array(u), np.array(y)
+
+    def residual(self, latency_s: float, specimen, u: np.ndarray, y: np.ndarray) -> float:
+        """The relative residual ``|y - g h_L * u|^2 / |y|^2`` of latency `latency_s` [s]
+        (``u``: the commands from ``n - 1`` steps before the window's first sample, shape
+        (window + n - 1,); ``y``: the measured forces of the window, shape (window,))."""
+        from dataclasses import replace
+        rig = replace(self.rig_params, io_latency_s=float(latency_s))
+        h = force_loop_impulse_responses(rig, specimen, self.controller, self.n).sampled
+        pred = np.convolve(u, h)[self.n - 1:self.n - 1 + y.shape[0]]
+        pp = float(pred @ pred)
+        g = float(pred @ y) / pp if pp > 0 else 0.0
+        r = y - g * pred
+        return float(r @ r) / max(float(y @ y), 1e-300)
+
+    def fit(self, step: int, specimen) -> bool:
+        """Fit the latency with `specimen` (a ``LinearSpecimen``, the current estimate) on the
+        window ending at the newest measured force; returns whether the estimate changed."""
+        from scipy.optimize import minimize_scalar
+        self._since = 0
+        seg = self._segments()
+        if seg is None:
+            return False
+        u, y = seg
+        res = minimize_scalar(self.residual, bounds=self.bounds_s, method='bounded',
+                              args=(specimen, u, y), options={'xatol': self.dt / 200})
+        if not res.success or not res.fun <= self.max_residual:
+            return False
+        self.fits.append((int(step), float(res.x), float(res.fun)))
+        self._recent.append(float(res.x))
+        before = self.latency_s
+        self.latency_s = float(np.median(self._recent))
+        # settled: fit less often (up to 8 every_s), at once again when it moves
+        moved = abs(self.latency_s - before) > self.dt / 100
+        self._every = self.every if moved else min(2 * self._every, 8 * self.every)
+        return self.latency_s != before
+
+    def estimates(self) -> dict[str, float]:
+        """``loop_latency_s`` [s]: the I/O latency in use (keys ``ESTIMATES``)."""
+        return {'loop_latency_s': self.latency_s}
+
+
 #: Names (and units, in the name) of the ``adaptive`` compensator's estimates (on the
 #: servohydraulic rig with ``adaptive_loop`` 'data' followed by :data:`LOOP_ESTIMATES`).
 ADAPTIVE_ESTIMATES = ('mass_kg', 'damping_N_s_per_m', 'stiffness_N_per_m', 'tau_s', 'gain')
@@ -1557,6 +1733,10 @@ class AdaptivePredictor:
         model; None on the delay rig.
     loop_identification : IdentifiedForceLoop, optional
         Servohydraulic rig, loop from data (takes precedence over `loop_factory`).
+    latency_fit : LoopLatencyFit, optional
+        Servohydraulic rig, loop from the model (``adaptive_loop: model_latency``): the I/O
+        latency is identified too and `loop_factory` is called as ``(m, c, k,
+        latency_s)``; not with a member that yields (its loop is not the linear model's).
     min_fit_quality : float in [0, 1]
         A delay identification is used only when its fit explains at least this fraction of
         the velocity increments' energy (``R^2 = 1 - residual / sum y^2``; measured: 0.9999
@@ -1601,7 +1781,7 @@ class AdaptivePredictor:
                  mass_ref_kg, window_s=0.5, max_delay_s=0.03, update_steps=10, *,
                  memory_s=5.0, excitation_N=20.0, max_deviation=0.5, max_rate_per_s=1.0,
                  identify_specimen=True, loop_factory=None, min_fit_quality=0.995,
-                 loop_identification=None, member_law=None):
+                 loop_identification=None, member_law=None, latency_fit=None):
         m0, c0, k0, dt = (float(mass_kg), float(damping_N_s_per_m), float(stiffness_N_per_m),
                           float(dt))
         for name, value, ok in (
@@ -1625,6 +1805,10 @@ class AdaptivePredictor:
         self.loop_identification = loop_identification
         if loop_identification is not None:
             self.ESTIMATES = ADAPTIVE_ESTIMATES + loop_identification.ESTIMATES
+        self.latency_fit = (latency_fit if self._loop_factory is not None and member_law is None
+                            else None)
+        if self.latency_fit is not None:
+            self.ESTIMATES = self.ESTIMATES + self.latency_fit.ESTIMATES
         if member_law is not None:
             self.ESTIMATES = self.ESTIMATES + HYSTERESIS_ESTIMATES
         self.prior = {'mass_kg': m0, 'damping_N_s_per_m': c0, 'stiffness_N_per_m': k0,
@@ -1678,15 +1862,23 @@ class AdaptivePredictor:
         """
         mp = model_parameters(params)
         tau0 = mp['tau_s']
-        factory = identified = None
+        factory = identified = latency_fit = None
         if params.get('rig_model') == 'servohydraulic':
-            if params.get('adaptive_loop', ADAPTIVE_LOOP_DEFAULT) == 'data':
+            loop_mode = params.get('adaptive_loop', ADAPTIVE_LOOP_DEFAULT)
+            if loop_mode == 'data':
                 identified = IdentifiedForceLoop.from_parameters(params)
             else:
-                def factory(m, c, k, _params=dict(params)):
+                def factory(m, c, k, latency_s=None, _params=dict(params)):
+                    extra = ({} if latency_s is None
+                             else {'predictor_io_latency_s': max(float(latency_s), 1e-9)})
                     return ForceLoopInverse.from_parameters(dict(
                         _params, predictor_mass_kg=m, predictor_damping_N_s_per_m=c,
-                        predictor_stiffness_N_per_m=k))
+                        predictor_stiffness_N_per_m=k, **extra))
+                if loop_mode == 'model_latency':
+                    from seft_ros.core.controller import ForceServoController
+                    rig = model_rig(params)
+                    latency_fit = LoopLatencyFit(rig, ForceServoController.from_parameters(
+                        params), rig.io_latency_s)
             tau0 = int(params['predictor_loop_delay_steps']) * float(params['dt'])
         return cls(mp['mass_kg'], mp['damping_N_s_per_m'], mp['stiffness_N_per_m'],
                    float(params['dt']), tau0, float(params['alpha']),
@@ -1697,7 +1889,7 @@ class AdaptivePredictor:
                    max_deviation=float(params.get('adaptive_max_deviation', 0.5)),
                    max_rate_per_s=float(params.get('adaptive_max_rate_per_s', 1.0)),
                    loop_factory=factory, loop_identification=identified,
-                   member_law=_member_law(params, tau0))
+                   member_law=_member_law(params, tau0), latency_fit=latency_fit)
 
     # -- estimates ---------------------------------------------------------------------------
 
@@ -1708,6 +1900,8 @@ class AdaptivePredictor:
         out = {name: guard.value for name, guard in self._guards.items()}
         if self.loop_identification is not None:
             out.update(self.loop_identification.estimates())
+        if self.latency_fit is not None:
+            out.update(self.latency_fit.estimates())
         if self._member_law is not None:
             out.update(self._member_law.estimates())
         return out
@@ -1733,9 +1927,13 @@ class AdaptivePredictor:
         m, c, k, tau = (est['mass_kg'], est['damping_N_s_per_m'], est['stiffness_N_per_m'],
                         est['tau_s'])
         if self._loop_factory is not None:
-            if self._loop_model is None or _moved((m, c, k), self._loop_model, 0.01):
+            fit = self.latency_fit
+            latency = None if fit is None else fit.latency_s
+            if (self._loop_model is None or _moved((m, c, k), self._loop_model[:3], 0.01)
+                    or latency != self._loop_model[3]):
                 try:
-                    fresh = self._loop_factory(m, c, k)
+                    fresh = (self._loop_factory(m, c, k) if fit is None
+                             else self._loop_factory(m, c, k, latency))
                 except ParameterError:
                     if self.loop_inverse is None:     # the declared model: say so at start
                         raise
@@ -1744,7 +1942,7 @@ class AdaptivePredictor:
                     if self.loop_inverse is not None:     # keep the filter's past inputs
                         fresh._x = self.loop_inverse._x
                     self.loop_inverse = fresh
-                self._loop_model = (m, c, k)
+                self._loop_model = (m, c, k, latency)
         key = (m, c, k, round(tau / self.dt * 64))
         if key == self._model_key:
             return
@@ -1811,6 +2009,13 @@ class AdaptivePredictor:
         loop = self.loop_identification
         if loop is not None:
             loop.observe(latest.step, latest.force_N, excited)
+        fit = self.latency_fit
+        if fit is not None and fit.observe(latest.step, latest.force_N, excited):
+            from seft_plant_sim.specimen import LinearSpecimen
+            est = self.estimates()
+            if fit.fit(latest.step, LinearSpecimen(est['mass_kg'], est['damping_N_s_per_m'],
+                                                   est['stiffness_N_per_m'])):
+                self._rebuild()
         if excited and self.identify_specimen:
             s = self._scale
             self.rls.update((s[0] * latest.acceleration_m_s2, s[1] * v, s[2] * x),
@@ -1876,6 +2081,8 @@ class AdaptivePredictor:
         command = self.loop_inverse.step(sent)
         if self.loop_identification is not None:
             self.loop_identification.record(command)
+        if self.latency_fit is not None:
+            self.latency_fit.record(command)
         return command
 
 
