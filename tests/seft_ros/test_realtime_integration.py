@@ -236,3 +236,24 @@ def test_watchdog_takes_the_rig_to_its_safe_state(tmp_path, seft_exe, ros_env):
     assert run.stable is False and run.unstable_at_s == pytest.approx(abort_at)
     assert run.n_steps == round(abort_at / 0.002)
     assert 'watchdog' in (run.abort_reason or '')
+
+
+def test_realtime_adaptive_refits_without_stalling_the_graph(tmp_path, seft_exe, run_process):
+    """``adaptive`` on the servohydraulic rig in real time, its model 10 % stiff, the default
+    20 ms watchdogs: its refits of the force-loop inverse (20-45 ms each) run beside the step
+    and BLAS keeps to one thread under SCHED_FIFO, so the run completes and is as accurate as
+    in lockstep. Before both, every such run aborted on a watchdog within 0.6 s (OpenBLAS's
+    pool threads, spinning at the nodes' real-time priority, starved the graph for 20-80 ms
+    at the first refit; 0.76 % NRMS x after, alpha 0, 10 s)."""
+    out = tmp_path / 'adaptive'
+    proc = run_process([seft_exe, 'run', '--mode', 'realtime', '--rig', 'servohydraulic',
+                        '--predictor', 'adaptive', '--alpha', '0.5', '--duration', '4',
+                        '--set', 'predictor_stiffness_N_per_m=232100', '--out', out],
+                       cwd=tmp_path, timeout=150)
+    assert proc.returncode == 0, proc.stderr
+    entry = json.loads((out / 'summary.json').read_text())['runs'][0]
+    assert entry['stable'] and not entry['abort_reason'], entry['abort_reason']
+    run = read_run(next(out.glob('*/bag')))
+    k = run.estimates['stiffness_N_per_m']
+    assert abs(k[-1] / 2.11e5 - 1) < 0.01          # identified in real time
+    assert 100 * entry['nrms']['displacement'] <= 2.0

@@ -103,6 +103,9 @@ def descriptor_of(spec: parameters.ParamSpec) -> ParameterDescriptor:
     return d
 
 
+#: The process-wide BLAS thread limit of a real-time node (:meth:`SeftNode.apply_priority`).
+_BLAS_LIMIT = None
+
 class SeftNode(Node):
     """A node of the seft graph: declares its schema parameters and reports its state.
 
@@ -218,11 +221,21 @@ class SeftNode(Node):
         starved it and the bag lost samples), but its bag writes must never delay the loop.
         Where the system refuses (no root, no CAP_SYS_NICE, no RT budget) the node logs one
         warning and keeps the normal scheduler: a run never fails for it.
+
+        Under SCHED_FIFO the BLAS libraries are limited to one thread for the process's life:
+        OpenBLAS's pool threads inherit the real-time priority and busy-wait between calls,
+        and on two cores they starved the other nodes for 20-80 ms at the first large solve
+        (the ``adaptive`` compensator's refit of the force-loop inverse: every real-time run
+        of it aborted on a watchdog within 0.6 s; with one thread none did).
         """
         base = int(self.params.get('realtime_priority', 0))
         if not self.realtime or base <= 0 or self.kind not in PRIORITY_OFFSET:
             return
         priority = max(1, min(99, base + PRIORITY_OFFSET[self.kind]))
+        global _BLAS_LIMIT
+        if _BLAS_LIMIT is None:
+            from threadpoolctl import ThreadpoolController
+            _BLAS_LIMIT = ThreadpoolController().limit(limits=1)     # kept: never restored
         try:
             set_fifo(priority)
         except (OSError, AttributeError) as exc:

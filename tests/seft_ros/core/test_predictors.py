@@ -516,6 +516,7 @@ def test_latency_fit_recovers_the_latency_of_its_own_model_exactly():
     """LoopLatencyFit on noise-free data made by its own model with a 2.6 ms latency (the
     declared 1 ms): the fit returns 2.6 ms to its tolerance, dt / 200."""
     from dataclasses import replace
+
     from seft_ros.core.predictors import LoopLatencyFit, force_loop_impulse_responses
     params = parameters.resolve({'rig_model': 'servohydraulic'})
     ctrl = ForceServoController.from_parameters(params)
@@ -534,6 +535,48 @@ def test_latency_fit_recovers_the_latency_of_its_own_model_exactly():
     assert fit.fit(u.shape[0] - 1, spec)
     assert fit.latency_s == pytest.approx(0.0026, abs=DT / 200)
     assert fit.estimates() == {'loop_latency_s': fit.latency_s}
+
+
+class _HeldFits:
+    """BackgroundFits stand-in whose fits run only when released (a slow worker thread)."""
+
+    def __init__(self):
+        self.queued = []
+
+    def submit(self, fn, *args):
+        from concurrent.futures import Future
+        future = Future()
+        self.queued.append((future, fn, args))
+        return future
+
+    def release(self):
+        for future, fn, args in self.queued:
+            future.set_result(fn(*args))
+        self.queued = []
+
+
+def test_adaptive_refits_in_the_background_and_installs_them_when_done():
+    """Real time (run_fits_in_background): the step goes on with the last force-loop inverse
+    while the refit for the identified specimen runs; the first step after it is done installs
+    it, its filter state carried over, the same taps as the refit in the step
+    (``seft simulate``) for the same estimates."""
+    from seft_ros.core.predictors import ForceLoopInverse
+    params = parameters.resolve({'rig_model': 'servohydraulic', 'predictor': 'adaptive',
+                                 'predictor_stiffness_N_per_m': 1.2 * K})
+    pred = AdaptivePredictor.from_parameters(params)
+    fits = _HeldFits()
+    pred.run_fits_in_background(fits)
+    first = pred.loop_inverse
+    feed(pred, 1500)
+    assert len(fits.queued) == 1 and pred.loop_inverse is first       # one refit at a time
+    m, c, k = fits.queued[0][2]                                       # adaptive_loop: model
+    assert k < 1.19 * K                                                # the estimate moved
+    fits.release()
+    feed(pred, 1, start=1500)
+    assert pred.loop_inverse is not first and pred.loop_inverse._x is first._x
+    exact = ForceLoopInverse.from_parameters(dict(
+        params, predictor_mass_kg=m, predictor_damping_N_s_per_m=c, predictor_stiffness_N_per_m=k))
+    assert np.array_equal(pred.loop_inverse.taps, exact.taps)
 
 
 # -- ats ------------------------------------------------------------------------------------

@@ -35,8 +35,10 @@ acceleration: integrated over the step, (*) is exactly the reference equation of
 """
 
 from collections import deque
+from concurrent.futures import ThreadPoolExecutor
 import functools
 import math
+import os
 from typing import Callable, NamedTuple
 
 import numpy as np
@@ -58,7 +60,7 @@ __all__ = [
     'force_loop_impulse_responses', 'step_average_force_impulse_response',
     'network_delay_steps', 'TangentModelPredictor', 'model_predictor',
     'TANGENT_STIFFNESS_RATIOS', 'HystereticModelPredictor', 'model_rig',
-    'LoopLatencyFit', 'LATENCY_ESTIMATES',
+    'LoopLatencyFit', 'LATENCY_ESTIMATES', 'BackgroundFits',
 ]
 
 
@@ -1467,6 +1469,46 @@ class IdentifiedForceLoop:
         return dict(self._estimates)
 
 
+class BackgroundFits:
+    """One worker thread for the compensators' refits in real time, below the step's priority.
+
+    A refit of the force-loop inverse takes 20-45 ms and a latency fit about 15 ms on the
+    reference host: in the step they overrun a 2 ms period and trip the rig's 20 ms watchdog.
+    On this thread the step goes on with the last fit until the new one is done. The thread
+    runs at the lowest real-time priority when the node's threads are real-time (it runs
+    while they sleep; Linux scheduling is per thread), and the node shortens the
+    interpreter's switch interval so that the step waits for the GIL briefly.
+
+    Methods
+    -------
+    submit(fn, *args) -> concurrent.futures.Future
+    shutdown()
+        Drop the queued fits (the running one finishes on its own).
+    """
+
+    def __init__(self):
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix='seft-fit',
+                                        initializer=_below_realtime)
+
+    def submit(self, fn, *args):
+        return self._pool.submit(fn, *args)
+
+    def shutdown(self) -> None:
+        self._pool.shutdown(wait=False, cancel_futures=True)
+
+
+def _below_realtime() -> None:
+    """This thread, if real-time, to the lowest real-time priority: below every thread of the
+    test, above the rest of the machine (not ``SCHED_OTHER``: a fit holding the GIL there waits
+    for every real-time thread on its core, and the step waits for the GIL; a no-op where it
+    cannot)."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+        os.setpriority(os.PRIO_PROCESS, 0, 19)
+    except (AttributeError, OSError):
+        pass
+
+
 #: Name of the identified I/O latency's estimate (servohydraulic rig, ``adaptive_loop``
 #: 'model_latency') [s].
 LATENCY_ESTIMATES = ('loop_latency_s',)
@@ -1617,19 +1659,34 @@ class LoopLatencyFit:
 
     def fit(self, step: int, specimen) -> bool:
         """Fit the latency with `specimen` (a ``LinearSpecimen``, the current estimate) on the
-        window ending at the newest measured force; returns whether the estimate changed."""
-        from scipy.optimize import minimize_scalar
-        self._since = 0
-        seg = self._segments()
-        if seg is None:
+        window ending at the newest measured force; returns whether the estimate changed
+        (:meth:`window_data`, :meth:`search` and :meth:`accept` in one)."""
+        data = self.window_data()
+        if data is None:
             return False
-        u, y = seg
+        return self.accept(step, *self.search(specimen, *data))
+
+    def window_data(self):
+        """The fit's data, ``(u, y)`` (:meth:`residual`), copied (a fit may run on another
+        thread, :class:`BackgroundFits`); None if a step of the window is missing."""
+        self._since = 0
+        return self._segments()
+
+    def search(self, specimen, u: np.ndarray, y: np.ndarray) -> tuple[float, float]:
+        """``(latency_s, relative residual)`` minimising :meth:`residual` over ``bounds_s``
+        (reads no state that :meth:`record` or :meth:`observe` change)."""
+        from scipy.optimize import minimize_scalar
         res = minimize_scalar(self.residual, bounds=self.bounds_s, method='bounded',
                               args=(specimen, u, y), options={'xatol': self.dt / 200})
-        if not res.success or not res.fun <= self.max_residual:
+        return (float(res.x), float(res.fun) if res.success else math.inf)
+
+    def accept(self, step: int, latency_s: float, residual: float) -> bool:
+        """Take a fit made at `step` if it counts (``max_residual``); returns whether the
+        estimate changed."""
+        if not residual <= self.max_residual:
             return False
-        self.fits.append((int(step), float(res.x), float(res.fun)))
-        self._recent.append(float(res.x))
+        self.fits.append((int(step), float(latency_s), float(residual)))
+        self._recent.append(float(latency_s))
         before = self.latency_s
         self.latency_s = float(np.median(self._recent))
         # settled: fit less often (up to 8 every_s), at once again when it moves
@@ -1809,6 +1866,9 @@ class AdaptivePredictor:
                             else None)
         if self.latency_fit is not None:
             self.ESTIMATES = self.ESTIMATES + self.latency_fit.ESTIMATES
+        self._background = None           # BackgroundFits in real time (run_fits_in_background)
+        self._pending_loop = None         # (model key, future)
+        self._pending_latency = None      # (step, future)
         if member_law is not None:
             self.ESTIMATES = self.ESTIMATES + HYSTERESIS_ESTIMATES
         self.prior = {'mass_kg': m0, 'damping_N_s_per_m': c0, 'stiffness_N_per_m': k0,
@@ -1931,18 +1991,18 @@ class AdaptivePredictor:
             latency = None if fit is None else fit.latency_s
             if (self._loop_model is None or _moved((m, c, k), self._loop_model[:3], 0.01)
                     or latency != self._loop_model[3]):
-                try:
-                    fresh = (self._loop_factory(m, c, k) if fit is None
-                             else self._loop_factory(m, c, k, latency))
-                except ParameterError:
-                    if self.loop_inverse is None:     # the declared model: say so at start
-                        raise
-                    fresh = None                      # an estimate on the way: keep the last
-                if fresh is not None:
-                    if self.loop_inverse is not None:     # keep the filter's past inputs
-                        fresh._x = self.loop_inverse._x
-                    self.loop_inverse = fresh
-                self._loop_model = (m, c, k, latency)
+                args = (m, c, k) if fit is None else (m, c, k, latency)
+                if self._background is None or self.loop_inverse is None:
+                    try:
+                        fresh = self._loop_factory(*args)
+                    except ParameterError:
+                        if self.loop_inverse is None:     # the declared model: say so at start
+                            raise
+                        fresh = None                      # an estimate on the way: keep the last
+                    self._install_loop(fresh, (m, c, k, latency))
+                elif self._pending_loop is None:
+                    self._pending_loop = ((m, c, k, latency),
+                                          self._background.submit(self._loop_factory, *args))
         key = (m, c, k, round(tau / self.dt * 64))
         if key == self._model_key:
             return
@@ -1968,6 +2028,35 @@ class AdaptivePredictor:
                 frac.append(ge / (ge + float(g_late[1, 0])))
             self._frac_grid, self._frac_delta = np.array(frac), grid
             self._frac_model = (m, c, k)
+
+    def run_fits_in_background(self, fits: 'BackgroundFits') -> None:
+        """Real time: run the force-loop refits and the latency fits (tens of ms) on `fits`'
+        worker thread instead of in the step; each is installed at the first step after it is
+        done (lockstep and ``seft simulate`` fit in the step: the same numbers every time)."""
+        self._background = fits
+
+    def _install_loop(self, fresh, key) -> None:
+        if fresh is not None:
+            if self.loop_inverse is not None:     # keep the filter's past inputs
+                fresh._x = self.loop_inverse._x
+            self.loop_inverse = fresh
+        self._loop_model = key
+
+    def _poll_fits(self) -> None:
+        """Install the background fits that are done (real time)."""
+        pending = self._pending_loop
+        if pending is not None and pending[1].done():
+            self._pending_loop = None
+            try:
+                fresh = pending[1].result()
+            except ParameterError:
+                fresh = None                      # an estimate on the way: keep the last
+            self._install_loop(fresh, pending[0])
+        pending = self._pending_latency
+        if pending is not None and pending[1].done():
+            self._pending_latency = None
+            if self.latency_fit.accept(pending[0], *pending[1].result()):
+                self._rebuild()
 
     def _identify_delay(self) -> None:
         """Delay and gain from the window (class notes, step 2); sets the targets."""
@@ -2009,13 +2098,22 @@ class AdaptivePredictor:
         loop = self.loop_identification
         if loop is not None:
             loop.observe(latest.step, latest.force_N, excited)
+        if self._background is not None:
+            self._poll_fits()
         fit = self.latency_fit
-        if fit is not None and fit.observe(latest.step, latest.force_N, excited):
+        if (fit is not None and fit.observe(latest.step, latest.force_N, excited)
+                and self._pending_latency is None):
             from seft_plant_sim.specimen import LinearSpecimen
-            est = self.estimates()
-            if fit.fit(latest.step, LinearSpecimen(est['mass_kg'], est['damping_N_s_per_m'],
-                                                   est['stiffness_N_per_m'])):
-                self._rebuild()
+            data = fit.window_data()
+            if data is not None:
+                est = self.estimates()
+                spec = LinearSpecimen(est['mass_kg'], est['damping_N_s_per_m'],
+                                      est['stiffness_N_per_m'])
+                if self._background is not None:
+                    self._pending_latency = (latest.step,
+                                             self._background.submit(fit.search, spec, *data))
+                elif fit.accept(latest.step, *fit.search(spec, *data)):
+                    self._rebuild()
         if excited and self.identify_specimen:
             s = self._scale
             self.rls.update((s[0] * latest.acceleration_m_s2, s[1] * v, s[2] * x),

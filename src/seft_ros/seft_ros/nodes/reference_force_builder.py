@@ -48,6 +48,7 @@ from seft_msgs_py.node_support import (
 )
 from seft_msgs_py.topics import REFERENCE_FORCE, STATUS, record_topic
 from seft_ros.core.monitor import InstabilityMonitor, SpecimenCheck
+from seft_ros.core.predictors import BackgroundFits
 from seft_ros.core.reference_force import ReferenceForceBuilder, ground_window
 from seft_ros.core.substructure import SpecimenModel
 
@@ -64,6 +65,10 @@ _MODEL_PARAMETERS = ('rig_model', 'tau_s', 'valve_limit_V', 'piston_area_m2',
                      'valve_flow_gain_m3_per_s_V', 'valve_pressure_coefficient_m3_per_s_Pa',
                      'leakage_coefficient_m3_per_s_Pa', 'io_latency_s', 'anti_alias_cutoff_hz',
                      'accelerometer_range_m_s2')
+
+#: Real time: the interpreter's thread switch interval while compensator fits run on a
+#: background thread [s] (sys.setswitchinterval; the default 5 ms would hold the step).
+FIT_SWITCH_INTERVAL_S = 2e-4
 
 
 class ReferenceForceBuilderNode(SeftNode):
@@ -146,6 +151,14 @@ class ReferenceForceBuilderNode(SeftNode):
                     JointState, scoped(SPECIMEN_MODEL_TOPIC, r),
                     self.guard(lambda msg, r=r: self._on_model(r, msg)), DATA_QOS)
         if self.realtime:
+            # the compensators' refits (tens of ms) off the step, on a thread below it; the
+            # step takes the GIL back within the switch interval
+            self.fits = BackgroundFits()
+            for law in self.builder.laws:
+                attach = getattr(law.predictor, 'run_fits_in_background', None)
+                if attach is not None:
+                    attach(self.fits)
+            sys.setswitchinterval(FIT_SWITCH_INTERVAL_S)
             self.watch_inputs(subs + [ground_sub], self.pubs)
             self.timing = StepTiming(self)
             self.latest_ground = (-1, 0.0)
