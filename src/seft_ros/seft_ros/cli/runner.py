@@ -238,6 +238,9 @@ class GraphRunner:
         self.link = None
         self.node.create_subscription(STATUS.msg_type, STATUS.name, self._on_status, STATUS.qos)
         self.node_params: dict[str, dict] = {}
+        #: The nodes of the run in progress (None before the first): only their parameters
+        #: are compared (the previous run's latched ones can arrive after it ended).
+        self.run_nodes: set[str] | None = None
         self.node.create_subscription(NODE_PARAMETERS.msg_type, NODE_PARAMETERS.name,
                                       self._on_node_parameters, NODE_PARAMETERS.qos)
         self.status_pub = self.node.create_publisher(STATUS.msg_type, STATUS.name, STATUS.qos)
@@ -277,7 +280,10 @@ class GraphRunner:
     def _on_node_parameters(self, msg) -> None:
         try:
             data = json.loads(msg.data)
-            self.node_params[str(data['node'])] = dict(data['parameters'])
+            node = str(data['node'])
+            if self.run_nodes is not None and node not in self.run_nodes:
+                return          # a node of the previous run (its latched message, late)
+            self.node_params[node] = dict(data['parameters'])
         except (ValueError, KeyError, TypeError):
             return
 
@@ -357,8 +363,12 @@ class GraphRunner:
             env[OFFSET_ENV] = str(self.link.offset_ns())
         params_file = write_params_file(params, run_dir / 'params.yaml')
         rig_files = rig_params_files(params, run_dir)
+        # what other graphs of this domain published while this runner was idle (another
+        # `seft run`'s latched parameters and reports) is still queued: take it, then forget it
+        self._spin(0.1)
         self.statuses.clear()
         self.node_params.clear()
+        self.run_nodes = set(local) | set(remote)
         # a new status publisher per run: the reports are latched (transient local), and the
         # nodes of this run must not receive the previous run's (an abort the runner sent
         # when one of its nodes died would end this run at its start)
