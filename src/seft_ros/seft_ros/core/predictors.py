@@ -1475,9 +1475,10 @@ class BackgroundFits:
     A refit of the force-loop inverse takes 20-45 ms and a latency fit about 15 ms on the
     reference host: in the step they overrun a 2 ms period and trip the rig's 20 ms watchdog.
     On this thread the step goes on with the last fit until the new one is done. The thread
-    runs at the lowest real-time priority when the node's threads are real-time (it runs
-    while they sleep; Linux scheduling is per thread), and the node shortens the
-    interpreter's switch interval so that the step waits for the GIL briefly.
+    leaves the real-time policy the node's threads run with (``SCHED_OTHER``, nice 19: it
+    runs while they sleep; Linux scheduling is per thread), and the node shortens the
+    interpreter's switch interval so that the step waits for the GIL briefly (measured: the
+    step's longest wait for it 1.5 ms while a refit ran).
 
     Methods
     -------
@@ -1498,10 +1499,8 @@ class BackgroundFits:
 
 
 def _below_realtime() -> None:
-    """This thread, if real-time, to the lowest real-time priority: below every thread of the
-    test, above the rest of the machine (not ``SCHED_OTHER``: a fit holding the GIL there waits
-    for every real-time thread on its core, and the step waits for the GIL; a no-op where it
-    cannot)."""
+    """This thread to the normal policy at the lowest priority (below every real-time thread
+    of the test; a no-op where it cannot)."""
     try:
         os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
         os.setpriority(os.PRIO_PROCESS, 0, 19)
@@ -1540,7 +1539,8 @@ class LoopLatencyFit:
     when every step of the window is there and excited; once the
     estimate stays within ``dt / 100`` the interval doubles up to ``8 every_s``, and is
     ``every_s`` again when it moves. A fit costs about 20 impulse responses (about 15 ms on
-    the reference host, in the builder's step).
+    the reference host): in the step in lockstep and ``seft simulate``, on
+    :class:`BackgroundFits`' thread in real time.
 
     Parameters
     ----------
