@@ -537,6 +537,20 @@ def test_latency_fit_recovers_the_latency_of_its_own_model_exactly():
     assert fit.estimates() == {'loop_latency_s': fit.latency_s}
 
 
+def test_adaptive_delay_fit_takes_no_increment_across_a_missing_sample():
+    """Real time: a measurement that never arrived leaves a gap; the velocity change across it
+    is two steps' and must not enter the one-step delay regression (lockstep: no gap, every
+    sample gives its row)."""
+    pred = adaptive()
+    feed(pred, 100)
+    rows = len(pred._rows)
+    assert rows == 99                                    # one per consecutive pair
+    feed(pred, 1, start=101)                             # sample 100 missing
+    assert len(pred._rows) == rows
+    feed(pred, 1, start=102)
+    assert len(pred._rows) == rows + 1
+
+
 class _HeldFits:
     """BackgroundFits stand-in whose fits run only when released (a slow worker thread)."""
 

@@ -2123,7 +2123,9 @@ class AdaptivePredictor:
             px, pv, j, pz = self._prev
             count = self.max_n + 2
             past = _past(self._sent[max(0, j + 1 - count):j + 1], count)
-            if member is None:
+            if latest.step != j + 1:
+                pass            # a sample missing (real time): no one-step increment to fit
+            elif member is None:
                 self._rows.append((v - pv, px, pv, past))
             else:               # the member's free response out (the row's x, v unused)
                 free = member.free_velocity_increment((px, pv, pz))
