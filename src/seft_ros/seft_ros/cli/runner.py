@@ -241,6 +241,7 @@ class GraphRunner:
         #: The nodes of the run in progress (None before the first): only their parameters
         #: are compared (the previous run's latched ones can arrive after it ended).
         self.run_nodes: set[str] | None = None
+        self._parameter_messages = 0
         self.node.create_subscription(NODE_PARAMETERS.msg_type, NODE_PARAMETERS.name,
                                       self._on_node_parameters, NODE_PARAMETERS.qos)
         self.status_pub = self.node.create_publisher(STATUS.msg_type, STATUS.name, STATUS.qos)
@@ -278,6 +279,7 @@ class GraphRunner:
         self.statuses.append(values)
 
     def _on_node_parameters(self, msg) -> None:
+        self._parameter_messages += 1
         try:
             data = json.loads(msg.data)
             node = str(data['node'])
@@ -298,6 +300,14 @@ class GraphRunner:
                 self.progress(line)
             raise SeftError(f'{len(lines)} shared parameter(s) differ between the nodes '
                             '(listed above); nothing was run')
+
+    def _drain(self) -> None:
+        """Take the queued messages: spin until 10 ms pass without one."""
+        while True:
+            before = len(self.statuses), self._parameter_messages
+            self._spin(0.01)
+            if (len(self.statuses), self._parameter_messages) == before:
+                return
 
     def _spin(self, seconds: float) -> None:
         deadline = time.monotonic() + seconds
@@ -365,7 +375,7 @@ class GraphRunner:
         rig_files = rig_params_files(params, run_dir)
         # what other graphs of this domain published while this runner was idle (another
         # `seft run`'s latched parameters and reports) is still queued: take it, then forget it
-        self._spin(0.1)
+        self._drain()
         self.statuses.clear()
         self.node_params.clear()
         self.run_nodes = set(local) | set(remote)

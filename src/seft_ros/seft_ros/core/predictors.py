@@ -1483,8 +1483,6 @@ class BackgroundFits:
     Methods
     -------
     submit(fn, *args) -> concurrent.futures.Future
-    shutdown()
-        Drop the queued fits (the running one finishes on its own).
     """
 
     def __init__(self):
@@ -1493,9 +1491,6 @@ class BackgroundFits:
 
     def submit(self, fn, *args):
         return self._pool.submit(fn, *args)
-
-    def shutdown(self) -> None:
-        self._pool.shutdown(wait=False, cancel_futures=True)
 
 
 def _below_realtime() -> None:
