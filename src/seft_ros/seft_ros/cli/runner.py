@@ -302,8 +302,9 @@ class GraphRunner:
                             '(listed above); nothing was run')
 
     def _drain(self) -> None:
-        """Take the queued messages: spin until 10 ms pass without one."""
-        while True:
+        """Take the queued messages: spin until 10 ms pass without one (0.5 s at most)."""
+        deadline = time.monotonic() + 0.5
+        while time.monotonic() < deadline:
             before = len(self.statuses), self._parameter_messages
             self._spin(0.01)
             if (len(self.statuses), self._parameter_messages) == before:
