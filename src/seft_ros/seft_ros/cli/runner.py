@@ -241,7 +241,6 @@ class GraphRunner:
         #: The nodes of the run in progress (None before the first): only their parameters
         #: are compared (the previous run's latched ones can arrive after it ended).
         self.run_nodes: set[str] | None = None
-        self._parameter_messages = 0
         self.node.create_subscription(NODE_PARAMETERS.msg_type, NODE_PARAMETERS.name,
                                       self._on_node_parameters, NODE_PARAMETERS.qos)
         self.status_pub = self.node.create_publisher(STATUS.msg_type, STATUS.name, STATUS.qos)
@@ -279,7 +278,6 @@ class GraphRunner:
         self.statuses.append(values)
 
     def _on_node_parameters(self, msg) -> None:
-        self._parameter_messages += 1
         try:
             data = json.loads(msg.data)
             node = str(data['node'])
@@ -300,15 +298,6 @@ class GraphRunner:
                 self.progress(line)
             raise SeftError(f'{len(lines)} shared parameter(s) differ between the nodes '
                             '(listed above); nothing was run')
-
-    def _drain(self) -> None:
-        """Take the queued messages: spin until 10 ms pass without one (0.5 s at most)."""
-        deadline = time.monotonic() + 0.5
-        while time.monotonic() < deadline:
-            before = len(self.statuses), self._parameter_messages
-            self._spin(0.01)
-            if (len(self.statuses), self._parameter_messages) == before:
-                return
 
     def _spin(self, seconds: float) -> None:
         deadline = time.monotonic() + seconds
@@ -376,7 +365,7 @@ class GraphRunner:
         rig_files = rig_params_files(params, run_dir)
         # what other graphs of this domain published while this runner was idle (another
         # `seft run`'s latched parameters and reports) is still queued: take it, then forget it
-        self._drain()
+        self._spin(0.1)
         self.statuses.clear()
         self.node_params.clear()
         self.run_nodes = set(local) | set(remote)
