@@ -504,13 +504,34 @@ class GraphRunner:
             self._spin(0.05)
 
     def _when(self) -> str:
-        """When in the run, as the (first) rig's latest report tells it."""
+        """When in the run, as the (first) rig's latest report tells it; without one (a
+        process killed before this runner had discovered it: a loaded host can take seconds),
+        the last sample of that rig in this host's closed bag."""
         rig = self._latest(self.graph.master)
         if not rig:
-            return 'before the rig started'
+            return self._when_from_bag()
         if 'abort_at_s' in rig:
             return f'at t = {float(rig["abort_at_s"]):.3f} s (rig safe state from then)'
         return f'at t = {float(rig.get("time_s", 0.0)):.3f} s (step {rig.get("step", "?")})'
+
+    def _when_from_bag(self) -> str:
+        """When in the run, from the first rig's last measured sample in this host's bag
+        (``step * dt``, the rig contract's stamps), or 'before the rig started'."""
+        bag_path = getattr(self, '_bag_path', None)
+        if bag_path is None or not (Path(bag_path) / 'metadata.yaml').is_file():
+            return 'before the rig started'
+        from seft_ros.analysis.bag import read_signals   # the error path only: no import cost
+        try:
+            bag = read_signals(bag_path)
+        except (SeftError, OSError):            # a when, never a second error
+            return 'before the rig started'
+        steps = [max(bag.samples[s.name]) for s in self.graph.sensors(self.graph.rigs[0])
+                 if bag.samples.get(s.name)]
+        if not steps:
+            return 'before the rig started'
+        step = min(steps)
+        return (f'at t = {step * float(bag.params["dt"]):.3f} s (step {step}, the last in the '
+                'bag; no report of the rig reached this runner)')
 
     def _check_procs(self, procs, log_dir) -> None:
         """A node of this host that died ends the run safely, then the runner fails naming
