@@ -520,7 +520,7 @@ class GraphRunner:
         bag_path = getattr(self, '_bag_path', None)
         if bag_path is None or not (Path(bag_path) / 'metadata.yaml').is_file():
             return 'before the rig started'
-        from seft_ros.analysis.bag import read_signals   # the error path only: no import cost
+        from seft_ros.analysis.bag import read_signals  # the error path only: no import cost
         try:
             bag = read_signals(bag_path)
         except (SeftError, OSError):            # a when, never a second error
