@@ -1908,6 +1908,7 @@ class AdaptivePredictor:
         self.history_tau_s = []
         self.fit_quality = float('nan')
         self._fits = deque(maxlen=5)
+        self._fits_model = None           # the specimen model (m, c, k) of the fits in _fits
         self.min_fit_quality = float(min_fit_quality)
 
     @classmethod
@@ -2083,6 +2084,11 @@ class AdaptivePredictor:
         if not (total > 0 and self.fit_quality >= self.min_fit_quality):
             return
         frac = min(max(ge / total, 0.0), self._frac_grid[-1])
+        if self._fits_model != self._frac_model:
+            # the fits made with another specimen model are biased by its error (the gain by
+            # the mass's: g_e + g_l over Gamma_v of the model): the median takes this model's
+            self._fits.clear()
+            self._fits_model = self._frac_model
         self._fits.append((n * self.dt + float(np.interp(frac, self._frac_grid,
                                                          self._frac_delta)),
                            total / self._gv))
