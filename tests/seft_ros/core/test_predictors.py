@@ -447,7 +447,7 @@ def test_adaptive_delay_fit_on_a_narrow_band_motion_with_sensor_noise(tmp_path):
     is narrow-band, where two neighbouring commanded forces are nearly collinear. Unconstrained,
     the delay fit took a neighbouring whole step and extrapolated (g_e / (g_e + g_l) outside
     [0, 1]), with the sensor noise choosing which: 8.7 % at alpha 1.5, the gain estimate 2.6 %
-    off. With g_e, g_l >= 0: 1.73 %, the gain within 0.7 % (noise-free 0.34 %, was 0.51 %)."""
+    off. With g_e, g_l >= 0: 1.76 %, the gain within 0.7 % (noise-free 0.34 %, was 0.51 %)."""
     dt = 0.005
     t = np.arange(0.0, 6.0, dt)
     pulse = np.where(t < 1.5, np.sin(2 * np.pi * 3.0 * t) * np.sin(np.pi * t / 1.5) ** 2, 0.0)

@@ -1730,7 +1730,8 @@ class AdaptivePredictor:
        fractional part ``delta`` (exact hold integrals, tabulated) and
        ``(g_e + g_l) / Gamma_v(dt)`` the gain A. A fit is accepted when it explains at least
        ``min_fit_quality`` of the data; the target is the median of the last 5 accepted
-       fits.
+       fits made with the current specimen model (a fit's gain carries the model's mass
+       error: the fits are dropped when m, c or k moved by more than 1 %).
     3. On the servohydraulic rig, the force loop that the law inverts
        (:class:`ForceLoopInverse`) depends on the specimen (control-structure interaction).
        With ``loop_identification`` (``adaptive_loop: data``) it is identified from data,
