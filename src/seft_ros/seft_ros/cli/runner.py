@@ -517,12 +517,11 @@ class GraphRunner:
     def _when_from_bag(self) -> str:
         """When in the run, from the first rig's last measured sample in this host's bag
         (``step * dt``, the rig contract's stamps), or 'before the rig started'."""
-        bag_path = getattr(self, '_bag_path', None)
-        if bag_path is None or not (Path(bag_path) / 'metadata.yaml').is_file():
+        if not self._bag_closed():
             return 'before the rig started'
         from seft_ros.analysis.bag import read_signals  # the error path only: no import cost
         try:
-            bag = read_signals(bag_path)
+            bag = read_signals(self._bag_path)
         except (SeftError, OSError):            # a when, never a second error
             return 'before the rig started'
         steps = [max(bag.samples[s.name]) for s in self.graph.sensors(self.graph.rigs[0])
@@ -582,8 +581,12 @@ class GraphRunner:
         reports never reached this runner (a short run on a fast machine can end before the
         runner has discovered every node's status publisher; the statuses are in the bag)."""
         recorder = procs.get('recorder')
-        return (recorder is not None and recorder.poll() == 0 and self._bag_path is not None
-                and (self._bag_path / 'metadata.yaml').is_file())
+        return recorder is not None and recorder.poll() == 0 and self._bag_closed()
+
+    def _bag_closed(self) -> bool:
+        """This host's bag of the run is closed on disk (rosbags writes ``metadata.yaml`` on
+        close only)."""
+        return self._bag_path is not None and (Path(self._bag_path) / 'metadata.yaml').is_file()
 
     def _wait_ready(self, names, procs, log_dir) -> None:
         """Wait until every node of `names` has reported ready (or running), or the run is

@@ -1899,6 +1899,7 @@ class AdaptivePredictor:
                              else loop_identification.inverse)
         self._loop_model = None
         self._frac_model = None
+        self._fits = deque(maxlen=5)      # accepted delay fits of the current specimen model
         self.model = None
         self._model_key = None
         self._rebuild()
@@ -1908,8 +1909,6 @@ class AdaptivePredictor:
         self._count = 0
         self.history_tau_s = []
         self.fit_quality = float('nan')
-        self._fits = deque(maxlen=5)
-        self._fits_model = None           # the specimen model (m, c, k) of the fits in _fits
         self.min_fit_quality = float(min_fit_quality)
 
     @classmethod
@@ -2029,6 +2028,9 @@ class AdaptivePredictor:
                 frac.append(ge / (ge + float(g_late[1, 0])))
             self._frac_grid, self._frac_delta = np.array(frac), grid
             self._frac_model = (m, c, k)
+            # the delay fits made with the previous model are biased by its error (the gain by
+            # the mass's: g_e + g_l over Gamma_v of the model): the median takes this model's
+            self._fits.clear()
 
     def run_fits_in_background(self, fits: 'BackgroundFits') -> None:
         """Real time: run the force-loop refits and the latency fits (tens of ms) on `fits`'
@@ -2085,11 +2087,6 @@ class AdaptivePredictor:
         if not (total > 0 and self.fit_quality >= self.min_fit_quality):
             return
         frac = min(max(ge / total, 0.0), self._frac_grid[-1])
-        if self._fits_model != self._frac_model:
-            # the fits made with another specimen model are biased by its error (the gain by
-            # the mass's: g_e + g_l over Gamma_v of the model): the median takes this model's
-            self._fits.clear()
-            self._fits_model = self._frac_model
         self._fits.append((n * self.dt + float(np.interp(frac, self._frac_grid,
                                                          self._frac_delta)),
                            total / self._gv))
