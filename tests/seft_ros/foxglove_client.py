@@ -55,6 +55,10 @@ class FoxgloveClient:
         self._by_id: dict[int, dict] = {}
         self._next = 1
         self.lock = threading.Lock()
+        #: How the connection ended if the server closed it (at its end; a slow client is
+        #: dropped).
+        self.closed_by = ''
+        self._closing = False
         self.thread = threading.Thread(target=self._run, daemon=True)
         self.thread.start()
 
@@ -73,7 +77,9 @@ class FoxgloveClient:
                         payload = json.loads(payload)
                     with self.lock:
                         self.messages[channel['topic']].append((log_time, payload))
-        except ConnectionClosed:
+        except ConnectionClosed as exc:
+            if not self._closing:
+                self.closed_by = f'closed by the server ({exc})'
             return
 
     def _on_text(self, op: dict) -> None:
@@ -112,5 +118,6 @@ class FoxgloveClient:
 
     def close(self) -> None:
         """Disconnect and stop collecting."""
+        self._closing = True
         self.ws.close()
         self.thread.join(5.0)
