@@ -617,6 +617,15 @@ class ReferenceForceBuilder:
             return
         self._latest[r][measurement.step] = measurement
 
+    def reference_late(self, step: int) -> None:
+        """Real time: the reference forces of sample `step` went out after its sample time;
+        each local rig's compensator that identifies from the forces it sent is told
+        (``AdaptivePredictor.reference_late``)."""
+        for law in self.laws:
+            fn = getattr(law.predictor, 'reference_late', None)
+            if fn is not None:
+                fn(step)
+
     def estimates(self) -> list:
         """Each local rig's compensator's online estimates (a dict, keys its
         ``ESTIMATES``), or None for a compensator without estimates."""
