@@ -43,7 +43,10 @@ def _run_and_hit(seft_exe, ros_env, cwd, out, node, sig, extra, after_s=2.0, sim
     """``seft run`` the servohydraulic rig (30 s of record), send `sig` to `node` (or the
     process of `module`) `after_s` after the rig started and once the runner's progress lines
     report at least `sim_s` of the record stepped (a lockstep graph on a loaded machine steps
-    slower than real time); return the finished process's (returncode, stdout, stderr)."""
+    slower than real time), or, with no progress line yet, `after_s` + 3 s after the rig
+    started (a loaded host once delayed the runner's first progress line past the whole
+    8.3 s lockstep run, and the fault came after its end); return the finished process's
+    (returncode, stdout, stderr)."""
     proc = subprocess.Popen(
         [str(seft_exe), 'run', '--alpha', '0.5', '--duration', '30', '--out', str(out),
          *extra], cwd=cwd, env=ros_env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
@@ -63,7 +66,8 @@ def _run_and_hit(seft_exe, ros_env, cwd, out, node, sig, extra, after_s=2.0, sim
         reader.start()
     try:
         start = _wait_for_rig(out)
-        while proc.poll() is None and (time.monotonic() - start < after_s or sim[0] < sim_s):
+        while proc.poll() is None and (time.monotonic() - start < after_s or (
+                sim[0] < sim_s and (sim[0] > 0.0 or time.monotonic() - start < after_s + 3.0))):
             if time.monotonic() - start > 60.0:
                 break
             time.sleep(0.05)

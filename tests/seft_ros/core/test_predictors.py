@@ -575,8 +575,9 @@ def test_adaptive_delay_fit_takes_no_increment_across_a_missing_sample():
 class StallingRig(DelayRig):
     """Delay rig whose command is held over stalls (test only): at the samples of `stalls` it
     applies the last command it had before, as a force servo-controller acting on its
-    extrapolation of a late reference force does; with `report`, the predictor is told
-    (what the builder node does for a reference force more than two periods late)."""
+    extrapolation of a late reference force does; with `predictor` (a list whose first item
+    is the predictor), it is told (what the builder node does for a reference force more
+    than two periods late)."""
 
     def __init__(self, specimen, dt, tau_s, stalls, predictor=None):
         super().__init__(specimen, dt, tau_s)

@@ -618,8 +618,9 @@ class ReferenceForceBuilder:
         self._latest[r][measurement.step] = measurement
 
     def reference_late(self, step: int) -> None:
-        """Real time: the reference forces of sample `step` went out after its sample time;
-        each local rig's compensator that identifies from the forces it sent is told
+        """Real time: the reference forces of sample `step` went out late (the builder node:
+        more than ``LATE_REFERENCE_STEPS`` sample periods after its sample time); each local
+        rig's compensator that identifies from the forces it sent is told
         (``AdaptivePredictor.reference_late``)."""
         for law in self.laws:
             fn = getattr(law.predictor, 'reference_late', None)
