@@ -1,6 +1,8 @@
 """SCHED_FIFO for every thread of a process (seft_msgs_py.scheduling), checked in a child
 process so that the test process keeps its scheduler."""
 
+import json
+import os
 import subprocess
 import sys
 
@@ -44,3 +46,34 @@ def test_reset_on_fork_keeps_children_on_the_normal_scheduler():
     got, threads, all_fifo, priorities, child_fifo = _child(7, True)
     assert got == '7' and all_fifo == 'True' and priorities == '[7]'
     assert child_fifo == 'False'
+
+
+BLAS_CHILD = r"""
+import json, os, sys
+import scipy.signal
+from threadpoolctl import threadpool_info
+from seft_msgs_py.node_support import SeftNode
+
+class Stub:                       # what apply_priority reads of a node
+    realtime = sys.argv[1] == 'realtime'
+    kind = 'reference_force_builder'
+    params = {'realtime_priority': 0}
+
+before = sorted(i['num_threads'] for i in threadpool_info() if i['user_api'] == 'blas')
+SeftNode.apply_priority(Stub())
+after = sorted(i['num_threads'] for i in threadpool_info() if i['user_api'] == 'blas')
+print(json.dumps([before, after, os.sched_getscheduler(0) == os.SCHED_OTHER]))
+"""
+
+
+@pytest.mark.parametrize('mode', ['realtime', 'lockstep'])
+def test_a_real_time_node_keeps_blas_to_one_thread_without_sched_fifo(mode):
+    """realtime_priority 0 (the normal scheduler): a real-time node still limits BLAS to one
+    thread (a pool of two made 2x2 products take 4-20 ms on a loaded host); lockstep keeps
+    the pool. The BLAS threads are counted in a child (the limit lasts the process's life)."""
+    env = dict(os.environ, OPENBLAS_NUM_THREADS='2')
+    out = subprocess.run([sys.executable, '-c', BLAS_CHILD, mode], capture_output=True,
+                         text=True, timeout=60, check=True, env=env).stdout
+    before, after, normal = json.loads(out)
+    assert normal and before and max(before) == 2
+    assert after == ([1] * len(before) if mode == 'realtime' else before)

@@ -213,7 +213,8 @@ class SeftNode(Node):
         """Do the work scheduled at :meth:`next_due` (called once it is due)."""
 
     def apply_priority(self) -> None:
-        """Real-time mode with ``realtime_priority`` > 0: run this process under SCHED_FIFO.
+        """Real-time mode: BLAS to one thread; with ``realtime_priority`` > 0, run this
+        process under SCHED_FIFO.
 
         The priority is ``realtime_priority`` plus ``PRIORITY_OFFSET`` of the node: the
         rig highest, then the controller and the builder, then the ground-motion publisher,
@@ -222,20 +223,25 @@ class SeftNode(Node):
         Where the system refuses (no root, no CAP_SYS_NICE, no RT budget) the node logs one
         warning and keeps the normal scheduler: a run never fails for it.
 
-        Under SCHED_FIFO the BLAS libraries are limited to one thread for the process's life:
-        OpenBLAS's pool threads inherit the real-time priority and busy-wait between calls,
-        and on two cores they starved the other nodes for 20-80 ms at the first large solve
-        (the ``adaptive`` compensator's refit of the force-loop inverse: every real-time run
-        of it aborted on a watchdog within 0.6 s; with one thread none did).
+        In real time the BLAS libraries are limited to one thread for the process's life,
+        with or without SCHED_FIFO. Under it, OpenBLAS's pool threads inherit the real-time
+        priority and busy-wait between calls, and on two cores they starved the other nodes
+        for 20-80 ms at the first large solve (the ``adaptive`` compensator's refit of the
+        force-loop inverse: every real-time run of it aborted on a watchdog within 0.6 s; with
+        one thread none did). At the normal scheduler a pool of two made the compensators'
+        small products slow on a loaded host: a ``DelayImpulseModel`` (2x2 matrices) took
+        4.2 ms at p99 and 20 ms at most, 0.13 and 1.1 ms with one thread.
         """
-        base = int(self.params.get('realtime_priority', 0))
-        if not self.realtime or base <= 0 or self.kind not in PRIORITY_OFFSET:
+        if not self.realtime or self.kind not in PRIORITY_OFFSET:
             return
-        priority = max(1, min(99, base + PRIORITY_OFFSET[self.kind]))
         global _BLAS_LIMIT
         if _BLAS_LIMIT is None:
             from threadpoolctl import ThreadpoolController
             _BLAS_LIMIT = ThreadpoolController().limit(limits=1)     # kept: never restored
+        base = int(self.params.get('realtime_priority', 0))
+        if base <= 0:
+            return
+        priority = max(1, min(99, base + PRIORITY_OFFSET[self.kind]))
         try:
             set_fifo(priority)
         except (OSError, AttributeError) as exc:
