@@ -258,14 +258,20 @@ def test_ground_preview_removes_the_lag(rig, amplitude):
     assert abs(c.displacement.lag_s) < 0.001 and c.displacement.nrms < 0.01
 
 
-def test_adaptive_identifies_a_fixed_fractional_delay(monkeypatch):
-    made = []
+@pytest.fixture
+def made(monkeypatch):
+    """The ``adaptive`` predictors that ``experiment.simulate`` makes, in order (a list)."""
+    out = []
 
     def factory(params):
-        made.append(AdaptivePredictor.from_parameters(params))
-        return made[-1]
+        out.append(AdaptivePredictor.from_parameters(params))
+        return out[-1]
 
     monkeypatch.setitem(PREDICTORS, 'adaptive', factory)
+    return out
+
+
+def test_adaptive_identifies_a_fixed_fractional_delay(made):
     err, run = nrms_percent(rig_model='delay', tau_s=0.0123, alpha=1.0, predictor='adaptive')
     assert run.stable and err < 0.5
     assert made[0].tau_s == pytest.approx(0.0123, abs=2e-4)
@@ -313,15 +319,8 @@ class DriftingDelayRig(DelayRig):
         self.step += 1
 
 
-def test_adaptive_tracks_a_drifting_delay(monkeypatch):
+def test_adaptive_tracks_a_drifting_delay(monkeypatch, made):
     """tau drifts from 8 to 12 ms over the first 8 s; the estimate follows it."""
-    made = []
-
-    def factory(params):
-        made.append(AdaptivePredictor.from_parameters(params))
-        return made[-1]
-
-    monkeypatch.setitem(PREDICTORS, 'adaptive', factory)
     rig = DriftingDelayRig(LinearSpecimen(M, C, K), DT, 0.008, 0.012, 4000)
     monkeypatch.setattr(experiment, 'make_rig', lambda params: rig)
     run = experiment.simulate(dict(rig_model='delay', alpha=1.0, predictor='adaptive'))
@@ -592,19 +591,12 @@ class StallingRig(DelayRig):
         super().apply(command)
 
 
-def test_adaptive_delay_fit_takes_no_row_of_a_late_reference_force(monkeypatch):
+def test_adaptive_delay_fit_takes_no_row_of_a_late_reference_force(monkeypatch, made):
     """Real time: five stalls of six periods in the strong motion, the rig's force held
     meanwhile (not the force the predictor sent). Regressed on the sent forces, the stalls move
     the gain estimate (measured 0.992-1.004; 1.082 for 0.5-1 s on the bridge over three
     emulated hosts, where the servohydraulic rig's force rang); told of the late references,
     the delay fit skips their rows and the delay and the gain stay where they were (exact)."""
-    made = []
-
-    def factory(params):
-        made.append(AdaptivePredictor.from_parameters(params))
-        return made[-1]
-
-    monkeypatch.setitem(PREDICTORS, 'adaptive', factory)
     stalls = [s + i for s in (1250, 1400, 1600, 2000, 2500) for i in range(6)]
     params = dict(rig_model='delay', tau_s=0.0123, alpha=1.0, predictor='adaptive')
     ranges = {}
