@@ -94,7 +94,8 @@ def bad(text):
     ('recorder_window_steps', 1901,
      'parameter recorder_window_steps=1901: expected int >= 0 <= 1900'),
     # text: choices (case matters), type, non-empty
-    ('rig_model', 'foo', "parameter rig_model='foo': expected one of 'delay', 'servohydraulic'"),
+    ('rig_model', 'foo', "parameter rig_model='foo': expected one of 'delay', 'servohydraulic', "
+     "'state_space', 'actuator'"),
     ('bag_storage', 'MCAP', "parameter bag_storage='MCAP': expected one of 'mcap', 'sqlite3'"),
     ('record', 5, 'parameter record=5: expected str'),
     ('record', '', 'parameter record: expected a non-empty text'),

@@ -19,6 +19,7 @@ __all__ = [
     'ParamSpec', 'SCHEMA', 'NODES', 'spec', 'specs_for_node', 'defaults', 'validate_value',
     'from_text',
     'resolve', 'graph_nodes', 'PER_NODE', 'shared_mismatches', 'VALUE_SOURCE', 'value_source',
+    'VALVE_RIG_MODELS', 'valve_commanded', 'MAPPING_PARAMETERS', 'mapping_value',
 ]
 
 #: The node names of the graph, as used in ``ParamSpec.nodes``.
@@ -332,10 +333,17 @@ SCHEMA: tuple[ParamSpec, ...] = (
               'tangent stiffness force_tangent_horizon_s ahead, from a Bouc-Wen model '
               "identified online: for members that yield); 'specimen_loop_shaping' (the "
               "study's rule for this rig's own specimen: g/(s^2 + (c/m) s + k/m), e.g. a second "
-              'pier of another stiffness).',
+              "pier of another stiffness); 'transfer_function' (a lab's own controller, or the "
+              'one seft design / seft identify --params designed: force_controller_tf).',
               choices=('loop_shaping', 'integral', 'velocity_feedback', 'tangent_loop_shaping',
-                       'specimen_loop_shaping'),
+                       'specimen_loop_shaping', 'transfer_function'),
               nodes=_CTRL + _RFB),
+    ParamSpec('force_controller_tf', 'none', '', "'transfer_function' force controller: the "
+              'force error [N] to valve command [V] as a mapping {num: [...], den: [...], dt: '
+              'period [s] (absent or 0: continuous, polynomials in s, discretized by Tustin at '
+              'dt, prewarped at prewarp_hz if given; else polynomials in z, descending powers, '
+              "at the run's dt), prewarp_hz, method: text}; in a configuration file a YAML "
+              'mapping, here its JSON.', nodes=_CTRL + _RFB),
     ParamSpec('force_tangent_horizon_s', 0.005, 's', "'tangent_loop_shaping': how far ahead "
               "of the sample the member's tangent stiffness is predicted: when the valve "
               'command acts on the flow (reference rig: I/O latency 3 ms and valve time '
@@ -362,8 +370,33 @@ SCHEMA: tuple[ParamSpec, ...] = (
               nodes=_CTRL),
     # -- rig --------------------------------------------------------------------------------
     ParamSpec('rig_model', 'servohydraulic', '', "Simulated rig: 'delay' (measured force = "
-              "reference force delayed by tau_s, paper Sec. 5.2) or 'servohydraulic'.",
-              choices=('delay', 'servohydraulic'), nodes=_ALL),
+              "reference force delayed by tau_s, paper Sec. 5.2), 'servohydraulic' (seft's "
+              "model of the study's rig; also what a lab's valve-driven rig behind the UDP "
+              "bridge is), 'state_space' (a lab's own model of its actuator and specimen, "
+              "plant_model: rehearse the test on it) or 'actuator' (seft_plant_sim's family of "
+              "actuators seft did not design its models for: actuator_family). Every rig but "
+              "'delay' takes the valve voltage from the force servo controller.",
+              choices=('delay', 'servohydraulic', 'state_space', 'actuator'), nodes=_ALL),
+    ParamSpec('plant_model', 'none', '', "The force loop's plant as data: valve command [V] to "
+              'measured force, displacement, velocity and acceleration with the specimen in the '
+              'loop (seft_msgs_py.plant), a mapping {form: state_space | transfer_function, dt '
+              '(0: continuous), io_delay_s, a/b/c or num/den, specimen, uncertainty} (written '
+              "by seft identify --params, or the lab's own); in a configuration file a YAML "
+              "mapping or the path of a YAML file holding one, here its JSON. 'none': the "
+              "servohydraulic rig's own model. The force-controller design, the compensators' "
+              'force-loop inverse, the stability guard and seft identify take it; rig_model '
+              "'state_space' simulates it.", nodes=_RIG + _CTRL + _RFB),
+    ParamSpec('actuator_family', 'valve_2nd_order', '', "rig_model 'actuator': the member of "
+              "seft_plant_sim's actuator family (seft_plant_sim.actuator.FAMILY: servo-valves of "
+              'second order and three stages, a leaky actuator, valve flow through an orifice, '
+              'Coulomb friction, a longer pure delay) driving this specimen.',
+              choices=('valve_2nd_order', 'valve_3_stage', 'leaky', 'orifice_flow',
+                       'coulomb_friction', 'pure_delay'), nodes=_RIG),
+    ParamSpec('actuator_spread', 0.0, '', "rig_model 'actuator': Monte-Carlo spread of the "
+              "family member's parameters, a fraction (0.2: each drawn uniformly within +-20 "
+              '%; 0: nominal).', 0.0, 0.9, nodes=_RIG),
+    ParamSpec('actuator_seed', 1, '', "rig_model 'actuator': seed of the Monte-Carlo draw "
+              '(actuator_spread).', 0, None, nodes=_RIG),
     ParamSpec('rig_calibration', 'us_customary', '', 'Servohydraulic rig: the units the '
               "reference controller C_f = 37/(s^2+17.14 s+4002) (paper Eq. 3.1) is read in. "
               "'us_customary': V/lbf (37/4.448 V/N; the valve passes 2.0 m/s at 10 V); 'si': "
@@ -481,14 +514,27 @@ def spec(name: str) -> ParamSpec:
         raise ParameterError(f'unknown parameter {name!r}') from None
 
 
+#: The rig models driven by the valve voltage, whose force loop the force servo controller
+#: closes (every one but the 'delay' rig, which takes the reference force).
+VALVE_RIG_MODELS = ('servohydraulic', 'state_space', 'actuator')
+
+
+def valve_commanded(rig_model) -> bool:
+    """Whether a rig model takes the valve voltage (:data:`VALVE_RIG_MODELS`); a mapping of
+    parameters is read for its ``rig_model``."""
+    if isinstance(rig_model, Mapping):
+        rig_model = rig_model.get('rig_model', 'servohydraulic')
+    return rig_model in VALVE_RIG_MODELS
+
+
 def graph_nodes(rig_model: str) -> tuple[str, ...]:
     """The data nodes of a run's graph, in start order (the rig last; the recorder apart).
 
-    The force servo controller only on the 'servohydraulic' rig: the 'delay' rig takes the
-    reference force directly.
+    The force servo controller only on a valve-commanded rig (:data:`VALVE_RIG_MODELS`): the
+    'delay' rig takes the reference force directly.
     """
     nodes = ('ground_motion_publisher', 'reference_force_builder')
-    if rig_model == 'servohydraulic':
+    if valve_commanded(rig_model):
         nodes += ('force_servo_controller',)
     return nodes + ('rig',)
 
@@ -558,6 +604,31 @@ def validate_value(name: str, value: Any, *, where: str = '') -> Any:
     if s.maximum is not None and value > s.maximum:
         raise bad
     return value
+
+
+#: Text parameters whose value is a mapping in a configuration file (held as its JSON): a
+#: plant model and a lab's force controller.
+MAPPING_PARAMETERS = ('plant_model', 'force_controller_tf')
+
+def mapping_value(value, *, where: str, expected: str) -> dict:
+    """The mapping a mapping parameter holds (:data:`MAPPING_PARAMETERS`): `value` itself or
+    its JSON text.
+
+    Raises
+    ------
+    ParameterError
+        Text that is not JSON, or not a mapping (``'<where>: ...'``, naming `expected`).
+    """
+    import json
+    doc = value
+    if isinstance(value, str):
+        try:
+            doc = json.loads(value)
+        except json.JSONDecodeError as exc:
+            raise ParameterError(f'{where}: not JSON ({exc.msg}); expected {expected}') from None
+    if not isinstance(doc, Mapping):
+        raise ParameterError(f'{where}: expected {expected}')
+    return dict(doc)
 
 
 #: Parameters that may hold a list on the command line (one run per value).
@@ -766,6 +837,7 @@ _SHARED_SOURCE = {
     'valve_flow_gain_m3_per_s_V': 'rig', 'valve_pressure_coefficient_m3_per_s_Pa': 'rig',
     'leakage_coefficient_m3_per_s_Pa': 'rig',  # the rig's; the controller's velocity design
     'force_controller': 'force_servo_controller', 'force_integral_hz': 'force_servo_controller',
+    'force_controller_tf': 'force_servo_controller', 'plant_model': 'rig',
     'force_crossover_hz': 'force_servo_controller', 'velocity_lead_s': 'force_servo_controller',
     'velocity_filter_hz': 'force_servo_controller',
     'force_tangent_horizon_s': 'force_servo_controller',

@@ -47,6 +47,9 @@ from scipy import optimize, signal
 from seft_msgs_py.calibration import CALIBRATIONS, DEFAULT_CALIBRATION, valve_flow_gain_m3_per_s_V
 from seft_msgs_py.errors import ParameterError
 from seft_msgs_py.interface import COMMAND_VALVE, Measurement
+from seft_msgs_py.plant import OUTPUTS as PLANT_OUTPUTS
+from seft_msgs_py.plant import LoopResponses, PlantModel
+from seft_msgs_py.plant import Specimen as PlantSpecimen
 from seft_msgs_py.sampling import linear_map as _linear_map
 from seft_msgs_py.sampling import split_delay as _split_delay
 from seft_msgs_py.sampling import zoh as _zoh
@@ -63,6 +66,7 @@ from seft_plant_sim.specimen import (
 
 __all__ = [
     'ServoHydraulicParams', 'ServoHydraulicRig', 'SampledRig', 'LoopMargins', 'OUTPUTS',
+    'ServoHydraulicPlant', 'loop_impulse_responses',
     'continuous_model', 'valve_to_force', 'sample', 'controller_frequency_response',
     'loop_frequency_response', 'closed_loop_force_response', 'equivalent_delay_s',
     'loop_margins', 'substructure_state_matrix', 'substructure_spectral_radius',
@@ -432,6 +436,135 @@ def sample(params: ServoHydraulicParams, specimen: LinearSpecimen, dt: float) ->
     _, gamma_early = _zoh(sys.A, sys.B, delta)
     return SampledRig(dt, n, delta, phi, (phi_rest @ gamma_early)[:, 0], gamma_late[:, 0],
                       np.array(sys.C))
+
+
+# -- the rig as the force loop's plant ------------------------------------------------------
+
+class ServoHydraulicPlant(PlantModel):
+    """seft's servohydraulic rig as the force loop's plant (:class:`~seft_msgs_py.plant.
+    PlantModel`), sampled exactly.
+
+    The plant of :func:`sample` (:meth:`SampledRig.augmented`, the latency's past commands as
+    states) with the outputs of :data:`seft_msgs_py.plant.OUTPUTS`. Its closed-loop responses
+    are the exact ones of :func:`loop_impulse_responses` (the step average of the actuator
+    force integrated with the rig, not approximated from the samples), and it can be rebuilt
+    for another specimen (:meth:`with_specimen`) or I/O latency (:meth:`with_latency`), which
+    a model of data cannot.
+
+    Parameters
+    ----------
+    params : ServoHydraulicParams
+    specimen : LinearSpecimen
+    dt : float > 0
+        Control period [s].
+    source : str, optional
+        Default: "seft's servohydraulic rig model".
+
+    Attributes
+    ----------
+    params : ServoHydraulicParams
+    linear_specimen : LinearSpecimen
+    sampled : SampledRig
+    """
+
+    def __init__(self, params: ServoHydraulicParams, specimen: LinearSpecimen, dt: float, *,
+                 source: str = "seft's servohydraulic rig model"):
+        rig = sample(params, specimen, dt)
+        a, b, c = rig.augmented()
+        rows = [OUTPUTS.index(n) for n in PLANT_OUTPUTS]
+        super().__init__(a, b, c[rows], rig.dt,
+                         specimen=PlantSpecimen(specimen.mass_kg, specimen.damping_N_s_per_m,
+                                                specimen.stiffness_N_per_m),
+                         source=source)
+        self.params = params
+        self.linear_specimen = specimen
+        self.sampled = rig
+
+    def loop_responses(self, controller, n: int) -> LoopResponses:
+        """The exact closed-loop responses (:func:`loop_impulse_responses`)."""
+        return loop_impulse_responses(self.params, self.linear_specimen, controller, n)
+
+    def with_specimen(self, specimen: LinearSpecimen) -> 'ServoHydraulicPlant':
+        """The same rig with another specimen."""
+        return ServoHydraulicPlant(self.params, specimen, self.dt, source=self.source)
+
+    def with_latency(self, latency_s: float) -> 'ServoHydraulicPlant':
+        """The same rig with another I/O latency [s]."""
+        from dataclasses import replace
+        return ServoHydraulicPlant(replace(self.params, io_latency_s=float(latency_s)),
+                                   self.linear_specimen, self.dt, source=self.source)
+
+
+def loop_impulse_responses(params: ServoHydraulicParams, specimen: LinearSpecimen,
+                           controller, n: int) -> LoopResponses:
+    """Impulse responses of the rig's force loop closed by a discrete controller.
+
+    Parameters
+    ----------
+    params : ServoHydraulicParams
+    specimen : LinearSpecimen
+    controller : object with ``bz``, ``az`` and ``dt``
+        The force controller's error path (its velocity path is left out).
+    n : int
+        Number of samples.
+
+    Returns
+    -------
+    LoopResponses
+        ``sampled``: the measured force ``f_m[j]`` for ``f_r = delta[j]`` [N/N];
+        ``step_average``: ``(1/dt) int_{t_j}^{t_j+1} A p_L dt`` [N/N]. Linear (no valve
+        saturation), from rest.
+
+    Notes
+    -----
+    The continuous rig (:func:`continuous_model`) is augmented with the integral of the
+    actuator force and sampled with the split I/O latency as :func:`sample`; the loop is
+    closed with the measured force sample ``f_m[j]`` and the discrete controller, as in the
+    one-process simulator.
+    """
+    dt = float(controller.dt)
+    sys = continuous_model(params, specimen)
+    ns = sys.A.shape[0]
+    true_force = np.asarray(sys.C)[4]
+    a = np.zeros((ns + 1, ns + 1))
+    a[:ns, :ns] = sys.A
+    a[ns, :ns] = true_force
+    b = np.vstack([sys.B, [[0.0]]])
+    nd, delta = _split_delay(params.io_latency_s, dt)
+    phi, _ = _zoh(a, b, dt)
+    phi_rest, g_late = _zoh(a, b, dt - delta)
+    _, g_early = _zoh(a, b, delta)
+    g_early = (phi_rest @ g_early)[:, 0]
+    g_late = g_late[:, 0]
+    measured_force = _linear_map(np.asarray(sys.C)[0], name='measured_force')
+    advance = _linear_map(np.hstack([phi, g_early[:, None], g_late[:, None]]), name='advance')
+    bz, az = np.ravel(controller.bz), np.ravel(controller.az)
+    bz, az = bz / az[0], az / az[0]
+    nc = max(len(bz), len(az)) - 1
+    bz = np.concatenate([bz, np.zeros(nc + 1 - len(bz))])
+    az = np.concatenate([az, np.zeros(nc + 1 - len(az))])
+    bz, az = bz.tolist(), az.tolist()
+    zc = [0.0] * nc
+    s = [0.0] * (ns + 1)
+    u_hist = deque([0.0] * (nd + 1), maxlen=nd + 1)
+    out = np.zeros(n)
+    sampled = np.zeros(n)
+    for j in range(n):
+        fr = 1.0 if j == 0 else 0.0
+        fm = measured_force(s)
+        sampled[j] = fm
+        e = fr - fm
+        u = bz[0] * e + (zc[0] if nc else 0.0)
+        for i in range(nc):
+            nxt = zc[i + 1] if i + 1 < nc else 0.0
+            zc[i] = bz[i + 1] * e - az[i + 1] * u + nxt
+        early = u_hist[0]
+        late = u_hist[1] if nd >= 1 else u
+        w_before = s[ns]
+        s = list(advance(s + [early, late]))
+        u_hist.append(u)
+        out[j] = (s[ns] - w_before) / dt
+    return LoopResponses(sampled, out)
 
 
 # -- the rig --------------------------------------------------------------------------------

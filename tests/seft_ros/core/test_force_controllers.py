@@ -256,7 +256,8 @@ def test_unknown_design_message_lists_the_designs():
     """from_parameters checks the name itself (the mapping need not come from resolve())."""
     with pytest.raises(ParameterError, match=re.escape(
             "parameter force_controller='pid': expected one of 'loop_shaping', 'integral', "
-            "'velocity_feedback', 'tangent_loop_shaping', 'specimen_loop_shaping'") + '$'):
+            "'velocity_feedback', 'tangent_loop_shaping', 'specimen_loop_shaping', "
+            "'transfer_function'") + '$'):
         ForceServoController.from_parameters(dict(parameters.defaults(), force_controller='pid'))
 
 
@@ -356,8 +357,12 @@ def test_state_space_equals_the_step_recursion_for_every_design(kind):
     """state_space() against step() for each linear design (no saturation: a 1 MV limit),
     built without a warning (tf2ss warns on badly conditioned coefficients). The scheduled
     design has its own tests (test_tangent_loop_shaping.py)."""
+    # a lab's own: a third-order continuous controller (lead, resonance, roll-off)
+    lab = ('{"num": [4.0, 120.0], "den": [0.001, 1.2, 60.0, 4000.0], "dt": 0}'
+           if kind == 'transfer_function' else 'none')
     ctrl = ForceServoController.from_parameters(params(force_controller=kind,
-                                                       velocity_lead_s=0.002))
+                                                       velocity_lead_s=0.002,
+                                                       force_controller_tf=lab))
     ctrl.valve_limit_V = 1e6
     with warnings.catch_warnings():
         warnings.simplefilter('error')

@@ -170,8 +170,8 @@ def test_network_delay_steps():
     assert network_delay_steps({**base, 'network_delay_s': 0.0062}) == 3       # 3.1 steps
     for mode, rig in (('lockstep', 'servohydraulic'), ('realtime', 'delay')):
         with pytest.raises(ParameterError, match=(
-                r'^parameter network_delay_s=0.004: applies to real-time mode on the '
-                rf"servohydraulic rig only \(here mode '{mode}', rig_model '{rig}'\); set it "
+                r'^parameter network_delay_s=0.004: applies to real-time mode on a '
+                rf"valve-driven rig only \(here mode '{mode}', rig_model '{rig}'\); set it "
                 r'to 0$')):
             network_delay_steps({**base, 'mode': mode, 'rig_model': rig,
                                  'network_delay_s': 0.004})
@@ -1399,11 +1399,10 @@ def test_the_loop_models_need_seft_plant_sim(monkeypatch):
     import sys
     monkeypatch.setitem(sys.modules, 'seft_plant_sim.servohydraulic', None)
     params = parameters.resolve({'rig_model': 'servohydraulic'})
-    with pytest.raises(ParameterError, match=r'^predictor model on rig_model servohydraulic: '
-                                             r'the force-loop model comes from seft_plant_sim, '
-                                             r'which cannot be imported here \('):
+    message = (r"^the force loop of rig_model servohydraulic: seft's model of that rig comes "
+               r'from seft_plant_sim, which cannot be imported here \(.*\); install it, or give '
+               r"the rig's plant_model$")
+    with pytest.raises(ParameterError, match=message):
         ForceLoopInverse.from_parameters(params)
-    with pytest.raises(ParameterError, match=r'^adaptive_loop data: the prior of the force '
-                                             r'loop comes from seft_plant_sim, which cannot be '
-                                             r'imported here \(.*\); install it$'):
+    with pytest.raises(ParameterError, match=message):
         IdentifiedForceLoop.from_parameters(params)

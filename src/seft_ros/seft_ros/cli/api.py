@@ -22,7 +22,14 @@ from seft_ros.analysis.bag import read_run
 from seft_ros.analysis.reference import reference_response
 from seft_ros.analysis.rundata import RunData
 from seft_ros.cli import partition
-from seft_ros.cli.config import RIGS, expand_runs, layer_rigs, load_config, write_params_file
+from seft_ros.cli.config import (
+    RIGS,
+    expand_runs,
+    layer_rigs,
+    load_config,
+    mapping_values,
+    write_params_file,
+)
 from seft_ros.core import stability
 from seft_ros.core.experiment import simulate
 from seft_ros.core.ground_motion import prepared_record
@@ -86,6 +93,8 @@ def build_runs(*, config: str | None = None, overrides: dict[str, Any] | None = 
             layered.setdefault(name, value)
     values.update({k: v for k, v in layered.items() if v is not None})
     values.update({k: v for k, v in (overrides or {}).items() if v is not None})
+    # a plant model or controller given by its file on the command line
+    values = mapping_values(values, base=Path.cwd(), where='command line')
     for path, sections in reversed(rig_layers):      # the first file's values last: they win
         values = layer_rigs(values, sections, where=str(path))
     if alphas:

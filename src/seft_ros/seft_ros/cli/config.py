@@ -22,6 +22,7 @@ only a rig's parameters, never one of the whole test
 """
 
 from dataclasses import replace
+import json
 from pathlib import Path
 import re
 from typing import Any
@@ -32,7 +33,7 @@ from seft_msgs_py import parameters
 from seft_msgs_py.errors import InputError, ParameterError
 
 __all__ = ['load_config', 'expand_runs', 'write_params_file', 'ConfigLoader', 'layer_rigs',
-           'RIGS']
+           'RIGS', 'mapping_values']
 
 #: The key of :func:`load_config`'s result that holds a layered file's ``rigs`` section.
 RIGS = 'rigs'
@@ -95,7 +96,11 @@ def load_config(path, *, layer: bool = False) -> dict[str, Any]:
             if not isinstance(data, dict):
                 raise InputError(f'{path}: {key}.ros__parameters: expected a mapping')
     data = {k: v for k, v in data.items() if k != 'use_sim_time'}
+    data = mapping_values(data, base=path.parent, where=str(path))
     structure, rigs = data.pop('structure', None), data.pop('rigs', None)
+    if isinstance(rigs, dict):
+        rigs = {r: (mapping_values(v, base=path.parent, where=f'{path}: rigs.{r}')
+                    if isinstance(v, dict) else v) for r, v in rigs.items()}
     if isinstance(structure, dict):
         from seft_ros.core.structure import parse_structure  # numpy, scipy: only if needed
         data['structure'] = parse_structure(structure, rigs=rigs, where=f'{path}: structure',
@@ -112,6 +117,52 @@ def load_config(path, *, layer: bool = False) -> dict[str, Any]:
     if rigs is not None and not isinstance(structure, dict):
         data[RIGS] = _rig_sections(rigs, where=f'{path}: rigs')
     return data
+
+
+def mapping_values(values: dict[str, Any], *, base: Path | None = None,
+                   where: str = '') -> dict[str, Any]:
+    """`values` with each mapping parameter (``seft_msgs_py.parameters.MAPPING_PARAMETERS``:
+    ``plant_model``, ``force_controller_tf``) as the JSON text the nodes take.
+
+    A value may be the mapping itself, its JSON, ``'none'``, or the path of a YAML file that
+    holds the mapping (relative to `base`, the configuration's folder).
+
+    Raises
+    ------
+    InputError
+        A file that does not exist, is not YAML or does not hold a mapping; a value that is
+        none of the above (the message names `where` and the parameter).
+    """
+    out = dict(values)
+    for name in parameters.MAPPING_PARAMETERS:
+        if name not in out:
+            continue
+        value = out[name]
+        label = f'{where}: {name}' if where else f'parameter {name}'
+        if isinstance(value, dict):
+            out[name] = json.dumps(value, sort_keys=True, separators=(',', ':'))
+        elif isinstance(value, str) and value.strip() not in ('none', '') \
+                and not value.lstrip().startswith('{'):
+            file = Path(value).expanduser()
+            if base is not None and not file.is_absolute():
+                file = base / file
+            if not file.is_file():
+                raise InputError(f'{label}: {value}: no such file (a mapping, its JSON, or the '
+                                 'path of a YAML file holding it)')
+            try:
+                doc = yaml.load(file.read_text(), Loader=ConfigLoader)
+            except yaml.YAMLError as exc:
+                raise InputError(f'{file}: invalid YAML ({getattr(exc, "problem", exc)})') \
+                    from None
+            if isinstance(doc, dict) and list(doc) == [name] and isinstance(doc[name], dict):
+                doc = doc[name]                     # a file with the parameter's own key
+            if not isinstance(doc, dict):
+                raise InputError(f'{file}: expected a mapping ({name})')
+            out[name] = json.dumps(doc, sort_keys=True, separators=(',', ':'))
+        elif not isinstance(value, str):
+            raise InputError(f'{label}: expected a mapping, its JSON or a YAML file path, got '
+                             f'{value!r}')
+    return out
 
 
 def _rig_sections(rigs, *, where: str) -> dict[str, dict[str, Any]]:
@@ -219,10 +270,13 @@ def _with_structure(params: dict[str, Any], where: str) -> dict[str, Any]:
         the whole test (the message names the field and `where`).
     """
     if params.get('structure', 'none') in ('none', '', None):
+        _check_mappings(params, where)
         return params
     from seft_ros.core.structure import reduces_to_study, study_parameters, test_setup
     try:
         setup = test_setup(params)
+        for rig, rp in setup.rig_params.items():
+            _check_mappings(rp, f'{where}: rig {rig}' if where else f'rig {rig}')
         if reduces_to_study(setup.substructures):
             return study_parameters(params, setup.substructures)
         if params.get('excitation', 'none') != 'none':
@@ -231,6 +285,32 @@ def _with_structure(params: dict[str, Any], where: str) -> dict[str, Any]:
     except ParameterError as exc:
         raise ParameterError(f'{where}: {exc}' if where else str(exc)) from None
     return params
+
+
+def _check_mappings(params: dict[str, Any], where: str) -> None:
+    """Parse a rig's ``plant_model`` and ``force_controller_tf`` now (a bad field is refused
+    before anything runs).
+
+    Raises
+    ------
+    ParameterError
+        The message names `where`, the parameter and the field.
+    """
+    prefix = f'{where}: ' if where else ''
+    if params.get('plant_model', 'none') not in ('none', '', None):
+        from seft_msgs_py.plant import parse_plant
+        try:
+            parse_plant(params['plant_model'], dt=float(params['dt']),
+                        where='parameter plant_model')
+        except ParameterError as exc:
+            raise ParameterError(f'{prefix}{exc}') from None
+    if params.get('force_controller') == 'transfer_function':
+        from seft_ros.core.controller import ControllerTF
+        try:
+            ControllerTF.from_parameter(params.get('force_controller_tf', 'none'),
+                                        dt=float(params['dt']))
+        except ParameterError as exc:
+            raise ParameterError(f'{prefix}{exc}') from None
 
 
 def write_params_file(params: dict[str, Any], path) -> Path:

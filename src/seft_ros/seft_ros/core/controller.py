@@ -10,6 +10,7 @@ from seft_msgs_py.calibration import CALIBRATIONS, DEFAULT_CALIBRATION, controll
 from seft_msgs_py.errors import ParameterError
 
 __all__ = ['DiscreteFilter', 'ForceServoController', 'SaturationInterlock', 'LOOP_SHAPING_NUM',
+           'ControllerTF',
            'LOOP_SHAPING_DEN', 'FORCE_CONTROLLERS', 'TangentLoopShaping', 'ReferencePlayout']
 
 #: Numerator of C_f(s) = 37 / (s^2 + 17.14 s + 4002) [V/N] (paper Eq. 3.1) in the default
@@ -20,7 +21,7 @@ LOOP_SHAPING_DEN = (1.0, 17.14, 4002.0)
 
 #: The force controller designs (parameter ``force_controller``), :class:`ForceServoController`.
 FORCE_CONTROLLERS = ('loop_shaping', 'integral', 'velocity_feedback', 'tangent_loop_shaping',
-                     'specimen_loop_shaping')
+                     'specimen_loop_shaping', 'transfer_function')
 
 
 class DiscreteFilter:
@@ -87,6 +88,109 @@ class ControllerDesign:
     den: tuple
     dt: float
     method: str
+
+
+def _discrete_coefficients(num, den):
+    """``(bz, az)`` in powers of ``z^-1`` of ``num(z)/den(z)`` given in descending powers of
+    z (``scipy.signal.dlti``'s convention): the numerator padded at the front to the
+    denominator's length."""
+    num = np.trim_zeros(np.asarray(num, dtype=float), 'f')
+    den = np.trim_zeros(np.asarray(den, dtype=float), 'f')
+    if num.size == 0:
+        num = np.zeros(1)
+    if den.size == 0 or num.size > den.size:
+        raise ParameterError('force_controller_tf: expected a proper transfer function in z '
+                             '(the numerator of at most the degree of the denominator)')
+    bz = np.concatenate([np.zeros(den.size - num.size), num]) / den[0]
+    return bz, den / den[0]
+
+
+@dataclass(frozen=True)
+class ControllerTF:
+    """A lab's force controller as a transfer function (``force_controller_tf``).
+
+    Attributes
+    ----------
+    num, den : tuple of float
+        Force error [N] to valve command [V]: polynomials in s (continuous) or in z
+        (discrete), descending powers.
+    discrete : bool
+        Given in z at the run's period.
+    prewarp_hz : float
+        Continuous: the frequency at which Tustin's discretization is exact [Hz] (0: none).
+    method : str
+        How it was made (a design's name and source), for the reports.
+    """
+
+    num: tuple
+    den: tuple
+    discrete: bool = False
+    prewarp_hz: float = 0.0
+    method: str = ''
+
+    def to_mapping(self, dt: float | None = None) -> dict:
+        """``{num, den, dt (the period if discrete, else 0), prewarp_hz, method}``."""
+        doc = {'num': [float(v) for v in self.num], 'den': [float(v) for v in self.den],
+               'dt': float(dt) if self.discrete and dt else 0.0}
+        if self.prewarp_hz:
+            doc['prewarp_hz'] = float(self.prewarp_hz)
+        if self.method:
+            doc['method'] = self.method
+        return doc
+
+    @classmethod
+    def from_parameter(cls, value, *, dt: float,
+                       where: str = 'parameter force_controller_tf') -> 'ControllerTF':
+        """From the parameter's mapping (or its JSON).
+
+        Raises
+        ------
+        ParameterError
+            'none', not a mapping, coefficients that are not finite numbers, an improper
+            transfer function, or a discrete one of another period than `dt` (the message
+            names the field).
+        """
+        if value in (None, '', 'none'):
+            raise ParameterError(f"{where}: force_controller 'transfer_function' needs the "
+                                 'controller: {num: [...], den: [...], dt: 0 (continuous, s) or '
+                                 "the run's period (discrete, z)}")
+        from seft_msgs_py.parameters import mapping_value
+        doc = mapping_value(value, where=where, expected='a transfer function {num, den, dt}')
+        unknown = sorted(set(doc) - {'num', 'den', 'dt', 'prewarp_hz', 'method'})
+        if unknown:
+            raise ParameterError(f'{where}: unknown field(s) {", ".join(unknown)}; expected num, '
+                                 'den, dt, prewarp_hz, method')
+        coeffs = {}
+        for key in ('num', 'den'):
+            v = doc.get(key)
+            if not (isinstance(v, (list, tuple)) and v and all(
+                    isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+                    for x in v)):
+                raise ParameterError(f'{where}.{key}={v!r}: expected a non-empty list of finite '
+                                     'numbers (descending powers of s or z)')
+            coeffs[key] = tuple(float(x) for x in v)
+        if not any(coeffs['den']):
+            raise ParameterError(f'{where}.den: expected a non-zero denominator')
+        period = doc.get('dt', 0.0) or 0.0
+        if isinstance(period, bool) or not isinstance(period, (int, float)) or period < 0:
+            raise ParameterError(f'{where}.dt={period!r}: expected 0 (continuous) or the period '
+                                 '[s]')
+        discrete = period > 0
+        if discrete and abs(period - dt) > 1e-9 * dt:
+            raise ParameterError(f"{where}.dt={period:g}: a discrete controller must have the "
+                                 f"run's period dt={dt:g} s")
+        num = np.trim_zeros(np.array(coeffs['num']), 'f')
+        den = np.trim_zeros(np.array(coeffs['den']), 'f')
+        if num.size > den.size:
+            raise ParameterError(f'{where}: expected a proper transfer function (num of degree '
+                                 f'{num.size - 1} over den of degree {den.size - 1})')
+        prewarp = doc.get('prewarp_hz', 0.0) or 0.0
+        if isinstance(prewarp, bool) or not isinstance(prewarp, (int, float)) or prewarp < 0 \
+                or (prewarp and prewarp >= 0.5 / dt):
+            raise ParameterError(f'{where}.prewarp_hz={prewarp!r}: expected 0 or a frequency '
+                                 'below the Nyquist frequency [Hz]')
+        return cls(coeffs['num'], coeffs['den'], discrete, float(prewarp),
+                   str(doc.get('method', '')))
 
 
 class ForceServoController:
@@ -197,7 +301,7 @@ class ForceServoController:
                  num=LOOP_SHAPING_NUM, den=LOOP_SHAPING_DEN, *, integral_hz: float = 0.0,
                  velocity_gain_V_s_per_m: float = 0.0, velocity_lead_s: float = 0.0,
                  velocity_filter_hz: float = 0.0, kind: str = 'loop_shaping',
-                 prewarp_rad_s: float | None = None):
+                 prewarp_rad_s: float | None = None, discrete: bool = False):
         if not dt > 0:
             raise ParameterError(f'parameter dt={dt!r}: expected float > 0')
         if not valve_limit_V > 0:
@@ -213,14 +317,23 @@ class ForceServoController:
         self.kind = str(kind)
         den = tuple(float(v) for v in den)
         num = tuple(float(v) for v in num)
-        if len(den) == 3:                      # resonant loop shaping: prewarp at w0
+        if discrete:                           # given in z: as it is
+            bz, az = _discrete_coefficients(num, den)
+            period, method = self.dt, 'given in z'
+        elif prewarp_rad_s is not None and len(den) != 3:    # prewarped at a given frequency
+            w0 = float(prewarp_rad_s)
+            period = 2.0 * np.tan(w0 * self.dt / 2.0) / w0
+            method = f'bilinear, prewarped at {w0:.4g} rad/s'
+        elif len(den) == 3:                    # resonant loop shaping: prewarp at w0
             w0 = (float(np.sqrt(den[-1] / den[0])) if prewarp_rad_s is None
                   else float(prewarp_rad_s))
             period = 2.0 * np.tan(w0 * self.dt / 2.0) / w0
             method = f'bilinear, prewarped at {w0:.4g} rad/s'
         else:
             period, method = self.dt, 'bilinear'
-        if len(den) == 1 and len(num) == 1:      # static gain (cont2discrete adds a z=1 pair)
+        if discrete:
+            pass
+        elif len(den) == 1 and len(num) == 1:    # static gain (cont2discrete adds a z=1 pair)
             bz, az = np.array([num[0] / den[0]]), np.array([1.0])
         else:
             bz, az, _ = signal.cont2discrete((num, den), period, method='bilinear')
@@ -287,6 +400,11 @@ class ForceServoController:
         if kind == 'tangent_loop_shaping':
             return TangentLoopShaping.from_parameters(params)
         dt, limit = float(params['dt']), float(params['valve_limit_V'])
+        if kind == 'transfer_function':
+            tf = ControllerTF.from_parameter(params.get('force_controller_tf', 'none'), dt=dt)
+            return cls(dt, limit, num=tf.num, den=tf.den, discrete=tf.discrete,
+                       prewarp_rad_s=(2.0 * math.pi * tf.prewarp_hz if tf.prewarp_hz else None),
+                       kind=kind)
         fi = float(get('force_integral_hz'))
         if kind in ('loop_shaping', 'integral'):
             return cls(dt, limit, num=(controller_gain_V_per_N(params),),

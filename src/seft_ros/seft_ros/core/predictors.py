@@ -45,6 +45,7 @@ import numpy as np
 
 from seft_msgs_py.errors import ParameterError
 from seft_msgs_py.interface import Measurement
+from seft_msgs_py.parameters import valve_commanded
 from seft_msgs_py.sampling import linear_map as _linear_map
 from seft_msgs_py.sampling import single_blas_thread as _single_blas_thread
 from seft_msgs_py.sampling import split_delay as _split_delay
@@ -399,10 +400,10 @@ def network_delay_steps(params) -> int:
     delay = float(params.get('network_delay_s', 0.0) or 0.0)
     if delay <= 0.0:
         return 0
-    if params.get('mode') != 'realtime' or params.get('rig_model') != 'servohydraulic':
+    if params.get('mode') != 'realtime' or not valve_commanded(params):
         raise ParameterError(
-            f'parameter network_delay_s={delay}: applies to real-time mode on the '
-            f"servohydraulic rig only (here mode {params.get('mode')!r}, rig_model "
+            f'parameter network_delay_s={delay}: applies to real-time mode on a '
+            f"valve-driven rig only (here mode {params.get('mode')!r}, rig_model "
             f"{params.get('rig_model')!r}); set it to 0")
     return int(round(delay / float(params['dt'])))
 
@@ -521,7 +522,7 @@ class ModelPredictor:
         restoring = params.get('predictor_restoring_force', 'model')
         inverse = None
         tau = mp['tau_s']
-        if params.get('rig_model') == 'servohydraulic':
+        if valve_commanded(params):
             inverse = ForceLoopInverse.from_parameters(params)
             # the inverted force loop's delay, plus the reference force's way over a network
             # (a pure delay in series; on the delay rig it is in predictor_tau_s already)
@@ -1025,24 +1026,24 @@ class ForceLoopInverse:
 
     @classmethod
     def from_parameters(cls, params) -> 'ForceLoopInverse':
-        """Model the loop from the rig parameters, the specimen model and the controller.
+        """Model the loop from the force loop's plant and the controller.
 
+        The plant is the run's (:func:`seft_ros.core.force_loop.compensator_plant`: its
+        ``plant_model``, or seft's rig model with the predictor's specimen);
         ``predictor_loop_delay_steps`` (d), ``predictor_loop_taps`` and
-        ``predictor_loop_hf_weight`` (mu) set the fit; the specimen model is that of the
-        predictor (``predictor_*``).
+        ``predictor_loop_hf_weight`` (mu) set the fit.
+
+        Raises
+        ------
+        ParameterError
+            No model of the force loop, or a loop the best inverse misses by more than
+            :data:`MAX_BAND_ERROR` (the message names the plant and what to do).
         """
-        try:  # the plant models are optional on a lab's controller host
-            from seft_plant_sim.servohydraulic import ServoHydraulicParams  # noqa: F401
-            from seft_plant_sim.specimen import LinearSpecimen
-        except ImportError as exc:
-            raise ParameterError(
-                'predictor model on rig_model servohydraulic: the force-loop model comes from '
-                f'seft_plant_sim, which cannot be imported here ({exc}); install it') from None
         from seft_ros.core.controller import ForceServoController
-        mp = model_parameters(params)
-        spec = LinearSpecimen(mp['mass_kg'], mp['damping_N_s_per_m'], mp['stiffness_N_per_m'])
+        from seft_ros.core.force_loop import compensator_plant, has_plant_model
+        plant = compensator_plant(params)
         ctrl = ForceServoController.from_parameters(params)
-        resp = step_average_force_impulse_response(model_rig(params), spec, ctrl, 1000)
+        resp = _loop_step_average(plant, ctrl)
         delay = int(params['predictor_loop_delay_steps'])
         inverse = None
         if np.all(np.isfinite(resp)):
@@ -1051,14 +1052,23 @@ class ForceLoopInverse:
         if inverse is None or not inverse.band_error <= MAX_BAND_ERROR:
             miss = 'its response diverges' if inverse is None else (
                 f'the best inverse misses it by {100 * inverse.band_error:.0f} % up to 25 Hz')
+            controller = params.get('force_controller', 'loop_shaping')
+            if has_plant_model(params):
+                raise ParameterError(
+                    f'predictor model: the force loop of force_controller {controller} with '
+                    f'the plant model ({plant.source}) cannot be inverted to a {delay}-step '
+                    f'delay ({miss}): design the force controller for this plant (seft design, '
+                    'or seft identify --params) or raise predictor_loop_delay_steps')
+            mp = model_parameters(params)
             raise ParameterError(
                 f"predictor model on the servohydraulic rig: the force loop of force_controller "
-                f"{params.get('force_controller', 'loop_shaping')} with the declared specimen "
+                f"{controller} with the declared specimen "
                 f"(m={mp['mass_kg']:.4g} kg, c={mp['damping_N_s_per_m']:.4g} N s/m, "
                 f"k={mp['stiffness_N_per_m']:.4g} N/m) cannot be inverted to a {delay}-step "
                 f'delay ({miss}): the declared specimen and the force controller do not make a '
                 'loop the compensation can follow; check predictor_stiffness_N_per_m and the '
-                'specimen, or identify the rig (seft identify)')
+                'specimen, or identify the rig and design its controller (seft identify '
+                '--params)')
         return inverse
 
     def step(self, force_N: float) -> float:
@@ -1067,6 +1077,33 @@ class ForceLoopInverse:
         x.insert(0, force_N)
         x.pop()
         return self._fir(x)
+
+
+def _loop_step_average(plant, controller, n: int = 1000) -> np.ndarray:
+    """The step-average force response of `plant`'s loop closed by `controller`, n samples
+    (:meth:`~seft_msgs_py.plant.PlantModel.loop_responses`; kept for a model of data, whose
+    response is stepped in Python: an adaptive refit asks for it again)."""
+    from seft_msgs_py.plant import PlantModel
+    if type(plant) is not PlantModel:        # seft's rig model: its exact response each time
+        return plant.loop_responses(controller, n).step_average
+    return _data_loop_responses(plant, controller, n).step_average
+
+
+_DATA_LOOPS: dict = {}
+
+
+def _data_loop_responses(plant, controller, n: int):
+    """:meth:`PlantModel.loop_responses` of a model of data, kept by the exact model and
+    controller (the last 8)."""
+    key = (plant.a.tobytes(), plant.b.tobytes(), plant.c.tobytes(), float(plant.dt), int(n),
+           tuple(np.asarray(m).tobytes() for m in controller.state_space()))
+    hit = _DATA_LOOPS.get(key)
+    if hit is None:
+        hit = plant.loop_responses(controller, n)
+        if len(_DATA_LOOPS) >= 8:
+            _DATA_LOOPS.pop(next(iter(_DATA_LOOPS)))
+        _DATA_LOOPS[key] = hit
+    return hit
 
 
 def _fit_figures(w_f, freq, t, target) -> tuple[float, float]:
@@ -1170,50 +1207,8 @@ def step_average_force_impulse_response(rig_params, specimen, controller, n: int
 
 
 def _loop_impulse_responses(rig_params, specimen, controller, n: int) -> LoopImpulseResponses:
-    from seft_plant_sim.servohydraulic import continuous_model
-    dt = float(controller.dt)
-    sys = continuous_model(rig_params, specimen)
-    ns = sys.A.shape[0]
-    true_force = np.asarray(sys.C)[4]
-    a = np.zeros((ns + 1, ns + 1))
-    a[:ns, :ns] = sys.A
-    a[ns, :ns] = true_force
-    b = np.vstack([sys.B, [[0.0]]])
-    nd, delta = _split_delay(rig_params.io_latency_s, dt)
-    phi, _ = _zoh(a, b, dt)
-    phi_rest, g_late = _zoh(a, b, dt - delta)
-    _, g_early = _zoh(a, b, delta)
-    g_early = (phi_rest @ g_early)[:, 0]
-    g_late = g_late[:, 0]
-    measured_force = _linear_map(np.asarray(sys.C)[0], name='measured_force')
-    advance = _linear_map(np.hstack([phi, g_early[:, None], g_late[:, None]]), name='advance')
-    bz, az = np.ravel(controller.bz), np.ravel(controller.az)
-    bz, az = bz / az[0], az / az[0]
-    nc = max(len(bz), len(az)) - 1
-    bz = np.concatenate([bz, np.zeros(nc + 1 - len(bz))])
-    az = np.concatenate([az, np.zeros(nc + 1 - len(az))])
-    bz, az = bz.tolist(), az.tolist()
-    zc = [0.0] * nc
-    s = [0.0] * (ns + 1)
-    u_hist = deque([0.0] * (nd + 1), maxlen=nd + 1)
-    out = np.zeros(n)
-    sampled = np.zeros(n)
-    for j in range(n):
-        fr = 1.0 if j == 0 else 0.0
-        fm = measured_force(s)
-        sampled[j] = fm
-        e = fr - fm
-        u = bz[0] * e + (zc[0] if nc else 0.0)
-        for i in range(nc):
-            nxt = zc[i + 1] if i + 1 < nc else 0.0
-            zc[i] = bz[i + 1] * e - az[i + 1] * u + nxt
-        early = u_hist[0]
-        late = u_hist[1] if nd >= 1 else u
-        w_before = s[ns]
-        s = list(advance(s + [early, late]))
-        u_hist.append(u)
-        out[j] = (s[ns] - w_before) / dt
-    return LoopImpulseResponses(sampled, out)
+    from seft_plant_sim.servohydraulic import loop_impulse_responses
+    return LoopImpulseResponses(*loop_impulse_responses(rig_params, specimen, controller, n))
 
 
 # -- adaptive -------------------------------------------------------------------------------
@@ -1350,37 +1345,30 @@ class IdentifiedForceLoop:
 
     @classmethod
     def from_parameters(cls, params) -> 'IdentifiedForceLoop':
-        """The prior from the configured model (rig parameters, ``predictor_*`` specimen,
-        force controller); ``predictor_loop_delay_steps``, ``predictor_loop_taps`` and
+        """The prior from the force loop's plant (:func:`seft_ros.core.force_loop.
+        compensator_plant`: the ``plant_model``, or seft's rig model with the ``predictor_*``
+        specimen) and the force controller; ``predictor_loop_delay_steps``,
+        ``predictor_loop_taps`` and
         ``adaptive_*`` as in :class:`AdaptivePredictor`, except that the loop may change by
         5 ``adaptive_max_rate_per_s`` per second (an absolute gain: a 10 % specimen error
         changes the default loop by up to 0.45, which at 1/s took 0.45 s of strong motion
         and doubled the error at alpha = 0.5). The ARX order is the model's: the
-        rig's states, the whole steps of its I/O latency plus one, and the controller's
-        order.
+        plant's states (its command delays included) and the controller's order.
 
         Raises
         ------
         ParameterError
-            If ``seft_plant_sim`` (the prior's model) cannot be imported, or a value is out of
-            range.
+            No model of the force loop (:class:`~seft_ros.core.force_loop.NoPlantModelError`),
+            or a value out of range.
         """
-        try:
-            from seft_plant_sim.servohydraulic import continuous_model
-            from seft_plant_sim.specimen import LinearSpecimen
-        except ImportError as exc:
-            raise ParameterError(
-                'adaptive_loop data: the prior of the force loop comes from seft_plant_sim, '
-                f'which cannot be imported here ({exc}); install it') from None
+        from seft_msgs_py.plant import PlantModel
         from seft_ros.core.controller import ForceServoController
-        mp = model_parameters(params)
+        from seft_ros.core.force_loop import compensator_plant
         ctrl = ForceServoController.from_parameters(params)
-        rig = model_rig(params)
-        spec = LinearSpecimen(mp['mass_kg'], mp['damping_N_s_per_m'], mp['stiffness_N_per_m'])
-        prior = force_loop_impulse_responses(rig, spec, ctrl, 1000)
-        n_delay, _ = _split_delay(rig.io_latency_s, ctrl.dt)
-        order = (continuous_model(rig, spec).A.shape[0] + n_delay + 1
-                 + max(len(np.ravel(ctrl.az)), len(np.ravel(ctrl.bz))) - 1)
+        plant = compensator_plant(params)
+        prior = (plant.loop_responses(ctrl, 1000) if type(plant) is not PlantModel
+                 else _data_loop_responses(plant, ctrl, 1000))
+        order = plant.order + max(len(np.ravel(ctrl.az)), len(np.ravel(ctrl.bz))) - 1
         return cls(prior, ctrl.dt, int(params['predictor_loop_delay_steps']),
                    int(params['predictor_loop_taps']), order,
                    memory_s=float(params.get('adaptive_memory_s', 5.0)),
@@ -1924,8 +1912,14 @@ class AdaptivePredictor:
         mp = model_parameters(params)
         tau0 = mp['tau_s']
         factory = identified = latency_fit = None
-        if params.get('rig_model') == 'servohydraulic':
+        if valve_commanded(params):
             loop_mode = params.get('adaptive_loop', ADAPTIVE_LOOP_DEFAULT)
+            if loop_mode == 'model_latency' and params.get('plant_model', 'none') != 'none':
+                raise ParameterError(
+                    "parameter adaptive_loop='model_latency': it refits the I/O latency of "
+                    "seft's servohydraulic rig model; with plant_model the latency is the "
+                    "model's: use adaptive_loop 'model' (the plant model as it is) or 'data' "
+                    '(the loop identified online from it)')
             if loop_mode == 'data':
                 identified = IdentifiedForceLoop.from_parameters(params)
             else:

@@ -47,11 +47,12 @@ import numpy as np
 from seft_msgs_py.errors import ParameterError, SeftError
 from seft_msgs_py.graph import Graph
 from seft_msgs_py.interface import Measurement
+from seft_msgs_py.parameters import valve_commanded
 from seft_msgs_py.sampling import zoh as _zoh
 from seft_plant_sim.delay_rig import delay_split
-from seft_plant_sim.servohydraulic import OUTPUTS, ServoHydraulicParams, sample
 from seft_plant_sim.specimen import LinearSpecimen
 from seft_ros.core.controller import ForceServoController
+from seft_ros.core.force_loop import NoPlantModelError, force_loop_plant
 from seft_ros.core.reference_force import (
     PREDICTORS,
     ReferenceForceBuilder,
@@ -438,25 +439,41 @@ def _delay_rig(params: Mapping):
     return a, b, np.vstack([x, v, acc, f_m])
 
 
-def _servohydraulic_rig(params: Mapping):
-    """Augmented model of the servohydraulic rig (:meth:`SampledRig.augmented`), C rows
-    (x, v, a, f_m)."""
-    rig = sample(ServoHydraulicParams.from_parameters(params),
-                 LinearSpecimen.from_parameters(params), float(params['dt']))
-    a, b, c = rig.augmented()
-    rows = [OUTPUTS.index(n) for n in ('displacement_m', 'velocity_m_s', 'acceleration_m_s2',
-                                       'force_N')]
-    return a, b, c[rows]
+def _valve_rig(params: Mapping, stiffness_ratio: float | None = None):
+    """Augmented model of a valve-driven rig: its force loop's plant
+    (:func:`~seft_ros.core.force_loop.force_loop_plant`, the past commands of its delay as
+    states), C rows (x, v, a, f_m)."""
+    try:
+        return force_loop_plant(params, stiffness_ratio=stiffness_ratio).augmented()
+    except NoPlantModelError as exc:
+        raise NoLinearModelError(str(exc)) from None
 
 
 def _rig_name(params: Mapping, frozen: bool = False) -> str:
+    """'delay', or 'valve' for a rig the force servo controller closes the loop of."""
     name = params.get('rig_model')
-    if name not in DELAY_PARAMETER:
+    if name != 'delay' and not valve_commanded(name):
         raise NoLinearModelError(f'rig {name!r}: no linear model')
     specimen = params.get('specimen_model', 'linear')
     if specimen != 'linear' and not (frozen and specimen == 'bouc_wen'):
         raise NoLinearModelError(f'specimen {specimen!r} is nonlinear')
-    return name
+    return 'delay' if name == 'delay' else 'valve'
+
+
+def _delay_knob(params: Mapping) -> str:
+    """The parameter a stability map varies (:data:`DELAY_PARAMETER`).
+
+    Raises
+    ------
+    NoLinearModelError
+        A rig without one: a model of data (``plant_model``) has its delay inside it.
+    """
+    knob = DELAY_PARAMETER.get(params.get('rig_model'))
+    if knob is None or (knob == 'io_latency_s'
+                        and params.get('plant_model', 'none') not in ('none', '', None)):
+        raise NoLinearModelError(f"rig {params.get('rig_model')!r} with its plant model: "
+                                 'no delay parameter to vary (its delay is in the model)')
+    return knob
 
 
 def tangent_ratios(params: Mapping) -> tuple[float, ...]:
@@ -517,16 +534,16 @@ class LoopModel:
         rig = _rig_name(params, frozen=tangent_ratio is not None)
         self.compensator = comp if comp is not None else compensator(params)
         self.mass_kg = float(params['mass_kg'])
-        plant = params
-        if tangent_ratio is not None:
-            plant = dict(params, stiffness_N_per_m=float(params['stiffness_N_per_m'])
-                         * float(tangent_ratio))
         if rig == 'delay':
+            plant = params
+            if tangent_ratio is not None:
+                plant = dict(params, stiffness_N_per_m=float(params['stiffness_N_per_m'])
+                             * float(tangent_ratio))
             a, b, cy = _delay_rig(plant)
             ac = np.zeros((0, 0))
             bc, cc, dc = np.zeros((0, 3)), np.zeros((1, 0)), np.zeros((1, 3))
         else:
-            a, b, cy = _servohydraulic_rig(plant)
+            a, b, cy = _valve_rig(params, tangent_ratio)
             ctrl = ForceServoController.from_parameters(params)
             if tangent_ratio is not None and hasattr(ctrl, 'frozen'):
                 ctrl = ctrl.frozen(tangent_ratio)
@@ -790,8 +807,8 @@ def _study_map(params: Mapping, taus, predictors, *, alpha_max: float = 3.0,
     ----------
     Nakata and Combs, Eqs. 5.1-5.4 (neutral type for alpha > 1 without compensation).
     """
-    rig = _rig_name(params)
-    knob = DELAY_PARAMETER[rig]
+    _rig_name(params)
+    rig, knob = params['rig_model'], _delay_knob(params)
     taus = np.asarray(taus, dtype=float)
     predictors = tuple(predictors)
     bound = np.full((len(predictors), taus.size), math.nan)
@@ -1442,8 +1459,7 @@ def stability_map(params: Mapping, taus, predictors, *, alpha_max: float = 3.0,
     if test_setup(params).is_study:
         return _study_map(params, taus, predictors, alpha_max=alpha_max,
                           step=step or 0.01, tol=tol or 1e-4)
-    rig = params['rig_model']
-    knob = DELAY_PARAMETER[rig]
+    rig, knob = params['rig_model'], _delay_knob(params)
     taus = np.asarray(taus, dtype=float)
     predictors = tuple(predictors)
     bound = np.full((len(predictors), taus.size), math.nan)
