@@ -237,6 +237,14 @@ SCHEMA: tuple[ParamSpec, ...] = (
               "elastic-plastic transition (Bouc-Wen) for the 'hysteretic' compensator and the "
               "'tangent_loop_shaping' force controller.", 1.0, 20.0, True,
               nodes=_RFB + _CTRL + ('recorder',)),
+    ParamSpec('predictor_calibration', 'none', '', "'model' on a valve-driven rig: 'poles' "
+              "tunes the pole-matching law's gains on the model of the whole sampled loop "
+              '(plant, force controller, force-loop inverse, law) so that the closed loop has '
+              "the reference structure's poles exactly (the law assumes the inverted loop is a "
+              "held, delayed force; a stiff, lightly damped specimen's (omega dt)^2 error "
+              "otherwise takes much of the reference's damping); 'none': the law as derived "
+              "(the study's). seft design writes 'poles'.", choices=('none', 'poles'),
+              nodes=_RFB),
     ParamSpec('predictor_loop_delay_steps', 10, '', "Servohydraulic rig, 'model': the force "
               'loop is inverted to a pure delay of this many steps.', 1, 50,
               nodes=_RFB + ('recorder',)),

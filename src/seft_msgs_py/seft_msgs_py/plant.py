@@ -135,21 +135,26 @@ class PlantUncertainty:
         Where it holds [Hz].
     note : str
         Where it comes from (an identification's fit error and coherence, a lab's statement).
+    frequency : float >= 0
+        The relative standard error of the model's lightly damped frequencies, its
+        control-structure-interaction zero foremost (0: not stated) [-].
     """
 
     relative: float = 0.0
     band_hz: tuple = (0.0, math.inf)
     note: str = ''
+    frequency: float = 0.0
 
     def to_mapping(self) -> dict[str, Any]:
-        """``{'relative', 'band_hz', 'note'}`` (an infinite band end as None)."""
+        """``{'relative', 'band_hz', 'note', 'frequency'}`` (an infinite band end as
+        None)."""
         return {'relative': float(self.relative),
                 'band_hz': [float(b) if math.isfinite(b) else None for b in self.band_hz],
-                'note': self.note}
+                'note': self.note, 'frequency': float(self.frequency)}
 
     @classmethod
     def from_mapping(cls, doc, *, where: str) -> 'PlantUncertainty':
-        """From ``{relative, band_hz, note}`` (each optional).
+        """From ``{relative, band_hz, note, frequency}`` (each optional).
 
         Raises
         ------
@@ -171,7 +176,11 @@ class PlantUncertainty:
         if not all(isinstance(b, (int, float)) and not isinstance(b, bool) for b in (lo, hi)) \
                 or not 0 <= lo < hi:
             raise ParameterError(f'{where}.band_hz={band!r}: expected 0 <= low < high')
-        return cls(float(rel), (float(lo), float(hi)), str(doc.get('note', '')))
+        freq = doc.get('frequency', 0.0)
+        if isinstance(freq, bool) or not isinstance(freq, (int, float)) \
+                or not (math.isfinite(freq) and freq >= 0):
+            raise ParameterError(f'{where}.frequency={freq!r}: expected a number >= 0')
+        return cls(float(rel), (float(lo), float(hi)), str(doc.get('note', '')), float(freq))
 
 
 class LoopResponses:
@@ -477,7 +486,9 @@ class PlantModel:
         Returns
         -------
         LoopResponses
-            ``sampled``: the measured force; ``step_average``: its step average through
+            ``sampled``: the measured force; ``step_average``: the held force that moves the
+            specimen as the loop does (:meth:`held_force`, from the model's displacement and
+            velocity), or without a specimen the force's step average through
             :func:`hold_factor` (exact for the sinusoidal steady state; the model knows the
             force only at the samples).
         """
@@ -486,18 +497,56 @@ class PlantModel:
         a, b, c = self.a, self.b[:, 0], self.c
         fr, vr, ar = (c[OUTPUTS.index(k)] for k in ('force_N', 'velocity_m_s',
                                                      'acceleration_m_s2'))
+        xr = c[OUTPUTS.index('displacement_m')]
         s = np.zeros(self.order)
         xc = np.zeros(ac.shape[0])
         sampled = np.zeros(int(n))
+        motion = np.zeros((int(n) + 1, 2))
         for j in range(int(n)):
             f = float(fr @ s)
             sampled[j] = f
-            w = np.array([(1.0 if j == 0 else 0.0) - f, float(vr @ s), float(ar @ s)])
+            motion[j] = float(xr @ s), float(vr @ s)
+            w = np.array([(1.0 if j == 0 else 0.0) - f, motion[j, 1], float(ar @ s)])
             u = float(cc[0] @ xc + dc[0] @ w) if xc.size else float(dc[0] @ w)
             if xc.size:
                 xc = ac @ xc + bc @ w
             s = a @ s + b * u
-        return LoopResponses(sampled, step_average_of(sampled, self.dt))
+        motion[-1] = float(xr @ s), float(vr @ s)
+        if self.specimen is None:
+            return LoopResponses(sampled, step_average_of(sampled, self.dt))
+        return LoopResponses(sampled, self.held_force(motion))
+
+    def held_force(self, motion) -> np.ndarray:
+        """The held force of each step that moves the specimen as the plant does.
+
+        Parameters
+        ----------
+        motion : array_like, shape (n + 1, 2)
+            Displacement [m] and velocity [m/s] at the samples.
+
+        Returns
+        -------
+        ndarray, shape (n,)
+            ``f[k] = (v[k+1] - (Phi s[k])_v) / Gamma_v`` [N]: the force held over
+            ``[t_k, t_k+1)`` that takes the specimen (``m x'' + c x' + k x = f``, sampled
+            with a zero-order hold) from ``s[k] = (x, v)[k]`` to ``v[k+1]`` (paper Eq. 5.1):
+            what a compensator that models the specimen under held forces needs the force
+            loop to deliver (the step-average force of a smooth force, to within its
+            curvature).
+
+        Raises
+        ------
+        ParameterError
+            The plant has no specimen.
+        """
+        if self.specimen is None:
+            raise ParameterError('plant model: no specimen to take the held force from')
+        sp = self.specimen
+        m, c, k = sp.mass_kg, sp.damping_N_s_per_m, sp.stiffness_N_per_m
+        phi, gam = zoh(np.array([[0.0, 1.0], [-k / m, -c / m]]), np.array([[0.0], [1.0 / m]]),
+                       self.dt)
+        mo = np.asarray(motion, dtype=float)
+        return (mo[1:, 1] - mo[:-1] @ phi[1]) / gam[1, 0]
 
     def to_lti(self):
         """The model as a python-control ``StateSpace`` (discrete, ``dt``), named signals.
@@ -522,7 +571,7 @@ class PlantModel:
         }
         if self.specimen is not None:
             doc['specimen'] = self.specimen.to_mapping()
-        if self.uncertainty.relative > 0 or self.uncertainty.note:
+        if self.uncertainty.relative > 0 or self.uncertainty.note or self.uncertainty.frequency:
             doc['uncertainty'] = self.uncertainty.to_mapping()
         if self.source:
             doc['source'] = self.source

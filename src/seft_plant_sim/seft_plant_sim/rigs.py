@@ -10,7 +10,9 @@ from typing import Callable, Mapping
 
 from seft_msgs_py.errors import ParameterError
 from seft_msgs_py.interface import Rig
+from seft_plant_sim.actuator import ActuatorRig
 from seft_plant_sim.delay_rig import DelayRig
+from seft_plant_sim.lti_rig import StateSpaceRig
 from seft_plant_sim.servohydraulic import ServoHydraulicRig
 
 __all__ = ['RIG_MODELS', 'make_rig']
@@ -19,6 +21,8 @@ __all__ = ['RIG_MODELS', 'make_rig']
 RIG_MODELS: dict[str, Callable[..., Rig]] = {
     'delay': DelayRig.from_parameters,
     'servohydraulic': ServoHydraulicRig.from_parameters,
+    'state_space': StateSpaceRig.from_parameters,
+    'actuator': ActuatorRig.from_parameters,
 }
 
 

@@ -243,17 +243,61 @@ def _markdown(doc: dict[str, Any], version: str) -> list[str]:
             lines += ['Parameters of each rig for the structure test (`--params`: its `rigs` '
                       'sections):', '']
             for rig, values in written.items():
-                shown = ', '.join(f'`{k}` {_fmt(v, ".6g")}' for k, v in values.items()
+                shown = ', '.join(f'`{k}` {_shown(v)}' for k, v in values.items()
                                   if not k.startswith('_'))
                 lines.append(f'- `{rig}`: {shown or "nothing"}'
                              + (f" ({values['_specimen']})" if '_specimen' in values else ''))
             lines.append('')
     elif doc['parameters']:
         lines += ['Parameters for the compensators (`--params`):', '']
-        lines += [f'- `{k}`: {_fmt(v, ".6g")}' for k, v in doc['parameters'].items()]
+        lines += [f'- `{k}`: {_shown(v)}' for k, v in doc['parameters'].items()]
         lines.append('')
+    lines += _design_lines(doc['runs'])
     for r in doc['runs']:
         lines += [f'![{name}]({name})' for name in r['plots']]
+    return lines
+
+
+def _shown(value) -> str:
+    """A parameter's value in the report (a mapping: what it is, not its numbers)."""
+    if isinstance(value, dict):
+        if 'form' in value:
+            return f"{value.get('form')}, {value.get('source', '')} (the file holds it)"
+        if 'num' in value:
+            return (f"{len(value['den']) - 1}th-order transfer function in "
+                    f"{'z' if value.get('dt') else 's'} (the file holds it)")
+        return '(a mapping: the file holds it)'
+    if isinstance(value, str):
+        return value
+    return _fmt(value, '.6g')
+
+
+def _design_lines(runs: list[dict[str, Any]]) -> list[str]:
+    """The identified plants and the controllers designed for them."""
+    lines = []
+    for r in runs:
+        plant, design = r['figures'].get('plant'), r['figures'].get('design')
+        if not plant or not design:
+            continue
+        m = design['margins']
+        s = design['structure']
+        gm, gm_db = _fmt(m['gain_margin'], '.3g'), _fmt(m.get('gain_margin_dB'), '.3g')
+        notched = ''.join(f', a resonance at {f:.4g} Hz notched' for f, _ in s['resonances'])
+        miss = _fmt(100 * design['inverse_band_error'], '.2g')
+        verdict = 'met' if design['met'] else 'NOT met'
+        notes = '' if not design['notes'] else ' (' + '; '.join(design['notes']) + ')'
+        errors = ', '.join(f'{k} {100 * v:.2g} %' for k, v in plant['nrms'].items())
+        lines += [f"**The force loop of {rig_label(r['rig'])} ({r['bag']}) as data.** Order "
+                  f"{plant['order']} (the Bayesian information criterion over orders 1-"
+                  f"{len(plant['orders'])}), delay {plant['delay_steps']} steps; relative RMS "
+                  f'error of the simulated outputs: {errors}.', '',
+                  f"**The force controller designed for it** ({design['method']}): crossover "
+                  f"{_fmt(m['crossover_hz'], '.3g')} Hz, phase margin "
+                  f"{_fmt(m['phase_margin_deg'], '.3g')} deg, gain margin {gm} ({gm_db} dB); "
+                  'the control-structure-interaction zero at '
+                  f"{_fmt(s['specimen_hz'], '.4g')} Hz{notched}; force-loop inverse "
+                  f"{design['loop_delay_steps']} steps, {design['loop_taps']} taps (miss "
+                  f'{miss} % up to 25 Hz); targets {verdict}{notes}.', '']
     return lines
 
 
@@ -290,13 +334,29 @@ def write_params_yaml(identified: dict[str, Any], path) -> Path:
     ``--params-file`` of every node.
     """
     path = Path(path)
-    values = {k: float(v) for k, v in identified.items() if not k.startswith('_')}
-    notes = ''.join(f'# {k[1:]}: {v:.4g}\n' for k, v in identified.items() if k.startswith('_'))
+    values = {k: _yaml_value(v) for k, v in identified.items() if not k.startswith('_')}
+    notes = ''.join(f'# {k[1:]}: {_note(v)}\n' for k, v in identified.items()
+                    if k.startswith('_'))
     body = {'/**': {'ros__parameters': values}}
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text('# seft identify: the identified delay and force-loop model\n' + notes
-                    + yaml.safe_dump(body, sort_keys=True))
+    path.write_text('# seft identify: the identified force loop (plant_model), the force '
+                    "controller designed for it and\n# the compensators' settings, or the "
+                    'identified delay\n' + notes + yaml.safe_dump(body, sort_keys=True))
     return path
+
+
+def _yaml_value(value):
+    """A parameter as YAML holds it: numbers as floats (ints as ints), text and mappings
+    (``plant_model``, ``force_controller_tf``) as they are."""
+    if isinstance(value, bool) or isinstance(value, (str, dict)):
+        return _clean(value)
+    if isinstance(value, (int, np.integer)):
+        return int(value)
+    return float(value)
+
+
+def _note(value) -> str:
+    return value if isinstance(value, str) else format(value, '.4g')
 
 
 def write_rig_params_yaml(rig_parameters: dict[str, dict[str, Any]], path) -> Path:
@@ -315,13 +375,12 @@ def write_rig_params_yaml(rig_parameters: dict[str, dict[str, Any]], path) -> Pa
     rigs = {}
     notes = ''
     for rig, values in rig_parameters.items():
-        section = {k: float(v) for k, v in values.items() if not k.startswith('_')}
+        section = {k: _yaml_value(v) for k, v in values.items() if not k.startswith('_')}
         if section:
             rigs[rig] = section
         for k, v in values.items():
             if k.startswith('_'):
-                text = v if isinstance(v, str) else format(v, '.4g')
-                notes += f'# {rig}: {k[1:]}: {text}\n'
+                notes += f'# {rig}: {k[1:]}: {_note(v)}\n'
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text("# seft identify: each rig's identified specimen (predictor_*), delay and "
                     'force-loop model\n# for the structure test: seft run CONFIG --params '

@@ -34,6 +34,8 @@ import numpy as np
 from scipy import optimize, signal
 
 from seft_msgs_py.errors import InputError, ParameterError
+from seft_msgs_py.parameters import valve_commanded
+from seft_msgs_py.plant import controller_response
 from seft_ros.analysis.rundata import RunData
 from seft_ros.analysis.specimen_identification import (
     FIT_PARTS,
@@ -361,11 +363,9 @@ class LoopFigures:
 
 
 def loop_figures(loop, f_min: float, f_max: float, points: int = 4000) -> LoopFigures:
-    """Crossover and margins of the loop ``loop(f)`` between `f_min` and `f_max` [Hz].
-
-    The method of ``seft_plant_sim.servohydraulic.loop_margins``: scanned on `points`
-    log-spaced frequencies, refined by Brent's method on ``|L| - 1`` and on ``Im L`` where
-    ``Re L < 0``.
+    """Crossover and margins of the loop ``loop(f)`` between `f_min` and `f_max` [Hz]
+    (:func:`seft_ros.core.force_design.loop_margins`: a scan of `points` log-spaced
+    frequencies refined by Brent's method).
 
     Parameters
     ----------
@@ -373,26 +373,11 @@ def loop_figures(loop, f_min: float, f_max: float, points: int = 4000) -> LoopFi
         ``L`` at frequencies [Hz].
     f_min, f_max : float > 0
         Scanned band [Hz].
+    points : int
     """
-    f = np.logspace(np.log10(f_min), np.log10(f_max), points)
-    lg = loop(f)
-    mag = np.abs(lg)
-    down = np.nonzero((mag[:-1] > 1.0) & (mag[1:] <= 1.0))[0]
-    fc = pm = math.nan
-    if down.size:
-        i = down[0]
-        fc = optimize.brentq(lambda x: abs(loop(np.array([x]))[0]) - 1.0, f[i], f[i + 1],
-                             xtol=1e-9)
-        pm = (np.degrees(np.angle(loop(np.array([fc]))[0])) + 180.0) % 360.0
-        pm = pm - 360.0 if pm > 180.0 else pm
-    flips = np.nonzero((np.sign(lg.imag[:-1]) != np.sign(lg.imag[1:])) & (lg.real[:-1] < 0))[0]
-    gm, fp = math.inf, math.nan
-    for i in flips:
-        x = optimize.brentq(lambda v: loop(np.array([v]))[0].imag, f[i], f[i + 1], xtol=1e-9)
-        value = loop(np.array([x]))[0]
-        if value.real < 0 and 1.0 / abs(value) < gm:
-            gm, fp = 1.0 / abs(value), x
-    return LoopFigures(float(fc), float(pm), float(gm), float(fp))
+    from seft_ros.core.force_design import loop_margins
+    m = loop_margins(loop, f_min, f_max, points)
+    return LoopFigures(m.crossover_hz, m.phase_margin_deg, m.gain_margin, m.phase_crossover_hz)
 
 
 def phase_slope_delay_s(freqs_hz, response, band_hz=DELAY_BAND_HZ, weight=None) -> float:
@@ -455,30 +440,28 @@ def _controller_response(controller, freqs_hz) -> np.ndarray:
 # -- the rig's known model ------------------------------------------------------------------
 
 def _known_model(params):
-    """``(sampled rig, specimen, controller, ServoHydraulicParams)`` of the servohydraulic rig,
-    or None where seft_plant_sim is not installed."""
-    try:
-        from seft_plant_sim.servohydraulic import ServoHydraulicParams, sample
-        from seft_plant_sim.specimen import LinearSpecimen
-    except ImportError:
-        return None
+    """The run's own model of its force loop (:func:`seft_ros.core.force_loop.
+    force_loop_plant`: its ``plant_model``, or seft's rig model with the run's specimen) and
+    its controller: ``(plant, controller)``, or None where the rig has none (an actuator seft
+    has no model of, or seft_plant_sim missing)."""
     from seft_ros.core.controller import ForceServoController
-    spec = LinearSpecimen(float(params['mass_kg']), float(params['damping_N_s_per_m']),
-                          float(params['stiffness_N_per_m']))
-    hp = ServoHydraulicParams.from_parameters(params)
-    ctrl = ForceServoController.from_parameters(params)
-    return sample(hp, spec, float(params['dt'])), spec, ctrl, hp
+    from seft_ros.core.force_loop import force_loop_plant
+    try:
+        return force_loop_plant(params), ForceServoController.from_parameters(params)
+    except ParameterError:
+        return None
 
 
-def _model_modes(hp, spec) -> tuple[float, float]:
-    """Analytic ``(zero_hz, resonance_hz)`` of ``H_fu``: the specimen's natural frequency
-    ``sqrt(k/m)/(2 pi)`` and the natural frequency of the oil column's pole pair."""
-    from seft_plant_sim.servohydraulic import valve_to_force
-    tf = valve_to_force(hp, spec)
-    zero = math.sqrt(spec.stiffness_N_per_m / spec.mass_kg) / (2 * math.pi)
-    poles = [p for p in np.roots(tf.den) if p.imag > 0]
-    res = max(abs(p) for p in poles) / (2 * math.pi) if poles else math.nan
-    return zero, res
+def _model_modes(plant) -> tuple[float, float]:
+    """``(zero_hz, resonance_hz)`` of a plant model's force response: its control-structure-
+    interaction zero (the specimen's natural frequency, or the lightest zero pair) and its
+    lightest pole pair above it (the oil column)."""
+    from seft_ros.core.force_design import _csi_zero, _resonances
+    csi = _csi_zero(plant, None)
+    zero = plant.specimen.natural_frequency_hz if plant.specimen is not None else (
+        csi[0] if csi else math.nan)
+    res = _resonances(plant, (zero if math.isfinite(zero) else 0.0) * 1.15)
+    return zero, (res[0][0] if res else math.nan)
 
 
 def _coherent(fr: FrequencyResponse) -> np.ndarray:
@@ -519,6 +502,12 @@ class RunIdentification:
         The rig (``''``: the study's rig in the root namespace).
     specimen : SpecimenFit or None
         The rig's specimen fitted to its measured force and motion.
+    plant : PlantFit or None
+        Open loop on a valve-driven rig: the force loop's plant identified as data
+        (:func:`~seft_ros.analysis.plant_identification.identify_plant`).
+    design : ForceLoopDesign or None
+        The force controller designed for it (:func:`~seft_ros.core.force_design.
+        design_force_controller`).
     restoring : (ndarray, ndarray) or None, each shape (n,)
         The measured displacement [m] and restoring force ``f - m a - c v`` [N] with the
         fit's m and c (unfiltered), for the plot of the specimen.
@@ -537,6 +526,8 @@ class RunIdentification:
     rig: str = ''
     specimen: SpecimenFit | None = None
     restoring: tuple | None = None
+    plant: Any = None
+    design: Any = None
 
 
 def identify_run(run: RunData, *, window: str = 'hann', nperseg: int = DEFAULT_NPERSEG,
@@ -590,7 +581,7 @@ def identify_run(run: RunData, *, window: str = 'hann', nperseg: int = DEFAULT_N
     rig = run.rig_names[0]
     open_loop = p.get('excitation', 'none') != 'none' and \
         p.get('excitation_input') == 'valve_command'
-    servo = p.get('rig_model') == 'servohydraulic'
+    servo = valve_commanded(p)
     if run.n_steps < 8:
         raise InputError(f'{src}: {run.n_steps} samples; expected a longer run to identify')
     if open_loop:
@@ -644,14 +635,15 @@ def identify_run(run: RunData, *, window: str = 'hann', nperseg: int = DEFAULT_N
         lf = loop_figures(ident.loop_fit, max(0.1, band[0]), band[1])
         figs.update(lf.to_json())
         if known is not None:
-            rig, spec, _, hp = known
-            ident.model_response = rig.frequency_response(f[1:], 0)
-            ident.model_response = np.concatenate([[np.nan], ident.model_response])
-            zm, rm = _model_modes(hp, spec)
-            ident.loop_model = (lambda ff, rig=rig: _controller_response(ctrl, ff)
-                                * rig.frequency_response(ff, 0))
-            model.update(zero_hz=zm, resonance_hz=rm,
+            plant = known[0]
+            ident.model_response = np.concatenate([[np.nan], plant.frequency_response(f[1:])])
+            zm, rm = _model_modes(plant)
+            ident.loop_model = (lambda ff, plant=plant: _controller_response(ctrl, ff)
+                                * plant.frequency_response(ff))
+            model.update(zero_hz=zm, resonance_hz=rm, source=plant.source,
                          **loop_figures(ident.loop_model, max(0.1, band[0]), band[1]).to_json())
+        if servo and ident.specimen is not None and ident.specimen.linear:
+            _identify_plant(ident, run, figs)
     else:
         coh = weight
         figs['delay_ms'] = 1e3 * phase_slope_delay_s(f, fr.response, delay_band_hz, coh)
@@ -661,11 +653,12 @@ def identify_run(run: RunData, *, window: str = 'hann', nperseg: int = DEFAULT_N
             figs['magnitude_min'] = float(np.min(np.abs(fr.response[fig4])))
             figs['magnitude_max'] = float(np.max(np.abs(fr.response[fig4])))
         if known is not None:
-            from seft_plant_sim.servohydraulic import closed_loop_force_response
-            rig, spec, ctrl, hp = known
-            resp = np.concatenate([[np.nan], closed_loop_force_response(hp, spec, ctrl, f[1:])])
+            plant, ctrl = known
+            loop = controller_response(ctrl, f[1:]) * plant.frequency_response(f[1:])
+            resp = np.concatenate([[np.nan], loop / (1.0 + loop)])
             ident.model_response = resp
             model['delay_ms'] = 1e3 * phase_slope_delay_s(f, resp, delay_band_hz)
+            model['source'] = plant.source
         elif p.get('rig_model') == 'delay':
             tau = float(p['tau_s'])
             ident.model_response = np.exp(-2j * np.pi * f * tau)
@@ -675,6 +668,26 @@ def identify_run(run: RunData, *, window: str = 'hann', nperseg: int = DEFAULT_N
         figs['specimen'] = specimen_figures(ident.specimen, p)
     ident.figures = figs
     return ident
+
+
+def _identify_plant(ident: RunIdentification, run: RunData, figs: dict) -> None:
+    """The plant as data and its designed controller, into `ident` and its figures
+    (an open-loop run of a valve-driven rig with a linear specimen)."""
+    from seft_msgs_py.plant import Specimen
+    from seft_ros.analysis.plant_identification import identify_plant
+    from seft_ros.core.force_design import design_force_controller
+    sf = ident.specimen
+    spec = Specimen(sf.mass_kg, sf.damping_N_s_per_m, sf.stiffness_N_per_m)
+    se_m, _, se_k = sf.standard_errors
+    sigma_f = 0.5 * math.hypot(se_k / sf.stiffness_N_per_m, se_m / sf.mass_kg)
+    y = np.column_stack([run.measured_force_N, run.displacement_m, run.velocity_m_s,
+                         run.acceleration_m_s2])
+    where = f'{run.source}: rig {ident.rig}' if ident.rig else run.source
+    ident.plant = identify_plant(run.valve_command_V, y, float(run.params['dt']),
+                                 specimen=spec, frequency_uncertainty=sigma_f, source=where)
+    ident.design = design_force_controller(ident.plant.model)
+    figs['plant'] = ident.plant.to_json()
+    figs['design'] = ident.design.to_json()
 
 
 def _specimen_band(params) -> tuple[float, float] | None:
@@ -753,11 +766,15 @@ def identified_parameters(runs: list[RunIdentification], *,
     dict
         ``predictor_tau_s`` [s] (the closed-loop phase-slope delay, mean over the closed-loop
         runs): the actuator delay of every compensator on the delay rig, the delay of
-        ``polynomial`` and ``ats`` and the prior of ``adaptive``. From an open-loop run on the
-        servohydraulic rig, the force-loop model: the physical parameters of
-        ``seft_plant_sim.servohydraulic`` fitted to the measured ``H_fu``
-        (``fit_hydraulics``), which ``model`` and ``adaptive`` build their force-loop
-        inverse from. Empty if nothing was identified.
+        ``polynomial`` and ``ats`` and the prior of ``adaptive``. From an open-loop run of a
+        valve-driven rig: the force loop's plant as data (``plant_model``,
+        :func:`~seft_ros.analysis.plant_identification.identify_plant`) and the force
+        controller designed for it with its compensators' settings
+        (:meth:`~seft_ros.core.force_design.ForceLoopDesign.parameters`: ``force_controller``
+        'transfer_function', ``force_controller_tf``, ``predictor_loop_*``,
+        ``predictor_calibration``, and ``predictor_tau_s``, the designed loop's delay, which
+        replaces the measured one of the old controller). Keys starting with '_' are notes.
+        Empty if nothing was identified.
     """
     out: dict[str, Any] = {}
     delays = [r.figures['delay_ms'] for r in runs
@@ -765,8 +782,13 @@ def identified_parameters(runs: list[RunIdentification], *,
     if delays:
         out['predictor_tau_s'] = float(np.mean(delays)) * 1e-3
     for r in runs:
-        if r.kind == 'open_loop' and r.params.get('rig_model') == 'servohydraulic':
-            out.update(fit_hydraulics(r, specimen=specimen))
+        if r.kind == 'open_loop' and r.plant is not None:
+            out['plant_model'] = r.plant.mapping()
+            out.update(r.design.parameters())
+            out['_plant'] = (f'order {r.plant.order}, delay {r.plant.delay_steps} steps, force '
+                             f'NRMS {100 * r.plant.nrms["force_N"]:.2g} %')
+            out['_design'] = r.design.summary() + ('' if r.design.met else ' (targets NOT met: '
+                                                   + '; '.join(r.design.notes) + ')')
             break
     return out
 

@@ -970,6 +970,13 @@ def check_stability(*, runs: list[dict], force: bool = False,
             refused.append(c.message)
             continue
         u = float(p.get('specimen_uncertainty', 0.0) or 0.0)
+        if u > 0 and c.margin is not None and c.margin.quantity != 'stiffness':
+            refused.append(
+                f'[{label}] parameter specimen_uncertainty={u:g}: the specimen stiffness is '
+                "checked on seft's rig model; a plant model of data (plant_model) has its "
+                'specimen inside it: identify the rig with the specimen as tested, or use '
+                'predictor adaptive (set specimen_uncertainty to 0)')
+            continue
         if u > 0 and c.margin is not None and not c.margin.covers(u):
             refused.append(
                 f'[{label}] parameter specimen_uncertainty={u:g}: the specimens may be '
@@ -1247,10 +1254,11 @@ def identify_bags(*, bags: list[str], out_dir: Path, window: str = 'hann',
     if params_out:
         if not identified:
             raise InputError(f'--params {params_out}: nothing to write (no closed-loop delay, '
-                             'no open-loop servohydraulic run and no linear specimen among '
-                             'the bags)' if structure else
+                             'no open-loop run of a valve-driven rig and no linear specimen '
+                             'among the bags)' if structure else
                              f'--params {params_out}: nothing to write (no closed-loop delay '
-                             'and no open-loop servohydraulic run among the bags)')
+                             'and no open-loop run of a valve-driven rig with a linear '
+                             'specimen among the bags)')
         params_path = (write_rig_params_yaml(per_rig, params_out) if structure
                        else write_params_yaml(identified, params_out))
     return IdentifyResult(out_dir, doc, params_path)
@@ -1295,4 +1303,18 @@ def identification_table(doc: dict) -> str:
                 lines.append(row(f'{kind} run', spec, note))
             lines.append(row('rig model', specs[0][1]['model']))
             lines.append(row('declared', specs[0][1]['declared']))
+        for r in runs:
+            plant, design = r['figures'].get('plant'), r['figures'].get('design')
+            if plant and design:
+                m = design['margins']
+                gm = m['gain_margin']
+                lines.append(f"{'plant model':18s} order {plant['order']}, delay "
+                             f"{plant['delay_steps']} steps, force NRMS "
+                             f"{100 * plant['nrms']['force_N']:.2g} %")
+                lines.append(f"{'designed loop':18s} crossover {m['crossover_hz']:.1f} Hz, phase "
+                             f"margin {m['phase_margin_deg']:.0f} deg, gain margin "
+                             + ('inf' if gm is None else f'{gm:.2f}')
+                             + f", inverse {design['loop_delay_steps']} steps; targets "
+                             + ('met' if design['met'] else 'NOT met: ' + '; '.join(
+                                 design['notes'])))
     return '\n'.join(lines)

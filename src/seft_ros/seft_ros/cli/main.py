@@ -19,6 +19,9 @@ from seft_ros.cli import api, partition
 from seft_ros.cli.live import options_from_args
 from seft_ros.cli.spawn import node_start
 
+#: The rig models of --rig (the parameter rig_model's choices).
+RIG_CHOICES = parameters.spec('rig_model').choices
+
 __all__ = ['main', 'build_parser']
 
 
@@ -66,8 +69,9 @@ def _experiment_options(p: argparse.ArgumentParser) -> None:
                    help="ground motion(s): 'default', a PEER .AT2 or a CSV path (several: one "
                    'run per record, predictor and alpha)')
     p.add_argument('--alpha', type=float, nargs='+', metavar='A', help='mass ratio(s)')
-    p.add_argument('--rig', dest='rig_model', choices=('delay', 'servohydraulic'),
-                   help='simulated rig model')
+    p.add_argument('--rig', dest='rig_model', choices=RIG_CHOICES,
+                   help="simulated rig model ('state_space': the plant_model; 'actuator': "
+                   'the family of actuators, actuator_family)')
     p.add_argument('--predictor', nargs='+', metavar='NAME',
                    help="delay compensation(s): 'none', 'model', 'polynomial', 'adaptive' "
                    '(several: one run per predictor and alpha)')
@@ -169,7 +173,7 @@ def build_parser() -> argparse.ArgumentParser:
                             'one line per check (docs/rig_contract.md)')
     rcheck.add_argument('config', nargs='?', help='configuration YAML of the test (the rig, '
                         'the specimen, dt; a structure: each of its rigs in turn)')
-    rcheck.add_argument('--rig', dest='rig_model', choices=('delay', 'servohydraulic'),
+    rcheck.add_argument('--rig', dest='rig_model', choices=RIG_CHOICES,
                         help='rig model (what the graph sends the rig: the reference force, '
                         'or the valve command of the force servo controller)')
     rcheck.add_argument('--rig-command', metavar='CMD', help='the command that starts the '
@@ -201,9 +205,9 @@ def build_parser() -> argparse.ArgumentParser:
                          'clock behind udp_controller_address (JSON lines of what happens)')
     emu.add_argument('config', nargs='?', help='configuration YAML (the rig, the specimen, '
                      'dt, udp_* parameters): the one the rig node takes')
-    emu.add_argument('--rig', dest='rig_model', choices=('delay', 'servohydraulic'),
-                     help="the plant: 'servohydraulic' takes the valve voltage, 'delay' the "
-                     'force reference')
+    emu.add_argument('--rig', dest='rig_model', choices=RIG_CHOICES,
+                     help="the plant: 'delay' takes the force reference, the others the valve "
+                     'voltage')
     emu.add_argument('--runs', type=int, metavar='N', help='serve N runs, then exit (default: '
                      'until Ctrl-C)')
     emu.add_argument('--inject', metavar='FAULT', choices=SENSOR_FAULTS, help='send the '
@@ -217,7 +221,7 @@ def build_parser() -> argparse.ArgumentParser:
                           "from the sampled loop's eigenvalues (stability.png, .json, table)")
     stab.add_argument('config', nargs='?', help='configuration YAML (rig, specimen, dt; '
                       'its alpha(s) and delay are marked)')
-    stab.add_argument('--rig', dest='rig_model', choices=('delay', 'servohydraulic'),
+    stab.add_argument('--rig', dest='rig_model', choices=RIG_CHOICES,
                       help='simulated rig model')
     stab.add_argument('--predictor', dest='predictors', nargs='+', metavar='NAME',
                       help='predictors to map (default: all registered)')

@@ -36,6 +36,7 @@ import numpy as np
 from scipy import signal
 
 from seft_msgs_py.errors import ParameterError
+from seft_msgs_py.parameters import valve_commanded
 from seft_ros.core.controller import ControllerDesign, ForceServoController
 from seft_ros.core.structure import Link, Structure, test_setup
 
@@ -187,9 +188,10 @@ def excitation_record(params):
     """
     from seft_ros.core.ground_motion import GroundMotion
     kind, where, amplitude, lo, hi, n, dt, seed = _settings(params)
-    if where == 'valve_command' and params.get('rig_model', 'servohydraulic') != 'servohydraulic':
-        raise ParameterError("parameter excitation_input='valve_command': expected rig_model "
-                             "'servohydraulic' (the delay rig has no valve)")
+    if where == 'valve_command' and not valve_commanded(params):
+        raise ParameterError("parameter excitation_input='valve_command': expected a rig_model "
+                             "driven by a valve, e.g. 'servohydraulic' (the delay rig has no "
+                             'valve)')
     e = excitation_signal(params)
     unit = 'V' if where == 'valve_command' else 'N'
     name = f'excitation-{kind}({amplitude:g} {unit}, {lo:g}-{hi:g} Hz' + (
@@ -271,9 +273,10 @@ def make_valve_controller(params):
     """
     if not open_loop(params):
         return ForceServoController.from_parameters(params)
-    if params.get('rig_model', 'servohydraulic') != 'servohydraulic':
-        raise ParameterError("parameter excitation_input='valve_command': expected rig_model "
-                             "'servohydraulic' (the delay rig has no valve)")
+    if not valve_commanded(params):
+        raise ParameterError("parameter excitation_input='valve_command': expected a rig_model "
+                             "driven by a valve, e.g. 'servohydraulic' (the delay rig has no "
+                             'valve)')
     return OpenLoopValve(excitation_signal(params), float(params['dt']),
                          float(params['valve_limit_V']))
 

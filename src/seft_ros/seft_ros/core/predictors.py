@@ -61,7 +61,7 @@ __all__ = [
     'force_loop_impulse_responses', 'step_average_force_impulse_response',
     'network_delay_steps', 'TangentModelPredictor', 'model_predictor',
     'TANGENT_STIFFNESS_RATIOS', 'HystereticModelPredictor', 'model_rig',
-    'LoopLatencyFit', 'LATENCY_ESTIMATES', 'BackgroundFits',
+    'LoopLatencyFit', 'LATENCY_ESTIMATES', 'BackgroundFits', 'csi_band_hz',
 ]
 
 
@@ -459,6 +459,9 @@ class ModelPredictor:
         Feedforward force-loop inverse (servo-hydraulic rig); None on the delay rig.
     matching : {'poles', 'impulse'}
     restoring_force : {'model', 'measured'}
+    gain_offset : array_like, shape (2,) or (3,), optional
+        Added to the pole-matching gains K [N/m, N s/m], and a factor on beta
+        (:mod:`seft_ros.core.law_calibration`).
 
     Raises
     ------
@@ -478,7 +481,7 @@ class ModelPredictor:
 
     def __init__(self, model: DelayImpulseModel, alpha: float, mass_kg: float,
                  loop_inverse: 'ForceLoopInverse | None' = None, matching: str = 'poles',
-                 restoring_force: str = 'model'):
+                 restoring_force: str = 'model', gain_offset=None):
         if matching not in ('poles', 'impulse'):
             raise ParameterError(f"matching={matching!r}: expected one of 'poles', "
                                  "'impulse'")
@@ -497,9 +500,15 @@ class ModelPredictor:
         self._n_past = model.n + 2
         self._zeros = [0.0] * self._n_past
         self._feedback = None
+        self.gain_offset = None if gain_offset is None else np.asarray(gain_offset, float)
         if matching == 'poles':
             # K s_hat = K E [x, v] + K H f[k-2-n..k-1], one row of n + 4 numbers per step
             gain, beta = model.matching_gains(self.alpha)
+            if self.gain_offset is not None:           # calibrated on the loop's model
+                gain = gain + self.gain_offset[:2]
+                if self.gain_offset.shape[0] > 2:
+                    beta = beta * float(self.gain_offset[2])
+            self._gain = gain
             row = gain @ np.hstack([model.E, model.H])
             self._beta = float(beta)
             self._kx, self._kv = float(row[0]), float(row[1])
@@ -508,14 +517,16 @@ class ModelPredictor:
             self._offset_weight = 1.0 - self._beta + float(np.sum(row[2:]))
 
     @classmethod
-    def from_parameters(cls, params) -> 'ModelPredictor':
+    def from_parameters(cls, params, *, gain_offset=None) -> 'ModelPredictor':
         """Build from the specimen, ``predictor_*``, ``dt`` and the rig parameters.
 
         On the ``delay`` rig the delay is ``predictor_tau_s`` (0: ``tau_s``); on the
         ``servohydraulic`` rig the force loop is modelled from the rig parameters and the
         discrete force controller (:class:`ForceLoopInverse`), and the prediction covers its
         inverted delay plus the reference force's network delay (``network_delay_s``,
-        :func:`network_delay_steps`).
+        :func:`network_delay_steps`). With ``predictor_calibration: poles`` the law's gains
+        are offset by :func:`seft_ros.core.law_calibration.pole_calibration` (or by
+        `gain_offset` [N/m, N s/m], which that function passes while it searches).
         """
         mp = model_parameters(params)
         dt = float(params['dt'])
@@ -529,8 +540,13 @@ class ModelPredictor:
             tau = (inverse.delay_steps + network_delay_steps(params)) * dt
         model = DelayImpulseModel(mp['mass_kg'], mp['damping_N_s_per_m'],
                                   mp['stiffness_N_per_m'], dt, tau)
+        offset = gain_offset
+        if (offset is None and params.get('predictor_calibration', 'none') == 'poles'
+                and inverse is not None and restoring == 'model'):
+            from seft_ros.core.law_calibration import pole_calibration
+            offset = pole_calibration(params)
         return cls(model, float(params['alpha']), float(params['mass_kg']), inverse,
-                   restoring_force=restoring)
+                   restoring_force=restoring, gain_offset=offset)
 
     def restoring_offset(self, latest: Measurement | None) -> float:
         """``d = f_m - m a - c v - k x`` [N] of the latest sample: the measured restoring
@@ -549,8 +565,8 @@ class ModelPredictor:
             p = float(self._r @ s_hat)
             return (ground_force_N * self.dt - alpha * m * p) / (self.dt + alpha * m
                                                                   * self.model.q)
-        gain, beta = self.model.matching_gains(alpha)
-        return beta * ground_force_N - float(gain @ s_hat)
+        _, beta = self.model.matching_gains(alpha)
+        return beta * ground_force_N - float(self._gain @ s_hat)
 
     def predict(self, latest: Measurement | None, commanded_N, ground_force_N: float = 0.0
                 ) -> float:
@@ -935,12 +951,18 @@ class ForceLoopInverse:
     band_hz : float > 0
     hf_weight : float >= 0
         mu.
+    exclude_hz : sequence of (float, float)
+        Bands [Hz] left out of the fit (weighted like the band above ``band_hz``): the
+        narrow band of a lightly damped specimen's natural frequency, where force control
+        cannot act (the control-structure-interaction zero: the closed loop has a sharp
+        feature there that a short FIR cannot follow without missing the rest of the band;
+        :func:`csi_band_hz`).
 
     Attributes
     ----------
     taps : ndarray, shape (n_taps,)
     band_error : float
-        ``max |W T - z^-d|`` up to 25 Hz [-].
+        ``max |W T - z^-d|`` up to 25 Hz, outside `exclude_hz` [-].
     max_gain : float
         ``max |W|`` [-].
 
@@ -956,18 +978,20 @@ class ForceLoopInverse:
     """
 
     def __init__(self, impulse_response, dt: float, delay_steps: int, n_taps: int = 48,
-                 band_hz: float = 40.0, hf_weight: float = 1e-3):
+                 band_hz: float = 40.0, hf_weight: float = 1e-3, exclude_hz=()):
         y = np.asarray(impulse_response, dtype=float)
         if y.ndim != 1:
             raise ValueError(f'impulse_response: expected one dimension, got shape {y.shape}')
+        exclude = tuple((float(lo), float(hi)) for lo, hi in exclude_hz)
         taps, band_error, max_gain = _fit_loop_inverse(
             y.tobytes(), float(dt), int(delay_steps), int(n_taps), float(band_hz),
-            float(hf_weight))
+            float(hf_weight), exclude)
         self._set(taps.copy(), band_error, max_gain, delay_steps)
+        self.exclude_hz = exclude
 
-    def _finish(self, taps, w_f, freq, t, target, delay_steps: int) -> None:
+    def _finish(self, taps, w_f, freq, t, target, delay_steps: int, exclude_hz=()) -> None:
         """Set the taps, the fit's figures and an empty filter state."""
-        self._set(taps, *_fit_figures(w_f, freq, t, target), delay_steps)
+        self._set(taps, *_fit_figures(w_f, freq, t, target, exclude_hz), delay_steps)
 
     def _set(self, taps, band_error: float, max_gain: float, delay_steps: int) -> None:
         self.taps = taps
@@ -980,7 +1004,7 @@ class ForceLoopInverse:
     @classmethod
     def from_frequency_response(cls, freq, response, dt: float, delay_steps: int,
                                 n_taps: int = 48, band_hz: float = 40.0,
-                                hf_weight: float = 1e-3) -> 'ForceLoopInverse':
+                                hf_weight: float = 1e-3, exclude_hz=()) -> 'ForceLoopInverse':
         """The same fit from a frequency response, by its Toeplitz normal equations.
 
         Parameters
@@ -1012,7 +1036,7 @@ class ForceLoopInverse:
         t = np.asarray(response, dtype=complex)
         cosines, sines, basis = _fourier_tables(freq.shape[0], float(freq[1]), float(dt),
                                                 int(n_taps))
-        band = freq <= band_hz
+        band = _fit_band(freq, band_hz, exclude_hz)
         weight = np.where(band, np.abs(t) ** 2, float(hf_weight))
         target = np.exp(-2j * np.pi * freq * float(dt) * int(delay_steps))
         gain = np.where(band, np.conj(t) * target, 0.0)
@@ -1021,7 +1045,8 @@ class ForceLoopInverse:
         taps = solve_toeplitz(column, rhs)
         w_f = basis @ taps
         out = cls.__new__(cls)
-        out._finish(taps, w_f, freq, t, target, delay_steps)
+        out._finish(taps, w_f, freq, t, target, delay_steps, exclude_hz)
+        out.exclude_hz = tuple(exclude_hz)
         return out
 
     @classmethod
@@ -1048,7 +1073,8 @@ class ForceLoopInverse:
         inverse = None
         if np.all(np.isfinite(resp)):
             inverse = cls(resp, ctrl.dt, delay, int(params['predictor_loop_taps']),
-                          hf_weight=float(params.get('predictor_loop_hf_weight', 1e-3)))
+                          hf_weight=float(params.get('predictor_loop_hf_weight', 1e-3)),
+                          exclude_hz=csi_band_hz(plant.specimen, ctrl.dt))
         if inverse is None or not inverse.band_error <= MAX_BAND_ERROR:
             miss = 'its response diverges' if inverse is None else (
                 f'the best inverse misses it by {100 * inverse.band_error:.0f} % up to 25 Hz')
@@ -1106,11 +1132,48 @@ def _data_loop_responses(plant, controller, n: int):
     return hit
 
 
-def _fit_figures(w_f, freq, t, target) -> tuple[float, float]:
+def _fit_figures(w_f, freq, t, target, exclude_hz=()) -> tuple[float, float]:
     """``band_error`` and ``max_gain`` of a fit (:class:`ForceLoopInverse`)."""
-    low = freq <= 25.0
+    low = _fit_band(freq, 25.0, exclude_hz)
     return (float(np.max(np.abs(w_f[low] * t[low] - target[low]))),
             float(np.max(np.abs(w_f))))
+
+
+def _fit_band(freq, band_hz: float, exclude_hz=()) -> np.ndarray:
+    """The frequencies of the fit: up to `band_hz`, outside every band of `exclude_hz`."""
+    band = freq <= band_hz
+    for lo, hi in exclude_hz:
+        band &= ~((freq >= lo) & (freq <= hi))
+    return band
+
+
+def csi_band_hz(specimen, dt: float, widths: float = 6.0) -> tuple:
+    """The band of a lightly damped specimen's natural frequency that a force-loop inverse
+    leaves out (:class:`ForceLoopInverse`): ``f_n (1 +- widths zeta)``, for a damping ratio
+    zeta below 5 % (a well-damped specimen, the study's 13.5 %, has no sharp feature there);
+    empty otherwise or without a specimen.
+
+    Parameters
+    ----------
+    specimen : object with ``natural_frequency_hz`` and ``damping_ratio``, or None
+    dt : float
+        Sample period [s] (the band stays below Nyquist).
+    widths : float
+        Half-width in half-power bandwidths ``zeta f_n``.
+
+    Returns
+    -------
+    tuple of (float, float)
+        ``((lo, hi),)`` [Hz] or ``()``.
+    """
+    if specimen is None:
+        return ()
+    zeta = float(specimen.damping_ratio)
+    f = float(specimen.natural_frequency_hz)
+    if not zeta < 0.05 or not 0 < f < 0.5 / dt:
+        return ()
+    half = max(widths * zeta * f, 0.1)
+    return ((f - half, f + half),)
 
 
 #: The fits :class:`ForceLoopInverse` made last, by their exact inputs: the least squares
@@ -1122,7 +1185,7 @@ _FIT_CACHE_SIZE = 16
 
 @functools.lru_cache(maxsize=_FIT_CACHE_SIZE)
 def _fit_loop_inverse(response: bytes, dt: float, delay_steps: int, n_taps: int,
-                      band_hz: float, hf_weight: float):
+                      band_hz: float, hf_weight: float, exclude_hz: tuple = ()):
     """The least squares of :class:`ForceLoopInverse` for the impulse response given as the
     bytes of a float64 array: ``(taps, band_error, max_gain)``; the caller copies the taps."""
     y = np.frombuffer(response, dtype=float)
@@ -1130,7 +1193,7 @@ def _fit_loop_inverse(response: bytes, dt: float, delay_steps: int, n_taps: int,
     freq = np.fft.rfftfreq(nfft, dt)
     t = np.fft.rfft(y, n=nfft)
     basis = np.exp(-2j * np.pi * np.outer(freq, np.arange(n_taps)) * dt)
-    band = freq <= band_hz
+    band = _fit_band(freq, band_hz, exclude_hz)
     target = np.exp(-2j * np.pi * freq * delay_steps * dt)
     fit = basis[band] * t[band, None]
     reg = basis[~band] * math.sqrt(hf_weight)
@@ -1140,7 +1203,7 @@ def _fit_loop_inverse(response: bytes, dt: float, delay_steps: int, n_taps: int,
     with _single_blas_thread():               # the same taps on every machine
         taps = np.linalg.lstsq(a, rhs, rcond=None)[0]
     taps.setflags(write=False)
-    return (taps, *_fit_figures(basis @ taps, freq, t, target))
+    return (taps, *_fit_figures(basis @ taps, freq, t, target, exclude_hz))
 
 
 @functools.lru_cache(maxsize=4)
@@ -1277,6 +1340,10 @@ class IdentifiedForceLoop:
         Change of the response in use that triggers a new inverse [-].
     band_hz : float > 0
         Band of the fit and of the change measure [Hz].
+    hf_weight : float >= 0
+        The inverse's weight on its gain above `band_hz` (:class:`ForceLoopInverse`).
+    exclude_hz : sequence of (float, float)
+        Bands left out of the inverse's fit (:func:`csi_band_hz`).
 
     Attributes
     ----------
@@ -1305,7 +1372,8 @@ class IdentifiedForceLoop:
                  n_taps: int = 48, order: int = 8, *, memory_s: float = 5.0,
                  excitation_N: float = 20.0, max_deviation: float = 0.5,
                  max_rate_per_s: float = 1.0, update_steps: int = 10,
-                 refit_tolerance: float = 0.002, band_hz: float = 40.0):
+                 refit_tolerance: float = 0.002, band_hz: float = 40.0,
+                 hf_weight: float = 1e-3, exclude_hz=()):
         sampled = np.asarray(prior.sampled, dtype=float)
         average = np.asarray(prior.step_average, dtype=float)
         if average.shape != sampled.shape:
@@ -1322,6 +1390,8 @@ class IdentifiedForceLoop:
         self.na, self.nb = int(order), int(order) + 1
         self.delay_steps = int(delay_steps)
         self.band_hz = float(band_hz)
+        self.hf_weight = float(hf_weight)
+        self.exclude_hz = tuple(exclude_hz)
         self.refit_tolerance = float(refit_tolerance)
         self._nfft = max(4096, 2 * sampled.shape[0])
         self._freq = np.fft.rfftfreq(self._nfft, self.dt)
@@ -1374,7 +1444,9 @@ class IdentifiedForceLoop:
                    memory_s=float(params.get('adaptive_memory_s', 5.0)),
                    excitation_N=float(params.get('adaptive_excitation_N', 20.0)),
                    max_deviation=float(params.get('adaptive_max_deviation', 0.5)),
-                   max_rate_per_s=5.0 * float(params.get('adaptive_max_rate_per_s', 1.0)))
+                   max_rate_per_s=5.0 * float(params.get('adaptive_max_rate_per_s', 1.0)),
+                   hf_weight=float(params.get('predictor_loop_hf_weight', 1e-3)),
+                   exclude_hz=csi_band_hz(plant.specimen, ctrl.dt))
 
     def response(self) -> tuple[np.ndarray, np.ndarray]:
         """The step-average loop in use on the inverse's grid.
@@ -1395,7 +1467,8 @@ class IdentifiedForceLoop:
     def _fit(self) -> None:
         freq, t = self.response()
         fresh = ForceLoopInverse.from_frequency_response(
-            freq, t, self.dt, self.delay_steps, self.n_taps, self.band_hz)
+            freq, t, self.dt, self.delay_steps, self.n_taps, self.band_hz, self.hf_weight,
+            self.exclude_hz)
         if self.inverse is not None:                 # keep the filter's past inputs
             fresh._x = self.inverse._x
             self.refits += 1

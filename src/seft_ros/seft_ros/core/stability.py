@@ -52,7 +52,7 @@ from seft_msgs_py.sampling import zoh as _zoh
 from seft_plant_sim.delay_rig import delay_split
 from seft_plant_sim.specimen import LinearSpecimen
 from seft_ros.core.controller import ForceServoController
-from seft_ros.core.force_loop import NoPlantModelError, force_loop_plant
+from seft_ros.core.force_loop import NoPlantModelError, force_loop_plant, has_plant_model
 from seft_ros.core.reference_force import (
     PREDICTORS,
     ReferenceForceBuilder,
@@ -235,14 +235,15 @@ def _drive(predictor, q: np.ndarray, dt: float):
     return a_hat, cmd
 
 
-def _trim(name: str, taps: np.ndarray, scale: np.ndarray) -> np.ndarray:
-    """Zero negligible taps; refuse a response still alive in the last quarter (in the last
-    16 steps of a shorter window)."""
+def _trim(name: str, taps: np.ndarray, scale: np.ndarray, probe: bool = True) -> np.ndarray:
+    """Zero negligible taps; refuse a response still alive in the last quarter of a probing
+    window (`probe`, at least :data:`_WINDOW` long) or in the last 16 steps of a window cut
+    to the memory already seen."""
     if not np.all(np.isfinite(taps)):
         raise NoLinearModelError(f'predictor {name!r}: impulse response not finite')
     weights = np.abs(taps) * scale[:, None]
     peak = float(np.max(weights)) or 1.0
-    tail = taps.shape[1] // 4 if taps.shape[1] >= _WINDOW else 16
+    tail = taps.shape[1] // 4 if probe and taps.shape[1] >= _WINDOW else 16
     if np.max(weights[:, -tail:]) > 1e-9 * peak:
         raise NoLinearModelError(f'predictor {name!r}: memory longer than '
                                  f'{taps.shape[1] - tail} steps')
@@ -251,7 +252,8 @@ def _trim(name: str, taps: np.ndarray, scale: np.ndarray) -> np.ndarray:
     return taps
 
 
-def _identify(predictor, name: str, dt: float, check: bool, window: int = _WINDOW) -> tuple:
+def _identify(predictor, name: str, dt: float, check: bool, window: int = _WINDOW,
+              probe: bool = True) -> tuple:
     """Taps ``(6, window)`` and command taps ``(window,)`` of a compensator (module notes)."""
     ni = len(PREDICTOR_INPUTS)
     n = _WARM_UP + window
@@ -269,8 +271,8 @@ def _identify(predictor, name: str, dt: float, check: bool, window: int = _WINDO
         elif np.any(resp != 0.0):
             raise NoLinearModelError(f'predictor {name!r}: the command depends on the '
                                      'measurements')
-    taps = _trim(name, taps, _PROBE_SCALE)
-    cmd_taps = _trim(name, cmd_taps[None], np.ones(1))[0]
+    taps = _trim(name, taps, _PROBE_SCALE, probe)
+    cmd_taps = _trim(name, cmd_taps[None], np.ones(1), probe)[0]
     if check:
         # superposition on a random input after the warm-up
         n = _WARM_UP + 2 * window
@@ -334,11 +336,15 @@ class Compensator:
         cls = getattr(factory, '__self__', None)
         if self.name in KNOWN_NONLINEAR or getattr(cls, 'linear', True) is False:
             raise NoLinearModelError(f'predictor {self.name!r} is nonlinear (time-varying)')
-        self._window = _WINDOW
+        # a long force-loop inverse (a designed loop's, 200 taps) needs a longer window
+        taps = int(params.get('predictor_loop_taps', 48) or 48)
+        self._window = max(_WINDOW, (3 * taps) // 2 + 64)
+        self._probing = True
         forms = [self._build(a, check=(i == 0)) for i, a in enumerate(_ALPHA_PROBES)]
         self.alpha_dependent = not _same_form(*forms)
         # the other alphas: a window just longer than the memory seen at the probes
         self._window = 16 + max(max(f.order, f.command_order) for f in forms) + 1
+        self._probing = False
         self._fixed = None if self.alpha_dependent else forms[0]
         self._cache.update(zip(_ALPHA_PROBES, forms))
 
@@ -353,7 +359,8 @@ class Compensator:
                                  np.asarray(f.cmd_b, dtype=float),
                                  np.asarray(f.cmd_c, dtype=float), float(f.cmd_d),
                                  source='linear_form')
-        taps, cmd_taps = _identify(pred, self.name, self._dt, check, self._window)
+        taps, cmd_taps = _identify(pred, self.name, self._dt, check, self._window,
+                                   probe=self._probing)
         return PredictorForm.fir(taps, cmd_taps, source='identified')
 
     def form(self, alpha: float) -> PredictorForm:
@@ -439,14 +446,16 @@ def _delay_rig(params: Mapping):
     return a, b, np.vstack([x, v, acc, f_m])
 
 
-def _valve_rig(params: Mapping, stiffness_ratio: float | None = None):
+def _valve_rig(params: Mapping, stiffness_ratio: float | None = None,
+               plant_gain: float | None = None):
     """Augmented model of a valve-driven rig: its force loop's plant
     (:func:`~seft_ros.core.force_loop.force_loop_plant`, the past commands of its delay as
-    states), C rows (x, v, a, f_m)."""
+    states), C rows (x, v, a, f_m); with `plant_gain`, its input scaled by it."""
     try:
-        return force_loop_plant(params, stiffness_ratio=stiffness_ratio).augmented()
+        a, b, c = force_loop_plant(params, stiffness_ratio=stiffness_ratio).augmented()
     except NoPlantModelError as exc:
         raise NoLinearModelError(str(exc)) from None
+    return (a, b, c) if plant_gain is None else (a, b * float(plant_gain), c)
 
 
 def _rig_name(params: Mapping, frozen: bool = False) -> str:
@@ -504,6 +513,9 @@ class LoopModel:
         ``tangent_loop_shaping`` controller is scheduled to it
         (:meth:`~seft_ros.core.controller.TangentLoopShaping.frozen`), and the compensator
         keeps its own model. A necessary condition only: the member's stiffness changes.
+    plant_gain : float, optional
+        A valve-driven rig's plant with its input scaled by this (the robustness margin of a
+        plant model of data: an actuator gain other than the model's).
 
     Attributes
     ----------
@@ -530,7 +542,7 @@ class LoopModel:
     """
 
     def __init__(self, params: Mapping, comp: Compensator | None = None, *,
-                 tangent_ratio: float | None = None):
+                 tangent_ratio: float | None = None, plant_gain: float | None = None):
         rig = _rig_name(params, frozen=tangent_ratio is not None)
         self.compensator = comp if comp is not None else compensator(params)
         self.mass_kg = float(params['mass_kg'])
@@ -543,7 +555,7 @@ class LoopModel:
             ac = np.zeros((0, 0))
             bc, cc, dc = np.zeros((0, 3)), np.zeros((1, 0)), np.zeros((1, 3))
         else:
-            a, b, cy = _valve_rig(params, tangent_ratio)
+            a, b, cy = _valve_rig(params, tangent_ratio, plant_gain)
             ctrl = ForceServoController.from_parameters(params)
             if tangent_ratio is not None and hasattr(ctrl, 'frozen'):
                 ctrl = ctrl.frozen(tangent_ratio)
@@ -1007,6 +1019,9 @@ class TestLoop:
         Every rig's specimen stiffness as this fraction of the declared one, the compensators
         keeping their models (the robustness margin; a scheduling force controller follows
         the specimen, :meth:`~seft_ros.core.controller.TangentLoopShaping.frozen`).
+    plant_gain : float > 0, optional
+        Every valve-driven rig's plant input scaled by this (the robustness margin of plant
+        models of data).
 
     Attributes
     ----------
@@ -1022,7 +1037,7 @@ class TestLoop:
     """
 
     def __init__(self, params: Mapping, scale: float = 1.0, *,
-                 stiffness_ratio: float | None = None):
+                 stiffness_ratio: float | None = None, plant_gain: float | None = None):
         p = scaled_parameters(params, scale) if scale != 1.0 else dict(params)
         setup = test_setup(p)
         sub = setup.substructures
@@ -1043,7 +1058,8 @@ class TestLoop:
             rp = setup.rig_params[r]
             if not setup.is_study:
                 rp = dict(rp, alpha=float(sub.alpha[j]))
-            loop = LoopModel(rp, compensator(rp), tangent_ratio=stiffness_ratio)
+            loop = LoopModel(rp, compensator(rp), tangent_ratio=stiffness_ratio,
+                             plant_gain=plant_gain)
             form = loop.compensator.form(float(rp['alpha']))
             m0, m1 = loop.matrices(form)
             lay = loop.layout(form)
@@ -1225,14 +1241,20 @@ class RobustnessMargin:
     low, high : float
         Fractions of the declared stiffness (every rig's specimen together; the compensators
         keep their models): stable for ``low < k / k_declared < high`` (``nan``: not
-        predicted; ``MARGIN_RANGE`` ends: stable up to there).
+        predicted; ``MARGIN_RANGE`` ends: stable up to there). For a test on plant models of
+        data (``quantity`` 'plant_gain'), fractions of the plants' gain instead.
     note : str
         What the margin is of (e.g. the initial law of ``adaptive``), or why there is none.
+    quantity : str
+        'stiffness' (the specimens'), or 'plant_gain' (a model of data has its specimen
+        inside it: the gain of every rig's plant is scaled instead, an actuator whose flow
+        gain, supply pressure or amplifier differs from its model's).
     """
 
     low: float
     high: float
     note: str = ''
+    quantity: str = 'stiffness'
 
     @property
     def known(self) -> bool:
@@ -1251,8 +1273,9 @@ class RobustnessMargin:
         hi = f'>{self.high:.3g}' if self.high >= MARGIN_RANGE[1] else f'{self.high:.3g}'
         if bare:
             return f'{lo}-{hi} x'
-        return (f'stable for a specimen stiffness {lo}-{hi} x the declared one'
-                + (f' ({self.note})' if self.note else ''))
+        what = ('a specimen stiffness {}-{} x the declared one' if self.quantity == 'stiffness'
+                else "a plant gain {}-{} x the plant model's")
+        return (f'stable for {what.format(lo, hi)}' + (f' ({self.note})' if self.note else ''))
 
     def covers(self, uncertainty: float) -> bool:
         """Whether the margin holds the stiffness range ``1 +- uncertainty`` (not known:
@@ -1263,6 +1286,9 @@ class RobustnessMargin:
         """JSON-ready dict (``nan`` as null)."""
         def num(v):
             return None if math.isnan(v) else float(v)
+        if self.quantity != 'stiffness':
+            return {'quantity': self.quantity, 'low': num(self.low), 'high': num(self.high),
+                    'note': self.note}
         return {'stiffness_ratio_low': num(self.low), 'stiffness_ratio_high': num(self.high),
                 'note': self.note}
 
@@ -1323,9 +1349,17 @@ def robustness_margin(params: Mapping, *, rtol: float = 0.01) -> RobustnessMargi
                                 f'specimen, alone: {initial.text(bare=True)}')
     note = ''
     study = not _coupled(params)
+    setup = test_setup(params)
+    data = any(has_plant_model(setup.rig_params[r]) for r in setup.rig_names)
+    quantity = 'plant_gain' if data else 'stiffness'
+    if data:
+        note = ("the plant models of data have their specimens inside them: the plants' gain "
+                'is scaled')
+
+    def perturbed(ratio):
+        return {'plant_gain': ratio} if data else {'tangent_ratio': ratio}
     try:
         if study:
-            setup = test_setup(params)
             loops = []
             for j, r in enumerate(setup.rig_names):
                 rp = setup.rig_params[r]
@@ -1334,15 +1368,17 @@ def robustness_margin(params: Mapping, *, rtol: float = 0.01) -> RobustnessMargi
                 loops.append((rp, compensator(rp)))
 
             def radius(ratio):
-                return max(float(LoopModel(rp, comp, tangent_ratio=ratio).radii(
+                return max(float(LoopModel(rp, comp, **perturbed(ratio)).radii(
                     float(rp['alpha']))[0]) for rp, comp in loops)
         else:
             def radius(ratio):
+                if data:
+                    return TestLoop(params, plant_gain=ratio).spectral_radius
                 return TestLoop(params, stiffness_ratio=ratio).spectral_radius
         if radius(1.0) >= 1.0:
-            return RobustnessMargin(1.0, 1.0, note or 'unstable as declared')
+            return RobustnessMargin(1.0, 1.0, 'unstable as declared', quantity)
     except NoLinearModelError as exc:
-        return RobustnessMargin(math.nan, math.nan, str(exc))
+        return RobustnessMargin(math.nan, math.nan, str(exc), quantity)
 
     def edge(inside: float, outside: float) -> float:
         while abs(outside / inside - 1.0) > rtol:
@@ -1364,7 +1400,7 @@ def robustness_margin(params: Mapping, *, rtol: float = 0.01) -> RobustnessMargi
             last, r = r, r * factor
         return bound if radius(bound) < 1.0 else edge(last, bound)
 
-    return RobustnessMargin(search(-1), search(+1), note)
+    return RobustnessMargin(search(-1), search(+1), note, quantity)
 
 
 def check_run(params: Mapping, *, margin: bool = False) -> StabilityCheck:
@@ -1386,8 +1422,17 @@ def check_run(params: Mapping, *, margin: bool = False) -> StabilityCheck:
     -------
     StabilityCheck
         ``stable`` False when the spectral radius as configured is >= 1; None where there
-        is no linear model (a nonlinear compensator or specimen; the message says why).
+        is no linear model (a nonlinear compensator or specimen; the message says why) and
+        for an open-loop identification run (the valve driven by the excitation: no loop
+        to check, the rig's stroke and force limits guard it; never refused).
     """
+    from seft_ros.core.excitation import open_loop
+    if open_loop(params):
+        return StabilityCheck(None, math.nan, math.nan,
+                              'open-loop identification run (excitation_input '
+                              'valve_command): the force loop and the acceleration feedback are '
+                              "open, nothing to predict; the rig's stroke_limit_m and "
+                              'force_limit_N guard it')
     if test_setup(params).is_study:
         check = _check_study(params)
     else:

@@ -1,0 +1,314 @@
+"""The force loop's plant identified from an open-loop run, its order chosen by the data.
+
+``seft identify`` fits seft's physical rig model to a lab's actuator only when it is seft's
+actuator: a two-stage valve, a leaky seal or an orifice is not in that model. This module fits
+the plant as data instead (:class:`~seft_msgs_py.plant.PlantModel`): a discrete model from the
+valve command ``u`` [V] to the four measured outputs (force, displacement, velocity,
+acceleration), with one denominator (one plant, one set of poles) and a numerator per
+output::
+
+    y_i[k] = B_i(q) / A(q) u[k - n_k]      A = 1 + a_1 q^-1 + ... + a_n q^-n
+                                           B_i = b_i0 + ... + b_in q^-n
+
+- the whole-step delay ``n_k``: the longest whose equation-error fit of the force is as good
+  as the best (within :data:`DELAY_TOLERANCE`);
+- for each order ``n`` from 1 to ``max_order``: an equation-error (ARX) fit, its unstable
+  poles reflected into the unit circle, refined by the output-error fit
+  (``scipy.optimize.least_squares``, Levenberg-Marquardt, with the analytic Jacobian) of the
+  simulated outputs to the measured ones, each output scaled by its standard deviation;
+- the order by the Bayesian information criterion ``N log V + p log N`` (Schwarz 1978),
+  with ``V`` the mean squared relative output error floored at :data:`ERROR_FLOOR` squared
+  (a noise-free record would otherwise buy orders for rounding);
+- its uncertainty: the force output's relative simulation error (NRMS), and the relative
+  standard error of the specimen's natural frequency from its fit.
+
+The record must start at rest (an identification run does), so the simulation starts from
+zero.
+
+References
+----------
+L. Ljung, System Identification: Theory for the User, 2nd ed., Prentice Hall, 1999, Sec. 4.2
+(output-error model), 7.3 and 10.1 (prediction-error fit), 16.4 (model order).
+G. Schwarz, Estimating the dimension of a model, Ann. Statist. 6(2), 1978, 461-464.
+"""
+
+from dataclasses import dataclass, field
+import math
+from typing import Any
+
+import numpy as np
+from scipy import optimize, signal
+
+from seft_msgs_py.errors import InputError, ParameterError
+from seft_msgs_py.plant import OUTPUTS, PlantModel, PlantUncertainty, Specimen, parse_plant
+
+__all__ = ['PlantFit', 'identify_plant', 'DELAY_TOLERANCE', 'ERROR_FLOOR', 'MAX_ORDER']
+
+#: A longer whole-step delay is taken while its equation-error fit leaves at most this
+#: fraction more of the force unexplained than the best delay's.
+DELAY_TOLERANCE = 0.05
+#: The relative output error below which a higher order gains nothing [-].
+ERROR_FLOOR = 1e-4
+#: The highest order tried.
+MAX_ORDER = 12
+
+
+@dataclass
+class PlantFit:
+    """A plant identified by :func:`identify_plant`.
+
+    Attributes
+    ----------
+    model : PlantModel
+    order : int
+        n (the denominator's).
+    delay_steps : int
+        n_k.
+    a : ndarray, shape (n + 1,)
+        Denominator in powers of ``q^-1``.
+    b : ndarray, shape (4, n + 1)
+        Numerators of :data:`~seft_msgs_py.plant.OUTPUTS` in powers of ``q^-1``, from
+        ``q^-n_k`` [output unit / V].
+    nrms : dict
+        Output -> relative RMS error of the simulated output [-].
+    orders : list of dict
+        Every order tried: ``order``, ``loss`` (mean squared relative error), ``bic``,
+        ``stable``.
+    dt : float
+        [s].
+    source : str
+    """
+
+    model: PlantModel
+    order: int
+    delay_steps: int
+    a: np.ndarray
+    b: np.ndarray
+    nrms: dict
+    orders: list = field(default_factory=list)
+    dt: float = 0.0
+    source: str = ''
+
+    def mapping(self) -> dict[str, Any]:
+        """The model as a ``plant_model`` mapping: a discrete transfer function (polynomials
+        in z, descending powers), with its specimen, uncertainty and fit figures."""
+        n, nk = self.order, self.delay_steps
+        length = max(n, nk + n) + 1
+        den = np.concatenate([self.a, np.zeros(length - self.a.size)])
+        nums = {}
+        for i, name in enumerate(OUTPUTS):
+            num = np.concatenate([np.zeros(nk), self.b[i]])
+            nums[name] = np.concatenate([num, np.zeros(length - num.size)]).tolist()
+        doc = {'form': 'transfer_function', 'dt': self.dt, 'den': den.tolist(), 'num': nums,
+               'source': self.source,
+               'info': {'identified': 'output-error fit, order by BIC', 'order': n,
+                        'delay_steps': nk,
+                        'nrms': {k: float(v) for k, v in self.nrms.items()}}}
+        if self.model is not None:
+            if self.model.specimen is not None:
+                doc['specimen'] = self.model.specimen.to_mapping()
+            doc['uncertainty'] = self.model.uncertainty.to_mapping()
+        return doc
+
+    def to_json(self) -> dict[str, Any]:
+        """The figures of the fit (order, delay, errors, the orders tried)."""
+        return {'order': self.order, 'delay_steps': self.delay_steps,
+                'nrms': {k: float(v) for k, v in self.nrms.items()},
+                'orders': self.orders,
+                'uncertainty': self.model.uncertainty.to_mapping()}
+
+
+def _shift(x: np.ndarray, k: int) -> np.ndarray:
+    """`x` delayed by k samples (zeros before)."""
+    if k <= 0:
+        return x.copy()
+    return np.concatenate([np.zeros(k), x[:-k]]) if k < x.size else np.zeros_like(x)
+
+
+def _delay_steps(u: np.ndarray, y: np.ndarray, order: int = 8, longest: int = 10) -> int:
+    """The whole-step delay of `y` behind `u` (module notes), at least 1: the longest
+    ``n_k`` whose equation-error (ARX) fit of order `order` leaves at most
+    :data:`DELAY_TOLERANCE` more of `y` unexplained than the best ``n_k`` (a shorter one
+    fits as well with a leading zero: the longest such is the delay)."""
+    losses = []
+    for nk in range(1, longest + 1):
+        lhs = np.column_stack([-_shift(y, j + 1) for j in range(order)]
+                              + [_shift(u, nk + j) for j in range(order + 1)])
+        theta, res, *_ = np.linalg.lstsq(lhs, y, rcond=None)
+        r = y - lhs @ theta
+        losses.append(float(r @ r))
+    floor = (ERROR_FLOOR ** 2) * float(y @ y)
+    best = min(losses)
+    ok = [nk for nk, loss in zip(range(1, longest + 1), losses)
+          if loss <= (1.0 + DELAY_TOLERANCE) * best + floor]
+    return max(ok)
+
+
+def _stable_poly(a: np.ndarray) -> np.ndarray:
+    """`a` with its roots outside the unit circle reflected inside (at 0.98 of 1/|z|)."""
+    roots = np.roots(a)
+    if roots.size and np.any(np.abs(roots) >= 1.0):
+        roots = np.where(np.abs(roots) >= 1.0, 0.98 / np.conj(roots), roots)
+        return np.real(np.poly(roots))
+    return a
+
+
+class _OutputError:
+    """The output-error fit of one order (module notes): residuals and Jacobian."""
+
+    def __init__(self, u, y, na, nb, nk):
+        self.u, self.y = u, y
+        self.na, self.nb, self.nk = na, nb, nk
+        self.n, self.p = y.shape
+
+    def unpack(self, theta):
+        a = np.concatenate([[1.0], theta[:self.na]])
+        b = theta[self.na:].reshape(self.p, self.nb + 1)
+        return a, b
+
+    def _inputs(self, a):
+        g = signal.lfilter([1.0], a, self.u)
+        return np.column_stack([_shift(g, self.nk + j) for j in range(self.nb + 1)])
+
+    def simulate(self, theta):
+        a, b = self.unpack(theta)
+        return self._inputs(a) @ b.T
+
+    def residuals(self, theta):
+        with np.errstate(all='ignore'):
+            r = (self.y - self.simulate(theta)).ravel(order='F')
+        return np.where(np.isfinite(r), r, 1e10)
+
+    def jacobian(self, theta):
+        a, b = self.unpack(theta)
+        g = self._inputs(a)
+        yh = g @ b.T
+        n, p, na, nb = self.n, self.p, self.na, self.nb
+        jac = np.zeros((n * p, na + p * (nb + 1)))
+        for i in range(p):
+            rows = slice(i * n, (i + 1) * n)
+            yf = signal.lfilter([1.0], a, yh[:, i])
+            for j in range(na):
+                jac[rows, j] = _shift(yf, j + 1)       # r = y - B/A u: dr/da_j = q^-j yh/A
+            jac[rows, na + i * (nb + 1): na + (i + 1) * (nb + 1)] = -g
+        return np.where(np.isfinite(jac), jac, 0.0)
+
+    def initial(self):
+        """The equation-error (ARX) least squares, its poles made stable."""
+        na, nb, nk, n = self.na, self.nb, self.nk, self.n
+        rows, rhs = [], []
+        for i in range(self.p):
+            y = self.y[:, i]
+            lhs = np.zeros((n, na + self.p * (nb + 1)))
+            for j in range(na):
+                lhs[:, j] = -_shift(y, j + 1)
+            for j in range(nb + 1):
+                lhs[:, na + i * (nb + 1) + j] = _shift(self.u, nk + j)
+            rows.append(lhs)
+            rhs.append(y)
+        theta = np.linalg.lstsq(np.vstack(rows), np.concatenate(rhs), rcond=None)[0]
+        theta[:na] = _stable_poly(np.concatenate([[1.0], theta[:na]]))[1:]
+        return theta
+
+    def fit(self):
+        """``(theta, loss)`` of the refined fit."""
+        theta0 = self.initial()
+        sol = optimize.least_squares(self.residuals, theta0, jac=self.jacobian, method='lm',
+                                     max_nfev=200 * (theta0.size + 1))
+        theta = sol.x
+        loss = float(np.mean(sol.fun ** 2))
+        if not np.all(np.isfinite(theta)) or not loss < float(np.mean(self.residuals(theta0)
+                                                                     ** 2)) + 1e-300:
+            theta, loss = theta0, float(np.mean(self.residuals(theta0) ** 2))
+        return theta, loss
+
+
+def identify_plant(u, outputs, dt: float, *, specimen: Specimen | None = None,
+                   frequency_uncertainty: float = 0.0, max_order: int = MAX_ORDER,
+                   source: str = '') -> PlantFit:
+    """Identify the plant from the valve command and the measured outputs (module notes).
+
+    Parameters
+    ----------
+    u : array_like, shape (n,)
+        The valve command [V] of an open-loop run from rest.
+    outputs : array_like, shape (n, 4)
+        The measured force [N], displacement [m], velocity [m/s] and acceleration [m/s^2].
+    dt : float > 0
+        Sample period [s].
+    specimen : Specimen, optional
+        The specimen in the loop (its fit, ``seft identify``'s): it goes with the model.
+    frequency_uncertainty : float >= 0
+        The relative standard error of the specimen's natural frequency (from its fit).
+    max_order : int >= 1
+        The highest order tried.
+    source : str
+        Where the data come from (a bag), for the model's ``source``.
+
+    Returns
+    -------
+    PlantFit
+
+    Raises
+    ------
+    InputError
+        A record too short (fewer than 20 samples per parameter of the highest order), no
+        excitation, or no stable fit.
+    ParameterError
+        Bad `dt` or `max_order`.
+    """
+    u = np.asarray(u, dtype=float)
+    y = np.asarray(outputs, dtype=float)
+    if not (isinstance(dt, (int, float)) and math.isfinite(dt) and dt > 0):
+        raise ParameterError(f'dt={dt!r}: expected a period > 0 [s]')
+    if not (isinstance(max_order, int) and max_order >= 1):
+        raise ParameterError(f'max_order={max_order!r}: expected an integer >= 1')
+    where = source or 'the record'
+    if u.ndim != 1 or y.shape != (u.size, len(OUTPUTS)):
+        raise InputError(f'{where}: expected the command (n,) and the four outputs (n, 4), got '
+                         f'{u.shape} and {y.shape}')
+    if not (np.all(np.isfinite(u)) and np.all(np.isfinite(y))):
+        raise InputError(f'{where}: non-finite samples')
+    y = y - y[0]                                  # from rest: the sensors' offsets out
+    scale = np.std(y, axis=0)
+    if not (np.std(u) > 0 and np.all(scale > 0)):
+        raise InputError(f'{where}: the valve command or an output does not move: '
+                         'identification needs an excitation (excitation_input valve_command)')
+    n_params = max_order + len(OUTPUTS) * (max_order + 1)
+    if u.size < 20 * n_params:
+        raise InputError(f'{where}: {u.size} samples; expected at least {20 * n_params} to '
+                         f'identify up to order {max_order}')
+    yn = y / scale
+    nk = _delay_steps(u, yn[:, 0])
+    n_obs = yn.size
+    tried = []
+    best = None
+    for na in range(1, max_order + 1):
+        oe = _OutputError(u, yn, na, na, nk)
+        theta, loss = oe.fit()
+        a, _ = oe.unpack(theta)
+        stable = bool(np.all(np.abs(np.roots(a)) < 1.0))
+        p = theta.size
+        bic = n_obs * math.log(max(loss, ERROR_FLOOR ** 2)) + p * math.log(n_obs)
+        tried.append({'order': na, 'loss': loss, 'bic': bic, 'stable': stable})
+        if stable and (best is None or bic < best[0]):
+            best = (bic, na, theta, oe)
+    if best is None:
+        raise InputError(f'{where}: no stable model of order 1 to {max_order} fits the record')
+    _, na, theta, oe = best
+    a, b_scaled = oe.unpack(theta)
+    b = b_scaled * scale[:, None]
+    sim = oe.simulate(theta) * scale
+    nrms = {name: float(np.sqrt(np.mean((y[:, i] - sim[:, i]) ** 2)) / scale[i])
+            for i, name in enumerate(OUTPUTS)}
+    unc = PlantUncertainty(max(nrms['force_N'], ERROR_FLOOR), (0.0, 0.5 / dt),
+                           f'identified: force NRMS {100 * nrms["force_N"]:.2g} % (order {na}); '
+                           f'specimen frequency +-{100 * frequency_uncertainty:.2g} %',
+                           float(frequency_uncertainty))
+    fit = PlantFit(None, na, nk, a, b, nrms, tried, float(dt), source or 'identified')
+    doc = fit.mapping()
+    doc['uncertainty'] = unc.to_mapping()
+    if specimen is not None:
+        doc['specimen'] = specimen.to_mapping()
+    fit.model = parse_plant(doc, dt=float(dt), where=where)
+    return fit

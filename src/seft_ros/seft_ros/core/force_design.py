@@ -1,0 +1,727 @@
+"""A force controller designed from the force loop's plant (``seft design``, ``seft identify
+--params``).
+
+A lab's actuator and specimen are not the study's: the study's controller
+``C_f(s) = 37/(s^2 + 17.14 s + 4002)`` (paper Eq. 3.1) cancels the study's specimen and is tuned
+to the study's valve and oil column. This module designs the controller of the same kind for
+any plant (:class:`~seft_msgs_py.plant.PlantModel`: identified from the lab's bags, or its own
+model), a fixed-structure loop-shaping controller tuned by search with the margins as
+constraints::
+
+    C(s) = K  w_z^2/(s^2 + 2 z_z w_z s + w_z^2)                 control-structure interaction
+              x prod_p (s^2 + 2 z_p w_p s + w_p^2)/(s^2 + 2 z_n w_n s + w_n^2) (w_n/w_p)^2
+                                                               lightly damped resonances
+              x (s + w_l)/s                                    slow real pole (optional)
+
+- the specimen's poles (``w_z``, ``z_z``: its natural frequency and damping) cancel the
+  plant's control-structure-interaction zero (Dyke et al. 1995), as the study's controller
+  does for its specimen (Nakata and Combs, Eq. 3.1; Nakata 2012): the loop is then the
+  valve's integrator ``K k_q m/(A s)`` times the valve, delay and oil column;
+- each lightly damped pole pair of the plant above it (the oil-column resonance) is cancelled
+  by zeros and replaced by well-damped poles at ``w_n = r w_p`` (a notch that adds little
+  phase lag below it when ``r > 1``; Ellis 2012, Ch. 9 on resonance compensation);
+- an integral action cancels a slow real pole of the plant (a leaky actuator), making the
+  loop a true integrator (no static force error);
+- the gain K, the notch's damping ``z_n`` and ratio ``r`` and the integral action are chosen
+  to give the highest crossover frequency that keeps the phase margin, the gain margin and a
+  single gain crossover on the plant model, with room for the plant's uncertainty ``u``: the
+  model must show ``GM >= GM_target (1 + u)`` and ``PM >= PM_target + asin(u)`` (a relative
+  plant error ``|Delta| <= u`` changes the loop's gain by at most ``1 + u`` and its phase by
+  ``asin(u)``).
+
+The continuous controller is discretized by Tustin's method prewarped at ``w_z`` (the
+cancellation exact there, as :class:`~seft_ros.core.controller.ForceServoController` does for
+the study's), and every figure is computed on the discrete loop ``C(z) P(z)`` up to Nyquist.
+The design also chooses the compensators' force-loop inverse: the shortest delay ``d`` to
+which the closed loop inverts within :data:`INVERSE_BAND_ERROR`.
+
+References
+----------
+N. Nakata and S. Combs, Substructure Effective Force Testing, Eq. 3.1, Figs. 3-4.
+N. Nakata, Effective force testing using a robust loop shaping controller, Earthquake Eng.
+Struct. Dyn. 42(2), 2013, 261-275.
+S. J. Dyke, B. F. Spencer Jr., P. Quast and M. K. Sain, Role of control-structure interaction
+in protective system design, J. Eng. Mech. 121(2), 1995, 322-338.
+K. J. Astrom and R. M. Murray, Feedback Systems, 2nd ed., 2021, Ch. 10-11 (margins, loop
+shaping). G. Ellis, Control System Design Guide, 4th ed., 2012, Ch. 9 (notch filters on
+resonances).
+"""
+
+from dataclasses import dataclass, field
+import itertools
+import math
+
+import numpy as np
+
+from seft_msgs_py.errors import ParameterError
+from seft_msgs_py.plant import PlantModel, Specimen, controller_response
+
+__all__ = ['DesignTargets', 'LoopMargins', 'ForceLoopDesign', 'loop_margins',
+           'design_force_controller', 'plant_margins', 'INVERSE_BAND_ERROR',
+           'DESIGN_METHOD']
+
+#: The largest miss ``max |W T - z^-d|`` up to 25 Hz of the force-loop inverse the design
+#: chooses (the study's rig, 48 taps: 0.01 at d = 10).
+INVERSE_BAND_ERROR = 0.005
+#: Taps of the designed loop's inverse, and its weight on its own gain above 40 Hz: a stiff,
+#: lightly damped specimen needs the inverse accurate to a few 0.01 % where the reference
+#: structure resonates (measured on seft's rig with a 32 Hz, 1 % specimen: 48 taps and 1e-3
+#: miss 1.7 % and 0.8 deg at 22.7 Hz, 200 taps and 1e-6 0.1 %).
+INVERSE_TAPS, INVERSE_HF_WEIGHT = 200, 1e-6
+#: The largest gain ``max |W|`` of the designed loop's inverse [-].
+INVERSE_MAX_GAIN = 3.0
+#: What the design is, for the reports and the parameter file.
+DESIGN_METHOD = ("loop shaping with the specimen's poles cancelling the control-structure-"
+                 'interaction zero (Nakata and Combs Eq. 3.1), the oil column notched, gain '
+                 'and notch tuned for the highest crossover within the margins (seft design)')
+_NOTCH_DAMPING = (0.2, 0.35, 0.5, 0.7)
+_NOTCH_RATIO = (1.0, 1.5, 2.0, 3.0)
+
+
+@dataclass(frozen=True)
+class DesignTargets:
+    """What the designed force loop must have.
+
+    Attributes
+    ----------
+    phase_margin_deg : float
+        At least this phase margin [deg] (45).
+    gain_margin : float
+        At least this gain margin [-] (2: 6 dB).
+    crossover_hz : float
+        The crossover frequency to aim at [Hz] (0: the highest the margins allow).
+    uncertainty : float
+        The relative plant error ``u`` the margins must survive (at least the plant's own
+        ``uncertainty.relative``) [-].
+    """
+
+    phase_margin_deg: float = 45.0
+    gain_margin: float = 2.0
+    crossover_hz: float = 0.0
+    uncertainty: float = 0.05
+
+    def __post_init__(self):
+        for name, lo in (('phase_margin_deg', 0.0), ('gain_margin', 1.0),
+                         ('crossover_hz', 0.0), ('uncertainty', 0.0)):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= lo):
+                raise ParameterError(f'design target {name}={v!r}: expected a number >= {lo:g}')
+        if not self.phase_margin_deg < 90 or not self.uncertainty < 1:
+            raise ParameterError('design targets: expected a phase margin below 90 deg and an '
+                                 'uncertainty below 1')
+
+    def required(self, plant_uncertainty: float = 0.0) -> tuple[float, float]:
+        """``(phase margin [deg], gain margin [-])`` the model must show (module notes)."""
+        u = min(max(self.uncertainty, plant_uncertainty), 0.9)
+        return (self.phase_margin_deg + math.degrees(math.asin(u)),
+                self.gain_margin * (1.0 + u))
+
+
+@dataclass(frozen=True)
+class LoopMargins:
+    """Crossover and stability margins of a loop transfer function ``L(f)``.
+
+    Attributes
+    ----------
+    crossover_hz : float
+        The first frequency where ``|L|`` falls through 1 [Hz] (nan if none).
+    phase_margin_deg : float
+        The smallest ``180 + arg L`` at any gain crossover [deg], in (-180, 180].
+    gain_margin : float
+        The smallest ``1/|L|`` where ``arg L = -180 deg`` (inf if none) [-].
+    phase_crossover_hz : float
+        Its frequency [Hz] (nan if none).
+    crossovers : int
+        The number of gain crossovers (1 for a well-shaped loop).
+    """
+
+    crossover_hz: float
+    phase_margin_deg: float
+    gain_margin: float
+    phase_crossover_hz: float
+    crossovers: int = 1
+
+    def to_json(self) -> dict:
+        """The figures (``gain_margin`` inf as None)."""
+        gm = self.gain_margin
+        return {'crossover_hz': self.crossover_hz, 'phase_margin_deg': self.phase_margin_deg,
+                'gain_margin': None if math.isinf(gm) else gm,
+                'gain_margin_dB': None if math.isinf(gm) else 20.0 * math.log10(gm),
+                'phase_crossover_hz': self.phase_crossover_hz, 'crossovers': self.crossovers}
+
+    def meets(self, phase_margin_deg: float, gain_margin: float) -> bool:
+        """Whether the loop has one crossover and at least these margins."""
+        return (self.crossovers == 1 and self.phase_margin_deg >= phase_margin_deg
+                and self.gain_margin >= gain_margin)
+
+
+def loop_margins(loop, f_min: float, f_max: float, points: int = 4000) -> LoopMargins:
+    """Crossover and margins of a loop ``L(f)`` between `f_min` and `f_max` [Hz].
+
+    Scanned on `points` log-spaced frequencies, refined by Brent's method
+    (``scipy.optimize.brentq``) on ``|L| - 1`` and on ``Im L`` where ``Re L < 0``.
+
+    Parameters
+    ----------
+    loop : callable(ndarray of float) -> ndarray of complex
+        ``L`` at frequencies [Hz].
+    f_min, f_max : float > 0
+        The band [Hz].
+    points : int
+
+    Returns
+    -------
+    LoopMargins
+
+    References
+    ----------
+    K. J. Astrom and R. M. Murray, Feedback Systems, 2nd ed., Sec. 10.3 (stability margins).
+    """
+    f = np.logspace(np.log10(f_min), np.log10(f_max), points)
+    lg = loop(f)
+    return _refined(loop, f, lg, _grid_margins(lg, f))
+
+
+def plant_margins(plant: PlantModel, controller, features=()) -> LoopMargins:
+    """The margins of the force loop ``C_e(z) P(z)`` of a plant and a discrete controller
+    (``bz``, ``az``, ``dt``: :func:`~seft_msgs_py.plant.controller_response`), from 0.01 Hz to
+    0.999 of Nyquist, scanned densely around the lightly damped `features` ((f [Hz],
+    damping) pairs; default: the plant's lightly damped poles and force zeros) and refined
+    by Brent's method."""
+    if not features:
+        roots = np.concatenate([plant.poles(), _force_zeros(plant)])
+        features = [m[:2] for m in _modes(roots, plant.dt) if m[2].imag > 1e-9 and m[1] < 0.3]
+    f = _grid(plant, features)
+
+    def loop(x):
+        return controller_response(controller, x) * plant.frequency_response(x)
+    lg = loop(f)
+    return _refined(loop, f, lg, _grid_margins(lg, f))
+
+
+@dataclass
+class ForceLoopDesign:
+    """A force controller designed for a plant (:func:`design_force_controller`).
+
+    Attributes
+    ----------
+    num_z, den_z : tuple of float
+        The discrete controller, force error [N] to valve command [V], descending powers of
+        z at ``dt``.
+    num_s, den_s : tuple of float
+        The continuous controller it was discretized from (descending powers of s).
+    dt : float
+        [s].
+    margins : LoopMargins
+        Of the loop on the plant model.
+    targets : DesignTargets
+    required : (float, float)
+        The phase [deg] and gain margin [-] the model had to show.
+    met : bool
+        The targets are met on the model (and the force loop is stable).
+    structure : dict
+        What was cancelled and chosen: ``specimen_hz``, ``specimen_damping``,
+        ``resonances`` ((f [Hz], damping) pairs notched), ``notch_damping``, ``notch_ratio``,
+        ``integral_hz`` (0: none), ``gain``.
+    loop_delay_steps, loop_taps : int
+        The force-loop inverse the compensators should use (``predictor_loop_delay_steps``,
+        ``predictor_loop_taps``).
+    loop_hf_weight : float
+        Its weight above 40 Hz (``predictor_loop_hf_weight``).
+    inverse_band_error : float
+        Its miss up to 25 Hz [-].
+    equivalent_delay_s : float
+        The closed loop's phase-slope delay from 1 to 5 Hz [s] (the prior of ``polynomial``,
+        ``ats`` and ``adaptive``: ``predictor_tau_s``).
+    method : str
+    notes : list of str
+    """
+
+    num_z: tuple
+    den_z: tuple
+    num_s: tuple
+    den_s: tuple
+    dt: float
+    margins: LoopMargins
+    targets: DesignTargets
+    required: tuple
+    met: bool
+    structure: dict
+    loop_delay_steps: int = 10
+    loop_taps: int = 48
+    loop_hf_weight: float = 1e-3
+    inverse_band_error: float = math.nan
+    equivalent_delay_s: float = math.nan
+    method: str = DESIGN_METHOD
+    notes: list = field(default_factory=list)
+
+    def controller_mapping(self) -> dict:
+        """The ``force_controller_tf`` mapping: discrete, with the method."""
+        return {'num': [float(v) for v in self.num_z], 'den': [float(v) for v in self.den_z],
+                'dt': self.dt, 'method': self.method}
+
+    def parameters(self) -> dict:
+        """What the compensators and the controller load: ``force_controller``,
+        ``force_controller_tf``, ``predictor_loop_delay_steps``, ``predictor_loop_taps``,
+        ``predictor_loop_hf_weight``, ``predictor_calibration`` ('poles') and
+        ``predictor_tau_s``."""
+        out = {'force_controller': 'transfer_function',
+               'force_controller_tf': self.controller_mapping(),
+               'predictor_loop_delay_steps': int(self.loop_delay_steps),
+               'predictor_loop_taps': int(self.loop_taps),
+               'predictor_loop_hf_weight': float(self.loop_hf_weight),
+               'predictor_calibration': 'poles'}
+        if math.isfinite(self.equivalent_delay_s) and self.equivalent_delay_s > 0:
+            out['predictor_tau_s'] = float(self.equivalent_delay_s)
+        return out
+
+    def to_json(self) -> dict:
+        """Every figure of the design, for ``identification.json`` and ``design.json``."""
+        return {'method': self.method, 'met': self.met,
+                'targets': {'phase_margin_deg': self.targets.phase_margin_deg,
+                            'gain_margin': self.targets.gain_margin,
+                            'crossover_hz': self.targets.crossover_hz,
+                            'uncertainty': self.targets.uncertainty},
+                'required_on_model': {'phase_margin_deg': self.required[0],
+                                      'gain_margin': self.required[1]},
+                'margins': self.margins.to_json(), 'structure': _plain(self.structure),
+                'controller_z': self.controller_mapping(),
+                'controller_s': {'num': list(self.num_s), 'den': list(self.den_s)},
+                'loop_delay_steps': self.loop_delay_steps, 'loop_taps': self.loop_taps,
+                'loop_hf_weight': self.loop_hf_weight,
+                'inverse_band_error': self.inverse_band_error,
+                'equivalent_delay_s': self.equivalent_delay_s, 'notes': list(self.notes)}
+
+    def summary(self) -> str:
+        """One line: crossover, margins and what was cancelled."""
+        m, s = self.margins, self.structure
+        gm = ('inf' if math.isinf(m.gain_margin) else
+              f'{m.gain_margin:.2f} ({20 * math.log10(m.gain_margin):.1f} dB)')
+        parts = [f'crossover {m.crossover_hz:.1f} Hz, phase margin {m.phase_margin_deg:.0f} '
+                 f'deg, gain margin {gm}']
+        if s.get('specimen_hz'):
+            parts.append(f'control-structure-interaction zero at {s["specimen_hz"]:.1f} Hz '
+                         'cancelled')
+        for f, z in s.get('resonances', ()):
+            parts.append(f'resonance {f:.1f} Hz (damping {z:.3f}) notched')
+        if s.get('integral_hz'):
+            parts.append(f'integral action below {s["integral_hz"]:.2f} Hz')
+        return '; '.join(parts)
+
+
+def _plain(value):
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+def _modes(roots, dt: float):
+    """``(f [Hz], damping, z)`` of discrete roots (upper half plane and real ones), by
+    ``s = ln(z)/dt`` (roots at 0, the delay states', left out)."""
+    out = []
+    for z in np.atleast_1d(roots):
+        z = complex(z)
+        if abs(z) < 1e-9 or z.imag < -1e-12:
+            continue
+        s = np.log(z) / dt
+        wn = abs(s)
+        out.append((wn / (2.0 * math.pi), -s.real / wn if wn > 0 else 1.0, z))
+    return out
+
+
+def _force_zeros(plant: PlantModel) -> np.ndarray:
+    """The zeros of the force response ``P(z)`` (python-control's ``zeros`` of the SISO
+    system)."""
+    import control
+    sys = control.ss(plant.a, plant.b, plant.row('force_N')[None], 0.0, plant.dt)
+    return np.asarray(sys.zeros(), dtype=complex)
+
+
+def _csi_zero(plant: PlantModel, specimen: Specimen | None):
+    """The control-structure-interaction zero pair of the plant: ``(f [Hz], damping, z)`` of
+    its force response's complex zero nearest the specimen's natural frequency (the plant's
+    own specimen, or `specimen`); without a specimen the lightest complex zero pair below
+    0.9 of Nyquist. None when there is none."""
+    spec = specimen or plant.specimen
+    nyq = 0.5 / plant.dt
+    zeros = [m for m in _modes(_force_zeros(plant), plant.dt)
+             if m[2].imag > 1e-9 and abs(m[2]) < 1.0 and m[1] < 0.5 and m[0] < 0.9 * nyq]
+    if not zeros:
+        return None
+    if spec is not None:
+        fz = spec.natural_frequency_hz
+        return min(zeros, key=lambda m: abs(math.log(m[0] / fz)))
+    return min(zeros, key=lambda m: m[1])
+
+
+def _resonances(plant: PlantModel, above_hz: float):
+    """Lightly damped pole pairs (damping below 0.3) above `above_hz` and below 0.9 of
+    Nyquist: ``[(f [Hz], damping, z)]``, the lightest first, at most two."""
+    nyq = 0.5 / plant.dt
+    modes = [m for m in _modes(plant.poles(), plant.dt)
+             if m[2].imag > 1e-9 and m[1] < 0.3 and above_hz < m[0] < 0.9 * nyq]
+    return sorted(modes, key=lambda m: m[1])[:2]
+
+
+def _slow_pole(plant: PlantModel):
+    """The slowest real pole of the plant between 0.005 and 2 Hz, as ``z`` (a leaky
+    actuator's), or None."""
+    slow = [m for m in _modes(plant.poles(), plant.dt)
+            if abs(m[2].imag) < 1e-12 and 0 < m[2].real < 1.0 and 0.005 < m[0] < 2.0]
+    return max(slow, key=lambda m: m[2].real)[2].real if slow else None
+
+
+def _pair(f_hz: float, zeta: float, dt: float) -> np.ndarray:
+    """``z^2 - 2 Re(p) z + |p|^2`` of the pair ``p = exp(s dt)``, s of (f [Hz], zeta)."""
+    w = 2.0 * math.pi * f_hz
+    s = complex(-zeta * w, w * math.sqrt(max(1.0 - zeta * zeta, 0.0)))
+    p = np.exp(s * dt)
+    return np.array([1.0, -2.0 * p.real, abs(p) ** 2])
+
+
+def _root_pair(z: complex) -> np.ndarray:
+    """``z^2 - 2 Re(z) z + |z|^2``."""
+    return np.array([1.0, -2.0 * z.real, abs(z) ** 2])
+
+
+def _unit_dc(num: np.ndarray, den: np.ndarray):
+    """`num`, `den` scaled to a static gain of 1 (at z = 1)."""
+    g = np.polyval(num, 1.0) / np.polyval(den, 1.0)
+    return num / g, den
+
+
+def _controller_z(csi, csi_damping, shift, notches, integral, dt):
+    """``(num, den)`` in z with a unit gain (module notes), built in z: the cancelling parts
+    at the plant's own discrete zeros and poles, the added poles at ``exp(s dt)``. With a
+    `shift`, the cancellations are off by ``shift`` in frequency (the CSI poles and the
+    notch zeros at ``f (1 + shift)``, their damping kept): the robustness check."""
+    num, den = np.array([1.0]), np.array([1.0])
+    if csi is not None:
+        f, zeta, z = csi
+        if csi_damping is None and not shift:
+            part = _root_pair(z)
+        else:
+            part = _pair(f * (1.0 + shift), zeta if csi_damping is None else csi_damping, dt)
+        n, d = _unit_dc(np.array([1.0, 0.0, 0.0]), part)
+        num, den = np.polymul(num, n), np.polymul(den, d)
+    for (fp, zp, zpole), zn, ratio in notches:
+        fn = min(fp * ratio, 0.45 / dt)
+        zeros = _pair(fp * (1.0 + shift), zp, dt) if shift else _root_pair(zpole)
+        n, d = _unit_dc(zeros, _pair(fn, zn, dt))
+        num, den = np.polymul(num, n), np.polymul(den, d)
+    if integral is not None:
+        num = np.polymul(num, [1.0, -integral])        # (z - p)/(z - 1): cancels p
+        den = np.polymul(den, [1.0, -1.0])
+    return num, den
+
+
+def _grid(plant: PlantModel, features) -> np.ndarray:
+    """Log-spaced frequencies to 0.999 of Nyquist, denser around each lightly damped
+    feature ``(f [Hz], damping)`` (within 30 of its half-power bandwidths)."""
+    nyq = 0.5 / plant.dt
+    parts = [np.logspace(-2, np.log10(0.999 * nyq), 2500)]
+    for f, zeta in features:
+        width = max(2.0 * zeta * f, 1e-4 * f)
+        lo, hi = max(f - 30 * width, 1e-2), min(f + 30 * width, 0.999 * nyq)
+        if hi > lo:
+            parts.append(np.linspace(lo, hi, 400))
+    return np.unique(np.concatenate(parts))
+
+
+class _Discrete:
+    """A discrete controller as :func:`~seft_msgs_py.plant.controller_response` takes it
+    (``bz``, ``az`` in powers of ``z^-1``, ``dt``), from polynomials in z."""
+
+    def __init__(self, bz, az, dt):
+        n = max(len(bz), len(az))
+        self.bz = np.concatenate([np.zeros(n - len(bz)), bz])
+        self.az = np.concatenate([np.zeros(n - len(az)), az])
+        self.dt = dt
+
+
+def design_force_controller(plant: PlantModel, *, specimen: Specimen | None = None,
+                            targets: DesignTargets | None = None,
+                            detune: float | None = None) -> ForceLoopDesign:
+    """Design the force controller of a plant (module notes).
+
+    Parameters
+    ----------
+    plant : PlantModel
+        The force loop's plant (valve command to measured force and motion).
+    specimen : Specimen, optional
+        The specimen in the loop (default: the plant's); it picks the control-structure-
+        interaction zero among the plant's force zeros.
+    targets : DesignTargets, optional
+    detune : float >= 0, optional
+        The margins must also hold with the cancellations off by ``+-detune`` in frequency
+        (the specimen and the oil column a little off the model's: a lightly damped
+        cancellation must not hang on the model being exact) [-]. Default: twice the
+        plant's stated frequency uncertainty (``uncertainty.frequency``, the specimen fit's
+        standard error), and at least half the control-structure-interaction zero's damping
+        ratio within 0.1-0.5 % (a 0.5 % zero off by 0.25 % moves the loop's gain by 10 % and
+        its phase by 27 deg there).
+
+    Returns
+    -------
+    ForceLoopDesign
+        ``met`` False (with notes) when no candidate meets the margins: a slow loop then.
+
+    Raises
+    ------
+    ParameterError
+        A plant that is unstable (a model of a real actuator is not).
+    """
+    targets = targets or DesignTargets()
+    if not plant.stable():
+        raise ParameterError(f'plant model ({plant.source}): unstable (a pole outside the unit '
+                             'circle): a model of an actuator is not; identify it again')
+    dt = plant.dt
+    nyq = 0.5 / dt
+    pm_req, gm_req = targets.required(plant.uncertainty.relative)
+    csi = _csi_zero(plant, specimen)
+    resonances = _resonances(plant, (csi[0] if csi else 0.0) * 1.15)
+    slow = _slow_pole(plant)
+    if detune is None:
+        detune = max(2.0 * plant.uncertainty.frequency,
+                     min(max(0.5 * csi[1], 0.001), 0.005) if csi else 0.005)
+    features = ([csi[:2]] if csi else []) + [r[:2] for r in resonances]
+    f = _grid(plant, features)
+    zf = np.exp(2j * np.pi * f * dt)
+    p_resp = plant.frequency_response(f)
+    fc_grid = np.logspace(np.log10(0.5), np.log10(0.4 * nyq), 60)
+    shifts = (0.0, detune, -detune) if detune else (0.0,)
+    best = None
+    candidates = []
+    for csi_damping, zn, ratio, integ in itertools.product(
+            [None, 0.1, 0.3, 0.6] if csi else [None],
+            _NOTCH_DAMPING if resonances else [0.0], _NOTCH_RATIO if resonances else [1.0],
+            (False, True) if slow else (False,)):
+        if csi_damping is not None and csi_damping <= csi[1]:
+            continue
+        notches = [(r, max(zn, r[1]), ratio) for r in resonances]
+        integral = slow if integ else None
+        loops = []
+        for shift in shifts:
+            num, den = _controller_z(csi, csi_damping, shift, notches, integral, dt)
+            loops.append(np.polyval(num, zf) / np.polyval(den, zf) * p_resp)
+        feasible = _highest_crossover(loops, f, fc_grid, pm_req, gm_req,
+                                      targets.crossover_hz)
+        if feasible is None:
+            continue
+        fc, k, slack = feasible
+        candidates.append(((fc, slack), k, csi_damping, notches, integral, zn, ratio))
+    # the highest crossover; an exact cancellation of the control-structure-interaction
+    # zero (a flat closed loop the compensators can invert) is preferred to a damped one
+    # when it reaches 10 Hz or 80 % of the best
+    if candidates:
+        top = max(c[0][0] for c in candidates)
+        exact = [c for c in candidates if c[2] is None and (c[0][0] >= 0.8 * top
+                                                            or c[0][0] >= 10.0)]
+        best = max(exact or candidates, key=lambda c: c[0])
+    notes = []
+    if best is None:
+        csi_damping, notches, integral, zn, ratio = (0.6 if csi else None), [], None, 0.0, 1.0
+        num, den = _controller_z(csi, csi_damping, 0.0, [], None, dt)
+        c1 = np.polyval(num, zf) / np.polyval(den, zf)
+        k = 1.0 / float(np.interp(1.0, f, np.abs(c1 * p_resp)))
+        notes.append(f'no controller of this structure meets a phase margin of {pm_req:.0f} deg '
+                     f'and a gain margin of {gm_req:.2f} on the model with its cancellations '
+                     f'{100 * detune:g} % off: a 1 Hz crossover instead')
+    else:
+        _, k, csi_damping, notches, integral, zn, ratio = best
+    num, den = _controller_z(csi, csi_damping, 0.0, notches, integral, dt)
+    bz, az = num * k / den[0], den / den[0]
+    margins = plant_margins(plant, _Discrete(bz, az, dt), features)
+    stable = _closed_loop_stable(plant, bz, az)
+    met = stable and margins.meets(pm_req, gm_req) and (
+        not targets.crossover_hz or margins.crossover_hz >= 0.95 * targets.crossover_hz)
+    if not stable:
+        notes.append('the force loop on the model is unstable')
+    if targets.crossover_hz and margins.crossover_hz < 0.95 * targets.crossover_hz:
+        notes.append(f'the crossover {margins.crossover_hz:.1f} Hz falls short of the '
+                     f'{targets.crossover_hz:g} Hz asked for: the margins do not allow more')
+    num_s, den_s = _as_continuous(bz, az, dt)
+    structure = {'specimen_hz': csi[0] if csi else 0.0,
+                 'specimen_damping': csi[1] if csi else 0.0,
+                 'cancellation_damping': ((csi[1] if csi_damping is None else csi_damping)
+                                          if csi else 0.0),
+                 'resonances': [(r[0], r[1]) for r, _, _ in notches],
+                 'notch_damping': zn if notches else 0.0,
+                 'notch_ratio': ratio if notches else 0.0,
+                 'integral_hz': (-math.log(integral) / dt / (2 * math.pi)) if integral else 0.0,
+                 'gain_V_per_N': float(k)}
+    design = ForceLoopDesign(tuple(float(v) for v in bz), tuple(float(v) for v in az),
+                             num_s, den_s, dt, margins, targets, (pm_req, gm_req), met,
+                             structure, notes=notes)
+    _choose_inverse(plant, design)
+    return design
+
+
+def _highest_crossover(loops, f, fc_grid, pm_req, gm_req, target_hz):
+    """The highest crossover on `fc_grid` (up to `target_hz` if given) at which every loop of
+    `loops` (unit gain, on `f`) meets the margins with one crossover: ``(f_c, K, slack)`` or
+    None. Scanned, then refined by bisection between the highest feasible point and the
+    next."""
+    mag0 = np.abs(loops[0])
+
+    def check(fc):
+        k = 1.0 / float(np.interp(fc, f, mag0))
+        worst = math.inf
+        for lg in loops:
+            lm = _grid_margins(k * lg, f)
+            if not lm.meets(pm_req, gm_req):
+                return None
+            worst = min(worst, lm.phase_margin_deg - pm_req, 10.0 * (lm.gain_margin - gm_req))
+        return k, worst
+
+    # feasibility need not be monotonic (a crossover on a cancelled zero's dipole fails
+    # where a higher one passes): the whole grid, the highest feasible point kept
+    last = nxt = None
+    grid = [fc for fc in fc_grid if not target_hz or fc <= target_hz]
+    if target_hz:
+        grid.append(target_hz)
+    for i, fc in enumerate(grid):
+        got = check(fc)
+        if got is not None:
+            last = (fc, *got)
+            nxt = grid[i + 1] if i + 1 < len(grid) else None
+    if last is None:
+        return None
+    if nxt is not None:
+        lo, hi = last[0], nxt
+        for _ in range(8):
+            mid = math.sqrt(lo * hi)
+            got = check(mid)
+            if got is not None:
+                last, lo = (mid, *got), mid
+            else:
+                hi = mid
+    return last
+
+
+def _as_continuous(bz, az, dt):
+    """The continuous controller the discrete one is by Tustin's method (the bilinear map
+    ``z = (1 + s dt/2)/(1 - s dt/2)`` substituted), for the report: ``(num, den)`` in s."""
+    n = len(az) - 1
+    half = dt / 2.0
+    num_s, den_s = np.zeros(1), np.zeros(1)
+    padded = np.concatenate([np.zeros(len(az) - len(bz)), bz])
+    for i, (b, a) in enumerate(zip(padded, az)):
+        # z^(n-i) -> (1 + s h)^(n-i) (1 - s h)^i over (1 - s h)^n
+        term = np.asarray(np.poly1d([half, 1.0]) ** (n - i) * np.poly1d([-half, 1.0]) ** i)
+        num_s = np.polyadd(num_s, b * term)
+        den_s = np.polyadd(den_s, a * term)
+    lead = den_s[0] if den_s[0] else 1.0
+    return (tuple(float(v) for v in num_s / lead), tuple(float(v) for v in den_s / lead))
+
+
+def _refined(loop, f, lg, coarse: LoopMargins) -> LoopMargins:
+    """`coarse` (read off the grid `f`, loop values `lg`) refined by Brent's method on
+    ``|L| - 1`` at each gain crossover and ``Im L`` at each phase crossover."""
+    from scipy.optimize import brentq
+    mag = np.abs(lg)
+    cross = np.nonzero((mag[:-1] > 1.0) != (mag[1:] > 1.0))[0]
+
+    def at(x):
+        return loop(np.array([x]))[0]
+
+    fc, pms = math.nan, []
+    for i in cross:
+        x = brentq(lambda v: abs(at(v)) - 1.0, f[i], f[i + 1], xtol=1e-10)
+        pm = (math.degrees(np.angle(at(x))) + 180.0) % 360.0
+        pms.append(pm - 360.0 if pm > 180.0 else pm)
+        if math.isnan(fc) and mag[i] > 1.0:
+            fc = x
+    flips = np.nonzero((np.sign(lg.imag[:-1]) != np.sign(lg.imag[1:])) & (lg.real[:-1] < 0))[0]
+    gm, fp = math.inf, math.nan
+    for i in flips:
+        x = brentq(lambda v: at(v).imag, f[i], f[i + 1], xtol=1e-10)
+        value = at(x)
+        if value.real < 0 and 1.0 / abs(value) < gm:
+            gm, fp = 1.0 / abs(value), x
+    del coarse
+    return LoopMargins(float(fc), float(min(pms)) if pms else math.nan, float(gm), float(fp),
+                       len(cross))
+
+
+def _grid_margins(lg: np.ndarray, f: np.ndarray) -> LoopMargins:
+    """:class:`LoopMargins` read off a loop sampled on the grid `f` (no refinement: the
+    search's)."""
+    mag = np.abs(lg)
+    cross = np.nonzero((mag[:-1] > 1.0) != (mag[1:] > 1.0))[0]
+    down = [i for i in cross if mag[i] > 1.0]
+    pms = []
+    for i in cross:
+        pm = (math.degrees(np.angle(lg[i + 1])) + 180.0) % 360.0
+        pms.append(pm - 360.0 if pm > 180.0 else pm)
+    flips = np.nonzero((np.sign(lg.imag[:-1]) != np.sign(lg.imag[1:])) & (lg.real[:-1] < 0))[0]
+    gm = min((1.0 / abs(lg[i]) for i in flips), default=math.inf)
+    return LoopMargins(float(f[down[0]]) if down else math.nan,
+                       min(pms) if pms else math.nan, float(gm), math.nan, len(cross))
+
+
+def _closed_loop_stable(plant: PlantModel, bz, az) -> bool:
+    """Whether the force loop closed by ``bz/az`` (powers of z) on the plant is stable (the
+    eigenvalues of the closed loop)."""
+    from scipy.signal import tf2ss
+    n = max(len(bz), len(az))
+    b = np.concatenate([np.zeros(n - len(bz)), bz])
+    a = np.concatenate([np.zeros(n - len(az)), az])
+    ac, bc, cc, dc = tf2ss(b, a)
+    fr = plant.row('force_N')
+    na, nc = plant.order, ac.shape[0]
+    m = np.zeros((na + nc, na + nc))
+    # u = cc xc + dc (r - f), f = fr s
+    m[:na, :na] = plant.a - plant.b @ (dc[0, 0] * fr[None])
+    m[:na, na:] = plant.b @ cc
+    m[na:, :na] = -bc @ fr[None]
+    m[na:, na:] = ac
+    return bool(np.max(np.abs(np.linalg.eigvals(m))) < 1.0)
+
+
+def _choose_inverse(plant: PlantModel, design: ForceLoopDesign) -> None:
+    """Set the design's force-loop inverse and the closed loop's equivalent delay.
+
+    The inverse is :data:`INVERSE_TAPS` taps with the weight :data:`INVERSE_HF_WEIGHT` above
+    40 Hz, the band of a lightly damped specimen's natural frequency left out
+    (:func:`~seft_ros.core.predictors.csi_band_hz`); its delay the shortest within
+    :data:`INVERSE_BAND_ERROR` up to 25 Hz whose gain stays within :data:`INVERSE_MAX_GAIN`
+    (a longer one is a longer prediction; a shorter one inverts the loop's own lag with a
+    gain that amplifies the sensors' noise and, measured on seft's rig with a 32 Hz
+    specimen, made the compensated test unstable above alpha = 0.36 at 4.9), else the one of
+    the least error.
+    """
+    from seft_ros.core.controller import ForceServoController
+    from seft_ros.core.predictors import ForceLoopInverse, csi_band_hz
+    ctrl = ForceServoController(design.dt, 1e6, design.num_z, design.den_z, discrete=True,
+                                kind='transfer_function')
+    resp = plant.loop_responses(ctrl, 1000)
+    exclude = csi_band_hz(plant.specimen, design.dt)
+    best = None
+    for d in range(2, 31):
+        inv = ForceLoopInverse(resp.step_average, design.dt, d, INVERSE_TAPS,
+                               hf_weight=INVERSE_HF_WEIGHT, exclude_hz=exclude)
+        if inv.max_gain > INVERSE_MAX_GAIN:           # too short: W inverts the loop's own lag
+            continue
+        if best is None or inv.band_error < best[1]:
+            best = (d, inv.band_error)
+        if inv.band_error <= INVERSE_BAND_ERROR:
+            best = (d, inv.band_error)
+            break
+    if best is None:
+        best = (30, math.inf)
+    design.loop_delay_steps, design.inverse_band_error = best
+    design.loop_taps, design.loop_hf_weight = INVERSE_TAPS, INVERSE_HF_WEIGHT
+    if best[1] > INVERSE_BAND_ERROR:
+        design.notes.append(f'the closed loop inverts to a {best[0]}-step delay within '
+                            f'{100 * best[1]:.1f} % only')
+    nfft = 4096
+    freq = np.fft.rfftfreq(nfft, design.dt)
+    t = np.fft.rfft(resp.sampled, nfft)
+    band = (freq >= 1.0) & (freq <= 5.0)
+    design.equivalent_delay_s = float(-np.polyfit(2 * np.pi * freq[band],
+                                                  np.unwrap(np.angle(t[band])), 1)[0])

@@ -1,0 +1,182 @@
+"""The ``model`` compensator's gains tuned on the model of the whole sampled loop.
+
+The pole-matching law of :class:`~seft_ros.core.predictors.ModelPredictor` places the sampled
+poles of the specimen under a *held* force delayed by ``d`` steps at those of the reference
+structure (paper Eq. 2.1): exact on the delay rig. On a valve-driven rig the force-loop
+inverse makes the step average of a *smooth* force follow the desired one; the specimen
+integrates the force inside the step, and what a held force and the actual one do to it
+differ by about ``(omega dt)^2``. With the study's 10 Hz, 13.5 %-damped specimen that is a few
+tenths of a percent of the reference structure's damping; with a stiff, lightly damped one
+(32 Hz, 1 %: ``omega dt = 0.4``) it is most of it, and the test's error is tens of percent.
+
+:func:`pole_calibration` closes the gap on the model of the loop the test will run
+(:class:`~seft_ros.core.stability.LoopModel`: the rig's plant, its force controller, the
+inverse and the law): it finds the offset of the law's two gains ``K`` (on the predicted
+displacement and velocity) that puts the closed loop's eigenvalue nearest the reference
+structure's sampled pole exactly on it, by Newton's method on the two real equations (the
+closed-loop matrix is affine in ``K``, the law's output is, so three identifications of the
+compensator give it for every ``K``); then the factor on the ground force's gain that makes the
+response at that pole's frequency the reference's.
+
+References
+----------
+K. J. Astrom and B. Wittenmark, Computer-Controlled Systems, 3rd ed., 1997, Sec. 4.5 (pole
+placement) and Ch. 7 (sampling of a continuous signal between samples).
+J. E. Carrion and B. F. Spencer Jr., Model-based strategies for real-time hybrid testing,
+NSEL Report 006, 2007 (the model-based compensation the law comes from).
+"""
+
+import math
+from typing import Mapping
+
+import numpy as np
+
+from seft_msgs_py.errors import ParameterError
+
+__all__ = ['pole_calibration', 'reference_pole']
+
+#: Newton iterations at most, and the step of the finite differences (relative to K).
+_ITERATIONS, _STEP = 8, 1e-4
+#: The largest correction accepted, relative to each gain: beyond it the law's model is too
+#: far from the loop for a gain correction to be the answer.
+MAX_CORRECTION = 0.5
+
+_CACHE: dict = {}
+
+
+def reference_pole(mass_kg: float, damping_N_s_per_m: float, stiffness_N_per_m: float,
+                   alpha: float, dt: float) -> complex:
+    """The reference structure's sampled pole ``exp(lambda dt)`` (upper half plane) of
+    ``(1 + alpha) m x'' + c x' + k x = 0`` (paper Eq. 2.1)."""
+    lam = np.roots([(1.0 + alpha) * mass_kg, damping_N_s_per_m, stiffness_N_per_m])
+    lam = max(lam, key=lambda x: x.imag)
+    return complex(np.exp(lam * dt))
+
+
+class _Fixed:
+    """A compensator of one fixed linear form (what :class:`LoopModel` takes)."""
+
+    alpha_dependent = False
+
+    def __init__(self, form):
+        self._form = form
+
+    def form(self, alpha):
+        return self._form
+
+
+def pole_calibration(params: Mapping) -> np.ndarray:
+    """The offset of the ``model`` law's gains ``K`` that gives the run's closed loop the
+    reference structure's pole (module notes).
+
+    Parameters
+    ----------
+    params : mapping
+        A rig's resolved parameters (``predictor`` 'model' on a valve-driven rig, ``alpha``).
+
+    Returns
+    -------
+    ndarray, shape (3,)
+        ``(dK_x [N/m], dK_v [N s/m], beta_scale [-])``: the gains' offset and the factor on
+        the ground force's gain ``beta`` that makes the closed loop's response to the
+        ground force at the reference structure's frequency the reference's (with the step
+        average of the ground, :func:`~seft_msgs_py.plant.hold_factor`); ``(0, 0, 1)`` at
+        ``alpha = 0`` (no feedback).
+
+    Raises
+    ------
+    ParameterError
+        The loop has no linear model, or the correction the pole needs is beyond
+        :data:`MAX_CORRECTION` of the gains or does not converge (the message says which).
+    """
+    from seft_ros.core import stability
+    from seft_ros.core.predictors import ModelPredictor, model_parameters
+    base = dict(params, predictor_calibration='none')
+    alpha = float(base['alpha'])
+    if alpha == 0.0:
+        return np.array([0.0, 0.0, 1.0])
+    key = tuple(sorted((k, v) for k, v in base.items() if k != 'structure'))
+    if key in _CACHE:
+        return _CACHE[key].copy()
+    dt = float(base['dt'])
+    mp = model_parameters(base)
+    target = reference_pole(mp['mass_kg'], mp['damping_N_s_per_m'], mp['stiffness_N_per_m'],
+                            alpha, dt)
+    pred0 = ModelPredictor.from_parameters(base)
+    k0 = np.array(pred0._gain, dtype=float)
+    steps = _STEP * np.maximum(np.abs(k0), 1.0)
+
+    mass = float(base['mass_kg'])
+
+    def matrix(offset):
+        """The closed loop at `offset`: its matrix, the input vector of the ground force
+        (``X[k+1] = M X[k] + b G[k+1]``) and the displacement's output row."""
+        pred = ModelPredictor.from_parameters(base, gain_offset=offset)
+        window = max(stability._WINDOW, (3 * pred.loop_inverse.taps.shape[0]) // 2 + 64)
+        taps, cmd = stability._identify(pred, 'model', dt, False, window)
+        form = stability.PredictorForm.fir(taps, cmd, source='identified')
+        try:
+            loop = stability.LoopModel(base, _Fixed(form))
+        except stability.NoLinearModelError as exc:
+            raise ParameterError(f'predictor_calibration poles: {exc}') from None
+        lay = loop.layout(form)
+        ground = np.zeros(lay['size'])
+        ground[lay['w']] = form.b[:, 5]                  # F = G - alpha m a_hat(..., G)
+        ground[lay['F']] = 1.0 - alpha * mass * form.d[5]
+        x_row = np.zeros(lay['size'])
+        x_row[lay['z']] = lay['outputs'][0]
+        return loop.matrix(alpha), ground, x_row
+
+    m0, ground0, x_row = matrix(np.zeros(2))
+    dm, dg = [], []
+    for i in range(2):
+        mi, gi, _ = matrix(np.eye(2)[i] * steps[i])
+        dm.append((mi - m0) / steps[i])
+        dg.append((gi - ground0) / steps[i])
+
+    def pole(offset):
+        ev = np.linalg.eigvals(m0 + offset[0] * dm[0] + offset[1] * dm[1])
+        return complex(min(ev, key=lambda e: abs(e - target)))
+
+    offset = np.zeros(2)
+    for _ in range(_ITERATIONS):
+        e = pole(offset)
+        err = np.array([e.real - target.real, e.imag - target.imag])
+        if np.max(np.abs(err)) < 1e-12:
+            break
+        jac = np.zeros((2, 2))
+        for i in range(2):
+            h = steps[i]
+            e2 = pole(offset + np.eye(2)[i] * h)
+            jac[:, i] = [(e2.real - e.real) / h, (e2.imag - e.imag) / h]
+        offset = offset - np.linalg.solve(jac, err)
+    e = pole(offset)
+    if abs(e - target) > 1e-8 or np.any(np.abs(offset) > MAX_CORRECTION * np.abs(k0)):
+        raise ParameterError(
+            "predictor_calibration poles: the loop's model does not reach the reference "
+            f"structure's pole with the law's gains (offset {offset[0]:.4g} N/m, "
+            f'{offset[1]:.4g} N s/m of {k0[0]:.4g}, {k0[1]:.4g}; pole {abs(e):.6f} at '
+            f'{math.degrees(np.angle(e)):.3f} deg, reference {abs(target):.6f} at '
+            f'{math.degrees(np.angle(target)):.3f} deg): check the force-loop inverse '
+            '(predictor_loop_*) or use predictor_calibration none')
+    # the ground force's gain: the response at the reference structure's frequency as the
+    # reference's (the pole is exact; what is left is the forcing's few tenths of a percent)
+    lam = np.log(target) / dt
+    w = abs(lam.imag)
+    z = np.exp(1j * w * dt)
+    mm = m0 + offset[0] * dm[0] + offset[1] * dm[1]
+    bb = ground0 + offset[0] * dg[0] + offset[1] * dg[1]
+    h_test = x_row @ np.linalg.solve(z * np.eye(mm.shape[0]) - mm, bb) * z
+    hold = abs((np.exp(1j * w * dt) - 1.0) / (1j * w * dt))    # the step-averaged ground
+    h_ref = 1.0 / abs((1.0 + alpha) * mp['mass_kg'] * (1j * w) ** 2
+                      + mp['damping_N_s_per_m'] * 1j * w + mp['stiffness_N_per_m'])
+    scale = h_ref / (abs(h_test) * hold)
+    if not (math.isfinite(scale) and abs(scale - 1.0) < MAX_CORRECTION):
+        raise ParameterError(f'predictor_calibration poles: the ground force would need a gain '
+                             f'of {scale:.4g}: check the force-loop inverse (predictor_loop_*) '
+                             'or use predictor_calibration none')
+    result = np.array([offset[0], offset[1], scale])
+    if len(_CACHE) >= 16:
+        _CACHE.pop(next(iter(_CACHE)))
+    _CACHE[key] = result.copy()
+    return result
