@@ -28,25 +28,15 @@ def specimen():
     return LinearSpecimen(MASS, 17.14 * MASS, 2.11e5)
 
 
-def run(rig, forces):
-    """Apply the reference forces one step each; return the readings before each step."""
-    rows = []
-    for f in forces:
-        m = rig.measure()
-        rows.append((m.force_N, m.displacement_m, m.velocity_m_s, m.acceleration_m_s2))
-        rig.apply(f)
-    return np.array(rows)
-
-
 @pytest.mark.parametrize('tau, lag_steps', [
     (0.01, 5),          # the reference study: 5 whole steps
     (0.002, 1),         # one step
     (0.005, 3),         # 2.5 steps: f_r(t_k - tau) is the value held since t_k-3
     (0.0013, 1),        # below one step
 ])
-def test_measured_force_is_delayed_reference(specimen, tau, lag_steps):
+def test_measured_force_is_delayed_reference(specimen, tau, lag_steps, drive):
     fr = np.random.default_rng(3).standard_normal(200) * 1000.0
-    out = run(DelayRig(specimen, DT, tau), fr)
+    out = drive(DelayRig(specimen, DT, tau), fr)
     np.testing.assert_array_equal(out[lag_steps:, 0], fr[:-lag_steps])
     np.testing.assert_array_equal(out[:lag_steps, 0], 0.0)
 
@@ -57,11 +47,11 @@ def test_measured_force_is_delayed_reference(specimen, tau, lag_steps):
     (0.003, 2),         # 1.5 steps: the late force is the newest of the history
     (0.0013, 20),       # below one step: the late force is the command being applied
 ])
-def test_specimen_response_matches_lsim(specimen, tau, substeps):
+def test_specimen_response_matches_lsim(specimen, tau, substeps, drive):
     """x, v and a equal scipy.signal.lsim of the SDOF under the delayed, held force."""
     n = 400
     fr = np.random.default_rng(5).standard_normal(n) * 1000.0
-    out = run(DelayRig(specimen, DT, tau), fr)
+    out = drive(DelayRig(specimen, DT, tau), fr)
     h = DT / substeps
     lag = int(round(tau / h))
     assert abs(lag * h - tau) < 1e-12
@@ -128,13 +118,13 @@ def test_a_delay_that_rounds_to_none_is_a_parameter_error(specimen, tau):
         DelayRig(specimen, DT, tau)
 
 
-def test_the_shortest_delay_measures_the_previous_command(specimen):
+def test_the_shortest_delay_measures_the_previous_command(specimen, drive):
     """Just above 1e-9 dt (2.1e-12 s: 0 whole steps, remainder 2.1e-12 s) f_m[k] = f_r(t_k -
     tau) is the command held over the previous step, f_r[k-1], and the specimen moves as under
     the command without delay (lsim with the force of step k over [t_k, t_k+1)) to 1e-8 of
     its peak: ten times the share of a step the previous force still acts, 2.1 ps / 2 ms."""
     fr = np.random.default_rng(7).standard_normal(200) * 1000.0
-    out = run(DelayRig(specimen, DT, 2.1e-12), fr)
+    out = drive(DelayRig(specimen, DT, 2.1e-12), fr)
     np.testing.assert_array_equal(out[1:, 0], fr[:-1])
     assert out[0, 0] == 0.0
     a, b = specimen.state_space()
@@ -277,16 +267,16 @@ def test_hysteretic_response_matches_ode_solution(bouc_wen, tau, shape):
     assert rig.true_force() == forces[len(forces) - n_whole - 1 + late]
 
 
-def test_hysteretic_substeps(bouc_wen):
+def test_hysteretic_substeps(bouc_wen, drive):
     """The default is the documented 10 RK4 substeps per step; 1 substep is allowed, and fewer
     than one or a non-integer count is a parameter error."""
     forces = yielding_forces(100)
-    default = run(DelayRig(bouc_wen, DT, 0.0135), forces)
-    np.testing.assert_array_equal(default, run(DelayRig(bouc_wen, DT, 0.0135, rk4_substeps=10),
+    default = drive(DelayRig(bouc_wen, DT, 0.0135), forces)
+    np.testing.assert_array_equal(default, drive(DelayRig(bouc_wen, DT, 0.0135, rk4_substeps=10),
                                                forces))
-    assert np.max(np.abs(default - run(DelayRig(bouc_wen, DT, 0.0135, rk4_substeps=11),
+    assert np.max(np.abs(default - drive(DelayRig(bouc_wen, DT, 0.0135, rk4_substeps=11),
                                        forces))) > 0.0
-    one = run(DelayRig(bouc_wen, DT, 0.0135, rk4_substeps=1), forces)
+    one = drive(DelayRig(bouc_wen, DT, 0.0135, rk4_substeps=1), forces)
     assert np.max(np.abs(one - default)) < 1e-3 * np.max(np.abs(default))
     for bad in (0, -1, 2.5):
         with pytest.raises(ParameterError,
@@ -294,7 +284,7 @@ def test_hysteretic_substeps(bouc_wen):
             DelayRig(bouc_wen, DT, 0.01, rk4_substeps=bad)
 
 
-def test_from_parameters_hysteretic_limits_and_substeps(bouc_wen):
+def test_from_parameters_hysteretic_limits_and_substeps(bouc_wen, drive):
     """The specimen, the limits and the substeps reach the rig built from the parameters."""
     values = defaults()
     values.update(rig_model='delay', tau_s=0.0135, specimen_model='bouc_wen',
@@ -304,7 +294,7 @@ def test_from_parameters_hysteretic_limits_and_substeps(bouc_wen):
     assert rig.limits == SafetyLimits(0.05, 3000.0)
     forces = yielding_forces(100)
     np.testing.assert_array_equal(
-        run(rig, forces), run(DelayRig(bouc_wen, DT, 0.0135, rk4_substeps=3), forces))
+        drive(rig, forces), drive(DelayRig(bouc_wen, DT, 0.0135, rk4_substeps=3), forces))
     np.testing.assert_array_equal(
-        run(DelayRig.from_parameters(values), forces),
-        run(DelayRig(bouc_wen, DT, 0.0135), forces))
+        drive(DelayRig.from_parameters(values), forces),
+        drive(DelayRig(bouc_wen, DT, 0.0135), forces))

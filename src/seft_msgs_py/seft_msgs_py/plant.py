@@ -744,7 +744,10 @@ def parse_plant(doc, *, dt: float, specimen: Specimen | None = None,
 
         The force output is required; the motion outputs may be left out when the specimen
         is given (they are then derived from the force, ``m x'' + c x' + k x = f``, paper
-        Eq. 5.1).
+        Eq. 5.1: exactly from a continuous model; from a discrete one through the specimen
+        sampled with a first-order hold of the force, within ``(omega dt)^2/12`` in
+        displacement and velocity and ``(omega_n dt)^2/12`` in acceleration, omega_n the
+        specimen's: give every output when you have them).
     dt : float > 0
         The run's control period [s]: a continuous model is sampled at it (zero-order hold,
         :func:`sample_continuous`); a discrete one must have it.

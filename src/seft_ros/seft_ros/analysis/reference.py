@@ -40,6 +40,7 @@ from seft_ros.core.structure import (
 
 __all__ = ['ReferenceResponse', 'StructureReference', 'structure_reference', 'run_reference',
            'reference_response', 'hysteretic_reference_response', 'reference_from_run',
+           'planned_reference',
            'LINEAR_METHOD', 'NONLINEAR_METHOD']
 
 #: How the reference of a linear structure is computed (:func:`structure_reference`).
@@ -704,3 +705,30 @@ def reference_from_run(run) -> ReferenceResponse:
         raise ParameterError(f'a run of {len(reference.rigs)} rigs has no single rig '
                              'reference: use run_reference(run).rig(name)')
     return reference.rig(reference.rigs[0])
+
+
+def planned_reference(params: Mapping[str, Any]) -> ReferenceResponse:
+    """The linear one-DOF reference of a test before it runs: its specimen (``mass_kg``,
+    ``damping_N_s_per_m``, ``stiffness_N_per_m``) and mass ratio on its prepared ground
+    motion (``seft_ros.core.ground_motion.prepared_record``, scaled by ``amplitude_N``).
+
+    Parameters
+    ----------
+    params : mapping
+        Resolved parameters of one run.
+
+    Returns
+    -------
+    ReferenceResponse
+
+    Raises
+    ------
+    ParameterError, InputError
+        As :func:`reference_response` and the record's reader.
+    """
+    from seft_ros.core.ground_motion import prepared_record
+    gm = prepared_record(params)
+    return reference_response(alpha=params['alpha'], mass_kg=params['mass_kg'],
+                              damping_N_s_per_m=params['damping_N_s_per_m'],
+                              stiffness_N_per_m=params['stiffness_N_per_m'], dt=params['dt'],
+                              ground_acceleration_m_s2=gm.acceleration_m_s2)

@@ -19,7 +19,7 @@ from seft_msgs_py.domain import LOCK_DIR, claim_domain, held_by_ancestor
 from seft_msgs_py.errors import InputError, ParameterError, SeftError
 from seft_msgs_py.sampling import single_blas_thread
 from seft_ros.analysis.bag import read_run
-from seft_ros.analysis.reference import reference_response
+from seft_ros.analysis.reference import planned_reference
 from seft_ros.analysis.rundata import RunData
 from seft_ros.cli import partition
 from seft_ros.cli.config import (
@@ -923,11 +923,7 @@ def check_capacity(*, runs: list[dict], progress: Callable[[str], None] = print)
         v_max = actuator_velocity_limit_m_s(p)
         if v_max is None or has_structure(p):
             continue
-        gm = prepared_record(p)
-        ref = reference_response(alpha=p['alpha'], mass_kg=p['mass_kg'],
-                                 damping_N_s_per_m=p['damping_N_s_per_m'],
-                                 stiffness_N_per_m=p['stiffness_N_per_m'], dt=p['dt'],
-                                 ground_acceleration_m_s2=gm.acceleration_m_s2)
+        ref = planned_reference(p)
         v_peak = float(np.max(np.abs(ref.velocity_m_s)))
         if v_peak > v_max:
             progress(f'warning: alpha={p["alpha"]:g} ({p["predictor"]}): the reference response '
@@ -1262,6 +1258,81 @@ def identify_bags(*, bags: list[str], out_dir: Path, window: str = 'hann',
         params_path = (write_rig_params_yaml(per_rig, params_out) if structure
                        else write_params_yaml(identified, params_out))
     return IdentifyResult(out_dir, doc, params_path)
+
+
+class DesignResult:
+    """What ``seft design`` produced: each rig's design and the parameter file."""
+
+    def __init__(self, designs: dict, params_path: Path | None, document: dict):
+        self.designs = designs
+        self.params_path = params_path
+        self.document = document
+
+
+def design_controllers(*, config: str | None = None, overrides: dict | None = None,
+                       params_files: list[str] | None = None, out: str | None = None,
+                       phase_margin_deg: float = 45.0, gain_margin: float = 2.0,
+                       crossover_hz: float = 0.0, uncertainty: float = 0.05
+                       ) -> DesignResult:
+    """Design each valve-driven rig's force controller from its plant model (``seft design``).
+
+    The plant is the rig's (:func:`seft_ros.core.force_loop.force_loop_plant`: its
+    ``plant_model``, written by the lab or by ``seft identify``, else seft's servohydraulic
+    rig model with the rig's specimen), the design :func:`seft_ros.core.force_design.
+    design_force_controller` with the targets given.
+
+    Parameters
+    ----------
+    config, overrides, params_files
+        As :func:`build_runs` (the first run's rigs are designed).
+    out : str, optional
+        Write the designed controllers and the compensators' settings there as a parameter
+        file (a structure's: a ``rigs`` section per rig), to layer with ``--params``.
+    phase_margin_deg, gain_margin, crossover_hz, uncertainty
+        :class:`~seft_ros.core.force_design.DesignTargets`.
+
+    Returns
+    -------
+    DesignResult
+
+    Raises
+    ------
+    InputError, ParameterError
+        A bad configuration or target, a rig without a model of its force loop (the message
+        says to identify it), no valve-driven rig.
+    """
+    from seft_ros.analysis.identification_report import write_params_yaml, write_rig_params_yaml
+    from seft_ros.core.force_design import DesignTargets, design_force_controller
+    from seft_ros.core.force_loop import force_loop_plant
+    from seft_ros.core.structure import test_setup
+    if out and Path(out).is_dir():
+        raise InputError(f'--out {out}: is a directory; expected the name of the parameter '
+                         'file to write')
+    targets = DesignTargets(phase_margin_deg, gain_margin, crossover_hz, uncertainty)
+    params = build_runs(config=config, overrides=overrides, params_files=params_files)[0]
+    setup = test_setup(params)
+    designs = {}
+    for rig in setup.rig_names:
+        rp = setup.rig_params[rig]
+        if not parameters.valve_commanded(rp):
+            continue
+        try:
+            plant = force_loop_plant(rp)
+        except ParameterError as exc:
+            raise ParameterError(f'rig {rig}: {exc}' if rig else str(exc)) from None
+        designs[rig] = design_force_controller(plant, targets=targets)
+    if not designs:
+        raise ParameterError('no valve-driven rig in the test (rig_model delay takes the '
+                             'reference force: it has no force controller to design)')
+    values = {r: dict(d.parameters(), _design=d.summary()
+                      + ('' if d.met else ' (targets NOT met: ' + '; '.join(d.notes) + ')'))
+              for r, d in designs.items()}
+    path = None
+    if out:
+        path = (write_params_yaml(values[''], out) if list(values) == ['']
+                else write_rig_params_yaml(values, out))
+    doc = {r: d.to_json() for r, d in designs.items()}
+    return DesignResult(designs, path, doc)
 
 
 #: The figures ``seft identify`` prints, in order.

@@ -163,6 +163,28 @@ def build_parser() -> argparse.ArgumentParser:
                        'identified delay and force-loop model as a parameter file; of a '
                        "structure's bags, a rigs section per rig with its specimen too (for "
                        'seft run CONFIG --params FILE)')
+    des = sub.add_parser('design', help="design each rig's force controller from the model "
+                         "of its force loop (plant_model, or seft's rig model): crossover, "
+                         'margins, control-structure interaction')
+    des.add_argument('config', nargs='?', help='configuration YAML (the rig, its plant_model '
+                     "or seft's rig parameters, the specimen)")
+    des.add_argument('--params', dest='params_files', action='append', default=[],
+                     metavar='FILE', help='parameter file layered over CONFIG (e.g. the one '
+                     'seft identify --params wrote: its plant_model)')
+    des.add_argument('--set', dest='sets', type=_set_value, action='append', default=[],
+                     metavar='NAME=VALUE', help='any other parameter (repeatable)')
+    des.add_argument('--phase-margin', type=float, default=45.0, metavar='DEG',
+                     help='the least phase margin [deg] (default 45)')
+    des.add_argument('--gain-margin', type=float, default=2.0, metavar='G',
+                     help='the least gain margin [-] (default 2, 6 dB)')
+    des.add_argument('--crossover-hz', type=float, default=0.0, metavar='HZ',
+                     help='the crossover to aim at [Hz] (default 0: the highest the margins '
+                     'allow)')
+    des.add_argument('--uncertainty', type=float, default=0.05, metavar='U',
+                     help="the plant model's relative error the margins must survive "
+                     '(default 0.05)')
+    des.add_argument('--out', metavar='FILE', help='write the controller and the '
+                     "compensators' settings as a parameter file (for --params)")
     cmp_ = sub.add_parser('compare', help='compare recorded bags against the analytical '
                           'reference (figures, table, summary.json)')
     cmp_.add_argument('bags', nargs='+', metavar='BAG', help='a bag, a run directory '
@@ -306,6 +328,25 @@ def _identify(args) -> int:
     return 0
 
 
+def _design(args) -> int:
+    result = api.design_controllers(config=args.config, overrides=dict(_typed(args.sets)),
+                                    params_files=args.params_files, out=args.out,
+                                    phase_margin_deg=args.phase_margin,
+                                    gain_margin=args.gain_margin,
+                                    crossover_hz=args.crossover_hz,
+                                    uncertainty=args.uncertainty)
+    for rig, d in result.designs.items():
+        label = f'rig {rig}: ' if rig else ''
+        print(f'{label}{d.summary()}')
+        print(f'{label}force-loop inverse {d.loop_delay_steps} steps, {d.loop_taps} taps (miss '
+              f'{100 * d.inverse_band_error:.2g} % up to 25 Hz), closed-loop delay '
+              f'{1e3 * d.equivalent_delay_s:.1f} ms; targets '
+              + ('met' if d.met else 'NOT met: ' + '; '.join(d.notes)))
+    if result.params_path is not None:
+        print(f'parameters: {result.params_path}')
+    return 0 if all(d.met for d in result.designs.values()) else 1
+
+
 def _rig_runs(args) -> list[dict]:
     """The runs of a rig's options (config, --rig, --params, --set) for rig-check and
     emulate-controller."""
@@ -409,6 +450,8 @@ def _main(args) -> int:
             return 0
         if args.verb == 'identify':
             return _identify(args)
+        if args.verb == 'design':
+            return _design(args)
         if args.verb == 'rig-check':
             return _rig_check(args)
         if args.verb == 'emulate-controller':

@@ -542,7 +542,8 @@ class ModelPredictor:
                                   mp['stiffness_N_per_m'], dt, tau)
         offset = gain_offset
         if (offset is None and params.get('predictor_calibration', 'none') == 'poles'
-                and inverse is not None and restoring == 'model'):
+                and inverse is not None and restoring == 'model'
+                and params.get('structure', 'none') in ('none', '', None)):
             from seft_ros.core.law_calibration import pole_calibration
             offset = pole_calibration(params)
         return cls(model, float(params['alpha']), float(params['mass_kg']), inverse,
@@ -1854,6 +1855,9 @@ class AdaptivePredictor:
         Servohydraulic rig, loop from the model (``adaptive_loop: model_latency``): the I/O
         latency is identified too and `loop_factory` is called as ``(m, c, k,
         latency_s)``; not with a member that yields (its loop is not the linear model's).
+    law_correction : (ndarray, float), optional
+        ``(rho, s)``: the law's gains ``K (1 + rho)`` (rho shape (2,)) and ``beta s``
+        (``predictor_calibration: poles``, :func:`_adaptive_law_correction`).
     min_fit_quality : float in [0, 1]
         A delay identification is used only when its fit explains at least this fraction of
         the velocity increments' energy (``R^2 = 1 - residual / sum y^2``; measured: 0.9999
@@ -1899,9 +1903,14 @@ class AdaptivePredictor:
                  mass_ref_kg, window_s=0.5, max_delay_s=0.03, update_steps=10, *,
                  memory_s=5.0, excitation_N=20.0, max_deviation=0.5, max_rate_per_s=1.0,
                  identify_specimen=True, loop_factory=None, min_fit_quality=0.995,
-                 loop_identification=None, member_law=None, latency_fit=None):
+                 loop_identification=None, member_law=None, latency_fit=None,
+                 law_correction=None):
         m0, c0, k0, dt = (float(mass_kg), float(damping_N_s_per_m), float(stiffness_N_per_m),
                           float(dt))
+        # the law's gains times (1 + rho) and beta times s (law_calibration), or as derived
+        self._law_correction = (None if law_correction is None
+                                else (np.asarray(law_correction[0], float),
+                                      float(law_correction[1])))
         for name, value, ok in (
                 ('adaptive_window_s', window_s, window_s > 0),
                 ('adaptive_max_delay_s', max_delay_s, max_delay_s > 0),
@@ -2017,7 +2026,8 @@ class AdaptivePredictor:
                    max_deviation=float(params.get('adaptive_max_deviation', 0.5)),
                    max_rate_per_s=float(params.get('adaptive_max_rate_per_s', 1.0)),
                    loop_factory=factory, loop_identification=identified,
-                   member_law=_member_law(params, tau0), latency_fit=latency_fit)
+                   member_law=_member_law(params, tau0), latency_fit=latency_fit,
+                   law_correction=_adaptive_law_correction(params))
 
     # -- estimates ---------------------------------------------------------------------------
 
@@ -2080,6 +2090,9 @@ class AdaptivePredictor:
             self._member_law.set_delay(self.model.tau_s)
         alpha_eff = self.alpha * self.mass_ref_kg / m
         self._law = self.model.matching_gains(alpha_eff)
+        if self._law_correction is not None:
+            rho, scale = self._law_correction
+            self._law = (self._law[0] * (1.0 + rho), self._law[1] * scale)
         a = np.array([[0.0, 1.0], [-k / m, -c / m]])
         b = np.array([[0.0], [1.0 / m]])
         phi, gam = _zoh(a, b, self.dt)
@@ -2279,6 +2292,30 @@ class AdaptivePredictor:
         if self.latency_fit is not None:
             self.latency_fit.record(command)
         return command
+
+
+def _adaptive_law_correction(params):
+    """``(rho, s)`` of ``adaptive`` with ``predictor_calibration: poles`` on a valve-driven
+    rig: the ``model`` law's calibration (:func:`seft_ros.core.law_calibration.
+    pole_calibration`) as relative corrections of its gains ``K (1 + rho)`` and of ``beta``,
+    computed once at the specimen of the plant model of data (the one identified with it)
+    or else the declared one, and applied to the law as the identification moves it; None
+    otherwise (the law as derived)."""
+    if (params.get('predictor_calibration', 'none') != 'poles' or not valve_commanded(params)
+            or params.get('predictor_restoring_force', 'model') != 'model'
+            or params.get('structure', 'none') not in ('none', '', None)):
+        return None
+    from seft_ros.core.force_loop import compensator_plant
+    from seft_ros.core.law_calibration import pole_calibration
+    p = dict(params, predictor='model')
+    spec = compensator_plant(params).specimen
+    if spec is not None and params.get('plant_model', 'none') not in ('none', '', None):
+        p.update(predictor_mass_kg=spec.mass_kg,
+                 predictor_damping_N_s_per_m=spec.damping_N_s_per_m,
+                 predictor_stiffness_N_per_m=spec.stiffness_N_per_m)
+    offset = pole_calibration(p)
+    gain = ModelPredictor.from_parameters(dict(p, predictor_calibration='none'))._gain
+    return offset[:2] / gain, float(offset[2])
 
 
 def _moved(values, reference, tolerance: float) -> bool:
