@@ -81,7 +81,20 @@ def _true_margins(base: dict, design) -> dict:
 
 
 def lab_path(case: dict) -> dict:
-    """One plant and specimen through the three commands (module notes)."""
+    """One plant and specimen through the three commands (module notes); an exception is
+    the case's result (``error``), not the benchmark's end."""
+    try:
+        return _lab_path(case)
+    except Exception as exc:                           # noqa: BLE001 - reported per case
+        import traceback
+        where = traceback.extract_tb(exc.__traceback__)[-1]
+        return {'case': case['name'], 'member': case['member'], 'f_hz': case['f_hz'],
+                'zeta': case['zeta'], 'runs': [],
+                'error': f'{type(exc).__name__}: {exc} ({where.filename.rsplit("/", 1)[-1]}:'
+                         f'{where.lineno})'}
+
+
+def _lab_path(case: dict) -> dict:
     from seft_ros.analysis.metrics import compare_run
     from seft_ros.analysis.rig_identification import identified_parameters, identify_rigs
     from seft_ros.cli.api import build_runs

@@ -231,9 +231,10 @@ def test_value_source_of_each_parameter(names, node):
 def test_value_source_lists_cover_the_schema():
     # + 1: realtime_priority, per node (the rig's value is the one reported); the second 6:
     # the excitation of identification runs; the rig's 43: 38 and the UDP bridge's 5; the
-    # builder's 31 with specimen_uncertainty, specimen_check and predictor_io_latency_s; + 5:
-    # the force loop as data (plant_model, force_controller_tf, the actuator family's 3)
-    assert len(VALUE_SOURCE) == len(SCHEMA) == 31 + 43 + 6 + 6 + 10 + 2 + 1 + 2 + 1 + 5
+    # builder's 31 with specimen_uncertainty, specimen_check and predictor_io_latency_s; + 6:
+    # the force loop as data (plant_model, force_controller_tf, the actuator family's 3,
+    # predictor_calibration)
+    assert len(VALUE_SOURCE) == len(SCHEMA) == 31 + 43 + 6 + 6 + 10 + 2 + 1 + 2 + 1 + 6
 
 
 def test_value_source_of_unknown_name_is_an_error():

@@ -467,6 +467,27 @@ class PlantModel:
         """Eigenvalues of ``A`` (in z)."""
         return np.linalg.eigvals(self.a)
 
+    def zeros(self, output: str = 'force_N') -> np.ndarray:
+        """The invariant zeros (in z) of one output's response: the finite generalized
+        eigenvalues of the system pencil ``([[A, B], [C_i, 0]], [[I, 0], [0, 0]])``
+        (Emami-Naeini and Van Dooren 1982; ``scipy.linalg.eigvals``).
+
+        Raises
+        ------
+        ParameterError
+            An output not in :data:`OUTPUTS`.
+        """
+        from scipy.linalg import eigvals
+        n = self.order
+        pencil = np.zeros((n + 1, n + 1))
+        pencil[:n, :n], pencil[:n, n] = self.a, self.b[:, 0]
+        pencil[n, :n] = self.row(output)
+        ident = np.zeros((n + 1, n + 1))
+        ident[:n, :n] = np.eye(n)
+        with np.errstate(all='ignore'):
+            w = eigvals(pencil, ident)
+        return w[np.isfinite(w) & (np.abs(w) < 1e8)]
+
     def stable(self) -> bool:
         """Whether every pole lies strictly inside the unit circle."""
         return bool(np.all(np.abs(self.poles()) < 1.0))

@@ -441,8 +441,8 @@ def sample(params: ServoHydraulicParams, specimen: LinearSpecimen, dt: float) ->
 # -- the rig as the force loop's plant ------------------------------------------------------
 
 class ServoHydraulicPlant(PlantModel):
-    """seft's servohydraulic rig as the force loop's plant (:class:`~seft_msgs_py.plant.
-    PlantModel`), sampled exactly.
+    """seft's servohydraulic rig as the force loop's plant
+    (:class:`~seft_msgs_py.plant.PlantModel`), sampled exactly.
 
     The plant of :func:`sample` (:meth:`SampledRig.augmented`, the latency's past commands as
     states) with the outputs of :data:`seft_msgs_py.plant.OUTPUTS`. Its closed-loop responses

@@ -150,9 +150,17 @@ def test_rig_delay(closed_loop, open_loop):
     # the correlation peak is the impulse response's, not the low-frequency phase slope
     assert fig['delay_xcorr_ms'] == pytest.approx(fig['model']['delay_ms'], abs=2.0)
     assert 0.9 < fig['magnitude_min'] <= fig['magnitude_max'] < 1.1    # paper Fig. 4
-    out = identified_parameters([closed_loop, open_loop])
+    out = identified_parameters([closed_loop])
     assert out['predictor_tau_s'] == pytest.approx(fig['delay_ms'] * 1e-3)
-    assert 'io_latency_s' in out
+    # with the open-loop run: the plant as data and the controller designed for it, whose
+    # closed loop's delay replaces the one measured with the study's controller
+    out = identified_parameters([closed_loop, open_loop])
+    design = open_loop.design
+    assert design.met and design.stable
+    assert out['force_controller'] == 'transfer_function'
+    assert out['plant_model']['form'] == 'transfer_function'
+    assert out['predictor_tau_s'] == design.equivalent_delay_s
+    assert 0.0 < design.equivalent_delay_s < fig['delay_ms'] * 1e-3
 
 
 def test_delay_rig_delay_is_exact():

@@ -40,8 +40,13 @@ def test_identify_writes_json_plots_report_and_params(bags, capsys):
     assert 'bode_run_0.png' in (out / 'identification.md').read_text()
     # the parameter file is a configuration of seft run / simulate
     values = load_config(params)
-    assert values['predictor_tau_s'] == pytest.approx(doc['delay_ms'] * 1e-3)
-    assert values['io_latency_s'] == pytest.approx(0.003, rel=0.02)
+    # the plant as data and the controller designed for it (issue 38): the designed closed
+    # loop's delay, not the study controller's measured one
+    design = doc['runs'][0]['figures']['design']
+    assert values['force_controller'] == 'transfer_function'
+    assert json.loads(values['plant_model'])['form'] == 'transfer_function'
+    assert values['predictor_tau_s'] == pytest.approx(design['equivalent_delay_s'])
+    assert design['margins']['phase_margin_deg'] >= 45.0
     run, = build_runs(config=str(params), overrides={'predictor': 'model', 'duration_s': 0.5})
     assert simulate(run).stable
     assert main(['simulate', '--params', str(params), '--predictor', 'polynomial',

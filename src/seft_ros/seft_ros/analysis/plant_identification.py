@@ -56,6 +56,10 @@ __all__ = ['PlantFit', 'identify_plant', 'DELAY_TOLERANCE', 'ERROR_FLOOR', 'MAX_
 DELAY_TOLERANCE = 0.05
 #: The relative output error below which a higher order gains nothing [-].
 ERROR_FLOOR = 1e-4
+#: The relative equation error below which two delays fit equally (rounding) [-]: far below
+#: :data:`ERROR_FLOOR`, since an eighth-order fit with a delay one step too long misses an
+#: integrating actuator's force by only ~1e-4 of its (drifting) level.
+DELAY_FLOOR = 1e-6
 #: The highest order tried.
 MAX_ORDER = 10
 #: Evaluations of the output-error fit at most (per order): a noise-free record converges in
@@ -147,7 +151,7 @@ def _delay_steps(u: np.ndarray, y: np.ndarray, order: int = 8, longest: int = 10
         theta, res, *_ = np.linalg.lstsq(lhs, y, rcond=None)
         r = y - lhs @ theta
         losses.append(float(r @ r))
-    floor = (ERROR_FLOOR ** 2) * float(y @ y)
+    floor = (DELAY_FLOOR ** 2) * float(y @ y)
     best = min(losses)
     ok = [nk for nk, loss in zip(range(1, longest + 1), losses)
           if loss <= (1.0 + DELAY_TOLERANCE) * best + floor]

@@ -440,10 +440,10 @@ def _controller_response(controller, freqs_hz) -> np.ndarray:
 # -- the rig's known model ------------------------------------------------------------------
 
 def _known_model(params):
-    """The run's own model of its force loop (:func:`seft_ros.core.force_loop.
-    force_loop_plant`: its ``plant_model``, or seft's rig model with the run's specimen) and
-    its controller: ``(plant, controller)``, or None where the rig has none (an actuator seft
-    has no model of, or seft_plant_sim missing)."""
+    """The run's own model of its force loop
+    (:func:`~seft_ros.core.force_loop.force_loop_plant`: its ``plant_model``, or seft's rig
+    model with the run's specimen) and its controller: ``(plant, controller)``, or None
+    where the rig has none (an actuator seft has no model of, or seft_plant_sim missing)."""
     from seft_ros.core.controller import ForceServoController
     from seft_ros.core.force_loop import force_loop_plant
     try:
@@ -506,8 +506,8 @@ class RunIdentification:
         Open loop on a valve-driven rig: the force loop's plant identified as data
         (:func:`~seft_ros.analysis.plant_identification.identify_plant`).
     design : ForceLoopDesign or None
-        The force controller designed for it (:func:`~seft_ros.core.force_design.
-        design_force_controller`).
+        The force controller designed for it
+        (:func:`~seft_ros.core.force_design.design_force_controller`).
     restoring : (ndarray, ndarray) or None, each shape (n,)
         The measured displacement [m] and restoring force ``f - m a - c v`` [N] with the
         fit's m and c (unfiltered), for the plot of the specimen.
@@ -784,9 +784,15 @@ def identified_parameters(runs: list[RunIdentification], *,
     for r in runs:
         if r.kind == 'open_loop' and r.plant is not None:
             out['plant_model'] = r.plant.mapping()
-            out.update(r.design.parameters())
             out['_plant'] = (f'order {r.plant.order}, delay {r.plant.delay_steps} steps, force '
                              f'NRMS {100 * r.plant.nrms["force_N"]:.2g} %')
+            if not r.design.stable:
+                out['_design'] = ("NOT written: no controller of seft's design closes a "
+                                  'stable force loop on this model (' + '; '.join(r.design.notes)
+                                  + "); enter the lab's own (force_controller_tf) and check it "
+                                  'with seft design')
+                break
+            out.update(r.design.parameters())
             out['_design'] = r.design.summary() + ('' if r.design.met else ' (targets NOT met: '
                                                    + '; '.join(r.design.notes) + ')')
             break

@@ -1324,6 +1324,12 @@ def design_controllers(*, config: str | None = None, overrides: dict | None = No
     if not designs:
         raise ParameterError('no valve-driven rig in the test (rig_model delay takes the '
                              'reference force: it has no force controller to design)')
+    unstable = [r or 'the rig' for r, d in designs.items() if not d.stable]
+    if unstable:
+        raise ParameterError(f'{", ".join(unstable)}: no controller of seft\'s design closes a '
+                             "stable force loop on the plant model; enter the lab's own "
+                             '(force_controller transfer_function, force_controller_tf) and '
+                             'check it with seft stability')
     values = {r: dict(d.parameters(), _design=d.summary()
                       + ('' if d.met else ' (targets NOT met: ' + '; '.join(d.notes) + ')'))
               for r, d in designs.items()}

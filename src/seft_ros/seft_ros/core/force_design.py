@@ -55,6 +55,7 @@ import numpy as np
 
 from seft_msgs_py.errors import ParameterError
 from seft_msgs_py.plant import PlantModel, Specimen, controller_response
+from seft_msgs_py.sampling import single_blas_thread
 
 __all__ = ['DesignTargets', 'LoopMargins', 'ForceLoopDesign', 'loop_margins',
            'design_force_controller', 'plant_margins', 'INVERSE_BAND_ERROR',
@@ -229,6 +230,9 @@ class ForceLoopDesign:
         ``predictor_loop_taps``).
     loop_hf_weight : float
         Its weight above 40 Hz (``predictor_loop_hf_weight``).
+    stable : bool
+        The force loop closed on the model is stable (a design that is not must not be
+        used).
     inverse_band_error : float
         Its miss up to 25 Hz [-].
     equivalent_delay_s : float
@@ -255,6 +259,7 @@ class ForceLoopDesign:
     equivalent_delay_s: float = math.nan
     method: str = DESIGN_METHOD
     notes: list = field(default_factory=list)
+    stable: bool = True
 
     def controller_mapping(self) -> dict:
         """The ``force_controller_tf`` mapping: discrete, with the method."""
@@ -278,7 +283,7 @@ class ForceLoopDesign:
 
     def to_json(self) -> dict:
         """Every figure of the design, for ``identification.json`` and ``design.json``."""
-        return {'method': self.method, 'met': self.met,
+        return {'method': self.method, 'met': self.met, 'stable': self.stable,
                 'targets': {'phase_margin_deg': self.targets.phase_margin_deg,
                             'gain_margin': self.targets.gain_margin,
                             'crossover_hz': self.targets.crossover_hz,
@@ -337,26 +342,27 @@ def _modes(roots, dt: float):
     return out
 
 
+#: How far (natural log of the frequency ratio) from the specimen's natural frequency a
+#: force zero may be to be its control-structure-interaction zero (about +-20 %).
+CSI_SEARCH = 0.2
 #: The largest radius of a force zero taken, reflected, as the control-structure-interaction
 #: zero (about -0.5 % damping at 20 Hz and dt = 2 ms)
 NMP_ZERO_RADIUS = 1.002
 
 
 def _force_zeros(plant: PlantModel) -> np.ndarray:
-    """The zeros of the force response ``P(z)`` (python-control's ``zeros`` of the SISO
-    system)."""
-    import control
-    sys = control.ss(plant.a, plant.b, plant.row('force_N')[None], 0.0, plant.dt)
-    return np.asarray(sys.zeros(), dtype=complex)
+    """The zeros of the force response ``P(z)`` (:meth:`PlantModel.zeros`)."""
+    return plant.zeros('force_N')
 
 
 def _csi_zero(plant: PlantModel, specimen: Specimen | None):
     """The control-structure-interaction zero pair of the plant: ``(f [Hz], damping, z)`` of
     its force response's complex zero nearest the specimen's natural frequency (the plant's
-    own specimen, or `specimen`); without a specimen the lightest complex zero pair below
-    0.9 of Nyquist. None when there is none. A zero just outside the unit circle (up to
-    :data:`NMP_ZERO_RADIUS`: a lightly damped specimen's zero identified from noisy data) is
-    taken reflected inside, ``1/conj(z)``: a controller pole must be stable."""
+    own specimen, or `specimen`, within a factor ``exp(CSI_SEARCH)`` of it); without a
+    specimen the lightest complex zero pair below 0.9 of Nyquist. None when there is none.
+    A zero just outside the unit circle (up to :data:`NMP_ZERO_RADIUS`: a lightly damped
+    specimen's zero identified from noisy data) is taken reflected inside, ``1/conj(z)``: a
+    controller pole must be stable."""
     spec = specimen or plant.specimen
     nyq = 0.5 / plant.dt
     roots = _force_zeros(plant)
@@ -368,7 +374,8 @@ def _csi_zero(plant: PlantModel, specimen: Specimen | None):
         return None
     if spec is not None:
         fz = spec.natural_frequency_hz
-        return min(zeros, key=lambda m: abs(math.log(m[0] / fz)))
+        near = min(zeros, key=lambda m: abs(math.log(m[0] / fz)))
+        return near if abs(math.log(near[0] / fz)) < CSI_SEARCH else None
     return min(zeros, key=lambda m: m[1])
 
 
@@ -491,7 +498,11 @@ def design_force_controller(plant: PlantModel, *, specimen: Specimen | None = No
     ParameterError
         A plant that is unstable (a model of a real actuator is not).
     """
-    targets = targets or DesignTargets()
+    with single_blas_thread():                   # small products: threads only slow them
+        return _design(plant, specimen, targets or DesignTargets(), detune)
+
+
+def _design(plant, specimen, targets, detune) -> ForceLoopDesign:
     if not plant.stable():
         raise ParameterError(f'plant model ({plant.source}): unstable (a pole outside the unit '
                              'circle): a model of an actuator is not; identify it again')
@@ -579,7 +590,7 @@ def design_force_controller(plant: PlantModel, *, specimen: Specimen | None = No
                  'gain_V_per_N': float(k)}
     design = ForceLoopDesign(tuple(float(v) for v in bz), tuple(float(v) for v in az),
                              num_s, den_s, dt, margins, targets, (pm_req, gm_req), met,
-                             structure, notes=notes)
+                             structure, notes=notes, stable=bool(stable))
     _choose_inverse(plant, design)
     return design
 
@@ -747,6 +758,10 @@ def _choose_inverse(plant: PlantModel, design: ForceLoopDesign) -> None:
     """
     from seft_ros.core.controller import ForceServoController
     from seft_ros.core.predictors import ForceLoopInverse, csi_band_hz
+    if not _closed_loop_stable(plant, np.array(design.num_z), np.array(design.den_z)):
+        design.notes.append('no force-loop inverse: the force loop on the model is unstable')
+        design.inverse_band_error = math.inf
+        return
     ctrl = ForceServoController(design.dt, 1e6, design.num_z, design.den_z, discrete=True,
                                 kind='transfer_function')
     resp = plant.loop_responses(ctrl, 1000)

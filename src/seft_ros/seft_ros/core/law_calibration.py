@@ -87,7 +87,7 @@ def pole_calibration(params: Mapping) -> np.ndarray:
     ------
     ParameterError
         The loop has no linear model, or the correction the pole needs is beyond
-        :data:`MAX_CORRECTION` of the gains or does not converge (the message says which).
+        ``MAX_CORRECTION`` of the gains or does not converge (the message says which).
     """
     from seft_ros.core import stability
     from seft_ros.core.predictors import ModelPredictor, model_parameters

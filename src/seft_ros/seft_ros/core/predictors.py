@@ -1063,7 +1063,7 @@ class ForceLoopInverse:
         ------
         ParameterError
             No model of the force loop, or a loop the best inverse misses by more than
-            :data:`MAX_BAND_ERROR` (the message names the plant and what to do).
+            ``MAX_BAND_ERROR`` (the message names the plant and what to do).
         """
         from seft_ros.core.controller import ForceServoController
         from seft_ros.core.force_loop import compensator_plant, has_plant_model
@@ -1416,10 +1416,10 @@ class IdentifiedForceLoop:
 
     @classmethod
     def from_parameters(cls, params) -> 'IdentifiedForceLoop':
-        """The prior from the force loop's plant (:func:`seft_ros.core.force_loop.
-        compensator_plant`: the ``plant_model``, or seft's rig model with the ``predictor_*``
-        specimen) and the force controller; ``predictor_loop_delay_steps``,
-        ``predictor_loop_taps`` and
+        """The prior from the force loop's plant
+        (:func:`~seft_ros.core.force_loop.compensator_plant`: the ``plant_model``, or seft's
+        rig model with the ``predictor_*`` specimen) and the force controller;
+        ``predictor_loop_delay_steps``, ``predictor_loop_taps`` and
         ``adaptive_*`` as in :class:`AdaptivePredictor`, except that the loop may change by
         5 ``adaptive_max_rate_per_s`` per second (an absolute gain: a 10 % specimen error
         changes the default loop by up to 0.45, which at 1/s took 0.45 s of strong motion
@@ -1857,7 +1857,7 @@ class AdaptivePredictor:
         latency_s)``; not with a member that yields (its loop is not the linear model's).
     law_correction : (ndarray, float), optional
         ``(rho, s)``: the law's gains ``K (1 + rho)`` (rho shape (2,)) and ``beta s``
-        (``predictor_calibration: poles``, :func:`_adaptive_law_correction`).
+        (``predictor_calibration: poles``, ``_adaptive_law_correction``).
     min_fit_quality : float in [0, 1]
         A delay identification is used only when its fit explains at least this fraction of
         the velocity increments' energy (``R^2 = 1 - residual / sum y^2``; measured: 0.9999
