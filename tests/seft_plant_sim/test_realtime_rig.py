@@ -6,6 +6,8 @@ reduces to. Arrival times are on the 0.1 ms sub-step grid, so the comparison is 
 rounding.
 """
 
+import json
+
 import numpy as np
 import pytest
 
@@ -136,3 +138,26 @@ def test_safe_state_ramps_the_force_to_zero():
 def test_bad_output_timing_is_named():
     with pytest.raises(ParameterError, match='realtime_output'):
         WallClockRig(dict(_params(), realtime_output='soon'))
+
+
+def test_an_actuator_of_the_family_holds_its_own_latency(command):
+    """The family's actuator (its io_delay_s inside the model): a command arriving at its
+    sample acts then, exactly as in lockstep (io_latency_s, seft's rig's, is not added on
+    top: it was, 3 ms late)."""
+    p = _params(rig_model='actuator', actuator_family='leaky')
+    u = 0.2 * command
+    rt, rig = _realtime(p, u, 0.0)
+    assert rig.hardware_latency_s == 0.0
+    assert _close(rt, _lockstep(p, u)) < 1e-6      # sampled at 0.1 ms and at dt: 7e-8
+
+
+def test_a_discrete_lab_model_is_refused_in_real_time_in_one_line():
+    plant = {'form': 'transfer_function', 'dt': DT, 'num': {'force_N': [0.0, 1.0]},
+             'den': [1.0, -0.5],
+             'specimen': {'mass_kg': 52.7, 'stiffness_N_per_m': 2.11e5,
+                          'damping_N_s_per_m': 903.3}}
+    p = _params(rig_model='state_space', plant_model=json.dumps(plant))
+    with pytest.raises(ParameterError, match=r'^rig_model state_space in real time: the '
+                       r'plant_model is discrete at dt \(2 ms\) .* 0\.1 ms grid'):
+        WallClockRig(p)
+    WallClockRig(dict(p, realtime_substep_s=DT))        # on the model's own grid

@@ -61,8 +61,10 @@ class StateSpaceRig:
         self._y = self._read(self._w)
 
     @classmethod
-    def from_parameters(cls, params: Mapping) -> 'StateSpaceRig':
-        """Build from ``plant_model`` (required), ``dt``, the sensors and the limits.
+    def from_parameters(cls, params: Mapping, *, rk4_substeps: int = 1) -> 'StateSpaceRig':
+        """Build from ``plant_model`` (required), ``dt``, the sensors and the limits
+        (``rk4_substeps``, of :func:`~seft_plant_sim.rigs.make_rig`, is unused: the model is
+        linear and stepped exactly).
 
         Raises
         ------

@@ -23,6 +23,12 @@ period of computation with the D/A, valve-amplifier and anti-alias delays; clipp
 ``'latched'`` run reproduces the lockstep rig exactly (up to rounding: tested), and a late
 command (one that missed its tick: a *stale* command) acts from its arrival.
 
+The ``state_space`` and ``actuator`` rigs hold the actuator's latency in their own model
+(:data:`MODELS_WITH_OWN_DELAY`): there a command acts at its arrival (``t_j`` when in time,
+as in lockstep) and then through the model. A ``state_space`` model given in z is defined at
+``dt`` only: it runs in real time with ``realtime_substep_s`` equal to ``dt`` (else refused
+in one line); given continuous, it is sampled at the sub-step.
+
 The plant itself is the lockstep rig's own class, built at the sub-step period with no
 internal latency (:func:`~seft_plant_sim.rigs.make_rig`), so the physics, the sensors and the
 limits are the same code.
@@ -37,7 +43,10 @@ from seft_msgs_py.errors import ParameterError
 from seft_msgs_py.interface import COMMAND_VALVE, Measurement
 from seft_plant_sim.rigs import make_rig
 
-__all__ = ['WallClockRig', 'OUTPUT_TIMINGS', 'CommandArrivals']
+__all__ = ['WallClockRig', 'OUTPUT_TIMINGS', 'CommandArrivals', 'MODELS_WITH_OWN_DELAY']
+
+#: Rig models whose plant holds the actuator's I/O latency itself (not ``io_latency_s``).
+MODELS_WITH_OWN_DELAY = ('state_space', 'actuator')
 
 #: Values of the ``realtime_output`` parameter.
 OUTPUT_TIMINGS = ('latched', 'on_arrival')
@@ -74,6 +83,13 @@ class CommandArrivals:
             del self._arrivals[j]
 
 
+def _discrete_model(text) -> bool:
+    """Whether a ``plant_model`` (parsed already by the rig) is given in z."""
+    from seft_msgs_py.parameters import mapping_value
+    doc = mapping_value(text, where='parameter plant_model', expected='a plant model mapping')
+    return float(doc.get('dt', 0.0) or 0.0) > 0
+
+
 class WallClockRig(CommandArrivals):
     """A simulated rig sub-stepped between wall-clock ticks, commanded by arrival time.
 
@@ -82,7 +98,9 @@ class WallClockRig(CommandArrivals):
     params : mapping
         Resolved experiment parameters: ``rig_model``, ``dt`` [s], ``realtime_substep_s``
         [s], ``realtime_output``, ``safe_ramp_s`` [s], ``io_latency_s`` [s] (servohydraulic)
-        or ``tau_s`` [s] (delay) and everything :func:`~seft_plant_sim.rigs.make_rig` reads.
+        or ``tau_s`` [s] (delay; the ``state_space`` and ``actuator`` models hold their own
+        latency, :data:`MODELS_WITH_OWN_DELAY`) and everything
+        :func:`~seft_plant_sim.rigs.make_rig` reads.
 
     Attributes
     ----------
@@ -103,7 +121,8 @@ class WallClockRig(CommandArrivals):
     Raises
     ------
     ParameterError
-        Unknown ``realtime_output``, or a rig parameter out of range.
+        Unknown ``realtime_output``, a rig parameter out of range, or a ``state_space`` rig
+        whose ``plant_model`` is discrete while the sub-step is shorter than ``dt``.
 
     Notes
     -----
@@ -125,7 +144,23 @@ class WallClockRig(CommandArrivals):
         self.substep_s = h
         probe = make_rig(dict(params))          # validates the model parameters at dt
         self.command_kind = probe.command_kind
-        if self.command_kind == COMMAND_VALVE:
+        own_delay = params.get('rig_model') in MODELS_WITH_OWN_DELAY
+        if (params.get('rig_model') == 'state_space' and self.substeps > 1
+                and _discrete_model(params['plant_model'])):
+            raise ParameterError(
+                'rig_model state_space in real time: the plant_model is discrete at dt '
+                f'({1e3 * dt:g} ms) and the real-time rig steps on a {1e3 * h:g} ms grid '
+                '(realtime_substep_s); give the model continuous, set realtime_substep_s to '
+                'dt, or rehearse it with seft simulate (lockstep, the model as identified)')
+        if own_delay:
+            # the model holds the actuator's latency (plant_model io_delay_s, the family's
+            # io_delay_s): the command acts when it arrives, then through the model
+            self.source_lag = 0
+            self._latch_offset_s = 0.0
+            self.hardware_latency_s = 0.0
+            self._lead = 0
+            sub = dict(params, dt=h)
+        elif self.command_kind == COMMAND_VALVE:
             io = float(params['io_latency_s'])
             self.source_lag = 0
             self._latch_offset_s = min(dt, io)

@@ -30,8 +30,10 @@ import math
 from typing import Mapping
 
 import numpy as np
+from scipy.sparse.linalg import eigs
 
 from seft_msgs_py.errors import ParameterError
+from seft_msgs_py.sampling import single_blas_thread
 
 __all__ = ['pole_calibration', 'reference_pole']
 
@@ -89,6 +91,13 @@ def pole_calibration(params: Mapping) -> np.ndarray:
         The loop has no linear model, or the correction the pole needs is beyond
         ``MAX_CORRECTION`` of the gains or does not converge (the message says which).
     """
+    # eigenvalue problems of ~200 states: on one BLAS thread 2.4 s, on two 20 s (a loaded
+    # 2-core host: the threads spin against the other work)
+    with single_blas_thread():
+        return _pole_calibration(params)
+
+
+def _pole_calibration(params: Mapping) -> np.ndarray:
     from seft_ros.core import stability
     from seft_ros.core.predictors import ModelPredictor, model_parameters
     base = dict(params, predictor_calibration='none')
@@ -134,9 +143,13 @@ def pole_calibration(params: Mapping) -> np.ndarray:
         dm.append((mi - m0) / steps[i])
         dg.append((gi - ground0) / steps[i])
 
+    start = np.ones(m0.shape[0], dtype=complex)        # ARPACK's start: reproducible
+
     def pole(offset):
-        ev = np.linalg.eigvals(m0 + offset[0] * dm[0] + offset[1] * dm[1])
-        return complex(min(ev, key=lambda e: abs(e - target)))
+        """The closed loop's eigenvalue nearest the target, by shift-invert (3x faster than
+        all of them at 213 states)."""
+        mm = (m0 + offset[0] * dm[0] + offset[1] * dm[1]).astype(complex)
+        return complex(eigs(mm, k=1, sigma=target, v0=start, return_eigenvectors=False)[0])
 
     offset = np.zeros(2)
     for _ in range(_ITERATIONS):
