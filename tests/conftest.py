@@ -77,6 +77,25 @@ def run_process(ros_env):
     return run
 
 
+def _drive(rig, commands):
+    """Apply `commands` (reference forces [N] or valve commands [V]) one step each; return the
+    readings before each step, shape (n, 4): force [N], displacement [m], velocity [m/s],
+    acceleration [m/s^2]."""
+    import numpy as np
+    rows = []
+    for c in commands:
+        m = rig.measure()
+        rows.append((m.force_N, m.displacement_m, m.velocity_m_s, m.acceleration_m_s2))
+        rig.apply(c)
+    return np.array(rows)
+
+
+@pytest.fixture(scope='session')
+def drive():
+    """A rig driven open loop (:func:`_drive`), its readings."""
+    return _drive
+
+
 @pytest.fixture(scope='session')
 def reference_params():
     """The reference rig (Nakata and Combs Sec. 3.1): the schema defaults, resolved."""

@@ -450,14 +450,14 @@ def test_noise_and_range_reach_the_readings(specimen):
 # -- the registry ---------------------------------------------------------------------------------
 
 def test_make_rig():
-    assert set(RIG_MODELS) == {'delay', 'servohydraulic'}
+    assert set(RIG_MODELS) == {'delay', 'servohydraulic', 'state_space', 'actuator'}
     values = defaults()
     assert isinstance(make_rig(values), ServoHydraulicRig)
     values['rig_model'] = 'delay'
     assert isinstance(make_rig(values), DelayRig)
     values['rig_model'] = 'x'
     with pytest.raises(ParameterError, match=r"^parameter rig_model='x': expected one of "
-                                             r"'delay', 'servohydraulic'$"):
+                                             r"'delay', 'servohydraulic', 'state_space', 'actuator'$"):
         make_rig(values)
 
 

@@ -133,5 +133,5 @@ def test_controller_side_runs_without_the_plant_simulation():
     proc = subprocess.run([sys.executable, '-c', _NO_PLANT_SIM], capture_output=True,
                           text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr
-    assert 'refused: predictor model on rig_model servohydraulic' in proc.stdout
+    assert 'refused: the force loop of rig_model servohydraulic' in proc.stdout
     assert 'seft_plant_sim' in proc.stdout

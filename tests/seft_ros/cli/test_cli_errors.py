@@ -49,7 +49,8 @@ CASES = {
     'yaml_dt_0': (['simulate', 'dt0.yaml'],
                   re.escape('dt0.yaml: parameter dt=0: expected float > 1e-05 <= 1')),
     'set_rig_model': (['simulate', '--set', 'rig_model=foo'], re.escape(
-        "command line: parameter rig_model='foo': expected one of 'delay', 'servohydraulic'")),
+        "command line: parameter rig_model='foo': expected one of 'delay', 'servohydraulic', "
+        "'state_space', 'actuator'")),
     'set_alpha': (['simulate', '--set', 'alpha=1'], re.escape('--set alpha: use --alpha')),
     'simulate_realtime': (['simulate', '--set', 'mode=realtime'], re.escape(
         'parameter mode=realtime: seft simulate has no wall clock (it is the lockstep graph '
@@ -140,7 +141,8 @@ def test_argparse_choice_error(seft_exe, run_process, tmp_path):
     assert proc.stderr.startswith('usage: seft simulate')
     last = proc.stderr.splitlines()[-1]
     assert re.fullmatch(r"seft: error: argument --rig: invalid choice: 'foo' \(choose from "
-                        r"'?delay'?, '?servohydraulic'?\)", last), last
+                        r"'?delay'?, '?servohydraulic'?, '?state_space'?, '?actuator'?\)",
+                        last), last
     assert not any(tmp_path.iterdir())
 
 

@@ -47,6 +47,14 @@ FAILURES = {
                            re.escape('--domain-id=999: expected an integer 0-232')),
     'run_bad_domain': (['run', '--domain-id', '999'],
                        re.escape('--domain-id=999: expected an integer 0-232')),
+    # a lab's model in z cannot be sub-stepped by the real-time rig: refused before any node
+    'run_realtime_discrete_model': (
+        ['run', '--mode', 'realtime', '--rig', 'state_space', '--out', 'out', '--set',
+         'plant_model={"form": "transfer_function", "dt": 0.002, "num": {"force_N": [0, 1]}, '
+         '"den": [1, -0.5], "specimen": {"mass_kg": 52.7, "stiffness_N_per_m": 211000, '
+         '"damping_N_s_per_m": 903.3}}'],
+        re.escape('rig_model state_space in real time: the plant_model is discrete at dt '
+                  '(2 ms) and the real-time rig steps on a 0.1 ms grid') + '.*'),
     'identify_missing': (['identify', 'no_such_bag'],
                          re.escape('no_such_bag: no such bag or run directory')),
     # the map of a loop that is unstable without any mass fed back: said at once

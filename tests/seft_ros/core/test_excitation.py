@@ -94,8 +94,8 @@ def test_open_loop_valve_saturates_and_ends_at_zero():
 
 def test_open_loop_needs_the_servohydraulic_rig():
     p = _params(excitation='noise', excitation_input='valve_command', rig_model='delay')
-    with pytest.raises(ParameterError, match="excitation_input='valve_command': expected "
-                       "rig_model 'servohydraulic'"):
+    with pytest.raises(ParameterError, match="excitation_input='valve_command': expected a "
+                       "rig_model driven by a valve, e.g. 'servohydraulic'"):
         excitation_record(p)
     with pytest.raises(ParameterError, match='delay rig has no valve'):
         make_valve_controller(p)

@@ -71,7 +71,7 @@ def test_network_delay_steps_rounds_and_refuses_where_there_is_no_network():
     assert network_delay_steps({**base, 'network_delay_s': 0.0}) == 0
     assert network_delay_steps({**base, 'network_delay_s': 0.0139}) == 7
     with pytest.raises(ParameterError, match='network_delay_s=0.01: applies to real-time '
-                       "mode on the servohydraulic rig only \\(here mode 'lockstep'"):
+                       "mode on a valve-driven rig only \\(here mode 'lockstep'"):
         network_delay_steps({**base, 'mode': 'lockstep', 'network_delay_s': 0.01})
     with pytest.raises(ParameterError, match="rig_model 'delay'"):
         network_delay_steps({**base, 'rig_model': 'delay', 'network_delay_s': 0.01})

@@ -907,6 +907,30 @@ def actuator_velocity_limit_m_s(params) -> float | None:
             / params['piston_area_m2'])
 
 
+def check_realtime_rigs(runs: list[dict]) -> None:
+    """Build each simulated rig of the real-time runs as its rig node will
+    (:class:`~seft_plant_sim.realtime.WallClockRig`), so that a rig that cannot run on the
+    wall clock is refused before any node starts.
+
+    Raises
+    ------
+    ParameterError
+        The rig's one-line reason, with the rig's name.
+    """
+    from seft_plant_sim.realtime import WallClockRig
+    from seft_ros.core.structure import test_setup
+    for p in runs:
+        if p.get('mode') != 'realtime':
+            continue
+        for rig, rp in test_setup(p).rig_params.items():
+            if rp.get('rig_interface', 'simulated') != 'simulated':
+                continue
+            try:
+                WallClockRig(rp)
+            except ParameterError as exc:
+                raise ParameterError(f'rig {rig}: {exc}' if rig else str(exc)) from None
+
+
 def check_capacity(*, runs: list[dict], progress: Callable[[str], None] = print) -> None:
     """Warn before a run whose reference response needs more velocity than the actuator has.
 

@@ -294,6 +294,8 @@ def _experiments(args):
     if args.verb == 'simulate' and any(p.get('mode') == 'realtime' for p in runs):
         raise InputError('parameter mode=realtime: seft simulate has no wall clock (it is the '
                          'lockstep graph in one process); use seft run --mode realtime')
+    if args.verb == 'run':
+        api.check_realtime_rigs(runs)
     from pathlib import Path
     name = args.name or (Path(args.config).stem if args.config else 'run')
     return runs, api.output_dir(out=args.out, name=name, created=args.created), name
