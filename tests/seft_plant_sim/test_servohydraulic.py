@@ -457,7 +457,7 @@ def test_make_rig():
     assert isinstance(make_rig(values), DelayRig)
     values['rig_model'] = 'x'
     with pytest.raises(ParameterError, match=r"^parameter rig_model='x': expected one of "
-                                             r"'delay', 'servohydraulic', 'state_space', 'actuator'$"):
+                       r"'delay', 'servohydraulic', 'state_space', 'actuator'$"):
         make_rig(values)
 
 
