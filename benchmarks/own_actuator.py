@@ -165,9 +165,9 @@ def _lab_path(case: dict) -> dict:
 def cases(members, specimens, damping, spread=0.0, seeds=(1,), stiff=True) -> list[dict]:
     """The plants and specimens to run."""
     out = []
-    for member in members:
-        for f_hz in specimens:
-            for zeta in damping:
+    for f_hz in specimens:                   # the members inside: a stopped run covers them
+        for zeta in damping:
+            for member in members:
                 for seed in seeds:
                     params = dict(_specimen(f_hz, zeta), rig_model='actuator',
                                   actuator_family=member, actuator_spread=spread,
@@ -188,15 +188,25 @@ def _pct(v):
     return '–' if v is None or not math.isfinite(v) else f'{100 * v:.2f}'
 
 
+def _worst(runs: list[dict]) -> str:
+    """The largest acceleration and force NRMS of the stable ``model`` runs."""
+    done = [x for x in runs if x['predictor'] == 'model' and x.get('stable')]
+    if not done:
+        return '–'
+    return (f"{_pct(max(x['nrms_a'] for x in done))}, "
+            f"{_pct(max(x['nrms_f'] for x in done))}")
+
+
 def table(results: list[dict]) -> str:
     """The Markdown table of the results."""
     head = ('| plant | specimen | order | crossover [Hz] | PM [deg] | GM | d | '
-            'x % alpha 0.5 | 1.0 | 1.5 | adaptive 20 % off, 1.0 | guard agrees |')
-    lines = [head, '|' + '---|' * 12]
+            'x % alpha 0.5 | 1.0 | 1.5 | adaptive 20 % off, 1.0 | a, f % (worst model run) | '
+            'guard agrees |')
+    lines = [head, '|' + '---|' * 13]
     for r in results:
         if 'error' in r:
             lines.append(f"| {r['member']} | {r['f_hz']:g} Hz {100 * r['zeta']:g} % | "
-                         f"{r['error']} |" + ' |' * 9)
+                         f"{r['error']} |" + ' |' * 10)
             continue
         t = r['true']
         cells = []
@@ -213,7 +223,7 @@ def table(results: list[dict]) -> str:
                      f"{r['plant_order']} | {t['crossover_hz']:.1f} | "
                      f"{t['phase_margin_deg']:.0f} | {t['gain_margin']:.2f} | "
                      f"{r['loop_delay_steps']} | " + ' | '.join(cells)
-                     + f" | {'yes' if agree else '**no**'} |")
+                     + f" | {_worst(r['runs'])} | {'yes' if agree else '**no**'} |")
     return '\n'.join(lines)
 
 
@@ -229,7 +239,12 @@ def main(argv=None) -> int:
     ap.add_argument('--workers', type=int, default=2)
     ap.add_argument('--json', help='write the results there')
     ap.add_argument('--write', help='a docs page to put the table in (between markers)')
+    ap.add_argument('--from-json', metavar='FILE', help='no runs: the table of the results '
+                    'a previous --json wrote (all of them, or those done when it was stopped)')
     args = ap.parse_args(argv)
+    if args.from_json:
+        with open(args.from_json) as fh:
+            return _report(json.load(fh), args.write)
     specimens = args.specimens or ((2.0, 10.0, 32.0, 50.0) if args.quick else SPECIMEN_HZ)
     if args.monte_carlo:
         todo = cases(args.members, (32.0,), (0.01,), spread=0.3,
@@ -244,6 +259,9 @@ def main(argv=None) -> int:
     with ProcessPoolExecutor(args.workers) as pool:
         for r in pool.map(lab_path, todo):
             results.append(r)
+            if args.json:                      # after each case: a stopped run keeps its results
+                with open(args.json, 'w') as fh:
+                    json.dump(results, fh, indent=1, default=float)
             if 'error' in r:
                 print(f"{r['case']}: {r['error']}", flush=True)
                 continue
@@ -255,20 +273,22 @@ def main(argv=None) -> int:
             print(f"{r['case']}: order {r['plant_order']}, fc {t['crossover_hz']:.1f} Hz, PM "
                   f"{t['phase_margin_deg']:.0f}, GM {t['gain_margin']:.2f}, d "
                   f"{r['loop_delay_steps']}; {runs} ({r['seconds']:.0f} s)", flush=True)
+    return _report(results, args.write)
+
+
+def _report(results: list[dict], write: str | None) -> int:
+    """Print the table; with `write`, put it in that docs page between its markers."""
     text = table(results)
     print(text)
-    if args.json:
-        with open(args.json, 'w') as fh:
-            json.dump(results, fh, indent=1, default=float)
-    if args.write:
-        with open(args.write) as fh:
+    if write:
+        with open(write) as fh:
             page = fh.read()
         start, end = '<!-- own_actuator table -->', '<!-- end own_actuator table -->'
         if start not in page or end not in page:
-            print(f'{args.write}: no markers {start} ... {end}', file=sys.stderr)
+            print(f'{write}: no markers {start} ... {end}', file=sys.stderr)
             return 2
         page = page[:page.index(start) + len(start)] + '\n' + text + '\n' + page[page.index(end):]
-        with open(args.write, 'w') as fh:
+        with open(write, 'w') as fh:
             fh.write(page)
     return 0
 
