@@ -21,14 +21,12 @@ user runs it, every node a process over DDS.
   controller to its safe state within the watchdog, and the PC ends the run aborted.
 """
 
-import json
 import os
 from pathlib import Path
 import re
 import signal
 import socket
 import subprocess
-import threading
 import time
 
 import numpy as np
@@ -52,49 +50,6 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-class Emulator:
-    """``seft emulate-controller`` in a process of its own; its JSON events as they come."""
-
-    def __init__(self, seft_exe, env, cwd, sets, runs=None):
-        argv = [str(seft_exe), 'emulate-controller', *sets] + (
-            ['--runs', str(runs)] if runs else [])
-        self.proc = subprocess.Popen(argv, cwd=cwd, env=env, stdout=subprocess.PIPE,
-                                     stderr=subprocess.PIPE, text=True, start_new_session=True)
-        self.events, self.stderr = [], []
-        self.readers = [threading.Thread(target=self._read, args=(self.proc.stdout, True),
-                                         daemon=True),
-                        threading.Thread(target=self._read, args=(self.proc.stderr, False),
-                                         daemon=True)]
-        for r in self.readers:
-            r.start()
-        deadline = time.monotonic() + 30
-        while not any('emulating' in line for line in self.stderr):
-            assert time.monotonic() < deadline and self.proc.poll() is None, self.stderr
-            time.sleep(0.05)
-
-    def _read(self, stream, events):
-        for line in stream:
-            if events:
-                self.events.append(json.loads(line) | {'at': time.monotonic()})
-            else:
-                self.stderr.append(line)
-
-    def of(self, kind):
-        return [e for e in self.events if e['event'] == kind]
-
-    def stop(self):
-        if self.proc.poll() is None:
-            os.killpg(self.proc.pid, signal.SIGCONT)
-            os.killpg(self.proc.pid, signal.SIGINT)
-            try:
-                self.proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                os.killpg(self.proc.pid, signal.SIGKILL)
-                self.proc.wait()
-        for r in self.readers:
-            r.join(timeout=5)
-
-
 @pytest.fixture
 def bridge_sets():
     return ['--set', 'rig_interface=udp_bridge', '--set',
@@ -102,15 +57,10 @@ def bridge_sets():
 
 
 @pytest.fixture
-def emulator(seft_exe, ros_env, tmp_path, bridge_sets):
-    made = []
-
+def emulator(emulator_process, bridge_sets):
     def start(*extra, runs=None):
-        made.append(Emulator(seft_exe, ros_env, tmp_path, bridge_sets + list(extra), runs))
-        return made[-1]
-    yield start
-    for e in made:
-        e.stop()
+        return emulator_process(*bridge_sets, *extra, *(['--runs', runs] if runs else []))
+    return start
 
 
 def replay_measurement(run) -> dict:

@@ -421,7 +421,11 @@ class RigNode(SeftNode):
 
     def _on_datagram(self, taken: bool) -> None:
         """A datagram was taken (or the wait timed out): start the clock on the first
-        sample, tick every sample, end on the controller's silence or after the drain."""
+        sample, tick every sample, end on the controller's silence or after the drain.
+        What the bridge names (a datagram from another address, the controller's refusal of
+        another sender's start) is a warning, once each."""
+        for line in self.rig.take_notices():
+            self.warn(line)
         if not self.running:
             return
         now = time.monotonic()
@@ -450,6 +454,16 @@ class RigNode(SeftNode):
                 self._end_realtime()
             return
         self._tick()
+
+    def warn(self, line: str) -> None:
+        """A named warning: the log, and a status report (the console, the bag, the
+        report)."""
+        self.get_logger().warning(line)
+        if self.running:
+            self.report(STATE_RUNNING, line, warning=line, step=self.rig.step,
+                        n_steps=self.n_steps, time_s=f'{self.rig.time_s:.3f}')
+        else:
+            self.report(STATE_READY, line, warning=line)
 
     def run_due(self) -> None:
         """The next tick is due: catch up with the wall clock (or the common start)."""
