@@ -209,7 +209,7 @@ REALTIME_MODULES = frozenset({'test_hosts', 'test_two_hosts', 'test_link_phase',
                               'test_udp_bridge_graph',
                               'test_realtime_integration', 'test_rig_check',
                               'test_runner_errors', 'test_udp_bridge', 'test_link_emulator',
-                              'test_udp_sessions'})
+                              'test_udp_sessions', 'test_intruder'})
 
 
 #: Tests of those modules that start no real-time graph: a bad option's one error line, a

@@ -120,6 +120,9 @@ class UdpBridgeRig(CommandArrivals):
         (dropped).
     start_refused : bool
         The controller said it refused another sender's start during this run.
+    left : str or None
+        Why the controller no longer runs this run's session (it ended it on its own, or
+        restarted it: its samples went back); the rig node then ends the run aborted.
 
     Raises
     ------
@@ -155,6 +158,9 @@ class UdpBridgeRig(CommandArrivals):
         self.filter = ul.SequenceFilter()
         self.counts = {'late': 0, 'bad': 0, 'other_session': 0, 'foreign': 0}
         self.start_refused = False
+        #: Why the controller no longer runs this run's session (None: it does): it ended
+        #: the session on its own, or restarted it (its samples went back).
+        self.left: str | None = None
         self._named: set = set()                    # foreign addresses already named
         self._notices: list[str] = []               # named, not yet taken by the node
         self.last_bad = ''
@@ -262,6 +268,19 @@ class UdpBridgeRig(CommandArrivals):
         for source, latency in zip(d.latency_sources, d.latency_s):
             if source >= 0 and math.isfinite(latency):
                 self._arrivals.setdefault(source, source * self.dt + latency)
+        had = (self._pending[-1].sample if self._pending
+               else self.current.sample if self.current is not None else None)
+        if had is not None and self.left is None:
+            if d.session == 0:
+                self.left = (f'udp_bridge: the controller ended the session on its own '
+                             f'(state {ul.STATE_NAMES.get(d.state, d.state)}, after sample '
+                             f'{had})')
+            elif d.kind == ul.KIND_MEASUREMENT and d.sample <= had:
+                self.left = (f'udp_bridge: the controller restarted the session (its sample '
+                             f'{d.sample} after {had}): a start of another sender took it '
+                             'over, or it was reset')
+        if self.left is not None:
+            return True
         if d.kind == ul.KIND_MEASUREMENT and d.session == self.session:
             # the controller's clock as the PC sees it: its sample 0 at the earliest arrival
             # less k dt (the least delayed sample so far)
