@@ -369,7 +369,8 @@ class Graph:
         -------
         list of str
             One entry per foreign publisher: ``"'<qualified name>' (gid <hex>)"`` (a node
-            that has not announced its name yet, :data:`UNKNOWN_NODE`: by its gid alone);
+            that has not announced its name yet, :data:`UNKNOWN_NODE`: by its gid alone, where
+            there are more of them than publishers of the run not seen by name);
             where more publishers bear a name of the run than it has (a sender that took a
             node's name), every one of that name, with how many the run has: there is no
             telling which is the run's.
@@ -378,17 +379,21 @@ class Graph:
         for name in self.publishers_of(topic):
             expected[name] = expected.get(name, 0) + 1
         by_name: dict[str, list[str]] = {}
+        unnamed = []
         for node, namespace, gid in found:
+            if node == UNKNOWN_NODE:
+                unnamed.append(bytes(gid).hex()[:24])
+                continue
             name = qualified(node, str(namespace).strip('/'))
             by_name.setdefault(name, []).append(bytes(gid).hex()[:24])
-        out = []
+        # a publisher whose node has not announced its name may be one of the run's not yet
+        # seen by name: as many are taken for those, the others are foreign
+        missing = sum(max(0, n - len(by_name.get(name, ()))) for name, n in expected.items())
+        out = [f'a node not named yet (gid {g}: a process outside the run)'
+               for g in unnamed[missing:]]
         for name, gids in sorted(by_name.items()):
             allowed = expected.get(name, 0)
             if topic == sig.STATUS.name and name in TOOL_NODES:
-                continue
-            if name.endswith(UNKNOWN_NODE):
-                out += [f'a node not named yet (gid {g}: a process outside the run)'
-                        for g in gids]
                 continue
             if len(gids) > allowed and allowed:
                 out.append(f"{len(gids)} publishers named '{name}' (gid {', '.join(gids)}; "

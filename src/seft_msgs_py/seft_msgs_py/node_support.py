@@ -380,8 +380,9 @@ class SeftNode(Node):
         self._foreign_named.add(topic)
         who, unnamed = self._foreign_found(topic)
         line = (f'{FOREIGN_REASON}{topic}: '
-                + (', '.join(who) if who else 'none in the graph any more (it has left)')
-                + f': {what}')
+                + (', '.join(who) if who else "no publisher but the run's own in this node's "
+                   'view (a sender that has left, or a node of the run with another token '
+                   'or key)') + f': {what}')
         if commands:
             self.abort_run(line, int(getattr(self, 'next_step', 0)), foreign_topic=topic)
         else:
