@@ -790,7 +790,7 @@ class RecordBatch:
         self.width = 1 + len(self.columns)
         self.msg = Float64MultiArray()
         label = ','.join(('step',) + self.columns)
-        self.seal = node.seal
+        self.seal = getattr(node, 'seal', None) or RunSeal()     # a plain node: no seal
         self.msg.layout.dim = [MultiArrayDimension(label=self.seal.label, size=0, stride=0),
                                MultiArrayDimension(label=label, size=self.width,
                                                    stride=self.width)]
