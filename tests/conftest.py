@@ -49,6 +49,84 @@ def seft_exe():
     return path
 
 
+class EmulatorProcess:
+    """``seft emulate-controller`` in a process of its own; its JSON events as they come
+    (each with ``at``, the monotonic time the test read it).
+
+    Parameters
+    ----------
+    seft_exe, env, cwd
+        The ``seft`` executable, the environment and the working directory.
+    args : sequence of str
+        Its options (``--set udp_controller_address=...``, ``--inject``, ``--runs``).
+    """
+
+    def __init__(self, seft_exe, env, cwd, args):
+        import json
+        import threading
+        import time
+        self._json, self._time = json, time
+        self.proc = subprocess.Popen([str(seft_exe), 'emulate-controller', *map(str, args)],
+                                     cwd=cwd, env=env, stdout=subprocess.PIPE,
+                                     stderr=subprocess.PIPE, text=True, start_new_session=True)
+        self.events, self.stderr = [], []
+        self.readers = [threading.Thread(target=self._read, args=(stream, events), daemon=True)
+                        for stream, events in ((self.proc.stdout, True),
+                                               (self.proc.stderr, False))]
+        for r in self.readers:
+            r.start()
+        deadline = time.monotonic() + 30
+        while not any('emulating' in line for line in self.stderr):
+            assert time.monotonic() < deadline and self.proc.poll() is None, self.stderr
+            time.sleep(0.05)
+
+    def _read(self, stream, events):
+        for line in stream:
+            if events:
+                self.events.append(self._json.loads(line) | {'at': self._time.monotonic()})
+            else:
+                self.stderr.append(line)
+
+    def of(self, kind):
+        """Its events of `kind` ('start', 'end', ...), in order."""
+        return [e for e in self.events if e['event'] == kind]
+
+    def wait_for(self, kind, timeout=3.0):
+        """Its events of `kind` once there is one (fails after `timeout` [s])."""
+        deadline = self._time.monotonic() + timeout
+        while not self.of(kind):
+            assert self._time.monotonic() < deadline, (kind, self.events)
+            self._time.sleep(0.01)
+        return self.of(kind)
+
+    def stop(self):
+        """Stop it (SIGCONT first: a test may have frozen it), then read what it said."""
+        if self.proc.poll() is None:
+            os.killpg(self.proc.pid, signal.SIGCONT)
+            os.killpg(self.proc.pid, signal.SIGINT)
+            try:
+                self.proc.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                os.killpg(self.proc.pid, signal.SIGKILL)
+                self.proc.wait()
+        for r in self.readers:
+            r.join(timeout=5)
+
+
+@pytest.fixture
+def emulator_process(seft_exe, ros_env, tmp_path):
+    """Start ``seft emulate-controller ARGS`` (:class:`EmulatorProcess`); each is stopped
+    after the test."""
+    made = []
+
+    def start(*args):
+        made.append(EmulatorProcess(seft_exe, ros_env, tmp_path, args))
+        return made[-1]
+    yield start
+    for e in made:
+        e.stop()
+
+
 @pytest.fixture(scope='session')
 def run_process(ros_env):
     """Run a command in its own session; on timeout stop its whole process group, then fail.
@@ -149,7 +227,8 @@ REALTIME_RERUNS = 1
 REALTIME_MODULES = frozenset({'test_hosts', 'test_two_hosts', 'test_link_phase',
                               'test_udp_bridge_graph',
                               'test_realtime_integration', 'test_rig_check',
-                              'test_runner_errors', 'test_udp_bridge', 'test_link_emulator'})
+                              'test_runner_errors', 'test_udp_bridge', 'test_link_emulator',
+                              'test_udp_sessions', 'test_intruder'})
 
 
 #: Tests of those modules that start no real-time graph: a bad option's one error line, a

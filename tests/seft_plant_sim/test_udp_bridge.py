@@ -14,7 +14,7 @@ import pytest
 
 from seft_msgs_py import parameters
 from seft_plant_sim import udp_layout as ul
-from seft_plant_sim.udp_bridge import UdpBridgeRig, parse_address
+from seft_plant_sim.udp_bridge import UdpBridgeRig, parse_address, resolve_address
 from seft_plant_sim.udp_emulator import ControllerEmulator
 
 DT = 0.002
@@ -358,3 +358,49 @@ def test_addresses_and_ports(params):
     with pytest.raises(Exception, match=rf'^parameter udp_local_port={port}: cannot bind it'):
         UdpBridgeRig(dict(params, udp_local_port=port))
     taken.close()
+
+
+def test_resolved_controller_address(params):
+    """The controller's address is compared as the datagrams come: a host name is resolved
+    once (an unknown one is one error line)."""
+    assert resolve_address('localhost:47101') == ('127.0.0.1', 47101)
+    with pytest.raises(Exception, match=r"^parameter udp_controller_address='no-such-host"
+                       r"\.invalid:1': cannot resolve 'no-such-host\.invalid'"):
+        resolve_address('no-such-host.invalid:1')
+
+
+def key_file(path, text):
+    path.write_text(text)
+    return str(path)
+
+
+def test_authenticated_datagrams(link, tmp_path):
+    """message_auth hmac: every datagram carries the HMAC of the test's key; a clean run is
+    unchanged, and a datagram whose trailer does not verify is rejected as a bad one."""
+    key = key_file(tmp_path / 'key', '5f' * 32 + '\n')
+    bridge, emulator, proxy, events, lines = link(message_auth='hmac', auth_key_file=key,
+                                                  udp_max_bad_datagrams=3)
+    flip = lambda d: d[:-1] + bytes([d[-1] ^ 1])          # noqa: E731 - one bit of the MAC
+    proxy.to_pc = lambda i, d: [(0.0, flip(d) if 150 <= i < 152 else d)]
+    taken = play(bridge, 300)
+    assert len(taken) >= 299 and taken[-1] == 300
+    assert bridge.counts['bad'] == 2
+    assert lines[0] == ('udp_bridge: rejected datagram to the PC: its HMAC does not verify '
+                        '(another key, or forged) (1 of at most 3)')
+    bridge.close()
+    end = ended(events)
+    assert end['bad'] == 0 and end['samples'] == 301
+    assert proxy.counts['to_pc'] > 300
+
+
+def test_a_pc_with_another_key_is_rejected(link, tmp_path):
+    """The controller and the PC with different keys: the controller rejects every
+    datagram of the PC (bad), never starts, and names why."""
+    bridge, emulator, proxy, events, lines = link(
+        message_auth='hmac', auth_key_file=key_file(tmp_path / 'a', 'a' * 32))
+    bridge.key = b'b' * 32
+    play(bridge, 100, seconds=0.3)
+    bad = [e for e in events if e['event'] == 'bad_datagram']
+    assert bad and bad[0]['why'] == ('datagram to the controller: its HMAC does not verify '
+                                     '(another key, or forged)')
+    assert not [e for e in events if e['event'] == 'start']

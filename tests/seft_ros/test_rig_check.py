@@ -16,7 +16,7 @@ import pytest
 from test_node_graph_integration import leftover_processes
 
 from seft_ros.analysis.bag import read_signals
-from seft_ros.core.rig_check import CHECKS, TIMING_TOLERANCE_STEPS
+from seft_ros.core.rig_check import CHECKS, TIMING_TOLERANCE_STEPS, checks_for
 
 #: The two-pier bridge: a structure whose two rigs rig-check checks in turn.
 TWO_PIERS = Path(__file__).resolve().parents[2] / 'config' / 'two_piers.yaml'
@@ -47,12 +47,13 @@ def test_seft_rigs_pass_every_check(model, tmp_path, run_process, seft_exe):
     out = tmp_path / 'check'
     proc, lines = rig_check(run_process, seft_exe, out, '--rig', model)
     assert proc.returncode == 0, proc.stdout + proc.stderr
-    assert list(lines) == list(CHECKS)
+    assert list(lines) == list(checks_for(udp_bridge=False))
     assert all(verdict == 'PASS' for verdict, _ in lines.values()), proc.stdout
+    assert lines['measurement'][1].endswith('every message sealed for the run')
     assert re.search(r'^rig-check: 21 of 21 checks passed \(\d+ s; runs in ', proc.stdout,
                      re.MULTILINE)
     report = json.loads((out / 'rig_check.json').read_text())
-    assert report['passed'] is True and report['contract'] == 'seft-rig/1.0'
+    assert report['passed'] is True and report['contract'] == 'seft-rig/2.0'
     checks = {c['name']: c['values'] for c in report['checks']}
     # the numbers behind the lines
     assert abs(checks['clock']['period_s'] - 0.002) < 4e-5

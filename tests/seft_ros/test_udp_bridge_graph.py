@@ -21,14 +21,12 @@ user runs it, every node a process over DDS.
   controller to its safe state within the watchdog, and the PC ends the run aborted.
 """
 
-import json
 import os
 from pathlib import Path
 import re
 import signal
 import socket
 import subprocess
-import threading
 import time
 
 import numpy as np
@@ -52,49 +50,6 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-class Emulator:
-    """``seft emulate-controller`` in a process of its own; its JSON events as they come."""
-
-    def __init__(self, seft_exe, env, cwd, sets, runs=None):
-        argv = [str(seft_exe), 'emulate-controller', *sets] + (
-            ['--runs', str(runs)] if runs else [])
-        self.proc = subprocess.Popen(argv, cwd=cwd, env=env, stdout=subprocess.PIPE,
-                                     stderr=subprocess.PIPE, text=True, start_new_session=True)
-        self.events, self.stderr = [], []
-        self.readers = [threading.Thread(target=self._read, args=(self.proc.stdout, True),
-                                         daemon=True),
-                        threading.Thread(target=self._read, args=(self.proc.stderr, False),
-                                         daemon=True)]
-        for r in self.readers:
-            r.start()
-        deadline = time.monotonic() + 30
-        while not any('emulating' in line for line in self.stderr):
-            assert time.monotonic() < deadline and self.proc.poll() is None, self.stderr
-            time.sleep(0.05)
-
-    def _read(self, stream, events):
-        for line in stream:
-            if events:
-                self.events.append(json.loads(line) | {'at': time.monotonic()})
-            else:
-                self.stderr.append(line)
-
-    def of(self, kind):
-        return [e for e in self.events if e['event'] == kind]
-
-    def stop(self):
-        if self.proc.poll() is None:
-            os.killpg(self.proc.pid, signal.SIGCONT)
-            os.killpg(self.proc.pid, signal.SIGINT)
-            try:
-                self.proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                os.killpg(self.proc.pid, signal.SIGKILL)
-                self.proc.wait()
-        for r in self.readers:
-            r.join(timeout=5)
-
-
 @pytest.fixture
 def bridge_sets():
     return ['--set', 'rig_interface=udp_bridge', '--set',
@@ -102,15 +57,10 @@ def bridge_sets():
 
 
 @pytest.fixture
-def emulator(seft_exe, ros_env, tmp_path, bridge_sets):
-    made = []
-
+def emulator(emulator_process, bridge_sets):
     def start(*extra, runs=None):
-        made.append(Emulator(seft_exe, ros_env, tmp_path, bridge_sets + list(extra), runs))
-        return made[-1]
-    yield start
-    for e in made:
-        e.stop()
+        return emulator_process(*bridge_sets, *extra, *(['--runs', runs] if runs else []))
+    return start
 
 
 def replay_measurement(run) -> dict:
@@ -148,7 +98,7 @@ def test_a_run_through_the_bridge_equals_the_servohydraulic_rig(emulator, bridge
     assert leftover_processes(str(out)) == []
     run = read_run(next(out.glob('*/bag')))
     assert run.params['rig_interface'] == 'udp_bridge' and run.stable
-    assert run.extra['rig_contract'] == 'seft-rig/1.0'
+    assert run.extra['rig_contract'] == 'seft-rig/2.0'
     # the real-time simulated rig's plant, fed the commands as the controller took them
     replay = replay_measurement(run)
     for name in ('displacement_m', 'measured_force_N'):
@@ -191,7 +141,33 @@ def test_rig_check_passes_through_the_bridge(emulator, bridge_sets, tmp_path, ru
     proc = run_process([seft_exe, 'rig-check', '--rig', 'servohydraulic', *bridge_sets,
                         *watchdog, '--out', out], cwd=tmp_path, timeout=400)
     assert proc.returncode == 0, proc.stdout + proc.stderr
-    assert re.search(r'^rig-check: 21 of 21 checks passed', proc.stdout, re.MULTILINE)
+    assert re.search(r'^rig-check: 22 of 22 checks passed', proc.stdout, re.MULTILINE)
+    # target 4 (issue 42): the second sender, refused, in one line
+    assert re.search(r"^PASS second sender: a start of session \d+ from 127\.0\.0\.1:\d+ at "
+                     r"t = 1\.\d+ s \(10 datagrams, then 0 V commands\): refused: no answer to "
+                     r"it, reason 6 'start refused' in the live run's datagrams, the run went on "
+                     r'to its end \(done, 1000 of 1000 samples\)$', proc.stdout, re.MULTILINE)
+
+
+def test_rig_check_fails_a_controller_that_takes_a_second_sender(
+        emulator, bridge_sets, tmp_path, run_process, seft_exe):
+    """Target 4 (issue 42): against a controller built to accept the hijack (``seft
+    emulate-controller --inject takes_any_session``, a test fault), the second sender check
+    fails with a line that says the controller took it."""
+    watchdog = ['--set', 'watchdog_timeout_s=0.05']
+    emu = emulator(*watchdog, '--inject', 'takes_any_session')
+    out = tmp_path / 'check'
+    proc = run_process([seft_exe, 'rig-check', '--rig', 'servohydraulic', *bridge_sets,
+                        *watchdog, '--runs', 'step', '--out', out], cwd=tmp_path, timeout=400)
+    assert proc.returncode == 1, proc.stdout + proc.stderr
+    line = next(x for x in proc.stdout.splitlines() if x.startswith('FAIL second sender: '))
+    assert re.match(r'FAIL second sender: a start of session (\d+) from 127\.0\.0\.1:\d+ at '
+                    r't = 1\.\d+ s \(10 datagrams, then 0 V commands\): the controller took '
+                    r'it: it answered the second sender \d+ times with its session', line), line
+    assert line.endswith('A controller refuses a start while a session is live and answers '
+                         'the live PC alone (rig contract: sessions)')
+    session = int(re.search(r'session (\d+)', line).group(1))
+    assert session in [e['session'] for e in emu.of('start')]
 
 
 @pytest.mark.parametrize('fault, model, failing, words', [

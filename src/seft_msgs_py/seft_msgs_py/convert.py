@@ -30,6 +30,7 @@ __all__ = [
     'clock_msg', 'status_msg', 'status_values', 'STATE_READY', 'STATE_RUNNING', 'STATE_DONE',
     'STATE_ABORTED', 'STATE_CLOSED', 'STATE_FAILED', 'STATE_RECORDING', 'parameters_json',
     'ScalarMessage', 'ScalarReader', 'clock_ns_from_raw', 'SerializedStamped', 'FieldsReader',
+    'frame_id_of_raw', 'FRAME_AT',
 ]
 
 def dt_to_ns(dt: float) -> int:
@@ -80,11 +81,14 @@ class ScalarMessage:
     ----------
     spec : TopicSpec
         A scalar topic.
+    frame_id : str
+        ``header.frame_id`` (default ``'actuator'``; a run's sealed frame id,
+        :class:`~seft_msgs_py.provenance.RunSeal`).
     """
 
-    def __init__(self, spec: TopicSpec):
+    def __init__(self, spec: TopicSpec, frame_id: str = FRAME_ID):
         self.msg = spec.msg_type()
-        self.msg.header.frame_id = FRAME_ID
+        self.msg.header.frame_id = frame_id
         *parents, self._attr = spec.field.split('.')
         obj = self.msg
         for p in parents:
@@ -103,6 +107,18 @@ class ScalarMessage:
 _STAMP = struct.Struct('<iI')
 _LENGTH = struct.Struct('<I')
 _DOUBLE = struct.Struct('<d')
+#: Where ``header.frame_id``'s characters start in a serialized stamped message [bytes]: the
+#: encapsulation (4), the stamp (8) and the string's length (4), little-endian CDR.
+FRAME_AT = 16
+
+
+def frame_id_of_raw(raw: bytes, msg_type) -> bytes:
+    """``header.frame_id`` of a serialized stamped message, as bytes (no terminating NUL);
+    read in place from little-endian CDR, else from the deserialized message."""
+    if raw[0] == 0 and raw[1] == 1 and len(raw) >= FRAME_AT:
+        n = _LENGTH.unpack_from(raw, 12)[0]
+        return bytes(raw[FRAME_AT:FRAME_AT + max(n - 1, 0)])
+    return deserialize_message(raw, msg_type).header.frame_id.encode('utf-8', 'replace')
 
 
 class ScalarReader:
@@ -178,6 +194,10 @@ class SerializedStamped:
     The layout is that of little-endian CDR (XCDR1, encapsulation ``00 01``), which rclpy
     produces on every platform it runs on here; anything else raises.
 
+    A run's seal (:class:`~seft_msgs_py.provenance.RunSeal`) goes into the frame id: the
+    template is made with the run's frame id, and an HMAC seal, which changes with every
+    message, is written in place (`seal` of ``__call__``).
+
     Parameters
     ----------
     msg : rclpy message
@@ -209,28 +229,33 @@ class SerializedStamped:
         self.template = _exact(msg)
         contiguous = all(b - a == 8 for a, b in zip(self.offsets, self.offsets[1:]))
         self._block = struct.Struct(f'<{n}d') if contiguous else None
+        #: Where a seal is written in the frame id (after ``'actuator#'``) [bytes].
+        self.seal_at = FRAME_AT + len(FRAME_ID) + 1
 
     @classmethod
-    def scalar(cls, spec: TopicSpec) -> 'SerializedStamped':
+    def scalar(cls, spec: TopicSpec, frame_id: str = FRAME_ID) -> 'SerializedStamped':
         """The template of a scalar topic (:class:`ScalarMessage`'s message)."""
-        writer = ScalarMessage(spec)
+        writer = ScalarMessage(spec, frame_id)
         return cls(writer.msg, lambda msg, v: writer(0, v[0]), 1)
 
     @classmethod
-    def fields(cls, msg_type, names) -> 'SerializedStamped':
+    def fields(cls, msg_type, names, frame_id: str = FRAME_ID) -> 'SerializedStamped':
         """A ``sensor_msgs/JointState``-like message: ``name`` = `names`, ``position`` = values."""
         msg = msg_type()
-        msg.header.frame_id = FRAME_ID
+        msg.header.frame_id = frame_id
         msg.name = list(names)
 
         def set_values(m, values):
             m.position = [float(v) for v in values]
         return cls(msg, set_values, len(names))
 
-    def __call__(self, stamp_ns: int, values) -> bytes:
-        """The serialized message of one sample: stamp [ns] and values (sequence of n)."""
+    def __call__(self, stamp_ns: int, values, seal: bytes | None = None) -> bytes:
+        """The serialized message of one sample: stamp [ns] and values (sequence of n); a
+        `seal` (ASCII, the length of the template's) written after ``'actuator#'``."""
         b = bytearray(self.template)
         _STAMP.pack_into(b, 4, stamp_ns // 1_000_000_000, stamp_ns % 1_000_000_000)
+        if seal is not None:
+            b[self.seal_at:self.seal_at + len(seal)] = seal
         if self._block is not None:
             self._block.pack_into(b, self.offsets[0], *values)
         else:
@@ -243,9 +268,10 @@ class FieldsReader:
     """Read ``(stamp [ns], values)`` from a serialized message of a named-fields topic
     (``name`` = the fields, ``position`` = the values, as :meth:`SerializedStamped.fields`).
 
-    A message laid out like the template (same frame id and names) is read in place; any
-    other (another publisher's frame id, names in another order) is deserialized and its
-    values are taken by name.
+    A message laid out like the template (a frame id of the same length, whatever its
+    characters: the run's seal is checked apart; the same names) is read in place; any other
+    (another length of frame id, names in another order) is deserialized and its values are
+    taken by name.
 
     Parameters
     ----------
@@ -253,6 +279,8 @@ class FieldsReader:
         The rclpy message class (``sensor_msgs.msg.JointState``).
     names : sequence of str
         The fields, in the order the values are returned.
+    frame_id : str
+        A frame id of the length the run's messages have (default ``'actuator'``).
 
     Raises
     ------
@@ -260,17 +288,20 @@ class FieldsReader:
         (on a call) A field is missing from a message.
     """
 
-    def __init__(self, msg_type, names):
+    def __init__(self, msg_type, names, frame_id: str = FRAME_ID):
         self.msg_type = msg_type
         self.names = tuple(names)
-        t = SerializedStamped.fields(msg_type, names)
+        t = SerializedStamped.fields(msg_type, names, frame_id)
         self._start = t.offsets[0]
-        self._prefix = t.template[12:self._start]
+        self._length = t.template[12:FRAME_AT]
+        self._after = FRAME_AT + len(frame_id)        # the frame id's NUL, then the names
+        self._suffix = t.template[self._after:self._start]
         self._block = struct.Struct(f'<{len(self.names)}d')
 
     def __call__(self, raw: bytes) -> tuple[int, tuple]:
         """``(header stamp [ns], values)`` of one serialized message."""
-        if raw[:2] == b'\x00\x01' and raw[12:self._start] == self._prefix:
+        if (raw[:2] == b'\x00\x01' and raw[12:FRAME_AT] == self._length
+                and raw[self._after:self._start] == self._suffix):
             sec, nanosec = _STAMP.unpack_from(raw, 4)
             return sec * 1_000_000_000 + nanosec, self._block.unpack_from(raw, self._start)
         msg = deserialize_message(raw, self.msg_type)

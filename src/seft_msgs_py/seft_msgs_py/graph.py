@@ -24,6 +24,14 @@ itself and integrates a replica of the computational part, the network out of th
 
 **Node names.** A namespaced node is named ``<rig>/<node>`` in status reports, parameters and
 ``seft run --nodes`` (its *qualified name*); a node of the root namespace by its own name.
+
+**Who publishes what** (:meth:`Graph.publishers_of`): every topic of the run has its
+publishers in the graph (one node for a data topic); a publisher of any other name, or one
+more of the same name, is foreign (issue 42: ``seft_msgs_py.node_support`` names it when its
+message is not sealed for the run, the runner when it appears). :meth:`Graph.command_topics`
+are the topics whose messages end up in a command to a rig (a foreign publisher there ends
+the run); on the others (record streams for the bag, ``/clock``, status, parameters) it is a
+warning.
 """
 
 from dataclasses import dataclass
@@ -36,7 +44,8 @@ from seft_msgs_py import signals as sig
 from seft_msgs_py.errors import ParameterError
 
 __all__ = ['Graph', 'qualified', 'split_qualified', 'scoped', 'CENTRAL', 'PER_RIG',
-           'STRUCTURE_STATE', 'RIG_NODES', 'STRUCTURE_BUILDERS']
+           'STRUCTURE_STATE', 'RIG_NODES', 'STRUCTURE_BUILDERS', 'SPECIMEN_MODEL', 'TOOL_NODES',
+           'UNKNOWN_NODE']
 
 #: ``structure_builders``: one builder in the root namespace commands every rig.
 CENTRAL = 'central'
@@ -54,6 +63,17 @@ STRUCTURE_STATE = sig.Signal(
     'reference_force_builder',
     "The computational degrees of freedom's displacement, velocity and acceleration at "
     'sample k-1 as the builder used them for f_r[k] (name: <dof>/displacement_m, ...).')
+
+
+#: A rig's specimen model as its builder identifies it, sent to the builders of the other rigs
+#: (``structure_builders: per_rig``; in the rig's namespace).
+SPECIMEN_MODEL = '/seft/specimen_model'
+#: seft's tools that publish on ``/seft/status`` beside the graph's nodes, any number of each
+#: (a runner per host; ``seft_ros.cli.runner.RUNNER_NAME``, ``seft_ros.live.view.LIVE_NAME``).
+TOOL_NODES = ('seft_runner', 'seft_live')
+#: The node name the middleware gives a publisher whose node has not announced its name yet
+#: (rmw's graph cache, a new process's first tens of ms).
+UNKNOWN_NODE = '_NODE_NAME_UNKNOWN_'
 
 
 def qualified(node: str, rig: str = '') -> str:
@@ -289,6 +309,98 @@ class Graph:
             elif stream.fields_topic:
                 out.append(self.estimates(_rig_of_topic(stream.fields_topic)))
         return tuple(out)
+
+    def specimen_model(self, rig: str) -> str:
+        """The topic of `rig`'s specimen model (:data:`SPECIMEN_MODEL`, in its namespace)."""
+        return scoped(SPECIMEN_MODEL, rig)
+
+    def command_topics(self) -> tuple[str, ...]:
+        """The topics whose messages end up in a command to a rig: each rig's measurement,
+        reference force, valve command and (per-rig builders) specimen model, and the ground
+        motion's record batches that the builders read."""
+        out = [self.record_streams_of('ground_motion_publisher')[0].name]
+        for r in self.rigs:
+            out += [self.measurement(r).name, self.reference_force(r).name]
+            if self.has_controller(r):
+                out.append(self.valve_command(r).name)
+            if self.per_rig_builders:
+                out.append(self.specimen_model(r))
+        return tuple(out)
+
+    def publishers_of(self, topic: str) -> tuple[str, ...]:
+        """The nodes of the run that publish `topic` (qualified names, one entry per
+        publisher; ``()`` for a topic of no node of the graph).
+
+        ``/seft/status`` and ``/seft/node_parameters``: every node and the recorder (the
+        status also :data:`TOOL_NODES`, which :meth:`foreign_publishers` allows any number
+        of); ``/clock``: the clock master; ``/seft/run_parameters``: the recorder."""
+        for r in self.rigs:
+            if topic == self.measurement(r).name:
+                return (qualified('rig', r),)
+            if topic == self.reference_force(r).name:
+                return (self.builder_of(r),)
+            if topic == self.valve_command(r).name:
+                return (qualified('force_servo_controller', r),) if self.has_controller(r) \
+                    else ()
+            if topic == self.specimen_model(r):
+                return (self.builder_of(r),) if self.per_rig_builders else ()
+        for stream in self.record_streams():
+            if topic == stream.name:
+                return (stream.node,)
+        if topic == sig.CLOCK.name:
+            return (self.master,)
+        if topic in (sig.STATUS.name, sig.NODE_PARAMETERS.name):
+            return self.nodes() + ('recorder',)
+        if topic == sig.RUN_PARAMETERS.name:
+            return ('recorder',)
+        return ()
+
+    def foreign_publishers(self, topic: str, found) -> list[str]:
+        """The publishers of `topic` that are not the run's, named.
+
+        Parameters
+        ----------
+        topic : str
+        found : iterable of (node name, namespace, gid)
+            The publishers the middleware knows of (``get_publishers_info_by_topic``: its
+            ``node_name``, ``node_namespace``, ``endpoint_gid``).
+
+        Returns
+        -------
+        list of str
+            One entry per foreign publisher: ``"'<qualified name>' (gid <hex>)"`` (a node
+            that has not announced its name yet, :data:`UNKNOWN_NODE`: by its gid alone, where
+            there are more of them than publishers of the run not seen by name);
+            where more publishers bear a name of the run than it has (a sender that took a
+            node's name), every one of that name, with how many the run has: there is no
+            telling which is the run's.
+        """
+        expected: dict[str, int] = {}
+        for name in self.publishers_of(topic):
+            expected[name] = expected.get(name, 0) + 1
+        by_name: dict[str, list[str]] = {}
+        unnamed = []
+        for node, namespace, gid in found:
+            if node == UNKNOWN_NODE:
+                unnamed.append(bytes(gid).hex()[:24])
+                continue
+            name = qualified(node, str(namespace).strip('/'))
+            by_name.setdefault(name, []).append(bytes(gid).hex()[:24])
+        # a publisher whose node has not announced its name may be one of the run's not yet
+        # seen by name: as many are taken for those, the others are foreign
+        missing = sum(max(0, n - len(by_name.get(name, ()))) for name, n in expected.items())
+        out = [f'a node not named yet (gid {g}: a process outside the run)'
+               for g in unnamed[missing:]]
+        for name, gids in sorted(by_name.items()):
+            allowed = expected.get(name, 0)
+            if topic == sig.STATUS.name and name in TOOL_NODES:
+                continue
+            if len(gids) > allowed and allowed:
+                out.append(f"{len(gids)} publishers named '{name}' (gid {', '.join(gids)}; "
+                           f'the run has {allowed})')
+            elif len(gids) > allowed:
+                out += [f"'{name}' (gid {g})" for g in gids]
+        return out
 
     def complete_step_topics(self) -> tuple[str, ...]:
         """The bag topics that make a step complete (every sample signal of every rig)."""

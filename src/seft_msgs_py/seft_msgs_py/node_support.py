@@ -1,4 +1,5 @@
-"""What every seft node shares: schema parameters, status reports, a clean ``main``.
+"""What every seft node shares: schema parameters, status reports, a clean ``main``, and the
+run's seal on what it publishes and takes (:mod:`seft_msgs_py.provenance`).
 
 ``main`` follows ``ros2/demos`` ``demo_nodes_py/topics/talker.py``: spin in ``try``, catch
 ``KeyboardInterrupt`` and ``ExternalShutdownException``, destroy the node and
@@ -25,6 +26,7 @@ from rcl_interfaces.msg import (
 )
 import rclpy
 from rclpy.clock import Clock, ClockType
+from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.executors import ExternalShutdownException
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
@@ -41,13 +43,17 @@ from seft_msgs_py.convert import (
     STATE_RUNNING,
     FieldsReader,
     ScalarReader,
+    SerializedStamped,
     dt_to_ns,
+    frame_id_of_raw,
     status_msg,
     status_values,
 )
 from seft_msgs_py.dds import use_seft_profile
 from seft_msgs_py.errors import ParameterError, SeftError
-from seft_msgs_py.graph import Graph, qualified, scoped, split_qualified
+from seft_msgs_py.graph import UNKNOWN_NODE, Graph, qualified, scoped, split_qualified
+from seft_msgs_py.provenance import RunSeal
+from seft_msgs_py.rig_contract import FOREIGN_REASON
 from seft_msgs_py.scheduling import set_fifo
 from seft_msgs_py.signals import (
     ESTIMATES,
@@ -81,6 +87,11 @@ MISMATCH_MESSAGE = 'parameters differ between nodes: '
 #: The ROS arguments of the node being created by :func:`main_for_nodes` (None: the
 #: process's own, as ``ros2 run`` gives them).
 _node_arguments: list[str] | None = None
+#: A foreign publisher whose node has not announced its name yet: how long a node looks for
+#: the name in its view of the graph after it named the publisher by its gid [s], and how
+#: often [s].
+FOREIGN_LOOKUP_S = 1.0
+FOREIGN_LOOKUP_EVERY_S = 0.01
 
 
 def descriptor_of(spec: parameters.ParamSpec) -> ParameterDescriptor:
@@ -127,12 +138,21 @@ class SeftNode(Node):
         The qualified name (status reports, parameters, ``seft run --nodes``).
     graph : Graph
         The run's graph, from the parameters.
+    seal : RunSeal
+        The run's seal (``run_token``, ``message_auth``; :mod:`seft_msgs_py.provenance`):
+        what this node puts on the messages it publishes and checks on those it takes.
+    foreign : dict
+        Topic -> how many messages without the run's seal this node dropped.
+    taken : dict
+        Topic -> how many sealed messages of its stamped inputs (the measurement, a
+        command) this node took while it ran (its final status: ``taken:<topic>``).
 
     Raises
     ------
     ParameterError
-        If a parameter value is out of its schema range (message names it), or the node's
-        namespace is not a rig of the run's graph where it must be.
+        If a parameter value is out of its schema range (message names it), the node's
+        namespace is not a rig of the run's graph where it must be, or the run's seal
+        (its token, the key file of ``message_auth: hmac``).
     """
 
     def __init__(self, node_name: str, **kwargs):
@@ -156,6 +176,10 @@ class SeftNode(Node):
                                  f'{", ".join(r for r in self.graph.rigs if r) or "none"})')
         self.realtime = self.params.get('mode') == 'realtime'
         self.dt_ns = dt_to_ns(self.params['dt'])
+        self.seal = RunSeal.from_parameters(self.params)
+        self.foreign: dict[str, int] = {}
+        self.taken: dict[str, int] = {}
+        self._foreign_named: set[str] = set()
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.status_pub = self.create_publisher(STATUS.msg_type, STATUS.name, STATUS.qos)
         self.recorder_ready = False
@@ -254,14 +278,25 @@ class SeftNode(Node):
         """Subscribe to a scalar topic; `callback(step, value)` gets the sample's step and value.
 
         A raw subscription read by :class:`~seft_msgs_py.convert.ScalarReader` (no rclpy message
-        object per sample), guarded like every callback.
+        object per sample), guarded like every callback. A message without the run's seal is
+        dropped before the callback (:meth:`foreign_input`: the topic commands the rig).
         """
         read, dt_ns, guarded = ScalarReader(spec), self.dt_ns, self.guard(callback)
+        frame_ok, topic, msg_type = self.seal.frame_ok, spec.name, spec.msg_type
+        foreign, taken = self.guard(self.foreign_input), self.taken
+        taken[topic] = 0
 
         def on_raw(raw):
             stamp, value = read(raw)
+            frame = frame_id_of_raw(raw, msg_type)
+            if not frame_ok(frame, topic, stamp, (value,)):
+                foreign(topic, frame, True)
+                return
+            if not self.done:
+                taken[topic] += 1
             guarded(int(round(stamp / dt_ns)), value)
-        return self.create_subscription(spec.msg_type, spec.name, on_raw, spec.qos, raw=True)
+        return self.create_subscription(spec.msg_type, spec.name, on_raw, spec.qos, raw=True,
+                                        event_callbacks=self.publisher_watch(topic))
 
     def measurement_subscription(self, callback: Callable[[int, tuple], None],
                                  rig: str | None = None):
@@ -269,16 +304,123 @@ class SeftNode(Node):
         values)` gets the sample's step and the values of
         :data:`~seft_msgs_py.signals.MEASUREMENT_FIELDS` (measured force [N], displacement [m],
         velocity [m/s], acceleration [m/s^2]). Raw and guarded, like
-        :meth:`scalar_subscription`."""
-        read = FieldsReader(MEASUREMENT.msg_type, MEASUREMENT_FIELDS)
+        :meth:`scalar_subscription`, and sealed likewise."""
+        read = FieldsReader(MEASUREMENT.msg_type, MEASUREMENT_FIELDS, self.seal.frame_id)
         dt_ns, guarded = self.dt_ns, self.guard(callback)
+        topic = scoped(MEASUREMENT.name, self.rig_name if rig is None else rig)
+        frame_ok, msg_type = self.seal.frame_ok, MEASUREMENT.msg_type
+        foreign, taken = self.guard(self.foreign_input), self.taken
+        taken[topic] = 0
 
         def on_raw(raw):
             stamp, values = read(raw)
+            frame = frame_id_of_raw(raw, msg_type)
+            if not frame_ok(frame, topic, stamp, values):
+                foreign(topic, frame, True)
+                return
+            if not self.done:
+                taken[topic] += 1
             guarded(int(round(stamp / dt_ns)), values)
-        topic = scoped(MEASUREMENT.name, self.rig_name if rig is None else rig)
         return self.create_subscription(MEASUREMENT.msg_type, topic, on_raw, MEASUREMENT.qos,
-                                        raw=True)
+                                        raw=True, event_callbacks=self.publisher_watch(topic))
+
+    def sealed_writer(self, template: SerializedStamped) -> Callable[[str, int, tuple], bytes]:
+        """``write(topic, stamp_ns, values) -> bytes``: the serialized message of one sample
+        of `template` (made with this run's frame id, ``seal``), sealed for `topic`."""
+        seal = self.seal
+        if not seal.authenticated:
+            return lambda topic, stamp_ns, values: template(stamp_ns, values)
+
+        def write(topic, stamp_ns, values):
+            return template(stamp_ns, values, seal.seal(topic, stamp_ns, values).encode())
+        return write
+
+    def batch_sealed(self, stream: RecordStream, msg) -> bool:
+        """Whether a record batch (a deserialized ``Float64MultiArray`` of `stream`) carries
+        the run's seal in its first label."""
+        dims = msg.layout.dim
+        label = dims[0].label if dims else ''
+        return self.seal.label_ok(label, stream.name, msg.data)
+
+    def foreign_input(self, topic: str, seen, commands: bool) -> None:
+        """A message on `topic` without the run's seal (`seen`: its frame id or label): it
+        is dropped (never applied) and counted, and its publisher named once
+        (:meth:`foreign_publisher`)."""
+        self.foreign[topic] = self.foreign.get(topic, 0) + 1
+        if isinstance(seen, bytes):
+            seen = seen.decode('utf-8', 'replace')
+        self.foreign_publisher(topic, commands, 'its message was not sealed for this run '
+                               f'(frame id {seen!r}; {self.seal.describe()}); dropped, never '
+                               'applied')
+
+    def publisher_watch(self, topic: str, commands: bool = True) -> SubscriptionEventCallbacks:
+        """The event callbacks of a subscription to `topic`: when more publishers match it
+        than the run has (:meth:`~seft_msgs_py.graph.Graph.publishers_of`), the new one is
+        foreign (:meth:`foreign_publisher`), named before its first message is taken (the
+        match comes first: measured here 16-100 ms before the first message of a new
+        process's publisher)."""
+        expected = len(self.graph.publishers_of(topic))
+        foreign = self.guard(self.foreign_publisher)
+
+        def matched(info):
+            if info.current_count > expected:
+                foreign(topic, commands, f'{info.current_count} publishers where the run has '
+                        f'{expected}')
+        return SubscriptionEventCallbacks(matched=matched)
+
+    def foreign_publisher(self, topic: str, commands: bool, what: str) -> None:
+        """A foreign publisher on `topic` (`what` it did), once per topic: named from this
+        node's view of the graph (:meth:`~seft_msgs_py.graph.Graph.foreign_publishers`) in
+        an abort on a topic that commands the rig (`commands`), at once, and a warning
+        elsewhere. A new process's node announces its name some 80 ms after its publisher
+        matches (measured here): the abort names it by its gid then, and once the name is
+        known (within ``FOREIGN_LOOKUP_S``) a warning names it."""
+        if topic in self._foreign_named:
+            return
+        self._foreign_named.add(topic)
+        who, unnamed = self._foreign_found(topic)
+        line = (f'{FOREIGN_REASON}{topic}: '
+                + (', '.join(who) if who else "no publisher but the run's own in this node's "
+                   'view (a sender that has left, or a node of the run with another token '
+                   'or key)') + f': {what}')
+        if commands:
+            self.abort_run(line, int(getattr(self, 'next_step', 0)), foreign_topic=topic)
+        else:
+            self.warn(line, foreign_topic=topic)
+        if not unnamed:
+            return
+        deadline = time.monotonic() + FOREIGN_LOOKUP_S
+
+        def name_it():
+            # after the abort too (this node has finished, and lingers): not guarded
+            who, unnamed = self._foreign_found(topic)
+            if unnamed and time.monotonic() < deadline:
+                return
+            timer.cancel()
+            if who:
+                named = f'{FOREIGN_REASON}{topic}: ' + ', '.join(who) + ' (named)'
+                self.get_logger().warning(named)
+                self.report(STATE_RUNNING, named, warning=named, foreign_topic=topic)
+        timer = self.create_timer(FOREIGN_LOOKUP_EVERY_S, name_it,
+                                  clock=Clock(clock_type=ClockType.STEADY_TIME))
+
+    def _foreign_found(self, topic: str) -> tuple[list[str], bool]:
+        """The foreign publishers of `topic` named, and whether one's node has not
+        announced its name yet."""
+        found = [(i.node_name, i.node_namespace, i.endpoint_gid)
+                 for i in self.get_publishers_info_by_topic(topic)]
+        return (self.graph.foreign_publishers(topic, found),
+                any(node == UNKNOWN_NODE for node, _, _ in found))
+
+    def foreign_publishers(self, topic: str) -> list[str]:
+        """The publishers of `topic` this node knows of that are not the run's (named)."""
+        return self._foreign_found(topic)[0]
+
+    def warn(self, line: str, **values) -> None:
+        """A named warning: this node's log, and a status report with ``warning`` (the
+        console, the bag, the report)."""
+        self.get_logger().warning(line)
+        self.report(STATE_RUNNING, line, warning=line, **values)
 
     def scoped_spec(self, spec, rig: str | None = None):
         """A study topic's spec in the namespace of `rig` (default: this node's)."""
@@ -512,6 +654,9 @@ class SeftNode(Node):
         """What the final status reports: samples published, and timing records with their
         missed deadlines and stale inputs (real-time mode)."""
         counts = {'published': self.published_count()}
+        counts.update({f'taken:{topic}': n for topic, n in self.taken.items()})
+        if self.foreign:
+            counts['foreign_dropped'] = sum(self.foreign.values())
         if self.timing is not None:
             counts.update(self.timing.counts())
         for batch in self.records:
@@ -612,6 +757,7 @@ class SeftNode(Node):
 class RecordBatch:
     """Rows of one record stream, published in batches for the recorder.
 
+    The first label of each batch carries the run's seal (``SeftNode.seal``).
     ``add(step, *values)`` appends a row; every :data:`~seft_msgs_py.signals.RECORD_ROWS`
     rows (and on :meth:`flush`, which the node's final status report calls) the rows go out
     as one ``std_msgs/Float64MultiArray`` (layout: ``signals.RecordStream``). The recorder
@@ -644,7 +790,8 @@ class RecordBatch:
         self.width = 1 + len(self.columns)
         self.msg = Float64MultiArray()
         label = ','.join(('step',) + self.columns)
-        self.msg.layout.dim = [MultiArrayDimension(label='step', size=0, stride=0),
+        self.seal = getattr(node, 'seal', None) or RunSeal()     # a plain node: no seal
+        self.msg.layout.dim = [MultiArrayDimension(label=self.seal.label, size=0, stride=0),
                                MultiArrayDimension(label=label, size=self.width,
                                                    stride=self.width)]
         self.rows: list[float] = []
@@ -667,6 +814,8 @@ class RecordBatch:
         n = len(self.rows) // self.width
         dim = self.msg.layout.dim[0]
         dim.size, dim.stride = n, n * self.width
+        if self.seal.authenticated:
+            dim.label = self.seal.label_of(self.stream.name, self.rows)
         self.msg.data = self.rows
         self.pub.publish(self.msg)
         self.published += n

@@ -498,6 +498,22 @@ SCHEMA: tuple[ParamSpec, ...] = (
               'the recorder is more than this many steps behind (0: never waits; else at least '
               '100: the recorder acknowledges every 50 steps and takes the samples in batches of '
               '10).', 0, 1900, nodes=_RIG),
+    # -- who may command the rig (seft_msgs_py.provenance) -----------------------------------
+    ParamSpec('run_token', 'none', '', "The run's token: 16 hex digits that seft run draws at "
+              'random for each run and hands to its nodes; every message that commands the rig '
+              "carries the run's seal (the token, or with message_auth 'hmac' an HMAC) in "
+              'header.frame_id (record batches: their first label), and a node drops and names '
+              "a message without it ('none': nodes by hand, unsealed messages only).",
+              nodes=_ALL),
+    ParamSpec('message_auth', 'token', '', "How a message shows it is the run's: 'token' (the "
+              'run token in the clear: keeps out another test on the same domain and an earlier '
+              "run, not a sender that reads the domain) or 'hmac' (an HMAC-SHA256 of each "
+              'message and UDP datagram with the shared key of auth_key_file: only a holder of '
+              'the key can command the rig; docs: network).', choices=('token', 'hmac'),
+              nodes=_ALL),
+    ParamSpec('auth_key_file', 'none', '', "message_auth 'hmac': the file of the test's "
+              'shared key (at least 16 bytes, e.g. 64 hex digits; the same key on every host '
+              "and at the lab's controller; keep it private: it is never sent).", nodes=_ALL),
     # -- recorder ---------------------------------------------------------------------------
     ParamSpec('bag_path', 'seft_bag', '', 'Directory of the rosbag2 bag to write (must not '
               'exist yet).', nodes=('recorder',)),
@@ -728,12 +744,12 @@ TEST_PARAMETERS = frozenset({
     'predictor_loop_latency_s', 'network_delay_s', 'monitor_cutoff_hz', 'monitor_window_s',
     'monitor_threshold', 'monitor_floor_N', 'wait_for_recorder', 'recorder_window_steps',
     'bag_path', 'bag_storage', 'structure', 'structure_builders', 'realtime_priority',
-    'specimen_uncertainty',
+    'specimen_uncertainty', 'run_token', 'message_auth',
 })
 
 
 PER_NODE = frozenset({'bag_path', 'bag_storage', 'wait_for_recorder', 'recorder_window_steps',
-                      'use_sim_time', 'realtime_priority'})
+                      'use_sim_time', 'realtime_priority', 'auth_key_file'})
 
 
 def _node_rank(node: str) -> tuple[int, str, str]:
@@ -858,6 +874,8 @@ _SHARED_SOURCE = {
     'watchdog_timeout_s': 'rig',            # the rig's watchdog; the others watch their inputs
     'network_delay_s': 'reference_force_builder',   # the delay its predictor compensates
     'realtime_output': 'rig',               # the rig outputs the commands
+    # who may command the rig: the run's (every node holds the same; the rig's is recorded)
+    'run_token': 'rig', 'message_auth': 'rig', 'auth_key_file': 'rig',
     # the excitation: the ground-motion publisher plays it (closed loop), the controller
     # drives the valve with it (open loop); both generate the same samples
     'duration_s': 'ground_motion_publisher', 'excitation': 'ground_motion_publisher',

@@ -18,7 +18,10 @@ Imports no rclpy.
 
 Versioning: :data:`VERSION` is ``MAJOR.MINOR``. A change that can make a conforming rig fail
 (a new obligation, a changed unit or timing) raises MAJOR; an addition a rig may ignore (a new
-optional status key) raises MINOR.
+optional status key) raises MINOR. 2.0 (issue 42): a rig seals its measurement with the run's
+seal and takes only sealed commands (:data:`SEAL_RULE`, :mod:`seft_msgs_py.provenance`); the
+controller behind the UDP bridge follows the session rules
+(``seft_plant_sim.udp_layout.SESSION_RULES``).
 """
 
 from dataclasses import dataclass
@@ -33,11 +36,11 @@ __all__ = [
     'StatusKey', 'STATUS_KEYS', 'STATES', 'REQUIRED_PARAMETERS', 'COMMAND_SOURCE_LAG',
     'COMMAND_KINDS', 'command_kind', 'command_signal', 'command_latency_s', 'SAFE_HOLD_S',
     'reaction_limit_s', 'first_effect_step', 'qos_of', 'markdown_tables', 'is_compatible',
-    'WATCHDOG_REASON', 'PROGRESS_EVERY',
+    'WATCHDOG_REASON', 'PROGRESS_EVERY', 'SEAL_RULE', 'FOREIGN_REASON',
 ]
 
 #: Version of the contract (``MAJOR.MINOR``; module notes).
-VERSION = '1.0'
+VERSION = '2.0'
 #: What a conforming rig reports under :data:`CONTRACT_KEY` in its status: name and version.
 CONTRACT = f'seft-rig/{VERSION}'
 #: The key of the contract in the rig's ``/seft/status`` values (ready and final reports).
@@ -57,6 +60,17 @@ SAFE_HOLD_S = 0.05
 PROGRESS_EVERY = 250
 #: The final message of a rig that went to its safe state because no command came starts so.
 WATCHDOG_REASON = 'watchdog:'
+#: The final message of a rig (or the abort of another node) that dropped a message without
+#: the run's seal starts so, and names the topic and the publisher.
+FOREIGN_REASON = 'foreign publisher on '
+#: What a rig does with the run's seal (``run_token``, ``message_auth``, ``auth_key_file``;
+#: :mod:`seft_msgs_py.provenance`), as the page says it.
+SEAL_RULE = ("header.frame_id of every measurement is the run's seal: 'actuator#' + "
+             "run_token (message_auth hmac: 'actuator#' + the first 32 hex digits of "
+             'HMAC-SHA256(key, provenance.mac_input(run_token, topic, stamp, values))); '
+             "run_token 'none': 'actuator'. A command whose frame id is not the run's seal "
+             'of it is dropped, never applied, and the run ends safely with a reason '
+             f"starting {FOREIGN_REASON!r} that names the topic and the publisher")
 
 
 @dataclass(frozen=True)
@@ -84,7 +98,7 @@ class TopicRole:
 PUBLISHES = (
     TopicRole(sig.MEASUREMENT, 'every sample k, stamped t_k = k dt exactly (integer ns), '
               f'name = {", ".join(sig.MEASUREMENT_FIELDS)} (SI: N, m, m/s, m/s^2; REP-103, '
-              'x positive in extension)'),
+              "x positive in extension), header.frame_id the run's seal (below)"),
     TopicRole(sig.record_signal(sig.record_streams_of('rig')[0]),
               'rows [step, force N, displacement m, velocity m/s, acceleration m/s^2] every '
               f"{sig.RECORD_ROWS} samples and before the final status (the bag's four "
@@ -103,9 +117,9 @@ PUBLISHES = (
 #: What a rig takes.
 SUBSCRIBES = (
     TopicRole(sig.VALVE_COMMAND, 'u[j] stamped t_j: held from t_j, acts after '
-              'command_latency_s (module notes)', 'valve'),
+              "command_latency_s (module notes); only with the run's seal (below)", 'valve'),
     TopicRole(sig.REFERENCE_FORCE, 'f_r[j] stamped t_j (from sample j-1): held from t_j, '
-              'acts after command_latency_s', 'force'),
+              "acts after command_latency_s; only with the run's seal (below)", 'force'),
     TopicRole(sig.STATUS, "another node's 'aborted' or 'failed': safe state (real time) or "
               'end (lockstep)'),
     TopicRole(sig.NODE_PARAMETERS, 'the graph starts once every node has published its '
@@ -171,7 +185,7 @@ STATUS_KEYS = (
 REQUIRED_PARAMETERS = (
     'dt', 'mode', 'n_steps', 'rig_model', 'mass_kg', 'stiffness_N_per_m', 'damping_N_s_per_m',
     'stroke_limit_m', 'force_limit_N', 'watchdog_timeout_s', 'safe_ramp_s', 'realtime_output',
-    'wait_for_recorder', 'recorder_window_steps',
+    'wait_for_recorder', 'recorder_window_steps', 'run_token', 'message_auth', 'auth_key_file',
 )
 
 
@@ -243,7 +257,8 @@ def _md(text: str) -> str:
 
 
 def markdown_tables() -> str:
-    """The page's tables (topics, status keys, parameters), generated from this module."""
+    """The page's tables (topics, status keys, parameters, the seal), generated from this
+    module."""
     rows = ['| direction | topic | type | field, unit | QoS | when | rigs |',
             '|---|---|---|---|---|---|---|']
     for direction, roles in (('publishes', PUBLISHES), ('subscribes', SUBSCRIBES)):
@@ -261,4 +276,6 @@ def markdown_tables() -> str:
         s = parameters.spec(name)
         params.append(f'| `{name}` | {s.unit or "-"} | {_md(s.expected())} | '
                       f'{_md(s.description)} |')
-    return '\n\n'.join('\n'.join(t) for t in (rows, keys, params))
+    seal = ["| the run's seal | the rig |", '|---|---|',
+            f'| on its measurement and on the commands it takes | {_md(SEAL_RULE)} |']
+    return '\n\n'.join('\n'.join(t) for t in (rows, keys, params, seal))

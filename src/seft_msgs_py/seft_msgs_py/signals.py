@@ -145,7 +145,8 @@ class RecordStream:
     """A node's record batches: what it published (or timed) for the bag, in table rows.
 
     A node publishes a ``std_msgs/Float64MultiArray`` on ``name`` every :data:`RECORD_ROWS`
-    rows (and at its end): ``layout.dim[0]`` = ('step', rows), ``layout.dim[1]`` = the column
+    rows (and at its end): ``layout.dim[0]`` = ('step', rows; ``'step#<seal>'`` in a run with
+    a token, ``seft_msgs_py.provenance``), ``layout.dim[1]`` = the column
     labels joined by commas ('step' then ``columns``), ``data`` = the rows, row-major. The
     recorder writes every row back as the per-sample messages the bag holds (same topics,
     types and stamps as if it had subscribed to each of them), so it receives one message

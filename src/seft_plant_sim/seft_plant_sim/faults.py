@@ -26,7 +26,8 @@ import numpy as np
 from seft_msgs_py.errors import ParameterError
 from seft_msgs_py.interface import Measurement
 
-__all__ = ['Fault', 'FAULTS', 'SENSOR_FAULTS', 'fault', 'FaultyRig', 'check_supported', 'G']
+__all__ = ['Fault', 'FAULTS', 'SENSOR_FAULTS', 'CONTROLLER_FAULTS', 'fault', 'FaultyRig',
+           'check_supported', 'G']
 
 #: Standard gravity [m/s^2] (an accelerometer read in g divides by it).
 G = 9.80665
@@ -143,6 +144,14 @@ FAULTS: Mapping[str, Fault] = {f.name: f for f in (
 )}
 #: The faults in what the rig measures alone (``seft emulate-controller --inject``).
 SENSOR_FAULTS = tuple(name for name, f in FAULTS.items() if f.sensor)
+#: Faults of a lab's controller behind the UDP bridge itself, not of what it measures
+#: (``seft emulate-controller --inject``; ``seft_plant_sim.udp_emulator``), by name: what it
+#: does wrong.
+CONTROLLER_FAULTS = {
+    'takes_any_session': 'the controller takes a start of another session while a run is '
+                         'live and answers whichever address spoke last (a second PC takes '
+                         'the rig over)',
+}
 
 
 def fault(name: str, *, where: str = '--inject', allowed=None) -> Fault:

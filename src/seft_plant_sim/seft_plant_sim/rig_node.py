@@ -125,8 +125,8 @@ class RigNode(SeftNode):
         self.measurement_topic = self.scoped_spec(MEASUREMENT).name
         self.measurement_pub = self.create_publisher(MEASUREMENT.msg_type,
                                                      self.measurement_topic, MEASUREMENT.qos)
-        self.measurement_msg = SerializedStamped.fields(MEASUREMENT.msg_type,
-                                                        MEASUREMENT_FIELDS)
+        self.measurement_msg = self.sealed_writer(SerializedStamped.fields(
+            MEASUREMENT.msg_type, MEASUREMENT_FIELDS, self.seal.frame_id))
         self.batch = self.record_stream()
         self.clock_msg = CLOCK.msg_type()
         on_command = self._on_command_realtime if self.realtime else self._on_command
@@ -341,7 +341,7 @@ class RigNode(SeftNode):
         stamp = self.sample_stamp_ns(k)
         m = self.rig.measure()
         values = (m.force_N, m.displacement_m, m.velocity_m_s, m.acceleration_m_s2)
-        self.measurement_pub.publish(self.measurement_msg(stamp, values))
+        self.measurement_pub.publish(self.measurement_msg(self.measurement_topic, stamp, values))
         self.batch.add(round(stamp / self.dt_ns), *values)
         if k % CLOCK_EVERY == 0 and self.clock_master:
             clock_ns = k * self.dt_ns
@@ -421,8 +421,18 @@ class RigNode(SeftNode):
 
     def _on_datagram(self, taken: bool) -> None:
         """A datagram was taken (or the wait timed out): start the clock on the first
-        sample, tick every sample, end on the controller's silence or after the drain."""
+        sample, tick every sample, end on the controller's silence or after the drain.
+        What the bridge names (a datagram from another address, the controller's refusal of
+        another sender's start) is a warning, once each."""
+        for line in self.rig.take_notices():
+            self.warn(line)
         if not self.running:
+            return
+        if self.rig.left is not None and self.t0 is not None:
+            # the controller no longer runs this session: nothing of it will come
+            self._abort_realtime(self.rig.left)
+            self._flush_timing(final=True)
+            self._end(STATE_ABORTED, self.abort_reason)
             return
         now = time.monotonic()
         silent = self.rig.silent_s(now)
@@ -450,6 +460,16 @@ class RigNode(SeftNode):
                 self._end_realtime()
             return
         self._tick()
+
+    def warn(self, line: str, **values) -> None:
+        """A named warning: the log, and a status report (the console, the bag, the
+        report), with the rig's progress while it runs."""
+        self.get_logger().warning(line)
+        if self.running:
+            self.report(STATE_RUNNING, line, warning=line, step=self.rig.step,
+                        n_steps=self.n_steps, time_s=f'{self.rig.time_s:.3f}', **values)
+        else:
+            self.report(STATE_READY, line, warning=line, **values)
 
     def run_due(self) -> None:
         """The next tick is due: catch up with the wall clock (or the common start)."""

@@ -28,7 +28,14 @@ Faults at the socket:
   least delayed sample so far places it) is counted late (and published);
 * a silent controller (no datagram for ``watchdog_timeout_s``) ends the run: the rig node
   reports it, and asks the controller (if it still hears) for its safe state; a silent PC is
-  the controller's to notice (its own watchdog), which it reports in its state.
+  the controller's to notice (its own watchdog), which it reports in its state;
+* a datagram from any other address than ``udp_controller_address`` (the rig contract's
+  session rules: a controller sends from the address it listens on) is dropped, whatever
+  its session, counted (``foreign``) and its address named once (:meth:`take_notices`); a
+  controller that refused another sender's start says so in its reason
+  (:data:`~seft_plant_sim.udp_layout.REASON_START_REFUSED`), named once too;
+* with ``message_auth: hmac`` every datagram carries the HMAC of the test's key
+  (``auth_key_file``); one that does not verify is a bad datagram.
 """
 
 from collections import deque
@@ -38,14 +45,14 @@ import socket
 import time
 from typing import Callable, Mapping
 
-from seft_msgs_py import rig_contract
+from seft_msgs_py import provenance, rig_contract
 from seft_msgs_py.errors import ParameterError
 from seft_msgs_py.interface import COMMAND_VALVE, Measurement
 from seft_plant_sim import udp_layout as ul
 from seft_plant_sim.realtime import CommandArrivals
 from seft_plant_sim.specimen import SafetyLimits
 
-__all__ = ['UdpBridgeRig', 'parse_address', 'RECEIVE_BYTES']
+__all__ = ['UdpBridgeRig', 'parse_address', 'resolve_address', 'RECEIVE_BYTES']
 
 #: Receive buffer of one datagram [bytes] (larger than either layout: a longer datagram is
 #: seen whole and rejected for its length).
@@ -71,6 +78,22 @@ def parse_address(text: str, name: str = 'udp_controller_address') -> tuple[str,
     return host, number
 
 
+def resolve_address(text: str, name: str = 'udp_controller_address') -> tuple[str, int]:
+    """``'host:port'`` as the ``(IPv4 address, port)`` a datagram from it comes from.
+
+    Raises
+    ------
+    ParameterError
+        As :func:`parse_address`, or a host name that does not resolve.
+    """
+    host, port = parse_address(text, name)
+    try:
+        return socket.getaddrinfo(host, port, socket.AF_INET, socket.SOCK_DGRAM)[0][4][:2]
+    except (OSError, IndexError) as exc:
+        raise ParameterError(f'parameter {name}={text!r}: cannot resolve {host!r} '
+                             f'({getattr(exc, "strerror", None) or exc})') from None
+
+
 class UdpBridgeRig(CommandArrivals):
     """A rig behind a UDP socket: the controller's samples in, the graph's commands out.
 
@@ -80,7 +103,8 @@ class UdpBridgeRig(CommandArrivals):
         Resolved parameters: ``dt`` [s], ``rig_model`` (the command kind: valve voltage for
         'servohydraulic', force reference for 'delay'), ``udp_controller_address``,
         ``udp_local_port`` (0: any), ``udp_heartbeat_s`` [s], ``udp_max_bad_datagrams``,
-        ``watchdog_timeout_s`` [s], ``stroke_limit_m`` [m], ``force_limit_N`` [N].
+        ``watchdog_timeout_s`` [s], ``stroke_limit_m`` [m], ``force_limit_N`` [N],
+        ``message_auth`` and ``auth_key_file`` (the HMAC of each datagram).
     log : callable(str), optional
         Receives one line per rejected datagram.
 
@@ -92,12 +116,18 @@ class UdpBridgeRig(CommandArrivals):
         The sample in effect (the latest taken; 0 before the first).
     counts : dict
         ``late``, ``lost``, ``duplicate``, ``reordered``, ``bad``, ``other_session`` of the
-        controller's datagrams at the PC.
+        controller's datagrams at the PC, and ``foreign``: datagrams from another address
+        (dropped).
+    start_refused : bool
+        The controller said it refused another sender's start during this run.
+    left : str or None
+        Why the controller no longer runs this run's session (it ended it on its own, or
+        restarted it: its samples went back); the rig node then ends the run aborted.
 
     Raises
     ------
     ParameterError
-        A bad address, or the local port cannot be bound.
+        A bad or unresolvable address, the local port cannot be bound, or the key file.
     """
 
     external_clock = True
@@ -109,7 +139,8 @@ class UdpBridgeRig(CommandArrivals):
         self.command_kind = kind
         self.source_lag = rig_contract.COMMAND_SOURCE_LAG[kind]
         self._wire_kind = ul.COMMAND_VALVE if kind == COMMAND_VALVE else ul.COMMAND_FORCE
-        self.peer = parse_address(params['udp_controller_address'])
+        self.peer = resolve_address(params['udp_controller_address'])
+        self.key = provenance.key_of(params)
         self.heartbeat_s = float(params['udp_heartbeat_s'])
         self.max_bad = int(params['udp_max_bad_datagrams'])
         self.limits = SafetyLimits.from_parameters(params)
@@ -125,7 +156,13 @@ class UdpBridgeRig(CommandArrivals):
         self.session = random.SystemRandom().randrange(1, 2 ** 32)
         self._sequence = 0
         self.filter = ul.SequenceFilter()
-        self.counts = {'late': 0, 'bad': 0, 'other_session': 0}
+        self.counts = {'late': 0, 'bad': 0, 'other_session': 0, 'foreign': 0}
+        self.start_refused = False
+        #: Why the controller no longer runs this run's session (None: it does): it ended
+        #: the session on its own, or restarted it (its samples went back).
+        self.left: str | None = None
+        self._named: set = set()                    # foreign addresses already named
+        self._notices: list[str] = []               # named, not yet taken by the node
         self.last_bad = ''
         self.n_steps = 0
         self.started = self.ended = self.safe_requested = False
@@ -149,7 +186,7 @@ class UdpBridgeRig(CommandArrivals):
         self._sequence = (self._sequence + 1) % 2 ** 32
         data = ul.encode(ul.ToController(
             kind, self._flags(), self.session, self._sequence, sample, source, float(value),
-            self.dt_ns, self.n_steps, self._wire_kind))
+            self.dt_ns, self.n_steps, self._wire_kind), self.key)
         try:
             self.sock.sendto(data, self.peer)
         except OSError:
@@ -200,12 +237,15 @@ class UdpBridgeRig(CommandArrivals):
             A datagram was taken (a sample may be pending: :meth:`due_step`).
         """
         try:
-            data, _ = self.sock.recvfrom(RECEIVE_BYTES)
+            data, source = self.sock.recvfrom(RECEIVE_BYTES)
         except (socket.timeout, OSError):
             return False
         now = time.monotonic()
+        if source[:2] != self.peer:
+            self._foreign(source)
+            return False
         try:
-            d = ul.decode_to_pc(data)
+            d = ul.decode_to_pc(data, self.key)
         except ul.DatagramError as exc:
             self.counts['bad'] += 1
             self.last_bad = str(exc)
@@ -219,9 +259,28 @@ class UdpBridgeRig(CommandArrivals):
             return False
         self.controller = d
         self.last_heard = now
+        if (d.reason == ul.REASON_START_REFUSED and d.session == self.session
+                and not self.start_refused):
+            self.start_refused = True
+            self._notices.append(
+                'udp_bridge: the controller refused a start of another session (another '
+                'sender tried to take the rig; this run goes on)')
         for source, latency in zip(d.latency_sources, d.latency_s):
             if source >= 0 and math.isfinite(latency):
                 self._arrivals.setdefault(source, source * self.dt + latency)
+        had = (self._pending[-1].sample if self._pending
+               else self.current.sample if self.current is not None else None)
+        if had is not None and self.left is None:
+            if d.session == 0:
+                self.left = (f'udp_bridge: the controller ended the session on its own '
+                             f'(state {ul.STATE_NAMES.get(d.state, d.state)}, after sample '
+                             f'{had})')
+            elif d.kind == ul.KIND_MEASUREMENT and d.sample <= had:
+                self.left = (f'udp_bridge: the controller restarted the session (its sample '
+                             f'{d.sample} after {had}): a start of another sender took it '
+                             'over, or it was reset')
+        if self.left is not None:
+            return True
         if d.kind == ul.KIND_MEASUREMENT and d.session == self.session:
             # the controller's clock as the PC sees it: its sample 0 at the earliest arrival
             # less k dt (the least delayed sample so far)
@@ -232,6 +291,23 @@ class UdpBridgeRig(CommandArrivals):
                 self.counts['late'] += 1
             self._pending.append(d)
         return True
+
+    def _foreign(self, source) -> None:
+        """A datagram from another address than the controller's: dropped, counted, its
+        address named once."""
+        self.counts['foreign'] += 1
+        if source not in self._named:
+            self._named.add(source)
+            self._notices.append(
+                f'udp_bridge: dropped a datagram from {source[0]}:{source[1]}, not the '
+                f'controller ({self.peer[0]}:{self.peer[1]}); every datagram from another '
+                'address is dropped and counted (udp_foreign)')
+
+    def take_notices(self) -> list[str]:
+        """What the bridge has to name since the last call (each once): a foreign address,
+        the controller's refusal of another sender's start."""
+        out, self._notices = self._notices, []
+        return out
 
     @property
     def controller_heard(self) -> bool:
@@ -312,4 +388,5 @@ class UdpBridgeRig(CommandArrivals):
             out.update(controller_late=c.late, controller_lost=c.lost,
                        controller_duplicate=c.duplicate, controller_reordered=c.reordered,
                        controller_bad=c.bad)
+        out.update(controller_start_refused=int(self.start_refused))
         return out

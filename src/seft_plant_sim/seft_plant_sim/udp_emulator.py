@@ -11,10 +11,25 @@ too many datagrams were rejected, or at its own limits. So a run through the bri
 emulator is the simulated rig in real time with one more hop each way, and a lab can see what
 its own controller must do.
 
-Between runs it sends a heartbeat every ``udp_heartbeat_s``; a datagram with the start flag
-and a new session starts a run (sample 0 at once); one with the end flag ends it. It reports
-what happens as JSON lines (``{"event": "start", ...}``, ``"safe_state"``, ``"bad_datagram"``,
-``"end"`` with its counts) through `events`.
+Between runs it sends a heartbeat every ``udp_heartbeat_s`` (to the address that spoke last);
+a datagram with the start flag and a new session starts a run (sample 0 at once); one with
+the end flag ends it. It follows the rig contract's session rules
+(:data:`~seft_plant_sim.udp_layout.SESSION_RULES`): while a session is live it answers the
+PC that started it alone and takes datagrams from it alone; a start of another session is
+refused (``{"event": "start_refused", ...}``, and reason
+:data:`~seft_plant_sim.udp_layout.REASON_START_REFUSED` in its datagrams to the live PC), a
+datagram from another address dropped (``"foreign_datagram"``, once per address); a new
+session starts only after an end (the PC's end flag, its safe state held
+:data:`~seft_plant_sim.udp_layout.SAFE_LINGER_S`, the PC silent for ``watchdog_timeout_s``
+after the last sample). With ``message_auth: hmac`` every datagram carries the HMAC of the
+test's key. It reports what happens as JSON lines (``{"event": "start", ...}``,
+``"safe_state"``, ``"bad_datagram"``, ``"end"`` with its counts) through `events`.
+
+The controller fault :data:`CONTROLLER_FAULTS` ``takes_any_session`` (``seft
+emulate-controller --inject takes_any_session``, a test fault) breaks the session rules as the
+emulator did before them: it takes a start of any session at any time and answers whoever
+spoke last, so that ``seft rig-check`` shows what its ``second sender`` check says of such a
+controller.
 
 Imports no rclpy.
 """
@@ -27,20 +42,21 @@ import sys
 import time
 from typing import Callable, Mapping
 
-from seft_msgs_py import rig_contract
+from seft_msgs_py import provenance, rig_contract
 from seft_msgs_py.errors import ParameterError
 from seft_msgs_py.interface import COMMAND_VALVE
 from seft_msgs_py.scheduling import set_fifo
 from seft_plant_sim import udp_layout as ul
-from seft_plant_sim.faults import Fault, FaultyRig, check_supported
+from seft_plant_sim.faults import CONTROLLER_FAULTS, Fault, FaultyRig, check_supported
 from seft_plant_sim.realtime import WallClockRig
 from seft_plant_sim.udp_bridge import RECEIVE_BYTES, parse_address
 
-__all__ = ['ControllerEmulator', 'SAFE_LINGER_S', 'main', 'realtime_priority']
+__all__ = ['ControllerEmulator', 'SAFE_LINGER_S', 'CONTROLLER_FAULTS', 'main',
+           'realtime_priority']
 
 #: After its command reached zero the emulator keeps sampling the safe state at least this
 #: long, waiting for the PC's end [s]; then it stops its run by itself (the PC may be gone).
-SAFE_LINGER_S = 0.5
+SAFE_LINGER_S = ul.SAFE_LINGER_S
 
 
 class ControllerEmulator:
@@ -60,16 +76,33 @@ class ControllerEmulator:
     fault : Fault, optional
         A wiring fault in what it sends (one of :data:`~seft_plant_sim.faults.SENSOR_FAULTS`:
         a lab controller sending a channel reversed, in another unit, stuck, swapped).
+    controller_fault : str, optional
+        One of :data:`CONTROLLER_FAULTS` (a test fault: the session rules broken).
+
+    Attributes
+    ----------
+    foreign : int
+        Datagrams of the live session's time from another address (dropped).
+    refused_starts : int
+        Datagrams with the start flag of another session refused while a session was live
+        (each sender and session named once in the events).
 
     Raises
     ------
     ParameterError
-        A bad address or rig parameter, the address cannot be bound, or a fault it cannot
-        send.
+        A bad address or rig parameter, the address cannot be bound, a fault it cannot
+        send, or the key file of ``message_auth: hmac`` (``auth_key_file``).
     """
 
     def __init__(self, params: Mapping, *, events: Callable[[dict], None] | None = None,
-                 bind: tuple[str, int] | None = None, fault: Fault | None = None):
+                 bind: tuple[str, int] | None = None, fault: Fault | None = None,
+                 controller_fault: str | None = None):
+        if controller_fault is not None and controller_fault not in CONTROLLER_FAULTS:
+            raise ParameterError(f'--inject {controller_fault!r}: expected one of '
+                                 + ', '.join(CONTROLLER_FAULTS))
+        #: The session rules are kept (False: the test fault takes_any_session).
+        self.session_rules = controller_fault != 'takes_any_session'
+        self.key = provenance.key_of(params)
         self.params = dict(params)
         self.dt = float(params['dt'])
         self.dt_ns = int(round(self.dt * 1e9))
@@ -100,8 +133,12 @@ class ControllerEmulator:
         self._sequence = 0
         self.session = 0
         self.state, self.reason = ul.STATE_IDLE, ul.REASON_NONE
+        #: Running: the reason its datagrams give (a start it refused), else none.
+        self.notice = ul.REASON_NONE
         self.filter = ul.SequenceFilter()
         self.late = self.bad = 0
+        self.foreign = self.refused_starts = 0
+        self._named: set = set()            # the foreign addresses already named
         self.rig: WallClockRig | None = None
         self.ticking = False
         self.runs = 0
@@ -132,21 +169,26 @@ class ControllerEmulator:
         sources = [s for s, _ in self.latencies] + [-1] * ul.LATENCY_SLOTS
         lat = [v for _, v in self.latencies] + [0.0] * ul.LATENCY_SLOTS
         sample = self.k if kind == ul.KIND_MEASUREMENT else max(self.k - 1, -1)
+        reason = self.reason if self.reason != ul.REASON_NONE else self.notice
         d = ul.ToPC(kind, self.state, self.session, self._sequence, sample, *values,
-                    self.reason, self.late, self.filter.lost, self.filter.duplicate,
+                    reason, self.late, self.filter.lost, self.filter.duplicate,
                     self.filter.reordered, self.bad, tuple(sources[:ul.LATENCY_SLOTS]),
                     tuple(lat[:ul.LATENCY_SLOTS]))
         self._unreported = 0
         try:
-            self.sock.sendto(ul.encode(d), self.pc)
+            self.sock.sendto(ul.encode(d, self.key), self.pc)
         except OSError:
             pass
 
     # -- the run ----------------------------------------------------------------------------
 
-    def _start(self, d: ul.ToController, now: float) -> None:
+    def _start(self, d: ul.ToController, address, now: float) -> None:
         self._reset_run()
         self.session = d.session
+        self.pc = address                   # the live session's PC: the one it answers
+        self.notice = ul.REASON_NONE
+        self.foreign = self.refused_starts = 0
+        self._named.clear()
         self.filter.reset()
         self.filter.take(d.sequence)
         self.late = self.bad = 0
@@ -179,10 +221,12 @@ class ControllerEmulator:
             self.events({'event': 'end', 'why': why, 'samples': self.k, 'late': self.late,
                          'lost': self.filter.lost, 'duplicate': self.filter.duplicate,
                          'reordered': self.filter.reordered, 'bad': self.bad,
-                         'discarded': self.rig.discarded if self.rig is not None else 0})
+                         'discarded': self.rig.discarded if self.rig is not None else 0,
+                         'foreign': self.foreign, 'refused_starts': self.refused_starts})
             self.runs += 1
         self.ticking = False
         self.state = ul.STATE_IDLE
+        self.notice = ul.REASON_NONE
         self.session = 0            # idle: the next run's PC hears it as free
 
     def _tick(self) -> None:
@@ -222,8 +266,12 @@ class ControllerEmulator:
         return FaultyRig(rig, self.fault, seed=int(self.params['noise_seed']))
 
     def _take(self, data: bytes, address, now: float) -> None:
+        live = self.session != 0 and self.session_rules
+        if live and address != self.pc:
+            self._from_another(data, address)
+            return
         try:
-            d = ul.decode_to_controller(data)
+            d = ul.decode_to_controller(data, self.key)
         except ul.DatagramError as exc:
             self.bad += 1
             print(f'emulate-controller: rejected {exc} ({self.bad} of at most '
@@ -232,10 +280,14 @@ class ControllerEmulator:
             if self.bad >= self.max_bad:
                 self._safe(ul.REASON_BAD_DATAGRAMS)
             return
-        self.pc = address
+        if not live:
+            self.pc = address           # idle: its heartbeats go to whoever spoke last
         if d.session != self.session:
-            if d.flags & ul.FLAG_START and not d.flags & ul.FLAG_END:
-                self._start(d, now)
+            starts = d.flags & ul.FLAG_START and not d.flags & ul.FLAG_END
+            if starts and live:
+                self._refuse(d, address)
+            elif starts:
+                self._start(d, address, now)
             return
         if not self.filter.take(d.sequence):
             return
@@ -256,6 +308,38 @@ class ControllerEmulator:
             # after a stall) faster than the samples report them: their latency at once
             if not self.ticking or self._unreported >= ul.LATENCY_SLOTS // 2:
                 self._send(ul.KIND_CONTROLLER_HEARTBEAT)
+
+    def _from_another(self, data: bytes, address) -> None:
+        """A datagram from another address than the live session's PC: dropped, never
+        answered; a start flag in it refused, anything else named once."""
+        try:
+            d = ul.decode_to_controller(data, self.key)
+        except ul.DatagramError:
+            d = None
+        if d is not None and d.flags & ul.FLAG_START and not d.flags & ul.FLAG_END \
+                and d.session != self.session:
+            self._refuse(d, address)
+            return
+        self.foreign += 1
+        if address not in self._named:
+            self._named.add(address)
+            self.events({'event': 'foreign_datagram', 'from': f'{address[0]}:{address[1]}',
+                         'live_session': self.session, 'session': getattr(d, 'session', None),
+                         'count': self.foreign})
+
+    def _refuse(self, d: ul.ToController, address) -> None:
+        """A start of another session while one is live: refused (events, and the reason of
+        the datagrams to the live PC); its sender gets no answer."""
+        self.refused_starts += 1
+        self.notice = ul.REASON_START_REFUSED
+        if (address, d.session) in self._named:
+            return                          # named once per sender and session
+        self._named.add((address, d.session))
+        self.events({'event': 'start_refused', 'session': d.session,
+                     'from': f'{address[0]}:{address[1]}', 'live_session': self.session,
+                     'state': ul.STATE_NAMES[self.state], 'count': self.refused_starts})
+        if not self.ticking:
+            self._send(ul.KIND_CONTROLLER_HEARTBEAT)    # the live PC hears it now
 
     # -- the loop ---------------------------------------------------------------------------
 
@@ -283,6 +367,10 @@ class ControllerEmulator:
             if (self.ticking and self.state == ul.STATE_RUNNING and self.last_pc is not None
                     and now - self.last_pc > self.watchdog_s):
                 self._safe(ul.REASON_PC_SILENT, silent_s=round(now - self.last_pc, 4))
+            if (not self.ticking and self.session and self.last_pc is not None
+                    and now - self.last_pc > self.watchdog_s):
+                # after its last sample (or a refused run) the PC is gone: the session ends
+                self._end(f'PC silent for {now - self.last_pc:.3f} s after the last sample')
             while self.ticking and now >= self.t0 + self.k * self.dt:
                 self._tick()
             if not self.ticking and now >= next_beat:

@@ -21,11 +21,28 @@ session. A receiver rejects a datagram of another length, magic, version or kind
 (:class:`SequenceFilter`): a duplicate or one older than the newest taken is dropped and
 counted, a gap is counted as lost.
 
+**Sessions** (:data:`SESSION_RULES`, the rig contract's table): a controller runs one session
+at a time and serves only the PC that started it. While a session is live it answers that
+PC's address alone and takes datagrams from it alone; a start flag of another session, from
+any address, is refused (:data:`REASON_START_REFUSED` in the reason of its datagrams to the
+live PC, and in its events); a new session starts only after an end: the PC's end flag, the
+safe state held :data:`SAFE_LINGER_S`, or the PC silent after the last sample. The PC takes
+datagrams from the configured controller address alone (``udp_bridge``).
+
+**Authenticated** (``message_auth: hmac``, a shared key per test): every datagram carries a
+trailer of :data:`~seft_msgs_py.provenance.MAC_BYTES` bytes, the HMAC-SHA256 of the datagram
+with the key (:func:`~seft_msgs_py.provenance.datagram_mac`); a datagram whose trailer does
+not verify is rejected as a bad one. The session and the sequence number are inside the MAC,
+so a datagram cannot be replayed into another session, nor out of order.
+
 Imports no rclpy.
 """
 
 from dataclasses import astuple, dataclass, fields
+import hmac
 import struct
+
+from seft_msgs_py.provenance import MAC_BYTES, datagram_mac
 
 __all__ = [
     'LAYOUT_VERSION', 'MAGIC', 'KIND_COMMAND', 'KIND_HEARTBEAT', 'KIND_MEASUREMENT',
@@ -33,9 +50,10 @@ __all__ = [
     'COMMAND_FORCE', 'STATE_IDLE', 'STATE_RUNNING', 'STATE_SAFE_RAMP', 'STATE_SAFE',
     'STATE_FINISHED', 'STATE_FAULT', 'STATE_NAMES', 'REASON_NONE', 'REASON_REQUESTED',
     'REASON_PC_SILENT', 'REASON_BAD_DATAGRAMS', 'REASON_LIMIT', 'REASON_DT_MISMATCH',
-    'REASON_NAMES', 'LATENCY_SLOTS', 'ToController', 'ToPC', 'TO_CONTROLLER_SIZE',
-    'TO_PC_SIZE', 'TO_CONTROLLER_FIELDS', 'TO_PC_FIELDS', 'DatagramError', 'encode',
-    'decode_to_controller', 'decode_to_pc', 'SequenceFilter', 'markdown_tables',
+    'REASON_START_REFUSED', 'REASON_NAMES', 'LATENCY_SLOTS', 'ToController', 'ToPC',
+    'TO_CONTROLLER_SIZE', 'TO_PC_SIZE', 'TO_CONTROLLER_FIELDS', 'TO_PC_FIELDS', 'DatagramError',
+    'encode', 'decode_to_controller', 'decode_to_pc', 'SequenceFilter', 'markdown_tables',
+    'SAFE_LINGER_S', 'SESSION_RULES', 'size_of',
 ]
 
 #: Version of the byte layout; a datagram of another version is rejected.
@@ -78,9 +96,18 @@ REASON_PC_SILENT = 2        # no datagram from the PC for its watchdog time
 REASON_BAD_DATAGRAMS = 3    # too many datagrams rejected
 REASON_LIMIT = 4            # its own stroke or force limit
 REASON_DT_MISMATCH = 5      # the PC's dt_ns is not its sample period
+#: Running: the controller refused a start flag of another session (another sender tried
+#: to take the rig); it says so in every datagram to the live PC until the run ends.
+REASON_START_REFUSED = 6
 REASON_NAMES = {REASON_NONE: 'none', REASON_REQUESTED: 'requested by the PC',
                 REASON_PC_SILENT: 'PC silent', REASON_BAD_DATAGRAMS: 'bad datagrams',
-                REASON_LIMIT: 'limit', REASON_DT_MISMATCH: 'dt mismatch'}
+                REASON_LIMIT: 'limit', REASON_DT_MISMATCH: 'dt mismatch',
+                REASON_START_REFUSED: 'start refused (another session is live)'}
+
+#: After its command reached zero a controller keeps sampling the safe state at least this
+#: long, waiting for the PC's end [s]; then it ends the session by itself (the PC may be
+#: gone) and a new session may start.
+SAFE_LINGER_S = 0.5
 
 #: How many (source sample, latency) pairs a datagram to the PC carries.
 LATENCY_SLOTS = 8
@@ -184,6 +211,33 @@ class ToPC:
     latency_s: tuple
 
 
+#: The session rules: (what happens, what the controller does), the rig contract's table.
+SESSION_RULES = (
+    ('a datagram with the start flag and a new session, no session live (idle, or after an '
+     'end)', "starts the run: sample 0 at once; from then on it answers that datagram's "
+     'source address alone and takes datagrams from it alone'),
+    ('a datagram from any other address while a session is live (another PC, a second '
+     'sender, a copy of the live session number)', 'drops it and never answers it; names the '
+     'address in its events (once) and counts it; the live run goes on'),
+    ('a start flag of another session while a session is live, from any address (the live '
+     "PC's included)", f'refuses it: no answer to its sender, the live run goes on; names it '
+     f'in its events and sets reason {REASON_START_REFUSED} '
+     f"'{REASON_NAMES[REASON_START_REFUSED]}' in every datagram to the live PC until the run "
+     'ends'),
+    ("the live PC's end flag", 'ends the session (idle: the next start may come from any '
+     'address)'),
+    (f"its safe state held {SAFE_LINGER_S:g} s (command at zero) without the PC's end",
+     'ends the session by itself (the PC may be gone)'),
+    ('after the last sample, the PC silent for watchdog_timeout_s',
+     'ends the session by itself'),
+    ('any datagram it sends', 'goes out from the address and port it listens on '
+     '(udp_controller_address): the PC takes datagrams from that address alone, and names '
+     'and counts any other (udp_foreign)'),
+    ('message_auth hmac: a datagram whose trailer is not the HMAC of its bytes with the '
+     "test's key", 'rejects it as a bad datagram (udp_max_bad_datagrams of them: its safe '
+     'state)'),
+)
+
 #: (name, struct code, unit, meaning) of each field of a datagram to the controller, in order.
 TO_CONTROLLER_FIELDS = (
     ('magic', '4s', '', "b'SEFT'"),
@@ -237,11 +291,18 @@ TO_PC_SIZE = _TO_PC.size
 
 
 class DatagramError(ValueError):
-    """A datagram of the wrong length, magic, version or kind (the message says which)."""
+    """A datagram of the wrong length, magic, version or kind, or whose HMAC does not verify
+    (the message says which)."""
 
 
-def encode(datagram: ToController | ToPC) -> bytes:
-    """The bytes of a datagram (layout version :data:`LAYOUT_VERSION`).
+def size_of(size: int, key: bytes | None) -> int:
+    """A datagram's length [bytes]: `size` and, authenticated (a `key`), the trailer."""
+    return size + (MAC_BYTES if key is not None else 0)
+
+
+def encode(datagram: ToController | ToPC, key: bytes | None = None) -> bytes:
+    """The bytes of a datagram (layout version :data:`LAYOUT_VERSION`); with the test's
+    `key`, followed by its HMAC trailer (module notes).
 
     Raises
     ------
@@ -250,14 +311,22 @@ def encode(datagram: ToController | ToPC) -> bytes:
     """
     values = astuple(datagram)
     if isinstance(datagram, ToController):
-        return _TO_CONTROLLER.pack(MAGIC, LAYOUT_VERSION, *values)
-    head, slots, latencies = values[:-2], values[-2], values[-1]
-    return _TO_PC.pack(MAGIC, LAYOUT_VERSION, *head, *slots, *latencies)
+        data = _TO_CONTROLLER.pack(MAGIC, LAYOUT_VERSION, *values)
+    else:
+        head, slots, latencies = values[:-2], values[-2], values[-1]
+        data = _TO_PC.pack(MAGIC, LAYOUT_VERSION, *head, *slots, *latencies)
+    return data if key is None else data + datagram_mac(key, data)
 
 
-def _check(data: bytes, size: int, kinds: tuple, what: str) -> None:
-    if len(data) != size:
-        raise DatagramError(f'{what}: {len(data)} bytes, expected {size}')
+def _check(data: bytes, size: int, kinds: tuple, what: str, key: bytes | None) -> bytes:
+    """The datagram without its trailer, checked (length, HMAC, magic, version, kind)."""
+    if len(data) != size_of(size, key):
+        raise DatagramError(f'{what}: {len(data)} bytes, expected {size_of(size, key)}'
+                            + (' (authenticated: with its HMAC trailer)' if key else ''))
+    if key is not None:
+        data, mac = data[:size], data[size:]
+        if not hmac.compare_digest(mac, datagram_mac(key, data)):
+            raise DatagramError(f'{what}: its HMAC does not verify (another key, or forged)')
     if data[:4] != MAGIC:
         raise DatagramError(f'{what}: magic {data[:4]!r}, expected {MAGIC!r}')
     if data[4] != LAYOUT_VERSION:
@@ -265,29 +334,32 @@ def _check(data: bytes, size: int, kinds: tuple, what: str) -> None:
     if data[5] not in kinds:
         raise DatagramError(f'{what}: kind {data[5]}, expected one of '
                             + ', '.join(str(k) for k in kinds))
+    return data
 
 
-def decode_to_controller(data: bytes) -> ToController:
-    """Read a datagram to the controller.
+def decode_to_controller(data: bytes, key: bytes | None = None) -> ToController:
+    """Read a datagram to the controller (with the test's `key`: authenticated).
 
     Raises
     ------
     DatagramError
-        Wrong length, magic, layout version or kind.
+        Wrong length, magic, layout version or kind, or an HMAC that does not verify.
     """
-    _check(data, TO_CONTROLLER_SIZE, (KIND_COMMAND, KIND_HEARTBEAT), 'datagram to the controller')
+    data = _check(data, TO_CONTROLLER_SIZE, (KIND_COMMAND, KIND_HEARTBEAT),
+                  'datagram to the controller', key)
     return ToController(*_TO_CONTROLLER.unpack(data)[2:])
 
 
-def decode_to_pc(data: bytes) -> ToPC:
-    """Read a datagram to the PC.
+def decode_to_pc(data: bytes, key: bytes | None = None) -> ToPC:
+    """Read a datagram to the PC (with the test's `key`: authenticated).
 
     Raises
     ------
     DatagramError
-        Wrong length, magic, layout version or kind.
+        Wrong length, magic, layout version or kind, or an HMAC that does not verify.
     """
-    _check(data, TO_PC_SIZE, (KIND_MEASUREMENT, KIND_CONTROLLER_HEARTBEAT), 'datagram to the PC')
+    data = _check(data, TO_PC_SIZE, (KIND_MEASUREMENT, KIND_CONTROLLER_HEARTBEAT),
+                  'datagram to the PC', key)
     v = _TO_PC.unpack(data)[2:]
     n = len(fields(ToPC)) - 2
     return ToPC(*v[:n], tuple(v[n:n + LATENCY_SLOTS]), tuple(v[n + LATENCY_SLOTS:]))
@@ -330,7 +402,8 @@ class SequenceFilter:
 
 
 def markdown_tables() -> str:
-    """The byte tables of both datagrams (offset, type, name, unit, meaning)."""
+    """The byte tables of both datagrams (offset, type, name, unit, meaning), the trailer of
+    an authenticated one, and the session rules."""
     out = []
     for title, spec, size in (('PC to controller', TO_CONTROLLER_FIELDS, TO_CONTROLLER_SIZE),
                               ('controller to PC', TO_PC_FIELDS, TO_PC_SIZE)):
@@ -343,5 +416,11 @@ def markdown_tables() -> str:
                      'q': 'int64', 'd': 'float64'}.get(code, f'{width} pad bytes')
             rows.append(f'| {offset} | {ctype} | `{name}` | {unit or "-"} | {meaning} |')
             offset += width
+        rows.append(f'| {offset} | uint8[{MAC_BYTES}] | `hmac` | - | message_auth hmac only: '
+                    'the first 16 bytes of HMAC-SHA256(key, bytes 0 .. '
+                    f'{offset - 1}) |')
         out.append('\n'.join(rows))
+    rules = ['**Sessions**', '', '| when | the controller |', '|---|---|']
+    rules += [f'| {when} | {does} |' for when, does in SESSION_RULES]
+    out.append('\n'.join(rules))
     return '\n\n'.join(out)

@@ -84,12 +84,12 @@ def test_contract_check():
     params = {n: 0 for n in rig_contract.REQUIRED_PARAMETERS}
     ok = rc.check_contract(_ready(), params, 'valve_command_V')
     assert ok.passed and ok.values['command_latency_s'] == 0.003
-    assert ok.measured == ('seft-rig/1.0, takes valve_command_V, command latency 3 ms, 14 of '
-                           '14 required parameters published')
-    bad = rc.check_contract(_ready(contract='seft-rig/2.0', command_latency_s='-1'),
+    assert ok.measured == ('seft-rig/2.0, takes valve_command_V, command latency 3 ms, 17 of '
+                           '17 required parameters published')
+    bad = rc.check_contract(_ready(contract='seft-rig/1.0', command_latency_s='-1'),
                             {k: v for k, v in params.items() if k != 'dt'}, 'reference_force_N')
     assert not bad.passed
-    assert bad.measured == ("contract 'seft-rig/2.0', expected seft-rig/1.0; command_kind "
+    assert bad.measured == ("contract 'seft-rig/1.0', expected seft-rig/2.0; command_kind "
                             "'valve_command_V', expected 'reference_force_N'; "
                             "command_latency_s '-1', expected seconds >= 0; parameters not "
                             'published: dt')
@@ -199,6 +199,50 @@ def test_measurement_check():
     r = rc.check_measurement(swapped, np.ones((50, 4)))
     assert not r.passed and r.measured.startswith("fields ['displacement_m', 'measured_force_N'")
     assert not rc.check_measurement(MEASUREMENT_FIELDS, np.ones((50, 3))).passed
+
+
+def test_measurement_without_the_runs_seal():
+    """A rig that does not seal its measurement (a rig of contract 1.0): the graph's nodes
+    drop every sample, and the check says why."""
+    values = np.ones((50, 4))
+    ok = rc.check_measurement(MEASUREMENT_FIELDS, values, seal='run token ab in the clear')
+    assert ok.passed and ok.measured.endswith('; every message sealed for the run')
+    r = rc.check_measurement(MEASUREMENT_FIELDS, values, unsealed=50, frame_id='actuator',
+                             seal='run token ab in the clear')
+    assert not r.passed and r.values['unsealed'] == 50
+    assert r.measured.endswith("; 50 of 50 messages without the run's seal (frame id "
+                               "'actuator'; run token ab in the clear): the graph's nodes "
+                               "drop them; a rig puts the run's seal in header.frame_id (rig "
+                               "contract: the run's seal)")
+
+
+def test_second_sender_check():
+    """The controller behind the UDP bridge refused the second sender (it heard nothing,
+    the rig reported the refusal, the run ended done), or it did not: each way named."""
+    trial = {'from': '127.0.0.1:40000', 'session': 7, 't_s': 1.625, 'sent': 10, 'heard': []}
+    done = {'state': 'done', 'published': '1000', 'controller_start_refused': '1'}
+    ok = rc.check_second_sender(trial, done, 1000)
+    assert ok.passed and ok.measured == (
+        'a start of session 7 from 127.0.0.1:40000 at t = 1.625 s (10 datagrams, then 0 V '
+        "commands): refused: no answer to it, reason 6 'start refused' in the live run's "
+        'datagrams, the run went on to its end (done, 1000 of 1000 samples)')
+    taken = dict(trial, heard=[(7, 'running')] * 3)
+    lost = {'state': 'aborted', 'published': '820', 'controller_start_refused': '0',
+            'message': 'udp_bridge: no datagram from the controller for 51.0 ms'}
+    bad = rc.check_second_sender(taken, lost, 1000)
+    assert not bad.passed and bad.values['own_session_heard'] == 3
+    assert bad.measured == (
+        'a start of session 7 from 127.0.0.1:40000 at t = 1.625 s (10 datagrams, then 0 V '
+        'commands): the controller took it: it answered the second sender 3 times with its '
+        'session (state running): a second PC takes the rig over; the controller did not '
+        "name the refusal in its datagrams to the live PC (reason 6 'start refused'; the "
+        "rig's final status controller_start_refused='0'); the run did not go on to its "
+        "end: 'aborted', 820 of 1000 samples (udp_bridge: no datagram from the controller "
+        'for 51.0 ms). A controller refuses a start while a session is live and answers the '
+        'live PC alone (rig contract: sessions)')
+    leak = rc.check_second_sender(dict(trial, heard=[(9, 'running')]), done, 1000)
+    assert not leak.passed and 'not with its session' in leak.measured
+    assert not rc.check_second_sender(None, done, 1000).passed
 
 
 def test_measurement_against_the_bags_record():
@@ -466,16 +510,18 @@ def test_final_status_and_bags():
               'abort': {'state': 'aborted', 'contract': c}}
     ok = rc.check_final_status(finals, 1000)
     assert ok.passed and ok.measured == ('2 runs ended with the expected report (step done, '
-                                         'abort aborted), contract seft-rig/1.0')
+                                         'abort aborted), contract seft-rig/2.0')
     bad = rc.check_final_status({**finals, 'abort': {'state': 'done', 'message': 'x',
-                                                     'contract': 'seft-rig/2.0'},
+                                                     'contract': 'seft-rig/1.0'},
                                  'watchdog': None}, 999)
     assert not bad.passed
     assert bad.measured == ("step: published 1000 samples, expected 999; abort: 'done' ('x'), "
-                            "expected 'aborted'; abort: contract 'seft-rig/2.0', expected "
-                            'seft-rig/1.0; watchdog: no final status')
+                            "expected 'aborted'; abort: contract 'seft-rig/1.0', expected "
+                            'seft-rig/2.0; watchdog: no final status')
     assert rc.check_bags_closed({'step': True, 'abort': True}).passed
     r = rc.check_bags_closed({'step': True, 'abort': False})
     assert not r.passed and r.measured == '1 of 2 bags closed (not: abort)'
     assert rc.format_line(r) == 'FAIL bag closed: 1 of 2 bags closed (not: abort)'
-    assert rc.CHECKS[0] == 'contract' and len(rc.CHECKS) == 21
+    assert rc.CHECKS[0] == 'contract' and len(rc.CHECKS) == 22
+    assert rc.checks_for(udp_bridge=False) == tuple(c for c in rc.CHECKS
+                                                    if c != 'second sender')

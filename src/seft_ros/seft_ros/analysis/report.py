@@ -516,6 +516,12 @@ def _mismatch_lines(run: RunData) -> list[str]:
             'experiment):'] + [f'  - {line}' for line in mismatches]
 
 
+def _warning_lines(run: RunData) -> list[str]:
+    """A marked line per warning the run's nodes and runner reported (a specimen not the
+    declared one, a foreign publisher on the run's topics), each once, in order."""
+    return [f'- **warning**: {w}' for w in dict.fromkeys(run.extra.get('warnings') or ())]
+
+
 def _run_markdown(index: int, run: RunData, comparison: RunComparison) -> list[str]:
     params = run.params
     record = run.record_name or params.get('record', '')
@@ -542,6 +548,7 @@ def _run_markdown(index: int, run: RunData, comparison: RunComparison) -> list[s
         at = _abort_time(run)
         where = f' at t = {at:.3f} s' if at is not None else ''
         lines.append(f'- **aborted{where}**: {run.abort_reason or "no reason recorded"}')
+    lines += _warning_lines(run)
     recording = run.extra.get('recording') or {}
     if recording.get('end') in ('crashed', 'stopped'):
         lines.append(f'- **recording {recording["end"]}**: {recording.get("note")}')

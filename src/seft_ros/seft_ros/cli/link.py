@@ -226,7 +226,8 @@ class LinkPhase:
         -------
         dict
             The decision: ``network_delay_s``, ``preview_steps``, ``offsets_ns`` (host ->
-            its clock minus the reference's), ``links`` and ``playout``.
+            its clock minus the reference's), ``links``, ``playout`` and ``run_token`` (the
+            reference's, which every host's nodes take: ``seft_msgs_py.provenance``).
 
         Raises
         ------
@@ -280,7 +281,7 @@ class LinkPhase:
         everyone = dict(hosts, **{self.site: list(local)})
         decision = decide(params, everyone, links, self.site)
         decision.update(label=label, reference=self.site, links=links,
-                        emulation=self.emulation,
+                        emulation=self.emulation, run_token=params.get('run_token', 'none'),
                         offsets_ns={p: int(round(1e6 * links[p]['offset_ms'])) for p in peers})
         self._send(self.decision_pub, **decision)
         self.decision = decision

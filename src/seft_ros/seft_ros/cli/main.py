@@ -14,7 +14,7 @@ import time
 
 from seft_msgs_py import parameters
 from seft_msgs_py.errors import InputError, SeftError
-from seft_plant_sim.faults import FAULTS, SENSOR_FAULTS
+from seft_plant_sim.faults import CONTROLLER_FAULTS, FAULTS, SENSOR_FAULTS
 from seft_ros.cli import api, partition
 from seft_ros.cli.live import options_from_args
 from seft_ros.cli.spawn import node_start
@@ -232,9 +232,11 @@ def build_parser() -> argparse.ArgumentParser:
                      'voltage')
     emu.add_argument('--runs', type=int, metavar='N', help='serve N runs, then exit (default: '
                      'until Ctrl-C)')
-    emu.add_argument('--inject', metavar='FAULT', choices=SENSOR_FAULTS, help='send the '
-                     "measurement with one wiring fault (a lab controller's): "
-                     + ', '.join(SENSOR_FAULTS))
+    emu.add_argument('--inject', metavar='FAULT', choices=SENSOR_FAULTS + tuple(
+        CONTROLLER_FAULTS), help='send the measurement with one wiring fault (a lab '
+        "controller's): " + ', '.join(SENSOR_FAULTS) + '; or break the session rules: '
+        + ', '.join(CONTROLLER_FAULTS) + ' (a test fault: seft rig-check fails its second '
+        'sender check)')
     emu.add_argument('--params', dest='params_files', action='append', default=[],
                      metavar='FILE', help='parameter file layered over CONFIG')
     emu.add_argument('--set', dest='sets', type=_set_value, action='append', default=[],
@@ -371,7 +373,10 @@ def _emulate(args) -> int:
     params = _one_rig(args, 'emulate-controller')
     if args.runs is not None and args.runs < 1:
         raise InputError(f'--runs {args.runs}: expected a number of runs >= 1')
-    emulator = ControllerEmulator(params, fault=FAULTS[args.inject] if args.inject else None)
+    controller_fault = args.inject if args.inject in CONTROLLER_FAULTS else None
+    emulator = ControllerEmulator(
+        params, fault=FAULTS[args.inject] if args.inject and not controller_fault else None,
+        controller_fault=controller_fault)
     host, port = emulator.address
     _progress(f"emulating the lab's controller at {host}:{port}: {params['rig_model']} rig, "
               f"dt {1e3 * params['dt']:g} ms, watchdog {1e3 * params['watchdog_timeout_s']:g} "

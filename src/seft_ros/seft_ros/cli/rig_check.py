@@ -10,7 +10,10 @@ bags back and hands the arrays to the checks.
 The runs (:data:`RUNS`), each a graph of its own, bounded in time and force:
 
 ``step``
-    at rest, then the static reference force ``amplitude_N``, then at rest again;
+    at rest, then the static reference force ``amplitude_N``, then at rest again; a rig
+    behind the UDP bridge meets a second sender at rest after the force (:class:`_SecondSender`:
+    a start flag of its own session and 0 V commands to the lab's controller, which must
+    refuse them);
 ``abort``, ``stopped_controller``, ``watchdog``
     a sine of ``amplitude_N``; one cycle and 45 degrees into it, ``seft rig-check`` publishes
     an abort on /seft/status, stops the node that commands the rig with SIGTERM (it reports
@@ -196,10 +199,107 @@ def structure_rigs(params: Mapping, rig_name: str | None = None) -> list[tuple[s
     return out
 
 
+class _SecondSender:
+    """A second sender on the checker's host: a start flag of a session of its own to the
+    lab's controller, then 0 V commands every period (harmless if a controller took them: a
+    closed valve, no force), :data:`SENDS` datagrams in all from a thread; what the
+    controller sends it back is kept (``second sender`` check).
+
+    Parameters
+    ----------
+    params : mapping
+        The run's parameters (``udp_controller_address``, ``dt``, the command kind, the
+        key of ``message_auth: hmac``).
+
+    Raises
+    ------
+    ParameterError
+        A bad controller address or key file (the rig node refuses them too).
+    """
+
+    SENDS = 10
+
+    def __init__(self, params: Mapping):
+        import random
+        import socket
+
+        from seft_msgs_py.provenance import key_of
+        from seft_plant_sim import udp_layout as ul
+        from seft_plant_sim.udp_bridge import resolve_address
+        self.ul = ul
+        self.to = resolve_address(params['udp_controller_address'])
+        self.key = key_of(params)
+        self.dt = float(params['dt'])
+        self.dt_ns = int(round(self.dt * 1e9))
+        self.wire_kind = (ul.COMMAND_VALVE if rig_contract.command_kind(params)
+                          == rig_contract.COMMAND_KINDS[0] else ul.COMMAND_FORCE)
+        self.session = random.SystemRandom().randrange(1, 2 ** 32)
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.connect(self.to)           # its own address, on the route to the controller
+        self.sock.setblocking(False)
+        host, port = self.sock.getsockname()[:2]
+        self.address = f'{host}:{port}'
+        self.sent, self.sequence = 0, 0
+        self.t_s: float | None = None
+        self.thread = None
+
+    def _send(self, kind: int, flags: int, value: float = 0.0, sample: int = -1) -> None:
+        self.sequence += 1
+        data = self.ul.encode(self.ul.ToController(
+            kind, flags, self.session, self.sequence, sample, sample, value, self.dt_ns,
+            1000, self.wire_kind), self.key)
+        try:
+            self.sock.send(data)
+            self.sent += 1
+        except OSError:
+            pass
+
+    def fire(self, t_s: float) -> None:
+        """Send the start, then the 0 V commands every period, from a thread (`t_s`: the
+        step run's time now [s])."""
+        import threading
+        self.t_s = t_s
+
+        def run():
+            self._send(self.ul.KIND_HEARTBEAT, self.ul.FLAG_START)
+            for j in range(self.SENDS - 1):
+                time.sleep(self.dt)
+                self._send(self.ul.KIND_COMMAND, self.ul.FLAG_START, 0.0, j)
+        self.thread = threading.Thread(target=run, name='second_sender', daemon=True)
+        self.thread.start()
+
+    def result(self) -> dict | None:
+        """What it sent and heard (``check_second_sender``'s `trial`), None if it never
+        sent; ends its own session if the controller took it, and closes."""
+        if self.thread is not None:
+            self.thread.join(timeout=2)
+        heard = []
+        while True:
+            try:
+                data = self.sock.recv(4096)
+            except OSError:
+                break
+            try:
+                d = self.ul.decode_to_pc(data, self.key)
+            except self.ul.DatagramError:
+                heard.append((-1, 'unreadable'))
+                continue
+            heard.append((d.session, self.ul.STATE_NAMES.get(d.state, str(d.state))))
+        sent = self.sent
+        if any(session == self.session for session, _ in heard):
+            for _ in range(3):
+                self._send(self.ul.KIND_HEARTBEAT, self.ul.FLAG_END)
+        self.sock.close()
+        if self.t_s is None:
+            return None
+        return {'from': self.address, 'session': self.session, 't_s': self.t_s,
+                'sent': sent, 'heard': heard}
+
+
 class _Tap:
     """The checker's own ears on the graph: every measurement of the rig (when the rig sent
-    it, stamp, fields), /clock, the rig's status; and the fault, fired from the measurement
-    callback when the fault's sample arrives."""
+    it, stamp, fields, whether it carries the run's seal), /clock, the rig's status; and the
+    fault, fired from the measurement callback when the fault's sample arrives."""
 
     def __init__(self, runner, graph: Graph):
         from rclpy.serialization import deserialize_message
@@ -208,6 +308,7 @@ class _Tap:
         self.runner = runner
         self.rig = graph.rigs[0]
         self.rig_node = graph.rig_nodes()[0]
+        self.topic = graph.measurement(graph.rigs[0]).name
         self._deserialize = deserialize_message
         self._msg_type = MEASUREMENT.msg_type
         self.dt_ns = 1
@@ -233,6 +334,10 @@ class _Tap:
         self.since_ns = clock.system_ns()
         #: Messages of an earlier run taken during this one (dropped).
         self.stale = 0
+        #: The run's seal (from the runner's parameters of the run, at the first sample),
+        #: the messages without it and the first one's frame id.
+        self.seal = None
+        self.unsealed, self.unsealed_frame = 0, ''
 
     def _earlier(self, info: dict) -> bool:
         """Whether a message was sent before this run began (by the rig of an earlier run or
@@ -256,6 +361,12 @@ class _Tap:
         self.arrivals.append(info['source_timestamp'] * 1e-9)
         self.received.append(info['received_timestamp'] * 1e-9)
         self.handled.append(clock.system_ns() * 1e-9)
+        if self.seal is None:
+            from seft_msgs_py.provenance import RunSeal
+            self.seal = RunSeal.from_parameters(getattr(self.runner, 'run_params', {}))
+        if not self.seal.frame_ok(msg.header.frame_id, self.topic, stamp, tuple(msg.position)):
+            self.unsealed += 1
+            self.unsealed_frame = self.unsealed_frame or msg.header.frame_id
         names = tuple(msg.name)
         if self.names is None:
             self.names = names
@@ -264,7 +375,7 @@ class _Tap:
         self.values.append(list(msg.position))
         if self.fault is not None and self.fault_ns is None and k >= self.fault_step:
             self.fault_ns = clock.now_ns()
-            self.fault()
+            self.fault(k * self.dt_ns * 1e-9)
 
     def _on_clock(self, raw: bytes, info: dict) -> None:
         if self._earlier(info):
@@ -303,6 +414,12 @@ class _Run:
     error: str | None = None
     #: The rig's namespace ('' for the study's single rig).
     rig: str = ''
+    #: Live measurements without the run's seal, the first one's frame id, the seal in words.
+    unsealed: int = 0
+    unsealed_frame: str = ''
+    seal_text: str = ''
+    #: The second sender's trial (``check_second_sender``; a UDP bridge's step run).
+    second_sender: dict | None = None
 
     @property
     def rig_node(self) -> str:
@@ -435,11 +552,11 @@ def _above_the_graph(base: int, progress: Callable[[str], None]) -> None:
 
 def _fault_of(name: str, runner, command_node: str, tap: _Tap) -> Callable[[], None]:
     """The fault of a run (module notes)."""
-    def abort():
+    def abort(t_s):
         runner._publish_abort('seft rig-check: abort (the safe-state check)')
 
     def signal_node(sig):
-        def send():
+        def send(t_s):
             proc = runner.procs.get(command_node)
             if proc is not None and proc.poll() is None:
                 if sig == signal.SIGSTOP:
@@ -471,6 +588,9 @@ def _disturbed(run: '_Run', profile: rc.CheckProfile) -> str | None:
     late = run.fault_late_s(profile)
     if late is not None and late > LATE_FAULT_S:
         return f'the checker heard the rig {late:.2f} s late: the fault came late'
+    trial = run.second_sender or {}
+    if any(session == trial.get('session') for session, _ in trial.get('heard', ())):
+        return None         # the controller took the second sender: its fault, not a stall
     final = run.final() or {}
     published = int(final.get('published', 0) or 0)
     if run.name == 'step' and published and run.steps.size < published // 2:
@@ -504,7 +624,11 @@ def _one_run(name: str, run_dir: Path, *, params: Mapping, profile: rc.CheckProf
                                 float(params['mass_kg']))
     p = check_parameters(params, profile, record, len(reference))
     run = _Run(name, p, rig=tap.rig)
-    tap.reset(int(round(profile.dt * 1e9)), fault, profile.fault_step)
+    sender, fault_step = None, profile.fault_step
+    if name == 'step' and p.get('rig_interface') == 'udp_bridge':
+        sender = _SecondSender(p)
+        fault, fault_step = sender.fire, profile.second_sender_step
+    tap.reset(int(round(profile.dt * 1e9)), fault, fault_step)
     progress(f'[{name}] {len(reference)} samples of {1e3 * profile.dt:g} ms, amplitude '
              f'{profile.amplitude_N:g} N')
     try:
@@ -520,6 +644,10 @@ def _one_run(name: str, run_dir: Path, *, params: Mapping, profile: rc.CheckProf
                   else np.zeros((0, len(MEASUREMENT_FIELDS))))
     run.fault_ns = tap.fault_ns
     run.clock_ns = list(tap.clock_ns)
+    run.unsealed, run.unsealed_frame = tap.unsealed, tap.unsealed_frame
+    run.seal_text = tap.seal.describe() if tap.seal is not None else ''
+    if sender is not None:
+        run.second_sender = sender.result()
     # what the checker heard (steps, stamps [ns], when the rig sent each, when the checker's
     # middleware received it and when the checker took it [s, system clock], values; the
     # fault's system time [ns], -1 if none; how many messages of an earlier run it dropped)
@@ -724,7 +852,10 @@ def _step_checks(step: _Run, *, params: Mapping, profile: rc.CheckProfile, comma
     live_rows = np.full((step.steps.size, len(MEASUREMENT_FIELDS)), np.nan)
     inside = (step.steps >= 0) & (step.steps < n)
     live_rows[inside] = record[step.steps[inside]]
-    out['measurement'] = rc.check_measurement(step.names, step.values, live_rows)
+    out['measurement'] = rc.check_measurement(step.names, step.values, live_rows,
+                                              unsealed=step.unsealed,
+                                              frame_id=step.unsealed_frame,
+                                              seal=step.seal_text)
     fields = step.fields(n, record)
     why = _cut_short(step, n, profile.hold.stop, command_kind)
     if fields is None or why is not None:
@@ -755,8 +886,9 @@ def _step_checks(step: _Run, *, params: Mapping, profile: rc.CheckProfile, comma
 
 def evaluate(runs: Mapping[str, _Run], *, params: Mapping, profile: rc.CheckProfile,
              command_kind: str) -> list:
-    """The results of every check (:data:`~seft_ros.core.rig_check.CHECKS` order) from the
-    runs done; a check whose run failed or was not run is a failure that says why.
+    """The results of every check of the rig (:func:`~seft_ros.core.rig_check.checks_for`,
+    in order) from the runs done; a check whose run failed or was not run is a failure that
+    says why.
 
     The signals are judged on the live measurement the graph used (the checker's own
     subscription), completed from the bag where the checker missed a sample."""
@@ -809,11 +941,17 @@ def evaluate(runs: Mapping[str, _Run], *, params: Mapping, profile: rc.CheckProf
             fault_ns=run.fault_ns, t0_ns=run.t0_ns(), params=run.params, latency_s=lat,
             amplitude_N=profile.amplitude_N,
             reason_prefix=rig_contract.WATCHDOG_REASON if run_name == 'watchdog' else '')
+    udp = params.get('rig_interface') == 'udp_bridge'
+    if udp and step is None:
+        out[rc.SECOND_SENDER] = rc.not_run(rc.SECOND_SENDER, 'the step run was not run')
+    elif udp:
+        out[rc.SECOND_SENDER] = rc.check_second_sender(
+            step.second_sender, step.final(), int(step.params['n_steps']))
     out['final status'] = rc.check_final_status(
         {n: r.final() for n, r in runs.items()},
         int(step.params['n_steps']) if step is not None else 0)
     out['bag closed'] = rc.check_bags_closed({n: r.bag_closed for n, r in runs.items()})
-    return [out[name] for name in rc.CHECKS]
+    return [out[name] for name in rc.checks_for(udp)]
 
 
 def main_lines(report: RigCheckReport, rig: str = '') -> list[str]:

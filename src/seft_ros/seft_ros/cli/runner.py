@@ -14,6 +14,15 @@ Several hosts: a runner may start only some of the nodes (``nodes``); the others
 by the runner of another host, in the same ROS domain. The runner waits until every node of
 the graph, local or remote, has reported ready, and ends when the bag is closed or, where the
 recorder runs elsewhere, when the run is over and its own nodes have exited.
+
+Only the run commands its rig (issue 42): each run gets a new run token
+(:mod:`seft_msgs_py.provenance`, the nodes seal their messages with it), and every
+``AUDIT_EVERY_S`` while the run goes the runner checks the publishers of every topic of
+the run against the graph it started (:meth:`~seft_msgs_py.graph.Graph.foreign_publishers`;
+publishers that were there before it started its nodes, a previous run's not yet forgotten,
+are not the run's either way and are left out): a foreign publisher on a topic that commands
+the rig ends the run (an abort on ``/seft/status`` that names it and the topic), on any other
+topic it is a named warning, once each.
 """
 
 from dataclasses import dataclass
@@ -45,7 +54,10 @@ from seft_msgs_py.convert import (
 )
 from seft_msgs_py.dds import use_seft_profile
 from seft_msgs_py.errors import SeftError
-from seft_msgs_py.graph import Graph, split_qualified
+from seft_msgs_py.graph import UNKNOWN_NODE, Graph, split_qualified
+from seft_msgs_py.provenance import new_run_token
+from seft_msgs_py.rig_contract import FOREIGN_REASON
+from seft_msgs_py.signals import CLOCK, RUN_PARAMETERS
 from seft_msgs_py.topics import NODE_PARAMETERS, STATUS, TOPICS
 from seft_ros.cli.config import write_params_file
 from seft_ros.cli.partition import PROCESSES
@@ -91,6 +103,9 @@ RUNNER_NAME = 'seft_runner'
 
 #: Longest time without any progress report before the run is declared stalled [s].
 STALL_TIMEOUT_S = 30.0
+#: How often the runner checks the publishers of the run's topics against its graph [s]
+#: (``benchmarks/provenance_cost.py`` measures what a check costs).
+AUDIT_EVERY_S = 0.25
 #: How long the runner listens before it says what already runs in its domain [s]. A node
 #: that has made its start-up announcements is discovered at its next periodic one (Fast
 #: DDS: every 3 s): measured on this machine, a node started 2 s earlier took a new runner
@@ -234,6 +249,13 @@ class GraphRunner:
         self._bag_path: Path | None = None    # the bag of the run in progress
         #: The graph of the run in progress (:meth:`run`).
         self.graph = Graph(('',), {'': 'servohydraulic'})
+        #: The parameters of the run in progress as its nodes get them (its run token).
+        self.run_params: dict = {}
+        #: The run's topics the audit checks: topic -> whether it commands the rig; the
+        #: publishers there before the run's nodes started (gids); the foreign ones named.
+        self.audited: dict[str, bool] = {}
+        self.earlier: set[bytes] = set()
+        self.named: set[tuple[str, str]] = set()
         #: The link measurement of a split run (:mod:`seft_ros.cli.link`), made on demand.
         self.link = None
         self.node.create_subscription(STATUS.msg_type, STATUS.name, self._on_status, STATUS.qos)
@@ -347,7 +369,10 @@ class GraphRunner:
         log_dir.mkdir(parents=True, exist_ok=True)
         bag_path = run_dir / 'bag'
         self._bag_path = bag_path
-        params = dict(params, bag_path=str(bag_path.resolve()), wait_for_recorder=True)
+        # a new run token for every run (seft_msgs_py.provenance): what an earlier run or
+        # another test sent is not this run's; over several hosts the reference's, agreed
+        params = dict(params, bag_path=str(bag_path.resolve()), wait_for_recorder=True,
+                      run_token=new_run_token())
         self.graph = Graph.from_parameters(params)
         graph = ['recorder', *self.graph.nodes()]
         local = [n for n in graph if nodes is None or n in nodes]
@@ -359,8 +384,10 @@ class GraphRunner:
             # and run this host's nodes in the reference host's clock (cli/link.py)
             decision = self._agree(params, run_dir.name, local, label)
             params = dict(params, network_delay_s=decision['network_delay_s'],
-                          preview_steps=decision['preview_steps'])
+                          preview_steps=decision['preview_steps'],
+                          run_token=decision.get('run_token', params['run_token']))
             env[OFFSET_ENV] = str(self.link.offset_ns())
+        self.run_params = params
         params_file = write_params_file(params, run_dir / 'params.yaml')
         rig_files = rig_params_files(params, run_dir)
         # what other graphs of this domain published while this runner was idle (another
@@ -368,6 +395,9 @@ class GraphRunner:
         self._spin(0.1)
         self.statuses.clear()
         self.node_params.clear()
+        self.audited = self._audited_topics()
+        self.earlier = {g for _, _, g in self._publishers(self.audited)}
+        self.named = set()
         self.run_nodes = set(local) | set(remote)
         # a new status publisher per run: the reports are latched (transient local), and the
         # nodes of this run must not receive the previous run's (an abort the runner sent
@@ -637,13 +667,60 @@ class GraphRunner:
                               f'ROS_DOMAIN_ID={self.domain_id})')
             self._spin(0.05)
 
+    def _audited_topics(self) -> dict[str, bool]:
+        """The run's topics the audit checks (topic -> it commands the rig): every data and
+        record topic of the graph, ``/clock``, the status and parameter topics."""
+        commands = set(self.graph.command_topics())
+        topics = commands | {r.name for r in self.graph.record_streams()} | {
+            CLOCK.name, STATUS.name, NODE_PARAMETERS.name, RUN_PARAMETERS.name}
+        return {t: t in commands for t in sorted(topics)}
+
+    def _publishers(self, topics):
+        """``(topic, (node, namespace, gid), gid)`` of every publisher of `topics` this
+        runner knows of (gid as bytes)."""
+        for topic in topics:
+            for i in self.node.get_publishers_info_by_topic(topic):
+                gid = bytes(i.endpoint_gid)
+                yield topic, (i.node_name, i.node_namespace, gid), gid
+
+    def audit(self) -> list[str]:
+        """Check the publishers of the run's topics against the graph (module notes); an
+        abort or a warning for each foreign publisher not named before. Returns the lines
+        said."""
+        found: dict[str, list] = {}
+        for topic, endpoint, gid in self._publishers(self.audited):
+            if gid not in self.earlier:
+                found.setdefault(topic, []).append(endpoint)
+        lines = []
+        for topic, endpoints in found.items():
+            if any(node == UNKNOWN_NODE for node, _, _ in endpoints):
+                continue            # a node that has not announced its name: the next check
+            who = [w for w in self.graph.foreign_publishers(topic, endpoints)
+                   if (topic, w) not in self.named]
+            if not who:
+                continue
+            self.named.update((topic, w) for w in who)
+            line = (f'{FOREIGN_REASON}{topic}: {", ".join(who)}: not a node of this run (the '
+                    "runner's check of the graph it started)")
+            if self.audited[topic]:
+                self._publish_abort(line, foreign_topic=topic)
+            else:
+                self.status_pub.publish(status_msg(RUNNER_NAME, STATE_RUNNING, line,
+                                                   warning=line, foreign_topic=topic))
+            lines.append(line)
+        return lines
+
     def _watch(self, procs, log_dir, label, recorded_here: bool) -> dict:
         last_progress = time.monotonic()
         last_print = 0.0
         seen = 0
         t0 = time.monotonic()
+        audited_at = 0.0
         while True:
             self._spin(0.1)
+            if time.monotonic() - audited_at > AUDIT_EVERY_S:
+                audited_at = time.monotonic()
+                self.audit()
             if self.link is not None:
                 self.link.tick()
             self._check_parameters()

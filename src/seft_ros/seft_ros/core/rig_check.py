@@ -19,8 +19,9 @@ The checks (:data:`CHECKS`, in the order they are reported):
     it was sent at its stamp's instant on the rig's clock, ``t0 + k dt`` (the median within
     :data:`STAMP_OFFSET_STEPS` periods): stamps ahead of or behind the samples are caught;
 ``measurement``
-    every field of the contract, in its order, every value finite, and the bag's record of
-    the samples equals the live measurement the graph used;
+    every field of the contract, in its order, every value finite, every message sealed for
+    the run (its frame id), and the bag's record of the samples equals the live measurement
+    the graph used;
 ``force sign``, ``force scale``
     a static reference force gives a measured force of the same sign, with a gain within
     :data:`GAIN_RANGE` (a load cell in kN reads 0.001);
@@ -54,6 +55,12 @@ The checks (:data:`CHECKS`, in the order they are reported):
     the rig enters its safe state within :func:`~seft_msgs_py.rig_contract.reaction_limit_s`
     of an abort report, of the command node reporting itself stopped, and of the command node
     going silent, and is at rest after the ramp (:func:`check_safe_state`);
+``second sender`` (a rig behind the UDP bridge)
+    during the step run, at rest after the static force, a second sender on the checker's
+    host sends the lab's controller a start flag of a session of its own and a few 0 V
+    commands: the controller answers it nothing, names the refusal in the reason of its
+    datagrams to the live PC, and the run goes on to its end (:func:`check_second_sender`;
+    the rig contract's session rules);
 ``final status``
     every run ends with the rig's final report (done after the run's samples, or aborted
     with its reason), which names a compatible contract;
@@ -80,7 +87,8 @@ __all__ = [
     'REST_FORCE_FRACTION', 'REST_VELOCITY_FRACTION', 'check_contract', 'sample_period',
     'check_clock', 'check_stamps', 'check_measurement', 'check_signals', 'check_stuck',
     'check_noise', 'check_command_timing', 'check_safe_state', 'check_final_status',
-    'check_bags_closed', 'first_departure', 'not_run', 'format_line',
+    'check_bags_closed', 'first_departure', 'not_run', 'format_line', 'SECOND_SENDER',
+    'check_second_sender', 'checks_for',
 ]
 
 #: The faults of the safe-state runs: run name -> check name.
@@ -92,9 +100,17 @@ QUANTITIES = ('force', 'displacement', 'velocity', 'acceleration')
 #: The sign and scale check of each quantity.
 SIGNAL_CHECKS = tuple(f'{q} {what}' for q in QUANTITIES for what in ('sign', 'scale'))
 #: Every check, in report order.
+#: The check of the controller's session rules (a rig behind the UDP bridge only).
+SECOND_SENDER = 'second sender'
 CHECKS = ('contract', 'clock', 'stamps', 'measurement', *SIGNAL_CHECKS, 'swapped fields',
           'stuck sensor', 'sensor noise', 'command timing', *FAULT_RUNS.values(),
-          'final status', 'bag closed')
+          SECOND_SENDER, 'final status', 'bag closed')
+
+
+def checks_for(udp_bridge: bool) -> tuple[str, ...]:
+    """The checks of a rig, in report order: :data:`CHECKS`, the ``second sender`` only for
+    a rig behind the UDP bridge (`udp_bridge`)."""
+    return CHECKS if udp_bridge else tuple(c for c in CHECKS if c != SECOND_SENDER)
 #: Largest relative error of the measured sample period (a straight-line fit of the arrival
 #: times) [-]: a rig clock 2 % slow fails.
 PERIOD_TOLERANCE = 0.02
@@ -280,6 +296,13 @@ class CheckProfile:
         end = self.onset_step + self._steps(self.hold_s)
         r = self._steps(self.release_s)
         return self.quiet, slice(end + r // 2, end + r)
+
+    @property
+    def second_sender_step(self) -> int:
+        """The step run's sample after which a second sender tries the lab's controller (a
+        rig behind the UDP bridge): a quarter into the release, at rest, three quarters of
+        the release before the run's end [-]."""
+        return self.onset_step + self._steps(self.hold_s) + self._steps(self.release_s) // 4
 
     @property
     def fault_step(self) -> int:
@@ -491,9 +514,10 @@ def check_stamps(stamps_ns: Sequence[int], sent_s: Sequence[float], dt: float, *
 
 
 def check_measurement(names: Sequence[str], values: np.ndarray,
-                      record: np.ndarray | None = None) -> CheckResult:
-    """The measurement has every field of the contract, in order, every value finite, and
-    the bag's record of each sample equals it.
+                      record: np.ndarray | None = None, *, unsealed: int = 0,
+                      frame_id: str = '', seal: str = '') -> CheckResult:
+    """The measurement has every field of the contract, in order, every value finite,
+    every message sealed for the run, and the bag's record of each sample equals it.
 
     Parameters
     ----------
@@ -505,12 +529,19 @@ def check_measurement(names: Sequence[str], values: np.ndarray,
     record : ndarray, shape (n, 4), optional
         The bag's sensor rows of the same samples, row for row (NaN where the bag lacks
         one), in the order of :data:`~seft_msgs_py.signals.MEASUREMENT_FIELDS`.
+    unsealed : int
+        Messages whose frame id was not the run's seal of them
+        (:class:`~seft_msgs_py.provenance.RunSeal`; the graph's nodes drop them).
+    frame_id : str
+        The first such message's frame id.
+    seal : str
+        What seals the run, in words (``RunSeal.describe``).
 
     Returns
     -------
     CheckResult
         ``values``: ``not_finite``, ``samples``, ``record_differs`` (samples whose record
-        differs from the live value by more than 1e-9 of it).
+        differs from the live value by more than 1e-9 of it), ``unsealed``.
     """
     values = np.asarray(values, dtype=float)
     if tuple(names) != MEASUREMENT_FIELDS:
@@ -532,9 +563,15 @@ def check_measurement(names: Sequence[str], values: np.ndarray,
         text += (f"; the bag's record differs in {differs} of {int(both.sum())} samples"
                  + (' (the record stream must carry the samples the rig published)'
                     if differs else ''))
-    return CheckResult('measurement', bad == 0 and differs == 0, text,
+    if unsealed:
+        text += (f"; {unsealed} of {values.shape[0]} messages without the run's seal (frame "
+                 f"id {frame_id!r}; {seal}): the graph's nodes drop them; a rig puts the "
+                 "run's seal in header.frame_id (rig contract: the run's seal)")
+    elif seal:
+        text += '; every message sealed for the run'
+    return CheckResult('measurement', bad == 0 and differs == 0 and not unsealed, text,
                        {'not_finite': bad, 'samples': int(values.shape[0]),
-                        'record_differs': differs})
+                        'record_differs': differs, 'unsealed': int(unsealed)})
 
 
 # -- the signals: sign and scale of each quantity ------------------------------------------------
@@ -1066,6 +1103,70 @@ def check_safe_state(name: str, *, final: Mapping | None, command_kind: str,
         + (f' (expected {reason_prefix!r} ...)' if not reason.startswith(reason_prefix)
            else ''),
         {'reaction_s': reaction, 'rest_value': rest, 'rest_limit': bound})
+
+
+def check_second_sender(trial: Mapping | None, final: Mapping | None, expected_steps: int
+                        ) -> CheckResult:
+    """The controller behind the UDP bridge refused a second sender's start during the step
+    run (the rig contract's session rules).
+
+    Parameters
+    ----------
+    trial : mapping or None
+        What the second sender did and heard: ``from`` ('host:port'), ``session``, ``t_s``
+        (the step run's time it sent its start [s]), ``sent`` (datagrams sent), ``heard`` (a
+        list of ``(session, state name)`` of each datagram it received from the controller);
+        None: it never sent (the step run did not reach it).
+    final : mapping or None
+        The rig's final status of the step run (``state``, ``published``,
+        ``controller_start_refused``).
+    expected_steps : int
+        The step run's samples.
+
+    Returns
+    -------
+    CheckResult
+        Passed when the second sender heard nothing, the rig reported the controller's
+        refusal (``controller_start_refused`` 1: reason 6 in its datagrams) and the run ended
+        done with every sample. ``values``: ``heard``, ``own_session_heard``,
+        ``live_session_heard``, ``refused``.
+    """
+    name = SECOND_SENDER
+    if trial is None:
+        return not_run(name, 'the step run ended before the second sender sent its start')
+    final = final or {}
+    heard = list(trial.get('heard', ()))
+    who = (f"a start of session {trial['session']} from {trial['from']} at t = "
+           f"{float(trial['t_s']):.3f} s ({trial['sent']} datagrams, then 0 V commands)")
+    own = sum(1 for sess, _ in heard if sess == trial['session'])
+    states = sorted({state for _, state in heard})
+    refused = str(final.get('controller_start_refused', '0')) == '1'
+    values = {'heard': len(heard), 'own_session_heard': own,
+              'live_session_heard': len(heard) - own, 'refused': refused}
+    problems = []
+    if own:
+        problems.append(f'the controller took it: it answered the second sender {own} times '
+                        f'with its session (state {", ".join(states)}): a second PC takes the '
+                        'rig over')
+    elif heard:
+        problems.append(f'the controller answered the second sender {len(heard)} times (not '
+                        f'with its session; state {", ".join(states)}): it sends to an address '
+                        'that is not the live PC')
+    if not refused:
+        problems.append("the controller did not name the refusal in its datagrams to the live "
+                        "PC (reason 6 'start refused'; the rig's final status "
+                        f"controller_start_refused={final.get('controller_start_refused')!r})")
+    if final.get('state') != 'done' or str(final.get('published')) != str(expected_steps):
+        problems.append(f"the run did not go on to its end: {final.get('state')!r}, "
+                        f"{final.get('published')} of {expected_steps} samples "
+                        f"({final.get('message', 'no final report')})")
+    if problems:
+        return CheckResult(name, False, f'{who}: ' + '; '.join(problems) + '. A controller '
+                           'refuses a start while a session is live and answers the live PC '
+                           'alone (rig contract: sessions)', values)
+    return CheckResult(name, True, f"{who}: refused: no answer to it, reason 6 'start "
+                       "refused' in the live run's datagrams, the run went on to its end "
+                       f'(done, {expected_steps} of {expected_steps} samples)', values)
 
 
 def check_final_status(finals: Mapping[str, Mapping | None], expected_steps: int

@@ -54,7 +54,8 @@ class ForceServoControllerNode(SeftNode):
         reference = self.scoped_spec(REFERENCE_FORCE)
         valve = self.scoped_spec(VALVE_COMMAND)
         self.pub = self.create_publisher(valve.msg_type, valve.name, valve.qos)
-        self.out_msg = SerializedStamped.scalar(valve)
+        self.valve_topic = valve.name
+        self.out_msg = self.sealed_writer(SerializedStamped.scalar(valve, self.seal.frame_id))
         self.batch = self.record_stream()
         if self.realtime:
             self.timing = StepTiming(self)
@@ -94,7 +95,7 @@ class ForceServoControllerNode(SeftNode):
         if reason:
             self.abort_run(reason, k)
             return
-        self.pub.publish(self.out_msg(k * self.dt_ns, (u,)))
+        self.pub.publish(self.out_msg(self.valve_topic, k * self.dt_ns, (u,)))
         self.batch.add(k, u)
         self.next_step = k + 1
         now_ns = clock.now_ns()
@@ -120,7 +121,7 @@ class ForceServoControllerNode(SeftNode):
             if reason:
                 self.abort_run(reason, k)
                 return
-            self.pub.publish(self.out_msg(k * self.dt_ns, (u,)))
+            self.pub.publish(self.out_msg(self.valve_topic, k * self.dt_ns, (u,)))
             self.batch.add(k, u)
             self.next_step += 1
 

@@ -158,7 +158,8 @@ class RecorderNode(SeftNode):
             spec = record_topic(stream)
             self.create_subscription(spec.msg_type, spec.name,
                                      self.guard(lambda msg, r=stream: self._on_batch(r, msg)),
-                                     spec.qos)
+                                     spec.qos,
+                                     event_callbacks=self.publisher_watch(spec.name, False))
         self.foreign_batches = set()
         self.create_subscription(STATUS.msg_type, STATUS.name, self.guard(self._on_status),
                                  STATUS.qos)
@@ -202,7 +203,12 @@ class RecorderNode(SeftNode):
         self.counts[name] += 1
 
     def _on_batch(self, stream, msg) -> None:
-        """Write every row of a record batch as the per-sample messages of the bag."""
+        """Write every row of a record batch as the per-sample messages of the bag (one
+        without the run's seal is dropped: a named warning, the bag holds the run's own)."""
+        if not self.batch_sealed(stream, msg):
+            self.foreign_input(stream.name, msg.layout.dim[0].label if msg.layout.dim else '',
+                               False)
+            return
         try:
             columns = stream.columns_of(msg)
         except ValueError as exc:

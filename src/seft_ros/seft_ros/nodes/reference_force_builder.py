@@ -37,7 +37,7 @@ import time
 from seft_msgs_py import clock, parameters
 from seft_msgs_py.convert import STATE_READY, STATE_RUNNING, SerializedStamped, status_values
 from seft_msgs_py.errors import InputError
-from seft_msgs_py.graph import STRUCTURE_STATE, qualified, scoped
+from seft_msgs_py.graph import SPECIMEN_MODEL, STRUCTURE_STATE, qualified, scoped
 from seft_msgs_py.interface import Measurement
 from seft_msgs_py.node_support import (
     InputWatchdog,
@@ -54,7 +54,7 @@ from seft_ros.core.substructure import SpecimenModel
 
 #: The topic of a rig's specimen model (in its namespace), sent by its builder to the builders
 #: of the other rigs every EXCHANGE_EVERY_STEPS steps (``structure_builders: per_rig``).
-SPECIMEN_MODEL_TOPIC = '/seft/specimen_model'
+SPECIMEN_MODEL_TOPIC = SPECIMEN_MODEL
 
 __all__ = ['ReferenceForceBuilderNode', 'main']
 
@@ -113,9 +113,10 @@ class ReferenceForceBuilderNode(SeftNode):
         self.latest: dict[int, dict[int, Measurement]] = {}     # sample -> local rig -> meas
         self.next_step = 0          # step of the next reference forces to publish
         spec = self.scoped_spec(REFERENCE_FORCE, self.local[0])
-        self.pubs = [self.create_publisher(spec.msg_type, self.scoped_spec(REFERENCE_FORCE, r)
-                                           .name, spec.qos) for r in self.local]
-        self.out_msg = SerializedStamped.scalar(spec)
+        self.force_topics = [self.scoped_spec(REFERENCE_FORCE, r).name for r in self.local]
+        self.pubs = [self.create_publisher(spec.msg_type, name, spec.qos)
+                     for name in self.force_topics]
+        self.out_msg = self.sealed_writer(SerializedStamped.scalar(spec, self.seal.frame_id))
         self.batch = self.record_stream()
         streams = graph.record_streams_of(self.seft_name)
         self.state_batch = None
@@ -137,7 +138,8 @@ class ReferenceForceBuilderNode(SeftNode):
         gspec = record_topic(ground)
         ground_sub = self.create_subscription(
             gspec.msg_type, gspec.name,
-            self.guard(lambda msg: self._on_ground_batch(ground, msg)), gspec.qos)
+            self.guard(lambda msg: self._on_ground_batch(ground, msg)), gspec.qos,
+            event_callbacks=self.publisher_watch(gspec.name))
         subs = [self.measurement_subscription(
             lambda k, values, r=r: self._on_measurement(r, k, values), rig=r)
             for r in self.builder.rig_names]
@@ -156,7 +158,8 @@ class ReferenceForceBuilderNode(SeftNode):
             for r in self.builder.remote_rigs:
                 self.create_subscription(
                     JointState, scoped(SPECIMEN_MODEL_TOPIC, r),
-                    self.guard(lambda msg, r=r: self._on_model(r, msg)), DATA_QOS)
+                    self.guard(lambda msg, r=r: self._on_model(r, msg)), DATA_QOS,
+                    event_callbacks=self.publisher_watch(scoped(SPECIMEN_MODEL_TOPIC, r)))
         if self.realtime:
             # the compensators' refits (tens of ms) off the step, on a thread below it; the
             # step takes the GIL back within the switch interval
@@ -185,7 +188,12 @@ class ReferenceForceBuilderNode(SeftNode):
     # -- inputs -----------------------------------------------------------------------------
 
     def _on_ground_batch(self, stream, msg) -> None:
-        """The ground-motion publisher's batch: ``xg''[k]`` of every row, in order."""
+        """The ground-motion publisher's batch: ``xg''[k]`` of every row, in order (a batch
+        without the run's seal: dropped, and the run aborted naming its publisher)."""
+        if not self.batch_sealed(stream, msg):
+            self.foreign_input(stream.name, msg.layout.dim[0].label if msg.layout.dim else '',
+                               True)
+            return
         try:
             stream.columns_of(msg)
         except ValueError as exc:
@@ -216,10 +224,14 @@ class ReferenceForceBuilderNode(SeftNode):
 
     def _on_model(self, rig: str, msg) -> None:
         """Another builder's model of its rig (``name``: m, c, k; stamp: the step it was
-        sent after)."""
+        sent after); one without the run's seal is dropped and the run aborted."""
+        stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        topic = self.graph.specimen_model(rig)
+        if not self.seal.frame_ok(msg.header.frame_id, topic, stamp_ns, list(msg.position)):
+            self.foreign_input(topic, msg.header.frame_id, True)
+            return
         values = dict(zip(msg.name, msg.position))
-        step = int(round((msg.header.stamp.sec * 1e9 + msg.header.stamp.nanosec)
-                         / self.dt_ns))
+        step = int(round(stamp_ns / self.dt_ns))
         self.builder.receive_models(step, rig, SpecimenModel(
             values['mass_kg'], values['damping_N_s_per_m'], values['stiffness_N_per_m']))
         self._advance()
@@ -233,6 +245,8 @@ class ReferenceForceBuilderNode(SeftNode):
             msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
             msg.name = ['mass_kg', 'damping_N_s_per_m', 'stiffness_N_per_m']
             msg.position = [model.mass_kg, model.damping_N_s_per_m, model.stiffness_N_per_m]
+            msg.header.frame_id = self.seal.frame_id_of(self.graph.specimen_model(r), stamp_ns,
+                                                        msg.position)
             self.model_pubs[r].publish(msg)
 
     def _on_status(self, msg) -> None:
@@ -300,8 +314,8 @@ class ReferenceForceBuilderNode(SeftNode):
                     and self.builder.outbox[0] == k:
                 self._publish_models()
             stamp = k * self.dt_ns
-            for pub, force in zip(self.pubs, forces):
-                pub.publish(self.out_msg(stamp, (force,)))
+            for pub, topic, force in zip(self.pubs, self.force_topics, forces):
+                pub.publish(self.out_msg(topic, stamp, (force,)))
             self.batch.add(k, *forces)
             for batch, est in zip(self.estimates_batches, self.builder.estimates()):
                 if batch is not None:
