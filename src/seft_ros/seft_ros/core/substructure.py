@@ -56,6 +56,7 @@ import numpy as np
 
 from seft_msgs_py.errors import ParameterError
 from seft_msgs_py.sampling import linear_map, single_blas_thread, split_delay, zoh
+from seft_ros.core.models import model_plugin
 from seft_ros.core.structure import Substructures
 
 __all__ = ['Matrices', 'structure_matrices', 'hermite_step', 'InterfacePredictor',
@@ -458,11 +459,12 @@ class ComputationalPart(Protocol):
 
 def computational_part(sub: Substructures, dt: float) -> 'ComputationalPart':
     """The computational part of a split structure: :class:`StructureState` (the matrices of
-    Eq. 1), or for a structure from an OpenSees model
-    :class:`~seft_ros.opensees.part.OpenSeesPart` (the model stepped once per sample)."""
-    if sub.structure.opensees is not None:
-        from seft_ros.opensees.part import OpenSeesPart
-        return OpenSeesPart(sub, dt)
+    Eq. 1), or for a structure from a model of another program its plug-in's part
+    (:mod:`seft_ros.core.models`; OpenSees: :class:`~seft_ros.opensees.part.OpenSeesPart`,
+    the model stepped once per sample)."""
+    kind = sub.structure.model_kind
+    if kind is not None:
+        return model_plugin(kind).part(sub, dt)
     return StructureState(sub, dt)
 
 

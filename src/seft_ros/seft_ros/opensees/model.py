@@ -74,8 +74,11 @@ from seft_ros.opensees.loader import captured, last_message, opensees
 
 __all__ = ['ModelSpec', 'SECTION_KEYS', 'parse_model_section', 'build_model', 'Linearization',
            'linearize', 'condense', 'model_structure', 'split_model', 'ModelError',
-           'remove_specimens', 'interface_group', 'model_name']
+           'remove_specimens', 'interface_group', 'model_name', 'KIND']
 
+#: The key of a ``structure`` section with an OpenSees model (the plug-in's name,
+#: :mod:`seft_ros.core.models`).
+KIND = 'opensees'
 #: The keys of a ``structure.opensees`` section.
 SECTION_KEYS = ('model', 'function', 'arguments', 'dofs', 'physical_elements', 'excitation_dof',
                 'substeps', 'elements')
@@ -748,8 +751,8 @@ def model_structure(section: Mapping, *, rigs: Mapping | None = None,
     links = tuple(Link(i, j, f'{names[i]}-{names[j]}' if j is not None else f'{names[i]}-ground')
                   for j, i in zip([None] + lateral[:-1], lateral))
     return Structure(names, m, c, k, influence, MappingProxyType(ordered),
-                     MappingProxyType(rig_values), links, 'opensees',
-                     opensees=MappingProxyType(spec.to_doc()))
+                     MappingProxyType(rig_values), links, KIND, model_kind=KIND,
+                     model=MappingProxyType(spec.to_doc()))
 
 
 def _check_interfaces(spec: ModelSpec, interfaces: Mapping[str, tuple[int, int]]) -> None:
@@ -814,7 +817,7 @@ def split_model(structure: Structure, specimens: Mapping[str, Mapping[str, Any]]
         a rig's ``stiffness_N_per_m`` or ``damping_N_s_per_m`` that is not its elements'
         (both values given).
     """
-    spec = ModelSpec.from_doc(structure.opensees, where=f'{where}.opensees')
+    spec = ModelSpec.from_doc(structure.model, where=f'{where}.opensees')
     k_c = np.asarray(spec.computational['stiffness_matrix_N_per_m'], dtype=float)
     c_c = np.asarray(spec.computational['damping_matrix_N_s_per_m'], dtype=float)
     mass, stiff, damp = structure.mass_kg, structure.stiffness_N_per_m, \

@@ -48,7 +48,7 @@ from seft_msgs_py.errors import ParameterError
 from seft_ros.core.structure import Substructures
 from seft_ros.core.substructure import structure_matrices
 from seft_ros.opensees.loader import captured, last_message, opensees
-from seft_ros.opensees.model import ModelError, ModelSpec, build_model, interface_group
+from seft_ros.opensees.model import KIND, ModelError, ModelSpec, build_model, interface_group
 
 __all__ = ['OpenSeesPart', 'STEP_TIME', 'dry_run', 'DryRun', 'BUDGET_FRACTION', 'element_names',
            'element_response']
@@ -67,7 +67,7 @@ class OpenSeesPart:
     Parameters
     ----------
     sub : Substructures
-        A split structure from an OpenSees model (``sub.structure.opensees``).
+        A split structure from an OpenSees model (``sub.structure.model``).
     dt : float > 0
         Control period [s].
 
@@ -90,11 +90,11 @@ class OpenSeesPart:
 
     def __init__(self, sub: Substructures, dt: float):
         s = sub.structure
-        if s.opensees is None:
+        if s.model_kind != KIND:
             raise ParameterError('OpenSees part: the structure has no OpenSees model')
         self.sub = sub
         self.dt = float(dt)
-        self.spec = spec = ModelSpec.from_doc(s.opensees)
+        self.spec = spec = ModelSpec.from_doc(s.model)
         self.rig_names = s.rig_names
         self._pi, self._qi = list(s.physical_index), list(s.computational_index)
         self.state_names = tuple(f'{s.dofs[i]}/{q}' for q in (
