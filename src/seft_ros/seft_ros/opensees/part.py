@@ -57,6 +57,10 @@ __all__ = ['OpenSeesPart', 'STEP_TIME', 'dry_run', 'DryRun', 'BUDGET_FRACTION', 
 STEP_TIME = 'opensees/step_time_s'
 #: Tags of seft's own pattern and time series (far from a model's).
 _PATTERN, _SERIES = 2_000_000_011, 2_000_000_012
+#: The restoring forces' offset from the linearization that moved by more than this part of
+#: the linearization's own force increment over a step: the model left its linearization
+#: (its tangent is assembled, ``OpenSeesPart.tangent``).
+NONLINEAR_TOLERANCE = 1e-4
 #: A real-time run is refused when the dry run's p99 step time exceeds this part of ``dt``.
 BUDGET_FRACTION = 0.5
 
@@ -118,6 +122,13 @@ class OpenSeesPart:
         qi = self._qi
         self._k_uu_inv = (np.linalg.inv(self.matrices.stiffness_N_per_m[np.ix_(qi, qi)])
                           if qi else None)
+        # the tangent (prediction 'tangent'): the restoring forces' offset from the
+        # linearization at the latest sample, and whether it moved over the last step
+        self._tangent_on = spec.prediction == 'tangent'
+        self._offset = np.zeros(s.n)
+        self._left_linear = False
+        self._k_t = None                  # the condensed tangent of the latest sample
+        self.tangent_steps = 0            # samples whose tangent was assembled
 
     def prepare(self) -> None:
         """Build the model in OpenSees and set up seft's analysis of it (done by the first
@@ -167,8 +178,12 @@ class OpenSeesPart:
                     self._series = True
                 ops.constraints('Penalty', self._penalty, self._penalty)
                 ops.numberer('RCM')
-                ops.system('BandGeneral')
+                # the tangent is read from the assembled system (printA: a full matrix)
+                ops.system('FullGeneral' if self._tangent_on else 'BandGeneral')
                 ops.test('NormDispIncr', 1e-12, 25)
+                if self._tangent_on:
+                    self._newmark_mc = (_assembled(ops, (4.0 / h ** 2, 2.0 / h, 1.0))
+                                        - _assembled(ops, (0.0, 0.0, 1.0)))
                 ops.algorithm('Newton')
                 ops.integrator('Newmark', 0.5, 0.25)
                 ops.analysis('Transient')
@@ -178,6 +193,8 @@ class OpenSeesPart:
         if error is not None:
             raise ModelError(f'{spec.where}: setting up the analysis failed: OpenSees: '
                              f'{last_message(log.text) or error}')
+        if self._tangent_on:
+            self._equations = _equations(ops)
 
     def _opensees_step(self, j: int) -> None:
         """Step the model from sample j to j+1 with every rig's measurements of both."""
@@ -228,7 +245,70 @@ class OpenSeesPart:
             self._element_values[2 * n:2 * n + 2] = element_response(ops, tag)
         for r, p in enumerate(self._pi):       # the physical DOFs as measured
             self._x[p], self._v[p], self._a[p] = end[r][0], end[r][1], end[r][2]
+        if self._tangent_on:
+            self._follow_tangent(ops, g1)
         self.step_times_s.append(time.perf_counter() - t0)
+
+    def _follow_tangent(self, ops, g: float) -> None:
+        """After a step: the restoring forces' offset from the linearization, and the
+        condensed tangent when the offset moved (the model left its linearization over the
+        step; otherwise its tangent along the motion is the initial one)."""
+        sub, m = self.sub, self.matrices
+        x, v = np.asarray(self._x), np.asarray(self._v)
+        # the computational part's restoring forces: the DOFs' equilibrium (computational
+        # DOFs: inertia and the record; interfaces: the model's interface force)
+        restoring = -(sub.damping_c_N_s_per_m @ v)
+        qi = self._qi
+        if qi:
+            a_u = np.array([self._a[i] for i in qi])
+            restoring[qi] -= m.mass_kg[np.ix_(qi, qi)] @ (a_u + m.influence[qi] * g)
+        for j, p in enumerate(self._pi):
+            restoring[p] -= self._forces[j]
+        k0 = sub.stiffness_c_N_per_m
+        offset = restoring - k0 @ x
+        moved = float(np.max(np.abs(offset - self._offset)))
+        dx = x - self._x_last if getattr(self, '_x_last', None) is not None else x
+        scale = float(np.max(np.abs(k0 @ dx))) + 1e-12 * float(np.max(np.abs(k0)))
+        self._left_linear = moved > NONLINEAR_TOLERANCE * scale
+        self._offset, self._x_last = offset, x
+        if self._left_linear:
+            self._k_t = self._condensed_tangent(ops)
+            self.tangent_steps += 1
+        else:
+            self._k_t = None
+
+    def _condensed_tangent(self, ops) -> np.ndarray:
+        """The computational part's tangent stiffness condensed to the DOFs with mass, from
+        the system Newton assembled last (``printA``: ``K_t + (2/h) C + (4/h^2) M`` and the
+        penalties; less the Newmark part and the interfaces' moving constraint)."""
+        a = np.asarray(ops.printA('-ret'), dtype=float)
+        size = int(round(math.sqrt(a.size)))
+        k = a.reshape(size, size) - self._newmark_mc
+        keep, other, interface = self._equations_of()
+        for eq in interface:
+            k[eq, eq] -= self._penalty
+        kr = k[np.ix_(keep, keep)]
+        if other:
+            kr = kr - k[np.ix_(keep, other)] @ np.linalg.solve(k[np.ix_(other, other)],
+                                                               k[np.ix_(other, keep)])
+        return 0.5 * (kr + kr.T)
+
+    def _equations_of(self):
+        """The equations of the DOFs with mass (seft's, in order), of the others that are
+        not fixed, and of the interfaces, in the analysis' numbering."""
+        cached = getattr(self, '_eq_split', None)
+        if cached is None:
+            eqs = self._equations
+            keep = [eqs[nd] for nd in self._nodes]
+            other = sorted(set(eqs.values()) - set(keep))
+            cached = self._eq_split = (keep, other, [eqs[nd] for nd in self._interface])
+        return cached
+
+    def tangent(self) -> np.ndarray | None:
+        """The computational part's tangent stiffness ``K_c,t`` at the latest sample [N/m]
+        (n x n, condensed to seft's DOFs), or None when the model stayed on its
+        linearization over the last step (or ``prediction: initial``)."""
+        return self._k_t
 
     # -- the ComputationalPart protocol -----------------------------------------------------
 
@@ -303,18 +383,19 @@ class OpenSeesPart:
         the latest :meth:`state_at` (`x`, `v` are that state; the model has its own)."""
         return tuple(self._forces[self._pi.index(i)] for i in dofs)
 
-    def prediction_state(self, x, v, dofs) -> tuple[list, tuple]:
+    def prediction_state(self, x, v, dofs, stiffness_c_N_per_m=None) -> tuple[list, tuple]:
         """The state the compensators' linear prediction starts from, and what to add to
-        its interface forces at `dofs` (module notes: the linearization with the model's
-        nonlinear restoring forces held over the prediction).
+        its interface forces at `dofs` (module notes: the linearization, or the tangent
+        `stiffness_c_N_per_m`, with the model's nonlinear restoring forces held over the
+        prediction).
 
-        The model's restoring forces at the computational DOFs ``U`` differ from the
-        linearization's by ``d_U = -M_UU (a_U + iota_U g) - C_U. v - K_U. x`` (the model's
-        own accelerations at the sample); held constant, they are the linear model's with
-        ``x_U`` shifted by ``K_UU^-1 d_U``. At an interface DOF ``p`` the rest,
-        ``r_p = I_p + C_c[p] v + K_c[p] x_s`` (``x_s`` the shifted state, ``I_p`` the model's
-        interface force), is added to the prediction. For a linear model both are zero up
-        to the integrators' difference.
+        The model's restoring forces at the computational DOFs ``U`` differ from the linear
+        model's by ``d_U = -M_UU (a_U + iota_U g) - C_U. v - K_U. x`` (the model's own
+        accelerations at the sample; ``K`` the linearization's or the tangent); held
+        constant, they are the linear model's with ``x_U`` shifted by ``K_UU^-1 d_U``. At an
+        interface DOF ``p`` the rest, ``r_p = I_p + C_c[p] v + K_c[p] x_s`` (``x_s`` the
+        shifted state, ``I_p`` the model's interface force), is added to the prediction.
+        For a linear model both are zero up to the integrators' difference.
 
         Returns
         -------
@@ -325,17 +406,23 @@ class OpenSeesPart:
         """
         sub, qi = self.sub, self._qi
         xa, va = np.asarray(x, dtype=float), np.asarray(v, dtype=float)
+        k_c = (sub.stiffness_c_N_per_m if stiffness_c_N_per_m is None
+               else np.asarray(stiffness_c_N_per_m, dtype=float))
         shifted = xa.copy()
         if qi:
             m = self.matrices
             g = self.ground.get(self._settled, 0.0)
             a_u = np.array([self._a[i] for i in qi])
+            # rows U of the whole structure's stiffness are the computational part's
             d_u = (-m.mass_kg[np.ix_(qi, qi)] @ (a_u + m.influence[qi] * g)
-                   - m.damping_N_s_per_m[qi] @ va - m.stiffness_N_per_m[qi] @ xa)
-            shifted[qi] += self._k_uu_inv @ d_u
+                   - m.damping_N_s_per_m[qi] @ va - k_c[qi] @ xa)
+            if stiffness_c_N_per_m is None:
+                shifted[qi] += self._k_uu_inv @ d_u
+            else:
+                shifted[qi] += np.linalg.solve(k_c[np.ix_(qi, qi)], d_u)
         residual = tuple(self._forces[self._pi.index(i)]
-                         + float(sub.stiffness_c_N_per_m[i] @ shifted
-                                 + sub.damping_c_N_s_per_m[i] @ va) for i in dofs)
+                         + float(k_c[i] @ shifted + sub.damping_c_N_s_per_m[i] @ va)
+                         for i in dofs)
         return shifted.tolist(), residual
 
     def recorded_state(self, x, v, j: int) -> tuple:
@@ -350,6 +437,30 @@ class OpenSeesPart:
         """Kept for the protocol: the model itself moves the DOFs; `matrices` only replace
         the linearization the compensators see."""
         self.matrices = matrices
+
+
+def _assembled(ops, factors) -> np.ndarray:
+    """The system ``f_m M + f_c C + f_k K`` of the model in OpenSees at its state, in the
+    current analysis' numbering and constraints (``GimmeMCK``, ``printA``; a full system)."""
+    ops.integrator('GimmeMCK', *factors)
+    ops.analysis('Transient')
+    ops.analyze(1, 0.0)
+    a = np.asarray(ops.printA('-ret'), dtype=float)
+    size = int(round(math.sqrt(a.size)))
+    return a.reshape(size, size)
+
+
+def _equations(ops) -> dict:
+    """``(node, dof) -> equation`` of the model's DOFs that are not fixed, in the current
+    analysis' numbering."""
+    fixed = {(int(node), int(dof)) for node in ops.getFixedNodes()
+             for dof in ops.getFixedDOFs(node)}
+    out = {}
+    for node in ops.getNodeTags():
+        for dof, eq in enumerate(ops.nodeDOFs(node), start=1):
+            if eq >= 0 and (int(node), dof) not in fixed:
+                out[(int(node), dof)] = int(eq)
+    return out
 
 
 def element_names(tag: int) -> tuple[str, str]:
