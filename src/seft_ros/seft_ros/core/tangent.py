@@ -18,8 +18,9 @@ samples and gives the stiffness for the predicted motion:
 * an elastic mechanism seen yielding before **starts to yield again** where its coordinate
   passes the point where it last stopped (the same sense) or that point less the elastic
   range it has shown (the other sense; the range is learnt at its first reversal): the part
-  of the predicted increment beyond that point is taken with the mechanism's deficit
-  (a stiffness ``K_0 - phi lambda u u^T``, ``phi`` that part).
+  of the predicted increment beyond that point is taken with the deficit its last onset
+  showed (a stiffness ``K_0 - phi lambda_onset u u^T``, ``phi`` that part: all of its
+  deficit for a bilinear member, little for one that yields gradually).
 
 Exact for one bilinear member with kinematic hardening (a ``Steel01``) whose onset and
 reversal fall on the samples; for gradual yielding (``Steel02`` fibres) the tangent itself
@@ -37,13 +38,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ['YieldMechanisms', 'Mechanism', 'DEFICIT_TOLERANCE', 'SAME_DIRECTION']
+__all__ = ['YieldMechanisms', 'Mechanism', 'DEFICIT_TOLERANCE', 'SAME_DIRECTION',
+           'BILINEAR_SPREAD']
 
 #: A deficit of the tangent stiffness below this part of the largest entry of the initial one
 #: is no yielding.
 DEFICIT_TOLERANCE = 1e-3
 #: Two deficit directions with ``|u . u'|`` above this are one mechanism.
 SAME_DIRECTION = 0.95
+#: A yielding whose deficit stayed within this part of its largest is bilinear.
+BILINEAR_SPREAD = 0.1
 
 
 @dataclass
@@ -67,6 +71,15 @@ class Mechanism:
     elastic_range_m : float or None
         The range of ``z`` it has shown elastic between yielding in one sense and the other
         (None: not seen yet).
+    onset_deficit_N_per_m : float
+        ``lambda`` at the first sample of its latest yielding: the softening its onset
+        brings.
+    episode_N_per_m : list of float
+        The least and the largest ``lambda`` of its latest yielding.
+    bilinear : bool
+        Whether its latest finished yielding kept one deficit (within
+        :data:`BILINEAR_SPREAD`): a member whose onset is sharp and whose elastic range is
+        fixed (a ``Steel01``); only such a mechanism's onset is anticipated.
     """
 
     direction: np.ndarray
@@ -76,6 +89,9 @@ class Mechanism:
     stop_m: float | None = None
     last_m: float = 0.0
     elastic_range_m: float | None = None
+    onset_deficit_N_per_m: float = 0.0
+    episode_N_per_m: list = None
+    bilinear: bool = False
 
 
 class YieldMechanisms:
@@ -115,14 +131,20 @@ class YieldMechanisms:
                 dz = float(ui @ dx)
                 m = self._match(ui)
                 if m is None:
-                    m = Mechanism(ui.copy(), float(lam[i]), 1.0 if dz >= 0.0 else -1.0)
+                    m = Mechanism(ui.copy(), float(lam[i]), 1.0 if dz >= 0.0 else -1.0,
+                                  onset_deficit_N_per_m=float(lam[i]))
                     self.mechanisms.append(m)
                 elif float(m.direction @ ui) < 0.0:
                     ui, dz = -ui, -dz
                 sense = 1.0 if dz >= 0.0 else -1.0
-                if not m.yielding and m.stop_m is not None and sense != m.sense:
-                    # yielding again in the other sense: the elastic range it has shown
-                    m.elastic_range_m = abs(float(ui @ x) - m.stop_m)
+                if not m.yielding or m.episode_N_per_m is None:
+                    m.onset_deficit_N_per_m = float(lam[i])
+                    m.episode_N_per_m = [float(lam[i]), float(lam[i])]
+                    if m.stop_m is not None and sense != m.sense:
+                        # yielding again in the other sense: the elastic range it has shown
+                        m.elastic_range_m = abs(float(ui @ x) - m.stop_m)
+                m.episode_N_per_m = [min(m.episode_N_per_m[0], float(lam[i])),
+                                     max(m.episode_N_per_m[1], float(lam[i]))]
                 m.direction, m.deficit_N_per_m, m.sense, m.yielding = ui, float(lam[i]), \
                     sense, True
                 seen.add(id(m))
@@ -130,6 +152,8 @@ class YieldMechanisms:
             z = float(m.direction @ x)
             if id(m) not in seen and m.yielding:
                 m.yielding, m.stop_m = False, m.last_m
+                low, high = m.episode_N_per_m
+                m.bilinear = low >= (1.0 - BILINEAR_SPREAD) * high
             m.last_m = z
 
     def _match(self, u) -> 'Mechanism | None':
@@ -161,7 +185,7 @@ class YieldMechanisms:
                     k += m.deficit_N_per_m * np.outer(u, u)
                     changed = True
                 continue
-            if m.stop_m is None or dz == 0.0:
+            if m.stop_m is None or dz == 0.0 or not m.bilinear:
                 continue
             sense = 1.0 if dz > 0.0 else -1.0
             if sense == m.sense:
@@ -172,6 +196,6 @@ class YieldMechanisms:
                 continue
             beyond = sense * (m.last_m + dz - onset)
             if beyond > 0.0 and sense * (onset - m.last_m) >= 0.0:
-                k -= min(beyond / abs(dz), 1.0) * m.deficit_N_per_m * np.outer(u, u)
+                k -= min(beyond / abs(dz), 1.0) * m.onset_deficit_N_per_m * np.outer(u, u)
                 changed = True
         return k if changed else None

@@ -61,6 +61,14 @@ _PATTERN, _SERIES = 2_000_000_011, 2_000_000_012
 #: the linearization's own force increment over a step: the model left its linearization
 #: (its tangent is assembled, ``OpenSeesPart.tangent``).
 NONLINEAR_TOLERANCE = 1e-4
+#: The interface's moving constraint is a penalty of this many times the largest diagonal of
+#: the effective stiffness: its error is ``1/PENALTY_FACTOR`` of the interface force's own
+#: displacement scale.
+PENALTY_FACTOR = 1e6
+#: A Newton iteration whose unbalance is below this part of the computational stiffness'
+#: largest entry (times 1 m) [N] has converged: the one solve of a step that stays linear
+#: (its correction would be the round-off's), else the correction below 1e-12 m.
+UNBALANCE_TOLERANCE = 1e-8
 #: A real-time run is refused when the dry run's p99 step time exceeds this part of ``dt``.
 BUDGET_FRACTION = 0.5
 
@@ -105,6 +113,7 @@ class OpenSeesPart:
             'displacement_m', 'velocity_m_s', 'acceleration_m_s2') for i in self._qi) + (
             STEP_TIME,) + tuple(name for e in spec.elements for name in element_names(e))
         self._element_values = [0.0] * (2 * len(spec.elements))
+        self._ndf: dict[int, int] = {}
         self.matrices = structure_matrices(sub)
         self.step_times_s: list[float] = []
         self._nodes = [(node, dof) for _, node, dof in spec.dofs]
@@ -169,7 +178,10 @@ class OpenSeesPart:
         c = np.diag(self.sub.damping_c_N_s_per_m)
         h = self.dt / self._substeps
         stiff = float(np.max(np.abs(k) + 4.0 * m / h ** 2 + 2.0 * np.abs(c) / h))
-        self._penalty = 1e8 * stiff
+        self._penalty = PENALTY_FACTOR * stiff
+        # a step converges when its last correction is below 1e-12 m, or (the one solve of
+        # a step that stays linear) when the unbalance left is (module notes)
+        unbalance = UNBALANCE_TOLERANCE * float(np.max(np.abs(self.sub.stiffness_c_N_per_m)))
         with captured() as log:
             try:
                 ops.wipeAnalysis()
@@ -180,7 +192,7 @@ class OpenSeesPart:
                 ops.numberer('RCM')
                 # the tangent is read from the assembled system (printA: a full matrix)
                 ops.system('FullGeneral' if self._tangent_on else 'BandGeneral')
-                ops.test('NormDispIncr', 1e-12, 25)
+                ops.test('NormDispOrUnbalance', 1e-12, unbalance, 25, 0, 2)
                 if self._tangent_on:
                     self._newmark_mc = (_assembled(ops, (4.0 / h ** 2, 2.0 / h, 1.0))
                                         - _assembled(ops, (0.0, 0.0, 1.0)))
@@ -242,7 +254,7 @@ class OpenSeesPart:
             self._v[i] = float(ops.nodeVel(node, dof))
             self._a[i] = float(ops.nodeAccel(node, dof))
         for n, tag in enumerate(self.spec.elements):
-            self._element_values[2 * n:2 * n + 2] = element_response(ops, tag)
+            self._element_values[2 * n:2 * n + 2] = element_response(ops, tag, self._ndf)
         for r, p in enumerate(self._pi):       # the physical DOFs as measured
             self._x[p], self._v[p], self._a[p] = end[r][0], end[r][1], end[r][2]
         if self._tangent_on:
@@ -470,14 +482,18 @@ def element_names(tag: int) -> tuple[str, str]:
     return f'opensees/ele{tag}/force', f'opensees/ele{tag}/deformation'
 
 
-def element_response(ops, tag: int) -> tuple[float, float]:
-    """The values of :func:`element_names` of element `tag` in the model now."""
+def element_response(ops, tag: int, ndf: dict | None = None) -> tuple[float, float]:
+    """The values of :func:`element_names` of element `tag` in the model now (`ndf`: the
+    elements' DOFs per node found so far, by tag; filled in)."""
     force = ops.eleForce(tag)
-    nodes = ops.eleNodes(tag)
-    ndf = len(force) // max(len(nodes), 1)
+    per_node = None if ndf is None else ndf.get(tag)
+    if per_node is None:
+        per_node = len(force) // max(len(ops.eleNodes(tag)), 1)
+        if ndf is not None:
+            ndf[tag] = per_node
     basic = ops.eleResponse(tag, 'basicDeformation')
     deformation = basic[1] if len(basic) >= 3 else (basic[0] if basic else math.nan)
-    return float(force[ndf - 1]), float(deformation)
+    return float(force[per_node - 1]), float(deformation)
 
 
 def _hermite(m0, m1, dt: float, t: float) -> tuple[float, float, float]:
