@@ -128,9 +128,7 @@ class OpenSeesPart:
         self._linear_forces = [0.0] * len(self._pi)
         self._substeps = max(1, int(spec.substeps))
         self._ready = False
-        qi = self._qi
-        self._k_uu_inv = (np.linalg.inv(self.matrices.stiffness_N_per_m[np.ix_(qi, qi)])
-                          if qi else None)
+        self._linear_maps()
         # the tangent (prediction 'tangent'): the restoring forces' offset from the
         # linearization at the latest sample, and whether it moved over the last step
         self._tangent_on = spec.prediction == 'tangent'
@@ -190,12 +188,15 @@ class OpenSeesPart:
                     self._series = True
                 ops.constraints('Penalty', self._penalty, self._penalty)
                 ops.numberer('RCM')
-                # the tangent is read from the assembled system (printA: a full matrix)
-                ops.system('FullGeneral' if self._tangent_on else 'BandGeneral')
                 ops.test('NormDispOrUnbalance', 1e-12, unbalance, 25, 0, 2)
                 if self._tangent_on:
+                    # Newmark's M, C part of the system, from a full one (printA reads only
+                    # those): the tangent is read from the system Newton assembles
+                    ops.system('FullGeneral')
                     self._newmark_mc = (_assembled(ops, (4.0 / h ** 2, 2.0 / h, 1.0))
                                         - _assembled(ops, (0.0, 0.0, 1.0)))
+                ops.system('BandGeneral')
+                self._full_system = False
                 ops.algorithm('Newton')
                 ops.integrator('Newmark', 0.5, 0.25)
                 ops.analysis('Transient')
@@ -265,29 +266,90 @@ class OpenSeesPart:
         """After a step: the restoring forces' offset from the linearization, and the
         condensed tangent when the offset moved (the model left its linearization over the
         step; otherwise its tangent along the motion is the initial one)."""
-        sub, m = self.sub, self.matrices
-        x, v = np.asarray(self._x), np.asarray(self._v)
-        # the computational part's restoring forces: the DOFs' equilibrium (computational
-        # DOFs: inertia and the record; interfaces: the model's interface force)
-        restoring = -(sub.damping_c_N_s_per_m @ v)
-        qi = self._qi
-        if qi:
-            a_u = np.array([self._a[i] for i in qi])
-            restoring[qi] -= m.mass_kg[np.ix_(qi, qi)] @ (a_u + m.influence[qi] * g)
-        for j, p in enumerate(self._pi):
-            restoring[p] -= self._forces[j]
-        k0 = sub.stiffness_c_N_per_m
-        offset = restoring - k0 @ x
+        z = self._inputs(g)
+        # the restoring forces' offset from the linearization, and the linearization's own
+        # force increment over the step
+        offset = self._offset_map @ z
+        x = z[:len(self._x)]
+        k0 = self.sub.stiffness_c_N_per_m
         moved = float(np.max(np.abs(offset - self._offset)))
-        dx = x - self._x_last if getattr(self, '_x_last', None) is not None else x
-        scale = float(np.max(np.abs(k0 @ dx))) + 1e-12 * float(np.max(np.abs(k0)))
+        scale = float(np.max(np.abs(k0 @ (x - self._x_last)))) + 1e-12 * float(np.max(np.abs(k0)))
         self._left_linear = moved > NONLINEAR_TOLERANCE * scale
         self._offset, self._x_last = offset, x
+        self._k_t = None
         if self._left_linear:
-            self._k_t = self._condensed_tangent(ops)
-            self.tangent_steps += 1
-        else:
-            self._k_t = None
+            if not self._full_system:
+                # the first step off the linearization: the system becomes a full one (printA
+                # reads only those); the tangent from the next step on
+                ops.system('FullGeneral')
+                self._full_system = True
+            else:
+                self._k_t = self._condensed_tangent(ops)
+                self.tangent_steps += 1
+
+    def _inputs(self, g: float) -> np.ndarray:
+        """``z = [x (n), v (n), a_U, g, I_P]`` of the latest sample: what the restoring
+        forces' offset and the prediction's state are linear in."""
+        return np.array(self._x + self._v + [self._a[i] for i in self._qi] + [g]
+                        + self._forces)
+
+    def _linear_maps(self) -> None:
+        """The matrices on ``z`` (:meth:`_inputs`) of the restoring forces' offset from the
+        linearization, ``d = R - K_c x`` with ``R`` from each DOF's equilibrium (a
+        computational DOF: ``-M_UU (a_U + iota_U g) - C_U. v``; an interface: ``-I_p -
+        C_p. v``)."""
+        sub, m = self.sub, self.matrices
+        n, qi, pi = len(self._x), self._qi, self._pi
+        nu, npp = len(qi), len(pi)
+        width = 2 * n + nu + 1 + npp
+        offset = np.zeros((n, width))
+        offset[:, :n] = -sub.stiffness_c_N_per_m
+        offset[:, n:2 * n] = -sub.damping_c_N_s_per_m
+        if qi:
+            m_uu = m.mass_kg[np.ix_(qi, qi)]
+            offset[np.ix_(qi, range(2 * n, 2 * n + nu))] = -m_uu
+            offset[qi, 2 * n + nu] = -m_uu @ m.influence[qi]
+        for j, p in enumerate(pi):
+            offset[p, 2 * n + nu + 1 + j] = -1.0
+        self._offset_map = offset
+        self._x_last = np.zeros(n)
+        self._prediction_maps: dict = {}
+
+    def _prediction_map(self, stiffness_c, dofs) -> np.ndarray:
+        """The matrix on ``z`` of :meth:`prediction_state`'s shifted state and residuals
+        at `dofs`, for the stiffness `stiffness_c` (None: the linearization's); kept for
+        the few stiffnesses a run predicts with."""
+        key = (None if stiffness_c is None else np.asarray(stiffness_c).tobytes(), tuple(dofs))
+        out = self._prediction_maps.get(key)
+        if out is not None:
+            return out
+        sub, m = self.sub, self.matrices
+        n, qi, pi = len(self._x), self._qi, self._pi
+        nu = len(qi)
+        k_c = sub.stiffness_c_N_per_m if stiffness_c is None else np.asarray(stiffness_c,
+                                                                             dtype=float)
+        width = 2 * n + nu + 1 + len(pi)
+        shifted = np.zeros((n, width))
+        shifted[:, :n] = np.eye(n)
+        if qi:
+            # d_U = -M_UU (a_U + iota_U g) - C_U. v - K_U. x; x_U + K_UU^-1 d_U
+            d_u = np.zeros((nu, width))
+            d_u[:, :n] = -k_c[qi]
+            d_u[:, n:2 * n] = -m.damping_N_s_per_m[qi]
+            m_uu = m.mass_kg[np.ix_(qi, qi)]
+            d_u[:, 2 * n:2 * n + nu] = -m_uu
+            d_u[:, 2 * n + nu] = -m_uu @ m.influence[qi]
+            shifted[qi] += np.linalg.solve(k_c[np.ix_(qi, qi)], d_u)
+        residual = np.zeros((len(dofs), width))
+        for row, i in enumerate(dofs):
+            residual[row] = k_c[i] @ shifted
+            residual[row, n:2 * n] += sub.damping_c_N_s_per_m[i]
+            residual[row, 2 * n + nu + 1 + pi.index(i)] += 1.0
+        out = np.vstack([shifted, residual])
+        if len(self._prediction_maps) >= 64:
+            self._prediction_maps.pop(next(iter(self._prediction_maps)))
+        self._prediction_maps[key] = out
+        return out
 
     def _condensed_tangent(self, ops) -> np.ndarray:
         """The computational part's tangent stiffness condensed to the DOFs with mass, from
@@ -416,26 +478,11 @@ class OpenSeesPart:
         residual : tuple of float
             ``r_p`` per DOF of `dofs` [N].
         """
-        sub, qi = self.sub, self._qi
-        xa, va = np.asarray(x, dtype=float), np.asarray(v, dtype=float)
-        k_c = (sub.stiffness_c_N_per_m if stiffness_c_N_per_m is None
-               else np.asarray(stiffness_c_N_per_m, dtype=float))
-        shifted = xa.copy()
-        if qi:
-            m = self.matrices
-            g = self.ground.get(self._settled, 0.0)
-            a_u = np.array([self._a[i] for i in qi])
-            # rows U of the whole structure's stiffness are the computational part's
-            d_u = (-m.mass_kg[np.ix_(qi, qi)] @ (a_u + m.influence[qi] * g)
-                   - m.damping_N_s_per_m[qi] @ va - k_c[qi] @ xa)
-            if stiffness_c_N_per_m is None:
-                shifted[qi] += self._k_uu_inv @ d_u
-            else:
-                shifted[qi] += np.linalg.solve(k_c[np.ix_(qi, qi)], d_u)
-        residual = tuple(self._forces[self._pi.index(i)]
-                         + float(k_c[i] @ shifted + sub.damping_c_N_s_per_m[i] @ va)
-                         for i in dofs)
-        return shifted.tolist(), residual
+        n = len(self._x)
+        z = self._inputs(self.ground.get(self._settled, 0.0))
+        z[:n], z[n:2 * n] = x, v
+        out = (self._prediction_map(stiffness_c_N_per_m, dofs) @ z).tolist()
+        return out[:n], tuple(out[n:])
 
     def recorded_state(self, x, v, j: int) -> tuple:
         """The computational DOFs' ``x, v, a`` at sample `j` and the step's OpenSees time
