@@ -57,10 +57,15 @@ __all__ = ['OpenSeesPart', 'STEP_TIME', 'dry_run', 'DryRun', 'BUDGET_FRACTION', 
 STEP_TIME = 'opensees/step_time_s'
 #: Tags of seft's own pattern and time series (far from a model's).
 _PATTERN, _SERIES = 2_000_000_011, 2_000_000_012
-#: The restoring forces' offset from the linearization that moved by more than this part of
-#: the linearization's own force increment over a step: the model left its linearization
-#: (its tangent is assembled, ``OpenSeesPart.tangent``).
+#: The restoring forces' offset from the linearization that moved over a step by more than
+#: this part of the linearization's own force increment (a yielding member's: about its
+#: deficit, whatever the increment), and by more than :data:`NOISE_TOLERANCE` of the largest
+#: restoring force the linearization has given so far: the model left its linearization (its
+#: tangent is assembled, ``OpenSeesPart.tangent``).
 NONLINEAR_TOLERANCE = 1e-4
+#: An elastic model's offset moves by its integration's round-off and its massless DOFs'
+#: damping: at most 1e-5 of that force on the shipped models (measured).
+NOISE_TOLERANCE = 1.5e-5
 #: The interface's moving constraint is a penalty of this many times the largest diagonal of
 #: the effective stiffness: its error is ``1/PENALTY_FACTOR`` of the interface force's own
 #: displacement scale.
@@ -271,10 +276,11 @@ class OpenSeesPart:
         # force increment over the step
         offset = self._offset_map @ z
         x = z[:len(self._x)]
-        k0 = self.sub.stiffness_c_N_per_m
         moved = float(np.max(np.abs(offset - self._offset)))
-        scale = float(np.max(np.abs(k0 @ (x - self._x_last)))) + 1e-12 * float(np.max(np.abs(k0)))
-        self._left_linear = moved > NONLINEAR_TOLERANCE * scale
+        self._force_scale = max(self._force_scale, float(np.max(np.abs(self._k0 @ x))))
+        increment = float(np.max(np.abs(self._k0 @ (x - self._x_last))))
+        self._left_linear = moved > max(NONLINEAR_TOLERANCE * increment,
+                                        NOISE_TOLERANCE * self._force_scale)
         self._offset, self._x_last = offset, x
         self._k_t = None
         if self._left_linear:
@@ -312,6 +318,8 @@ class OpenSeesPart:
         for j, p in enumerate(pi):
             offset[p, 2 * n + nu + 1 + j] = -1.0
         self._offset_map = offset
+        self._k0 = sub.stiffness_c_N_per_m
+        self._force_scale = 0.0
         self._x_last = np.zeros(n)
         self._prediction_maps: dict = {}
 
