@@ -106,7 +106,7 @@ def test_a_yielding_story_is_predicted_with_its_tangent(tmp_path):
     drift on the default record) with 'model': every floor within 3 % of OpenSees' analysis
     of the whole frame; predicted with the initial linearization instead (``prediction:
     initial``, the compensators before issue 40) the residual drifts go wrong: over 8 % (6.6 /
-    26 / 23 % here, against 1.2 / 2.1 / 1.9 %)."""
+    26 / 23 % here, against 1.26 / 2.76 / 2.52 %)."""
     path = ROOT / 'config' / 'opensees' / 'shear_frame.yaml'
     tangent = _nrms_per_dof(path)
     section = yaml.safe_load(path.read_text())

@@ -7,16 +7,18 @@ rig's measurement of a sample is in:
 
 * the **interface DOFs follow the measured motion**: a single-point constraint moved to the
   measured displacement at the step's end (``sp``, OpenSees' ``Penalty`` constraint handler,
-  its factor ``1e8`` times the largest diagonal of the effective stiffness), the step
-  starting from the measured displacement, velocity and acceleration (``setNodeDisp``,
+  its factor ``PENALTY_FACTOR`` times the largest diagonal of the effective stiffness), the
+  step starting from the measured displacement, velocity and acceleration (``setNodeDisp``,
   ``setNodeVel``, ``setNodeAccel``); with ``substeps > 1`` the motion inside a sample is the
   cubic Hermite interpolant of the measured displacements and velocities at its ends (as the
   matrix path's :func:`~seft_ros.core.substructure.hermite_step`);
 * the **ground motion** loads every other DOF with mass as ``-m iota xg''`` (nodal forces; the
   record linear between samples);
 * **one transient step** (``Newmark`` average acceleration, ``Newton`` iterations to
-  ``NormDispIncr`` 1e-12 m, at most 25): nonlinear elements and materials are stepped as
-  they are;
+  ``NormDispOrUnbalance``: a correction below 1e-12 m or an unbalance below
+  ``UNBALANCE_TOLERANCE``, at most 25; a banded system until the model first leaves its
+  linearization, then a full one): nonlinear elements and materials are stepped as they
+  are;
 * the **interface force** of each rig is minus the reaction at its interface DOF less the
   inertia of the interface node's mass (``reactions('-dynamic')``: the elements' restoring
   and damping forces with their Rayleigh damping, and the node's; its mass is the specimen's
@@ -28,11 +30,15 @@ rig's measurement of a sample is in:
 Exact and approximate: for a linear model the step is Newmark's (second order; period error
 about ``(omega dt)^2 / 12`` per mode, 0.35 % for a 16 Hz mode at 500 Hz, less with
 ``substeps``), where the matrix path integrates the computational DOFs exactly for the
-interpolated motion. The compensators predict the interface force with the model's
-linearization (the structure's matrices) with the model's nonlinear restoring forces at the
-last sample held over the prediction (:meth:`OpenSeesPart.prediction_state`): exact for a
-linear model; for a yielding one exact at the sample and approximate over the loop delay
-(the change is predicted with the initial tangent).
+interpolated motion. The compensators predict the interface force with a linear model
+started from the model's state, its nonlinear restoring forces at the last sample held over
+the prediction (:meth:`OpenSeesPart.prediction_state`): exact for a linear model. A yielding
+model is predicted with its own tangent stiffness, read from the system Newton assembled on
+the steps that changed it and condensed to seft's DOFs (:meth:`OpenSeesPart.tangent`;
+``prediction: tangent``, the default), whose yielding mechanisms the builder follows over
+the predicted motion (:mod:`seft_ros.core.tangent`); exact at the sample, approximate over
+the loop delay (a first yield is not anticipated). With ``prediction: initial`` the change
+is predicted with the linearization.
 
 Each step's wall time (``time.perf_counter``) is recorded as the state
 ``opensees/step_time_s``; :func:`dry_run` times the model before a real-time run.
