@@ -23,8 +23,13 @@ the steel frame and on config/opensees/two_story.py, elastic and yielding.
 Prints figures; asserts nothing (targets: the steel frame's step p99 <= 0.5 ms at 500 Hz; the
 ten-story frame completes with <= 0.5 % stale steps; the steel frame completes at 1 kHz).
 
+With ``--record`` and ``--amplitude`` the real-time runs are on that record at that amplitude
+(the steel frame yields from about 1400 N on El Centro 180: its tangent is then read and
+predicted with, and its system is a full one).
+
 Usage: .venv/bin/python benchmarks/opensees_realtime.py [--config A.yaml ...] [--duration 10]
-       [--repeats 2] [--steps 1000] [--binding /path/to/python]
+       [--repeats 2] [--steps 1000] [--binding /path/to/python] [--record X.AT2]
+       [--amplitude N]
 """
 
 import argparse
@@ -101,10 +106,11 @@ def _ms(d, key) -> str:
     return '/'.join(f'{d[key][q]:.3f}' for q in ('p50', 'p99', 'max'))
 
 
-def realtime_run(config: str, duration_s: float, out: Path) -> str:
-    """One real-time run of the node graph; its figures in one line."""
+def realtime_run(config: str, duration_s: float, out: Path, extra=()) -> str:
+    """One real-time run of the node graph (`extra`: more ``seft run`` arguments); its
+    figures in one line."""
     cmd = [str(SEFT), 'run', config, '--mode', 'realtime', '--duration', str(duration_s),
-           '--out', str(out)]
+           '--out', str(out), *extra]
     before = _load()
     proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
     after = _load()
@@ -136,7 +142,12 @@ def main() -> None:
     ap.add_argument('--repeats', type=int, default=2)
     ap.add_argument('--steps', type=int, default=1000)
     ap.add_argument('--binding', help='a Python whose opensees.openseespy is another binding')
+    ap.add_argument('--record', help='the real-time runs on this record (a PEER .AT2 path)')
+    ap.add_argument('--amplitude', type=float,
+                    help='the real-time runs at this amplitude [N] (a frame that yields)')
     args = ap.parse_args()
+    extra = (['--record', args.record] if args.record else []) + (
+        ['--amplitude', str(args.amplitude)] if args.amplitude else [])
     for config in args.config:
         params = expand_runs(load_config(ROOT / config))[0]
         r = dry_run(test_setup(params).substructures, float(params['dt']), steps=args.steps)
@@ -145,7 +156,7 @@ def main() -> None:
               f'{1e3 * float(params["dt"]):g} ms (load {_load()})', flush=True)
         with tempfile.TemporaryDirectory(prefix='seft-osrt-') as tmp:
             for i in range(args.repeats):
-                line = realtime_run(config, args.duration, Path(tmp) / f'run{i}')
+                line = realtime_run(config, args.duration, Path(tmp) / f'run{i}', extra)
                 print(f'{config}: real time, run {i + 1}: {line}', flush=True)
     if args.binding:
         models = str(ROOT / 'config' / 'opensees')
