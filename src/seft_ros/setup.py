@@ -28,5 +28,9 @@ setup(
             'loop = seft_ros.nodes.loop:main',
             'link_emulator = seft_ros.cli.link_emulator:main',
         ],
+        # computational models of other programs (seft_ros.core.models), by section key
+        'seft_ros.computational_models': [
+            'opensees = seft_ros.opensees.plugin:PLUGIN',
+        ],
     },
 )

@@ -367,9 +367,13 @@ def test_serialized_fields_and_fields_reader():
 
     from seft_msgs_py.signals import MEASUREMENT_FIELDS, TIMING_FIELDS
     ts = get_typestore(Stores.ROS2_JAZZY)
-    for names in (MEASUREMENT_FIELDS, TIMING_FIELDS):
+    # a ten-story frame's structure state: 9 computational DOFs' x, v, a and the step time
+    many = tuple(f'floor_{i}/{q}' for q in ('x', 'v', 'a') for i in range(2, 11)) + ('t',)
+    for names in (MEASUREMENT_FIELDS, TIMING_FIELDS, many):
         values = tuple(-1.5 * (i + 1) for i in range(len(names)))
-        raw = SerializedStamped.fields(JointState, names)(5_000_000_001, values)
+        serialize = SerializedStamped.fields(JointState, names)
+        assert len(serialize.offsets) == len(names)     # the recorder's row width
+        raw = serialize(5_000_000_001, values)
         back = ts.deserialize_cdr(raw, 'sensor_msgs/msg/JointState')
         assert list(back.name) == list(names) and back.header.frame_id == FRAME_ID
         assert np.array_equal(back.position, values)

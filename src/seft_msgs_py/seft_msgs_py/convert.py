@@ -154,6 +154,14 @@ class ScalarReader:
 _MARKERS = tuple(-1.2345678901234567e-299 * (i + 1) for i in range(16))
 
 
+def _markers(n: int) -> tuple:
+    """`n` distinct marker values (more than :data:`_MARKERS` holds: a structure's state of
+    nine computational DOFs has 28 values)."""
+    if n <= len(_MARKERS):
+        return _MARKERS[:n]
+    return tuple(-1.2345678901234567e-299 * (i + 1) for i in range(n))
+
+
 _TYPESTORE = None
 
 
@@ -205,7 +213,7 @@ class SerializedStamped:
     set_values : callable(msg, values)
         Writes `n` float64 values into `msg`.
     n : int
-        Number of values (1..16).
+        Number of values (>= 1).
 
     Raises
     ------
@@ -214,12 +222,13 @@ class SerializedStamped:
     """
 
     def __init__(self, msg, set_values: Callable, n: int):
-        set_values(msg, _MARKERS[:n])
+        markers = _markers(n)
+        set_values(msg, markers)
         raw = _exact(msg)
         if raw[:2] != b'\x00\x01':
             raise ValueError('SerializedStamped: expected little-endian CDR')
         self.offsets = []
-        for m in _MARKERS[:n]:
+        for m in markers:
             packed = _DOUBLE.pack(m)
             at = raw.find(packed)
             if at < 0 or raw.find(packed, at + 1) >= 0:

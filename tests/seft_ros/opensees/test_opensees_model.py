@@ -63,7 +63,7 @@ def test_two_story_model_is_the_matrix_structure():
     assert [lk.name for lk in sa.structure.links] == ['story_1-ground', 'story_2-story_1']
     # the JSON round trip keeps the model
     again = Structure.from_json(sa.structure.to_json())
-    assert again.opensees['physical_elements'] == {'lab': [1]}
+    assert again.model['physical_elements'] == {'lab': [1]}
 
 
 def test_a_script_without_a_function(tmp_path):
@@ -82,7 +82,7 @@ def test_a_script_without_a_function(tmp_path):
     function = parse_structure(_section())
     np.testing.assert_allclose(script.stiffness_N_per_m, function.stiffness_N_per_m)
     np.testing.assert_allclose(script.damping_N_s_per_m, function.damping_N_s_per_m)
-    assert script.opensees['function'] == ''
+    assert script.model['function'] == ''
 
 
 def test_frame_is_condensed_to_its_floors():

@@ -108,3 +108,39 @@ def test_dry_run_times_each_step(two_story):
     r = dry_run(setup.substructures, DT, steps=50)
     assert r.step_times_s.shape == (50,)
     assert 0.0 < r.p50_s <= r.p99_s <= r.max_s
+
+
+def test_tangent_is_the_models_own():
+    """The yielding story of config/opensees/shear_frame.yaml shaken (floor 1 held, 5 Hz
+    ground motion): while it is elastic the part has no tangent (its linearization holds);
+    while it yields its tangent is the bilinear story's, ``b k`` in place of ``k`` in the
+    computational stiffness, from OpenSees' assembled system (within 1e-6); when it unloads,
+    none again."""
+    params = expand_runs(dict(load_config(ROOT / 'config' / 'opensees' / 'shear_frame.yaml'),
+                              duration_s=1.0))[0]
+    sub = test_setup(params).substructures
+    part = OpenSeesPart(sub, DT)
+    k, b = 2.11e5, 0.02
+    fy = float(part.spec.arguments['fy2_N'])
+    k_c = sub.stiffness_c_N_per_m
+    np.testing.assert_allclose(k_c, [[k, -k, 0], [-k, 2 * k, -k], [0, -k, k]], rtol=1e-12)
+    yielded = k_c + (b - 1.0) * k * np.array([[1, -1, 0], [-1, 1, 0], [0, 0, 0]])
+    seen = {'elastic': 0, 'yielding': 0, 'unloading': 0}
+    drift_before = 0.0
+    for j in range(300):
+        part.observe(0, Measurement(j, j * DT, 0.0, 0.0, 0.0, 0.0))
+        part.set_ground(j, 40.0 * np.sin(2 * np.pi * 5.0 * j * DT) * min(1.0, j / 150))
+        x = part.state_at(j)[0]
+        tangent = part.tangent()
+        drift = x[1] - x[0]
+        if abs(drift) < 0.9 * fy / k and seen['yielding'] == 0:
+            assert tangent is None, j                  # before the first yield
+            seen['elastic'] += 1
+        elif tangent is not None:
+            assert np.max(np.abs(tangent - yielded)) < 1e-6 * k, (j, tangent)
+            seen['yielding'] += 1
+        elif seen['yielding'] and abs(drift) < abs(drift_before):
+            seen['unloading'] += 1                     # back on the linearization
+        drift_before = drift
+    assert seen['elastic'] > 20 and seen['yielding'] > 10 and seen['unloading'] > 10, seen
+    assert 2 <= part.tangent_steps < seen['yielding']  # read where the tangent changed

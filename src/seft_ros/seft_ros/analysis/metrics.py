@@ -28,7 +28,6 @@ reads as its rig. :func:`summary_entry` gives every run one layout in ``summary.
 """
 
 from dataclasses import dataclass
-import json
 import math
 from typing import Any
 
@@ -42,6 +41,7 @@ from seft_ros.analysis.criteria import check_dt as _check_dt
 from seft_ros.analysis.reference import ReferenceResponse, StructureReference, run_reference
 from seft_ros.analysis.rundata import SIGNALS, RigData, RunData, only_rig, rig_label
 from seft_ros.analysis.timing import link_summary
+from seft_ros.core.models import model_plugin
 from seft_ros.core.structure import STUDY_DOF, Link, structure_of
 
 __all__ = [
@@ -1225,10 +1225,11 @@ def _structure_entries(run: RunData, comparison: RunComparison) -> dict[str, Any
         'links': {lk.name: _signal_entry(lk.drift) for lk in comparison.links},
         'rigs': rigs,
     }
-    if not run.is_study and json.loads(run.params['structure']).get('opensees') is not None:
-        # an OpenSees model's step times and overruns (issue 32)
-        from seft_ros.opensees.report import opensees_entry
-        out['opensees'] = opensees_entry(run)
+    kind = None if run.is_study else structure_of(run.params).model_kind
+    summary = None if kind is None else getattr(model_plugin(kind), 'summary', None)
+    if summary is not None:
+        # a plug-in model's own entry (OpenSees: its step times and overruns), by its name
+        out[kind] = summary(run)
     if run.extra.get('parameter_mismatches'):
         out['parameter_mismatches'] = list(run.extra['parameter_mismatches'])
     return out

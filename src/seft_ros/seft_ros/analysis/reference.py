@@ -30,6 +30,7 @@ from scipy import integrate, signal
 
 from seft_msgs_py.errors import ParameterError
 from seft_plant_sim.specimen import BoucWenSpecimen, LinearSpecimen, make_specimen
+from seft_ros.core.models import model_plugin
 from seft_ros.core.structure import (
     STUDY_RIG,
     Structure,
@@ -142,11 +143,11 @@ class StructureReference:
     hysteretic_z : dict of str to ndarray (n,)
         The Bouc-Wen variable of each hysteretic rig's member [-] (empty: all linear).
     method : str
-        How it was computed (:data:`LINEAR_METHOD`, :data:`NONLINEAR_METHOD`, or an OpenSees
-        model's own analysis, :func:`seft_ros.opensees.reference.opensees_reference`).
+        How it was computed (:data:`LINEAR_METHOD`, :data:`NONLINEAR_METHOD`, or a model
+        plug-in's own analysis, e.g. OpenSees': :mod:`seft_ros.core.models`).
     element_forces, element_deformations : dict of int to ndarray (n,)
-        An OpenSees model's elements asked for: a member's force and deformation (empty
-        otherwise).
+        A plug-in model's elements asked for (OpenSees): a member's force and deformation
+        (empty otherwise).
     """
 
     time_s: np.ndarray
@@ -667,11 +668,12 @@ def run_reference(run) -> StructureReference:
     else:
         setup = test_setup(params)
         structure = setup.structure
-        if structure.opensees is not None:
-            # an OpenSees model's reference is OpenSees' own analysis of it (issue 32)
-            from seft_ros.opensees.reference import opensees_reference
-            return opensees_reference(setup.substructures, _positive('dt', params.get('dt')),
-                                      run.ground_acceleration_m_s2)
+        reference = None if structure.model_kind is None else getattr(
+            model_plugin(structure.model_kind), 'reference', None)
+        if reference is not None:
+            # a plug-in model's reference is its program's own analysis of it (OpenSees')
+            return reference(setup.substructures, _positive('dt', params.get('dt')),
+                             run.ground_acceleration_m_s2)
         specimens = [make_specimen(setup.rig_params[r]) for r in setup.rig_names]
     return structure_reference(structure, specimens, _positive('dt', params.get('dt')),
                                run.ground_acceleration_m_s2)

@@ -44,6 +44,7 @@ from seft_ros.analysis.timing import (
     timing_figure,
     timing_table,
 )
+from seft_ros.core.models import model_kinds, model_plugin
 from seft_ros.core.structure import structure_of
 
 __all__ = ['ReportPaths', 'write_report', 'write_summary_json', 'plot_time_histories',
@@ -1533,11 +1534,12 @@ def _structure_run_markdown(index: int, run: RunData, comparison: RunComparison,
                   'over the reference (black: the Bouc-Wen f_s(x, z) of the whole structure '
                   'integrated with the yielding member); bottom: the displacement of test and '
                   'reference (thin), their drifts (thick) and the residual displacements.', '']
-    if 'opensees' in entry:
-        # an OpenSees model's step times and its members' hysteresis (issue 32)
-        from seft_ros.opensees.report import opensees_markdown
-        lines += opensees_markdown(index, run, entry, png.parent,
-                                   reference=comparison.structure_reference)
+    for kind in model_kinds():
+        markdown = getattr(model_plugin(kind), 'markdown', None) if kind in entry else None
+        if markdown is not None:
+            # a plug-in model's section (OpenSees: step times, its members' hysteresis)
+            lines += markdown(index, run, entry, png.parent,
+                              reference=comparison.structure_reference)
     return lines
 
 

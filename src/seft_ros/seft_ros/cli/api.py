@@ -33,7 +33,9 @@ from seft_ros.cli.config import (
 from seft_ros.core import stability
 from seft_ros.core.experiment import simulate
 from seft_ros.core.ground_motion import prepared_record
+from seft_ros.core.models import model_plugin
 from seft_ros.core.reference_force import PREDICTORS
+from seft_ros.core.structure import structure_of
 
 __all__ = ['build_runs', 'output_dir', 'remove_empty_dirs', 'run_experiments',
            'simulate_experiments', 'simulate_runs', 'compare_bags', 'find_bags',
@@ -937,12 +939,16 @@ def check_capacity(*, runs: list[dict], progress: Callable[[str], None] = print)
     The analytical reference of the whole structure (linear model, the prepared record) is
     what a perfectly compensated test reproduces; if its peak velocity exceeds
     :func:`actuator_velocity_limit_m_s`, the valve will saturate and the loss-of-control
-    interlock is likely to end the run. A warning, not a refusal. A run with an OpenSees
-    model is first checked by :func:`seft_ros.opensees.checks.check_runs` (refused in one
-    line where it cannot run as configured).
+    interlock is likely to end the run. A warning, not a refusal. A run with a plug-in's
+    model (:mod:`seft_ros.core.models`) is first checked by its plug-in's ``check_runs``
+    (OpenSees: :func:`seft_ros.opensees.checks.check_runs`; refused in one line where it
+    cannot run as configured).
     """
-    from seft_ros.opensees.checks import check_runs as check_opensees  # issue 32
-    check_opensees(runs, progress=progress)
+    kinds = {structure_of(p).model_kind for p in runs if has_structure(p)} - {None}
+    for kind in sorted(kinds):
+        check = getattr(model_plugin(kind), 'check_runs', None)
+        if check is not None:
+            check(runs, progress=progress)
     for p in runs:
         v_max = actuator_velocity_limit_m_s(p)
         if v_max is None or has_structure(p):

@@ -38,7 +38,9 @@ from seft_ros.core.substructure import (
     SpecimenModel,
     computational_part,
     structure_matrices,
+    tangent_matrices,
 )
+from seft_ros.core.tangent import YieldMechanisms
 
 __all__ = ['Predictor', 'NoPredictor', 'PREDICTORS', 'make_predictor', 'ReferenceForceBuilder',
            'RigReferenceForce', 'ground_window', 'with_loop_latency', 'network_delay_steps',
@@ -362,6 +364,12 @@ EXCHANGE_LAG_STEPS = 25
 #: ``dt / 64``) rebuilds the interface prediction (an ``adaptive`` compensator's estimates).
 MODEL_TOLERANCE = 0.01
 
+#: A computational part's tangent stiffness (a model that yields) is predicted with on a grid
+#: of this part of the largest entry of its initial stiffness (the deviation from it is
+#: rounded; a tangent within half a step of the initial one is the initial one, exactly): the
+#: predictions built for a member's few tangents are kept (:data:`INTERFACE_CACHE`).
+TANGENT_STEP = 0.005
+
 
 class ReferenceForceBuilder:
     """The reference forces of the rigs of a test, one step at a time.
@@ -486,6 +494,9 @@ class ReferenceForceBuilder:
                                                        maxlen=len(weights)))
         self._yields = [yields(law.predictor) for law in self.laws]
         self._interface_cache = {}
+        self._tangent = None                 # the quantized K_c,t in use (None: K_c)
+        self._tangent_key = None
+        self._mechanisms = None              # a yielding part's mechanisms (core.tangent)
         if self._targets:
             self._interface_key = None
             self._build_interface()
@@ -531,30 +542,52 @@ class ReferenceForceBuilder:
 
     def _build_interface(self) -> None:
         """(Re)build the interface prediction from the local rigs' current specimen models
-        and delays, when they moved (:data:`MODEL_TOLERANCE`)."""
+        and delays, when they moved (:data:`MODEL_TOLERANCE`), and the computational part's
+        tangent stiffness in use (``_tangent_key``)."""
         models = [specimen_model_of(law.predictor, p)
                   for law, p in zip(self.laws, self._rig_params)]
         taus = [float(law.predictor.delay_s) for law in self.laws]
         key = self._interface_key
         if key is not None:
-            old_models, old_taus = key
+            old_models, old_taus, old_tangent = key
             if not any(m.moved(o, MODEL_TOLERANCE) for m, o in zip(models, old_models)) and all(
-                    abs(t - o) <= self.dt / 64 for t, o in zip(taus, old_taus)):
+                    abs(t - o) <= self.dt / 64 for t, o in zip(taus, old_taus)) \
+                    and old_tangent == self._tangent_key:
                 return
         exact = (tuple((m.mass_kg, m.damping_N_s_per_m, m.stiffness_N_per_m) for m in models),
-                 tuple(round(t / self.dt * 64) for t in taus))
+                 tuple(round(t / self.dt * 64) for t in taus), self._tangent_key)
         ip = self._interface_cache.get(exact)
         if ip is None:
+            sub, matrices = self.setup.substructures, self.state.matrices
+            if self._tangent is not None:
+                matrices = tangent_matrices(sub, matrices, self._tangent)
             with single_blas_thread():
                 ip = InterfacePredictor(
-                    self.setup.substructures, self._local_pos, models, taus, self._targets,
-                    self.dt, self.state.matrices, offsets=self._yields)
+                    sub, self._local_pos, models, taus, self._targets, self.dt, matrices,
+                    offsets=self._yields, stiffness_c_N_per_m=self._tangent)
             if len(self._interface_cache) >= INTERFACE_CACHE:
                 self._interface_cache.pop(next(iter(self._interface_cache)))
             self._interface_cache[exact] = ip
         self._interface = ip
         self._interface_models = models
-        self._interface_key = (models, taus)
+        self._interface_key = (models, taus, self._tangent_key)
+
+    def _use_tangent(self, stiffness_c_N_per_m) -> None:
+        """Predict with the computational part's tangent `stiffness_c_N_per_m` (None: its
+        linearization), rounded to the grid of :data:`TANGENT_STEP`."""
+        if stiffness_c_N_per_m is None:
+            self._tangent = self._tangent_key = None
+            return
+        k0 = self.setup.substructures.stiffness_c_N_per_m
+        step = TANGENT_STEP * float(np.max(np.abs(k0)))
+        grid = np.round((np.asarray(stiffness_c_N_per_m, dtype=float) - k0) / step)
+        if not grid.any():
+            self._tangent = self._tangent_key = None
+            return
+        key = grid.astype(np.int64).tobytes()
+        if key != self._tangent_key:
+            self._tangent_key = key
+            self._tangent = k0 + grid * step
 
     def set_specimen_model(self, rig: str, model: SpecimenModel) -> None:
         """Model rig `rig` (commanded elsewhere) with an identified specimen from now on: its
@@ -728,6 +761,32 @@ class ReferenceForceBuilder:
         if model.moved(current, MODEL_TOLERANCE):
             self.set_specimen_model(rig, model)
 
+    def _prediction_input(self, k: int, window, latest, x, v) -> tuple[list, tuple | None]:
+        """``q`` of the interface prediction (built for the tangent in use) and the residual
+        to add to its forces (a model that is not its linearization), at step `k`."""
+        self._build_interface()
+        ip = self._interface
+        nh = ip.history_steps
+        q = x + v
+        adjust = getattr(self.state, 'prediction_state', None)
+        residual = None
+        if adjust is not None:       # a model that is not its linearization (OpenSees)
+            shifted, residual = adjust(x, v, [self._local_dof[r] for r in self._targets],
+                                       self._tangent)
+            q = list(shifted) + list(v)
+        for law in self.laws:
+            past = law.commanded_N[-nh:]
+            q.extend([0.0] * (nh - len(past)) + past)
+        q.append(0.0 if k == 0 else self.state.ground.get(k - 1, 0.0))  # g[k-1]
+        q.extend(window[:ip.ground_steps - 1])
+        for r in ip.offset_rigs:          # a yielding member: measured less modelled
+            m, mod = latest[r], self._interface_models[r]
+            q.append(0.0 if m is None else (
+                m.force_N - mod.mass_kg * m.acceleration_m_s2
+                - mod.damping_N_s_per_m * m.velocity_m_s
+                - mod.stiffness_N_per_m * m.displacement_m))
+        return q, residual
+
     def _couple(self, k: int, window, latest) -> None:
         """The computational state of sample ``k-1`` and the local rigs' interface forces
         (`latest`: each local rig's measurement of ``k-1``, None at the start)."""
@@ -747,27 +806,24 @@ class ReferenceForceBuilder:
         sampled = state.interface_forces(x, v, self._local_dof)
         predicted = None
         if self._targets:
-            self._build_interface()
-            ip = self._interface
-            nh = ip.history_steps
-            q = x + v
-            adjust = getattr(state, 'prediction_state', None)
-            residual = None
-            if adjust is not None:       # a model that is not its linearization (OpenSees)
-                shifted, residual = adjust(x, v, [self._local_dof[r] for r in self._targets])
-                q = list(shifted) + list(v)
-            for law in self.laws:
-                past = law.commanded_N[-nh:]
-                q.extend([0.0] * (nh - len(past)) + past)
-            q.append(0.0 if k == 0 else state.ground.get(k - 1, 0.0))  # g[k-1]
-            q.extend(window[:ip.ground_steps - 1])
-            for r in ip.offset_rigs:          # a yielding member: measured less modelled
-                m, mod = latest[r], self._interface_models[r]
-                q.append(0.0 if m is None else (
-                    m.force_N - mod.mass_kg * m.acceleration_m_s2
-                    - mod.damping_N_s_per_m * m.velocity_m_s
-                    - mod.stiffness_N_per_m * m.displacement_m))
-            predicted = dict(zip(self._targets, ip(q)))
+            tangent = getattr(state, 'tangent', None)
+            k_t = tangent() if tangent is not None and k > 0 else None
+            self._use_tangent(k_t)
+            q, residual = self._prediction_input(k, window, latest, x, v)
+            if tangent is not None and k > 0:
+                # a part that yields: the mechanisms that go on yielding, unload or start
+                # to yield over the predicted motion (core.tangent)
+                if self._mechanisms is None:
+                    self._mechanisms = YieldMechanisms(
+                        self.setup.substructures.stiffness_c_N_per_m)
+                self._mechanisms.observe(x, k_t)
+                shifted = q[:len(x)]
+                stiffness = self._mechanisms.stiffness(
+                    [a - b for a, b in zip(self._interface.displacements(q), shifted)])
+                if stiffness is not None:
+                    self._use_tangent(stiffness)
+                    q, residual = self._prediction_input(k, window, latest, x, v)
+            predicted = dict(zip(self._targets, self._interface(q)))
             if residual is not None:
                 for r, d in zip(self._targets, residual):
                     predicted[r] += d

@@ -989,8 +989,8 @@ def scaled_parameters(params: Mapping, scale: float) -> dict:
         for j, i in enumerate(idx):
             whole[i, i] += spec[j]
         doc[key] = whole.tolist()
-    if doc.get('opensees') is not None:      # a model's computational part, scaled alike
-        doc['opensees']['computational'] = {
+    if s.model_kind is not None:      # a plug-in model's computational part, scaled alike
+        doc[s.model_kind]['computational'] = {
             'damping_matrix_N_s_per_m': (float(scale) * sub.damping_c_N_s_per_m).tolist(),
             'stiffness_matrix_N_per_m': (float(scale) * sub.stiffness_c_N_per_m).tolist()}
     return dict(params, structure=json.dumps(doc, sort_keys=True, separators=(',', ':')))

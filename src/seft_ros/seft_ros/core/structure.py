@@ -43,9 +43,10 @@ Configuration (YAML; the ``structure`` section of a run configuration)::
     rigs:                                   # per-rig parameters (its namespace's nodes)
       story_1: {rig_model: servohydraulic, stiffness_N_per_m: 2.11e5}
 
-Or an OpenSeesPy model of the whole structure (``opensees``: the model file or module, the
-DOFs it names, each rig's specimen elements; :mod:`seft_ros.opensees.model`), with
-``physical``; the matrices are then the model's linearization.
+Or a model of the whole structure in another program, under the key of its plug-in
+(:mod:`seft_ros.core.models`; ``opensees``: an OpenSeesPy model, the DOFs it names, each
+rig's specimen elements), with ``physical``; the matrices are then the model's
+linearization.
 
 Damping, one of: ``story_damping_N_s_per_m`` (shear building: a dashpot per story),
 ``damping_matrix_N_s_per_m``, ``modal_damping_ratios`` (one ratio per mode in order of
@@ -72,6 +73,7 @@ import numpy as np
 
 from seft_msgs_py.errors import ParameterError
 from seft_msgs_py.parameters import TEST_PARAMETERS
+from seft_ros.core.models import model_kinds, model_plugin
 
 __all__ = ['Structure', 'parse_structure', 'Substructures', 'split', 'STRUCTURE_KEYS',
            'NAME_PATTERN', 'Link', 'NO_STRUCTURE', 'structure_of', 'rig_parameters',
@@ -90,7 +92,7 @@ NAME_PATTERN = re.compile(r'^[A-Za-z][A-Za-z0-9_]*$')
 STRUCTURE_KEYS = ('dofs', 'physical', 'story_masses_kg', 'story_stiffnesses_N_per_m',
                   'story_damping_N_s_per_m', 'mass_matrix_kg', 'stiffness_matrix_N_per_m',
                   'damping_matrix_N_s_per_m', 'modal_damping_ratios', 'rayleigh_damping',
-                  'influence', 'opensees')
+                  'influence')
 _SHEAR = ('story_masses_kg', 'story_stiffnesses_N_per_m')
 _MATRICES = ('mass_matrix_kg', 'stiffness_matrix_N_per_m')
 _DAMPING = ('story_damping_N_s_per_m', 'damping_matrix_N_s_per_m', 'modal_damping_ratios',
@@ -148,10 +150,14 @@ class Structure:
     damping_from : str
         The key of the ``structure`` section the damping came from (error messages name
         what the user wrote).
-    opensees : mapping or None
-        A structure from an OpenSeesPy model: the model and how seft sees it
-        (:meth:`seft_ros.opensees.model.ModelSpec.to_doc`); the matrices are then its
-        linearization (:func:`seft_ros.opensees.model.model_structure`). None: matrices.
+    model_kind : str or None
+        A structure from a model of another program: the name of its plug-in
+        (:mod:`seft_ros.core.models`, e.g. ``'opensees'``); the matrices are then the model's
+        linearization. None: the matrices are the structure.
+    model : mapping or None
+        The plug-in's description of the model (JSON-able; its ``computational`` entry holds
+        the computational part's condensed ``damping_matrix_N_s_per_m`` and
+        ``stiffness_matrix_N_per_m``).
 
     Attributes
     ----------
@@ -174,7 +180,8 @@ class Structure:
     rigs: Mapping[str, Mapping[str, Any]]
     links: tuple = field(default=())
     damping_from: str = 'damping_matrix_N_s_per_m'
-    opensees: Mapping[str, Any] | None = None
+    model_kind: str | None = None
+    model: Mapping[str, Any] | None = None
 
     @property
     def n(self) -> int:
@@ -226,8 +233,8 @@ class Structure:
             'links': [[lk.i, lk.j, lk.name] for lk in self.links],
             'damping_from': self.damping_from,
         }
-        if self.opensees is not None:
-            doc['opensees'] = dict(self.opensees)
+        if self.model_kind is not None:
+            doc[self.model_kind] = dict(self.model or {})
         return json.dumps(doc, sort_keys=True, separators=(',', ':'))
 
     @classmethod
@@ -248,11 +255,13 @@ class Structure:
         links = doc.pop('links', None)
         rigs = doc.pop('rigs', {})
         damping_from = doc.pop('damping_from', 'damping_matrix_N_s_per_m')
-        model = doc.pop('opensees', None)
+        extra = [k for k in doc if k not in STRUCTURE_KEYS]
+        kind = extra[0] if len(extra) == 1 and extra[0] in model_kinds() else None
+        model = doc.pop(kind) if kind is not None else None
         out = parse_structure(doc, rigs=rigs, where=where)
         out = replace(out, damping_from=str(damping_from))
-        if model is not None:
-            out = replace(out, opensees=MappingProxyType(dict(model)))
+        if kind is not None:
+            out = replace(out, model_kind=kind, model=MappingProxyType(dict(model)))
         if links is not None:
             try:
                 parsed = tuple(Link(int(i), None if j is None else int(j), str(name))
@@ -411,7 +420,8 @@ def parse_structure(section: Mapping, *, rigs: Mapping | None = None,
     Returns
     -------
     Structure
-        With an ``opensees`` model: :func:`seft_ros.opensees.model.model_structure`.
+        With a model plug-in's key (``opensees``): the plug-in's structure
+        (:func:`seft_ros.core.models.model_plugin`).
 
     Raises
     ------
@@ -426,11 +436,15 @@ def parse_structure(section: Mapping, *, rigs: Mapping | None = None,
                              f'lists the keys), got {section!r}')
     unknown = sorted(set(section) - set(STRUCTURE_KEYS))
     if unknown:
-        raise _fail(where, unknown[0], 'unknown key (expected one of '
-                    + ', '.join(STRUCTURE_KEYS) + ')')
-    if 'opensees' in section:            # a model of OpenSeesPy (its own package)
-        from seft_ros.opensees.model import model_structure
-        return model_structure(section, rigs=rigs, where=where, base=base)
+        kinds = model_kinds()
+        plugins = [k for k in unknown if k in kinds]
+        if not plugins:
+            raise _fail(where, unknown[0], 'unknown key (expected one of '
+                        + ', '.join(STRUCTURE_KEYS) + ', or a model plug-in: '
+                        + (', '.join(kinds) or 'none installed') + ')')
+        # a model of another program (a plug-in: seft_ros.core.models)
+        return model_plugin(plugins[0], where=where).structure(section, rigs=rigs, where=where,
+                                                               base=base)
     shear = [k for k in _SHEAR if k in section]
     general = [k for k in _MATRICES if k in section]
     if shear and general:
@@ -610,9 +624,9 @@ def split(structure: Structure, specimens: Mapping[str, Mapping[str, Any]], *,
         that differs from the specimen's: the structure's physical part disagrees with the
         rig's specimen (the message gives both values).
     """
-    if structure.opensees is not None:   # the specimens are the model's elements
-        from seft_ros.opensees.model import split_model
-        return split_model(structure, specimens, where=where)
+    if structure.model_kind is not None:     # a plug-in's model: its specimens, its split
+        return model_plugin(structure.model_kind, where=where).split(structure, specimens,
+                                                                     where=where)
     idx = structure.physical_index
     m = np.zeros(len(idx))
     c = np.zeros(len(idx))

@@ -56,11 +56,12 @@ import numpy as np
 
 from seft_msgs_py.errors import ParameterError
 from seft_msgs_py.sampling import linear_map, single_blas_thread, split_delay, zoh
+from seft_ros.core.models import model_plugin
 from seft_ros.core.structure import Substructures
 
 __all__ = ['Matrices', 'structure_matrices', 'hermite_step', 'InterfacePredictor',
            'StructureState', 'SpecimenModel', 'INTERFACE_MODES', 'ComputationalPart',
-           'computational_part']
+           'computational_part', 'tangent_matrices']
 
 #: How a rig's compensator sees the interface force (module notes).
 INTERFACE_MODES = ('sampled', 'extrapolated', 'predicted')
@@ -274,6 +275,10 @@ class InterfacePredictor:
         that yields: its model is the tangent stiffness, and ``d`` = the measured restoring
         force less the model's at ``t_k-1``, held over the prediction:
         ``m x'' + c x' + k_t x + d = F``).
+    stiffness_c_N_per_m : ndarray (n, n), optional
+        The computational part's stiffness the interface forces are predicted with (a
+        tangent of a model that yields, :func:`tangent_matrices`; default
+        ``sub.stiffness_c_N_per_m``, the linearization's); `matrices` must hold it too.
 
     Attributes
     ----------
@@ -285,6 +290,9 @@ class InterfacePredictor:
         Length of ``q``: ``2 n + n_l nh + ng + n_d`` (``n_d`` the rigs with an offset).
     matrix : ndarray, shape (n_targets, width)
         ``I = matrix q`` [N].
+    displacement_matrix : ndarray, shape (n, width)
+        Every DOF's displacement in the middle of the first target's interval,
+        ``x((a + b) / 2) = displacement_matrix q`` [m] (:meth:`displacements`).
 
     Notes
     -----
@@ -297,8 +305,11 @@ class InterfacePredictor:
 
     def __init__(self, sub: Substructures, local: Sequence[int], models: Sequence[SpecimenModel],
                  taus_s: Sequence[float], targets: Sequence[int], dt: float,
-                 matrices: Matrices | None = None, offsets: Sequence[bool] | None = None):
+                 matrices: Matrices | None = None, offsets: Sequence[bool] | None = None,
+                 stiffness_c_N_per_m: np.ndarray | None = None):
         s = sub.structure
+        k_c = sub.stiffness_c_N_per_m if stiffness_c_N_per_m is None else np.asarray(
+            stiffness_c_N_per_m, dtype=float)
         dt = float(dt)
         n = s.n
         pi = list(s.physical_index)
@@ -402,9 +413,14 @@ class InterfacePredictor:
             ya = snapshots[round((dt + taus[t]) / eps)]
             yb = snapshots[round((2.0 * dt + taus[t]) / eps)]
             diff = yb - ya
-            rows[row] = -(sub.damping_c_N_s_per_m[p] @ diff[xs]
-                          + sub.stiffness_c_N_per_m[p] @ diff[ixs]) / dt
+            rows[row] = -(sub.damping_c_N_s_per_m[p] @ diff[xs] + k_c[p] @ diff[ixs]) / dt
         self.history_steps, self.ground_steps, self.width = nh, ng, width
+        self.displacement_matrix = np.zeros((n, width))
+        if targets:
+            t = targets[0]
+            self.displacement_matrix = 0.5 * (snapshots[round((dt + taus[t]) / eps)][xs]
+                                              + snapshots[round((2.0 * dt + taus[t]) / eps)][xs])
+        self._displacements = None
         self.offset_rigs = tuple(with_offset)
         self.matrix = rows
         self._map = linear_map(rows, name='interface_prediction')
@@ -412,6 +428,37 @@ class InterfacePredictor:
     def __call__(self, q) -> tuple:
         """The predicted interface forces [N] of the targets from ``q`` (class notes)."""
         return self._map(q)
+
+    def displacements(self, q) -> tuple:
+        """Every DOF's predicted displacement [m] in the middle of the first target's
+        interval, from ``q`` (``displacement_matrix``; compiled on first use)."""
+        if self._displacements is None:
+            self._displacements = linear_map(self.displacement_matrix, name='displacements')
+        return self._displacements(q)
+
+
+def tangent_matrices(sub: Substructures, matrices: Matrices,
+                     stiffness_c_N_per_m: np.ndarray) -> Matrices:
+    """`matrices` with the computational part's stiffness replaced by a tangent one.
+
+    ``K = matrices.K - K_c + K_c,t``: the rigs' specimens (declared or identified) stay as
+    `matrices` has them.
+
+    Parameters
+    ----------
+    sub : Substructures
+    matrices : Matrices
+        The whole structure as the builder models it.
+    stiffness_c_N_per_m : ndarray (n, n)
+        ``K_c,t`` [N/m].
+
+    Returns
+    -------
+    Matrices
+    """
+    k = matrices.stiffness_N_per_m - sub.stiffness_c_N_per_m + np.asarray(stiffness_c_N_per_m,
+                                                                          dtype=float)
+    return Matrices(matrices.mass_kg, matrices.damping_N_s_per_m, k, matrices.influence)
 
 
 @runtime_checkable
@@ -424,6 +471,17 @@ class ComputationalPart(Protocol):
     (:meth:`observe`); the interface forces at the physical DOFs are what the computational
     part exerts on them there (Eq. 2's ``I``); ``matrices`` is its linear model for the
     compensators' prediction (the ``predicted`` interface forces, the stability analysis).
+
+    A part that is not its linearization (a model that yields) may add two methods, which
+    the builder calls when they are there (:class:`StructureState` has neither: its
+    prediction is exact):
+
+    * ``tangent() -> ndarray (n, n) or None``: the computational part's tangent stiffness
+      ``K_c,t`` [N/m] at the latest sample (None: its linearization's ``K_c`` holds);
+    * ``prediction_state(x, v, dofs, stiffness_c_N_per_m=None) -> (shifted, residual)``: the
+      state the linear prediction with that stiffness starts from (the model's own
+      restoring forces held over the prediction: the computational DOFs' displacements
+      shifted) and what to add to its interface forces at `dofs`.
 
     Attributes
     ----------
@@ -458,11 +516,12 @@ class ComputationalPart(Protocol):
 
 def computational_part(sub: Substructures, dt: float) -> 'ComputationalPart':
     """The computational part of a split structure: :class:`StructureState` (the matrices of
-    Eq. 1), or for a structure from an OpenSees model
-    :class:`~seft_ros.opensees.part.OpenSeesPart` (the model stepped once per sample)."""
-    if sub.structure.opensees is not None:
-        from seft_ros.opensees.part import OpenSeesPart
-        return OpenSeesPart(sub, dt)
+    Eq. 1), or for a structure from a model of another program its plug-in's part
+    (:mod:`seft_ros.core.models`; OpenSees: :class:`~seft_ros.opensees.part.OpenSeesPart`,
+    the model stepped once per sample)."""
+    kind = sub.structure.model_kind
+    if kind is not None:
+        return model_plugin(kind).part(sub, dt)
     return StructureState(sub, dt)
 
 

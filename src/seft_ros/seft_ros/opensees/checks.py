@@ -18,6 +18,7 @@
 from typing import Callable
 
 from seft_msgs_py.errors import ParameterError
+from seft_ros.opensees.model import KIND
 from seft_ros.opensees.part import BUDGET_FRACTION, dry_run
 
 __all__ = ['check_runs', 'DRY_RUN_STEPS']
@@ -28,7 +29,7 @@ DRY_RUN_STEPS = 500
 
 def _model_name(structure) -> str:
     from seft_ros.opensees.model import model_name
-    model = structure.opensees
+    model = structure.model
     return model_name(model['model'], model.get('function', 'build'))
 
 
@@ -55,7 +56,7 @@ def check_runs(runs, *, progress: Callable[[str], None] = print) -> None:
             continue
         setup = test_setup(p)
         s = setup.structure
-        if s.opensees is None:
+        if s.model_kind != KIND:
             continue
         name = _model_name(s)
         builders = p.get('structure_builders', 'central')

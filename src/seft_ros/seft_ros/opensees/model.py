@@ -20,6 +20,9 @@ kept apart from the analysis seft drives (after OpenSees' own split of ``model``
         substeps: 1                # OpenSees steps per sample in the test (default 1)
         elements: [111]            # computational elements whose response is recorded (their
                                    # hysteresis in the report; optional)
+        prediction: tangent        # the compensators predict the interface force with the
+                                   # model's tangent (default), or 'initial': its
+                                   # linearization (:mod:`seft_ros.opensees.part`)
       physical: {floor_1: lab}     # the DOF each rig tests
 
 seft's degrees of freedom are the model's DOFs **with mass** (the others are condensed
@@ -74,11 +77,17 @@ from seft_ros.opensees.loader import captured, last_message, opensees
 
 __all__ = ['ModelSpec', 'SECTION_KEYS', 'parse_model_section', 'build_model', 'Linearization',
            'linearize', 'condense', 'model_structure', 'split_model', 'ModelError',
-           'remove_specimens', 'interface_group', 'model_name']
+           'remove_specimens', 'interface_group', 'model_name', 'KIND', 'PREDICTIONS']
 
+#: The key of a ``structure`` section with an OpenSees model (the plug-in's name,
+#: :mod:`seft_ros.core.models`).
+KIND = 'opensees'
 #: The keys of a ``structure.opensees`` section.
 SECTION_KEYS = ('model', 'function', 'arguments', 'dofs', 'physical_elements', 'excitation_dof',
-                'substeps', 'elements')
+                'substeps', 'elements', 'prediction')
+#: How the compensators predict the interface force (``prediction``): with the model's
+#: tangent stiffness at the latest sample, or with its initial linearization.
+PREDICTIONS = ('tangent', 'initial')
 #: Relative tolerance of the specimen checks against the model.
 _TOL = 1e-6
 
@@ -116,6 +125,8 @@ class ModelSpec:
         Computational elements whose response the test records and the report draws.
     where : str
         The section's name in error messages.
+    prediction : str
+        One of :data:`PREDICTIONS`.
     """
 
     source: str
@@ -128,6 +139,7 @@ class ModelSpec:
     computational: Mapping = field(default_factory=dict)
     elements: tuple = ()
     where: str = 'structure.opensees'
+    prediction: str = 'tangent'
 
     def interface(self, dof_name: str) -> tuple[int, int]:
         """``(node, dof)`` of a seft DOF (KeyError if none)."""
@@ -145,6 +157,7 @@ class ModelSpec:
                                       for r, v in self.physical_elements.items()},
                 'excitation_dof': int(self.excitation_dof), 'substeps': int(self.substeps),
                 'elements': [int(e) for e in self.elements],
+                'prediction': self.prediction,
                 'computational': {k: np.asarray(v).tolist()
                                   for k, v in self.computational.items()}}
 
@@ -166,7 +179,8 @@ class ModelSpec:
                        int(doc.get('excitation_dof', 1)), int(doc.get('substeps', 1)),
                        MappingProxyType({k: np.asarray(v, dtype=float) for k, v in
                                          (doc.get('computational') or {}).items()}),
-                       tuple(int(e) for e in doc.get('elements', ())), where)
+                       tuple(int(e) for e in doc.get('elements', ())), where,
+                       str(doc.get('prediction', 'tangent')))
         except (KeyError, TypeError, ValueError) as exc:
             raise ParameterError(f'{where}: expected the model section seft wrote ({exc!r})') \
                 from None
@@ -284,9 +298,13 @@ def parse_model_section(section, *, where: str = 'structure.opensees',
             or not all(isinstance(t, int) and not isinstance(t, bool) for t in recorded)):
         raise ParameterError(f'{where}.elements: expected a list of element tags, got '
                              f'{recorded!r}')
+    prediction = section.get('prediction', 'tangent')
+    if prediction not in PREDICTIONS:
+        raise ParameterError(f'{where}.prediction: expected one of {", ".join(PREDICTIONS)}, '
+                             f'got {prediction!r}')
     return ModelSpec(source, function, MappingProxyType(dict(arguments)), tuple(dofs),
                      MappingProxyType(elements), excitation, substeps, MappingProxyType({}),
-                     tuple(int(t) for t in recorded), where)
+                     tuple(int(t) for t in recorded), where, prediction)
 
 
 def _builder(spec: ModelSpec):
@@ -748,8 +766,8 @@ def model_structure(section: Mapping, *, rigs: Mapping | None = None,
     links = tuple(Link(i, j, f'{names[i]}-{names[j]}' if j is not None else f'{names[i]}-ground')
                   for j, i in zip([None] + lateral[:-1], lateral))
     return Structure(names, m, c, k, influence, MappingProxyType(ordered),
-                     MappingProxyType(rig_values), links, 'opensees',
-                     opensees=MappingProxyType(spec.to_doc()))
+                     MappingProxyType(rig_values), links, KIND, model_kind=KIND,
+                     model=MappingProxyType(spec.to_doc()))
 
 
 def _check_interfaces(spec: ModelSpec, interfaces: Mapping[str, tuple[int, int]]) -> None:
@@ -814,7 +832,7 @@ def split_model(structure: Structure, specimens: Mapping[str, Mapping[str, Any]]
         a rig's ``stiffness_N_per_m`` or ``damping_N_s_per_m`` that is not its elements'
         (both values given).
     """
-    spec = ModelSpec.from_doc(structure.opensees, where=f'{where}.opensees')
+    spec = ModelSpec.from_doc(structure.model, where=f'{where}.opensees')
     k_c = np.asarray(spec.computational['stiffness_matrix_N_per_m'], dtype=float)
     c_c = np.asarray(spec.computational['damping_matrix_N_s_per_m'], dtype=float)
     mass, stiff, damp = structure.mass_kg, structure.stiffness_N_per_m, \

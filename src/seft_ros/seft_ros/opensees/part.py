@@ -7,16 +7,18 @@ rig's measurement of a sample is in:
 
 * the **interface DOFs follow the measured motion**: a single-point constraint moved to the
   measured displacement at the step's end (``sp``, OpenSees' ``Penalty`` constraint handler,
-  its factor ``1e8`` times the largest diagonal of the effective stiffness), the step
-  starting from the measured displacement, velocity and acceleration (``setNodeDisp``,
+  its factor ``PENALTY_FACTOR`` times the largest diagonal of the effective stiffness), the
+  step starting from the measured displacement, velocity and acceleration (``setNodeDisp``,
   ``setNodeVel``, ``setNodeAccel``); with ``substeps > 1`` the motion inside a sample is the
   cubic Hermite interpolant of the measured displacements and velocities at its ends (as the
   matrix path's :func:`~seft_ros.core.substructure.hermite_step`);
 * the **ground motion** loads every other DOF with mass as ``-m iota xg''`` (nodal forces; the
   record linear between samples);
 * **one transient step** (``Newmark`` average acceleration, ``Newton`` iterations to
-  ``NormDispIncr`` 1e-12 m, at most 25): nonlinear elements and materials are stepped as
-  they are;
+  ``NormDispOrUnbalance``: a correction below 1e-12 m or an unbalance below
+  ``UNBALANCE_TOLERANCE``, at most 25; a banded system until the model first leaves its
+  linearization, then a full one): nonlinear elements and materials are stepped as they
+  are;
 * the **interface force** of each rig is minus the reaction at its interface DOF less the
   inertia of the interface node's mass (``reactions('-dynamic')``: the elements' restoring
   and damping forces with their Rayleigh damping, and the node's; its mass is the specimen's
@@ -28,11 +30,15 @@ rig's measurement of a sample is in:
 Exact and approximate: for a linear model the step is Newmark's (second order; period error
 about ``(omega dt)^2 / 12`` per mode, 0.35 % for a 16 Hz mode at 500 Hz, less with
 ``substeps``), where the matrix path integrates the computational DOFs exactly for the
-interpolated motion. The compensators predict the interface force with the model's
-linearization (the structure's matrices) with the model's nonlinear restoring forces at the
-last sample held over the prediction (:meth:`OpenSeesPart.prediction_state`): exact for a
-linear model; for a yielding one exact at the sample and approximate over the loop delay
-(the change is predicted with the initial tangent).
+interpolated motion. The compensators predict the interface force with a linear model
+started from the model's state, its nonlinear restoring forces at the last sample held over
+the prediction (:meth:`OpenSeesPart.prediction_state`): exact for a linear model. A yielding
+model is predicted with its own tangent stiffness, read from the system Newton assembled on
+the steps that changed it and condensed to seft's DOFs (:meth:`OpenSeesPart.tangent`;
+``prediction: tangent``, the default), whose yielding mechanisms the builder follows over
+the predicted motion (:mod:`seft_ros.core.tangent`); exact at the sample, approximate over
+the loop delay (a first yield is not anticipated). With ``prediction: initial`` the change
+is predicted with the linearization.
 
 Each step's wall time (``time.perf_counter``) is recorded as the state
 ``opensees/step_time_s``; :func:`dry_run` times the model before a real-time run.
@@ -48,7 +54,7 @@ from seft_msgs_py.errors import ParameterError
 from seft_ros.core.structure import Substructures
 from seft_ros.core.substructure import structure_matrices
 from seft_ros.opensees.loader import captured, last_message, opensees
-from seft_ros.opensees.model import ModelError, ModelSpec, build_model, interface_group
+from seft_ros.opensees.model import KIND, ModelError, ModelSpec, build_model, interface_group
 
 __all__ = ['OpenSeesPart', 'STEP_TIME', 'dry_run', 'DryRun', 'BUDGET_FRACTION', 'element_names',
            'element_response']
@@ -57,6 +63,28 @@ __all__ = ['OpenSeesPart', 'STEP_TIME', 'dry_run', 'DryRun', 'BUDGET_FRACTION', 
 STEP_TIME = 'opensees/step_time_s'
 #: Tags of seft's own pattern and time series (far from a model's).
 _PATTERN, _SERIES = 2_000_000_011, 2_000_000_012
+#: The interface's moving constraint is a penalty of this many times the largest diagonal of
+#: the effective stiffness: its error is ``1/PENALTY_FACTOR`` of the interface force's own
+#: displacement scale.
+PENALTY_FACTOR = 1e6
+#: A Newton iteration whose unbalance is below this part of the computational stiffness'
+#: largest entry (times 1 m) [N] has converged: the one solve of a step that stays linear
+#: (its correction would be the round-off's), else the correction below 1e-12 m.
+UNBALANCE_TOLERANCE = 1e-7
+#: A step that moved the restoring forces' offset from the linearization by more than this
+#: part of the linearization's own force increment (a yielding member's: about its deficit,
+#: whatever the increment) and than :data:`NOISE_TOLERANCE` of the largest restoring force
+#: the linearization has given so far is off the linearization (``OpenSeesPart.tangent``).
+NONLINEAR_TOLERANCE = 1e-4
+#: An elastic model's offset moves by its integration's round-off and its massless DOFs'
+#: damping (the condensed damping is exact for static massless DOFs only): 1e-5 of that force
+#: on the steel frame, 5e-5 on the ten-story one (measured; a linear model is not tracked at
+#: all: it never needs a second Newton iteration).
+NOISE_TOLERANCE = 1.5e-5
+#: A tangent within this part of the largest entry of the linearization's stiffness is the
+#: linearization's (the assembled system's round-off, less Newmark's part and the penalty,
+#: is about 1e-9 of it).
+INITIAL_TOLERANCE = 1e-6
 #: A real-time run is refused when the dry run's p99 step time exceeds this part of ``dt``.
 BUDGET_FRACTION = 0.5
 
@@ -67,7 +95,7 @@ class OpenSeesPart:
     Parameters
     ----------
     sub : Substructures
-        A split structure from an OpenSees model (``sub.structure.opensees``).
+        A split structure from an OpenSees model (``sub.structure.model``).
     dt : float > 0
         Control period [s].
 
@@ -90,17 +118,18 @@ class OpenSeesPart:
 
     def __init__(self, sub: Substructures, dt: float):
         s = sub.structure
-        if s.opensees is None:
+        if s.model_kind != KIND:
             raise ParameterError('OpenSees part: the structure has no OpenSees model')
         self.sub = sub
         self.dt = float(dt)
-        self.spec = spec = ModelSpec.from_doc(s.opensees)
+        self.spec = spec = ModelSpec.from_doc(s.model)
         self.rig_names = s.rig_names
         self._pi, self._qi = list(s.physical_index), list(s.computational_index)
         self.state_names = tuple(f'{s.dofs[i]}/{q}' for q in (
             'displacement_m', 'velocity_m_s', 'acceleration_m_s2') for i in self._qi) + (
             STEP_TIME,) + tuple(name for e in spec.elements for name in element_names(e))
         self._element_values = [0.0] * (2 * len(spec.elements))
+        self._ndf: dict[int, int] = {}
         self.matrices = structure_matrices(sub)
         self.step_times_s: list[float] = []
         self._nodes = [(node, dof) for _, node, dof in spec.dofs]
@@ -115,9 +144,14 @@ class OpenSeesPart:
         self._linear_forces = [0.0] * len(self._pi)
         self._substeps = max(1, int(spec.substeps))
         self._ready = False
-        qi = self._qi
-        self._k_uu_inv = (np.linalg.inv(self.matrices.stiffness_N_per_m[np.ix_(qi, qi)])
-                          if qi else None)
+        self._prediction_maps: dict = {}
+        self._linear_maps()
+        # the tangent (prediction 'tangent'): the restoring forces' offset from the
+        # linearization at the latest sample, and whether it moved over the last step
+        self._tangent_on = spec.prediction == 'tangent'
+        self._read_next = False
+        self._k_t = None                  # the condensed tangent of the latest sample
+        self.tangent_steps = 0            # samples whose tangent was assembled
 
     def prepare(self) -> None:
         """Build the model in OpenSees and set up seft's analysis of it (done by the first
@@ -158,7 +192,10 @@ class OpenSeesPart:
         c = np.diag(self.sub.damping_c_N_s_per_m)
         h = self.dt / self._substeps
         stiff = float(np.max(np.abs(k) + 4.0 * m / h ** 2 + 2.0 * np.abs(c) / h))
-        self._penalty = 1e8 * stiff
+        self._penalty = PENALTY_FACTOR * stiff
+        # a step converges when its last correction is below 1e-12 m, or (the one solve of
+        # a step that stays linear) when the unbalance left is (module notes)
+        unbalance = UNBALANCE_TOLERANCE * float(np.max(np.abs(self.sub.stiffness_c_N_per_m)))
         with captured() as log:
             try:
                 ops.wipeAnalysis()
@@ -167,8 +204,15 @@ class OpenSeesPart:
                     self._series = True
                 ops.constraints('Penalty', self._penalty, self._penalty)
                 ops.numberer('RCM')
+                ops.test('NormDispOrUnbalance', 1e-12, unbalance, 25, 0, 2)
+                if self._tangent_on:
+                    # Newmark's M, C part of the system, from a full one (printA reads only
+                    # those): the tangent is read from the system Newton assembles
+                    ops.system('FullGeneral')
+                    self._newmark_mc = (_assembled(ops, (4.0 / h ** 2, 2.0 / h, 1.0))
+                                        - _assembled(ops, (0.0, 0.0, 1.0)))
                 ops.system('BandGeneral')
-                ops.test('NormDispIncr', 1e-12, 25)
+                self._full_system = False
                 ops.algorithm('Newton')
                 ops.integrator('Newmark', 0.5, 0.25)
                 ops.analysis('Transient')
@@ -178,6 +222,8 @@ class OpenSeesPart:
         if error is not None:
             raise ModelError(f'{spec.where}: setting up the analysis failed: OpenSees: '
                              f'{last_message(log.text) or error}')
+        if self._tangent_on:
+            self._equations = _equations(ops)
 
     def _opensees_step(self, j: int) -> None:
         """Step the model from sample j to j+1 with every rig's measurements of both."""
@@ -189,6 +235,7 @@ class OpenSeesPart:
         start = [self._meas[r][j] for r in range(len(self._pi))]
         end = [self._meas[r][j + 1] for r in range(len(self._pi))]
         g0, g1 = self.ground.get(j, 0.0), self.ground.get(j + 1, 0.0)
+        iterations = 0
         for i in range(n_sub):
             s0, s1 = i / n_sub, (i + 1) / n_sub
             for (node, dof), m0, m1 in zip(self._interface, start, end):
@@ -212,7 +259,9 @@ class OpenSeesPart:
                 values = [0.0] * ndf
                 values[d - 1] = minus_m * g
                 ops.load(node, *values)
-            if ops.analyze(1, h) != 0:
+            failed = ops.analyze(1, h) != 0
+            iterations = max(iterations, ops.testIter())
+            if failed:
                 raise ModelError(f'{self.spec.where}: OpenSees failed to converge at sample '
                                  f'{j + 1} (t = {(j + 1) * self.dt:.4f} s): the computational '
                                  'model cannot follow the measured motion')
@@ -225,10 +274,155 @@ class OpenSeesPart:
             self._v[i] = float(ops.nodeVel(node, dof))
             self._a[i] = float(ops.nodeAccel(node, dof))
         for n, tag in enumerate(self.spec.elements):
-            self._element_values[2 * n:2 * n + 2] = element_response(ops, tag)
+            self._element_values[2 * n:2 * n + 2] = element_response(ops, tag, self._ndf)
         for r, p in enumerate(self._pi):       # the physical DOFs as measured
             self._x[p], self._v[p], self._a[p] = end[r][0], end[r][1], end[r][2]
+        if self._tangent_on:
+            self._follow_tangent(ops, iterations, g1)
         self.step_times_s.append(time.perf_counter() - t0)
+
+    def _follow_tangent(self, ops, iterations: int, g: float) -> None:
+        """After a step: the tangent of its end (None: the linearization's).
+
+        Newton needs more than its one solve only where the tangent changed within the step
+        (a step on one tangent converges at its first solve, ``NormDispOrUnbalance``): until
+        a step first needs two, the model is linear and nothing is done. From then on, the
+        restoring forces' offset from the linearization, ``d = R - K_c x`` (``R`` from each
+        DOF's equilibrium), moves over a step only where the model is off its linearization:
+        a step that moved the offset by less than
+        :data:`NONLINEAR_TOLERANCE` of the linear force increment (or than
+        :data:`NOISE_TOLERANCE` of the largest force so far) is on the linearization; one
+        that changed its tangent has it read (``printA``, :meth:`_condensed_tangent`); one
+        that moved the offset on an unchanged tangent keeps the one read last. Until the
+        model first leaves its linearization its system is a banded one, then a full one
+        (``printA`` reads only those), from which the tangent is read from the next step on.
+        """
+        if iterations > 1:
+            self._nonlinear = True
+        if not self._nonlinear:
+            return                                    # a linear model, so far
+        z = np.array(self._inputs(g))
+        offset = self._offset_map @ z
+        x = z[:len(self._x)]
+        moved = float(np.max(np.abs(offset - self._offset)))
+        self._force_scale = max(self._force_scale, float(np.max(np.abs(self._k0 @ x))))
+        increment = float(np.max(np.abs(self._k0 @ (x - self._x_last))))
+        self._offset, self._x_last = offset, x
+        off = moved > max(NONLINEAR_TOLERANCE * increment, NOISE_TOLERANCE * self._force_scale)
+        if not (off or iterations > 1 or self._read_next):
+            self._k_t = None                          # on the linearization
+            return
+        if not (iterations > 1 or self._read_next or self._k_t is None):
+            return                                    # on the tangent read last
+        if not self._full_system:
+            ops.system('FullGeneral')
+            self._full_system = self._read_next = True
+            return
+        k_t = self._condensed_tangent(ops)
+        k0 = self._k0
+        # back on the initial tangent (a member unloaded): the linearization's, exactly
+        self._k_t = None if np.max(np.abs(k_t - k0)) <= INITIAL_TOLERANCE * np.max(
+            np.abs(k0)) else k_t
+        self._read_next = False
+        self.tangent_steps += 1
+
+    def _linear_maps(self) -> None:
+        """The matrix on ``z`` (:meth:`_inputs`) of the restoring forces' offset from the
+        linearization, ``d = R - K_c x`` with ``R`` from each DOF's equilibrium (a
+        computational DOF: ``-M_UU (a_U + iota_U g) - C_U. v``; an interface: ``-I_p -
+        C_p. v``)."""
+        sub, m = self.sub, self.matrices
+        n, qi, pi = len(self._x), self._qi, self._pi
+        nu, npp = len(qi), len(pi)
+        offset = np.zeros((n, 2 * n + nu + 1 + npp))
+        offset[:, :n] = -sub.stiffness_c_N_per_m
+        offset[:, n:2 * n] = -sub.damping_c_N_s_per_m
+        if qi:
+            m_uu = m.mass_kg[np.ix_(qi, qi)]
+            offset[np.ix_(qi, range(2 * n, 2 * n + nu))] = -m_uu
+            offset[qi, 2 * n + nu] = -m_uu @ m.influence[qi]
+        for j, p in enumerate(pi):
+            offset[p, 2 * n + nu + 1 + j] = -1.0
+        self._offset_map = offset
+        self._offset = np.zeros(n)
+        self._nonlinear = False
+        self._k0 = sub.stiffness_c_N_per_m
+        self._force_scale = 0.0
+        self._x_last = np.zeros(n)
+
+    def _inputs(self, g: float) -> list:
+        """``z = [x (n), v (n), a_U, g, I_P]`` of the latest sample: what the prediction's
+        starting state is linear in."""
+        return self._x + self._v + [self._a[i] for i in self._qi] + [g] + self._forces
+
+    def _prediction_map(self, stiffness_c, dofs) -> np.ndarray:
+        """The matrix on ``z`` of :meth:`prediction_state`'s shifted state and residuals
+        at `dofs`, for the stiffness `stiffness_c` (None: the linearization's); kept for
+        the few stiffnesses a run predicts with."""
+        key = (None if stiffness_c is None else np.asarray(stiffness_c).tobytes(), tuple(dofs))
+        out = self._prediction_maps.get(key)
+        if out is not None:
+            return out
+        sub, m = self.sub, self.matrices
+        n, qi, pi = len(self._x), self._qi, self._pi
+        nu = len(qi)
+        k_c = sub.stiffness_c_N_per_m if stiffness_c is None else np.asarray(stiffness_c,
+                                                                             dtype=float)
+        width = 2 * n + nu + 1 + len(pi)
+        shifted = np.zeros((n, width))
+        shifted[:, :n] = np.eye(n)
+        if qi:
+            # d_U = -M_UU (a_U + iota_U g) - C_U. v - K_U. x; x_U + K_UU^-1 d_U
+            d_u = np.zeros((nu, width))
+            d_u[:, :n] = -k_c[qi]
+            d_u[:, n:2 * n] = -m.damping_N_s_per_m[qi]
+            m_uu = m.mass_kg[np.ix_(qi, qi)]
+            d_u[:, 2 * n:2 * n + nu] = -m_uu
+            d_u[:, 2 * n + nu] = -m_uu @ m.influence[qi]
+            shifted[qi] += np.linalg.solve(k_c[np.ix_(qi, qi)], d_u)
+        residual = np.zeros((len(dofs), width))
+        for row, i in enumerate(dofs):
+            residual[row] = k_c[i] @ shifted
+            residual[row, n:2 * n] += sub.damping_c_N_s_per_m[i]
+            residual[row, 2 * n + nu + 1 + pi.index(i)] += 1.0
+        out = np.vstack([shifted, residual])
+        if len(self._prediction_maps) >= 64:
+            self._prediction_maps.pop(next(iter(self._prediction_maps)))
+        self._prediction_maps[key] = out
+        return out
+
+    def _condensed_tangent(self, ops) -> np.ndarray:
+        """The computational part's tangent stiffness condensed to the DOFs with mass, from
+        the system Newton assembled last (``printA``: ``K_t + (2/h) C + (4/h^2) M`` and the
+        penalties; less the Newmark part and the interfaces' moving constraint)."""
+        a = np.asarray(ops.printA('-ret'), dtype=float)
+        size = int(round(math.sqrt(a.size)))
+        k = a.reshape(size, size) - self._newmark_mc
+        keep, other, interface = self._equations_of()
+        for eq in interface:
+            k[eq, eq] -= self._penalty
+        kr = k[np.ix_(keep, keep)]
+        if other:
+            kr = kr - k[np.ix_(keep, other)] @ np.linalg.solve(k[np.ix_(other, other)],
+                                                               k[np.ix_(other, keep)])
+        return 0.5 * (kr + kr.T)
+
+    def _equations_of(self):
+        """The equations of the DOFs with mass (seft's, in order), of the others that are
+        not fixed, and of the interfaces, in the analysis' numbering."""
+        cached = getattr(self, '_eq_split', None)
+        if cached is None:
+            eqs = self._equations
+            keep = [eqs[nd] for nd in self._nodes]
+            other = sorted(set(eqs.values()) - set(keep))
+            cached = self._eq_split = (keep, other, [eqs[nd] for nd in self._interface])
+        return cached
+
+    def tangent(self) -> np.ndarray | None:
+        """The computational part's tangent stiffness ``K_c,t`` at the latest sample [N/m]
+        (n x n, condensed to seft's DOFs), or None while the model has not left its
+        linearization (or with ``prediction: initial``)."""
+        return self._k_t
 
     # -- the ComputationalPart protocol -----------------------------------------------------
 
@@ -303,18 +497,19 @@ class OpenSeesPart:
         the latest :meth:`state_at` (`x`, `v` are that state; the model has its own)."""
         return tuple(self._forces[self._pi.index(i)] for i in dofs)
 
-    def prediction_state(self, x, v, dofs) -> tuple[list, tuple]:
+    def prediction_state(self, x, v, dofs, stiffness_c_N_per_m=None) -> tuple[list, tuple]:
         """The state the compensators' linear prediction starts from, and what to add to
-        its interface forces at `dofs` (module notes: the linearization with the model's
-        nonlinear restoring forces held over the prediction).
+        its interface forces at `dofs` (module notes: the linearization, or the tangent
+        `stiffness_c_N_per_m`, with the model's nonlinear restoring forces held over the
+        prediction).
 
-        The model's restoring forces at the computational DOFs ``U`` differ from the
-        linearization's by ``d_U = -M_UU (a_U + iota_U g) - C_U. v - K_U. x`` (the model's
-        own accelerations at the sample); held constant, they are the linear model's with
-        ``x_U`` shifted by ``K_UU^-1 d_U``. At an interface DOF ``p`` the rest,
-        ``r_p = I_p + C_c[p] v + K_c[p] x_s`` (``x_s`` the shifted state, ``I_p`` the model's
-        interface force), is added to the prediction. For a linear model both are zero up
-        to the integrators' difference.
+        The model's restoring forces at the computational DOFs ``U`` differ from the linear
+        model's by ``d_U = -M_UU (a_U + iota_U g) - C_U. v - K_U. x`` (the model's own
+        accelerations at the sample; ``K`` the linearization's or the tangent); held
+        constant, they are the linear model's with ``x_U`` shifted by ``K_UU^-1 d_U``. At an
+        interface DOF ``p`` the rest, ``r_p = I_p + C_c[p] v + K_c[p] x_s`` (``x_s`` the
+        shifted state, ``I_p`` the model's interface force), is added to the prediction.
+        For a linear model both are zero up to the integrators' difference.
 
         Returns
         -------
@@ -323,20 +518,11 @@ class OpenSeesPart:
         residual : tuple of float
             ``r_p`` per DOF of `dofs` [N].
         """
-        sub, qi = self.sub, self._qi
-        xa, va = np.asarray(x, dtype=float), np.asarray(v, dtype=float)
-        shifted = xa.copy()
-        if qi:
-            m = self.matrices
-            g = self.ground.get(self._settled, 0.0)
-            a_u = np.array([self._a[i] for i in qi])
-            d_u = (-m.mass_kg[np.ix_(qi, qi)] @ (a_u + m.influence[qi] * g)
-                   - m.damping_N_s_per_m[qi] @ va - m.stiffness_N_per_m[qi] @ xa)
-            shifted[qi] += self._k_uu_inv @ d_u
-        residual = tuple(self._forces[self._pi.index(i)]
-                         + float(sub.stiffness_c_N_per_m[i] @ shifted
-                                 + sub.damping_c_N_s_per_m[i] @ va) for i in dofs)
-        return shifted.tolist(), residual
+        n = len(self._x)
+        z = self._inputs(self.ground.get(self._settled, 0.0))
+        z[:n], z[n:2 * n] = x, v
+        out = (self._prediction_map(stiffness_c_N_per_m, dofs) @ np.array(z)).tolist()
+        return out[:n], tuple(out[n:])
 
     def recorded_state(self, x, v, j: int) -> tuple:
         """The computational DOFs' ``x, v, a`` at sample `j` and the step's OpenSees time
@@ -352,6 +538,30 @@ class OpenSeesPart:
         self.matrices = matrices
 
 
+def _assembled(ops, factors) -> np.ndarray:
+    """The system ``f_m M + f_c C + f_k K`` of the model in OpenSees at its state, in the
+    current analysis' numbering and constraints (``GimmeMCK``, ``printA``; a full system)."""
+    ops.integrator('GimmeMCK', *factors)
+    ops.analysis('Transient')
+    ops.analyze(1, 0.0)
+    a = np.asarray(ops.printA('-ret'), dtype=float)
+    size = int(round(math.sqrt(a.size)))
+    return a.reshape(size, size)
+
+
+def _equations(ops) -> dict:
+    """``(node, dof) -> equation`` of the model's DOFs that are not fixed, in the current
+    analysis' numbering."""
+    fixed = {(int(node), int(dof)) for node in ops.getFixedNodes()
+             for dof in ops.getFixedDOFs(node)}
+    out = {}
+    for node in ops.getNodeTags():
+        for dof, eq in enumerate(ops.nodeDOFs(node), start=1):
+            if eq >= 0 and (int(node), dof) not in fixed:
+                out[(int(node), dof)] = int(eq)
+    return out
+
+
 def element_names(tag: int) -> tuple[str, str]:
     """The recorded states of element `tag`: its force at its first node's last DOF (a
     2-D beam-column's end moment [N m]; a link's force [N]) and its first rotation (a
@@ -359,14 +569,18 @@ def element_names(tag: int) -> tuple[str, str]:
     return f'opensees/ele{tag}/force', f'opensees/ele{tag}/deformation'
 
 
-def element_response(ops, tag: int) -> tuple[float, float]:
-    """The values of :func:`element_names` of element `tag` in the model now."""
+def element_response(ops, tag: int, ndf: dict | None = None) -> tuple[float, float]:
+    """The values of :func:`element_names` of element `tag` in the model now (`ndf`: the
+    elements' DOFs per node found so far, by tag; filled in)."""
     force = ops.eleForce(tag)
-    nodes = ops.eleNodes(tag)
-    ndf = len(force) // max(len(nodes), 1)
+    per_node = None if ndf is None else ndf.get(tag)
+    if per_node is None:
+        per_node = len(force) // max(len(ops.eleNodes(tag)), 1)
+        if ndf is not None:
+            ndf[tag] = per_node
     basic = ops.eleResponse(tag, 'basicDeformation')
     deformation = basic[1] if len(basic) >= 3 else (basic[0] if basic else math.nan)
-    return float(force[ndf - 1]), float(deformation)
+    return float(force[per_node - 1]), float(deformation)
 
 
 def _hermite(m0, m1, dt: float, t: float) -> tuple[float, float, float]:

@@ -10,9 +10,9 @@ exact step, the test's one OpenSees step per sample), and of the test's penalty 
 Its error is Newmark's at the finer step: a period error of about ``(omega h)^2 / 12``,
 ``h = dt / 5``: 0.017 % for a 16 Hz mode at 500 Hz.
 
-:func:`seft_ros.analysis.reference.run_reference` calls :func:`opensees_reference` when the
-run's structure has an ``opensees`` model; it returns the analysis' ``StructureReference``
-with the elements' responses.
+:func:`seft_ros.analysis.reference.run_reference` calls it (the plug-in's ``reference``,
+:mod:`seft_ros.opensees.plugin`) when the run's structure has an ``opensees`` model; it
+returns the analysis' ``StructureReference`` with the elements' responses.
 """
 
 import hashlib
@@ -23,7 +23,7 @@ from seft_msgs_py.errors import ParameterError
 from seft_ros.analysis.reference import StructureReference
 from seft_ros.core.structure import Substructures
 from seft_ros.opensees.loader import captured, last_message, opensees
-from seft_ros.opensees.model import ModelError, ModelSpec, build_model
+from seft_ros.opensees.model import KIND, ModelError, ModelSpec, build_model
 from seft_ros.opensees.part import element_response
 
 __all__ = ['opensees_reference', 'REFERENCE_SUBSTEPS']
@@ -47,7 +47,7 @@ def opensees_reference(sub: Substructures, dt: float, ground_acceleration_m_s2, 
     Parameters
     ----------
     sub : Substructures
-        The split structure of a run (``sub.structure.opensees`` set; the specimens' masses
+        The split structure of a run (``sub.structure.model`` set; the specimens' masses
         for the interface forces).
     dt : float > 0
         Sample period [s].
@@ -71,14 +71,14 @@ def opensees_reference(sub: Substructures, dt: float, ground_acceleration_m_s2, 
         The model does not build, or OpenSees fails to converge (the time is given).
     """
     s = sub.structure
-    if s.opensees is None:
+    if s.model_kind != KIND:
         raise ParameterError('OpenSees reference: the structure has no OpenSees model')
     if not (isinstance(dt, (int, float)) and dt > 0):
         raise ParameterError(f'dt={dt!r}: expected a float > 0')
     ag = np.asarray(ground_acceleration_m_s2, dtype=float)
     if ag.ndim != 1 or not np.all(np.isfinite(ag)):
         raise ParameterError('ground_acceleration_m_s2: expected a finite 1-D array')
-    spec = ModelSpec.from_doc(s.opensees)
+    spec = ModelSpec.from_doc(s.model)
     elements = [int(e) for e in (elements if elements is not None else spec.elements)]
     key = (s.to_json(), float(dt), hashlib.sha1(ag.tobytes()).hexdigest(), int(substeps),
            tuple(elements), tuple(sub.specimen_mass_kg))

@@ -1,10 +1,11 @@
 """What a run's report says about its OpenSees model: step times, overruns, hysteresis (no
 rclpy, no pyplot: Agg canvas on ``matplotlib.figure.Figure``).
 
-The analysis calls :func:`opensees_entry` where it forms a run's summary entry
+The analysis calls :func:`opensees_entry` (the plug-in's ``summary``,
+:mod:`seft_ros.opensees.plugin`) where it forms a run's summary entry
 (:func:`seft_ros.analysis.metrics.summary_entry`, key ``'opensees'``) and
-:func:`opensees_markdown` where it writes a structure run's section of the report
-(:mod:`seft_ros.analysis.report`), for a structure with an ``opensees`` model.
+:func:`opensees_markdown` (its ``markdown``) where it writes a structure run's section of the
+report (:mod:`seft_ros.analysis.report`), for a structure with an ``opensees`` model.
 """
 
 import math
@@ -51,7 +52,7 @@ def opensees_entry(run) -> dict[str, Any]:
     """
     from seft_ros.core.structure import Structure
     structure = Structure.from_json(run.params['structure'])
-    model = structure.opensees
+    model = structure.model
     from seft_ros.opensees.model import model_name
     entry = {'model': model_name(model['model'], model.get('function', 'build')),
              'substeps': int(model.get('substeps', 1)),
@@ -134,7 +135,7 @@ def opensees_markdown(index: int, run, entry: dict, out_dir, reference=None) -> 
              f'{st.get("over_period", "–")} |', '']
     from seft_ros.core.structure import test_setup
     setup = test_setup(run.params)
-    tags = [int(e) for e in setup.structure.opensees.get('elements', ())]
+    tags = [int(e) for e in setup.structure.model.get('elements', ())]
     if tags:
         if reference is None:
             from seft_ros.opensees.reference import opensees_reference

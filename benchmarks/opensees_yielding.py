@@ -1,0 +1,153 @@
+"""A yielding computational part (issue 40): the accuracy targets, on records no configuration
+names.
+
+* **The three-story shear frame** (``config/opensees/shear_frame.yaml``: story 1 the specimen,
+  story 2 ``Steel01`` with post-yield ratio 0.02, story 3 elastic): for each --record and each
+  --ductility, the yield force of story 2 that gives that drift ductility (peak drift over
+  yield drift) in OpenSees' analysis of the whole frame (bisection on the reference alone),
+  then the test with each --predictor; printed: the yield force, the ductility reached, the
+  displacement NRMS per floor (target: <= 3 % to ductility 2.5, <= 5 % to 6), the acceleration
+  NRMS per floor; with --initial also each run predicted with the initial linearization
+  (``prediction: initial``, what the compensators did before issue 40).
+* **The steel frame** (``config/opensees/steel_frame.yaml``) at each --amplitude: the largest
+  moment of column 111 over its first-yield moment in the reference and the displacement NRMS
+  per floor (target: <= 3 % at M/My 1.28-1.35).
+
+Prints figures; asserts nothing. Records: PEER .AT2 paths (the development records of
+/work/shared/data/ground_motions, never committed) or 'default'.
+
+Usage: .venv/bin/python benchmarks/opensees_yielding.py --record default X.AT2 ...
+       [--ductility 2.5 6] [--predictor model adaptive] [--amplitude 2000 2600] [--initial]
+       [--skip-shear] [--skip-steel]
+"""
+
+import argparse
+import os
+from pathlib import Path
+import tempfile
+import time
+
+import numpy as np
+import yaml
+
+from seft_ros.analysis.metrics import compare_run
+from seft_ros.analysis.reference import run_reference
+from seft_ros.cli.config import expand_runs, load_config
+from seft_ros.core.experiment import simulate
+from seft_ros.core.ground_motion import prepared_record
+from seft_ros.core.models import model_plugin
+from seft_ros.core.structure import test_setup
+
+ROOT = Path(__file__).resolve().parents[1]
+SHEAR = ROOT / 'config' / 'opensees' / 'shear_frame.yaml'
+STEEL = ROOT / 'config' / 'opensees' / 'steel_frame.yaml'
+#: Story 2's initial stiffness in shear_frame.py [N/m].
+STORY_STIFFNESS_N_PER_M = 2.11e5
+#: First-yield moment of the steel frame's 40 x 12 mm S690 column [N m].
+COLUMN_MY_N_M = 690e6 * 0.012 * 0.040 ** 2 / 6.0
+
+
+def _params(path: Path, directory: Path, *, arguments=None, prediction=None, **overrides):
+    """A run's parameters from `path` with the model's arguments and prediction changed."""
+    doc = yaml.safe_load(path.read_text())
+    model = doc['structure']['opensees']
+    model['model'] = str(path.parent / model['model'])
+    if arguments:
+        model['arguments'] = dict(model.get('arguments') or {}, **arguments)
+    if prediction:
+        model['prediction'] = prediction
+    out = directory / f'{path.stem}.yaml'
+    out.write_text(yaml.safe_dump(doc))
+    return expand_runs(dict(load_config(out), **overrides))[0]
+
+
+def _ductility(params) -> float:
+    """Story 2's peak drift over its yield drift in OpenSees' analysis of the whole frame."""
+    setup = test_setup(params)
+    ag = prepared_record(params).acceleration_m_s2
+    ref = model_plugin('opensees').reference(setup.substructures, float(params['dt']), ag)
+    drift = ref.displacement_m[:, 1] - ref.displacement_m[:, 0]
+    fy = float(yaml.safe_load(params['structure'])['opensees']['arguments']['fy2_N'])
+    return float(np.max(np.abs(drift))) / (fy / STORY_STIFFNESS_N_PER_M)
+
+
+def _yield_force_for(record: str, ductility: float, directory: Path) -> tuple[float, float]:
+    """Story 2's yield force [N] that gives `ductility` on `record` (bisection, 1e-3)."""
+    low, high = 100.0, 50_000.0                     # ductility falls as fy grows
+    for _ in range(20):
+        mid = (low * high) ** 0.5
+        mu = _ductility(_params(SHEAR, directory, arguments={'fy2_N': mid}, record=record))
+        if mu > ductility:
+            low = mid
+        else:
+            high = mid
+    fy = (low * high) ** 0.5
+    return fy, _ductility(_params(SHEAR, directory, arguments={'fy2_N': fy}, record=record))
+
+
+def _pct(values) -> str:
+    return ' / '.join(f'{100 * v:5.2f}' for v in values)
+
+
+def _run(params):
+    t0 = time.monotonic()
+    run = simulate(params)
+    comparison = compare_run(run)
+    return run, comparison, time.monotonic() - t0
+
+
+def shear_frame(records, ductilities, predictors, initial: bool, directory: Path) -> None:
+    for record in records:
+        name = Path(record).name
+        for ductility in ductilities:
+            fy, reached = _yield_force_for(record, ductility, directory)
+            for predictor in predictors:
+                for prediction in ('tangent',) + (('initial',) if initial else ()):
+                    params = _params(SHEAR, directory, arguments={'fy2_N': fy},
+                                     prediction=prediction, record=record, predictor=predictor)
+                    run, c, wall = _run(params)
+                    print(f'shear_frame {name} ductility {reached:4.2f} (fy2 {fy:7.1f} N) '
+                          f'{predictor:8s} {prediction:7s}: stable {run.stable}, NRMS x per floor '
+                          f'[%] {_pct([d.displacement.nrms for d in c.dofs])}, a '
+                          f'{_pct([d.acceleration.nrms for d in c.dofs])} ({wall:.0f} s)',
+                          flush=True)
+
+
+def steel_frame(records, amplitudes, predictors, directory: Path) -> None:
+    for record in records:
+        name = Path(record).name
+        for amplitude in amplitudes:
+            for predictor in predictors:
+                params = _params(STEEL, directory, record=record, amplitude_N=amplitude,
+                                 predictor=predictor)
+                run, c, wall = _run(params)
+                ref = run_reference(run)
+                ratio = float(np.max(np.abs(ref.element_forces[111]))) / COLUMN_MY_N_M
+                print(f'steel_frame {name} {amplitude:g} N {predictor:8s}: column M/My '
+                      f'{ratio:.2f}, stable {run.stable}, NRMS x per floor [%] '
+                      f'{_pct([d.displacement.nrms for d in c.dofs])}, a '
+                      f'{_pct([d.acceleration.nrms for d in c.dofs])} ({wall:.0f} s)', flush=True)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument('--record', nargs='+', default=['default'])
+    ap.add_argument('--ductility', nargs='+', type=float, default=[2.5, 6.0])
+    ap.add_argument('--predictor', nargs='+', default=['model', 'adaptive'])
+    ap.add_argument('--amplitude', nargs='+', type=float, default=[2000.0, 2600.0])
+    ap.add_argument('--initial', action='store_true',
+                    help="also predict with the initial linearization ('prediction: initial')")
+    ap.add_argument('--skip-shear', action='store_true')
+    ap.add_argument('--skip-steel', action='store_true')
+    args = ap.parse_args()
+    print(f'load average {os.getloadavg()[0]:.1f}', flush=True)
+    with tempfile.TemporaryDirectory(prefix='seft-yielding-') as tmp:
+        if not args.skip_shear:
+            shear_frame(args.record, args.ductility, args.predictor, args.initial, Path(tmp))
+        if not args.skip_steel:
+            steel_frame(args.record, args.amplitude, args.predictor, Path(tmp))
+    print(f'load average {os.getloadavg()[0]:.1f}', flush=True)
+
+
+if __name__ == '__main__':
+    main()

@@ -1,0 +1,201 @@
+"""The stiffness a yielding computational part is predicted with over the loop delay (no
+rclpy).
+
+The compensators predict the interface force of the computational part over the loop delay
+with a linear model (:class:`~seft_ros.core.substructure.InterfacePredictor`). A model that
+yields (an OpenSees frame) gives its tangent stiffness ``K_t`` at each sample
+(``ComputationalPart.tangent``); held over the prediction it is right while its members go
+on yielding, and wrong where one unloads (it is elastic again: ``K_0``) or starts to yield
+(it softens before its tangent shows it). :class:`YieldMechanisms` follows the model's own
+samples and gives the stiffness for the predicted motion:
+
+* the **deficit** ``D = K_0 - K_t`` (symmetric, positive semi-definite where members yield)
+  is split into its eigen-directions ``u_i`` (``D = sum lambda_i u_i u_i^T``), each one
+  yielding mechanism with the coordinate ``z_i = u_i . x``;
+* a mechanism **goes on yielding** if the predicted increment of ``z_i`` has the sense of
+  its last one, and **unloads** otherwise (its deficit given back: the loading/unloading
+  condition of plasticity);
+* an elastic mechanism seen yielding before **starts to yield again** where its coordinate
+  passes the point where it last stopped (the same sense) or that point less the elastic
+  range it has shown (the other sense; the range is learnt at its first reversal): the part
+  of the predicted increment beyond that point is taken with the deficit its last onset
+  showed (a stiffness ``K_0 - phi lambda_onset u u^T``, ``phi`` that part: all of its
+  deficit for a bilinear member, little for one that yields gradually).
+
+Exact for one bilinear member with kinematic hardening (a ``Steel01``) whose onset and
+reversal fall on the samples; for gradual yielding (``Steel02`` fibres) the tangent itself
+follows the curve from sample to sample. Several members whose directions are not
+orthogonal share their eigen-directions.
+
+References
+----------
+J. C. Simo and T. J. R. Hughes (1998), Computational Inelasticity, Springer, Secs. 1.2-1.4
+(the loading/unloading conditions, the elastic predictor); G. Masing (1926), the elastic range
+of a kinematically hardening member is twice its yield strength, whatever its history.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ['YieldMechanisms', 'Mechanism', 'DEFICIT_TOLERANCE', 'SAME_DIRECTION',
+           'BILINEAR_SPREAD']
+
+#: A deficit of the tangent stiffness below this part of the largest entry of the initial one
+#: is no yielding.
+DEFICIT_TOLERANCE = 1e-3
+#: Two deficit directions with ``|u . u'|`` above this are one mechanism.
+SAME_DIRECTION = 0.95
+#: A yielding whose deficit stayed within this part of its largest is bilinear.
+BILINEAR_SPREAD = 0.1
+
+
+@dataclass
+class Mechanism:
+    """One yielding mechanism as seen so far.
+
+    Attributes
+    ----------
+    direction : ndarray (n,)
+        ``u`` (unit).
+    deficit_N_per_m : float
+        ``lambda`` when it last yielded.
+    sense : float
+        +1 or -1: the sense of ``z = u . x`` in which it last yielded.
+    yielding : bool
+        Whether it yields at the latest sample.
+    stop_m : float or None
+        ``z`` where it last stopped yielding (None: it yields, or never stopped).
+    last_m : float
+        ``z`` at the latest sample.
+    elastic_range_m : float or None
+        The range of ``z`` it has shown elastic between yielding in one sense and the other
+        (None: not seen yet).
+    onset_deficit_N_per_m : float
+        ``lambda`` at the first sample of its latest yielding: the softening its onset
+        brings.
+    episode_N_per_m : list of float
+        The least and the largest ``lambda`` of its latest yielding.
+    bilinear : bool
+        Whether its latest finished yielding kept one deficit (within
+        :data:`BILINEAR_SPREAD`): a member whose onset is sharp and whose elastic range is
+        fixed (a ``Steel01``); only such a mechanism's onset is anticipated.
+    """
+
+    direction: np.ndarray
+    deficit_N_per_m: float
+    sense: float
+    yielding: bool = True
+    stop_m: float | None = None
+    last_m: float = 0.0
+    elastic_range_m: float | None = None
+    onset_deficit_N_per_m: float = 0.0
+    episode_N_per_m: list = None
+    bilinear: bool = False
+
+
+class YieldMechanisms:
+    """A computational part's yielding mechanisms and the stiffness for a predicted motion.
+
+    Parameters
+    ----------
+    initial_N_per_m : ndarray (n, n)
+        ``K_0``: the computational part's initial (linearization's) stiffness [N/m].
+
+    Attributes
+    ----------
+    mechanisms : list of Mechanism
+    """
+
+    def __init__(self, initial_N_per_m):
+        self.k0 = np.asarray(initial_N_per_m, dtype=float)
+        self.scale = float(np.max(np.abs(self.k0)))
+        self.mechanisms: list[Mechanism] = []
+        self._last_x = None
+        self._tangent = None
+
+    def observe(self, x_m, tangent_N_per_m) -> None:
+        """Take a sample: every DOF's displacement [m] and the tangent (None: the initial
+        one: nothing yields)."""
+        x = np.asarray(x_m, dtype=float)
+        dx = x - self._last_x if self._last_x is not None else np.zeros_like(x)
+        self._last_x = x
+        self._tangent = None if tangent_N_per_m is None else np.asarray(tangent_N_per_m,
+                                                                        dtype=float)
+        seen = set()
+        if self._tangent is not None:
+            deficit = self.k0 - self._tangent
+            lam, u = np.linalg.eigh(0.5 * (deficit + deficit.T))
+            for i in np.nonzero(lam > DEFICIT_TOLERANCE * self.scale)[0]:
+                ui = u[:, i]
+                dz = float(ui @ dx)
+                m = self._match(ui)
+                if m is None:
+                    m = Mechanism(ui.copy(), float(lam[i]), 1.0 if dz >= 0.0 else -1.0,
+                                  onset_deficit_N_per_m=float(lam[i]))
+                    self.mechanisms.append(m)
+                elif float(m.direction @ ui) < 0.0:
+                    ui, dz = -ui, -dz
+                sense = 1.0 if dz >= 0.0 else -1.0
+                if not m.yielding or m.episode_N_per_m is None:
+                    m.onset_deficit_N_per_m = float(lam[i])
+                    m.episode_N_per_m = [float(lam[i]), float(lam[i])]
+                    if m.stop_m is not None and sense != m.sense:
+                        # yielding again in the other sense: the elastic range it has shown
+                        m.elastic_range_m = abs(float(ui @ x) - m.stop_m)
+                m.episode_N_per_m = [min(m.episode_N_per_m[0], float(lam[i])),
+                                     max(m.episode_N_per_m[1], float(lam[i]))]
+                m.direction, m.deficit_N_per_m, m.sense, m.yielding = ui, float(lam[i]), \
+                    sense, True
+                seen.add(id(m))
+        for m in self.mechanisms:
+            z = float(m.direction @ x)
+            if id(m) not in seen and m.yielding:
+                m.yielding, m.stop_m = False, m.last_m
+                low, high = m.episode_N_per_m
+                m.bilinear = low >= (1.0 - BILINEAR_SPREAD) * high
+            m.last_m = z
+
+    def _match(self, u) -> 'Mechanism | None':
+        best, score = None, SAME_DIRECTION
+        for m in self.mechanisms:
+            s = abs(float(m.direction @ u))
+            if s > score:
+                best, score = m, s
+        return best
+
+    def stiffness(self, predicted_increment_m) -> np.ndarray | None:
+        """The stiffness to predict with for the predicted increment of every DOF's
+        displacement over the prediction [m] (None: no mechanism changes from the latest
+        sample's tangent; module notes).
+
+        Returns
+        -------
+        ndarray (n, n) or None
+        """
+        if not self.mechanisms:
+            return None
+        dx = np.asarray(predicted_increment_m, dtype=float)
+        k = self.k0.copy() if self._tangent is None else self._tangent.copy()
+        changed = False
+        for m in self.mechanisms:
+            u, dz = m.direction, float(m.direction @ dx)
+            if m.yielding:
+                if dz * m.sense <= 0.0:            # it unloads: elastic again
+                    k += m.deficit_N_per_m * np.outer(u, u)
+                    changed = True
+                continue
+            if m.stop_m is None or dz == 0.0 or not m.bilinear:
+                continue
+            sense = 1.0 if dz > 0.0 else -1.0
+            if sense == m.sense:
+                onset = m.stop_m
+            elif m.elastic_range_m is not None:
+                onset = m.stop_m - m.sense * m.elastic_range_m
+            else:
+                continue
+            beyond = sense * (m.last_m + dz - onset)
+            if beyond > 0.0 and sense * (onset - m.last_m) >= 0.0:
+                k -= min(beyond / abs(dz), 1.0) * m.onset_deficit_N_per_m * np.outer(u, u)
+                changed = True
+        return k if changed else None

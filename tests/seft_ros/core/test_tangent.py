@@ -1,0 +1,79 @@
+"""The stiffness a yielding computational part is predicted with (issue 40,
+:mod:`seft_ros.core.tangent`): a bilinear story between two floors, followed sample by
+sample, against the loading/unloading conditions worked out by hand."""
+
+import numpy as np
+import pytest
+
+from seft_ros.core.tangent import YieldMechanisms
+
+K = 2.11e5                                   # each story's initial stiffness [N/m]
+B = 0.02                                     # story 2's post-yield ratio
+#: two floors: story 1 to the ground, story 2 between them (its deformation z ~ x2 - x1)
+K0 = np.array([[2 * K, -K], [-K, K]])
+U = np.array([-1.0, 1.0]) / np.sqrt(2.0)     # story 2's mechanism
+LAM = (1 - B) * K * 2.0                      # its deficit along U when it yields
+
+
+def yielded():
+    return K0 - LAM * np.outer(U, U)
+
+
+@pytest.fixture
+def loaded():
+    """Story 2 loaded elastically, then yielding in the + sense for two samples."""
+    m = YieldMechanisms(K0)
+    for x2 in (0.0, 0.004, 0.008):
+        m.observe([0.0, x2], None)
+    for x2 in (0.012, 0.016):
+        m.observe([0.0, x2], yielded())
+    return m
+
+
+def test_nothing_yields_nothing_changes():
+    m = YieldMechanisms(K0)
+    m.observe([0.0, 0.0], None)
+    m.observe([0.001, 0.002], None)
+    assert m.stiffness([0.0, 0.003]) is None and m.mechanisms == []
+
+
+def test_a_yielding_mechanism_goes_on_or_unloads(loaded):
+    (mech,) = loaded.mechanisms
+    assert mech.yielding and mech.sense == pytest.approx(np.sign(U @ [0.0, 1.0]))
+    assert mech.deficit_N_per_m == pytest.approx(LAM)
+    assert loaded.stiffness([0.0, 0.002]) is None          # goes on: its tangent holds
+    np.testing.assert_allclose(loaded.stiffness([0.0, -0.002]), K0, rtol=1e-12)  # unloads
+
+
+def test_onset_is_anticipated_where_it_stopped_and_after_its_elastic_range(loaded):
+    z = lambda x2: float(U @ [0.0, x2])                    # noqa: E731
+    for x2 in (0.012, 0.008):                              # unloads elastically
+        loaded.observe([0.0, x2], None)
+    (mech,) = loaded.mechanisms
+    assert not mech.yielding and mech.stop_m == pytest.approx(z(0.016))
+    assert mech.bilinear
+    # reloading in the same sense: it yields again past z(0.016), a quarter of the increment
+    k = loaded.stiffness([0.0, 0.0107])         # from 0.008 to 0.0187: 0.0027 of 0.0107 past
+    np.testing.assert_allclose(k, K0 - (0.0027 / 0.0107) * LAM * np.outer(U, U), rtol=1e-9)
+    assert loaded.stiffness([0.0, 0.004]) is None          # not far enough
+    # the other sense: its elastic range is not known before it has yielded there
+    assert loaded.stiffness([0.0, -0.05]) is None
+    for x2 in (0.0, -0.008):                               # elastic, then yields in - at -0.008
+        loaded.observe([0.0, x2], None if x2 > -0.008 else yielded())
+    assert mech.elastic_range_m == pytest.approx(abs(z(-0.008) - z(0.016)))
+    for x2 in (-0.012, -0.004):                            # yields, then unloads
+        loaded.observe([0.0, x2], yielded() if x2 < -0.008 else None)
+    # back in +: it yields again at z(-0.012) + its elastic range, at x2 = 0.012
+    k = loaded.stiffness([0.0, 0.020])                     # to 0.016: 0.004 of 0.020 past
+    np.testing.assert_allclose(k, K0 - 0.2 * LAM * np.outer(U, U), rtol=1e-9)
+
+
+def test_a_gradual_yielding_is_not_anticipated():
+    m = YieldMechanisms(K0)
+    m.observe([0.0, 0.0], None)
+    for x2, share in ((0.004, 0.2), (0.008, 0.5), (0.012, 0.9)):   # the deficit grows
+        m.observe([0.0, x2], K0 - share * LAM * np.outer(U, U))
+    m.observe([0.0, 0.010], None)
+    (mech,) = m.mechanisms
+    assert not mech.bilinear
+    assert m.stiffness([0.0, 0.01]) is None
