@@ -259,4 +259,5 @@ def simulate(params, *, progress: Callable[[int, int], None] | None = None,
         record_name=gm.name, source='simulate',
         extra={'wall_s': wall_s, 'abort_node': abort_node, 'warnings': warnings,
                'specimen_ratios': {r: c.stiffness_ratio for r, c in zip(names, checks)
-                                   if c is not None}})
+                                   if c is not None},
+               'sensor_range': {r: v for b in builders for r, v in b.range_counts().items()}})

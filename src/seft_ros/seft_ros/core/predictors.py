@@ -43,6 +43,7 @@ from typing import Callable, NamedTuple
 
 import numpy as np
 
+from seft_msgs_py import sensor_range as _sensor_range
 from seft_msgs_py.errors import ParameterError
 from seft_msgs_py.interface import Measurement
 from seft_msgs_py.sampling import linear_map as _linear_map
@@ -681,8 +682,20 @@ class TangentModelPredictor:
         """The tangent stiffness in use [N/m] (recorded with the run)."""
         return {'tangent_stiffness_N_per_m': self.stiffness_ratio * self.k}
 
+    def at_range(self, step: int, flags: int) -> None:
+        """Sample `step` has readings at their sensors' range (`flags`,
+        :mod:`seft_msgs_py.sensor_range`): its measured restoring force does not move the
+        tangent stiffness (the secant starts again at the next sample)."""
+        if flags:
+            self._held = int(step)
+
+    _held = None
+
     def observe(self, latest: Measurement) -> None:
         """Update the tangent stiffness from `latest` (called by :meth:`predict`)."""
+        if latest.step == self._held:
+            self._last = None
+            return
         x = latest.displacement_m
         f_s = latest.force_N - self.m * latest.acceleration_m_s2 - self.c * latest.velocity_m_s
         if self._last is not None:
@@ -817,6 +830,13 @@ class HystereticModelPredictor:
             v += w * (a1 + 2.0 * (a2 + a3) + a4)
             z += w * (z1 + 2.0 * (z2 + z3) + z4)
         return x, v, z
+
+    def at_range(self, step: int, flags: int) -> None:
+        """Sample `step` has readings at their sensors' range (`flags`,
+        :mod:`seft_msgs_py.sensor_range`): the member's model anchors on it but does not
+        learn from it (:meth:`~seft_ros.core.hysteresis.HystereticMember.hold`)."""
+        if flags:
+            self.member.hold(step)
 
     def set_delay(self, tau_s: float) -> None:
         """Change the delay of the prediction [s] (``adaptive`` identifies it)."""
@@ -1619,10 +1639,11 @@ class LoopLatencyFit:
         self._n_sent = j + 1
         self._u.pop(j - self.window - self.n - 4, None)
 
-    def observe(self, step: int, force_N: float, excited: bool) -> bool:
+    def observe(self, step: int, force_N: float, excited: bool, valid: bool = True) -> bool:
         """Take the measured force ``f_m[step]``; returns whether a fit is due (call
-        :meth:`fit` with the current specimen estimate)."""
-        self._y[step] = float(force_N)
+        :meth:`fit` with the current specimen estimate). `valid` False: the load cell was at
+        its range; no window that holds the sample is fitted."""
+        self._y[step] = float(force_N) if valid else None
         self._y.pop(step - self.window - 4, None)
         self._excited = self._excited + 1 if excited else 0
         if not excited:
@@ -1700,6 +1721,11 @@ ADAPTIVE_ESTIMATES = ('mass_kg', 'damping_N_s_per_m', 'stiffness_N_per_m', 'tau_
 
 #: Default of ``adaptive_loop`` when a parameter mapping lacks it.
 ADAPTIVE_LOOP_DEFAULT = 'model'
+
+#: Flag bits of a sample at a sensor's range (:mod:`seft_msgs_py.sensor_range`): the load
+#: cell's, and the displacement's or velocity's (the delay fit's rows).
+_FORCE_AT_RANGE = _sensor_range.FORCE
+_MOTION_AT_RANGE = _sensor_range.DISPLACEMENT | _sensor_range.VELOCITY
 
 
 class AdaptivePredictor:
@@ -1908,6 +1934,9 @@ class AdaptivePredictor:
         self._sent = []
         self._count = 0
         self._rows_from = 0               # the first step whose row the delay fit may take
+        self._at_range: dict[int, int] = {}   # step -> flags of a sample at a sensor's range
+        self._prev_flags = 0
+        self.skipped_samples = 0          # samples the identifications did not take (at_range)
         self.history_tau_s = []
         self.fit_quality = float('nan')
         self.min_fit_quality = float(min_fit_quality)
@@ -1966,6 +1995,12 @@ class AdaptivePredictor:
         if self._member_law is not None:
             out.update(self._member_law.estimates())
         return out
+
+    @property
+    def member(self):
+        """The yielding member's model (:class:`~seft_ros.core.hysteresis.HystereticMember`)
+        of the law, None for a linear specimen."""
+        return None if self._member_law is None else self._member_law.member
 
     @property
     def tau_s(self) -> float:
@@ -2099,14 +2134,18 @@ class AdaptivePredictor:
     def _observe(self, latest: Measurement) -> None:
         """Take the newest measurement into the identifications."""
         x, v = latest.displacement_m, latest.velocity_m_s
+        flags = self._at_range.pop(latest.step, 0) if self._at_range else 0
+        if flags:
+            self.skipped_samples += 1
+        force_ok = not flags & _FORCE_AT_RANGE
         excited = self.gate.update(latest.force_N)
         loop = self.loop_identification
         if loop is not None:
-            loop.observe(latest.step, latest.force_N, excited)
+            loop.observe(latest.step, latest.force_N, excited and force_ok)
         if self._background is not None:
             self._poll_fits()
         fit = self.latency_fit
-        if (fit is not None and fit.observe(latest.step, latest.force_N, excited)
+        if (fit is not None and fit.observe(latest.step, latest.force_N, excited, force_ok)
                 and self._pending_latency is None):
             from seft_plant_sim.specimen import LinearSpecimen
             data = fit.window_data()
@@ -2119,11 +2158,13 @@ class AdaptivePredictor:
                                              self._background.submit(fit.search, spec, *data))
                 elif fit.accept(latest.step, *fit.search(spec, *data)):
                     self._rebuild()
-        if excited and self.identify_specimen:
+        if excited and self.identify_specimen and not flags:
             s = self._scale
             self.rls.update((s[0] * latest.acceleration_m_s2, s[1] * v, s[2] * x),
                             latest.force_N)
         member = self._member_law
+        motion_flags = (flags | self._prev_flags) & _MOTION_AT_RANGE
+        self._prev_flags = flags
         if self._prev is not None:
             px, pv, j, pz = self._prev
             count = self.max_n + 2
@@ -2132,6 +2173,8 @@ class AdaptivePredictor:
                 pass            # a sample missing (real time): no one-step increment to fit
             elif latest.step < self._rows_from:
                 pass            # a late reference force in its past (reference_late)
+            elif motion_flags:
+                pass            # its displacement or velocity at the sensor's range
             elif member is None:
                 self._rows.append((v - pv, px, pv, past))
             else:               # the member's free response out (the row's x, v unused)
@@ -2177,6 +2220,20 @@ class AdaptivePredictor:
         if self.alpha == 0.0:
             return 0.0
         return (ground_force_N - force) / (self.alpha * self.mass_ref_kg)
+
+    def at_range(self, step: int, flags: int) -> None:
+        """Sample `step` has readings at their sensors' range (`flags`: the bits of
+        :mod:`seft_msgs_py.sensor_range`; the builder tells it before the sample is
+        observed): no identification takes it. The specimen's RLS skips the sample (its
+        regression takes all four readings); the delay and gain fit takes no row whose
+        displacement or velocity, at either end, is at its range; the latency fit and the
+        force loop identified from data take no window holding a force at its range; a
+        yielding member's model anchors on the sample but does not learn from it. Counted in
+        ``skipped_samples``."""
+        if flags:
+            self._at_range[int(step)] = int(flags)
+            if self._member_law is not None:
+                self._member_law.member.hold(step)
 
     def reference_late(self, step: int) -> None:
         """Real time: the reference force of sample `step` went out late (the builder node:
@@ -2349,6 +2406,11 @@ class AtsPredictor:
                    excitation_N=float(params.get('adaptive_excitation_N', 20.0)),
                    max_rate_per_s=float(params.get('adaptive_max_rate_per_s', 1.0)),
                    max_delay_s=float(params.get('adaptive_max_delay_s', 0.03)), law=law)
+
+    @property
+    def member(self):
+        """The yielding member's model of the law (None for a linear specimen)."""
+        return self._member
 
     @property
     def model(self) -> 'DelayImpulseModel | None':

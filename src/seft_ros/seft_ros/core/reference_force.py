@@ -20,6 +20,7 @@ import numpy as np
 from seft_msgs_py.errors import ParameterError
 from seft_msgs_py.interface import Measurement
 from seft_msgs_py.sampling import single_blas_thread
+from seft_msgs_py.sensor_range import CHANNELS, SensorRanges
 from seft_ros.core.predictors import (
     TANGENT_STIFFNESS_RATIOS,
     AdaptivePredictor,
@@ -32,6 +33,7 @@ from seft_ros.core.predictors import (
     model_predictor,
     network_delay_steps,
 )
+from seft_ros.core.range_guard import RangeGuard
 from seft_ros.core.structure import TestSetup, test_setup
 from seft_ros.core.substructure import (
     InterfacePredictor,
@@ -485,6 +487,10 @@ class ReferenceForceBuilder:
                     self._history[r] = (weights, deque([0.0] * len(weights),
                                                        maxlen=len(weights)))
         self._yields = [yields(law.predictor) for law in self.laws]
+        # each local rig's readings against its sensors' ranges (flagged, counted, the
+        # acceleration estimated while the accelerometer is at its range)
+        self.range_guards = [self._range_guard(law, p, y) for law, p, y in
+                             zip(self.laws, self._rig_params, self._yields)]
         self._interface_cache = {}
         if self._targets:
             self._interface_key = None
@@ -528,6 +534,27 @@ class ReferenceForceBuilder:
                     raise ParameterError(f'rigs.{r}: {exc}') from None
                 rig_params.append(p)
         return cls(setup, float(params['dt']), laws, rig_params, local=local)
+
+    def _range_guard(self, law, params, tangent: bool) -> 'RangeGuard | None':
+        """A local rig's :class:`~seft_ros.core.range_guard.RangeGuard` (None: its sensors
+        have no range)."""
+        ranges = SensorRanges.from_parameters(params)
+        if not ranges.limited:
+            return None
+        return RangeGuard(ranges, self.dt, law.predictor,
+                          lambda: specimen_model_of(law.predictor, params),
+                          tangent_only=tangent)
+
+    def range_counts(self) -> dict:
+        """Each local rig's samples at a sensor's range (``RangeCount.as_dict``) with its
+        ranges (``'ranges'``: channel -> range in SI units, None unlimited), by rig name."""
+        out = {}
+        for rig, guard in zip(self.local_rigs, self.range_guards):
+            if guard is not None:
+                ranges = {c: (v if math.isfinite(v) else None)
+                          for c, v in zip(CHANNELS, guard.ranges.ranges())}
+                out[rig] = dict(guard.count.as_dict(), ranges=ranges)
+        return out
 
     def _build_interface(self) -> None:
         """(Re)build the interface prediction from the local rigs' current specimen models
@@ -609,13 +636,16 @@ class ReferenceForceBuilder:
         measurement : Measurement
             Its sample (``measurement.step``).
         """
-        if self.state is not None:
-            self.state.observe(rig, measurement)
         try:
             r = self._local_pos.index(rig)
         except ValueError:
-            return
-        self._latest[r][measurement.step] = measurement
+            r = None
+        if r is not None and self.range_guards[r] is not None:
+            measurement = self.range_guards[r].take(measurement)
+        if self.state is not None:
+            self.state.observe(rig, measurement)
+        if r is not None:
+            self._latest[r][measurement.step] = measurement
 
     def reference_late(self, step: int) -> None:
         """Real time: the reference forces of sample `step` went out late (the builder node:
