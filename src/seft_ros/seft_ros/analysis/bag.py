@@ -546,6 +546,20 @@ def recording_end(bag: BagSignals, n_steps: int) -> dict:
     return out
 
 
+def _sensor_range(statuses) -> dict:
+    """Each rig's samples at a sensor's range from its builder's final status (the JSON of
+    ``ReferenceForceBuilder.range_counts``; empty for a bag before issue 39)."""
+    out = {}
+    for s in statuses:
+        if s.get('state') in _FINAL and s['name'].endswith('reference_force_builder') \
+                and s.get('sensor_range'):
+            try:
+                out.update(json.loads(s['sensor_range']))
+            except ValueError:
+                continue
+    return out
+
+
 def read_run(path) -> RunData:
     """Read any seft bag into a :class:`~seft_ros.analysis.rundata.RunData`: every rig's
     signals (the study's test: its one rig, ``''``, in the root namespace; a structure's: each
@@ -692,7 +706,9 @@ def read_run(path) -> RunData:
              'recovered': bag.recovery is not None,
              'abort_node': first['name'] if first is not None else None,
              # what the builders reported during the run (a specimen not the declared one)
-             'warnings': [s['warning'] for s in bag.statuses if s.get('warning')]}
+             'warnings': [s['warning'] for s in bag.statuses if s.get('warning')],
+             # each rig's samples at a sensor's range, as its builder counted them
+             'sensor_range': _sensor_range(bag.statuses)}
     lost = bag_lost_messages(bag.statuses)
     if lost is not None:
         extra['bag_lost_messages'] = lost

@@ -23,6 +23,7 @@ from matplotlib.ticker import FuncFormatter
 import numpy as np
 
 from seft_msgs_py.errors import ParameterError
+from seft_ros.analysis.findings import run_flags, sensor_range_entry, sensor_range_lines
 from seft_ros.analysis.metrics import (
     HIGH_FREQUENCY_CUTOFF_HZ,
     UNCOMPENSATED,
@@ -516,6 +517,18 @@ def _mismatch_lines(run: RunData) -> list[str]:
             'experiment):'] + [f'  - {line}' for line in mismatches]
 
 
+def _range_markdown(run: RunData) -> list[str]:
+    """The pre-run range check's lines and the samples read at a sensor's range, one item
+    each (issue 39)."""
+    lines = []
+    check = run.extra.get('range_check') or {}
+    for line in check.get('lines') or ():
+        lines.append(f'- pre-run range check: {line}')
+    for line in sensor_range_lines(sensor_range_entry(run)):
+        lines.append(f'- **sensor at its range**: {line}')
+    return lines
+
+
 def _run_markdown(index: int, run: RunData, comparison: RunComparison) -> list[str]:
     params = run.params
     record = run.record_name or params.get('record', '')
@@ -536,7 +549,12 @@ def _run_markdown(index: int, run: RunData, comparison: RunComparison) -> list[s
     if sources is not None:
         lines.append(f'- {sources}')
     lines += _mismatch_lines(run)
-    if run.stable:
+    flags = run_flags(run, comparison)
+    if run.stable and flags:
+        lines.append('- **stable, flagged**: the run may have lost accuracy, as a lab sees it '
+                     'without the reference:')
+        lines += [f'  - {flag}' for flag in flags]
+    elif run.stable:
         lines.append('- **stable**')
     else:
         at = _abort_time(run)
@@ -547,6 +565,7 @@ def _run_markdown(index: int, run: RunData, comparison: RunComparison) -> list[s
         lines.append(f'- **recording {recording["end"]}**: {recording.get("note")}')
     elif recording.get('gap_at_step') is not None:
         lines.append(f'- **recording with a gap**: {recording.get("note")}')
+    lines += _range_markdown(run)
     res = comparison.residual
     if is_nonlinear(params) and res is not None:
         lines.append(
@@ -1468,7 +1487,10 @@ def _structure_run_markdown(index: int, run: RunData, comparison: RunComparison,
     """A structure run's section: outcome, the per-DOF, per-link and per-rig tables, the
     figure of the time histories and, with a hysteretic rig, its hysteresis loops."""
     p = run.params
-    state = ('stable' if run.stable else
+    flags = entry.get('flags') or []
+    state = ('stable' if run.stable and not flags else
+             '**stable, flagged** (the run may have lost accuracy, as a lab sees it without '
+             'the reference)' if run.stable else
              f'**aborted** at {_num(run.unstable_at_s)} s: {run.abort_reason}')
     lines = [f'## Run {index}: predictor {p.get("predictor", "n/a")}, builders '
              f'{p.get("structure_builders", "central")}, {p.get("mode", "lockstep")}', '',
@@ -1480,6 +1502,9 @@ def _structure_run_markdown(index: int, run: RunData, comparison: RunComparison,
     elif recording.get('gap_at_step') is not None:
         lines += [f'- **recording with a gap**: {recording.get("note")}']
     lines += _mismatch_lines(run)
+    if run.stable:
+        lines += [f'- flagged: {flag}' for flag in flags]
+    lines += _range_markdown(run)
     if lines[-1]:
         lines.append('')
     lines += ['| dof | rig | NRMS x | NRMS ẍ | NRMS floor ẍ | NRMS force | peak x | '

@@ -14,12 +14,10 @@ from typing import Any, Callable
 import numpy as np
 
 from seft_msgs_py import parameters
-from seft_msgs_py.calibration import valve_flow_gain_m3_per_s_V
 from seft_msgs_py.domain import LOCK_DIR, claim_domain, held_by_ancestor
 from seft_msgs_py.errors import InputError, ParameterError, SeftError
 from seft_msgs_py.sampling import single_blas_thread
 from seft_ros.analysis.bag import read_run
-from seft_ros.analysis.reference import reference_response
 from seft_ros.analysis.rundata import RunData
 from seft_ros.cli import partition
 from seft_ros.cli.config import RIGS, expand_runs, layer_rigs, load_config, write_params_file
@@ -33,7 +31,7 @@ __all__ = ['build_runs', 'output_dir', 'remove_empty_dirs', 'run_experiments',
            'summary_table', 'criteria_table',
            'Result', 'check_stability', 'check_domain', 'open_runner', 'stability_entry',
            'stability_report', 'stability_table', 'StabilityResult', 'identify_bags',
-           'identification_table']
+           'identification_table', 'check_ranges', 'RangeRefusedError']
 
 
 class Result:
@@ -176,12 +174,13 @@ def _finish(out_dir: Path, runs: list[RunData], title: str, t0: float) -> Result
 def simulate_experiments(*, runs: list[dict], out_dir: Path,
                          progress: Callable[[str], None] = print, title: str = '',
                          force: bool = False, workers: int | None = None,
-                         bag: bool = False) -> Result:
+                         bag: bool = False, strict: bool = False) -> Result:
     """Run each parameter set with :func:`~seft_ros.core.experiment.simulate` (no ROS) and
     write the report.
 
-    Before the first run, :func:`check_stability` (`force`: warn instead of refusing). One
-    run is simulated in this process; several run in a pool of worker processes
+    Before the first run, :func:`check_stability` (`force`: warn instead of refusing) and
+    :func:`check_ranges` (`strict`: refuse instead of warning). One run is simulated in this
+    process; several run in a pool of worker processes
     (:class:`concurrent.futures.ProcessPoolExecutor`), each run in one worker, so the
     numbers are those of each run alone. Progress lines: ``[label] step k/n`` about every
     0.5 s of a run, and one line per finished run, in the order the runs finish.
@@ -198,6 +197,9 @@ def simulate_experiments(*, runs: list[dict], out_dir: Path,
         Report title.
     force : bool
         Run predicted-unstable runs anyway (with a warning).
+    strict : bool
+        Refuse the runs when a rig's reference peak exceeds a sensor range or the actuator's
+        capacity (``--strict``; default: one warning line per channel).
     workers : int >= 1, optional
         Worker processes (default ``os.cpu_count()``; never more than the runs). 1: every
         run in this process, one after the other.
@@ -217,6 +219,8 @@ def simulate_experiments(*, runs: list[dict], out_dir: Path,
         Bad record or parameter.
     PredictedUnstableError
         A run is predicted unstable and `force` is False.
+    RangeRefusedError
+        `strict` and a run's reference exceeds a range or capacity.
     KeyboardInterrupt
         Ctrl-C: the runs not started are cancelled, the running ones stop at their next
         progress check (within about 0.5 s) and the workers exit before this re-raises.
@@ -227,10 +231,11 @@ def simulate_experiments(*, runs: list[dict], out_dir: Path,
         if path.exists():
             raise InputError(f'{path}: the bag exists already; expected a new --out directory')
     checks = check_stability(runs=runs, force=force, progress=progress)
-    check_capacity(runs=runs, progress=progress)
+    ranges = check_ranges(runs=runs, strict=strict, progress=progress)
     data = simulate_runs(runs=runs, out_dir=out_dir, progress=progress, workers=workers)
-    for rd, check in zip(data, checks):
+    for rd, check, limits in zip(data, checks, ranges):
         rd.extra['stability'] = stability_entry(check)
+        rd.extra['range_check'] = limits.as_dict()
     if bags:
         from seft_ros.analysis.bagwrite import write_run_bag
         for rd, path in zip(data, bags):
@@ -592,7 +597,7 @@ def run_experiments(*, runs: list[dict], out_dir: Path,
                     progress: Callable[[str], None] = print, title: str = '',
                     domain_id: int | None = None, force: bool = False,
                     nodes: list[str] | None = None, processes: str = 'node',
-                    live=None) -> Result | None:
+                    live=None, strict: bool = False) -> Result | None:
     """Run each parameter set as a node graph (separate processes over DDS), record a bag
     per run, read the bags back and write the report.
 
@@ -602,7 +607,8 @@ def run_experiments(*, runs: list[dict], out_dir: Path,
     `live` (``seft run --live``, a :class:`~seft_ros.live.access.LiveOptions`): the live
     view of the runs (:mod:`seft_ros.cli.live`), in the run's domain for every run.
 
-    Before any node starts, :func:`check_stability` (`force`: warn instead of refusing).
+    Before any node starts, :func:`check_stability` (`force`: warn instead of refusing) and
+    :func:`check_ranges` (`strict`: refuse instead of warning).
 
     `nodes` (``seft run --nodes``): start only these nodes; the rest of the graph runs on
     other hosts in the same ROS domain (``ROS_DOMAIN_ID`` or `domain_id`, required then;
@@ -613,6 +619,8 @@ def run_experiments(*, runs: list[dict], out_dir: Path,
     ------
     PredictedUnstableError
         A run is predicted unstable and `force` is False (nothing started).
+    RangeRefusedError
+        `strict` and a run's reference exceeds a range or capacity (nothing started).
     InputError
         `nodes` names no node of the graph, several hosts without a shared domain, or
         `processes` is not one of ``node``, ``loop``.
@@ -626,16 +634,16 @@ def run_experiments(*, runs: list[dict], out_dir: Path,
     if nodes is not None:
         nodes = check_nodes(nodes, runs)
         check_stability(runs=runs, force=force, progress=progress)
-        check_capacity(runs=runs, progress=progress)
+        check_ranges(runs=runs, strict=strict, progress=progress)
         return _run_here(runs, out_dir, progress, _shared_domain(domain_id), nodes, processes,
                          live)
     t0 = time.monotonic()
 
-    predicted = []
+    predicted, ranges = [], []
 
     def checks():
         predicted.extend(check_stability(runs=runs, force=force, progress=progress))
-        check_capacity(runs=runs, progress=progress)
+        ranges.extend(check_ranges(runs=runs, strict=strict, progress=progress))
     runner, claim = open_runner(domain_id=domain_id, progress=progress, checks=checks,
                                 processes=processes)
     data = []
@@ -651,8 +659,9 @@ def run_experiments(*, runs: list[dict], out_dir: Path,
             viewer.close()
         runner.close()
         claim.close()
-    for rd, check in zip(data, predicted):
+    for rd, check, limits in zip(data, predicted, ranges):
         rd.extra['stability'] = stability_entry(check)
+        rd.extra['range_check'] = limits.as_dict()
     return _finish(out_dir, data, title or 'seft run', t0)
 
 
@@ -729,6 +738,13 @@ def compare_bags(*, bags: list[str], out_dir: Path, title: str = '') -> Result:
             rd.extra['stability'] = stability_entry(stability.check_run(rd.params, margin=True))
         except SeftError:
             pass
+        # and its pre-run range check (its parameters, the record as the bag holds it)
+        from seft_ros.analysis.range_check import range_check
+        try:
+            rd.extra['range_check'] = range_check(rd.params,
+                                                  rd.ground_acceleration_m_s2).as_dict()
+        except SeftError:
+            pass
     return _finish(out_dir, data, title or 'seft compare', t0)
 
 
@@ -761,7 +777,7 @@ def structure_table(summary: list[dict]) -> str:
         abort = f'{e["unstable_at_s"]:8.3f}' if e['unstable_at_s'] is not None else f'{"-":>8}'
         for dof in e['structure']['dofs']:
             d = e['dofs'][dof]
-            lines.append(f'{i:3d} {e["predictor"]:>10} {str(e["stable"]):>7} {abort} '
+            lines.append(f'{i:3d} {e["predictor"]:>10} {_stable_cell(e):>7} {abort} '
                          f'{dof[:12]:>12} {_rig_name(d["rig"])[:10]:>10} '
                          f'{pct(d["displacement"])} {pct(d["acceleration"])} '
                          f'{pct(d["floor_acceleration"])} {pct(d["interface_force"])} '
@@ -782,7 +798,24 @@ def structure_table(summary: list[dict]) -> str:
             lines.append(f'note: run {i} ({e["predictor"]}): aborted: {e["abort_reason"]}')
         if (e.get('link') or {}).get('warning'):
             lines.append(f'note: run {i} ({e["predictor"]}): {e["link"]["warning"]}')
+        lines += _accuracy_notes(f'run {i} ({e["predictor"]})', e)
     return '\n'.join(lines)
+
+
+def _stable_cell(entry: dict) -> str:
+    """The table's ``stable`` cell: True, False, or ``flagged`` for a stable run with flags
+    (``note:`` lines below say why)."""
+    return 'flagged' if entry.get('stable') and entry.get('flags') else str(entry['stable'])
+
+
+def _accuracy_notes(who: str, entry: dict) -> list[str]:
+    """``note:`` lines of a summary entry's flags and samples at a sensor's range (issue
+    39)."""
+    from seft_ros.analysis.findings import sensor_range_lines
+    lines = [f'note: {who}: flagged: {flag}' for flag in entry.get('flags') or ()]
+    lines += [f'note: {who}: {line}'
+              for line in sensor_range_lines(entry.get('sensor_range') or {})]
+    return lines
 
 
 def summary_table(summary: list[dict]) -> str:
@@ -823,7 +856,7 @@ def summary_table(summary: list[dict]) -> str:
         abort = f'{e["unstable_at_s"]:8.3f}' if e['unstable_at_s'] is not None else f'{"-":>8}'
         lag = f'{1000 * e["lag_s"]:7.2f}' if e['lag_s'] is not None else f'{"-":>7}'
         lines.append(
-            f'{e["alpha"]:6g} {e["rig"]:>14} {e["predictor"]:>10} {str(e["stable"]):>7} '
+            f'{e["alpha"]:6g} {e["rig"]:>14} {e["predictor"]:>10} {_stable_cell(e):>7} '
             f'{abort} {lag} {pct(e["nrms"]["displacement"])} {pct(e["nrms"]["acceleration"])} '
             f'{pct(e["nrms"]["force"])} {num(e["peak_ratio"]["displacement"])} '
             f'{num(e["peak_ratio"]["acceleration"])} {num(e["peak_ratio"]["force"])}')
@@ -849,6 +882,7 @@ def summary_table(summary: list[dict]) -> str:
         if rec.get('end') in ('crashed', 'stopped') or rec.get('gap_at_step') is not None:
             lines.append(f'note: run {i} (alpha {e["alpha"]:g}, {e["predictor"]}): '
                          f'{rec.get("note")}')
+        lines += _accuracy_notes(f'run {i} (alpha {e["alpha"]:g}, {e["predictor"]})', e)
     return '\n'.join(lines)
 
 
@@ -886,44 +920,58 @@ def parameter_names() -> list[str]:
 # -- stability map and the pre-run guard ------------------------------------------------------
 
 def actuator_velocity_limit_m_s(params) -> float | None:
-    """Largest piston velocity the servohydraulic rig can deliver [m/s] (None: other rigs).
+    """Largest piston velocity the rig's actuator delivers [m/s] (None: not declared):
+    :func:`seft_ros.analysis.range_check.actuator_velocity_limit_m_s`."""
+    from seft_ros.analysis.range_check import actuator_velocity_limit_m_s as limit
+    return limit(params)
 
-    ``v_max = k_q * valve_limit_V / A``: the valve flow at full command over the piston area
-    (no load pressure; Merritt 1967, Ch. 5), with k_q of the rig calibration (2.0 m/s at
-    10 V with Eq. 3.1 in V/lbf, 0.45 m/s in V/N; :mod:`seft_msgs_py.calibration`).
+
+class RangeRefusedError(SeftError):
+    """``--strict``: a run's reference exceeds a rig's sensor range or actuator capacity."""
+
+
+def check_ranges(*, runs: list[dict], strict: bool = False,
+                 progress: Callable[[str], None] = print) -> list:
+    """Before the runs: each rig's peaks of the analytical reference against its sensors'
+    ranges and its actuator's capacity (:func:`seft_ros.analysis.range_check.range_check`).
+
+    One line per channel that will be exceeded (``range check: [run] rig, channel: the
+    reference peaks at ..., beyond the ... of ...; the largest amplitude that fits: ...``), a
+    line shared by several runs once with their labels; `strict` (``--strict``) refuses the
+    runs instead. A run with an OpenSees model is first checked by
+    :func:`seft_ros.opensees.checks.check_runs` (refused in one line where it cannot run as
+    configured); its range check is made with the report.
+
+    Returns
+    -------
+    list of RangeCheck
+        One per run (for ``summary.json``, ``extra['range_check']``).
+
+    Raises
+    ------
+    RangeRefusedError
+        `strict` and a channel exceeded (the message is the first line and how many more).
+    InputError, ParameterError
+        Bad record or parameter.
     """
-    if params['rig_model'] != 'servohydraulic':
-        return None
-    return (valve_flow_gain_m3_per_s_V(params) * params['valve_limit_V']
-            / params['piston_area_m2'])
-
-
-def check_capacity(*, runs: list[dict], progress: Callable[[str], None] = print) -> None:
-    """Warn before a run whose reference response needs more velocity than the actuator has.
-
-    The analytical reference of the whole structure (linear model, the prepared record) is
-    what a perfectly compensated test reproduces; if its peak velocity exceeds
-    :func:`actuator_velocity_limit_m_s`, the valve will saturate and the loss-of-control
-    interlock is likely to end the run. A warning, not a refusal. A run with an OpenSees
-    model is first checked by :func:`seft_ros.opensees.checks.check_runs` (refused in one
-    line where it cannot run as configured).
-    """
+    from seft_ros.analysis.range_check import range_check
     from seft_ros.opensees.checks import check_runs as check_opensees  # issue 32
     check_opensees(runs, progress=progress)
+    checks, lines = [], {}
     for p in runs:
-        v_max = actuator_velocity_limit_m_s(p)
-        if v_max is None or has_structure(p):
-            continue
-        gm = prepared_record(p)
-        ref = reference_response(alpha=p['alpha'], mass_kg=p['mass_kg'],
-                                 damping_N_s_per_m=p['damping_N_s_per_m'],
-                                 stiffness_N_per_m=p['stiffness_N_per_m'], dt=p['dt'],
-                                 ground_acceleration_m_s2=gm.acceleration_m_s2)
-        v_peak = float(np.max(np.abs(ref.velocity_m_s)))
-        if v_peak > v_max:
-            progress(f'warning: alpha={p["alpha"]:g} ({p["predictor"]}): the reference response '
-                     f'needs {v_peak:.2f} m/s, the actuator delivers {v_max:.2f} m/s at '
-                     f'{p["valve_limit_V"]:g} V: expect valve saturation (lower amplitude_N)')
+        check = range_check(p, prepared_record(p).acceleration_m_s2)
+        checks.append(check)
+        for line in check.lines():
+            lines.setdefault(line, []).append(_run_label(p, runs))
+    shown = [f'[{", ".join(labels)}] {line}' if len(runs) > 1 else line
+             for line, labels in lines.items()]
+    if strict and shown:
+        more = f' (and {len(shown) - 1} more)' if len(shown) > 1 else ''
+        raise RangeRefusedError(f'range check: {shown[0]}{more}; refused (--strict): lower '
+                                'the amplitude or run without --strict')
+    for line in shown:
+        progress(f'range check: {line}')
+    return checks
 
 
 def check_stability(*, runs: list[dict], force: bool = False,

@@ -212,6 +212,9 @@ def simulate(params, *, progress: Callable[[int, int], None] | None = None,
             for observe in observers:
                 for r in range(n_r):
                     observe(r, meas[r])
+            for b in builders:
+                if any(g is not None and g.news for g in b.range_guards):
+                    warnings.extend(b.range_warnings())
             commands = build(k + 1)
             est = estimates()
             state_rec.append(builder.computational_state)

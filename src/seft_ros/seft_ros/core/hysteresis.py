@@ -312,6 +312,21 @@ class HystereticIdentifier:
     #: 100 updates).
     SENSOR_WEIGHT = 0.01
 
+    @classmethod
+    def estimate_bounds(cls, guess: MemberGuess) -> dict:
+        """The range of each identified parameter, ``{estimate name: (lower, upper)}``
+        (names of :data:`HYSTERESIS_ESTIMATES`, SI units): :data:`BOUNDS` about `guess`."""
+        (lk, hk), (la, ha), (ld, hd), (ln_, hn), (ls, hs) = cls.BOUNDS
+        k, dy = guess.stiffness_N_per_m, guess.yield_displacement_m
+
+        def expit(x):
+            return 1.0 / (1.0 + math.exp(-x))
+        return {'hysteresis_stiffness_N_per_m': (k * math.exp(lk), k * math.exp(hk)),
+                'hysteresis_post_yield_ratio': (expit(la), expit(ha)),
+                'hysteresis_yield_displacement_m': (dy * math.exp(ld), dy * math.exp(hd)),
+                'hysteresis_n': (1.0 + math.exp(ln_), 1.0 + math.exp(hn)),
+                'hysteresis_unloading_shape': (ls, hs)}
+
     def __init__(self, guess: MemberGuess, dt: float, *, memory_s: float = 2.0,
                  min_increment_m: float = 2e-6):
         if not (dt > 0 and memory_s > 0 and min_increment_m >= 0):

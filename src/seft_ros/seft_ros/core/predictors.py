@@ -1909,17 +1909,13 @@ class AdaptivePredictor:
             self._theta0, p0, _ident.forgetting_factor(dt, memory_s))
         self.gate = _ident.ExcitationGate(dt, window_s, excitation_N)
         per_update = float(max_rate_per_s) * dt * self.update_steps
-        d = float(max_deviation)
-        self._guards = {
-            'mass_kg': _ident.GuardedValue(m0, m0 * (1 - d), m0 * (1 + d), m0 * per_update),
-            'damping_N_s_per_m': _ident.GuardedValue(
-                c0, max(c0 - d * c_scale, 0.0), c0 + d * c_scale, c_scale * per_update),
-            'stiffness_N_per_m': _ident.GuardedValue(k0, k0 * (1 - d), k0 * (1 + d),
-                                                     k0 * per_update),
-            'tau_s': _ident.GuardedValue(tau0_s, 0.0, self.max_delay_s,
-                                         max(float(tau0_s), dt) * per_update),
-            'gain': _ident.GuardedValue(1.0, 1 - d, 1 + d, per_update),
-        }
+        bounds = self.bounds(m0, c0, k0, self.max_delay_s, max_deviation)
+        rates = {'mass_kg': m0, 'damping_N_s_per_m': c_scale, 'stiffness_N_per_m': k0,
+                 'tau_s': max(float(tau0_s), dt), 'gain': 1.0}
+        start = {'mass_kg': m0, 'damping_N_s_per_m': c0, 'stiffness_N_per_m': k0,
+                 'tau_s': tau0_s, 'gain': 1.0}
+        self._guards = {name: _ident.GuardedValue(start[name], lo, hi, rates[name] * per_update)
+                        for name, (lo, hi) in bounds.items()}
         self._targets = dict(self.prior)
         self.loop_inverse = (None if loop_identification is None
                              else loop_identification.inverse)
@@ -1940,6 +1936,39 @@ class AdaptivePredictor:
         self.history_tau_s = []
         self.fit_quality = float('nan')
         self.min_fit_quality = float(min_fit_quality)
+
+    @staticmethod
+    def bounds(mass_kg: float, damping_N_s_per_m: float, stiffness_N_per_m: float,
+               max_delay_s: float, max_deviation: float) -> dict:
+        """The range of each estimate (class notes), ``{name: (lower, upper)}`` in the
+        estimate's unit: m, c, k and the gain within ``+/- max_deviation`` of the prior (c
+        of the damping scale, at least 5 % of critical, and not below 0), tau within
+        ``[0, max_delay_s]``."""
+        m0, c0, k0, d = (float(mass_kg), float(damping_N_s_per_m), float(stiffness_N_per_m),
+                         float(max_deviation))
+        c_scale = max(c0, 0.1 * math.sqrt(k0 * m0))
+        return {'mass_kg': (m0 * (1 - d), m0 * (1 + d)),
+                'damping_N_s_per_m': (max(c0 - d * c_scale, 0.0), c0 + d * c_scale),
+                'stiffness_N_per_m': (k0 * (1 - d), k0 * (1 + d)),
+                'tau_s': (0.0, float(max_delay_s)), 'gain': (1 - d, 1 + d)}
+
+    @classmethod
+    def estimate_bounds(cls, params) -> dict:
+        """The range of each estimate of the ``adaptive`` compensator of `params`
+        (:meth:`bounds` of its prior, ``adaptive_max_delay_s`` and
+        ``adaptive_max_deviation``), and of its I/O latency fit (``loop_latency_s``, with
+        ``adaptive_loop: model_latency`` on the servohydraulic rig: ``[0, L0 + max(L0,
+        2 dt)]``)."""
+        mp = model_parameters(params)
+        dt = float(params['dt'])
+        out = cls.bounds(mp['mass_kg'], mp['damping_N_s_per_m'], mp['stiffness_N_per_m'],
+                         math.ceil(float(params['adaptive_max_delay_s']) / dt) * dt,
+                         float(params.get('adaptive_max_deviation', 0.5)))
+        if (params.get('rig_model') == 'servohydraulic'
+                and params.get('adaptive_loop', ADAPTIVE_LOOP_DEFAULT) == 'model_latency'):
+            latency = model_rig(params).io_latency_s
+            out['loop_latency_s'] = (0.0, latency + max(latency, 2.0 * dt))
+        return out
 
     @classmethod
     def from_parameters(cls, params) -> 'AdaptivePredictor':

@@ -32,9 +32,26 @@ sees; the bag keeps what the sensor read.
 from typing import Callable
 
 from seft_msgs_py.interface import Measurement
-from seft_msgs_py.sensor_range import ACCELERATION, FORCE, RangeCount, SensorRanges
+from seft_msgs_py.sensor_range import (
+    ACCELERATION,
+    CHANNEL_UNITS,
+    FORCE,
+    RangeCount,
+    SensorRanges,
+)
 
-__all__ = ['RangeGuard']
+__all__ = ['RangeGuard', 'range_warning']
+
+
+def range_warning(rig: str, channel: str, range_value: float, time_s: float) -> str:
+    """The line the builder says when a rig's `channel` first reads its range
+    (`range_value` in the channel's SI unit) at `time_s` [s]."""
+    who = f'{rig}: ' if rig else ''
+    what = ('; the acceleration fed back is estimated from the measured force and motion '
+            'while it lasts' if channel == 'acceleration' else '')
+    return (f'{who}{channel} at its sensor range ({range_value:g} {CHANNEL_UNITS[channel]}) '
+            f'at t={time_s:.3f} s: flagged and counted, the identifications skip such '
+            f'samples{what}')
 
 
 class RangeGuard:
@@ -59,6 +76,9 @@ class RangeGuard:
     ----------
     count : RangeCount
         The samples at a range, per channel, and those whose acceleration was estimated.
+    news : list of (str, int)
+        ``(channel, step)`` of each channel the first time it is at its range (the builder
+        says so once, :meth:`ReferenceForceBuilder.range_warnings`); the reader empties it.
     """
 
     def __init__(self, ranges: SensorRanges, dt: float, predictor,
@@ -71,6 +91,7 @@ class RangeGuard:
         self._model = specimen_model
         self._tangent_only = bool(tangent_only)
         self._previous = None           # (step, velocity) of the latest sample
+        self.news: list[tuple[str, int]] = []
 
     def take(self, m: Measurement) -> Measurement:
         """Flag, count and tell (module notes); return the measurement to feed back: `m`, or
@@ -79,7 +100,11 @@ class RangeGuard:
         previous, self._previous = self._previous, (m.step, m.velocity_m_s)
         if not flags:
             return m
+        first = len(self.count.first_step)
         self.count.add(m.step, flags)
+        if len(self.count.first_step) > first:
+            self.news.extend((c, m.step) for c, j in self.count.first_step.items()
+                             if j == m.step)
         if self._hook is not None:
             self._hook(m.step, flags)
         if not flags & ACCELERATION:

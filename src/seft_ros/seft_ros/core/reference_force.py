@@ -33,7 +33,7 @@ from seft_ros.core.predictors import (
     model_predictor,
     network_delay_steps,
 )
-from seft_ros.core.range_guard import RangeGuard
+from seft_ros.core.range_guard import RangeGuard, range_warning
 from seft_ros.core.structure import TestSetup, test_setup
 from seft_ros.core.substructure import (
     InterfacePredictor,
@@ -544,6 +544,17 @@ class ReferenceForceBuilder:
         return RangeGuard(ranges, self.dt, law.predictor,
                           lambda: specimen_model_of(law.predictor, params),
                           tangent_only=tangent)
+
+    def range_warnings(self) -> list[str]:
+        """One line per local rig and channel that read its sensor's range for the first
+        time since the last call (:func:`~seft_ros.core.range_guard.range_warning`)."""
+        out = []
+        for rig, guard in zip(self.local_rigs, self.range_guards):
+            if guard is not None and guard.news:
+                out.extend(range_warning(rig, c, guard.ranges.range_of(c), step * self.dt)
+                           for c, step in guard.news)
+                guard.news.clear()
+        return out
 
     def range_counts(self) -> dict:
         """Each local rig's samples at a sensor's range (``RangeCount.as_dict``) with its
