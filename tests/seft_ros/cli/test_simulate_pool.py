@@ -18,6 +18,7 @@ def no_report(monkeypatch):
     """Skip the stability guard and the report (tested elsewhere): only the runs matter here."""
     monkeypatch.setattr(api, 'check_stability', lambda **kw: [])
     monkeypatch.setattr(api, 'check_ranges', lambda **kw: [])
+    monkeypatch.setattr(api, 'check_settings', lambda **kw: None)
     monkeypatch.setattr(api, '_finish', lambda out_dir, runs, title, t0:
                         api.Result(out_dir, runs, [], 0.0))
 

@@ -1,6 +1,6 @@
 """What a run shows of a loss of accuracy that a lab can see without the reference.
 
-A run that completes is not therefore right. Three signs, each visible in the lab's own data
+A run that completes is not therefore right. Four signs, each visible in the lab's own data
 and the pre-run prediction (never in the comparison's error), flag a run instead of calling
 it plainly stable (:func:`run_flags`):
 
@@ -11,6 +11,9 @@ it plainly stable (:func:`run_flags`):
   :data:`BOUND_HOLD_S` or at the run's end: what it identifies is not in its model;
 * **the specimen check firing**: a rig's identified stiffness left the declared one
   (:class:`~seft_ros.core.monitor.SpecimenCheck`);
+* **settings the docs show cost accuracy** (a yielding member with an elastic specimen's
+  controller, law or loop inverse; ``model`` with an uncertain specimen:
+  :func:`~seft_ros.core.specimen_settings.costly_settings`), chosen by the user;
 * **a peak beyond the prediction**: a rig's displacement, force or acceleration peaks more
   than :data:`PEAK_RATIO_FLAG` times the analytical reference's peak over the same samples
   (the pre-run check's prediction, :mod:`seft_ros.analysis.range_check`).
@@ -23,8 +26,10 @@ from typing import Any
 
 import numpy as np
 
+from seft_msgs_py.errors import SeftError
 from seft_msgs_py.sensor_range import AT_RANGE_FRACTION, CHANNEL_UNITS, CHANNELS, RANGE_PARAMETERS
 from seft_ros.analysis.rundata import RunData, rig_label
+from seft_ros.core.specimen_settings import costly_settings
 
 __all__ = ['PEAK_RATIO_FLAG', 'BOUND_HOLD_S', 'estimate_bounds', 'bound_findings',
            'sensor_range_entry', 'sensor_range_lines', 'run_flags', 'verdict']
@@ -123,7 +128,7 @@ def sensor_range_entry(run: RunData) -> dict[str, Any]:
     (``acceleration_estimated`` then None).
     """
     counted = run.extra.get('sensor_range') or {}
-    dt = float(run.params['dt'])
+    dt = float(run.params.get('dt', 0.0) or 0.0)
     out = {}
     for rig, data in run.rigs.items():
         ranges = {}
@@ -176,12 +181,17 @@ def run_flags(run: RunData, comparison) -> list[str]:
         The run against its reference (:func:`~seft_ros.analysis.metrics.compare_run`).
     """
     flags = []
-    dt = float(run.params['dt'])
+    dt = float(run.params.get('dt', 0.0) or 0.0)
     for rig, data in run.rigs.items():
-        flags += [f'identification at its bounds: {line}'
-                  for line in bound_findings(rig, data.params, data.estimates, dt)]
+        if dt > 0:
+            flags += [f'identification at its bounds: {line}'
+                      for line in bound_findings(rig, data.params, data.estimates, dt)]
     flags += [f'specimen check: {w}' for w in run.extra.get('warnings') or ()
               if 'specimen check' in w]
+    try:
+        flags += [f'settings: {line}' for line in costly_settings(run.params, flagging=True)]
+    except (SeftError, KeyError):
+        pass                            # parameters that do not make a test (a hand-made run)
     for rig, c in comparison.rigs.items():
         for name in PEAK_SIGNALS:
             s = c.signal(name)

@@ -31,7 +31,7 @@ __all__ = ['build_runs', 'output_dir', 'remove_empty_dirs', 'run_experiments',
            'summary_table', 'criteria_table',
            'Result', 'check_stability', 'check_domain', 'open_runner', 'stability_entry',
            'stability_report', 'stability_table', 'StabilityResult', 'identify_bags',
-           'identification_table', 'check_ranges', 'RangeRefusedError']
+           'identification_table', 'check_ranges', 'RangeRefusedError', 'check_settings']
 
 
 class Result:
@@ -47,7 +47,8 @@ class Result:
 
 def build_runs(*, config: str | None = None, overrides: dict[str, Any] | None = None,
                alphas: list[float] | None = None,
-               params_files: list[str] | None = None) -> list[dict[str, Any]]:
+               params_files: list[str] | None = None,
+               progress: Callable[[str], None] | None = None) -> list[dict[str, Any]]:
     """Parameter sets of the runs: defaults < config file < parameter files < overrides <
     alphas.
 
@@ -65,6 +66,9 @@ def build_runs(*, config: str | None = None, overrides: dict[str, Any] | None = 
         wins over a later file's). A file's ``rigs`` section (``seft identify``'s file of a
         structure's rigs) is merged into the configuration's rigs sections
         (:func:`~seft_ros.cli.config.layer_rigs`).
+    progress : callable(str), optional
+        Receives one ``settings:`` line per rig whose specimen is declared to yield, naming
+        the settings chosen for it (:func:`~seft_ros.cli.config.expand_runs`).
 
     Raises
     ------
@@ -88,7 +92,10 @@ def build_runs(*, config: str | None = None, overrides: dict[str, Any] | None = 
         values = layer_rigs(values, sections, where=str(path))
     if alphas:
         values['alpha'] = list(alphas)
-    runs = expand_runs(values, where=config or 'command line')
+    notes = []
+    runs = expand_runs(values, where=config or 'command line', notes=notes)
+    for note in notes if progress is not None else ():
+        progress(f'settings: {note}')
     # read every record now: a bad file is reported before anything starts
     seen = set()
     for p in runs:
@@ -232,6 +239,7 @@ def simulate_experiments(*, runs: list[dict], out_dir: Path,
             raise InputError(f'{path}: the bag exists already; expected a new --out directory')
     checks = check_stability(runs=runs, force=force, progress=progress)
     ranges = check_ranges(runs=runs, strict=strict, progress=progress)
+    check_settings(runs=runs, progress=progress)
     data = simulate_runs(runs=runs, out_dir=out_dir, progress=progress, workers=workers)
     for rd, check, limits in zip(data, checks, ranges):
         rd.extra['stability'] = stability_entry(check)
@@ -635,6 +643,7 @@ def run_experiments(*, runs: list[dict], out_dir: Path,
         nodes = check_nodes(nodes, runs)
         check_stability(runs=runs, force=force, progress=progress)
         check_ranges(runs=runs, strict=strict, progress=progress)
+        check_settings(runs=runs, progress=progress)
         return _run_here(runs, out_dir, progress, _shared_domain(domain_id), nodes, processes,
                          live)
     t0 = time.monotonic()
@@ -644,6 +653,7 @@ def run_experiments(*, runs: list[dict], out_dir: Path,
     def checks():
         predicted.extend(check_stability(runs=runs, force=force, progress=progress))
         ranges.extend(check_ranges(runs=runs, strict=strict, progress=progress))
+        check_settings(runs=runs, progress=progress)
     runner, claim = open_runner(domain_id=domain_id, progress=progress, checks=checks,
                                 processes=processes)
     data = []
@@ -812,7 +822,8 @@ def _accuracy_notes(who: str, entry: dict) -> list[str]:
     """``note:`` lines of a summary entry's flags and samples at a sensor's range (issue
     39)."""
     from seft_ros.analysis.findings import sensor_range_lines
-    lines = [f'note: {who}: flagged: {flag}' for flag in entry.get('flags') or ()]
+    lines = [f'note: {who}: flagged: {flag}' for flag in entry.get('flags') or ()
+             if entry.get('stable')]
     lines += [f'note: {who}: {line}'
               for line in sensor_range_lines(entry.get('sensor_range') or {})]
     return lines
@@ -928,6 +939,20 @@ def actuator_velocity_limit_m_s(params) -> float | None:
 
 class RangeRefusedError(SeftError):
     """``--strict``: a run's reference exceeds a rig's sensor range or actuator capacity."""
+
+
+def check_settings(*, runs: list[dict], progress: Callable[[str], None] = print) -> None:
+    """One ``settings:`` line before the runs per combination of a run's settings that the
+    docs' tables show costs accuracy (:func:`seft_ros.core.specimen_settings.costly_settings`;
+    a line shared by several runs once, with their labels)."""
+    from seft_ros.core.specimen_settings import costly_settings
+    lines: dict[str, list[str]] = {}
+    for p in runs:
+        for line in costly_settings(p):
+            lines.setdefault(line, []).append(_run_label(p, runs))
+    for line, labels in lines.items():
+        progress(f'settings: [{", ".join(labels)}] {line}' if len(runs) > 1 else
+                 f'settings: {line}')
 
 
 def check_ranges(*, runs: list[dict], strict: bool = False,

@@ -255,7 +255,7 @@ def _build(args):
     for name, value in _typed(args.sets):
         overrides[name] = value
     return api.build_runs(config=args.config, overrides=overrides, alphas=args.alpha,
-                          params_files=args.params_files)
+                          params_files=args.params_files, progress=_progress)
 
 
 def _experiments(args):
