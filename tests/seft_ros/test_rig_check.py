@@ -52,7 +52,7 @@ def test_seft_rigs_pass_every_check(model, tmp_path, run_process, seft_exe):
     assert re.search(r'^rig-check: 21 of 21 checks passed \(\d+ s; runs in ', proc.stdout,
                      re.MULTILINE)
     report = json.loads((out / 'rig_check.json').read_text())
-    assert report['passed'] is True and report['contract'] == 'seft-rig/1.0'
+    assert report['passed'] is True and report['contract'] == 'seft-rig/1.1'
     checks = {c['name']: c['values'] for c in report['checks']}
     # the numbers behind the lines
     assert abs(checks['clock']['period_s'] - 0.002) < 4e-5

@@ -148,7 +148,7 @@ def test_a_run_through_the_bridge_equals_the_servohydraulic_rig(emulator, bridge
     assert leftover_processes(str(out)) == []
     run = read_run(next(out.glob('*/bag')))
     assert run.params['rig_interface'] == 'udp_bridge' and run.stable
-    assert run.extra['rig_contract'] == 'seft-rig/1.0'
+    assert run.extra['rig_contract'] == 'seft-rig/1.1'
     # the real-time simulated rig's plant, fed the commands as the controller took them
     replay = replay_measurement(run)
     for name in ('displacement_m', 'measured_force_N'):

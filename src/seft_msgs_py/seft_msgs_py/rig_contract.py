@@ -33,11 +33,11 @@ __all__ = [
     'StatusKey', 'STATUS_KEYS', 'STATES', 'REQUIRED_PARAMETERS', 'COMMAND_SOURCE_LAG',
     'COMMAND_KINDS', 'command_kind', 'command_signal', 'command_latency_s', 'SAFE_HOLD_S',
     'reaction_limit_s', 'first_effect_step', 'qos_of', 'markdown_tables', 'is_compatible',
-    'WATCHDOG_REASON', 'PROGRESS_EVERY',
+    'WATCHDOG_REASON', 'PROGRESS_EVERY', 'RANGE_PARAMETERS',
 ]
 
 #: Version of the contract (``MAJOR.MINOR``; module notes).
-VERSION = '1.0'
+VERSION = '1.1'
 #: What a conforming rig reports under :data:`CONTRACT_KEY` in its status: name and version.
 CONTRACT = f'seft-rig/{VERSION}'
 #: The key of the contract in the rig's ``/seft/status`` values (ready and final reports).
@@ -175,6 +175,16 @@ REQUIRED_PARAMETERS = (
 )
 
 
+#: The ranges of the rig's sensors and the capacity of its actuator (1.1): a rig declares
+#: and publishes them (the graph takes the configuration's values from a rig that does not);
+#: the builder flags and counts each reading at its range, its compensator's identifications
+#: skip it, and the pre-run check compares the reference's peaks with them
+#: (``seft_msgs_py.sensor_range``, ``seft_ros.analysis.range_check``). A simulated rig's
+#: sensors saturate there.
+RANGE_PARAMETERS = ('force_range_N', 'displacement_range_m', 'velocity_range_m_s',
+                    'accelerometer_range_m_s2', 'actuator_velocity_limit_m_s')
+
+
 def command_kind(params: Mapping) -> str:
     """The command kind of the rig of `params`: the valve voltage where the graph has a force
     servo controller for it (``parameters.graph_nodes``), else the reference force."""
@@ -243,7 +253,8 @@ def _md(text: str) -> str:
 
 
 def markdown_tables() -> str:
-    """The page's tables (topics, status keys, parameters), generated from this module."""
+    """The page's tables (topics, status keys, required parameters, the sensors' ranges and
+    the actuator's capacity), generated from this module."""
     rows = ['| direction | topic | type | field, unit | QoS | when | rigs |',
             '|---|---|---|---|---|---|---|']
     for direction, roles in (('publishes', PUBLISHES), ('subscribes', SUBSCRIBES)):
@@ -256,9 +267,12 @@ def markdown_tables() -> str:
     for k in STATUS_KEYS:
         keys.append(f'| `{k.key}` | {", ".join(k.states)} | {k.unit or "-"} | {_md(k.meaning)}'
                     f' | {k.condition} |')
-    params = ['| parameter | unit | allowed | meaning |', '|---|---|---|---|']
-    for name in REQUIRED_PARAMETERS:
-        s = parameters.spec(name)
-        params.append(f'| `{name}` | {s.unit or "-"} | {_md(s.expected())} | '
-                      f'{_md(s.description)} |')
-    return '\n\n'.join('\n'.join(t) for t in (rows, keys, params))
+    tables = [rows, keys]
+    for names in (REQUIRED_PARAMETERS, RANGE_PARAMETERS):
+        params = ['| parameter | unit | allowed | meaning |', '|---|---|---|---|']
+        for name in names:
+            s = parameters.spec(name)
+            params.append(f'| `{name}` | {s.unit or "-"} | {_md(s.expected())} | '
+                          f'{_md(s.description)} |')
+        tables.append(params)
+    return '\n\n'.join('\n'.join(t) for t in tables)

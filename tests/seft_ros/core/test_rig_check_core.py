@@ -84,12 +84,21 @@ def test_contract_check():
     params = {n: 0 for n in rig_contract.REQUIRED_PARAMETERS}
     ok = rc.check_contract(_ready(), params, 'valve_command_V')
     assert ok.passed and ok.values['command_latency_s'] == 0.003
-    assert ok.measured == ('seft-rig/1.0, takes valve_command_V, command latency 3 ms, 14 of '
-                           '14 required parameters published')
+    # a rig of contract 1.0 publishes no sensor ranges: said, not failed (issue 39)
+    assert ok.measured == ('seft-rig/1.1, takes valve_command_V, command latency 3 ms, 14 of '
+                           '14 required parameters published; ranges not declared: '
+                           'force_range_N, displacement_range_m, velocity_range_m_s, '
+                           "accelerometer_range_m_s2, actuator_velocity_limit_m_s (the "
+                           "configuration's are taken)")
+    declared = dict(params, **{n: 1.0 for n in rig_contract.RANGE_PARAMETERS})
+    ok = rc.check_contract(_ready(), declared, 'valve_command_V')
+    assert ok.passed and ok.measured.endswith('required parameters published, 5 ranges '
+                                              'declared')
+    assert ok.values['undeclared_ranges'] == []
     bad = rc.check_contract(_ready(contract='seft-rig/2.0', command_latency_s='-1'),
                             {k: v for k, v in params.items() if k != 'dt'}, 'reference_force_N')
     assert not bad.passed
-    assert bad.measured == ("contract 'seft-rig/2.0', expected seft-rig/1.0; command_kind "
+    assert bad.measured == ("contract 'seft-rig/2.0', expected seft-rig/1.1; command_kind "
                             "'valve_command_V', expected 'reference_force_N'; "
                             "command_latency_s '-1', expected seconds >= 0; parameters not "
                             'published: dt')
@@ -466,14 +475,14 @@ def test_final_status_and_bags():
               'abort': {'state': 'aborted', 'contract': c}}
     ok = rc.check_final_status(finals, 1000)
     assert ok.passed and ok.measured == ('2 runs ended with the expected report (step done, '
-                                         'abort aborted), contract seft-rig/1.0')
+                                         'abort aborted), contract seft-rig/1.1')
     bad = rc.check_final_status({**finals, 'abort': {'state': 'done', 'message': 'x',
                                                      'contract': 'seft-rig/2.0'},
                                  'watchdog': None}, 999)
     assert not bad.passed
     assert bad.measured == ("step: published 1000 samples, expected 999; abort: 'done' ('x'), "
                             "expected 'aborted'; abort: contract 'seft-rig/2.0', expected "
-                            'seft-rig/1.0; watchdog: no final status')
+                            'seft-rig/1.1; watchdog: no final status')
     assert rc.check_bags_closed({'step': True, 'abort': True}).passed
     r = rc.check_bags_closed({'step': True, 'abort': False})
     assert not r.passed and r.measured == '1 of 2 bags closed (not: abort)'

@@ -819,7 +819,7 @@ def _computational(bag: BagSignals, n: int) -> dict[str, np.ndarray]:
 
 
 def rig_contract_of(statuses, rig: str = 'rig') -> str | None:
-    """The rig contract (``seft_msgs_py.rig_contract.CONTRACT``, e.g. ``'seft-rig/1.0'``) that
+    """The rig contract (``seft_msgs_py.rig_contract.CONTRACT``, e.g. ``'seft-rig/1.1'``) that
     the rig node `rig` reported in its status (its last report with one), or None: a bag
     recorded before the contract existed, or a rig that does not follow it."""
     found = [s[CONTRACT_KEY] for s in statuses if s['name'] == rig and CONTRACT_KEY in s]

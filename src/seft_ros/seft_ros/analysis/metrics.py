@@ -1128,7 +1128,7 @@ def summary_entry(run: RunData, comparison: RunComparison) -> dict[str, Any]:
         have lost accuracy as a lab sees it (:func:`seft_ros.analysis.findings.run_flags`), and
         ``'verdict'``, ``'stable'``, ``'stable, flagged'`` or ``'aborted'``; ``wall_s`` [s],
         the wall time of the stepping, from ``run.extra['wall_s']``; ``rig_contract``, the rig
-        contract its rig reported, ``'seft-rig/1.0'``, None for a bag before it, from
+        contract its rig reported, ``'seft-rig/1.1'``, None for a bag before it, from
         ``run.extra``) where alpha and rig are the rig's ``alpha`` and ``rig_model``, predictor
         is ``params['predictor']``, record is ``run.record_name`` (``params['record']`` if
         empty), ``lag_s`` [s] is the displacement lag, ``nrms`` is after removing each signal's
