@@ -221,6 +221,15 @@ def simulate(params, *, progress: Callable[[int, int], None] | None = None,
         if progress is not None and not k & 255 and time.monotonic() - t_last > 0.5:
             t_last = time.monotonic()
             progress(k + 1, n_total)
+    # the samples of the last step that no force was built from (the record's end, or an
+    # abort there): the graph's builder node received them, and counts those at a sensor's
+    # range; so does this
+    if n_total and (reason is not None or n_done == n_total):
+        for b in builders:
+            for r in range(n_r):
+                if meas[r] is not None and meas[r].step >= len(state_rec):
+                    b.count_at_range(r, meas[r])
+            warnings.extend(b.range_warnings())
     wall_s = time.monotonic() - t_start
     n = n_done
     dt = float(params['dt'])

@@ -545,6 +545,15 @@ class ReferenceForceBuilder:
                           lambda: specimen_model_of(law.predictor, params),
                           tangent_only=tangent)
 
+    def count_at_range(self, rig: int, measurement: Measurement) -> None:
+        """Count a sample at a sensor's range that no force is built from (the run's last,
+        or one the run was stopped at) as :meth:`observe` would, for a rig this builder
+        commands (index in ``rig_names``; another rig's is ignored)."""
+        if rig in self._local_pos:
+            guard = self.range_guards[self._local_pos.index(rig)]
+            if guard is not None:
+                guard.take(measurement)
+
     def range_warnings(self) -> list[str]:
         """One line per local rig and channel that read its sensor's range for the first
         time since the last call (:func:`~seft_ros.core.range_guard.range_warning`)."""
