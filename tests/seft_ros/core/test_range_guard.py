@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from seft_msgs_py.interface import Measurement
-from seft_msgs_py.sensor_range import ACCELERATION, FORCE, VELOCITY, SensorRanges
+from seft_msgs_py.sensor_range import ACCELERATION, VELOCITY, SensorRanges
 from seft_ros.analysis.metrics import compare_run
 from seft_ros.cli.config import expand_runs
 from seft_ros.core.experiment import simulate
