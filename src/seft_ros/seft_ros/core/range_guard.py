@@ -78,7 +78,9 @@ class RangeGuard:
         The samples at a range, per channel, and those whose acceleration was estimated.
     news : list of (str, int)
         ``(channel, step)`` of each channel the first time it is at its range (the builder
-        says so once, :meth:`ReferenceForceBuilder.range_warnings`); the reader empties it.
+        says so once:
+        :meth:`~seft_ros.core.reference_force.ReferenceForceBuilder.range_warnings`); the
+        reader empties it.
     """
 
     def __init__(self, ranges: SensorRanges, dt: float, predictor,

@@ -220,8 +220,8 @@ class ReferenceForceBuilderNode(SeftNode):
         self._advance()
 
     def final_counts(self) -> dict:
-        """The node's counts (:meth:`SeftNode.final_counts`) and each commanded rig's samples
-        at a sensor's range (``sensor_range``: the JSON of
+        """The node's counts (:meth:`seft_msgs_py.node_support.SeftNode.final_counts`) and
+        each commanded rig's samples at a sensor's range (``sensor_range``: the JSON of
         :meth:`~seft_ros.core.reference_force.ReferenceForceBuilder.range_counts`)."""
         counts = super().final_counts()
         counts['sensor_range'] = json.dumps(self.builder.range_counts(), sort_keys=True)
