@@ -116,7 +116,7 @@ def part1(out: Tables, recs, quick: bool) -> dict:
         out(f'**{label}**: pre-run check: {prerun(base)}')
         out()
         out.table(['case', '`adaptive`', '`model`', 'samples at a range (adaptive)',
-                   'verdict (adaptive)'])
+                   'verdict: adaptive / model'])
         cases = [('exact', {}), ('k +10 %', {'k': 0.1}), ('k -10 %', {'k': -0.1})]
         if not quick:
             cases += [('pier_a k +10 %, pier_b -10 %', {'pier_a': 0.1, 'pier_b': -0.1}),
@@ -131,7 +131,8 @@ def part1(out: Tables, recs, quick: bool) -> dict:
             a = one(dict(params, predictor='adaptive'))
             m = one(dict(params, predictor='model'))
             worst[label, case] = (max(a['per_dof']), max(m['per_dof']))
-            out.row([case, cell(a), cell(m), clipped_text(a), a['verdict']])
+            out.row([case, cell(a), cell(m), clipped_text(a),
+                     f"{a['verdict']} / {m['verdict']}"])
         out()
     out('| target | measured (worst over the records) | |')
     out('|---|---|---|')

@@ -157,17 +157,22 @@ def sensor_range_lines(entry: dict[str, Any]) -> list[str]:
             if not n:
                 continue
             r = info['ranges'].get(channel)
-            when = (f' between t={info["first_s"][channel]:.3f} and '
-                    f'{info["last_s"][channel]:.3f} s' if channel in info['first_s'] else '')
+            when = ''
+            if channel in info['first_s']:
+                first, last = info['first_s'][channel], info['last_s'][channel]
+                when = (f' at t={first:.3f} s' if first == last else
+                        f' between t={first:.3f} and {last:.3f} s')
+            samples = 'sample' if n == 1 else 'samples'
             done = 'the identifications skipped them'
             if channel == 'acceleration':
                 estimated = info.get('acceleration_estimated')
                 done += ('; the acceleration fed back was estimated from the measured force '
-                         f'and motion in {estimated} samples' if estimated else '')
+                         f'and motion in {estimated} sample{"s" if estimated > 1 else ""}'
+                         if estimated else '')
             if info.get('source') == 'signals':
                 done = 'counted from the recorded signals (the bag holds no builder count)'
             lines.append(f'{rig_label(rig)} {channel} at its sensor range '
-                         f'({r:g} {CHANNEL_UNITS[channel]}) in {n} samples{when}: {done}')
+                         f'({r:g} {CHANNEL_UNITS[channel]}) in {n} {samples}{when}: {done}')
     return lines
 
 

@@ -311,7 +311,7 @@ def _rig_runs(args) -> list[dict]:
     overrides = {'rig_model': args.rig_model}
     overrides.update(dict(_typed(args.sets, alpha=True)))
     return api.build_runs(config=args.config, overrides=overrides,
-                          params_files=args.params_files)
+                          params_files=args.params_files, progress=_progress)
 
 
 def _one_rig(args, verb: str) -> dict:
