@@ -129,6 +129,8 @@ def test_a_clipped_run_round_trip(tmp_path):
     assert rd.extra['sensor_range']['']['samples']['acceleration'] > 100
     back = read_run(write_run_bag(rd, tmp_path / 'bag'))
     assert back.extra['sensor_range'] == rd.extra['sensor_range']
+    assert back.extra['specimen_ratios'] == rd.extra['specimen_ratios']
+    assert rd.extra['specimen_ratios'][''] == pytest.approx(1.0, abs=1e-9)
     assert back.extra['warnings'] == rd.extra['warnings']
     assert rd.extra['warnings'][0].startswith('acceleration at its sensor range (39.2 m/s^2) '
                                               'at t=')

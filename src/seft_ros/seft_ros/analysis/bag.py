@@ -546,15 +546,17 @@ def recording_end(bag: BagSignals, n_steps: int) -> dict:
     return out
 
 
-def _sensor_range(statuses) -> dict:
-    """Each rig's samples at a sensor's range from its builder's final status (the JSON of
-    ``ReferenceForceBuilder.range_counts``; empty for a bag before issue 39)."""
+def _builder_json(statuses, key: str) -> dict:
+    """A JSON mapping of the builders' final statuses, by rig, merged over the builders:
+    ``sensor_range`` (each rig's samples at a sensor's range,
+    ``ReferenceForceBuilder.range_counts``), ``specimen_ratios`` (each rig's identified
+    specimen stiffness over the declared one); empty for a bag before issue 39."""
     out = {}
     for s in statuses:
         if s.get('state') in _FINAL and s['name'].endswith('reference_force_builder') \
-                and s.get('sensor_range'):
+                and s.get(key):
             try:
-                out.update(json.loads(s['sensor_range']))
+                out.update(json.loads(s[key]))
             except ValueError:
                 continue
     return out
@@ -707,8 +709,10 @@ def read_run(path) -> RunData:
              'abort_node': first['name'] if first is not None else None,
              # what the builders reported during the run (a specimen not the declared one)
              'warnings': [s['warning'] for s in bag.statuses if s.get('warning')],
-             # each rig's samples at a sensor's range, as its builder counted them
-             'sensor_range': _sensor_range(bag.statuses)}
+             # each rig's samples at a sensor's range, as its builder counted them, and its
+             # specimen check's identified stiffness over the declared one
+             'sensor_range': _builder_json(bag.statuses, 'sensor_range'),
+             'specimen_ratios': _builder_json(bag.statuses, 'specimen_ratios')}
     lost = bag_lost_messages(bag.statuses)
     if lost is not None:
         extra['bag_lost_messages'] = lost

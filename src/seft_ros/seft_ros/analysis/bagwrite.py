@@ -193,14 +193,14 @@ def write_run_bag(run: RunData, path, *, storage: str | None = None) -> Path:
         if wall is not None:
             final['wall_s'] = f'{float(wall):.3f}'
         stopped_by = None if run.stable else (run.extra.get('abort_node') or graph.master)
-        # what the builder said during the run, and its count of the samples at a sensor's
-        # range (the first builder's final status holds every rig's)
+        # what the builder said during the run, its count of the samples at a sensor's range
+        # and its specimen check's ratios (the first builder's final status holds every rig's)
         builder = next(node for node in graph.nodes() if node.endswith('reference_force_builder'))
         for warning in run.extra.get('warnings') or ():
             write(signals.STATUS.name, end_ns, status(builder, 'running', warning,
                                                       warning=warning))
-        ranges = run.extra.get('sensor_range')
-        counted = {'sensor_range': json.dumps(ranges, sort_keys=True)} if ranges else {}
+        counted = {key: json.dumps(run.extra[key], sort_keys=True)
+                   for key in ('sensor_range', 'specimen_ratios') if run.extra.get(key)}
         if run.stable:
             for node in rig_nodes:
                 write(signals.STATUS.name, end_ns, status(node, 'done', f'completed {n} steps',

@@ -220,11 +220,17 @@ class ReferenceForceBuilderNode(SeftNode):
         self._advance()
 
     def final_counts(self) -> dict:
-        """The node's counts (:meth:`seft_msgs_py.node_support.SeftNode.final_counts`) and
+        """The node's counts (:meth:`seft_msgs_py.node_support.SeftNode.final_counts`),
         each commanded rig's samples at a sensor's range (``sensor_range``: the JSON of
-        :meth:`~seft_ros.core.reference_force.ReferenceForceBuilder.range_counts`)."""
+        :meth:`~seft_ros.core.reference_force.ReferenceForceBuilder.range_counts`) and its
+        specimen check's identified stiffness over the declared one (``specimen_ratios``,
+        JSON)."""
         counts = super().final_counts()
         counts['sensor_range'] = json.dumps(self.builder.range_counts(), sort_keys=True)
+        # each commanded rig's identified specimen stiffness over the declared one
+        counts['specimen_ratios'] = json.dumps(
+            {r: c.stiffness_ratio for r, c in zip(self.local, self.checks) if c is not None},
+            sort_keys=True)
         return counts
 
     def _on_model(self, rig: str, msg) -> None:
