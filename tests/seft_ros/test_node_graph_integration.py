@@ -304,8 +304,10 @@ def test_bag_equals_simulate(request, which):
         assert (a is None) == (b is None), attr
         if a is not None:
             np.testing.assert_allclose(a, b, rtol=0, atol=1e-9 * np.max(np.abs(b)), err_msg=attr)
-    # the builder node counted the samples at a sensor's range as seft simulate does
+    # the builder node counted the samples at a sensor's range as seft simulate does, and its
+    # specimen check identified the same stiffness
     assert rd.extra['sensor_range'] == sim.extra['sensor_range']
+    assert rd.extra['specimen_ratios'] == sim.extra['specimen_ratios']
 
 
 def test_a_sensor_at_its_range_is_said_before_during_and_after(servo_model):
