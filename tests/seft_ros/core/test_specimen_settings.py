@@ -83,6 +83,14 @@ def test_costly_combinations_of_the_study():
         "'adaptive' compensate it"]
     assert costly_settings(p, flagging=True) == []           # said, not flagged
     assert costly_settings(dict(p, alpha=0.0)) == []
+    p = parameters.resolve({'predictor': 'adaptive'})              # adaptive_loop: model
+    assert costly_settings(p) == [
+        "rig: predictor adaptive with adaptive_loop model: the force loop's I/O latency as "
+        'declared; 10 % off it costs 2-2.7 % (the two piers, the one-rig test), 20 % off up to '
+        '5.4 % (docs: results/robustness); adaptive_loop: model_latency identifies it']
+    assert costly_settings(p, flagging=True) == []
+    assert costly_settings(dict(p, adaptive_loop='model_latency')) == []
+    assert costly_settings(dict(p, rig_model='delay')) == []
     p = parameters.resolve({'predictor': 'model', 'specimen_uncertainty': 0.15})
     assert costly_settings(p, flagging=True)[0].startswith(
         'rig: predictor model with specimen_uncertainty 0.15: model needs the specimen as it '

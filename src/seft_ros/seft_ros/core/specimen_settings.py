@@ -111,6 +111,10 @@ COSTLY = {
     'model unknown': ('predictor model with specimen_uncertainty {specimen_uncertainty:g}: '
                       'model needs the specimen as it is (10 % off costs the structures '
                       '4-65 %, docs: results/robustness); adaptive identifies it'),
+    'latency declared': ('predictor adaptive with adaptive_loop {adaptive_loop}: the force '
+                         "loop's I/O latency as declared; 10 % off it costs 2-2.7 % (the "
+                         'two piers, the one-rig test), 20 % off up to 5.4 % (docs: '
+                         'results/robustness); adaptive_loop: model_latency identifies it'),
     'uncompensated': ("predictor none at alpha {alpha:g}: the study's finding, the force "
                       "loop's lag costs 35-49 % at alpha 0.5-1 and is unstable near 1.5 "
                       "(README: the main job); 'model' or 'adaptive' compensate it"),
@@ -118,7 +122,8 @@ COSTLY = {
 
 
 #: The rules of :data:`COSTLY` that flag a run that used them (the study's own finding, an
-#: uncompensated test, is run to be shown: said before the run, not flagged).
+#: uncompensated test, is run to be shown, and a declared latency costs only where it is
+#: wrong: said before the run, not flagged).
 FLAGGING = ('controller', 'linear law', 'tangent law', 'loop inverse', 'model unknown')
 
 
@@ -156,6 +161,9 @@ def costly_settings(params: Mapping[str, Any], *, flagging: bool = False) -> lis
                 rules.append('loop inverse')
         elif predictor == 'model' and float(p.get('specimen_uncertainty', 0) or 0) >= 0.1:
             rules.append('model unknown')
+        if (servo and predictor == 'adaptive' and not _yields(p)
+                and p.get('adaptive_loop', 'model') == 'model'):
+            rules.append('latency declared')
         if (is_study(params) and predictor == 'none' and float(p.get('alpha', 0)) >= 0.5
                 and p.get('excitation', 'none') == 'none'):
             rules.append('uncompensated')
