@@ -748,11 +748,15 @@ def compare_bags(*, bags: list[str], out_dir: Path, title: str = '') -> Result:
             rd.extra['stability'] = stability_entry(stability.check_run(rd.params, margin=True))
         except SeftError:
             pass
-        # and its pre-run range check (its parameters, the record as the bag holds it)
+        # and its pre-run range check: the run's record as seft run prepared it, or where it
+        # cannot be read here, the record as the bag holds it (all of a run that completed)
         from seft_ros.analysis.range_check import range_check
         try:
-            rd.extra['range_check'] = range_check(rd.params,
-                                                  rd.ground_acceleration_m_s2).as_dict()
+            try:
+                record = prepared_record(rd.params).acceleration_m_s2
+            except SeftError:
+                record = rd.ground_acceleration_m_s2
+            rd.extra['range_check'] = range_check(rd.params, record).as_dict()
         except SeftError:
             pass
     return _finish(out_dir, data, title or 'seft compare', t0)
