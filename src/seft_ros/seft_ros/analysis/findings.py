@@ -34,7 +34,7 @@ from seft_msgs_py.sensor_range import AT_RANGE_FRACTION, CHANNEL_UNITS, CHANNELS
 from seft_ros.analysis.rundata import RunData, rig_label
 from seft_ros.core.specimen_settings import costly_settings
 
-__all__ = ['PEAK_RATIO_FLAG', 'BOUND_HOLD_S', 'estimate_bounds', 'bound_findings',
+__all__ = ['PEAK_RATIO_FLAG', 'BOUND_HOLD_S', 'SPECIMEN_FLAG', 'estimate_bounds', 'bound_findings',
            'sensor_range_entry', 'sensor_range_lines', 'run_flags', 'verdict']
 
 #: A rig's peak (displacement, force, acceleration) beyond this many times the reference's
