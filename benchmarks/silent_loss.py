@@ -278,10 +278,7 @@ def main() -> int:
     except (InputError, ParameterError) as exc:
         print(f'silent_loss.py: error: {exc}', file=sys.stderr)
         return 2
-    out(f'Wall time {time.monotonic() - t0:.0f} s.')
-    if a.md:
-        Path(a.md).write_text('\n'.join(out.lines) + '\n')
-    return 0
+    return out.finish(t0, a.md)
 
 
 if __name__ == '__main__':
