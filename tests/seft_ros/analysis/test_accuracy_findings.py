@@ -92,7 +92,8 @@ def test_flags_and_the_samples_at_a_range():
     line, = sensor_range_lines({'': entry})
     assert line.startswith(f'rig acceleration at its sensor range (20 m/s^2) in {at.shape[0]} '
                            'samples between t=')
-    assert line.endswith('counted from the recorded signals (the bag holds no builder count)')
+    assert line.endswith('counted from the recorded signals (the bag holds no builder count); '
+                         'the acceleration figures compare the recorded readings, clipped there')
     # the builder's count when there is one
     run.extra['sensor_range'] = {'': {'samples': dict(entry['samples'], acceleration=7),
                                       'first_step': {'acceleration': 10},
@@ -101,7 +102,8 @@ def test_flags_and_the_samples_at_a_range():
     line, = sensor_range_lines(sensor_range_entry(run))
     assert line == ('rig acceleration at its sensor range (20 m/s^2) in 7 samples between '
                     't=0.020 and 0.032 s: the identifications skipped them; the acceleration '
-                    'fed back was estimated from the measured force and motion in 7 samples')
+                    'fed back was estimated from the measured force and motion in 7 samples; '
+                    'the acceleration figures compare the recorded readings, clipped there')
     # a peak 1.6 times the prediction, the specimen check: flagged
     run.rigs[''].displacement_m = 1.6 * run.displacement_m
     run.extra['warnings'] = ['specimen check at t=2.000 s: the rig identifies its specimen at '

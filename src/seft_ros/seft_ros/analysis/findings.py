@@ -155,7 +155,8 @@ def sensor_range_entry(run: RunData) -> dict[str, Any]:
 
 
 def sensor_range_lines(entry: dict[str, Any]) -> list[str]:
-    """One line per rig and channel with samples at the range, and what was done with them
+    """One line per rig and channel with samples at the range, what was done with them, and
+    that the channel's figures (NRMS, peak) compare the readings as recorded, clipped
     (`entry`: :func:`sensor_range_entry`)."""
     lines = []
     for rig, info in entry.items():
@@ -178,6 +179,8 @@ def sensor_range_lines(entry: dict[str, Any]) -> list[str]:
                          if estimated else '')
             if info.get('source') == 'signals':
                 done = 'counted from the recorded signals (the bag holds no builder count)'
+            # the bag keeps what the sensor read: the channel's error and peak compare those
+            done += (f'; the {channel} figures compare the recorded readings, clipped there')
             lines.append(f'{rig_label(rig)} {channel} at its sensor range '
                          f'({r:g} {CHANNEL_UNITS[channel]}) in {n} {samples}{when}: {done}')
     return lines
