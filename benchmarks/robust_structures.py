@@ -128,6 +128,13 @@ class Tables:
              + ' (1 / 5 / 15 min, 2 cores).')
         self()
 
+    def finish(self, t0: float, md: str | None) -> int:
+        """The wall time since `t0` (``time.monotonic``); the tables to `md` if given; 0."""
+        self(f'Wall time {time.monotonic() - t0:.0f} s.')
+        if md:
+            Path(md).write_text('\n'.join(self.lines) + '\n')
+        return 0
+
 
 def record_runs(records: list[str], duration_s: float) -> list[tuple[str, dict]]:
     """(label, run parameters) of each record: the embedded one or a file, time scale 0.5,
@@ -489,10 +496,7 @@ def main() -> int:
     except (InputError, ParameterError) as exc:
         print(f'robust_structures.py: error: {exc}', file=sys.stderr)
         return 2
-    out(f'Wall time {time.monotonic() - t0:.0f} s.')
-    if a.md:
-        Path(a.md).write_text('\n'.join(out.lines) + '\n')
-    return 0
+    return out.finish(t0, a.md)
 
 
 if __name__ == '__main__':

@@ -187,6 +187,53 @@ def pytest_configure(config):
         'markers', 'wall_clock: runs the node graph on the wall clock (real time, several '
         'hosts, rig-check); given by the module or the test name, not by hand. tools/test.sh '
         'runs these one at a time after the rest (-m wall_clock / -m "not wall_clock")')
+    _count_samples_at_a_range()
+
+
+#: The tests whose runs in this process took a sensor to its range: {test id: {channel:
+#: samples}} (issue 39: no run clips a sensor silently, the suite's included).
+SAMPLES_AT_A_RANGE: dict[str, dict[str, int]] = {}
+
+
+def _count_samples_at_a_range():
+    """Count, per test, the samples a builder of this process flagged at a sensor's range
+    (``seft_msgs_py.sensor_range.RangeCount.add``, wrapped for the session); the session's
+    summary lists them (:func:`pytest_terminal_summary`). The runs of a node process or of
+    a forked ``seft simulate`` worker count where they run: their tests read the count from
+    the bag or the summary."""
+    from seft_msgs_py.sensor_range import RangeCount, channel_names
+    add = RangeCount.add
+
+    def counting(self, step, flags):
+        add(self, step, flags)
+        if flags:
+            test = os.environ.get('PYTEST_CURRENT_TEST', '?').rsplit(' (', 1)[0]
+            counts = SAMPLES_AT_A_RANGE.setdefault(test, {})
+            for channel in channel_names(flags):
+                counts[channel] = counts.get(channel, 0) + 1
+    RangeCount.add = counting
+
+
+def pytest_sessionfinish(session):
+    """An xdist worker hands its tests' samples at a range to the controller."""
+    if hasattr(session.config, 'workeroutput'):
+        session.config.workeroutput['samples_at_a_range'] = dict(SAMPLES_AT_A_RANGE)
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_testnodedown(node, error):
+    """The controller takes a worker's samples at a range (pytest-xdist)."""
+    SAMPLES_AT_A_RANGE.update(getattr(node, 'workeroutput', {}).get('samples_at_a_range', {}))
+
+
+def pytest_terminal_summary(terminalreporter):
+    """Name the tests whose runs took a sensor to its range, with the samples per channel."""
+    if not SAMPLES_AT_A_RANGE:
+        return
+    terminalreporter.section('runs at a sensor range (counted; issue 39)')
+    for test, counts in sorted(SAMPLES_AT_A_RANGE.items()):
+        terminalreporter.write_line(
+            f'{test}: ' + ', '.join(f'{c} {n}' for c, n in counts.items()))
 
 
 @pytest.hookimpl(tryfirst=True)       # before pytest's own -m selection reads the markers

@@ -211,7 +211,8 @@ def test_shared_parameters_have_an_explicit_source():
       'noise_seed', 'piston_area_m2', 'oil_bulk_modulus_Pa', 'actuator_volume_m3',
       'valve_time_constant_s', 'valve_flow_gain_m3_per_s_V',
       'valve_pressure_coefficient_m3_per_s_Pa', 'leakage_coefficient_m3_per_s_Pa',
-      'io_latency_s', 'anti_alias_cutoff_hz', 'accelerometer_range_m_s2',
+      'io_latency_s', 'anti_alias_cutoff_hz', 'accelerometer_range_m_s2', 'force_range_N',
+      'displacement_range_m', 'velocity_range_m_s', 'actuator_velocity_limit_m_s',
       'watchdog_timeout_s', 'safe_ramp_s', 'realtime_output', 'realtime_substep_s',
       'rig_interface', 'udp_controller_address', 'udp_local_port', 'udp_heartbeat_s',
       'udp_max_bad_datagrams', 'wait_for_recorder', 'recorder_window_steps', 'dt', 'mode',
@@ -231,12 +232,12 @@ def test_value_source_of_each_parameter(names, node):
 
 def test_value_source_lists_cover_the_schema():
     # + 1: realtime_priority, per node (the rig's value is the one reported); the second 6:
-    # the excitation of identification runs; the rig's 43: 38 and the UDP bridge's 5; the
-    # builder's 31 with specimen_uncertainty, specimen_check and predictor_io_latency_s; + 6:
-    # the force loop as data (plant_model, force_controller_tf, the actuator family's 3,
-    # predictor_calibration); + 3: who may command the rig (run_token, message_auth,
-    # auth_key_file)
-    assert len(VALUE_SOURCE) == len(SCHEMA) == 31 + 43 + 6 + 6 + 10 + 2 + 1 + 2 + 1 + 6 + 3
+    # the excitation of identification runs; the rig's 47: 38, the UDP bridge's 5 and the
+    # sensor ranges and actuator velocity of issue 39; the builder's 31 with
+    # specimen_uncertainty, specimen_check and predictor_io_latency_s; + 6: the force loop as
+    # data (plant_model, force_controller_tf, the actuator family's 3, predictor_calibration);
+    # + 3: who may command the rig (run_token, message_auth, auth_key_file)
+    assert len(VALUE_SOURCE) == len(SCHEMA) == 31 + 47 + 6 + 6 + 10 + 2 + 1 + 2 + 1 + 6 + 3
 
 
 def test_value_source_of_unknown_name_is_an_error():

@@ -7,8 +7,11 @@ import re
 import numpy as np
 import pytest
 
+from seft_msgs_py import parameters
 from seft_msgs_py.interface import Measurement
 from seft_msgs_py.sampling import linear_map, single_blas_thread, split_delay
+from seft_msgs_py.sensor_range import SensorRanges
+from seft_plant_sim.rigs import make_rig
 from seft_plant_sim.sensors import Sensors
 from seft_plant_sim.specimen import SafetyLimits
 
@@ -65,6 +68,25 @@ def test_sensor_readings_are_measurements():
     assert dataclasses.replace(m, step=4) == Measurement(4, 0.006, 1e-3, -0.2, 4.5, 120.0)
     with pytest.raises(dataclasses.FrozenInstanceError):
         m.force_N = 0.0
+
+
+def test_every_sensor_clips_at_its_range_on_both_rigs():
+    """Issue 39: the load cell, displacement transducer and velocity sensor saturate at
+    their ranges as the accelerometer does, after the noise; the rigs take the ranges of the
+    parameters, the delay rig too."""
+    s = Sensors(force_range_N=1000.0, displacement_range_m=0.05, velocity_range_m_s=1.0,
+                acceleration_range_m_s2=39.2, noise_force_N=50.0, seed=2)
+    m = s.read(0, 0.0, -0.2, 3.0, 50.0, 5000.0)
+    assert (m.force_N, m.displacement_m, m.velocity_m_s, m.acceleration_m_s2) == (
+        1000.0, -0.05, 1.0, 39.2)
+    assert s.ranges == SensorRanges(1000.0, 0.05, 1.0, 39.2)
+    inside = s.read(1, 0.002, 0.01, 0.5, 1.0, 0.0)
+    assert (inside.displacement_m, inside.velocity_m_s) == (0.01, 0.5)
+    assert abs(inside.force_N) < 300.0                      # noise only, not clipped
+    params = parameters.resolve({'force_range_N': 500.0, 'displacement_range_m': 0.002})
+    for model in ('delay', 'servohydraulic'):
+        rig = make_rig(dict(params, rig_model=model))
+        assert rig.sensors.ranges == SensorRanges(500.0, 0.002, 2.5, 39.2), model
 
 
 def test_accelerometer_range_clips_and_noise_is_seeded():

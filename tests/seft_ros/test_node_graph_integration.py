@@ -177,9 +177,12 @@ def servo_yielding(graph_dir, seft_exe, run_process):
 @pytest.fixture(scope='module')
 def servo_model(graph_dir, seft_exe, run_process):
     # compensated: the model predictor with its force-loop inverse, alpha beyond the
-    # uncompensated boundary (1.32)
+    # uncompensated boundary (1.32); an accelerometer of 15 m/s^2 range, which the run takes
+    # to its range in 22 samples (issue 39: flagged and counted by the builder node as by
+    # seft simulate; model's law does not feed the acceleration back)
     return seft_run(seft_exe, run_process, graph_dir / 'servo_model', '--alpha', '1.5',
-                    '--duration', '1.0', '--rig', 'servohydraulic', '--predictor', 'model')
+                    '--duration', '1.0', '--rig', 'servohydraulic', '--predictor', 'model',
+                    '--set', 'accelerometer_range_m_s2=15')
 
 
 @pytest.fixture(scope='module')
@@ -188,7 +191,7 @@ def servo_model_loop(graph_dir, seft_exe, run_process):
     # --processes loop, seft_ros.nodes.loop): the same graph, so the same run bit for bit
     return seft_run(seft_exe, run_process, graph_dir / 'servo_model_loop', '--alpha', '1.5',
                     '--duration', '1.0', '--rig', 'servohydraulic', '--predictor', 'model',
-                    '--processes', 'loop')
+                    '--set', 'accelerometer_range_m_s2=15', '--processes', 'loop')
 
 
 @pytest.fixture(scope='module')
@@ -301,6 +304,35 @@ def test_bag_equals_simulate(request, which):
         assert (a is None) == (b is None), attr
         if a is not None:
             np.testing.assert_allclose(a, b, rtol=0, atol=1e-9 * np.max(np.abs(b)), err_msg=attr)
+    # the builder node counted the samples at a sensor's range as seft simulate does, and its
+    # specimen check identified the same stiffness
+    assert rd.extra['sensor_range'] == sim.extra['sensor_range']
+    assert rd.extra['specimen_ratios'] == sim.extra['specimen_ratios']
+
+
+def test_a_sensor_at_its_range_is_said_before_during_and_after(servo_model):
+    """Issue 39: the pre-run line, the builder's warning (console and bag), its count in the
+    bag, summary.json and the report."""
+    sim = servo_model.sim
+    count = sim.extra['sensor_range']['']
+    assert count['samples'] == {'force': 0, 'displacement': 0, 'velocity': 0,
+                                'acceleration': 22}
+    assert count['acceleration_estimated'] == 22
+    err = servo_model.proc.stderr
+    before = err.index('range check: rig acceleration: the reference peaks at ')
+    assert 'beyond the accelerometer range of 15 m/s^2' in err[before:].splitlines()[0]
+    assert before < err.index('reference_force_builder: warning: acceleration at its sensor '
+                              'range (15 m/s^2)')
+    warnings = [status_values(m)['warning'] for _, m in servo_model.messages['/seft/status']
+                if status_values(m).get('warning')]
+    assert [w.split(' at t=')[0] for w in warnings] == [
+        'acceleration at its sensor range (15 m/s^2)']
+    entry = servo_model.summary['runs'][0]
+    assert entry['sensor_range']['']['samples']['acceleration'] == 22
+    assert entry['range_check']['rigs']['']['acceleration']['exceeded'] is True
+    report = (servo_model.out / 'report.md').read_text()
+    assert ('**sensor at its range**: rig acceleration at its sensor range (15 m/s^2) in 22 '
+            'samples') in report
 
 
 @pytest.mark.parametrize('which', ['servo_model', 'delay_adaptive'])

@@ -114,7 +114,7 @@ def descriptor_of(spec: parameters.ParamSpec) -> ParameterDescriptor:
     return d
 
 
-#: The process-wide BLAS thread limit of a real-time node (:meth:`SeftNode.apply_priority`).
+#: The process-wide BLAS thread limit of a node process (:meth:`SeftNode.apply_priority`).
 _BLAS_LIMIT = None
 
 class SeftNode(Node):
@@ -237,8 +237,8 @@ class SeftNode(Node):
         """Do the work scheduled at :meth:`next_due` (called once it is due)."""
 
     def apply_priority(self) -> None:
-        """Real-time mode: BLAS to one thread; with ``realtime_priority`` > 0, run this
-        process under SCHED_FIFO.
+        """BLAS to one thread (lockstep too); in real time with ``realtime_priority`` > 0, run
+        this process under SCHED_FIFO.
 
         The priority is ``realtime_priority`` plus ``PRIORITY_OFFSET`` of the node: the
         rig highest, then the controller and the builder, then the ground-motion publisher,
@@ -254,14 +254,19 @@ class SeftNode(Node):
         force-loop inverse: every real-time run of it aborted on a watchdog within 0.6 s; with
         one thread none did). At the normal scheduler a pool of two made the compensators'
         small products slow on a loaded host: a ``DelayImpulseModel`` (2x2 matrices) took
-        4.2 ms at p99 and 20 ms at most, 0.13 and 1.1 ms with one thread.
+        4.2 ms at p99 and 20 ms at most, 0.13 and 1.1 ms with one thread. Lockstep keeps one
+        thread too, as ``seft simulate`` does: ``adaptive``'s refits during the run (2x2
+        matrix exponentials) took 24 ms each with a pool of two on a loaded host, 0.2 ms with
+        one, and the numbers are the same.
         """
-        if not self.realtime or self.kind not in PRIORITY_OFFSET:
+        if self.kind not in PRIORITY_OFFSET:
             return
         global _BLAS_LIMIT
         if _BLAS_LIMIT is None:
             from threadpoolctl import ThreadpoolController
             _BLAS_LIMIT = ThreadpoolController().limit(limits=1)     # kept: never restored
+        if not self.realtime:
+            return
         base = int(self.params.get('realtime_priority', 0))
         if base <= 0:
             return

@@ -453,7 +453,19 @@ SCHEMA: tuple[ParamSpec, ...] = (
               'force and acceleration channels (0: off; its delay is lumped in io_latency_s).',
               0.0, None, nodes=_RIG),
     ParamSpec('accelerometer_range_m_s2', 39.2, 'm/s^2', 'Accelerometer full scale (4 g); '
-              'readings saturate there (0: unlimited).', 0.0, None, nodes=_RIG),
+              'readings saturate there, and a reading at it is flagged (0: unlimited).', 0.0,
+              None, nodes=_RIG + _RFB),
+    ParamSpec('force_range_N', 24.5e3, 'N', 'Load-cell full scale; readings saturate there, '
+              'and a reading at it is flagged (0: unlimited).', 0.0, None, nodes=_RIG + _RFB),
+    ParamSpec('displacement_range_m', 0.1, 'm', 'Displacement-transducer full scale; readings '
+              'saturate there, and a reading at it is flagged (0: unlimited).', 0.0, None,
+              nodes=_RIG + _RFB),
+    ParamSpec('velocity_range_m_s', 2.5, 'm/s', 'Velocity-sensor full scale; readings '
+              'saturate there, and a reading at it is flagged (0: unlimited).', 0.0, None,
+              nodes=_RIG + _RFB),
+    ParamSpec('actuator_velocity_limit_m_s', 0.0, 'm/s', 'Largest piston velocity the '
+              "actuator delivers (0: the servohydraulic rig's valve flow at valve_limit_V over "
+              'the piston area; not declared on the delay rig).', 0.0, None, nodes=_RIG),
     ParamSpec('watchdog_timeout_s', 0.02, 's', 'Real-time mode: when no command (valve '
               'command, or reference force on the delay rig) has arrived for this long, the rig '
               'goes to its safe state and the run ends aborted; likewise when the force servo '
@@ -871,6 +883,9 @@ _SHARED_SOURCE = {
     'hysteresis_yield_displacement_m': 'reference_force_builder',
     'hysteresis_n': 'reference_force_builder',
     'realtime_priority': 'rig',             # per node; the rig's is the clock's
+    # the sensors' ranges: the rig's (the builder flags the readings at them)
+    'force_range_N': 'rig', 'displacement_range_m': 'rig', 'velocity_range_m_s': 'rig',
+    'accelerometer_range_m_s2': 'rig',
     'watchdog_timeout_s': 'rig',            # the rig's watchdog; the others watch their inputs
     'network_delay_s': 'reference_force_builder',   # the delay its predictor compensates
     'realtime_output': 'rig',               # the rig outputs the commands

@@ -21,7 +21,8 @@ Versioning: :data:`VERSION` is ``MAJOR.MINOR``. A change that can make a conform
 optional status key) raises MINOR. 2.0 (issue 42): a rig seals its measurement with the run's
 seal and takes only sealed commands (:data:`SEAL_RULE`, :mod:`seft_msgs_py.provenance`); the
 controller behind the UDP bridge follows the session rules
-(``seft_plant_sim.udp_layout.SESSION_RULES``).
+(``seft_plant_sim.udp_layout.SESSION_RULES``); with it (issue 39, an addition on its own
+1.1) the ranges of the sensors and the capacity of the actuator (:data:`RANGE_PARAMETERS`).
 """
 
 from dataclasses import dataclass
@@ -36,7 +37,7 @@ __all__ = [
     'StatusKey', 'STATUS_KEYS', 'STATES', 'REQUIRED_PARAMETERS', 'COMMAND_SOURCE_LAG',
     'COMMAND_KINDS', 'command_kind', 'command_signal', 'command_latency_s', 'SAFE_HOLD_S',
     'reaction_limit_s', 'first_effect_step', 'qos_of', 'markdown_tables', 'is_compatible',
-    'WATCHDOG_REASON', 'PROGRESS_EVERY', 'SEAL_RULE', 'FOREIGN_REASON',
+    'WATCHDOG_REASON', 'PROGRESS_EVERY', 'SEAL_RULE', 'FOREIGN_REASON', 'RANGE_PARAMETERS',
 ]
 
 #: Version of the contract (``MAJOR.MINOR``; module notes).
@@ -189,6 +190,16 @@ REQUIRED_PARAMETERS = (
 )
 
 
+#: The ranges of the rig's sensors and the capacity of its actuator (since 1.1): a rig declares
+#: and publishes them (the graph takes the configuration's values from a rig that does not);
+#: the builder flags and counts each reading at its range, its compensator's identifications
+#: skip it, and the pre-run check compares the reference's peaks with them
+#: (``seft_msgs_py.sensor_range``, ``seft_ros.analysis.range_check``). A simulated rig's
+#: sensors saturate there.
+RANGE_PARAMETERS = ('force_range_N', 'displacement_range_m', 'velocity_range_m_s',
+                    'accelerometer_range_m_s2', 'actuator_velocity_limit_m_s')
+
+
 def command_kind(params: Mapping) -> str:
     """The command kind of the rig of `params`: the valve voltage where the graph has a force
     servo controller for it (``parameters.graph_nodes``), else the reference force."""
@@ -257,8 +268,8 @@ def _md(text: str) -> str:
 
 
 def markdown_tables() -> str:
-    """The page's tables (topics, status keys, parameters, the seal), generated from this
-    module."""
+    """The page's tables (topics, status keys, required parameters, the sensors' ranges and
+    the actuator's capacity, the seal), generated from this module."""
     rows = ['| direction | topic | type | field, unit | QoS | when | rigs |',
             '|---|---|---|---|---|---|---|']
     for direction, roles in (('publishes', PUBLISHES), ('subscribes', SUBSCRIBES)):
@@ -271,11 +282,14 @@ def markdown_tables() -> str:
     for k in STATUS_KEYS:
         keys.append(f'| `{k.key}` | {", ".join(k.states)} | {k.unit or "-"} | {_md(k.meaning)}'
                     f' | {k.condition} |')
-    params = ['| parameter | unit | allowed | meaning |', '|---|---|---|---|']
-    for name in REQUIRED_PARAMETERS:
-        s = parameters.spec(name)
-        params.append(f'| `{name}` | {s.unit or "-"} | {_md(s.expected())} | '
-                      f'{_md(s.description)} |')
-    seal = ["| the run's seal | the rig |", '|---|---|',
-            f'| on its measurement and on the commands it takes | {_md(SEAL_RULE)} |']
-    return '\n\n'.join('\n'.join(t) for t in (rows, keys, params, seal))
+    tables = [rows, keys]
+    for names in (REQUIRED_PARAMETERS, RANGE_PARAMETERS):
+        params = ['| parameter | unit | allowed | meaning |', '|---|---|---|---|']
+        for name in names:
+            s = parameters.spec(name)
+            params.append(f'| `{name}` | {s.unit or "-"} | {_md(s.expected())} | '
+                          f'{_md(s.description)} |')
+        tables.append(params)
+    tables.append(["| the run's seal | the rig |", '|---|---|',
+                   f'| on its measurement and on the commands it takes | {_md(SEAL_RULE)} |'])
+    return '\n\n'.join('\n'.join(t) for t in tables)

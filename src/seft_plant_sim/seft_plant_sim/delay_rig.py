@@ -122,13 +122,16 @@ class DelayRig:
 
     @classmethod
     def from_parameters(cls, params, *, rk4_substeps: int = 10) -> 'DelayRig':
-        """Build from the parameter schema (``dt``, ``tau_s``, specimen, noise, limits).
+        """Build from the parameter schema (``dt``, ``tau_s``, specimen, noise, the sensors'
+        ranges, limits).
 
         The specimen is chosen by ``specimen_model`` (absent: 'linear'); `rk4_substeps` as in
         the constructor.
         """
+        rng = float(params.get('accelerometer_range_m_s2', 0.0) or 0.0)
         return cls(make_specimen(params), float(params['dt']),
-                   float(params['tau_s']), Sensors.from_parameters(params),
+                   float(params['tau_s']), Sensors.from_parameters(params,
+                                                                   rng if rng > 0 else None),
                    SafetyLimits.from_parameters(params), rk4_substeps=rk4_substeps)
 
     def _forces(self, newest: float):

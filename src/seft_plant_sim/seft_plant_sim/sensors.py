@@ -1,10 +1,13 @@
-"""Sensor models of the rig: additive Gaussian noise (seeded) and range clipping."""
+"""Sensor models of the rig: additive Gaussian noise (seeded) and range clipping
+(the ranges of the rig contract, :mod:`seft_msgs_py.sensor_range`)."""
 
 from dataclasses import dataclass, fields
+import math
 
 import numpy as np
 
 from seft_msgs_py.interface import Measurement
+from seft_msgs_py.sensor_range import SensorRanges
 
 __all__ = ['Sensors']
 
@@ -27,9 +30,10 @@ _new = object.__new__
 class Sensors:
     """Load cell, displacement, velocity and acceleration sensors.
 
-    Each reading is ``clip(true + N(0, sigma^2), -range, +range)``; the noise comes from one
-    ``numpy.random.Generator(PCG64(seed))`` drawn in a fixed order (force, displacement,
-    velocity, acceleration), so a run is reproducible sample for sample.
+    Each reading is ``clip(true + N(0, sigma^2), -range, +range)`` (a sensor saturates at its
+    full scale); the noise comes from one ``numpy.random.Generator(PCG64(seed))`` drawn in a
+    fixed order (force, displacement, velocity, acceleration), so a run is reproducible sample
+    for sample.
 
     Parameters
     ----------
@@ -40,6 +44,9 @@ class Sensors:
         saturate there. None: unlimited.
     seed : int >= 0
         Seed of the noise generator.
+    force_range_N, displacement_range_m, velocity_range_m_s : float > 0 or None
+        Full-scale ranges of the load cell [N], the displacement transducer [m] and the
+        velocity sensor [m/s]. None: unlimited.
     """
 
     noise_force_N: float = 0.0
@@ -48,6 +55,9 @@ class Sensors:
     noise_acceleration_m_s2: float = 0.0
     acceleration_range_m_s2: float | None = None
     seed: int = 1
+    force_range_N: float | None = None
+    displacement_range_m: float | None = None
+    velocity_range_m_s: float | None = None
 
     def __post_init__(self):
         self._rng = np.random.Generator(np.random.PCG64(self.seed))
@@ -56,13 +66,31 @@ class Sensors:
         self._noisy = bool(np.any(self._sigma > 0))
         r = self.acceleration_range_m_s2
         self._range = None if r is None else float(r)
+        others = (self.force_range_N, self.displacement_range_m, self.velocity_range_m_s)
+        # the other three: (force, displacement, velocity) ranges, inf where unlimited; None
+        # when all three are (the reading then costs what it did before they existed)
+        ranges = tuple(math.inf if v is None else float(v) for v in others)
+        self._ranges = None if all(math.isinf(v) for v in ranges) else ranges
+
+    @property
+    def ranges(self) -> SensorRanges:
+        """The four ranges as :class:`~seft_msgs_py.sensor_range.SensorRanges`."""
+        values = (self.force_range_N, self.displacement_range_m, self.velocity_range_m_s,
+                  self.acceleration_range_m_s2)
+        return SensorRanges(*(math.inf if v is None else float(v) for v in values))
 
     @classmethod
     def from_parameters(cls, params, acceleration_range_m_s2=None) -> 'Sensors':
-        """Build from the ``noise_*`` and ``noise_seed`` parameters."""
+        """Build from the ``noise_*`` and ``noise_seed`` parameters and the ranges
+        (``force_range_N``, ``displacement_range_m``, ``velocity_range_m_s``; absent or 0:
+        unlimited; the accelerometer's is `acceleration_range_m_s2`)."""
+        def of(name):
+            value = float(params.get(name, 0.0) or 0.0)
+            return value if value > 0 else None
         return cls(float(params['noise_force_N']), float(params['noise_displacement_m']),
                    float(params['noise_velocity_m_s']), float(params['noise_acceleration_m_s2']),
-                   acceleration_range_m_s2, int(params['noise_seed']))
+                   acceleration_range_m_s2, int(params['noise_seed']), of('force_range_N'),
+                   of('displacement_range_m'), of('velocity_range_m_s'))
 
     def read(self, step: int, time_s: float, displacement_m: float, velocity_m_s: float,
              acceleration_m_s2: float, force_N: float) -> Measurement:
@@ -81,6 +109,11 @@ class Sensors:
                 a = r
             elif a < -r:
                 a = -r
+        if self._ranges is not None:
+            rf, rx, rv = self._ranges
+            f = rf if f > rf else -rf if f < -rf else f
+            x = rx if x > rx else -rx if x < -rx else x
+            v = rv if v > rv else -rv if v < -rv else v
         if not _FILL_DICT:
             return Measurement(step, time_s, x, v, a, f)
         # A frozen dataclass sets each field through object.__setattr__: about 1.2 us for a

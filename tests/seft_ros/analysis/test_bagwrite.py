@@ -47,6 +47,8 @@ def test_aborted_run_and_estimates(tmp_path):
     back = read_run(write_run_bag(rd, tmp_path / 'bag'))
     assert not back.stable and back.unstable_at_s == rd.unstable_at_s
     assert back.abort_reason == f'reference_force_builder: {rd.abort_reason}'
+    # the builder's count of the samples at a sensor's range is in its abort status
+    assert back.extra['sensor_range'] == rd.extra['sensor_range']
     rd = simulate(parameters.resolve({'predictor': 'adaptive', 'rig_model': 'delay',
                                       'duration_s': 0.5}))
     back = read_run(write_run_bag(rd, tmp_path / 'bag2'))
@@ -117,6 +119,23 @@ def test_structure_round_trip_bit_for_bit(tmp_path):
     assert count['/seft/structure_state'] == rd.n_steps - 1
 
 
+def test_a_clipped_run_round_trip(tmp_path):
+    """Without the monitor the unstable loop takes the accelerometer to its range and runs
+    to the force limit: the builder's count of the samples at the range and its warning are
+    in the bag (issue 39)."""
+    rd = simulate(parameters.resolve({'alpha': 1.5, 'duration_s': 3.0,
+                                      'monitor_threshold': 0.0}))
+    assert not rd.stable and rd.extra['abort_node'] == 'rig'
+    assert rd.extra['sensor_range']['']['samples']['acceleration'] > 100
+    back = read_run(write_run_bag(rd, tmp_path / 'bag'))
+    assert back.extra['sensor_range'] == rd.extra['sensor_range']
+    assert back.extra['specimen_ratios'] == rd.extra['specimen_ratios']
+    assert rd.extra['specimen_ratios'][''] == pytest.approx(1.0, abs=1e-9)
+    assert back.extra['warnings'] == rd.extra['warnings']
+    assert rd.extra['warnings'][0].startswith('acceleration at its sensor range (39.2 m/s^2) '
+                                              'at t=')
+
+
 def test_structure_abort_round_trip(tmp_path):
     """Uncompensated, the builder's monitor stops the bridge: every rig ended on its abort
     (ended_by), the reason names the builder as the graph's bag does."""
@@ -126,6 +145,8 @@ def test_structure_abort_round_trip(tmp_path):
     _same_structure_run(back, rd)
     assert not back.stable and back.unstable_at_s == rd.unstable_at_s
     assert back.abort_reason == f'reference_force_builder: {rd.abort_reason}'
+    # the builder's count of the samples at a sensor's range is in its abort status
+    assert back.extra['sensor_range'] == rd.extra['sensor_range']
     assert back.extra['abort_node'] == 'reference_force_builder'
     finals = back.extra['rig_finals']
     assert {f['ended_by'] for f in finals.values()} == {'reference_force_builder'}

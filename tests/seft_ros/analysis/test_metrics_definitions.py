@@ -613,7 +613,16 @@ def test_summary_entry_of_a_hand_made_comparison():
         'high_frequency_force_fraction_reference': None, 'high_frequency_cutoff_hz': 30.0,
         'abort_reason': 'force limit', 'mode': 'realtime', 'wall_s': 3.25,
         'bag_lost_messages': 4, 'recording': {'end': 'crashed'}, 'rig_contract': None,
-        'warnings': []}
+        'warnings': [],
+        # issue 39: no ranges in these parameters, nothing counted (from the signals), no
+        # flags, and the verdict of an aborted run
+        'sensor_range': {'': {'samples': dict.fromkeys(('force', 'displacement', 'velocity',
+                                                        'acceleration'), 0),
+                              'ranges': dict.fromkeys(('force', 'displacement', 'velocity',
+                                                       'acceleration')),
+                              'first_s': {}, 'last_s': {}, 'acceleration_estimated': None,
+                              'source': 'signals'}},
+        'flags': [], 'verdict': 'aborted'}
     # the sections of every run: the one DOF, its link, the rig (the study's keys again)
     assert (entry['abort_node'], entry['n_steps']) == (None, 3)
     assert entry['structure'] == {'dofs': ['specimen'], 'physical': {'specimen': ''},

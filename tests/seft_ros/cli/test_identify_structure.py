@@ -107,6 +107,10 @@ def test_the_identified_structure_test_is_accurate(lab):
         rd = simulate(run)
         assert rd.stable
         nrms[case] = {d.dof: d.displacement.nrms for d in compare_run(rd).dofs}
+        # with the declared (wrong) model the piers ring past their 4 g accelerometers:
+        # counted (issue 39; model's law does not feed the reading back); identified, not
+        clipped = sum(v['samples']['acceleration'] for v in rd.extra['sensor_range'].values())
+        assert (clipped > 0) == (case == 'declared'), (case, clipped)
     assert set(nrms['identified']) == {'pier_a', 'pier_b', 'deck'}
     assert max(nrms['identified'].values()) < 0.005
     assert min(nrms['declared'].values()) > 0.2

@@ -17,7 +17,8 @@ FIELDS = ('time_s', 'ground_acceleration_m_s2', 'reference_force_N', 'measured_f
 def no_report(monkeypatch):
     """Skip the stability guard and the report (tested elsewhere): only the runs matter here."""
     monkeypatch.setattr(api, 'check_stability', lambda **kw: [])
-    monkeypatch.setattr(api, 'check_capacity', lambda **kw: None)
+    monkeypatch.setattr(api, 'check_ranges', lambda **kw: [])
+    monkeypatch.setattr(api, 'check_settings', lambda **kw: None)
     monkeypatch.setattr(api, '_finish', lambda out_dir, runs, title, t0:
                         api.Result(out_dir, runs, [], 0.0))
 

@@ -111,21 +111,30 @@ def test_servohydraulic_alpha_1_5_trips_the_interlock(reference_params):
     assert np.count_nonzero(np.abs(u[-49:]) == 10.0) == 25
 
 
-def test_default_reading_alpha_1_5_is_bounded_by_the_accelerometer_range(reference_params):
+def test_default_reading_alpha_1_5_runs_to_the_force_limit_past_the_accelerometer(
+        reference_params):
     """The default reading's valve passes 4.448 times the flow per volt: without the monitor
-    the unstable loop's limit cycle is bounded by the 4 g accelerometer range (the fed-back
-    acceleration saturates) below the valve limit, so neither the interlock nor the rig's
-    limits end it; the monitor (on by default, next test) is what stops such a run."""
+    the unstable loop grows past the 4 g accelerometer range. The saturated accelerometer
+    once bounded it in a limit cycle below the valve limit (the fed-back acceleration
+    clipped); the builder now feeds back the acceleration estimated from the measured force
+    and motion while the sensor is at its range (issue 39), so the loop grows until the force
+    limit stops it, as without a range, and every clipped sample is counted. The monitor (on
+    by default, next test) is what stops such a run first."""
     run = simulate(dict(reference_params, alpha=1.5, monitor_threshold=0.0))
-    assert run.stable and run.abort_reason is None
-    assert np.max(np.abs(run.acceleration_m_s2)) == 39.2
-    assert 3.0 < np.max(np.abs(run.valve_command_V)) < 10.0
-    assert 2e3 < np.max(np.abs(run.measured_force_N)) < 24.5e3 / 2
-    # without the accelerometer range the loop grows until the force limit stops it
+    assert_aborted(run)
+    assert run.abort_reason.startswith(f'force limit exceeded at t={run.unstable_at_s:.3f} s')
+    assert np.max(np.abs(run.acceleration_m_s2)) == 39.2       # the sensor read its range
+    at_range = np.count_nonzero(np.abs(run.acceleration_m_s2) == 39.2)
+    count = run.extra['sensor_range']['']
+    assert count['samples'] == {'force': 0, 'displacement': 0, 'velocity': 0,
+                                'acceleration': at_range}
+    assert count['acceleration_estimated'] == at_range > 100
+    # without the accelerometer range: the same end, nothing flagged
     run = simulate(dict(reference_params, alpha=1.5, monitor_threshold=0.0,
                         accelerometer_range_m_s2=0.0))
     assert_aborted(run)
     assert run.abort_reason.startswith(f'force limit exceeded at t={run.unstable_at_s:.3f} s')
+    assert run.extra['sensor_range']['']['samples']['acceleration'] == 0
 
 
 @pytest.mark.parametrize('reading', ['us_customary', 'si'])

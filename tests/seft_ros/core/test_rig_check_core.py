@@ -84,8 +84,17 @@ def test_contract_check():
     params = {n: 0 for n in rig_contract.REQUIRED_PARAMETERS}
     ok = rc.check_contract(_ready(), params, 'valve_command_V')
     assert ok.passed and ok.values['command_latency_s'] == 0.003
+    # a rig that publishes no sensor ranges: said, not failed (issue 39)
     assert ok.measured == ('seft-rig/2.0, takes valve_command_V, command latency 3 ms, 17 of '
-                           '17 required parameters published')
+                           '17 required parameters published; ranges not declared: '
+                           'force_range_N, displacement_range_m, velocity_range_m_s, '
+                           "accelerometer_range_m_s2, actuator_velocity_limit_m_s (the "
+                           "configuration's are taken)")
+    declared = dict(params, **{n: 1.0 for n in rig_contract.RANGE_PARAMETERS})
+    ok = rc.check_contract(_ready(), declared, 'valve_command_V')
+    assert ok.passed and ok.measured.endswith('required parameters published, 5 ranges '
+                                              'declared')
+    assert ok.values['undeclared_ranges'] == []
     bad = rc.check_contract(_ready(contract='seft-rig/1.0', command_latency_s='-1'),
                             {k: v for k, v in params.items() if k != 'dt'}, 'reference_force_N')
     assert not bad.passed

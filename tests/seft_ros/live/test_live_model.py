@@ -254,3 +254,37 @@ def test_listen_errors_are_one_line():
         '192.0.2.1 is not an address of this host')
     assert listen_error('the web page', 'x', 80, OSError(13, 'Permission denied')).endswith(
         'port 80 needs privileges (choose one above 1023)')
+
+
+def test_samples_at_a_sensor_range_are_counted_in_the_run_state(study, reference_params):
+    """Every row of the rig's batches, shown or not, against the rig's ranges (issue 39): the
+    count per rig and channel is in the run's state (the page's line, /seft/live/run), and a
+    builder's warning is an event."""
+    sink = Recorder()
+    view = LiveView(sinks=[sink])
+    view.new_run(dict(study, accelerometer_range_m_s2=39.2, force_range_N=1000.0))
+    steps = list(range(0, 20))
+    a = [39.2 if k in (3, 4, 11) else -39.2 if k == 12 else 1.0 for k in steps]
+    f = [1000.0 if k == 5 else 10.0 for k in steps]
+    view.on_batch('/seft/record/rig', ('f', 'x', 'v', 'a'),
+                  rows(steps, f, [0.0] * 20, [0.0] * 20, a))
+    assert view.status.as_dict()['at_range'] == {'': {'acceleration': 4, 'force': 1}}
+    state = [m for c, m, _ in sink.logged if c == '/seft/live/run'][-1]
+    assert state['at_range'] == {'': {'acceleration': 4, 'force': 1}}
+    view.on_status('reference_force_builder', 'acceleration at its sensor range ...',
+                   {'state': 'running', 'warning': 'acceleration at its sensor range ...'})
+    assert sink.events[-1] == ('warning', 'reference_force_builder',
+                               'acceleration at its sensor range ...')
+    # a structure's rig: its own ranges, counted under its name
+    structure = {'dofs': ['pier_a', 'deck'], 'physical': {'pier_a': 'pier_a'},
+                 'mass_matrix_kg': [[52.7, 0], [0, 52.7]],
+                 'stiffness_matrix_N_per_m': [[4.22e5, -2.11e5], [-2.11e5, 2.11e5]],
+                 'damping_matrix_N_s_per_m': [[1036.678, -133.4], [-133.4, 133.4]],
+                 'influence': [1.0, 1.0],
+                 'rigs': {'pier_a': {'velocity_range_m_s': 0.5}}}
+    view = LiveView(sinks=[Recorder()])
+    view.new_run(dict(reference_params, structure=json.dumps(structure), mode='lockstep',
+                      structure_builders='central', bag_path='/tmp/s/bag'))
+    view.on_batch('/pier_a/seft/record/rig', ('f', 'x', 'v', 'a'),
+                  rows([0, 1, 2], [0, 0, 0], [0, 0, 0], [0.1, 0.6, -0.5], [0, 0, 0]))
+    assert view.status.as_dict()['at_range'] == {'pier_a': {'velocity': 2}}

@@ -546,6 +546,22 @@ def recording_end(bag: BagSignals, n_steps: int) -> dict:
     return out
 
 
+def _builder_json(statuses, key: str) -> dict:
+    """A JSON mapping of the builders' final statuses, by rig, merged over the builders:
+    ``sensor_range`` (each rig's samples at a sensor's range,
+    ``ReferenceForceBuilder.range_counts``), ``specimen_ratios`` (each rig's identified
+    specimen stiffness over the declared one); empty for a bag before issue 39."""
+    out = {}
+    for s in statuses:
+        if s.get('state') in _FINAL and s['name'].endswith('reference_force_builder') \
+                and s.get(key):
+            try:
+                out.update(json.loads(s[key]))
+            except ValueError:
+                continue
+    return out
+
+
 def read_run(path) -> RunData:
     """Read any seft bag into a :class:`~seft_ros.analysis.rundata.RunData`: every rig's
     signals (the study's test: its one rig, ``''``, in the root namespace; a structure's: each
@@ -692,7 +708,11 @@ def read_run(path) -> RunData:
              'recovered': bag.recovery is not None,
              'abort_node': first['name'] if first is not None else None,
              # what the builders reported during the run (a specimen not the declared one)
-             'warnings': [s['warning'] for s in bag.statuses if s.get('warning')]}
+             'warnings': [s['warning'] for s in bag.statuses if s.get('warning')],
+             # each rig's samples at a sensor's range, as its builder counted them, and its
+             # specimen check's identified stiffness over the declared one
+             'sensor_range': _builder_json(bag.statuses, 'sensor_range'),
+             'specimen_ratios': _builder_json(bag.statuses, 'specimen_ratios')}
     lost = bag_lost_messages(bag.statuses)
     if lost is not None:
         extra['bag_lost_messages'] = lost
@@ -803,7 +823,7 @@ def _computational(bag: BagSignals, n: int) -> dict[str, np.ndarray]:
 
 
 def rig_contract_of(statuses, rig: str = 'rig') -> str | None:
-    """The rig contract (``seft_msgs_py.rig_contract.CONTRACT``, e.g. ``'seft-rig/1.0'``) that
+    """The rig contract (``seft_msgs_py.rig_contract.CONTRACT``, e.g. ``'seft-rig/1.1'``) that
     the rig node `rig` reported in its status (its last report with one), or None: a bag
     recorded before the contract existed, or a rig that does not follow it."""
     found = [s[CONTRACT_KEY] for s in statuses if s['name'] == rig and CONTRACT_KEY in s]

@@ -193,6 +193,14 @@ def write_run_bag(run: RunData, path, *, storage: str | None = None) -> Path:
         if wall is not None:
             final['wall_s'] = f'{float(wall):.3f}'
         stopped_by = None if run.stable else (run.extra.get('abort_node') or graph.master)
+        # what the builder said during the run, its count of the samples at a sensor's range
+        # and its specimen check's ratios (the first builder's final status holds every rig's)
+        builder = next(node for node in graph.nodes() if node.endswith('reference_force_builder'))
+        for warning in run.extra.get('warnings') or ():
+            write(signals.STATUS.name, end_ns, status(builder, 'running', warning,
+                                                      warning=warning))
+        counted = {key: json.dumps(run.extra[key], sort_keys=True)
+                   for key in ('sensor_range', 'specimen_ratios') if run.extra.get(key)}
         if run.stable:
             for node in rig_nodes:
                 write(signals.STATUS.name, end_ns, status(node, 'done', f'completed {n} steps',
@@ -200,7 +208,8 @@ def write_run_bag(run: RunData, path, *, storage: str | None = None) -> Path:
         else:
             reason = run.abort_reason or 'aborted'
             if stopped_by not in rig_nodes:
-                write(signals.STATUS.name, end_ns, status(stopped_by, 'aborted', reason))
+                write(signals.STATUS.name, end_ns, status(
+                    stopped_by, 'aborted', reason, **(counted if stopped_by == builder else {})))
             for node in rig_nodes:
                 if node == stopped_by:
                     write(signals.STATUS.name, end_ns, status(node, 'aborted', reason, **final))
@@ -210,7 +219,8 @@ def write_run_bag(run: RunData, path, *, storage: str | None = None) -> Path:
                         ended_by=stopped_by))
         for node in graph.nodes():
             if node not in rig_nodes and node != stopped_by:
-                write(signals.STATUS.name, end_ns, status(node, 'done', published=n))
+                write(signals.STATUS.name, end_ns, status(
+                    node, 'done', published=n, **(counted if node == builder else {})))
         write(signals.STATUS.name, end_ns, status('recorder', 'closed', f'bag {path} closed',
                                                   incomplete='', lost=0))
     return path

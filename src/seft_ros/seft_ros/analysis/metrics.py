@@ -1121,15 +1121,20 @@ def summary_entry(run: RunData, comparison: RunComparison) -> dict[str, Any]:
         margin (``cli.api.stability_entry``), ``'warnings'``, what the builders reported
         during the run (a specimen that is not the declared one), and
         ``'specimen_stiffness_ratios'``, each rig's identified specimen stiffness over the
-        declared one, from ``run.extra``; ``wall_s`` [s], the wall time of the stepping,
-        from ``run.extra['wall_s']``; ``rig_contract``, the rig contract its rig reported,
-        ``'seft-rig/1.0'``, None for a bag before it, from ``run.extra``) where alpha and rig
-        are the rig's ``alpha`` and ``rig_model``, predictor is ``params['predictor']``,
-        record is ``run.record_name`` (``params['record']`` if empty), ``lag_s`` [s] is the
-        displacement lag, ``nrms`` is after removing each signal's own lag,
-        ``nrms_common_lag`` after removing ``lag_s`` from every signal, ``nrms_unshifted`` as
-        recorded, ``criteria`` are the RTHS benchmark's J1 [ms] and J2-J5 [%]
-        (``criteria.CRITERIA``), nrms values and the high-frequency fractions (of the
+        declared one, from ``run.extra``; ``'range_check'``, the pre-run range check
+        (:meth:`seft_ros.analysis.range_check.RangeCheck.as_dict`, from ``run.extra``),
+        ``'sensor_range'``, each rig's samples at a sensor's range
+        (:func:`seft_ros.analysis.findings.sensor_range_entry`), ``'flags'``, why the run may
+        have lost accuracy as a lab sees it (:func:`seft_ros.analysis.findings.run_flags`), and
+        ``'verdict'``, ``'stable'``, ``'stable, flagged'`` or ``'aborted'``; ``wall_s`` [s],
+        the wall time of the stepping, from ``run.extra['wall_s']``; ``rig_contract``, the rig
+        contract its rig reported, ``'seft-rig/1.1'``, None for a bag before it, from
+        ``run.extra``) where alpha and rig are the rig's ``alpha`` and ``rig_model``, predictor
+        is ``params['predictor']``, record is ``run.record_name`` (``params['record']`` if
+        empty), ``lag_s`` [s] is the displacement lag, ``nrms`` is after removing each signal's
+        own lag, ``nrms_common_lag`` after removing ``lag_s`` from every signal,
+        ``nrms_unshifted`` as recorded, ``criteria`` are the RTHS benchmark's J1 [ms] and J2-J5
+        [%] (``criteria.CRITERIA``), nrms values and the high-frequency fractions (of the
         measured and of the reference force's power above the cutoff [Hz]) are fractions.
         A rig with a nonlinear specimen (:func:`is_nonlinear`) has in addition
         ``'nonlinear'``: ``{'specimen_model', 'nrms_displacement',
@@ -1192,6 +1197,14 @@ def summary_entry(run: RunData, comparison: RunComparison) -> dict[str, Any]:
     entry['warnings'] = list(run.extra.get('warnings') or [])
     if run.extra.get('specimen_ratios'):
         entry['specimen_stiffness_ratios'] = dict(run.extra['specimen_ratios'])
+    # what says the run may have lost accuracy (issue 39): the pre-run range check, the
+    # samples at a sensor's range, and the flags a lab sees without the reference
+    from seft_ros.analysis.findings import run_flags, sensor_range_entry, verdict
+    if run.extra.get('range_check') is not None:
+        entry['range_check'] = dict(run.extra['range_check'])
+    entry['sensor_range'] = sensor_range_entry(run)
+    entry['flags'] = run_flags(run, comparison)
+    entry['verdict'] = verdict(bool(run.stable), entry['flags'])
     entry.update(_structure_entries(run, comparison))
     return json_safe(entry)
 

@@ -23,6 +23,7 @@ from matplotlib.ticker import FuncFormatter
 import numpy as np
 
 from seft_msgs_py.errors import ParameterError
+from seft_ros.analysis.findings import run_flags, sensor_range_entry, sensor_range_lines
 from seft_ros.analysis.metrics import (
     HIGH_FREQUENCY_CUTOFF_HZ,
     UNCOMPENSATED,
@@ -523,6 +524,18 @@ def _warning_lines(run: RunData) -> list[str]:
     return [f'- **warning**: {w}' for w in dict.fromkeys(run.extra.get('warnings') or ())]
 
 
+def _range_markdown(run: RunData) -> list[str]:
+    """The pre-run range check's lines and the samples read at a sensor's range, one item
+    each (issue 39)."""
+    lines = []
+    check = run.extra.get('range_check') or {}
+    for line in check.get('lines') or ():
+        lines.append(f'- pre-run range check: {line}')
+    for line in sensor_range_lines(sensor_range_entry(run)):
+        lines.append(f'- **sensor at its range**: {line}')
+    return lines
+
+
 def _run_markdown(index: int, run: RunData, comparison: RunComparison) -> list[str]:
     params = run.params
     record = run.record_name or params.get('record', '')
@@ -543,7 +556,12 @@ def _run_markdown(index: int, run: RunData, comparison: RunComparison) -> list[s
     if sources is not None:
         lines.append(f'- {sources}')
     lines += _mismatch_lines(run)
-    if run.stable:
+    flags = run_flags(run, comparison)
+    if run.stable and flags:
+        lines.append('- **stable, flagged**: the run may have lost accuracy, as a lab sees it '
+                     'without the reference:')
+        lines += [f'  - {flag}' for flag in flags]
+    elif run.stable:
         lines.append('- **stable**')
     else:
         at = _abort_time(run)
@@ -555,6 +573,7 @@ def _run_markdown(index: int, run: RunData, comparison: RunComparison) -> list[s
         lines.append(f'- **recording {recording["end"]}**: {recording.get("note")}')
     elif recording.get('gap_at_step') is not None:
         lines.append(f'- **recording with a gap**: {recording.get("note")}')
+    lines += _range_markdown(run)
     res = comparison.residual
     if is_nonlinear(params) and res is not None:
         lines.append(
@@ -1476,7 +1495,10 @@ def _structure_run_markdown(index: int, run: RunData, comparison: RunComparison,
     """A structure run's section: outcome, the per-DOF, per-link and per-rig tables, the
     figure of the time histories and, with a hysteretic rig, its hysteresis loops."""
     p = run.params
-    state = ('stable' if run.stable else
+    flags = entry.get('flags') or []
+    state = ('stable' if run.stable and not flags else
+             '**stable, flagged** (the run may have lost accuracy, as a lab sees it without '
+             'the reference)' if run.stable else
              f'**aborted** at {_num(run.unstable_at_s)} s: {run.abort_reason}')
     lines = [f'## Run {index}: predictor {p.get("predictor", "n/a")}, builders '
              f'{p.get("structure_builders", "central")}, {p.get("mode", "lockstep")}', '',
@@ -1488,6 +1510,9 @@ def _structure_run_markdown(index: int, run: RunData, comparison: RunComparison,
     elif recording.get('gap_at_step') is not None:
         lines += [f'- **recording with a gap**: {recording.get("note")}']
     lines += _mismatch_lines(run)
+    if run.stable:
+        lines += [f'- flagged: {flag}' for flag in flags]
+    lines += _range_markdown(run)
     if lines[-1]:
         lines.append('')
     lines += ['| dof | rig | NRMS x | NRMS ẍ | NRMS floor ẍ | NRMS force | peak x | '

@@ -14,12 +14,10 @@ from typing import Any, Callable
 import numpy as np
 
 from seft_msgs_py import parameters
-from seft_msgs_py.calibration import valve_flow_gain_m3_per_s_V
 from seft_msgs_py.domain import LOCK_DIR, claim_domain, held_by_ancestor
 from seft_msgs_py.errors import InputError, ParameterError, SeftError
 from seft_msgs_py.sampling import single_blas_thread
 from seft_ros.analysis.bag import read_run
-from seft_ros.analysis.reference import planned_reference
 from seft_ros.analysis.rundata import RunData
 from seft_ros.cli import partition
 from seft_ros.cli.config import (
@@ -42,7 +40,7 @@ __all__ = ['build_runs', 'output_dir', 'remove_empty_dirs', 'run_experiments',
            'summary_table', 'criteria_table',
            'Result', 'check_stability', 'check_domain', 'open_runner', 'stability_entry',
            'stability_report', 'stability_table', 'StabilityResult', 'identify_bags',
-           'identification_table']
+           'identification_table', 'check_ranges', 'RangeRefusedError', 'check_settings']
 
 
 class Result:
@@ -58,7 +56,8 @@ class Result:
 
 def build_runs(*, config: str | None = None, overrides: dict[str, Any] | None = None,
                alphas: list[float] | None = None,
-               params_files: list[str] | None = None) -> list[dict[str, Any]]:
+               params_files: list[str] | None = None,
+               progress: Callable[[str], None] | None = None) -> list[dict[str, Any]]:
     """Parameter sets of the runs: defaults < config file < parameter files < overrides <
     alphas.
 
@@ -76,6 +75,9 @@ def build_runs(*, config: str | None = None, overrides: dict[str, Any] | None = 
         wins over a later file's). A file's ``rigs`` section (``seft identify``'s file of a
         structure's rigs) is merged into the configuration's rigs sections
         (:func:`~seft_ros.cli.config.layer_rigs`).
+    progress : callable(str), optional
+        Receives one ``settings:`` line per rig whose specimen is declared to yield, naming
+        the settings chosen for it (:func:`~seft_ros.cli.config.expand_runs`).
 
     Raises
     ------
@@ -101,7 +103,10 @@ def build_runs(*, config: str | None = None, overrides: dict[str, Any] | None = 
         values = layer_rigs(values, sections, where=str(path))
     if alphas:
         values['alpha'] = list(alphas)
-    runs = expand_runs(values, where=config or 'command line')
+    notes = []
+    runs = expand_runs(values, where=config or 'command line', notes=notes)
+    for note in notes if progress is not None else ():
+        progress(f'settings: {note}')
     # read every record now: a bad file is reported before anything starts
     seen = set()
     for p in runs:
@@ -187,12 +192,13 @@ def _finish(out_dir: Path, runs: list[RunData], title: str, t0: float) -> Result
 def simulate_experiments(*, runs: list[dict], out_dir: Path,
                          progress: Callable[[str], None] = print, title: str = '',
                          force: bool = False, workers: int | None = None,
-                         bag: bool = False) -> Result:
+                         bag: bool = False, strict: bool = False) -> Result:
     """Run each parameter set with :func:`~seft_ros.core.experiment.simulate` (no ROS) and
     write the report.
 
-    Before the first run, :func:`check_stability` (`force`: warn instead of refusing). One
-    run is simulated in this process; several run in a pool of worker processes
+    Before the first run, :func:`check_stability` (`force`: warn instead of refusing) and
+    :func:`check_ranges` (`strict`: refuse instead of warning). One run is simulated in this
+    process; several run in a pool of worker processes
     (:class:`concurrent.futures.ProcessPoolExecutor`), each run in one worker, so the
     numbers are those of each run alone. Progress lines: ``[label] step k/n`` about every
     0.5 s of a run, and one line per finished run, in the order the runs finish.
@@ -209,6 +215,9 @@ def simulate_experiments(*, runs: list[dict], out_dir: Path,
         Report title.
     force : bool
         Run predicted-unstable runs anyway (with a warning).
+    strict : bool
+        Refuse the runs when a rig's reference peak exceeds a sensor range or the actuator's
+        capacity (``--strict``; default: one warning line per channel).
     workers : int >= 1, optional
         Worker processes (default ``os.cpu_count()``; never more than the runs). 1: every
         run in this process, one after the other.
@@ -228,6 +237,8 @@ def simulate_experiments(*, runs: list[dict], out_dir: Path,
         Bad record or parameter.
     PredictedUnstableError
         A run is predicted unstable and `force` is False.
+    RangeRefusedError
+        `strict` and a run's reference exceeds a range or capacity.
     KeyboardInterrupt
         Ctrl-C: the runs not started are cancelled, the running ones stop at their next
         progress check (within about 0.5 s) and the workers exit before this re-raises.
@@ -238,10 +249,12 @@ def simulate_experiments(*, runs: list[dict], out_dir: Path,
         if path.exists():
             raise InputError(f'{path}: the bag exists already; expected a new --out directory')
     checks = check_stability(runs=runs, force=force, progress=progress)
-    check_capacity(runs=runs, progress=progress)
+    ranges = check_ranges(runs=runs, strict=strict, progress=progress)
+    check_settings(runs=runs, progress=progress)
     data = simulate_runs(runs=runs, out_dir=out_dir, progress=progress, workers=workers)
-    for rd, check in zip(data, checks):
+    for rd, check, limits in zip(data, checks, ranges):
         rd.extra['stability'] = stability_entry(check)
+        rd.extra['range_check'] = limits.as_dict()
     if bags:
         from seft_ros.analysis.bagwrite import write_run_bag
         for rd, path in zip(data, bags):
@@ -603,7 +616,7 @@ def run_experiments(*, runs: list[dict], out_dir: Path,
                     progress: Callable[[str], None] = print, title: str = '',
                     domain_id: int | None = None, force: bool = False,
                     nodes: list[str] | None = None, processes: str = 'node',
-                    live=None) -> Result | None:
+                    live=None, strict: bool = False) -> Result | None:
     """Run each parameter set as a node graph (separate processes over DDS), record a bag
     per run, read the bags back and write the report.
 
@@ -613,7 +626,8 @@ def run_experiments(*, runs: list[dict], out_dir: Path,
     `live` (``seft run --live``, a :class:`~seft_ros.live.access.LiveOptions`): the live
     view of the runs (:mod:`seft_ros.cli.live`), in the run's domain for every run.
 
-    Before any node starts, :func:`check_stability` (`force`: warn instead of refusing).
+    Before any node starts, :func:`check_stability` (`force`: warn instead of refusing) and
+    :func:`check_ranges` (`strict`: refuse instead of warning).
 
     `nodes` (``seft run --nodes``): start only these nodes; the rest of the graph runs on
     other hosts in the same ROS domain (``ROS_DOMAIN_ID`` or `domain_id`, required then;
@@ -624,6 +638,8 @@ def run_experiments(*, runs: list[dict], out_dir: Path,
     ------
     PredictedUnstableError
         A run is predicted unstable and `force` is False (nothing started).
+    RangeRefusedError
+        `strict` and a run's reference exceeds a range or capacity (nothing started).
     InputError
         `nodes` names no node of the graph, several hosts without a shared domain, or
         `processes` is not one of ``node``, ``loop``.
@@ -637,16 +653,18 @@ def run_experiments(*, runs: list[dict], out_dir: Path,
     if nodes is not None:
         nodes = check_nodes(nodes, runs)
         check_stability(runs=runs, force=force, progress=progress)
-        check_capacity(runs=runs, progress=progress)
+        check_ranges(runs=runs, strict=strict, progress=progress)
+        check_settings(runs=runs, progress=progress)
         return _run_here(runs, out_dir, progress, _shared_domain(domain_id), nodes, processes,
                          live)
     t0 = time.monotonic()
 
-    predicted = []
+    predicted, ranges = [], []
 
     def checks():
         predicted.extend(check_stability(runs=runs, force=force, progress=progress))
-        check_capacity(runs=runs, progress=progress)
+        ranges.extend(check_ranges(runs=runs, strict=strict, progress=progress))
+        check_settings(runs=runs, progress=progress)
     runner, claim = open_runner(domain_id=domain_id, progress=progress, checks=checks,
                                 processes=processes)
     data = []
@@ -662,8 +680,9 @@ def run_experiments(*, runs: list[dict], out_dir: Path,
             viewer.close()
         runner.close()
         claim.close()
-    for rd, check in zip(data, predicted):
+    for rd, check, limits in zip(data, predicted, ranges):
         rd.extra['stability'] = stability_entry(check)
+        rd.extra['range_check'] = limits.as_dict()
     return _finish(out_dir, data, title or 'seft run', t0)
 
 
@@ -740,6 +759,17 @@ def compare_bags(*, bags: list[str], out_dir: Path, title: str = '') -> Result:
             rd.extra['stability'] = stability_entry(stability.check_run(rd.params, margin=True))
         except SeftError:
             pass
+        # and its pre-run range check: the run's record as seft run prepared it, or where it
+        # cannot be read here, the record as the bag holds it (all of a run that completed)
+        from seft_ros.analysis.range_check import range_check
+        try:
+            try:
+                record = prepared_record(rd.params).acceleration_m_s2
+            except SeftError:
+                record = rd.ground_acceleration_m_s2
+            rd.extra['range_check'] = range_check(rd.params, record).as_dict()
+        except SeftError:
+            pass
     return _finish(out_dir, data, title or 'seft compare', t0)
 
 
@@ -772,7 +802,7 @@ def structure_table(summary: list[dict]) -> str:
         abort = f'{e["unstable_at_s"]:8.3f}' if e['unstable_at_s'] is not None else f'{"-":>8}'
         for dof in e['structure']['dofs']:
             d = e['dofs'][dof]
-            lines.append(f'{i:3d} {e["predictor"]:>10} {str(e["stable"]):>7} {abort} '
+            lines.append(f'{i:3d} {e["predictor"]:>10} {_stable_cell(e):>7} {abort} '
                          f'{dof[:12]:>12} {_rig_name(d["rig"])[:10]:>10} '
                          f'{pct(d["displacement"])} {pct(d["acceleration"])} '
                          f'{pct(d["floor_acceleration"])} {pct(d["interface_force"])} '
@@ -793,7 +823,25 @@ def structure_table(summary: list[dict]) -> str:
             lines.append(f'note: run {i} ({e["predictor"]}): aborted: {e["abort_reason"]}')
         if (e.get('link') or {}).get('warning'):
             lines.append(f'note: run {i} ({e["predictor"]}): {e["link"]["warning"]}')
+        lines += _accuracy_notes(f'run {i} ({e["predictor"]})', e)
     return '\n'.join(lines)
+
+
+def _stable_cell(entry: dict) -> str:
+    """The table's ``stable`` cell: True, False, or ``flagged`` for a stable run with flags
+    (``note:`` lines below say why)."""
+    return 'flagged' if entry.get('stable') and entry.get('flags') else str(entry['stable'])
+
+
+def _accuracy_notes(who: str, entry: dict) -> list[str]:
+    """``note:`` lines of a summary entry's flags and samples at a sensor's range (issue
+    39)."""
+    from seft_ros.analysis.findings import sensor_range_lines
+    lines = [f'note: {who}: flagged: {flag}' for flag in entry.get('flags') or ()
+             if entry.get('stable')]
+    lines += [f'note: {who}: {line}'
+              for line in sensor_range_lines(entry.get('sensor_range') or {})]
+    return lines
 
 
 def summary_table(summary: list[dict]) -> str:
@@ -834,7 +882,7 @@ def summary_table(summary: list[dict]) -> str:
         abort = f'{e["unstable_at_s"]:8.3f}' if e['unstable_at_s'] is not None else f'{"-":>8}'
         lag = f'{1000 * e["lag_s"]:7.2f}' if e['lag_s'] is not None else f'{"-":>7}'
         lines.append(
-            f'{e["alpha"]:6g} {e["rig"]:>14} {e["predictor"]:>10} {str(e["stable"]):>7} '
+            f'{e["alpha"]:6g} {e["rig"]:>14} {e["predictor"]:>10} {_stable_cell(e):>7} '
             f'{abort} {lag} {pct(e["nrms"]["displacement"])} {pct(e["nrms"]["acceleration"])} '
             f'{pct(e["nrms"]["force"])} {num(e["peak_ratio"]["displacement"])} '
             f'{num(e["peak_ratio"]["acceleration"])} {num(e["peak_ratio"]["force"])}')
@@ -860,6 +908,7 @@ def summary_table(summary: list[dict]) -> str:
         if rec.get('end') in ('crashed', 'stopped') or rec.get('gap_at_step') is not None:
             lines.append(f'note: run {i} (alpha {e["alpha"]:g}, {e["predictor"]}): '
                          f'{rec.get("note")}')
+        lines += _accuracy_notes(f'run {i} (alpha {e["alpha"]:g}, {e["predictor"]})', e)
     return '\n'.join(lines)
 
 
@@ -897,16 +946,11 @@ def parameter_names() -> list[str]:
 # -- stability map and the pre-run guard ------------------------------------------------------
 
 def actuator_velocity_limit_m_s(params) -> float | None:
-    """Largest piston velocity the servohydraulic rig can deliver [m/s] (None: other rigs).
+    """Largest piston velocity the rig's actuator delivers [m/s] (None: not declared):
+    :func:`seft_ros.analysis.range_check.actuator_velocity_limit_m_s`."""
+    from seft_ros.analysis.range_check import actuator_velocity_limit_m_s as limit
+    return limit(params)
 
-    ``v_max = k_q * valve_limit_V / A``: the valve flow at full command over the piston area
-    (no load pressure; Merritt 1967, Ch. 5), with k_q of the rig calibration (2.0 m/s at
-    10 V with Eq. 3.1 in V/lbf, 0.45 m/s in V/N; :mod:`seft_msgs_py.calibration`).
-    """
-    if params['rig_model'] != 'servohydraulic':
-        return None
-    return (valve_flow_gain_m3_per_s_V(params) * params['valve_limit_V']
-            / params['piston_area_m2'])
 
 
 def check_realtime_rigs(runs: list[dict]) -> None:
@@ -933,32 +977,70 @@ def check_realtime_rigs(runs: list[dict]) -> None:
                 raise ParameterError(f'rig {rig}: {exc}' if rig else str(exc)) from None
 
 
-def check_capacity(*, runs: list[dict], progress: Callable[[str], None] = print) -> None:
-    """Warn before a run whose reference response needs more velocity than the actuator has.
+class RangeRefusedError(SeftError):
+    """``--strict``: a run's reference exceeds a rig's sensor range or actuator capacity."""
 
-    The analytical reference of the whole structure (linear model, the prepared record) is
-    what a perfectly compensated test reproduces; if its peak velocity exceeds
-    :func:`actuator_velocity_limit_m_s`, the valve will saturate and the loss-of-control
-    interlock is likely to end the run. A warning, not a refusal. A run with a plug-in's
-    model (:mod:`seft_ros.core.models`) is first checked by its plug-in's ``check_runs``
-    (OpenSees: :func:`seft_ros.opensees.checks.check_runs`; refused in one line where it
-    cannot run as configured).
+
+def check_settings(*, runs: list[dict], progress: Callable[[str], None] = print) -> None:
+    """One ``settings:`` line before the runs per combination of a run's settings that the
+    docs' tables show costs accuracy (:func:`seft_ros.core.specimen_settings.costly_settings`;
+    a line shared by several runs once, with their labels)."""
+    from seft_ros.core.specimen_settings import costly_settings
+    lines: dict[str, list[str]] = {}
+    for p in runs:
+        for line in costly_settings(p):
+            lines.setdefault(line, []).append(_run_label(p, runs))
+    for line, labels in lines.items():
+        progress(f'settings: [{", ".join(labels)}] {line}' if len(runs) > 1 else
+                 f'settings: {line}')
+
+
+def check_ranges(*, runs: list[dict], strict: bool = False,
+                 progress: Callable[[str], None] = print) -> list:
+    """Before the runs: each rig's peaks of the analytical reference against its sensors'
+    ranges and its actuator's capacity (:func:`seft_ros.analysis.range_check.range_check`).
+
+    One line per channel that will be exceeded (``range check: [run] rig, channel: the
+    reference peaks at ..., beyond the ... of ...; the largest amplitude that fits: ...``), a
+    line shared by several runs once with their labels; `strict` (``--strict``) refuses the
+    runs instead. A run with a plug-in's model (:mod:`seft_ros.core.models`) is first checked
+    by its plug-in's ``check_runs`` (OpenSees: :func:`seft_ros.opensees.checks.check_runs`;
+    refused in one line where it cannot run as configured); its range check is made with
+    the report.
+
+    Returns
+    -------
+    list of RangeCheck
+        One per run (for ``summary.json``, ``extra['range_check']``).
+
+    Raises
+    ------
+    RangeRefusedError
+        `strict` and a channel exceeded (the message is the first line and how many more).
+    InputError, ParameterError
+        Bad record or parameter.
     """
+    from seft_ros.analysis.range_check import range_check
     kinds = {structure_of(p).model_kind for p in runs if has_structure(p)} - {None}
     for kind in sorted(kinds):
         check = getattr(model_plugin(kind), 'check_runs', None)
         if check is not None:
             check(runs, progress=progress)
+    checks, lines = [], {}
     for p in runs:
-        v_max = actuator_velocity_limit_m_s(p)
-        if v_max is None or has_structure(p):
-            continue
-        ref = planned_reference(p)
-        v_peak = float(np.max(np.abs(ref.velocity_m_s)))
-        if v_peak > v_max:
-            progress(f'warning: alpha={p["alpha"]:g} ({p["predictor"]}): the reference response '
-                     f'needs {v_peak:.2f} m/s, the actuator delivers {v_max:.2f} m/s at '
-                     f'{p["valve_limit_V"]:g} V: expect valve saturation (lower amplitude_N)')
+        check = range_check(p, prepared_record(p).acceleration_m_s2)
+        checks.append(check)
+        for line in check.lines():
+            lines.setdefault(line, []).append(_run_label(p, runs))
+    shown = [f'[{", ".join(labels)}] {line}' if len(runs) > 1 else line
+             for line, labels in lines.items()]
+    if strict and shown:
+        more = f' (and {len(shown) - 1} more)' if len(shown) > 1 else ''
+        raise RangeRefusedError(f'range check: {shown[0]}{more}; refused (--strict): lower '
+                                'the amplitude or run without --strict')
+    for line in shown:
+        progress(f'range check: {line}')
+    return checks
 
 
 def check_stability(*, runs: list[dict], force: bool = False,

@@ -229,15 +229,22 @@ def layer_rigs(values: dict[str, Any], sections: dict[str, dict[str, Any]], *,
     return dict(values, structure=replace(s, rigs=MappingProxyType(rigs)).to_json())
 
 
-def expand_runs(config: dict[str, Any], *, where: str = '') -> list[dict[str, Any]]:
+def expand_runs(config: dict[str, Any], *, where: str = '',
+                notes: list[str] | None = None) -> list[dict[str, Any]]:
     """Validate a configuration and expand lists of ``record``, ``predictor`` and ``alpha``
     into one parameter set per combination (in that order of nesting).
+
+    A rig whose specimen is declared to yield gets the settings of a yielding member where
+    the configuration does not set them
+    (:func:`~seft_ros.core.specimen_settings.follow_specimen`); the lines saying which are
+    appended to `notes` (each once).
 
     Raises
     ------
     ParameterError
         A value out of range (the message names the parameter and, if given, `where`).
     """
+    from seft_ros.core.specimen_settings import follow_specimen
     def values_of(name):
         value = config.get(name, parameters.spec(name).default)
         values = list(value) if isinstance(value, (list, tuple)) else [value]
@@ -252,7 +259,11 @@ def expand_runs(config: dict[str, Any], *, where: str = '') -> list[dict[str, An
         for predictor in predictors:
             for alpha in alphas:
                 values = dict(config, alpha=alpha, predictor=predictor, record=record)
-                runs.append(_with_structure(parameters.resolve(values, where=where), where))
+                params, chosen = follow_specimen(config, parameters.resolve(values,
+                                                                            where=where))
+                if notes is not None:
+                    notes.extend(n for n in chosen if n not in notes)
+                runs.append(_with_structure(params, where))
     return runs
 
 

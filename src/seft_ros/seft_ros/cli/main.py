@@ -91,6 +91,9 @@ def _experiment_options(p: argparse.ArgumentParser) -> None:
     p.add_argument('--name', help='run name (default: the config file name, or "run")')
     p.add_argument('--force', action='store_true', help='run even when a run is predicted '
                    'unstable by the stability map (warn instead of refusing)')
+    p.add_argument('--strict', action='store_true', help="refuse a run whose analytical "
+                   "reference exceeds a rig's sensor range or actuator capacity (default: one "
+                   'warning line per channel before the run)')
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -280,7 +283,7 @@ def _build(args):
     for name, value in _typed(args.sets):
         overrides[name] = value
     return api.build_runs(config=args.config, overrides=overrides, alphas=args.alpha,
-                          params_files=args.params_files)
+                          params_files=args.params_files, progress=_progress)
 
 
 def _experiments(args):
@@ -357,7 +360,7 @@ def _rig_runs(args) -> list[dict]:
     overrides = {'rig_model': args.rig_model}
     overrides.update(dict(_typed(args.sets, alpha=True)))
     return api.build_runs(config=args.config, overrides=overrides,
-                          params_files=args.params_files)
+                          params_files=args.params_files, progress=_progress)
 
 
 def _one_rig(args, verb: str) -> dict:
@@ -478,7 +481,8 @@ def _main(args) -> int:
                 result = api.run_experiments(runs=runs, out_dir=out, progress=_progress,
                                              title=f'seft run {name}', domain_id=args.domain_id,
                                              force=args.force, nodes=args.nodes,
-                                             processes=args.processes, live=live)
+                                             processes=args.processes, live=live,
+                                             strict=args.strict)
                 if result is None:
                     print(f'this host ran {", ".join(args.nodes)}; the bag and the report are '
                           'on the host that ran the recorder')
@@ -487,7 +491,8 @@ def _main(args) -> int:
             else:
                 result = api.simulate_experiments(runs=runs, out_dir=out, progress=_progress,
                                                   title=f'seft simulate {name}',
-                                                  force=args.force, bag=args.bag)
+                                                  force=args.force, bag=args.bag,
+                                                  strict=args.strict)
     except SeftError as exc:
         print(f'seft: error: {exc}', file=sys.stderr)
         return 2

@@ -80,46 +80,59 @@ def simulate(params, *, progress: Callable[[int, int], None] | None = None,
     ------
     InputError, ParameterError
         Bad record, parameter or structure; `stale_steps` of a rig the test has not.
+
+    Notes
+    -----
+    The whole run keeps numpy's and scipy's BLAS at one thread
+    (:func:`~seft_msgs_py.sampling.single_blas_thread`), as a real-time node does: an
+    ``adaptive`` compensator refits its model and loop inverse during the run (small
+    matrix exponentials), and a pool of two BLAS threads made each refit about 100 times
+    slower on a loaded 2-core host (24 ms against 0.2 ms per ``expm``).
     """
+    with single_blas_thread():
+        return _simulate(params, progress=progress, record=record, stale_steps=stale_steps)
+
+
+def _simulate(params, *, progress, record, stale_steps) -> RunData:
+    """:func:`simulate`'s run, BLAS at one thread."""
     params = parameters.resolve(params)
     gm = record if record is not None else prepared_record(params)
     ag = gm.acceleration_m_s2
     n_total = ag.shape[0]
-    with single_blas_thread():                 # see there: faster set-up, no spinning threads
-        # one builder for every rig, or (structure_builders per_rig) one per rig, as the graph
-        graph = Graph.from_parameters(params)
-        local_sets = [[r] for r in graph.rigs] if graph.per_rig_builders else [None]
-        builders = [ReferenceForceBuilder.from_parameters(params, local=lr)
-                    for lr in local_sets]
-        builder = builders[0]           # its computational state is the one recorded
-        names = builder.rig_names
-        rig_params = builder.setup.rig_params
-        rigs = [make_rig(rig_params[r]) for r in names]
-        valve = [rig.command_kind == COMMAND_VALVE for rig in rigs]
-        # the force controller, or the excitation itself in an open-loop identification run
-        ctrls = [make_valve_controller(rig_params[r]) if v else None
-                 for r, v in zip(names, valve)]
-        locks = [SaturationInterlock.from_parameters(rig_params[r]) if v else None
-                 for r, v in zip(names, valve)]
-        monitors = [InstabilityMonitor.from_parameters(rig_params[r]) for r in names]
-        # each rig's specimen against its compensator's model (specimen_check)
-        local_params = {r: p for b in builders for r, p in zip(b.local_rigs, b.rig_params)}
-        checks = [SpecimenCheck.from_parameters(local_params[r], rig=r) for r in names]
-        check_abort = [local_params[r].get('specimen_check', 'warn') == 'abort'
-                       for r in names]
-        if stale_steps is not None and not isinstance(stale_steps, Mapping):
-            if len(names) != 1:
-                raise ParameterError(f'stale steps of a test of {len(names)} rigs: expected '
-                                     'them per rig (a mapping of rig names to steps)')
-            stale_steps = {names[0]: stale_steps}
-        stale = stale_steps or {}
-        unknown = sorted(set(stale) - set(names))
-        if unknown:
-            raise ParameterError(f'stale steps of rig(s) {", ".join(unknown)}: the test '
-                                 f'has the rigs {", ".join(names)}')
-        playouts = [ReferencePlayout(0, int(rig_params[r]['reference_extrapolation_steps']))
-                    if v and r in stale else None for r, v in zip(names, valve)]
-        stale = [frozenset(stale.get(r, ())) for r in names]
+    # one builder for every rig, or (structure_builders per_rig) one per rig, as the graph
+    graph = Graph.from_parameters(params)
+    local_sets = [[r] for r in graph.rigs] if graph.per_rig_builders else [None]
+    builders = [ReferenceForceBuilder.from_parameters(params, local=lr)
+                for lr in local_sets]
+    builder = builders[0]           # its computational state is the one recorded
+    names = builder.rig_names
+    rig_params = builder.setup.rig_params
+    rigs = [make_rig(rig_params[r]) for r in names]
+    valve = [rig.command_kind == COMMAND_VALVE for rig in rigs]
+    # the force controller, or the excitation itself in an open-loop identification run
+    ctrls = [make_valve_controller(rig_params[r]) if v else None
+             for r, v in zip(names, valve)]
+    locks = [SaturationInterlock.from_parameters(rig_params[r]) if v else None
+             for r, v in zip(names, valve)]
+    monitors = [InstabilityMonitor.from_parameters(rig_params[r]) for r in names]
+    # each rig's specimen against its compensator's model (specimen_check)
+    local_params = {r: p for b in builders for r, p in zip(b.local_rigs, b.rig_params)}
+    checks = [SpecimenCheck.from_parameters(local_params[r], rig=r) for r in names]
+    check_abort = [local_params[r].get('specimen_check', 'warn') == 'abort'
+                   for r in names]
+    if stale_steps is not None and not isinstance(stale_steps, Mapping):
+        if len(names) != 1:
+            raise ParameterError(f'stale steps of a test of {len(names)} rigs: expected '
+                                 'them per rig (a mapping of rig names to steps)')
+        stale_steps = {names[0]: stale_steps}
+    stale = stale_steps or {}
+    unknown = sorted(set(stale) - set(names))
+    if unknown:
+        raise ParameterError(f'stale steps of rig(s) {", ".join(unknown)}: the test '
+                             f'has the rigs {", ".join(names)}')
+    playouts = [ReferencePlayout(0, int(rig_params[r]['reference_extrapolation_steps']))
+                if v and r in stale else None for r, v in zip(names, valve)]
+    stale = [frozenset(stale.get(r, ())) for r in names]
     look = max(b.lookahead_steps for b in builders)
     # the ground window xg''[j..j+L] of every step as a slice (the numbers of
     # reference_force.ground_window: the record as Python floats, zeros after its end)
@@ -212,12 +225,24 @@ def simulate(params, *, progress: Callable[[int, int], None] | None = None,
             for observe in observers:
                 for r in range(n_r):
                     observe(r, meas[r])
+            for b in builders:
+                if any(g is not None and g.news for g in b.range_guards):
+                    warnings.extend(b.range_warnings())
             commands = build(k + 1)
             est = estimates()
             state_rec.append(builder.computational_state)
         if progress is not None and not k & 255 and time.monotonic() - t_last > 0.5:
             t_last = time.monotonic()
             progress(k + 1, n_total)
+    # the samples of the last step that no force was built from (the record's end, or an
+    # abort there): the graph's builder node received them, and counts those at a sensor's
+    # range; so does this
+    if n_total and (reason is not None or n_done == n_total):
+        for b in builders:
+            for r in range(n_r):
+                if meas[r] is not None and meas[r].step >= len(state_rec):
+                    b.count_at_range(r, meas[r])
+            warnings.extend(b.range_warnings())
     wall_s = time.monotonic() - t_start
     n = n_done
     dt = float(params['dt'])
@@ -259,4 +284,5 @@ def simulate(params, *, progress: Callable[[int, int], None] | None = None,
         record_name=gm.name, source='simulate',
         extra={'wall_s': wall_s, 'abort_node': abort_node, 'warnings': warnings,
                'specimen_ratios': {r: c.stiffness_ratio for r, c in zip(names, checks)
-                                   if c is not None}})
+                                   if c is not None},
+               'sensor_range': {r: v for b in builders for r, v in b.range_counts().items()}})

@@ -312,6 +312,21 @@ class HystereticIdentifier:
     #: 100 updates).
     SENSOR_WEIGHT = 0.01
 
+    @classmethod
+    def estimate_bounds(cls, guess: MemberGuess) -> dict:
+        """The range of each identified parameter, ``{estimate name: (lower, upper)}``
+        (names of :data:`HYSTERESIS_ESTIMATES`, SI units): :data:`BOUNDS` about `guess`."""
+        (lk, hk), (la, ha), (ld, hd), (ln_, hn), (ls, hs) = cls.BOUNDS
+        k, dy = guess.stiffness_N_per_m, guess.yield_displacement_m
+
+        def expit(x):
+            return 1.0 / (1.0 + math.exp(-x))
+        return {'hysteresis_stiffness_N_per_m': (k * math.exp(lk), k * math.exp(hk)),
+                'hysteresis_post_yield_ratio': (expit(la), expit(ha)),
+                'hysteresis_yield_displacement_m': (dy * math.exp(ld), dy * math.exp(hd)),
+                'hysteresis_n': (1.0 + math.exp(ln_), 1.0 + math.exp(hn)),
+                'hysteresis_unloading_shape': (ls, hs)}
+
     def __init__(self, guess: MemberGuess, dt: float, *, memory_s: float = 2.0,
                  min_increment_m: float = 2e-6):
         if not (dt > 0 and memory_s > 0 and min_increment_m >= 0):
@@ -452,16 +467,36 @@ class HystereticMember:
         self.restoring_force_N = self.z = 0.0
         self.confidence = 1.0
         self.has_yielded = False
+        self._held: set[int] = set()      # samples the identifier does not take (hold)
 
         self._direction = 1.0
         self._reversal = None             # (x, r) where the motion last reversed
         self._z_path = self._x_path = 0.0
 
+    def hold(self, step: int) -> None:
+        """Keep sample `step` out of the identification (a reading at its sensor's range, or
+        an acceleration estimated in its place): :meth:`observe_measurement` of that sample
+        anchors the state but does not update the parameters."""
+        self._held.add(int(step))
+        if len(self._held) > 64:             # samples never observed (a run's end)
+            self._held.discard(min(self._held))
+
+    def restoring_force_at(self, displacement_m: float, velocity_m_s: float) -> float:
+        """The model's restoring force [N] at `displacement_m` [m], its state carried from
+        the latest anchored sample along the displacement increment in the direction of
+        `velocity_m_s` [m/s] (what the member model says where the measurement cannot:
+        an accelerometer at its range)."""
+        model = self.model
+        z = model.advance(self.z, displacement_m - self.displacement_m,
+                          1.0 if velocity_m_s >= 0.0 else -1.0)
+        return model.restoring_force(displacement_m, z)
+
     def observe(self, displacement_m: float, velocity_m_s: float, acceleration_m_s2: float,
-                force_N: float) -> None:
-        """Take the sensor readings of one sample (x [m], v [m/s], a [m/s^2], f_m [N])."""
+                force_N: float, identify: bool = True) -> None:
+        """Take the sensor readings of one sample (x [m], v [m/s], a [m/s^2], f_m [N]);
+        `identify` False: anchor the state, leave the parameters (:meth:`hold`)."""
         r = force_N - self.mass_kg * acceleration_m_s2 - self.damping_N_s_per_m * velocity_m_s
-        if self.identifier is not None:
+        if self.identifier is not None and identify:
             self.identifier.observe(displacement_m, r, velocity_m_s)
         self.displacement_m, self.velocity_m_s = displacement_m, velocity_m_s
         self.acceleration_m_s2, self.restoring_force_N = acceleration_m_s2, r
@@ -492,8 +527,12 @@ class HystereticMember:
 
     def observe_measurement(self, latest: Measurement) -> None:
         """:meth:`observe` with a :class:`~seft_msgs_py.interface.Measurement`."""
+        held = self._held
+        identify = not held or latest.step not in held
+        if not identify:
+            held.discard(latest.step)
         self.observe(latest.displacement_m, latest.velocity_m_s, latest.acceleration_m_s2,
-                     latest.force_N)
+                     latest.force_N, identify)
 
     def tangent_ahead(self, horizon_s: float) -> float:
         """Tangent stiffness [N/m] `horizon_s` after the latest sample.

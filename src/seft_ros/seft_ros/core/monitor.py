@@ -222,6 +222,9 @@ class SpecimenCheck:
         Running-RMS level of the measured force below which nothing is learnt [N].
     memory_s, settle_s, persist_s : float > 0
         RLS memory, excitation needed before judging, and how long a deviation must last [s].
+    ranges : SensorRanges, optional
+        The rig's sensor ranges (:mod:`seft_msgs_py.sensor_range`): a sample with a reading
+        at its range is not regressed on (default: every sample is).
 
     Attributes
     ----------
@@ -241,7 +244,8 @@ class SpecimenCheck:
 
     def __init__(self, mass_kg: float, damping_N_s_per_m: float, stiffness_N_per_m: float,
                  dt: float, tolerance: float, *, rig: str = '', excitation_N: float = 20.0,
-                 memory_s: float = 2.0, settle_s: float = 1.0, persist_s: float = 0.5):
+                 memory_s: float = 2.0, settle_s: float = 1.0, persist_s: float = 0.5,
+                 ranges=None):
         from seft_ros.core import identification as ident
         m0, c0, k0 = float(mass_kg), float(damping_N_s_per_m), float(stiffness_N_per_m)
         if not (m0 > 0 and c0 >= 0 and k0 > 0):
@@ -269,6 +273,7 @@ class SpecimenCheck:
         self._off = 0
         self.stiffness_ratio = 1.0
         self.reported = False
+        self._ranges = ranges if ranges is not None and ranges.limited else None
 
     @classmethod
     def from_parameters(cls, params, rig: str = '') -> 'SpecimenCheck | None':
@@ -286,6 +291,7 @@ class SpecimenCheck:
                 or params.get('predictor_restoring_force', 'model') != 'model'
                 or open_loop_identification(params)):
             return None
+        from seft_msgs_py.sensor_range import SensorRanges
         mp = model_parameters(params)
         tolerance = float(params.get('specimen_uncertainty', 0.0) or 0.0) or \
             DEFAULT_SPECIMEN_TOLERANCE
@@ -293,7 +299,8 @@ class SpecimenCheck:
             tolerance = max(tolerance, float(params.get('adaptive_max_deviation', 0.5)))
         return cls(mp['mass_kg'], mp['damping_N_s_per_m'], mp['stiffness_N_per_m'],
                    float(params['dt']), tolerance, rig=rig,
-                   excitation_N=float(params.get('adaptive_excitation_N', 20.0)))
+                   excitation_N=float(params.get('adaptive_excitation_N', 20.0)),
+                   ranges=SensorRanges.from_parameters(params))
 
     def _update(self, phi, y: float) -> None:
         """One RLS step with forgetting and covariance limiting (``RecursiveLeastSquares``)."""
@@ -322,7 +329,8 @@ class SpecimenCheck:
             self._off = 0
             return None
         s = self._scale
-        if not self._excited % CHECK_EVERY:
+        if not self._excited % CHECK_EVERY and (self._ranges is None
+                                                or not self._ranges.flags(measurement)):
             self._update((s[0] * measurement.acceleration_m_s2,
                           s[1] * measurement.velocity_m_s, s[2] * measurement.displacement_m), f)
         self._excited += 1

@@ -43,6 +43,7 @@ from typing import Callable, NamedTuple
 
 import numpy as np
 
+from seft_msgs_py import sensor_range as _sensor_range
 from seft_msgs_py.errors import ParameterError
 from seft_msgs_py.interface import Measurement
 from seft_msgs_py.parameters import valve_commanded
@@ -699,8 +700,20 @@ class TangentModelPredictor:
         """The tangent stiffness in use [N/m] (recorded with the run)."""
         return {'tangent_stiffness_N_per_m': self.stiffness_ratio * self.k}
 
+    def at_range(self, step: int, flags: int) -> None:
+        """Sample `step` has readings at their sensors' range (`flags`,
+        :mod:`seft_msgs_py.sensor_range`): its measured restoring force does not move the
+        tangent stiffness (the secant starts again at the next sample)."""
+        if flags:
+            self._held = int(step)
+
+    _held = None
+
     def observe(self, latest: Measurement) -> None:
         """Update the tangent stiffness from `latest` (called by :meth:`predict`)."""
+        if latest.step == self._held:
+            self._last = None
+            return
         x = latest.displacement_m
         f_s = latest.force_N - self.m * latest.acceleration_m_s2 - self.c * latest.velocity_m_s
         if self._last is not None:
@@ -835,6 +848,13 @@ class HystereticModelPredictor:
             v += w * (a1 + 2.0 * (a2 + a3) + a4)
             z += w * (z1 + 2.0 * (z2 + z3) + z4)
         return x, v, z
+
+    def at_range(self, step: int, flags: int) -> None:
+        """Sample `step` has readings at their sensors' range (`flags`,
+        :mod:`seft_msgs_py.sensor_range`): the member's model anchors on it but does not
+        learn from it (:meth:`~seft_ros.core.hysteresis.HystereticMember.hold`)."""
+        if flags:
+            self.member.hold(step)
 
     def set_delay(self, tau_s: float) -> None:
         """Change the delay of the prediction [s] (``adaptive`` identifies it)."""
@@ -1681,10 +1701,11 @@ class LoopLatencyFit:
         self._n_sent = j + 1
         self._u.pop(j - self.window - self.n - 4, None)
 
-    def observe(self, step: int, force_N: float, excited: bool) -> bool:
+    def observe(self, step: int, force_N: float, excited: bool, valid: bool = True) -> bool:
         """Take the measured force ``f_m[step]``; returns whether a fit is due (call
-        :meth:`fit` with the current specimen estimate)."""
-        self._y[step] = float(force_N)
+        :meth:`fit` with the current specimen estimate). `valid` False: the load cell was at
+        its range; no window that holds the sample is fitted."""
+        self._y[step] = float(force_N) if valid else None
         self._y.pop(step - self.window - 4, None)
         self._excited = self._excited + 1 if excited else 0
         if not excited:
@@ -1762,6 +1783,11 @@ ADAPTIVE_ESTIMATES = ('mass_kg', 'damping_N_s_per_m', 'stiffness_N_per_m', 'tau_
 
 #: Default of ``adaptive_loop`` when a parameter mapping lacks it.
 ADAPTIVE_LOOP_DEFAULT = 'model'
+
+#: Flag bits of a sample at a sensor's range (:mod:`seft_msgs_py.sensor_range`): the load
+#: cell's, and the displacement's or velocity's (the delay fit's rows).
+_FORCE_AT_RANGE = _sensor_range.FORCE
+_MOTION_AT_RANGE = _sensor_range.DISPLACEMENT | _sensor_range.VELOCITY
 
 
 class AdaptivePredictor:
@@ -1953,17 +1979,13 @@ class AdaptivePredictor:
             self._theta0, p0, _ident.forgetting_factor(dt, memory_s))
         self.gate = _ident.ExcitationGate(dt, window_s, excitation_N)
         per_update = float(max_rate_per_s) * dt * self.update_steps
-        d = float(max_deviation)
-        self._guards = {
-            'mass_kg': _ident.GuardedValue(m0, m0 * (1 - d), m0 * (1 + d), m0 * per_update),
-            'damping_N_s_per_m': _ident.GuardedValue(
-                c0, max(c0 - d * c_scale, 0.0), c0 + d * c_scale, c_scale * per_update),
-            'stiffness_N_per_m': _ident.GuardedValue(k0, k0 * (1 - d), k0 * (1 + d),
-                                                     k0 * per_update),
-            'tau_s': _ident.GuardedValue(tau0_s, 0.0, self.max_delay_s,
-                                         max(float(tau0_s), dt) * per_update),
-            'gain': _ident.GuardedValue(1.0, 1 - d, 1 + d, per_update),
-        }
+        bounds = self.bounds(m0, c0, k0, self.max_delay_s, max_deviation)
+        rates = {'mass_kg': m0, 'damping_N_s_per_m': c_scale, 'stiffness_N_per_m': k0,
+                 'tau_s': max(float(tau0_s), dt), 'gain': 1.0}
+        start = {'mass_kg': m0, 'damping_N_s_per_m': c0, 'stiffness_N_per_m': k0,
+                 'tau_s': tau0_s, 'gain': 1.0}
+        self._guards = {name: _ident.GuardedValue(start[name], lo, hi, rates[name] * per_update)
+                        for name, (lo, hi) in bounds.items()}
         self._targets = dict(self.prior)
         self.loop_inverse = (None if loop_identification is None
                              else loop_identification.inverse)
@@ -1978,9 +2000,45 @@ class AdaptivePredictor:
         self._sent = []
         self._count = 0
         self._rows_from = 0               # the first step whose row the delay fit may take
+        self._at_range: dict[int, int] = {}   # step -> flags of a sample at a sensor's range
+        self._prev_flags = 0
+        self.skipped_samples = 0          # samples the identifications did not take (at_range)
         self.history_tau_s = []
         self.fit_quality = float('nan')
         self.min_fit_quality = float(min_fit_quality)
+
+    @staticmethod
+    def bounds(mass_kg: float, damping_N_s_per_m: float, stiffness_N_per_m: float,
+               max_delay_s: float, max_deviation: float) -> dict:
+        """The range of each estimate (class notes), ``{name: (lower, upper)}`` in the
+        estimate's unit: m, c, k and the gain within ``+/- max_deviation`` of the prior (c
+        of the damping scale, at least 5 % of critical, and not below 0), tau within
+        ``[0, max_delay_s]``."""
+        m0, c0, k0, d = (float(mass_kg), float(damping_N_s_per_m), float(stiffness_N_per_m),
+                         float(max_deviation))
+        c_scale = max(c0, 0.1 * math.sqrt(k0 * m0))
+        return {'mass_kg': (m0 * (1 - d), m0 * (1 + d)),
+                'damping_N_s_per_m': (max(c0 - d * c_scale, 0.0), c0 + d * c_scale),
+                'stiffness_N_per_m': (k0 * (1 - d), k0 * (1 + d)),
+                'tau_s': (0.0, float(max_delay_s)), 'gain': (1 - d, 1 + d)}
+
+    @classmethod
+    def estimate_bounds(cls, params) -> dict:
+        """The range of each estimate of the ``adaptive`` compensator of `params`
+        (:meth:`bounds` of its prior, ``adaptive_max_delay_s`` and
+        ``adaptive_max_deviation``), and of its I/O latency fit (``loop_latency_s``, with
+        ``adaptive_loop: model_latency`` on the servohydraulic rig: ``[0, L0 + max(L0,
+        2 dt)]``)."""
+        mp = model_parameters(params)
+        dt = float(params['dt'])
+        out = cls.bounds(mp['mass_kg'], mp['damping_N_s_per_m'], mp['stiffness_N_per_m'],
+                         math.ceil(float(params['adaptive_max_delay_s']) / dt) * dt,
+                         float(params.get('adaptive_max_deviation', 0.5)))
+        if (params.get('rig_model') == 'servohydraulic'
+                and params.get('adaptive_loop', ADAPTIVE_LOOP_DEFAULT) == 'model_latency'):
+            latency = model_rig(params).io_latency_s
+            out['loop_latency_s'] = (0.0, latency + max(latency, 2.0 * dt))
+        return out
 
     @classmethod
     def from_parameters(cls, params) -> 'AdaptivePredictor':
@@ -2043,6 +2101,12 @@ class AdaptivePredictor:
         if self._member_law is not None:
             out.update(self._member_law.estimates())
         return out
+
+    @property
+    def member(self):
+        """The yielding member's model (:class:`~seft_ros.core.hysteresis.HystereticMember`)
+        of the law, None for a linear specimen."""
+        return None if self._member_law is None else self._member_law.member
 
     @property
     def tau_s(self) -> float:
@@ -2179,14 +2243,18 @@ class AdaptivePredictor:
     def _observe(self, latest: Measurement) -> None:
         """Take the newest measurement into the identifications."""
         x, v = latest.displacement_m, latest.velocity_m_s
+        flags = self._at_range.pop(latest.step, 0) if self._at_range else 0
+        if flags:
+            self.skipped_samples += 1
+        force_ok = not flags & _FORCE_AT_RANGE
         excited = self.gate.update(latest.force_N)
         loop = self.loop_identification
         if loop is not None:
-            loop.observe(latest.step, latest.force_N, excited)
+            loop.observe(latest.step, latest.force_N, excited and force_ok)
         if self._background is not None:
             self._poll_fits()
         fit = self.latency_fit
-        if (fit is not None and fit.observe(latest.step, latest.force_N, excited)
+        if (fit is not None and fit.observe(latest.step, latest.force_N, excited, force_ok)
                 and self._pending_latency is None):
             from seft_plant_sim.specimen import LinearSpecimen
             data = fit.window_data()
@@ -2199,11 +2267,13 @@ class AdaptivePredictor:
                                              self._background.submit(fit.search, spec, *data))
                 elif fit.accept(latest.step, *fit.search(spec, *data)):
                     self._rebuild()
-        if excited and self.identify_specimen:
+        if excited and self.identify_specimen and not flags:
             s = self._scale
             self.rls.update((s[0] * latest.acceleration_m_s2, s[1] * v, s[2] * x),
                             latest.force_N)
         member = self._member_law
+        motion_flags = (flags | self._prev_flags) & _MOTION_AT_RANGE
+        self._prev_flags = flags
         if self._prev is not None:
             px, pv, j, pz = self._prev
             count = self.max_n + 2
@@ -2212,6 +2282,8 @@ class AdaptivePredictor:
                 pass            # a sample missing (real time): no one-step increment to fit
             elif latest.step < self._rows_from:
                 pass            # a late reference force in its past (reference_late)
+            elif motion_flags:
+                pass            # its displacement or velocity at the sensor's range
             elif member is None:
                 self._rows.append((v - pv, px, pv, past))
             else:               # the member's free response out (the row's x, v unused)
@@ -2257,6 +2329,20 @@ class AdaptivePredictor:
         if self.alpha == 0.0:
             return 0.0
         return (ground_force_N - force) / (self.alpha * self.mass_ref_kg)
+
+    def at_range(self, step: int, flags: int) -> None:
+        """Sample `step` has readings at their sensors' range (`flags`: the bits of
+        :mod:`seft_msgs_py.sensor_range`; the builder tells it before the sample is
+        observed): no identification takes it. The specimen's RLS skips the sample (its
+        regression takes all four readings); the delay and gain fit takes no row whose
+        displacement or velocity, at either end, is at its range; the latency fit and the
+        force loop identified from data take no window holding a force at its range; a
+        yielding member's model anchors on the sample but does not learn from it. Counted in
+        ``skipped_samples``."""
+        if flags:
+            self._at_range[int(step)] = int(flags)
+            if self._member_law is not None:
+                self._member_law.member.hold(step)
 
     def reference_late(self, step: int) -> None:
         """Real time: the reference force of sample `step` went out late (the builder node:
@@ -2453,6 +2539,11 @@ class AtsPredictor:
                    excitation_N=float(params.get('adaptive_excitation_N', 20.0)),
                    max_rate_per_s=float(params.get('adaptive_max_rate_per_s', 1.0)),
                    max_delay_s=float(params.get('adaptive_max_delay_s', 0.03)), law=law)
+
+    @property
+    def member(self):
+        """The yielding member's model of the law (None for a linear specimen)."""
+        return self._member
 
     @property
     def model(self) -> 'DelayImpulseModel | None':

@@ -20,6 +20,7 @@ import numpy as np
 from seft_msgs_py.errors import ParameterError
 from seft_msgs_py.interface import Measurement
 from seft_msgs_py.sampling import single_blas_thread
+from seft_msgs_py.sensor_range import CHANNELS, SensorRanges
 from seft_ros.core.predictors import (
     TANGENT_STIFFNESS_RATIOS,
     AdaptivePredictor,
@@ -32,6 +33,7 @@ from seft_ros.core.predictors import (
     model_predictor,
     network_delay_steps,
 )
+from seft_ros.core.range_guard import RangeGuard, range_warning
 from seft_ros.core.structure import TestSetup, test_setup
 from seft_ros.core.substructure import (
     InterfacePredictor,
@@ -493,6 +495,10 @@ class ReferenceForceBuilder:
                     self._history[r] = (weights, deque([0.0] * len(weights),
                                                        maxlen=len(weights)))
         self._yields = [yields(law.predictor) for law in self.laws]
+        # each local rig's readings against its sensors' ranges (flagged, counted, the
+        # acceleration estimated while the accelerometer is at its range)
+        self.range_guards = [self._range_guard(law, p, y) for law, p, y in
+                             zip(self.laws, self._rig_params, self._yields)]
         self._interface_cache = {}
         self._tangent = None                 # the quantized K_c,t in use (None: K_c)
         self._tangent_key = None
@@ -539,6 +545,47 @@ class ReferenceForceBuilder:
                     raise ParameterError(f'rigs.{r}: {exc}') from None
                 rig_params.append(p)
         return cls(setup, float(params['dt']), laws, rig_params, local=local)
+
+    def _range_guard(self, law, params, tangent: bool) -> 'RangeGuard | None':
+        """A local rig's :class:`~seft_ros.core.range_guard.RangeGuard` (None: its sensors
+        have no range)."""
+        ranges = SensorRanges.from_parameters(params)
+        if not ranges.limited:
+            return None
+        return RangeGuard(ranges, self.dt, law.predictor,
+                          lambda: specimen_model_of(law.predictor, params),
+                          tangent_only=tangent)
+
+    def count_at_range(self, rig: int, measurement: Measurement) -> None:
+        """Count a sample at a sensor's range that no force is built from (the run's last,
+        or one the run was stopped at) as :meth:`observe` would, for a rig this builder
+        commands (index in ``rig_names``; another rig's is ignored)."""
+        if rig in self._local_pos:
+            guard = self.range_guards[self._local_pos.index(rig)]
+            if guard is not None:
+                guard.take(measurement)
+
+    def range_warnings(self) -> list[str]:
+        """One line per local rig and channel that read its sensor's range for the first
+        time since the last call (:func:`~seft_ros.core.range_guard.range_warning`)."""
+        out = []
+        for rig, guard in zip(self.local_rigs, self.range_guards):
+            if guard is not None and guard.news:
+                out.extend(range_warning(rig, c, guard.ranges.range_of(c), step * self.dt)
+                           for c, step in guard.news)
+                guard.news.clear()
+        return out
+
+    def range_counts(self) -> dict:
+        """Each local rig's samples at a sensor's range (``RangeCount.as_dict``) with its
+        ranges (``'ranges'``: channel -> range in SI units, None unlimited), by rig name."""
+        out = {}
+        for rig, guard in zip(self.local_rigs, self.range_guards):
+            if guard is not None:
+                ranges = {c: (v if math.isfinite(v) else None)
+                          for c, v in zip(CHANNELS, guard.ranges.ranges())}
+                out[rig] = dict(guard.count.as_dict(), ranges=ranges)
+        return out
 
     def _build_interface(self) -> None:
         """(Re)build the interface prediction from the local rigs' current specimen models
@@ -642,13 +689,16 @@ class ReferenceForceBuilder:
         measurement : Measurement
             Its sample (``measurement.step``).
         """
-        if self.state is not None:
-            self.state.observe(rig, measurement)
         try:
             r = self._local_pos.index(rig)
         except ValueError:
-            return
-        self._latest[r][measurement.step] = measurement
+            r = None
+        if r is not None and self.range_guards[r] is not None:
+            measurement = self.range_guards[r].take(measurement)
+        if self.state is not None:
+            self.state.observe(rig, measurement)
+        if r is not None:
+            self._latest[r][measurement.step] = measurement
 
     def reference_late(self, step: int) -> None:
         """Real time: the reference forces of sample `step` went out late (the builder node:

@@ -336,7 +336,8 @@ def check_contract(ready: Mapping | None, rig_params: Mapping | None, command_ki
     Returns
     -------
     CheckResult
-        ``values``: ``contract``, ``command_latency_s`` [s], ``missing_parameters``.
+        ``values``: ``contract``, ``command_latency_s`` [s], ``missing_parameters`` and,
+        when it passes, ``undeclared_ranges`` (of ``rig_contract.RANGE_PARAMETERS``).
     """
     if not ready:
         return CheckResult('contract', False, 'no ready report from the rig with a contract')
@@ -361,9 +362,16 @@ def check_contract(ready: Mapping | None, rig_params: Mapping | None, command_ki
     if problems:
         return CheckResult('contract', False, '; '.join(problems), values)
     n = len(rig_contract.REQUIRED_PARAMETERS)
+    # the sensors' ranges (contract 1.1): a rig that does not publish them is taken with the
+    # configuration's (said, not failed)
+    undeclared = [p for p in rig_contract.RANGE_PARAMETERS if p not in (rig_params or {})]
+    values['undeclared_ranges'] = undeclared
+    ranges = (f'; ranges not declared: {", ".join(undeclared)} (the configuration\'s are '
+              'taken)' if undeclared else
+              f', {len(rig_contract.RANGE_PARAMETERS)} ranges declared')
     return CheckResult('contract', True, f'{contract}, takes {command_kind}, command latency '
-                       f'{1e3 * latency:g} ms, {n} of {n} required parameters published',
-                       values)
+                       f'{1e3 * latency:g} ms, {n} of {n} required parameters published'
+                       + ranges, values)
 
 
 def sample_period(steps, arrival_s) -> float:

@@ -20,6 +20,9 @@ import threading
 import time
 from typing import Any, Callable, Mapping, Protocol, Sequence
 
+from seft_msgs_py.errors import ParameterError
+from seft_msgs_py.graph import qualified
+from seft_msgs_py.sensor_range import SensorRanges, channel_names
 from seft_msgs_py.signals import (
     FINAL_STATES,
     STATE_ABORTED,
@@ -87,6 +90,8 @@ class RunStatus:
         self.stale: dict[str, int] = {}
         self.link: dict[str, dict] = {}
         self.stopped_by = ''
+        #: rig -> channel -> the samples read at the sensor's range so far (issue 39)
+        self.at_range: dict[str, dict[str, int]] = {}
 
     def update(self, name: str, message: str, values: Mapping[str, str]) -> list[dict]:
         """Take one status report; return the events it makes (possibly none)."""
@@ -119,6 +124,10 @@ class RunStatus:
                     events.append(self._event(
                         'info' if not ended else 'error', name,
                         f'run {self.state}' + (f': {self.reason}' if self.reason else '')))
+        if values.get('warning') and state not in FINAL_STATES:
+            # what a builder says during the run: a sensor at its range, a specimen that is
+            # not the declared one
+            events.append(self._event('warning', name, values['warning']))
         if state in (STATE_ABORTED, STATE_FAILED) and values.get('stopped_by') == 'operator':
             self.stopped_by = message
         if name == 'recorder' and state == STATE_CLOSED:
@@ -147,7 +156,8 @@ class RunStatus:
                 't_s': round(self.time_s, 6), 'mode': self.mode, 'reason': self.reason,
                 'bag_closed': self.closed, 'lost': self.lost,
                 'missed_deadlines': dict(self.missed), 'stale_inputs': dict(self.stale),
-                'link': dict(self.link), 'stopped_by': self.stopped_by}
+                'link': dict(self.link), 'stopped_by': self.stopped_by,
+                'at_range': {r: dict(c) for r, c in self.at_range.items()}}
 
 
 class LiveView:
@@ -186,6 +196,7 @@ class LiveView:
         self.reference: dict[str, list] = {}
         self.sources: dict = {}
         self.totals: dict[str, list] = {}
+        self.ranges: dict[str, tuple] = {}
         self.base_ns = time.time_ns()
         self.latest_step = 0
 
@@ -216,6 +227,7 @@ class LiveView:
             self.sources = {s.stream.name: s for s in run.sources}
             self.totals = {ch.timing_channel(s.stream.node): [0, 0, 0.0]
                            for s in run.sources if s.stream.timing}
+            self.ranges = _rig_ranges(run, params)
             self.reference = {}
             self.status = RunStatus(run.graph.rig_nodes(), str(params.get('mode', '')))
             self.info = {
@@ -271,9 +283,15 @@ class LiveView:
         decim, dt = run.decimation, run.dt
         timing = ch.timing_channel(source.stream.node) if source.stream.timing else None
         totals = self.totals.get(timing)
+        ranges = self.ranges.get(stream)
+        counted = {}
         shown = []
         for i in range(0, len(data) - width + 1, width):
             step = int(data[i])
+            if ranges is not None:
+                flags = ranges[1].flags_of(*data[i + 1:i + 5])
+                for c in channel_names(flags):
+                    counted[c] = counted.get(c, 0) + 1
             if totals is not None:
                 totals[0] += int(data[i + 1 + _MISSED])
                 totals[1] += int(data[i + 1 + _STALE])
@@ -293,6 +311,15 @@ class LiveView:
                                         loop_latency_max_s=totals[2])
                 totals[2] = 0.0
             shown.append((step, messages))
+        if counted:
+            with self.lock:
+                if run is not self.run:
+                    return
+                rig = self.status.at_range.setdefault(ranges[0], {})
+                for c, n in counted.items():
+                    rig[c] = rig.get(c, 0) + n
+                self.status_version += 1
+            self._emit_state()
         if not shown:
             return
         with self.lock:
@@ -400,6 +427,25 @@ class LiveView:
                 msg.update(status=self.status.as_dict(), events=list(self.status.events))
             cursor = (self.run_id, lengths, self.status_version)
         return (msg if new or changed else None), cursor
+
+
+def _rig_ranges(run: ch.RunChannels, params: Mapping[str, Any]) -> dict[str, tuple]:
+    """The record stream of each rig's sensors (``[step, force, displacement, velocity,
+    acceleration]`` rows) -> ``(rig, its SensorRanges)``, for the rigs with a range."""
+    from seft_ros.core.structure import is_study, test_setup
+    try:
+        rig_params = ({'': params} if is_study(params) else test_setup(params).rig_params)
+    except ParameterError:
+        return {}
+    out = {}
+    for rig in run.graph.rigs:
+        ranges = SensorRanges.from_parameters(rig_params.get(rig, params))
+        stream = next((s.stream for s in run.sources
+                       if s.stream.node == qualified('rig', rig) and not s.stream.timing
+                       and not s.stream.fields_topic), None)
+        if ranges.limited and stream is not None and len(stream.columns) == 4:
+            out[stream.name] = (rig, ranges)
+    return out
 
 
 def _label(params: Mapping[str, Any]) -> str:

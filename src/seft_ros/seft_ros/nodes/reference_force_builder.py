@@ -31,6 +31,7 @@ recorded in the timing record's input age. One timing record per step goes to th
 Run by hand: ``ros2 run seft_ros reference_force_builder --ros-args --params-file ...``.
 """
 
+import json
 import sys
 import time
 
@@ -212,6 +213,10 @@ class ReferenceForceBuilderNode(SeftNode):
         m = Measurement(k, k * self.dt, x, v, a, force)
         r = self.rig_index[rig]
         self.builder.observe(r, m)
+        if rig in self.local:
+            for warning in self.builder.range_warnings():
+                self.get_logger().warning(warning)
+                self.report(STATE_RUNNING, warning, warning=warning, step=k)
         if k >= self.next_step - 1:                 # (a late one of a step already built)
             self.arrived.setdefault(k, set()).add(r)
         if self.realtime:
@@ -221,6 +226,20 @@ class ReferenceForceBuilderNode(SeftNode):
             if self.realtime:
                 self.watchdog.arm()
         self._advance()
+
+    def final_counts(self) -> dict:
+        """The node's counts (:meth:`seft_msgs_py.node_support.SeftNode.final_counts`),
+        each commanded rig's samples at a sensor's range (``sensor_range``: the JSON of
+        :meth:`~seft_ros.core.reference_force.ReferenceForceBuilder.range_counts`) and its
+        specimen check's identified stiffness over the declared one (``specimen_ratios``,
+        JSON)."""
+        counts = super().final_counts()
+        counts['sensor_range'] = json.dumps(self.builder.range_counts(), sort_keys=True)
+        # each commanded rig's identified specimen stiffness over the declared one
+        counts['specimen_ratios'] = json.dumps(
+            {r: c.stiffness_ratio for r, c in zip(self.local, self.checks) if c is not None},
+            sort_keys=True)
+        return counts
 
     def _on_model(self, rig: str, msg) -> None:
         """Another builder's model of its rig (``name``: m, c, k; stamp: the step it was

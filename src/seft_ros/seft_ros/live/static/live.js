@@ -175,6 +175,15 @@
     const ended = s.state === 'aborted' || s.state === 'failed';
     reason.hidden = !ended;
     reason.textContent = ended ? `${s.state}: ${s.reason}` : '';
+    // samples read at a sensor's range (flagged; the report says what was done with them)
+    const atRange = [];
+    Object.entries(s.at_range || {}).forEach(([rig, counts]) => {
+      Object.entries(counts).forEach(([channel, count]) => {
+        atRange.push(`${rig ? rig + ' ' : ''}${channel} ${count}`);
+      });
+    });
+    $('range').hidden = !atRange.length;
+    $('range').textContent = atRange.length ? 'at sensor range: ' + atRange.join(', ') : '';
     const links = Object.entries(s.link || {}).map(([peer, l]) =>
       `${peer}: round trip ${fmt(l.round_trip_p50_ms)} / ${fmt(l.round_trip_p99_ms)} ms, `
       + `offset ${fmt(l.offset_ms)} ms`);

@@ -1,0 +1,233 @@
+"""What a run shows of a loss of accuracy that a lab can see without the reference.
+
+A run that completes is not therefore right. Four signs, each visible in the lab's own data
+and the pre-run prediction (never in the comparison's error), flag a run instead of calling
+it plainly stable (:func:`run_flags`):
+
+* **an identification at its bounds**: an online estimate held at the edge of the range its
+  compensator allows (``adaptive``: m, c, k and the gain within ``adaptive_max_deviation``
+  of the prior, tau within ``[0, adaptive_max_delay_s]``, the I/O latency within its search
+  range; a yielding member's model within its identifier's bounds) for
+  :data:`BOUND_HOLD_S` or at the run's end: what it identifies is not in its model;
+* **the specimen check firing**: a rig's identified stiffness left the declared one
+  (:class:`~seft_ros.core.monitor.SpecimenCheck`); for ``model``, which compensates for the
+  declared specimen, already :data:`SPECIMEN_FLAG` from it (inside the check's tolerance:
+  the two piers with a pier 10 % stiffer than modelled err by 30 % and identify it at
+  0.909 x);
+* **settings the docs show cost accuracy** (a yielding member with an elastic specimen's
+  controller, law or loop inverse; ``model`` with an uncertain specimen:
+  :func:`~seft_ros.core.specimen_settings.costly_settings`), chosen by the user;
+* **a peak beyond the prediction**: a rig's displacement, force or acceleration peaks more
+  than :data:`PEAK_RATIO_FLAG` times the analytical reference's peak over the same samples
+  (the pre-run check's prediction, :mod:`seft_ros.analysis.range_check`).
+
+The samples read at a sensor's range are reported beside them (:func:`sensor_range_entry`):
+how many per rig and channel, and what the builder did with them.
+"""
+
+from typing import Any
+
+import numpy as np
+
+from seft_msgs_py.errors import SeftError
+from seft_msgs_py.sensor_range import AT_RANGE_FRACTION, CHANNEL_UNITS, CHANNELS, RANGE_PARAMETERS
+from seft_ros.analysis.rundata import RunData, rig_label
+from seft_ros.core.specimen_settings import costly_settings
+
+__all__ = ['PEAK_RATIO_FLAG', 'BOUND_HOLD_S', 'SPECIMEN_FLAG', 'estimate_bounds', 'bound_findings',
+           'sensor_range_entry', 'sensor_range_lines', 'run_flags', 'verdict']
+
+#: A rig's peak (displacement, force, acceleration) beyond this many times the reference's
+#: flags the run.
+PEAK_RATIO_FLAG = 1.5
+#: An estimate held at a bound of its range for this long in total flags the run [s].
+BOUND_HOLD_S = 0.5
+#: An estimate within this fraction of its range's width from a bound is at the bound.
+BOUND_TOLERANCE = 1e-6
+#: A ``model`` run whose rig identifies its specimen this far from the declared stiffness
+#: (relative) is flagged, inside the specimen check's tolerance too: ``model`` needs the
+#: specimen as it is.
+SPECIMEN_FLAG = 0.05
+#: The signals whose peaks are checked against the prediction.
+PEAK_SIGNALS = ('displacement', 'force', 'acceleration')
+
+
+def estimate_bounds(params) -> dict[str, tuple[float, float]]:
+    """The range of each online estimate a rig's compensator records, ``{name: (lower,
+    upper)}``: ``adaptive``'s (:meth:`~seft_ros.core.predictors.AdaptivePredictor.estimate_bounds`)
+    and a yielding member's model's
+    (:meth:`~seft_ros.core.hysteresis.HystereticIdentifier.estimate_bounds`); empty for a
+    compensator without bounded estimates."""
+    from seft_ros.core.hysteresis import HystereticIdentifier, MemberGuess
+    from seft_ros.core.predictors import AdaptivePredictor
+    out = {}
+    predictor = params.get('predictor')
+    if predictor == 'adaptive':
+        out.update(AdaptivePredictor.estimate_bounds(params))
+    restoring = params.get('predictor_restoring_force', 'model')
+    # a member model with an identifier: adaptive's and ats's law of either restoring force
+    # other than 'model', model's with 'hysteretic' ('measured' holds a tangent only)
+    if restoring != 'model' and (predictor in ('adaptive', 'ats')
+                                 or predictor == 'model' and restoring == 'hysteretic'):
+        out.update(HystereticIdentifier.estimate_bounds(MemberGuess.from_parameters(params)))
+    return out
+
+
+def bound_findings(rig: str, params, estimates, dt: float) -> list[str]:
+    """One line per estimate of a rig held at a bound (module notes).
+
+    Parameters
+    ----------
+    rig : str
+        The rig ('' the study's).
+    params : mapping
+        Its parameters (its compensator's).
+    estimates : dict of str to ndarray (n,), or None
+        Its recorded estimates (``RigData.estimates``).
+    dt : float > 0
+        Sample period [s].
+    """
+    if not estimates:
+        return []
+    out = []
+    for name, (lo, hi) in estimate_bounds(params).items():
+        values = estimates.get(name)
+        if values is None or not len(values):
+            continue
+        values = np.asarray(values, dtype=float)
+        tol = BOUND_TOLERANCE * max(hi - lo, abs(hi), 1e-300)
+        for bound, which, at in ((lo, 'lower', values <= lo + tol),
+                                 (hi, 'upper', values >= hi - tol)):
+            held_s = float(np.count_nonzero(at)) * dt
+            if held_s >= BOUND_HOLD_S or at[-1]:
+                out.append(f'{rig_label(rig)}: the estimate {name} at its {which} bound '
+                           f'{bound:.4g} for {held_s:.2f} s'
+                           + (' and at the end' if at[-1] else ''))
+    return out
+
+
+#: The recorded signal of each sensor (``RigData`` attributes).
+_SIGNAL = {'force': 'measured_force_N', 'displacement': 'displacement_m',
+           'velocity': 'velocity_m_s', 'acceleration': 'acceleration_m_s2'}
+
+
+def _counted(rig_data, ranges) -> dict:
+    """A rig's samples at each sensor's range, counted from its recorded signals."""
+    samples, first, last = {}, {}, {}
+    for channel in CHANNELS:
+        r = ranges[channel]
+        values = np.asarray(getattr(rig_data, _SIGNAL[channel]), dtype=float)
+        at = np.flatnonzero(np.abs(values) >= AT_RANGE_FRACTION * r) if r else np.array([])
+        samples[channel] = int(at.shape[0])
+        if at.shape[0]:
+            first[channel], last[channel] = int(at[0]), int(at[-1])
+    return {'samples': samples, 'first_step': first, 'last_step': last,
+            'acceleration_estimated': None}
+
+
+def sensor_range_entry(run: RunData) -> dict[str, Any]:
+    """Each rig's samples at a sensor's range (for ``summary.json``).
+
+    ``{rig: {'samples': {channel: n}, 'ranges': {channel: range or None},
+    'first_s': {channel: t}, 'last_s': {channel: t}, 'acceleration_estimated': n or None,
+    'source': 'builder' | 'signals'}}``: as the rig's builder counted them (``seft
+    simulate`` and a bag of issue 39 or later), else counted from the recorded signals
+    (``acceleration_estimated`` then None).
+    """
+    counted = run.extra.get('sensor_range') or {}
+    dt = float(run.params.get('dt', 0.0) or 0.0)
+    out = {}
+    for rig, data in run.rigs.items():
+        ranges = {}
+        for channel in CHANNELS:
+            value = float(data.params.get(RANGE_PARAMETERS[channel], 0.0) or 0.0)
+            ranges[channel] = value if value > 0 else None
+        entry = counted.get(rig)
+        source = 'builder'
+        if entry is None:
+            entry, source = _counted(data, ranges), 'signals'
+        out[rig] = {'samples': dict(entry['samples']), 'ranges': ranges,
+                    'first_s': {c: j * dt for c, j in entry.get('first_step', {}).items()},
+                    'last_s': {c: j * dt for c, j in entry.get('last_step', {}).items()},
+                    'acceleration_estimated': entry.get('acceleration_estimated'),
+                    'source': source}
+    return out
+
+
+def sensor_range_lines(entry: dict[str, Any]) -> list[str]:
+    """One line per rig and channel with samples at the range, what was done with them, and
+    that the channel's figures (NRMS, peak) compare the readings as recorded, clipped
+    (`entry`: :func:`sensor_range_entry`)."""
+    lines = []
+    for rig, info in entry.items():
+        for channel in CHANNELS:
+            n = info['samples'].get(channel, 0)
+            if not n:
+                continue
+            r = info['ranges'].get(channel)
+            when = ''
+            if channel in info['first_s']:
+                first, last = info['first_s'][channel], info['last_s'][channel]
+                when = (f' at t={first:.3f} s' if first == last else
+                        f' between t={first:.3f} and {last:.3f} s')
+            samples = 'sample' if n == 1 else 'samples'
+            done = 'the identifications skipped them'
+            if channel == 'acceleration':
+                estimated = info.get('acceleration_estimated')
+                done += ('; the acceleration fed back was estimated from the measured force '
+                         f'and motion in {estimated} sample{"s" if estimated > 1 else ""}'
+                         if estimated else '')
+            if info.get('source') == 'signals':
+                done = 'counted from the recorded signals (the bag holds no builder count)'
+            # the bag keeps what the sensor read: the channel's error and peak compare those
+            done += (f'; the {channel} figures compare the recorded readings, clipped there')
+            lines.append(f'{rig_label(rig)} {channel} at its sensor range '
+                         f'({r:g} {CHANNEL_UNITS[channel]}) in {n} {samples}{when}: {done}')
+    return lines
+
+
+def run_flags(run: RunData, comparison) -> list[str]:
+    """Why a run is flagged (module notes): one line per sign, empty for none.
+
+    Parameters
+    ----------
+    run : RunData
+    comparison : RunComparison
+        The run against its reference (:func:`~seft_ros.analysis.metrics.compare_run`).
+    """
+    flags = []
+    dt = float(run.params.get('dt', 0.0) or 0.0)
+    for rig, data in run.rigs.items():
+        if dt > 0:
+            flags += [f'identification at its bounds: {line}'
+                      for line in bound_findings(rig, data.params, data.estimates, dt)]
+    checked = [w for w in run.extra.get('warnings') or () if 'specimen check' in w]
+    flags += [f'specimen check: {w}' for w in checked]
+    for rig, ratio in (run.extra.get('specimen_ratios') or {}).items():
+        data = run.rigs.get(rig)
+        said = any(f'rig {rig} ' in w or (not rig and 'the rig ' in w) for w in checked)
+        if (data is not None and data.params.get('predictor') == 'model' and not said
+                and abs(float(ratio) - 1.0) >= SPECIMEN_FLAG):
+            flags.append(f'specimen: {rig_label(rig)} identifies its specimen at '
+                         f'{float(ratio):.3g} x the declared stiffness; model compensates '
+                         'for the declared one (10 % off costs the structures 4-65 %, docs: '
+                         'results/robustness)')
+    try:
+        flags += [f'settings: {line}' for line in costly_settings(run.params, flagging=True)]
+    except (SeftError, KeyError):
+        pass                            # parameters that do not make a test (a hand-made run)
+    for rig, c in comparison.rigs.items():
+        for name in PEAK_SIGNALS:
+            s = c.signal(name)
+            if s.peak_reference > 0 and s.peak_test > PEAK_RATIO_FLAG * s.peak_reference:
+                flags.append(f'peak beyond the prediction: {rig_label(rig)} {name} peaks at '
+                             f'{s.peak_test / s.peak_reference:.2f} x the reference '
+                             f'({s.peak_test:.4g} against {s.peak_reference:.4g})')
+    return flags
+
+
+def verdict(stable: bool, flags: list[str]) -> str:
+    """``'stable'``, ``'stable, flagged'`` or ``'aborted'``."""
+    if not stable:
+        return 'aborted'
+    return 'stable, flagged' if flags else 'stable'

@@ -1,0 +1,256 @@
+"""Before a run: will a rig's sensors or actuator reach their range? From the reference.
+
+The analytical reference of the whole structure
+(:func:`~seft_ros.analysis.reference.run_reference`: the declared specimens, linear or
+yielding, and the prepared record) is what a perfectly
+compensated test reproduces; its peaks at each rig's degree of freedom are the test's, before
+the test. Each is compared with what the rig can read or do (the rig contract):
+
+============================  =======================================  =====================
+channel                       peak of the reference                    against
+============================  =======================================  =====================
+``force``                     interface force (the load cell's)        ``force_range_N``
+``displacement``              displacement relative to the ground      ``displacement_range_m``
+``velocity``                  velocity                                 ``velocity_range_m_s``
+``acceleration``              acceleration                             ``accelerometer_range_m_s2``
+``actuator force``            interface force                          ``force_limit_N``
+``actuator stroke``           displacement                             ``stroke_limit_m``
+``actuator velocity``         velocity                                 the valve's capacity
+============================  =======================================  =====================
+
+(the valve's capacity: ``actuator_velocity_limit_m_s``, or on the servohydraulic rig the valve
+flow at ``valve_limit_V`` over the piston area, Merritt 1967 Ch. 5; the delay rig declares
+none unless it is set). A channel whose peak exceeds its limit gives one line: the rig, the
+channel, the peak, the limit and the largest amplitude that fits (the run's ``amplitude_N`` or
+``scale_factor`` times limit / peak: the reference is linear in the record; for a yielding
+member that scaling is an estimate and the line says so).
+
+A test's own peaks sit above the reference's by its error and the force loop's ringing, so a
+channel within a few per cent of its range may still clip: the run counts what did
+(:mod:`seft_msgs_py.sensor_range`).
+"""
+
+from dataclasses import dataclass, field
+import math
+from types import SimpleNamespace
+from typing import Any
+
+from seft_msgs_py.calibration import valve_flow_gain_m3_per_s_V
+from seft_msgs_py.errors import SeftError
+from seft_msgs_py.sensor_range import CHANNEL_UNITS, RANGE_PARAMETERS
+
+__all__ = ['CHANNELS', 'ChannelPeak', 'RangeCheck', 'range_check', 'actuator_velocity_limit_m_s']
+
+#: The channels checked: name -> (the reference's signal, the thing whose limit it is).
+CHANNELS = {
+    'force': ('force_N', 'load cell range'),
+    'displacement': ('displacement_m', 'displacement transducer range'),
+    'velocity': ('velocity_m_s', 'velocity sensor range'),
+    'acceleration': ('acceleration_m_s2', 'accelerometer range'),
+    'actuator force': ('force_N', "actuator's force limit"),
+    'actuator stroke': ('displacement_m', "actuator's stroke limit"),
+    'actuator velocity': ('velocity_m_s', "actuator's velocity at the valve limit"),
+}
+_UNITS = {'force_N': 'N', 'displacement_m': 'm', 'velocity_m_s': 'm/s',
+          'acceleration_m_s2': 'm/s^2'}
+
+
+def actuator_velocity_limit_m_s(params) -> float | None:
+    """Largest piston velocity the rig's actuator delivers [m/s] (None: not declared).
+
+    ``actuator_velocity_limit_m_s`` when set (> 0); else, on the servohydraulic rig, the valve
+    flow at full command over the piston area, ``v_max = k_q * valve_limit_V / A`` (no load
+    pressure; Merritt 1967, Ch. 5), with k_q of the rig calibration (2.0 m/s at 10 V with Eq.
+    3.1 in V/lbf, 0.45 m/s in V/N; :mod:`seft_msgs_py.calibration`); None on the delay rig.
+    """
+    declared = float(params.get('actuator_velocity_limit_m_s', 0.0) or 0.0)
+    if declared > 0:
+        return declared
+    if params.get('rig_model') != 'servohydraulic':
+        return None
+    return (valve_flow_gain_m3_per_s_V(params) * float(params['valve_limit_V'])
+            / float(params['piston_area_m2']))
+
+
+def _limit(params, channel: str) -> float | None:
+    """The limit of `channel` for a rig's parameters (None: unlimited or not declared)."""
+    if channel in RANGE_PARAMETERS:
+        value = float(params.get(RANGE_PARAMETERS[channel], 0.0) or 0.0)
+    elif channel == 'actuator force':
+        value = float(params.get('force_limit_N', 0.0) or 0.0)
+    elif channel == 'actuator stroke':
+        value = float(params.get('stroke_limit_m', 0.0) or 0.0)
+    else:
+        value = actuator_velocity_limit_m_s(params) or 0.0
+    return value if value > 0 else None
+
+
+@dataclass(frozen=True)
+class ChannelPeak:
+    """One channel of one rig: the reference's peak against the rig's limit.
+
+    Attributes
+    ----------
+    rig : str
+        The rig ('' for the study's rig).
+    channel : str
+        One of :data:`CHANNELS`.
+    peak : float
+        The reference's peak ``max |y|`` in the channel's SI unit.
+    limit : float or None
+        The range or capacity (None: unlimited or not declared).
+    unit : str
+    """
+
+    rig: str
+    channel: str
+    peak: float
+    limit: float | None
+    unit: str
+
+    @property
+    def exceeded(self) -> bool:
+        """Whether the peak is beyond the limit."""
+        return self.limit is not None and self.peak > self.limit
+
+    @property
+    def fraction(self) -> float | None:
+        """peak / limit (None without a limit)."""
+        return None if self.limit is None else self.peak / self.limit
+
+
+@dataclass
+class RangeCheck:
+    """The pre-run range check of one run.
+
+    Attributes
+    ----------
+    peaks : list of ChannelPeak
+        Every rig's channels, in rig order, then :data:`CHANNELS` order.
+    scale_name : str
+        ``'amplitude_N'`` or ``'scale_factor'``: what scales the record.
+    scale : float
+        Its value (N or -).
+    linear : bool
+        Whether the reference is linear in the record (no yielding member).
+    note : str
+        Why there is no check ('' when there is one).
+    """
+
+    peaks: list = field(default_factory=list)
+    scale_name: str = 'amplitude_N'
+    scale: float = 0.0
+    linear: bool = True
+    note: str = ''
+
+    @property
+    def exceeded(self) -> list:
+        """The channels whose peak exceeds their limit."""
+        return [p for p in self.peaks if p.exceeded]
+
+    def fits(self, peak: ChannelPeak) -> float:
+        """The largest amplitude (``scale_name``'s value) at which `peak` stays within its
+        limit: the run's, times limit / peak."""
+        return self.scale * peak.limit / peak.peak
+
+    def line(self, peak: ChannelPeak) -> str:
+        """One line of an exceeded channel: the rig, the channel, the peak, the limit and the
+        largest amplitude that fits."""
+        who = peak.rig or 'rig'
+        unit = 'N' if self.scale_name == 'amplitude_N' else ''
+        fits = f'{self.scale_name} {self.fits(peak):.4g}{" " + unit if unit else ""}'
+        if not self.linear:
+            fits += ' (scaled linearly: the yielding member makes it an estimate)'
+        what = CHANNELS[peak.channel][1]
+        return (f'{who} {peak.channel}: the reference peaks at {peak.peak:.4g} {peak.unit}, '
+                f'beyond the {what} of {peak.limit:.4g} {peak.unit}; the largest amplitude '
+                f'that fits: {fits}')
+
+    def lines(self) -> list[str]:
+        """:meth:`line` of every exceeded channel."""
+        return [self.line(p) for p in self.exceeded]
+
+    def predicted(self, rig: str, channel: str) -> float | None:
+        """The predicted peak of a rig's channel (None: not checked)."""
+        return next((p.peak for p in self.peaks if p.rig == rig and p.channel == channel),
+                    None)
+
+    def as_dict(self) -> dict[str, Any]:
+        """For ``summary.json``: ``{'lines': [...], 'note', 'scale_name', 'scale', 'linear',
+        'rigs': {rig: {channel: {'peak', 'limit', 'unit', 'exceeded', 'fits'}}}}``."""
+        rigs: dict[str, dict] = {}
+        for p in self.peaks:
+            rigs.setdefault(p.rig, {})[p.channel] = {
+                'peak': p.peak, 'limit': p.limit, 'unit': p.unit, 'exceeded': p.exceeded,
+                'fits': self.fits(p) if p.exceeded else None}
+        return {'lines': self.lines(), 'note': self.note, 'scale_name': self.scale_name,
+                'scale': self.scale, 'linear': self.linear, 'rigs': rigs}
+
+
+def range_check(params, ground_acceleration_m_s2=None) -> RangeCheck:
+    """The pre-run range check of a run (module notes).
+
+    Parameters
+    ----------
+    params : mapping
+        The run's resolved parameters.
+    ground_acceleration_m_s2 : array_like (n,), optional
+        The prepared record [m/s^2] (default:
+        :func:`~seft_ros.core.ground_motion.prepared_record`).
+
+    Returns
+    -------
+    RangeCheck
+        With ``note`` and no peaks for a run it cannot check: an identification run (an
+        ``excitation``), an OpenSees model (its reference is OpenSees' own analysis, made
+        with the report).
+
+    Raises
+    ------
+    InputError, ParameterError
+        Bad record or parameter (as the run would).
+
+    References
+    ----------
+    N. Nakata and S. Combs, Substructure Effective Force Testing, Eq. 2.1 (the reference);
+    H. E. Merritt (1967), Hydraulic Control Systems, Ch. 5 (the valve's flow).
+    """
+    from seft_ros.analysis.reference import run_reference
+    from seft_ros.core.ground_motion import prepared_record
+    from seft_ros.core.structure import is_study, test_setup
+
+    amplitude = float(params.get('amplitude_N', 0.0) or 0.0)
+    check = RangeCheck(scale_name='amplitude_N' if amplitude > 0 else 'scale_factor',
+                       scale=amplitude if amplitude > 0 else float(params.get('scale_factor',
+                                                                              1.0)))
+    if params.get('excitation', 'none') != 'none':
+        check.note = 'an identification run (its excitation is not a record to check)'
+        return check
+    if is_study(params):
+        rigs = {'': params}
+    else:
+        setup = test_setup(params)
+        if setup.structure.model_kind is not None:
+            check.note = (f'a {setup.structure.model_kind} model (its reference is made with '
+                          'the report)')
+            return check
+        rigs = {r: setup.rig_params[r] for r in setup.rig_names}
+    check.linear = all(p.get('specimen_model', 'linear') == 'linear' for p in rigs.values())
+    if ground_acceleration_m_s2 is None:
+        ground_acceleration_m_s2 = prepared_record(params).acceleration_m_s2
+    try:
+        reference = run_reference(SimpleNamespace(
+            params=params, ground_acceleration_m_s2=ground_acceleration_m_s2))
+    except SeftError as exc:
+        check.note = f'no reference: {exc}'
+        return check
+    for rig, rp in rigs.items():
+        response = reference.rig(rig)
+        for channel, (signal, _) in CHANNELS.items():
+            values = getattr(response, signal)
+            peak = float(abs(values).max()) if values.shape[0] else 0.0
+            if not math.isfinite(peak):
+                continue
+            unit = CHANNEL_UNITS.get(channel, _UNITS[signal])
+            check.peaks.append(ChannelPeak(rig, channel, peak, _limit(rp, channel), unit))
+    return check

@@ -1,0 +1,172 @@
+"""Settings that follow the specimen, and the combinations the docs show cost accuracy.
+
+A member that yields needs its own force controller, restoring-force model and force-loop
+inverse (docs: a member that yields; structures): with the settings of an elastic specimen
+the two piers with a yielding pier at 700 N err by 300-1000 % and the monitor may call it
+stable. When a rig's specimen is declared to yield (``specimen_model: bouc_wen``),
+:func:`follow_specimen` chooses :data:`YIELDING_SETTINGS` for it, each unless the user set it
+(in the configuration, a ``--params`` file, ``--set`` or the rig's section), and says which it
+chose. :func:`costly_settings` gives one line per run for a combination the docs' own tables
+show costs accuracy (:data:`COSTLY`), whoever chose it.
+"""
+
+import json
+from typing import Any, Mapping
+
+__all__ = ['YIELDING_SETTINGS', 'follow_specimen', 'costly_settings', 'COSTLY', 'FLAGGING']
+
+#: The settings of a member that yields: (parameter, value, the rig model it applies to, None:
+#: every rig). docs/tutorials/yielding.md (the tangent controller and the hysteretic
+#: compensator) and docs/structures.md (a force-loop inverse of 5 steps, 48 taps, weight 1e-3:
+#: on the two piers with a yielding pier at 700 N, 5 steps 0.9-1.4 % per DOF, 10 steps 9.7 %,
+#: 14 steps 17 %; on one rig, the default record at alpha 1 / 1.5, 1.5 % where 10 steps gives
+#: 2.4-2.7 %).
+YIELDING_SETTINGS = (
+    ('force_controller', 'tangent_loop_shaping', 'servohydraulic'),
+    ('predictor_restoring_force', 'hysteretic', None),
+    ('predictor_loop_delay_steps', 5, 'servohydraulic'),
+    ('predictor_loop_taps', 48, 'servohydraulic'),
+    ('predictor_loop_hf_weight', 1e-3, 'servohydraulic'),
+)
+
+
+def _yields(params: Mapping[str, Any]) -> bool:
+    return params.get('specimen_model', 'linear') != 'linear'
+
+
+def _choose(rig_model: str, is_set) -> dict[str, Any]:
+    """The yielding member's settings for a rig of `rig_model` that `is_set(name)` says the
+    user did not set."""
+    return {name: value for name, value, rig in YIELDING_SETTINGS
+            if (rig is None or rig == rig_model) and not is_set(name)}
+
+
+def _note(who: str, chosen: dict[str, Any]) -> str:
+    settings = ', '.join(f'{k} {v:g}' if isinstance(v, float) else f'{k} {v}'
+                         for k, v in chosen.items())
+    return (f'{who}: specimen_model bouc_wen (a member that yields): chose {settings} (the '
+            'settings for a yielding member, docs: structures); set any of them to choose '
+            'otherwise')
+
+
+def follow_specimen(config: Mapping[str, Any], params: dict[str, Any]
+                    ) -> tuple[dict[str, Any], list[str]]:
+    """A run's parameters with the settings of a member that yields chosen for each rig whose
+    specimen is declared to yield, unless the user set them.
+
+    Parameters
+    ----------
+    config : mapping
+        What the user set for the whole test: the configuration, ``--params`` files and
+        command line, before the defaults (a name here is set for every rig).
+    params : dict
+        The run's resolved parameters (the study's, or with a ``structure`` whose rig
+        sections hold what the user set for each rig).
+
+    Returns
+    -------
+    (dict, list of str)
+        The parameters (`params` itself when nothing was chosen) and one line per rig
+        naming what was chosen.
+    """
+    structure = params.get('structure', 'none')
+    if structure in ('none', '', None):
+        if not _yields(params):
+            return params, []
+        chosen = _choose(params.get('rig_model'), lambda name: name in config)
+        if not chosen:
+            return params, []
+        return dict(params, **chosen), [_note('rig', chosen)]
+    doc = json.loads(structure)
+    rigs = doc.get('rigs') or {}
+    notes = []
+    for rig, section in rigs.items():
+        merged = {**params, **section}
+        if not _yields(merged):
+            continue
+        chosen = _choose(merged.get('rig_model'),
+                         lambda name, s=section: name in s or name in config)
+        if chosen:
+            section.update(chosen)
+            notes.append(_note(rig, chosen))
+    if not notes:
+        return params, []
+    return dict(params, structure=json.dumps(doc, sort_keys=True)), notes
+
+
+#: The docs' measured costs of a setting, by rule (:func:`costly_settings`).
+COSTLY = {
+    'controller': ('force_controller {force_controller} on a member that yields: its loop '
+                   "loses the member as it softens (the study's loop shaping 43.6 % at alpha "
+                   '0, docs: a member that yields); tangent_loop_shaping follows it'),
+    'linear law': ('predictor {predictor} with predictor_restoring_force model on a member '
+                   'that yields: the linear law with the elastic k runs away (the stroke '
+                   'limit from alpha 0.5, docs: a member that yields); use hysteretic'),
+    'tangent law': ('predictor model with predictor_restoring_force measured on a member '
+                    'that yields: 8.7-18.6 % where hysteretic gives 0.2-0.9 % (docs: a member '
+                    'that yields)'),
+    'loop inverse': ('a force-loop inverse of {predictor_loop_delay_steps} steps on a member '
+                     'that yields: the two piers with a yielding pier lose 9.7 % at 10 steps '
+                     'and 17 % at 14, 1.4 % at 5 (docs: results/robustness, part 3)'),
+    'model unknown': ('predictor model with specimen_uncertainty {specimen_uncertainty:g}: '
+                      'model needs the specimen as it is (10 % off costs the structures '
+                      '4-65 %, docs: results/robustness); adaptive identifies it'),
+    'latency declared': ('predictor adaptive with adaptive_loop {adaptive_loop}: the force '
+                         "loop's I/O latency as declared; 10 % off it costs 2-2.7 % (the "
+                         'two piers, the one-rig test), 20 % off up to 5.4 % (docs: '
+                         'results/robustness); adaptive_loop: model_latency identifies it'),
+    'uncompensated': ("predictor none at alpha {alpha:g}: the study's finding, the force "
+                      "loop's lag costs 35-49 % at alpha 0.5-1 and is unstable near 1.5 "
+                      "(README: the main job); 'model' or 'adaptive' compensate it"),
+}
+
+
+#: The rules of :data:`COSTLY` that flag a run that used them (the study's own finding, an
+#: uncompensated test, is run to be shown, and a declared latency costs only where it is
+#: wrong: said before the run, not flagged).
+FLAGGING = ('controller', 'linear law', 'tangent law', 'loop inverse', 'model unknown')
+
+
+def costly_settings(params: Mapping[str, Any], *, flagging: bool = False) -> list[str]:
+    """One line per rig and combination of a run's settings that the docs' tables show
+    costs accuracy (:data:`COSTLY`), ``'<rig>: <why>'``; `flagging`: only the rules that flag
+    the run (:data:`FLAGGING`).
+
+    Raises
+    ------
+    ParameterError
+        An invalid structure (as :func:`~seft_ros.core.structure.test_setup`).
+    """
+    from seft_ros.core.structure import is_study, test_setup
+    if is_study(params):
+        rigs = {'rig': params}
+    else:
+        setup = test_setup(params)
+        rigs = {r: setup.rig_params[r] for r in setup.rig_names}
+    lines = []
+    for rig, p in rigs.items():
+        rules = []
+        predictor = p.get('predictor')
+        restoring = p.get('predictor_restoring_force', 'model')
+        servo = p.get('rig_model') == 'servohydraulic'
+        if _yields(p):
+            if servo and p.get('force_controller') != 'tangent_loop_shaping':
+                rules.append('controller')
+            if predictor in ('model', 'adaptive', 'ats') and restoring == 'model':
+                rules.append('linear law')
+            if predictor == 'model' and restoring == 'measured':
+                rules.append('tangent law')
+            if (servo and predictor in ('model', 'adaptive') and restoring != 'model'
+                    and int(p.get('predictor_loop_delay_steps', 5)) > 5):
+                rules.append('loop inverse')
+        elif predictor == 'model' and float(p.get('specimen_uncertainty', 0) or 0) >= 0.1:
+            rules.append('model unknown')
+        if (servo and predictor == 'adaptive' and not _yields(p)
+                and p.get('adaptive_loop', 'model') == 'model'):
+            rules.append('latency declared')
+        if (is_study(params) and predictor == 'none' and float(p.get('alpha', 0)) >= 0.5
+                and p.get('excitation', 'none') == 'none'):
+            rules.append('uncompensated')
+        lines += [f'{rig}: {COSTLY[r].format(**p)}' for r in rules
+                  if not flagging or r in FLAGGING]
+    return lines

@@ -1,0 +1,130 @@
+"""What says a run may have lost accuracy, as a lab sees it without the reference: the
+flags, and the samples at a sensor's range (issue 39)."""
+
+import numpy as np
+import pytest
+
+from seft_msgs_py import parameters
+from seft_ros.analysis.findings import (
+    bound_findings,
+    estimate_bounds,
+    run_flags,
+    sensor_range_entry,
+    sensor_range_lines,
+    verdict,
+)
+from seft_ros.analysis.metrics import compare_run
+from seft_ros.analysis.reference import reference_response
+from seft_ros.analysis.rundata import RunData
+from seft_ros.core.predictors import ADAPTIVE_ESTIMATES
+
+DT = 0.002
+
+
+def _adaptive_params(**extra):
+    return parameters.resolve(dict({'predictor': 'adaptive', 'adaptive_loop': 'model_latency'},
+                                   **extra))
+
+
+def test_the_ranges_of_the_estimates():
+    p = _adaptive_params()
+    bounds = estimate_bounds(p)
+    assert list(bounds) == list(ADAPTIVE_ESTIMATES) + ['loop_latency_s']
+    assert bounds['stiffness_N_per_m'] == pytest.approx((0.5 * 2.11e5, 1.5 * 2.11e5))
+    assert bounds['tau_s'] == pytest.approx((0.0, 0.03))
+    assert bounds['loop_latency_s'] == pytest.approx((0.0, 0.003 + 2 * DT))
+    assert estimate_bounds(dict(p, rig_model='delay')).keys() == set(ADAPTIVE_ESTIMATES)
+    member = estimate_bounds(parameters.resolve({'predictor': 'model',
+                                                 'predictor_restoring_force': 'hysteretic'}))
+    assert member['hysteresis_stiffness_N_per_m'] == pytest.approx((1.055e5, 4.22e5))
+    assert member['hysteresis_post_yield_ratio'] == pytest.approx((0.001, 0.95))
+    assert estimate_bounds(parameters.resolve({'predictor': 'model'})) == {}
+
+
+def test_an_estimate_held_at_its_bound():
+    p = _adaptive_params()
+    n = 1000
+    k = np.full(n, 2.11e5)
+    k[100:500] = 0.5 * 2.11e5                       # 0.8 s at the lower bound
+    m = np.full(n, 52.7)
+    m[-1] = 1.5 * 52.7                              # at the upper bound at the end only
+    tau = np.full(n, 0.028)
+    tau[10:100] = 0.03                              # 0.18 s at the upper bound: not enough
+    lines = bound_findings('pier_a', p, {'stiffness_N_per_m': k, 'mass_kg': m, 'tau_s': tau},
+                           DT)
+    assert lines == ['pier_a: the estimate mass_kg at its upper bound 79.05 for 0.00 s and at '
+                     'the end', 'pier_a: the estimate stiffness_N_per_m at its lower bound '
+                     '1.055e+05 for 0.80 s']
+    assert bound_findings('', p, None, DT) == []
+
+
+def _run(**extra):
+    """A one-rig run built from its reference: delayed 2 samples, its acceleration clipped at
+    the accelerometer's range."""
+    n = 3000
+    t = np.arange(n) * DT
+    ag = 10.0 * np.sin(2 * np.pi * 7.0 * t) * np.minimum(1.0, t)     # peaks at 22.5 m/s^2
+    params = parameters.resolve({'alpha': 0.5, 'rig_model': 'delay', **extra})
+    ref = reference_response(alpha=0.5, mass_kg=52.7, damping_N_s_per_m=903.278,
+                             stiffness_N_per_m=2.11e5, dt=DT, ground_acceleration_m_s2=ag)
+
+    def late(x):
+        return np.concatenate([np.zeros(2), x[:-2]])
+    return RunData.one_rig(params=params, time_s=t, ground_acceleration_m_s2=ag,
+                           reference_force_N=ref.force_N, measured_force_N=late(ref.force_N),
+                           displacement_m=late(ref.displacement_m),
+                           velocity_m_s=late(ref.velocity_m_s),
+                           acceleration_m_s2=np.clip(late(ref.acceleration_m_s2), -20, 20),
+                           record_name='synthetic')
+
+
+def test_flags_and_the_samples_at_a_range():
+    run = _run(accelerometer_range_m_s2=20.0)
+    c = compare_run(run)
+    assert run_flags(run, c) == [] and verdict(True, []) == 'stable'
+    # counted from the signals (no builder's count: a bag before issue 39)
+    entry = sensor_range_entry(run)['']
+    at = np.flatnonzero(np.abs(run.acceleration_m_s2) >= 0.999 * 20.0)
+    assert entry['samples'] == {'force': 0, 'displacement': 0, 'velocity': 0,
+                                'acceleration': at.shape[0]} and at.shape[0] > 100
+    assert entry['first_s']['acceleration'] == pytest.approx(at[0] * DT)
+    assert entry['source'] == 'signals' and entry['acceleration_estimated'] is None
+    line, = sensor_range_lines({'': entry})
+    assert line.startswith(f'rig acceleration at its sensor range (20 m/s^2) in {at.shape[0]} '
+                           'samples between t=')
+    assert line.endswith('counted from the recorded signals (the bag holds no builder count); '
+                         'the acceleration figures compare the recorded readings, clipped there')
+    # the builder's count when there is one
+    run.extra['sensor_range'] = {'': {'samples': dict(entry['samples'], acceleration=7),
+                                      'first_step': {'acceleration': 10},
+                                      'last_step': {'acceleration': 16},
+                                      'acceleration_estimated': 7}}
+    line, = sensor_range_lines(sensor_range_entry(run))
+    assert line == ('rig acceleration at its sensor range (20 m/s^2) in 7 samples between '
+                    't=0.020 and 0.032 s: the identifications skipped them; the acceleration '
+                    'fed back was estimated from the measured force and motion in 7 samples; '
+                    'the acceleration figures compare the recorded readings, clipped there')
+    # a peak 1.6 times the prediction, the specimen check: flagged
+    run.rigs[''].displacement_m = 1.6 * run.displacement_m
+    run.extra['warnings'] = ['specimen check at t=2.000 s: the rig identifies its specimen at '
+                             '1.2 x the declared stiffness']
+    flags = run_flags(run, compare_run(run))
+    assert [f.split(':')[0] for f in flags] == ['specimen check', 'peak beyond the prediction']
+    assert 'rig displacement peaks at 1.60 x the reference' in flags[1]
+    assert verdict(True, flags) == 'stable, flagged' and verdict(False, flags) == 'aborted'
+
+
+def test_model_on_a_specimen_it_does_not_model_is_flagged():
+    """model compensates for the declared specimen: a rig identifying its specimen 5 % or
+    more off is flagged inside the specimen check's 10 % too (the two piers, each 10 %
+    stiffer than modelled: 30 % error, identified at 0.909 x)."""
+    run = _run(predictor='model')
+    c = compare_run(run)
+    run.extra['specimen_ratios'] = {'': 0.97}
+    assert run_flags(run, c) == []
+    run.extra['specimen_ratios'] = {'': 0.909}
+    flag, = run_flags(run, c)
+    assert flag.startswith('specimen: rig identifies its specimen at 0.909 x the declared '
+                           'stiffness; model compensates for the declared one')
+    run.rigs[''].params['predictor'] = 'adaptive'           # identifies it: not flagged
+    assert run_flags(run, c) == []

@@ -1,0 +1,98 @@
+"""The pre-run range check: each rig's reference peaks against its sensors' ranges and its
+actuator's capacity (v_max = k_q V_lim / A on the servohydraulic rig)."""
+
+import pytest
+
+from seft_msgs_py import parameters
+from seft_ros.analysis.range_check import range_check
+from seft_ros.cli import api
+
+
+def _runs(amplitude_N, alphas, rig='servohydraulic', reading='us_customary', **extra):
+    return [parameters.resolve({'alpha': a, 'amplitude_N': amplitude_N, 'predictor': 'model',
+                                'rig_model': rig, 'rig_calibration': reading, **extra})
+            for a in alphas]
+
+
+def test_velocity_limit_of_the_calibrated_rig():
+    p = parameters.defaults()
+    # Eq. 3.1 in V/lbf (default): k_q = 5.3e-5 x 4.448 m^3/(s V), 2.0 m/s at 10 V
+    lbf = 0.45359237 * 9.80665
+    assert api.actuator_velocity_limit_m_s(p) == pytest.approx(5.3e-5 * lbf * 10.0 / 1.18e-3)
+    assert api.actuator_velocity_limit_m_s(p) == pytest.approx(2.0, abs=0.01)
+    # Eq. 3.1 in V/N: 0.45 m/s
+    assert api.actuator_velocity_limit_m_s(dict(p, rig_calibration='si')) == pytest.approx(
+        5.3e-5 * 10.0 / 1.18e-3)
+    assert api.actuator_velocity_limit_m_s(dict(p, valve_flow_gain_m3_per_s_V=1e-4)) == (
+        pytest.approx(1e-4 * 10.0 / 1.18e-3))
+    assert api.actuator_velocity_limit_m_s(dict(p, rig_model='delay')) is None
+    # declared: whatever the rig
+    assert api.actuator_velocity_limit_m_s(dict(p, rig_model='delay',
+                                                actuator_velocity_limit_m_s=0.3)) == 0.3
+
+
+def _short(lines):
+    return [ln.split(' the reference')[0] for ln in lines]
+
+
+def test_one_line_per_channel_beyond_its_range_or_capacity():
+    lines = []
+    # the default record (time scale 1) at 1000 N: alpha = 2 takes the 4 g accelerometer
+    # just past its range (39.9 m/s^2); its velocity (0.97 m/s) is within the valve's 2.0
+    api.check_ranges(runs=_runs(1000.0, [0.0, 0.5, 1.0, 1.5, 2.0]), progress=lines.append)
+    assert _short(lines) == ['range check: [alpha_2_servohydraulic_model] rig acceleration:']
+    assert ('peaks at 39.91 m/s^2, beyond the accelerometer range of 39.2 m/s^2; the largest '
+            'amplitude that fits: amplitude_N 982.1 N') in lines[0]
+    lines.clear()
+    # at 2500 N, alpha = 2 also needs 2.4 m/s of the valve's 2.0
+    api.check_ranges(runs=_runs(2500.0, [1.0, 2.0]), progress=lines.append)
+    assert _short(lines) == ['range check: [alpha_1_servohydraulic_model] rig acceleration:',
+                             'range check: [alpha_2_servohydraulic_model] rig acceleration:',
+                             'range check: [alpha_2_servohydraulic_model] rig actuator '
+                             'velocity:']
+    assert "2.418 m/s, beyond the actuator's velocity at the valve limit of 1.998 m/s" \
+        in lines[2] and 'amplitude_N 2066 N' in lines[2]
+    lines.clear()
+    # Eq. 3.1 in V/N: alpha >= 0.5 needs more than the valve's 0.45 m/s at 1000 N
+    api.check_ranges(runs=_runs(1000.0, [0.0, 0.5, 1.0, 1.5], reading='si'),
+                     progress=lines.append)
+    assert [ln.split('] ')[0] for ln in lines] == [
+        'range check: [alpha_0.5_servohydraulic_model', 'range check: [alpha_1_servohydraulic_'
+        'model', 'range check: [alpha_1.5_servohydraulic_model']
+    assert '0.667 m/s' in lines[1] and '0.4492 m/s' in lines[1]
+    lines.clear()
+    api.check_ranges(runs=_runs(500.0, [0.0, 0.5, 1.0, 1.5], reading='si'),
+                     progress=lines.append)
+    assert lines == []
+
+
+def test_delay_rig_checks_its_sensors_and_a_declared_capacity_only():
+    lines = []
+    api.check_ranges(runs=_runs(1000.0, [1.5], rig='delay'), progress=lines.append)
+    assert lines == []
+    check = range_check(_runs(1000.0, [1.5], rig='delay')[0])
+    velocity = next(p for p in check.peaks if p.channel == 'actuator velocity')
+    assert velocity.limit is None and not velocity.exceeded
+    api.check_ranges(runs=_runs(1000.0, [1.5], rig='delay', actuator_velocity_limit_m_s=0.2),
+                     progress=lines.append)
+    assert _short(lines) == ['range check: rig actuator velocity:']
+
+
+def test_strict_refuses_and_names_the_channel():
+    runs = _runs(2500.0, [2.0])
+    with pytest.raises(api.RangeRefusedError,
+                       match=r'^range check: rig acceleration: the reference peaks at 99\.78 '
+                       r'.* \(and 1 more\); refused \(--strict\)'):
+        api.check_ranges(runs=runs, strict=True)
+
+
+def test_the_largest_amplitude_that_fits_fits():
+    p = _runs(2500.0, [2.0])[0]
+    check = range_check(p)
+    for peak in check.exceeded:
+        again = range_check(dict(p, amplitude_N=check.fits(peak)))
+        assert again.predicted('', peak.channel) == pytest.approx(peak.limit, rel=1e-9)
+    summary = check.as_dict()
+    assert summary['rigs']['']['acceleration']['exceeded'] is True
+    assert summary['rigs']['']['force']['exceeded'] is False
+    assert summary['lines'] == check.lines() and len(summary['lines']) == 2
