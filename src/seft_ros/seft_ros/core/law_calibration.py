@@ -40,8 +40,13 @@ __all__ = ['pole_calibration', 'reference_pole']
 #: Newton iterations at most, and the step of the finite differences (relative to K).
 _ITERATIONS, _STEP = 8, 1e-4
 #: The largest correction accepted, relative to each gain: beyond it the law's model is too
-#: far from the loop for a gain correction to be the answer.
+#: far from the loop for a gain correction to be the answer. A gain smaller than
+#: ``GAIN_FLOOR`` of the specimen's own scale (its stiffness for ``K_x``, its critical damping
+#: ``2 sqrt(k m)`` for ``K_v``) is taken at that floor: the velocity gain of a lightly
+#: damped 2 Hz specimen is 0.4 % of critical damping, and a correction of 0.3 % of it is no
+#: sign of a wrong model.
 MAX_CORRECTION = 0.5
+GAIN_FLOOR = 0.05
 
 _CACHE: dict = {}
 
@@ -89,7 +94,8 @@ def pole_calibration(params: Mapping) -> np.ndarray:
     ------
     ParameterError
         The loop has no linear model, or the correction the pole needs is beyond
-        ``MAX_CORRECTION`` of the gains or does not converge (the message says which).
+        ``MAX_CORRECTION`` of the gains (each at least ``GAIN_FLOOR`` of the specimen's
+        scale) or does not converge (the message says which).
     """
     # eigenvalue problems of ~200 states: on one BLAS thread 2.4 s, on two 20 s (a loaded
     # 2-core host: the threads spin against the other work)
@@ -164,7 +170,9 @@ def _pole_calibration(params: Mapping) -> np.ndarray:
             jac[:, i] = [(e2.real - e.real) / h, (e2.imag - e.imag) / h]
         offset = offset - np.linalg.solve(jac, err)
     e = pole(offset)
-    if abs(e - target) > 1e-8 or np.any(np.abs(offset) > MAX_CORRECTION * np.abs(k0)):
+    gain_scale = np.maximum(np.abs(k0), GAIN_FLOOR * np.array([
+        mp['stiffness_N_per_m'], 2.0 * math.sqrt(mp['stiffness_N_per_m'] * mp['mass_kg'])]))
+    if abs(e - target) > 1e-8 or np.any(np.abs(offset) > MAX_CORRECTION * gain_scale):
         raise ParameterError(
             "predictor_calibration poles: the loop's model does not reach the reference "
             f"structure's pole with the law's gains (offset {offset[0]:.4g} N/m, "
