@@ -152,3 +152,19 @@ def test_seft_design_exits_1_when_the_targets_cannot_be_met(tmp_path, capsys):
     assert main(['design', '--phase-margin', '95']) == 2
     err = capsys.readouterr().err.strip()
     assert err.count('\n') == 0 and 'phase margin below 90 deg' in err
+
+
+@pytest.mark.parametrize('misfit, verdict', [(0.05, True), (0.25, None)])
+def test_the_guard_gives_no_verdict_on_a_plant_model_that_explains_the_force_badly(
+        misfit, verdict):
+    """A plant_model stating a 25 % fit error (the Coulomb-friction actuator's identification:
+    predicted stable, every run unstable) gets no "stable" verdict; at 5 % it does."""
+    import json
+    plant = force_loop_plant(rig())
+    doc = plant.to_mapping()
+    doc['uncertainty'] = {'relative': misfit}
+    check = check_run(rig(predictor='none', alpha=0.5, plant_model=json.dumps(doc)))
+    assert check.stable is verdict
+    assert check.spectral_radius < 1.0
+    if verdict is None:
+        assert 'explains the measured force to 25 % only' in check.message

@@ -866,6 +866,20 @@ class StabilityCheck:
     margin: 'RobustnessMargin | None' = None
 
 
+#: A ``plant_model`` whose stated relative error (``uncertainty.relative``: an identification's
+#: force NRMS) is above this gets no "stable" verdict: the Coulomb-friction actuator of
+#: seft_plant_sim's family, fitted at 25 %, was predicted stable and every run was unstable;
+#: the linear members fit to 1e-13 and the orifice-flow one to 0.16 %.
+MAX_PLANT_MISFIT = 0.1
+
+
+def _plant_misfit(params: Mapping) -> float:
+    """The relative error the run's ``plant_model`` states (0: none given or stated)."""
+    if not has_plant_model(params):
+        return 0.0
+    return float(force_loop_plant(params).uncertainty.relative)
+
+
 def _check_study(params: Mapping) -> StabilityCheck:
     """Predict whether the study's loop is stable at its configured alpha and predictor.
 
@@ -877,7 +891,9 @@ def _check_study(params: Mapping) -> StabilityCheck:
     Returns
     -------
     StabilityCheck
-        ``stable`` False when the spectral radius at ``params['alpha']`` is >= 1.
+        ``stable`` False when the spectral radius at ``params['alpha']`` is >= 1; None
+        (no verdict) when it is below but the ``plant_model`` states a relative error above
+        :data:`MAX_PLANT_MISFIT`.
     """
     alpha, pred, rig = float(params['alpha']), params['predictor'], params.get('rig_model')
     where = f'alpha={alpha:g} with predictor {pred} on the {rig} rig'
@@ -895,6 +911,13 @@ def _check_study(params: Mapping) -> StabilityCheck:
     frozen = ('' if len(ratios) == 1 else ' at the elastic and the post-yield stiffness of '
               f'the yielding member, frozen (k and {ratios[1]:g} k)')
     if rho < 1.0:
+        misfit = _plant_misfit(params)
+        if misfit > MAX_PLANT_MISFIT:
+            return StabilityCheck(None, rho, bound, f'{where}: stable on its plant_model '
+                                  f'(spectral radius {rho:.4f}), but that linear model '
+                                  f'explains the measured force to {100 * misfit:.2g} % only '
+                                  '(its fit error): a nonlinear actuator (friction, valve '
+                                  'flow) whose stability a linear prediction cannot vouch for')
         return StabilityCheck(True, rho, bound, f'{where} is predicted stable{frozen} '
                               f'(spectral radius {rho:.4f}, largest stable alpha {bound:.3g})')
     if math.isnan(bound) and max(float(loop.radii(0.0)[0]) for loop in loops) >= 1.0:
