@@ -215,9 +215,11 @@ def table(results: list[dict]) -> str:
             if run.get('stable'):
                 cells.append(_pct(run.get('nrms_x')))
             else:
-                cells.append('**unstable**' if 'stable' in run else run.get('error', '?'))
+                cells.append('**unstable**' if 'stable' in run and run['stable'] is False
+                             else 'refused: ' + str(run.get('error', '?'))[:40] + '...')
             guard = run.get('guard')
-            if isinstance(guard, bool) and 'stable' in run and guard != run['stable']:
+            if isinstance(guard, bool) and isinstance(run.get('stable'), bool) \
+                    and guard != run['stable']:
                 agree = False
         lines.append(f"| {r['member']} | {r['f_hz']:g} Hz {100 * r['zeta']:g} % | "
                      f"{r['plant_order']} | {t['crossover_hz']:.1f} | "
