@@ -27,7 +27,8 @@ The ``state_space`` and ``actuator`` rigs hold the actuator's latency in their o
 (:data:`MODELS_WITH_OWN_DELAY`): there a command acts at its arrival (``t_j`` when in time,
 as in lockstep) and then through the model. A ``state_space`` model given in z is defined at
 ``dt`` only: it runs in real time with ``realtime_substep_s`` equal to ``dt`` (else refused
-in one line); given continuous, it is sampled at the sub-step.
+in one line), a command then acting from the next tick, one sample later than in lockstep;
+given continuous, it is sampled at the sub-step.
 
 The plant itself is the lockstep rig's own class, built at the sub-step period with no
 internal latency (:func:`~seft_plant_sim.rigs.make_rig`), so the physics, the sensors and the
