@@ -25,6 +25,34 @@ from websockets.sync.client import connect
 SUBPROTOCOLS = ['foxglove.sdk.v1', 'foxglove.websocket.v1']
 
 
+#: The handshake's timeout [s]: a live view on a host at load 15 took more than 10 s.
+OPEN_TIMEOUT_S = 30.0
+
+
+def _connect_or_fail(url: str, context):
+    """``websockets.sync.client.connect`` in a daemon thread, joined with a timeout: when
+    a TLS handshake times out, websockets 17 joins its reader thread, which can stay blocked
+    on the SSL socket for good (a CI run hung 15 min there); fail instead."""
+    out: dict = {}
+
+    def run():
+        try:
+            out['ws'] = connect(url, subprotocols=SUBPROTOCOLS, ssl=context,
+                                open_timeout=OPEN_TIMEOUT_S, max_size=None).__enter__()
+        except Exception as exc:                    # noqa: BLE001 - handed to the caller
+            out['error'] = exc
+
+    thread = threading.Thread(target=run, daemon=True, name='foxglove-connect')
+    thread.start()
+    thread.join(OPEN_TIMEOUT_S + 15.0)
+    if 'error' in out:
+        raise out['error']
+    if 'ws' not in out:
+        raise TimeoutError(f'{url}: no websocket after {OPEN_TIMEOUT_S + 15:g} s (the '
+                           'handshake timed out and websockets hangs closing it)')
+    return out['ws']
+
+
 class FoxgloveClient:
     """Connect to `url`, subscribe to everything, collect in a thread until :meth:`close`.
 
@@ -44,8 +72,7 @@ class FoxgloveClient:
             if insecure_tls:
                 context.check_hostname = False
                 context.verify_mode = ssl.CERT_NONE
-        self.ws = connect(url, subprotocols=SUBPROTOCOLS, ssl=context, open_timeout=10,
-                          max_size=None).__enter__()
+        self.ws = _connect_or_fail(url, context)
         self.advertised: dict[str, dict] = {}
         self.messages: dict[str, list] = defaultdict(list)
         self.server_info: dict = {}
