@@ -168,7 +168,10 @@ def _pole_calibration(params: Mapping) -> np.ndarray:
             h = steps[i]
             e2 = pole(offset + np.eye(2)[i] * h)
             jac[:, i] = [(e2.real - e.real) / h, (e2.imag - e.imag) / h]
-        offset = offset - np.linalg.solve(jac, err)
+        try:
+            offset = offset - np.linalg.solve(jac, err)
+        except np.linalg.LinAlgError:         # the pole does not move with the gains
+            break
     e = pole(offset)
     gain_scale = np.maximum(np.abs(k0), GAIN_FLOOR * np.array([
         mp['stiffness_N_per_m'], 2.0 * math.sqrt(mp['stiffness_N_per_m'] * mp['mass_kg'])]))
@@ -187,7 +190,10 @@ def _pole_calibration(params: Mapping) -> np.ndarray:
     z = np.exp(1j * w * dt)
     mm = m0 + offset[0] * dm[0] + offset[1] * dm[1]
     bb = ground0 + offset[0] * dg[0] + offset[1] * dg[1]
-    h_test = x_row @ np.linalg.solve(z * np.eye(mm.shape[0]) - mm, bb) * z
+    try:
+        h_test = x_row @ np.linalg.solve(z * np.eye(mm.shape[0]) - mm, bb) * z
+    except np.linalg.LinAlgError:             # a closed-loop pole on the unit circle there
+        h_test = math.inf
     hold = abs((np.exp(1j * w * dt) - 1.0) / (1j * w * dt))    # the step-averaged ground
     h_ref = 1.0 / abs((1.0 + alpha) * mp['mass_kg'] * (1j * w) ** 2
                       + mp['damping_N_s_per_m'] * 1j * w + mp['stiffness_N_per_m'])
