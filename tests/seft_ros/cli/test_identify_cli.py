@@ -4,7 +4,7 @@ import json
 
 import pytest
 
-from seft_ros.cli.api import build_runs
+from seft_ros.cli.api import build_runs, identification_table
 from seft_ros.cli.config import load_config
 from seft_ros.cli.main import main
 from seft_ros.core.experiment import simulate
@@ -47,6 +47,12 @@ def test_identify_writes_json_plots_report_and_params(bags, capsys):
     assert json.loads(values['plant_model'])['form'] == 'transfer_function'
     assert values['predictor_tau_s'] == pytest.approx(design['equivalent_delay_s'])
     assert design['margins']['phase_margin_deg'] >= 45.0
+    # a plant model that explains the force badly is said to be so (the guard then gives
+    # its runs no verdict): the same document with a 25 % fit error
+    assert 'WARNING' not in identification_table(doc)
+    doc['runs'][0]['figures']['plant']['nrms']['force_N'] = 0.25
+    assert ('force NRMS 25 %; WARNING: above 10 %, a nonlinear actuator'
+            in identification_table(doc))
     run, = build_runs(config=str(params), overrides={'predictor': 'model', 'duration_s': 0.5})
     assert simulate(run).stable
     assert main(['simulate', '--params', str(params), '--predictor', 'polynomial',

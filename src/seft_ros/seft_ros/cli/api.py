@@ -1497,9 +1497,13 @@ def identification_table(doc: dict) -> str:
             if plant and design:
                 m = design['margins']
                 gm = m['gain_margin']
+                misfit = plant['nrms']['force_N']
                 lines.append(f"{'plant model':18s} order {plant['order']}, delay "
-                             f"{plant['delay_steps']} steps, force NRMS "
-                             f"{100 * plant['nrms']['force_N']:.2g} %")
+                             f"{plant['delay_steps']} steps, force NRMS {100 * misfit:.2g} %"
+                             + (f'; WARNING: above {100 * stability.MAX_PLANT_MISFIT:g} %, '
+                                'a nonlinear actuator (friction, valve flow): the guard gives '
+                                'its runs no stability verdict'
+                                if misfit > stability.MAX_PLANT_MISFIT else ''))
                 lines.append(f"{'designed loop':18s} crossover {m['crossover_hz']:.1f} Hz, phase "
                              f"margin {m['phase_margin_deg']:.0f} deg, gain margin "
                              + ('inf' if gm is None else f'{gm:.2f}')
