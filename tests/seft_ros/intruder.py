@@ -1,16 +1,27 @@
 """A foreign sender on a run's ROS domain (issue 42's intruder), for the tests.
 
-``python intruder.py TOPIC VALUE RATE_HZ SECONDS [copy]``: a node named ``intruder`` publishes
-``geometry_msgs/WrenchStamped`` messages with ``wrench.force.x = VALUE`` on TOPIC (seft's data
-QoS, so that the run's subscriptions match it), RATE_HZ of them a second for SECONDS, each
-stamped for one of the next five samples of the run (it reads the rig's measurement to know
-where the run is); ``copy``: with the frame id it sees on TOPIC (a sender that copies the
-run's seal in the clear), else ``'actuator'``. On a record stream (``/seft/record/...``) it
-sends record batches instead: one row ``[k, VALUE, VALUE, ...]`` each, labelled as the
-stream's. It prints ``sent N`` when it is done.
+``python intruder.py TOPIC VALUE RATE_HZ SECONDS FROM_STEP [copy]``: a node named
+``intruder`` waits until the rig's measurement shows the run at step FROM_STEP, then creates
+its publisher on TOPIC (seft's data QoS, so that the run's subscriptions match it) and sends
+``geometry_msgs/WrenchStamped`` messages with ``wrench.force.x = VALUE``, RATE_HZ of them a
+second for SECONDS, each stamped for one of the next five samples of the run; ``copy``: with
+the frame id it sees on TOPIC (a sender that copies the run's seal in the clear), else
+``'actuator'``. On a record stream (``/seft/record/...``) it sends record batches instead:
+one row ``[k, VALUE, VALUE, ...]`` each, labelled as the stream's.
+
+Start it together with the run: its DDS participant then takes part in the run's start-up
+discovery, and its publisher (a new endpoint of a known participant) reaches the run's nodes
+within milliseconds. A participant that joins a running domain is discovered at the others'
+next periodic announcement, up to ~3 s later with Fast DDS (``seft_ros.cli.runner``'s
+``DISCOVERY_SETTLE_S``): no message of it reaches the run before then, and a 2 s burst started
+mid-run could come and go unseen (what made the tests flaky, 2 of 5 runs on this machine).
+
+It prints ``sent N, matched by M subscription(s)`` when it is done (exit 0), or ``sent 0:
+...`` and exits 1 when the run never reached FROM_STEP within ``WAIT_S``.
 """
 
 import sys
+import threading
 import time
 
 from geometry_msgs.msg import WrenchStamped
@@ -22,21 +33,28 @@ from seft_msgs_py.convert import FieldsReader, frame_id_of_raw
 from seft_msgs_py.signals import MEASUREMENT_FIELDS, RECORD_STREAMS
 from seft_msgs_py.topics import DATA_QOS, MEASUREMENT
 
+#: The longest the intruder waits for the run to reach FROM_STEP [s].
+WAIT_S = 90.0
+#: The run's sample period [ns] (config/main.yaml).
+DT_NS = 2_000_000
 
-def main(argv):
+
+def main(argv) -> int:
     topic, value, rate, seconds = argv[0], float(argv[1]), float(argv[2]), float(argv[3])
-    copy = argv[4:] == ['copy']
+    from_step = int(argv[4])
+    copy = argv[5:] == ['copy']
     rclpy.init()
     node = rclpy.create_node('intruder')
     stream = next((r for r in RECORD_STREAMS if r.name == topic), None)
-    pub = node.create_publisher(WrenchStamped if stream is None else Float64MultiArray, topic,
-                                DATA_QOS)
     seen = {'step': None, 'frame': 'actuator'}
     read = FieldsReader(MEASUREMENT.msg_type, MEASUREMENT_FIELDS)
+    reached = threading.Event()
 
     def on_measurement(raw):
         stamp, _ = read(raw)
-        seen['step'] = stamp // 2_000_000
+        seen['step'] = stamp // DT_NS
+        if seen['step'] >= from_step and (not copy or seen['frame'] != 'actuator'):
+            reached.set()
 
     def on_command(raw):
         seen['frame'] = frame_id_of_raw(raw, WrenchStamped).decode()
@@ -46,41 +64,56 @@ def main(argv):
         node.create_subscription(WrenchStamped, topic, on_command, DATA_QOS, raw=True)
     executor = SingleThreadedExecutor()
     executor.add_node(node)
-    msg = WrenchStamped()
-    msg.wrench.force.x = value
-    batch = Float64MultiArray()
-    if stream is not None:
-        width = 1 + len(stream.columns)
-        batch.layout.dim = [MultiArrayDimension(label='step', size=1, stride=width),
-                            MultiArrayDimension(label=stream.labels, size=width,
-                                                stride=width)]
-    sent, i = 0, 0
-    end = time.monotonic() + seconds
-    period = 1.0 / rate
-    next_at = time.monotonic()
-    while time.monotonic() < end:
-        executor.spin_once(timeout_sec=0)
-        if seen['step'] is None or (copy and seen['frame'] == 'actuator'):
-            time.sleep(0.001)
-            continue
-        k = seen['step'] + 1 + i % 5
-        i += 1
+    stop = threading.Event()
+
+    def spin():
+        while not stop.is_set():
+            executor.spin_once(timeout_sec=0.05)
+    spinner = threading.Thread(target=spin)
+    spinner.start()
+    try:
+        if not reached.wait(WAIT_S):
+            print(f'sent 0: the run never reached step {from_step} in {WAIT_S:.0f} s (last '
+                  f'seen: {seen["step"]})', flush=True)
+            return 1
+        pub = node.create_publisher(WrenchStamped if stream is None else Float64MultiArray,
+                                    topic, DATA_QOS)
+        msg = WrenchStamped()
+        msg.wrench.force.x = value
+        batch = Float64MultiArray()
         if stream is not None:
-            batch.data = [float(k)] + [value] * len(stream.columns)
-            pub.publish(batch)
-        else:
-            msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(k * 2_000_000, 10 ** 9)
-            msg.header.frame_id = seen['frame']
-            pub.publish(msg)
-        sent += 1
-        next_at += period
-        delay = next_at - time.monotonic()
-        if delay > 0:
-            time.sleep(delay)
-    print(f'sent {sent}', flush=True)
-    node.destroy_node()
-    rclpy.try_shutdown()
+            width = 1 + len(stream.columns)
+            batch.layout.dim = [MultiArrayDimension(label='step', size=1, stride=width),
+                                MultiArrayDimension(label=stream.labels, size=width,
+                                                    stride=width)]
+        sent = matched = 0
+        period = 1.0 / rate
+        next_at = time.monotonic()
+        end = next_at + seconds
+        while time.monotonic() < end:
+            k = seen['step'] + 1 + sent % 5
+            if stream is not None:
+                batch.data = [float(k)] + [value] * len(stream.columns)
+                pub.publish(batch)
+            else:
+                msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(k * DT_NS, 10 ** 9)
+                msg.header.frame_id = seen['frame']
+                pub.publish(msg)
+            sent += 1
+            matched = max(matched, pub.get_subscription_count())
+            next_at += period
+            delay = next_at - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+        print(f'sent {sent}, matched by {matched} subscription(s)', flush=True)
+        return 0
+    finally:
+        stop.set()
+        spinner.join()
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown()
 
 
 if __name__ == '__main__':
-    main(sys.argv[1:])
+    sys.exit(main(sys.argv[1:]))

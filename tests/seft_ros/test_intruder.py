@@ -3,13 +3,13 @@ ROS domain during a real-time run of ``config/main.yaml`` (alpha 0.5, ``model``)
 runs it (``seft run``, every node a process over DDS), checked from the console, the bag and
 the report.
 
-The intruder (``intruder.py``, a process of its own named ``intruder``) publishes forged
-reference forces of 3000 N at 5 kHz, each stamped for one of the run's next samples (the
-issue's scenario: before, the run completed "stable" with NRMS x 9.76 % instead of 0.44 %,
-and nothing named it). On a topic that commands the rig the run must stop safely, naming the
-publisher and the topic, without taking one forged force; on a topic that does not (a record
-stream of the bag) the run goes on, the forged rows are kept out of the bag, and a warning
-names it.
+The intruder (``intruder.py``, a process of its own named ``intruder``, started with the
+run) publishes forged reference forces of 3000 N at 5 kHz from the run's step 400 (0.8 s) on,
+each stamped for one of the run's next samples (the issue's scenario: before, the run
+completed "stable" with NRMS x 9.76 % instead of 0.44 %, and nothing named it). On a topic
+that commands the rig the run must stop safely, naming the publisher and the topic, without
+taking one forged force; on a topic that does not (a record stream of the bag) the run goes
+on, the forged rows are kept out of the bag, and a warning names it.
 """
 
 import json
@@ -17,7 +17,6 @@ import os
 from pathlib import Path
 import subprocess
 import sys
-import time
 
 import numpy as np
 from test_node_graph_integration import leftover_processes
@@ -33,26 +32,30 @@ RUN = ['--alpha', '0.5', '--predictor', 'model', '--mode', 'realtime', '--durati
 
 
 def run_with_intruder(tmp_path, seft_exe, env, topic, *extra, intruder=('3000', '5000'),
-                      after_s=0.8, seconds=2.0):
-    """``seft run config/main.yaml RUN`` with the intruder started `after_s` after the graph
-    reported running; returns (the run's stdout, its run directory, the intruder's output)."""
+                      from_step=400, seconds=2.0):
+    """``seft run config/main.yaml RUN`` and the intruder, started together (the intruder's
+    module notes: its participant takes part in the run's start-up discovery), the intruder
+    publishing from the run's step `from_step` on for `seconds`; returns (the run's stdout,
+    its run directory, the intruder's output)."""
     out = tmp_path / 'out'
     run = subprocess.Popen([str(seft_exe), 'run', str(MAIN), *RUN, '--out', str(out),
                             *extra], cwd=tmp_path, env=env, stdout=subprocess.PIPE,
                            stderr=subprocess.STDOUT, text=True, start_new_session=True)
-    lines = []
-    deadline = time.monotonic() + 90
-    for line in run.stdout:
-        lines.append(line)
-        if 'running' in line or time.monotonic() > deadline:
-            break
-    time.sleep(after_s)
-    intruder = subprocess.run([sys.executable, str(INTRUDER), topic, *intruder, str(seconds)],
-                              env=env, capture_output=True, text=True, timeout=60)
-    rest, _ = run.communicate(timeout=120)
-    assert run.returncode == 0, ''.join(lines) + rest
+    sender = subprocess.Popen([sys.executable, str(INTRUDER), topic, *intruder, str(seconds),
+                               str(from_step)], env=env, stdout=subprocess.PIPE,
+                              stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    try:
+        console, _ = run.communicate(timeout=120)
+        said, _ = sender.communicate(timeout=60)
+    finally:
+        for p in (run, sender):
+            if p.poll() is None:
+                p.kill()
+    assert run.returncode == 0, console
     assert leftover_processes(str(out)) == []
-    return ''.join(lines) + rest, next(out.glob('alpha_*')), intruder.stdout + intruder.stderr
+    # the intruder published to the run: it reached the step and a subscription matched
+    assert sender.returncode == 0 and ', matched by 0 ' not in said, said
+    return console, next(out.glob('alpha_*')), said
 
 
 def statuses(run_dir):
