@@ -146,13 +146,15 @@ def test_int_and_float_of_one_value_agree():
 
 def test_per_node_and_unknown_names_are_ignored(graph):
     graph['recorder'].update(bag_path='a', bag_storage='sqlite3', wait_for_recorder=True,
-                             recorder_window_steps=10, use_sim_time=True, not_seft=1)
+                             recorder_window_steps=10, use_sim_time=True, not_seft=1,
+                             wait_for_live_view=True)
     graph['rig'].update(bag_path='b', wait_for_recorder=False, recorder_window_steps=1000,
-                        use_sim_time=False, not_seft=2, auth_key_file='/lab/key')
+                        use_sim_time=False, not_seft=2, auth_key_file='/lab/key',
+                        wait_for_live_view=False)
     assert shared_mismatches(graph) == []
     assert PER_NODE == {'bag_path', 'bag_storage', 'wait_for_recorder',
                         'recorder_window_steps', 'use_sim_time', 'realtime_priority',
-                        'auth_key_file'}
+                        'auth_key_file', 'wait_for_live_view'}
 
 
 def test_unknown_node_names_sort_after_the_graph():
@@ -236,8 +238,9 @@ def test_value_source_lists_cover_the_schema():
     # sensor ranges and actuator velocity of issue 39; the builder's 31 with
     # specimen_uncertainty, specimen_check and predictor_io_latency_s; + 6: the force loop as
     # data (plant_model, force_controller_tf, the actuator family's 3, predictor_calibration);
-    # + 3: who may command the rig (run_token, message_auth, auth_key_file)
-    assert len(VALUE_SOURCE) == len(SCHEMA) == 31 + 47 + 6 + 6 + 10 + 2 + 1 + 2 + 1 + 6 + 3
+    # + 3: who may command the rig (run_token, message_auth, auth_key_file); + 1: the
+    # recorder's wait_for_live_view
+    assert len(VALUE_SOURCE) == len(SCHEMA) == 31 + 47 + 6 + 6 + 10 + 2 + 1 + 2 + 1 + 6 + 3 + 1
 
 
 def test_value_source_of_unknown_name_is_an_error():

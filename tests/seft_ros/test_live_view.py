@@ -321,9 +321,17 @@ def test_realtime_run_live_with_the_operator_stop(tmp_path, seft_exe, ros_env, c
     bag = next((tmp_path / 'run').glob('*/bag'))
     _, messages = read_bag(bag)
     # the bag says who stopped it: the live view's report and the rig's final status
-    stops = [(m, status_values(m)) for _, m in messages['/seft/status']
-             if m.name == 'seft_live']
+    reports = [(m.name, status_values(m)) for _, m in messages['/seft/status']]
+    stops = [(m, v) for m, v in reports if m == 'seft_live' and v['state'] != 'ready']
     assert len(stops) == 1 and stops[0][1]['state'] == 'aborted'
+    # the view said it matched every stream of this run before the rig started (the
+    # recorder's wait_for_live_view): it shows the run from its first sample
+    params = json.loads(messages['/seft/run_parameters'][-1][1].data)
+    matched = [i for i, (m, v) in enumerate(reports) if m == 'seft_live'
+               and v['state'] == 'ready' and v['run_token'] == params['run_token']]
+    started = next(i for i, (m, v) in enumerate(reports) if m == 'rig'
+                   and v['state'] == 'running')
+    assert len(matched) == 1 and matched[0] < started
     assert stops[0][1]['stopped_by'] == 'operator' and stops[0][1]['client'] == '127.0.0.1'
     rig = final_statuses(messages)['rig']
     assert rig['state'] == 'aborted' and rig['ended_by'] == 'seft_live'

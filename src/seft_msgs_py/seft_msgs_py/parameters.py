@@ -531,6 +531,10 @@ SCHEMA: tuple[ParamSpec, ...] = (
               'exist yet).', nodes=('recorder',)),
     ParamSpec('bag_storage', 'mcap', '', 'rosbag2 storage plugin of the bag.',
               choices=('mcap', 'sqlite3'), nodes=('recorder',)),
+    ParamSpec('wait_for_live_view', False, '', 'The recorder lets the rig start only once the '
+              'live view (seft run --live, set by seft run) has matched every record stream of '
+              'the run, so that it shows the run from its first sample; at most 5 s, then the '
+              'run starts with a warning and the view joins late.', nodes=('recorder',)),
 )
 
 _BY_NAME = {s.name: s for s in SCHEMA}
@@ -755,13 +759,13 @@ TEST_PARAMETERS = frozenset({
     'excitation_band_low_hz', 'excitation_band_hz', 'excitation_seed',
     'predictor_loop_latency_s', 'network_delay_s', 'monitor_cutoff_hz', 'monitor_window_s',
     'monitor_threshold', 'monitor_floor_N', 'wait_for_recorder', 'recorder_window_steps',
-    'bag_path', 'bag_storage', 'structure', 'structure_builders', 'realtime_priority',
-    'specimen_uncertainty', 'run_token', 'message_auth',
+    'wait_for_live_view', 'bag_path', 'bag_storage', 'structure', 'structure_builders',
+    'realtime_priority', 'specimen_uncertainty', 'run_token', 'message_auth',
 })
 
 
 PER_NODE = frozenset({'bag_path', 'bag_storage', 'wait_for_recorder', 'recorder_window_steps',
-                      'use_sim_time', 'realtime_priority', 'auth_key_file'})
+                      'wait_for_live_view', 'use_sim_time', 'realtime_priority', 'auth_key_file'})
 
 
 def _node_rank(node: str) -> tuple[int, str, str]:

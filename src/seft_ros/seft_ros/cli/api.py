@@ -609,7 +609,10 @@ def _start_live(live, runner, out_dir: Path, progress: Callable[[str], None]):
     if live is None:
         return None
     from seft_ros.cli.live import start_live
-    return start_live(live, runner.env, out_dir, progress)
+    viewer = start_live(live, runner.env, out_dir, progress)
+    # the rig waits for a view that listens (one that went off would only delay the start)
+    runner.live_view = viewer is not None and viewer.ready.is_set() and viewer.proc.poll() is None
+    return viewer
 
 
 def run_experiments(*, runs: list[dict], out_dir: Path,

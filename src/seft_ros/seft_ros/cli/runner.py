@@ -258,6 +258,9 @@ class GraphRunner:
         self.named: set[tuple[str, str]] = set()
         #: The link measurement of a split run (:mod:`seft_ros.cli.link`), made on demand.
         self.link = None
+        #: A live view runs beside this runner (``seft run --live``): its recorder lets the rig
+        #: start once the view has matched the run's streams (``wait_for_live_view``).
+        self.live_view = False
         self.node.create_subscription(STATUS.msg_type, STATUS.name, self._on_status, STATUS.qos)
         self.node_params: dict[str, dict] = {}
         #: The nodes of the run in progress (None before the first): only their parameters
@@ -372,7 +375,7 @@ class GraphRunner:
         # a new run token for every run (seft_msgs_py.provenance): what an earlier run or
         # another test sent is not this run's; over several hosts the reference's, agreed
         params = dict(params, bag_path=str(bag_path.resolve()), wait_for_recorder=True,
-                      run_token=new_run_token())
+                      wait_for_live_view=self.live_view, run_token=new_run_token())
         self.graph = Graph.from_parameters(params)
         graph = ['recorder', *self.graph.nodes()]
         local = [n for n in graph if nodes is None or n in nodes]

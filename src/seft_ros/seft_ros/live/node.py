@@ -34,7 +34,7 @@ import threading
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-from seft_msgs_py.convert import STATE_ABORTED, status_msg, status_values
+from seft_msgs_py.convert import STATE_ABORTED, STATE_READY, status_msg, status_values
 from seft_msgs_py.errors import SeftError
 from seft_msgs_py.signals import FINAL_STATES
 from seft_msgs_py.topics import LINK, RUN_PARAMETERS, STATUS, record_topic
@@ -80,8 +80,10 @@ class LiveNode(Node):
         self.create_subscription(STATUS.msg_type, STATUS.name, self._on_status, STATUS.qos)
         self.create_subscription(LINK.msg_type, LINK.name, self._on_link, LINK.qos)
         self.stops: queue.SimpleQueue = queue.SimpleQueue()
-        self.stop_pub = None
-        self.create_timer(0.05, self._service)
+        self.status_pub = None
+        self.run_token = None
+        self.matched_said = True          # no run yet
+        self.create_timer(0.02, self._service)
 
     def _on_params(self, msg) -> None:
         try:
@@ -101,7 +103,9 @@ class LiveNode(Node):
             spec = record_topic(stream)
             self.batch_subs[name] = self.create_subscription(
                 spec.msg_type, name, lambda m, s=stream: self._on_batch(s, m), LIVE_DATA_QOS)
-        self._drop_stop_publisher()
+        self._drop_status_publisher()
+        self.run_token = params.get('run_token')
+        self.matched_said = False
         self.view.add_reference()         # after subscribing: the run may be short
 
     def _on_batch(self, stream, msg) -> None:
@@ -141,26 +145,35 @@ class LiveNode(Node):
                 break
             answer.append(self._stop(client))
             done.set()
-        if self.stop_pub is not None and self.view.status.state in FINAL_STATES:
-            self._drop_stop_publisher()
+        if self.view.status.state in FINAL_STATES:
+            self._drop_status_publisher()
+        elif not self.matched_said and self.batch_subs and all(
+                sub.get_publisher_count() > 0 for sub in self.batch_subs.values()):
+            self.matched_said = True
+            self._status_publisher().publish(status_msg(
+                LIVE_NAME, STATE_READY, 'live view: every stream of the run matched',
+                run_token=str(self.run_token), streams=len(self.batch_subs)))
 
     def _stop(self, client: str) -> str:
         state = self.view.status.state
         if state not in ('starting', 'running'):
             return f'no run to stop (state: {state})'
-        if self.stop_pub is None:
-            self.stop_pub = self.create_publisher(STATUS.msg_type, STATUS.name, STATUS.qos)
         reason = f'operator stop from the live view (client {client})'
-        self.stop_pub.publish(status_msg(LIVE_NAME, STATE_ABORTED, reason,
-                                         stopped_by='operator', client=client,
-                                         step=self.view.status.step))
+        self._status_publisher().publish(status_msg(LIVE_NAME, STATE_ABORTED, reason,
+                                                    stopped_by='operator', client=client,
+                                                    step=self.view.status.step))
         self.say(f'live view: {reason}: the rig goes to its safe state')
         return f'stop sent: {reason}'
 
-    def _drop_stop_publisher(self) -> None:
-        if self.stop_pub is not None:
-            self.destroy_publisher(self.stop_pub)
-            self.stop_pub = None
+    def _status_publisher(self):
+        if self.status_pub is None:
+            self.status_pub = self.create_publisher(STATUS.msg_type, STATUS.name, STATUS.qos)
+        return self.status_pub
+
+    def _drop_status_publisher(self) -> None:
+        if self.status_pub is not None:
+            self.destroy_publisher(self.status_pub)
+            self.status_pub = None
 
 
 def _parser() -> argparse.ArgumentParser:

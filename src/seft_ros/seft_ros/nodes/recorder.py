@@ -72,6 +72,7 @@ from seft_msgs_py.topics import (
     spec_for,
 )
 from seft_ros.analysis.bag_recovery import FLUSH_EVERY_S, flush_bag
+from seft_ros.live.view import LIVE_NAME
 
 __all__ = ['RecorderNode', 'main', 'FLUSH_TIMEOUT_S', 'topics_of_node']
 
@@ -86,6 +87,9 @@ FLUSH_TIMEOUT_S = 10.0
 RIG_SILENT_S = 6.0
 #: The recorder acknowledges the recorded steps every this many steps (lockstep flow control).
 ACK_EVERY = 50
+#: ``wait_for_live_view``: the longest the rig's start waits for the live view to match the
+#: run's streams after the nodes were discovered [s] (on one host it has matched before).
+LIVE_VIEW_WAIT_S = 5.0
 #: The scalar topic kinds (by ROS type and field) the recorder serializes from batch rows.
 _SCALAR_KINDS = {(s.type_name, s.field) for s in SCALAR_SIGNALS}
 
@@ -164,6 +168,10 @@ class RecorderNode(SeftNode):
         self.create_subscription(STATUS.msg_type, STATUS.name, self.guard(self._on_status),
                                  STATUS.qos)
         self.finals = {}
+        #: the live view's report that it matched this run's streams; when the nodes were
+        #: discovered (monotonic) (``wait_for_live_view``)
+        self.live_view_matched = False
+        self.discovered_at = None
         # the nodes of this run's graph: the recorder waits for each one's final count
         self.participants = set(self.graph.nodes())
         self.rig_nodes = set(self.graph.rig_nodes())
@@ -180,10 +188,23 @@ class RecorderNode(SeftNode):
         """Report ``inputs=matched`` once the record batches of every node of the graph are
         discovered (the rig starts only then, with ``wait_for_recorder``): the nodes start
         together, and a short run could otherwise end, and its nodes exit, before this
-        recorder heard of one of them."""
+        recorder heard of one of them. With ``wait_for_live_view``, also once the live view
+        has said that its subscriptions matched every record stream of this run (its status
+        with this run's token), or ``LIVE_VIEW_WAIT_S`` after the nodes were discovered, with
+        a warning: a best-effort view that matches a stream late never sees its start, and a
+        short run (an abort 0.5 s in) could show nothing of a stream."""
         for node in self.participants:
             if not self.publishes(node, self.graph.record_streams_of(node)[0].name):
                 return
+        if self.params['wait_for_live_view'] and not self.live_view_matched:
+            now = time.monotonic()
+            if self.discovered_at is None:
+                self.discovered_at = now
+            if now - self.discovered_at < LIVE_VIEW_WAIT_S:
+                return
+            self.warn(f'the live view had not matched every stream of the run '
+                      f'{LIVE_VIEW_WAIT_S:.0f} s after the nodes were discovered: the run '
+                      'starts, and the view shows each stream from when it matches')
         self.matched_timer.cancel()
         self.report(STATE_READY, 'every node discovered', inputs='matched')
 
@@ -274,6 +295,9 @@ class RecorderNode(SeftNode):
         state = status_values(msg).get('state')
         if state == STATE_READY and msg.name in self.topics_of_node:
             self.participants.add(msg.name)
+        if (msg.name == LIVE_NAME and state == STATE_READY
+                and status_values(msg).get('run_token') == self.params['run_token']):
+            self.live_view_matched = True
         if state in _FINAL:
             values = status_values(msg)
             self.finals[msg.name] = values
