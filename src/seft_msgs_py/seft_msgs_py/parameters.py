@@ -150,7 +150,7 @@ SCHEMA: tuple[ParamSpec, ...] = (
               'acceleration [m/s^2] CSV path.', nodes=_GM + ('recorder',)),
     ParamSpec('amplitude_N', 1000.0, 'N', 'Scale the record so that the peak of m*xg_ddot is '
               'this force (reference study: 1000 N); 0 uses scale_factor instead.', 0.0, None,
-              nodes=_GM + ('recorder',)),
+              nodes=_GM + _RFB + ('recorder',)),
     ParamSpec('scale_factor', 1.0, '', 'Plain amplitude factor on the record (used when '
               'amplitude_N is 0).', 0.0, None, True, nodes=_GM + ('recorder',)),
     ParamSpec('time_scale', 0.5, '', 'Time scale of the record (0.5 halves its time step, as '
@@ -285,10 +285,16 @@ SCHEMA: tuple[ParamSpec, ...] = (
     ParamSpec('adaptive_memory_s', 5.0, 's', "Memory of the 'adaptive' predictor's recursive "
               'least squares on m, c, k: forgetting factor exp(-dt / memory).', 0.0, 1000.0,
               True, nodes=_RFB + ('recorder',)),
-    ParamSpec('adaptive_excitation_N', 20.0, 'N', "'adaptive' and 'ats': the estimates are "
+    ParamSpec('adaptive_excitation_N', 0.0, 'N', "'adaptive' and 'ats': the estimates are "
               'held while the running RMS of the measured force (time constant '
-              'adaptive_window_s) is below this (quiet start and coda).', 0.0, None,
-              nodes=_RFB + ('recorder',)),
+              'adaptive_window_s) is below this level (quiet start and coda); it also weights '
+              "the estimators' priors. 0: adaptive_excitation_fraction of amplitude_N (the "
+              'reference study: 20 N).', 0.0, None, nodes=_RFB + ('recorder',)),
+    ParamSpec('adaptive_excitation_fraction', 0.02, '', "'adaptive' and 'ats' with "
+              'adaptive_excitation_N 0: the hold level as this fraction of amplitude_N (0.02 x '
+              '1000 N = 20 N in the reference study; a stiff specimen tested at 174 N: 3.5 N, '
+              'where 20 N held the estimates through most of the record; 0: never held).', 0.0,
+              1.0, nodes=_RFB + ('recorder',)),
     ParamSpec('adaptive_max_deviation', 0.5, '', "'adaptive': the estimates of m, c, k and "
               'the actuator gain stay within this fraction of the configured values (the '
               "delay within 0..adaptive_max_delay_s).", 0.0, 0.95, True,
@@ -892,6 +898,9 @@ _SHARED_SOURCE = {
     'accelerometer_range_m_s2': 'rig',
     'watchdog_timeout_s': 'rig',            # the rig's watchdog; the others watch their inputs
     'network_delay_s': 'reference_force_builder',   # the delay its predictor compensates
+    # the record's scaling: the ground-motion publisher's (the builder's estimators scale
+    # their hold threshold with it, predictors.excitation_level_N)
+    'amplitude_N': 'ground_motion_publisher',
     'realtime_output': 'rig',               # the rig outputs the commands
     # who may command the rig: the run's (every node holds the same; the rig's is recorded)
     'run_token': 'rig', 'message_auth': 'rig', 'auth_key_file': 'rig',

@@ -1137,6 +1137,30 @@ def test_adaptive_refits_the_loop_when_the_specimen_moved():
     assert pred.command(50.0) == pytest.approx(taps[0] * 50.0 + taps[1] * 100.0, rel=1e-12)
 
 
+def test_the_hold_level_follows_the_test_amplitude():
+    """adaptive_excitation_N 0 (the default): adaptive_excitation_fraction of amplitude_N,
+    20 N at the reference study's 1000 N (bit for bit), 3.48 N for a stiff specimen at 174 N;
+    an explicit level is taken as it is; a test with no amplitude needs one (one line), but
+    the specimen check falls back to its level."""
+    from seft_ros.core.predictors import excitation_level_N
+    assert excitation_level_N(parameters.resolve({})) == 20.0
+    assert excitation_level_N(parameters.resolve({'amplitude_N': 174.0})) == \
+        pytest.approx(3.48, rel=1e-12)
+    assert excitation_level_N(parameters.resolve({'amplitude_N': 174.0,
+                                                  'adaptive_excitation_N': 20.0})) == 20.0
+    assert excitation_level_N(parameters.resolve({'adaptive_excitation_fraction': 0.0})) == 0.0
+    for bad in ({'amplitude_N': 0.0}, {'excitation': 'noise'}):
+        with pytest.raises(ParameterError, match=r'adaptive_excitation_N=0 .*expected '
+                                                 r'adaptive_excitation_N > 0'):
+            excitation_level_N(parameters.resolve(bad))
+        assert excitation_level_N(parameters.resolve(bad), 20.0) == 20.0
+    # the estimators take it: the prior's weight 0.01 s of data at that level
+    low = parameters.resolve({'rig_model': 'delay', 'predictor': 'adaptive',
+                              'amplitude_N': 174.0})
+    np.testing.assert_allclose(np.diag(AdaptivePredictor.from_parameters(low).rls.P),
+                               DT / (0.01 * 3.48 ** 2), rtol=1e-12)
+
+
 def test_adaptive_from_parameters_on_both_rigs():
     """Delay rig: the predictor model and adaptive_*; servohydraulic: the prior delay is
     predictor_loop_delay_steps, the loop refitted from the model with the identified

@@ -190,6 +190,9 @@ SPECIMEN_CHECK_ACTIONS = ('warn', 'abort', 'off')
 CHECK_EVERY = 5
 #: The tolerance of the check when no ``specimen_uncertainty`` is declared [-].
 DEFAULT_SPECIMEN_TOLERANCE = 0.1
+#: The specimen check's hold level in a test with no amplitude (``amplitude_N`` 0, an
+#: excitation played) and ``adaptive_excitation_N`` 0: the reference study's level [N].
+SPECIMEN_CHECK_LEVEL_N = 20.0
 
 
 class SpecimenCheck:
@@ -285,7 +288,7 @@ class SpecimenCheck:
         specimen's); the tolerance ``specimen_uncertainty`` (0: 10 %), for ``adaptive`` at
         least its identification's range ``adaptive_max_deviation``.
         """
-        from seft_ros.core.predictors import model_parameters
+        from seft_ros.core.predictors import excitation_level_N, model_parameters
         if (params.get('specimen_check', 'warn') == 'off'
                 or params.get('specimen_model', 'linear') != 'linear'
                 or params.get('predictor_restoring_force', 'model') != 'model'
@@ -299,7 +302,7 @@ class SpecimenCheck:
             tolerance = max(tolerance, float(params.get('adaptive_max_deviation', 0.5)))
         return cls(mp['mass_kg'], mp['damping_N_s_per_m'], mp['stiffness_N_per_m'],
                    float(params['dt']), tolerance, rig=rig,
-                   excitation_N=float(params.get('adaptive_excitation_N', 20.0)),
+                   excitation_N=excitation_level_N(params, SPECIMEN_CHECK_LEVEL_N),
                    ranges=SensorRanges.from_parameters(params))
 
     def _update(self, phi, y: float) -> None:

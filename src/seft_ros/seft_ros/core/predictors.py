@@ -137,6 +137,35 @@ def _number(params, name: str, fallback: str | None = None) -> float:
     return value
 
 
+def excitation_level_N(params, fallback_N: float | None = None) -> float:
+    """The force level below which the online estimators (``adaptive``, ``ats``, the
+    specimen check) hold their estimates, and that weights their priors [N]:
+    ``adaptive_excitation_N``, or with 0 (the default) ``adaptive_excitation_fraction`` of
+    ``amplitude_N``: the reference study's test (1000 N) 20 N, as before; a stiff specimen
+    tested at 174 N 3.5 N (20 N held its estimates through most of the record and weighted
+    the prior as 0.01 s of data at 20 N). `fallback_N`: the level of a test with no
+    amplitude (None: an error).
+
+    Raises
+    ------
+    ParameterError
+        ``adaptive_excitation_N`` is 0, the test has no amplitude to relate it to
+        (``amplitude_N`` 0, the record scaled by ``scale_factor``, or an excitation played)
+        and `fallback_N` is None.
+    """
+    level = float(params.get('adaptive_excitation_N', 0.0))
+    if level > 0:
+        return level
+    amplitude = float(params.get('amplitude_N', 1000.0) or 0.0)
+    if amplitude <= 0 or params.get('excitation', 'none') != 'none':
+        if fallback_N is not None:
+            return float(fallback_N)
+        raise ParameterError('parameter adaptive_excitation_N=0 (relative to amplitude_N): '
+                             'this test has no amplitude_N (0, or an excitation played); '
+                             'expected adaptive_excitation_N > 0 [N]')
+    return float(params.get('adaptive_excitation_fraction', 0.02)) * amplitude
+
+
 def model_rig(params):
     """The servohydraulic rig as the compensators model it: its parameters, the I/O latency
     ``predictor_io_latency_s`` when set (the lab's declared latency), else the rig's own
@@ -1463,7 +1492,7 @@ class IdentifiedForceLoop:
         return cls(prior, ctrl.dt, int(params['predictor_loop_delay_steps']),
                    int(params['predictor_loop_taps']), order,
                    memory_s=float(params.get('adaptive_memory_s', 5.0)),
-                   excitation_N=float(params.get('adaptive_excitation_N', 20.0)),
+                   excitation_N=excitation_level_N(params),
                    max_deviation=float(params.get('adaptive_max_deviation', 0.5)),
                    max_rate_per_s=5.0 * float(params.get('adaptive_max_rate_per_s', 1.0)),
                    hf_weight=float(params.get('predictor_loop_hf_weight', 1e-3)),
@@ -2080,7 +2109,7 @@ class AdaptivePredictor:
                    float(params['mass_kg']), float(params['adaptive_window_s']),
                    float(params['adaptive_max_delay_s']),
                    memory_s=float(params.get('adaptive_memory_s', 5.0)),
-                   excitation_N=float(params.get('adaptive_excitation_N', 20.0)),
+                   excitation_N=excitation_level_N(params),
                    max_deviation=float(params.get('adaptive_max_deviation', 0.5)),
                    max_rate_per_s=float(params.get('adaptive_max_rate_per_s', 1.0)),
                    loop_factory=factory, loop_identification=identified,
@@ -2536,7 +2565,7 @@ class AtsPredictor:
         law = _member_law(params, 0.0)
         return cls(model, float(params['alpha']), float(params['mass_kg']), mp['tau_s'],
                    window_s=float(params.get('ats_window_s', 1.0)),
-                   excitation_N=float(params.get('adaptive_excitation_N', 20.0)),
+                   excitation_N=excitation_level_N(params),
                    max_rate_per_s=float(params.get('adaptive_max_rate_per_s', 1.0)),
                    max_delay_s=float(params.get('adaptive_max_delay_s', 0.03)), law=law)
 
