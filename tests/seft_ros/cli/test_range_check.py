@@ -26,6 +26,13 @@ def test_velocity_limit_of_the_calibrated_rig():
     assert api.actuator_velocity_limit_m_s(dict(p, valve_flow_gain_m3_per_s_V=1e-4)) == (
         pytest.approx(1e-4 * 10.0 / 1.18e-3))
     assert api.actuator_velocity_limit_m_s(dict(p, rig_model='delay')) is None
+    # the actuator family: the member's k_q and area, 1.2e-4 m^3/(s V) x 10 V / 2e-3 m^2, and
+    # its Monte-Carlo draw's (each parameter within +/- 30 %: k_q / A within 0.7/1.3..1.3/0.7)
+    family = dict(p, rig_model='actuator', actuator_family='leaky')
+    assert api.actuator_velocity_limit_m_s(family) == pytest.approx(0.6, rel=1e-12)
+    drawn = api.actuator_velocity_limit_m_s(dict(family, actuator_spread=0.3, actuator_seed=4))
+    assert drawn != pytest.approx(0.6, rel=1e-3) and 0.6 * 0.7 / 1.3 < drawn < 0.6 * 1.3 / 0.7
+    assert api.actuator_velocity_limit_m_s(dict(p, rig_model='state_space')) is None
     # declared: whatever the rig
     assert api.actuator_velocity_limit_m_s(dict(p, rig_model='delay',
                                                 actuator_velocity_limit_m_s=0.3)) == 0.3

@@ -18,12 +18,13 @@ channel                       peak of the reference                    against
 ``actuator velocity``         velocity                                 the valve's capacity
 ============================  =======================================  =====================
 
-(the valve's capacity: ``actuator_velocity_limit_m_s``, or on the servohydraulic rig the valve
-flow at ``valve_limit_V`` over the piston area, Merritt 1967 Ch. 5; the delay rig declares
-none unless it is set). A channel whose peak exceeds its limit gives one line: the rig, the
-channel, the peak, the limit and the largest amplitude that fits (the run's ``amplitude_N`` or
-``scale_factor`` times limit / peak: the reference is linear in the record; for a yielding
-member that scaling is an estimate and the line says so).
+(the valve's capacity: ``actuator_velocity_limit_m_s``, or on the servohydraulic and
+``actuator`` rigs the valve flow at ``valve_limit_V`` over the piston area, Merritt 1967 Ch.
+5; the delay rig and a ``state_space`` model declare none unless it is set). A channel whose
+peak exceeds its limit gives one line: the rig, the channel, the peak, the limit and the
+largest amplitude that fits (the run's ``amplitude_N`` or ``scale_factor`` times limit / peak:
+the reference is linear in the record; for a yielding member that scaling is an estimate and
+the line says so).
 
 A test's own peaks sit above the reference's by its error and the force loop's ringing, so a
 channel within a few per cent of its range may still clip: the run counts what did
@@ -61,11 +62,19 @@ def actuator_velocity_limit_m_s(params) -> float | None:
     ``actuator_velocity_limit_m_s`` when set (> 0); else, on the servohydraulic rig, the valve
     flow at full command over the piston area, ``v_max = k_q * valve_limit_V / A`` (no load
     pressure; Merritt 1967, Ch. 5), with k_q of the rig calibration (2.0 m/s at 10 V with Eq.
-    3.1 in V/lbf, 0.45 m/s in V/N; :mod:`seft_msgs_py.calibration`); None on the delay rig.
+    3.1 in V/lbf, 0.45 m/s in V/N; :mod:`seft_msgs_py.calibration`); on the ``actuator``
+    family's rigs the same with the member's k_q and A (its Monte-Carlo draw included: 0.6
+    m/s at 10 V nominal); None on the delay rig and a lab's ``state_space`` model (its
+    capacity is not in the model: declare it).
     """
     declared = float(params.get('actuator_velocity_limit_m_s', 0.0) or 0.0)
     if declared > 0:
         return declared
+    if params.get('rig_model') == 'actuator':
+        from seft_plant_sim.actuator import actuator_spec
+        spec = actuator_spec(params)
+        return (spec.valve_flow_gain_m3_per_s_V * float(params['valve_limit_V'])
+                / spec.piston_area_m2)
     if params.get('rig_model') != 'servohydraulic':
         return None
     return (valve_flow_gain_m3_per_s_V(params) * float(params['valve_limit_V'])
