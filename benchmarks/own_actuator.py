@@ -199,6 +199,37 @@ def _worst(runs: list[dict]) -> str:
             f"{_pct(max(x['nrms_f'] for x in done))}")
 
 
+def monte_carlo_table(results: list[dict]) -> str:
+    """The Markdown table of a Monte-Carlo run (``--monte-carlo``): per member, the plants,
+    how many runs were stable, the worst NRMS x (and a, f) of the stable ones, the guard's
+    verdicts against the outcomes, and the weakest designed loop on the true plants."""
+    head = ('| member | plants | stable | worst x % (a, f) | guard agrees / no verdict / '
+            'disagrees | design: lowest crossover [Hz], PM [deg], GM |')
+    lines = [head, '|' + '---|' * 6]
+    members = sorted({r['member'] for r in results}, key=list(FAMILY_MEMBERS + (
+        'seft servohydraulic',)).index)
+    for member in members:
+        rs = [r for r in results if r['member'] == member]
+        runs = [x for r in rs for x in r.get('runs', [])]
+        stable = [x for x in runs if x.get('stable')]
+        verdicts = [(x.get('guard'), x.get('stable')) for x in runs]
+        agree = sum(isinstance(g, bool) and g == o for g, o in verdicts)
+        none = sum(not isinstance(g, bool) for g, _ in verdicts)
+        designs = [r['true'] for r in rs if 'true' in r]
+        worst = '–'
+        if stable:
+            peak = {k: _pct(max(x[k] for x in stable)) for k in ('nrms_x', 'nrms_a', 'nrms_f')}
+            worst = f"{peak['nrms_x']} ({peak['nrms_a']}, {peak['nrms_f']})"
+        design = (f"{min(d['crossover_hz'] for d in designs):.1f}, "
+                  f"{min(d['phase_margin_deg'] for d in designs):.0f}, "
+                  f"{min(d['gain_margin'] for d in designs):.2f}" if designs else '–')
+        errors = sum('error' in r for r in rs)
+        lines.append(f'| {member} | {len(rs)}' + (f' ({errors} not identified)' if errors else '')
+                     + f' | {len(stable)} of {len(runs)} | {worst} | {agree} / {none} / '
+                     f'{len(verdicts) - agree - none} | {design} |')
+    return '\n'.join(lines)
+
+
 def table(results: list[dict]) -> str:
     """The Markdown table of the results."""
     head = ('| plant | specimen | order | crossover [Hz] | PM [deg] | GM | d | '
@@ -252,7 +283,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     if args.from_json:
         with open(args.from_json) as fh:
-            return _report(json.load(fh), args.write)
+            return _report(json.load(fh), args.write, args.monte_carlo)
     specimens = args.specimens or ((2.0, 10.0, 32.0, 50.0) if args.quick else SPECIMEN_HZ)
     if args.monte_carlo:
         todo = cases(args.members, (32.0,), (0.01,), spread=0.3,
@@ -281,17 +312,19 @@ def main(argv=None) -> int:
             print(f"{r['case']}: order {r['plant_order']}, fc {t['crossover_hz']:.1f} Hz, PM "
                   f"{t['phase_margin_deg']:.0f}, GM {t['gain_margin']:.2f}, d "
                   f"{r['loop_delay_steps']}; {runs} ({r['seconds']:.0f} s)", flush=True)
-    return _report(results, args.write)
+    return _report(results, args.write, args.monte_carlo)
 
 
-def _report(results: list[dict], write: str | None) -> int:
-    """Print the table; with `write`, put it in that docs page between its markers."""
-    text = table(results)
+def _report(results: list[dict], write: str | None, monte_carlo: int = 0) -> int:
+    """Print the table (the Monte-Carlo summary with `monte_carlo`); with `write`, put it in
+    that docs page between its markers."""
+    text = monte_carlo_table(results) if monte_carlo else table(results)
     print(text)
     if write:
         with open(write) as fh:
             page = fh.read()
-        start, end = '<!-- own_actuator table -->', '<!-- end own_actuator table -->'
+        kind = 'monte carlo' if monte_carlo else 'table'
+        start, end = f'<!-- own_actuator {kind} -->', f'<!-- end own_actuator {kind} -->'
         if start not in page or end not in page:
             print(f'{write}: no markers {start} ... {end}', file=sys.stderr)
             return 2
