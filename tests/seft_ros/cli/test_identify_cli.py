@@ -53,6 +53,13 @@ def test_identify_writes_json_plots_report_and_params(bags, capsys):
     doc['runs'][0]['figures']['plant']['nrms']['force_N'] = 0.25
     assert ('force NRMS 25 %; WARNING: above 10 %, a nonlinear actuator'
             in identification_table(doc))
+    # a loop no inverse follows (a real-time identification of a family actuator: 90 %) is
+    # said to be refused by the compensators that invert it, whatever the margins say
+    assert 'force-loop inverse' not in identification_table(doc)
+    design['inverse_band_error'] = 0.903
+    assert ('WARNING: no force-loop inverse of 2-30 steps follows this loop (the best misses '
+            'it by 90 % up to 25 Hz): the `model` and `adaptive` compensators will refuse'
+            in identification_table(doc))
     run, = build_runs(config=str(params), overrides={'predictor': 'model', 'duration_s': 0.5})
     assert simulate(run).stable
     assert main(['simulate', '--params', str(params), '--predictor', 'polynomial',

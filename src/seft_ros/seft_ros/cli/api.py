@@ -1513,4 +1513,14 @@ def identification_table(doc: dict) -> str:
                              + f", inverse {design['loop_delay_steps']} steps; targets "
                              + ('met' if design['met'] else 'NOT met: ' + '; '.join(
                                  design['notes'])))
+                miss = design.get('inverse_band_error')
+                from seft_ros.core.predictors import MAX_BAND_ERROR
+                if miss is not None and not miss <= MAX_BAND_ERROR:
+                    lines.append(f"{'':18s} WARNING: no force-loop inverse of 2-30 steps "
+                                 'follows this loop (the best misses it by '
+                                 + ('an unbounded amount' if not np.isfinite(miss) else
+                                    f'{100 * miss:.0f} %')
+                                 + ' up to 25 Hz): the `model` and `adaptive` compensators '
+                                 'will refuse these settings (`none`, `polynomial` and '
+                                 '`ats` need no inverse)')
     return '\n'.join(lines)
