@@ -141,14 +141,22 @@ def test_bad_output_timing_is_named():
 
 
 def test_an_actuator_of_the_family_holds_its_own_latency(command):
-    """The family's actuator (its io_delay_s inside the model): a command arriving at its
-    sample acts then, exactly as in lockstep (io_latency_s, seft's rig's, is not added on
-    top: it was, 3 ms late)."""
+    """The family's actuator (its io_delay_s inside the model; io_latency_s, seft's rig's,
+    is not added on top: it was, 3 ms late): latched (the default), a command that arrives
+    0.5 ms after its sample, as the graph's do, acts at the next tick, whatever its arrival
+    within the period: the lockstep rig one sample later (an independent solution: the
+    lockstep rig fed u[k-1] at step k); on arrival, one arriving at its sample acts then,
+    exactly as in lockstep."""
     p = _params(rig_model='actuator', actuator_family='leaky')
     u = 0.2 * command
-    rt, rig = _realtime(p, u, 0.0)
-    assert rig.hardware_latency_s == 0.0
-    assert _close(rt, _lockstep(p, u)) < 1e-6      # sampled at 0.1 ms and at dt: 7e-8
+    late = np.concatenate(([0.0], u[:-1]))
+    for latency in (0.0005, 0.0013):
+        rt, rig = _realtime(p, u, latency)
+        assert rig.hardware_latency_s == 0.0
+        assert _close(rt, _lockstep(p, late)) < 1e-6   # sampled at 0.1 ms and at dt
+    assert _close(rt, _lockstep(p, u)) > 0.01
+    rt, _ = _realtime(dict(p, realtime_output='on_arrival'), u, 0.0)
+    assert _close(rt, _lockstep(p, u)) < 1e-6
 
 
 def test_a_discrete_lab_model_is_refused_in_real_time_in_one_line():

@@ -487,7 +487,9 @@ SCHEMA: tuple[ParamSpec, ...] = (
               "command computed from sample k. 'latched': at the next tick t_k+1 (the lockstep "
               "timing), or on arrival if it comes later; 'on_arrival': on arrival. Either way it "
               'reaches the actuator after the hardware latency io_latency_s - dt '
-              '(servohydraulic) or tau_s (delay rig).', choices=('latched', 'on_arrival'),
+              '(servohydraulic) or tau_s (delay rig); the actuator and state_space rigs hold '
+              'their latency in their model and add none, so latched they run one sample '
+              'behind lockstep.', choices=('latched', 'on_arrival'),
               nodes=_RIG + _RFB),
     ParamSpec('realtime_substep_s', 1e-4, 's', "Real-time mode: sub-step of the rig's plant "
               'integration between ticks (command changes are applied on this grid).', 1e-6,
