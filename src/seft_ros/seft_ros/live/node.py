@@ -56,6 +56,9 @@ OFF_LINE = 'live view: off; the test runs without it'
 NICE = 10
 #: How long the page's stop waits for the ROS side [s].
 STOP_WAIT_S = 2.0
+#: The longest the process takes to close its servers and ROS once stopped [s]; then it
+#: exits at once.
+SHUTDOWN_TIMEOUT_S = 10.0
 
 
 class LiveNode(Node):
@@ -272,13 +275,26 @@ def main(argv=None) -> int:
         while not stopping.is_set():
             executor.spin_once(timeout_sec=0.1)
     finally:
+        # the shutdown is bounded: a viewer holds no sample of the test, and its servers'
+        # closing once held the process past a 30 s wait (a TLS client's connection in CI)
+        bound = threading.Timer(SHUTDOWN_TIMEOUT_S, _exit_now)
+        bound.daemon = True
+        bound.start()
         web.close()
         if foxglove_server is not None:
             foxglove_server.stop()
         executor.shutdown()
         node.destroy_node()
         rclpy.try_shutdown()
+        bound.cancel()
     return 0
+
+
+def _exit_now() -> None:
+    """End the process at once (the bounded shutdown of :func:`main`), with one line."""
+    _say(f'live view: its servers did not close within {SHUTDOWN_TIMEOUT_S:.0f} s; exiting')
+    sys.stdout.flush()
+    os._exit(0)
 
 
 if __name__ == '__main__':
