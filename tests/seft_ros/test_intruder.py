@@ -15,6 +15,7 @@ on, the forged rows are kept out of the bag, and a warning names it.
 import json
 import os
 from pathlib import Path
+import signal
 import subprocess
 import sys
 
@@ -48,9 +49,10 @@ def run_with_intruder(tmp_path, seft_exe, env, topic, *extra, intruder=('3000', 
         console, _ = run.communicate(timeout=120)
         said, _ = sender.communicate(timeout=60)
     finally:
-        for p in (run, sender):
+        for p in (run, sender):                 # each a session: its nodes go with it
             if p.poll() is None:
-                p.kill()
+                os.killpg(p.pid, signal.SIGKILL)
+                p.wait()
     assert run.returncode == 0, console
     assert leftover_processes(str(out)) == []
     # the intruder published to the run: it reached the step and a subscription matched

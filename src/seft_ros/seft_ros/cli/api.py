@@ -32,6 +32,7 @@ from seft_ros.core import stability
 from seft_ros.core.experiment import simulate
 from seft_ros.core.ground_motion import prepared_record
 from seft_ros.core.models import model_plugin
+from seft_ros.core.predictors import MAX_BAND_ERROR
 from seft_ros.core.reference_force import PREDICTORS
 from seft_ros.core.structure import structure_of
 
@@ -1514,7 +1515,6 @@ def identification_table(doc: dict) -> str:
                              + ('met' if design['met'] else 'NOT met: ' + '; '.join(
                                  design['notes'])))
                 miss = design.get('inverse_band_error')
-                from seft_ros.core.predictors import MAX_BAND_ERROR
                 if miss is not None and not miss <= MAX_BAND_ERROR:
                     lines.append(f"{'':18s} WARNING: no force-loop inverse of 2-30 steps "
                                  'follows this loop (the best misses it by '

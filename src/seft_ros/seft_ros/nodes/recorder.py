@@ -292,14 +292,14 @@ class RecorderNode(SeftNode):
         self._write(LINK.name, self.latest_ns, raw)
 
     def _on_status(self, msg) -> None:
-        state = status_values(msg).get('state')
+        values = status_values(msg)
+        state = values.get('state')
         if state == STATE_READY and msg.name in self.topics_of_node:
             self.participants.add(msg.name)
         if (msg.name == LIVE_NAME and state == STATE_READY
-                and status_values(msg).get('run_token') == self.params['run_token']):
+                and values.get('run_token') == self.params['run_token']):
             self.live_view_matched = True
         if state in _FINAL:
-            values = status_values(msg)
             self.finals[msg.name] = values
             if state != STATE_DONE and self.abort_heard_at is None:
                 self.abort_heard_at = time.monotonic()
