@@ -138,23 +138,36 @@ class PlantUncertainty:
     frequency : float >= 0
         The relative standard error of the model's lightly damped frequencies, its
         control-structure-interaction zero foremost (0: not stated) [-].
+    peak_force_N, peak_velocity_m_s : float >= 0
+        The largest measured force [N] and piston velocity [m/s] of the run the model was
+        identified from (0: not stated): a linear model of a nonlinear actuator (friction,
+        orifice flow) holds near the level it was identified at, and the stability guard
+        gives no verdict on a test that plans a decade more
+        (:data:`seft_ros.core.stability.MAX_LEVEL_EXTRAPOLATION`).
     """
 
     relative: float = 0.0
     band_hz: tuple = (0.0, math.inf)
     note: str = ''
     frequency: float = 0.0
+    peak_force_N: float = 0.0
+    peak_velocity_m_s: float = 0.0
 
     def to_mapping(self) -> dict[str, Any]:
-        """``{'relative', 'band_hz', 'note', 'frequency'}`` (an infinite band end as
-        None)."""
-        return {'relative': float(self.relative),
-                'band_hz': [float(b) if math.isfinite(b) else None for b in self.band_hz],
-                'note': self.note, 'frequency': float(self.frequency)}
+        """``{'relative', 'band_hz', 'note', 'frequency'}`` and the identified peaks when
+        stated (an infinite band end as None)."""
+        doc = {'relative': float(self.relative),
+               'band_hz': [float(b) if math.isfinite(b) else None for b in self.band_hz],
+               'note': self.note, 'frequency': float(self.frequency)}
+        if self.peak_force_N or self.peak_velocity_m_s:
+            doc.update(peak_force_N=float(self.peak_force_N),
+                       peak_velocity_m_s=float(self.peak_velocity_m_s))
+        return doc
 
     @classmethod
     def from_mapping(cls, doc, *, where: str) -> 'PlantUncertainty':
-        """From ``{relative, band_hz, note, frequency}`` (each optional).
+        """From ``{relative, band_hz, note, frequency, peak_force_N, peak_velocity_m_s}``
+        (each optional).
 
         Raises
         ------
@@ -180,7 +193,16 @@ class PlantUncertainty:
         if isinstance(freq, bool) or not isinstance(freq, (int, float)) \
                 or not (math.isfinite(freq) and freq >= 0):
             raise ParameterError(f'{where}.frequency={freq!r}: expected a number >= 0')
-        return cls(float(rel), (float(lo), float(hi)), str(doc.get('note', '')), float(freq))
+        peaks = []
+        for name in ('peak_force_N', 'peak_velocity_m_s'):
+            v = doc.get(name, 0.0)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) \
+                    or not (math.isfinite(v) and v >= 0):
+                raise ParameterError(f'{where}.{name}={v!r}: expected a number >= 0 (0: not '
+                                     'stated)')
+            peaks.append(float(v))
+        return cls(float(rel), (float(lo), float(hi)), str(doc.get('note', '')), float(freq),
+                   *peaks)
 
 
 class LoopResponses:

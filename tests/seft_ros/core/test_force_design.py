@@ -168,3 +168,34 @@ def test_the_guard_gives_no_verdict_on_a_plant_model_that_explains_the_force_bad
     assert check.spectral_radius < 1.0
     if verdict is None:
         assert 'explains the measured force to 25 % only' in check.message
+
+
+@pytest.mark.parametrize('times, verdict', [(5.0, True), (20.0, None)])
+def test_the_guard_gives_no_verdict_beyond_a_decade_of_the_identified_level(times, verdict):
+    """A plant_model stating the peaks it was identified at: the study's test planning 5
+    times its velocity gets the linear verdict, 20 times none (a linear model of an actuator
+    does not vouch for a level it was not identified at); the planned peak is the pre-run
+    range check's, an independent path."""
+    import json
+
+    from seft_ros.analysis.range_check import range_check
+    p = rig(predictor='none', alpha=0.5)
+    planned = {pk.channel: pk.peak for pk in range_check(p).peaks}
+    doc = force_loop_plant(rig()).to_mapping()
+    doc['uncertainty'] = {'relative': 0.01, 'peak_force_N': planned['force'],
+                          'peak_velocity_m_s': planned['velocity'] / times}
+    check = check_run(dict(p, plant_model=json.dumps(doc)))
+    assert check.stable is verdict
+    assert check.spectral_radius < 1.0
+    if verdict is None:
+        assert f'this test plans {planned["velocity"]:.3g} m/s (20 times' in check.message
+    # an unstated level (0) is never compared
+    doc['uncertainty'] = {'relative': 0.01}
+    assert check_run(dict(p, plant_model=json.dumps(doc))).stable is True
+
+
+def test_a_bad_identified_level_is_refused_in_one_line():
+    from seft_msgs_py.plant import PlantUncertainty
+    with pytest.raises(ParameterError, match=r'^pm.uncertainty.peak_velocity_m_s=-1: '
+                       r'expected a number >= 0'):
+        PlantUncertainty.from_mapping({'peak_velocity_m_s': -1}, where='pm.uncertainty')

@@ -272,6 +272,17 @@ def _shown(value) -> str:
     return _fmt(value, '.6g')
 
 
+def _level(plant: dict[str, Any]) -> str:
+    """The level the plant was identified at, one sentence (empty when not stated)."""
+    unc = plant.get('uncertainty') or {}
+    if not unc.get('peak_velocity_m_s'):
+        return ''
+    from seft_ros.core.stability import MAX_LEVEL_EXTRAPOLATION
+    return (f" Identified up to {_fmt(unc['peak_force_N'], '.3g')} N and "
+            f"{_fmt(unc['peak_velocity_m_s'], '.3g')} m/s: the stability guard gives no "
+            f'verdict on a test planning more than {MAX_LEVEL_EXTRAPOLATION:g} times either.')
+
+
 def _design_lines(runs: list[dict[str, Any]]) -> list[str]:
     """The identified plants and the controllers designed for them."""
     lines = []
@@ -290,7 +301,7 @@ def _design_lines(runs: list[dict[str, Any]]) -> list[str]:
         lines += [f"**The force loop of {rig_label(r['rig'])} ({r['bag']}) as data.** Order "
                   f"{plant['order']} (the Bayesian information criterion over orders 1-"
                   f"{len(plant['orders'])}), delay {plant['delay_steps']} steps; relative RMS "
-                  f'error of the simulated outputs: {errors}.', '',
+                  f'error of the simulated outputs: {errors}.{_level(plant)}', '',
                   f"**The force controller designed for it** ({design['method']}): crossover "
                   f"{_fmt(m['crossover_hz'], '.3g')} Hz, phase margin "
                   f"{_fmt(m['phase_margin_deg'], '.3g')} deg, gain margin {gm} ({gm_db} dB); "

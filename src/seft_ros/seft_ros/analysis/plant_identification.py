@@ -322,6 +322,8 @@ def identify_plant(u, outputs, dt: float, *, specimen: Specimen | None = None,
     Returns
     -------
     PlantFit
+        Its model's uncertainty states the force fit's NRMS and the record's largest force
+        and velocity (from rest: the level the linear model was identified at).
 
     Raises
     ------
@@ -384,7 +386,9 @@ def _identify(u, y, dt, scale, specimen, frequency_uncertainty, max_order, sourc
     unc = PlantUncertainty(max(nrms['force_N'], ERROR_FLOOR), (0.0, 0.5 / dt),
                            f'identified: force NRMS {100 * nrms["force_N"]:.2g} % (order {na}); '
                            f'specimen frequency +-{100 * frequency_uncertainty:.2g} %',
-                           float(frequency_uncertainty))
+                           float(frequency_uncertainty),
+                           peak_force_N=float(np.max(np.abs(y[:, 0]))),
+                           peak_velocity_m_s=float(np.max(np.abs(y[:, 2]))))
     fit = PlantFit(None, na, nk, a, b, nrms, tried, float(dt), source or 'identified')
     doc = fit.mapping()
     doc['uncertainty'] = unc.to_mapping()

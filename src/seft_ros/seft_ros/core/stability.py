@@ -68,7 +68,8 @@ __all__ = [
     'LinearPredictor', 'Compensator', 'compensator', 'NoLinearModelError',
     'PredictedUnstableError', 'LoopModel', 'loop_model', 'closed_loop_matrix',
     'spectral_radius', 'largest_stable_alpha', 'StabilityMap', 'stability_map',
-    'StabilityCheck', 'check_run', 'largest_stable_dt', 'TestLoop', 'scaled_parameters',
+    'StabilityCheck', 'check_run', 'level_extrapolation', 'MAX_LEVEL_EXTRAPOLATION',
+    'largest_stable_dt', 'TestLoop', 'scaled_parameters',
     'largest_stable_scale', 'RobustnessMargin', 'robustness_margin',
 ]
 
@@ -880,6 +881,72 @@ def _plant_misfit(params: Mapping) -> float:
     return float(force_loop_plant(params).uncertainty.relative)
 
 
+#: A test that plans a peak force or piston velocity more than this many times the largest its
+#: rig's ``plant_model`` was identified at (``uncertainty.peak_force_N``,
+#: ``peak_velocity_m_s``) gets no "stable" verdict: a linear model of a nonlinear actuator
+#: holds near its identification's level. Measured on seft_plant_sim's family (20 s of 0.05 V
+#: valve noise): the Coulomb-friction actuator's piston stuck in its seals at 3-4 mm/s, every
+#: test at 195-300 mm/s (67-71 times) was unstable where its model fitted to 1.5 % predicted
+#: stable; the linear members' tests, at 3.5-8 times, were predicted right.
+MAX_LEVEL_EXTRAPOLATION = 10.0
+
+
+def level_extrapolation(params: Mapping) -> str | None:
+    """Why a linear plant model's stability verdict does not reach this test's level.
+
+    Compares, rig by rig, the planned reference's peak force and velocity (the pre-run range
+    check's, :func:`~seft_ros.analysis.range_check.range_check`) with the largest the rig's
+    ``plant_model`` states it was identified at (``uncertainty.peak_force_N``,
+    ``peak_velocity_m_s``; 0: not stated, not compared).
+
+    Parameters
+    ----------
+    params : mapping
+        Resolved run parameters.
+
+    Returns
+    -------
+    str or None
+        One clause naming the rig, the channel, both peaks and the ratio when the test plans
+        more than :data:`MAX_LEVEL_EXTRAPOLATION` times the identified level; None when it
+        does not, when no model states its level, or when the test has no planned reference
+        (an identification run, an OpenSees model, a record that cannot be read).
+    """
+    from seft_ros.analysis.range_check import range_check  # analysis imports the core
+    setup = test_setup(params)
+    rigs = ({'': params} if setup.is_study
+            else {r: setup.rig_params[r] for r in setup.rig_names})
+    stated = {}
+    for rig, rp in rigs.items():
+        if has_plant_model(rp):
+            unc = force_loop_plant(rp).uncertainty
+            if unc.peak_force_N or unc.peak_velocity_m_s:
+                stated[rig] = {'force': (unc.peak_force_N, 'N'),
+                               'velocity': (unc.peak_velocity_m_s, 'm/s')}
+    if not stated:
+        return None
+    try:
+        planned = range_check(params).peaks
+    except SeftError:
+        return None
+    worst = None
+    for peak in planned:
+        level, unit = stated.get(peak.rig, {}).get(peak.channel, (0.0, ''))
+        if level > 0 and peak.peak > MAX_LEVEL_EXTRAPOLATION * level:
+            ratio = peak.peak / level
+            if worst is None or ratio > worst[0]:
+                worst = (ratio, peak.rig, peak.channel, peak.peak, level, unit)
+    if worst is None:
+        return None
+    ratio, rig, channel, test, level, unit = worst
+    who = f'rig {rig}: ' if rig else ''
+    return (f"{who}the plant_model was identified at a peak {channel} of {level:.3g} {unit} and "
+            f'this test plans {test:.3g} {unit} ({ratio:.0f} times, more than '
+            f'{MAX_LEVEL_EXTRAPOLATION:g}): a linear model of an actuator (friction, valve '
+            'flow) does not vouch for a level it was not identified at; identify at the '
+            "test's level (a larger excitation_amplitude)")
+
+
 def _check_study(params: Mapping) -> StabilityCheck:
     """Predict whether the study's loop is stable at its configured alpha and predictor.
 
@@ -1446,9 +1513,11 @@ def check_run(params: Mapping, *, margin: bool = False) -> StabilityCheck:
     -------
     StabilityCheck
         ``stable`` False when the spectral radius as configured is >= 1; None where there
-        is no linear model (a nonlinear compensator or specimen; the message says why) and
-        for an open-loop identification run (the valve driven by the excitation: no loop
-        to check, the rig's stroke and force limits guard it; never refused).
+        is no linear model (a nonlinear compensator or specimen; the message says why),
+        where a ``plant_model`` was identified at a level the test exceeds
+        (:func:`level_extrapolation`) and for an open-loop identification run (the valve
+        driven by the excitation: no loop to check, the rig's stroke and force limits
+        guard it; never refused).
     """
     from seft_ros.core.excitation import open_loop
     if open_loop(params):
@@ -1464,6 +1533,11 @@ def check_run(params: Mapping, *, margin: bool = False) -> StabilityCheck:
             check = _check_study(params)
         else:
             check = _check_structure(params)
+        if check.stable:
+            beyond = level_extrapolation(params)
+            if beyond:
+                check = replace(check, stable=None,
+                                message=f'{check.message}; no verdict: {beyond}')
         if margin and (check.stable is not None
                        or params['predictor'] in MARGIN_OF_INITIAL_LAW):
             check = replace(check, margin=robustness_margin(params))
