@@ -172,3 +172,36 @@ def test_the_model_states_its_level_and_the_guard_holds_back_on_a_sticking_actua
     assert stuck[:2] == (None, False), stuck
     assert 'no verdict: the plant_model was identified at a peak velocity' in stuck[2]
     assert outcomes['valve_2nd_order'][:2] == (True, True), outcomes['valve_2nd_order']
+
+
+def test_a_specimen_near_the_crossover_still_gets_a_10_hz_loop():
+    """The 10 Hz, 0.5 % specimen on the pure-delay actuator: its control-structure-interaction
+    zero sits where the loop crosses over. Designed from 10 s of data alone, read on the true
+    actuator: 10 Hz or more, 45 deg and a gain margin of 2 (issue 38, target 2; before the
+    detuned loops were judged by their sensitivity peak, 7.8 Hz). With the specimen 1 % stiffer
+    or softer than the one cancelled, the true loop stays stable (python-control's closed-loop
+    poles, an independent routine)."""
+    import control
+
+    from seft_ros.core.force_design import _Discrete, design_force_controller, plant_margins
+    m, k = 40.0, 40.0 * (2 * math.pi * 10.0) ** 2
+    c = 2 * 0.005 * math.sqrt(k * m)
+    p = resolve(dict(mass_kg=m, stiffness_N_per_m=k, damping_N_s_per_m=c, rig_model='actuator',
+                     actuator_family='pure_delay', excitation='noise',
+                     excitation_input='valve_command', duration_s=10.0))
+    rig = simulate(p).rigs['']
+    y = np.column_stack([rig.measured_force_N, rig.displacement_m, rig.velocity_m_s,
+                         rig.acceleration_m_s2])
+    design = design_force_controller(identify_plant(rig.valve_command_V, y, DT,
+                                                    specimen=Specimen(m, c, k)).model)
+    assert design.met
+    spec = actuator_spec(p)
+    ctrl = _Discrete(np.array(design.num_z), np.array(design.den_z), DT)
+    margins = plant_margins(spec.linear_plant(LinearSpecimen(m, c, k), DT), ctrl)
+    assert margins.crossover_hz >= 10.0 and margins.phase_margin_deg >= 45.0
+    assert margins.gain_margin >= 2.0 and margins.crossovers == 1
+    for off in (0.99, 1.01):
+        true = spec.linear_plant(LinearSpecimen(m, c, off * k), DT)
+        loop = control.tf(list(design.num_z), list(design.den_z), DT) * control.ss2tf(
+            true.to_lti()[0, 0])
+        assert np.max(np.abs(control.feedback(loop, 1).poles())) < 1.0, off
