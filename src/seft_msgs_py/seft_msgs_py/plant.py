@@ -142,7 +142,7 @@ class PlantUncertainty:
         The largest measured force [N] and piston velocity [m/s] of the run the model was
         identified from (0: not stated): a linear model of a nonlinear actuator (friction,
         orifice flow) holds near the level it was identified at, and the stability guard
-        gives no verdict on a test that plans a decade more
+        gives no verdict on a test that plans far more
         (:data:`seft_ros.core.stability.MAX_LEVEL_EXTRAPOLATION`).
     """
 
