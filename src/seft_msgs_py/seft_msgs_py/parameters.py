@@ -177,9 +177,10 @@ SCHEMA: tuple[ParamSpec, ...] = (
               'stepped sine: peak; 0: 100 N, 0.05 V).', 0.0, None, nodes=_EXC),
     ParamSpec('excitation_band_low_hz', 0.5, 'Hz', 'Lower edge of the excitation band.',
               0.0, None, True, nodes=_EXC),
-    ParamSpec('excitation_band_hz', 150.0, 'Hz', 'Upper edge of the excitation band (below the '
-              'Nyquist frequency 1/(2 dt), above excitation_band_low_hz).', 0.0, None, True,
-              nodes=_EXC),
+    ParamSpec('excitation_band_hz', 0.0, 'Hz', 'Upper edge of the excitation band (below the '
+              'Nyquist frequency 1/(2 dt), above excitation_band_low_hz; 0: 0.6 of the Nyquist '
+              'frequency, 150 Hz at dt = 2 ms, 300 Hz at 1 ms: an identification needs the '
+              "actuator's band excited whatever the rate).", 0.0, None, nodes=_EXC),
     ParamSpec('excitation_seed', 1, '', 'Seed of the noise excitation (runs are '
               'reproducible).', 0, None, nodes=_EXC),
     # -- reference force builder ------------------------------------------------------------

@@ -26,6 +26,18 @@ SUMMARY_KEYS = ('zero_hz', 'resonance_hz', 'crossover_hz', 'phase_margin_deg', '
                 'delay_ms', 'delay_xcorr_ms')
 
 
+
+def _excitation(p) -> dict[str, Any]:
+    """The identification run's excitation settings, its band's upper edge resolved (0: a
+    fraction of the Nyquist frequency)."""
+    out = {k: p.get(k) for k in ('excitation', 'excitation_input', 'excitation_amplitude',
+                                 'excitation_band_low_hz', 'excitation_band_hz',
+                                 'excitation_seed', 'duration_s')}
+    if p.get('excitation', 'none') != 'none' and 'dt' in p:
+        from seft_ros.core.excitation import excitation_band_hz
+        out['excitation_band_hz'] = excitation_band_hz(p)[1]
+    return out
+
 def _clean(value):
     if isinstance(value, dict):
         return {k: _clean(v) for k, v in value.items()}
@@ -185,10 +197,7 @@ def write_identification(idents: list[RunIdentification], out_dir, *,
         doc['runs'].append({
             'bag': ident.source, 'rig': ident.rig, 'kind': ident.kind,
             'rig_model': p.get('rig_model'),
-            'excitation': {k: p.get(k) for k in (
-                'excitation', 'excitation_input', 'excitation_amplitude',
-                'excitation_band_low_hz', 'excitation_band_hz', 'excitation_seed',
-                'duration_s')},
+            'excitation': _excitation(p),
             'figures': ident.figures, 'plots': plots})
     structure = rig_parameters is not None
     if structure:

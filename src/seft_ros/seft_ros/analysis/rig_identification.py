@@ -43,6 +43,7 @@ from seft_ros.analysis.specimen_identification import (
     SpecimenFit,
     fit_specimen,
 )
+from seft_ros.core.excitation import excitation_band_hz
 
 __all__ = ['FrequencyResponse', 'RationalFit', 'LoopFigures', 'RunIdentification',
            'h1_estimate', 'fit_rational', 'loop_figures', 'phase_slope_delay_s',
@@ -600,9 +601,8 @@ def identify_run(run: RunData, *, window: str = 'hann', nperseg: int = DEFAULT_N
     weight = _coherent(fr)
     nyq = 0.5 / dt
     band = (float(fr.freqs_hz[1]), 0.9 * nyq)
-    lo_exc = float(p.get('excitation_band_low_hz', 0.0)) if p.get('excitation') != 'none' \
-        else 0.0
-    hi_exc = float(p.get('excitation_band_hz', nyq)) if p.get('excitation') != 'none' else nyq
+    lo_exc, hi_exc = (excitation_band_hz(p) if p.get('excitation', 'none') != 'none'
+                      else (0.0, nyq))
     band = (max(band[0], lo_exc), min(band[1], hi_exc))
     try:
         fit = fit_rational(fr.freqs_hz, fr.response, dt, orders=orders, weight=weight,
@@ -694,7 +694,7 @@ def _specimen_band(params) -> tuple[float, float] | None:
     """The band of the specimen fit: the excitation's, or None (the fit's default)."""
     if params.get('excitation', 'none') == 'none':
         return None
-    return (float(params['excitation_band_low_hz']), float(params['excitation_band_hz']))
+    return excitation_band_hz(params)
 
 
 def specimen_figures(fit: SpecimenFit, params) -> dict[str, Any]:
