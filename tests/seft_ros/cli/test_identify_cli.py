@@ -47,6 +47,11 @@ def test_identify_writes_json_plots_report_and_params(bags, capsys):
     assert json.loads(values['plant_model'])['form'] == 'transfer_function'
     assert values['predictor_tau_s'] == pytest.approx(design['equivalent_delay_s'])
     assert design['margins']['phase_margin_deg'] >= 45.0
+    # the level it was identified at: in the file (the guard reads it) and on the console
+    level = json.loads(values['plant_model'])['uncertainty']
+    assert level['peak_force_N'] > 100.0 and level['peak_velocity_m_s'] > 0.0
+    assert (f"identified up to {level['peak_force_N']:.3g} N and "
+            f"{level['peak_velocity_m_s']:.3g} m/s" in identification_table(doc))
     # a plant model that explains the force badly is said to be so (the guard then gives
     # its runs no verdict): the same document with a 25 % fit error
     assert 'WARNING' not in identification_table(doc)

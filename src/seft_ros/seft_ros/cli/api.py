@@ -1502,12 +1502,17 @@ def identification_table(doc: dict) -> str:
                 m = design['margins']
                 gm = m['gain_margin']
                 misfit = plant['nrms']['force_N']
+                level = plant.get('uncertainty') or {}
                 lines.append(f"{'plant model':18s} order {plant['order']}, delay "
                              f"{plant['delay_steps']} steps, force NRMS {100 * misfit:.2g} %"
                              + (f'; WARNING: above {100 * stability.MAX_PLANT_MISFIT:g} %, '
                                 'a nonlinear actuator (friction, valve flow): the guard gives '
                                 'its runs no stability verdict'
-                                if misfit > stability.MAX_PLANT_MISFIT else ''))
+                                if misfit > stability.MAX_PLANT_MISFIT else '')
+                             + (f"; identified up to {level['peak_force_N']:.3g} N and "
+                                f"{level['peak_velocity_m_s']:.3g} m/s (no stability verdict "
+                                f'beyond {stability.MAX_LEVEL_EXTRAPOLATION:g} times either)'
+                                if level.get('peak_velocity_m_s') else ''))
                 lines.append(f"{'designed loop':18s} crossover {m['crossover_hz']:.1f} Hz, phase "
                              f"margin {m['phase_margin_deg']:.0f} deg, gain margin "
                              + ('inf' if gm is None else f'{gm:.2f}')
