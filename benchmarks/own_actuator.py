@@ -271,9 +271,9 @@ def main(argv=None) -> int:
     ap.add_argument('--monte-carlo', type=int, default=0, metavar='N',
                     help='N spread plants per member (+-30 %%), the 32 Hz 1 %% specimen')
     ap.add_argument('--record', default='default', help="a record for the tests ('default')")
-    ap.add_argument('--alphas', nargs='+', type=float, default=list(ALPHAS),
+    ap.add_argument('--alphas', nargs='*', type=float, default=list(ALPHAS),
                     help='the mass ratios of the model runs (Monte Carlo: 1.0, as the '
-                    "issue's target)")
+                    "issue's target; none: the adaptive run alone)")
     ap.add_argument('--no-adaptive', action='store_true', help='skip the adaptive run')
     ap.add_argument('--workers', type=int, default=2)
     ap.add_argument('--json', help='write the results there')

@@ -309,6 +309,12 @@ SCHEMA: tuple[ParamSpec, ...] = (
               "identified specimen and I/O latency ('model_latency': for a rig whose I/O "
               'delay is not known to a fraction of a sample).',
               choices=('data', 'model', 'model_latency'), nodes=_RFB + ('recorder',)),
+    ParamSpec('adaptive_loop_fit', 'auto', '', "'adaptive': the force loop's delay and gain "
+              "fitted online from the command and the measured force ('fit'), or held at the "
+              "force-loop inverse's ('hold'); 'auto': held when the force loop is given as "
+              "data (plant_model, the inverse designed for it), fitted on seft's own rig "
+              'model (seft_ros.core.predictors.adaptive_fits_loop).',
+              choices=('auto', 'fit', 'hold'), nodes=_RFB + ('recorder',)),
     ParamSpec('ats_window_s', 1.0, 's', "'ats': sliding window of the least-squares fit of "
               'a0, a1, a2 (refitted every 16 steps, Chae et al. 2013).', 0.0, 100.0, True,
               nodes=_RFB + ('recorder',)),
