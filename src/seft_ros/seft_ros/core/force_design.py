@@ -59,6 +59,7 @@ from seft_msgs_py.sampling import single_blas_thread
 
 __all__ = ['DesignTargets', 'LoopMargins', 'ForceLoopDesign', 'loop_margins',
            'design_force_controller', 'plant_margins', 'INVERSE_BAND_ERROR',
+           'MIN_DETUNED_MODULUS_MARGIN',
            'DESIGN_METHOD']
 
 #: The largest miss ``max |W T - z^-d|`` up to 25 Hz of the force-loop inverse the design
