@@ -139,29 +139,55 @@ def _simulate(params, *, progress, record, stale_steps) -> RunData:
     padded = ag.tolist() + [0.0] * (look + 1)
     # the compensators' online estimates (if they have any), in effect for each f_r[k]
     estimators = [getattr(law.predictor, 'estimates', None) for b in builders for law in b.laws]
+    estimated = [r for r, fn in enumerate(estimators) if fn is not None]
 
-    def build(j):
-        """The commands of step j of every rig, in rig order (xg''[j .. j + L] each); the
-        builders' specimen models exchanged as the graph's builders exchange them."""
-        out = [c for b in builders for c in b.step(padded[j:j + 1 + b.lookahead_steps])]
-        if len(builders) > 1:
+    if len(builders) == 1:
+        width = 1 + builder.lookahead_steps
+        builder_step = builder.step
+
+        def build(j):
+            """The commands of step j of every rig, in rig order (xg''[j .. j + L])."""
+            return builder_step(padded[j:j + width])
+
+        def ground_forces():
+            return builder.last_ground_forces_N
+    else:
+        def build(j):
+            """The commands of step j of every rig, in rig order (xg''[j .. j + L] each); the
+            builders' specimen models exchanged as the graph's builders exchange them."""
+            out = [c for b in builders for c in b.step(padded[j:j + 1 + b.lookahead_steps])]
             for b in builders:
                 if b.outbox is not None and b.outbox[0] == j:
                     for other in builders:
                         if other is not b:
                             for rig, model in b.outbox[1].items():
                                 other.receive_models(j, rig, model)
-        return out
+            return out
 
-    def ground_forces():
-        return [g for b in builders for g in b.last_ground_forces_N]
+        def ground_forces():
+            return [g for b in builders for g in b.last_ground_forces_N]
 
     def estimates():
-        return [None if fn is None else fn() for fn in estimators]
+        return [None if fn is None else fn() for fn in estimators] if estimated else None
 
     n_r = len(rigs)
-    # per-step signals as Python lists (a list store is a few times cheaper than an array's)
-    rec = {name: {k: [] for k in ('fr', 'fm', 'u', 'x', 'v', 'a', 'est')} for name in names}
+    # per-step signals as Python lists (a list store is a few times cheaper than an array's):
+    # each rig's samples as one row (f_r, f_m, u, x, v, a) a step, its estimates apart
+    rows = [[] for _ in names]
+    est_rows = [[] for _ in names]
+    # each rig's calls of a step, looked up once (a step costs what the test uses: a rig
+    # without controller, playout or estimates skips them)
+    lanes = [(rig.limit_violation, rig.measure, rig.apply,
+              ctrls[r].step if valve[r] else None, locks[r].update if valve[r] else None,
+              ctrls[r],
+              playouts[r], stale[r], rows[r].append, qualified('rig', names[r]),
+              qualified('force_servo_controller', names[r]))
+             for r, rig in enumerate(rigs)]
+    watches = [(monitors[r].update, None if checks[r] is None else checks[r].update,
+                check_abort[r], names[r]) for r in range(n_r)]
+    # the builders whose rigs' sensors have ranges (they may have a warning to say)
+    guarded = [(b, [g for g in b.range_guards if g is not None]) for b in builders]
+    guarded = [(b, guards) for b, guards in guarded if guards]
     state_rec = []
     warnings = []
     reason = abort_node = None
@@ -173,50 +199,46 @@ def _simulate(params, *, progress, record, stale_steps) -> RunData:
     for k in range(n_total):
         meas = [None] * n_r
         for r in range(n_r):
-            rig = rigs[r]
-            reason = rig.limit_violation()
+            (limit_violation, measure, apply, control, lock, ctrl, playout, stale_r, store,
+             rig_node, ctrl_node) = lanes[r]
+            reason = limit_violation()
             if reason:
-                abort_node = qualified('rig', names[r])
+                abort_node = rig_node
                 break
-            m = rig.measure()
+            m = measure()
             meas[r] = m
-            if valve[r]:
-                playout = playouts[r]
-                reference = (commands[r] if playout is None
-                             else playout.replay(k, commands[r], k in stale[r]))
-                u = ctrls[r].step(reference, m.force_N, m.velocity_m_s, m.acceleration_m_s2,
-                                  m.displacement_m)
-                reason = locks[r].update(ctrls[r].saturated, m.time_s)
+            fr = commands[r]
+            if control is not None:
+                reference = fr if playout is None else playout.replay(k, fr, k in stale_r)
+                u = control(reference, m.force_N, m.velocity_m_s, m.acceleration_m_s2,
+                            m.displacement_m)
+                reason = lock(ctrl.saturated, m.time_s)
                 if reason:
-                    abort_node = qualified('force_servo_controller', names[r])
+                    abort_node = ctrl_node
                     break
             else:
-                u = commands[r]
-            out = rec[names[r]]
-            out['fr'].append(commands[r])
-            if est[r] is not None:
-                out['est'].append(est[r])
-            out['fm'].append(m.force_N)
-            out['u'].append(u)
-            out['x'].append(m.displacement_m)
-            out['v'].append(m.velocity_m_s)
-            out['a'].append(m.acceleration_m_s2)
-            rig.apply(u)
+                u = fr
+            store((fr, m.force_N, u, m.displacement_m, m.velocity_m_s, m.acceleration_m_s2))
+            if est is not None and est[r] is not None:
+                est_rows[r].append(est[r])
+            apply(u)
         if reason:
             n_done = k
             break
         if k + 1 < n_total:
             scale = ground_forces()
             for r in range(n_r):
-                reason = monitors[r].update(meas[r].force_N, scale[r], meas[r].time_s)
-                if not reason and checks[r] is not None:
-                    finding = checks[r].update(meas[r])
-                    if finding and check_abort[r]:
+                watch, check, abort, name = watches[r]
+                m = meas[r]
+                reason = watch(m.force_N, scale[r], m.time_s)
+                if not reason and check is not None:
+                    finding = check(m)
+                    if finding and abort:
                         reason = finding
                     elif finding:
                         warnings.append(finding)
                 if reason:
-                    reason = f'{names[r]}: {reason}' if names[r] else reason
+                    reason = f'{name}: {reason}' if name else reason
                     abort_node = 'reference_force_builder'
                     break
             if reason:
@@ -225,9 +247,11 @@ def _simulate(params, *, progress, record, stale_steps) -> RunData:
             for observe in observers:
                 for r in range(n_r):
                     observe(r, meas[r])
-            for b in builders:
-                if any(g is not None and g.news for g in b.range_guards):
-                    warnings.extend(b.range_warnings())
+            for b, guards in guarded:
+                for g in guards:
+                    if g.news:
+                        warnings.extend(b.range_warnings())
+                        break
             commands = build(k + 1)
             est = estimates()
             state_rec.append(builder.computational_state)
@@ -248,24 +272,21 @@ def _simulate(params, *, progress, record, stale_steps) -> RunData:
     dt = float(params['dt'])
     t = np.arange(n) * dt
 
-    def signal(values):
-        return np.array(values[:n], dtype=float)
-
     rig_data = {}
     for r, name in enumerate(names):
-        out = rec[name]
+        # the rig's samples (n, 6) as six contiguous signals
+        fr, fm, u, x, v, a = (np.ascontiguousarray(column) for column in
+                              np.array(rows[r][:n], dtype=float).reshape(-1, 6).T)
         estimate_signals = None
-        if out['est']:
-            estimate_signals = {key: np.array([e[key] for e in out['est'][:n]], dtype=float)
-                                for key in out['est'][0]}
+        if est_rows[r]:
+            estimate_signals = {key: np.array([e[key] for e in est_rows[r][:n]], dtype=float)
+                                for key in est_rows[r][0]}
         p = rig_params[name]
         if not builder.setup.is_study:
             p = dict(p, alpha=float(builder.setup.substructures.alpha[r]))
         rig_data[name] = RigData(
-            params=dict(p), reference_force_N=signal(out['fr']),
-            measured_force_N=signal(out['fm']), displacement_m=signal(out['x']),
-            velocity_m_s=signal(out['v']), acceleration_m_s2=signal(out['a']),
-            valve_command_V=signal(out['u']) if valve[r] else None,
+            params=dict(p), reference_force_N=fr, measured_force_N=fm, displacement_m=x,
+            velocity_m_s=v, acceleration_m_s2=a, valve_command_V=u if valve[r] else None,
             estimates=estimate_signals)
     # the computational state of sample k is recorded by the step of k+1: the last sample's
     # is not (the run ends there); it is NaN
