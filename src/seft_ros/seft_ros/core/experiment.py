@@ -141,34 +141,13 @@ def _simulate(params, *, progress, record, stale_steps) -> RunData:
     estimators = [getattr(law.predictor, 'estimates', None) for b in builders for law in b.laws]
     estimated = [r for r, fn in enumerate(estimators) if fn is not None]
 
-    if len(builders) == 1:
-        width = 1 + builder.lookahead_steps
-        builder_step = builder.step
-
-        def build(j):
-            """The commands of step j of every rig, in rig order (xg''[j .. j + L])."""
-            return builder_step(padded[j:j + width])
-
-        def ground_forces():
-            return builder.last_ground_forces_N
-    else:
-        def build(j):
-            """The commands of step j of every rig, in rig order (xg''[j .. j + L] each); the
-            builders' specimen models exchanged as the graph's builders exchange them."""
-            out = [c for b in builders for c in b.step(padded[j:j + 1 + b.lookahead_steps])]
-            for b in builders:
-                if b.outbox is not None and b.outbox[0] == j:
-                    for other in builders:
-                        if other is not b:
-                            for rig, model in b.outbox[1].items():
-                                other.receive_models(j, rig, model)
-            return out
-
-        def ground_forces():
-            return [g for b in builders for g in b.last_ground_forces_N]
+    # the builders act as one: each rig's command in rig order (per_rig: one builder a rig)
+    builder_set = builder if len(builders) == 1 else _Builders(builders)
+    width = 1 + builder_set.lookahead_steps
+    build = builder_set.step
 
     def estimates():
-        return [None if fn is None else fn() for fn in estimators] if estimated else None
+        return [None if fn is None else fn() for fn in estimators]
 
     n_r = len(rigs)
     # per-step signals as Python lists (a list store is a few times cheaper than an array's):
@@ -185,16 +164,15 @@ def _simulate(params, *, progress, record, stale_steps) -> RunData:
              for r, rig in enumerate(rigs)]
     watches = [(monitors[r].update, None if checks[r] is None else checks[r].update,
                 check_abort[r], names[r]) for r in range(n_r)]
-    # the builders whose rigs' sensors have ranges (they may have a warning to say)
-    guarded = [(b, [g for g in b.range_guards if g is not None]) for b in builders]
-    guarded = [(b, guards) for b, guards in guarded if guards]
+    # each builder's rig observations, and its rigs' range guards (a warning to say)
+    observations = [(b.observe, r) for b in builders for r in range(n_r)]
+    guarded = [(b, g) for b in builders for g in b.range_guards if g is not None]
     state_rec = []
     warnings = []
     reason = abort_node = None
     n_done = n_total
-    commands = build(0)
-    est = estimates()
-    observers = [b.observe for b in builders]
+    commands = build(padded[0:width])
+    est = estimates() if estimated else None
     t_last = t_start = time.monotonic()
     for k in range(n_total):
         meas = [None] * n_r
@@ -226,7 +204,7 @@ def _simulate(params, *, progress, record, stale_steps) -> RunData:
             n_done = k
             break
         if k + 1 < n_total:
-            scale = ground_forces()
+            scale = builder_set.last_ground_forces_N
             for r in range(n_r):
                 watch, check, abort, name = watches[r]
                 m = meas[r]
@@ -244,16 +222,14 @@ def _simulate(params, *, progress, record, stale_steps) -> RunData:
             if reason:
                 n_done = k + 1
                 break
-            for observe in observers:
-                for r in range(n_r):
-                    observe(r, meas[r])
-            for b, guards in guarded:
-                for g in guards:
-                    if g.news:
-                        warnings.extend(b.range_warnings())
-                        break
-            commands = build(k + 1)
-            est = estimates()
+            for observe, r in observations:
+                observe(r, meas[r])
+            for b, g in guarded:
+                if g.news:                  # (b says every guard's news, and empties them)
+                    warnings.extend(b.range_warnings())
+            commands = build(padded[k + 1:k + 1 + width])
+            if estimated:
+                est = estimates()
             state_rec.append(builder.computational_state)
         if progress is not None and not k & 255 and time.monotonic() - t_last > 0.5:
             t_last = time.monotonic()
@@ -307,3 +283,39 @@ def _simulate(params, *, progress, record, stale_steps) -> RunData:
                'specimen_ratios': {r: c.stiffness_ratio for r, c in zip(names, checks)
                                    if c is not None},
                'sensor_range': {r: v for b in builders for r, v in b.range_counts().items()}})
+
+
+class _Builders:
+    """The reference-force builders of one test (``structure_builders: per_rig``, one a rig)
+    stepped as one :class:`~seft_ros.core.reference_force.ReferenceForceBuilder`: each
+    builder's commands in rig order, and the specimen models they send exchanged as the
+    graph's builders exchange them.
+
+    Parameters
+    ----------
+    builders : list of ReferenceForceBuilder
+        In rig order (each commands its own rigs).
+    """
+
+    def __init__(self, builders):
+        self.builders = builders
+        self.lookahead_steps = max(b.lookahead_steps for b in builders)
+
+    @property
+    def last_ground_forces_N(self) -> list:
+        """Each rig's effective force of its latest command [N], in rig order."""
+        return [g for b in self.builders for g in b.last_ground_forces_N]
+
+    def step(self, window) -> list:
+        """The commands of step j of every rig [N], in rig order, from ``window =
+        xg''[j .. j + lookahead_steps]`` [m/s^2] (each builder reads its own part)."""
+        builders = self.builders
+        j = builders[0].next_step
+        out = [c for b in builders for c in b.step(window[:1 + b.lookahead_steps])]
+        for b in builders:
+            if b.outbox is not None and b.outbox[0] == j:
+                for other in builders:
+                    if other is not b:
+                        for rig, model in b.outbox[1].items():
+                            other.receive_models(j, rig, model)
+        return out

@@ -92,14 +92,15 @@ class RangeGuard:
         self._hook = getattr(predictor, 'at_range', None)
         self._model = specimen_model
         self._tangent_only = bool(tangent_only)
-        self._previous = None           # (step, velocity) of the latest sample
+        self._flags_of = ranges.flags_of
+        self._previous = None           # the latest sample
         self.news: list[tuple[str, int]] = []
 
     def take(self, m: Measurement) -> Measurement:
         """Flag, count and tell (module notes); return the measurement to feed back: `m`, or
         `m` with the acceleration estimated while the accelerometer is at its range."""
-        flags = self.ranges.flags(m)
-        previous, self._previous = self._previous, (m.step, m.velocity_m_s)
+        flags = self._flags_of(m.force_N, m.displacement_m, m.velocity_m_s, m.acceleration_m_s2)
+        previous, self._previous = self._previous, m
         if not flags:
             return m
         first = len(self.count.first_step)
@@ -112,7 +113,8 @@ class RangeGuard:
         if not flags & ACCELERATION:
             return m
         self.count.acceleration_estimated += 1
-        a = self.estimate(m, flags, previous)
+        a = self.estimate(m, flags, None if previous is None else (previous.step,
+                                                                   previous.velocity_m_s))
         return Measurement(m.step, m.time_s, m.displacement_m, m.velocity_m_s, a, m.force_N)
 
     def estimate(self, m: Measurement, flags: int, previous=None) -> float:
