@@ -156,13 +156,14 @@ def _simulate(params, *, progress, record, stale_steps) -> RunData:
     est_rows = [[] for _ in names]
     # each rig's calls of a step, looked up once (a step costs what the test uses: a rig
     # without controller, playout or estimates skips them)
-    lanes = [(rig.limit_violation, rig.measure, rig.apply,
+    lanes = [(r, rig.limit_violation, rig.measure, rig.apply,
               ctrls[r].step if valve[r] else None, locks[r].update if valve[r] else None,
-              ctrls[r],
-              playouts[r], stale[r], rows[r].append, qualified('rig', names[r]),
+              ctrls[r], playouts[r], stale[r], rows[r].append, qualified('rig', names[r]),
               qualified('force_servo_controller', names[r]))
              for r, rig in enumerate(rigs)]
-    watches = [(monitors[r].update, None if checks[r] is None else checks[r].update,
+    # each rig's watches in the builder: its instability monitor and its specimen check
+    # (None: none; its finding a warning, or with specimen_check: abort a reason to stop)
+    watches = [(r, monitors[r].update, None if checks[r] is None else checks[r].update,
                 check_abort[r], names[r]) for r in range(n_r)]
     # each builder's rig observations, and its rigs' range guards (a warning to say)
     observations = [(b.observe, r) for b in builders for r in range(n_r)]
@@ -176,9 +177,8 @@ def _simulate(params, *, progress, record, stale_steps) -> RunData:
     t_last = t_start = time.monotonic()
     for k in range(n_total):
         meas = [None] * n_r
-        for r in range(n_r):
-            (limit_violation, measure, apply, control, lock, ctrl, playout, stale_r, store,
-             rig_node, ctrl_node) = lanes[r]
+        for (r, limit_violation, measure, apply, control, lock, ctrl, playout, stale_r, store,
+             rig_node, ctrl_node) in lanes:
             reason = limit_violation()
             if reason:
                 abort_node = rig_node
@@ -205,16 +205,14 @@ def _simulate(params, *, progress, record, stale_steps) -> RunData:
             break
         if k + 1 < n_total:
             scale = builder_set.last_ground_forces_N
-            for r in range(n_r):
-                watch, check, abort, name = watches[r]
+            for r, watch, check, abort, name in watches:
                 m = meas[r]
                 reason = watch(m.force_N, scale[r], m.time_s)
                 if not reason and check is not None:
-                    finding = check(m)
-                    if finding and abort:
-                        reason = finding
-                    elif finding:
-                        warnings.append(finding)
+                    reason = check(m)
+                    if reason and not abort:
+                        warnings.append(reason)
+                        reason = None
                 if reason:
                     reason = f'{name}: {reason}' if name else reason
                     abort_node = 'reference_force_builder'
