@@ -92,14 +92,19 @@ class RangeGuard:
         self._hook = getattr(predictor, 'at_range', None)
         self._model = specimen_model
         self._tangent_only = bool(tangent_only)
-        self._flags_of = ranges.flags_of
+        self._thresholds = ranges.thresholds
         self._previous = None           # the latest sample
         self.news: list[tuple[str, int]] = []
 
     def take(self, m: Measurement) -> Measurement:
         """Flag, count and tell (module notes); return the measurement to feed back: `m`, or
         `m` with the acceleration estimated while the accelerometer is at its range."""
-        flags = self._flags_of(m.force_N, m.displacement_m, m.velocity_m_s, m.acceleration_m_s2)
+        f, x, v, a = self._thresholds
+        if (abs(m.force_N) < f and abs(m.displacement_m) < x and abs(m.velocity_m_s) < v
+                and abs(m.acceleration_m_s2) < a):     # no flag (the common case, one test)
+            self._previous = m
+            return m
+        flags = self.ranges.flags(m)
         previous, self._previous = self._previous, m
         if not flags:
             return m

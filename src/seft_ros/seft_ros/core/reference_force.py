@@ -765,13 +765,11 @@ class ReferenceForceBuilder:
             for seen in self._latest:
                 m = seen.pop(k - 1, None)
                 if m is None:
-                    r = len(latest)
-                    raise ParameterError(f'rig {self.local_rigs[r] or "rig"}: no measurement '
-                                         f'of sample {k - 1} observed')
+                    raise ParameterError(f'rig {self.local_rigs[len(latest)] or "rig"}: no '
+                                         f'measurement of sample {k - 1} observed')
                 latest.append(m)
                 if len(seen) > 4:                  # forget what came too late to be used
-                    for old in [j for j in seen if j < k - 1]:
-                        del seen[old]
+                    _forget_before(seen, k - 1)
         else:
             latest = [None] * self.n_l
         if self._couples:
@@ -915,6 +913,12 @@ class ReferenceForceBuilder:
                 self.interface_N[r] = sum(w * h for w, h in zip(weights, hist))
             else:
                 self.interface_N[r] = predicted[r]
+
+
+def _forget_before(seen: dict, step: int) -> None:
+    """Drop the measurements of samples before `step` from `seen` (step -> measurement)."""
+    for old in [j for j in seen if j < step]:
+        del seen[old]
 
 
 def ground_window(lookup: Callable[[int], float], k: int, lookahead_steps: int,
