@@ -103,6 +103,7 @@ class InstabilityMonitor:
         self._biquads = hp._biquad + lp._biquad
         self._z = [0.0, 0.0, 0.0, 0.0]
         self._beta = float(np.exp(-dt / window_s))
+        self._one_less_beta = 1.0 - self._beta
         self._ms_hf = 0.0
         self._ms_lf = 0.0
         self.ground_force_scale_N = 0.0
@@ -170,15 +171,15 @@ class InstabilityMonitor:
         lf = c0 * x + z[2]
         z[2] = c1 * x - d1 * lf + z[3]
         z[3] = c2 * x - d2 * lf
-        b = self._beta
-        ms_hf = self._ms_hf = b * self._ms_hf + (1.0 - b) * hf * hf
-        ms_lf = self._ms_lf = b * self._ms_lf + (1.0 - b) * lf * lf
+        b, c = self._beta, self._one_less_beta
+        ms_hf = self._ms_hf = b * self._ms_hf + c * hf * hf
+        ms_lf = self._ms_lf = b * self._ms_lf + c * lf * lf
         scale = abs(ground_force_N)
         if scale > self.ground_force_scale_N:
             self.ground_force_scale_N = scale
         floor = math.sqrt(ms_lf) + 0.05 * self.ground_force_scale_N + self.floor_N
-        self.ratio = math.sqrt(ms_hf) / floor if floor > 0 else 0.0
-        if self.threshold > 0 and self.ratio > self.threshold:
+        ratio = self.ratio = math.sqrt(ms_hf) / floor if floor > 0 else 0.0
+        if ratio > self.threshold > 0:
             return (f'unstable at t={time_s:.3f} s: high-frequency oscillation of the measured '
                     f'force, RMS above the cut-off {self.ratio:.2f} x the response band '
                     f'(threshold {self.threshold:g})')
