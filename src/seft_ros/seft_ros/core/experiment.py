@@ -158,8 +158,7 @@ def _simulate(params, *, progress, record, stale_steps) -> RunData:
     # without controller, playout or estimates skips them)
     lanes = [(r, rig.limit_violation, rig.measure, rig.apply,
               ctrls[r].step if valve[r] else None, locks[r].update if valve[r] else None,
-              ctrls[r], playouts[r], stale[r], rows[r].append, qualified('rig', names[r]),
-              qualified('force_servo_controller', names[r]))
+              ctrls[r], playouts[r], stale[r], rows[r].append)
              for r, rig in enumerate(rigs)]
     # each rig's watches in the builder: its instability monitor and its specimen check
     # (None: none; its finding a warning, or with specimen_check: abort a reason to stop)
@@ -168,7 +167,9 @@ def _simulate(params, *, progress, record, stale_steps) -> RunData:
     # each builder's rig observations, and its rigs' range guards (a warning to say)
     observations = [(b.observe, r) for b in builders for r in range(n_r)]
     guarded = [(b, g) for b in builders for g in b.range_guards if g is not None]
+    # the computational state of each sample a force was built from (a structure's)
     state_rec = []
+    record_state = bool(builder.state_names)
     warnings = []
     reason = abort_node = None
     n_done = n_total
@@ -177,11 +178,11 @@ def _simulate(params, *, progress, record, stale_steps) -> RunData:
     t_last = t_start = time.monotonic()
     for k in range(n_total):
         meas = [None] * n_r
-        for (r, limit_violation, measure, apply, control, lock, ctrl, playout, stale_r, store,
-             rig_node, ctrl_node) in lanes:
+        for (r, limit_violation, measure, apply, control, lock, ctrl, playout, stale_r,
+             store) in lanes:
             reason = limit_violation()
             if reason:
-                abort_node = rig_node
+                abort_node = qualified('rig', names[r])
                 break
             m = measure()
             meas[r] = m
@@ -192,7 +193,7 @@ def _simulate(params, *, progress, record, stale_steps) -> RunData:
                             m.displacement_m)
                 reason = lock(ctrl.saturated, m.time_s)
                 if reason:
-                    abort_node = ctrl_node
+                    abort_node = qualified('force_servo_controller', names[r])
                     break
             else:
                 u = fr
@@ -228,17 +229,19 @@ def _simulate(params, *, progress, record, stale_steps) -> RunData:
             commands = build(padded[k + 1:k + 1 + width])
             if estimated:
                 est = estimates()
-            state_rec.append(builder.computational_state)
+            if record_state:
+                state_rec.append(builder.computational_state)
         if progress is not None and not k & 255 and time.monotonic() - t_last > 0.5:
             t_last = time.monotonic()
             progress(k + 1, n_total)
     # the samples of the last step that no force was built from (the record's end, or an
     # abort there): the graph's builder node received them, and counts those at a sensor's
     # range; so does this
+    built = builders[0].next_step - 1       # the samples a force was built from
     if n_total and (reason is not None or n_done == n_total):
         for b in builders:
             for r in range(n_r):
-                if meas[r] is not None and meas[r].step >= len(state_rec):
+                if meas[r] is not None and meas[r].step >= built:
                     b.count_at_range(r, meas[r])
             warnings.extend(b.range_warnings())
     wall_s = time.monotonic() - t_start
