@@ -602,11 +602,11 @@ def _design(plant, specimen, targets, detune) -> ForceLoopDesign:
 #: The least modulus margin ``min |1 + L|`` of a loop with its cancellations detuned that
 #: does not meet the margins with one crossover: a sensitivity peak of 2, which alone
 #: guarantees a gain margin of 2 and a phase margin of 29 deg (Astrom and Murray 2021,
-#: Sec. 12.4). Such a loop need not cross over once: a mis-cancelled lightly damped zero near
-#: the crossover is a dipole the loop crosses three times (measured: the 10 Hz, 0.5 %
-#: specimen on seft_plant_sim's pure-delay actuator, cancelled 0.24 % off, crossed at
-#: 8.5-12 Hz three times, so that the single-crossover rule held the design at 7.8 Hz where
-#: its nominal loop allowed 12 Hz).
+#: Ch. 10: the stability margin 1/M_s). Such a loop need not cross over once: a
+#: mis-cancelled lightly damped zero near the crossover is a dipole the loop crosses three
+#: times (measured: the 10 Hz, 0.5 % specimen on seft_plant_sim's pure-delay actuator,
+#: cancelled 0.24 % off, crossed at 8.5-12 Hz three times, so that the single-crossover
+#: rule held the design at 7.8 Hz where its nominal loop allowed 12 Hz).
 MIN_DETUNED_MODULUS_MARGIN = 0.5
 
 

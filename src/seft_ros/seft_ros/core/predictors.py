@@ -64,6 +64,7 @@ __all__ = [
     'network_delay_steps', 'TangentModelPredictor', 'model_predictor',
     'TANGENT_STIFFNESS_RATIOS', 'HystereticModelPredictor', 'model_rig',
     'LoopLatencyFit', 'LATENCY_ESTIMATES', 'BackgroundFits', 'csi_band_hz',
+    'adaptive_fits_loop', 'ADAPTIVE_LOOP_FIT',
 ]
 
 
