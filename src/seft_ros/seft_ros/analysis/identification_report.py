@@ -286,10 +286,11 @@ def _level(plant: dict[str, Any]) -> str:
     unc = plant.get('uncertainty') or {}
     if not unc.get('peak_velocity_m_s'):
         return ''
-    from seft_ros.core.stability import MAX_LEVEL_EXTRAPOLATION
+    from seft_ros.core.stability import LEVEL_MISFIT, MAX_LEVEL_EXTRAPOLATION
     return (f" Identified up to {_fmt(unc['peak_force_N'], '.3g')} N and "
-            f"{_fmt(unc['peak_velocity_m_s'], '.3g')} m/s: the stability guard gives no "
-            f'verdict on a test planning more than {MAX_LEVEL_EXTRAPOLATION:g} times either.')
+            f"{_fmt(unc['peak_velocity_m_s'], '.3g')} m/s: for a test planning more than "
+            f'{MAX_LEVEL_EXTRAPOLATION:g} times either, the stability guard gives a verdict '
+            f'only on a fit within {100 * LEVEL_MISFIT:g} %.')
 
 
 def _design_lines(runs: list[dict[str, Any]]) -> list[str]:

@@ -1510,8 +1510,10 @@ def identification_table(doc: dict) -> str:
                                 'its runs no stability verdict'
                                 if misfit > stability.MAX_PLANT_MISFIT else '')
                              + (f"; identified up to {level['peak_force_N']:.3g} N and "
-                                f"{level['peak_velocity_m_s']:.3g} m/s (no stability verdict "
-                                f'beyond {stability.MAX_LEVEL_EXTRAPOLATION:g} times either)'
+                                f"{level['peak_velocity_m_s']:.3g} m/s (beyond "
+                                f'{stability.MAX_LEVEL_EXTRAPOLATION:g} times either, a '
+                                'stability verdict needs a fit within '
+                                f'{100 * stability.LEVEL_MISFIT:g} %)'
                                 if level.get('peak_velocity_m_s') else ''))
                 lines.append(f"{'designed loop':18s} crossover {m['crossover_hz']:.1f} Hz, phase "
                              f"margin {m['phase_margin_deg']:.0f} deg, gain margin "
