@@ -23,8 +23,7 @@ def test_a_hanging_teardown_exits_with_the_run_code_and_one_line(monkeypatch, ca
     node_support.shut_down([_Node(1.0)], 'rig', 3)           # hangs past the bound
     assert exits == [3]
     err = capsys.readouterr().err
-    assert err == ('rig: its ROS shutdown did not finish within 0.2 s of the end of the run; '
-                   'exiting\n')
+    assert err == 'rig: its ROS shutdown did not finish within 0.2 s; exiting\n'
 
 
 def test_a_prompt_teardown_exits_normally(monkeypatch, capsys):
@@ -37,3 +36,21 @@ def test_a_prompt_teardown_exits_normally(monkeypatch, capsys):
     time.sleep(0.7)                                           # the bound would have fired
     assert node.destroyed and exits == []
     assert capsys.readouterr().err == ''
+
+
+def test_outputs_are_closed_before_the_bound_runs(monkeypatch):
+    """A bag's close is not cut short: close_outputs runs first, unbounded (1 s here against a
+    0.2 s bound), and only the teardown after it is bounded."""
+    exits, order = [], []
+    monkeypatch.setattr(node_support, 'SHUTDOWN_TIMEOUT_S', 0.2)
+    monkeypatch.setattr(node_support.os, '_exit', exits.append)
+    monkeypatch.setattr(node_support.rclpy, 'try_shutdown', lambda: order.append('shutdown'))
+
+    class Writer(_Node):
+        def close_outputs(self):
+            time.sleep(1.0)
+            order.append('closed')
+
+    node_support.shut_down([Writer(0.0)], 'recorder', 0)
+    time.sleep(0.3)
+    assert order == ['closed', 'shutdown'] and exits == []

@@ -758,6 +758,10 @@ class SeftNode(Node):
             return None
         return wrapper
 
+    def close_outputs(self) -> None:
+        """Close what the node writes (the recorder: its bag) before its ROS teardown, which
+        :func:`shut_down` bounds and this must not be (no data lost to the bound)."""
+
     def finish(self, exit_code: int = 0) -> None:
         """Ask :func:`main_for` to stop spinning and exit with `exit_code`."""
         self.done = True
@@ -1030,6 +1034,7 @@ def main_for_nodes(specs: Sequence[tuple[Callable[[], SeftNode], str, Sequence[s
     nodes: list[SeftNode] = []
     code = 0
     name = specs[0][1]
+    post_run = None
     try:
         for factory, name, node_args in specs:
             _node_arguments = None if node_args is None else list(node_args)
@@ -1064,6 +1069,13 @@ def main_for_nodes(specs: Sequence[tuple[Callable[[], SeftNode], str, Sequence[s
             else:
                 node.run_due()
         code = _exit_code(nodes)
+        # the linger is bounded as a whole too (its own bound is RECORDER_WAIT_S; the outputs
+        # are closed and the teardown bounded after it, shut_down)
+        post_run = threading.Timer(RECORDER_WAIT_S + LINGER_S + SHUTDOWN_TIMEOUT_S, _exit_now,
+                                   args=(name, code, RECORDER_WAIT_S + LINGER_S
+                                         + SHUTDOWN_TIMEOUT_S))
+        post_run.daemon = True
+        post_run.start()
         # linger, so that the last samples and the final status reach their subscribers: with a
         # recorder in the graph, until it has closed the bag (a publisher that exits earlier
         # takes its unsent samples with it)
@@ -1083,6 +1095,8 @@ def main_for_nodes(specs: Sequence[tuple[Callable[[], SeftNode], str, Sequence[s
         print(f'{name}: error: {exc}', file=sys.stderr)
         code = 2
     finally:
+        if post_run is not None:
+            post_run.cancel()
         shut_down(nodes, name, code)
         for sig, handler in previous.items():
             signal.signal(sig, handler)
@@ -1090,7 +1104,8 @@ def main_for_nodes(specs: Sequence[tuple[Callable[[], SeftNode], str, Sequence[s
 
 
 def shut_down(nodes: Sequence[Node], name: str, code: int) -> None:
-    """Destroy the process's nodes and shut rclpy down, within :data:`SHUTDOWN_TIMEOUT_S`:
+    """Close the nodes' outputs (:meth:`SeftNode.close_outputs`, unbounded: a bag is never
+    cut short), then destroy the nodes and shut rclpy down within :data:`SHUTDOWN_TIMEOUT_S`:
     past it the process exits with `code` and one line on stderr naming `name`.
 
     The run is over by then (the linger of :func:`main_for_nodes` has let the recorder close
@@ -1099,7 +1114,12 @@ def shut_down(nodes: Sequence[Node], name: str, code: int) -> None:
     the recorder's bag closed, was still alive 57 s later, where the other nodes had exited.
     Not diagnosed; the live view bounds its own shutdown the same way.
     """
-    bound = threading.Timer(SHUTDOWN_TIMEOUT_S, _exit_now, args=(name, code))
+    for node in nodes:
+        close = getattr(node, 'close_outputs', None)
+        if close is not None:
+            close()
+    bound = threading.Timer(SHUTDOWN_TIMEOUT_S, _exit_now,
+                            args=(name, code, SHUTDOWN_TIMEOUT_S))
     bound.daemon = True
     bound.start()
     try:
@@ -1110,10 +1130,10 @@ def shut_down(nodes: Sequence[Node], name: str, code: int) -> None:
         bound.cancel()
 
 
-def _exit_now(name: str, code: int) -> None:
-    """The process's exit when its shutdown hangs (:func:`shut_down`)."""
-    print(f'{name}: its ROS shutdown did not finish within {SHUTDOWN_TIMEOUT_S:g} s of the '
-          'end of the run; exiting', file=sys.stderr, flush=True)
+def _exit_now(name: str, code: int, seconds: float) -> None:
+    """The process's exit when its way out hangs (:func:`shut_down`, the linger)."""
+    print(f'{name}: its ROS shutdown did not finish within {seconds:g} s; exiting',
+          file=sys.stderr, flush=True)
     os._exit(code)
 
 

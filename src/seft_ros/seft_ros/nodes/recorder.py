@@ -372,6 +372,10 @@ class RecorderNode(SeftNode):
             self.writer.close()
             self.writer = None
 
+    def close_outputs(self) -> None:
+        """Close the bag before the node's bounded teardown (``node_support.shut_down``)."""
+        self._close()
+
     def destroy_node(self):
         """Close the bag (also on Ctrl-C), then destroy the node."""
         self._close()
