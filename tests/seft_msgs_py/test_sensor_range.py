@@ -51,6 +51,13 @@ def test_flags_at_the_range_of_each_channel():
     assert math.isnan(r.clip(0, 0, 0, math.nan)[3])
 
 
+def test_thresholds_are_the_fraction_of_each_range():
+    r = SensorRanges(1000.0, 0.05, math.inf, 39.2)
+    assert r.thresholds == (AT_RANGE_FRACTION * 1000.0, AT_RANGE_FRACTION * 0.05, math.inf,
+                            AT_RANGE_FRACTION * 39.2)
+    assert SensorRanges().thresholds == (math.inf,) * 4
+
+
 def test_count_per_channel():
     count = RangeCount()
     count.add(5, 0)

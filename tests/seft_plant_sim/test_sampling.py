@@ -9,7 +9,12 @@ import pytest
 
 from seft_msgs_py import parameters
 from seft_msgs_py.interface import Measurement
-from seft_msgs_py.sampling import linear_map, single_blas_thread, split_delay
+from seft_msgs_py.sampling import (
+    chained_linear_map,
+    linear_map,
+    single_blas_thread,
+    split_delay,
+)
 from seft_msgs_py.sensor_range import SensorRanges
 from seft_plant_sim.rigs import make_rig
 from seft_plant_sim.sensors import Sensors
@@ -53,6 +58,39 @@ def test_linear_map_of_a_row_returns_a_float():
 def test_linear_map_errors(matrix, name, message):
     with pytest.raises(ValueError, match=message):
         linear_map(matrix, name=name)
+
+
+def test_chained_linear_map_is_the_two_maps_bit_for_bit():
+    """A rig's step and readings in one function: the same floats as the two linear maps."""
+    rng = np.random.default_rng(5)
+    m = rng.standard_normal((4, 6)) * 10.0 ** rng.integers(-6, 6, (4, 6))
+    m[0, 1] = 0.0
+    m[2, 5] = 1.0
+    n = rng.standard_normal((5, 4))
+    n[1, :] = 0.0                                  # a reading of nothing
+    n[3, 2] = 1.0
+    f = chained_linear_map(m, n, name='advance')
+    first, then = linear_map(m), linear_map(n)
+    assert f.__name__ == 'advance'
+    for _ in range(50):
+        x = (rng.standard_normal(6) * 100.0).tolist()
+        y, z = f(x)
+        assert y == first(x) and z == then(first(x))
+        assert all(isinstance(v, float) for v in y + z)
+    y, z = f([0.0] * 6)
+    assert y == (0.0,) * 4 and z[1] == 0.0
+
+
+@pytest.mark.parametrize('matrix, then, message', [
+    ([[1.0, 2.0]], [[1.0, 2.0]], r'^chained_linear_map: expected matrices \(m, n\) and '
+     r'\(p, m\), got shapes \(1, 2\) and \(1, 2\)$'),
+    ([1.0, 2.0], [[1.0]], r'^chained_linear_map: expected matrices \(m, n\) and \(p, m\), '
+     r'got shapes \(2,\) and \(1, 1\)$'),
+    ([[1.0]], [[math.nan]], r'^chained_linear_map: expected finite coefficients$'),
+])
+def test_chained_linear_map_errors(matrix, then, message):
+    with pytest.raises(ValueError, match=message):
+        chained_linear_map(matrix, then)
 
 
 def test_split_delay_snaps_to_whole_steps():

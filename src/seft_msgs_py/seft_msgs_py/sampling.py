@@ -7,7 +7,7 @@ import numpy as np
 from scipy.signal import cont2discrete
 from threadpoolctl import ThreadpoolController
 
-__all__ = ['zoh', 'split_delay', 'linear_map', 'single_blas_thread']
+__all__ = ['zoh', 'split_delay', 'linear_map', 'chained_linear_map', 'single_blas_thread']
 
 _BLAS = None
 
@@ -109,23 +109,75 @@ def linear_map(matrix, *, name: str = 'linear_map'):
     The sum of row i is ``((m_i0 x_0 + m_i1 x_1) + m_i2 x_2) + ...``: the same value as
     ``sum(m_ij * x_j for j)``, and within rounding of ``numpy.dot``.
     """
-    if not name.isidentifier():
-        raise ValueError(f'linear_map: name {name!r} is not an identifier')
-    m = np.asarray(matrix, dtype=float)
-    if m.ndim not in (1, 2):
-        raise ValueError(f'linear_map: expected a 1-d or 2-d matrix, got shape {m.shape}')
-    if not np.all(np.isfinite(m)):
-        raise ValueError('linear_map: expected finite coefficients')
-    rows = [m] if m.ndim == 1 else list(m)
-    exprs = []
-    for row in rows:
-        terms = []
-        for j, c in enumerate(row.tolist()):
-            if c == 0.0:
-                continue
-            terms.append(f'x[{j}]' if c == 1.0 else f'({c!r})*x[{j}]')
-        exprs.append(' + '.join(terms) if terms else '0.0')
+    m = _coefficients(matrix, name, 'linear_map')
+    exprs = [_row(row, 'x[{}]') for row in ([m] if m.ndim == 1 else list(m))]
     body = exprs[0] if m.ndim == 1 else '(' + ', '.join(exprs) + ',)'
     namespace = {}
     exec(f'def {name}(x):\n    return {body}\n', namespace)
     return namespace[name]
+
+
+def chained_linear_map(matrix, then, *, name: str = 'chained_linear_map'):
+    """Compile ``y = M x`` and ``z = N y`` for fixed matrices into one straight-line function.
+
+    A sampled system's step and its readings (``s[k+1] = [Phi, Gamma] [s[k], u]``, then
+    ``y = C s[k+1]``) in one call: the same products and sums as ``linear_map(M)`` followed by
+    ``linear_map(N)`` on its result (the same floats, bit for bit), without the second call
+    and its indexing. See :func:`linear_map` for how the code is written.
+
+    Parameters
+    ----------
+    matrix : array_like, shape (m, n)
+        M; finite coefficients.
+    then : array_like, shape (p, m)
+        N; finite coefficients.
+    name : str
+        Name of the function (shown in profiles and tracebacks).
+
+    Returns
+    -------
+    callable(x) -> (tuple of float, tuple of float)
+        ``(y, z)``, lengths m and p; `x` as for :func:`linear_map`.
+
+    Raises
+    ------
+    ValueError
+        If a coefficient is not finite, a matrix is not 2-d, their shapes do not chain, or
+        `name` is not an identifier.
+    """
+    m = _coefficients(matrix, name, 'chained_linear_map')
+    n = _coefficients(then, name, 'chained_linear_map')
+    if m.ndim != 2 or n.ndim != 2 or n.shape[1] != m.shape[0]:
+        raise ValueError(f'chained_linear_map: expected matrices (m, n) and (p, m), got shapes '
+                         f'{m.shape} and {n.shape}')
+    lines = [f'    y{i} = {_row(row, "x[{}]")}' for i, row in enumerate(m)]
+    y = '(' + ', '.join(f'y{i}' for i in range(m.shape[0])) + ',)'
+    z = '(' + ', '.join(_row(row, 'y{}') for row in n) + ',)'
+    namespace = {}
+    exec(f'def {name}(x):\n' + '\n'.join(lines) + f'\n    return {y}, {z}\n', namespace)
+    return namespace[name]
+
+
+def _coefficients(matrix, name: str, caller: str) -> np.ndarray:
+    """`matrix` as a finite 1-d or 2-d float array (`name` checked as an identifier)."""
+    if not name.isidentifier():
+        raise ValueError(f'{caller}: name {name!r} is not an identifier')
+    m = np.asarray(matrix, dtype=float)
+    if m.ndim not in (1, 2):
+        raise ValueError(f'{caller}: expected a 1-d or 2-d matrix, got shape {m.shape}')
+    if not np.all(np.isfinite(m)):
+        raise ValueError(f'{caller}: expected finite coefficients')
+    return m
+
+
+def _row(row, operand: str) -> str:
+    """One output of a linear map as Python source: ``c_0*operand_0 + c_1*operand_1 + ...``
+    (`operand` a format string of the index), summed left to right, exact zeros left out
+    and unit coefficients not multiplied."""
+    terms = []
+    for j, c in enumerate(row.tolist()):
+        if c == 0.0:
+            continue
+        x = operand.format(j)
+        terms.append(x if c == 1.0 else f'({c!r})*{x}')
+    return ' + '.join(terms) if terms else '0.0'

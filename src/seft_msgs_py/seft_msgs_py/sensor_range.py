@@ -89,6 +89,12 @@ class SensorRanges:
         """``(force_N, displacement_m, velocity_m_s, acceleration_m_s2)``."""
         return (self.force_N, self.displacement_m, self.velocity_m_s, self.acceleration_m_s2)
 
+    @property
+    def thresholds(self) -> tuple:
+        """``(force_N, displacement_m, velocity_m_s, acceleration_m_s2)``: the magnitude at
+        which a reading is at its range (``AT_RANGE_FRACTION`` of it; ``inf``: unlimited)."""
+        return self._at
+
     def range_of(self, channel: str) -> float:
         """The full scale of a channel (one of :data:`CHANNELS`) in its SI unit."""
         return self.ranges()[CHANNELS.index(channel)]

@@ -50,6 +50,7 @@ from seft_msgs_py.interface import COMMAND_VALVE, Measurement
 from seft_msgs_py.plant import OUTPUTS as PLANT_OUTPUTS
 from seft_msgs_py.plant import LoopResponses, PlantModel
 from seft_msgs_py.plant import Specimen as PlantSpecimen
+from seft_msgs_py.sampling import chained_linear_map as _chained_linear_map
 from seft_msgs_py.sampling import linear_map as _linear_map
 from seft_msgs_py.sampling import split_delay as _split_delay
 from seft_msgs_py.sampling import zoh as _zoh
@@ -653,13 +654,14 @@ class ServoHydraulicRig:
         self._late_from_history = n >= 1
         self.step = 0
         # linear specimen: s[k+1] = [phi, gamma_early, gamma_late] [s[k], u_early, u_late] on
-        # the work list w, and the readings y = c s[k+1], both compiled to Python floats
-        self._advance = _linear_map(np.hstack([self.model.phi, self.model.gamma_early[:, None],
-                                               self.model.gamma_late[:, None]]),
-                                    name='advance')
-        self._read = _linear_map(self._c, name='read')
+        # the work list w, and the readings y = c s[k+1], compiled to Python floats in one
+        # function: advance(w) -> (s[k+1], y)
+        self._advance = _chained_linear_map(
+            np.hstack([self.model.phi, self.model.gamma_early[:, None],
+                       self.model.gamma_late[:, None]]), self._c, name='advance')
         self._w = [0.0] * (ns + 2)           # [state, u_early, u_late]
-        self._y = self._read(self._w)        # outputs at t_k, in the order of OUTPUTS
+        # outputs at t_k, in the order of OUTPUTS
+        self._y = _linear_map(self._c, name='read')(self._w)
         if self._hysteretic:
             if not (isinstance(rk4_substeps, int) and rk4_substeps >= 1):
                 raise ParameterError(
@@ -748,9 +750,8 @@ class ServoHydraulicRig:
         ns = self._ns
         w[ns] = hist[0]
         w[ns + 1] = hist[1] if self._late_from_history else u
-        s = self._advance(w)
+        s, self._y = self._advance(w)
         w[:ns] = s
-        self._y = self._read(s)
         hist.append(u)
         self.step += 1
 
@@ -760,7 +761,12 @@ class ServoHydraulicRig:
             return self.limits.violation(self.step * self.dt, float(self._s[0]),
                                          self.true_force())
         y = self._y
-        return self.limits.violation(self.step * self.dt, y[_DISP], y[_TRUE_FORCE])
+        x, f = y[_DISP], y[_TRUE_FORCE]
+        limits = self.limits
+        stroke, force = limits.stroke_limit_m, limits.force_limit_N
+        if -stroke <= x <= stroke and -force <= f <= force:
+            return None                 # inside the envelope (SafetyLimits.violation's test)
+        return limits.violation(self.step * self.dt, x, f)
 
 
 def _hysteretic_step(params: ServoHydraulicParams, specimen: BoucWenSpecimen):

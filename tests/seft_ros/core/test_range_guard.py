@@ -64,6 +64,33 @@ def test_the_acceleration_is_the_specimens_equation_while_the_accelerometer_is_c
         'estimated from the measured force and motion while it lasts')
 
 
+def test_the_guard_flags_exactly_the_samples_the_ranges_flag():
+    """A sample inside every range returns at once; the guard counts and tells exactly the
+    samples ``SensorRanges.flags`` flags: at, just below and beyond each channel's threshold,
+    NaN (not flagged), an unlimited channel (only inf is at its range)."""
+    ranges = SensorRanges(1000.0, 0.05, math.inf, 39.2)
+    told = Compensator()
+    guard = RangeGuard(ranges, 0.002, told, lambda: SpecimenModel(M, C, K))
+    f_at, x_at, v_at, a_at = ranges.thresholds
+    assert math.isinf(v_at)
+    readings = [(0.0, 0.0, 0.0, 0.0), (f_at, 0.0, 0.0, 0.0), (-f_at * 0.9999, 0.0, 0.0, 0.0),
+                (0.0, -x_at, 0.0, 0.0), (0.0, 0.0, 1e300, 0.0), (0.0, 0.0, -math.inf, 0.0),
+                (0.0, 0.0, 0.0, a_at), (0.0, 0.0, 0.0, -39.2), (math.nan, 0.0, 0.0, 0.0),
+                (0.0, math.nan, math.nan, math.nan), (2e3, 0.1, 3.0, 50.0)]
+    expected = []
+    for step, (f, x, v, a) in enumerate(readings):
+        m = Measurement(step, step * 0.002, x, v, a, f)
+        flags = ranges.flags(m)
+        out = guard.take(m)
+        if not flags & ACCELERATION:
+            assert out is m
+        if flags:
+            expected.append((step, flags))
+    assert told.told == expected
+    assert [s for s, _ in expected] == [1, 3, 5, 6, 7, 10]
+    assert guard.count.flagged == len(expected)
+
+
 def test_with_the_load_cell_clipped_too_the_velocity_difference():
     guard = RangeGuard(SensorRanges(1000.0, 0.1, 2.5, 39.2), 0.002, Compensator(),
                        lambda: SpecimenModel(M, C, K))

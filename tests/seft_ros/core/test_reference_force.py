@@ -290,6 +290,23 @@ def test_ground_method_matches_the_step_average(delay_s):
     assert b.last_ground_force_N == pytest.approx(-2.0 * M * g, rel=1e-12, abs=1e-12)
 
 
+def test_the_preview_follows_a_delay_that_moves():
+    """An adaptive compensator's delay moves during a run: each step's ground term is the
+    step average at the delay of that step (the law keeps its split only while the delay
+    holds), whole and fractional shifts, and back; the same float as ground()."""
+    rng = np.random.default_rng(7)
+    pred = RecordingPredictor(delay_s=0.004, max_delay_s=0.012)
+    b = RigReferenceForce(1.0, M, pred, dt=0.002, ground_preview=True)
+    assert b.lookahead_steps == 7
+    for delay_s in (0.004, 0.004, 0.0051, 0.0051, 0.012, 0.0, 0.0037, 0.004):
+        pred.delay_s = delay_s
+        window = rng.standard_normal(b.lookahead_steps + 1).tolist()
+        b.step(window, None)
+        g = step_average_by_trapezoids(window, delay_s / 0.002)
+        assert b.last_ground_force_N == pytest.approx(-2.0 * M * g, rel=1e-12, abs=1e-12)
+        assert b.last_ground_force_N == -2.0 * M * b.ground(window)
+
+
 def test_ground_of_the_sample_predictor_is_the_sample():
     b = RigReferenceForce(0.5, M, NoPredictor(), dt=0.002, ground_preview=True)
     assert (b.ground_preview, b.lookahead_steps) == (True, 0)

@@ -139,108 +139,109 @@ def _simulate(params, *, progress, record, stale_steps) -> RunData:
     padded = ag.tolist() + [0.0] * (look + 1)
     # the compensators' online estimates (if they have any), in effect for each f_r[k]
     estimators = [getattr(law.predictor, 'estimates', None) for b in builders for law in b.laws]
+    estimated = [r for r, fn in enumerate(estimators) if fn is not None]
 
-    def build(j):
-        """The commands of step j of every rig, in rig order (xg''[j .. j + L] each); the
-        builders' specimen models exchanged as the graph's builders exchange them."""
-        out = [c for b in builders for c in b.step(padded[j:j + 1 + b.lookahead_steps])]
-        if len(builders) > 1:
-            for b in builders:
-                if b.outbox is not None and b.outbox[0] == j:
-                    for other in builders:
-                        if other is not b:
-                            for rig, model in b.outbox[1].items():
-                                other.receive_models(j, rig, model)
-        return out
-
-    def ground_forces():
-        return [g for b in builders for g in b.last_ground_forces_N]
+    # the builders act as one: each rig's command in rig order (per_rig: one builder a rig)
+    builder_set = builder if len(builders) == 1 else _Builders(builders)
+    width = 1 + builder_set.lookahead_steps
+    build = builder_set.step
 
     def estimates():
         return [None if fn is None else fn() for fn in estimators]
 
     n_r = len(rigs)
-    # per-step signals as Python lists (a list store is a few times cheaper than an array's)
-    rec = {name: {k: [] for k in ('fr', 'fm', 'u', 'x', 'v', 'a', 'est')} for name in names}
+    # per-step signals as Python lists (a list store is a few times cheaper than an array's):
+    # each rig's samples as one row (f_r, f_m, u, x, v, a) a step, its estimates apart
+    rows = [[] for _ in names]
+    est_rows = [[] for _ in names]
+    # each rig's calls of a step, looked up once (a step costs what the test uses: a rig
+    # without controller, playout or estimates skips them)
+    lanes = [(r, rig.limit_violation, rig.measure, rig.apply,
+              ctrls[r].step if valve[r] else None, locks[r].update if valve[r] else None,
+              ctrls[r], playouts[r], stale[r], rows[r].append)
+             for r, rig in enumerate(rigs)]
+    # each rig's watches in the builder: its instability monitor and its specimen check
+    # (None: none; its finding a warning, or with specimen_check: abort a reason to stop)
+    watches = [(r, monitors[r].update, None if checks[r] is None else checks[r].update,
+                check_abort[r], names[r]) for r in range(n_r)]
+    # each builder's rig observations, and its rigs' range guards (a warning to say)
+    observations = [(b.observe, r) for b in builders for r in range(n_r)]
+    guarded = [(b, g) for b in builders for g in b.range_guards if g is not None]
+    # the computational state of each sample a force was built from (a structure's)
     state_rec = []
+    record_state = bool(builder.state_names)
     warnings = []
     reason = abort_node = None
     n_done = n_total
-    commands = build(0)
-    est = estimates()
-    observers = [b.observe for b in builders]
+    commands = build(padded[0:width])
+    est = estimates() if estimated else None
     t_last = t_start = time.monotonic()
     for k in range(n_total):
         meas = [None] * n_r
-        for r in range(n_r):
-            rig = rigs[r]
-            reason = rig.limit_violation()
+        for (r, limit_violation, measure, apply, control, lock, ctrl, playout, stale_r,
+             store) in lanes:
+            reason = limit_violation()
             if reason:
                 abort_node = qualified('rig', names[r])
                 break
-            m = rig.measure()
+            m = measure()
             meas[r] = m
-            if valve[r]:
-                playout = playouts[r]
-                reference = (commands[r] if playout is None
-                             else playout.replay(k, commands[r], k in stale[r]))
-                u = ctrls[r].step(reference, m.force_N, m.velocity_m_s, m.acceleration_m_s2,
-                                  m.displacement_m)
-                reason = locks[r].update(ctrls[r].saturated, m.time_s)
+            fr = commands[r]
+            if control is not None:
+                reference = fr if playout is None else playout.replay(k, fr, k in stale_r)
+                u = control(reference, m.force_N, m.velocity_m_s, m.acceleration_m_s2,
+                            m.displacement_m)
+                reason = lock(ctrl.saturated, m.time_s)
                 if reason:
                     abort_node = qualified('force_servo_controller', names[r])
                     break
             else:
-                u = commands[r]
-            out = rec[names[r]]
-            out['fr'].append(commands[r])
-            if est[r] is not None:
-                out['est'].append(est[r])
-            out['fm'].append(m.force_N)
-            out['u'].append(u)
-            out['x'].append(m.displacement_m)
-            out['v'].append(m.velocity_m_s)
-            out['a'].append(m.acceleration_m_s2)
-            rig.apply(u)
+                u = fr
+            store((fr, m.force_N, u, m.displacement_m, m.velocity_m_s, m.acceleration_m_s2))
+            if est is not None and est[r] is not None:
+                est_rows[r].append(est[r])
+            apply(u)
         if reason:
             n_done = k
             break
         if k + 1 < n_total:
-            scale = ground_forces()
-            for r in range(n_r):
-                reason = monitors[r].update(meas[r].force_N, scale[r], meas[r].time_s)
-                if not reason and checks[r] is not None:
-                    finding = checks[r].update(meas[r])
-                    if finding and check_abort[r]:
-                        reason = finding
-                    elif finding:
-                        warnings.append(finding)
+            scale = builder_set.last_ground_forces_N
+            for r, watch, check, abort, name in watches:
+                m = meas[r]
+                reason = watch(m.force_N, scale[r], m.time_s)
+                if not reason and check is not None:
+                    reason = check(m)
+                    if reason and not abort:
+                        warnings.append(reason)
+                        reason = None
                 if reason:
-                    reason = f'{names[r]}: {reason}' if names[r] else reason
+                    reason = f'{name}: {reason}' if name else reason
                     abort_node = 'reference_force_builder'
                     break
             if reason:
                 n_done = k + 1
                 break
-            for observe in observers:
-                for r in range(n_r):
-                    observe(r, meas[r])
-            for b in builders:
-                if any(g is not None and g.news for g in b.range_guards):
+            for observe, r in observations:
+                observe(r, meas[r])
+            for b, g in guarded:
+                if g.news:                  # (b says every guard's news, and empties them)
                     warnings.extend(b.range_warnings())
-            commands = build(k + 1)
-            est = estimates()
-            state_rec.append(builder.computational_state)
+            commands = build(padded[k + 1:k + 1 + width])
+            if estimated:
+                est = estimates()
+            if record_state:
+                state_rec.append(builder.computational_state)
         if progress is not None and not k & 255 and time.monotonic() - t_last > 0.5:
             t_last = time.monotonic()
             progress(k + 1, n_total)
     # the samples of the last step that no force was built from (the record's end, or an
     # abort there): the graph's builder node received them, and counts those at a sensor's
     # range; so does this
+    built = builders[0].next_step - 1       # the samples a force was built from
     if n_total and (reason is not None or n_done == n_total):
         for b in builders:
             for r in range(n_r):
-                if meas[r] is not None and meas[r].step >= len(state_rec):
+                if meas[r] is not None and meas[r].step >= built:
                     b.count_at_range(r, meas[r])
             warnings.extend(b.range_warnings())
     wall_s = time.monotonic() - t_start
@@ -248,24 +249,21 @@ def _simulate(params, *, progress, record, stale_steps) -> RunData:
     dt = float(params['dt'])
     t = np.arange(n) * dt
 
-    def signal(values):
-        return np.array(values[:n], dtype=float)
-
     rig_data = {}
     for r, name in enumerate(names):
-        out = rec[name]
+        # the rig's samples (n, 6) as six contiguous signals
+        fr, fm, u, x, v, a = (np.ascontiguousarray(column) for column in
+                              np.array(rows[r][:n], dtype=float).reshape(-1, 6).T)
         estimate_signals = None
-        if out['est']:
-            estimate_signals = {key: np.array([e[key] for e in out['est'][:n]], dtype=float)
-                                for key in out['est'][0]}
+        if est_rows[r]:
+            estimate_signals = {key: np.array([e[key] for e in est_rows[r][:n]], dtype=float)
+                                for key in est_rows[r][0]}
         p = rig_params[name]
         if not builder.setup.is_study:
             p = dict(p, alpha=float(builder.setup.substructures.alpha[r]))
         rig_data[name] = RigData(
-            params=dict(p), reference_force_N=signal(out['fr']),
-            measured_force_N=signal(out['fm']), displacement_m=signal(out['x']),
-            velocity_m_s=signal(out['v']), acceleration_m_s2=signal(out['a']),
-            valve_command_V=signal(out['u']) if valve[r] else None,
+            params=dict(p), reference_force_N=fr, measured_force_N=fm, displacement_m=x,
+            velocity_m_s=v, acceleration_m_s2=a, valve_command_V=u if valve[r] else None,
             estimates=estimate_signals)
     # the computational state of sample k is recorded by the step of k+1: the last sample's
     # is not (the run ends there); it is NaN
@@ -286,3 +284,39 @@ def _simulate(params, *, progress, record, stale_steps) -> RunData:
                'specimen_ratios': {r: c.stiffness_ratio for r, c in zip(names, checks)
                                    if c is not None},
                'sensor_range': {r: v for b in builders for r, v in b.range_counts().items()}})
+
+
+class _Builders:
+    """The reference-force builders of one test (``structure_builders: per_rig``, one a rig)
+    stepped as one :class:`~seft_ros.core.reference_force.ReferenceForceBuilder`: each
+    builder's commands in rig order, and the specimen models they send exchanged as the
+    graph's builders exchange them.
+
+    Parameters
+    ----------
+    builders : list of ReferenceForceBuilder
+        In rig order (each commands its own rigs).
+    """
+
+    def __init__(self, builders):
+        self.builders = builders
+        self.lookahead_steps = max(b.lookahead_steps for b in builders)
+
+    @property
+    def last_ground_forces_N(self) -> list:
+        """Each rig's effective force of its latest command [N], in rig order."""
+        return [g for b in self.builders for g in b.last_ground_forces_N]
+
+    def step(self, window) -> list:
+        """The commands of step j of every rig [N], in rig order, from ``window =
+        xg''[j .. j + lookahead_steps]`` [m/s^2] (each builder reads its own part)."""
+        builders = self.builders
+        j = builders[0].next_step
+        out = [c for b in builders for c in b.step(window[:1 + b.lookahead_steps])]
+        for b in builders:
+            if b.outbox is not None and b.outbox[0] == j:
+                for other in builders:
+                    if other is not b:
+                        for rig, model in b.outbox[1].items():
+                            other.receive_models(j, rig, model)
+        return out

@@ -96,9 +96,14 @@ class InstabilityMonitor:
         self.floor_N = float(floor_N)
         self.dt = float(dt)
         self.threshold = float(threshold)
-        self._hp = DiscreteFilter(*signal.butter(2, cutoff_hz, 'highpass', fs=1.0 / dt))
-        self._lp = DiscreteFilter(*signal.butter(2, cutoff_hz, 'lowpass', fs=1.0 / dt))
+        hp = DiscreteFilter(*signal.butter(2, cutoff_hz, 'highpass', fs=1.0 / dt))
+        lp = DiscreteFilter(*signal.butter(2, cutoff_hz, 'lowpass', fs=1.0 / dt))
+        # the two biquads as update steps them: (b0, b1, b2, a1, a2) of the high pass, then
+        # of the low pass; their states (z0, z1) of each, in the same order
+        self._biquads = hp._biquad + lp._biquad
+        self._z = [0.0, 0.0, 0.0, 0.0]
         self._beta = float(np.exp(-dt / window_s))
+        self._one_less_beta = 1.0 - self._beta
         self._ms_hf = 0.0
         self._ms_lf = 0.0
         self.ground_force_scale_N = 0.0
@@ -158,25 +163,23 @@ class InstabilityMonitor:
         """
         x = measured_force_N
         # the two Butterworth sections (DiscreteFilter.step of a biquad, written out)
-        z = self._hp._z
-        b0, b1, b2, a1, a2 = self._hp._biquad
+        z = self._z
+        b0, b1, b2, a1, a2, c0, c1, c2, d1, d2 = self._biquads
         hf = b0 * x + z[0]
         z[0] = b1 * x - a1 * hf + z[1]
         z[1] = b2 * x - a2 * hf
-        z = self._lp._z
-        b0, b1, b2, a1, a2 = self._lp._biquad
-        lf = b0 * x + z[0]
-        z[0] = b1 * x - a1 * lf + z[1]
-        z[1] = b2 * x - a2 * lf
-        b = self._beta
-        ms_hf = self._ms_hf = b * self._ms_hf + (1.0 - b) * hf * hf
-        ms_lf = self._ms_lf = b * self._ms_lf + (1.0 - b) * lf * lf
+        lf = c0 * x + z[2]
+        z[2] = c1 * x - d1 * lf + z[3]
+        z[3] = c2 * x - d2 * lf
+        b, c = self._beta, self._one_less_beta
+        ms_hf = self._ms_hf = b * self._ms_hf + c * hf * hf
+        ms_lf = self._ms_lf = b * self._ms_lf + c * lf * lf
         scale = abs(ground_force_N)
         if scale > self.ground_force_scale_N:
             self.ground_force_scale_N = scale
         floor = math.sqrt(ms_lf) + 0.05 * self.ground_force_scale_N + self.floor_N
-        self.ratio = math.sqrt(ms_hf) / floor if floor > 0 else 0.0
-        if self.threshold > 0 and self.ratio > self.threshold:
+        ratio = self.ratio = math.sqrt(ms_hf) / floor if floor > 0 else 0.0
+        if ratio > self.threshold > 0:
             return (f'unstable at t={time_s:.3f} s: high-frequency oscillation of the measured '
                     f'force, RMS above the cut-off {self.ratio:.2f} x the response band '
                     f'(threshold {self.threshold:g})')
@@ -188,6 +191,8 @@ SPECIMEN_CHECK_ACTIONS = ('warn', 'abort', 'off')
 #: The specimen check takes every this many excited samples into its least squares (the
 #: stiffness needs no more: 100 samples a second of a 500 Hz rig; a fifth of the cost).
 CHECK_EVERY = 5
+#: The time constant of the specimen check's running RMS of the measured force [s].
+GATE_WINDOW_S = 0.5
 #: The tolerance of the check when no ``specimen_uncertainty`` is declared [-].
 DEFAULT_SPECIMEN_TOLERANCE = 0.1
 #: The specimen check's hold level in a test with no amplitude (``amplitude_N`` 0, an
@@ -266,10 +271,16 @@ class SpecimenCheck:
         # unknowns in Python floats: it runs at every sample of every rig
         self._theta = [1.0, c0 / self._scale[1], 1.0]
         p0 = float(dt) / (0.01 * level * level)
-        self._p = [[p0, 0.0, 0.0], [0.0, p0, 0.0], [0.0, 0.0, p0]]
+        # the covariance P, symmetric (exactly: each update averages the pairs), as its six
+        # entries (p00, p01, p02, p11, p12, p22)
+        self._p = (p0, 0.0, 0.0, p0, 0.0, p0)
         self._max_trace = 3.0 * p0
         self._lambda = ident.forgetting_factor(float(dt) * CHECK_EVERY, memory_s)
-        self._gate = ident.ExcitationGate(float(dt), 0.5, excitation_N)
+        # the excitation gate, ExcitationGate(dt, GATE_WINDOW_S, excitation_N) written out in
+        # update: the running mean square of the force against the level's square
+        self._gate_weight = min(1.0, float(dt) / GATE_WINDOW_S)
+        self._gate_limit = float(excitation_N) ** 2
+        self._mean_square = 0.0
         self._settle = int(round(settle_s / float(dt)))
         self._persist = int(round(persist_s / float(dt)))
         self._excited = 0
@@ -305,37 +316,49 @@ class SpecimenCheck:
                    excitation_N=excitation_level_N(params, SPECIMEN_CHECK_LEVEL_N),
                    ranges=SensorRanges.from_parameters(params))
 
-    def _update(self, phi, y: float) -> None:
-        """One RLS step with forgetting and covariance limiting (``RecursiveLeastSquares``)."""
-        p, theta, lam = self._p, self._theta, self._lambda
-        pp = [p[i][0] * phi[0] + p[i][1] * phi[1] + p[i][2] * phi[2] for i in range(3)]
-        denom = lam + phi[0] * pp[0] + phi[1] * pp[1] + phi[2] * pp[2]
-        gain = [v / denom for v in pp]
-        err = y - (phi[0] * theta[0] + phi[1] * theta[1] + phi[2] * theta[2])
-        for i in range(3):
-            theta[i] += gain[i] * err
-        new = [[(p[i][j] - gain[i] * pp[j]) / lam for j in range(3)] for i in range(3)]
-        for i in range(3):
-            for j in range(i + 1, 3):
-                new[i][j] = new[j][i] = 0.5 * (new[i][j] + new[j][i])
-        trace = new[0][0] + new[1][1] + new[2][2]
+    def _update(self, phi0: float, phi1: float, phi2: float, y: float) -> None:
+        """One RLS step with forgetting and covariance limiting (``RecursiveLeastSquares``)
+        on the regressor ``phi = (phi0, phi1, phi2)``, written out on P's six entries (the
+        same operations in the same order as the 3 x 3 matrix form)."""
+        p00, p01, p02, p11, p12, p22 = self._p
+        theta, lam = self._theta, self._lambda
+        pp0 = p00 * phi0 + p01 * phi1 + p02 * phi2
+        pp1 = p01 * phi0 + p11 * phi1 + p12 * phi2
+        pp2 = p02 * phi0 + p12 * phi1 + p22 * phi2
+        denom = lam + phi0 * pp0 + phi1 * pp1 + phi2 * pp2
+        g0, g1, g2 = pp0 / denom, pp1 / denom, pp2 / denom
+        err = y - (phi0 * theta[0] + phi1 * theta[1] + phi2 * theta[2])
+        theta[0] += g0 * err
+        theta[1] += g1 * err
+        theta[2] += g2 * err
+        # (P - g pp^T) / lambda, each off-diagonal pair averaged
+        n00 = (p00 - g0 * pp0) / lam
+        n11 = (p11 - g1 * pp1) / lam
+        n22 = (p22 - g2 * pp2) / lam
+        n01 = 0.5 * ((p01 - g0 * pp1) / lam + (p01 - g1 * pp0) / lam)
+        n02 = 0.5 * ((p02 - g0 * pp2) / lam + (p02 - g2 * pp0) / lam)
+        n12 = 0.5 * ((p12 - g1 * pp2) / lam + (p12 - g2 * pp1) / lam)
+        trace = n00 + n11 + n22
         if trace > self._max_trace:
             scale = self._max_trace / trace
-            new = [[v * scale for v in row] for row in new]
-        self._p = new
+            n00, n01, n02 = n00 * scale, n01 * scale, n02 * scale
+            n11, n12, n22 = n11 * scale, n12 * scale, n22 * scale
+        self._p = (n00, n01, n02, n11, n12, n22)
 
     def update(self, measurement) -> str | None:
         """Take one sample (a :class:`~seft_msgs_py.interface.Measurement`); return the
         one-line finding the first time the specimen is judged not the declared one."""
         f = measurement.force_N
-        if not self._gate.update(f):
+        ms = self._mean_square                       # ExcitationGate.update
+        ms = self._mean_square = ms + self._gate_weight * (f * f - ms)
+        if not ms > self._gate_limit:
             self._off = 0
             return None
-        s = self._scale
         if not self._excited % CHECK_EVERY and (self._ranges is None
                                                 or not self._ranges.flags(measurement)):
-            self._update((s[0] * measurement.acceleration_m_s2,
-                          s[1] * measurement.velocity_m_s, s[2] * measurement.displacement_m), f)
+            s = self._scale
+            self._update(s[0] * measurement.acceleration_m_s2, s[1] * measurement.velocity_m_s,
+                         s[2] * measurement.displacement_m, f)
         self._excited += 1
         self.stiffness_ratio = self._theta[2]
         if self._excited < self._settle or self.reported:

@@ -57,7 +57,8 @@ from seft_ros.core.hysteresis import HYSTERESIS_ESTIMATES
 __all__ = [
     'NoPredictor', 'PolynomialPredictor', 'ModelPredictor', 'AdaptivePredictor',
     'DelayImpulseModel', 'ForceLoopInverse', 'lagrange_extrapolation_weights',
-    'foh_step_average', 'model_parameters', 'ADAPTIVE_ESTIMATES', 'AtsPredictor',
+    'foh_step_average', 'foh_split', 'foh_split_average', 'model_parameters',
+    'ADAPTIVE_ESTIMATES', 'AtsPredictor',
     'ATS_ESTIMATES', 'IdentifiedForceLoop', 'LOOP_ESTIMATES', 'LoopImpulseResponses',
     'force_loop_impulse_responses', 'step_average_force_impulse_response',
     'network_delay_steps', 'TangentModelPredictor', 'model_predictor',
@@ -119,8 +120,18 @@ def foh_step_average(window, offset_steps: float) -> float:
         (first-order hold, the interpolation of the reference analysis); for a whole s this is
         ``(y[k+s] + y[k+s+1]) / 2``.
     """
+    return foh_split_average(window, *foh_split(offset_steps))
+
+
+def foh_split(offset_steps: float) -> tuple[int, float]:
+    """The whole steps ``i`` and the fraction ``f`` of `offset_steps` (``s = i + f``, a
+    fraction below 1e-12 is a whole step) as :func:`foh_step_average` splits them."""
     i = int(math.floor(offset_steps + 1e-12))
-    f = offset_steps - i
+    return i, offset_steps - i
+
+
+def foh_split_average(window, i: int, f: float) -> float:
+    """:func:`foh_step_average` of the offset ``i + f`` split by :func:`foh_split`."""
     if f < 1e-12:
         return 0.5 * (window[i] + window[i + 1])
     y0, y1, y2 = window[i], window[i + 1], window[i + 2]
@@ -609,7 +620,7 @@ class ModelPredictor:
         same numbers within rounding).
         """
         x, v = (0.0, 0.0) if latest is None else (latest.displacement_m, latest.velocity_m_s)
-        offset = self.restoring_offset(latest)
+        offset = self.restoring_offset(latest) if self.measured_restoring_force else 0.0
         if self._feedback is None:
             s_hat = self.model.state_ahead(x, v, _past(commanded_N, self.model.n + 2) - offset)
             force = self.force(s_hat, ground_force_N - offset) + offset

@@ -92,14 +92,20 @@ class RangeGuard:
         self._hook = getattr(predictor, 'at_range', None)
         self._model = specimen_model
         self._tangent_only = bool(tangent_only)
-        self._previous = None           # (step, velocity) of the latest sample
+        self._thresholds = ranges.thresholds
+        self._previous = None           # the latest sample
         self.news: list[tuple[str, int]] = []
 
     def take(self, m: Measurement) -> Measurement:
         """Flag, count and tell (module notes); return the measurement to feed back: `m`, or
         `m` with the acceleration estimated while the accelerometer is at its range."""
+        f, x, v, a = self._thresholds
+        if (abs(m.force_N) < f and abs(m.displacement_m) < x and abs(m.velocity_m_s) < v
+                and abs(m.acceleration_m_s2) < a):     # no flag (the common case, one test)
+            self._previous = m
+            return m
         flags = self.ranges.flags(m)
-        previous, self._previous = self._previous, (m.step, m.velocity_m_s)
+        previous, self._previous = self._previous, m
         if not flags:
             return m
         first = len(self.count.first_step)
@@ -112,7 +118,8 @@ class RangeGuard:
         if not flags & ACCELERATION:
             return m
         self.count.acceleration_estimated += 1
-        a = self.estimate(m, flags, previous)
+        a = self.estimate(m, flags, None if previous is None else (previous.step,
+                                                                   previous.velocity_m_s))
         return Measurement(m.step, m.time_s, m.displacement_m, m.velocity_m_s, a, m.force_N)
 
     def estimate(self, m: Measurement, flags: int, previous=None) -> float:

@@ -28,6 +28,8 @@ from seft_ros.core.predictors import (
     DelayImpulseModel,
     NoPredictor,
     PolynomialPredictor,
+    foh_split,
+    foh_split_average,
     foh_step_average,
     model_parameters,
     model_predictor,
@@ -235,6 +237,9 @@ class RigReferenceForce:
         # G = ground_gain g (iota = 1: the product is exact, the study's number)
         self._ground_gain = -(1.0 + self.alpha) * self.mass_kg * float(influence)
         self._alpha_m = self.alpha * self.mass_kg
+        # the preview's shift as foh_split splits it, for the compensator's delay [s] in use
+        # (an adaptive compensator's moves): (delay, i, f)
+        self._preview = (None, 0, 0.0)
         self.lookahead_steps = 0
         if getattr(predictor, 'step_average', False):
             self.lookahead_steps = 1
@@ -276,11 +281,21 @@ class RigReferenceForce:
         if len(window) <= self.lookahead_steps:
             raise ParameterError(f'ground window of {len(window)} samples: expected '
                                  f'{self.lookahead_steps + 1} (xg[k..k+{self.lookahead_steps}])')
+        return self.step_window(window, latest, interface_N)
+
+    def step_window(self, window, latest: Measurement | None,
+                    interface_N: float | None = None) -> float:
+        """:meth:`step` from a window already known to be long enough (the builder's)."""
         predictor = self.predictor
         if not predictor.step_average:             # self.ground(window), written out
             g = float(window[0])
-        elif self.ground_preview:
-            g = foh_step_average(window, predictor.delay_s / self.dt)
+        elif self.ground_preview:                  # foh_step_average, its split kept
+            delay, i, f = self._preview
+            if delay != predictor.delay_s:
+                delay = predictor.delay_s
+                i, f = foh_split(delay / self.dt)
+                self._preview = (delay, i, f)
+            g = 0.5 * (window[i] + window[i + 1]) if f < 1e-12 else foh_split_average(window, i, f)
         else:
             g = 0.5 * (window[0] + window[1])      # foh_step_average(window, 0.0)
         ground_force = self.last_ground_force_N = self._ground_gain * g
@@ -458,6 +473,7 @@ class ReferenceForceBuilder:
                                  f'local rigs {", ".join(self.local_rigs)}')
         pi = list(s.physical_index)
         self._local_pos = [names.index(r) for r in self.local_rigs]
+        self._local_of = {j: r for r, j in enumerate(self._local_pos)}   # position -> local
         self._local_dof = [pi[j] for j in self._local_pos]
         self.n_l = len(self.laws)
         self.predictor = self.laws[0].predictor if self.n_l == 1 else None
@@ -478,6 +494,8 @@ class ReferenceForceBuilder:
         self._latest: list[dict] = [{} for _ in self.laws]
         #: the rigs other builders command (their models come by :meth:`receive_models`)
         self.remote_rigs = tuple(r for r in names if r not in self.local_rigs)
+        # a step does more than its laws (other builders' models, a computational part)
+        self._couples = bool(self.remote_rigs) or self._tracking
         self._inbox: dict[int, dict] = {}
         self._remote_models: dict[int, SpecimenModel] = {}    # rig position -> its model
         #: ``(step, {rig: SpecimenModel})`` of the local rigs, set every
@@ -689,12 +707,11 @@ class ReferenceForceBuilder:
         measurement : Measurement
             Its sample (``measurement.step``).
         """
-        try:
-            r = self._local_pos.index(rig)
-        except ValueError:
-            r = None
-        if r is not None and self.range_guards[r] is not None:
-            measurement = self.range_guards[r].take(measurement)
+        r = self._local_of.get(rig)
+        if r is not None:
+            guard = self.range_guards[r]
+            if guard is not None:
+                measurement = guard.take(measurement)
         if self.state is not None:
             self.state.observe(rig, measurement)
         if r is not None:
@@ -743,17 +760,33 @@ class ReferenceForceBuilder:
             raise ParameterError(f'ground window of {len(window)} samples: expected '
                                  f'{self.lookahead_steps + 1} (xg[k..k+{self.lookahead_steps}])')
         k = self.next_step
-        latest = [None] * self.n_l
         if k > 0:
-            for r, seen in enumerate(self._latest):
+            latest = []
+            for seen in self._latest:
                 m = seen.pop(k - 1, None)
                 if m is None:
-                    raise ParameterError(f'rig {self.local_rigs[r] or "rig"}: no measurement '
-                                         f'of sample {k - 1} observed')
-                latest[r] = m
+                    raise ParameterError(f'rig {self.local_rigs[len(latest)] or "rig"}: no '
+                                         f'measurement of sample {k - 1} observed')
+                latest.append(m)
                 if len(seen) > 4:                  # forget what came too late to be used
-                    for old in [j for j in seen if j < k - 1]:
-                        del seen[old]
+                    _forget_before(seen, k - 1)
+        else:
+            latest = [None] * self.n_l
+        if self._couples:
+            self._before_laws(k, window, latest)
+        out = [0.0] * self.n_l
+        interface, ground = self.interface_N, self.last_ground_forces_N
+        for r, law in enumerate(self.laws):
+            out[r] = law.step_window(window, latest[r], interface[r])
+            ground[r] = law.last_ground_force_N
+        if self.remote_rigs and k % EXCHANGE_EVERY_STEPS == 0:
+            self.outbox = (k, self.local_models())
+        self.next_step = k + 1
+        return out
+
+    def _before_laws(self, k: int, window, latest) -> None:
+        """What a structure's step does before its laws: the other builders' models due at
+        step `k` taken in, the computational state of ``k-1`` and the interface forces."""
         if self.remote_rigs:
             due = self.models_due(k)
             if due is not None:     # (in real time, one that came late: at the next due step)
@@ -762,15 +795,6 @@ class ReferenceForceBuilder:
                         self._receive(rig, model)
         if self._tracking:
             self._couple(k, window, latest)
-        out = []
-        interface, ground = self.interface_N, self.last_ground_forces_N
-        for r, law in enumerate(self.laws):
-            out.append(law.step(window, latest[r], interface[r]))
-            ground[r] = law.last_ground_force_N
-        if self.remote_rigs and k % EXCHANGE_EVERY_STEPS == 0:
-            self.outbox = (k, self.local_models())
-        self.next_step = k + 1
-        return out
 
     # -- the exchange of identified models between builders --------------------------------
 
@@ -889,6 +913,12 @@ class ReferenceForceBuilder:
                 self.interface_N[r] = sum(w * h for w, h in zip(weights, hist))
             else:
                 self.interface_N[r] = predicted[r]
+
+
+def _forget_before(seen: dict, step: int) -> None:
+    """Drop the measurements of samples before `step` from `seen` (step -> measurement)."""
+    for old in [j for j in seen if j < step]:
+        del seen[old]
 
 
 def ground_window(lookup: Callable[[int], float], k: int, lookahead_steps: int,
