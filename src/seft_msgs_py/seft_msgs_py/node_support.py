@@ -8,6 +8,7 @@ or input file)
 becomes a one-line message on stderr and exit code 2.
 """
 
+import contextlib
 from dataclasses import replace
 import gc
 import json
@@ -66,7 +67,8 @@ from seft_msgs_py.signals import (
 from seft_msgs_py.topics import MEASUREMENT, NODE_PARAMETERS, STATUS, record_topic
 
 __all__ = ['SeftNode', 'StepTiming', 'RecordBatch', 'InputWatchdog', 'main_for',
-           'main_for_nodes', 'descriptor_of', 'LINGER_S', 'shut_down', 'SHUTDOWN_TIMEOUT_S']
+           'main_for_nodes', 'descriptor_of', 'LINGER_S', 'shut_down', 'SHUTDOWN_TIMEOUT_S',
+           'exit_if_longer']
 
 #: How long a finished node keeps serving its publishers before it exits [s].
 LINGER_S = 1.0
@@ -1034,7 +1036,6 @@ def main_for_nodes(specs: Sequence[tuple[Callable[[], SeftNode], str, Sequence[s
     nodes: list[SeftNode] = []
     code = 0
     name = specs[0][1]
-    post_run = None
     try:
         for factory, name, node_args in specs:
             _node_arguments = None if node_args is None else list(node_args)
@@ -1069,34 +1070,28 @@ def main_for_nodes(specs: Sequence[tuple[Callable[[], SeftNode], str, Sequence[s
             else:
                 node.run_due()
         code = _exit_code(nodes)
-        # the linger is bounded as a whole too (its own bound is RECORDER_WAIT_S; the outputs
-        # are closed and the teardown bounded after it, shut_down)
-        post_run = threading.Timer(RECORDER_WAIT_S + LINGER_S + SHUTDOWN_TIMEOUT_S, _exit_now,
-                                   args=(name, code, RECORDER_WAIT_S + LINGER_S
-                                         + SHUTDOWN_TIMEOUT_S))
-        post_run.daemon = True
-        post_run.start()
         # linger, so that the last samples and the final status reach their subscribers: with a
         # recorder in the graph, until it has closed the bag (a publisher that exits earlier
-        # takes its unsent samples with it)
-        start = time.monotonic()
-        heard_at: dict[int, float] = {}
-        while True:
-            now = time.monotonic()
-            waited = now - start
-            if stop and (not stop_handled or waited > LINGER_S):
-                break                 # stopped by a signal: serve the final status briefly
-            if all(_lingered(n, now, waited, heard_at) for n in nodes):
-                break
-            executor.spin_once(timeout_sec=0.05)
+        # takes its unsent samples with it); bounded as a whole too (its own bound is
+        # RECORDER_WAIT_S; the outputs are closed and the teardown bounded after it, shut_down)
+        longest = RECORDER_WAIT_S + LINGER_S + SHUTDOWN_TIMEOUT_S
+        with exit_if_longer(longest, f'{name}: {_NOT_DONE.format(longest)}', code):
+            start = time.monotonic()
+            heard_at: dict[int, float] = {}
+            while True:
+                now = time.monotonic()
+                waited = now - start
+                if stop and (not stop_handled or waited > LINGER_S):
+                    break             # stopped by a signal: serve the final status briefly
+                if all(_lingered(n, now, waited, heard_at) for n in nodes):
+                    break
+                executor.spin_once(timeout_sec=0.05)
     except (KeyboardInterrupt, ExternalShutdownException):
         code = _exit_code(nodes)
     except SeftError as exc:
         print(f'{name}: error: {exc}', file=sys.stderr)
         code = 2
     finally:
-        if post_run is not None:
-            post_run.cancel()
         shut_down(nodes, name, code)
         for sig, handler in previous.items():
             signal.signal(sig, handler)
@@ -1112,29 +1107,41 @@ def shut_down(nodes: Sequence[Node], name: str, code: int) -> None:
     its bag); what can still hang is the DDS participant's teardown. Seen once in CI on the
     2-core host under the test suite's load: a rig node that had completed its 500 steps,
     the recorder's bag closed, was still alive 57 s later, where the other nodes had exited.
-    Not diagnosed; the live view bounds its own shutdown the same way.
+    Not diagnosed; the live view bounds its close with the same :func:`exit_if_longer`.
     """
     for node in nodes:
         close = getattr(node, 'close_outputs', None)
         if close is not None:
             close()
-    bound = threading.Timer(SHUTDOWN_TIMEOUT_S, _exit_now,
-                            args=(name, code, SHUTDOWN_TIMEOUT_S))
-    bound.daemon = True
-    bound.start()
-    try:
+    with exit_if_longer(SHUTDOWN_TIMEOUT_S, f'{name}: {_NOT_DONE.format(SHUTDOWN_TIMEOUT_S)}',
+                        code):
         for node in nodes:
             node.destroy_node()
         rclpy.try_shutdown()
+
+
+#: The line of a process whose way out outlasted its bound (seconds as ``{:g}``).
+_NOT_DONE = 'its ROS shutdown did not finish within {:g} s; exiting'
+
+
+@contextlib.contextmanager
+def exit_if_longer(seconds: float, line: str, code: int, stream=None):
+    """Run the block; if it lasts more than `seconds` [s], write `line` to `stream`
+    (default: stderr) and end the process at once with `code` (``os._exit``, from a timer
+    thread). For a process's way out, where a teardown (a DDS participant, a server's close)
+    can hang and nothing is left to lose: :func:`shut_down`, the linger of
+    :func:`main_for_nodes`, the live view's close."""
+    def exit_now():
+        print(line, file=stream or sys.stderr, flush=True)
+        os._exit(code)
+
+    bound = threading.Timer(seconds, exit_now)
+    bound.daemon = True
+    bound.start()
+    try:
+        yield
     finally:
         bound.cancel()
-
-
-def _exit_now(name: str, code: int, seconds: float) -> None:
-    """The process's exit when its way out hangs (:func:`shut_down`, the linger)."""
-    print(f'{name}: its ROS shutdown did not finish within {seconds:g} s; exiting',
-          file=sys.stderr, flush=True)
-    os._exit(code)
 
 
 def _next_due(nodes: Sequence[SeftNode]) -> tuple[float | None, SeftNode | None]:

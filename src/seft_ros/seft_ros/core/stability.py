@@ -929,14 +929,12 @@ def level_extrapolation(params: Mapping) -> str | None:
     setup = test_setup(params)
     rigs = ({'': params} if setup.is_study
             else {r: setup.rig_params[r] for r in setup.rig_names})
-    stated = {}
+    stated = {}                       # rig: its model's uncertainty, where the level counts
     for rig, rp in rigs.items():
         if has_plant_model(rp):
             unc = force_loop_plant(rp).uncertainty
             if (unc.peak_force_N or unc.peak_velocity_m_s) and unc.relative > LEVEL_MISFIT:
-                stated[rig] = {'force': (unc.peak_force_N, 'N'),
-                               'velocity': (unc.peak_velocity_m_s, 'm/s'),
-                               'misfit': unc.relative}
+                stated[rig] = unc
     if not stated:
         return None
     try:
@@ -945,19 +943,20 @@ def level_extrapolation(params: Mapping) -> str | None:
         return None
     worst = None
     for peak in planned:
-        level, unit = stated.get(peak.rig, {}).get(peak.channel, (0.0, ''))
+        unc = stated.get(peak.rig)
+        level = 0.0 if unc is None else {'force': unc.peak_force_N,
+                                         'velocity': unc.peak_velocity_m_s}.get(peak.channel, 0.0)
         if level > 0 and peak.peak > MAX_LEVEL_EXTRAPOLATION * level:
-            ratio = peak.peak / level
-            if worst is None or ratio > worst[0]:
-                worst = (ratio, peak.rig, peak.channel, peak.peak, level, unit)
+            if worst is None or peak.peak / level > worst[0]:
+                worst = (peak.peak / level, peak, level)
     if worst is None:
         return None
-    ratio, rig, channel, test, level, unit = worst
-    who = f'rig {rig}: ' if rig else ''
-    return (f"{who}the plant_model was identified at a peak {channel} of {level:.3g} {unit} and "
-            f'this test plans {test:.3g} {unit} ({ratio:.0f} times, more than '
-            f'{MAX_LEVEL_EXTRAPOLATION:g}), and it fits its own record to '
-            f'{100 * stated[rig]["misfit"]:.2g} % only: a linear model of an actuator '
+    ratio, peak, level = worst
+    who = f'rig {peak.rig}: ' if peak.rig else ''
+    return (f'{who}the plant_model was identified at a peak {peak.channel} of {level:.3g} '
+            f'{peak.unit} and this test plans {peak.peak:.3g} {peak.unit} ({ratio:.0f} times, '
+            f'more than {MAX_LEVEL_EXTRAPOLATION:g}), and it fits its own record to '
+            f'{100 * stated[peak.rig].relative:.2g} % only: a linear model of an actuator '
             '(friction, valve flow) does not vouch for a level it was not identified at; '
             "identify at the test's level (a larger excitation_amplitude)")
 

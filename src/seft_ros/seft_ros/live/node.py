@@ -36,6 +36,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 
 from seft_msgs_py.convert import STATE_ABORTED, STATE_READY, status_msg, status_values
 from seft_msgs_py.errors import SeftError
+from seft_msgs_py.node_support import exit_if_longer
 from seft_msgs_py.signals import FINAL_STATES
 from seft_msgs_py.topics import LINK, RUN_PARAMETERS, STATUS, record_topic
 from seft_ros.live.access import DEFAULT_HOST, DEFAULT_PORT, TOKEN_ENV, LiveOptions, listen_error
@@ -277,24 +278,15 @@ def main(argv=None) -> int:
     finally:
         # the shutdown is bounded: a viewer holds no sample of the test, and its servers'
         # closing once held the process past a 30 s wait (a TLS client's connection in CI)
-        bound = threading.Timer(SHUTDOWN_TIMEOUT_S, _exit_now)
-        bound.daemon = True
-        bound.start()
-        web.close()
-        if foxglove_server is not None:
-            foxglove_server.stop()
-        executor.shutdown()
-        node.destroy_node()
-        rclpy.try_shutdown()
-        bound.cancel()
+        with exit_if_longer(SHUTDOWN_TIMEOUT_S, 'live view: its servers did not close within '
+                            f'{SHUTDOWN_TIMEOUT_S:.0f} s; exiting', 0, sys.stdout):
+            web.close()
+            if foxglove_server is not None:
+                foxglove_server.stop()
+            executor.shutdown()
+            node.destroy_node()
+            rclpy.try_shutdown()
     return 0
-
-
-def _exit_now() -> None:
-    """End the process at once (the bounded shutdown of :func:`main`), with one line."""
-    _say(f'live view: its servers did not close within {SHUTDOWN_TIMEOUT_S:.0f} s; exiting')
-    sys.stdout.flush()
-    os._exit(0)
 
 
 if __name__ == '__main__':
