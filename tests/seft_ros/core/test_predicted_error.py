@@ -1,0 +1,132 @@
+"""The study's test's accuracy predicted from its linear loop (core/stability
+``LoopModel.ground_response``, ``predicted_error``) and the force-loop inverse the design
+chooses by it (core/force_design), issue 38.
+
+The frequency response is checked against the steady state of lockstep runs on sine records
+(an independent solution: the nonlinear-capable simulation, not the loop's matrices); the
+error against its closed form where the test is the reference delayed; the design's choice
+against runs of the test in every signal.
+"""
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from seft_msgs_py import parameters
+from seft_ros.analysis.metrics import compare_run
+from seft_ros.core.experiment import simulate
+from seft_ros.core.force_design import PREDICTED_ERROR_GOAL
+from seft_ros.core.ground_motion import GroundMotion
+from seft_ros.core.reference_force import make_predictor
+from seft_ros.core.stability import LoopModel, kanai_tajimi, predicted_error
+
+DT = 0.002
+SIGNALS = ('displacement', 'acceleration', 'force')
+
+
+def study(**kw):
+    return parameters.resolve({'rig_model': 'servohydraulic', 'predictor': 'model',
+                               'alpha': 1.0, **kw})
+
+
+def steady_amplitude(signal: np.ndarray, freq_hz: float, cycles: int = 20) -> complex:
+    """The complex amplitude of `signal` at `freq_hz` over its last `cycles` periods (least
+    squares on cos and sin)."""
+    n = int(round(cycles / freq_hz / DT))
+    t = np.arange(len(signal))[-n:] * DT
+    basis = np.column_stack([np.cos(2 * np.pi * freq_hz * t), np.sin(2 * np.pi * freq_hz * t)])
+    (a, b), *_ = np.linalg.lstsq(basis, signal[-n:], rcond=None)
+    return complex(a, -b)
+
+
+@pytest.mark.parametrize('freq_hz', [3.0, 7.1, 20.0])
+def test_the_ground_response_is_the_steady_state_of_a_sine_record(freq_hz):
+    """|x / E| of the loop's matrices against a lockstep run of the study's test on a sine
+    record (7.1 Hz: the reference structure's resonance at alpha 1), within 0.5 %. The
+    builder's ground term is the step average of the linearly interpolated record, on a
+    sine a gain of sinc(f dt)^2 over the samples E[k] the run records."""
+    params = study(duration_s=6.0)
+    n = int(6.0 / DT) + 8
+    ground = 0.2 * np.sin(2 * np.pi * freq_hz * np.arange(n) * DT)
+    run = simulate(params, record=GroundMotion(DT, ground, 'sine', 'test'))
+    assert run.stable
+    rig = run.rigs['']
+    force = -(1.0 + params['alpha']) * params['mass_kg'] * run.ground_acceleration_m_s2
+    measured = abs(steady_amplitude(rig.displacement_m, freq_hz)
+                   / steady_amplitude(force, freq_hz))
+    response, radius = LoopModel(params).ground_response(params['alpha'], [freq_hz])
+    assert radius < 1.0
+    assert make_predictor(params).step_average
+    step_average = np.sinc(freq_hz * DT) ** 2
+    assert abs(response[0]) * step_average == pytest.approx(measured, rel=5e-3)
+
+
+def test_a_test_that_is_the_reference_delayed_is_predicted_exact():
+    """At alpha = 0 the delay rig applies the ground force late by tau and nothing else:
+    the test is the reference delayed, the predicted error (the lag removed) vanishes; with
+    the delayed acceleration fed back at alpha 0.5 it is tens of percent, as the study's
+    uncompensated test is (paper Fig. 5.3)."""
+    params = parameters.resolve({'rig_model': 'delay', 'predictor': 'none', 'tau_s': 0.01,
+                                 'alpha': 0.0})
+    exact, uncompensated = predicted_error(params, [0.0, 0.5])
+    assert exact < 2e-3
+    assert uncompensated > 0.1
+
+
+def test_the_kanai_tajimi_spectrum_is_its_closed_form():
+    """1 at 0 Hz; at the ground's own frequency (1 + 4 z^2) / (4 z^2)."""
+    wg, zg = 15.6, 0.6
+    assert kanai_tajimi([0.0])[0] == pytest.approx(1.0)
+    assert kanai_tajimi([wg / (2 * math.pi)])[0] == pytest.approx(
+        (1 + 4 * zg ** 2) / (4 * zg ** 2))
+
+
+@pytest.fixture(scope='module')
+def valve_3_stage():
+    """The 10 Hz, 5 % specimen on the three-stage-valve actuator of seft_plant_sim, its
+    20 s identification run identified (the lab's path), and the design."""
+    from seft_ros.analysis.rig_identification import identify_rigs
+    from seft_ros.cli.api import build_runs
+    mass = 40.0
+    k = mass * (2 * math.pi * 10.0) ** 2
+    specimen = {'mass_kg': mass, 'stiffness_N_per_m': k,
+                'damping_N_s_per_m': 2 * 0.05 * math.sqrt(k * mass)}
+    base = dict(specimen, rig_model='actuator', actuator_family='valve_3_stage')
+    ident_run, = build_runs(overrides=dict(base, predictor='none', excitation='noise',
+                                           excitation_input='valve_command',
+                                           duration_s=20.0, alpha=0.0))
+    ident, = identify_rigs(simulate(ident_run))
+    return base, ident.plant.model, ident.design
+
+
+def test_the_design_chooses_the_inverse_by_the_predicted_test_error(valve_3_stage):
+    """The shortest inverse within the band error (4 steps) leaves a closed-loop pole at
+    8.4 Hz with damping 0.28 beside the reference structure's: predicted and measured
+    near 2.5 % at alpha 0.5. The design takes a longer one predicted within the goal, and
+    the test errs below 1 % in every signal (issue 38 target 3)."""
+    base, plant, design = valve_3_stage
+    assert design.loop_delay_steps > 4
+    assert max(design.predicted_error.values()) <= PREDICTED_ERROR_GOAL
+
+    written = dict(design.parameters(),
+                   force_controller_tf=json.dumps(design.controller_mapping()))
+
+    def errors(delay_steps):
+        p = parameters.resolve({**base, **written, 'plant_model': plant.to_json(),
+                                'predictor': 'model', 'alpha': 0.5, 'duration_s': 6.0,
+                                'amplitude_N': 150.0,
+                                'predictor_loop_delay_steps': delay_steps})
+        cmp = compare_run(simulate(p))
+        return [cmp.signal(s).nrms for s in SIGNALS]
+    chosen = errors(design.loop_delay_steps)
+    shortest = errors(4)
+    assert max(chosen) < 0.01, chosen
+    assert shortest[0] > 5 * chosen[0], (shortest, chosen)
+    # the prediction of the shortest agrees with its run within a factor of 1.5
+    predicted_4 = predicted_error(parameters.resolve({
+        **plant.specimen.to_mapping(), **written, 'dt': DT, 'rig_model': 'state_space',
+        'plant_model': plant.to_json(), 'predictor': 'model',
+        'predictor_loop_delay_steps': 4}), [0.5])
+    assert shortest[0] / 1.5 < predicted_4[0] < 1.5 * shortest[0]
