@@ -38,13 +38,14 @@ ERRORS = {'predictor_mass_kg': 'mass_kg', 'predictor_damping_N_s_per_m': 'dampin
 def _config(tmp: Path, args) -> Path:
     """two_piers.yaml with per-rig builders, ``adaptive`` and each pier's model +10 %."""
     from seft_ros.cli.api import build_runs
+    from seft_ros.core.structure import test_setup
     values = yaml.safe_load((ROOT / 'config' / 'two_piers.yaml').read_text())
     base = build_runs(config=str(ROOT / 'config' / 'two_piers.yaml'),
                       overrides={'predictor': 'model'})[0]
+    rig_params = test_setup(base).rig_params
     for rig, section in values['rigs'].items():
-        true = base['rigs'][rig] if 'rigs' in base else base
         for key, source in ERRORS.items():
-            section[key] = float(1.1 * float(true[source]))
+            section[key] = float(1.1 * float(rig_params[rig][source]))
     values.update(predictor='adaptive', structure_builders='per_rig',
                   amplitude_N=float(args.amplitude_N), duration_s=float(args.duration_s),
                   record=args.record)
