@@ -2039,8 +2039,6 @@ class AdaptivePredictor:
         self._background = None           # BackgroundFits in real time (run_fits_in_background)
         self._pending_loop = None         # (model key, future)
         self._pending_latency = None      # (step, future)
-        self._pending_delay = None        # (step, future): the delay and gain fit
-        self._pending_model = None        # (key, future): the law's model
         if member_law is not None:
             self.ESTIMATES = self.ESTIMATES + HYSTERESIS_ESTIMATES
         self.prior = {'mass_kg': m0, 'damping_N_s_per_m': c0, 'stiffness_N_per_m': k0,
@@ -2202,10 +2200,8 @@ class AdaptivePredictor:
         """Current delay estimate [s] (the shift of the ground-motion preview)."""
         return self._guards['tau_s'].value
 
-    def _rebuild(self, defer: bool = False) -> None:
-        """Rebuild the law's model (and tables) from the guarded estimates, if they moved;
-        `defer` (the periodic update in real time, a member without its own law): on the
-        background thread, installed when done (:meth:`_poll_fits`)."""
+    def _rebuild(self) -> None:
+        """Rebuild the law's model (and tables) from the guarded estimates, if they moved."""
         est = self.estimates()
         m, c, k, tau = (est['mass_kg'], est['damping_N_s_per_m'], est['stiffness_N_per_m'],
                         est['tau_s'])
@@ -2229,27 +2225,31 @@ class AdaptivePredictor:
         key = (m, c, k, round(tau / self.dt * 64))
         if key == self._model_key:
             return
-        alpha_eff = self.alpha * self.mass_ref_kg / m
-        frac = self._frac_model is None or _moved((m, c, k), self._frac_model, 0.01)
-        args = (m, c, k, key[3] * self.dt / 64, self.dt, alpha_eff, self._law_correction, frac)
-        if defer and self._background is not None and self._member_law is None:
-            if self._pending_model is None:
-                self._model_key = key
-                self._pending_model = (key, self._background.submit(_law_model, *args))
-            return                                # else: again at the next update
         self._model_key = key
-        self._install_model(_law_model(*args))
-
-    def _install_model(self, parts) -> None:
-        """Take the law's model of :func:`_law_model`."""
-        model, law, r, gv, frac = parts
-        self.model = model
+        self.model = DelayImpulseModel(m, c, k, self.dt, key[3] * self.dt / 64)
         if self._member_law is not None:
             self._member_law.set_delay(self.model.tau_s)
-        self._law = law
-        self._r, self._gv = r, gv
-        if frac is not None:
-            self._frac_grid, self._frac_delta, self._frac_model = frac
+        alpha_eff = self.alpha * self.mass_ref_kg / m
+        self._law = self.model.matching_gains(alpha_eff)
+        if self._law_correction is not None:
+            rho, scale = self._law_correction
+            self._law = (self._law[0] * (1.0 + rho), self._law[1] * scale)
+        a = np.array([[0.0, 1.0], [-k / m, -c / m]])
+        b = np.array([[0.0], [1.0 / m]])
+        phi, gam = _zoh(a, b, self.dt)
+        self._r = (phi - np.eye(2))[1]
+        self._gv = float(gam[1, 0])
+        if self._frac_model is None or _moved((m, c, k), self._frac_model, 0.01):
+            # fraction table: delta -> g_e / (g_e + g_l) for a unit force
+            grid = np.linspace(0.0, self.dt, 21)
+            frac = []
+            for d in grid:
+                phi_rest, g_late = _zoh(a, b, self.dt - d)
+                _, g_e = _zoh(a, b, d)
+                ge = float((phi_rest @ g_e)[1, 0])
+                frac.append(ge / (ge + float(g_late[1, 0])))
+            self._frac_grid, self._frac_delta = np.array(frac), grid
+            self._frac_model = (m, c, k)
             # the delay fits made with the previous model are biased by its error (the gain by
             # the mass's: g_e + g_l over Gamma_v of the model): the median takes this model's
             self._fits.clear()
@@ -2282,27 +2282,30 @@ class AdaptivePredictor:
             self._pending_latency = None
             if self.latency_fit.accept(pending[0], *pending[1].result()):
                 self._rebuild()
-        pending = self._pending_delay
-        if pending is not None and pending[1].done():
-            self._pending_delay = None
-            self._accept_delay(pending[1].result())
-            self.history_tau_s.append((pending[0], self.tau_s, self.gain, self.fit_quality))
-        pending = self._pending_model
-        if pending is not None and pending[1].done():
-            self._pending_model = None
-            self._install_model(pending[1].result())
 
     def _identify_delay(self) -> None:
         """Delay and gain from the window (class notes, step 2); sets the targets."""
-        self._accept_delay(_delay_window_fit(self._rows, self._r, self.max_n))
-
-    def _accept_delay(self, fit) -> None:
-        """Take a fit of :func:`_delay_window_fit` into the targets (if it is good enough)."""
-        if fit is None:
+        data = np.array([r[:3] for r in self._rows])
+        rows = np.array([r[3] for r in self._rows])
+        y = data[:, 0] - (self._r[0] * data[:, 1] + self._r[1] * data[:, 2])
+        if not np.any(rows):
             return
-        err, n, (ge, gl), yy = fit
+        from scipy.optimize import nnls
+        best = None
+        width = rows.shape[1]
+        for n in range(0, self.max_n):
+            # g_e, g_l >= 0: a delayed, held force acts with a non-negative weight in each of
+            # the two steps it can act in. Unconstrained, a narrow-band window (the coda, a
+            # free vibration) fits every n about equally well, the neighbouring n by
+            # extrapolating between two nearly collinear columns (g_e / (g_e + g_l) = 2.05 at
+            # n = 8 for a 20 ms delay): the chosen n was noise and the delay a whole step off
+            sol, rnorm = nnls(rows[:, [width - 2 - n, width - 1 - n]], y)
+            err = float(rnorm) ** 2
+            if best is None or err < best[0]:
+                best = (err, n, sol)
+        err, n, (ge, gl) = best
         total = ge + gl
-        self.fit_quality = 1.0 - err / max(yy, 1e-300)
+        self.fit_quality = 1.0 - err / max(float(y @ y), 1e-300)
         if not (total > 0 and self.fit_quality >= self.min_fit_quality):
             return
         frac = min(max(ge / total, 0.0), self._frac_grid[-1])
@@ -2370,18 +2373,13 @@ class AdaptivePredictor:
                     self._targets.update(mass_kg=theta[0], damping_N_s_per_m=theta[1],
                                          stiffness_N_per_m=theta[2])
                 if len(self._rows) == self.window:
-                    if self._background is None:
-                        self._identify_delay()
-                        self.history_tau_s.append((j, self.tau_s, self.gain,
-                                                   self.fit_quality))
-                    elif self._pending_delay is None:
-                        self._pending_delay = (j, self._background.submit(
-                            _delay_window_fit, list(self._rows), self._r, self.max_n))
+                    self._identify_delay()
+                    self.history_tau_s.append((j, self.tau_s, self.gain, self.fit_quality))
                 for name, guard in self._guards.items():
                     guard.follow(self._targets[name])
                 if loop is not None and loop.refresh():
                     self.loop_inverse = loop.inverse
-                self._rebuild(defer=True)
+                self._rebuild()
         self._prev = (x, v, latest.step, 0.0 if member is None else member.member.z)
 
     def predict(self, latest: Measurement | None, commanded_N, ground_force_N: float = 0.0
@@ -2481,76 +2479,6 @@ def _adaptive_law_correction(params):
     offset = pole_calibration(p)
     gain = ModelPredictor.from_parameters(dict(p, predictor_calibration='none'))._gain
     return offset[:2] / gain, float(offset[2])
-
-
-def _delay_window_fit(window, r, max_n: int):
-    """The delay and gain fit of :class:`AdaptivePredictor` over a window (its class notes,
-    step 2): for every whole delay ``n < max_n`` the non-negative least-squares weights
-    ``(g_e, g_l)`` of the force sent ``n`` and ``n + 1`` steps before each velocity increment
-    (``scipy.optimize.nnls``), the best ``n`` kept.
-
-    Parameters
-    ----------
-    window : sequence of (dv, x, v, past)
-        The rows: velocity increment [m/s], displacement [m] and velocity [m/s] at its start,
-        the forces sent before it (shape (max_n + 2,)) [N].
-    r : ndarray, shape (2,)
-        The specimen model's free velocity increment per unit ``(x, v)``.
-    max_n : int
-
-    Returns
-    -------
-    (err, n, (g_e, g_l), y @ y) or None
-        None when no force was sent in the window. A pure function: the background thread
-        runs it on a copy of the window in real time.
-    """
-    data = np.array([row[:3] for row in window])
-    rows = np.array([row[3] for row in window])
-    y = data[:, 0] - (r[0] * data[:, 1] + r[1] * data[:, 2])
-    if not np.any(rows):
-        return None
-    from scipy.optimize import nnls
-    best = None
-    width = rows.shape[1]
-    for n in range(0, max_n):
-        # g_e, g_l >= 0: a delayed, held force acts with a non-negative weight in each of
-        # the two steps it can act in. Unconstrained, a narrow-band window (the coda, a
-        # free vibration) fits every n about equally well, the neighbouring n by
-        # extrapolating between two nearly collinear columns (g_e / (g_e + g_l) = 2.05 at
-        # n = 8 for a 20 ms delay): the chosen n was noise and the delay a whole step off
-        sol, rnorm = nnls(rows[:, [width - 2 - n, width - 1 - n]], y)
-        err = float(rnorm) ** 2
-        if best is None or err < best[0]:
-            best = (err, n, sol)
-    return best + (float(y @ y),)
-
-
-def _law_model(m, c, k, tau_s, dt, alpha_eff, law_correction, frac: bool):
-    """The law's model of :class:`AdaptivePredictor` for a specimen estimate: ``(model,
-    law, r, gv, frac)`` (the :class:`DelayImpulseModel`, its matching gains with the law's
-    correction, the free velocity increment per unit ``(x, v)``, the velocity per unit force
-    of one step, and with `frac` the fraction table ``(grid, delta, (m, c, k))`` of the delay
-    fit, else None). A pure function: the background thread runs it in real time."""
-    model = DelayImpulseModel(m, c, k, dt, tau_s)
-    law = model.matching_gains(alpha_eff)
-    if law_correction is not None:
-        rho, scale = law_correction
-        law = (law[0] * (1.0 + rho), law[1] * scale)
-    a = np.array([[0.0, 1.0], [-k / m, -c / m]])
-    b = np.array([[0.0], [1.0 / m]])
-    phi, gam = _zoh(a, b, dt)
-    table = None
-    if frac:
-        # fraction table: delta -> g_e / (g_e + g_l) for a unit force
-        grid = np.linspace(0.0, dt, 21)
-        fractions = []
-        for d in grid:
-            phi_rest, g_late = _zoh(a, b, dt - d)
-            _, g_e = _zoh(a, b, d)
-            ge = float((phi_rest @ g_e)[1, 0])
-            fractions.append(ge / (ge + float(g_late[1, 0])))
-        table = (np.array(fractions), grid, (m, c, k))
-    return model, law, (phi - np.eye(2))[1], float(gam[1, 0]), table
 
 
 def _moved(values, reference, tolerance: float) -> bool:
