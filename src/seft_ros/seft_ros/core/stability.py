@@ -672,6 +672,11 @@ class LoopModel:
             :func:`~seft_ros.analysis.metrics.compare_run` removes it).
         radius : float
             The loop's spectral radius at `alpha` (the response is a steady state only below 1).
+
+        Raises
+        ------
+        ParameterError
+            The compensator refuses `alpha` (its law calibration).
         """
         alpha = float(alpha)
         form = self.compensator.form(alpha)
