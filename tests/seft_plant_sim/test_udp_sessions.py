@@ -162,7 +162,11 @@ def test_a_second_sender_is_refused_and_the_run_goes_on(controller):
     assert refused[0]['live_session'] == a.session and refused[0]['state'] == 'running'
     # B's datagrams (each with its start flag, as a PC sends them) were refused and counted,
     # never taken: no safe state, no limit; named once
-    assert end['why'] == 'the PC ended the run' and end['samples'] == n + 1
+    # the end after A's last sample: A's own, or the silence watchdog when the host stalls
+    # between A's last sample and its close (22 ms, in the CI of b734753)
+    assert end['samples'] == n + 1
+    assert (end['why'] == 'the PC ended the run'
+            or end['why'].endswith('after the last sample')), end['why']
     assert end['refused_starts'] >= 150 and len(refused) == 1, end
     assert not emu.of('safe_state') and end['bad'] == 0
     # B heard nothing at all (so nothing of A's session); A was told of the refusal
