@@ -1066,7 +1066,7 @@ MAX_LEVEL_EXTRAPOLATION = 15.0
 #: The fit error (``uncertainty.relative``) above which a model's level is compared
 #: (:data:`MAX_LEVEL_EXTRAPOLATION`): the linear members fit their records to 1e-13 in
 #: lockstep, the stuck Coulomb-friction actuator's 20 draws to 0.22-3.0 %, orifice flow to
-#: 0.16 %. At 0.3 % (until commit fc70711) one Coulomb draw, fitted to 0.22 %, kept its
+#: 0.16 %. At 0.3 % (until commit 734ef16) one Coulomb draw, fitted to 0.22 %, kept its
 #: "stable" and went unstable. A lab's noisy record fits to about its noise, and its tests
 #: far above the identification's level get no verdict either: identify at the test's
 #: level.
