@@ -71,10 +71,7 @@ def _timed_run(config: Path, budget_s: float, profile: bool, background: bool):
 
     def init(self, *a, **kw):
         original_init(self, *a, **kw)
-        for law in self.laws if fits is not None else ():
-            attach = getattr(law.predictor, 'run_fits_in_background', None)
-            if attach is not None:
-                attach(fits)
+        self.run_fits_in_background(fits)
     switch = sys.getswitchinterval()
     if background:
         sys.setswitchinterval(FIT_SWITCH_INTERVAL_S)

@@ -879,6 +879,7 @@ def _choose_inverse(plant: PlantModel, design: ForceLoopDesign) -> None:
     chosen = None                             # (d, band error)
     first_stable = None                       # (d, band error)
     predicted = []                            # (d, band error, worst, errors)
+    best, since_best = None, 0                # the least predicted, and the tries since
     for d in range(2, 31):
         inv = ForceLoopInverse(resp.step_average, design.dt, d, INVERSE_TAPS,
                                hf_weight=INVERSE_HF_WEIGHT, exclude_hz=exclude)
@@ -896,14 +897,13 @@ def _choose_inverse(plant: PlantModel, design: ForceLoopDesign) -> None:
                 break
             continue
         predicted.append((d, inv.band_error, float(np.max(errors)), errors))
-        if predicted[-1][2] <= PREDICTED_ERROR_GOAL:
-            break
-        since_best = len(predicted) - 1 - min(range(len(predicted)),
-                                              key=lambda i: predicted[i][2])
-        if since_best >= PREDICTED_ERROR_PATIENCE:
+        if best is None or predicted[-1][2] < best[2]:
+            best, since_best = predicted[-1], 0
+        else:
+            since_best += 1
+        if best[2] <= PREDICTED_ERROR_GOAL or since_best >= PREDICTED_ERROR_PATIENCE:
             break
     if predicted:
-        best = min(predicted, key=lambda p: p[2])
         better = best[2] <= min(0.5 * predicted[0][2], PREDICTED_ERROR_BOUND)
         d, band_error, _, errors = best if better else predicted[0]
         chosen = (d, band_error)

@@ -812,6 +812,14 @@ class ReferenceForceBuilder:
             return None
         return stamp
 
+    def run_fits_in_background(self, fits) -> None:
+        """Real time: every compensator that refits (``run_fits_in_background``) does so on
+        `fits` (:class:`~seft_ros.core.predictors.BackgroundFits`) instead of in the step."""
+        for law in self.laws:
+            attach = getattr(law.predictor, 'run_fits_in_background', None)
+            if attach is not None:
+                attach(fits)
+
     def receive_models(self, step: int, rig: str, model: SpecimenModel) -> None:
         """Hand in another builder's model of its rig `rig`, sent after its step `step`
         (applied at step ``step + EXCHANGE_LAG_STEPS``; a stamp off the exchange's grid or of

@@ -650,6 +650,17 @@ class LoopModel:
             return np.max(np.abs(np.linalg.eigvals(mats)), axis=-1)
         return np.array([np.max(np.abs(np.linalg.eigvals(self.matrix(a)))) for a in alphas])
 
+    def external_input(self, form: PredictorForm, alpha: float) -> np.ndarray:
+        """The column ``b_E`` through which an external force ``E`` of the new step (the
+        ground force, or a structure's interface force) enters ``X[k+1]``: the compensator's
+        external input (:data:`PREDICTOR_INPUTS`) and ``F[k+1] = E - alpha m a_hat[k+1]``;
+        shape (N,) [state unit / N]."""
+        lay = self.layout(form)
+        b_e = np.zeros(lay['size'])
+        b_e[lay['w']] = form.b[:, 5]
+        b_e[lay['F']] = 1.0 - float(alpha) * self.mass_kg * form.d[5]
+        return b_e
+
     def ground_response(self, alpha: float, freq_hz) -> tuple[np.ndarray, float]:
         """Frequency response of the test from the ground force to the rig's displacement.
 
@@ -680,12 +691,9 @@ class LoopModel:
         """
         alpha = float(alpha)
         form = self.compensator.form(alpha)
-        m0, m1 = self._affine or self.matrices(form)
-        mat = m0 + alpha * m1
+        mat = self.matrix(alpha)
         lay = self.layout(form)
-        b_e = np.zeros(lay['size'])
-        b_e[lay['w']] = form.b[:, 5]
-        b_e[lay['F']] = 1.0 - alpha * self.mass_kg * form.d[5]
+        b_e = self.external_input(form, alpha)
         c_x = np.zeros(lay['size'])
         c_x[lay['z']] = lay['outputs'][0]
         z = np.exp(2j * np.pi * np.asarray(freq_hz, dtype=float) * self._dt)
@@ -1338,8 +1346,8 @@ class TestLoop:
             form = loop.compensator.form(float(rp['alpha']))
             m0, m1 = loop.matrices(form)
             lay = loop.layout(form)
-            blocks.append((pos, lay, form, m0 + float(rp['alpha']) * m1, loop.mass_kg,
-                           float(rp['alpha'])))
+            blocks.append((pos, lay, form, m0 + float(rp['alpha']) * m1,
+                           loop.external_input(form, float(rp['alpha']))))
             pos += lay['size']
         # the force histories F[k-1 .. k-hist+1], the sampled interface histories, the
         # computational state of sample k-1 and the physical DOFs' x, v of sample k-1
@@ -1429,11 +1437,11 @@ class TestLoop:
                         m[i_hist[j] + i, i_hist[j] + i - 1] = 1.0
                 else:
                     e_row = predicted[c.targets.index(jj)]
-                start, lay, form, _, mass, alpha = blocks[j]
+                start, lay, _, _, b_e = blocks[j]
                 # w[k+1] += b_E E; F[k+1] = E - mu (c w + d q) = (1 - mu d_E) E + ...
                 iw = slice(start + lay['w'].start, start + lay['w'].stop)
-                m[iw] += np.outer(form.b[:, 5], e_row)
-                m[start + lay['F']] += (1.0 - alpha * mass * form.d[5]) * e_row
+                m[iw] += np.outer(b_e[lay['w']], e_row)
+                m[start + lay['F']] += b_e[lay['F']] * e_row
         self.matrix = m
         self.scale = float(scale)
 

@@ -165,10 +165,7 @@ class ReferenceForceBuilderNode(SeftNode):
             # the compensators' refits (tens of ms) off the step, on a thread below it; the
             # step takes the GIL back within the switch interval
             self.fits = BackgroundFits()
-            for law in self.builder.laws:
-                attach = getattr(law.predictor, 'run_fits_in_background', None)
-                if attach is not None:
-                    attach(self.fits)
+            self.builder.run_fits_in_background(self.fits)
             sys.setswitchinterval(FIT_SWITCH_INTERVAL_S)
             self.watch_inputs(subs + [ground_sub], self.pubs)
             self.timing = StepTiming(self)
