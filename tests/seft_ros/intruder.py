@@ -1,23 +1,29 @@
 """A foreign sender on a run's ROS domain (issue 42's intruder), for the tests.
 
-``python intruder.py TOPIC VALUE RATE_HZ SECONDS FROM_STEP [copy]``: a node named
-``intruder`` waits until the rig's measurement shows the run at step FROM_STEP, then creates
-its publisher on TOPIC (seft's data QoS, so that the run's subscriptions match it) and sends
-``geometry_msgs/WrenchStamped`` messages with ``wrench.force.x = VALUE``, RATE_HZ of them a
-second for SECONDS, each stamped for one of the next five samples of the run; ``copy``: with
-the frame id it sees on TOPIC (a sender that copies the run's seal in the clear), else
-``'actuator'``. On a record stream (``/seft/record/...``) it sends record batches instead:
-one row ``[k, VALUE, VALUE, ...]`` each, labelled as the stream's.
+``python intruder.py TOPIC VALUE RATE_HZ SECONDS FROM_STEP [copy]``: a node named ``intruder``
+waits until the rig's measurement shows the run at step FROM_STEP or later and its graph knows
+a subscription on TOPIC (one of the run's), then creates its publisher on TOPIC (seft's data
+QoS, so that the run's subscriptions match it) and sends ``geometry_msgs/WrenchStamped``
+messages with ``wrench.force.x = VALUE``, RATE_HZ of them a second for SECONDS, each stamped
+for one of the next five samples of the run; ``copy``: with the frame id it sees on TOPIC (a
+sender that copies the run's seal in the clear), else ``'actuator'``. On a record stream
+(``/seft/record/...``) it sends record batches instead: one row ``[k, VALUE, VALUE, ...]``
+each, labelled as the stream's.
 
 Start it together with the run: its DDS participant then takes part in the run's start-up
 discovery, and its publisher (a new endpoint of a known participant) reaches the run's nodes
 within milliseconds. A participant that joins a running domain is discovered at the others'
 next periodic announcement, up to ~3 s later with Fast DDS (``seft_ros.cli.runner``'s
 ``DISCOVERY_SETTLE_S``): no message of it reaches the run before then, and a 2 s burst started
-mid-run could come and go unseen (what made the tests flaky, 2 of 5 runs on this machine).
+mid-run could come and go unseen (what made the tests flaky, 2 of 5 runs on this machine). Even
+started together, a participant may learn of another only at that announcement (with
+``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``, 14 processes started 0.3 s apart: some saw 6 of
+the 14 for 3 s; in CI the intruder saw the rig's measurement but not the controller's
+subscription for its whole 2 s burst, 'matched by 0'): hence it waits for the subscription.
 
-It prints ``sent N, matched by M subscription(s)`` when it is done (exit 0), or ``sent 0:
-...`` and exits 1 when the run never reached FROM_STEP within ``WAIT_S``.
+It prints ``sent N, matched by M subscription(s), from step S`` when it is done (exit 0), or
+``sent 0: ...`` and exits 1 when the run ended (its measurement silent for ``ENDED_S``) or
+``WAIT_S`` passed before.
 """
 
 import sys
@@ -35,6 +41,8 @@ from seft_msgs_py.topics import DATA_QOS, MEASUREMENT
 
 #: The longest the intruder waits for the run to reach FROM_STEP [s].
 WAIT_S = 90.0
+#: The run counts as ended when its measurement has been silent this long [s].
+ENDED_S = 2.0
 #: The run's sample period [ns] (config/main.yaml).
 DT_NS = 2_000_000
 
@@ -46,14 +54,20 @@ def main(argv) -> int:
     rclpy.init()
     node = rclpy.create_node('intruder')
     stream = next((r for r in RECORD_STREAMS if r.name == topic), None)
-    seen = {'step': None, 'frame': 'actuator'}
+    seen = {'step': None, 'at': None, 'frame': 'actuator', 'from': None}
     read = FieldsReader(MEASUREMENT.msg_type, MEASUREMENT_FIELDS)
     reached = threading.Event()
 
+    def known_subscriptions():
+        return sum(info.node_name != 'intruder'
+                   for info in node.get_subscriptions_info_by_topic(topic))
+
     def on_measurement(raw):
         stamp, _ = read(raw)
-        seen['step'] = stamp // DT_NS
-        if seen['step'] >= from_step and (not copy or seen['frame'] != 'actuator'):
+        seen['step'], seen['at'] = stamp // DT_NS, time.monotonic()
+        if (seen['step'] >= from_step and (not copy or seen['frame'] != 'actuator')
+                and not reached.is_set() and known_subscriptions() > 0):
+            seen['from'] = seen['step']
             reached.set()
 
     def on_command(raw):
@@ -72,10 +86,15 @@ def main(argv) -> int:
     spinner = threading.Thread(target=spin)
     spinner.start()
     try:
-        if not reached.wait(WAIT_S):
-            print(f'sent 0: the run never reached step {from_step} in {WAIT_S:.0f} s (last '
-                  f'seen: {seen["step"]})', flush=True)
-            return 1
+        deadline = time.monotonic() + WAIT_S
+        while not reached.wait(0.25):
+            quiet = time.monotonic() - seen['at'] if seen['at'] is not None else 0.0
+            if time.monotonic() > deadline or quiet > ENDED_S:
+                print(f'sent 0: the run never reached step {from_step} with a subscription on '
+                      f'{topic} known ({"it ended" if quiet > ENDED_S else "waited"} at step '
+                      f'{seen["step"]}, {known_subscriptions()} subscription(s) known)',
+                      flush=True)
+                return 1
         pub = node.create_publisher(WrenchStamped if stream is None else Float64MultiArray,
                                     topic, DATA_QOS)
         msg = WrenchStamped()
@@ -105,7 +124,8 @@ def main(argv) -> int:
             delay = next_at - time.monotonic()
             if delay > 0:
                 time.sleep(delay)
-        print(f'sent {sent}, matched by {matched} subscription(s)', flush=True)
+        print(f'sent {sent}, matched by {matched} subscription(s), from step {seen["from"]}',
+              flush=True)
         return 0
     finally:
         stop.set()
