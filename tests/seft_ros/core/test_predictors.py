@@ -723,3 +723,47 @@ def test_ats_runs_on_the_delay_rig_and_records_its_estimates():
     assert run.stable and err < 10.0                # measured 3.7 %: the baseline
     assert set(run.estimates) == {'a0', 'a1', 'a2'}
     assert 0.005 < run.estimates['a1'][-1] < 0.012
+
+
+def _nnls_scan(rows, y, candidates):
+    """The delay fit's choice among `candidates` (the order and strict comparison of
+    ``AdaptivePredictor._identify_delay``): (n, solution, residual)."""
+    from scipy.optimize import nnls
+    width, best = rows.shape[1], None
+    for n in candidates:
+        sol, rnorm = nnls(rows[:, [width - 2 - n, width - 1 - n]], y)
+        if best is None or rnorm ** 2 < best[2]:
+            best = (n, sol, rnorm ** 2)
+    return best
+
+
+def test_the_delay_shortlist_keeps_the_fit_the_full_scan_makes():
+    """The shortlist of the adaptive delay fit (Gram-matrix residuals of every two-column
+    non-negative least squares) keeps the delay that scanning every candidate with
+    scipy.optimize.nnls chooses, with the same solution bit for bit: on forces delayed by
+    each n with any split between the two steps and noise, on negative splits (one column
+    alone, or neither), and on windows with nearly collinear and all-zero columns."""
+    from seft_ros.core.predictors import _delay_shortlist
+    rng = np.random.default_rng(7)
+    max_n, rows_n = 15, 250
+    lengths = []
+    for case in range(300):
+        forces = rng.standard_normal(rows_n + max_n + 2)
+        if case % 3 == 1:                      # a narrow-band window (free vibration)
+            t = np.arange(forces.size) * 0.002
+            forces = np.sin(2 * np.pi * 10.1 * t) + 1e-3 * forces
+        rows = np.lib.stride_tricks.sliding_window_view(forces, max_n + 2)[:rows_n].copy()
+        if case % 10 == 0:
+            rows[:, :5] = 0.0                  # the start of a run: no force yet
+        n_true = int(rng.integers(0, max_n))
+        ge, gl = rng.uniform(-0.3, 1.0, 2)
+        w = rows.shape[1]
+        y = ge * rows[:, w - 2 - n_true] + gl * rows[:, w - 1 - n_true]
+        y = y + rng.uniform(0.0, 0.2) * rng.standard_normal(rows_n)
+        short = _delay_shortlist(rows, y, max_n)
+        lengths.append(len(short))
+        full = _nnls_scan(rows, y, range(max_n))
+        kept = _nnls_scan(rows, y, short)
+        assert kept[0] == full[0] and np.array_equal(kept[1], full[1]), (case, short, full)
+    # what it is for: one or two least squares instead of fifteen, most of the time
+    assert np.median(lengths) <= 2, np.bincount(lengths)
