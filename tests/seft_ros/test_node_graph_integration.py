@@ -335,6 +335,25 @@ def test_a_sensor_at_its_range_is_said_before_during_and_after(servo_model):
             'samples') in report
 
 
+def test_a_warning_the_runner_heard_too_late_is_said_from_the_bag(servo_model):
+    """A node's warning that reached the runner only after the recorder closed the bag (two
+    nodes' reports have no order; under load the runner once missed the builder's): said
+    after the run, from the bag, once; one said during the run is not said again."""
+    from seft_ros.cli.api import _read_outcome
+    from seft_ros.cli.runner import RunOutcome
+    warning = [status_values(m)['warning'] for _, m in servo_model.messages['/seft/status']
+               if status_values(m).get('warning')][0]
+    for said, expected in ((frozenset(), 1), (frozenset({('reference_force_builder',
+                                                          warning)}), 0)):
+        lines = []
+        outcome = RunOutcome(servo_model.bag, servo_model.bag.parent, 1.0, 'done', '', True,
+                             said)
+        _read_outcome(outcome, 'run', lines.append)
+        late = [line for line in lines if ': warning: ' in line]
+        assert late == [f'[run] reference_force_builder: warning: {warning} (from the bag: '
+                        'not said during the run)'] * expected, lines
+
+
 @pytest.mark.parametrize('which', ['servo_model', 'delay_adaptive'])
 def test_compensated_graph_runs_are_stable_and_complete(request, which):
     run = request.getfixturevalue(which)

@@ -498,6 +498,16 @@ def _shared_domain(domain_id: int | None) -> int:
 def _read_outcome(outcome, label: str, progress: Callable[[str], None]) -> RunData:
     """Read a graph run's bag back and say how the run went."""
     rd = read_run(outcome.bag_path)
+    # a warning the bag holds and the console did not say: its report reached the recorder
+    # but reached the runner only after the recorder closed the bag (no order between two
+    # nodes' reports; a reliable resend waits for the writer's next heartbeat)
+    said = set(outcome.warnings_said)
+    for st in rd.extra.get('node_statuses', []):
+        key = (st.get('name', '?'), st.get('warning'))
+        if key[1] and key not in said:
+            said.add(key)
+            progress(f'[{label}] {key[0]}: warning: {key[1]} (from the bag: not said during '
+                     'the run)')
     state = 'stable' if rd.stable else f'ABORTED at {rd.unstable_at_s:.3f} s: ' \
         f'{rd.abort_reason}'
     progress(f'[{label}] {rd.n_steps} steps in {outcome.wall_time_s:.1f} s wall; '

@@ -195,6 +195,9 @@ class RunOutcome:
     message: str
     #: Whether this host ran the recorder (else the bag is on another host).
     recorded_here: bool = True
+    #: The warnings said on the console during the run, as ``(node, warning)``: the bag may
+    #: hold more (a report that reached the runner after the recorder closed the bag).
+    warnings_said: frozenset = frozenset()
 
 
 class GraphRunner:
@@ -244,6 +247,7 @@ class GraphRunner:
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         self.statuses = []
+        self.warnings_said: set[tuple[str, str]] = set()
         #: The processes of the run in progress (:meth:`run`).
         self.procs: dict[str, subprocess.Popen] = {}
         self._bag_path: Path | None = None    # the bag of the run in progress
@@ -397,6 +401,7 @@ class GraphRunner:
         # `seft run`'s latched parameters and reports) is still queued: take it, then forget it
         self._spin(0.1)
         self.statuses.clear()
+        self.warnings_said.clear()
         self.node_params.clear()
         self.audited = self._audited_topics()
         self.earlier = {g for _, _, g in self._publishers(self.audited)}
@@ -460,7 +465,7 @@ class GraphRunner:
             outcome.update(rig_final=rig_final)
             return RunOutcome(bag_path, run_dir, time.monotonic() - start,
                               rig_final.get('state', ''), rig_final.get('message', ''),
-                              'recorder' in local)
+                              'recorder' in local, frozenset(self.warnings_said))
         except KeyboardInterrupt:
             self.progress(f'{label}interrupted: ending the run safely (rig to its safe '
                           'state, bag closed)')
@@ -736,6 +741,7 @@ class GraphRunner:
                     self.progress(f'{label}{s["name"]}: {s.get("state")}: {s["message"]}')
                 elif s.get('warning'):
                     self.progress(f'{label}{s["name"]}: warning: {s["warning"]}')
+                    self.warnings_said.add((s['name'], s['warning']))
             rig = self._latest(self.graph.master)
             now = time.monotonic()
             if rig and rig.get('state') == STATE_RUNNING and now - last_print > 2.0:
