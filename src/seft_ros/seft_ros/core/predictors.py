@@ -65,7 +65,7 @@ __all__ = [
     'network_delay_steps', 'TangentModelPredictor', 'model_predictor',
     'TANGENT_STIFFNESS_RATIOS', 'HystereticModelPredictor', 'model_rig',
     'LoopLatencyFit', 'LATENCY_ESTIMATES', 'BackgroundFits', 'csi_band_hz',
-    'adaptive_fits_loop', 'ADAPTIVE_LOOP_FIT',
+    'adaptive_fits_loop', 'ADAPTIVE_LOOP_FIT', 'UPDATE_STAGES',
 ]
 
 
@@ -1862,6 +1862,13 @@ def adaptive_fits_loop(params) -> bool:
     return mode == 'fit'
 
 
+#: An update of :class:`AdaptivePredictor` runs in stages on three consecutive steps (the
+#: delay fit; the guarded estimates and the new model; the law's gains and their install)
+#: when ``update_steps`` is at least this: no one step carries the whole update (a lab
+#: builder's compute time per step, issue 41). The new law acts two steps later than at
+#: once, 4 ms of the 20 ms between updates at the study's rate.
+UPDATE_STAGES = 3
+
 #: A candidate delay of :func:`_delay_shortlist` is dropped when its residual exceeds the
 #: least by more than this fraction of ``|y|^2``: a thousand times the error of the
 #: residuals from the normal equations (about ``1e-13 |y|^2`` for a 250-row window), a
@@ -2004,8 +2011,10 @@ class AdaptivePredictor:
     ``+/- max_deviation`` of the configured values, tau within ``[0, max_delay_s]``, and each
     changes by at most ``max_rate_per_s`` of its configured value per second (tau:
     ``max_rate_per_s * max(tau0, dt)``). Every ``update_steps`` the guarded estimates are
-    refreshed and, if they moved, the law's model is rebuilt. :meth:`estimates` returns the
-    current values (published and recorded).
+    refreshed and, if they moved, the law's model is rebuilt, in three stages on consecutive
+    measurements (:data:`UPDATE_STAGES`: the delay fit; the estimates and the new model; its
+    law's gains, installed then). :meth:`estimates` returns the current values (published
+    and recorded).
 
     The target of the law is the reference structure with the configured computational
     mass: ``(m_hat + alpha m_ref) x'' + c_hat x' + k_hat x = G`` (an effective mass ratio
@@ -2167,6 +2176,7 @@ class AdaptivePredictor:
         self._fits = deque(maxlen=5)      # accepted delay fits of the current specimen model
         self.model = None
         self._model_key = None
+        self._stage, self._staged = 0, None      # the update in stages (UPDATE_STAGES)
         self._rebuild()
         self._rows = _RowWindow(self.window, 3 + self.max_n + 2)   # dv, x, v, f_r[j-max_n-1 .. j]
         self._prev = None
@@ -2298,7 +2308,18 @@ class AdaptivePredictor:
         return self._guards['tau_s'].value
 
     def _rebuild(self) -> None:
-        """Rebuild the law's model (and tables) from the guarded estimates, if they moved."""
+        """Rebuild the law's model (and tables) from the guarded estimates, if they moved, at
+        once (a staged rebuild on its way is installed first)."""
+        staged, self._staged = self._staged, None
+        if staged is not None:
+            self._rebuild_finish(staged)
+        pending = self._rebuild_start()
+        if pending is not None:
+            self._rebuild_finish(pending)
+
+    def _rebuild_start(self):
+        """The first half of a rebuild: the force-loop refit when m, c or k moved, and the
+        new model if the estimates moved (``None`` if not), not installed yet."""
         est = self.estimates()
         m, c, k, tau = (est['mass_kg'], est['damping_N_s_per_m'], est['stiffness_N_per_m'],
                         est['tau_s'])
@@ -2321,9 +2342,13 @@ class AdaptivePredictor:
                                           self._background.submit(self._loop_factory, *args))
         key = (m, c, k, round(tau / self.dt * 64))
         if key == self._model_key:
-            return
+            return None
         self._model_key = key
-        self.model = DelayImpulseModel(m, c, k, self.dt, key[3] * self.dt / 64)
+        return m, c, k, DelayImpulseModel(m, c, k, self.dt, key[3] * self.dt / 64)
+
+    def _rebuild_finish(self, pending) -> None:
+        """The second half: the law's gains and tables of the new model, and its install."""
+        m, c, k, self.model = pending
         if self._member_law is not None:
             self._member_law.set_delay(self.model.tau_s)
         alpha_eff = self.alpha * self.mass_ref_kg / m
@@ -2380,6 +2405,14 @@ class AdaptivePredictor:
             self._pending_latency = None
             if self.latency_fit.accept(pending[0], *pending[1].result()):
                 self._rebuild()
+
+    def _follow_targets(self, loop) -> None:
+        """The guarded estimates toward the targets; the identified force loop's inverse when
+        it moved."""
+        for name, guard in self._guards.items():
+            guard.follow(self._targets[name])
+        if loop is not None and loop.refresh():
+            self.loop_inverse = loop.inverse
 
     def _identify_delay(self) -> None:
         """Delay and gain from the window (class notes, step 2); sets the targets."""
@@ -2465,6 +2498,15 @@ class AdaptivePredictor:
                 free = member.free_velocity_increment((px, pv, pz))
                 self._rows.append((v - pv - free, 0.0, 0.0), past)
             self._count += 1
+            stage, self._stage = self._stage, 0
+            if stage == 1:
+                self._follow_targets(loop)
+                self._staged = self._rebuild_start()
+                self._stage = 2 if self._staged is not None else 0
+            elif stage == 2:
+                staged, self._staged = self._staged, None
+                if staged is not None:
+                    self._rebuild_finish(staged)
             if excited and self._count % self.update_steps == 0:
                 if self.identify_specimen:
                     theta = self.rls.theta * self._scale
@@ -2473,11 +2515,11 @@ class AdaptivePredictor:
                 if len(self._rows) == self.window:
                     self._identify_delay()
                     self.history_tau_s.append((j, self.tau_s, self.gain, self.fit_quality))
-                for name, guard in self._guards.items():
-                    guard.follow(self._targets[name])
-                if loop is not None and loop.refresh():
-                    self.loop_inverse = loop.inverse
-                self._rebuild()
+                if self.update_steps >= UPDATE_STAGES:
+                    self._stage = 1
+                else:
+                    self._follow_targets(loop)
+                    self._rebuild()
         self._prev = (x, v, latest.step, 0.0 if member is None else member.member.z)
 
     def predict(self, latest: Measurement | None, commanded_N, ground_force_N: float = 0.0
