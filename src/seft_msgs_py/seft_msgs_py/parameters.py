@@ -243,8 +243,12 @@ SCHEMA: tuple[ParamSpec, ...] = (
               '(plant, force controller, force-loop inverse, law) so that the closed loop has '
               "the reference structure's poles exactly (the law assumes the inverted loop is a "
               "held, delayed force; a stiff, lightly damped specimen's (omega dt)^2 error "
-              "otherwise takes much of the reference's damping); 'none': the law as derived "
-              "(the study's). seft design writes 'poles'.", choices=('none', 'poles'),
+              "otherwise takes much of the reference's damping); on a rig of a structure "
+              "whose DOF carries computational springs or dashpots it calibrates the coupled "
+              "loop instead: corrections of the interface force the compensator sees that "
+              "give the whole test's loop the reference structure's modes "
+              "(seft_ros.core.law_calibration.structure_calibration); 'none': the law as "
+              "derived (the study's). seft design writes 'poles'.", choices=('none', 'poles'),
               nodes=_RFB),
     ParamSpec('predictor_loop_delay_steps', 10, '', "Servohydraulic rig, 'model': the force "
               'loop is inverted to a pure delay of this many steps.', 1, 50,

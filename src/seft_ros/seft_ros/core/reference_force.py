@@ -417,6 +417,10 @@ class ReferenceForceBuilder:
         Each local rig's parameters (its compensator's), in the same order.
     local : sequence of str, optional
         The rigs this builder commands (default: all, in structure order).
+    interface_corrections : mapping of str to (float, float, float, float), optional
+        Per rig, the coupled loop's calibration of the interface force its compensator sees
+        (:func:`~seft_ros.core.law_calibration.structure_calibration`; the `corrections` of
+        :class:`~seft_ros.core.substructure.InterfacePredictor`); default none.
 
     Attributes
     ----------
@@ -451,8 +455,12 @@ class ReferenceForceBuilder:
     """
 
     def __init__(self, setup: TestSetup, dt: float, laws: Sequence[RigReferenceForce],
-                 rig_params: Sequence[Mapping], local: Sequence[str] | None = None):
+                 rig_params: Sequence[Mapping], local: Sequence[str] | None = None,
+                 interface_corrections: Mapping | None = None):
         self.setup = setup
+        #: the coupled loop's calibration per rig (the interface force as its compensator
+        #: sees it), ``{rig: (s_c, s_k, c_r, k_r)}``
+        self.interface_corrections = dict(interface_corrections or {})
         sub = setup.substructures
         s = sub.structure
         self.dt = float(dt)
@@ -532,15 +540,22 @@ class ReferenceForceBuilder:
     # -- construction -----------------------------------------------------------------------
 
     @classmethod
-    def from_parameters(cls, params, local: Sequence[str] | None = None
+    def from_parameters(cls, params, local: Sequence[str] | None = None,
+                        interface_corrections: Mapping | str = 'auto'
                         ) -> 'ReferenceForceBuilder':
         """Build from a run's parameters (the structure, or the study's ``alpha``; each rig's
         parameters with its ``predictor``).
 
+        `interface_corrections`: ``'auto'`` (the default) calibrates the coupled loop where
+        a rig asks for it (:func:`~seft_ros.core.law_calibration.structure_calibration`:
+        ``predictor_calibration: poles`` on a rig of a structure); a mapping gives them
+        (the loop models of the calibration itself).
+
         Raises
         ------
         ParameterError
-            As :func:`~seft_ros.core.structure.test_setup` and :func:`make_predictor`.
+            As :func:`~seft_ros.core.structure.test_setup` and :func:`make_predictor`, and
+            a calibration of the coupled loop that fails (the message says why).
         """
         setup = test_setup(params)
         sub = setup.substructures
@@ -562,7 +577,11 @@ class ReferenceForceBuilder:
                         raise
                     raise ParameterError(f'rigs.{r}: {exc}') from None
                 rig_params.append(p)
-        return cls(setup, float(params['dt']), laws, rig_params, local=local)
+        if isinstance(interface_corrections, str):
+            from seft_ros.core.law_calibration import structure_calibration
+            interface_corrections = structure_calibration(params)
+        return cls(setup, float(params['dt']), laws, rig_params, local=local,
+                   interface_corrections=interface_corrections)
 
     def _range_guard(self, law, params, tangent: bool) -> 'RangeGuard | None':
         """A local rig's :class:`~seft_ros.core.range_guard.RangeGuard` (None: its sensors
@@ -627,9 +646,14 @@ class ReferenceForceBuilder:
             if self._tangent is not None:
                 matrices = tangent_matrices(sub, matrices, self._tangent)
             with single_blas_thread():
+                corrections = None
+                if self.interface_corrections:
+                    corrections = [self.interface_corrections.get(self.local_rigs[t])
+                                   for t in self._targets]
                 ip = InterfacePredictor(
                     sub, self._local_pos, models, taus, self._targets, self.dt, matrices,
-                    offsets=self._yields, stiffness_c_N_per_m=self._tangent)
+                    offsets=self._yields, stiffness_c_N_per_m=self._tangent,
+                    corrections=corrections)
             if len(self._interface_cache) >= INTERFACE_CACHE:
                 self._interface_cache.pop(next(iter(self._interface_cache)))
             self._interface_cache[exact] = ip

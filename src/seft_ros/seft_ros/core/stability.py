@@ -1305,6 +1305,10 @@ class TestLoop:
     plant_gain : float > 0, optional
         Every valve-driven rig's plant input scaled by this (the robustness margin of plant
         models of data).
+    interface_corrections : mapping of str to (float, float, float, float), optional
+        The builders' calibration of the coupled loop per rig; default the run's own
+        (:func:`~seft_ros.core.law_calibration.structure_calibration` of `params`, at
+        coupling scale 1: the test that will run, held at every scale and ratio).
 
     Attributes
     ----------
@@ -1320,7 +1324,11 @@ class TestLoop:
     """
 
     def __init__(self, params: Mapping, scale: float = 1.0, *,
-                 stiffness_ratio: float | None = None, plant_gain: float | None = None):
+                 stiffness_ratio: float | None = None, plant_gain: float | None = None,
+                 interface_corrections: Mapping | None = None):
+        if interface_corrections is None:
+            from seft_ros.core.law_calibration import structure_calibration
+            interface_corrections = structure_calibration(params)
         p = scaled_parameters(params, scale) if scale != 1.0 else dict(params)
         setup = test_setup(p)
         sub = setup.substructures
@@ -1329,8 +1337,9 @@ class TestLoop:
         rigs = list(setup.rig_names)
         pi, qi = list(s.physical_index), list(s.computational_index)
         n_p, n_c = len(pi), len(qi)
-        builders = [ReferenceForceBuilder.from_parameters(p, local=graph.local_rigs(b))
-                    for b in graph.builder_nodes()]
+        builders = [ReferenceForceBuilder.from_parameters(
+            p, local=graph.local_rigs(b), interface_corrections=interface_corrections)
+            for b in graph.builder_nodes()]
         couplings = [b.coupling() for b in builders]
         hist = max([c.history_steps for c in couplings] + [1])
         n_ext = max([len(w) for c in couplings for w in c.weights.values()] + [0])

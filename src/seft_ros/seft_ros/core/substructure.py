@@ -279,6 +279,15 @@ class InterfacePredictor:
         The computational part's stiffness the interface forces are predicted with (a
         tangent of a model that yields, :func:`tangent_matrices`; default
         ``sub.stiffness_c_N_per_m``, the linearization's); `matrices` must hold it too.
+    corrections : sequence of (float, float, float, float) or None, optional
+        Per target (in the order of `targets`), the coupled loop's calibration
+        (:func:`~seft_ros.core.law_calibration.structure_calibration`), or None for none:
+        ``(s_c, b_i, c_r, m_r)``, the interface force the compensator sees taken as
+        ``-(1/dt) [s_c C_c[p, :] (x(b) - x(a)) + K_c[p, :] (X(b) - X(a)) + b_i K_c[p, :]
+        (v(b) - v(a)) + c_r (x_p(b) - x_p(a)) + m_r (v_p(b) - v_p(a))]``: the computational
+        dashpots' force scaled, an inerter along the computational springs (``b_i`` [s^2]),
+        and a dashpot ``c_r`` [N s/m] and a mass ``m_r`` [kg] on the rig's own DOF, each
+        over the same interval; none of them acts on a static deflection.
 
     Attributes
     ----------
@@ -306,7 +315,7 @@ class InterfacePredictor:
     def __init__(self, sub: Substructures, local: Sequence[int], models: Sequence[SpecimenModel],
                  taus_s: Sequence[float], targets: Sequence[int], dt: float,
                  matrices: Matrices | None = None, offsets: Sequence[bool] | None = None,
-                 stiffness_c_N_per_m: np.ndarray | None = None):
+                 stiffness_c_N_per_m: np.ndarray | None = None, corrections=None):
         s = sub.structure
         k_c = sub.stiffness_c_N_per_m if stiffness_c_N_per_m is None else np.asarray(
             stiffness_c_N_per_m, dtype=float)
@@ -320,6 +329,9 @@ class InterfacePredictor:
         if len(models) != n_l or len(taus) != n_l:
             raise ParameterError('interface predictor: expected one model and one delay per '
                                  'local rig')
+        if corrections is not None and len(corrections) != len(targets):
+            raise ParameterError('interface predictor: expected one correction (or None) per '
+                                 'target')
         if any(not (t >= 0.0 and math.isfinite(t)) for t in taus):
             raise ParameterError(f'interface predictor: loop delays {taus!r}: expected >= 0')
         matrices = matrices or structure_matrices(sub)
@@ -413,7 +425,14 @@ class InterfacePredictor:
             ya = snapshots[round((dt + taus[t]) / eps)]
             yb = snapshots[round((2.0 * dt + taus[t]) / eps)]
             diff = yb - ya
-            rows[row] = -(sub.damping_c_N_s_per_m[p] @ diff[xs] + k_c[p] @ diff[ixs]) / dt
+            corr = None if corrections is None else corrections[row]
+            if corr is None:
+                rows[row] = -(sub.damping_c_N_s_per_m[p] @ diff[xs] + k_c[p] @ diff[ixs]) / dt
+            else:
+                s_c, b_i, c_r, m_r = (float(v) for v in corr)
+                rows[row] = -(s_c * (sub.damping_c_N_s_per_m[p] @ diff[xs])
+                              + k_c[p] @ diff[ixs] + b_i * (k_c[p] @ diff[vs])
+                              + c_r * diff[p] + m_r * diff[n + p]) / dt
         self.history_steps, self.ground_steps, self.width = nh, ng, width
         self.displacement_matrix = np.zeros((n, width))
         if targets:
