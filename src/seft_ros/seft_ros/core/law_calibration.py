@@ -296,6 +296,8 @@ def _structure_calibration(params: Mapping) -> dict:
     a[n:, n:] = -np.linalg.solve(mats.mass_kg, mats.damping_N_s_per_m)
     lam = np.linalg.eigvals(a)
     lam = sorted(lam[lam.imag > 0], key=lambda x: x.imag)[:2 * len(rigs)]
+    if not lam:                     # no mode that vibrates: nothing to place
+        return {}
     target = np.exp(np.array(lam) * dt)
     scales = []
     omega_max = max(abs(x.imag) for x in lam)
