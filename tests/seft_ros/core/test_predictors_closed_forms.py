@@ -1434,15 +1434,17 @@ def test_the_loop_models_need_seft_plant_sim(monkeypatch):
         IdentifiedForceLoop.from_parameters(params)
 
 
-def test_adaptive_spreads_each_update_over_three_steps(monkeypatch):
-    """An update's three costly parts run on three consecutive measurements, never two in
-    one (a lab builder's compute time per step, issue 41 target 4): the delay fit at the
-    update, the new model (DelayImpulseModel) one measurement later, its law's gains
-    (matching_gains) and its install on the next; the law in use changes only then. On the
-    delay rig (12.3 ms, gain 0.9) the fits still find the delay and the gain."""
+def test_adaptive_spreads_each_update_over_four_steps(monkeypatch):
+    """An update's costly parts run on four consecutive measurements, never two in one (a
+    lab builder's compute time per step, issue 41 target 4): the delay fit at the update,
+    the model's one-step exponential one measurement later, the rest of the model
+    (DelayImpulseModel) on the next, its law's gains (matching_gains) and its install on the
+    one after; the law in use changes only then. On the delay rig (12.3 ms, gain 0.9) the
+    fits still find the delay and the gain."""
     import seft_ros.core.predictors as predictors
     calls = []
     for cls, name in ((AdaptivePredictor, '_identify_delay'),
+                      (AdaptivePredictor, '_rebuild_start'),
                       (predictors.DelayImpulseModel, '__init__'),
                       (predictors.DelayImpulseModel, 'matching_gains')):
         original = getattr(cls, name)
@@ -1452,7 +1454,7 @@ def test_adaptive_spreads_each_update_over_three_steps(monkeypatch):
             return _original(self, *a, **kw)
         monkeypatch.setattr(cls, name, counted)
     pred = adaptive(excitation_N=0.0, window_s=0.1)
-    assert predictors.UPDATE_STAGES == 3 and pred.update_steps >= 3
+    assert predictors.UPDATE_STAGES == 4 and pred.update_steps >= 4
     rig = DelayRig(LinearSpecimen(M, C, K), DT, 0.0123)
     t = np.arange(1500) * DT
     desired = 300 * (np.sin(2 * np.pi * 3 * t) + np.sin(2 * np.pi * 7.3 * t + 1))
@@ -1467,17 +1469,18 @@ def test_adaptive_spreads_each_update_over_three_steps(monkeypatch):
     fits = [j for j, c in enumerate(per_step) if c == ['_identify_delay']]
     assert len(fits) > 50
     built = 0
-    for j in fits[:-2]:
-        # each part on its own step, in order; the new model in use from the third step (no
+    for j in fits[:-3]:
+        # each part on its own step, in order; the new model in use from the fourth step (no
         # model when the guarded estimates did not move)
-        assert models[j + 1] is models[j], j
-        if per_step[j + 1] == ['__init__']:
+        assert per_step[j + 1] == ['_rebuild_start'], (j, per_step[j:j + 4])
+        assert models[j + 1] is models[j] and models[j + 2] is models[j], j
+        if per_step[j + 2] == ['__init__']:
             built += 1
-            assert per_step[j + 2] == ['matching_gains'], (j, per_step[j:j + 3])
-            assert models[j + 2] is not models[j + 1]
+            assert per_step[j + 3] == ['matching_gains'], (j, per_step[j:j + 4])
+            assert models[j + 3] is not models[j + 2]
         else:
-            assert per_step[j + 1] == per_step[j + 2] == [], (j, per_step[j:j + 3])
-            assert models[j + 2] is models[j + 1]
+            assert per_step[j + 2] == per_step[j + 3] == [], (j, per_step[j:j + 4])
+            assert models[j + 3] is models[j + 2]
     assert built >= 10, built
     assert pred.tau_s == pytest.approx(0.0123, abs=1e-4)
     assert pred.gain == pytest.approx(0.9, rel=1e-3)

@@ -335,6 +335,10 @@ class DelayImpulseModel:
     tau_s : float >= 0
         Delay [s].
 
+    one_step : (ndarray (2, 2), ndarray (2, 1)), optional
+        ``zoh(a, b, dt)`` of :meth:`state_space`, computed before (an update of
+        :class:`AdaptivePredictor` in stages); default computed here.
+
     Attributes
     ----------
     E : ndarray, shape (2, 2)
@@ -353,7 +357,7 @@ class DelayImpulseModel:
     """
 
     def __init__(self, mass_kg: float, damping_N_s_per_m: float, stiffness_N_per_m: float,
-                 dt: float, tau_s: float):
+                 dt: float, tau_s: float, one_step=None):
         m, c, k = float(mass_kg), float(damping_N_s_per_m), float(stiffness_N_per_m)
         if not (m > 0 and c >= 0 and k > 0 and dt > 0 and tau_s >= 0):
             raise ParameterError('predictor model: expected m > 0, c >= 0, k > 0, dt > 0 and '
@@ -362,9 +366,8 @@ class DelayImpulseModel:
         self.dt = float(dt)
         self.n, self.delta = _split_delay(tau_s, dt)
         self.tau_s = float(tau_s)
-        a = np.array([[0.0, 1.0], [-k / m, -c / m]])
-        b = np.array([[0.0], [1.0 / m]])
-        phi, gam = _zoh(a, b, dt)
+        a, b = self.state_space(m, c, k)
+        phi, gam = _zoh(a, b, dt) if one_step is None else one_step
         phi_d, gam_d = _zoh(a, b, self.delta)
         n = self.n
         powers = [np.eye(2)]
@@ -377,6 +380,13 @@ class DelayImpulseModel:
         self.H = np.column_stack([powers[n + 1] @ gam_d[:, 0]]
                                  + [powers[n - i] @ gam[:, 0] for i in range(n + 1)])
         self._gains = {}
+
+    @staticmethod
+    def state_space(mass_kg: float, damping_N_s_per_m: float, stiffness_N_per_m: float):
+        """``(a, b)`` of the specimen ``m x'' + c x' + k x = f``, state ``[x, v]``; with
+        ``zoh(a, b, dt)`` they are the `one_step` of the constructor."""
+        m, c, k = mass_kg, damping_N_s_per_m, stiffness_N_per_m
+        return np.array([[0.0, 1.0], [-k / m, -c / m]]), np.array([[0.0], [1.0 / m]])
 
     def state_ahead(self, x_m: float, v_m_s: float, forces_N) -> np.ndarray:
         """``s_hat`` [m, m/s] from the state at t_k-1 and ``f[k-2-n..k-1]`` (n + 2 values)."""
@@ -1862,12 +1872,13 @@ def adaptive_fits_loop(params) -> bool:
     return mode == 'fit'
 
 
-#: An update of :class:`AdaptivePredictor` runs in stages on three consecutive steps (the
-#: delay fit; the guarded estimates and the new model; the law's gains and their install)
-#: when ``update_steps`` is at least this: no one step carries the whole update (a lab
-#: builder's compute time per step, issue 41). The new law acts two steps later than at
-#: once, 4 ms of the 20 ms between updates at the study's rate.
-UPDATE_STAGES = 3
+#: An update of :class:`AdaptivePredictor` runs in stages on this many consecutive steps
+#: (the delay fit; the guarded estimates and the model's one-step exponential; the rest of
+#: the model; the law's gains and their install) when ``update_steps`` is at least this: no
+#: one step carries the whole update (a lab builder's compute time per step, issue 41).
+#: The new law acts three steps later than at once, 6 ms of the 20 ms between updates at
+#: the study's rate.
+UPDATE_STAGES = 4
 
 #: A candidate delay of :func:`_delay_shortlist` is dropped when its residual exceeds the
 #: least by more than this fraction of ``|y|^2``: a thousand times the error of the
@@ -2011,10 +2022,10 @@ class AdaptivePredictor:
     ``+/- max_deviation`` of the configured values, tau within ``[0, max_delay_s]``, and each
     changes by at most ``max_rate_per_s`` of its configured value per second (tau:
     ``max_rate_per_s * max(tau0, dt)``). Every ``update_steps`` the guarded estimates are
-    refreshed and, if they moved, the law's model is rebuilt, in three stages on consecutive
-    measurements (:data:`UPDATE_STAGES`: the delay fit; the estimates and the new model; its
-    law's gains, installed then). :meth:`estimates` returns the current values (published
-    and recorded).
+    refreshed and, if they moved, the law's model is rebuilt, in stages on consecutive
+    measurements (:data:`UPDATE_STAGES`: the delay fit; the estimates and the model's one
+    step; the rest of the model; its law's gains, installed then). :meth:`estimates`
+    returns the current values (published and recorded).
 
     The target of the law is the reference structure with the configured computational
     mass: ``(m_hat + alpha m_ref) x'' + c_hat x' + k_hat x = G`` (an effective mass ratio
@@ -2344,11 +2355,20 @@ class AdaptivePredictor:
         if key == self._model_key:
             return None
         self._model_key = key
-        return m, c, k, DelayImpulseModel(m, c, k, self.dt, key[3] * self.dt / 64)
+        m, c, k = float(m), float(c), float(k)
+        return [m, c, k, key[3] * self.dt / 64,
+                _zoh(*DelayImpulseModel.state_space(m, c, k), self.dt), None]
+
+    def _rebuild_model(self, pending) -> None:
+        """The middle of a rebuild: the new model from its one step."""
+        m, c, k, tau, one_step, _ = pending
+        pending[5] = DelayImpulseModel(m, c, k, self.dt, tau, one_step=one_step)
 
     def _rebuild_finish(self, pending) -> None:
-        """The second half: the law's gains and tables of the new model, and its install."""
-        m, c, k, self.model = pending
+        """The last part: the law's gains and tables of the new model, and its install."""
+        if pending[5] is None:
+            self._rebuild_model(pending)
+        m, c, k, _, _, self.model = pending
         if self._member_law is not None:
             self._member_law.set_delay(self.model.tau_s)
         alpha_eff = self.alpha * self.mass_ref_kg / m
@@ -2503,7 +2523,10 @@ class AdaptivePredictor:
                 self._follow_targets(loop)
                 self._staged = self._rebuild_start()
                 self._stage = 2 if self._staged is not None else 0
-            elif stage == 2:
+            elif stage == 2 and self._staged is not None:
+                self._rebuild_model(self._staged)
+                self._stage = 3
+            elif stage == 3:
                 staged, self._staged = self._staged, None
                 if staged is not None:
                     self._rebuild_finish(staged)
