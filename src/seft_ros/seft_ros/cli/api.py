@@ -1387,25 +1387,32 @@ def identify_bags(*, bags: list[str], out_dir: Path, window: str = 'hann',
 
 
 class DesignResult:
-    """What ``seft design`` produced: each rig's design and the parameter file."""
+    """What ``seft design`` produced: each rig's design, the parameter file and, for a
+    structure, each coupled rig's force-loop inverse chosen by rehearsing it
+    (:class:`~seft_ros.core.structure_design.InverseChoice`)."""
 
-    def __init__(self, designs: dict, params_path: Path | None, document: dict):
+    def __init__(self, designs: dict, params_path: Path | None, document: dict,
+                 inverse_choices: list | None = None):
         self.designs = designs
         self.params_path = params_path
         self.document = document
+        self.inverse_choices = list(inverse_choices or [])
 
 
 def design_controllers(*, config: str | None = None, overrides: dict | None = None,
                        params_files: list[str] | None = None, out: str | None = None,
                        phase_margin_deg: float = 45.0, gain_margin: float = 2.0,
-                       crossover_hz: float = 0.0, uncertainty: float = 0.05
-                       ) -> DesignResult:
+                       crossover_hz: float = 0.0, uncertainty: float = 0.05,
+                       progress: Callable[[str], None] = lambda _: None) -> DesignResult:
     """Design each valve-driven rig's force controller from its plant model (``seft design``).
 
     The plant is the rig's (:func:`seft_ros.core.force_loop.force_loop_plant`: its
     ``plant_model``, written by the lab or by ``seft identify``, else seft's servohydraulic
     rig model with the rig's specimen), the design :func:`seft_ros.core.force_design.
-    design_force_controller` with the targets given.
+    design_force_controller` with the targets given. In a structure each coupled rig's
+    force-loop inverse is then chosen by rehearsing the structure's test on the plant
+    models (:func:`seft_ros.core.structure_design.choose_structure_inverses`; `progress`
+    receives a line per rig).
 
     Parameters
     ----------
@@ -1459,12 +1466,27 @@ def design_controllers(*, config: str | None = None, overrides: dict | None = No
     values = {r: dict(d.parameters(), _design=d.summary()
                       + ('' if d.met else ' (targets NOT met: ' + '; '.join(d.notes) + ')'))
               for r, d in designs.items()}
+    choices = []
+    if not setup.is_study:
+        from seft_ros.core.structure_design import choose_structure_inverses
+        designed = {r: mapping_values({k: v for k, v in values[r].items()
+                                       if not k.startswith('_')}) for r in values}
+        choices = choose_structure_inverses(params, designed, progress)
+        for c in choices:
+            chosen = designed[c.rig]
+            values[c.rig]['predictor_loop_delay_steps'] = c.chosen_steps
+            if 'predictor_tau_s' in chosen:
+                values[c.rig]['predictor_tau_s'] = float(chosen['predictor_tau_s']) + (
+                    c.chosen_steps - c.designed_steps) * float(params['dt'])
+            values[c.rig]['_design'] += f'; {c.summary()}'
     path = None
     if out:
         path = (write_params_yaml(values[''], out) if list(values) == ['']
                 else write_rig_params_yaml(values, out))
     doc = {r: d.to_json() for r, d in designs.items()}
-    return DesignResult(designs, path, doc)
+    for c in choices:
+        doc[c.rig]['structure_inverse'] = c.to_json()
+    return DesignResult(designs, path, doc, choices)
 
 
 #: The figures ``seft identify`` prints, in order.

@@ -341,7 +341,7 @@ def _design(args) -> int:
                                     phase_margin_deg=args.phase_margin,
                                     gain_margin=args.gain_margin,
                                     crossover_hz=args.crossover_hz,
-                                    uncertainty=args.uncertainty)
+                                    uncertainty=args.uncertainty, progress=_progress)
     for rig, d in result.designs.items():
         label = f'rig {rig}: ' if rig else ''
         print(f'{label}{d.summary()}')
@@ -349,6 +349,8 @@ def _design(args) -> int:
               f'{100 * d.inverse_band_error:.2g} % up to 25 Hz), closed-loop delay '
               f'{1e3 * d.equivalent_delay_s:.1f} ms; targets '
               + ('met' if d.met else 'NOT met: ' + '; '.join(d.notes)))
+    for choice in result.inverse_choices:
+        print(choice.summary())
     if result.params_path is not None:
         print(f'parameters: {result.params_path}')
     return 0 if all(d.met for d in result.designs.values()) else 1

@@ -1,0 +1,210 @@
+"""The force-loop inverse of each rig of a structure chosen by rehearsing the test (no rclpy).
+
+``seft design`` (and ``seft identify --params``) design a rig's force controller and the
+``model`` compensator's force-loop inverse for the one-DOF test of its specimen: the
+inverse's delay is the one whose test is predicted closest to the reference structure
+(:func:`seft_ros.core.stability.predicted_error`). In a structure the rig's loop is closed
+again through the computational part (the interface force, coupled loop calibrated by
+:func:`seft_ros.core.law_calibration.structure_calibration`), and what the delay does there
+is not what it does alone: on ``two_story`` with a 32 Hz, 0.5 % first story on the
+``valve_2nd_order`` actuator the one-DOF design's 5 steps gave the first story 8 % NRMS
+acceleration (a loop pole above the inverse's band, 44 Hz, lightly damped), 12 steps 1.3 %.
+
+:func:`choose_structure_inverses` rehearses the structure's test on the lab's own model of
+each rig (``rig_model: state_space`` with its ``plant_model``: the test is never chosen on
+the plant it will run on) for the delays from the one-DOF design's on
+(:data:`DELAY_SPAN_STEPS` of them), rig after rig, on the test's own record (its first
+:data:`REHEARSAL_S`), in lockstep; it keeps the delay of the least worst NRMS over every DOF
+and signal (displacement, acceleration, interface force), the shorter on a tie.
+
+References
+----------
+N. Nakata and S. Combs, Substructure Effective Force Testing, Sec. 5 (the delay and its
+compensation). J. E. Carrion and B. F. Spencer Jr. (2007), Model-based strategies for
+real-time hybrid testing, NSEL Report 006.
+"""
+
+from dataclasses import dataclass, field
+import json
+import math
+from typing import Callable, Mapping
+
+from seft_msgs_py.errors import ParameterError
+
+__all__ = ['InverseChoice', 'choose_structure_inverses', 'with_rig_values', 'REHEARSAL_S',
+           'DELAY_SPAN_STEPS']
+
+#: The longest stretch of the test's record a rehearsal runs [s].
+REHEARSAL_S = 20.0
+#: How many inverse delays are rehearsed per rig, from the one-DOF design's on [steps].
+DELAY_SPAN_STEPS = 16
+
+
+@dataclass
+class InverseChoice:
+    """One rig's force-loop inverse chosen for the structure.
+
+    Attributes
+    ----------
+    rig : str
+    designed_steps : int
+        The one-DOF design's delay [steps].
+    chosen_steps : int
+    errors : dict of int to float
+        Each rehearsed delay's worst NRMS over every DOF and signal [-] (``inf``: unstable
+        or refused, with the reason in `refused`).
+    refused : dict of int to str
+    """
+
+    rig: str
+    designed_steps: int
+    chosen_steps: int
+    errors: dict = field(default_factory=dict)
+    refused: dict = field(default_factory=dict)
+
+    def summary(self) -> str:
+        """One line: the choice and the rehearsed errors it rests on."""
+        chosen = self.errors.get(self.chosen_steps, math.inf)
+        designed = self.errors.get(self.designed_steps, math.inf)
+        label = f'rig {self.rig}: ' if self.rig else ''
+        return (f'{label}force-loop inverse {self.chosen_steps} steps for the structure '
+                f'(rehearsed on the plant model, worst NRMS {_percent(chosen)} over every DOF '
+                f"and signal; the one-DOF design's {self.designed_steps} steps: "
+                f'{_percent(designed)}; {len(self.errors)} delays tried)')
+
+    def to_json(self) -> dict:
+        """The choice and every delay's rehearsed error (``None``: unstable or refused)."""
+        return {'designed_steps': self.designed_steps, 'chosen_steps': self.chosen_steps,
+                'worst_nrms': {str(d): (e if math.isfinite(e) else None)
+                               for d, e in self.errors.items()},
+                'refused': {str(d): r for d, r in self.refused.items()}}
+
+
+def _percent(value: float) -> str:
+    return f'{100 * value:.2f} %' if math.isfinite(value) else 'unstable or refused'
+
+
+def with_rig_values(params: Mapping, rig: str, values: Mapping) -> dict:
+    """`params` with `values` set in rig `rig`'s section of the structure.
+
+    Parameters
+    ----------
+    params : mapping
+        A structure run's resolved parameters (``structure`` the JSON of the structure, its
+        ``rigs`` the per-rig sections).
+    rig : str
+    values : mapping
+        Parameter name -> value as the nodes take it (mappings as JSON text).
+
+    Returns
+    -------
+    dict
+
+    Raises
+    ------
+    ParameterError
+        Not a structure, or no such rig.
+    """
+    text = params.get('structure', 'none')
+    if not isinstance(text, str) or text == 'none':
+        raise ParameterError('structure design: expected a structure')
+    structure = json.loads(text)
+    rigs = structure.setdefault('rigs', {})
+    if rig not in rigs:
+        raise ParameterError(f'structure design: no rig {rig!r} (rigs: {", ".join(rigs)})')
+    rigs[rig] = dict(rigs[rig], **values)
+    return dict(params, structure=json.dumps(structure, sort_keys=True))
+
+
+def _worst_error(params: Mapping) -> float:
+    """The rehearsal's worst NRMS over every DOF and signal (``inf`` if unstable)."""
+    from seft_ros.analysis.metrics import compare_run
+    from seft_ros.core.experiment import simulate
+    run = simulate(params)
+    if not run.stable:
+        return math.inf
+    worst = 0.0
+    for dof in compare_run(run).dofs:
+        for signal in ('displacement', 'acceleration', 'interface_force'):
+            metric = getattr(dof, signal, None)
+            if metric is not None and metric.nrms is not None:
+                worst = max(worst, float(metric.nrms))
+    return worst if math.isfinite(worst) else math.inf
+
+
+def choose_structure_inverses(params: Mapping, designed: Mapping[str, Mapping],
+                              progress: Callable[[str], None] = lambda _: None
+                              ) -> list[InverseChoice]:
+    """Each coupled rig's force-loop inverse delay chosen by rehearsing the structure (module
+    notes).
+
+    Parameters
+    ----------
+    params : mapping
+        The structure run's resolved parameters.
+    designed : mapping of str to mapping
+        Per rig, the one-DOF design's parameters as the nodes take them (``seft design``'s:
+        ``force_controller_tf``, ``predictor_loop_*``, ``predictor_calibration``,
+        ``predictor_tau_s``); the rigs not in it are rehearsed as they are.
+    progress : callable(str), optional
+        Receives a line per rig as its rehearsals start.
+
+    Returns
+    -------
+    list of InverseChoice
+        One per rig of `designed` with ``predictor: model`` whose DOF carries computational
+        springs or dashpots (empty for the study's test).
+
+    Raises
+    ------
+    ParameterError
+        As :func:`with_rig_values`, or a rig for which no rehearsed delay was stable.
+    """
+    from seft_ros.core.structure import test_setup
+    setup = test_setup(params)
+    if setup.is_study:
+        return []
+    base = dict(params, duration_s=min(float(params.get('duration_s') or REHEARSAL_S),
+                                       REHEARSAL_S))
+    for rig, values in designed.items():
+        base = with_rig_values(base, rig, values)
+    setup = test_setup(base)
+    sub = setup.substructures
+    pi = list(sub.structure.physical_index)
+    kc, cc = sub.stiffness_c_N_per_m, sub.damping_c_N_s_per_m
+    rigs = [r for j, r in enumerate(setup.rig_names)
+            if r in designed and setup.rig_params[r].get('predictor') == 'model'
+            and (kc[pi[j]].any() or cc[pi[j]].any())]
+    for rig in setup.rig_names:      # rehearsed on the lab's model of each rig
+        if setup.rig_params[rig].get('plant_model', 'none') not in ('none', '', None):
+            base = with_rig_values(base, rig, {'rig_model': 'state_space'})
+    choices = []
+    for rig in rigs:
+        rp = setup.rig_params[rig]
+        first = int(rp['predictor_loop_delay_steps'])
+        tau = float(rp.get('predictor_tau_s', 0.0) or 0.0)
+        dt = float(params['dt'])
+        progress(f'rig {rig}: rehearsing the structure with force-loop inverses of '
+                 f'{first}-{first + DELAY_SPAN_STEPS - 1} steps')
+        choice = InverseChoice(rig, first, first)
+        for d in range(first, first + DELAY_SPAN_STEPS):
+            values = {'predictor_loop_delay_steps': d}
+            if tau > 0:
+                values['predictor_tau_s'] = tau + (d - first) * dt
+            try:
+                choice.errors[d] = _worst_error(with_rig_values(base, rig, values))
+            except ParameterError as exc:
+                choice.errors[d] = math.inf
+                choice.refused[d] = str(exc)
+        best = min(choice.errors, key=lambda d: (choice.errors[d], d))
+        if not math.isfinite(choice.errors[best]):
+            raise ParameterError(f'rig {rig}: no force-loop inverse of {first}-'
+                                 f'{first + DELAY_SPAN_STEPS - 1} steps gave a stable '
+                                 'rehearsal of the structure on its plant model')
+        choice.chosen_steps = best
+        values = {'predictor_loop_delay_steps': best}
+        if tau > 0:
+            values['predictor_tau_s'] = tau + (best - first) * dt
+        base = with_rig_values(base, rig, values)
+        choices.append(choice)
+    return choices
