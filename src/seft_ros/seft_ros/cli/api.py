@@ -1473,11 +1473,7 @@ def design_controllers(*, config: str | None = None, overrides: dict | None = No
                                        if not k.startswith('_')}) for r in values}
         choices = choose_structure_inverses(params, designed, progress)
         for c in choices:
-            chosen = designed[c.rig]
-            values[c.rig]['predictor_loop_delay_steps'] = c.chosen_steps
-            if 'predictor_tau_s' in chosen:
-                values[c.rig]['predictor_tau_s'] = float(chosen['predictor_tau_s']) + (
-                    c.chosen_steps - c.designed_steps) * float(params['dt'])
+            values[c.rig].update(c.values)
             values[c.rig]['_design'] += f'; {c.summary()}'
     path = None
     if out:

@@ -54,6 +54,9 @@ class InverseChoice:
         Each rehearsed delay's worst NRMS over every DOF and signal [-] (``inf``: unstable
         or refused, with the reason in `refused`).
     refused : dict of int to str
+    values : dict
+        The rig's parameters for the chosen delay (``predictor_loop_delay_steps`` and, when
+        the design gave one, ``predictor_tau_s`` moved by as many steps).
     """
 
     rig: str
@@ -61,6 +64,7 @@ class InverseChoice:
     chosen_steps: int
     errors: dict = field(default_factory=dict)
     refused: dict = field(default_factory=dict)
+    values: dict = field(default_factory=dict)
 
     def summary(self) -> str:
         """One line: the choice and the rehearsed errors it rests on."""
@@ -187,12 +191,15 @@ def choose_structure_inverses(params: Mapping, designed: Mapping[str, Mapping],
         progress(f'rig {rig}: rehearsing the structure with force-loop inverses of '
                  f'{first}-{first + DELAY_SPAN_STEPS - 1} steps')
         choice = InverseChoice(rig, first, first)
-        for d in range(first, first + DELAY_SPAN_STEPS):
+
+        def delay_values(d):
             values = {'predictor_loop_delay_steps': d}
-            if tau > 0:
+            if tau > 0:             # the closed loop's delay moves with the inverse's
                 values['predictor_tau_s'] = tau + (d - first) * dt
+            return values
+        for d in range(first, first + DELAY_SPAN_STEPS):
             try:
-                choice.errors[d] = _worst_error(with_rig_values(base, rig, values))
+                choice.errors[d] = _worst_error(with_rig_values(base, rig, delay_values(d)))
             except ParameterError as exc:
                 choice.errors[d] = math.inf
                 choice.refused[d] = str(exc)
@@ -201,10 +208,7 @@ def choose_structure_inverses(params: Mapping, designed: Mapping[str, Mapping],
             raise ParameterError(f'rig {rig}: no force-loop inverse of {first}-'
                                  f'{first + DELAY_SPAN_STEPS - 1} steps gave a stable '
                                  'rehearsal of the structure on its plant model')
-        choice.chosen_steps = best
-        values = {'predictor_loop_delay_steps': best}
-        if tau > 0:
-            values['predictor_tau_s'] = tau + (best - first) * dt
-        base = with_rig_values(base, rig, values)
+        choice.chosen_steps, choice.values = best, delay_values(best)
+        base = with_rig_values(base, rig, choice.values)
         choices.append(choice)
     return choices
