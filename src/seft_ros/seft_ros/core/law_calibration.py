@@ -283,17 +283,14 @@ def _structure_calibration(params: Mapping) -> dict:
     # without the plant simulation builds the others
     from seft_ros.core import stability
     from seft_ros.core.predictors import model_parameters
-    from seft_ros.core.substructure import structure_matrices
+    from seft_ros.core.substructure import _rows, structure_matrices
     key = json.dumps(dict(params), sort_keys=True, default=repr)
     if key in _STRUCTURE_CACHE:
         return dict(_STRUCTURE_CACHE[key])
     dt = float(params['dt'])
-    mats = structure_matrices(sub)
     n = s.n
-    a = np.zeros((2 * n, 2 * n))
-    a[:n, n:] = np.eye(n)
-    a[n:, :n] = -np.linalg.solve(mats.mass_kg, mats.stiffness_N_per_m)
-    a[n:, n:] = -np.linalg.solve(mats.mass_kg, mats.damping_N_s_per_m)
+    ax, av, _ = _rows(structure_matrices(sub), range(n))      # the rows of Eq. 1
+    a = np.block([[np.zeros((n, n)), np.eye(n)], [ax, av]])
     lam = np.linalg.eigvals(a)
     lam = sorted(lam[lam.imag > 0], key=lambda x: x.imag)[:2 * len(rigs)]
     if not lam:                     # no mode that vibrates: nothing to place

@@ -2381,8 +2381,7 @@ class AdaptivePredictor:
         self._r = (self.model.phi - np.eye(2))[1]
         self._gv = float(self.model.gamma[1])
         if self._frac_model is None or _moved((m, c, k), self._frac_model, 0.01):
-            a = np.array([[0.0, 1.0], [-k / m, -c / m]])
-            b = np.array([[0.0], [1.0 / m]])
+            a, b = DelayImpulseModel.state_space(m, c, k)
             # fraction table: delta -> g_e / (g_e + g_l) for a unit force
             grid = np.linspace(0.0, self.dt, 21)
             frac = []

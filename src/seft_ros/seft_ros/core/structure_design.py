@@ -127,13 +127,11 @@ def _worst_error(params: Mapping) -> float:
     run = simulate(params)
     if not run.stable:
         return math.inf
-    worst = 0.0
-    for dof in compare_run(run).dofs:
-        for signal in ('displacement', 'acceleration', 'interface_force'):
-            metric = getattr(dof, signal, None)
-            if metric is not None and metric.nrms is not None:
-                worst = max(worst, float(metric.nrms))
-    return worst if math.isfinite(worst) else math.inf
+    comparison = compare_run(run)
+    worst = [comparison.worst_nrms(signal)
+             for signal in ('displacement', 'acceleration', 'interface_force')]
+    worst = [w for w in worst if math.isfinite(w)]
+    return max(worst) if worst else math.inf
 
 
 def choose_structure_inverses(params: Mapping, designed: Mapping[str, Mapping],
