@@ -138,7 +138,7 @@ def held_forces(run, late_steps) -> dict:
         measured = (run.measured_force_N[k], run.velocity_m_s[k], run.acceleration_m_s2[k],
                     run.displacement_m[k])
         if k in late_steps:
-            for newest in range(k - 1, max(k - 10, 0) - 1, -1):
+            for newest in range(k - 1, -1, -1):
                 playout = ReferencePlayout(0, extrapolate)
                 for j in range(max(newest - 1, 0), newest + 1):
                     playout.receive(j, f_r[j])
