@@ -241,9 +241,10 @@ def test_value_source_lists_cover_the_schema():
     # specimen_uncertainty, specimen_check and predictor_io_latency_s; + 6: the force loop as
     # data (plant_model, force_controller_tf, the actuator family's 3, predictor_calibration);
     # + 3: who may command the rig (run_token, message_auth, auth_key_file); + 1: the
-    # recorder's wait_for_live_view; + 1: adaptive_excitation_fraction; + 1: adaptive_loop_fit
+    # recorder's wait_for_live_view; + 1: adaptive_excitation_fraction; + 1: adaptive_loop_fit;
+    # + 1: predictor_loop_rehearsed (seft design's mark)
     assert len(VALUE_SOURCE) == len(SCHEMA) == (31 + 47 + 6 + 6 + 10 + 2 + 1 + 2 + 1 + 6 + 3
-                                                + 1 + 1 + 1)
+                                                + 1 + 1 + 1 + 1)
 
 
 def test_value_source_of_unknown_name_is_an_error():

@@ -253,6 +253,11 @@ SCHEMA: tuple[ParamSpec, ...] = (
     ParamSpec('predictor_loop_delay_steps', 10, '', "Servohydraulic rig, 'model': the force "
               'loop is inverted to a pure delay of this many steps.', 1, 50,
               nodes=_RFB + ('recorder',)),
+    ParamSpec('predictor_loop_rehearsed', False, '', 'Set by seft design on a rig of a '
+              'structure: predictor_loop_delay_steps was chosen by rehearsing the structure on '
+              "the rig's plant model (false: the one-DOF test's choice, seft identify's; a "
+              'calibrated rig whose DOF carries computational springs or dashpots is then '
+              'named before the run).', nodes=('recorder',)),
     ParamSpec('predictor_loop_taps', 48, '', "Servohydraulic rig, 'model': taps of the FIR "
               'force-loop inverse.', 1, 1000, nodes=_RFB + ('recorder',)),
     ParamSpec('predictor_loop_hf_weight', 1e-3, '', "Servohydraulic rig, 'model': weight "

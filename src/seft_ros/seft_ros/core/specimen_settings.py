@@ -115,6 +115,13 @@ COSTLY = {
                          "loop's I/O latency as declared; 10 % off it costs 2-2.7 % (the "
                          'two piers, the one-rig test), 20 % off up to 5.4 % (docs: '
                          'results/robustness); adaptive_loop: model_latency identifies it'),
+    'one-DOF inverse': ('predictor model with predictor_calibration poles and the force-loop '
+                        'inverse chosen for the one-DOF test ({predictor_loop_delay_steps} '
+                        "steps, seft identify's) on a DOF coupled to the computational "
+                        'part: seft design CONFIG --out FILE chooses it by rehearsing the '
+                        "structure on the rig's plant model (two_story with a 32 Hz first "
+                        'story: its acceleration 8.0 % with the one-DOF choice, 1.2-1.3 % '
+                        "with the structure's; docs: results/own-actuator)"),
     'uncompensated': ("predictor none at alpha {alpha:g}: the study's finding, the force "
                       "loop's lag costs 35-49 % at alpha 0.5-1 and is unstable near 1.5 "
                       "(README: the main job); 'model' or 'adaptive' compensate it"),
@@ -138,11 +145,17 @@ def costly_settings(params: Mapping[str, Any], *, flagging: bool = False) -> lis
         An invalid structure (as :func:`~seft_ros.core.structure.test_setup`).
     """
     from seft_ros.core.structure import is_study, test_setup
+    coupled = set()
     if is_study(params):
         rigs = {'rig': params}
     else:
         setup = test_setup(params)
         rigs = {r: setup.rig_params[r] for r in setup.rig_names}
+        sub = setup.substructures
+        for j, r in enumerate(setup.rig_names):     # as seft design's rehearsal chooses them
+            dof = sub.structure.physical_index[j]
+            if sub.stiffness_c_N_per_m[dof].any() or sub.damping_c_N_s_per_m[dof].any():
+                coupled.add(r)
     lines = []
     for rig, p in rigs.items():
         rules = []
@@ -164,6 +177,9 @@ def costly_settings(params: Mapping[str, Any], *, flagging: bool = False) -> lis
         if (servo and predictor == 'adaptive' and not _yields(p)
                 and p.get('adaptive_loop', 'model') == 'model'):
             rules.append('latency declared')
+        if (rig in coupled and predictor == 'model' and p.get('predictor_calibration') == 'poles'
+                and not p.get('predictor_loop_rehearsed', False)):
+            rules.append('one-DOF inverse')
         if (is_study(params) and predictor == 'none' and float(p.get('alpha', 0)) >= 0.5
                 and p.get('excitation', 'none') == 'none'):
             rules.append('uncompensated')

@@ -56,7 +56,9 @@ class InverseChoice:
     refused : dict of int to str
     values : dict
         The rig's parameters for the chosen delay (``predictor_loop_delay_steps`` and, when
-        the design gave one, ``predictor_tau_s`` moved by as many steps).
+        the design gave one, ``predictor_tau_s`` moved by as many steps) and
+        ``predictor_loop_rehearsed`` true (the pre-run line of
+        :func:`~seft_ros.core.specimen_settings.costly_settings` is then not said).
     """
 
     rig: str
@@ -206,7 +208,8 @@ def choose_structure_inverses(params: Mapping, designed: Mapping[str, Mapping],
             raise ParameterError(f'rig {rig}: no force-loop inverse of {first}-'
                                  f'{first + DELAY_SPAN_STEPS - 1} steps gave a stable '
                                  'rehearsal of the structure on its plant model')
-        choice.chosen_steps, choice.values = best, delay_values(best)
+        choice.chosen_steps = best
+        choice.values = dict(delay_values(best), predictor_loop_rehearsed=True)
         base = with_rig_values(base, rig, choice.values)
         choices.append(choice)
     return choices
