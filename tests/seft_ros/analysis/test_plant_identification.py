@@ -7,6 +7,7 @@ linearized at rest and sampled exactly (``ActuatorSpec.linear_plant``), which th
 identification never sees.
 """
 
+import dataclasses
 import math
 
 import numpy as np
@@ -142,14 +143,15 @@ def lab_settings(member, specimen=(M, C, K)):
 
 
 def test_the_model_states_its_level_and_the_guard_holds_back_on_a_sticking_actuator(
-        second_order, second_order_fit):
+        second_order, second_order_fit, monkeypatch):
     """The identified model states the largest force and velocity of its record. Coulomb
     friction (1 % of the stall force) holds the piston in its seals under 0.05 V of valve
     noise (peak velocity a few mm/s): its linear model fits to a few per cent and, with the
     controller designed for it, predicts the study's test on the 32 Hz column stable; the
     test at 250 N (planned 0.19 m/s) goes unstable within a second. The guard gives no
     verdict there; on the linear second-order valve, identified at 10 times that velocity,
-    the same path gets its verdict and is stable and accurate."""
+    the same path gets its verdict and is stable and accurate, and the guard predicts what a
+    plant gain 2 % off its model costs (the runs on that actuator confirm it)."""
     from seft_ros.analysis.metrics import compare_run
     from seft_ros.core.stability import check_run
     _, _, y2 = second_order
@@ -174,6 +176,23 @@ def test_the_model_states_its_level_and_the_guard_holds_back_on_a_sticking_actua
     assert stuck[:2] == (None, False), stuck
     assert 'no verdict: the plant_model was identified at a peak velocity' in stuck[2]
     assert outcomes['valve_2nd_order'][:2] == (True, True), outcomes['valve_2nd_order']
+    # what a plant gain GAIN_ERROR off its model does, said before the run: this column's
+    # test at alpha 1 is stable only to 1.01 x the model's gain (predicted), and runs on
+    # the actuator with its flow gain that much off confirm it (an independent check): the
+    # test that meets 1 % on its exact model goes unstable, or errs many times that
+    from seft_ros.core.stability import GAIN_ERROR, robustness_margin
+    margin = robustness_margin(params)
+    assert margin.quantity == 'plant_gain' and margin.high < 1 + GAIN_ERROR, margin
+    assert margin.gain_error_cost == math.inf
+    assert "a plant gain 2 % off the model's is unstable (predicted): identify" in margin.text()
+    nominal = compare_run(run).displacement.nrms
+    spec = actuator_spec(params)
+    for g in (1 - GAIN_ERROR, 1 + GAIN_ERROR):
+        flow = spec.valve_flow_gain_m3_per_s_V * g
+        monkeypatch.setattr('seft_plant_sim.actuator.actuator_spec', lambda p, f=flow: (
+            dataclasses.replace(actuator_spec(p), valve_flow_gain_m3_per_s_V=f)))
+        off = simulate(params)
+        assert not off.stable or compare_run(off).displacement.nrms > 10 * nominal, g
 
 
 def test_a_specimen_near_the_crossover_still_gets_a_10_hz_loop():

@@ -409,3 +409,22 @@ def test_the_margin_of_a_structure_and_of_adaptive():
         margin.text(bare=True))
     unstable = st.robustness_margin(dict(model, predictor='none'))
     assert unstable.text() == 'no robustness margin: unstable as declared'
+
+
+def test_a_plant_gain_error_is_said_with_its_predicted_cost():
+    """The margin of a test on a plant model of data says what a plant gain GAIN_ERROR off
+    the model's costs (finite: predicted NRMS; inf: unstable there), in its text and JSON."""
+    from seft_ros.core.stability import GAIN_ERROR, RobustnessMargin
+    costly = RobustnessMargin(0.6, 1.4, '', 'plant_gain', 0.0787)
+    assert costly.text().endswith(
+        "; a plant gain 2 % off the model's costs 7.9 % NRMS x (predicted): identify the rig "
+        'again when its supply pressure or oil temperature changes; predictor adaptive with '
+        'adaptive_loop_fit fit follows the gain (docs: results/own-actuator)')
+    assert costly.to_json()['gain_error_cost'] == 0.0787
+    assert costly.to_json()['gain_error'] == GAIN_ERROR == 0.02
+    unstable = RobustnessMargin(0.1, 1.007, '', 'plant_gain', math.inf)
+    assert "2 % off the model's is unstable (predicted)" in unstable.text()
+    assert unstable.to_json()['gain_error_cost'] is None
+    assert unstable.to_json()['gain_error_unstable'] and not costly.to_json()[
+        'gain_error_unstable']
+    assert 'off the model' not in RobustnessMargin(0.5, 2.0).text()      # seft's rig model
