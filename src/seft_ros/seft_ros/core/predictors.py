@@ -36,6 +36,7 @@ acceleration: integrated over the step, (*) is exactly the reference equation of
 
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
 import functools
 import math
 import os
@@ -1938,6 +1939,20 @@ def _delay_shortlist(rows: np.ndarray, y: np.ndarray, max_n: int) -> list[int]:
     return [n for n, err in enumerate(errs) if err <= bound or n in odd or err == inf]
 
 
+@dataclass
+class _Rebuild:
+    """A rebuild of :class:`AdaptivePredictor`'s law on its way (:data:`UPDATE_STAGES`): the
+    estimates it is for (m [kg], c [N s/m], k [N/m], tau [s]), the model's one-step
+    exponential ``(phi, gamma)`` of :func:`_zoh`, then the model once made."""
+
+    mass_kg: float
+    damping_N_s_per_m: float
+    stiffness_N_per_m: float
+    tau_s: float
+    one_step: tuple
+    model: 'DelayImpulseModel | None' = None
+
+
 class _RowWindow:
     """The last `size` rows of a fit, kept in one preallocated array (a ring): the delay fit
     of :class:`AdaptivePredictor` reads them every update, and converting a deque of tuples
@@ -2356,19 +2371,21 @@ class AdaptivePredictor:
             return None
         self._model_key = key
         m, c, k = float(m), float(c), float(k)
-        return [m, c, k, key[3] * self.dt / 64,
-                _zoh(*DelayImpulseModel.state_space(m, c, k), self.dt), None]
+        return _Rebuild(m, c, k, key[3] * self.dt / 64,
+                        _zoh(*DelayImpulseModel.state_space(m, c, k), self.dt))
 
-    def _rebuild_model(self, pending) -> None:
+    def _rebuild_model(self, pending: '_Rebuild') -> None:
         """The middle of a rebuild: the new model from its one step."""
-        m, c, k, tau, one_step, _ = pending
-        pending[5] = DelayImpulseModel(m, c, k, self.dt, tau, one_step=one_step)
+        pending.model = DelayImpulseModel(pending.mass_kg, pending.damping_N_s_per_m,
+                                          pending.stiffness_N_per_m, self.dt, pending.tau_s,
+                                          one_step=pending.one_step)
 
-    def _rebuild_finish(self, pending) -> None:
+    def _rebuild_finish(self, pending: '_Rebuild') -> None:
         """The last part: the law's gains and tables of the new model, and its install."""
-        if pending[5] is None:
+        if pending.model is None:
             self._rebuild_model(pending)
-        m, c, k, _, _, self.model = pending
+        m, c, k, self.model = (pending.mass_kg, pending.damping_N_s_per_m,
+                               pending.stiffness_N_per_m, pending.model)
         if self._member_law is not None:
             self._member_law.set_delay(self.model.tau_s)
         alpha_eff = self.alpha * self.mass_ref_kg / m
