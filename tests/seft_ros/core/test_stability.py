@@ -419,7 +419,8 @@ def test_a_plant_gain_error_is_said_with_its_predicted_cost():
     assert costly.text().endswith(
         "; a plant gain 2 % off the model's costs 7.9 % NRMS x (predicted): identify the rig "
         'again when its supply pressure or oil temperature changes; predictor adaptive with '
-        'adaptive_loop_fit fit follows the gain (docs: results/own-actuator)')
+        'adaptive_loop_fit fit follows the gain (measured on a 10 Hz specimen; docs: '
+        'results/own-actuator)')
     assert costly.to_json()['gain_error_cost'] == 0.0787
     assert costly.to_json()['gain_error'] == GAIN_ERROR == 0.02
     unstable = RobustnessMargin(0.1, 1.007, '', 'plant_gain', math.inf)

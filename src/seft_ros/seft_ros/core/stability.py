@@ -1588,7 +1588,7 @@ class RobustnessMargin:
                        if math.isfinite(self.gain_error_cost) else 'is unstable (predicted)')
                     + ': identify the rig again when its supply pressure or oil temperature '
                     'changes; predictor adaptive with adaptive_loop_fit fit follows the gain '
-                    '(docs: results/own-actuator)')
+                    '(measured on a 10 Hz specimen; docs: results/own-actuator)')
         return (f'stable for {what.format(lo, hi)}' + (f' ({self.note})' if self.note else '')
                 + cost)
 
