@@ -1528,7 +1528,7 @@ MARGIN_RANGE = (0.1, 10.0)
 #: actuator drifts from its identified model by this much with its supply pressure, oil
 #: temperature or amplifier (the family's valve_2nd_order with the 10 Hz, 5 % specimen at
 #: alpha 1: 0.11 % predicted with the model's gain, 6.8-7.9 % at +-2 %, 15.7-22 % at +-5 %;
-#: simulated 17.5 and 24.4 % at -+5 %).
+#: simulated 17.5 % at -5 % and 24.4 % at +5 %).
 GAIN_ERROR = 0.02
 
 
