@@ -10,7 +10,7 @@ user runs it, every node a process over DDS.
   controller's reference force came late, the newest one it held (read from the bag: the one
   whose playout value gives the bag's valve command bit for bit; the timing records say a
   step was late, not which force it held): it reproduces every signal of the bag bit for bit
-  (measured: 6-15 late steps a run, stalls of up to 5 steps), and with every command in time
+  (measured: 6-15 late steps a run, stalls of up to 6 steps), and with every command in time
   it is ``seft simulate``'s run (to 1e-9). A tolerance against lockstep instead (1 % of x,
   5 % of force, checked with at most 1 % of the commands late) failed on a noisy day: five
   late commands, one of them 3.6 ms late, moved the force by 11 % NRMS; nine moved the
