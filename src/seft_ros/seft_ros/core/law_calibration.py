@@ -271,12 +271,9 @@ def _structure_calibration(params: Mapping) -> dict:
         return {}
     sub = setup.substructures
     s = sub.structure
-    pi = list(s.physical_index)
-    kc, cc = sub.stiffness_c_N_per_m, sub.damping_c_N_s_per_m
-    rigs = [r for j, r in enumerate(setup.rig_names)
+    rigs = [r for r in sub.coupled_rigs
             if setup.rig_params[r].get('predictor') == 'model'
-            and setup.rig_params[r].get('predictor_calibration', 'none') == 'poles'
-            and (kc[pi[j]].any() or cc[pi[j]].any())]
+            and setup.rig_params[r].get('predictor_calibration', 'none') == 'poles']
     if not rigs:
         return {}
     # the loop models (seft_plant_sim) only for a test that asks: a controller-side install

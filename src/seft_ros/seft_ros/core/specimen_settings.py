@@ -145,17 +145,13 @@ def costly_settings(params: Mapping[str, Any], *, flagging: bool = False) -> lis
         An invalid structure (as :func:`~seft_ros.core.structure.test_setup`).
     """
     from seft_ros.core.structure import is_study, test_setup
-    coupled = set()
+    coupled = ()
     if is_study(params):
         rigs = {'rig': params}
     else:
         setup = test_setup(params)
         rigs = {r: setup.rig_params[r] for r in setup.rig_names}
-        sub = setup.substructures
-        for j, r in enumerate(setup.rig_names):     # as seft design's rehearsal chooses them
-            dof = sub.structure.physical_index[j]
-            if sub.stiffness_c_N_per_m[dof].any() or sub.damping_c_N_s_per_m[dof].any():
-                coupled.add(r)
+        coupled = setup.substructures.coupled_rigs      # as seft design rehearses them
     lines = []
     for rig, p in rigs.items():
         rules = []

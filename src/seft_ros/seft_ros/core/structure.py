@@ -595,6 +595,15 @@ class Substructures:
         return bool(s.computational_index) or bool(np.any(self.damping_c_N_s_per_m)) or bool(
             np.any(self.stiffness_c_N_per_m))
 
+    @property
+    def coupled_rigs(self) -> tuple:
+        """The rigs whose DOF carries computational springs or dashpots (a row of ``K_c``
+        or ``C_c`` not zero), in the order of the structure's rigs: their loop is closed
+        again through the computational part."""
+        s = self.structure
+        return tuple(r for r, i in zip(s.rig_names, s.physical_index)
+                     if self.stiffness_c_N_per_m[i].any() or self.damping_c_N_s_per_m[i].any())
+
 
 def split(structure: Structure, specimens: Mapping[str, Mapping[str, Any]], *,
           where: str = 'structure', study_alpha: float | None = None) -> Substructures:

@@ -173,12 +173,8 @@ def choose_structure_inverses(params: Mapping, designed: Mapping[str, Mapping],
     for rig, values in designed.items():
         base = with_rig_values(base, rig, values)
     setup = test_setup(base)
-    sub = setup.substructures
-    pi = list(sub.structure.physical_index)
-    kc, cc = sub.stiffness_c_N_per_m, sub.damping_c_N_s_per_m
-    rigs = [r for j, r in enumerate(setup.rig_names)
-            if r in designed and setup.rig_params[r].get('predictor') == 'model'
-            and (kc[pi[j]].any() or cc[pi[j]].any())]
+    rigs = [r for r in setup.substructures.coupled_rigs
+            if r in designed and setup.rig_params[r].get('predictor') == 'model']
     for rig in setup.rig_names:      # rehearsed on the lab's model of each rig
         if setup.rig_params[rig].get('plant_model', 'none') not in ('none', '', None):
             base = with_rig_values(base, rig, {'rig_model': 'state_space'})
