@@ -45,7 +45,7 @@ from seft_ros.core import experiment
 from seft_ros.core.controller import ReferencePlayout
 from seft_ros.core.excitation import make_valve_controller
 from seft_ros.core.experiment import simulate
-from seft_ros.core.reference_force import ReferenceForceBuilder
+from seft_ros.core.structure import test_setup
 
 #: The signals a closed-loop replay reproduces (module notes).
 SIGNALS = ('displacement_m', 'measured_force_N', 'acceleration_m_s2', 'reference_force_N',
@@ -69,31 +69,6 @@ def emulator(emulator_process, bridge_sets):
     def start(*extra, runs=None):
         return emulator_process(*bridge_sets, *extra, *(['--runs', runs] if runs else []))
     return start
-
-
-def replay_measurement(run) -> dict:
-    """The bag's measurement as WallClockRig makes it from the bag's valve commands, each
-    arriving at ``j dt + loop latency`` (the controller's clock)."""
-    p = dict(run.params, rig_interface='simulated')
-    dt, rig = p['dt'], WallClockRig(p)
-    timing = run.extra['timing_data']['rig']
-    latency = dict(zip(timing.step.tolist(), timing.loop_latency_s.tolist()))
-    assert all(np.isfinite(latency[j]) for j in range(run.n_steps)), 'a latency is missing'
-    commands = sorted((j * dt + latency[j], j, run.valve_command_V[j])
-                      for j in range(run.n_steps))
-    out = {'displacement_m': [], 'measured_force_N': []}
-    i = 0
-    for k in range(run.n_steps):
-        if k > 0:
-            rig.advance()
-        m = rig.measure()
-        out['displacement_m'].append(m.displacement_m)
-        out['measured_force_N'].append(m.force_N)
-        # the commands that came by the next tick (one that comes later acts later anyway)
-        while i < len(commands) and commands[i][0] <= (k + 1) * dt:
-            rig.arrive(commands[i][1], commands[i][2], commands[i][0])
-            i += 1
-    return {name: np.array(values) for name, values in out.items()}
 
 
 class ArrivingRig:
@@ -121,6 +96,28 @@ class ArrivingRig:
         self.k += 1
 
 
+def command_latency(run) -> dict:
+    """Step -> the loop latency of its valve command at the rig [s] (the controller's
+    clock), every step's."""
+    timing = run.extra['timing_data']['rig']
+    latency = dict(zip(timing.step.tolist(), timing.loop_latency_s.tolist()))
+    assert all(np.isfinite(latency[j]) for j in range(run.n_steps)), 'a latency is missing'
+    return latency
+
+
+def replay_measurement(run, latency: dict) -> dict:
+    """The bag's measurement as WallClockRig makes it from the bag's valve commands, each
+    arriving at ``j dt + latency[j]`` (:class:`ArrivingRig`)."""
+    rig = ArrivingRig(dict(run.params, rig_interface='simulated'), latency)
+    out = {'displacement_m': [], 'measured_force_N': []}
+    for k in range(run.n_steps):
+        m = rig.measure()
+        out['displacement_m'].append(m.displacement_m)
+        out['measured_force_N'].append(m.force_N)
+        rig.apply(run.valve_command_V[k])
+    return {name: np.array(values) for name, values in out.items()}
+
+
 def held_forces(run, late_steps) -> dict:
     """The step of the newest reference force the controller held at each of its late steps
     (its timing records say a step was late, not which force it held; its input age does not
@@ -128,9 +125,8 @@ def held_forces(run, late_steps) -> dict:
     :class:`~seft_ros.core.controller.ReferencePlayout` value gives the bag's valve command
     bit for bit, the controller fed the bag's measurement. Forces arrive in order (one
     reliable writer). Raises AssertionError when none does."""
-    params = dict(run.params, rig_interface='simulated', mode='lockstep')
-    builder = ReferenceForceBuilder.from_parameters(params)
-    rig_params = builder.setup.rig_params[builder.rig_names[0]]
+    rig_params = test_setup(dict(run.params, rig_interface='simulated',
+                                 mode='lockstep')).rig_params['']
     controller = make_valve_controller(rig_params)
     extrapolate = int(rig_params['reference_extrapolation_steps'])
     f_r, held = run.reference_force_N, {}
@@ -200,13 +196,13 @@ def test_a_run_through_the_bridge_equals_the_servohydraulic_rig(emulator, bridge
     assert run.params['rig_interface'] == 'udp_bridge' and run.stable
     assert run.extra['rig_contract'] == 'seft-rig/2.0'
     # the real-time simulated rig's plant, fed the commands as the controller took them
-    replay = replay_measurement(run)
+    latency = command_latency(run)
+    replay = replay_measurement(run, latency)
     for name in ('displacement_m', 'measured_force_N'):
         assert np.array_equal(replay[name], getattr(run, name)), name
     # closed: the lockstep loop with the bag's command arrivals and the reference forces the
     # controller held, bit for bit
     timing = run.extra['timing_data']
-    latency = dict(zip(timing['rig'].step.tolist(), timing['rig'].loop_latency_s.tolist()))
     controller = timing['force_servo_controller']
     held = held_forces(run, set(controller.step[np.asarray(controller.stale, bool)].tolist()))
     replayed = closed_loop_replay(run.params, latency, held)
