@@ -366,7 +366,7 @@ class ControllerEmulator:
                 self._take(data, address, now)
             if (self.ticking and self.state == ul.STATE_RUNNING and self.last_pc is not None
                     and now - self.last_pc > self.watchdog_s):
-                self._safe(ul.REASON_PC_SILENT, silent_s=round(now - self.last_pc, 4))
+                self._safe(ul.REASON_PC_SILENT, silent_s=now - self.last_pc)
             if (not self.ticking and self.session and self.last_pc is not None
                     and now - self.last_pc > self.watchdog_s):
                 # after its last sample (or a refused run) the PC is gone: the session ends
