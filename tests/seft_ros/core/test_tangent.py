@@ -45,6 +45,31 @@ def test_a_yielding_mechanism_goes_on_or_unloads(loaded):
     np.testing.assert_allclose(loaded.stiffness([0.0, -0.002]), K0, rtol=1e-12)  # unloads
 
 
+def test_a_reversal_on_a_held_tangent_unloads(loaded):
+    """A sample that reversed the motion on the tangent read before the reversal (the part
+    held it: the same matrix) unloads whatever the predicted increment; a tangent read
+    again that still shows the deficit yields in the new sense."""
+    held = loaded.mechanisms[0]
+    loaded.observe([0.0, 0.0155], yielded())               # reversed, the tangent held
+    assert held.yielding and held.held_reversal
+    assert held.sense == pytest.approx(-np.sign(U @ [0.0, 1.0]))
+    for increment in ([0.0, -0.002], [0.0, 0.002]):
+        np.testing.assert_allclose(loaded.stiffness(increment), K0, rtol=1e-12)
+    loaded.observe([0.0, 0.015], yielded())                # goes on back: not a reversal
+    assert not held.held_reversal
+    assert loaded.stiffness([0.0, -0.002]) is None         # the held tangent, as before
+
+    fresh = YieldMechanisms(K0)                            # the same motion, read again
+    for x2 in (0.0, 0.004, 0.008):
+        fresh.observe([0.0, x2], None)
+    for x2, ratio in ((0.012, 1.0), (0.016, 1.0), (0.0155, 0.9)):
+        fresh.observe([0.0, x2], K0 - ratio * LAM * np.outer(U, U))
+    (mech,) = fresh.mechanisms
+    assert mech.yielding and not mech.held_reversal
+    assert fresh.stiffness([0.0, -0.002]) is None          # yields on in the new sense
+    np.testing.assert_allclose(fresh.stiffness([0.0, 0.002]), K0, rtol=1e-12)  # unloads
+
+
 def test_onset_is_anticipated_where_it_stopped_and_after_its_elastic_range(loaded):
     z = lambda x2: float(U @ [0.0, x2])                    # noqa: E731
     for x2 in (0.012, 0.008):                              # unloads elastically
