@@ -87,9 +87,15 @@ def test_costly_combinations_of_the_study():
     assert costly_settings(p) == [
         "rig: predictor adaptive with adaptive_loop model: the force loop's I/O latency as "
         'declared; 10 % off it costs 2-2.7 % (the two piers, the one-rig test), 20 % off up to '
-        '5.4 % (docs: results/robustness); adaptive_loop: model_latency identifies it']
+        '5.4 % (docs: results/robustness); adaptive_loop: model_latency identifies it (in real '
+        'time its fit wants a core of its own)']
     assert costly_settings(p, flagging=True) == []
     assert costly_settings(dict(p, adaptive_loop='model_latency')) == []
+    # with a plant model of data the latency is the model's (model_latency is refused there)
+    plant = ('{"form": "transfer_function", "dt": 0.002, "num": {"force_N": [0, 1]}, '
+             '"den": [1, -0.5], "specimen": {"mass_kg": 52.7, "stiffness_N_per_m": 211000, '
+             '"damping_N_s_per_m": 903.3}}')
+    assert costly_settings(dict(p, plant_model=plant)) == []
     assert costly_settings(dict(p, rig_model='delay')) == []
     p = parameters.resolve({'predictor': 'model', 'specimen_uncertainty': 0.15})
     assert costly_settings(p, flagging=True)[0].startswith(
