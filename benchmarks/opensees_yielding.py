@@ -9,16 +9,18 @@ names.
   displacement NRMS per floor (target: <= 3 % to ductility 2.5, <= 5 % to 6), the acceleration
   NRMS per floor; with --initial also each run predicted with the initial linearization
   (``prediction: initial``, what the compensators did before issue 40).
-* **The steel frame** (``config/opensees/steel_frame.yaml``) at each --amplitude: the largest
-  moment of column 111 over its first-yield moment in the reference and the displacement NRMS
-  per floor (target: <= 3 % at M/My 1.28-1.35).
+* **The steel frame** (``config/opensees/steel_frame.yaml``) at each --amplitude, or with
+  --moment-ratio at the amplitude whose reference reaches each ratio on each record
+  (bisection on the reference alone, 14 steps): the largest moment of column 111 over its
+  first-yield moment in the reference and the displacement NRMS per floor (target: <= 3 % at
+  M/My 1.28-1.35).
 
 Prints figures; asserts nothing. Records: PEER .AT2 paths (the development records of
 /work/shared/data/ground_motions, never committed) or 'default'.
 
 Usage: .venv/bin/python benchmarks/opensees_yielding.py --record default X.AT2 ...
-       [--ductility 2.5 6] [--predictor model adaptive] [--amplitude 2000 2600] [--initial]
-       [--skip-shear] [--skip-steel]
+       [--ductility 2.5 6] [--predictor model adaptive] [--amplitude 2000 2600]
+       [--moment-ratio 1.28 1.35] [--initial] [--skip-shear] [--skip-steel]
 """
 
 import argparse
@@ -113,17 +115,40 @@ def shear_frame(records, ductilities, predictors, initial: bool, directory: Path
                           flush=True)
 
 
-def steel_frame(records, amplitudes, predictors, directory: Path) -> None:
+def _moment_ratio(params) -> float:
+    """Column 111's largest end moment over its first-yield moment in OpenSees' analysis of
+    the whole steel frame."""
+    setup = test_setup(params)
+    ag = prepared_record(params).acceleration_m_s2
+    ref = model_plugin('opensees').reference(setup.substructures, float(params['dt']), ag)
+    return float(np.max(np.abs(ref.element_forces[111]))) / COLUMN_MY_N_M
+
+
+def _amplitude_for(record: str, ratio: float, directory: Path) -> float:
+    """The amplitude [N] whose reference reaches column 111's M/My `ratio` on `record`
+    (bisection, 14 steps: 0.05 % of the range in amplitude)."""
+    low, high = 500.0, 20_000.0                      # the ratio grows with the amplitude
+    for _ in range(14):
+        mid = (low * high) ** 0.5
+        if _moment_ratio(_params(STEEL, directory, record=record, amplitude_N=mid)) < ratio:
+            low = mid
+        else:
+            high = mid
+    return (low * high) ** 0.5
+
+
+def steel_frame(records, amplitudes, predictors, directory: Path, ratios=()) -> None:
     for record in records:
         name = Path(record).name
-        for amplitude in amplitudes:
+        for amplitude in list(amplitudes) + [_amplitude_for(record, r, directory)
+                                             for r in ratios]:
             for predictor in predictors:
                 params = _params(STEEL, directory, record=record, amplitude_N=amplitude,
                                  predictor=predictor)
                 run, c, wall = _run(params)
                 ref = run_reference(run)
                 ratio = float(np.max(np.abs(ref.element_forces[111]))) / COLUMN_MY_N_M
-                print(f'steel_frame {name} {amplitude:g} N {predictor:8s}: column M/My '
+                print(f'steel_frame {name} {amplitude:.0f} N {predictor:8s}: column M/My '
                       f'{ratio:.2f}, stable {run.stable}, NRMS x per floor [%] '
                       f'{_pct([d.displacement.nrms for d in c.dofs])}, a '
                       f'{_pct([d.acceleration.nrms for d in c.dofs])} ({wall:.0f} s)', flush=True)
@@ -134,7 +159,10 @@ def main() -> None:
     ap.add_argument('--record', nargs='+', default=['default'])
     ap.add_argument('--ductility', nargs='+', type=float, default=[2.5, 6.0])
     ap.add_argument('--predictor', nargs='+', default=['model', 'adaptive'])
-    ap.add_argument('--amplitude', nargs='+', type=float, default=[2000.0, 2600.0])
+    ap.add_argument('--amplitude', nargs='*', type=float, default=[2000.0, 2600.0])
+    ap.add_argument('--moment-ratio', nargs='*', type=float, default=[],
+                    help='steel frame: also at the amplitudes whose reference reaches these '
+                         'column M/My on each record (e.g. 1.28 1.35)')
     ap.add_argument('--initial', action='store_true',
                     help="also predict with the initial linearization ('prediction: initial')")
     ap.add_argument('--skip-shear', action='store_true')
@@ -145,7 +173,8 @@ def main() -> None:
         if not args.skip_shear:
             shear_frame(args.record, args.ductility, args.predictor, args.initial, Path(tmp))
         if not args.skip_steel:
-            steel_frame(args.record, args.amplitude, args.predictor, Path(tmp))
+            steel_frame(args.record, args.amplitude, args.predictor, Path(tmp),
+                        args.moment_ratio)
     print(f'load average {os.getloadavg()[0]:.1f}', flush=True)
 
 
