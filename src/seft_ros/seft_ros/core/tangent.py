@@ -137,7 +137,6 @@ class YieldMechanisms:
                                                                         dtype=float)
         held = (previous is not None and self._tangent is not None
                 and np.array_equal(previous, self._tangent))
-        before = {id(m): (m.yielding, m.sense) for m in self.mechanisms}
         seen = set()
         if self._tangent is not None:
             deficit = self.k0 - self._tangent
@@ -161,8 +160,8 @@ class YieldMechanisms:
                         m.elastic_range_m = abs(float(ui @ x) - m.stop_m)
                 m.episode_N_per_m = [min(m.episode_N_per_m[0], float(lam[i])),
                                      max(m.episode_N_per_m[1], float(lam[i]))]
-                was = before.get(id(m))
-                m.held_reversal = held and was is not None and was[0] and was[1] != sense
+                # (m still holds the sample before's state; a new one yields in `sense`)
+                m.held_reversal = held and m.yielding and m.sense != sense
                 m.direction, m.deficit_N_per_m, m.sense, m.yielding = ui, float(lam[i]), \
                     sense, True
                 seen.add(id(m))
@@ -170,10 +169,10 @@ class YieldMechanisms:
             z = float(m.direction @ x)
             if id(m) not in seen:
                 m.held_reversal = False
-            if id(m) not in seen and m.yielding:
-                m.yielding, m.stop_m = False, m.last_m
-                low, high = m.episode_N_per_m
-                m.bilinear = low >= (1.0 - BILINEAR_SPREAD) * high
+                if m.yielding:
+                    m.yielding, m.stop_m = False, m.last_m
+                    low, high = m.episode_N_per_m
+                    m.bilinear = low >= (1.0 - BILINEAR_SPREAD) * high
             m.last_m = z
 
     def _match(self, u) -> 'Mechanism | None':
