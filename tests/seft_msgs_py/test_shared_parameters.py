@@ -201,6 +201,7 @@ def test_shared_parameters_have_an_explicit_source():
       'adaptive_window_s', 'adaptive_max_delay_s', 'adaptive_memory_s',
       'adaptive_excitation_N', 'adaptive_excitation_fraction',
       'adaptive_max_deviation', 'adaptive_max_rate_per_s',
+      'adaptive_specimen_excitation_ratio', 'adaptive_specimen_max_rate_per_s',
       'adaptive_loop', 'adaptive_loop_fit', 'ats_window_s', 'monitor_cutoff_hz',
       'monitor_window_s',
       'monitor_threshold', 'monitor_floor_N', 'network_delay_s',
@@ -242,9 +243,10 @@ def test_value_source_lists_cover_the_schema():
     # data (plant_model, force_controller_tf, the actuator family's 3, predictor_calibration);
     # + 3: who may command the rig (run_token, message_auth, auth_key_file); + 1: the
     # recorder's wait_for_live_view; + 1: adaptive_excitation_fraction; + 1: adaptive_loop_fit;
-    # + 1: predictor_loop_rehearsed (seft design's mark)
+    # + 1: predictor_loop_rehearsed (seft design's mark); + 2: adaptive's specimen gate and
+    # rate (adaptive_specimen_excitation_ratio, adaptive_specimen_max_rate_per_s)
     assert len(VALUE_SOURCE) == len(SCHEMA) == (31 + 47 + 6 + 6 + 10 + 2 + 1 + 2 + 1 + 6 + 3
-                                                + 1 + 1 + 1 + 1)
+                                                + 1 + 1 + 1 + 1 + 2)
 
 
 def test_value_source_of_unknown_name_is_an_error():

@@ -305,12 +305,24 @@ SCHEMA: tuple[ParamSpec, ...] = (
               '1000 N = 20 N in the reference study; a stiff specimen tested at 174 N: 3.5 N, '
               'where 20 N held the estimates through most of the record; 0: never held).', 0.0,
               1.0, nodes=_RFB + ('recorder',)),
+    ParamSpec('adaptive_specimen_excitation_ratio', 0.05, '', "'adaptive': m, c and k are "
+              'identified while the running RMS of the measured force exceeds this fraction of '
+              'the hold level (adaptive_excitation_N or its fraction of amplitude_N: 1 N in the '
+              "reference study), and 3 x noise_force_N (the load cell's noise): their "
+              "regression takes measured signals alone, not the law's commands "
+              '(seft_ros.core.predictors.specimen_excitation_level_N; 1: the hold level).',
+              0.0, 1.0, nodes=_RFB + ('recorder',)),
+    ParamSpec('adaptive_specimen_max_rate_per_s', 5.0, '1/s', "'adaptive': m, c and k change "
+              'by at most this fraction of their configured values per second '
+              '(adaptive_max_rate_per_s: the delay and gain).', 0.0, 100.0, True,
+              nodes=_RFB + ('recorder',)),
     ParamSpec('adaptive_max_deviation', 0.5, '', "'adaptive': the estimates of m, c, k and "
               'the actuator gain stay within this fraction of the configured values (the '
               "delay within 0..adaptive_max_delay_s).", 0.0, 0.95, True,
               nodes=_RFB + ('recorder',)),
     ParamSpec('adaptive_max_rate_per_s', 1.0, '1/s', "'adaptive' and 'ats': each estimate "
-              'changes by at most this fraction of its configured (initial) value per second.',
+              'changes by at most this fraction of its configured (initial) value per second '
+              "('adaptive''s m, c and k: adaptive_specimen_max_rate_per_s).",
               0.0, 100.0, True, nodes=_RFB + ('recorder',)),
     ParamSpec('adaptive_loop', 'model', '', "'adaptive' on the servohydraulic rig: the force "
               "loop it inverts is identified from data ('data': command vs measured force), "
@@ -439,8 +451,9 @@ SCHEMA: tuple[ParamSpec, ...] = (
               'aborted safely.', 0.0, None, True, nodes=_RIG),
     ParamSpec('force_limit_N', 24.5e3, 'N', 'Actuator force limit (+/-); beyond it the run is '
               'aborted safely.', 0.0, None, True, nodes=_RIG),
-    ParamSpec('noise_force_N', 0.0, 'N', 'Standard deviation of load-cell noise.', 0.0, None,
-              nodes=_RIG),
+    ParamSpec('noise_force_N', 0.0, 'N', "Standard deviation of load-cell noise (a lab's "
+              "rig: declare its load cell's; 'adaptive' identifies the specimen above 3 times "
+              'it).', 0.0, None, nodes=_RIG + _RFB),
     ParamSpec('noise_displacement_m', 0.0, 'm', 'Standard deviation of displacement-sensor '
               'noise.', 0.0, None, nodes=_RIG),
     ParamSpec('noise_velocity_m_s', 0.0, 'm/s', 'Standard deviation of velocity-sensor noise.',
@@ -914,6 +927,9 @@ _SHARED_SOURCE = {
     # the sensors' ranges: the rig's (the builder flags the readings at them)
     'force_range_N': 'rig', 'displacement_range_m': 'rig', 'velocity_range_m_s': 'rig',
     'accelerometer_range_m_s2': 'rig',
+    # the load cell's noise: the rig's (the builder's specimen identification stays above it,
+    # predictors.specimen_excitation_level_N)
+    'noise_force_N': 'rig',
     'watchdog_timeout_s': 'rig',            # the rig's watchdog; the others watch their inputs
     'network_delay_s': 'reference_force_builder',   # the delay its predictor compensates
     # the record's scaling: the ground-motion publisher's (the builder's estimators scale

@@ -953,6 +953,52 @@ def test_adaptive_gate_and_identify_specimen_switch():
     assert pred.rls.updates == 0 and pred.estimates()['mass_kg'] == M
 
 
+def test_adaptive_identifies_the_specimen_below_the_delay_fits_level():
+    """specimen_excitation_N 1 N, excitation_N 20 N, a constant measured force of 3 N: the
+    specimen's RLS takes every sample whose running mean square 9 (1 - (1 - dt/0.5)^k) is
+    above 1; the delay fit, gated at 20 N, never runs; m, c, k move at
+    specimen_max_rate_per_s, tau and A at max_rate_per_s."""
+    k = np.arange(1, 301)
+    expected = int(np.sum(9 * (1 - (1 - DT / 0.5) ** k) > 1))
+    pred = adaptive(excitation_N=20.0, specimen_excitation_N=1.0, max_rate_per_s=1.0,
+                    specimen_max_rate_per_s=5.0)
+    for j in range(300):
+        pred.predict(meas(j, f=3.0), [], 0.0)
+    assert 0 < pred.rls.updates == expected
+    assert pred.history_tau_s == [] and not pred.gate.excited
+    per_update = DT * 10
+    for name, prior, rate in (('mass_kg', M, 5.0), ('stiffness_N_per_m', K, 5.0),
+                              ('tau_s', 0.01, 1.0), ('gain', 1.0, 1.0)):
+        assert pred._guards[name].max_step == pytest.approx(prior * rate * per_update,
+                                                            rel=1e-12), name
+    # the same level: one gate, as before (bit for bit)
+    assert adaptive(excitation_N=20.0, specimen_excitation_N=20.0).specimen_gate is None
+    with pytest.raises(ParameterError, match=r'^parameter specimen_excitation_N=-1.0: out of '
+                                             r'range$'):
+        adaptive(specimen_excitation_N=-1.0)
+
+
+def test_the_specimen_level_is_a_fraction_of_the_hold_level_above_the_noise():
+    """adaptive_specimen_excitation_ratio (0.05) of the hold level, at least 3 x
+    noise_force_N; from_parameters builds the specimen's gate and rate with them."""
+    from seft_ros.core.predictors import specimen_excitation_level_N
+    assert specimen_excitation_level_N(parameters.resolve({})) == pytest.approx(1.0, rel=1e-12)
+    assert specimen_excitation_level_N(parameters.resolve({'amplitude_N': 174.0})) == \
+        pytest.approx(0.174, rel=1e-12)
+    assert specimen_excitation_level_N(parameters.resolve({'noise_force_N': 1.0})) == 3.0
+    assert specimen_excitation_level_N(parameters.resolve(
+        {'adaptive_specimen_excitation_ratio': 1.0})) == 20.0
+    assert specimen_excitation_level_N(parameters.resolve({'adaptive_excitation_N': 40.0})) \
+        == pytest.approx(2.0, rel=1e-12)
+    pred = AdaptivePredictor.from_parameters(parameters.resolve(
+        {'rig_model': 'delay', 'predictor': 'adaptive', 'noise_force_N': 2.0,
+         'adaptive_specimen_max_rate_per_s': 3.0}))
+    assert pred.specimen_gate._limit == pytest.approx(36.0, rel=1e-12)
+    assert pred.gate._limit == pytest.approx(400.0, rel=1e-12)
+    assert pred._guards['mass_kg'].max_step == pytest.approx(M * 3.0 * DT * 10, rel=1e-12)
+    assert pred._guards['gain'].max_step == pytest.approx(1.0 * DT * 10, rel=1e-12)
+
+
 def run_on_delay_rig(pred, tau, gain, n, mass=M, damping=C, stiffness=K):
     """Open loop: a three-tone desired force, sent through pred.command, applied by a delay
     rig (delay tau) as gain x command (gain: a number or a function of the step); each
