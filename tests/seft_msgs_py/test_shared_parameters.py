@@ -198,6 +198,7 @@ def test_shared_parameters_have_an_explicit_source():
     (['alpha', 'predictor', 'ground_preview', 'polynomial_order', 'predictor_mass_kg',
       'predictor_damping_N_s_per_m', 'predictor_stiffness_N_per_m', 'predictor_tau_s',
       'predictor_loop_delay_steps', 'predictor_loop_taps', 'predictor_loop_latency_s',
+      'predictor_loop_csi_band',
       'adaptive_window_s', 'adaptive_max_delay_s', 'adaptive_memory_s',
       'adaptive_excitation_N', 'adaptive_excitation_fraction',
       'adaptive_max_deviation', 'adaptive_max_rate_per_s',
@@ -244,9 +245,10 @@ def test_value_source_lists_cover_the_schema():
     # + 3: who may command the rig (run_token, message_auth, auth_key_file); + 1: the
     # recorder's wait_for_live_view; + 1: adaptive_excitation_fraction; + 1: adaptive_loop_fit;
     # + 1: predictor_loop_rehearsed (seft design's mark); + 2: adaptive's specimen gate and
-    # rate (adaptive_specimen_excitation_ratio, adaptive_specimen_max_rate_per_s)
+    # rate (adaptive_specimen_excitation_ratio, adaptive_specimen_max_rate_per_s); + 1:
+    # predictor_loop_csi_band (seft design's choice of the inverse's band)
     assert len(VALUE_SOURCE) == len(SCHEMA) == (31 + 47 + 6 + 6 + 10 + 2 + 1 + 2 + 1 + 6 + 3
-                                                + 1 + 1 + 1 + 1 + 2)
+                                                + 1 + 1 + 1 + 1 + 2 + 1)
 
 
 def test_value_source_of_unknown_name_is_an_error():

@@ -65,7 +65,7 @@ __all__ = [
     'force_loop_impulse_responses', 'step_average_force_impulse_response',
     'network_delay_steps', 'TangentModelPredictor', 'model_predictor',
     'TANGENT_STIFFNESS_RATIOS', 'HystereticModelPredictor', 'model_rig',
-    'LoopLatencyFit', 'LATENCY_ESTIMATES', 'BackgroundFits', 'csi_band_hz',
+    'LoopLatencyFit', 'LATENCY_ESTIMATES', 'BackgroundFits', 'csi_band_hz', 'loop_exclude_hz',
     'adaptive_fits_loop', 'ADAPTIVE_LOOP_FIT', 'UPDATE_STAGES',
 ]
 
@@ -1177,7 +1177,7 @@ class ForceLoopInverse:
         if np.all(np.isfinite(resp)):
             inverse = cls(resp, ctrl.dt, delay, int(params['predictor_loop_taps']),
                           hf_weight=float(params.get('predictor_loop_hf_weight', 1e-3)),
-                          exclude_hz=csi_band_hz(plant.specimen, ctrl.dt))
+                          exclude_hz=loop_exclude_hz(params, plant.specimen, ctrl.dt))
         if inverse is None or not inverse.band_error <= MAX_BAND_ERROR:
             miss = 'its response diverges' if inverse is None else (
                 f'the best inverse misses it by {100 * inverse.band_error:.0f} % up to 25 Hz')
@@ -1277,6 +1277,22 @@ def csi_band_hz(specimen, dt: float, widths: float = 6.0) -> tuple:
         return ()
     half = max(widths * zeta * f, 0.1)
     return ((f - half, f + half),)
+
+
+def loop_exclude_hz(params, specimen, dt: float) -> tuple:
+    """The bands a force-loop inverse of the run `params` leaves out of its fit:
+    :func:`csi_band_hz` of `specimen` with ``predictor_loop_csi_band`` 'auto' (the default),
+    none with 'fit' (seft design's choice where the test it predicts is better so:
+    :func:`seft_ros.core.force_design._choose_inverse`).
+
+    Returns
+    -------
+    tuple of (float, float)
+        ``((lo, hi),)`` [Hz] or ``()``.
+    """
+    if params.get('predictor_loop_csi_band', 'auto') == 'fit':
+        return ()
+    return csi_band_hz(specimen, dt)
 
 
 #: The fits :class:`ForceLoopInverse` made last, by their exact inputs: the least squares
@@ -1549,7 +1565,7 @@ class IdentifiedForceLoop:
                    max_deviation=float(params.get('adaptive_max_deviation', 0.5)),
                    max_rate_per_s=5.0 * float(params.get('adaptive_max_rate_per_s', 1.0)),
                    hf_weight=float(params.get('predictor_loop_hf_weight', 1e-3)),
-                   exclude_hz=csi_band_hz(plant.specimen, ctrl.dt))
+                   exclude_hz=loop_exclude_hz(params, plant.specimen, ctrl.dt))
 
     def response(self) -> tuple[np.ndarray, np.ndarray]:
         """The step-average loop in use on the inverse's grid.
