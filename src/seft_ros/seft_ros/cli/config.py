@@ -308,7 +308,8 @@ def _check_mappings(params: dict[str, Any], where: str) -> None:
         The message names `where`, the parameter and the field.
     """
     prefix = f'{where}: ' if where else ''
-    if params.get('plant_model', 'none') not in ('none', '', None):
+    from seft_ros.core.force_loop import has_plant_model
+    if has_plant_model(params):
         from seft_msgs_py.plant import parse_plant
         try:
             parse_plant(params['plant_model'], dt=float(params['dt']),

@@ -2335,7 +2335,8 @@ class AdaptivePredictor:
         factory = identified = latency_fit = None
         if valve_commanded(params):
             loop_mode = params.get('adaptive_loop', ADAPTIVE_LOOP_DEFAULT)
-            if loop_mode == 'model_latency' and params.get('plant_model', 'none') != 'none':
+            from seft_ros.core.force_loop import has_plant_model
+            if loop_mode == 'model_latency' and has_plant_model(params):
                 raise ParameterError(
                     "parameter adaptive_loop='model_latency': it refits the I/O latency of "
                     "seft's servohydraulic rig model; with plant_model the latency is the "
@@ -2724,11 +2725,11 @@ def _adaptive_law_correction(params):
             or params.get('predictor_restoring_force', 'model') != 'model'
             or params.get('structure', 'none') not in ('none', '', None)):
         return None
-    from seft_ros.core.force_loop import compensator_plant
+    from seft_ros.core.force_loop import compensator_plant, has_plant_model
     from seft_ros.core.law_calibration import pole_calibration
     p = dict(params, predictor='model')
     spec = compensator_plant(params).specimen
-    if spec is not None and params.get('plant_model', 'none') not in ('none', '', None):
+    if spec is not None and has_plant_model(params):
         p.update(predictor_mass_kg=spec.mass_kg,
                  predictor_damping_N_s_per_m=spec.damping_N_s_per_m,
                  predictor_stiffness_N_per_m=spec.stiffness_N_per_m)

@@ -483,8 +483,7 @@ def _delay_knob(params: Mapping) -> str:
         A rig without one: a model of data (``plant_model``) has its delay inside it.
     """
     knob = DELAY_PARAMETER.get(params.get('rig_model'))
-    if knob is None or (knob == 'io_latency_s'
-                        and params.get('plant_model', 'none') not in ('none', '', None)):
+    if knob is None or (knob == 'io_latency_s' and has_plant_model(params)):
         raise NoLinearModelError(f"rig {params.get('rig_model')!r} with its plant model: "
                                  'no delay parameter to vary (its delay is in the model)')
     return knob

@@ -164,6 +164,7 @@ def choose_structure_inverses(params: Mapping, designed: Mapping[str, Mapping],
     ParameterError
         As :func:`with_rig_values`, or a rig for which no rehearsed delay was stable.
     """
+    from seft_ros.core.force_loop import has_plant_model
     from seft_ros.core.structure import test_setup
     setup = test_setup(params)
     if setup.is_study:
@@ -176,7 +177,7 @@ def choose_structure_inverses(params: Mapping, designed: Mapping[str, Mapping],
     rigs = [r for r in setup.substructures.coupled_rigs
             if r in designed and setup.rig_params[r].get('predictor') == 'model']
     for rig in setup.rig_names:      # rehearsed on the lab's model of each rig
-        if setup.rig_params[rig].get('plant_model', 'none') not in ('none', '', None):
+        if has_plant_model(setup.rig_params[rig]):
             base = with_rig_values(base, rig, {'rig_model': 'state_space'})
     choices = []
     for rig in rigs:
