@@ -1283,7 +1283,7 @@ def loop_exclude_hz(params, specimen, dt: float) -> tuple:
     """The bands a force-loop inverse of the run `params` leaves out of its fit:
     :func:`csi_band_hz` of `specimen` with ``predictor_loop_csi_band`` 'auto' (the default),
     none with 'fit' (seft design's choice where the test it predicts is better so:
-    :func:`seft_ros.core.force_design._choose_inverse`).
+    ``seft_ros.core.force_design._choose_inverse``).
 
     Returns
     -------
