@@ -197,7 +197,8 @@ def specimen_excitation_level_N(params) -> float:
     the estimates: errors in variables, L. Ljung, System Identification, 2nd ed. (1999),
     Sec. 7.6). Measured on seft's actuator family (``benchmarks/own_actuator.py``, the
     specimen model 20 % off at alpha 1): a 32 Hz specimen 49 % NRMS x with the delay fit's
-    level, 0.6 % with this one; with a load-cell noise of 1 N at 214 N, 81 % and 2.9-6.6 %.
+    level, 0.6 % with this one; with a load-cell noise of 1 N at 214 N, 81 % and 6.6 % (the
+    exact model: 1.9 %).
 
     Raises
     ------
@@ -1282,8 +1283,8 @@ def csi_band_hz(specimen, dt: float, widths: float = 6.0) -> tuple:
 def loop_exclude_hz(params, specimen, dt: float) -> tuple:
     """The bands a force-loop inverse of the run `params` leaves out of its fit:
     :func:`csi_band_hz` of `specimen` with ``predictor_loop_csi_band`` 'auto' (the default),
-    none with 'fit' (seft design's choice where the test it predicts is better so:
-    ``seft_ros.core.force_design._choose_inverse``).
+    none with 'fit' (what seft design writes where the band left out gives no test its
+    model can predict: ``seft_ros.core.force_design._choose_inverse``).
 
     Returns
     -------
