@@ -115,13 +115,18 @@ def shear_frame(records, ductilities, predictors, initial: bool, directory: Path
                           flush=True)
 
 
+def _column_ratio(ref) -> float:
+    """Column 111's largest end moment over its first-yield moment in a reference of the
+    steel frame (its ``element_forces``)."""
+    return float(np.max(np.abs(ref.element_forces[111]))) / COLUMN_MY_N_M
+
+
 def _moment_ratio(params) -> float:
-    """Column 111's largest end moment over its first-yield moment in OpenSees' analysis of
-    the whole steel frame."""
+    """:func:`_column_ratio` of OpenSees' analysis of the whole steel frame."""
     setup = test_setup(params)
     ag = prepared_record(params).acceleration_m_s2
-    ref = model_plugin('opensees').reference(setup.substructures, float(params['dt']), ag)
-    return float(np.max(np.abs(ref.element_forces[111]))) / COLUMN_MY_N_M
+    return _column_ratio(model_plugin('opensees').reference(setup.substructures,
+                                                            float(params['dt']), ag))
 
 
 def _amplitude_for(record: str, ratio: float, directory: Path) -> float:
@@ -147,7 +152,7 @@ def steel_frame(records, amplitudes, predictors, directory: Path, ratios=()) -> 
                                  predictor=predictor)
                 run, c, wall = _run(params)
                 ref = run_reference(run)
-                ratio = float(np.max(np.abs(ref.element_forces[111]))) / COLUMN_MY_N_M
+                ratio = _column_ratio(ref)
                 print(f'steel_frame {name} {amplitude:.0f} N {predictor:8s}: column M/My '
                       f'{ratio:.2f}, stable {run.stable}, NRMS x per floor [%] '
                       f'{_pct([d.displacement.nrms for d in c.dofs])}, a '

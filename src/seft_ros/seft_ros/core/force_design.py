@@ -860,7 +860,8 @@ def _better_search(a: dict, b: dict) -> bool:
 def _search_inverse(plant: PlantModel, design: 'ForceLoopDesign', resp, csi_band: str
                     ) -> dict:
     """The force-loop inverse :func:`_choose_inverse` takes with ``predictor_loop_csi_band``
-    `csi_band`: ``{'csi_band', 'chosen': (delay steps, band error), 'predicted_error':
+    `csi_band`: ``{'csi_band', 'exclude_hz' (the bands left out), 'chosen': (delay steps,
+    band error), 'predicted_error':
     {alpha: error} or None, 'stable': bool (a delay that makes the compensated test stable
     up to alpha = 2 on the model), 'notes': [str]}``."""
     from seft_ros.core.predictors import ForceLoopInverse, loop_exclude_hz
@@ -904,7 +905,8 @@ def _search_inverse(plant: PlantModel, design: 'ForceLoopDesign', resp, csi_band
     if first_stable is None:
         notes.append("no force-loop inverse of 2-30 steps makes the study's test with "
                      '`model` stable up to alpha = 2 on the model')
-    return {'csi_band': csi_band, 'chosen': chosen or first_stable or least_band or (30, math.inf),
+    return {'csi_band': csi_band, 'exclude_hz': exclude,
+            'chosen': chosen or first_stable or least_band or (30, math.inf),
             'predicted_error': predicted_error, 'stable': first_stable is not None,
             'notes': notes}
 
@@ -941,7 +943,6 @@ def _choose_inverse(plant: PlantModel, design: ForceLoopDesign) -> None:
     2.4 %); 11 steps fitted within 0.03 %, were predicted at 0.17 % and erred by 0.15 %.
     """
     from seft_ros.core.controller import ForceServoController
-    from seft_ros.core.predictors import csi_band_hz
     if not _closed_loop_stable(plant, np.array(design.num_z), np.array(design.den_z)):
         design.notes.append('no force-loop inverse: the force loop on the model is unstable')
         design.inverse_band_error = math.inf
@@ -956,7 +957,7 @@ def _choose_inverse(plant: PlantModel, design: ForceLoopDesign) -> None:
     design.equivalent_delay_s = float(-np.polyfit(2 * np.pi * freq[band],
                                                   np.unwrap(np.angle(t[band])), 1)[0])
     search = _search_inverse(plant, design, resp, 'auto')
-    if csi_band_hz(plant.specimen, design.dt) and search['predicted_error'] is None:
+    if search['exclude_hz'] and search['predicted_error'] is None:
         # the band of the specimen's natural frequency left out gives no test the model can
         # predict: fitted (measured on the family's 32 Hz, 5 % specimens: left out refused
         # at alpha 0.5 and 14-17 % at 1, fitted 0.24-0.73 %; seft's rig with the 32 Hz
