@@ -341,8 +341,9 @@ SCHEMA: tuple[ParamSpec, ...] = (
     ParamSpec('adaptive_loop_fit', 'auto', '', "'adaptive': the force loop's delay and gain "
               "fitted online from the command and the measured force ('fit'), or held at the "
               "force-loop inverse's ('hold'); 'auto': held when the force loop is given as "
-              "data (plant_model, the inverse designed for it), fitted on seft's own rig "
-              'model (seft_ros.core.predictors.adaptive_fits_loop).',
+              "data (plant_model, the inverse designed for it) or its I/O latency is fitted "
+              "(adaptive_loop 'model_latency'), fitted on seft's own rig model with the "
+              'declared latency (seft_ros.core.predictors.adaptive_fits_loop).',
               choices=('auto', 'fit', 'hold'), nodes=_RFB + ('recorder',)),
     ParamSpec('ats_window_s', 1.0, 's', "'ats': sliding window of the least-squares fit of "
               'a0, a1, a2 (refitted every 16 steps, Chae et al. 2013).', 0.0, 100.0, True,
