@@ -332,12 +332,13 @@ SCHEMA: tuple[ParamSpec, ...] = (
               'changes by at most this fraction of its configured (initial) value per second '
               "('adaptive''s m, c and k: adaptive_specimen_max_rate_per_s).",
               0.0, 100.0, True, nodes=_RFB + ('recorder',)),
-    ParamSpec('adaptive_loop', 'model', '', "'adaptive' on the servohydraulic rig: the force "
+    ParamSpec('adaptive_loop', 'auto', '', "'adaptive' on the servohydraulic rig: the force "
               "loop it inverts is identified from data ('data': command vs measured force), "
               "refitted from the rig model with the identified specimen ('model'), or with the "
-              "identified specimen and I/O latency ('model_latency': for a rig whose I/O "
-              'delay is not known to a fraction of a sample).',
-              choices=('data', 'model', 'model_latency'), nodes=_RFB + ('recorder',)),
+              "identified specimen and I/O latency ('model_latency'); 'auto': model_latency "
+              "on seft's rig model, model with a plant_model (its latency is the model's) "
+              '(seft_ros.core.predictors.adaptive_loop_mode).',
+              choices=('auto', 'data', 'model', 'model_latency'), nodes=_RFB + ('recorder',)),
     ParamSpec('adaptive_loop_fit', 'auto', '', "'adaptive': the force loop's delay and gain "
               "fitted online from the command and the measured force ('fit'), or held at the "
               "force-loop inverse's ('hold'); 'auto': held when the force loop is given as "

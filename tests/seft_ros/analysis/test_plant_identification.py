@@ -264,7 +264,8 @@ def test_adaptive_holds_the_loop_it_was_given_and_learns_the_specimen():
                           predictor_stiffness_N_per_m=1.2 * k, predictor_mass_kg=0.8 * m))
     assert not adaptive_fits_loop(params)
     assert adaptive_fits_loop(dict(params, adaptive_loop_fit='fit'))
-    assert adaptive_fits_loop(resolve({'rig_model': 'servohydraulic'}))   # seft's rig model
+    assert adaptive_fits_loop(resolve({'rig_model': 'servohydraulic',     # seft's rig model
+                                       'adaptive_loop': 'model'}))   # latency declared
     run = simulate(params)
     assert run.stable
     est = {name: np.asarray(v) for name, v in run.rigs[''].estimates.items()}

@@ -574,7 +574,7 @@ def test_adaptive_with_the_latency_fitted_holds_the_delay_fit_and_equals_model()
     its own bias as a loop error (19.96-20.27 ms and 0.993-1.000 against the inverse's 20 ms
     and 1) and cost 1.88 % against model's 0.39 %; held, adaptive is within 0.05 points of
     model. With a yielding member's law the latency is not fitted and the delay fit stays."""
-    from seft_ros.core.predictors import adaptive_fits_loop
+    from seft_ros.core.predictors import adaptive_fits_loop, adaptive_loop_mode
     common = dict(rig_model='servohydraulic', alpha=1.0, record='default', time_scale=0.3,
                   amplitude_N=1000.0)
     params = parameters.resolve(dict(common, predictor='adaptive',
@@ -583,6 +583,13 @@ def test_adaptive_with_the_latency_fitted_holds_the_delay_fit_and_equals_model()
     assert adaptive_fits_loop(dict(params, predictor_restoring_force='hysteretic'))
     assert adaptive_fits_loop(dict(params, adaptive_loop='model'))
     assert adaptive_fits_loop(dict(params, adaptive_loop_fit='fit'))
+    assert adaptive_loop_mode(params) == 'model_latency'
+    assert adaptive_loop_mode(parameters.resolve(dict(common, predictor='adaptive'))) == (
+        'model_latency')                                          # the default, 'auto'
+    plant = ('{"form": "transfer_function", "dt": 0.002, "num": {"force_N": [0, 1]}, '
+             '"den": [1, -0.5], "specimen": {"mass_kg": 52.7, "stiffness_N_per_m": 211000, '
+             '"damping_N_s_per_m": 903.3}}')
+    assert adaptive_loop_mode(dict(params, adaptive_loop='auto', plant_model=plant)) == 'model'
     run = experiment.simulate(params)
     assert run.stable
     assert np.ptp(run.estimates['tau_s']) == 0.0 and np.all(run.estimates['gain'] == 1.0)
@@ -614,6 +621,21 @@ def test_latency_fit_recovers_the_latency_of_its_own_model_exactly():
     assert fit.fit(u.shape[0] - 1, spec)
     assert fit.latency_s == pytest.approx(0.0026, abs=DT / 200)
     assert fit.estimates() == {'loop_latency_s': fit.latency_s}
+    # the impulse responses are tabulated once per specimen (within 1 %) and interpolated:
+    # the search equals a search of the exact residual, computed at each candidate
+    from scipy.optimize import minimize_scalar
+    table = fit._table
+    noisy = y[-fit.window:] + 2.0 * rng.standard_normal(fit.window)
+    near = LinearSpecimen(M, C, 1.005 * K)
+    found, res = fit.search(near, u[-(fit.window + fit.n - 1):], noisy)
+    assert fit._table is table
+    exact = minimize_scalar(fit.residual, bounds=fit.bounds_s, method='bounded',
+                            args=(spec, u[-(fit.window + fit.n - 1):], noisy),
+                            options={'xatol': DT / 1000})
+    assert found == pytest.approx(exact.x, abs=fit.resolution_s)
+    assert res == pytest.approx(exact.fun, rel=1e-3)
+    fit.search(LinearSpecimen(M, C, 1.02 * K), u[-(fit.window + fit.n - 1):], noisy)
+    assert fit._table is not table
 
 
 def test_adaptive_delay_fit_takes_no_increment_across_a_missing_sample():
@@ -697,6 +719,7 @@ def test_adaptive_refits_in_the_background_and_installs_them_when_done():
     (``seft simulate``) for the same estimates."""
     from seft_ros.core.predictors import ForceLoopInverse
     params = parameters.resolve({'rig_model': 'servohydraulic', 'predictor': 'adaptive',
+                                 'adaptive_loop': 'model',
                                  'predictor_stiffness_N_per_m': 1.2 * K})
     pred = AdaptivePredictor.from_parameters(params)
     fits = _HeldFits()

@@ -1154,7 +1154,10 @@ def test_adaptive_prediction_uses_the_forces_it_sent():
 
 def test_adaptive_refits_the_loop_when_the_specimen_moved():
     """loop_factory is called with the prior, then only when m, c or k moved by more than
-    1 %; the new inverse keeps the filter's past inputs; the command goes through it."""
+    LOOP_REFIT_TOLERANCE (0.3 %); the new inverse keeps the filter's past inputs; the command
+    goes through it."""
+    from seft_ros.core.predictors import LOOP_REFIT_TOLERANCE
+    assert LOOP_REFIT_TOLERANCE == 0.003
     calls = []
     y = toy_loop(64)
 
@@ -1163,22 +1166,22 @@ def test_adaptive_refits_the_loop_when_the_specimen_moved():
         return ForceLoopInverse(y, DT, 4, 6)
 
     pred = adaptive(loop_factory=factory, mass_kg=1.2 * M, excitation_N=0.0,
-                    max_rate_per_s=0.3, window_s=0.1)
+                    max_rate_per_s=0.1, window_s=0.1)
     assert calls == [(1.2 * M, C, K)]
     first = pred.loop_inverse
     out = pred.command(100.0)
     assert out == pytest.approx(first.taps[0] * 100.0, rel=1e-12)
     x, v, a, f = specimen_motion(22)
-    # two refreshes of m at the rate limit, -0.3 x 10 dt = -0.6 % of m0 each: a refit at the
-    # second only (c and k move by less than 1 %); each refresh one measurement after its
+    # two refreshes of m at the rate limit, -0.1 x 10 dt = -0.2 % of m0 each: a refit at the
+    # second only (c and k move by less than 0.3 %); each refresh one measurement after its
     # update (the update's second stage)
     for j in range(12):
         pred.predict(Measurement(j, j * DT, x[j], v[j], a[j], f[j]), [], 0.0)
-    assert pred.estimates()['mass_kg'] == pytest.approx(1.2 * M * (1 - 0.006), rel=1e-9)
+    assert pred.estimates()['mass_kg'] == pytest.approx(1.2 * M * (1 - 0.002), rel=1e-9)
     assert len(calls) == 1 and pred.loop_inverse is first
     for j in range(12, 22):
         pred.predict(Measurement(j, j * DT, x[j], v[j], a[j], f[j]), [], 0.0)
-    assert len(calls) == 2 and calls[1][0] == pytest.approx(1.2 * M * (1 - 0.012), rel=1e-9)
+    assert len(calls) == 2 and calls[1][0] == pytest.approx(1.2 * M * (1 - 0.004), rel=1e-9)
     assert pred.loop_inverse is not first
     # the filter continued: its next output is taps[0] 50 + taps[1] 100
     taps = pred.loop_inverse.taps
@@ -1230,7 +1233,13 @@ def test_adaptive_from_parameters_on_both_rigs():
     sh = parameters.resolve({'rig_model': 'servohydraulic', 'predictor': 'adaptive',
                              'predictor_loop_delay_steps': 9, 'predictor_loop_taps': 16,
                              'predictor_mass_kg': 58.0})
+    pred = AdaptivePredictor.from_parameters(sh)          # 'auto': the latency fitted too
+    assert pred.latency_fit is not None and not pred.fit_loop
+    assert pred.ESTIMATES == ('mass_kg', 'damping_N_s_per_m', 'stiffness_N_per_m', 'tau_s',
+                              'gain', 'loop_latency_s')
+    sh = dict(sh, adaptive_loop='model')
     pred = AdaptivePredictor.from_parameters(sh)
+    assert pred.latency_fit is None and pred.fit_loop
     assert pred.tau_s == pytest.approx(9 * DT, rel=1e-12) and pred.ESTIMATES == (
         'mass_kg', 'damping_N_s_per_m', 'stiffness_N_per_m', 'tau_s', 'gain')
     np.testing.assert_allclose(pred.loop_inverse.taps,

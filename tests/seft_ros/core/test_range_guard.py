@@ -156,8 +156,9 @@ def test_adaptive_skips_the_samples_at_a_range():
 def test_the_one_rig_test_at_the_accelerometers_range_loses_nothing(guarded, monkeypatch):
     """The study's test at alpha 1.5 on the embedded record at time scale 0.3 takes the 4 g
     accelerometer to its range (28 samples): adaptive then gives what it gives without a
-    range (1.54 %). Without the guard (the builder before issue 39) the specimen's RLS took
-    the clipped readings: its mass 3 % heavy, 4.5 %."""
+    range (0.59 %; 1.54 % with adaptive_loop model, the delay fit's bias). Without the
+    guard (the builder before issue 39) the specimen's RLS took the clipped readings: its
+    mass 3 % heavy, 2.0 % (4.5 % with adaptive_loop model)."""
     if not guarded:
         monkeypatch.setattr(ReferenceForceBuilder, '_range_guard', lambda *a, **k: None)
     runs = {}
@@ -169,12 +170,12 @@ def test_the_one_rig_test_at_the_accelerometers_range_loses_nothing(guarded, mon
     clipped, free = runs[39.2], runs[0.0]
     assert np.count_nonzero(np.abs(clipped.acceleration_m_s2) == 39.2) == 28
     error = {r: compare_run(rd).displacement.nrms for r, rd in runs.items()}
-    assert error[0.0] == pytest.approx(0.0154, abs=5e-4)
+    assert error[0.0] == pytest.approx(0.0059, abs=5e-4)
     mass = clipped.rigs[''].estimates['mass_kg'] / M
     if guarded:
         assert clipped.extra['sensor_range']['']['samples']['acceleration'] == 28
         assert abs(error[39.2] - error[0.0]) < 1e-4
         assert np.max(np.abs(mass - 1.0)) < 1e-3
     else:
-        assert error[39.2] > 0.04 and np.max(mass) > 1.02
+        assert error[39.2] > 3 * error[0.0] and np.max(mass) > 1.02
     assert free.stable and clipped.stable

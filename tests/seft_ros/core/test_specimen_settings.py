@@ -83,12 +83,14 @@ def test_costly_combinations_of_the_study():
         "'adaptive' compensate it"]
     assert costly_settings(p, flagging=True) == []           # said, not flagged
     assert costly_settings(dict(p, alpha=0.0)) == []
-    p = parameters.resolve({'predictor': 'adaptive'})              # adaptive_loop: model
+    p = parameters.resolve({'predictor': 'adaptive'})              # adaptive_loop: auto
+    assert costly_settings(p) == []                                # the latency fitted
+    p = parameters.resolve({'predictor': 'adaptive', 'adaptive_loop': 'model'})
     assert costly_settings(p) == [
         "rig: predictor adaptive with adaptive_loop model: the force loop's I/O latency as "
         'declared; 10 % off it costs 2-2.7 % (the two piers, the one-rig test), 20 % off up to '
-        '5.4 % (docs: results/robustness); adaptive_loop: model_latency identifies it (in real '
-        'time its fit wants a core of its own)']
+        '5.4 % (docs: results/robustness); adaptive_loop: model_latency (the default, auto) '
+        'identifies it']
     assert costly_settings(p, flagging=True) == []
     assert costly_settings(dict(p, adaptive_loop='model_latency')) == []
     # with a plant model of data the latency is the model's (model_latency is refused there)

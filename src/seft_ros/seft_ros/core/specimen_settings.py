@@ -114,8 +114,8 @@ COSTLY = {
     'latency declared': ('predictor adaptive with adaptive_loop {adaptive_loop}: the force '
                          "loop's I/O latency as declared; 10 % off it costs 2-2.7 % (the "
                          'two piers, the one-rig test), 20 % off up to 5.4 % (docs: '
-                         'results/robustness); adaptive_loop: model_latency identifies it '
-                         '(in real time its fit wants a core of its own)'),
+                         'results/robustness); adaptive_loop: model_latency (the default, '
+                         'auto) identifies it'),
     'one-DOF inverse': ('predictor model with predictor_calibration poles and the force-loop '
                         'inverse chosen for the one-DOF test ({predictor_loop_delay_steps} '
                         "steps, seft identify's) on a DOF coupled to the computational "
@@ -146,6 +146,7 @@ def costly_settings(params: Mapping[str, Any], *, flagging: bool = False) -> lis
         An invalid structure (as :func:`~seft_ros.core.structure.test_setup`).
     """
     from seft_ros.core.force_loop import has_plant_model
+    from seft_ros.core.predictors import adaptive_loop_mode
     from seft_ros.core.structure import is_study, test_setup
     coupled = ()
     if is_study(params):
@@ -173,7 +174,7 @@ def costly_settings(params: Mapping[str, Any], *, flagging: bool = False) -> lis
         elif predictor == 'model' and float(p.get('specimen_uncertainty', 0) or 0) >= 0.1:
             rules.append('model unknown')
         if (servo and predictor == 'adaptive' and not _yields(p)
-                and p.get('adaptive_loop', 'model') == 'model' and not has_plant_model(p)):
+                and adaptive_loop_mode(p) == 'model' and not has_plant_model(p)):
             rules.append('latency declared')
         if (rig in coupled and predictor == 'model' and p.get('predictor_calibration') == 'poles'
                 and not p.get('predictor_loop_rehearsed', False)):
