@@ -67,6 +67,7 @@ __all__ = [
     'TANGENT_STIFFNESS_RATIOS', 'HystereticModelPredictor', 'model_rig',
     'LoopLatencyFit', 'LATENCY_ESTIMATES', 'BackgroundFits', 'csi_band_hz', 'loop_exclude_hz',
     'adaptive_fits_loop', 'adaptive_loop_mode', 'ADAPTIVE_LOOP_FIT', 'UPDATE_STAGES',
+    'LOOP_REFIT_TOLERANCE',
 ]
 
 
