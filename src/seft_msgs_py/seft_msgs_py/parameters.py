@@ -336,7 +336,7 @@ SCHEMA: tuple[ParamSpec, ...] = (
               "loop it inverts is identified from data ('data': command vs measured force), "
               "refitted from the rig model with the identified specimen ('model'), or with the "
               "identified specimen and I/O latency ('model_latency'); 'auto': model_latency "
-              "on seft's rig model, model with a plant_model (its latency is the model's) "
+              "on seft's rig model, data with a plant_model (starting from the model's loop) "
               '(seft_ros.core.predictors.adaptive_loop_mode).',
               choices=('auto', 'data', 'model', 'model_latency'), nodes=_RFB + ('recorder',)),
     ParamSpec('adaptive_loop_fit', 'auto', '', "'adaptive': the force loop's delay and gain "

@@ -589,7 +589,7 @@ def test_adaptive_with_the_latency_fitted_holds_the_delay_fit_and_equals_model()
     plant = ('{"form": "transfer_function", "dt": 0.002, "num": {"force_N": [0, 1]}, '
              '"den": [1, -0.5], "specimen": {"mass_kg": 52.7, "stiffness_N_per_m": 211000, '
              '"damping_N_s_per_m": 903.3}}')
-    assert adaptive_loop_mode(dict(params, adaptive_loop='auto', plant_model=plant)) == 'model'
+    assert adaptive_loop_mode(dict(params, adaptive_loop='auto', plant_model=plant)) == 'data'
     run = experiment.simulate(params)
     assert run.stable
     assert np.ptp(run.estimates['tau_s']) == 0.0 and np.all(run.estimates['gain'] == 1.0)

@@ -1946,20 +1946,25 @@ ADAPTIVE_LOOP_DEFAULT = 'auto'
 
 def adaptive_loop_mode(params) -> str:
     """The force loop of ``adaptive`` (``adaptive_loop``): 'data', 'model' or
-    'model_latency'; 'auto' is 'model_latency' on seft's servohydraulic rig model and 'model'
-    with a ``plant_model`` (the latency is the model's).
+    'model_latency'; 'auto' is 'model_latency' on seft's servohydraulic rig model and 'data'
+    with a ``plant_model`` (the loop identified online from the command and the measured
+    force, starting from the model's: a lab's actuator need not be linear).
 
     The latency of a lab's I/O chain is rarely known to the fraction of a sample the loop
     inverse needs near the oil-column resonance: on the study's test at 1000 N with the
     predictor's m, c, k and loop delay each +-10 % (three records, alpha 0.5-1.5),
     'model_latency' gave 0.37-0.68 % NRMS x where 'model' gave 0.34-6.09 % (10 % off the
-    loop delay: 1.84-6.09 %; docs/results/robustness.md).
+    loop delay: 1.84-6.09 %; docs/results/robustness.md). With a plant model identified
+    from a broadband run, the orifice-flow actuator of seft_plant_sim (its flow gain moves
+    with the valve's activity) and a 32 Hz, 0.5 % specimen at alpha 1 gave 35.7 % with the
+    model's loop held and 9.4 % with 'data'; on the linear members the two are the same to
+    the digit (the identified loop does not move past its refit tolerance).
     """
     mode = params.get('adaptive_loop', ADAPTIVE_LOOP_DEFAULT)
     if mode != 'auto':
         return mode
     from seft_ros.core.force_loop import has_plant_model
-    return 'model' if has_plant_model(params) else 'model_latency'
+    return 'data' if has_plant_model(params) else 'model_latency'
 
 #: Flag bits of a sample at a sensor's range (:mod:`seft_msgs_py.sensor_range`): the load
 #: cell's, and the displacement's or velocity's (the delay fit's rows).
@@ -2185,8 +2190,8 @@ class AdaptivePredictor:
     off can drive the test unstable from its first samples (measured on a 32 Hz specimen
     at alpha 1: 49 % NRMS x with the one level, 0.6 % with the specimen's 20 times lower);
     m, c, k and A stay within ``+/- max_deviation`` of the configured values, tau within
-    ``[0, max_delay_s]``, and each changes by at most ``max_rate_per_s`` of its configured
-    value per second (tau: ``max_rate_per_s * max(tau0, dt)``; m, c, k:
+    ``[0, max(max_delay_s, tau0_s)]``, and each changes by at most ``max_rate_per_s`` of its
+    configured value per second (tau: ``max_rate_per_s * max(tau0, dt)``; m, c, k:
     ``specimen_max_rate_per_s``). Every ``update_steps`` the guarded estimates are
     refreshed and, if they moved, the law's model is rebuilt, in stages on consecutive
     measurements (:data:`UPDATE_STAGES`: the delay fit; the estimates and the model's one
@@ -2212,7 +2217,7 @@ class AdaptivePredictor:
     window_s : float > 0
         Delay-identification window and excitation time constant [s].
     max_delay_s : float > 0
-        Largest delay searched [s].
+        Largest delay searched [s] (at least `tau0_s`).
     update_steps : int >= 1
         Steps between estimate refreshes.
     memory_s : float > 0
@@ -2318,6 +2323,10 @@ class AdaptivePredictor:
         self.dt = dt
         self.alpha = float(alpha)
         self.mass_ref_kg = float(mass_ref_kg)
+        # a loop inverse of more steps than adaptive_max_delay_s (a lab's slow loop) is the
+        # prior delay: clamped to the bound it cost orifice flow with a 2 Hz specimen and a
+        # 29-step inverse 67 % where the prior gives 9 %
+        max_delay_s = max(float(max_delay_s), float(tau0_s))
         self.max_n = int(math.ceil(max_delay_s / dt))
         self.max_delay_s = self.max_n * dt
         self.window = max(8, int(round(window_s / dt)))
@@ -2405,14 +2414,17 @@ class AdaptivePredictor:
     @classmethod
     def estimate_bounds(cls, params) -> dict:
         """The range of each estimate of the ``adaptive`` compensator of `params`
-        (:meth:`bounds` of its prior, ``adaptive_max_delay_s`` and
-        ``adaptive_max_deviation``), and of its I/O latency fit (``loop_latency_s``, with
+        (:meth:`bounds` of its prior, ``adaptive_max_delay_s`` or the prior delay if longer,
+        and ``adaptive_max_deviation``), and of its I/O latency fit (``loop_latency_s``, with
         ``adaptive_loop: model_latency`` on the servohydraulic rig: ``[0, L0 + max(L0,
         2 dt)]``)."""
         mp = model_parameters(params)
         dt = float(params['dt'])
+        tau0 = (int(params['predictor_loop_delay_steps']) * dt if valve_commanded(params)
+                else mp['tau_s'])
+        max_delay = max(float(params['adaptive_max_delay_s']), tau0)
         out = cls.bounds(mp['mass_kg'], mp['damping_N_s_per_m'], mp['stiffness_N_per_m'],
-                         math.ceil(float(params['adaptive_max_delay_s']) / dt) * dt,
+                         math.ceil(max_delay / dt) * dt,
                          float(params.get('adaptive_max_deviation', 0.5)))
         if (params.get('rig_model') == 'servohydraulic'
                 and adaptive_loop_mode(params) == 'model_latency'):
