@@ -1952,9 +1952,9 @@ def adaptive_loop_mode(params) -> str:
 
     The latency of a lab's I/O chain is rarely known to the fraction of a sample the loop
     inverse needs near the oil-column resonance: on the study's test at 1000 N with the
-    predictor's m, c, k and loop delay each +-10 % (three records, alpha 0.5-1.5),
-    'model_latency' gave 0.37-0.68 % NRMS x where 'model' gave 0.34-6.09 % (10 % off the
-    loop delay: 1.84-6.09 %; docs/results/robustness.md). With a plant model identified
+    predictor's m, c, k and loop delay each +-10 % (four records at the accelerometer's
+    range, alpha 0.5-1.5), 'model_latency' gave 1.75 % NRMS x at worst where 'model' gave
+    up to 6.09 % (docs/results/robustness.md, part 5). With a plant model identified
     from a broadband run, the orifice-flow actuator of seft_plant_sim (its flow gain moves
     with the valve's activity) and a 32 Hz, 0.5 % specimen at alpha 1 gave 35.7 % with the
     model's loop held and 9.4 % with 'data'; on the linear members the two are the same to
