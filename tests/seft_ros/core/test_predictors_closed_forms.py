@@ -1188,6 +1188,37 @@ def test_adaptive_refits_the_loop_when_the_specimen_moved():
     assert pred.command(50.0) == pytest.approx(taps[0] * 50.0 + taps[1] * 100.0, rel=1e-12)
 
 
+def test_adaptive_rebuilds_its_law_only_when_the_estimates_moved():
+    """The law (the model's one step, its gains) is rebuilt when m, c or k moved by more
+    than LAW_REBUILD_TOLERANCE (1e-4) since the last rebuild: with the model's mass 5 % off
+    at the start, every refresh rebuilds it while the estimate moves at the rate limit
+    (0.2 % a refresh), then fewer than one refresh in five once it has converged; the law in
+    use stays within the tolerance of the estimates."""
+    from seft_ros.core.predictors import LAW_REBUILD_TOLERANCE
+    assert LAW_REBUILD_TOLERANCE == 1e-4
+    pred = adaptive(mass_kg=1.05 * M, excitation_N=0.0, max_rate_per_s=0.1, window_s=0.1)
+    keys = []
+    original = pred._rebuild_finish
+
+    def counted(pending):
+        keys.append((pending.mass_kg, pending.damping_N_s_per_m, pending.stiffness_N_per_m))
+        original(pending)
+
+    pred._rebuild_finish = counted
+    x, v, a, f = specimen_motion(3000)
+    for j in range(3000):
+        pred.predict(Measurement(j, j * DT, x[j], v[j], a[j], f[j]), [], 0.0)
+        if j == 1499:
+            early = len(keys)
+    est = pred.estimates()
+    assert est['mass_kg'] == pytest.approx(M, rel=1e-4)
+    assert early >= 20                                 # the estimate moving: rebuilt
+    assert len(keys) - early < 150 / 5                 # 150 refreshes after 3 s: converged
+    m, c, k = keys[-1]
+    for value, name in ((m, 'mass_kg'), (c, 'damping_N_s_per_m'), (k, 'stiffness_N_per_m')):
+        assert value == pytest.approx(est[name], rel=LAW_REBUILD_TOLERANCE)
+
+
 def test_the_hold_level_follows_the_test_amplitude():
     """adaptive_excitation_N 0 (the default): adaptive_excitation_fraction of amplitude_N,
     20 N at the reference study's 1000 N (bit for bit), 3.48 N for a stiff specimen at 174 N;

@@ -67,7 +67,7 @@ __all__ = [
     'TANGENT_STIFFNESS_RATIOS', 'HystereticModelPredictor', 'model_rig',
     'LoopLatencyFit', 'LATENCY_ESTIMATES', 'BackgroundFits', 'csi_band_hz', 'loop_exclude_hz',
     'adaptive_fits_loop', 'adaptive_loop_mode', 'ADAPTIVE_LOOP_FIT', 'UPDATE_STAGES',
-    'LOOP_REFIT_TOLERANCE',
+    'LOOP_REFIT_TOLERANCE', 'LAW_REBUILD_TOLERANCE',
 ]
 
 
@@ -2022,6 +2022,12 @@ def adaptive_fits_loop(params) -> bool:
 #: 0.43 % (13 refits of about 18 ms), 0.1 % 0.39 %.
 LOOP_REFIT_TOLERANCE = 0.003
 
+#: ``adaptive`` rebuilds its law (the model's one step, its gains by pole matching) when m, c
+#: or k moved by more than this fraction since the last rebuild (or the delay by a 64th of a
+#: step): converged estimates wander by less, and the rebuild (about 0.2 ms, its roots and
+#: eigenvalues) ran at every update.
+LAW_REBUILD_TOLERANCE = 1e-4
+
 #: An update of :class:`AdaptivePredictor` runs in stages on this many consecutive steps
 #: (the delay fit; the guarded estimates and the model's one-step exponential; the rest of
 #: the model; the law's gains and their install) when ``update_steps`` is at least this: no
@@ -2556,7 +2562,9 @@ class AdaptivePredictor:
                     self._pending_loop = ((m, c, k, latency),
                                           self._background.submit(self._loop_factory, *args))
         key = (m, c, k, round(tau / self.dt * 64))
-        if key == self._model_key:
+        last = self._model_key
+        if last is not None and key[3] == last[3] and not _moved(key[:3], last[:3],
+                                                                 LAW_REBUILD_TOLERANCE):
             return None
         self._model_key = key
         m, c, k = float(m), float(c), float(k)
