@@ -2014,6 +2014,23 @@ def adaptive_fits_loop(params) -> bool:
     return mode == 'fit'
 
 
+def _prior_delay_s(params) -> float:
+    """The ``adaptive`` compensator's prior delay [s]: the force-loop inverse's
+    (``predictor_loop_delay_steps`` dt) on a valve-commanded rig, else the predictor
+    model's ``tau_s``."""
+    if valve_commanded(params):
+        return int(params['predictor_loop_delay_steps']) * float(params['dt'])
+    return model_parameters(params)['tau_s']
+
+
+def _delay_search_steps(max_delay_s: float, tau0_s: float, dt: float) -> int:
+    """The longest delay the ``adaptive`` delay fit searches, in steps: ``max_delay_s``,
+    or the prior delay `tau0_s` if longer (a loop inverse of more steps than
+    ``adaptive_max_delay_s``, a lab's slow loop, was clamped to the bound: orifice flow with
+    a 2 Hz specimen and a 29-step inverse 67 % where the prior gives 9 %)."""
+    return int(math.ceil(max(float(max_delay_s), float(tau0_s)) / dt))
+
+
 #: ``adaptive`` refits the force-loop inverse (``adaptive_loop`` 'model', 'model_latency')
 #: when the specimen estimate moved by more than this fraction since the last refit: the loop
 #: of a specimen that shares the actuator's dynamics (control-structure interaction) moves
@@ -2329,11 +2346,7 @@ class AdaptivePredictor:
         self.dt = dt
         self.alpha = float(alpha)
         self.mass_ref_kg = float(mass_ref_kg)
-        # a loop inverse of more steps than adaptive_max_delay_s (a lab's slow loop) is the
-        # prior delay: clamped to the bound it cost orifice flow with a 2 Hz specimen and a
-        # 29-step inverse 67 % where the prior gives 9 %
-        max_delay_s = max(float(max_delay_s), float(tau0_s))
-        self.max_n = int(math.ceil(max_delay_s / dt))
+        self.max_n = _delay_search_steps(max_delay_s, tau0_s, dt)
         self.max_delay_s = self.max_n * dt
         self.window = max(8, int(round(window_s / dt)))
         self.update_steps = int(update_steps)
@@ -2426,12 +2439,10 @@ class AdaptivePredictor:
         2 dt)]``)."""
         mp = model_parameters(params)
         dt = float(params['dt'])
-        tau0 = (int(params['predictor_loop_delay_steps']) * dt if valve_commanded(params)
-                else mp['tau_s'])
-        max_delay = max(float(params['adaptive_max_delay_s']), tau0)
+        steps = _delay_search_steps(float(params['adaptive_max_delay_s']),
+                                    _prior_delay_s(params), dt)
         out = cls.bounds(mp['mass_kg'], mp['damping_N_s_per_m'], mp['stiffness_N_per_m'],
-                         math.ceil(max_delay / dt) * dt,
-                         float(params.get('adaptive_max_deviation', 0.5)))
+                         steps * dt, float(params.get('adaptive_max_deviation', 0.5)))
         if (params.get('rig_model') == 'servohydraulic'
                 and adaptive_loop_mode(params) == 'model_latency'):
             latency = model_rig(params).io_latency_s
@@ -2448,7 +2459,6 @@ class AdaptivePredictor:
         with the identified specimen (``adaptive_loop: model``).
         """
         mp = model_parameters(params)
-        tau0 = mp['tau_s']
         factory = identified = latency_fit = None
         if valve_commanded(params):
             loop_mode = adaptive_loop_mode(params)
@@ -2473,7 +2483,7 @@ class AdaptivePredictor:
                     rig = model_rig(params)
                     latency_fit = LoopLatencyFit(rig, ForceServoController.from_parameters(
                         params), rig.io_latency_s)
-            tau0 = int(params['predictor_loop_delay_steps']) * float(params['dt'])
+        tau0 = _prior_delay_s(params)
         return cls(mp['mass_kg'], mp['damping_N_s_per_m'], mp['stiffness_N_per_m'],
                    float(params['dt']), tau0, float(params['alpha']),
                    float(params['mass_kg']), float(params['adaptive_window_s']),
