@@ -57,7 +57,7 @@ def _config(tmp: Path, args) -> Path:
 def _timed_run(config: Path, budget_s: float, profile: bool, background: bool):
     """One lockstep run; per builder the step times [s] and, with `profile`, the statistics
     of its steps over the budget. With `background`, the compensators' refits run on a
-    worker thread as in a real-time builder node (``BackgroundFits``, the node's switch
+    worker process as in a real-time builder node (``BackgroundFits``, the node's switch
     interval) and the steps are paced at ``dt`` (the fits take wall time): the figures are
     then the node's, and the run's numbers not reproducible."""
     from seft_ros.cli.api import build_runs
@@ -68,6 +68,8 @@ def _timed_run(config: Path, budget_s: float, profile: bool, background: bool):
     params = build_runs(config=str(config))[0]
     original_init = reference_force.ReferenceForceBuilder.__init__
     fits = BackgroundFits() if background else None
+    if fits is not None:
+        fits.start()
 
     def init(self, *a, **kw):
         original_init(self, *a, **kw)
@@ -137,12 +139,12 @@ def main(argv=None) -> int:
                     help='the functions that take the time of the steps over the budget')
     ap.add_argument('--in-step', action='store_true',
                     help='the refits in the step, as seft simulate runs them (default: on a '
-                         'worker thread, as the real-time node)')
+                         'worker process, as the real-time node)')
     args = ap.parse_args(argv)
     budget = args.budget_ms * 1e-3
     print(f'two_piers, per-rig builders, adaptive, every pier m, c, k +10 %, '
           f'{args.amplitude_N:g} N, {args.duration_s:g} s of {args.record}; refits '
-          + ('in the step' if args.in_step else 'on a worker thread (as in real time)') + '; '
+          + ('in the step' if args.in_step else 'in a worker process (as in real time)') + '; '
           f'load {os.getloadavg()[0]:.2f} (1 min) on {os.cpu_count()} cores', flush=True)
     rows: dict[str, list] = {}
     with tempfile.TemporaryDirectory(prefix='seft-builder-step-') as tmp:

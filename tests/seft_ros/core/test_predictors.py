@@ -1,5 +1,9 @@
 """Tests of the delay compensators (``seft_ros.core.predictors``) against known answers."""
 
+import os
+import signal
+import time
+
 import numpy as np
 import pytest
 from scipy.signal import cont2discrete
@@ -735,6 +739,55 @@ def test_adaptive_refits_in_the_background_and_installs_them_when_done():
     exact = ForceLoopInverse.from_parameters(dict(
         params, predictor_mass_kg=m, predictor_damping_N_s_per_m=c, predictor_stiffness_N_per_m=k))
     assert np.array_equal(pred.loop_inverse.taps, exact.taps)
+
+
+class _Count:
+    """A stateful fit stand-in: the count of its calls (BackgroundFits keeps it in its worker)."""
+
+    def __init__(self):
+        self.calls = 0
+
+    def __call__(self, step):
+        self.calls += 1
+        return os.getpid(), self.calls, step
+
+
+def test_background_fits_run_in_a_worker_process_with_the_steps_numbers():
+    """BackgroundFits (real time) runs each fit in one worker process, not in the node's
+    (whose interpreter lock the long numpy/scipy calls would hold): the force-loop refit there
+    gives the taps of the refit in the step bit for bit; a callable is sent once and keeps its
+    state in the worker; the fit's ParameterError comes back as itself; a worker that ended
+    is a SeftError naming it, not a traceback."""
+    from seft_msgs_py.errors import SeftError
+    from seft_ros.core.predictors import BackgroundFits, fit_result
+    params = parameters.resolve({'rig_model': 'servohydraulic', 'predictor': 'adaptive'})
+    pred = AdaptivePredictor.from_parameters(params)
+    est = pred.estimates()
+    args = (est['mass_kg'], est['damping_N_s_per_m'], 1.1 * est['stiffness_N_per_m'], 0.0012)
+    fits = BackgroundFits()
+    try:
+        fits.start()
+        remote = fit_result(fits.submit(pred._loop_factory, *args))
+        local = pred._loop_factory(*args)
+        assert np.array_equal(remote.taps, local.taps) and remote.taps.shape == (48,)
+        x = list(np.random.default_rng(1).standard_normal(remote.taps.shape[0]))
+        assert remote._fir(x) == local._fir(x)                 # the filter rebuilt from taps
+        count = _Count()
+        got = [fit_result(fits.submit(count, j)) for j in range(3)]
+        assert [g[1:] for g in got] == [(1, 0), (2, 1), (3, 2)] and count.calls == 0
+        worker = got[0][0]
+        assert worker != os.getpid() and {g[0] for g in got} == {worker}
+        with pytest.raises(ParameterError, match='cannot be inverted'):
+            fit_result(fits.submit(pred._loop_factory, est['mass_kg'], 100.0,
+                                   est['stiffness_N_per_m']))
+        pending = fits.submit(time.sleep, 30.0)
+        os.kill(worker, signal.SIGKILL)
+        with pytest.raises(SeftError, match="fits' worker process ended"):
+            fit_result(pending)
+        with pytest.raises(SeftError, match="fits' worker process has ended"):
+            fits.submit(count, 3)
+    finally:
+        fits.shutdown()
 
 
 # -- ats ------------------------------------------------------------------------------------

@@ -35,18 +35,22 @@ acceleration: integrated over the step, (*) is exactly the reference equation of
 """
 
 from collections import deque
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import TimeoutError as FutureTimeout
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 import functools
 import math
+import multiprocessing
 import os
+import pickle
 import statistics
 from typing import Callable, NamedTuple
 
 import numpy as np
 
 from seft_msgs_py import sensor_range as _sensor_range
-from seft_msgs_py.errors import ParameterError
+from seft_msgs_py.errors import ParameterError, SeftError
 from seft_msgs_py.interface import Measurement
 from seft_msgs_py.parameters import valve_commanded
 from seft_msgs_py.sampling import linear_map as _linear_map
@@ -65,8 +69,9 @@ __all__ = [
     'force_loop_impulse_responses', 'step_average_force_impulse_response',
     'network_delay_steps', 'TangentModelPredictor', 'model_predictor',
     'TANGENT_STIFFNESS_RATIOS', 'HystereticModelPredictor', 'model_rig',
-    'LoopLatencyFit', 'LATENCY_ESTIMATES', 'BackgroundFits', 'csi_band_hz', 'loop_exclude_hz',
-    'adaptive_fits_loop', 'adaptive_loop_mode', 'ADAPTIVE_LOOP_FIT', 'UPDATE_STAGES',
+    'LoopLatencyFit', 'LATENCY_ESTIMATES', 'BackgroundFits', 'fit_result', 'csi_band_hz',
+    'loop_exclude_hz', 'adaptive_fits_loop', 'adaptive_loop_mode', 'ADAPTIVE_LOOP_FIT',
+    'UPDATE_STAGES',
     'LOOP_REFIT_TOLERANCE', 'LAW_REBUILD_TOLERANCE',
 ]
 
@@ -1106,6 +1111,17 @@ class ForceLoopInverse:
         self._x = [0.0] * taps.shape[0]             # newest first
         self._fir = _linear_map(self.taps, name='fir')
 
+    def __getstate__(self):
+        # the compiled filter is rebuilt from the taps (BackgroundFits sends inverses between
+        # processes)
+        state = dict(self.__dict__)
+        state.pop('_fir', None)
+        return state
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        self._fir = _linear_map(self.taps, name='fir')
+
     @classmethod
     def from_frequency_response(cls, freq, response, dt: float, delay_steps: int,
                                 n_taps: int = 48, band_hz: float = 40.0,
@@ -1651,33 +1667,144 @@ class IdentifiedForceLoop:
         return dict(self._estimates)
 
 
-class BackgroundFits:
-    """One worker thread for the compensators' refits in real time, below the step's priority.
+class _LoopInverseFactory:
+    """``(m, c, k[, latency_s]) -> ForceLoopInverse`` of the rig model with that specimen (and
+    I/O latency): :meth:`ForceLoopInverse.from_parameters` with them in place of the
+    predictor's. A class, not a closure, so that :class:`BackgroundFits` can send it to its
+    worker process."""
 
-    A refit of the force-loop inverse takes 20-45 ms and a latency fit about 15 ms on the
-    reference host: in the step they overrun a 2 ms period and trip the rig's 20 ms watchdog.
-    On this thread the step goes on with the last fit until the new one is done. The thread
-    leaves the real-time policy the node's threads run with (``SCHED_OTHER``, nice 19: it
-    runs while they sleep; Linux scheduling is per thread), and the node shortens the
-    interpreter's switch interval so that the step waits for the GIL briefly (measured: the
-    step's longest wait for it 1.5 ms while a refit ran).
+    def __init__(self, params):
+        self._params = dict(params)
+
+    def __call__(self, m, c, k, latency_s=None):
+        extra = ({} if latency_s is None
+                 else {'predictor_io_latency_s': max(float(latency_s), 1e-9)})
+        return ForceLoopInverse.from_parameters(dict(
+            self._params, predictor_mass_kg=m, predictor_damping_N_s_per_m=c,
+            predictor_stiffness_N_per_m=k, **extra))
+
+
+class BackgroundFits:
+    """The compensators' refits in real time, in one worker process beside the step.
+
+    A refit of the force-loop inverse takes 20-45 ms and a latency fit 1-40 ms (its table
+    made again for a new specimen) on the reference host: in the step they overrun a 2 ms
+    period and trip the rig's 20 ms watchdog. Here the step goes on with the last fit until
+    the new one is done. The fits run in another *process*, not on a thread of the node's:
+    numpy's and scipy's long calls hold the interpreter's lock (measured on the issue-41 case:
+    the loop held 2-4 ms by nearly every refit, once 48 ms), and a thread holding it while the
+    scheduler runs something else holds the real-time step behind it (a priority inversion:
+    over three emulated hosts 1-2 % of the controller steps went stale with ``adaptive``
+    against 0.01-0.05 % with ``model``, and runs were stopped by the watchdog). The worker
+    runs under the normal policy at the lowest priority (``SCHED_OTHER``, nice 19: it runs
+    while the test's real-time threads sleep) on one BLAS thread.
+
+    A callable is sent to the worker once (pickled, ``start_method`` 'spawn': the worker
+    shares nothing with the node's DDS threads) and kept there with its state (the latency
+    fit's table of impulse responses stays in the worker); each :meth:`submit` then sends its
+    arguments only and returns a :class:`concurrent.futures.Future` of the result (a
+    :class:`~seft_msgs_py.errors.ParameterError` raised by the fit is raised by
+    ``result()``). Calls run one at a time, in order. This is
+    :class:`concurrent.futures.ProcessPoolExecutor` with one worker (the standard library).
+
+    Parameters
+    ----------
+    start_method : str
+        The :mod:`multiprocessing` start method of the worker.
 
     Methods
     -------
+    start(timeout_s) -> None
+        Start the worker and wait until it has imported the fits (about 1 s; the node does it
+        before it reports ready, so that the first fit of the run does not wait for it).
     submit(fn, *args) -> concurrent.futures.Future
+    shutdown() -> None
+
+    Raises
+    ------
+    SeftError
+        From :meth:`start`: the worker did not start within `timeout_s`, or ended (the
+        message says which). From :meth:`submit`: the worker has ended (killed, out of
+        memory): the run cannot refit any more.
     """
 
-    def __init__(self):
-        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix='seft-fit',
-                                        initializer=_below_realtime)
+    def __init__(self, start_method: str = 'spawn'):
+        self._pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context(start_method),
+                                         initializer=_fit_worker_init)
+        self._sent: dict = {}
+
+    def start(self, timeout_s: float = 60.0) -> None:
+        try:
+            self._pool.submit(_fit_worker_ready).result(timeout_s)
+        except FutureTimeout:
+            raise SeftError(f"the compensator fits' worker process did not start within "
+                            f'{timeout_s:g} s (host overloaded?)') from None
+        except BrokenProcessPool as exc:
+            raise SeftError(f"the compensator fits' worker process ended at its start: {exc}"
+                            ) from None
 
     def submit(self, fn, *args):
-        return self._pool.submit(fn, *args)
+        owner = getattr(fn, '__self__', None)
+        key = (id(fn), None) if owner is None else (id(owner), fn.__name__)
+        payload = None
+        if key not in self._sent:
+            self._sent[key] = fn                 # kept: its id stays this callable's
+            payload = pickle.dumps(fn)
+        try:
+            return self._pool.submit(_fit_worker_call, key, payload, args)
+        except (BrokenProcessPool, RuntimeError) as exc:
+            raise SeftError(f"the compensator fits' worker process has ended ({exc}): no "
+                            'refit is possible') from None
+
+    def shutdown(self) -> None:
+        self._pool.shutdown(wait=True, cancel_futures=True)
+
+
+def fit_result(future):
+    """The result of a fit made by :class:`BackgroundFits` (`future` done).
+
+    Raises
+    ------
+    ParameterError
+        Raised by the fit.
+    SeftError
+        The worker process ended before it returned (killed, out of memory): the message
+        says so, and the run cannot refit any more.
+    """
+    try:
+        return future.result()
+    except BrokenProcessPool as exc:
+        raise SeftError(f"the compensator fits' worker process ended ({exc}): no refit is "
+                        'possible') from None
+
+
+#: The worker process's callables (:class:`BackgroundFits`), by the key they were sent with.
+_WORKER_FITS: dict = {}
+#: The worker process's BLAS limit (one thread), kept for its life.
+_WORKER_BLAS = None
+
+
+def _fit_worker_init() -> None:
+    """The fits' worker: below the real-time threads, one BLAS thread for its life."""
+    global _WORKER_BLAS
+    _below_realtime()
+    _WORKER_BLAS = _single_blas_thread()
+
+
+def _fit_worker_ready() -> bool:
+    import seft_plant_sim.servohydraulic  # noqa: F401  (the fits' imports, made at the start)
+    return True
+
+
+def _fit_worker_call(key, payload, args):
+    if payload is not None:
+        _WORKER_FITS[key] = pickle.loads(payload)
+    return _WORKER_FITS[key](*args)
 
 
 def _below_realtime() -> None:
-    """This thread to the normal policy at the lowest priority (below every real-time thread
-    of the test; a no-op where it cannot)."""
+    """This process to the normal policy at the lowest priority (below every real-time
+    thread of the test; a no-op where it cannot)."""
     try:
         os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
         os.setpriority(os.PRIO_PROCESS, 0, 19)
@@ -2472,12 +2599,7 @@ class AdaptivePredictor:
             if loop_mode == 'data':
                 identified = IdentifiedForceLoop.from_parameters(params)
             else:
-                def factory(m, c, k, latency_s=None, _params=dict(params)):
-                    extra = ({} if latency_s is None
-                             else {'predictor_io_latency_s': max(float(latency_s), 1e-9)})
-                    return ForceLoopInverse.from_parameters(dict(
-                        _params, predictor_mass_kg=m, predictor_damping_N_s_per_m=c,
-                        predictor_stiffness_N_per_m=k, **extra))
+                factory = _LoopInverseFactory(params)
                 if loop_mode == 'model_latency':
                     from seft_ros.core.controller import ForceServoController
                     rig = model_rig(params)
@@ -2620,6 +2742,11 @@ class AdaptivePredictor:
             # the mass's: g_e + g_l over Gamma_v of the model): the median takes this model's
             self._fits.clear()
 
+    def refits(self) -> bool:
+        """Whether this predictor refits the force-loop inverse or the I/O latency during the
+        run (the fits :meth:`run_fits_in_background` moves off the step)."""
+        return self._loop_factory is not None or self.latency_fit is not None
+
     def run_fits_in_background(self, fits: 'BackgroundFits') -> None:
         """Real time: run the force-loop refits and the latency fits (tens of ms) on `fits`'
         worker thread instead of in the step; each is installed at the first step after it is
@@ -2634,19 +2761,25 @@ class AdaptivePredictor:
         self._loop_model = key
 
     def _poll_fits(self) -> None:
-        """Install the background fits that are done (real time)."""
+        """Install the background fits that are done (real time).
+
+        Raises
+        ------
+        SeftError
+            The fits' worker process ended (:func:`fit_result`).
+        """
         pending = self._pending_loop
         if pending is not None and pending[1].done():
             self._pending_loop = None
             try:
-                fresh = pending[1].result()
+                fresh = fit_result(pending[1])
             except ParameterError:
                 fresh = None                      # an estimate on the way: keep the last
             self._install_loop(fresh, pending[0])
         pending = self._pending_latency
         if pending is not None and pending[1].done():
             self._pending_latency = None
-            if self.latency_fit.accept(pending[0], *pending[1].result()):
+            if self.latency_fit.accept(pending[0], *fit_result(pending[1])):
                 self._rebuild()
 
     def _follow_targets(self, loop) -> None:

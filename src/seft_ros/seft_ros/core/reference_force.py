@@ -836,6 +836,11 @@ class ReferenceForceBuilder:
             return None
         return stamp
 
+    def refits(self) -> bool:
+        """Whether a compensator of this builder refits during the run (the node then gives
+        it a :class:`~seft_ros.core.predictors.BackgroundFits` in real time)."""
+        return any(getattr(law.predictor, 'refits', lambda: False)() for law in self.laws)
+
     def run_fits_in_background(self, fits) -> None:
         """Real time: every compensator that refits (``run_fits_in_background``) does so on
         `fits` (:class:`~seft_ros.core.predictors.BackgroundFits`) instead of in the step."""

@@ -74,8 +74,9 @@ _MODEL_PARAMETERS = ('rig_model', 'tau_s', 'valve_limit_V', 'piston_area_m2',
 #: extrapolation holds; the host stalls that put force spikes into the rig were 4-7 periods.
 LATE_REFERENCE_STEPS = 2
 
-#: Real time: the interpreter's thread switch interval while compensator fits run on a
-#: background thread [s] (sys.setswitchinterval; the default 5 ms would hold the step).
+#: Real time: the interpreter's thread switch interval [s] (sys.setswitchinterval): the
+#: threads of the compensators' fit worker (:class:`~seft_ros.core.predictors.BackgroundFits`:
+#: arguments out, results in) hold the step for at most this long (the default 5 ms would).
 FIT_SWITCH_INTERVAL_S = 2e-4
 
 
@@ -162,11 +163,16 @@ class ReferenceForceBuilderNode(SeftNode):
                     self.guard(lambda msg, r=r: self._on_model(r, msg)), DATA_QOS,
                     event_callbacks=self.publisher_watch(scoped(SPECIMEN_MODEL_TOPIC, r)))
         if self.realtime:
-            # the compensators' refits (tens of ms) off the step, on a thread below it; the
-            # step takes the GIL back within the switch interval
-            self.fits = BackgroundFits()
-            self.builder.run_fits_in_background(self.fits)
-            sys.setswitchinterval(FIT_SWITCH_INTERVAL_S)
+            # the compensators' refits (tens of ms) off the step, in a worker process started
+            # now (its imports before the run); the executor's own threads (sending the
+            # arguments, receiving the results) give the step the GIL back within the switch
+            # interval
+            self.fits = None
+            if self.builder.refits():
+                self.fits = BackgroundFits()
+                self.fits.start()
+                self.builder.run_fits_in_background(self.fits)
+                sys.setswitchinterval(FIT_SWITCH_INTERVAL_S)
             self.watch_inputs(subs + [ground_sub], self.pubs)
             self.timing = StepTiming(self)
             self.latest_ground = (-1, 0.0)
@@ -182,6 +188,13 @@ class ReferenceForceBuilderNode(SeftNode):
                         f'{", ".join(self.local)}', rigs=','.join(self.local))
         else:
             self.report(STATE_READY, f'predictor {names[0]}')
+
+    def destroy_node(self):
+        """The fits' worker process ends with the node (after the fit it is making)."""
+        fits = getattr(self, 'fits', None)
+        if fits is not None:
+            fits.shutdown()
+        return super().destroy_node()
 
     # -- inputs -----------------------------------------------------------------------------
 
