@@ -656,6 +656,44 @@ def test_adaptive_delay_fit_takes_no_increment_across_a_missing_sample():
     assert len(pred._rows) == rows + 1
 
 
+def test_latency_fit_takes_no_window_with_a_late_reference():
+    """Real time: four commands held (the controller extrapolated a late reference) in the
+    window of noise-free data with a 2.6 ms latency bias the fit (2.66 ms, six times its
+    resolution); told of them (``disturbed``, what the builder node does
+    for a late reference), it fits the window after their response and returns 2.6 ms to
+    its tolerance; with the disturbance too close to the newest sample no fit is made."""
+    from dataclasses import replace
+
+    from seft_ros.core.predictors import LoopLatencyFit, force_loop_impulse_responses
+    params = parameters.resolve({'rig_model': 'servohydraulic'})
+    ctrl = ForceServoController.from_parameters(params)
+    rig = replace(ServoHydraulicParams.from_parameters(params), io_latency_s=0.001)
+    spec = LinearSpecimen(M, C, K)
+    h = force_loop_impulse_responses(replace(rig, io_latency_s=0.0026), spec, ctrl, 128).sampled
+    rng = np.random.default_rng(5)
+    n_total = 500 + 128 + 200
+    u = 500.0 * rng.standard_normal(n_total)
+    held = list(range(n_total - 330, n_total - 326))
+    applied = u.copy()
+    for j in held:
+        applied[j] = applied[j - 1]
+    y = np.convolve(applied, h)[:n_total]
+    found = {}
+    for report in (False, True):
+        fit = LoopLatencyFit(rig, ctrl, 0.001)
+        for j in range(n_total):
+            fit.record(u[j])
+            if report and j in held:
+                fit.disturbed(j)
+            fit.observe(j, y[j], True)
+        assert fit.fit(n_total - 1, spec)
+        found[report] = fit.latency_s
+    assert abs(found[False] - 0.0026) > fit.resolution_s, found
+    assert found[True] == pytest.approx(0.0026, abs=fit.resolution_s)
+    fit.disturbed(n_total - 100)                          # 28 clean samples left: no window
+    assert fit.window_data() is None
+
+
 class StallingRig(DelayRig):
     """Delay rig whose command is held over stalls (test only): at the samples of `stalls` it
     applies the last command it had before, as a force servo-controller acting on its

@@ -741,15 +741,15 @@ class ReferenceForceBuilder:
         if r is not None:
             self._latest[r][measurement.step] = measurement
 
-    def reference_late(self, step: int) -> None:
-        """Real time: the reference forces of sample `step` went out late (the builder node:
-        more than ``LATE_REFERENCE_STEPS`` sample periods after its sample time); each local
-        rig's compensator that identifies from the forces it sent is told
+    def reference_late(self, step: int, late_s: float) -> None:
+        """Real time: the reference forces of sample `step` went out `late_s` [s] after its
+        sample time (the builder node, for every late one); each local rig's compensator
+        that identifies from the forces it sent is told
         (``AdaptivePredictor.reference_late``)."""
         for law in self.laws:
             fn = getattr(law.predictor, 'reference_late', None)
             if fn is not None:
-                fn(step)
+                fn(step, late_s)
 
     def estimates(self) -> list:
         """Each local rig's compensator's online estimates (a dict, keys its

@@ -67,13 +67,6 @@ _MODEL_PARAMETERS = ('rig_model', 'tau_s', 'valve_limit_V', 'piston_area_m2',
                      'leakage_coefficient_m3_per_s_Pa', 'io_latency_s', 'anti_alias_cutoff_hz',
                      'accelerometer_range_m_s2')
 
-#: Real time: a reference force sent more than this many sample periods after its sample
-#: time is reported to the compensators (``ReferenceForceBuilder.reference_late``): the
-#: controller extrapolated it for that long. One or two periods late are common on a busy
-#: host (10-15 % of the steps of the bridge over three emulated hosts on two cores) and the
-#: extrapolation holds; the host stalls that put force spikes into the rig were 4-7 periods.
-LATE_REFERENCE_STEPS = 2
-
 #: Real time: the interpreter's thread switch interval [s] (sys.setswitchinterval): the
 #: threads of the compensators' fit worker (:class:`~seft_ros.core.predictors.BackgroundFits`:
 #: arguments out, results in) hold the step for at most this long (the default 5 ms would).
@@ -362,8 +355,8 @@ class ReferenceForceBuilderNode(SeftNode):
                 oldest = k - 1 - self.builder.window_steps
                 age = (now_ns - self.sample_time_ns(oldest)) * 1e-9
                 late_ns = now_ns - self.sample_time_ns(k)
-                if late_ns > LATE_REFERENCE_STEPS * self.dt_ns:
-                    self.builder.reference_late(k)
+                if late_ns > 0:          # the controller extrapolated it meanwhile
+                    self.builder.reference_late(k, late_ns * 1e-9)
                 self.timing.publish(stamp, jitter, time.monotonic() - start, age, late_ns > 0,
                                     self.ground_stale)
 
