@@ -1696,8 +1696,10 @@ class BackgroundFits:
     scheduler runs something else holds the real-time step behind it (a priority inversion:
     over three emulated hosts 1-2 % of the controller steps went stale with ``adaptive``
     against 0.01-0.05 % with ``model``, and runs were stopped by the watchdog). The worker
-    runs under the normal policy at the lowest priority (``SCHED_OTHER``, nice 19: it runs
-    while the test's real-time threads sleep) on one BLAS thread.
+    runs under the normal policy (``SCHED_OTHER``, nice 0: below the test's real-time
+    threads, level with the host's other work) on one BLAS thread. The node starts it
+    (:meth:`start`) before it takes its real-time policy: a worker spawned at the first fit
+    would inherit ``SCHED_FIFO`` and import numpy and scipy ahead of the loop.
 
     A callable is sent to the worker once (pickled, ``start_method`` 'spawn': the worker
     shares nothing with the node's DDS threads) and kept there with its state (the latency
@@ -1803,11 +1805,13 @@ def _fit_worker_call(key, payload, args):
 
 
 def _below_realtime() -> None:
-    """This process to the normal policy at the lowest priority (below every real-time
-    thread of the test; a no-op where it cannot)."""
+    """This process to the normal policy (below every real-time thread of the test, level
+    with the host's other work; a no-op where it cannot). Not at the lowest priority: at
+    nice 19 a busy loop beside the test starved the worker (a 26 ms refit took seconds; of
+    three runs of the issue-41 case beside one, one erred 3.7-4.5 % in x, against 0.2 %)."""
     try:
         os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
-        os.setpriority(os.PRIO_PROCESS, 0, 19)
+        os.setpriority(os.PRIO_PROCESS, 0, 0)
     except (AttributeError, OSError):
         pass
 
