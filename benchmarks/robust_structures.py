@@ -94,6 +94,8 @@ class Outcome:
     stable: bool = True
     refused: str = ''
     estimates: str = ''
+    #: worst NRMS over the DOFs of acceleration / floor acceleration / interface force [%]
+    signals: tuple = ()
 
     def cell(self) -> str:
         if self.refused:
@@ -228,8 +230,10 @@ def run(params: dict) -> Outcome:
                 latency = float(est['loop_latency_s'][-1])
                 note += f', I/O latency {latency / float(data.params["io_latency_s"]):.3f}'
             notes.append(note)
+    signals = tuple(100.0 * comparison.worst_nrms(name) for name in
+                    ('acceleration', 'floor_acceleration', 'interface_force'))
     return Outcome(100.0 * comparison.worst_nrms('displacement'), per_dof, bool(rd.stable),
-                   estimates=', '.join(notes))
+                   estimates=', '.join(notes), signals=signals)
 
 
 def delay_check(out: Tables, name: str) -> None:
@@ -329,10 +333,12 @@ def part2(out: Tables, records, runs: int, duration_s: float, keep: str | None,
         out(f"{label}, {duration_s:g} s at most; every pier's {', '.join(names)} +10 %, "
             f'`adaptive`, `structure_builders: per_rig`; links {delay_ms:g} ms one way '
             f'+-{0.2 * delay_ms:g} ms. Lockstep in one process: {lockstep.cell()} % '
-            f'({lockstep.estimates}).')
+            f'({lockstep.estimates}); worst acceleration / floor acceleration / interface '
+            f"force {' / '.join(f'{v:.2f}' for v in lockstep.signals)} %.")
         out()
         out.load('before')
         out.table(['run', 'outcome', 'bag lost / steps', 'NRMS x pier a / pier b / deck %',
+                   'worst NRMS acceleration / floor acceleration / interface force %',
                    'identified k / declared', 'round trip p50/p99 ms',
                    "controllers' stale steps %", 'rig period jitter max ms', 'load before'])
         for i in range(runs):
@@ -345,11 +351,20 @@ def part2(out: Tables, records, runs: int, duration_s: float, keep: str | None,
             ratios = ', '.join(f'{r} {v:.3f}' for r, v in
                                sorted((e.get('specimen_stiffness_ratios') or {}).items()))
             out.row([i + 1, network_delay.state(e), network_delay.lost(e),
-                     network_delay._dofs(e), ratios or '-', network_delay.rtt(e),
+                     network_delay._dofs(e), _worst(e), ratios or '-', network_delay.rtt(e),
                      _stale(e), _jitter(e), f'{load:.1f}'])
             network_delay._stderr(e)
     out()
     out.load('after')
+
+
+def _worst(e: dict) -> str:
+    """The run's worst NRMS over the DOFs of the acceleration, the floor acceleration and
+    the interface force [%] (summary.json's ``worst_nrms``)."""
+    worst = e.get('worst_nrms') or {}
+    cells = [worst.get(name) for name in ('acceleration', 'floor_acceleration',
+                                          'interface_force')]
+    return ' / '.join('-' if v is None else f'{100 * v:.2f}' for v in cells)
 
 
 def _stale(e: dict) -> str:
