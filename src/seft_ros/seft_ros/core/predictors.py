@@ -1712,22 +1712,7 @@ class BackgroundFits:
     Parameters
     ----------
     start_method : str
-        The :mod:`multiprocessing` start method of the worker.
-
-    Methods
-    -------
-    start(timeout_s) -> None
-        Start the worker and wait until it has imported the fits (about 1 s; the node does it
-        before it reports ready, so that the first fit of the run does not wait for it).
-    submit(fn, *args) -> concurrent.futures.Future
-    shutdown() -> None
-
-    Raises
-    ------
-    SeftError
-        From :meth:`start`: the worker did not start within `timeout_s`, or ended (the
-        message says which). From :meth:`submit`: the worker has ended (killed, out of
-        memory): the run cannot refit any more.
+        The ``multiprocessing`` start method of the worker.
     """
 
     def __init__(self, start_method: str = 'spawn'):
@@ -1736,6 +1721,15 @@ class BackgroundFits:
         self._sent: dict = {}
 
     def start(self, timeout_s: float = 60.0) -> None:
+        """Start the worker and wait until it has imported the fits (about 1 s; the node does
+        it in its set-up, so that the first fit of the run does not wait for it).
+
+        Raises
+        ------
+        SeftError
+            The worker did not start within `timeout_s` [s], or ended (the message says
+            which).
+        """
         try:
             self._pool.submit(_fit_worker_ready).result(timeout_s)
         except FutureTimeout:
@@ -1746,6 +1740,14 @@ class BackgroundFits:
                             ) from None
 
     def submit(self, fn, *args):
+        """``fn(*args)`` in the worker; returns its :class:`concurrent.futures.Future` (read
+        it with :func:`fit_result`). `fn` is pickled at its first call only.
+
+        Raises
+        ------
+        SeftError
+            The worker has ended (killed, out of memory): the run cannot refit any more.
+        """
         owner = getattr(fn, '__self__', None)
         key = (id(fn), None) if owner is None else (id(owner), fn.__name__)
         payload = None
@@ -1759,6 +1761,7 @@ class BackgroundFits:
                             'refit is possible') from None
 
     def shutdown(self) -> None:
+        """End the worker after the fit it is making (the queued ones are dropped)."""
         self._pool.shutdown(wait=True, cancel_futures=True)
 
 
