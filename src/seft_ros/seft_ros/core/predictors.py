@@ -1703,8 +1703,10 @@ class BackgroundFits:
 
     A callable is sent to the worker once (pickled, ``start_method`` 'spawn': the worker
     shares nothing with the node's DDS threads) and kept there with its state (the latency
-    fit's table of impulse responses stays in the worker); each :meth:`submit` then sends its
-    arguments only and returns a :class:`concurrent.futures.Future` of the result (a
+    fit's table of impulse responses stays in the worker; what the node changes in its own
+    copy later is not seen there, so a fit's callable reads only what is fixed at its first
+    call); each :meth:`submit` then sends its arguments only and returns a
+    :class:`concurrent.futures.Future` of the result (a
     :class:`~seft_msgs_py.errors.ParameterError` raised by the fit is raised by
     ``result()``). Calls run one at a time, in order. This is
     :class:`concurrent.futures.ProcessPoolExecutor` with one worker (the standard library).
