@@ -1720,7 +1720,7 @@ class BackgroundFits:
     def __init__(self, start_method: str = 'spawn'):
         self._pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context(start_method),
                                          initializer=_fit_worker_init)
-        self._sent: dict = {}
+        self._sent: dict = {}                    # callable -> its key in the worker
 
     def start(self, timeout_s: float = 60.0) -> None:
         """Start the worker and wait until it has imported the fits (about 1 s; the node does
@@ -1743,18 +1743,18 @@ class BackgroundFits:
 
     def submit(self, fn, *args):
         """``fn(*args)`` in the worker; returns its :class:`concurrent.futures.Future` (read
-        it with :func:`fit_result`). `fn` is pickled at its first call only.
+        it with :func:`fit_result`). `fn` (hashable: a function, a bound method, an object
+        hashed by identity) is pickled at its first call only.
 
         Raises
         ------
         SeftError
             The worker has ended (killed, out of memory): the run cannot refit any more.
         """
-        owner = getattr(fn, '__self__', None)
-        key = (id(fn), None) if owner is None else (id(owner), fn.__name__)
+        key = self._sent.get(fn)                 # a bound method equals its twin
         payload = None
-        if key not in self._sent:
-            self._sent[key] = fn                 # kept: its id stays this callable's
+        if key is None:
+            key = self._sent[fn] = len(self._sent)
             payload = pickle.dumps(fn)
         try:
             return self._pool.submit(_fit_worker_call, key, payload, args)
