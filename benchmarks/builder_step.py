@@ -12,6 +12,8 @@ the budget (``cProfile`` on every step, the slow steps' statistics kept).
 
     .venv/bin/python benchmarks/builder_step.py [--record A.AT2] [--duration-s 15]
         [--amplitude-N 700] [--repeats 3] [--profile]
+    .venv/bin/python benchmarks/builder_step.py --config LAB.yaml [--params RIG.yaml]
+        [--set KEY=VALUE ...]          # a lab's own test instead
 
 The figures are CPU time of one core under whatever else the host runs: quote the load with
 them, and medians over repeats.
@@ -54,18 +56,16 @@ def _config(tmp: Path, args) -> Path:
     return path
 
 
-def _timed_run(config: Path, budget_s: float, profile: bool, background: bool):
+def _timed_run(params: dict, budget_s: float, profile: bool, background: bool):
     """One lockstep run; per builder the step times [s] and, with `profile`, the statistics
     of its steps over the budget. With `background`, the compensators' refits run on a
     worker process as in a real-time builder node (``BackgroundFits``, the node's switch
     interval) and the steps are paced at ``dt`` (the fits take wall time): the figures are
     then the node's, and the run's numbers not reproducible."""
-    from seft_ros.cli.api import build_runs
     from seft_ros.core import reference_force
     from seft_ros.core.experiment import simulate
     from seft_ros.core.predictors import BackgroundFits
     from seft_ros.nodes.reference_force_builder import FIT_SWITCH_INTERVAL_S
-    params = build_runs(config=str(config))[0]
     original_init = reference_force.ReferenceForceBuilder.__init__
     fits = BackgroundFits() if background else None
     if fits is not None:
@@ -140,17 +140,32 @@ def main(argv=None) -> int:
     ap.add_argument('--in-step', action='store_true',
                     help='the refits in the step, as seft simulate runs them (default: on a '
                          'worker process, as the real-time node)')
+    ap.add_argument('--config', help="a lab's own configuration instead of the two piers "
+                                     '(its first run; --record, --duration-s and '
+                                     '--amplitude-N then as --set gives them)')
+    ap.add_argument('--params', nargs='*', default=[], help='parameter files over --config')
+    ap.add_argument('--set', nargs='*', default=[], metavar='KEY=VALUE',
+                    help='parameter values over --config and --params')
     args = ap.parse_args(argv)
     budget = args.budget_ms * 1e-3
-    print(f'two_piers, per-rig builders, adaptive, every pier m, c, k +10 %, '
-          f'{args.amplitude_N:g} N, {args.duration_s:g} s of {args.record}; refits '
-          + ('in the step' if args.in_step else 'in a worker process (as in real time)') + '; '
-          f'load {os.getloadavg()[0]:.2f} (1 min) on {os.cpu_count()} cores', flush=True)
+    from seft_ros.cli.api import build_runs
+    where = ('in the step' if args.in_step else 'in a worker process (as in real time)')
+    load = f'load {os.getloadavg()[0]:.2f} (1 min) on {os.cpu_count()} cores'
     rows: dict[str, list] = {}
     with tempfile.TemporaryDirectory(prefix='seft-builder-step-') as tmp:
-        config = _config(Path(tmp), args)
+        if args.config:
+            sets = dict(item.split('=', 1) for item in args.set)
+            params = build_runs(config=args.config, params_files=args.params,
+                                overrides={k: yaml.safe_load(v) for k, v in sets.items()})[0]
+            print(f'{args.config} ' + ' '.join(args.params + args.set)
+                  + f' (its first run); refits {where}; {load}', flush=True)
+        else:
+            params = build_runs(config=str(_config(Path(tmp), args)))[0]
+            print(f'two_piers, per-rig builders, adaptive, every pier m, c, k +10 %, '
+                  f'{args.amplitude_N:g} N, {args.duration_s:g} s of {args.record}; refits '
+                  f'{where}; {load}', flush=True)
         for i in range(args.repeats):
-            run, times, slow = _timed_run(config, budget, args.profile and i == 0,
+            run, times, slow = _timed_run(params, budget, args.profile and i == 0,
                                           not args.in_step)
             from seft_ros.analysis.metrics import compare_run
             dofs = compare_run(run).dofs

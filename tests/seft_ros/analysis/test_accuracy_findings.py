@@ -29,10 +29,15 @@ def _adaptive_params(**extra):
 def test_the_ranges_of_the_estimates():
     p = _adaptive_params()
     bounds = estimate_bounds(p)
-    assert list(bounds) == list(ADAPTIVE_ESTIMATES) + ['loop_latency_s']
+    # the loop's delay and gain held (the I/O latency fitted instead): not estimates
+    assert list(bounds) == [n for n in ADAPTIVE_ESTIMATES if n not in ('tau_s', 'gain')] + [
+        'loop_latency_s']
     assert bounds['stiffness_N_per_m'] == pytest.approx((0.5 * 2.11e5, 1.5 * 2.11e5))
-    assert bounds['tau_s'] == pytest.approx((0.0, 0.03))
     assert bounds['loop_latency_s'] == pytest.approx((0.0, 0.003 + 2 * DT))
+    fitted = estimate_bounds(dict(p, adaptive_loop='model'))
+    assert list(fitted) == list(ADAPTIVE_ESTIMATES)
+    assert fitted['tau_s'] == pytest.approx((0.0, 0.03))
+    assert fitted['gain'] == pytest.approx((0.5, 1.5))
     assert estimate_bounds(dict(p, rig_model='delay')).keys() == set(ADAPTIVE_ESTIMATES)
     member = estimate_bounds(parameters.resolve({'predictor': 'model',
                                                  'predictor_restoring_force': 'hysteretic'}))
@@ -48,14 +53,20 @@ def test_an_estimate_held_at_its_bound():
     k[100:500] = 0.5 * 2.11e5                       # 0.8 s at the lower bound
     m = np.full(n, 52.7)
     m[-1] = 1.5 * 52.7                              # at the upper bound at the end only
-    tau = np.full(n, 0.028)
-    tau[10:100] = 0.03                              # 0.18 s at the upper bound: not enough
+    tau = np.full(n, 0.03)                          # held at the prior (model_latency)
     lines = bound_findings('pier_a', p, {'stiffness_N_per_m': k, 'mass_kg': m, 'tau_s': tau},
                            DT)
     assert lines == ['pier_a: the estimate mass_kg at its upper bound 79.05 for 0.00 s and at '
                      'the end', 'pier_a: the estimate stiffness_N_per_m at its lower bound '
                      '1.055e+05 for 0.80 s']
     assert bound_findings('', p, None, DT) == []
+    fitted = dict(p, adaptive_loop='model')         # the delay fitted: an estimate
+    tau[:] = 0.028
+    tau[10:100] = 0.03                              # 0.18 s at the upper bound: not enough
+    assert bound_findings('', fitted, {'tau_s': tau}, DT) == []
+    tau[10:300] = 0.03                              # 0.58 s
+    assert bound_findings('', fitted, {'tau_s': tau}, DT) == [
+        'rig: the estimate tau_s at its upper bound 0.03 for 0.58 s']
 
 
 def _run(**extra):

@@ -758,8 +758,10 @@ def test_adaptive_refits_in_the_background_and_installs_them_when_done():
     """Real time (run_fits_in_background): the step goes on with the last force-loop inverse
     while the refit for the identified specimen runs; the first step after it is done installs
     it, its filter state carried over, the same taps as the refit in the step
-    (``seft simulate``) for the same estimates."""
-    from seft_ros.core.predictors import ForceLoopInverse
+    (``seft simulate``) for the same estimates. The delay fit's table for the new specimen
+    (adaptive_loop 'model' fits the delay) is made there too, and taken in with the step's
+    numbers."""
+    from seft_ros.core.predictors import ForceLoopInverse, _fraction_table
     params = parameters.resolve({'rig_model': 'servohydraulic', 'predictor': 'adaptive',
                                  'adaptive_loop': 'model',
                                  'predictor_stiffness_N_per_m': 1.2 * K})
@@ -767,13 +769,18 @@ def test_adaptive_refits_in_the_background_and_installs_them_when_done():
     fits = _HeldFits()
     pred.run_fits_in_background(fits)
     first = pred.loop_inverse
+    table = pred._frac_grid
     feed(pred, 1500)
-    assert len(fits.queued) == 1 and pred.loop_inverse is first       # one refit at a time
+    assert [fn for _, fn, _ in fits.queued] == [pred._loop_factory, _fraction_table]
+    assert pred.loop_inverse is first and pred._frac_grid is table    # one of each at a time
     m, c, k = fits.queued[0][2]                                       # adaptive_loop: model
     assert k < 1.19 * K                                                # the estimate moved
+    model = fits.queued[1][2]
     fits.release()
     feed(pred, 1, start=1500)
     assert pred.loop_inverse is not first and pred.loop_inverse._x is first._x
+    assert pred._frac_model == model[:3]
+    assert np.array_equal(pred._frac_grid, _fraction_table(*model)[0])
     exact = ForceLoopInverse.from_parameters(dict(
         params, predictor_mass_kg=m, predictor_damping_N_s_per_m=c, predictor_stiffness_N_per_m=k))
     assert np.array_equal(pred.loop_inverse.taps, exact.taps)

@@ -727,6 +727,52 @@ def test_identified_loop_follows_a_lower_gain_at_the_rate_limit():
     assert len(loop._u) <= 4 * loop.nb + 64 and len(loop._y) <= 4 * loop.na + 64
 
 
+def test_identified_loop_refits_in_the_worker_with_the_steps_numbers():
+    """Real time (run_fits_in_background): a refit of the identified loop's inverse goes to
+    the worker process and the step goes on with the last inverse until it is done; taken in
+    by poll (or the next refresh), it is the in-step refit bit for bit, with the filter's
+    past inputs kept, the same estimates and count. One refit on its way at a time. The
+    delay fit's table made there is the step's too."""
+    from seft_ros.core.predictors import BackgroundFits, _fraction_table, fit_result
+    local, remote = (identified(prior=delay_prior(2, 2500)) for _ in range(2))
+    fits = BackgroundFits()
+    try:
+        fits.start()
+        remote.run_fits_in_background(fits)
+        for loop in (local, remote):
+            for v in (5.0, -3.0, 2.0):
+                loop.inverse.step(v)
+        before = remote.inverse
+        assert drive(local, 10)[1] == [True] and drive(remote, 10)[1] == [False]
+        assert remote.inverse is before and remote._pending is not None
+        drive(remote, 10, start=10)        # a refresh while the fit is on its way: no second
+        assert remote.inverse is before and remote.refits == 0
+        remote._pending[2].result(60)
+        assert remote.poll() and not remote.poll()
+        assert remote.refits == 1 and remote._pending is None
+        assert np.array_equal(remote.inverse.taps, local.inverse.taps)
+        assert remote.inverse._x == local.inverse._x          # the past inputs carried over
+        assert remote.estimates()['loop_gain'] == local.estimates()['loop_gain']
+        # the step refitted at step 20 too, the worker not (busy): from here each
+        # background fit waited for, the same fits as in the step
+        assert drive(local, 10, start=10)[1] == [True]
+        for start in range(20, 130, 10):
+            moved = drive(local, 10, start=start)[1]
+            drive(remote, 10, start=start)
+            assert (remote._pending is not None) == moved[0]
+            if moved[0]:
+                remote._pending[2].result(60)
+                assert remote.poll()
+            assert np.array_equal(remote.inverse.taps, local.inverse.taps)
+        assert (remote.refits, local.refits) == (4, 5)         # the change stops at 0.1
+        assert remote.estimates() == local.estimates()
+        table = fit_result(fits.submit(_fraction_table, M, C, 1.1 * K, DT))
+        for got, want in zip(table, _fraction_table(M, C, 1.1 * K, DT)):
+            assert np.array_equal(got, want) and got.shape == (21,)
+    finally:
+        fits.shutdown()
+
+
 def test_identified_loop_bounds_and_holds():
     """max_deviation 0.04 caps the change at 0.04; observe without update, or with a
     command missing from the regressor, leaves the RLS alone."""

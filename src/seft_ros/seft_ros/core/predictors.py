@@ -1548,6 +1548,8 @@ class IdentifiedForceLoop:
         self._n_sent = 0
         self.refits = 0
         self.inverse = None
+        self._background = None       # BackgroundFits in real time (run_fits_in_background)
+        self._pending = None          # (response fitted, estimates, future) of a refit
         self._fit()
 
     @classmethod
@@ -1601,23 +1603,63 @@ class IdentifiedForceLoop:
         t[band] += self._hold[band] * (ident.response - ident.guard.initial)
         return self._freq, t
 
-    def _fit(self) -> None:
+    def _fit_args(self) -> tuple:
+        """The arguments of :meth:`ForceLoopInverse.from_frequency_response` for the
+        response in use."""
         freq, t = self.response()
-        fresh = ForceLoopInverse.from_frequency_response(
-            freq, t, self.dt, self.delay_steps, self.n_taps, self.band_hz, self.hf_weight,
-            self.exclude_hz)
-        if self.inverse is not None:                 # keep the filter's past inputs
-            fresh._x = self.inverse._x
-            self.refits += 1
-        self.inverse = fresh
-        self._fitted = self.identifier.response.copy()
+        return (freq, t, self.dt, self.delay_steps, self.n_taps, self.band_hz, self.hf_weight,
+                self.exclude_hz)
+
+    def _loop_estimates(self, freq, t) -> dict[str, float]:
         band = self._slope_band
         phase = np.unwrap(np.angle(t[band]))
-        self._estimates = {
+        return {
             'loop_gain': float(t[0].real),
             'loop_delay_s': float(-np.polyfit(2.0 * np.pi * freq[band], phase, 1)[0]),
             'loop_change': self.identifier.deviation,
         }
+
+    def _fit(self) -> None:
+        args = self._fit_args()
+        self._install(ForceLoopInverse.from_frequency_response(*args),
+                      self.identifier.response.copy(), self._loop_estimates(*args[:2]))
+
+    def _install(self, fresh, fitted, estimates) -> None:
+        if self.inverse is not None:                 # keep the filter's past inputs
+            fresh._x = self.inverse._x
+            self.refits += 1
+        self.inverse = fresh
+        self._fitted = fitted
+        estimates['loop_change'] = self.identifier.deviation
+        self._estimates = estimates
+
+    def run_fits_in_background(self, fits: 'BackgroundFits') -> None:
+        """Real time: fit the new inverses (20-45 ms each) in `fits`' worker process instead
+        of in :meth:`refresh`; each is taken in by the first :meth:`poll` or :meth:`refresh`
+        after it is done (lockstep and ``seft simulate`` fit in the step: the same numbers
+        every time)."""
+        self._background = fits
+
+    def poll(self) -> bool:
+        """Take in the inverse fitted in the background (real time) if it is done. Returns
+        whether ``inverse`` changed (not when the fit raised ParameterError: the last
+        inverse is kept).
+
+        Raises
+        ------
+        SeftError
+            The fits' worker process ended (:func:`fit_result`).
+        """
+        pending = self._pending
+        if pending is None or not pending[2].done():
+            return False
+        self._pending = None
+        try:
+            fresh = fit_result(pending[2])
+        except ParameterError:
+            return False
+        self._install(fresh, pending[0], pending[1])
+        return True
 
     def record(self, command: float) -> None:
         """Note the command ``u[j]`` sent to the force controller (one call per step, from
@@ -1650,14 +1692,30 @@ class IdentifiedForceLoop:
 
     def refresh(self) -> bool:
         """Move the response in use toward the estimate's (guarded); refit the inverse if it
-        moved by more than ``refit_tolerance``. Returns whether ``inverse`` changed."""
+        moved by more than ``refit_tolerance`` since the last fit (in real time: send the
+        fit to the worker, unless one is on its way, and take in one that is done,
+        :meth:`poll`). Returns whether ``inverse`` changed.
+
+        Raises
+        ------
+        SeftError
+            The fits' worker process ended (:func:`fit_result`).
+        """
         ident = self.identifier
         ident.follow()
         self._estimates['loop_change'] = ident.deviation
-        if ident.guard.norm(ident.response - self._fitted) <= self.refit_tolerance:
-            return False
-        self._fit()
-        return True
+        changed = self.poll()
+        if (self._pending is not None
+                or ident.guard.norm(ident.response - self._fitted) <= self.refit_tolerance):
+            return changed
+        if self._background is None:
+            self._fit()
+            return True
+        args = self._fit_args()
+        self._pending = (ident.response.copy(), self._loop_estimates(*args[:2]),
+                         self._background.submit(ForceLoopInverse.from_frequency_response,
+                                                 *args))
+        return changed
 
     def estimates(self) -> dict[str, float]:
         """``loop_gain`` [-] (DC gain of ``T_avg``), ``loop_delay_s`` [s] (its phase slope
@@ -1819,6 +1877,28 @@ def _below_realtime() -> None:
         os.setpriority(os.PRIO_PROCESS, 0, 0)
     except (AttributeError, OSError):
         pass
+
+
+def _fraction_table(m: float, c: float, k: float, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """``adaptive``'s delay-fit table: the share ``g_e / (g_e + g_l)`` of a held unit force
+    that acts within its own step, for delays ``delta`` 0 to `dt` past a whole step (21
+    points; 42 discretizations of the specimen model m [kg], c [N s/m], k [N/m]).
+
+    Returns
+    -------
+    fraction : ndarray, shape (21,)
+    delta_s : ndarray, shape (21,)
+        [s]
+    """
+    a, b = DelayImpulseModel.state_space(m, c, k)
+    grid = np.linspace(0.0, dt, 21)
+    frac = []
+    for d in grid:
+        phi_rest, g_late = _zoh(a, b, dt - d)
+        _, g_e = _zoh(a, b, d)
+        ge = float((phi_rest @ g_e)[1, 0])
+        frac.append(ge / (ge + float(g_late[1, 0])))
+    return np.array(frac), grid
 
 
 #: Real time: a reference force sent more than this many sample periods after its sample
@@ -2516,6 +2596,7 @@ class AdaptivePredictor:
         self._background = None           # BackgroundFits in real time (run_fits_in_background)
         self._pending_loop = None         # (model key, future)
         self._pending_latency = None      # (step, future)
+        self._pending_fractions = None    # ((m, c, k), future) of the delay fit's table
         if member_law is not None:
             self.ESTIMATES = self.ESTIMATES + HYSTERESIS_ESTIMATES
         self.prior = {'mass_kg': m0, 'damping_N_s_per_m': c0, 'stiffness_N_per_m': k0,
@@ -2589,13 +2670,17 @@ class AdaptivePredictor:
         (:meth:`bounds` of its prior, ``adaptive_max_delay_s`` or the prior delay if longer,
         and ``adaptive_max_deviation``), and of its I/O latency fit (``loop_latency_s``, with
         ``adaptive_loop: model_latency`` on the servohydraulic rig: ``[0, L0 + max(L0,
-        2 dt)]``)."""
+        2 dt)]``). The delay and gain are not among them while they are held
+        (:func:`adaptive_fits_loop` False): they are the prior's, not estimates, and a prior
+        delay of the longest the search allows is not an estimate at its bound."""
         mp = model_parameters(params)
         dt = float(params['dt'])
         steps = _delay_search_steps(float(params['adaptive_max_delay_s']),
                                     _prior_delay_s(params), dt)
         out = cls.bounds(mp['mass_kg'], mp['damping_N_s_per_m'], mp['stiffness_N_per_m'],
                          steps * dt, float(params.get('adaptive_max_deviation', 0.5)))
+        if not adaptive_fits_loop(params):
+            del out['tau_s'], out['gain']
         if (params.get('rig_model') == 'servohydraulic'
                 and adaptive_loop_mode(params) == 'model_latency'):
             latency = model_rig(params).io_latency_s
@@ -2754,33 +2839,37 @@ class AdaptivePredictor:
         self._gv = float(self.model.gamma[1])
         # the delay fit's table (42 discretizations, 2.6 ms in the step): not made when the
         # delay and gain are held (fit_loop False: the fit never runs)
+        # (in real time made in the worker, BackgroundFits, and taken in when done)
         if self.fit_loop and (self._frac_model is None
                               or _moved((m, c, k), self._frac_model, 0.01)):
-            a, b = DelayImpulseModel.state_space(m, c, k)
-            # fraction table: delta -> g_e / (g_e + g_l) for a unit force
-            grid = np.linspace(0.0, self.dt, 21)
-            frac = []
-            for d in grid:
-                phi_rest, g_late = _zoh(a, b, self.dt - d)
-                _, g_e = _zoh(a, b, d)
-                ge = float((phi_rest @ g_e)[1, 0])
-                frac.append(ge / (ge + float(g_late[1, 0])))
-            self._frac_grid, self._frac_delta = np.array(frac), grid
-            self._frac_model = (m, c, k)
-            # the delay fits made with the previous model are biased by its error (the gain by
-            # the mass's: g_e + g_l over Gamma_v of the model): the median takes this model's
-            self._fits.clear()
+            if self._background is None or self._frac_model is None:
+                self._install_fractions((m, c, k), _fraction_table(m, c, k, self.dt))
+            elif self._pending_fractions is None:
+                self._pending_fractions = ((m, c, k), self._background.submit(
+                    _fraction_table, m, c, k, self.dt))
+
+    def _install_fractions(self, model, table) -> None:
+        self._frac_grid, self._frac_delta = table
+        self._frac_model = model
+        # the delay fits made with the previous model are biased by its error (the gain by
+        # the mass's: g_e + g_l over Gamma_v of the model): the median takes this model's
+        self._fits.clear()
 
     def refits(self) -> bool:
-        """Whether this predictor refits the force-loop inverse or the I/O latency during the
-        run (the fits :meth:`run_fits_in_background` moves off the step)."""
-        return self._loop_factory is not None or self.latency_fit is not None
+        """Whether this predictor refits during the run: the force-loop inverse (from the
+        model, or the loop identified from data), the I/O latency, or the delay fit's table
+        (the fits :meth:`run_fits_in_background` moves off the step)."""
+        return (self._loop_factory is not None or self.latency_fit is not None
+                or self.loop_identification is not None or self.fit_loop)
 
     def run_fits_in_background(self, fits: 'BackgroundFits') -> None:
-        """Real time: run the force-loop refits and the latency fits (tens of ms) on `fits`'
-        worker thread instead of in the step; each is installed at the first step after it is
-        done (lockstep and ``seft simulate`` fit in the step: the same numbers every time)."""
+        """Real time: run the force-loop refits (20-45 ms), the latency fits (1-40 ms) and the
+        delay fit's table (2.6 ms) in `fits`' worker process instead of in the step; each is
+        installed at the first step after it is done (lockstep and ``seft simulate`` fit in
+        the step: the same numbers every time)."""
         self._background = fits
+        if self.loop_identification is not None:
+            self.loop_identification.run_fits_in_background(fits)
 
     def _install_loop(self, fresh, key) -> None:
         if fresh is not None:
@@ -2810,6 +2899,13 @@ class AdaptivePredictor:
             self._pending_latency = None
             if self.latency_fit.accept(pending[0], *fit_result(pending[1])):
                 self._rebuild()
+        pending = self._pending_fractions
+        if pending is not None and pending[1].done():
+            self._pending_fractions = None
+            self._install_fractions(pending[0], fit_result(pending[1]))
+        loop = self.loop_identification
+        if loop is not None and loop.poll():
+            self.loop_inverse = loop.inverse
 
     def _follow_targets(self, loop) -> None:
         """The guarded estimates toward the targets; the identified force loop's inverse when
