@@ -10,6 +10,8 @@ import pytest
 from seft_msgs_py import parameters
 from seft_msgs_py.interface import Measurement
 from seft_msgs_py.sampling import (
+    COMPILE_AFTER_CALLS,
+    LazyLinearMap,
     chained_linear_map,
     linear_map,
     single_blas_thread,
@@ -46,6 +48,30 @@ def test_linear_map_of_a_row_returns_a_float():
     f = linear_map(w)
     assert f([1.0, 2.0, 3.0, 4.0]) == 0.5 - 0.5 + 8.0
     assert linear_map([0.0, 0.0])([1.0, 2.0]) == 0.0
+
+
+def test_lazy_linear_map_gives_the_compiled_maps_floats_before_and_after_it_compiles():
+    """LazyLinearMap sums the same products in the same order as linear_map's code: every
+    result the same float (its bits), before the compile and after it (at call
+    COMPILE_AFTER_CALLS + 1); zero and unit coefficients, a zero row, -0.0 and a 1-d map."""
+    rng = np.random.default_rng(7)
+    m = rng.standard_normal((4, 50)) * 10.0 ** rng.integers(-8, 8, (4, 50))
+    m[0, :3] = (0.0, 1.0, -0.0)
+    m[2, :] = 0.0
+    compiled, lazy = linear_map(m, name='rows'), LazyLinearMap(m, name='rows')
+    for call in range(COMPILE_AFTER_CALLS + 4):
+        x = (rng.standard_normal(50) * 10.0 ** rng.integers(-3, 3, 50)).tolist()
+        if call == 2:
+            x[1] = -0.0                       # a unit coefficient's operand, not multiplied
+        got, want = lazy(x), compiled(x)
+        assert isinstance(got, tuple) and len(got) == 4
+        assert [v.hex() for v in got] == [v.hex() for v in want]
+        assert lazy.compiled == (call >= COMPILE_AFTER_CALLS)
+    row = LazyLinearMap(m[1])
+    assert row(x) == linear_map(m[1])(x) and isinstance(row(x), float)
+    assert LazyLinearMap([0.0, 0.0])([1.0, 2.0]) == 0.0
+    with pytest.raises(ValueError, match=r'^linear_map: expected finite coefficients$'):
+        LazyLinearMap([1.0, math.nan])
 
 
 @pytest.mark.parametrize('matrix, name, message', [

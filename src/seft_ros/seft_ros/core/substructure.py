@@ -55,7 +55,7 @@ from typing import Mapping, Protocol, Sequence, runtime_checkable
 import numpy as np
 
 from seft_msgs_py.errors import ParameterError
-from seft_msgs_py.sampling import linear_map, single_blas_thread, split_delay, zoh
+from seft_msgs_py.sampling import LazyLinearMap, linear_map, single_blas_thread, split_delay, zoh
 from seft_ros.core.models import model_plugin
 from seft_ros.core.structure import Substructures
 
@@ -250,8 +250,9 @@ class InterfacePredictor:
     their effect on an interface force inside one step is of order ``k_c dt^2 / m`` times
     their change (a few tenths of a percent of a step's force change for the study's rig).
     Everything is linear: the map from the state at ``k-1``, the forces sent and the record
-    to the predicted interface forces is one matrix, compiled once
-    (:func:`~seft_msgs_py.sampling.linear_map`), the pieces between the forces' switching
+    to the predicted interface forces is one matrix, summed in Python and compiled once it
+    is used (:class:`~seft_msgs_py.sampling.LazyLinearMap`: a part that yields makes a new
+    one at nearly every step), the pieces between the forces' switching
     instants and the samples integrated exactly (``scipy.signal.cont2discrete``, method
     'zoh', of the model augmented with ``int x`` and ``g``).
 
@@ -442,7 +443,8 @@ class InterfacePredictor:
         self._displacements = None
         self.offset_rigs = tuple(with_offset)
         self.matrix = rows
-        self._map = linear_map(rows, name='interface_prediction')
+        # made anew at each new tangent of a part that yields: compiled once it lives
+        self._map = LazyLinearMap(rows, name='interface_prediction')
 
     def __call__(self, q) -> tuple:
         """The predicted interface forces [N] of the targets from ``q`` (class notes)."""
@@ -452,7 +454,7 @@ class InterfacePredictor:
         """Every DOF's predicted displacement [m] in the middle of the first target's
         interval, from ``q`` (``displacement_matrix``; compiled on first use)."""
         if self._displacements is None:
-            self._displacements = linear_map(self.displacement_matrix, name='displacements')
+            self._displacements = LazyLinearMap(self.displacement_matrix, name='displacements')
         return self._displacements(q)
 
 
