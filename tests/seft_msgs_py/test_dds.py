@@ -47,6 +47,21 @@ def test_the_profile_announces_a_new_participant_for_two_seconds():
     assert count * seconds >= 2.0               # Fast DDS's own: 5 every 0.1 s
 
 
+def test_a_realtime_run_starts_after_the_profiles_announcements():
+    """The rig takes sample 0 of a real-time run DISCOVERY_SETTLE_S after the graph's last
+    node was heard: longer than the profile's initial announcements last (a node's publish
+    was blocked for 21-150 ms while they went on), by 0.2 s."""
+    root = ET.parse(dds.profile_path()).getroot()
+    first = root.find('f:participant/f:rtps/f:builtin/f:discovery_config/'
+                      'f:initialAnnouncements', NS)
+    period = first.find('f:period', NS)
+    window = int(first.find('f:count', NS).text) * (
+        int(period.find('f:sec', NS).text) + 1e-9 * int(period.find('f:nanosec', NS).text))
+    assert dds.DISCOVERY_SETTLE_S == pytest.approx(window + 0.2)
+    from seft_plant_sim import rig_node
+    assert rig_node.DISCOVERY_SETTLE_S is dds.DISCOVERY_SETTLE_S
+
+
 def test_the_profile_is_named_unless_the_user_named_one():
     env = {}
     assert dds.use_seft_profile(env) == str(dds.profile_path())

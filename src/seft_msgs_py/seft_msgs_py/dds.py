@@ -38,7 +38,8 @@ from pathlib import Path
 from seft_msgs_py.errors import SeftError
 
 __all__ = ['PROFILE_ENV', 'HEARTBEAT_PERIOD_S', 'RECEIVE_BUFFER_BYTES',
-           'INITIAL_ANNOUNCEMENTS', 'INITIAL_ANNOUNCEMENT_PERIOD_S', 'profile_path',
+           'INITIAL_ANNOUNCEMENTS', 'INITIAL_ANNOUNCEMENT_PERIOD_S', 'DISCOVERY_SETTLE_S',
+           'profile_path',
            'use_seft_profile']
 
 #: The variable Fast DDS 2.x reads its default XML profiles from.
@@ -51,6 +52,18 @@ RECEIVE_BUFFER_BYTES = 4 * 1024 * 1024
 INITIAL_ANNOUNCEMENTS = 10
 #: The period of those initial announcements [s].
 INITIAL_ANNOUNCEMENT_PERIOD_S = 0.2
+#: How long after a node of the graph was first heard (its parameters, sent once its
+#: participant exists) a real-time run waits before its sample 0: the participants' initial
+#: announcements are over by then (:data:`INITIAL_ANNOUNCEMENTS` every
+#: :data:`INITIAL_ANNOUNCEMENT_PERIOD_S`, and 0.2 s more) [s]. Measured: on one 2-core host
+#: the study's graph in real time was stopped by a 20 ms input watchdog in its first 0.35 s
+#: in 2 of 10, 3 of 12 and 3 of 15 runs, a node's real-time thread blocked for 21 to more
+#: than 150 ms inside a publish: its writer's lock held by a Fast DDS receive thread that
+#: was opening another process's shared-memory port (a named inter-process mutex,
+#: ``SharedMemGlobal::open_port_internal``), while the processes still announced
+#: themselves. With Fast DDS's own 5 announcements in 0.5 s (over before sample 0), 15 runs
+#: of 15 completed; so did those started after this wait.
+DISCOVERY_SETTLE_S = INITIAL_ANNOUNCEMENTS * INITIAL_ANNOUNCEMENT_PERIOD_S + 0.2
 
 
 def profile_path() -> Path:

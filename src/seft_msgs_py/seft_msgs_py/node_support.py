@@ -201,6 +201,8 @@ class SeftNode(Node):
         self.timing: StepTiming | None = None
         #: The parameters each node of the graph resolved: {node: {name: value}}.
         self.node_params: dict[str, dict] = {}
+        #: When (monotonic [s]) each node's parameters were first heard (this one's: sent).
+        self.node_heard_at: dict[str, float] = {}
         self.node_params_pub = self.create_publisher(
             NODE_PARAMETERS.msg_type, NODE_PARAMETERS.name, NODE_PARAMETERS.qos)
         self.create_subscription(NODE_PARAMETERS.msg_type, NODE_PARAMETERS.name,
@@ -458,6 +460,7 @@ class SeftNode(Node):
         Call at the end of ``__init__``, once ``self.params`` is complete.
         """
         self.node_params[self.seft_name] = dict(self.params)
+        self.node_heard_at.setdefault(self.seft_name, time.monotonic())
         self.node_params_pub.publish(String(data=json.dumps(
             {'node': self.seft_name, 'parameters': self.params}, sort_keys=True)))
 
@@ -476,6 +479,7 @@ class SeftNode(Node):
         except ParameterError:
             return
         self.node_params[node] = values
+        self.node_heard_at.setdefault(node, time.monotonic())
         self.guard(self._check_parameters)()
 
     def _check_parameters(self) -> None:

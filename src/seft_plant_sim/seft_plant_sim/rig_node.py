@@ -46,6 +46,7 @@ from seft_msgs_py.convert import (
     SerializedStamped,
     status_values,
 )
+from seft_msgs_py.dds import DISCOVERY_SETTLE_S
 from seft_msgs_py.errors import ParameterError
 from seft_msgs_py.graph import Graph, qualified
 from seft_msgs_py.interface import COMMAND_VALVE
@@ -239,6 +240,12 @@ class RigNode(SeftNode):
             return
         if (self.realtime and self.controller is not None
                 and not self.subscribed_by(self.controller, self.measurement_topic)):
+            return
+        # real time: not while the graph's participants still announce themselves (a node's
+        # publish blocked for 21-150 ms by another's shared-memory port being opened meanwhile:
+        # DISCOVERY_SETTLE_S)
+        if self.realtime and time.monotonic() < max(self.node_heard_at.values()) + \
+                DISCOVERY_SETTLE_S:
             return
         if self.realtime and len(self.graph.rigs) > 1:
             self._arm()
