@@ -35,7 +35,7 @@ def test_the_profile_asks_for_large_receive_buffers():
     assert size >= 4 * 212992                  # Linux's usual default (net.core.rmem_default)
 
 
-def test_the_profile_announces_a_new_participant_for_a_second():
+def test_the_profile_announces_a_new_participant_for_two_seconds():
     root = ET.parse(dds.profile_path()).getroot()
     first = root.find('f:participant/f:rtps/f:builtin/f:discovery_config/'
                       'f:initialAnnouncements', NS)
@@ -44,7 +44,7 @@ def test_the_profile_announces_a_new_participant_for_a_second():
     seconds = int(period.find('f:sec', NS).text) + 1e-9 * int(period.find('f:nanosec', NS).text)
     assert (count, seconds) == (dds.INITIAL_ANNOUNCEMENTS,
                                 pytest.approx(dds.INITIAL_ANNOUNCEMENT_PERIOD_S))
-    assert count * seconds == pytest.approx(1.0)     # Fast DDS's own: 5 every 0.1 s
+    assert count * seconds >= 2.0               # Fast DDS's own: 5 every 0.1 s
 
 
 def test_a_realtime_run_starts_after_the_profiles_announcements():
