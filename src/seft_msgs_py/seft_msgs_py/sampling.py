@@ -153,8 +153,7 @@ class LazyLinearMap:
     def __init__(self, matrix, *, name: str = 'linear_map'):
         m = _coefficients(matrix, name, 'linear_map')
         self._single = m.ndim == 1
-        self._rows = [[(None if c == 1.0 else c, j) for j, c in enumerate(row.tolist())
-                       if c != 0.0] for row in ([m] if self._single else list(m))]
+        self._rows = [_terms(row) for row in ([m] if self._single else list(m))]
         self._matrix, self._name = m, name
         self._calls = 0
         self._compiled = None
@@ -238,14 +237,17 @@ def _coefficients(matrix, name: str, caller: str) -> np.ndarray:
     return m
 
 
+def _terms(row) -> list:
+    """The terms of one output of a linear map, ``[(c_j or None for a unit coefficient, j)]``
+    in order, exact zeros left out: what the compiled code (:func:`_row`) and
+    :class:`LazyLinearMap` both sum, left to right."""
+    return [(None if c == 1.0 else c, j) for j, c in enumerate(row.tolist()) if c != 0.0]
+
+
 def _row(row, operand: str) -> str:
     """One output of a linear map as Python source: ``c_0*operand_0 + c_1*operand_1 + ...``
     (`operand` a format string of the index), summed left to right, exact zeros left out
-    and unit coefficients not multiplied."""
-    terms = []
-    for j, c in enumerate(row.tolist()):
-        if c == 0.0:
-            continue
-        x = operand.format(j)
-        terms.append(x if c == 1.0 else f'({c!r})*{x}')
+    and unit coefficients not multiplied (:func:`_terms`)."""
+    terms = [operand.format(j) if c is None else f'({c!r})*{operand.format(j)}'
+             for c, j in _terms(row)]
     return ' + '.join(terms) if terms else '0.0'

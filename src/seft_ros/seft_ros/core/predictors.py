@@ -1611,12 +1611,13 @@ class IdentifiedForceLoop:
                 self.exclude_hz)
 
     def _loop_estimates(self, freq, t) -> dict[str, float]:
+        """``loop_gain`` and ``loop_delay_s`` of the response `t` (``loop_change`` is added
+        when it is installed, :meth:`_install`)."""
         band = self._slope_band
         phase = np.unwrap(np.angle(t[band]))
         return {
             'loop_gain': float(t[0].real),
             'loop_delay_s': float(-np.polyfit(2.0 * np.pi * freq[band], phase, 1)[0]),
-            'loop_change': self.identifier.deviation,
         }
 
     def _fit(self) -> None:
