@@ -8,8 +8,9 @@ at 500 Hz):
 * --repeats **real-time runs** of the node graph (``seft run CONFIG --mode realtime
   --duration D``, one host): whether it completed (or why it stopped), the OpenSees step's
   p50 / p99 / max as recorded with each sample and the steps over the budget (half the
-  period) and over the period, the stale and the missed fractions of the rig's periods, the
-  loop latency, the builder's compute time, and the displacement NRMS per DOF.
+  period; 0.8 of it with ``step: deferred``) and over the period, the stale and the missed
+  fractions of the rig's periods, the loop latency, the builder's compute time, and the
+  displacement NRMS per DOF.
 
 The machine's load average is printed before and after each run: on a shared 2-core host the
 slowest steps are the scheduler's; quote medians over repeats.

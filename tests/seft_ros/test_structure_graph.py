@@ -14,12 +14,15 @@ import re
 import numpy as np
 import pytest
 from rosbags.rosbag2 import Reader
+import yaml
 
 from seft_msgs_py import parameters
 from seft_ros.analysis.bag import read_run
 from seft_ros.analysis.rundata import RunData
 from seft_ros.cli.config import expand_runs, load_config
 from seft_ros.core.experiment import simulate
+
+ROOT = Path(__file__).resolve().parents[2]
 
 TWO_STORY = """\
 predictor: model
@@ -119,6 +122,34 @@ def test_two_story_graph_equals_simulate(runner, tmp_path):
     assert np.isnan(rd.computational['story_2/displacement_m'][-1])
     assert np.ptp(rd.computational['story_2/displacement_m'][:-1]) > 1e-4
     _same_run(rd, simulate(rd.params))
+
+
+def test_an_opensees_model_stepped_after_the_command_equals_simulate(runner, tmp_path):
+    """config/opensees/two_story.yaml with ``step: deferred`` (OpenSees steps to a sample
+    after the builder node's command from it is out): the graph's bag equals ``simulate``
+    bit for bit, the computational state recorded one sample later (``n - 2`` samples, the
+    last two NaN) as OpenSees stepped it."""
+    path = ROOT / 'config' / 'opensees' / 'two_story.yaml'
+    section = yaml.safe_load(path.read_text())
+    section['structure']['opensees'].update(step='deferred', model=str(path.with_suffix('.py')))
+    section.update(predictor='model', duration_s=1.0)
+    params = _params(tmp_path, yaml.safe_dump(section))
+    out = runner.run(params, tmp_path / 'run')
+    assert out.rig_state in ('done', ''), out.message
+    with Reader(out.bag_path) as reader:
+        counts = {c.topic: c.msgcount for c in reader.connections}
+    assert counts['/seft/structure_state'] == 500 - 2
+    rd = read_run(out.bag_path)
+    assert rd.stable, rd.abort_reason
+    x2 = rd.computational['story_2/displacement_m']
+    assert np.all(np.isnan(x2[-2:])) and not np.any(np.isnan(x2[:-2]))
+    assert np.ptp(x2[:-2]) > 1e-4
+    # OpenSees' step times are the wall clock's (each step's own, in the node's process)
+    step_time = rd.computational.pop('opensees/step_time_s')
+    assert np.all(step_time[1:-2] > 0)
+    sim = simulate(rd.params)
+    sim.computational.pop('opensees/step_time_s')
+    _same_run(rd, sim)
 
 
 def test_a_calibrated_two_story_graph_equals_simulate(runner, tmp_path):

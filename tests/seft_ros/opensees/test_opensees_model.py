@@ -126,6 +126,8 @@ def test_frame_is_condensed_to_its_floors():
      r'physical_elements\.lab: element 5 is not in the model'),
     ({'substeps': 0}, r'structure\.opensees\.substeps: expected an integer >= 1, got 0'),
     ({'colour': 'red'}, r'structure\.opensees\.colour: unknown key'),
+    ({'step': 'later'},
+     r"structure\.opensees\.step: expected one of immediate, deferred, got 'later'"),
     ({'model': 'nowhere.py'}, r'structure\.opensees\.model: .*nowhere\.py: no such model file'),
     ({'function': 'construct'},
      r"structure\.opensees\.function: two_story\.py has no function 'construct'"),

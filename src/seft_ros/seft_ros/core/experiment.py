@@ -170,6 +170,8 @@ def _simulate(params, *, progress, record, stale_steps) -> RunData:
     # the computational state of each sample a force was built from (a structure's)
     state_rec = []
     record_state = bool(builder.state_names)
+    state_lag = builder.state_lag_steps     # the state of sample k - lag (an OpenSees part
+                                            # that steps after the command)
     warnings = []
     reason = abort_node = None
     n_done = n_total
@@ -229,7 +231,7 @@ def _simulate(params, *, progress, record, stale_steps) -> RunData:
             commands = build(padded[k + 1:k + 1 + width])
             if estimated:
                 est = estimates()
-            if record_state:
+            if record_state and k >= state_lag:
                 state_rec.append(builder.computational_state)
         if progress is not None and not k & 255 and time.monotonic() - t_last > 0.5:
             t_last = time.monotonic()
@@ -265,8 +267,8 @@ def _simulate(params, *, progress, record, stale_steps) -> RunData:
             params=dict(p), reference_force_N=fr, measured_force_N=fm, displacement_m=x,
             velocity_m_s=v, acceleration_m_s2=a, valve_command_V=u if valve[r] else None,
             estimates=estimate_signals)
-    # the computational state of sample k is recorded by the step of k+1: the last sample's
-    # is not (the run ends there); it is NaN
+    # the computational state of sample k is recorded by the step of k+1 (k+2: a state lag):
+    # the last sample's is not (the run ends there); it is NaN
     computational = {}
     if builder.state_names:
         states = np.array(state_rec[:n], dtype=float).reshape(len(state_rec[:n]),

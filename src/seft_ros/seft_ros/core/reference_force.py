@@ -438,8 +438,10 @@ class ReferenceForceBuilder:
         The effective force ``-(m_p + mu_p) iota_p xg''`` of each local rig's latest command
         [N] (the instability monitor's scale).
     computational_state : tuple of float
-        ``x_Q, v_Q, a_Q`` of sample ``k-1`` as the latest :meth:`step` used them
-        [m, m/s, m/s^2], in the order of ``state_names``.
+        ``x_Q, v_Q, a_Q`` of sample ``k - 1 - state_lag_steps`` as the latest :meth:`step`
+        recorded them [m, m/s, m/s^2], in the order of ``state_names``.
+    state_lag_steps : int
+        0, or 1 for a part that steps its model after the command (:meth:`advance`).
     state_names : tuple of str
         ``'<dof>/displacement_m'``, ``'<dof>/velocity_m_s'``, ``'<dof>/acceleration_m_s2'``
         per computational DOF.
@@ -499,6 +501,7 @@ class ReferenceForceBuilder:
         self.state = computational_part(sub, self.dt) if self._tracking else None
         self.state_names = self.state.state_names if self.state is not None else ()
         self.computational_state = tuple([0.0] * len(self.state_names))
+        self.state_lag_steps = int(getattr(self.state, 'recorded_lag_steps', 0))
         self._latest: list[dict] = [{} for _ in self.laws]
         #: the rigs other builders command (their models come by :meth:`receive_models`)
         self.remote_rigs = tuple(r for r in names if r not in self.local_rigs)
@@ -835,6 +838,15 @@ class ReferenceForceBuilder:
         if not self.remote_rigs or stamp < 0 or stamp % EXCHANGE_EVERY_STEPS:
             return None
         return stamp
+
+    def advance(self) -> None:
+        """Real time, once the step's commands are out: the work of the computational part
+        that the next step needs but this step's commands did not (an OpenSees model with
+        ``step: deferred`` stepped to the sample they were built from). The next step
+        does it otherwise: the same results either way."""
+        advance = getattr(self.state, 'advance', None)
+        if advance is not None:
+            advance()
 
     def refits(self) -> bool:
         """Whether a compensator of this builder refits during the run (the node then gives

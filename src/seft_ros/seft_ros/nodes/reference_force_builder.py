@@ -342,8 +342,9 @@ class ReferenceForceBuilderNode(SeftNode):
             for batch, est in zip(self.estimates_batches, self.builder.estimates()):
                 if batch is not None:
                     batch.add(k, *est.values())
-            if self.state_batch is not None and k > 0:
-                self.state_batch.add(k - 1, *self.builder.computational_state)
+            lag = self.builder.state_lag_steps
+            if self.state_batch is not None and k > lag:
+                self.state_batch.add(k - 1 - lag, *self.builder.computational_state)
             if self.realtime and self.ground_lost(k):
                 return
             self.ground.pop(k - 1, None)
@@ -359,6 +360,9 @@ class ReferenceForceBuilderNode(SeftNode):
                     self.builder.reference_late(k, late_ns * 1e-9)
                 self.timing.publish(stamp, jitter, time.monotonic() - start, age, late_ns > 0,
                                     self.ground_stale)
+            # the computational part's work that this step's commands did not need (an
+            # OpenSees model stepped after them: step deferred); off the loop's timing
+            self.builder.advance()
 
     def _monitors_trip(self, k: int) -> bool:
         """Each commanded rig's instability monitor on its sample k-1 (True: aborted)."""

@@ -11,15 +11,17 @@
   steps, the interfaces moving 1 mm at 2 Hz) must fit: its median step time within
   :data:`~seft_ros.opensees.part.BUDGET_FRACTION` of the sample period, else the run is
   refused in one line (the other half of the period is the builder's own work and the
-  messages); a p99 beyond it is a warning (on a loaded host the slowest steps are the
-  scheduler's, not the model's).
+  messages), or within :data:`~seft_ros.opensees.part.DEFERRED_BUDGET_FRACTION` of it with
+  ``step: deferred`` (the model stepped after the builder's command is out); a p99 beyond
+  it is a warning (on a loaded host the slowest steps are the scheduler's, not the
+  model's).
 """
 
 from typing import Callable
 
 from seft_msgs_py.errors import ParameterError
 from seft_ros.opensees.model import KIND
-from seft_ros.opensees.part import BUDGET_FRACTION, dry_run
+from seft_ros.opensees.part import budget_fraction, dry_run
 
 __all__ = ['check_runs', 'DRY_RUN_STEPS']
 
@@ -69,21 +71,24 @@ def check_runs(runs, *, progress: Callable[[str], None] = print) -> None:
         if p.get('mode', 'lockstep') != 'realtime':
             continue
         dt = float(p['dt'])
+        step = str(s.model.get('step', 'immediate'))
+        fraction = budget_fraction(step)
         key = (p['structure'], dt)
         if key not in timed:
             timed[key] = dry_run(setup.substructures, dt, steps=DRY_RUN_STEPS)
             r = timed[key]
             progress(f'opensees: {name}: a dry run of {DRY_RUN_STEPS} steps took p50 '
                      f'{1e3 * r.p50_s:.3f} / p99 {1e3 * r.p99_s:.3f} / max {1e3 * r.max_s:.3f} '
-                     f'ms per step (budget {1e3 * BUDGET_FRACTION * dt:.3f} ms)')
-            if r.p99_s > BUDGET_FRACTION * dt >= r.p50_s:
+                     f'ms per step (budget {1e3 * fraction * dt:.3f} ms)')
+            if r.p99_s > fraction * dt >= r.p50_s:
                 progress(f"warning: opensees: {name}: 1 % of the dry run's steps took more "
-                         f'than {1e3 * BUDGET_FRACTION * dt:.3f} ms (p99 {1e3 * r.p99_s:.3f} '
+                         f'than {1e3 * fraction * dt:.3f} ms (p99 {1e3 * r.p99_s:.3f} '
                          'ms): expect late reference forces (a loaded host?)')
         r = timed[key]
-        if r.p50_s > BUDGET_FRACTION * dt:
+        if r.p50_s > fraction * dt:
             raise ParameterError(
                 f'structure.opensees: {name}: a timed dry run took {1e3 * r.p50_s:.3f} ms per '
-                f'step (median), more than {BUDGET_FRACTION:g} of the sample period dt = '
+                f'step (median), more than {fraction:g} of the sample period dt = '
                 f'{1e3 * dt:g} ms: the model does not fit in real time (fewer substeps, a '
-                'coarser model or a longer dt)')
+                'coarser model, a longer dt' + (')' if step == 'deferred' else
+                                                 ' or step: deferred)'))

@@ -23,6 +23,9 @@ kept apart from the analysis seft drives (after OpenSees' own split of ``model``
         prediction: tangent        # the compensators predict the interface force with the
                                    # model's tangent (default), or 'initial': its
                                    # linearization (:mod:`seft_ros.opensees.part`)
+        step: immediate            # OpenSees steps to the newest sample before the command
+                                   # is built (default), or 'deferred': after it, the
+                                   # command built from a linear step ahead of the model
       physical: {floor_1: lab}     # the DOF each rig tests
 
 seft's degrees of freedom are the model's DOFs **with mass** (the others are condensed
@@ -77,17 +80,22 @@ from seft_ros.opensees.loader import captured, last_message, opensees
 
 __all__ = ['ModelSpec', 'SECTION_KEYS', 'parse_model_section', 'build_model', 'Linearization',
            'linearize', 'condense', 'model_structure', 'split_model', 'ModelError',
-           'remove_specimens', 'interface_group', 'model_name', 'KIND', 'PREDICTIONS']
+           'remove_specimens', 'interface_group', 'model_name', 'KIND', 'PREDICTIONS', 'STEPS']
 
 #: The key of a ``structure`` section with an OpenSees model (the plug-in's name,
 #: :mod:`seft_ros.core.models`).
 KIND = 'opensees'
 #: The keys of a ``structure.opensees`` section.
 SECTION_KEYS = ('model', 'function', 'arguments', 'dofs', 'physical_elements', 'excitation_dof',
-                'substeps', 'elements', 'prediction')
+                'substeps', 'elements', 'prediction', 'step')
 #: How the compensators predict the interface force (``prediction``): with the model's
 #: tangent stiffness at the latest sample, or with its initial linearization.
 PREDICTIONS = ('tangent', 'initial')
+#: When OpenSees steps to a sample (``step``): before the builder builds the command from it
+#: (``immediate``), or after, the command built from a linear step of the model's previous
+#: sample (``deferred``: the OpenSees step off the command's critical path,
+#: :mod:`seft_ros.opensees.part`).
+STEPS = ('immediate', 'deferred')
 #: Relative tolerance of the specimen checks against the model.
 _TOL = 1e-6
 
@@ -127,6 +135,8 @@ class ModelSpec:
         The section's name in error messages.
     prediction : str
         One of :data:`PREDICTIONS`.
+    step : str
+        One of :data:`STEPS`.
     """
 
     source: str
@@ -140,6 +150,7 @@ class ModelSpec:
     elements: tuple = ()
     where: str = 'structure.opensees'
     prediction: str = 'tangent'
+    step: str = 'immediate'
 
     def interface(self, dof_name: str) -> tuple[int, int]:
         """``(node, dof)`` of a seft DOF (KeyError if none)."""
@@ -157,7 +168,7 @@ class ModelSpec:
                                       for r, v in self.physical_elements.items()},
                 'excitation_dof': int(self.excitation_dof), 'substeps': int(self.substeps),
                 'elements': [int(e) for e in self.elements],
-                'prediction': self.prediction,
+                'prediction': self.prediction, 'step': self.step,
                 'computational': {k: np.asarray(v).tolist()
                                   for k, v in self.computational.items()}}
 
@@ -180,7 +191,7 @@ class ModelSpec:
                        MappingProxyType({k: np.asarray(v, dtype=float) for k, v in
                                          (doc.get('computational') or {}).items()}),
                        tuple(int(e) for e in doc.get('elements', ())), where,
-                       str(doc.get('prediction', 'tangent')))
+                       str(doc.get('prediction', 'tangent')), str(doc.get('step', 'immediate')))
         except (KeyError, TypeError, ValueError) as exc:
             raise ParameterError(f'{where}: expected the model section seft wrote ({exc!r})') \
                 from None
@@ -302,9 +313,12 @@ def parse_model_section(section, *, where: str = 'structure.opensees',
     if prediction not in PREDICTIONS:
         raise ParameterError(f'{where}.prediction: expected one of {", ".join(PREDICTIONS)}, '
                              f'got {prediction!r}')
+    step = section.get('step', 'immediate')
+    if step not in STEPS:
+        raise ParameterError(f'{where}.step: expected one of {", ".join(STEPS)}, got {step!r}')
     return ModelSpec(source, function, MappingProxyType(dict(arguments)), tuple(dofs),
                      MappingProxyType(elements), excitation, substeps, MappingProxyType({}),
-                     tuple(int(t) for t in recorded), where, prediction)
+                     tuple(int(t) for t in recorded), where, prediction, step)
 
 
 def _builder(spec: ModelSpec):

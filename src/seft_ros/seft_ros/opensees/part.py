@@ -56,7 +56,8 @@ from seft_ros.core.substructure import structure_matrices
 from seft_ros.opensees.loader import captured, last_message, opensees
 from seft_ros.opensees.model import KIND, ModelError, ModelSpec, build_model, interface_group
 
-__all__ = ['OpenSeesPart', 'STEP_TIME', 'dry_run', 'DryRun', 'BUDGET_FRACTION', 'element_names',
+__all__ = ['OpenSeesPart', 'STEP_TIME', 'dry_run', 'DryRun', 'BUDGET_FRACTION',
+           'DEFERRED_BUDGET_FRACTION', 'budget_fraction', 'element_names',
            'element_response']
 
 #: The recorded state of each step's OpenSees wall time [s].
@@ -85,8 +86,20 @@ NOISE_TOLERANCE = 1.5e-5
 #: linearization's (the assembled system's round-off, less Newmark's part and the penalty,
 #: is about 1e-9 of it).
 INITIAL_TOLERANCE = 1e-6
-#: A real-time run is refused when the dry run's p99 step time exceeds this part of ``dt``.
+#: A real-time run is refused when the dry run's median step time exceeds this part of
+#: ``dt`` (the other half is the builder's own work and the messages, done after the step).
 BUDGET_FRACTION = 0.5
+#: The same with ``step: deferred``: the step is done after the builder's command is out,
+#: while the builder waits for the next sample; what is left of the period is the builder's
+#: own work (its p99 0.47 ms for the steel frame yielding at 1 kHz, measured lockstep:
+#: ``benchmarks/builder_step.py``).
+DEFERRED_BUDGET_FRACTION = 0.8
+
+
+def budget_fraction(step: str) -> float:
+    """The part of the sample period an OpenSees step may take in real time, for the model
+    section's ``step`` (:data:`BUDGET_FRACTION`, :data:`DEFERRED_BUDGET_FRACTION`)."""
+    return DEFERRED_BUDGET_FRACTION if step == 'deferred' else BUDGET_FRACTION
 
 
 class OpenSeesPart:
@@ -152,6 +165,12 @@ class OpenSeesPart:
         self._read_next = False
         self._k_t = None                  # the condensed tangent of the latest sample
         self.tangent_steps = 0            # samples whose tangent was assembled
+        # step: deferred: the sample ahead of OpenSees' (its linear step), and the
+        # effective matrices of that step per stiffness
+        self._deferred = spec.step == 'deferred'
+        self.recorded_lag_steps = 1 if self._deferred else 0
+        self._ahead = None                # (sample, x, v, a, forces)
+        self._ahead_maps: dict = {}
 
     def prepare(self) -> None:
         """Build the model in OpenSees and set up seft's analysis of it (done by the first
@@ -326,6 +345,85 @@ class OpenSeesPart:
         self._read_next = False
         self.tangent_steps += 1
 
+    def _step_ahead(self, j: int) -> tuple:
+        """``step: deferred``: the state of sample `j` from OpenSees' state of ``j - 1``
+        (:attr:`_settled`) by one step of the part's linear model, as OpenSees would step
+        it: the interfaces moved to the measured motion of `j` (the cubic Hermite
+        interpolant at the substeps' ends), the ground linear between the samples, Newmark's
+        average acceleration over each of the ``substeps``; the restoring forces those of
+        the tangent (or the linearization) from their value at ``j - 1``, found from each
+        DOF's equilibrium there (as :meth:`_linear_maps`' offset: exact for a linear model
+        up to the condensation of its massless DOFs' damping, and for a yielding one up to
+        the tangent's change over the step).
+
+        Returns
+        -------
+        (x, v, a, forces) : lists
+            Every DOF's displacement [m], velocity [m/s] and acceleration [m/s^2] (the
+            interfaces' as measured) and each rig's interface force [N] at `j`.
+        """
+        qi, pi = self._qi, self._pi
+        n_sub = self._substeps
+        h = self.dt / n_sub
+        key = None if self._k_t is None else self._k_t.tobytes()
+        parts = self._ahead_maps.get(key)
+        if parts is None:
+            parts = self._ahead_parts(self._k0 if self._k_t is None else self._k_t, h)
+            if len(self._ahead_maps) >= 64:
+                self._ahead_maps.pop(next(iter(self._ahead_maps)))
+            self._ahead_maps[key] = parts
+        k, inv_eff, m_iota, c_uu, c_up, k_uu, k_up, c_p = parts
+        s = self._settled
+        g0, g1 = self.ground.get(s, 0.0), self.ground.get(j, 0.0)
+        x = np.array(self._x)
+        # the restoring forces at s from each DOF's equilibrium (R = K_c x + offset); the
+        # model starts on its linearization (no interface force is read before a step)
+        restoring = self._k0 @ x
+        if s > 0:
+            restoring = restoring + self._offset_map @ np.array(self._inputs(g0))
+        v_u = np.array([self._v[i] for i in qi])
+        a_u = np.array([self._a[i] for i in qi])
+        x_p = np.array([self._x[p] for p in pi])
+        start = [self._meas[r][s] for r in range(len(pi))]
+        end = [self._meas[r][j] for r in range(len(pi))]
+        dx = np.zeros(len(x))
+        for i in range(n_sub):
+            ends = (end if i == n_sub - 1 else
+                    [_hermite(m0, m1, self.dt, (i + 1) * h) for m0, m1 in zip(start, end)])
+            g = g0 + (g1 - g0) * (i + 1) / n_sub
+            x_end = np.array([e[0] for e in ends])
+            dx[pi] = x_end - x_p
+            x_p = x_end
+            if qi:
+                a_new = inv_eff @ (-m_iota * g - c_uu @ (v_u + 0.5 * h * a_u)
+                                   - c_up @ [e[1] for e in ends] - restoring[qi]
+                                   - k_uu @ (h * v_u + 0.25 * h * h * a_u) - k_up @ dx[pi])
+                dx[qi] = h * v_u + 0.25 * h * h * (a_u + a_new)
+                v_u = v_u + 0.5 * h * (a_u + a_new)
+                a_u = a_new
+            restoring = restoring + k @ dx
+            x = x + dx
+        x_out, v_out, a_out = x.tolist(), list(self._v), list(self._a)
+        for n_i, i in enumerate(qi):
+            v_out[i], a_out[i] = float(v_u[n_i]), float(a_u[n_i])
+        for r, p in enumerate(pi):
+            x_out[p], v_out[p], a_out[p] = end[r][0], end[r][1], end[r][2]
+        forces = (-(restoring[pi] + c_p @ np.array(v_out))).tolist()
+        return x_out, v_out, a_out, forces
+
+    def _ahead_parts(self, k: np.ndarray, h: float) -> tuple:
+        """The matrices of :meth:`_step_ahead` for the stiffness `k` (n x n) [N/m] and the
+        substep `h` [s]: ``k``, the inverse of Newmark's effective mass of the
+        computational DOFs ``(M + h/2 C + h^2/4 K)_UU``, ``M_UU iota_U``, the blocks
+        ``C_UU, C_UP, K_UU, K_UP`` and the interfaces' rows ``C_P.``."""
+        qi, pi = self._qi, self._pi
+        c = self.sub.damping_c_N_s_per_m
+        m_uu = self.matrices.mass_kg[np.ix_(qi, qi)]
+        c_uu, k_uu = c[np.ix_(qi, qi)], k[np.ix_(qi, qi)]
+        inv_eff = np.linalg.inv(m_uu + 0.5 * h * c_uu + 0.25 * h * h * k_uu) if qi else None
+        return (k, inv_eff, m_uu @ self.matrices.influence[qi], c_uu, c[np.ix_(qi, pi)], k_uu,
+                k[np.ix_(qi, pi)], c[pi])
+
     def _linear_maps(self) -> None:
         """The matrix on ``z`` (:meth:`_inputs`) of the restoring forces' offset from the
         linearization, ``d = R - K_c x`` with ``R`` from each DOF's equilibrium (a
@@ -350,10 +448,11 @@ class OpenSeesPart:
         self._force_scale = 0.0
         self._x_last = np.zeros(n)
 
-    def _inputs(self, g: float) -> list:
-        """``z = [x (n), v (n), a_U, g, I_P]`` of the latest sample: what the prediction's
-        starting state is linear in."""
-        return self._x + self._v + [self._a[i] for i in self._qi] + [g] + self._forces
+    def _inputs(self, g: float, state=None) -> list:
+        """``z = [x (n), v (n), a_U, g, I_P]`` of OpenSees' latest sample (or of `state`,
+        ``(x, v, a, forces)``): what the prediction's starting state is linear in."""
+        x, v, a, forces = state or (self._x, self._v, self._a, self._forces)
+        return x + v + [a[i] for i in self._qi] + [g] + forces
 
     def _prediction_map(self, stiffness_c, dofs) -> np.ndarray:
         """The matrix on ``z`` of :meth:`prediction_state`'s shifted state and residuals
@@ -482,20 +581,35 @@ class OpenSeesPart:
             A rig's measurement of `j` is not in: an OpenSees model is stepped only on
             measured motion (it does not predict a rig commanded elsewhere).
         """
-        self._settle(j)
-        if self._settled < j:
+        deferred = self._deferred and j > 0
+        need = j - 1 if deferred else j
+        self._settle(need)
+        if self._settled < need or deferred and not all(j in m for m in self._meas):
             missing = [self.rig_names[r] or 'rig' for r, m in enumerate(self._meas)
                        if j not in m]
             raise ParameterError(f'OpenSees computational part: the measurement of sample {j} '
                                  f'of {", ".join(missing)} is not in; an OpenSees model is '
                                  "stepped on every rig's measured motion (one builder that "
                                  'hears every rig)')
-        return list(self._x), list(self._v), 0
+        if not deferred:
+            self._ahead = None
+            return list(self._x), list(self._v), 0
+        if self._ahead is None or self._ahead[0] != j:
+            self._ahead = (j,) + self._step_ahead(j)
+        return list(self._ahead[1]), list(self._ahead[2]), 0
+
+    def advance(self) -> None:
+        """``step: deferred``: step OpenSees to the sample the latest :meth:`state_at` gave
+        (a real-time builder calls it once its command is out; otherwise the next
+        :meth:`state_at` does: the same steps either way)."""
+        if self._ahead is not None:
+            self._settle(self._ahead[0])
 
     def interface_forces(self, x, v, dofs) -> tuple:
         """The model's interface force [N] at each of `dofs` (physical DOFs) at the sample of
         the latest :meth:`state_at` (`x`, `v` are that state; the model has its own)."""
-        return tuple(self._forces[self._pi.index(i)] for i in dofs)
+        forces = self._forces if self._ahead is None else self._ahead[4]
+        return tuple(forces[self._pi.index(i)] for i in dofs)
 
     def prediction_state(self, x, v, dofs, stiffness_c_N_per_m=None) -> tuple[list, tuple]:
         """The state the compensators' linear prediction starts from, and what to add to
@@ -519,14 +633,18 @@ class OpenSeesPart:
             ``r_p`` per DOF of `dofs` [N].
         """
         n = len(self._x)
-        z = self._inputs(self.ground.get(self._settled, 0.0))
+        ahead = self._ahead
+        z = (self._inputs(self.ground.get(self._settled, 0.0)) if ahead is None
+             else self._inputs(self.ground.get(ahead[0], 0.0), ahead[1:]))
         z[:n], z[n:2 * n] = x, v
         out = (self._prediction_map(stiffness_c_N_per_m, dofs) @ np.array(z)).tolist()
         return out[:n], tuple(out[n:])
 
     def recorded_state(self, x, v, j: int) -> tuple:
-        """The computational DOFs' ``x, v, a`` at sample `j` and the step's OpenSees time
-        (``state_names``)."""
+        """The computational DOFs' ``x, v, a`` at sample ``j - recorded_lag_steps`` as
+        OpenSees stepped them, the step's OpenSees time and the recorded elements' values
+        (``state_names``; with ``step: deferred`` the sample before `j`: OpenSees steps to
+        `j` after the command built from it)."""
         qi = self._qi
         step = self.step_times_s[-1] if self.step_times_s else math.nan
         return (tuple(self._x[i] for i in qi) + tuple(self._v[i] for i in qi)

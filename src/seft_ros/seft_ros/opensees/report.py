@@ -14,14 +14,15 @@ from typing import Any
 
 import numpy as np
 
-from seft_ros.opensees.part import BUDGET_FRACTION, STEP_TIME, element_names
+from seft_ros.opensees.part import STEP_TIME, budget_fraction, element_names
 
 __all__ = ['opensees_entry', 'opensees_markdown', 'hysteresis_figure', 'step_time_summary']
 
 
-def step_time_summary(step_times_s, dt: float) -> dict[str, Any]:
+def step_time_summary(step_times_s, dt: float, step: str = 'immediate') -> dict[str, Any]:
     """p50, p99 and max of the OpenSees step times [s], and the overruns: steps longer than
-    ``BUDGET_FRACTION dt`` (the budget a real-time run is refused against) and than ``dt``.
+    the budget a real-time run is refused against (``budget_fraction(step) dt``) and than
+    ``dt``.
 
     Parameters
     ----------
@@ -29,6 +30,8 @@ def step_time_summary(step_times_s, dt: float) -> dict[str, Any]:
         Each step's wall time [s] (NaN: none).
     dt : float > 0
         Control period [s].
+    step : str
+        The model section's ``step`` (``immediate`` or ``deferred``).
     """
     t = np.asarray(step_times_s, dtype=float)
     t = t[np.isfinite(t)]
@@ -36,8 +39,8 @@ def step_time_summary(step_times_s, dt: float) -> dict[str, Any]:
         return {'steps': 0}
     return {'steps': int(t.size), 'p50_s': float(np.percentile(t, 50)),
             'p99_s': float(np.percentile(t, 99)), 'max_s': float(np.max(t)),
-            'budget_s': BUDGET_FRACTION * dt,
-            'over_budget': int(np.sum(t > BUDGET_FRACTION * dt)),
+            'budget_s': budget_fraction(step) * dt,
+            'over_budget': int(np.sum(t > budget_fraction(step) * dt)),
             'over_period': int(np.sum(t > dt))}
 
 
@@ -56,8 +59,10 @@ def opensees_entry(run) -> dict[str, Any]:
     from seft_ros.opensees.model import model_name
     entry = {'model': model_name(model['model'], model.get('function', 'build')),
              'substeps': int(model.get('substeps', 1)),
+             'step': str(model.get('step', 'immediate')),
              'step_time': step_time_summary(run.computational.get(STEP_TIME, ()),
-                                            float(run.params['dt']))}
+                                            float(run.params['dt']),
+                                            str(model.get('step', 'immediate')))}
     return entry
 
 
