@@ -171,6 +171,7 @@ class OpenSeesPart:
         self.recorded_lag_steps = 1 if self._deferred else 0
         self._ahead = None                # (sample, x, v, a, forces)
         self._ahead_maps: dict = {}
+        self._ahead_fixed = None
 
     def prepare(self) -> None:
         """Build the model in OpenSees and set up seft's analysis of it (done by the first
@@ -417,12 +418,16 @@ class OpenSeesPart:
         computational DOFs ``(M + h/2 C + h^2/4 K)_UU``, ``M_UU iota_U``, the blocks
         ``C_UU, C_UP, K_UU, K_UP`` and the interfaces' rows ``C_P.``."""
         qi, pi = self._qi, self._pi
-        c = self.sub.damping_c_N_s_per_m
-        m_uu = self.matrices.mass_kg[np.ix_(qi, qi)]
-        c_uu, k_uu = c[np.ix_(qi, qi)], k[np.ix_(qi, qi)]
-        inv_eff = np.linalg.inv(m_uu + 0.5 * h * c_uu + 0.25 * h * h * k_uu) if qi else None
-        return (k, inv_eff, m_uu @ self.matrices.influence[qi], c_uu, c[np.ix_(qi, pi)], k_uu,
-                k[np.ix_(qi, pi)], c[pi])
+        if self._ahead_fixed is None:          # what does not depend on the stiffness
+            uu, up = np.ix_(qi, qi), np.ix_(qi, pi)
+            c = self.sub.damping_c_N_s_per_m
+            m_uu = self.matrices.mass_kg[uu]
+            self._ahead_fixed = (uu, up, m_uu + 0.5 * h * c[uu],
+                                 m_uu @ self.matrices.influence[qi], c[uu], c[up], c[pi])
+        uu, up, mc_eff, m_iota, c_uu, c_up, c_p = self._ahead_fixed
+        k_uu = k[uu]
+        inv_eff = np.linalg.inv(mc_eff + 0.25 * h * h * k_uu) if qi else None
+        return k, inv_eff, m_iota, c_uu, c_up, k_uu, k[up], c_p
 
     def _linear_maps(self) -> None:
         """The matrix on ``z`` (:meth:`_inputs`) of the restoring forces' offset from the
