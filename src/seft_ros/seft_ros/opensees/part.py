@@ -40,6 +40,14 @@ the predicted motion (:mod:`seft_ros.core.tangent`); exact at the sample, approx
 the loop delay (a first yield is not anticipated). With ``prediction: initial`` the change
 is predicted with the linearization.
 
+With ``step: deferred`` the state a builder gets for sample ``j`` is not OpenSees' but one
+step of the part's linear model (the tangent, the restoring forces found from each DOF's
+equilibrium) from OpenSees' state at ``j - 1`` (:meth:`OpenSeesPart._step_ahead`); OpenSees
+steps to ``j`` afterwards (:meth:`OpenSeesPart.advance`: a real-time builder once its
+command is out), and the state recorded is OpenSees' own, one sample later
+(``recorded_lag_steps``). The OpenSees step leaves the command's critical path; the command
+sees a yield one sample later.
+
 Each step's wall time (``time.perf_counter``) is recorded as the state
 ``opensees/step_time_s``; :func:`dry_run` times the model before a real-time run.
 """
@@ -578,7 +586,8 @@ class OpenSeesPart:
             self._a[i] = float(a)
 
     def state_at(self, j: int) -> tuple[list, list, int]:
-        """Every DOF's displacement and velocity at sample `j` (the model stepped to it).
+        """Every DOF's displacement and velocity at sample `j` (the model stepped to it; with
+        ``step: deferred`` to ``j - 1`` and the part's linear step from there, module notes).
 
         Raises
         ------
