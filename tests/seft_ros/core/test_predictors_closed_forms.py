@@ -12,6 +12,7 @@ under a second (the whole file about 3 s with one BLAS thread).
 """
 
 import math
+import time
 
 import numpy as np
 import pytest
@@ -743,10 +744,14 @@ def test_identified_loop_refits_in_the_worker_with_the_steps_numbers():
             for v in (5.0, -3.0, 2.0):
                 loop.inverse.step(v)
         before = remote.inverse
+        # the worker held busy past the next checks (else a fast refit could be done, and
+        # taken in, by the refresh that must not submit a second one)
+        busy = fits.submit(time.sleep, 1.5)
         assert drive(local, 10)[1] == [True] and drive(remote, 10)[1] == [False]
         assert remote.inverse is before and remote._pending is not None
         drive(remote, 10, start=10)        # a refresh while the fit is on its way: no second
         assert remote.inverse is before and remote.refits == 0
+        assert not busy.done()
         remote._pending[2].result(60)
         assert remote.poll() and not remote.poll()
         assert remote.refits == 1 and remote._pending is None
