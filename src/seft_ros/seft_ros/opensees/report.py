@@ -132,8 +132,10 @@ def opensees_markdown(index: int, run, entry: dict, out_dir, reference=None) -> 
     info = entry['opensees']
     st = info['step_time']
     lines = [f'### Run {index}: the OpenSees model', '',
-             f'Model {info["model"]}, {info["substeps"]} step(s) per sample. Step time over '
-             f'{st.get("steps", 0)} steps [ms]:', '',
+             f'Model {info["model"]}, {info["substeps"]} step(s) per sample'
+             + (', stepped after the command (step: deferred)'
+                if info.get('step') == 'deferred' else '')
+             + f'. Step time over {st.get("steps", 0)} steps [ms]:', '',
              '| p50 | p99 | max | budget | over budget | over dt |', '|---|---|---|---|---|---|',
              f'| {_ms(st.get("p50_s"))} | {_ms(st.get("p99_s"))} | {_ms(st.get("max_s"))} | '
              f'{_ms(st.get("budget_s"))} | {st.get("over_budget", "–")} | '
