@@ -30,7 +30,7 @@ predicted with, and its system is a full one).
 
 Usage: .venv/bin/python benchmarks/opensees_realtime.py [--config A.yaml ...] [--duration 10]
        [--repeats 2] [--steps 1000] [--binding /path/to/python] [--record X.AT2]
-       [--amplitude N]
+       [--amplitude N] [--step deferred]
 """
 
 import argparse
@@ -40,6 +40,8 @@ from pathlib import Path
 import subprocess
 import sys
 import tempfile
+
+import yaml
 
 from seft_ros.cli.config import expand_runs, load_config
 from seft_ros.core.structure import test_setup
@@ -136,6 +138,33 @@ def realtime_run(config: str, duration_s: float, out: Path, extra=()) -> str:
             + ' / '.join(f'{100 * v:.2f}' for v in nrms) + f'; load {before} -> {after}')
 
 
+def _with_step(config: str, step: str | None, directory: Path) -> str:
+    """`config`, or with `step` a copy of it in `directory` with ``structure.opensees.step``
+    set (its model's path made absolute)."""
+    if step is None:
+        return config
+    path = ROOT / config
+    doc = yaml.safe_load(path.read_text())
+    model = doc['structure']['opensees']
+    model.update(step=step, model=str(path.parent / model['model']))
+    out = directory / f'{path.stem}_{step}.yaml'
+    out.write_text(yaml.safe_dump(doc))
+    return str(out)
+
+
+def _config_runs(config: str, args, extra) -> None:
+    """The dry run and the real-time runs of one configuration (module notes)."""
+    params = expand_runs(load_config(ROOT / config))[0]
+    r = dry_run(test_setup(params).substructures, float(params['dt']), steps=args.steps)
+    print(f'{config}: dry run of {args.steps} steps: p50/p99/max {1e3 * r.p50_s:.3f}/'
+          f'{1e3 * r.p99_s:.3f}/{1e3 * r.max_s:.3f} ms per step at dt = '
+          f'{1e3 * float(params["dt"]):g} ms (load {_load()})', flush=True)
+    with tempfile.TemporaryDirectory(prefix='seft-osrt-') as tmp:
+        for i in range(args.repeats):
+            line = realtime_run(config, args.duration, Path(tmp) / f'run{i}', extra)
+            print(f'{config}: real time, run {i + 1}: {line}', flush=True)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument('--config', nargs='*', default=list(CONFIGS))
@@ -146,20 +175,16 @@ def main() -> None:
     ap.add_argument('--record', help='the real-time runs on this record (a PEER .AT2 path)')
     ap.add_argument('--amplitude', type=float,
                     help='the real-time runs at this amplitude [N] (a frame that yields)')
+    ap.add_argument('--step', choices=('immediate', 'deferred'),
+                    help="the models' step (structure.opensees.step; default: the config's)")
     args = ap.parse_args()
     extra = (['--record', args.record] if args.record else []) + (
         ['--amplitude', str(args.amplitude)] if args.amplitude else [])
-    for config in args.config:
-        params = expand_runs(load_config(ROOT / config))[0]
-        r = dry_run(test_setup(params).substructures, float(params['dt']), steps=args.steps)
-        print(f'{config}: dry run of {args.steps} steps: p50/p99/max {1e3 * r.p50_s:.3f}/'
-              f'{1e3 * r.p99_s:.3f}/{1e3 * r.max_s:.3f} ms per step at dt = '
-              f'{1e3 * float(params["dt"]):g} ms (load {_load()})', flush=True)
-        with tempfile.TemporaryDirectory(prefix='seft-osrt-') as tmp:
-            for i in range(args.repeats):
-                line = realtime_run(config, args.duration, Path(tmp) / f'run{i}', extra)
-                print(f'{config}: real time, run {i + 1}: {line}', flush=True)
+    with tempfile.TemporaryDirectory(prefix='seft-osrt-config-') as configs:
+        for config in args.config:
+            _config_runs(_with_step(config, args.step, Path(configs)), args, extra)
     if args.binding:
+
         models = str(ROOT / 'config' / 'opensees')
         for python, name in ((args.binding, 'xara'), (sys.executable, 'openseespy')):
             proc = subprocess.run([python, '-c', BINDING_LOOP, name, models],

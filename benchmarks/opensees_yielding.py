@@ -21,6 +21,7 @@ Prints figures; asserts nothing. Records: PEER .AT2 paths (the development recor
 Usage: .venv/bin/python benchmarks/opensees_yielding.py --record default X.AT2 ...
        [--ductility 2.5 6] [--predictor model adaptive] [--amplitude 2000 2600]
        [--moment-ratio 1.28 1.35] [--initial] [--skip-shear] [--skip-steel]
+       [--step deferred] [--duration-s 20]
 """
 
 import argparse
@@ -49,11 +50,21 @@ STORY_STIFFNESS_N_PER_M = 2.11e5
 COLUMN_MY_N_M = 690e6 * 0.012 * 0.040 ** 2 / 6.0
 
 
+#: The models' ``step`` (``--step``; None: the configuration's) and the runs' duration
+#: (``--duration-s``; None: the record's).
+RUN_OPTIONS = {'step': None, 'duration_s': None}
+
+
 def _params(path: Path, directory: Path, *, arguments=None, prediction=None, **overrides):
-    """A run's parameters from `path` with the model's arguments and prediction changed."""
+    """A run's parameters from `path` with the model's arguments and prediction changed
+    (and :data:`RUN_OPTIONS`)."""
     doc = yaml.safe_load(path.read_text())
     model = doc['structure']['opensees']
     model['model'] = str(path.parent / model['model'])
+    if RUN_OPTIONS['step']:
+        model['step'] = RUN_OPTIONS['step']
+    if RUN_OPTIONS['duration_s']:
+        overrides.setdefault('duration_s', RUN_OPTIONS['duration_s'])
     if arguments:
         model['arguments'] = dict(model.get('arguments') or {}, **arguments)
     if prediction:
@@ -172,7 +183,11 @@ def main() -> None:
                     help="also predict with the initial linearization ('prediction: initial')")
     ap.add_argument('--skip-shear', action='store_true')
     ap.add_argument('--skip-steel', action='store_true')
+    ap.add_argument('--step', choices=('immediate', 'deferred'),
+                    help="the models' step (structure.opensees.step; default: the config's)")
+    ap.add_argument('--duration-s', type=float, help="the runs' duration (default: the record)")
     args = ap.parse_args()
+    RUN_OPTIONS.update(step=args.step, duration_s=args.duration_s)
     print(f'load average {os.getloadavg()[0]:.1f}', flush=True)
     with tempfile.TemporaryDirectory(prefix='seft-yielding-') as tmp:
         if not args.skip_shear:
