@@ -42,7 +42,7 @@ is predicted with the linearization.
 
 With ``step: deferred`` the state a builder gets for sample ``j`` is not OpenSees' but one
 step of the part's linear model (the tangent, the restoring forces found from each DOF's
-equilibrium) from OpenSees' state at ``j - 1`` (:meth:`OpenSeesPart._step_ahead`); OpenSees
+equilibrium) from OpenSees' state at ``j - 1`` (``OpenSeesPart._step_ahead``); OpenSees
 steps to ``j`` afterwards (:meth:`OpenSeesPart.advance`: a real-time builder once its
 command is out), and the state recorded is OpenSees' own, one sample later
 (``recorded_lag_steps``). The OpenSees step leaves the command's critical path; the command
