@@ -14,8 +14,11 @@ output::
   force is as good as the best (within :data:`DELAY_TOLERANCE`);
 - for each order ``n`` from 1 to ``max_order``: an equation-error (ARX) fit, its unstable
   poles reflected into the unit circle, refined by the output-error fit
-  (``scipy.optimize.least_squares``, Levenberg-Marquardt, by variable projection: the
-  numerators are linear in the outputs once the denominator is fixed) of the simulated
+  (``scipy.optimize.least_squares``, its trust-region reflective method, by variable
+  projection: the numerators are linear in the outputs once the denominator is fixed; its
+  Levenberg-Marquardt method, MINPACK's, chose other trial points from the same residuals
+  and Jacobians when the process shared its core, so that one record gave two models) of
+  the simulated
   outputs to the measured ones, each output scaled by its standard deviation;
 - the order by the Bayesian information criterion ``N log V + p log N`` (Schwarz 1978),
   with ``V`` the mean squared relative output error floored at :data:`ERROR_FLOOR` squared
@@ -255,7 +258,7 @@ class _OutputError:
         return _stable_poly(np.concatenate([[1.0], theta[:na]]))[1:]
 
     def _refine(self, a0):
-        sol = optimize.least_squares(self._residuals, a0, jac=self._jacobian, method='lm',
+        sol = optimize.least_squares(self._residuals, a0, jac=self._jacobian, method='trf',
                                      max_nfev=MAX_EVALUATIONS)
         a_tail = sol.x
         loss = float(np.mean(sol.fun ** 2))
