@@ -377,10 +377,8 @@ class OpenSeesPart:
         key = None if self._k_t is None else self._k_t.tobytes()
         parts = self._ahead_maps.get(key)
         if parts is None:
-            parts = self._ahead_parts(self._k0 if self._k_t is None else self._k_t, h)
-            if len(self._ahead_maps) >= 64:
-                self._ahead_maps.pop(next(iter(self._ahead_maps)))
-            self._ahead_maps[key] = parts
+            parts = _remember(self._ahead_maps, key,
+                              self._ahead_parts(self._k0 if self._k_t is None else self._k_t, h))
         k, inv_eff, m_iota, c_uu, c_up, k_uu, k_up, c_p = parts
         s = self._settled
         g0, g1 = self.ground.get(s, 0.0), self.ground.get(j, 0.0)
@@ -498,10 +496,7 @@ class OpenSeesPart:
             residual[row, n:2 * n] += sub.damping_c_N_s_per_m[i]
             residual[row, 2 * n + nu + 1 + pi.index(i)] += 1.0
         out = np.vstack([shifted, residual])
-        if len(self._prediction_maps) >= 64:
-            self._prediction_maps.pop(next(iter(self._prediction_maps)))
-        self._prediction_maps[key] = out
-        return out
+        return _remember(self._prediction_maps, key, out)
 
     def _condensed_tangent(self, ops) -> np.ndarray:
         """The computational part's tangent stiffness condensed to the DOFs with mass, from
@@ -713,6 +708,19 @@ def element_response(ops, tag: int, ndf: dict | None = None) -> tuple[float, flo
     basic = ops.eleResponse(tag, 'basicDeformation')
     deformation = basic[1] if len(basic) >= 3 else (basic[0] if basic else math.nan)
     return float(force[per_node - 1]), float(deformation)
+
+
+#: Matrices kept per stiffness (the few a run predicts with; the oldest dropped first).
+_KEPT_MATRICES = 64
+
+
+def _remember(cache: dict, key, value):
+    """Keep `value` under `key` in `cache` (at most :data:`_KEPT_MATRICES`, the oldest
+    dropped first) and return it."""
+    if len(cache) >= _KEPT_MATRICES:
+        cache.pop(next(iter(cache)))
+    cache[key] = value
+    return value
 
 
 def _hermite(m0, m1, dt: float, t: float) -> tuple[float, float, float]:

@@ -35,12 +35,12 @@ def step_time_summary(step_times_s, dt: float, step: str = 'immediate') -> dict[
     """
     t = np.asarray(step_times_s, dtype=float)
     t = t[np.isfinite(t)]
+    budget_s = budget_fraction(step) * dt
     if t.size == 0:
         return {'steps': 0}
     return {'steps': int(t.size), 'p50_s': float(np.percentile(t, 50)),
             'p99_s': float(np.percentile(t, 99)), 'max_s': float(np.max(t)),
-            'budget_s': budget_fraction(step) * dt,
-            'over_budget': int(np.sum(t > budget_fraction(step) * dt)),
+            'budget_s': budget_s, 'over_budget': int(np.sum(t > budget_s)),
             'over_period': int(np.sum(t > dt))}
 
 
@@ -57,12 +57,12 @@ def opensees_entry(run) -> dict[str, Any]:
     structure = Structure.from_json(run.params['structure'])
     model = structure.model
     from seft_ros.opensees.model import model_name
+    step = str(model.get('step', 'immediate'))
     entry = {'model': model_name(model['model'], model.get('function', 'build')),
              'substeps': int(model.get('substeps', 1)),
-             'step': str(model.get('step', 'immediate')),
+             'step': step,
              'step_time': step_time_summary(run.computational.get(STEP_TIME, ()),
-                                            float(run.params['dt']),
-                                            str(model.get('step', 'immediate')))}
+                                            float(run.params['dt']), step)}
     return entry
 
 
