@@ -349,9 +349,11 @@ SCHEMA: tuple[ParamSpec, ...] = (
     ParamSpec('ats_window_s', 1.0, 's', "'ats': sliding window of the least-squares fit of "
               'a0, a1, a2 (refitted every 16 steps, Chae et al. 2013).', 0.0, 100.0, True,
               nodes=_RFB + ('recorder',)),
-    ParamSpec('monitor_cutoff_hz', 25.0, 'Hz', 'Online instability monitor: band split of '
-              'the measured force (the unstable mode lies above it, the response below).',
-              0.0, None, True, nodes=_RFB),
+    ParamSpec('monitor_cutoff_hz', 0.0, 'Hz', 'Online instability monitor: band split of '
+              'the measured force (the unstable mode lies above it, the response below); 0: '
+              "25 Hz, or twice the reference structure's natural frequency where that is higher "
+              '(a stiff specimen; seft_ros.core.monitor.monitor_cutoff_hz).',
+              0.0, None, nodes=_RFB),
     ParamSpec('monitor_window_s', 0.2, 's', "Time constant of the monitor's running RMS.",
               0.0, 10.0, True, nodes=_RFB),
     ParamSpec('monitor_threshold', 1.0, '', 'The run is aborted when the high-band RMS exceeds '

@@ -24,7 +24,7 @@ from seft_msgs_py.errors import ParameterError
 from seft_ros.core import experiment
 from seft_ros.core.experiment import simulate
 from seft_ros.core.ground_motion import prepare, synthetic_default
-from seft_ros.core.monitor import InstabilityMonitor
+from seft_ros.core.monitor import InstabilityMonitor, monitor_cutoff_hz
 
 DT = 0.002
 FS = 1.0 / DT
@@ -291,10 +291,50 @@ def test_from_parameters_reads_the_monitor_parameters(reference_params):
     np.testing.assert_allclose(ratios, reference_ratio(
         force, np.zeros_like(force), dt=0.001, cutoff_hz=40.0, window_s=0.5, floor_N=10.0),
         rtol=1e-9)
-    # the schema's defaults are the docstring's
+    # the schema's defaults are the docstring's: the cut-off derived (0) is 25 Hz for the
+    # study's 10.1 Hz specimen
     default = InstabilityMonitor.from_parameters(reference_params)
-    assert (reference_params['monitor_cutoff_hz'], reference_params['monitor_window_s'],
-            default.threshold, default.floor_N) == (25.0, 0.2, 1.0, 50.0)
+    assert (reference_params['monitor_cutoff_hz'], monitor_cutoff_hz(reference_params),
+            reference_params['monitor_window_s'], default.threshold,
+            default.floor_N) == (0.0, 25.0, 0.2, 1.0, 50.0)
+
+
+def stiff(reference_params, f_hz, alpha, **extra):
+    """The study's parameters with a 40 kg specimen of natural frequency `f_hz`, 0.5 %."""
+    k = 40.0 * (2 * math.pi * f_hz) ** 2
+    return dict(reference_params, mass_kg=40.0, stiffness_N_per_m=k,
+                damping_N_s_per_m=0.01 * math.sqrt(k * 40.0), alpha=alpha, **extra)
+
+
+def test_the_derived_cut_off_lies_above_a_stiff_specimens_response(reference_params):
+    # twice the reference structure's natural frequency sqrt(k / ((1 + alpha) m)) / 2 pi
+    p = stiff(reference_params, 50.0, 1.0)
+    assert monitor_cutoff_hz(p) == pytest.approx(2 * 50.0 / math.sqrt(2.0), rel=1e-12)
+    assert monitor_cutoff_hz(stiff(reference_params, 50.0, 0.0)) == pytest.approx(100.0)
+    # at most 0.4 of the sampling rate; a 12 Hz reference keeps the study's 25 Hz
+    assert monitor_cutoff_hz(stiff(reference_params, 150.0, 0.0)) == pytest.approx(200.0)
+    assert monitor_cutoff_hz(stiff(reference_params, 12.0, 0.0)) == 25.0
+    # a set cut-off is taken as set, above the reference's frequency
+    assert monitor_cutoff_hz(dict(p, monitor_cutoff_hz=40.0)) == 40.0
+    # the 35.4 Hz response of the reference, steady, against the two splits (closed form):
+    # the 25 Hz split takes it for the unstable mode, the derived one does not
+    response = [(2000.0, 50.0 / math.sqrt(2.0))]
+    assert steady_ratio(response, floor_N=50.0, cutoff_hz=25.0) > 1.0
+    assert steady_ratio(response, floor_N=50.0, cutoff_hz=monitor_cutoff_hz(p)) < 0.3
+    mon = InstabilityMonitor.from_parameters(p)
+    k, reason, _ = feed(mon, sine(2000.0, 50.0 / math.sqrt(2.0), 3.0, ramp_s=0.5))
+    assert k is None and reason is None
+    k, reason, _ = feed(InstabilityMonitor(DT, cutoff_hz=25.0),     # the study's split
+                        sine(2000.0, 50.0 / math.sqrt(2.0), 3.0, ramp_s=0.5))
+    assert k is not None and 'high-frequency oscillation' in reason
+
+
+def test_a_set_cut_off_below_the_reference_frequency_is_one_error(reference_params):
+    p = stiff(reference_params, 50.0, 1.0, monitor_cutoff_hz=25.0)
+    with pytest.raises(ParameterError, match=r'^parameter monitor_cutoff_hz=25: below the '
+                       r"reference structure's natural frequency 35\.4 Hz .*expected at least "
+                       r'70\.7 Hz, or 0 to derive it$'):
+        InstabilityMonitor.from_parameters(p)
 
 
 # -- the docs' calibration claim over several records -----------------------------------

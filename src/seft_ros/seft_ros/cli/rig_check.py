@@ -54,6 +54,7 @@ from seft_msgs_py.signals import (
     VELOCITY,
 )
 from seft_ros.core import rig_check as rc
+from seft_ros.core.monitor import monitor_cutoff_hz
 
 __all__ = ['RUNS', 'RigCheckReport', 'run_rig_check', 'rig_command_factory',
            'fault_rig_command', 'structure_rigs', 'check_parameters', 'write_force_record',
@@ -871,7 +872,7 @@ def _step_checks(step: _Run, *, params: Mapping, profile: rc.CheckProfile, comma
     out['stuck sensor'] = rc.check_stuck(fields, sine)
     out['sensor noise'] = rc.check_noise(
         fields[0], fields[3], profile.quiet, dt=dt, alpha=float(params.get('alpha', 0.0)),
-        mass_kg=float(params['mass_kg']), cutoff_hz=float(params['monitor_cutoff_hz']),
+        mass_kg=float(params['mass_kg']), cutoff_hz=monitor_cutoff_hz(params),
         threshold=float(params['monitor_threshold']), floor_N=float(params['monitor_floor_N']))
     if math.isfinite(latency):
         command = step.command(scoped(rig_contract.command_signal(command_kind).name,

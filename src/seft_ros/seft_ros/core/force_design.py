@@ -384,9 +384,9 @@ def _csi_zero(plant: PlantModel, specimen: Specimen | None):
     controller pole must be stable."""
     spec = specimen or plant.specimen
     nyq = 0.5 / plant.dt
-    roots = _force_zeros(plant)
-    roots = np.where((np.abs(roots) >= 1.0) & (np.abs(roots) < NMP_ZERO_RADIUS),
-                     1.0 / np.conj(roots), roots)
+    roots = np.array(_force_zeros(plant), dtype=complex)
+    flip = (np.abs(roots) >= 1.0) & (np.abs(roots) < NMP_ZERO_RADIUS)
+    roots[flip] = 1.0 / np.conj(roots[flip])        # (a zero at the origin is not divided)
     zeros = [m for m in _modes(roots, plant.dt)
              if m[2].imag > 1e-9 and abs(m[2]) < 1.0 and m[1] < 0.5 and m[0] < 0.9 * nyq]
     if not zeros:
@@ -777,6 +777,11 @@ SCREEN_ALPHAS = (0.5, 1.0, 1.5, 2.0)
 
 #: The mass ratios at which a candidate inverse's test is predicted (the issue's targets').
 DESIGN_ALPHAS = (0.5, 1.0, 1.5)
+#: A specimen with fewer than ``1 / COARSE_SAMPLING`` samples per period of its natural
+#: frequency: where no inverse makes the test stable, the design's note suggests a shorter
+#: dt (measured on the family's 50 Hz, 0.5 % specimen on ``valve_2nd_order``: at dt 2 ms,
+#: 10 samples, none stable up to alpha 2 and 1.6-7.0 % NRMS x; at 1 ms, 0.3-1.0 %) [-].
+COARSE_SAMPLING = 0.05
 #: A force-loop inverse whose test is predicted within this NRMS displacement error at every
 #: :data:`DESIGN_ALPHAS` (:func:`~seft_ros.core.stability.predicted_error`) is taken without
 #: trying longer ones [-].
@@ -864,7 +869,8 @@ def _search_inverse(plant: PlantModel, design: 'ForceLoopDesign', resp, csi_band
     band error), 'predicted_error':
     {alpha: error} or None, 'stable': bool (a delay that makes the compensated test stable
     up to alpha = 2 on the model), 'notes': [str]}``."""
-    from seft_ros.core.predictors import ForceLoopInverse, loop_exclude_hz
+    from seft_ros.core.predictors import ForceLoopInverse, loop_band_hz, loop_exclude_hz
+    band_hz = loop_band_hz(plant.specimen, design.dt)
     exclude = loop_exclude_hz({'predictor_loop_csi_band': csi_band}, plant.specimen,
                               design.dt)
     notes = []
@@ -874,7 +880,7 @@ def _search_inverse(plant: PlantModel, design: 'ForceLoopDesign', resp, csi_band
     predicted = []                            # (d, band error, worst, errors)
     best, since_best = None, 0                # the least predicted, and the tries since
     for d in range(2, 31):
-        inv = ForceLoopInverse(resp.step_average, design.dt, d, INVERSE_TAPS,
+        inv = ForceLoopInverse(resp.step_average, design.dt, d, INVERSE_TAPS, band_hz=band_hz,
                                hf_weight=INVERSE_HF_WEIGHT, exclude_hz=exclude)
         if least_band is None or inv.band_error < least_band[1]:
             least_band = (d, inv.band_error)
@@ -903,8 +909,14 @@ def _search_inverse(plant: PlantModel, design: 'ForceLoopDesign', resp, csi_band
         chosen = (d, band_error)
         predicted_error = {float(a): float(e) for a, e in zip(DESIGN_ALPHAS, errors)}
     if first_stable is None:
-        notes.append("no force-loop inverse of 2-30 steps makes the study's test with "
-                     '`model` stable up to alpha = 2 on the model')
+        note = ("no force-loop inverse of 2-30 steps makes the study's test with `model` "
+                'stable up to alpha = 2 on the model')
+        f_n = float(plant.specimen.natural_frequency_hz) if plant.specimen is not None else 0.0
+        if f_n * design.dt > COARSE_SAMPLING:
+            note += (f': the specimen ({f_n:.3g} Hz) has {1.0 / (f_n * design.dt):.3g} samples '
+                     f'per period at dt {1e3 * design.dt:g} ms; a sample period of at most '
+                     f'{1e3 * COARSE_SAMPLING / f_n:.2g} ms may give one')
+        notes.append(note)
     return {'csi_band': csi_band, 'exclude_hz': exclude,
             'chosen': chosen or first_stable or least_band or (30, math.inf),
             'predicted_error': predicted_error, 'stable': first_stable is not None,
