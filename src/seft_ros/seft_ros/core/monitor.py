@@ -45,9 +45,9 @@ def reference_frequency_hz(params) -> float:
 def monitor_cutoff_hz(params) -> float:
     """The instability monitor's band split [Hz] of a rig's resolved parameters.
 
-    ``monitor_cutoff_hz`` where set (> 0); 0 (the default) derives it: :data:`BASE_CUTOFF_HZ`,
-    or :data:`RESPONSE_BAND_FACTOR` times the reference structure's natural frequency
-    (:func:`reference_frequency_hz`) where that is higher, so that the earthquake response of
+    ``monitor_cutoff_hz`` where set (> 0); 0 (the default) derives it: ``BASE_CUTOFF_HZ``
+    (25 Hz), or ``RESPONSE_BAND_FACTOR`` (2) times the reference structure's natural frequency
+    (``reference_frequency_hz``) where that is higher, so that the earthquake response of
     a stiff specimen stays in the low band (at most 0.4 of the sampling rate).
 
     Raises
