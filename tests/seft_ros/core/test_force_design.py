@@ -194,6 +194,46 @@ def test_the_inverse_is_fitted_up_to_a_stiff_specimens_natural_frequency():
     assert max(miss(loop_band_hz(spec, dt), 20.0), miss(40.0, 20.0)) < 0.005
 
 
+def test_the_ground_gain_is_the_least_squares_match_over_the_band():
+    """``law_calibration.ground_gain_scale``: the reference structure itself, sampled with a
+    zero-order hold (paper Eq. 2.1, ``scipy.signal.cont2discrete``) at dt 1 ms, a 4 Hz,
+    5 % structure, needs no factor (within 0.1 %); the factor is the Kanai-Tajimi-weighted
+    least squares of the magnitudes, checked against one complex solve per frequency; it
+    scales inversely with the ground's input."""
+    from scipy import signal
+
+    from seft_ros.core.law_calibration import ground_gain_scale, reference_pole
+    from seft_ros.core.stability import kanai_tajimi
+    dt, m, alpha = 0.001, 40.0, 1.0
+    k = (1 + alpha) * m * (2 * math.pi * 4.0) ** 2
+    c = 2 * 0.05 * math.sqrt(k * (1 + alpha) * m)
+    spec = {'mass_kg': m, 'damping_N_s_per_m': c, 'stiffness_N_per_m': k}
+    a_c = np.array([[0.0, 1.0], [-k / ((1 + alpha) * m), -c / ((1 + alpha) * m)]])
+    a_d, b_d, _, _, _ = signal.cont2discrete(
+        (a_c, np.array([[0.0], [1.0 / ((1 + alpha) * m)]]), np.array([[1.0, 0.0]]),
+         np.zeros((1, 1))), dt)
+    # X[k+1] = A X[k] + B G[k]: as the loop's X[k+1] = M X[k] + b G[k+1], b = B / z
+    target = reference_pole(m, c, k, alpha, dt)
+    x_row = np.array([1.0, 0.0])
+    shifted = np.linalg.solve(a_d, b_d[:, 0])               # b with A b = B: one step back
+    scale = ground_gain_scale(a_d, shifted, x_row, spec, alpha, dt, target)
+    assert scale == pytest.approx(1.0, abs=1e-3)
+    assert ground_gain_scale(a_d, 2 * shifted, x_row, spec, alpha, dt,
+                             target) == pytest.approx(scale / 2, rel=1e-12)
+    # the same least squares, evaluated directly on its grid
+    lam = np.log(target) / dt
+    f0, half = abs(lam.imag) / (2 * math.pi), -lam.real / (2 * math.pi)
+    f = np.unique(np.concatenate([np.geomspace(0.02, 0.999 * 0.5 / dt, 400),
+                                  f0 + half * np.linspace(-20.0, 20.0, 201)]))
+    f = f[(f > 0) & (f < 0.5 / dt)]
+    h_t = np.array([abs(x_row @ np.linalg.solve(np.exp(2j * math.pi * fi * dt) * np.eye(2)
+                                                 - a_d, shifted)) for fi in f])
+    h_t *= np.abs(np.sinc(f * dt))
+    h_r = 1 / np.abs(k - (1 + alpha) * m * (2 * math.pi * f) ** 2 + 2j * math.pi * f * c)
+    w = np.gradient(f) * kanai_tajimi(f)
+    assert scale == pytest.approx(float(w @ (h_t * h_r) / (w @ (h_t * h_t))), rel=1e-9)
+
+
 def test_the_reference_pole_is_the_sampled_root_of_the_whole_structure():
     m, c, k, alpha = 52.7, 903.3, 2.11e5, 1.0
     wn = math.sqrt(k / ((1 + alpha) * m))

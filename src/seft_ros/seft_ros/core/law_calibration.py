@@ -16,7 +16,9 @@ displacement and velocity) that puts the closed loop's eigenvalue nearest the re
 structure's sampled pole exactly on it, by Newton's method on the two real equations (the
 closed-loop matrix is affine in ``K``, the law's output is, so three identifications of the
 compensator give it for every ``K``); then the factor on the ground force's gain that makes the
-response at that pole's frequency the reference's.
+test's response to the ground force the reference's in the least squares over the response
+band (:func:`ground_gain_scale`; before, at the pole's frequency alone, which a well-damped
+reference pays for over the rest of its band).
 
 In a structure the same gap is in the coupling: each rig's compensator sees the interface
 force of the computational springs and dashpots on its DOF, averaged over the interval where
@@ -51,7 +53,7 @@ from scipy.sparse.linalg import eigs
 from seft_msgs_py.errors import ParameterError
 from seft_msgs_py.sampling import single_blas_thread
 
-__all__ = ['pole_calibration', 'reference_pole', 'structure_calibration']
+__all__ = ['ground_gain_scale', 'pole_calibration', 'reference_pole', 'structure_calibration']
 
 #: Newton iterations at most, and the step of the finite differences (relative to K).
 _ITERATIONS, _STEP = 8, 1e-4
@@ -102,8 +104,8 @@ def pole_calibration(params: Mapping) -> np.ndarray:
     ndarray, shape (3,)
         ``(dK_x [N/m], dK_v [N s/m], beta_scale [-])``: the gains' offset and the factor on
         the ground force's gain ``beta`` that makes the closed loop's response to the
-        ground force at the reference structure's frequency the reference's (with the step
-        average of the ground, :func:`~seft_msgs_py.plant.hold_factor`); ``(0, 0, 1)`` at
+        ground force the reference's in the least squares over the response band (with the
+        step average of the ground; :func:`ground_gain_scale`); ``(0, 0, 1)`` at
         ``alpha = 0`` (no feedback).
 
     Raises
@@ -199,21 +201,11 @@ def _pole_calibration(params: Mapping) -> np.ndarray:
             f'{math.degrees(np.angle(e)):.3f} deg, reference {abs(target):.6f} at '
             f'{math.degrees(np.angle(target)):.3f} deg): check the force-loop inverse '
             '(predictor_loop_*) or use predictor_calibration none')
-    # the ground force's gain: the response at the reference structure's frequency as the
-    # reference's (the pole is exact; what is left is the forcing's few tenths of a percent)
-    lam = np.log(target) / dt
-    w = abs(lam.imag)
-    z = np.exp(1j * w * dt)
-    mm = m0 + offset[0] * dm[0] + offset[1] * dm[1]
-    bb = ground0 + offset[0] * dg[0] + offset[1] * dg[1]
-    try:
-        h_test = x_row @ np.linalg.solve(z * np.eye(mm.shape[0]) - mm, bb) * z
-    except np.linalg.LinAlgError:             # a closed-loop pole on the unit circle there
-        h_test = math.inf
-    hold = abs((np.exp(1j * w * dt) - 1.0) / (1j * w * dt))    # the step-averaged ground
-    h_ref = 1.0 / abs((1.0 + alpha) * mp['mass_kg'] * (1j * w) ** 2
-                      + mp['damping_N_s_per_m'] * 1j * w + mp['stiffness_N_per_m'])
-    scale = h_ref / (abs(h_test) * hold)
+    # the ground force's gain: the test's response to the ground force, the pole exact, as
+    # the reference's in the least squares over the response band (module notes)
+    scale = ground_gain_scale(m0 + offset[0] * dm[0] + offset[1] * dm[1],
+                              ground0 + offset[0] * dg[0] + offset[1] * dg[1], x_row,
+                              mp, alpha, dt, target)
     if not (math.isfinite(scale) and abs(scale - 1.0) < MAX_CORRECTION):
         raise ParameterError(f'predictor_calibration poles: the ground force would need a gain '
                              f'of {scale:.4g}: check the force-loop inverse (predictor_loop_*) '
@@ -223,6 +215,74 @@ def _pole_calibration(params: Mapping) -> np.ndarray:
         _CACHE.pop(next(iter(_CACHE)))
     _CACHE[key] = result.copy()
     return result
+
+
+#: The ground force's gain is fitted over this band of the reference structure's response
+#: (:func:`ground_gain_scale`): the frequencies from 0.02 Hz to the Nyquist frequency, refined
+#: across the resonance, weighted by the firm-ground Kanai-Tajimi spectrum.
+GROUND_GRID_POINTS = 400
+
+
+def ground_gain_scale(mat: np.ndarray, ground: np.ndarray, x_row: np.ndarray, specimen,
+                      alpha: float, dt: float, target: complex) -> float:
+    """The factor on the ground force's gain that makes the closed loop's displacement response
+    to the ground force the reference structure's, in the least squares over its band.
+
+    With ``H_t`` the loop's response (``X[k+1] = M X[k] + b G[k+1]``, ``x = c X``, times the
+    step average of the ground, the hold factor) and ``H_r = 1 / (k - (1 + alpha) m w^2 +
+    i w c)`` the reference's (paper Eq. 2.1), on a grid weighted by the firm-ground
+    Kanai-Tajimi spectrum ``S`` (:func:`~seft_ros.core.stability.kanai_tajimi`)::
+
+        s = sum(S |H_t| |H_r| dw) / sum(S |H_t|^2 dw)
+
+    (magnitudes: the test's lag is removed as the comparison removes it). A lightly damped
+    reference weighs its resonance, where the match of one frequency did the same; a well
+    damped one its whole band: on the family's 50 Hz, 5 % specimen (``valve_2nd_order``,
+    dt 1 ms, the pole placed exactly) the loop's response was 0.995 of the reference's below
+    20 Hz and 1.027 at the 35 Hz resonance (alpha 1), and the resonance's factor, 0.978, cost
+    the rest of the band: 2.41 % NRMS x against 1.71 % with no factor.
+
+    Parameters
+    ----------
+    mat : ndarray, shape (n, n)
+        The closed loop's matrix.
+    ground, x_row : ndarray, shape (n,)
+        The ground force's input vector and the displacement's output row.
+    specimen : mapping
+        ``mass_kg``, ``damping_N_s_per_m``, ``stiffness_N_per_m`` of the law's model.
+    alpha, dt : float
+        Mass ratio [-], sample period [s].
+    target : complex
+        The reference structure's sampled pole (its frequency refines the grid).
+
+    Returns
+    -------
+    float
+        The factor [-]; ``inf`` where the loop has a pole on the unit circle.
+    """
+    from seft_ros.core.stability import kanai_tajimi
+    m, c, k = (float(specimen[key]) for key in
+               ('mass_kg', 'damping_N_s_per_m', 'stiffness_N_per_m'))
+    nyquist = 0.5 / dt
+    lam = np.log(target) / dt
+    f0 = abs(lam.imag) / (2.0 * math.pi)
+    half = max(-lam.real, 1e-3 * abs(lam)) / (2.0 * math.pi)
+    f = np.unique(np.concatenate([np.geomspace(0.02, 0.999 * nyquist, GROUND_GRID_POINTS),
+                                  f0 + half * np.linspace(-20.0, 20.0, 201)]))
+    f = f[(f > 0.0) & (f < nyquist)]
+    w = 2.0 * math.pi * f
+    z = np.exp(1j * w * dt)
+    eig, vec = np.linalg.eig(mat)
+    if np.any(np.abs(np.abs(eig) - 1.0) < 1e-12):
+        return math.inf
+    left = x_row @ vec
+    right = np.linalg.solve(vec, ground)
+    h_test = np.abs(((left * right)[None, :] / (z[:, None] - eig[None, :])).sum(axis=1) * z)
+    hold = np.abs(np.sinc(w * dt / (2.0 * math.pi)))     # |(e^{iwdt} - 1) / (iwdt)|
+    h_test = h_test * hold
+    h_ref = 1.0 / np.abs(k - (1.0 + alpha) * m * w * w + 1j * w * c)
+    weight = np.gradient(f) * kanai_tajimi(f)
+    return float((weight * h_test * h_ref).sum() / (weight * h_test * h_test).sum())
 
 
 #: The coupled loop's calibrations made last (:func:`structure_calibration`), by the run's
