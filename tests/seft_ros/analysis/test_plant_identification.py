@@ -127,16 +127,16 @@ def test_the_controller_designed_from_the_data_meets_its_margins_on_the_true_pla
     assert gm == pytest.approx(m.gain_margin, rel=1e-3)
 
 
-def lab_settings(member, specimen=(M, C, K)):
+def lab_settings(member, specimen=(M, C, K), **extra):
     """``seft identify``'s parameter file of a 10 s open-loop run of `member` with
     `specimen` ``(m, c, k)`` (the plant as data, the controller designed for it), as a
-    mapping of parameters."""
+    mapping of parameters; `extra`: the run's other parameters (``dt``)."""
     from seft_ros.analysis.rig_identification import identified_parameters, identify_rigs
     from seft_ros.cli.config import mapping_values
     m, c, k = specimen
     p = resolve(dict(mass_kg=m, stiffness_N_per_m=k, damping_N_s_per_m=c, rig_model='actuator',
                      actuator_family=member, excitation='noise',
-                     excitation_input='valve_command', duration_s=10.0))
+                     excitation_input='valve_command', duration_s=10.0, **extra))
     idents = identify_rigs(simulate(p))
     found = identified_parameters(idents)
     return idents[0], mapping_values({k: v for k, v in found.items() if not k.startswith('_')})
@@ -278,3 +278,33 @@ def test_adaptive_holds_the_loop_it_was_given_and_learns_the_specimen():
     with pytest.raises(ParameterError, match=r"^parameter adaptive_loop_fit='no': expected one "
                                              r"of 'auto', 'fit', 'hold'$"):
         adaptive_fits_loop(dict(params, adaptive_loop_fit='no'))
+
+
+def test_a_50_hz_specimen_sampled_at_1_khz_is_tested_within_1_percent():
+    """The family's 50 Hz, 0.5 % specimen on the leaky actuator through the lab's path at dt
+    1 ms (a 10 s open-loop run identified, the controller and inverse designed from it): the
+    reference structure (paper Eq. 2.1) lies at 40.8 Hz at alpha 0.5 and 35.4 Hz at 1, above
+    the 25 Hz the instability monitor split at (healthy runs aborted within 2 s) and the
+    40 Hz the force-loop inverse was fitted to (24.8 % at alpha 0.5). Now the split lies at
+    twice the reference's frequency and the inverse is fitted up to the specimen's: `model`
+    completes within 1 % in displacement (issue 38, target 3) and 2 % in acceleration and
+    force (measured 0.33 / 1.52 / 0.56 % at alpha 0.5 over these 4 s, 1.32 % acceleration
+    over 6 s: the start weighs)."""
+    from seft_ros.analysis.metrics import compare_run
+    from seft_ros.core.monitor import monitor_cutoff_hz
+    from seft_ros.core.predictors import loop_band_hz
+    m, k = 40.0, 40.0 * (2 * math.pi * 50.0) ** 2
+    c = 2 * 0.005 * math.sqrt(k * m)
+    ident, written = lab_settings('leaky', (m, c, k), dt=0.001)
+    assert loop_band_hz(ident.plant.model.specimen, 0.001) == pytest.approx(50.0, rel=0.01)
+    for alpha in (0.5, 1.0):
+        params = resolve(dict(written, mass_kg=m, stiffness_N_per_m=k, damping_N_s_per_m=c,
+                              rig_model='actuator', actuator_family='leaky', dt=0.001,
+                              predictor='model', alpha=alpha, duration_s=4.0,
+                              amplitude_N=300.0))
+        assert monitor_cutoff_hz(params) == pytest.approx(2 * 50.0 / math.sqrt(1 + alpha))
+        run = simulate(params)
+        assert run.stable, run.abort_reason
+        cmp = compare_run(run)
+        errors = [100 * cmp.signal(s).nrms for s in ('displacement', 'acceleration', 'force')]
+        assert errors[0] <= 1.0 and max(errors) <= 2.0, (alpha, errors)
