@@ -272,12 +272,22 @@ def ground_gain_scale(mat: np.ndarray, ground: np.ndarray, x_row: np.ndarray, sp
     f = f[(f > 0.0) & (f < nyquist)]
     w = 2.0 * math.pi * f
     z = np.exp(1j * w * dt)
+    # the modal sum over M's eigenvalues; the loop's FIR delay chains make M defective (its
+    # eigenvectors near parallel), so it is checked against a direct solve at the resonance
+    # and replaced by one solve per frequency where it is off (measured on the 32 Hz column
+    # and the family's 50 Hz, 5 % specimen: within 6e-8 of the solves at 600 frequencies; a
+    # complex Schur form with triangular solves was 0.4 % off the solves on the column)
     eig, vec = np.linalg.eig(mat)
     if np.any(np.abs(np.abs(eig) - 1.0) < 1e-12):
         return math.inf
     left = x_row @ vec
     right = np.linalg.solve(vec, ground)
-    h_test = np.abs(((left * right)[None, :] / (z[:, None] - eig[None, :])).sum(axis=1) * z)
+    h_test = np.abs(((left * right)[None, :] / (z[:, None] - eig[None, :])).sum(axis=1))
+    eye = np.eye(mat.shape[0])
+    i0 = int(np.argmin(np.abs(f - f0)))
+    if not abs(h_test[i0] / abs(x_row @ np.linalg.solve(z[i0] * eye - mat, ground))
+               - 1.0) < 1e-6:
+        h_test = np.abs([x_row @ np.linalg.solve(zi * eye - mat, ground) for zi in z])
     hold = np.abs(np.sinc(w * dt / (2.0 * math.pi)))     # |(e^{iwdt} - 1) / (iwdt)|
     h_test = h_test * hold
     h_ref = 1.0 / np.abs(k - (1.0 + alpha) * m * w * w + 1j * w * c)

@@ -11,8 +11,8 @@ from seft_ros.core.controller import DiscreteFilter
 __all__ = ['InstabilityMonitor', 'open_loop_identification', 'monitor_cutoff_hz', 'SpecimenCheck',
            'SPECIMEN_CHECK_ACTIONS', 'DEFAULT_SPECIMEN_TOLERANCE']
 
-#: The band split of ``monitor_cutoff_hz`` 0 for a reference structure below
-#: :data:`RESPONSE_BAND_FACTOR` of it: the study's calibration (class notes) [Hz].
+#: The band split of ``monitor_cutoff_hz`` 0 where ``RESPONSE_BAND_FACTOR`` times the
+#: reference structure's natural frequency is lower: the study's calibration (class notes) [Hz].
 BASE_CUTOFF_HZ = 25.0
 #: ``monitor_cutoff_hz`` 0 puts the band split at least this many times the reference
 #: structure's natural frequency above it: a 2nd-order high pass passes a quarter of the
@@ -26,7 +26,7 @@ RESPONSE_BAND_FACTOR = 2.0
 # family's nonlinear orifice_flow actuator with the 50 Hz, 0.5 % specimen at alpha 1.5 (the
 # reference at 31.6 Hz): the error grows at 31-33 Hz to 17 times the reference's RMS by 9 s;
 # the 25 Hz split tripped on it at 1.6 s (and on the healthy linear members alike), the
-# derived 63 Hz one does not (its ratio 0.25): the run completes, its NRMS x 265 %.
+# derived 63 Hz one does not (its ratio 0.25): the run completes, its NRMS x 247-265 %.
 
 
 def reference_frequency_hz(params) -> float:
@@ -186,10 +186,9 @@ class InstabilityMonitor:
         ----------
         params : mapping
             Resolved parameters: ``dt``, ``monitor_cutoff_hz`` (0: :func:`monitor_cutoff_hz`
-        derives it from the specimen, ``mass_kg``, ``stiffness_N_per_m`` and ``alpha``),
-        ``monitor_window_s``,
-            ``monitor_threshold``, ``monitor_floor_N`` and, if present, ``excitation`` and
-            ``excitation_input``.
+            derives it from the specimen, ``mass_kg``, ``stiffness_N_per_m`` and ``alpha``),
+            ``monitor_window_s``, ``monitor_threshold``, ``monitor_floor_N`` and, if
+            present, ``excitation`` and ``excitation_input``.
 
         Returns
         -------
@@ -198,7 +197,8 @@ class InstabilityMonitor:
         Raises
         ------
         ParameterError
-            A value out of range (the message names the parameter).
+            A value out of range, or a set ``monitor_cutoff_hz`` below the reference
+            structure's natural frequency (the message names the parameter).
         """
         threshold = float(params['monitor_threshold'])
         if open_loop_identification(params):
