@@ -780,7 +780,7 @@ DESIGN_ALPHAS = (0.5, 1.0, 1.5)
 #: A specimen with fewer than ``1 / COARSE_SAMPLING`` samples per period of its natural
 #: frequency: where no inverse makes the test stable, the design's note suggests a shorter
 #: dt (measured on the family's 50 Hz, 0.5 % specimen on ``valve_2nd_order``: at dt 2 ms,
-#: 10 samples, none stable up to alpha 2 and 1.6-7.0 % NRMS x; at 1 ms, 0.3-1.0 %) [-].
+#: 10 samples, none stable up to alpha 2 and 1.6-7.0 % NRMS x; at 1 ms, 0.3-1.3 %) [-].
 COARSE_SAMPLING = 0.05
 #: A force-loop inverse whose test is predicted within this NRMS displacement error at every
 #: :data:`DESIGN_ALPHAS` (:func:`~seft_ros.core.stability.predicted_error`) is taken without
