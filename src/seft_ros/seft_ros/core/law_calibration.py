@@ -217,9 +217,8 @@ def _pole_calibration(params: Mapping) -> np.ndarray:
     return result
 
 
-#: The ground force's gain is fitted over this band of the reference structure's response
-#: (:func:`ground_gain_scale`): the frequencies from 0.02 Hz to the Nyquist frequency, refined
-#: across the resonance, weighted by the firm-ground Kanai-Tajimi spectrum.
+#: The size of the logarithmic grid the ground force's gain is fitted on
+#: (:func:`ground_gain_scale`, :func:`~seft_ros.core.stability.response_grid`).
 GROUND_GRID_POINTS = 400
 
 
@@ -260,16 +259,13 @@ def ground_gain_scale(mat: np.ndarray, ground: np.ndarray, x_row: np.ndarray, sp
     float
         The factor [-]; ``inf`` where the loop has a pole on the unit circle.
     """
-    from seft_ros.core.stability import kanai_tajimi
+    from seft_ros.core.stability import response_grid
     m, c, k = (float(specimen[key]) for key in
                ('mass_kg', 'damping_N_s_per_m', 'stiffness_N_per_m'))
-    nyquist = 0.5 / dt
     lam = np.log(target) / dt
     f0 = abs(lam.imag) / (2.0 * math.pi)
-    half = max(-lam.real, 1e-3 * abs(lam)) / (2.0 * math.pi)
-    f = np.unique(np.concatenate([np.geomspace(0.02, 0.999 * nyquist, GROUND_GRID_POINTS),
-                                  f0 + half * np.linspace(-20.0, 20.0, 201)]))
-    f = f[(f > 0.0) & (f < nyquist)]
+    f, weight = response_grid(f0, max(-lam.real, 1e-3 * abs(lam)) / (2.0 * math.pi), dt,
+                              GROUND_GRID_POINTS)
     w = 2.0 * math.pi * f
     z = np.exp(1j * w * dt)
     # the modal sum over M's eigenvalues; the loop's FIR delay chains make M defective (its
@@ -291,7 +287,6 @@ def ground_gain_scale(mat: np.ndarray, ground: np.ndarray, x_row: np.ndarray, sp
     hold = np.abs(np.sinc(w * dt / (2.0 * math.pi)))     # |(e^{iwdt} - 1) / (iwdt)|
     h_test = h_test * hold
     h_ref = 1.0 / np.abs(k - (1.0 + alpha) * m * w * w + 1j * w * c)
-    weight = np.gradient(f) * kanai_tajimi(f)
     return float((weight * h_test * h_ref).sum() / (weight * h_test * h_test).sum())
 
 

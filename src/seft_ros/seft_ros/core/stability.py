@@ -72,7 +72,8 @@ __all__ = [
     'LEVEL_MISFIT',
     'largest_stable_dt', 'TestLoop', 'scaled_parameters',
     'largest_stable_scale', 'RobustnessMargin', 'robustness_margin',
-    'KANAI_TAJIMI_FIRM_GROUND', 'PREDICTED_LAG_S', 'kanai_tajimi', 'predicted_error',
+    'KANAI_TAJIMI_FIRM_GROUND', 'PREDICTED_LAG_S', 'kanai_tajimi', 'response_grid',
+    'predicted_error',
     'GAIN_ERROR',
 ]
 
@@ -764,6 +765,38 @@ def kanai_tajimi(freq_hz, omega_g: float = KANAI_TAJIMI_FIRM_GROUND[0],
     return (g2 * g2 + damped) / ((g2 - w2) ** 2 + damped)
 
 
+def response_grid(f0_hz: float, half_hz: float, dt: float, points: int
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """The frequencies a test's response to the ground is integrated on, and their weights.
+
+    A logarithmic grid of `points` from 0.02 Hz to the Nyquist frequency, refined by 201
+    points over 20 half-power bandwidths either side of the reference structure's resonance,
+    each weighted by its share of the axis and the firm-ground :func:`kanai_tajimi` spectrum
+    (:func:`predicted_error`, :func:`~seft_ros.core.law_calibration.ground_gain_scale`).
+
+    Parameters
+    ----------
+    f0_hz, half_hz : float
+        The resonance and its half-power bandwidth [Hz].
+    dt : float
+        Sample period [s].
+    points : int
+        Size of the logarithmic grid.
+
+    Returns
+    -------
+    freq : ndarray, shape (nf,)
+        [Hz], ascending, below the Nyquist frequency.
+    weight : ndarray, shape (nf,)
+        ``df S(f)`` [Hz].
+    """
+    nyquist = 0.5 / dt
+    f = np.unique(np.concatenate([np.geomspace(0.02, 0.999 * nyquist, points),
+                                  f0_hz + half_hz * np.linspace(-20.0, 20.0, 201)]))
+    f = f[(f > 0.0) & (f < nyquist)]
+    return f, np.gradient(f) * kanai_tajimi(f)
+
+
 def predicted_error(params: Mapping, alphas=None, *, loop: LoopModel | None = None,
                     points: int = 800) -> np.ndarray:
     """The study's test's NRMS displacement error predicted from its linear loop.
@@ -814,18 +847,14 @@ def predicted_error(params: Mapping, alphas=None, *, loop: LoopModel | None = No
                ('mass_kg', 'damping_N_s_per_m', 'stiffness_N_per_m'))
     alphas = np.atleast_1d(np.asarray(params['alpha'] if alphas is None else alphas,
                                       dtype=float))
-    nyquist = 0.5 / dt
     lags = np.arange(-PREDICTED_LAG_S, PREDICTED_LAG_S + 0.25 * dt, 0.5 * dt)
     out = np.empty(len(alphas))
     for i, alpha in enumerate(alphas):
         mt = (1.0 + alpha) * m
         f0 = math.sqrt(k / mt) / (2.0 * math.pi)
         half = f0 * max(c / (2.0 * math.sqrt(k * mt)), 1e-3)
-        f = np.unique(np.concatenate([np.geomspace(0.02, 0.999 * nyquist, points),
-                                      f0 + half * np.linspace(-20.0, 20.0, 201)]))
-        f = f[(f > 0.0) & (f < nyquist)]
+        f, weight = response_grid(f0, half, dt, points)
         w = 2.0 * np.pi * f
-        weight = np.gradient(f) * kanai_tajimi(f)
         h_test, radius = loop.ground_response(alpha, f)
         if not radius < 1.0:
             out[i] = math.inf
