@@ -223,7 +223,8 @@ def test_shared_parameters_have_an_explicit_source():
       'rig_interface', 'udp_controller_address', 'udp_local_port', 'udp_heartbeat_s',
       'udp_max_bad_datagrams', 'wait_for_recorder', 'recorder_window_steps', 'dt', 'mode',
       'n_steps'], 'rig'),
-    (['record', 'amplitude_N', 'scale_factor', 'time_scale', 'duration_s', 'preview_steps'],
+    (['record', 'amplitude_N', 'scale_factor', 'time_scale', 'record_resampling', 'duration_s',
+      'preview_steps'],
      'ground_motion_publisher'),
     (['excitation', 'excitation_input', 'excitation_amplitude', 'excitation_band_low_hz',
       'excitation_band_hz', 'excitation_seed'], 'ground_motion_publisher'),
@@ -246,9 +247,10 @@ def test_value_source_lists_cover_the_schema():
     # recorder's wait_for_live_view; + 1: adaptive_excitation_fraction; + 1: adaptive_loop_fit;
     # + 1: predictor_loop_rehearsed (seft design's mark); + 2: adaptive's specimen gate and
     # rate (adaptive_specimen_excitation_ratio, adaptive_specimen_max_rate_per_s); + 1:
-    # predictor_loop_csi_band (seft design's choice of the inverse's band)
+    # predictor_loop_csi_band (seft design's choice of the inverse's band); + 1:
+    # record_resampling
     assert len(VALUE_SOURCE) == len(SCHEMA) == (31 + 47 + 6 + 6 + 10 + 2 + 1 + 2 + 1 + 6 + 3
-                                                + 1 + 1 + 1 + 1 + 2 + 1)
+                                                + 1 + 1 + 1 + 1 + 2 + 1 + 1)
 
 
 def test_value_source_of_unknown_name_is_an_error():

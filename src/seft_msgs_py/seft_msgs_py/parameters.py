@@ -155,6 +155,13 @@ SCHEMA: tuple[ParamSpec, ...] = (
               'amplitude_N is 0).', 0.0, None, True, nodes=_GM + ('recorder',)),
     ParamSpec('time_scale', 0.5, '', 'Time scale of the record (0.5 halves its time step, as '
               'in the reference study).', 0.0, 100.0, True, nodes=_GM + ('recorder',)),
+    ParamSpec('record_resampling', 'auto', '', "How the record is resampled to dt: "
+              "'band_limited' (scipy.signal.resample_poly: nothing above the record's "
+              "Nyquist frequency), 'linear' (numpy.interp: images of the record's content "
+              "near multiples of its sample rate, which a force loop cannot track) or 'auto' "
+              "(linear for the embedded default, as the reference study's test always ran; "
+              "band_limited for a record file).", choices=('auto', 'linear', 'band_limited'),
+              nodes=_GM + ('recorder',)),
     ParamSpec('duration_s', 0.0, 's', 'Length of the run after time scaling (0: the whole '
               'record; with an excitation, its length, 0: 20 s).', 0.0, None,
               nodes=_GM + _CTRL + ('recorder',)),
@@ -804,7 +811,8 @@ def resolve(overrides: Mapping[str, Any] | Iterable[tuple[str, Any]] = (), *,
 #: a structure may identify its specimen online while another uses its model.
 TEST_PARAMETERS = frozenset({
     'dt', 'alpha', 'mode', 'n_steps', 'record', 'amplitude_N', 'scale_factor', 'time_scale',
-    'duration_s', 'preview_steps', 'excitation', 'excitation_input', 'excitation_amplitude',
+    'record_resampling', 'duration_s', 'preview_steps', 'excitation', 'excitation_input',
+    'excitation_amplitude',
     'excitation_band_low_hz', 'excitation_band_hz', 'excitation_seed',
     'predictor_loop_latency_s', 'network_delay_s', 'monitor_cutoff_hz', 'monitor_window_s',
     'monitor_threshold', 'monitor_floor_N', 'wait_for_recorder', 'recorder_window_steps',

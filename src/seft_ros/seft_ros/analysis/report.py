@@ -485,7 +485,7 @@ _SOURCE_LABELS = (
     ('alpha', ('alpha',)), ('predictor', ('predictor',)), ('mass', ('mass_kg',)),
     ('stiffness', ('stiffness_N_per_m',)), ('damping', ('damping_N_s_per_m',)),
     ('rig', ('rig_model',)), ('dt', ('dt',)), ('record', ('record',)),
-    ('scaling', ('amplitude_N', 'scale_factor', 'time_scale')),
+    ('scaling', ('amplitude_N', 'scale_factor', 'time_scale', 'record_resampling')),
 )
 
 

@@ -111,8 +111,9 @@ def build_runs(*, config: str | None = None, overrides: dict[str, Any] | None = 
     # read every record now: a bad file is reported before anything starts
     seen = set()
     for p in runs:
-        key = tuple(p[k] for k in ('record', 'dt', 'mass_kg', 'amplitude_N', 'scale_factor',
-                                   'time_scale', 'duration_s', 'n_steps'))
+        key = tuple(p.get(k) for k in ('record', 'dt', 'mass_kg', 'amplitude_N',
+                                       'scale_factor', 'time_scale', 'record_resampling',
+                                       'duration_s', 'n_steps'))
         if key not in seen:
             seen.add(key)
             prepared_record(p)
