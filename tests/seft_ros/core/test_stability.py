@@ -411,6 +411,26 @@ def test_the_margin_of_a_structure_and_of_adaptive():
     assert unstable.text() == 'no robustness margin: unstable as declared'
 
 
+def test_adaptive_from_a_prior_its_model_law_cannot_use():
+    """'adaptive' whose declared specimen (k 1.2, m 0.8 times the study's: 12.4 Hz) makes a
+    loop with the study's controller that seft's rig model cannot invert: the guard's margin
+    says the initial law is not predicted instead of raising the model law's error (which
+    refused the run before it was built), and the run's own error names adaptive."""
+    from seft_ros.cli.api import build_runs
+    p = build_runs(overrides={'predictor': 'adaptive', 'alpha': 1.0, 'duration_s': 0.2,
+                              'predictor_stiffness_N_per_m': 1.2 * 2.11e5,
+                              'predictor_mass_kg': 0.8 * 52.7})[0]
+    with pytest.raises(ParameterError, match='^predictor model on the servohydraulic rig: '):
+        st.robustness_margin(dict(p, predictor='model'))
+    margin = st.check_run(p, margin=True).margin
+    assert (margin.low, margin.high) == (0.5, 1.5)
+    assert ('its initial law, model at the declared specimen, alone: not predicted, the model '
+            'law is not built for it (predictor model on the servohydraulic rig: ') in margin.note
+    with pytest.raises(ParameterError, match=r'^predictor adaptive on the servohydraulic rig: '
+                       r'the force loop .* cannot be inverted to a 10-step delay'):
+        simulate(p)
+
+
 def test_a_plant_gain_error_is_said_with_its_predicted_cost():
     """The margin of a test on a plant model of data says what a plant gain GAIN_ERROR off
     the model's costs (finite: predicted NRMS; inf: unstable there), in its text and JSON."""

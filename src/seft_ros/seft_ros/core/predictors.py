@@ -1202,15 +1202,16 @@ class ForceLoopInverse:
             miss = 'its response diverges' if inverse is None else (
                 f'the best inverse misses it by {100 * inverse.band_error:.0f} % up to 25 Hz')
             controller = params.get('force_controller', 'loop_shaping')
+            who = params.get('predictor', 'model')     # adaptive, polynomial: their model law
             if has_plant_model(params):
                 raise ParameterError(
-                    f'predictor model: the force loop of force_controller {controller} with '
+                    f'predictor {who}: the force loop of force_controller {controller} with '
                     f'the plant model ({plant.source}) cannot be inverted to a {delay}-step '
                     f'delay ({miss}): design the force controller for this plant (seft design, '
                     'or seft identify --params) or raise predictor_loop_delay_steps')
             mp = model_parameters(params)
             raise ParameterError(
-                f"predictor model on the servohydraulic rig: the force loop of force_controller "
+                f"predictor {who} on the servohydraulic rig: the force loop of force_controller "
                 f"{controller} with the declared specimen "
                 f"(m={mp['mass_kg']:.4g} kg, c={mp['damping_N_s_per_m']:.4g} N s/m, "
                 f"k={mp['stiffness_N_per_m']:.4g} N/m) cannot be inverted to a {delay}-step "

@@ -1688,11 +1688,18 @@ def robustness_margin(params: Mapping, *, rtol: float = 0.01) -> RobustnessMargi
     """
     pred = params['predictor']
     if pred in MARGIN_OF_INITIAL_LAW:
-        initial = robustness_margin(_with_predictor(params, pred, 'model'), rtol=rtol)
+        # the initial law's margin is a note: where the model law cannot be built for the
+        # declared specimen (a prior far off, the very case the identification is for) the
+        # note says so, and the run is not refused for it
+        try:
+            initial = robustness_margin(_with_predictor(params, pred, 'model'),
+                                        rtol=rtol).text(bare=True)
+        except SeftError as exc:
+            initial = f'not predicted, the model law is not built for it ({exc})'
         d = float(params.get('adaptive_max_deviation', 0.5))
         return RobustnessMargin(1.0 - d, 1.0 + d, f'{pred} identifies the stiffness within '
                                 f'+-{100 * d:.0f} %; its initial law, model at the declared '
-                                f'specimen, alone: {initial.text(bare=True)}')
+                                f'specimen, alone: {initial}')
     note = ''
     study = not _coupled(params)
     setup = test_setup(params)
