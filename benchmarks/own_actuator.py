@@ -13,7 +13,10 @@ seft's own rig with a stiff column) and specimen, as a lab does:
    analytical reference's peak acceleration at 70 % of the accelerometer's range, its peak
    velocity at half the valve's no-load velocity).
 
-The designed loop's crossover, phase and gain margins are read on the *true* plant (the
+Each test is first checked by the guard as ``seft simulate`` checks it
+(:func:`seft_ros.cli.api.check_stability`, with the robustness margin); its verdict is
+compared with the run's outcome. The designed loop's crossover, phase and gain margins are
+read on the *true* plant (the
 actuator linearized at rest, ``ActuatorSpec.linear_plant``; seft's rig model), never on the
 identified one. The test never sees the true plant: the same run in a lab would.
 
@@ -105,7 +108,7 @@ def lab_path(case: dict) -> dict:
 def _lab_path(case: dict) -> dict:
     from seft_ros.analysis.metrics import compare_run
     from seft_ros.analysis.rig_identification import identified_parameters, identify_rigs
-    from seft_ros.cli.api import build_runs
+    from seft_ros.cli.api import build_runs, check_stability
     from seft_ros.cli.config import mapping_values
     from seft_ros.core import stability
     from seft_ros.core.experiment import simulate
@@ -149,9 +152,14 @@ def _lab_path(case: dict) -> dict:
                                       record=case.get('record', 'default')))[0]
         p['amplitude_N'] = _amplitude(p, v_max)
         entry = {'predictor': predictor, 'alpha': alpha, 'amplitude_N': p['amplitude_N']}
+        # the guard as `seft simulate` runs it (with the robustness margin: the margin's
+        # error refused adaptive runs that `simulate` alone ran, fifteenth session); a run
+        # the guard refuses is run all the same (--force) to compare verdict and outcome
         try:
-            check = stability.check_run(p)
+            check = check_stability(runs=[p], progress=lambda line: None)[0]
             entry['guard'] = check.stable
+        except stability.PredictedUnstableError as exc:
+            entry['guard'], entry['guard_refused'] = False, str(exc)
         except Exception as exc:                       # a prediction the guard cannot make
             entry['guard'] = f'n/a: {exc}'
         try:
