@@ -500,8 +500,8 @@ def prepare(record: GroundMotion, *, dt: float, mass_kg: float, amplitude_N: flo
          two neighbours, so it never exceeds the record's peak, and its error on a sine of
          angular frequency ``omega`` is at most ``(omega*h)^2/8`` of the amplitude, ``h`` the
          scaled record step (4.9e-4 for 1 Hz and 1.2 % for 5 Hz at h = 0.01 s). But it
-         leaves *images*: content at ``f`` reappears near ``j/h -+ f`` with the gain
-         ``sinc^2(f' h)`` of the interpolation kernel (13 % at 70 Hz of a 30 Hz component,
+         leaves *images*: content at ``f`` reappears at ``j/h -+ f`` with the kernel's gain
+         there, ``sinc^2(f_image h)`` (about 14 % of a 30 Hz component at 70 Hz,
          h = 0.01 s). A one-DOF structure's relative acceleration follows ``-xg''`` above its
          natural frequency, so the reference holds these images and no force loop tracks
          them: on Kobe KJMA 000 (h = 0.01 s) with a 50 Hz specimen at dt = 1 ms they were
@@ -511,7 +511,9 @@ def prepare(record: GroundMotion, *, dt: float, mass_kg: float, amplitude_N: flo
          (``scipy.signal.resample_poly``, its Kaiser-windowed FIR; Crochiere and Rabiner,
          *Multirate Digital Signal Processing*, 1983, Ch. 2): nothing of the record above
          its Nyquist frequency ``1/(2h)`` (or the run's, downsampling) is kept or made, the
-         passband is flat, and the samples past the record are the last one held. The ratio
+         passband is flat. The filter (20 record steps long) takes the ground at rest before
+         and after the record, so a record that does not start or end at rest gets a
+         transient of 10 record steps at that end. The ratio
          is a fraction of denominator 1000 or less: exact for the usual record and control
          periods (records at 0.005-0.02 s, time scales 0.25-1, dt 0.5-2 ms); otherwise the
          nearest such fraction, which stretches the record's time axis by at most 5e-4
