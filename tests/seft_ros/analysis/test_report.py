@@ -401,3 +401,18 @@ def test_structure_report_of_a_yielding_rig_has_its_hysteresis(tmp_path):
     md = paths.report_md.read_text()
     assert '(hysteresis_run_1.png)' in md and 'rig lab, nonlinear specimen (bouc_wen)' in md
     assert 'Reference: scipy.integrate.solve_ivp, LSODA' in md
+
+
+def test_the_report_says_how_the_record_was_prepared():
+    from seft_ros.analysis.report import _preparation
+    assert _preparation({'record': '/data/kobe.AT2', 'time_scale': 0.5,
+                         'record_resampling': 'auto'}) == \
+        ' (time scale 0.5, resampling band_limited)'
+    assert _preparation({'record': 'default', 'time_scale': 0.5,
+                         'record_resampling': 'auto'}) == ' (time scale 0.5, resampling linear)'
+    assert _preparation({'record': '/data/kobe.AT2', 'time_scale': 1,
+                         'record_resampling': 'linear'}) == ' (time scale 1, resampling linear)'
+    # a bag from before the parameter, and an identification run (no record played)
+    assert _preparation({'record': 'default', 'time_scale': 0.5}) == ''
+    assert _preparation({'record': 'default', 'record_resampling': 'auto',
+                         'excitation': 'noise'}) == ''

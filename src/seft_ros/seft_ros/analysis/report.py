@@ -536,9 +536,23 @@ def _range_markdown(run: RunData) -> list[str]:
     return lines
 
 
+def _preparation(params) -> str:
+    """' (time scale 0.5, resampling band_limited)': how the run's record was prepared
+    (:func:`seft_ros.core.ground_motion.prepare`; '' for an excitation run or a bag that
+    does not say)."""
+    how = params.get('record_resampling')
+    if how is None or params.get('excitation', 'none') != 'none':
+        return ''
+    if how == 'auto':
+        how = 'linear' if params.get('record', 'default') == 'default' else 'band_limited'
+    scale = params.get('time_scale')
+    return (f' (time scale {scale:g}, ' if isinstance(scale, (int, float)) else ' (') + \
+        f'resampling {how})'
+
+
 def _run_markdown(index: int, run: RunData, comparison: RunComparison) -> list[str]:
     params = run.params
-    record = run.record_name or params.get('record', '')
+    record = (run.record_name or params.get('record', '')) + _preparation(params)
     lines = [
         f"## Run {index}: alpha = {_param(run, 'alpha')}, rig {params.get('rig_model', 'n/a')}, "
         f"predictor {params.get('predictor', 'n/a')}",
