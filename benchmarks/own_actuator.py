@@ -117,9 +117,10 @@ def _lab_path(case: dict) -> dict:
     out = {'case': case['name'], 'member': case['member'], 'f_hz': case['f_hz'],
            'zeta': case['zeta'], 'runs': []}
     # 1. the open-loop identification run
+    # (the test's configuration: the design ranks its force-loop inverses for its record)
     idp = build_runs(overrides=dict(base, predictor='none', excitation='noise',
                                     excitation_input='valve_command', duration_s=20.0,
-                                    alpha=0.0))[0]
+                                    alpha=0.0, record=case.get('record', 'default')))[0]
     rd = simulate(idp)
     if not rd.stable:
         out['error'] = f'identification run aborted: {rd.abort_reason}'

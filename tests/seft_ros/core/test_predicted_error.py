@@ -15,12 +15,13 @@ import numpy as np
 import pytest
 
 from seft_msgs_py import parameters
+from seft_msgs_py.errors import SeftError
 from seft_ros.analysis.metrics import compare_run
 from seft_ros.core.experiment import simulate
 from seft_ros.core.force_design import PREDICTED_ERROR_GOAL
 from seft_ros.core.ground_motion import GroundMotion
 from seft_ros.core.reference_force import make_predictor
-from seft_ros.core.stability import LoopModel, kanai_tajimi, predicted_error
+from seft_ros.core.stability import GroundSpectrum, LoopModel, kanai_tajimi, predicted_error
 
 DT = 0.002
 SIGNALS = ('displacement', 'acceleration', 'force')
@@ -81,6 +82,46 @@ def test_the_kanai_tajimi_spectrum_is_its_closed_form():
     assert kanai_tajimi([0.0])[0] == pytest.approx(1.0)
     assert kanai_tajimi([wg / (2 * math.pi)])[0] == pytest.approx(
         (1 + 4 * zg ** 2) / (4 * zg ** 2))
+
+
+def test_a_records_spectrum_holds_its_variance_and_its_tones():
+    """Welch's density of a record integrates to its mean square (Parseval: white noise of
+    0.5 m/s^2 rms plus a 0.3 m/s^2 tone at 4 Hz, 0.295 within 5 %), and the tone stands out
+    at its frequency; bad records are refused with a one-line error naming the record."""
+    rng = np.random.default_rng(3)
+    n = 15000
+    t = np.arange(n) * DT
+    a = 0.5 * rng.standard_normal(n) + 0.3 * np.sin(2 * np.pi * 4.0 * t)
+    spec = GroundSpectrum.of_record(a, DT, 'noise and tone')
+    df = spec.freq_hz[1] - spec.freq_hz[0]
+    assert df == pytest.approx(0.2)
+    assert np.sum(spec.density) * df == pytest.approx(0.25 + 0.045, rel=0.05)
+    assert spec(4.0) > 20 * np.median(spec.density)
+    assert spec(0.0) == spec.density[0] and spec(1e3) == spec.density[-1]
+    for bad in (np.zeros(500), np.ones(10), np.r_[np.ones(100), np.nan]):
+        with pytest.raises(SeftError, match=r'^ground spectrum of quake: expected at least '
+                                            r'64 finite samples, not all zero \(got \d+\)$'):
+            GroundSpectrum.of_record(bad, DT, 'quake')
+
+
+def test_a_narrow_band_ground_weighs_the_error_at_its_frequency():
+    """A ground with all its power in 2.9-3.1 Hz: the predicted error is the test's
+    amplitude error there, the phase taken by the lag (|H_test| / |H_ref| - 1 of the
+    uncompensated delay rig at alpha 0.5, tau 10 ms, from the loop's own response, within
+    2 %); a record's spectrum weighs the band the test is shaken in, where the Kanai-Tajimi
+    one weighs every frequency (measured 0.52 % against 31 %)."""
+    params = parameters.resolve({'rig_model': 'delay', 'predictor': 'none', 'tau_s': 0.01,
+                                 'alpha': 0.5})
+    f = np.linspace(0.0, 250.0, 5001)
+    spec = GroundSpectrum(f, np.where(np.abs(f - 3.0) <= 0.1, 1.0, 0.0), 'band')
+    banded, = predicted_error(params, [0.5], spectrum=spec)
+    m, c, k = (params[key] for key in ('mass_kg', 'damping_N_s_per_m', 'stiffness_N_per_m'))
+    w = 2 * np.pi * 3.0
+    h_test, _ = LoopModel(params).ground_response(0.5, [3.0])
+    h_ref = 1.0 / (k - 1.5 * m * w * w + 1j * w * c)
+    assert banded == pytest.approx(abs(abs(h_test[0]) / abs(h_ref) - 1.0), rel=0.02)
+    broad, = predicted_error(params, [0.5])
+    assert broad > 10 * banded
 
 
 @pytest.fixture(scope='module')

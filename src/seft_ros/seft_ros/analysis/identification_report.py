@@ -308,6 +308,14 @@ def _design_lines(runs: list[dict[str, Any]]) -> list[str]:
         verdict = 'met' if design['met'] else 'NOT met'
         notes = '' if not design['notes'] else ' (' + '; '.join(design['notes']) + ')'
         errors = ', '.join(f'{k} {100 * v:.2g} %' for k, v in plant['nrms'].items())
+        predicted = design.get('predicted_error') or []
+        if predicted:
+            predicted = (", the study's test with `model` predicted within "
+                         + ' / '.join(f'{100 * e:.2g}' for _, e in predicted)
+                         + ' % at alpha ' + ' / '.join(f'{a:g}' for a, _ in predicted)
+                         + f" for the {design.get('prediction_ground', 'Kanai-Tajimi ground')}")
+        else:
+            predicted = ''
         lines += [f"**The force loop of {rig_label(r['rig'])} ({r['bag']}) as data.** Order "
                   f"{plant['order']} (the Bayesian information criterion over orders 1-"
                   f"{len(plant['orders'])}), delay {plant['delay_steps']} steps; relative RMS "
@@ -318,7 +326,7 @@ def _design_lines(runs: list[dict[str, Any]]) -> list[str]:
                   'the control-structure-interaction zero at '
                   f"{_fmt(s['specimen_hz'], '.4g')} Hz{notched}; force-loop inverse "
                   f"{design['loop_delay_steps']} steps, {design['loop_taps']} taps (miss "
-                  f'{miss} % up to 25 Hz); targets {verdict}{notes}.', '']
+                  f'{miss} % up to 25 Hz{predicted}); targets {verdict}{notes}.', '']
     return lines
 
 

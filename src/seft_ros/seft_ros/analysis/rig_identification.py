@@ -672,10 +672,12 @@ def identify_run(run: RunData, *, window: str = 'hann', nperseg: int = DEFAULT_N
 
 def _identify_plant(ident: RunIdentification, run: RunData, figs: dict) -> None:
     """The plant as data and its designed controller, into `ident` and its figures
-    (an open-loop run of a valve-driven rig with a linear specimen)."""
+    (an open-loop run of a valve-driven rig with a linear specimen); the force-loop
+    inverse ranked for the record the run's configuration names (the lab's path runs the
+    test's configuration with an excitation)."""
     from seft_msgs_py.plant import Specimen
     from seft_ros.analysis.plant_identification import identify_plant
-    from seft_ros.core.force_design import design_force_controller
+    from seft_ros.core.force_design import design_force_controller, test_record_spectrum
     sf = ident.specimen
     spec = Specimen(sf.mass_kg, sf.damping_N_s_per_m, sf.stiffness_N_per_m)
     se_m, _, se_k = sf.standard_errors
@@ -685,7 +687,10 @@ def _identify_plant(ident: RunIdentification, run: RunData, figs: dict) -> None:
     where = f'{run.source}: rig {ident.rig}' if ident.rig else run.source
     ident.plant = identify_plant(run.valve_command_V, y, float(run.params['dt']),
                                  specimen=spec, frequency_uncertainty=sigma_f, source=where)
-    ident.design = design_force_controller(ident.plant.model)
+    spectrum, note = test_record_spectrum(run.params)
+    ident.design = design_force_controller(ident.plant.model, ground_spectrum=spectrum)
+    if note:
+        ident.design.notes.append(note)
     figs['plant'] = ident.plant.to_json()
     figs['design'] = ident.design.to_json()
 

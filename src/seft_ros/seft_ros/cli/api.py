@@ -1410,7 +1410,9 @@ def design_controllers(*, config: str | None = None, overrides: dict | None = No
     The plant is the rig's (:func:`seft_ros.core.force_loop.force_loop_plant`: its
     ``plant_model``, written by the lab or by ``seft identify``, else seft's servohydraulic
     rig model with the rig's specimen), the design :func:`seft_ros.core.force_design.
-    design_force_controller` with the targets given. In a structure each coupled rig's
+    design_force_controller` with the targets given, its force-loop inverse ranked for the
+    spectrum of the record the configuration names (:func:`seft_ros.core.force_design.
+    test_record_spectrum`). In a structure each coupled rig's
     force-loop inverse is then chosen by rehearsing the structure's test on the plant
     models (:func:`seft_ros.core.structure_design.choose_structure_inverses`; `progress`
     receives a line per rig).
@@ -1436,7 +1438,11 @@ def design_controllers(*, config: str | None = None, overrides: dict | None = No
         says to identify it), no valve-driven rig.
     """
     from seft_ros.analysis.identification_report import write_params_yaml, write_rig_params_yaml
-    from seft_ros.core.force_design import DesignTargets, design_force_controller
+    from seft_ros.core.force_design import (
+        DesignTargets,
+        design_force_controller,
+        test_record_spectrum,
+    )
     from seft_ros.core.force_loop import force_loop_plant
     from seft_ros.core.structure import test_setup
     if out and Path(out).is_dir():
@@ -1445,6 +1451,7 @@ def design_controllers(*, config: str | None = None, overrides: dict | None = No
     targets = DesignTargets(phase_margin_deg, gain_margin, crossover_hz, uncertainty)
     params = build_runs(config=config, overrides=overrides, params_files=params_files)[0]
     setup = test_setup(params)
+    spectrum, note = test_record_spectrum(params)
     designs = {}
     for rig in setup.rig_names:
         rp = setup.rig_params[rig]
@@ -1454,7 +1461,10 @@ def design_controllers(*, config: str | None = None, overrides: dict | None = No
             plant = force_loop_plant(rp)
         except ParameterError as exc:
             raise ParameterError(f'rig {rig}: {exc}' if rig else str(exc)) from None
-        designs[rig] = design_force_controller(plant, targets=targets)
+        designs[rig] = design_force_controller(plant, targets=targets,
+                                               ground_spectrum=spectrum)
+        if note:
+            designs[rig].notes.append(note)
     if not designs:
         raise ParameterError('no valve-driven rig in the test (rig_model delay takes the '
                              'reference force: it has no force controller to design)')

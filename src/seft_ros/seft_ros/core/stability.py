@@ -72,8 +72,8 @@ __all__ = [
     'LEVEL_MISFIT',
     'largest_stable_dt', 'TestLoop', 'scaled_parameters',
     'largest_stable_scale', 'RobustnessMargin', 'robustness_margin',
-    'KANAI_TAJIMI_FIRM_GROUND', 'PREDICTED_LAG_S', 'kanai_tajimi', 'response_grid',
-    'predicted_error',
+    'KANAI_TAJIMI_FIRM_GROUND', 'PREDICTED_LAG_S', 'kanai_tajimi', 'GroundSpectrum',
+    'RECORD_SPECTRUM_SEGMENT_S', 'response_grid', 'predicted_error',
     'GAIN_ERROR',
 ]
 
@@ -765,14 +765,76 @@ def kanai_tajimi(freq_hz, omega_g: float = KANAI_TAJIMI_FIRM_GROUND[0],
     return (g2 * g2 + damped) / ((g2 - w2) ** 2 + damped)
 
 
-def response_grid(f0_hz: float, half_hz: float, dt: float, points: int
+#: The length of the segments a record's spectral density is averaged over
+#: (:meth:`GroundSpectrum.of_record`): 0.2 Hz resolution [s].
+RECORD_SPECTRUM_SEGMENT_S = 5.0
+
+
+@dataclass(frozen=True)
+class GroundSpectrum:
+    """The one-sided spectral density of a ground acceleration, to weigh a predicted error.
+
+    Parameters
+    ----------
+    freq_hz : ndarray, shape (nf,)
+        Ascending [Hz].
+    density : ndarray, shape (nf,)
+        [(m/s^2)^2/Hz]; only its shape matters to :func:`predicted_error`.
+    name : str
+        What it is the spectrum of (for the design's notes).
+    """
+
+    freq_hz: np.ndarray
+    density: np.ndarray
+    name: str
+
+    @classmethod
+    def of_record(cls, acceleration_m_s2, dt: float, name: str = 'record') -> 'GroundSpectrum':
+        """Welch's estimate of a record's spectral density (scipy.signal.welch, Hann
+        segments of :data:`RECORD_SPECTRUM_SEGMENT_S` or the record, half overlapped).
+
+        Parameters
+        ----------
+        acceleration_m_s2 : array_like, shape (n,)
+            The ground acceleration as the test plays it [m/s^2].
+        dt : float
+            Its sample period [s].
+
+        Raises
+        ------
+        ParameterError
+            Fewer than 64 samples, a non-finite sample, or a record of zeros.
+
+        References
+        ----------
+        P. D. Welch, The use of fast Fourier transform for the estimation of power spectra,
+        IEEE Trans. Audio Electroacoust. 15(2), 1967.
+        """
+        from scipy.signal import welch
+        a = np.asarray(acceleration_m_s2, dtype=float).ravel()
+        if a.size < 64 or not np.all(np.isfinite(a)) or not np.any(a):
+            raise ParameterError(f'ground spectrum of {name}: expected at least 64 finite '
+                                 f'samples, not all zero (got {a.size})')
+        nper = int(min(a.size, round(RECORD_SPECTRUM_SEGMENT_S / float(dt))))
+        f, pxx = welch(a, fs=1.0 / float(dt), nperseg=nper)
+        return cls(f, pxx, name)
+
+    def __call__(self, freq_hz) -> np.ndarray:
+        """The density at `freq_hz` (linear between the estimate's frequencies, its end
+        values beyond), shape as `freq_hz`."""
+        return np.interp(np.asarray(freq_hz, dtype=float), self.freq_hz, self.density)
+
+
+def response_grid(f0_hz: float, half_hz: float, dt: float, points: int, spectrum=None
                   ) -> tuple[np.ndarray, np.ndarray]:
     """The frequencies a test's response to the ground is integrated on, and their weights.
 
     A logarithmic grid of `points` from 0.02 Hz to the Nyquist frequency, refined by 201
     points over 20 half-power bandwidths either side of the reference structure's resonance,
-    each weighted by its share of the axis and the firm-ground :func:`kanai_tajimi` spectrum
-    (:func:`predicted_error`, :func:`~seft_ros.core.law_calibration.ground_gain_scale`).
+    each weighted by its share of the axis and the ground's spectrum: `spectrum` (a
+    :class:`GroundSpectrum`, any callable of frequency [Hz]), default the firm-ground
+    :func:`kanai_tajimi` one (:func:`predicted_error`,
+    :func:`~seft_ros.core.law_calibration.ground_gain_scale`).
 
     Parameters
     ----------
@@ -794,15 +856,16 @@ def response_grid(f0_hz: float, half_hz: float, dt: float, points: int
     f = np.unique(np.concatenate([np.geomspace(0.02, 0.999 * nyquist, points),
                                   f0_hz + half_hz * np.linspace(-20.0, 20.0, 201)]))
     f = f[(f > 0.0) & (f < nyquist)]
-    return f, np.gradient(f) * kanai_tajimi(f)
+    return f, np.gradient(f) * (kanai_tajimi(f) if spectrum is None else spectrum(f))
 
 
 def predicted_error(params: Mapping, alphas=None, *, loop: LoopModel | None = None,
-                    points: int = 800) -> np.ndarray:
+                    points: int = 800, spectrum: GroundSpectrum | None = None) -> np.ndarray:
     """The study's test's NRMS displacement error predicted from its linear loop.
 
-    For a ground acceleration with the firm-ground :func:`kanai_tajimi` spectrum, the
-    displacement of the test (:meth:`LoopModel.ground_response`) against the whole structure
+    For a ground acceleration with the firm-ground :func:`kanai_tajimi` spectrum (or
+    `spectrum`, a record's), the displacement of the test
+    (:meth:`LoopModel.ground_response`) against the whole structure
     ``x / E = 1 / (k - (1 + alpha) m w^2 + i w c)`` (paper Eq. 2.1), the test's lag removed
     as :func:`~seft_ros.analysis.metrics.compare_run` removes it (the lag within
     :data:`PREDICTED_LAG_S` that maximizes the cross-spectrum)::
@@ -828,6 +891,10 @@ def predicted_error(params: Mapping, alphas=None, *, loop: LoopModel | None = No
         Default ``LoopModel(params)``.
     points : int
         Size of the logarithmic grid.
+    spectrum : GroundSpectrum, optional
+        The ground's spectrum instead of the Kanai-Tajimi one (the test's record:
+        :func:`~seft_ros.core.force_design.design_force_controller` ranks force-loop
+        inverses with it).
 
     Returns
     -------
@@ -853,7 +920,7 @@ def predicted_error(params: Mapping, alphas=None, *, loop: LoopModel | None = No
         mt = (1.0 + alpha) * m
         f0 = math.sqrt(k / mt) / (2.0 * math.pi)
         half = f0 * max(c / (2.0 * math.sqrt(k * mt)), 1e-3)
-        f, weight = response_grid(f0, half, dt, points)
+        f, weight = response_grid(f0, half, dt, points, spectrum)
         w = 2.0 * np.pi * f
         h_test, radius = loop.ground_response(alpha, f)
         if not radius < 1.0:
