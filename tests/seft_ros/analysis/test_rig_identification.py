@@ -143,7 +143,7 @@ def test_rig_force_loop_model_is_recovered(open_loop):
     assert values['valve_pressure_coefficient_m3_per_s_Pa'] == pytest.approx(8e-12, rel=0.02)
 
 
-def test_rig_delay(closed_loop, open_loop):
+def test_rig_delay(closed_loop, open_loop, tmp_path):
     fig = closed_loop.figures
     assert fig['model']['delay_ms'] == pytest.approx(11.73, abs=0.01)
     assert fig['delay_ms'] == pytest.approx(fig['model']['delay_ms'], abs=0.5)
@@ -161,6 +161,16 @@ def test_rig_delay(closed_loop, open_loop):
     assert out['plant_model']['form'] == 'transfer_function'
     assert out['predictor_tau_s'] == design.equivalent_delay_s
     assert 0.0 < design.equivalent_delay_s < fig['delay_ms'] * 1e-3
+    # its force-loop inverse ranked for the record the run's configuration names (the
+    # default), the predicted errors and their ground in the report
+    from seft_ros.analysis.identification_report import write_identification
+    assert design.prediction_ground == 'record synthetic-default(seed=1)'
+    assert sorted(design.predicted_error) == [0.5, 1.0, 1.5]
+    write_identification([open_loop], tmp_path)
+    report = (tmp_path / 'identification.md').read_text()
+    errors = ' / '.join(f'{100 * e:.2g}' for e in design.predicted_error.values())
+    assert (f"the study's test with `model` predicted within {errors} % at alpha "
+            '0.5 / 1 / 1.5 for the record synthetic-default(seed=1))') in report
 
 
 def test_delay_rig_delay_is_exact():

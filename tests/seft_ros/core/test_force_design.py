@@ -324,19 +324,19 @@ def test_the_inverse_is_ranked_for_the_record_the_test_plays(tmp_path):
     (the excitation set aside; scaled, cut to ``duration_s`` and resampled to ``dt`` as the
     test's), and a record that cannot be read where the design runs falls back to the
     Kanai-Tajimi ground with a note naming the file."""
-    from seft_ros.core.force_design import test_record_spectrum
+    from seft_ros.core.force_design import played_record_spectrum
     from seft_ros.core.ground_motion import prepared_record
     from seft_ros.core.stability import GroundSpectrum
     test = rig(duration_s=8.0)
     ident = dict(test, excitation='noise', excitation_input='valve_command', n_steps=1000)
-    spectrum, note = test_record_spectrum(ident)
+    spectrum, note = played_record_spectrum(ident)
     gm = prepared_record(test)
     assert gm.acceleration_m_s2.shape == (4000,)
     own = GroundSpectrum.of_record(gm.acceleration_m_s2, DT)
     assert note == '' and spectrum.name == 'record synthetic-default(seed=1)'
     np.testing.assert_array_equal(spectrum.density, own.density)
     missing = tmp_path / 'quake.AT2'
-    spectrum, note = test_record_spectrum(dict(ident, record=str(missing)))
+    spectrum, note = played_record_spectrum(dict(ident, record=str(missing)))
     assert spectrum is None
     assert note == (f'the test record ({missing}) cannot be read here ({missing}: no such '
                     'file): force-loop inverses ranked for a Kanai-Tajimi firm ground')

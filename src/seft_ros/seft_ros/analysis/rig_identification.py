@@ -677,7 +677,7 @@ def _identify_plant(ident: RunIdentification, run: RunData, figs: dict) -> None:
     test's configuration with an excitation)."""
     from seft_msgs_py.plant import Specimen
     from seft_ros.analysis.plant_identification import identify_plant
-    from seft_ros.core.force_design import design_force_controller, test_record_spectrum
+    from seft_ros.core.force_design import design_force_controller, played_record_spectrum
     sf = ident.specimen
     spec = Specimen(sf.mass_kg, sf.damping_N_s_per_m, sf.stiffness_N_per_m)
     se_m, _, se_k = sf.standard_errors
@@ -687,7 +687,7 @@ def _identify_plant(ident: RunIdentification, run: RunData, figs: dict) -> None:
     where = f'{run.source}: rig {ident.rig}' if ident.rig else run.source
     ident.plant = identify_plant(run.valve_command_V, y, float(run.params['dt']),
                                  specimen=spec, frequency_uncertainty=sigma_f, source=where)
-    spectrum, note = test_record_spectrum(run.params)
+    spectrum, note = played_record_spectrum(run.params)
     ident.design = design_force_controller(ident.plant.model, ground_spectrum=spectrum)
     if note:
         ident.design.notes.append(note)

@@ -1412,7 +1412,7 @@ def design_controllers(*, config: str | None = None, overrides: dict | None = No
     rig model with the rig's specimen), the design :func:`seft_ros.core.force_design.
     design_force_controller` with the targets given, its force-loop inverse ranked for the
     spectrum of the record the configuration names (:func:`seft_ros.core.force_design.
-    test_record_spectrum`). In a structure each coupled rig's
+    played_record_spectrum`). In a structure each coupled rig's
     force-loop inverse is then chosen by rehearsing the structure's test on the plant
     models (:func:`seft_ros.core.structure_design.choose_structure_inverses`; `progress`
     receives a line per rig).
@@ -1441,7 +1441,7 @@ def design_controllers(*, config: str | None = None, overrides: dict | None = No
     from seft_ros.core.force_design import (
         DesignTargets,
         design_force_controller,
-        test_record_spectrum,
+        played_record_spectrum,
     )
     from seft_ros.core.force_loop import force_loop_plant
     from seft_ros.core.structure import test_setup
@@ -1451,7 +1451,7 @@ def design_controllers(*, config: str | None = None, overrides: dict | None = No
     targets = DesignTargets(phase_margin_deg, gain_margin, crossover_hz, uncertainty)
     params = build_runs(config=config, overrides=overrides, params_files=params_files)[0]
     setup = test_setup(params)
-    spectrum, note = test_record_spectrum(params)
+    spectrum, note = played_record_spectrum(params)
     designs = {}
     for rig in setup.rig_names:
         rp = setup.rig_params[rig]

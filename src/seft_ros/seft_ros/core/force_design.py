@@ -61,7 +61,7 @@ __all__ = ['DesignTargets', 'LoopMargins', 'ForceLoopDesign', 'loop_margins',
            'design_force_controller', 'plant_margins', 'INVERSE_BAND_ERROR',
            'MIN_DETUNED_MODULUS_MARGIN', 'DESIGN_ALPHAS', 'PREDICTED_ERROR_GOAL',
            'PREDICTED_ERROR_PATIENCE', 'PREDICTED_ERROR_BOUND', 'RECORD_PREDICTED_GAIN',
-           'KANAI_TAJIMI_GROUND', 'DESIGN_METHOD', 'test_record_spectrum']
+           'KANAI_TAJIMI_GROUND', 'DESIGN_METHOD', 'played_record_spectrum']
 
 #: The largest miss ``max |W T - z^-d|`` up to 25 Hz of the force-loop inverse the design
 #: chooses (the study's rig, 48 taps: 0.01 at d = 10).
@@ -948,7 +948,7 @@ def _search_inverse(plant: PlantModel, design: 'ForceLoopDesign', resp, csi_band
             'notes': notes}
 
 
-def test_record_spectrum(params):
+def played_record_spectrum(params):
     """The spectrum of the ground motion the test plays, for :func:`design_force_controller`.
 
     Parameters
