@@ -17,6 +17,7 @@ import yaml
 
 from seft_ros.analysis.rig_identification import MIN_COHERENCE, RunIdentification
 from seft_ros.analysis.rundata import rig_label
+from seft_ros.core.force_design import KANAI_TAJIMI_GROUND
 
 __all__ = ['write_identification', 'write_params_yaml', 'write_rig_params_yaml',
            'SUMMARY_KEYS']
@@ -313,7 +314,7 @@ def _design_lines(runs: list[dict[str, Any]]) -> list[str]:
             predicted = (", the study's test with `model` predicted within "
                          + ' / '.join(f'{100 * e:.2g}' for _, e in predicted)
                          + ' % at alpha ' + ' / '.join(f'{a:g}' for a, _ in predicted)
-                         + f" for the {design.get('prediction_ground', 'Kanai-Tajimi ground')}")
+                         + f" for the {design.get('prediction_ground', KANAI_TAJIMI_GROUND)}")
         else:
             predicted = ''
         lines += [f"**The force loop of {rig_label(r['rig'])} ({r['bag']}) as data.** Order "
