@@ -152,3 +152,32 @@ def test_a_run_too_short_for_a_specimen_has_its_loop_only():
     assert ident.specimen is None and 'specimen' not in ident.figures
     assert math.isfinite(ident.figures['delay_ms'])
     assert set(identified_rig_parameters([ident])['']) == {'predictor_tau_s'}
+
+
+def test_each_pier_gets_its_own_force_loop_designed_for_the_one_record_read_once(monkeypatch):
+    """An open-loop run of a structure (the valve of each pier driven by noise): each rig's
+    plant is identified from its own signals and gets a force controller designed for it,
+    ranked for the record the test plays, which is read and resampled once for the run."""
+    from seft_ros.core import force_design
+    reads = []
+    played = force_design.played_record_spectrum
+    monkeypatch.setattr(force_design, 'played_record_spectrum',
+                        lambda params: reads.append(params['record']) or played(params))
+    run, = build_runs(config=str(CONFIG / 'two_piers.yaml'), overrides=dict(
+        predictor='none', excitation='noise', excitation_input='valve_command',
+        duration_s=10.0))
+    idents = identify_rigs(simulate(run))
+    assert reads == ['default']
+    for ident in idents:
+        specimen = ident.plant.model.specimen
+        assert specimen.stiffness_N_per_m == pytest.approx(
+            float(ident.params['stiffness_N_per_m']), rel=1e-6), ident.rig
+        assert ident.design.stable, ident.design.notes
+        assert ident.design.prediction_ground.startswith('record synthetic-default'), ident.rig
+    # each pier's zero (control-structure interaction) at its own specimen's frequency
+    zeros = [ident.figures['zero_hz'] for ident in idents]
+    assert zeros[1] / zeros[0] == pytest.approx(1.6 ** 0.5, rel=0.02)
+    values = identified_rig_parameters(idents)
+    assert [values[r]['force_controller'] for r in ('pier_a', 'pier_b')] \
+        == ['transfer_function'] * 2
+    assert values['pier_a']['force_controller_tf'] != values['pier_b']['force_controller_tf']

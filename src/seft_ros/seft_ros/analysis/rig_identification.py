@@ -533,7 +533,7 @@ class RunIdentification:
 
 def identify_run(run: RunData, *, window: str = 'hann', nperseg: int = DEFAULT_NPERSEG,
                  noverlap: int | None = None, orders=None,
-                 delay_band_hz=DELAY_BAND_HZ) -> RunIdentification:
+                 delay_band_hz=DELAY_BAND_HZ, record_spectrum=None) -> RunIdentification:
     """Identify the rig from one run (a bag read by ``seft_ros.analysis.bag.read_run``).
 
     Parameters
@@ -548,6 +548,11 @@ def identify_run(run: RunData, *, window: str = 'hann', nperseg: int = DEFAULT_N
         Fit orders (default :data:`DEFAULT_ORDERS_OPEN` or :data:`DEFAULT_ORDERS_CLOSED`).
     delay_band_hz : (float, float)
         Band of the phase-slope delay [Hz].
+    record_spectrum : callable, optional
+        ``params -> (GroundSpectrum or None, note)``, the spectrum of the record the test
+        plays for the force-loop design of an open-loop run (default
+        :func:`~seft_ros.core.force_design.played_record_spectrum`; :func:`identify_rigs`
+        passes one that reads the record once for all the run's rigs).
 
     Returns
     -------
@@ -643,7 +648,7 @@ def identify_run(run: RunData, *, window: str = 'hann', nperseg: int = DEFAULT_N
             model.update(zero_hz=zm, resonance_hz=rm, source=plant.source,
                          **loop_figures(ident.loop_model, max(0.1, band[0]), band[1]).to_json())
         if servo and ident.specimen is not None and ident.specimen.linear:
-            _identify_plant(ident, run, figs)
+            _identify_plant(ident, run, figs, record_spectrum)
     else:
         coh = weight
         figs['delay_ms'] = 1e3 * phase_slope_delay_s(f, fr.response, delay_band_hz, coh)
@@ -670,7 +675,8 @@ def identify_run(run: RunData, *, window: str = 'hann', nperseg: int = DEFAULT_N
     return ident
 
 
-def _identify_plant(ident: RunIdentification, run: RunData, figs: dict) -> None:
+def _identify_plant(ident: RunIdentification, run: RunData, figs: dict,
+                    record_spectrum=None) -> None:
     """The plant as data and its designed controller, into `ident` and its figures
     (an open-loop run of a valve-driven rig with a linear specimen); the force-loop
     inverse ranked for the record the run's configuration names (the lab's path runs the
@@ -687,7 +693,7 @@ def _identify_plant(ident: RunIdentification, run: RunData, figs: dict) -> None:
     where = f'{run.source}: rig {ident.rig}' if ident.rig else run.source
     ident.plant = identify_plant(run.valve_command_V, y, float(run.params['dt']),
                                  specimen=spec, frequency_uncertainty=sigma_f, source=where)
-    spectrum, note = played_record_spectrum(run.params)
+    spectrum, note = (record_spectrum or played_record_spectrum)(run.params)
     ident.design = design_force_controller(ident.plant.model, ground_spectrum=spectrum)
     if note:
         ident.design.notes.append(note)
@@ -741,6 +747,15 @@ def identify_rigs(run: RunData, **options) -> list[RunIdentification]:
     """
     if len(run.rigs) == 1:
         return [identify_run(run, **options)]
+    once: dict[str, tuple] = {}         # one record, one test: read it once for all rigs
+
+    def record_spectrum(params):
+        if 'spectrum' not in once:
+            from seft_ros.core.force_design import played_record_spectrum
+            once['spectrum'] = played_record_spectrum(params)
+        return once['spectrum']
+
+    options.setdefault('record_spectrum', record_spectrum)
     out = []
     for name in run.rig_names:
         try:
