@@ -1482,7 +1482,9 @@ def design_controllers(*, config: str | None = None, overrides: dict | None = No
         from seft_ros.core.structure_design import choose_structure_inverses
         designed = {r: mapping_values({k: v for k, v in values[r].items()
                                        if not k.startswith('_')}) for r in values}
-        choices = choose_structure_inverses(params, designed, progress)
+        choices = choose_structure_inverses(
+            params, designed, progress,
+            shortest={r: d.shortest_loop_delay_steps for r, d in designs.items()})
         for c in choices:
             values[c.rig].update(c.values)
             values[c.rig]['_design'] += f'; {c.summary()}'

@@ -232,6 +232,13 @@ class ForceLoopDesign:
     loop_delay_steps, loop_taps : int
         The force-loop inverse the compensators should use (``predictor_loop_delay_steps``,
         ``predictor_loop_taps``).
+    shortest_loop_delay_steps : int
+        The shortest inverse delay that fits the loop within :data:`INVERSE_BAND_ERROR`
+        (0: none) [steps]: where a structure's rehearsal of the inverses starts
+        (:func:`~seft_ros.core.structure_design.choose_structure_inverses`). The design
+        keeps a longer one where the one-DOF test is not stable up to alpha 2 on the model
+        with it, or is predicted better with a longer one; in a structure the rig's loop
+        is closed through the computational part and the rehearsal decides.
     loop_hf_weight : float
         Its weight above 40 Hz (``predictor_loop_hf_weight``).
     loop_csi_band : str
@@ -272,6 +279,7 @@ class ForceLoopDesign:
     met: bool
     structure: dict
     loop_delay_steps: int = 10
+    shortest_loop_delay_steps: int = 0
     loop_taps: int = 48
     loop_hf_weight: float = 1e-3
     loop_csi_band: str = 'auto'
@@ -317,7 +325,9 @@ class ForceLoopDesign:
                 'margins': self.margins.to_json(), 'structure': _plain(self.structure),
                 'controller_z': self.controller_mapping(),
                 'controller_s': {'num': list(self.num_s), 'den': list(self.den_s)},
-                'loop_delay_steps': self.loop_delay_steps, 'loop_taps': self.loop_taps,
+                'loop_delay_steps': self.loop_delay_steps,
+                'shortest_loop_delay_steps': self.shortest_loop_delay_steps,
+                'loop_taps': self.loop_taps,
                 'loop_hf_weight': self.loop_hf_weight, 'loop_csi_band': self.loop_csi_band,
                 'inverse_band_error': self.inverse_band_error,
                 'equivalent_delay_s': self.equivalent_delay_s,
@@ -887,7 +897,8 @@ def _search_inverse(plant: PlantModel, design: 'ForceLoopDesign', resp, csi_band
                     spectrum=None) -> dict:
     """The force-loop inverse :func:`_choose_inverse` takes with ``predictor_loop_csi_band``
     `csi_band`: ``{'csi_band', 'exclude_hz' (the bands left out), 'chosen': (delay steps,
-    band error), 'predicted_error':
+    band error), 'shortest': the shortest delay within the band error (or None),
+    'predicted_error':
     {alpha: error} or None, 'stable': bool (a delay that makes the compensated test stable
     up to alpha = 2 on the model), 'notes': [str]}``."""
     from seft_ros.core.predictors import ForceLoopInverse, loop_band_hz, loop_exclude_hz
@@ -896,6 +907,7 @@ def _search_inverse(plant: PlantModel, design: 'ForceLoopDesign', resp, csi_band
                               design.dt)
     notes = []
     least_band = None                         # (d, band error) of the least band error
+    shortest = None                           # the first d within the band error
     chosen = None                             # (d, band error)
     first_stable = None                       # (d, band error)
     predicted = []                            # (d, band error, worst, errors)
@@ -907,6 +919,7 @@ def _search_inverse(plant: PlantModel, design: 'ForceLoopDesign', resp, csi_band
             least_band = (d, inv.band_error)
         if inv.band_error > INVERSE_BAND_ERROR:
             continue
+        shortest = shortest or d
         stable = _compensated_stable(plant, design, d, csi_band)
         if stable is False:
             continue
@@ -944,6 +957,7 @@ def _search_inverse(plant: PlantModel, design: 'ForceLoopDesign', resp, csi_band
         notes.append(note)
     return {'csi_band': csi_band, 'exclude_hz': exclude,
             'chosen': chosen or first_stable or least_band or (30, math.inf),
+            'shortest': shortest,
             'predicted_error': predicted_error, 'stable': first_stable is not None,
             'notes': notes}
 
@@ -1048,6 +1062,7 @@ def _choose_inverse(plant: PlantModel, design: ForceLoopDesign, spectrum=None) -
     design.notes.extend(search['notes'])
     chosen = search['chosen']
     design.loop_delay_steps, design.inverse_band_error = chosen
+    design.shortest_loop_delay_steps = int(search['shortest'] or 0)
     design.loop_taps, design.loop_hf_weight = INVERSE_TAPS, INVERSE_HF_WEIGHT
     if chosen[1] > INVERSE_BAND_ERROR:
         design.notes.append(f'the closed loop inverts to a {chosen[0]}-step delay within '
