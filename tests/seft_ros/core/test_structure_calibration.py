@@ -167,16 +167,16 @@ def test_seft_design_chooses_the_inverse_for_the_structure(lab_settings, tmp_pat
                                                             monkeypatch):
     """``seft design`` of the structure (the api's design_controllers, the rig's plant model
     from the lab path): each coupled rig's force-loop inverse rehearsed on the plant model
-    (rig_model state_space: never on the actuator it will run on), from the shortest that
-    fits the loop (4 steps; the one-DOF design kept 5) on; the delay it keeps runs the
-    structure on the true actuator better than the one-DOF design's in every signal of
-    both stories (15 s: 0.22 / 1.26 / 0.21 and
+    (rig_model state_space: never on the actuator it will run on), from the shortest stable
+    one, the one-DOF design's 5 steps, on; the delay it keeps runs the structure on the
+    true actuator better than the one-DOF design's in every signal of both stories (15 s:
+    0.22 / 1.26 / 0.21 and
     0.06 / 0.10 % at 12 steps against 0.98 / 8.03 / 1.03 and 0.13 / 0.38 % at 5)."""
     import yaml
 
     from seft_ros.cli.api import design_controllers
     from seft_ros.core import experiment, structure_design
-    monkeypatch.setattr(structure_design, 'DELAY_SPAN_STEPS', 9)      # 4-12 steps
+    monkeypatch.setattr(structure_design, 'DELAY_SPAN_STEPS', 9)      # 5-13 steps
     rehearsed = []
     original = experiment.simulate
 
@@ -198,8 +198,8 @@ def test_seft_design_chooses_the_inverse_for_the_structure(lab_settings, tmp_pat
                                 progress=lines.append)
     (choice,) = result.inverse_choices
     assert rehearsed and set(rehearsed) == {'state_space'}
-    assert lines == ['rig lab: rehearsing the structure with force-loop inverses of 4-12 steps']
-    assert choice.designed_steps == 5 and sorted(choice.errors) == list(range(4, 13))
+    assert lines == ['rig lab: rehearsing the structure with force-loop inverses of 5-13 steps']
+    assert choice.designed_steps == 5 and sorted(choice.errors) == list(range(5, 14))
     assert choice.chosen_steps != 5
     assert choice.errors[choice.chosen_steps] == min(choice.errors.values())
     written = yaml.safe_load((tmp_path / 'rig.yaml').read_text())['rigs']['lab']
@@ -219,10 +219,9 @@ def test_seft_design_chooses_the_inverse_for_the_structure(lab_settings, tmp_pat
 
 
 def test_the_rehearsal_starts_at_the_shortest_stable_inverse(lab_settings, monkeypatch):
-    """A one-DOF design may keep a long inverse (24 steps here: with shorter ones the
-    specimen's one-DOF test is not stable up to alpha 2, or is predicted worse); the
-    structure's rehearsal starts at the shortest one that fits the loop and keeps the
-    design's own among the candidates. On the 32 Hz, 0.5 % first story the 10-13-step
+    """A one-DOF design ranked for the record may keep a long inverse (24 steps here) where
+    shorter ones are stable; the structure's rehearsal starts at the shortest stable one
+    and keeps the design's own among the candidates. On the 32 Hz, 0.5 % first story the 10-13-step
     inverses rehearse better than 24 steps (0.22 / 1.26 / 0.21 % at 12, 1.53 % acceleration
     at 20 and 2.19 % at 30 over 15 s)."""
     from seft_ros.core import structure_design

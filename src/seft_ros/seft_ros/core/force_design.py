@@ -233,12 +233,11 @@ class ForceLoopDesign:
         The force-loop inverse the compensators should use (``predictor_loop_delay_steps``,
         ``predictor_loop_taps``).
     shortest_loop_delay_steps : int
-        The shortest inverse delay that fits the loop within :data:`INVERSE_BAND_ERROR`
-        (0: none) [steps]: where a structure's rehearsal of the inverses starts
-        (:func:`~seft_ros.core.structure_design.choose_structure_inverses`). The design
-        keeps a longer one where the one-DOF test is not stable up to alpha 2 on the model
-        with it, or is predicted better with a longer one; in a structure the rig's loop
-        is closed through the computational part and the rehearsal decides.
+        The shortest inverse delay within :data:`INVERSE_BAND_ERROR` with which the
+        one-DOF test is stable up to alpha 2 on the model (0: none) [steps]: where a
+        structure's rehearsal of the inverses starts
+        (:func:`~seft_ros.core.structure_design.choose_structure_inverses`), as the design
+        may keep a longer one, predicted better for the one-DOF test.
     loop_hf_weight : float
         Its weight above 40 Hz (``predictor_loop_hf_weight``).
     loop_csi_band : str
@@ -897,7 +896,7 @@ def _search_inverse(plant: PlantModel, design: 'ForceLoopDesign', resp, csi_band
                     spectrum=None) -> dict:
     """The force-loop inverse :func:`_choose_inverse` takes with ``predictor_loop_csi_band``
     `csi_band`: ``{'csi_band', 'exclude_hz' (the bands left out), 'chosen': (delay steps,
-    band error), 'shortest': the shortest delay within the band error (or None),
+    band error), 'shortest': the shortest stable delay within the band error (or None),
     'predicted_error':
     {alpha: error} or None, 'stable': bool (a delay that makes the compensated test stable
     up to alpha = 2 on the model), 'notes': [str]}``."""
@@ -907,7 +906,6 @@ def _search_inverse(plant: PlantModel, design: 'ForceLoopDesign', resp, csi_band
                               design.dt)
     notes = []
     least_band = None                         # (d, band error) of the least band error
-    shortest = None                           # the first d within the band error
     chosen = None                             # (d, band error)
     first_stable = None                       # (d, band error)
     predicted = []                            # (d, band error, worst, errors)
@@ -919,7 +917,6 @@ def _search_inverse(plant: PlantModel, design: 'ForceLoopDesign', resp, csi_band
             least_band = (d, inv.band_error)
         if inv.band_error > INVERSE_BAND_ERROR:
             continue
-        shortest = shortest or d
         stable = _compensated_stable(plant, design, d, csi_band)
         if stable is False:
             continue
@@ -957,7 +954,7 @@ def _search_inverse(plant: PlantModel, design: 'ForceLoopDesign', resp, csi_band
         notes.append(note)
     return {'csi_band': csi_band, 'exclude_hz': exclude,
             'chosen': chosen or first_stable or least_band or (30, math.inf),
-            'shortest': shortest,
+            'shortest': first_stable[0] if first_stable else None,
             'predicted_error': predicted_error, 'stable': first_stable is not None,
             'notes': notes}
 
