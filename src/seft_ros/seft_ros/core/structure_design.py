@@ -164,7 +164,8 @@ def choose_structure_inverses(params: Mapping, designed: Mapping[str, Mapping],
         Receives a line per rig as its rehearsals start.
     shortest : mapping of str to int, optional
         Per rig, the shortest stable inverse delay of its design
-        (:attr:`~seft_ros.core.force_design.ForceLoopDesign.shortest_loop_delay_steps`):
+        (``ForceLoopDesign.shortest_loop_delay_steps``,
+        :class:`~seft_ros.core.force_design.ForceLoopDesign`):
         the rehearsals start there (default, or 0: at the one-DOF design's delay).
 
     Returns
