@@ -331,6 +331,13 @@ SCHEMA: tuple[ParamSpec, ...] = (
               'by at most this fraction of their configured values per second '
               '(adaptive_max_rate_per_s: the delay and gain).', 0.0, 100.0, True,
               nodes=_RFB + ('recorder',)),
+    ParamSpec('adaptive_frequency_prior', 'auto', '', "'adaptive' with a plant_model that "
+              "carries its specimen (seft identify's): that specimen's natural frequency (the "
+              "force loop's control-structure-interaction zero) constrains m and k, in their "
+              'regression and in the initial law, which starts at the m, k nearest the '
+              "configured ones with that frequency; 'none': not used; 'auto': used where "
+              'given (seft_ros.core.predictors.FREQUENCY_PRIOR_WEIGHT).',
+              choices=('auto', 'none'), nodes=_RFB + ('recorder',)),
     ParamSpec('adaptive_max_deviation', 0.5, '', "'adaptive': the estimates of m, c, k and "
               'the actuator gain stay within this fraction of the configured values (the '
               "delay within 0..adaptive_max_delay_s).", 0.0, 0.95, True,
