@@ -987,6 +987,41 @@ def test_adaptive_specimen_rls_is_the_weighted_least_squares(c0, excitation, mem
     assert pred.estimates()['mass_kg'] == m0          # no refresh yet (update_steps 1000)
 
 
+def test_adaptive_natural_frequency_is_a_weighted_measurement_of_k_and_m():
+    """With the specimen's natural frequency f_n known (the plant model's), theta before any
+    data minimises lambda (theta - theta0)^T (theta - theta0) / p0 + (r . theta)^2 with
+    r = W / p0 [-w_n^2 m0, 0, k0] / |[-w_n^2 m0, 0, k0]| (one measurement of weight
+    FREQUENCY_PRIOR_WEIGHT W), and the law starts at its m and k: the pair nearest the
+    configured one with that frequency, to 1/W."""
+    from seft_ros.core.predictors import FREQUENCY_PRIOR_WEIGHT
+    m0, k0 = 0.8 * M, 1.2 * K
+    f_n = math.sqrt(K / M) / (2 * math.pi)
+    pred = adaptive(mass_kg=m0, stiffness_N_per_m=k0, natural_frequency_hz=f_n)
+    lam = math.exp(-DT / 5.0)
+    p0 = DT / (0.01 * 20.0 ** 2)
+    c_s = max(C, 0.1 * math.sqrt(k0 * m0))
+    row = np.array([-(2 * math.pi * f_n) ** 2 * m0, 0.0, k0])
+    r = row / np.linalg.norm(row) * math.sqrt(FREQUENCY_PRIOR_WEIGHT / p0)
+    theta0 = np.array([1.0, C / c_s, 1.0])
+    expected = np.linalg.solve(lam / p0 * np.eye(3) + np.outer(r, r), lam / p0 * theta0)
+    np.testing.assert_allclose(pred.rls.theta, expected, rtol=1e-9)
+    est = pred.estimates()
+    assert est['mass_kg'] == pytest.approx(expected[0] * m0, rel=1e-12)
+    assert est['stiffness_N_per_m'] == pytest.approx(expected[2] * k0, rel=1e-12)
+    assert est['damping_N_s_per_m'] == C
+    # the constrained pair nearest (1, 1): theta_k = (2/3) theta_m -> (15/13, 10/13)
+    assert est['mass_kg'] == pytest.approx(12 / 13 * M, rel=1e-3)
+    assert est['stiffness_N_per_m'] / est['mass_kg'] == pytest.approx(K / M, rel=1e-3)
+    assert pred.prior['mass_kg'] == m0            # the bounds stay the configured model's
+    plain = adaptive(mass_kg=m0, stiffness_N_per_m=k0)
+    assert plain.natural_frequency_hz is None and plain.estimates()['mass_kg'] == m0
+    held = adaptive(mass_kg=m0, stiffness_N_per_m=k0, natural_frequency_hz=f_n,
+                    identify_specimen=False)
+    assert held.natural_frequency_hz is None and held.estimates()['mass_kg'] == m0
+    with pytest.raises(ParameterError, match=r'^natural_frequency_hz=-1\.0: expected float > 0$'):
+        adaptive(natural_frequency_hz=-1.0)
+
+
 def test_adaptive_gate_and_identify_specimen_switch():
     """A constant measured force of 25 N against a 20 N threshold over window_s = 0.5 s: the
     running mean square after k samples is 625 (1 - (1 - dt/0.5)^k), excited above 400;
