@@ -71,7 +71,7 @@ __all__ = [
     'TANGENT_STIFFNESS_RATIOS', 'HystereticModelPredictor', 'model_rig',
     'LoopLatencyFit', 'LATENCY_ESTIMATES', 'BackgroundFits', 'fit_result', 'csi_band_hz',
     'loop_exclude_hz', 'loop_band_hz', 'LOOP_BAND_HZ', 'adaptive_fits_loop',
-    'adaptive_loop_mode', 'ADAPTIVE_LOOP_FIT',
+    'adaptive_loop_mode', 'ADAPTIVE_LOOP_FIT', 'FREQUENCY_PRIOR_WEIGHT',
     'UPDATE_STAGES',
     'LOOP_REFIT_TOLERANCE', 'LAW_REBUILD_TOLERANCE', 'LATE_REFERENCE_STEPS',
 ]
