@@ -819,8 +819,9 @@ PREDICTED_ERROR_BOUND = 0.01
 #: over :data:`DESIGN_ALPHAS`) replaces the shortest where that worst error is at most this
 #: share of the shortest's: a gain larger than the prediction's own miss at `dt` 2 ms (the
 #: family's 32 Hz, 0.5 % specimens at 5 and 16 steps: worst predicted 0.72 and 0.55 %, run
-#: 0.56 and 0.51 %, and a longer inverse costs `adaptive` its first second: 0.60 -> 0.87 %)
-#: [-].
+#: 0.56 and 0.51 %, and a longer inverse cost `adaptive` its first second: 0.60 -> 0.87 %,
+#: measured before ``adaptive_frequency_prior``, which took most of that first second's
+#: error away; the gain was not chosen again after it) [-].
 RECORD_PREDICTED_GAIN = 0.75
 
 
