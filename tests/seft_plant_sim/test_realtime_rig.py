@@ -13,7 +13,7 @@ import pytest
 
 from seft_msgs_py import parameters
 from seft_msgs_py.errors import ParameterError
-from seft_plant_sim.realtime import WallClockRig
+from seft_plant_sim.realtime import WallClockRig, applied_commands
 from seft_plant_sim.rigs import make_rig
 
 N = 600
@@ -169,3 +169,49 @@ def test_a_discrete_lab_model_is_refused_in_real_time_in_one_line():
                        r'plant_model is discrete at dt \(2 ms\) .* 0\.1 ms grid'):
         WallClockRig(p)
     WallClockRig(dict(p, realtime_substep_s=DT))        # on the model's own grid
+
+
+def test_the_applied_command_of_each_step_by_the_latching_rule():
+    """applied_commands, by hand: a command in time holds its step; one 1 ms late holds the
+    previous one for the first half of its step (the mean of the two); one that acts after
+    the next command's start, or never arrives, is replaced by the previous one held on."""
+    u = np.arange(1.0, 9.0)
+    lat = np.full(8, 0.0005)
+    assert applied_commands(u, lat, DT, DT) == (pytest.approx(u, abs=0), 0)
+    lat[3] = DT + 0.001
+    applied, late = applied_commands(u, lat, DT, DT)
+    assert late == 1 and applied[3] == pytest.approx(3.5)
+    assert np.delete(applied, 3) == pytest.approx(np.delete(u, 3), abs=0)
+    for never_in_time in (2 * DT + 0.0005, np.nan):
+        lat[3] = never_in_time
+        applied, late = applied_commands(u, lat, DT, DT)
+        assert late == 1 and list(applied) == [1, 2, 3, 3, 5, 6, 7, 8]
+    # seft's servohydraulic rig latches io_latency_s = 1.5 ms after the sample
+    lat[3] = 0.002
+    assert applied_commands(u, lat, DT, 0.0015)[0][3] == pytest.approx(0.75 * 4 + 0.25 * 3)
+    with pytest.raises(ParameterError, match='same length'):
+        applied_commands(u, lat[:-1], DT, DT)
+
+
+def test_the_applied_commands_reproduce_a_real_time_rig_with_late_commands(command):
+    """Late commands that act at a tick (one late by a step, displaced by its successor;
+    two late together, both displaced): the lockstep rig fed the applied commands
+    one sample later reproduces the real-time rig (an independent solution), and fed the
+    commands sent it does not."""
+    p = _params(rig_model='actuator', actuator_family='valve_2nd_order')
+    u = 0.2 * command
+    latency = np.full(N, 0.0005)
+    latency[[100, 300, 301]] = [2 * DT, 3 * DT, 2 * DT]
+    rig = WallClockRig(p)
+    out = []
+    for k in range(N):
+        m = rig.measure()
+        out.append((m.displacement_m, m.velocity_m_s, m.acceleration_m_s2, m.force_N))
+        rig.arrive(k, u[k], k * DT + latency[k])
+        rig.advance()
+    rt = np.array(out)
+    applied, late = applied_commands(u, latency, DT, DT)
+    assert late == 3 and list(applied[[100, 300, 301]]) == list(u[[99, 299, 299]])
+    assert np.count_nonzero(applied != u) == 3
+    assert _close(rt, _lockstep(p, np.concatenate(([0.0], applied[:-1])))) < 1e-6
+    assert _close(rt, _lockstep(p, np.concatenate(([0.0], u[:-1])))) > 1e-3

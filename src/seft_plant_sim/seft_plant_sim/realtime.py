@@ -45,11 +45,14 @@ import heapq
 import math
 from typing import Mapping
 
+import numpy as np
+
 from seft_msgs_py.errors import ParameterError
 from seft_msgs_py.interface import COMMAND_VALVE, Measurement
 from seft_plant_sim.rigs import make_rig
 
-__all__ = ['WallClockRig', 'OUTPUT_TIMINGS', 'CommandArrivals', 'MODELS_WITH_OWN_DELAY']
+__all__ = ['WallClockRig', 'OUTPUT_TIMINGS', 'CommandArrivals', 'MODELS_WITH_OWN_DELAY',
+           'valve_latch_offset_s', 'applied_commands']
 
 #: Rig models whose plant holds the actuator's I/O latency itself (not ``io_latency_s``).
 MODELS_WITH_OWN_DELAY = ('state_space', 'actuator')
@@ -87,6 +90,102 @@ class CommandArrivals:
         """Drop the arrival times of samples before `source` (bounded memory)."""
         for j in [j for j in self._arrivals if j < source]:
             del self._arrivals[j]
+
+
+def valve_latch_offset_s(params: Mapping) -> float:
+    """When a valve command in time is output after the sample it was computed from [s]
+    (``latched``, module notes): ``dt`` for the rigs that hold their own latency
+    (:data:`MODELS_WITH_OWN_DELAY`), ``min(dt, io_latency_s)`` for seft's servohydraulic
+    rig (the rest of its latency is the hardware's)."""
+    dt = float(params['dt'])
+    if params.get('rig_model') in MODELS_WITH_OWN_DELAY:
+        return dt
+    return min(dt, float(params['io_latency_s']))
+
+
+def applied_commands(command, loop_latency_s, dt: float, latch_offset_s: float):
+    """The command a real-time rig applied over each step, from the commands sent and the
+    instants they arrived: what a late (stale) command changed.
+
+    A command computed from sample ``j`` acts from ``t_j + latch_offset_s`` or from its
+    arrival if that is later, until a newer one acts (an older one arriving after a newer
+    one is discarded; one that never arrived never acts): :class:`WallClockRig`'s rule
+    (``realtime_output: latched``) and the rig contract's (``docs/rig_contract.md``). The
+    step ``j`` of the result is the mean of the command in effect over
+    ``[t_j + latch_offset_s, t_j+1 + latch_offset_s)``, the span the command of ``j`` holds
+    when every command is in time (then the result equals `command`). An identification of
+    the loop from a real-time run reads this, not the commands sent: a late command holds
+    the previous one a fraction of a step longer, and on a lightly damped specimen that
+    kick rings for seconds (5 of 10 000 commands late, 6.4 ms at most, made a
+    32 Hz, 0.5 % specimen's valve-to-force fit err 1.2 % instead of 0.12 %).
+
+    Parameters
+    ----------
+    command : array_like, shape (n,)
+        The command computed from each sample (valve command [V]).
+    loop_latency_s : array_like, shape (n,)
+        Sample ``j`` to the arrival of its command at the rig [s] (the rig's timing
+        records, ``loop_latency_s``); nan: it never arrived.
+    dt : float > 0
+        Sample period [s].
+    latch_offset_s : float in [0, dt]
+        When a command in time is output after its sample [s]
+        (:func:`valve_latch_offset_s`).
+
+    Returns
+    -------
+    applied : ndarray, shape (n,)
+        The mean command in effect over each step's span (0 before the first arrived).
+    late : int
+        The commands that acted later than ``t_j + latch_offset_s`` or never.
+
+    Raises
+    ------
+    ParameterError
+        Arrays of different shapes, or `dt` / `latch_offset_s` out of range.
+    """
+    u = np.asarray(command, dtype=float)
+    latency = np.asarray(loop_latency_s, dtype=float)
+    if u.ndim != 1 or latency.shape != u.shape:
+        raise ParameterError(f'command {u.shape} and loop latency {latency.shape}: expected '
+                             'two arrays of the same length (n,)')
+    if not (math.isfinite(dt) and dt > 0 and 0 <= latch_offset_s <= dt):
+        raise ParameterError(f'dt={dt!r}, latch_offset_s={latch_offset_s!r}: expected '
+                             'dt > 0 and 0 <= latch_offset_s <= dt [s]')
+    n = u.size
+    # when each command acts, on the axis of the spans (span j is [j, j + 1) in steps)
+    arrived = np.isfinite(latency)
+    lateness = np.where(arrived, (latency - latch_offset_s) / dt, np.inf)
+    starts = np.arange(n) + np.maximum(lateness, 0.0)
+    late = int(np.count_nonzero(lateness > _EPS))
+    if not late:
+        return u.copy(), 0
+    applied = u.copy()
+    # spans that a late command touched: from its own span to the one it acted in (and
+    # the next, which the held value may reach)
+    touched = set()
+    for j in np.flatnonzero(lateness > _EPS):
+        last = n - 1 if not arrived[j] else min(n - 1, int(math.floor(starts[j])) + 1)
+        touched.update(range(j, last + 1))
+    order = np.argsort(starts, kind='stable')
+    events = [(float(starts[j]), int(j)) for j in order if arrived[j]]
+    held, held_stamp, e = 0.0, -1, 0
+    for span in sorted(touched):
+        # the command in effect at the span's start: the newest to act by then
+        while e < len(events) and events[e][0] <= span + _EPS:
+            if events[e][1] > held_stamp:
+                held, held_stamp = u[events[e][1]], events[e][1]
+            e += 1
+        total, t, ee = 0.0, float(span), e
+        value, stamp = held, held_stamp
+        while ee < len(events) and events[ee][0] < span + 1 - _EPS:
+            t_next, j = events[ee]
+            if j > stamp:
+                total += value * (t_next - t)
+                t, value, stamp = t_next, u[j], j
+            ee += 1
+        applied[span] = total + value * (span + 1 - t)
+    return applied, late
 
 
 def _discrete_model(text) -> bool:
@@ -163,15 +262,14 @@ class WallClockRig(CommandArrivals):
             # io_delay_s): the command is latched at the next tick (or acts on arrival),
             # then goes through the model
             self.source_lag = 0
-            self._latch_offset_s = dt
+            self._latch_offset_s = valve_latch_offset_s(params)
             self.hardware_latency_s = 0.0
             self._lead = 0
             sub = dict(params, dt=h)
         elif self.command_kind == COMMAND_VALVE:
-            io = float(params['io_latency_s'])
             self.source_lag = 0
-            self._latch_offset_s = min(dt, io)
-            self.hardware_latency_s = io - self._latch_offset_s
+            self._latch_offset_s = valve_latch_offset_s(params)
+            self.hardware_latency_s = float(params['io_latency_s']) - self._latch_offset_s
             self._lead = 0
             sub = dict(params, dt=h, io_latency_s=0.0)
         else:

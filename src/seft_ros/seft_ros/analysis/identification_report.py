@@ -246,6 +246,12 @@ def _markdown(doc: dict[str, Any], version: str) -> list[str]:
         f'{k} {v}' for k, v in (doc['runs'][0]['figures']['estimator'].items()
                                 if doc['runs'] else [])) + '); frequencies with coherence '
               f'below {MIN_COHERENCE} are left out of the fits.', '']
+    late = [(r['bag'], r['rig'], r['figures']['late_commands']) for r in doc['runs']
+            if r['figures'].get('late_commands')]
+    for bag, rig, n in late:
+        lines += [f"{bag}{f' (rig {rig})' if rig else ''}: {n} valve commands reached the "
+                  'rig late (real time); the fits read the command the rig applied over '
+                  'each step (from their arrival times), not the one sent.', '']
     lines += _specimen_lines(doc['runs'])
     if structure:
         written = {rig: e['parameters'] for rig, e in doc['rigs'].items() if e['parameters']}

@@ -47,7 +47,7 @@ from seft_ros.core.excitation import excitation_band_hz
 
 __all__ = ['FrequencyResponse', 'RationalFit', 'LoopFigures', 'RunIdentification',
            'h1_estimate', 'fit_rational', 'loop_figures', 'phase_slope_delay_s',
-           'xcorr_delay_s', 'identify_run', 'identified_parameters', 'identify_rigs',
+           'xcorr_delay_s', 'identify_run', 'applied_valve_command', 'identified_parameters', 'identify_rigs',
            'identified_rig_parameters', 'specimen_figures', 'fit_hydraulics', 'HYDRAULIC_FIT',
            'SPECIMEN_PARAMETERS', 'MIN_SPECIMEN_SAMPLES', 'DEFAULT_NPERSEG',
            'DEFAULT_ORDERS_OPEN', 'DEFAULT_ORDERS_CLOSED', 'DELAY_BAND_HZ', 'MIN_COHERENCE']
@@ -590,10 +590,12 @@ def identify_run(run: RunData, *, window: str = 'hann', nperseg: int = DEFAULT_N
     servo = valve_commanded(p)
     if run.n_steps < 8:
         raise InputError(f'{src}: {run.n_steps} samples; expected a longer run to identify')
+    late = 0
     if open_loop:
         if run.valve_command_V is None:
             raise InputError(f'{src}: open-loop run without /seft/valve_command')
-        x, kind = run.valve_command_V, 'open_loop'
+        x, late = applied_valve_command(run)
+        kind = 'open_loop'
     else:
         x, kind = run.reference_force_N, 'closed_loop'
     y = run.measured_force_N
@@ -625,6 +627,7 @@ def identify_run(run: RunData, *, window: str = 'hann', nperseg: int = DEFAULT_N
                            - specimen.mass_kg * run.acceleration_m_s2
                            - specimen.damping_N_s_per_m * run.velocity_m_s)
     figs: dict[str, Any] = {'fit': fit.to_json(), 'estimator': fr.settings(),
+                            'late_commands': late,
                             'coherence_mean_in_band': float(np.mean(fr.coherence[
                                 (fr.freqs_hz >= band[0]) & (fr.freqs_hz <= band[1])]))}
     model: dict[str, Any] = {}
@@ -648,7 +651,7 @@ def identify_run(run: RunData, *, window: str = 'hann', nperseg: int = DEFAULT_N
             model.update(zero_hz=zm, resonance_hz=rm, source=plant.source,
                          **loop_figures(ident.loop_model, max(0.1, band[0]), band[1]).to_json())
         if servo and ident.specimen is not None and ident.specimen.linear:
-            _identify_plant(ident, run, figs, record_spectrum)
+            _identify_plant(ident, run, figs, record_spectrum, x)
     else:
         coh = weight
         figs['delay_ms'] = 1e3 * phase_slope_delay_s(f, fr.response, delay_band_hz, coh)
@@ -675,12 +678,43 @@ def identify_run(run: RunData, *, window: str = 'hann', nperseg: int = DEFAULT_N
     return ident
 
 
+def applied_valve_command(run: RunData) -> tuple[np.ndarray, int]:
+    """The valve command the rig applied over each step of a run of one rig, and how many
+    commands reached it late (or never).
+
+    In lockstep, and in real time with every command in time, it is the command sent
+    (``run.valve_command_V``). A late command in real time held the previous one longer:
+    the rig's timing records (``loop_latency_s`` of each sample) give when each arrived, and
+    :func:`~seft_plant_sim.realtime.applied_commands` what acted over each step.
+
+    Raises
+    ------
+    InputError
+        The run has no valve command.
+    """
+    from seft_plant_sim.realtime import applied_commands, valve_latch_offset_s
+    u = run.valve_command_V
+    if u is None:
+        raise InputError(f'{run.source}: no /seft/valve_command')
+    rig = run.rig_names[0]
+    timing = (run.extra.get('timing_data') or {}).get(f'{rig}/rig' if rig else 'rig')
+    if timing is None or timing.n == 0:
+        return np.asarray(u, dtype=float), 0
+    offset = valve_latch_offset_s(run.params)
+    dt = float(run.params['dt'])
+    latency = np.full(u.size, offset)        # a step without a record: taken as in time
+    inside = (timing.step >= 0) & (timing.step < u.size)
+    latency[timing.step[inside]] = timing.loop_latency_s[inside]
+    return applied_commands(u, latency, dt, offset)
+
+
 def _identify_plant(ident: RunIdentification, run: RunData, figs: dict,
-                    record_spectrum=None) -> None:
+                    record_spectrum=None, command=None) -> None:
     """The plant as data and its designed controller, into `ident` and its figures
-    (an open-loop run of a valve-driven rig with a linear specimen); the force-loop
-    inverse ranked for the record the run's configuration names (the lab's path runs the
-    test's configuration with an excitation)."""
+    (an open-loop run of a valve-driven rig with a linear specimen), from `command` (the
+    valve command the rig applied, :func:`applied_valve_command`; default the one sent);
+    the force-loop inverse ranked for the record the run's configuration names (the lab's
+    path runs the test's configuration with an excitation)."""
     from seft_msgs_py.plant import Specimen
     from seft_ros.analysis.plant_identification import identify_plant
     from seft_ros.core.force_design import design_force_controller, played_record_spectrum
@@ -691,7 +725,9 @@ def _identify_plant(ident: RunIdentification, run: RunData, figs: dict,
     y = np.column_stack([run.measured_force_N, run.displacement_m, run.velocity_m_s,
                          run.acceleration_m_s2])
     where = f'{run.source}: rig {ident.rig}' if ident.rig else run.source
-    ident.plant = identify_plant(run.valve_command_V, y, float(run.params['dt']),
+    if command is None:
+        command = run.valve_command_V
+    ident.plant = identify_plant(command, y, float(run.params['dt']),
                                  specimen=spec, frequency_uncertainty=sigma_f, source=where)
     spectrum, note = (record_spectrum or played_record_spectrum)(run.params)
     ident.design = design_force_controller(ident.plant.model, ground_spectrum=spectrum)
