@@ -342,6 +342,7 @@ def test_a_real_time_identification_reads_the_command_the_rig_applied():
     10 times better). The data are the real-time rig's own (WallClockRig, sub-stepped at
     0.1 ms)."""
     from scipy import signal
+
     from seft_plant_sim.realtime import WallClockRig
     from seft_ros.analysis.rig_identification import applied_valve_command
     from seft_ros.analysis.rundata import RunData

@@ -47,8 +47,9 @@ from seft_ros.core.excitation import excitation_band_hz
 
 __all__ = ['FrequencyResponse', 'RationalFit', 'LoopFigures', 'RunIdentification',
            'h1_estimate', 'fit_rational', 'loop_figures', 'phase_slope_delay_s',
-           'xcorr_delay_s', 'identify_run', 'applied_valve_command', 'identified_parameters', 'identify_rigs',
-           'identified_rig_parameters', 'specimen_figures', 'fit_hydraulics', 'HYDRAULIC_FIT',
+           'xcorr_delay_s', 'identify_run', 'applied_valve_command', 'identified_parameters',
+           'identify_rigs', 'identified_rig_parameters', 'specimen_figures', 'fit_hydraulics',
+           'HYDRAULIC_FIT',
            'SPECIMEN_PARAMETERS', 'MIN_SPECIMEN_SAMPLES', 'DEFAULT_NPERSEG',
            'DEFAULT_ORDERS_OPEN', 'DEFAULT_ORDERS_CLOSED', 'DELAY_BAND_HZ', 'MIN_COHERENCE']
 
