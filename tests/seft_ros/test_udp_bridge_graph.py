@@ -42,7 +42,11 @@ from test_realtime_integration import _pid_of
 from seft_plant_sim.realtime import WallClockRig
 from seft_ros.analysis.bag import read_run
 from seft_ros.core import experiment
-from seft_ros.core.controller import ReferencePlayout
+from seft_ros.core.controller import (
+    PREDICTION_ORDER,
+    ReferencePlayout,
+    prediction_window_steps,
+)
 from seft_ros.core.excitation import make_valve_controller
 from seft_ros.core.experiment import simulate
 from seft_ros.core.structure import test_setup
@@ -129,14 +133,15 @@ def held_forces(run, late_steps) -> dict:
                                  mode='lockstep')).rig_params['']
     controller = make_valve_controller(rig_params)
     extrapolate = int(rig_params['reference_extrapolation_steps'])
+    window = prediction_window_steps(rig_params)
     f_r, held = run.reference_force_N, {}
     for k in range(run.n_steps):
         measured = (run.measured_force_N[k], run.velocity_m_s[k], run.acceleration_m_s2[k],
                     run.displacement_m[k])
         if k in late_steps:
             for newest in range(k - 1, -1, -1):
-                playout = ReferencePlayout(0, extrapolate)
-                for j in range(max(newest - 1, 0), newest + 1):
+                playout = ReferencePlayout(0, extrapolate, window)
+                for j in range(max(newest - window - PREDICTION_ORDER, 0), newest + 1):
                     playout.receive(j, f_r[j])
                 candidate = copy.deepcopy(controller)
                 if candidate.step(playout.due(k)[0], *measured) == run.valve_command_V[k]:

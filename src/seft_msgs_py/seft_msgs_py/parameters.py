@@ -298,10 +298,21 @@ SCHEMA: tuple[ParamSpec, ...] = (
               nodes=_RFB + _CTRL + ('recorder',)),
     ParamSpec('reference_extrapolation_steps', 2, 'steps', 'Real-time mode: when the '
               'reference force of a step has not arrived as the force servo controller acts '
-              '(a stale step), the controller extrapolates it linearly from the two newest, '
-              'over at most this many steps beyond the newest (then held); 0: hold the newest '
+              '(a stale step), the controller predicts it (reference_extrapolation) over at '
+              'most this many steps beyond the newest (then held); 0: hold the newest '
               '(seft_ros.core.controller.ReferencePlayout).', 0, 100,
               nodes=_CTRL),
+    ParamSpec('reference_extrapolation', 'prediction', '', "Real-time mode: how a stale "
+              "step's reference force is found: 'prediction' (a linear predictor of order 8 "
+              'fitted to the last 0.5 s of reference forces, where it fits them better than '
+              "linear extrapolation) or 'linear' (from the two newest); over at most "
+              'reference_extrapolation_steps (seft_ros.core.controller.ReferencePlayout).',
+              choices=('prediction', 'linear'), nodes=_CTRL),
+    ParamSpec('reference_deadline_fraction', 0.5, '', 'Real-time mode: when the reference '
+              'force of step k has not arrived as the measurement of k does, the force servo '
+              'controller waits for it until t_k plus this fraction of dt, then predicts it '
+              '(reference_extrapolation); 0: never wait. The command must still reach the '
+              'rig before t_k+1.', 0.0, 0.9, nodes=_CTRL),
     ParamSpec('adaptive_window_s', 0.5, 's', "Identification window of the 'adaptive' "
               'predictor.', 0.0, 100.0, True, nodes=_RFB + ('recorder',)),
     ParamSpec('adaptive_max_delay_s', 0.03, 's', "Largest delay the 'adaptive' predictor "

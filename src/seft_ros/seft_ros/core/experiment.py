@@ -35,7 +35,11 @@ from seft_msgs_py.interface import COMMAND_VALVE
 from seft_msgs_py.sampling import single_blas_thread
 from seft_plant_sim.rigs import make_rig
 from seft_ros.analysis.rundata import RigData, RunData
-from seft_ros.core.controller import ReferencePlayout, SaturationInterlock
+from seft_ros.core.controller import (
+    ReferencePlayout,
+    SaturationInterlock,
+    prediction_window_steps,
+)
 from seft_ros.core.excitation import make_valve_controller
 from seft_ros.core.ground_motion import GroundMotion, prepared_record
 from seft_ros.core.monitor import InstabilityMonitor, SpecimenCheck
@@ -130,7 +134,8 @@ def _simulate(params, *, progress, record, stale_steps) -> RunData:
     if unknown:
         raise ParameterError(f'stale steps of rig(s) {", ".join(unknown)}: the test '
                              f'has the rigs {", ".join(names)}')
-    playouts = [ReferencePlayout(0, int(rig_params[r]['reference_extrapolation_steps']))
+    playouts = [ReferencePlayout(0, int(rig_params[r]['reference_extrapolation_steps']),
+                                 prediction_window_steps(rig_params[r]))
                 if v and r in stale else None for r, v in zip(names, valve)]
     stale = [frozenset(stale.get(r, ())) for r in names]
     look = max(b.lookahead_steps for b in builders)

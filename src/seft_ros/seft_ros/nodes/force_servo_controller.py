@@ -4,9 +4,12 @@ Lockstep mode: when the reference force and the measured force of step k have bo
 publishes the valve command of step k. Real-time mode: it acts on the arrival of each measured
 force ``f_m[k]`` (in the rig's measurement) with the newest reference force it has
 (normally ``f_r[k]``, built in parallel during step k-1; when it is late the step counts as
-stale and the force is extrapolated from the newest ones, ``reference_extrapolation_steps``),
-never waits, and records one timing record per step (the bag's
-``/seft/timing/force_servo_controller``, through its record stream).
+stale and the force is predicted from the newest ones, ``reference_extrapolation`` and
+``reference_extrapolation_steps``), and records one timing record per step (the bag's
+``/seft/timing/force_servo_controller``, through its record stream). When the reference
+force of step k is late it waits for it, until ``reference_deadline_fraction`` of the period
+after the sample instant ``t_k`` (then predicts it): a builder a fraction of a millisecond
+late then costs the command that much time, not a predicted force (0: never wait).
 
 Its loss-of-control interlock (``seft_ros.core.controller.SaturationInterlock``) aborts the
 run when the valve stays saturated: it then publishes 'aborted' on ``/seft/status`` instead of
@@ -26,7 +29,11 @@ from seft_msgs_py.convert import (
 from seft_msgs_py.node_support import InputWatchdog, SeftNode, StepTiming, main_for
 from seft_msgs_py.sync import StepSync
 from seft_msgs_py.topics import MEASURED_FORCE, REFERENCE_FORCE, VALVE_COMMAND
-from seft_ros.core.controller import ReferencePlayout, SaturationInterlock
+from seft_ros.core.controller import (
+    ReferencePlayout,
+    SaturationInterlock,
+    prediction_window_steps,
+)
 from seft_ros.core.excitation import make_valve_controller
 from seft_ros.core.reference_force import network_delay_steps
 
@@ -57,11 +64,17 @@ class ForceServoControllerNode(SeftNode):
         self.valve_topic = valve.name
         self.out_msg = self.sealed_writer(SerializedStamped.scalar(valve, self.seal.frame_id))
         self.batch = self.record_stream()
+        #: real time, a step waiting for its reference force: (monotonic deadline [s], k,
+        #: measured values, activation start [s], period jitter [s])
+        self.pending = None
         if self.realtime:
             self.timing = StepTiming(self)
             #: f_r[k - m] of each step, or its extrapolation when it is late
             self.playout = ReferencePlayout(self.playout_steps,
-                                            int(p['reference_extrapolation_steps']))
+                                            int(p['reference_extrapolation_steps']),
+                                            prediction_window_steps(p))
+            #: how long after t_k a late reference force is waited for [ns]
+            self.wait_ns = float(p['reference_deadline_fraction']) * self.dt_ns
             self.watchdog = InputWatchdog(self, (REFERENCE_FORCE.name, 'measurement'))
             self.watch_inputs([
                 self.scalar_subscription(reference, self._on_reference_realtime),
@@ -78,17 +91,48 @@ class ForceServoControllerNode(SeftNode):
     def _on_reference_realtime(self, k: int, value: float) -> None:
         self.watchdog.feed(REFERENCE_FORCE.name)
         self.playout.receive(k, value)
+        pending = self.pending
+        if pending is not None and self.playout.has_due(pending[1]):
+            self.pending = None
+            self._act(*pending[1:])
+
+    def next_due(self) -> float | None:
+        """The deadline of a step waiting for its reference force (None: none waits)."""
+        return None if self.pending is None else self.pending[0]
+
+    def run_due(self) -> None:
+        """The deadline came: act with the predicted force."""
+        pending, self.pending = self.pending, None
+        if pending is not None:
+            self.guard(self._act)(*pending[1:])
 
     def _on_measured_realtime(self, k: int, fm: float, x: float = 0.0, v: float = 0.0,
                               a: float = 0.0) -> None:
         """u[k] from the measurement of k (f_m, x, v, a) and the reference force of step k
-        (``network_delay_s``: of step k - m), else its extrapolation from the newest ones
-        (:class:`~seft_ros.core.controller.ReferencePlayout`): act at once, never wait."""
+        (``network_delay_s``: of step k - m); when that force is late, wait for it until
+        the deadline (:meth:`next_due`), then use its prediction from the newest ones
+        (:class:`~seft_ros.core.controller.ReferencePlayout`)."""
         start, jitter = self.timing.start()
         self.watchdog.feed('measurement', k)
         self.watchdog.arm()
         if k < self.next_step:
             return                          # a duplicate: each step is computed once
+        if self.pending is not None:        # a newer measurement: the waiting step goes now
+            pending, self.pending = self.pending, None
+            self._act(*pending[1:])
+            if self.done:
+                return
+        if self.wait_ns > 0 and not self.playout.has_due(k):
+            wait_s = (self.sample_time_ns(k) + self.wait_ns - clock.now_ns()) * 1e-9
+            if wait_s > 0:                  # (nan before t0: act at once)
+                self.pending = (time.monotonic() + wait_s, k, (fm, x, v, a), start, jitter)
+                return
+        self._act(k, (fm, x, v, a), start, jitter)
+
+    def _act(self, k: int, measured: tuple, start: float, jitter: float) -> None:
+        """Compute and publish u[k] (the timing record's compute time from `start`, the
+        measurement's arrival: a wait for the reference force counts in it)."""
+        fm, x, v, a = measured
         fr, stale, fr_step = self.playout.due(k)
         u = self.controller.step(fr, fm, v, a, x)
         reason = self.interlock.update(self.controller.saturated, k * self.dt)
