@@ -230,7 +230,8 @@ def test_shared_parameters_have_an_explicit_source():
       'excitation_band_hz', 'excitation_seed'], 'ground_motion_publisher'),
     (['valve_limit_V', 'saturation_window_s', 'saturation_abort_fraction', 'force_controller',
       'force_integral_hz', 'force_crossover_hz', 'velocity_lead_s', 'velocity_filter_hz',
-      'force_tangent_horizon_s', 'reference_extrapolation_steps'], 'force_servo_controller'),
+      'force_tangent_horizon_s', 'reference_extrapolation_steps', 'reference_extrapolation',
+      'reference_deadline_fraction'], 'force_servo_controller'),
     (['bag_path', 'bag_storage'], 'recorder'),
 ])
 def test_value_source_of_each_parameter(names, node):
@@ -248,9 +249,10 @@ def test_value_source_lists_cover_the_schema():
     # + 1: predictor_loop_rehearsed (seft design's mark); + 2: adaptive's specimen gate and
     # rate (adaptive_specimen_excitation_ratio, adaptive_specimen_max_rate_per_s); + 1:
     # predictor_loop_csi_band (seft design's choice of the inverse's band); + 1:
-    # record_resampling; + 1: adaptive_frequency_prior
+    # record_resampling; + 1: adaptive_frequency_prior; + 2: the controller's late reference
+    # force (reference_extrapolation, reference_deadline_fraction)
     assert len(VALUE_SOURCE) == len(SCHEMA) == (31 + 47 + 6 + 6 + 10 + 2 + 1 + 2 + 1 + 6 + 3
-                                                + 1 + 1 + 1 + 1 + 2 + 1 + 1 + 1)
+                                                + 1 + 1 + 1 + 1 + 2 + 1 + 1 + 1 + 2)
 
 
 def test_value_source_of_unknown_name_is_an_error():
