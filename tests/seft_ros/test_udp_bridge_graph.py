@@ -24,7 +24,6 @@ user runs it, every node a process over DDS.
 
 import contextlib
 import copy
-import heapq
 import os
 from pathlib import Path
 import re
@@ -39,7 +38,7 @@ import pytest
 from test_node_graph_integration import leftover_processes
 from test_realtime_integration import _pid_of
 
-from seft_plant_sim.realtime import WallClockRig
+from seft_plant_sim.realtime import ReplayRig
 from seft_ros.analysis.bag import read_run
 from seft_ros.core import experiment
 from seft_ros.core.controller import (
@@ -75,31 +74,6 @@ def emulator(emulator_process, bridge_sets):
     return start
 
 
-class ArrivingRig:
-    """:class:`WallClockRig` in ``simulate``'s loop: the command of step k arrives at
-    ``k dt + latency[k]`` (delivered before the tick it arrives by, as the rig node does)."""
-
-    def __init__(self, params, latency: dict):
-        self.rig = WallClockRig(params)
-        self.command_kind = self.rig.command_kind
-        self.latency, self.k, self.pending = latency, 0, []
-
-    def limit_violation(self):
-        return self.rig.limit_violation()
-
-    def measure(self):
-        return self.rig.measure()
-
-    def apply(self, u):
-        k, dt = self.k, self.rig.dt
-        heapq.heappush(self.pending, (k * dt + self.latency[k], k, u))
-        while self.pending and self.pending[0][0] <= (k + 1) * dt:
-            arrival, j, value = heapq.heappop(self.pending)
-            self.rig.arrive(j, value, arrival)
-        self.rig.advance()
-        self.k += 1
-
-
 def command_latency(run) -> dict:
     """Step -> the loop latency of its valve command at the rig [s] (the controller's
     clock), every step's."""
@@ -111,8 +85,8 @@ def command_latency(run) -> dict:
 
 def replay_measurement(run, latency: dict) -> dict:
     """The bag's measurement as WallClockRig makes it from the bag's valve commands, each
-    arriving at ``j dt + latency[j]`` (:class:`ArrivingRig`)."""
-    rig = ArrivingRig(dict(run.params, rig_interface='simulated'), latency)
+    arriving at ``j dt + latency[j]`` (:class:`~seft_plant_sim.realtime.ReplayRig`)."""
+    rig = ReplayRig(dict(run.params, rig_interface='simulated'), latency)
     out = {'displacement_m': [], 'measured_force_N': []}
     for k in range(run.n_steps):
         m = rig.measure()
@@ -175,7 +149,7 @@ def closed_loop_replay(params, latency: dict, held: dict | None = None):
     ``latency[k]`` [s] after sample k, the controller holding at each late step k the
     reference force of step ``held[k]`` (:func:`held_forces`; None: every force in time)."""
     p = dict(params, rig_interface='simulated', mode='lockstep')
-    patches = [mock.patch.object(experiment, 'make_rig', lambda rp: ArrivingRig(rp, latency))]
+    patches = [mock.patch.object(experiment, 'make_rig', lambda rp: ReplayRig(rp, latency))]
     if held:
         arrival = {}
         for k in sorted(held):          # force j came after the last step that missed it

@@ -51,8 +51,8 @@ from seft_msgs_py.errors import ParameterError
 from seft_msgs_py.interface import COMMAND_VALVE, Measurement
 from seft_plant_sim.rigs import make_rig
 
-__all__ = ['WallClockRig', 'OUTPUT_TIMINGS', 'CommandArrivals', 'MODELS_WITH_OWN_DELAY',
-           'valve_latch_offset_s', 'applied_commands']
+__all__ = ['WallClockRig', 'ReplayRig', 'OUTPUT_TIMINGS', 'CommandArrivals',
+           'MODELS_WITH_OWN_DELAY', 'valve_latch_offset_s', 'applied_commands']
 
 #: Rig models whose plant holds the actuator's I/O latency itself (not ``io_latency_s``).
 MODELS_WITH_OWN_DELAY = ('state_space', 'actuator')
@@ -412,3 +412,63 @@ class WallClockRig(CommandArrivals):
     def limit_violation(self) -> str | None:
         """Stroke/force limit check at the current tick (as the lockstep rig)."""
         return self.plant.limit_violation()
+
+
+class ReplayRig:
+    """:class:`WallClockRig` stepped in a lockstep loop, each command arriving at its
+    recorded time: a real-time run replayed in one process (``seft compare
+    --replay-timing``; :func:`seft_ros.core.experiment.simulate`'s ``command_latency_s``).
+
+    The command stamped ``k`` (:meth:`apply` at step ``k``) arrives ``latency_s[k]`` after
+    sample ``k - source_lag`` and is delivered before the first tick it arrives by, as the
+    rig node does. A step without a latency (or a nan one: the command never arrived in the
+    run) gets `default_s`, in time. The rig protocol of the lockstep rigs: ``measure``,
+    ``apply``, ``limit_violation``, ``command_kind``.
+
+    Parameters
+    ----------
+    params : mapping
+        The rig's resolved parameters (:class:`WallClockRig`'s).
+    latency_s : mapping of int to float
+        Step -> the command's loop latency [s] (the rig's timing records'
+        ``loop_latency_s``).
+    default_s : float
+        The latency of a step not in `latency_s` [s] (default 0.5 ms: in time).
+
+    Raises
+    ------
+    ParameterError
+        As :class:`WallClockRig`.
+    """
+
+    def __init__(self, params: Mapping, latency_s: Mapping[int, float],
+                 default_s: float = 0.0005):
+        self.rig = WallClockRig(params)
+        self.command_kind = self.rig.command_kind
+        self.latency_s = latency_s
+        self.default_s = float(default_s)
+        self._k = 0
+        self._pending: list[tuple[float, int, float]] = []
+
+    def limit_violation(self) -> str | None:
+        """The real-time rig's limit check."""
+        return self.rig.limit_violation()
+
+    def measure(self) -> Measurement:
+        """The real-time rig's sample of the current tick."""
+        return self.rig.measure()
+
+    def apply(self, command: float) -> None:
+        """The command of this step, sent now: it arrives at its recorded latency; every
+        command that has arrived by the next tick is delivered, then the rig advances."""
+        k, dt = self._k, self.rig.dt
+        latency = self.latency_s.get(k, self.default_s)
+        if not math.isfinite(latency):
+            latency = self.default_s
+        source = k - self.rig.source_lag
+        heapq.heappush(self._pending, (source * dt + latency, k, float(command)))
+        while self._pending and self._pending[0][0] <= (k + 1) * dt:
+            arrival, stamp, value = heapq.heappop(self._pending)
+            self.rig.arrive(stamp, value, arrival)
+        self.rig.advance()
+        self._k += 1

@@ -122,3 +122,17 @@ def test_compare_a_study_bag_and_a_structure_bag(tmp_path, capsys):
     summary = json.loads((out / 'summary.json').read_text())['runs']
     assert [e['structure']['dofs'] for e in summary] == [['specimen'],
                                                          ['pier_a', 'pier_b', 'deck']]
+
+
+def test_replay_timing_of_lockstep_runs_says_there_is_none(sweep_dir, tmp_path, capsys):
+    """``--replay-timing`` on lockstep runs: one line each that there is nothing to replay,
+    and the report is the plain one (tests/seft_ros/analysis/test_timing_replay.py replays
+    a real-time run)."""
+    out = tmp_path / 'cmp'
+    assert main(['compare', str(sweep_dir / 'alpha_1_servohydraulic_model'),
+                 '--replay-timing', '--out', str(out)]) == 0
+    printed = ''.join(capsys.readouterr())        # progress lines: stderr
+    assert 'replaying its timing' in printed
+    assert 'no timing replay (a lockstep run' in printed
+    entry = json.loads((out / 'summary.json').read_text())['runs'][0]
+    assert 'timing_replay' not in entry

@@ -1202,6 +1202,8 @@ def summary_entry(run: RunData, comparison: RunComparison) -> dict[str, Any]:
     from seft_ros.analysis.findings import run_flags, sensor_range_entry, verdict
     if run.extra.get('range_check') is not None:
         entry['range_check'] = dict(run.extra['range_check'])
+    if run.extra.get('timing_replay') is not None:
+        entry['timing_replay'] = dict(run.extra['timing_replay'])
     entry['sensor_range'] = sensor_range_entry(run)
     entry['flags'] = run_flags(run, comparison)
     entry['verdict'] = verdict(bool(run.stable), entry['flags'])

@@ -753,12 +753,17 @@ def find_bags(paths: list[str]) -> list[Path]:
     return out
 
 
-def compare_bags(*, bags: list[str], out_dir: Path, title: str = '') -> Result:
+def compare_bags(*, bags: list[str], out_dir: Path, title: str = '',
+                 replay_timing: bool = False,
+                 progress: Callable[[str], None] = lambda line: None) -> Result:
     """Read bags and write the comparison report against the analytical reference.
 
     Each path is a bag, a run directory or a folder of run directories (:func:`find_bags`):
     ``seft compare runs/main`` reports a whole sweep, with the table of criteria (one row
-    per run) and their plot against alpha per predictor.
+    per run) and their plot against alpha per predictor. With `replay_timing`, each
+    real-time run of seft's simulated rigs is replayed in process as it ran and with every
+    step in time (:func:`~seft_ros.analysis.timing.replay_timing`; its line in the report,
+    ``timing_replay`` in the summary; `progress` says which run).
 
     Raises
     ------
@@ -785,6 +790,19 @@ def compare_bags(*, bags: list[str], out_dir: Path, title: str = '') -> Result:
             rd.extra['range_check'] = range_check(rd.params, record).as_dict()
         except SeftError:
             pass
+        if replay_timing:
+            from seft_ros.analysis.report import timing_replay_line
+            from seft_ros.analysis.timing import replay_timing as replay
+            progress(f'{rd.source}: replaying its timing (two runs in process)')
+            try:
+                rd.extra['timing_replay'] = replay(rd)
+            except SeftError as exc:
+                progress(f'{rd.source}: no timing replay: {exc}')
+            else:
+                progress(f'{rd.source}: ' + (timing_replay_line(rd.extra['timing_replay'])
+                                             if rd.extra['timing_replay'] else
+                                             'no timing replay (a lockstep run, or a rig '
+                                             "that is not seft's simulated one)"))
     return _finish(out_dir, data, title or 'seft compare', t0)
 
 

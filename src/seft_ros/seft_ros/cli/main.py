@@ -193,6 +193,10 @@ def build_parser() -> argparse.ArgumentParser:
     cmp_.add_argument('bags', nargs='+', metavar='BAG', help='a bag, a run directory '
                       '(with bag/) or a folder of run directories (one report of the sweep)')
     cmp_.add_argument('--out', help='output directory (default runs/compare/)')
+    cmp_.add_argument('--replay-timing', action='store_true',
+                      help="replay each real-time run of seft's simulated rigs in process, "
+                      'as it ran and with every step in time: what its late commands and '
+                      "stale steps cost it (the host's timing, not the method)")
     rcheck = sub.add_parser('rig-check', help='check a rig node against the rig contract: '
                             'short real-time runs of the rest of the graph at a small force, '
                             'one line per check (docs/rig_contract.md)')
@@ -470,7 +474,8 @@ def _main(args) -> int:
             return _emulate(args)
         if args.verb == 'compare':
             out = api.output_dir(out=args.out, name='compare', created=args.created)
-            result = api.compare_bags(bags=args.bags, out_dir=out)
+            result = api.compare_bags(bags=args.bags, out_dir=out,
+                                      replay_timing=args.replay_timing, progress=_progress)
         else:
             live = None
             if args.verb == 'run':

@@ -33,6 +33,7 @@ from seft_msgs_py.errors import ParameterError
 from seft_msgs_py.graph import Graph, qualified
 from seft_msgs_py.interface import COMMAND_VALVE
 from seft_msgs_py.sampling import single_blas_thread
+from seft_plant_sim.realtime import ReplayRig
 from seft_plant_sim.rigs import make_rig
 from seft_ros.analysis.rundata import RigData, RunData
 from seft_ros.core.controller import (
@@ -50,7 +51,8 @@ __all__ = ['simulate']
 
 def simulate(params, *, progress: Callable[[int, int], None] | None = None,
              record: GroundMotion | None = None,
-             stale_steps: Mapping[str, Collection[int]] | Collection[int] | None = None
+             stale_steps: Mapping[str, Collection[int]] | Collection[int] | None = None,
+             command_latency_s: Mapping[str, Mapping[int, float]] | None = None
              ) -> RunData:
     """Run one test without ROS and return its signals.
 
@@ -73,6 +75,12 @@ def simulate(params, *, progress: Callable[[int, int], None] | None = None,
         ``reference_extrapolation_steps``) and the force arrives just after.
         Servohydraulic rigs only (ignored on the delay rig, which has no controller);
         default none (lockstep).
+    command_latency_s : mapping of str to (mapping of int to float), optional
+        Rig name (``''``: the study's) -> step -> the loop latency of its command [s] (a
+        real-time run's, its rig's timing records): that rig is the real-time rig, each
+        command arriving at its recorded time (:class:`~seft_plant_sim.realtime.ReplayRig`;
+        a real-time run of a simulated rig replayed, with `stale_steps`). Default: the
+        lockstep rig.
 
     Returns
     -------
@@ -94,10 +102,11 @@ def simulate(params, *, progress: Callable[[int, int], None] | None = None,
     slower on a loaded 2-core host (24 ms against 0.2 ms per ``expm``).
     """
     with single_blas_thread():
-        return _simulate(params, progress=progress, record=record, stale_steps=stale_steps)
+        return _simulate(params, progress=progress, record=record, stale_steps=stale_steps,
+                         command_latency_s=command_latency_s)
 
 
-def _simulate(params, *, progress, record, stale_steps) -> RunData:
+def _simulate(params, *, progress, record, stale_steps, command_latency_s) -> RunData:
     """:func:`simulate`'s run, BLAS at one thread."""
     params = parameters.resolve(params)
     gm = record if record is not None else prepared_record(params)
@@ -111,7 +120,13 @@ def _simulate(params, *, progress, record, stale_steps) -> RunData:
     builder = builders[0]           # its computational state is the one recorded
     names = builder.rig_names
     rig_params = builder.setup.rig_params
-    rigs = [make_rig(rig_params[r]) for r in names]
+    latencies = command_latency_s or {}
+    unknown = sorted(set(latencies) - set(names))
+    if unknown:
+        raise ParameterError(f'command latencies of rig(s) {", ".join(unknown)}: the test '
+                             f'has the rigs {", ".join(names)}')
+    rigs = [ReplayRig(rig_params[r], latencies[r]) if r in latencies else make_rig(rig_params[r])
+            for r in names]
     valve = [rig.command_kind == COMMAND_VALVE for rig in rigs]
     # the force controller, or the excitation itself in an open-loop identification run
     ctrls = [make_valve_controller(rig_params[r]) if v else None
