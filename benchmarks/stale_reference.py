@@ -1,15 +1,15 @@
-"""What late reference forces cost a test, held or extrapolated.
+"""What late reference forces cost a test: held, extrapolated linearly, or predicted.
 
-In real time the force servo controller never waits: when the builder's force of a step has
-not arrived as the controller acts (a *stale* step: the builder's host was late), it held the
-newest force; it now extrapolates it (``reference_extrapolation_steps``,
+In real time the force servo controller never waits long: when the builder's force of a
+step has not arrived by its deadline (a *stale* step: the builder's host was late), it held
+the newest force; then extrapolated it linearly; it now predicts it
+(``reference_extrapolation``, ``reference_extrapolation_steps``,
 :class:`seft_ros.core.controller.ReferencePlayout`). This replays stale steps in process
-(``stale_steps`` of :func:`seft_ros.core.experiment.simulate` for the study's test,
-:func:`seft_ros.core.experiment.simulate`, any test) with the force
-held (``reference_extrapolation_steps`` 0) and extrapolated (the configured value, or
-``--extrapolate``) and prints the NRMS errors against the run without stale steps
-(displacement per DOF for a structure; displacement / acceleration / force for the study's
-test), predictor ``model``:
+(``stale_steps`` of :func:`seft_ros.core.experiment.simulate`, any test) with the force
+held (``reference_extrapolation_steps`` 0), extrapolated linearly and predicted (over the
+configured steps, or ``--extrapolate``) and prints the NRMS errors against the run without
+stale steps (displacement per DOF for a structure; displacement / acceleration / force for
+the study's test), predictor ``model``:
 
 - given real-time bags (``seft run CONFIG --mode realtime``), their controllers' stale steps
   (the timing records) are replayed, and the bag's own NRMS is printed beside them: it shows
@@ -47,16 +47,15 @@ def _nrms(run) -> dict:
 
 
 def _run(params: dict, stale: dict | None):
-    """Simulate `params` with the stale steps of each rig (None: none)."""
-    if has_structure(params):
-        return simulate(params, stale_steps=stale)
-    return simulate(params, stale_steps=None if stale is None else stale['rig'])
+    """Simulate `params` with the stale steps of each rig (None: none; the study's rig is
+    ``''``)."""
+    return simulate(params, stale_steps=stale)
 
 
 def _stale_of_bag(bag: Path) -> tuple:
     """The real-time run of `bag` and its controllers' stale steps (rig name -> steps)."""
     run = read_run(bag)
-    nodes = ({'rig': 'force_servo_controller'} if run.is_study else
+    nodes = ({'': 'force_servo_controller'} if run.is_study else
              {rig: f'{rig}/force_servo_controller' for rig in run.rigs})
     timing = run.extra['timing_data']
     missing = [n for n in nodes.values() if n not in timing]
@@ -74,10 +73,13 @@ def _row(label: str, stable: bool, nrms: dict, stale_fraction: float | None) -> 
 
 
 def replay(params: dict, stale: dict, extrapolate: int) -> list[tuple]:
-    """(label, stable, NRMS [%]) held and extrapolated."""
+    """(label, stable, NRMS [%]) held, extrapolated linearly and predicted."""
     out = []
-    for label, steps in (('held', 0), (f'extrapolated ({extrapolate})', extrapolate)):
-        run = _run(dict(params, reference_extrapolation_steps=steps), stale)
+    for label, steps, how in (('held', 0, 'linear'),
+                              (f'extrapolated linearly ({extrapolate})', extrapolate, 'linear'),
+                              (f'predicted ({extrapolate})', extrapolate, 'prediction')):
+        run = _run(dict(params, reference_extrapolation_steps=steps,
+                        reference_extrapolation=how), stale)
         out.append((label, run.stable, _nrms(run)))
     return out
 
@@ -115,7 +117,7 @@ def main(argv=None) -> int:
         print('|---|---|---|' + '---|' * len(columns))
         print(_row('no stale step (lockstep)', clean.stable, _nrms(clean), 0.0))
         n = clean.time_s.shape[0]
-        rigs = list(clean.rigs) if hasattr(clean, 'rigs') else ['rig']
+        rigs = list(clean.rigs)
         if not args.bags:
             offset = max(1, args.every // 3)
             stale = {r: set(range(args.every + i * offset, n, args.every))

@@ -810,7 +810,10 @@ class ReferencePlayout:
     of the steps, replayed in process): held, the replay reproduces the runs' displacement
     NRMS of pier_a (0.25 / 0.64 / 1.10 % against 0.25 / 0.66 / 1.22 % measured), so late
     forces are most of a real-time run's error there; extrapolated, 0.17-0.21 % (0.165 % with
-    no stale step).
+    no stale step). A stale step every 37th on each pier (2.7 %): held 0.83 / 0.92 / 0.82 %
+    per DOF, extrapolated linearly 0.21 / 0.24 / 0.19 %, predicted 0.164 / 0.190 / 0.154 %
+    (lockstep 0.162 / 0.187 / 0.153 %); the study's test at alpha 1.5 the same way: held
+    1.13 %, linearly 0.55 %, predicted 0.578 % (lockstep 0.577 %).
 
     Parameters
     ----------
