@@ -82,3 +82,42 @@ def test_the_replay_splits_a_runs_error_into_the_hosts_timing_and_the_methods(pa
     assert replay_timing(simulate(params)) is None
     run.params['rig_interface'] = 'udp_bridge'
     assert replay_timing(run) is None
+
+
+def test_seft_run_replays_a_run_that_erred_with_late_steps_and_flags_the_hosts_cost(
+        params, monkeypatch):
+    """``seft run`` replays a real-time run by itself where it erred by more than 1 % with a
+    late step (replay_due), and the report flags it when the late steps cost more than half
+    a percentage point (timing_cost_flag); one late step on a run within 1 % is left."""
+    from seft_ros.analysis.findings import run_flags
+    from seft_ros.analysis.timing import replay_due, timing_cost_flag
+    from seft_ros.cli import api
+    latency = np.full(N, 0.0005)
+    latency[700] = 2 * DT + 0.0007
+    run = simulate(params, command_latency_s={'': dict(enumerate(latency))})
+    run.params = dict(run.params, mode='realtime')
+    steps = np.arange(N)
+    run.extra['timing_data'] = {'rig': _timing('rig', steps, latency=latency)}
+    assert replay_due(run, {'displacement': 0.011, 'acceleration': None})
+    assert not replay_due(run, {'displacement': 0.009, 'acceleration': 0.0099})
+    lines = []
+    api._replay_if_due(run, 'run 1', lines.append)
+    assert lines == []                              # the study's run errs 0.3 %: no replay
+    from seft_ros.analysis import timing
+    monkeypatch.setattr(timing, 'replay_due', lambda run, worst: True)
+    api._replay_if_due(run, 'run 1', lines.append)
+    assert lines[0].startswith('[run 1] late steps and an error above 1 %: replaying')
+    assert lines[1].startswith('[run 1] timing: 1 late command(s), 0 stale step(s)')
+    assert run.extra['timing_replay']['late_commands'] == {'': 1}
+    base = {'displacement': 0.01, 'acceleration': 0.02, 'floor_acceleration': 0.02,
+            'interface_force': 0.01}
+    replay = {'late_commands': {'': 1}, 'stale_steps': {'': 0}, 'recorded': dict(base),
+              'as_run': dict(base, acceleration=0.0245), 'in_time': base}
+    assert timing_cost_flag(replay) is None         # 0.45 points
+    replay['as_run']['acceleration'] = 0.026
+    flag = timing_cost_flag(replay)
+    assert flag.startswith('timing: 1 late command(s), 0 stale step(s); worst NRMS')
+    replay['as_run'] = {'unstable_at_s': 1.2}
+    assert 'unstable at 1.20 s' in timing_cost_flag(replay)
+    run.extra['timing_replay'] = replay
+    assert any(f.startswith('timing: ') for f in run_flags(run, compare_run(run)))

@@ -1,8 +1,8 @@
 """What a run shows of a loss of accuracy that a lab can see without the reference.
 
 A run that completes is not therefore right. Four signs, each visible in the lab's own data
-and the pre-run prediction (never in the comparison's error), flag a run instead of calling
-it plainly stable (:func:`run_flags`):
+and the pre-run prediction (never in the comparison's error), and a fifth in rehearsal, flag
+a run instead of calling it plainly stable (:func:`run_flags`):
 
 * **an identification at its bounds**: an online estimate held at the edge of the range its
   compensator allows (``adaptive``: m, c, k and the gain within ``adaptive_max_deviation``
@@ -19,7 +19,14 @@ it plainly stable (:func:`run_flags`):
   :func:`~seft_ros.core.specimen_settings.costly_settings`), chosen by the user;
 * **a peak beyond the prediction**: a rig's displacement, force or acceleration peaks more
   than :data:`PEAK_RATIO_FLAG` times the analytical reference's peak over the same samples
-  (the pre-run check's prediction, :mod:`seft_ros.analysis.range_check`).
+  (the pre-run check's prediction, :mod:`seft_ros.analysis.range_check`);
+* **the host's timing** (a rehearsal on seft's simulated rigs only): a real-time run that
+  erred by more than 1 % with a late command or a stale step is replayed in process as it
+  ran and in time (``seft run`` does it; :func:`~seft_ros.analysis.timing.replay_timing`),
+  and flagged when its late steps cost more than half a percentage point in some signal
+  (:func:`~seft_ros.analysis.timing.timing_cost_flag`): three late valve commands of 5000
+  cost a 32 Hz, 0.5 % specimen 4.9 points of x. This sign reads the replays' errors
+  against the reference, which the four above do not.
 
 The samples read at a sensor's range are reported beside them (:func:`sensor_range_entry`):
 how many per rig and channel, and what the builder did with them.
@@ -216,6 +223,10 @@ def run_flags(run: RunData, comparison) -> list[str]:
         flags += [f'settings: {line}' for line in costly_settings(run.params, flagging=True)]
     except (SeftError, KeyError):
         pass                            # parameters that do not make a test (a hand-made run)
+    from seft_ros.analysis.timing import timing_cost_flag
+    timing = timing_cost_flag(run.extra.get('timing_replay'))
+    if timing:
+        flags.append(timing)
     for rig, c in comparison.rigs.items():
         for name in PEAK_SIGNALS:
             s = c.signal(name)

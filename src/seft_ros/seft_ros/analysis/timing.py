@@ -9,6 +9,7 @@ latency and overrun statistics the ``pendulum_control`` demo of ros2/demos keeps
 """
 
 from dataclasses import dataclass
+import math
 from pathlib import Path
 
 import numpy as np
@@ -21,7 +22,8 @@ from seft_msgs_py.errors import InputError
 __all__ = ['NodeTiming', 'read_timing', 'timing_row', 'node_timings', 'timing_summary',
            'timing_figure', 'timing_table', 'percentiles_ms', 'TIMING_PUBLISHER',
            'link_summary', 'PLAYOUT_MISS_FRACTION', 'link_markdown', 'replay_timing',
-           'REPLAY_SIGNALS']
+           'REPLAY_SIGNALS', 'replay_due', 'REPLAY_ABOVE_NRMS', 'timing_cost_flag',
+           'TIMING_COST_FLAG_POINTS']
 
 _FIELDS = signals.TIMING_FIELDS
 #: Timing topic -> the node that publishes it.
@@ -378,3 +380,53 @@ def replay_timing(run) -> dict | None:
                               for rig, lat in latency.items()},
             'stale_steps': {rig: len(s) for rig, s in stale.items()},
             'recorded': worst(run), 'as_run': worst(as_run), 'in_time': worst(in_time)}
+
+
+#: ``seft run`` replays a real-time run's timing (:func:`replay_due`) when its worst NRMS
+#: of a signal passes this [-] and it had a late command or stale step.
+REPLAY_ABOVE_NRMS = 0.01
+#: The timing flag (:func:`timing_cost_flag`): the replay as run errs this many percentage
+#: points more than in time, in some signal [-].
+TIMING_COST_FLAG_POINTS = 0.005
+
+
+def replay_due(run, worst_nrms: dict) -> bool:
+    """Whether ``seft run`` replays this run's timing by itself (:func:`replay_timing`): a
+    stable real-time run of seft's simulated rigs with a late command or a stale step and a
+    worst NRMS above :data:`REPLAY_ABOVE_NRMS` in some signal (`worst_nrms`: the summary's,
+    fractions). Its cost is two runs in process (a few seconds), paid where the run
+    erred."""
+    p = run.params
+    timing = run.extra.get('timing_data') or {}
+    if not (run.stable and timing and p.get('mode') == 'realtime'
+            and p.get('rig_interface', 'simulated') == 'simulated'):
+        return False
+    if not any(v is not None and v > REPLAY_ABOVE_NRMS for v in worst_nrms.values()):
+        return False
+    dt = float(p['dt'])
+    for node, t in timing.items():
+        if node.endswith('rig') and np.any(~(t.loop_latency_s <= dt)):
+            return True
+        if node.endswith('force_servo_controller') and np.any(t.stale):
+            return True
+    return False
+
+
+def timing_cost_flag(replay: dict | None) -> str | None:
+    """The report's flag when a run's late steps cost it more than
+    :data:`TIMING_COST_FLAG_POINTS` in some signal (its :func:`replay_timing`; None: no
+    flag)."""
+    if not replay:
+        return None
+    as_run, in_time = replay['as_run'], replay['in_time']
+    if 'unstable_at_s' in in_time:
+        return None
+    if 'unstable_at_s' in as_run:
+        cost = math.inf
+    else:
+        cost = max((as_run[s] - in_time[s] for s in REPLAY_SIGNALS
+                    if as_run.get(s) is not None and in_time.get(s) is not None), default=0.0)
+    if cost <= TIMING_COST_FLAG_POINTS:
+        return None
+    from seft_ros.analysis.report import timing_replay_line
+    return f'timing: {timing_replay_line(replay)}'

@@ -513,7 +513,28 @@ def _read_outcome(outcome, label: str, progress: Callable[[str], None]) -> RunDa
         f'{rd.abort_reason}'
     progress(f'[{label}] {rd.n_steps} steps in {outcome.wall_time_s:.1f} s wall; '
              f'{state}; bag {outcome.bag_path}')
+    _replay_if_due(rd, label, progress)
     return rd
+
+
+def _replay_if_due(rd: RunData, label: str, progress: Callable[[str], None]) -> None:
+    """A real-time run of seft's simulated rigs that erred with late steps: replay its
+    timing (:func:`~seft_ros.analysis.timing.replay_due`), say what they cost and keep it
+    for the summary and the report (its flag: the host's timing)."""
+    from seft_ros.analysis.metrics import compare_run, summary_entry
+    from seft_ros.analysis.report import timing_replay_line
+    from seft_ros.analysis.timing import replay_due, replay_timing
+    try:
+        if not replay_due(rd, summary_entry(rd, compare_run(rd)).get('worst_nrms') or {}):
+            return
+        progress(f'[{label}] late steps and an error above 1 %: replaying the run in process, '
+                 'as it ran and in time')
+        rd.extra['timing_replay'] = replay = replay_timing(rd)
+    except SeftError as exc:
+        progress(f'[{label}] no timing replay: {exc}')
+        return
+    if replay:
+        progress(f'[{label}] timing: {timing_replay_line(replay)}')
 
 
 def _run_here(runs, out_dir, progress, domain, nodes, processes, live) -> Result | None:
