@@ -65,7 +65,7 @@ class ForceServoControllerNode(SeftNode):
         self.out_msg = self.sealed_writer(SerializedStamped.scalar(valve, self.seal.frame_id))
         self.batch = self.record_stream()
         #: real time, a step waiting for its reference force: (monotonic deadline [s], k,
-        #: measured values, activation start [s], period jitter [s])
+        #: measured values, period jitter [s])
         self.pending = None
         if self.realtime:
             self.timing = StepTiming(self)
@@ -112,7 +112,7 @@ class ForceServoControllerNode(SeftNode):
         (``network_delay_s``: of step k - m); when that force is late, wait for it until
         the deadline (:meth:`next_due`), then use its prediction from the newest ones
         (:class:`~seft_ros.core.controller.ReferencePlayout`)."""
-        start, jitter = self.timing.start()
+        _, jitter = self.timing.start()
         self.watchdog.feed('measurement', k)
         self.watchdog.arm()
         if k < self.next_step:
@@ -125,13 +125,14 @@ class ForceServoControllerNode(SeftNode):
         if self.wait_ns > 0 and not self.playout.has_due(k):
             wait_s = (self.sample_time_ns(k) + self.wait_ns - clock.now_ns()) * 1e-9
             if wait_s > 0:                  # (nan before t0: act at once)
-                self.pending = (time.monotonic() + wait_s, k, (fm, x, v, a), start, jitter)
+                self.pending = (time.monotonic() + wait_s, k, (fm, x, v, a), jitter)
                 return
-        self._act(k, (fm, x, v, a), start, jitter)
+        self._act(k, (fm, x, v, a), jitter)
 
-    def _act(self, k: int, measured: tuple, start: float, jitter: float) -> None:
-        """Compute and publish u[k] (the timing record's compute time from `start`, the
-        measurement's arrival: a wait for the reference force counts in it)."""
+    def _act(self, k: int, measured: tuple, jitter: float) -> None:
+        """Compute and publish u[k] (the timing record's compute time is this call's; a
+        wait for the reference force shows in its input age, from the sample instant)."""
+        start = time.monotonic()
         fm, x, v, a = measured
         fr, stale, fr_step = self.playout.due(k)
         u = self.controller.step(fr, fm, v, a, x)
