@@ -801,7 +801,7 @@ class ReferencePlayout:
     (valve_2nd_order, ``model`` and ``adaptive``) and of a two-story structure, its one-step
     error was 0.16-1.7 % of the force's RMS against 3.7-11.7 % extrapolated linearly; the
     stale steps of four real-time runs of that specimen (8-243 steps of 5000) replayed in
-    process cost 4.0-8.8 % in x extrapolated linearly and 0.7-2.5 % predicted (0.48-0.68 %
+    process cost 4.0-8.8 % in x extrapolated linearly and 1.0-2.2 % predicted (0.48-0.68 %
     with none). The fit costs about 0.1 ms at a stale step only; every other step stores
     its force.
 
