@@ -3,6 +3,8 @@
 DDS on a controlled clock (the node's state set as its ``__init__`` sets it in real time;
 the controller a pass-through, so the valve command is the force it acted on)."""
 
+import time
+
 import pytest
 
 from seft_ros.core.controller import ReferencePlayout
@@ -123,3 +125,15 @@ def test_a_newer_measurement_releases_the_step_that_waits(node):
     node._on_measured_realtime(2, 0.0)            # step 1 goes first, then 2 on f_r[2]
     assert node.published == [(0, 10.0), (1, 30.0), (2, 30.0)]
     assert [stale for _, stale in node.timing.rows] == [False, True, False]
+
+
+def test_the_wait_is_never_longer_than_its_fraction_of_dt(node):
+    """A measurement that arrives before its own sample instant on this host's clock (a lab
+    controller's clock ahead of it): the step waits at most 0.5 dt from now."""
+    node._on_reference_realtime(0, 10.0)
+    _at(node, 0, 0.5)
+    node._on_measured_realtime(0, 0.0)
+    _at(node, 1, -3.0)                            # 3 ms before t_1 here
+    before = time.monotonic()
+    node._on_measured_realtime(1, 0.0)
+    assert node.next_due() - before <= 1e-3 + 1e-4

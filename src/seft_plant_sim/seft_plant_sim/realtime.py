@@ -117,7 +117,7 @@ def applied_commands(command, loop_latency_s, dt: float, latch_offset_s: float):
     the loop from a real-time run reads this, not the commands sent: a late command holds
     the previous one a fraction of a step longer, and on a lightly damped specimen that
     kick rings for seconds (5 of 10 000 commands late, 6.4 ms at most, made a
-    32 Hz, 0.5 % specimen's valve-to-force fit err 1.2 % instead of 0.12 %).
+    32 Hz, 0.5 % specimen's valve-to-force fit err 1.2 % instead of 0.14 %).
 
     Parameters
     ----------

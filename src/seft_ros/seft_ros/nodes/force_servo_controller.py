@@ -123,7 +123,10 @@ class ForceServoControllerNode(SeftNode):
             if self.done:
                 return
         if self.wait_ns > 0 and not self.playout.has_due(k):
-            wait_s = (self.sample_time_ns(k) + self.wait_ns - clock.now_ns()) * 1e-9
+            # until t_k + the fraction of dt, and never longer than that fraction from now
+            # (a lab controller's clock that drifts from this host's moves t_k here)
+            wait_s = min(self.sample_time_ns(k) + self.wait_ns - clock.now_ns(),
+                         self.wait_ns) * 1e-9
             if wait_s > 0:                  # (nan before t0: act at once)
                 self.pending = (time.monotonic() + wait_s, k, (fm, x, v, a), jitter)
                 return
