@@ -14,9 +14,10 @@ import numpy as np
 import pytest
 
 from seft_msgs_py.errors import ParameterError
+from seft_ros.analysis.findings import timing_replay_line
 from seft_ros.analysis.metrics import compare_run
-from seft_ros.analysis.report import timing_replay_line
-from seft_ros.analysis.timing import NodeTiming, replay_timing
+from seft_ros.analysis.timing import NodeTiming
+from seft_ros.analysis.timing_replay import replay_timing
 from seft_ros.cli.config import expand_runs, load_config
 from seft_ros.core.experiment import simulate
 
@@ -89,8 +90,8 @@ def test_seft_run_replays_a_run_that_erred_with_late_steps_and_flags_the_hosts_c
     """``seft run`` replays a real-time run by itself where it erred by more than 1 % with a
     late step (replay_due), and the report flags it when the late steps cost more than half
     a percentage point (timing_cost_flag); one late step on a run within 1 % is left."""
-    from seft_ros.analysis.findings import run_flags
-    from seft_ros.analysis.timing import replay_due, timing_cost_flag
+    from seft_ros.analysis.findings import run_flags, timing_cost_flag
+    from seft_ros.analysis.timing_replay import replay_due
     from seft_ros.cli import api
     latency = np.full(N, 0.0005)
     latency[700] = 2 * DT + 0.0007
@@ -103,8 +104,8 @@ def test_seft_run_replays_a_run_that_erred_with_late_steps_and_flags_the_hosts_c
     lines = []
     api._replay_if_due(run, 'run 1', lines.append)
     assert lines == []                              # the study's run errs 0.3 %: no replay
-    from seft_ros.analysis import timing
-    monkeypatch.setattr(timing, 'replay_due', lambda run, worst: True)
+    from seft_ros.analysis import timing_replay
+    monkeypatch.setattr(timing_replay, 'replay_due', lambda run, worst: True)
     api._replay_if_due(run, 'run 1', lines.append)
     assert lines[0].startswith('[run 1] late steps and an error above 1 %: replaying')
     assert lines[1].startswith('[run 1] timing: 1 late command(s), 0 stale step(s)')

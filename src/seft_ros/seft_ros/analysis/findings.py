@@ -22,9 +22,9 @@ a run instead of calling it plainly stable (:func:`run_flags`):
   (the pre-run check's prediction, :mod:`seft_ros.analysis.range_check`);
 * **the host's timing** (a rehearsal on seft's simulated rigs only): a real-time run that
   erred by more than 1 % with a late command or a stale step is replayed in process as it
-  ran and in time (``seft run`` does it; :func:`~seft_ros.analysis.timing.replay_timing`),
+  ran and in time (``seft run`` does it; :func:`~seft_ros.analysis.timing_replay.replay_timing`),
   and flagged when its late steps cost more than half a percentage point in some signal
-  (:func:`~seft_ros.analysis.timing.timing_cost_flag`): three late valve commands of 5000
+  (:func:`timing_cost_flag`): three late valve commands of 5000
   cost a 32 Hz, 0.5 % specimen 4.9 points of x. This sign reads the replays' errors
   against the reference, which the four above do not.
 
@@ -32,6 +32,7 @@ The samples read at a sensor's range are reported beside them (:func:`sensor_ran
 how many per rig and channel, and what the builder did with them.
 """
 
+import math
 from typing import Any
 
 import numpy as np
@@ -42,7 +43,8 @@ from seft_ros.analysis.rundata import RunData, rig_label
 from seft_ros.core.specimen_settings import costly_settings
 
 __all__ = ['PEAK_RATIO_FLAG', 'BOUND_HOLD_S', 'SPECIMEN_FLAG', 'estimate_bounds', 'bound_findings',
-           'sensor_range_entry', 'sensor_range_lines', 'run_flags', 'verdict']
+           'sensor_range_entry', 'sensor_range_lines', 'run_flags', 'verdict', 'REPLAY_SIGNALS',
+           'TIMING_COST_FLAG_POINTS', 'timing_replay_line', 'timing_cost_flag']
 
 #: A rig's peak (displacement, force, acceleration) beyond this many times the reference's
 #: flags the run.
@@ -223,7 +225,6 @@ def run_flags(run: RunData, comparison) -> list[str]:
         flags += [f'settings: {line}' for line in costly_settings(run.params, flagging=True)]
     except (SeftError, KeyError):
         pass                            # parameters that do not make a test (a hand-made run)
-    from seft_ros.analysis.timing import timing_cost_flag
     timing = timing_cost_flag(run.extra.get('timing_replay'))
     if timing:
         flags.append(timing)
@@ -242,3 +243,45 @@ def verdict(stable: bool, flags: list[str]) -> str:
     if not stable:
         return 'aborted'
     return 'stable, flagged' if flags else 'stable'
+
+
+#: The signals of a timing replay's worst NRMS (``summary_entry``'s ``worst_nrms``;
+#: :func:`~seft_ros.analysis.timing_replay.replay_timing`).
+REPLAY_SIGNALS = ('displacement', 'acceleration', 'floor_acceleration', 'interface_force')
+#: The timing flag (:func:`timing_cost_flag`): the replay as run errs this many percentage
+#: points more than in time, in some signal [-].
+TIMING_COST_FLAG_POINTS = 0.005
+
+
+def timing_replay_line(replay: dict) -> str:
+    """One line of :func:`~seft_ros.analysis.timing_replay.replay_timing`'s result: the worst
+    NRMS x / acceleration / interface force recorded, replayed as run and in time."""
+    def cell(worst: dict) -> str:
+        if 'unstable_at_s' in worst:
+            return f"unstable at {worst['unstable_at_s']:.2f} s"
+        return ' / '.join('–' if worst.get(s) is None else f'{100 * worst[s]:.2f}'
+                          for s in ('displacement', 'acceleration', 'interface_force')) + ' %'
+    late = sum(replay['late_commands'].values())
+    stale = sum(replay['stale_steps'].values())
+    return (f'{late} late command(s), {stale} stale step(s); worst NRMS x / a / f recorded '
+            f"{cell(replay['recorded'])}, replayed as run {cell(replay['as_run'])}, "
+            f"with every step in time {cell(replay['in_time'])} (the difference is the "
+            "host's timing, not the method)")
+
+
+def timing_cost_flag(replay: dict | None) -> str | None:
+    """The flag of a run whose late steps cost it more than :data:`TIMING_COST_FLAG_POINTS`
+    in some signal (its :func:`~seft_ros.analysis.timing_replay.replay_timing`; None: no flag)."""
+    if not replay:
+        return None
+    as_run, in_time = replay['as_run'], replay['in_time']
+    if 'unstable_at_s' in in_time:
+        return None
+    if 'unstable_at_s' in as_run:
+        cost = math.inf
+    else:
+        cost = max((as_run[s] - in_time[s] for s in REPLAY_SIGNALS
+                    if as_run.get(s) is not None and in_time.get(s) is not None), default=0.0)
+    if cost <= TIMING_COST_FLAG_POINTS:
+        return None
+    return f'timing: {timing_replay_line(replay)}'

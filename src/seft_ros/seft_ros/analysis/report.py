@@ -23,7 +23,12 @@ from matplotlib.ticker import FuncFormatter
 import numpy as np
 
 from seft_msgs_py.errors import ParameterError
-from seft_ros.analysis.findings import run_flags, sensor_range_entry, sensor_range_lines
+from seft_ros.analysis.findings import (
+    run_flags,
+    sensor_range_entry,
+    sensor_range_lines,
+    timing_replay_line,
+)
 from seft_ros.analysis.metrics import (
     HIGH_FREQUENCY_CUTOFF_HZ,
     UNCOMPENSATED,
@@ -538,21 +543,6 @@ def _range_markdown(run: RunData) -> list[str]:
         lines.append(f'- timing replay: {timing_replay_line(replay)}')
     return lines
 
-
-def timing_replay_line(replay: dict) -> str:
-    """One line of :func:`~seft_ros.analysis.timing.replay_timing`'s result: the worst
-    NRMS x / acceleration / interface force recorded, replayed as run and in time."""
-    def cell(worst: dict) -> str:
-        if 'unstable_at_s' in worst:
-            return f"unstable at {worst['unstable_at_s']:.2f} s"
-        return ' / '.join('–' if worst.get(s) is None else f'{100 * worst[s]:.2f}'
-                          for s in ('displacement', 'acceleration', 'interface_force')) + ' %'
-    late = sum(replay['late_commands'].values())
-    stale = sum(replay['stale_steps'].values())
-    return (f'{late} late command(s), {stale} stale step(s); worst NRMS x / a / f recorded '
-            f"{cell(replay['recorded'])}, replayed as run {cell(replay['as_run'])}, "
-            f"with every step in time {cell(replay['in_time'])} (the difference is the "
-            "host's timing, not the method)")
 
 
 def _preparation(params) -> str:

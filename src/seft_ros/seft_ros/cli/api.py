@@ -519,11 +519,11 @@ def _read_outcome(outcome, label: str, progress: Callable[[str], None]) -> RunDa
 
 def _replay_if_due(rd: RunData, label: str, progress: Callable[[str], None]) -> None:
     """A real-time run of seft's simulated rigs that erred with late steps: replay its
-    timing (:func:`~seft_ros.analysis.timing.replay_due`), say what they cost and keep it
+    timing (:func:`~seft_ros.analysis.timing_replay.replay_due`), say what they cost and keep it
     for the summary and the report (its flag: the host's timing)."""
+    from seft_ros.analysis.findings import timing_replay_line
     from seft_ros.analysis.metrics import compare_run, summary_entry
-    from seft_ros.analysis.report import timing_replay_line
-    from seft_ros.analysis.timing import replay_due, replay_timing
+    from seft_ros.analysis.timing_replay import replay_due, replay_timing
     try:
         if not replay_due(rd, summary_entry(rd, compare_run(rd)).get('worst_nrms') or {}):
             return
@@ -783,7 +783,7 @@ def compare_bags(*, bags: list[str], out_dir: Path, title: str = '',
     ``seft compare runs/main`` reports a whole sweep, with the table of criteria (one row
     per run) and their plot against alpha per predictor. With `replay_timing`, each
     real-time run of seft's simulated rigs is replayed in process as it ran and with every
-    step in time (:func:`~seft_ros.analysis.timing.replay_timing`; its line in the report,
+    step in time (:func:`~seft_ros.analysis.timing_replay.replay_timing`; its line in the report,
     ``timing_replay`` in the summary; `progress` says which run).
 
     Raises
@@ -812,8 +812,8 @@ def compare_bags(*, bags: list[str], out_dir: Path, title: str = '',
         except SeftError:
             pass
         if replay_timing:
-            from seft_ros.analysis.report import timing_replay_line
-            from seft_ros.analysis.timing import replay_timing as replay
+            from seft_ros.analysis.findings import timing_replay_line
+            from seft_ros.analysis.timing_replay import replay_timing as replay
             progress(f'{rd.source}: replaying its timing (two runs in process)')
             try:
                 rd.extra['timing_replay'] = replay(rd)

@@ -1,0 +1,107 @@
+"""A real-time run replayed in one process: what its late steps cost it (``seft compare
+--replay-timing``; ``seft run`` by itself where a rehearsal erred with late steps).
+
+Each rig's commands arrive at their recorded loop latency
+(:class:`~seft_plant_sim.realtime.ReplayRig`, the rig's timing records of
+:mod:`seft_ros.analysis.timing`) and its controller's stale steps take the reference force
+it then had; the same run with every step in time is the method's own error. The report's
+line and flag are :func:`~seft_ros.analysis.findings.timing_replay_line` and
+:func:`~seft_ros.analysis.findings.timing_cost_flag`.
+"""
+
+import numpy as np
+
+from seft_ros.analysis.findings import REPLAY_SIGNALS
+
+__all__ = ['replay_timing', 'replay_due', 'REPLAY_ABOVE_NRMS']
+
+
+def replay_timing(run) -> dict | None:
+    """What a real-time run's late steps cost it: the run replayed in one process on the
+    real-time rig, as it ran and with every step in time.
+
+    Each rig's commands arrive at their recorded loop latency
+    (:class:`~seft_plant_sim.realtime.ReplayRig`) and its controller's stale steps take the
+    reference force it then had (``stale_steps`` of :func:`~seft_ros.core.experiment.simulate`):
+    the replay *as run* should match the recorded run (it checks the replay); *in time*,
+    every command and reference force arrives in time. Their difference is the error the
+    host's timing cost the run, not the method. Measured (a 32 Hz, 0.5 % specimen at
+    alpha 1 on a family plant, 2026-11-29): runs of 1.95-42.2 % x replayed as run to
+    1.91-22.9 %, in time 1.32 %.
+
+    Parameters
+    ----------
+    run : RunData
+        A real-time run read from its bag (``extra['timing_data']``) with seft's simulated
+        rigs (``rig_interface: simulated``).
+
+    Returns
+    -------
+    dict or None
+        None for a lockstep run or a rig that is not simulated (a lab's hardware cannot be
+        replayed); else ``late_commands`` and ``stale_steps`` (per rig, counts) and
+        ``recorded``, ``as_run``, ``in_time``: the worst NRMS per signal
+        (:data:`~seft_ros.analysis.findings.REPLAY_SIGNALS`, fractions; an unstable replay
+        ``{'unstable_at_s': t}``).
+
+    Raises
+    ------
+    ParameterError
+        The run's parameters cannot be simulated here (the message says why).
+    """
+    from seft_ros.analysis.metrics import compare_run, summary_entry
+    from seft_ros.core.experiment import simulate
+    timing = run.extra.get('timing_data') or {}
+    p = run.params
+    if not timing or p.get('mode') != 'realtime' or p.get('rig_interface',
+                                                            'simulated') != 'simulated':
+        return None
+    latency, stale = {}, {}
+    for rig in run.rig_names:
+        prefix = f'{rig}/' if rig else ''
+        rig_t = timing.get(f'{prefix}rig')
+        if rig_t is None:
+            return None
+        latency[rig] = dict(zip(rig_t.step.tolist(), rig_t.loop_latency_s.tolist()))
+        ctrl = timing.get(f'{prefix}force_servo_controller')
+        stale[rig] = set() if ctrl is None else {int(s) for s in ctrl.step[ctrl.stale]}
+    params = {k: v for k, v in p.items() if k != 'bag_path'}
+    params.update(mode='lockstep', n_steps=run.n_steps)
+
+    def worst(rd) -> dict:
+        if not rd.stable:
+            return {'unstable_at_s': rd.unstable_at_s}
+        entry = summary_entry(rd, compare_run(rd))
+        return {s: entry['worst_nrms'].get(s) for s in REPLAY_SIGNALS}
+
+    as_run = simulate(params, stale_steps=stale, command_latency_s=latency)
+    in_time = simulate(params, command_latency_s={rig: {} for rig in run.rig_names})
+    return {'late_commands': {rig: sum(1 for v in lat.values() if not v <= float(p['dt']))
+                              for rig, lat in latency.items()},
+            'stale_steps': {rig: len(s) for rig, s in stale.items()},
+            'recorded': worst(run), 'as_run': worst(as_run), 'in_time': worst(in_time)}
+
+
+#: ``seft run`` replays a real-time run's timing (:func:`replay_due`) when its worst NRMS
+#: of a signal passes this [-] and it had a late command or stale step.
+REPLAY_ABOVE_NRMS = 0.01
+def replay_due(run, worst_nrms: dict) -> bool:
+    """Whether ``seft run`` replays this run's timing by itself (:func:`replay_timing`): a
+    stable real-time run of seft's simulated rigs with a late command or a stale step and a
+    worst NRMS above :data:`REPLAY_ABOVE_NRMS` in some signal (`worst_nrms`: the summary's,
+    fractions). Its cost is two runs in process (a few seconds), paid where the run
+    erred."""
+    p = run.params
+    timing = run.extra.get('timing_data') or {}
+    if not (run.stable and timing and p.get('mode') == 'realtime'
+            and p.get('rig_interface', 'simulated') == 'simulated'):
+        return False
+    if not any(v is not None and v > REPLAY_ABOVE_NRMS for v in worst_nrms.values()):
+        return False
+    dt = float(p['dt'])
+    for node, t in timing.items():
+        if node.endswith('rig') and np.any(~(t.loop_latency_s <= dt)):
+            return True
+        if node.endswith('force_servo_controller') and np.any(t.stale):
+            return True
+    return False
