@@ -381,6 +381,8 @@ def test_a_real_time_identification_reads_the_command_the_rig_applied():
     applied_fit = identify_plant(applied, y, dt, specimen=specimen).model.info['nrms']['force_N']
     assert 0.003 < sent_fit < 0.01
     assert applied_fit < 0.1 * sent_fit
-    # a lockstep run (no timing records): the command sent
+    # a lockstep run (no timing records), or commands that act on arrival: the command sent
     lockstep = dataclasses.replace(run, extra={})
     assert applied_valve_command(lockstep) == (pytest.approx(u, abs=0), 0)
+    on_arrival = dataclasses.replace(run, params=dict(p, realtime_output='on_arrival'))
+    assert applied_valve_command(on_arrival) == (pytest.approx(u, abs=0), 0)

@@ -683,7 +683,8 @@ def applied_valve_command(run: RunData) -> tuple[np.ndarray, int]:
     """The valve command the rig applied over each step of a run of one rig, and how many
     commands reached it late (or never).
 
-    In lockstep, and in real time with every command in time, it is the command sent
+    In lockstep, in real time with every command in time, and with ``realtime_output:
+    on_arrival`` (commands act as they arrive), it is the command sent
     (``run.valve_command_V``). A late command in real time held the previous one longer:
     the rig's timing records (``loop_latency_s`` of each sample) give when each arrived, and
     :func:`~seft_plant_sim.realtime.applied_commands` what acted over each step.
@@ -699,7 +700,10 @@ def applied_valve_command(run: RunData) -> tuple[np.ndarray, int]:
         raise InputError(f'{run.source}: no /seft/valve_command')
     rig = run.rig_names[0]
     timing = (run.extra.get('timing_data') or {}).get(f'{rig}/rig' if rig else 'rig')
-    if timing is None or timing.n == 0:
+    if (timing is None or timing.n == 0
+            or run.params.get('realtime_output', 'latched') != 'latched'):
+        # lockstep, or commands that act on arrival (no step they hold: the loop's delay is
+        # the graph's latency itself, and the fit reads the commands sent)
         return np.asarray(u, dtype=float), 0
     offset = valve_latch_offset_s(run.params)
     dt = float(run.params['dt'])
