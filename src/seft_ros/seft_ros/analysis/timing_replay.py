@@ -15,6 +15,10 @@ from seft_ros.analysis.findings import REPLAY_SIGNALS
 
 __all__ = ['replay_timing', 'replay_due', 'REPLAY_ABOVE_NRMS']
 
+#: ``seft run`` replays a real-time run's timing (:func:`replay_due`) when its worst NRMS
+#: of a signal passes this [-] and it had a late command or stale step.
+REPLAY_ABOVE_NRMS = 0.01
+
 
 def replay_timing(run) -> dict | None:
     """What a real-time run's late steps cost it: the run replayed in one process on the
@@ -82,9 +86,6 @@ def replay_timing(run) -> dict | None:
             'recorded': worst(run), 'as_run': worst(as_run), 'in_time': worst(in_time)}
 
 
-#: ``seft run`` replays a real-time run's timing (:func:`replay_due`) when its worst NRMS
-#: of a signal passes this [-] and it had a late command or stale step.
-REPLAY_ABOVE_NRMS = 0.01
 def replay_due(run, worst_nrms: dict) -> bool:
     """Whether ``seft run`` replays this run's timing by itself (:func:`replay_timing`): a
     stable real-time run of seft's simulated rigs with a late command or a stale step and a

@@ -94,7 +94,8 @@ class ForceServoControllerNode(SeftNode):
         pending = self.pending
         if pending is not None and self.playout.has_due(pending[1]):
             self.pending = None
-            self._act(*pending[1:])
+            if not self.done:
+                self._act(*pending[1:])
 
     def next_due(self) -> float | None:
         """The deadline of a step waiting for its reference force (None: none waits)."""
@@ -103,7 +104,7 @@ class ForceServoControllerNode(SeftNode):
     def run_due(self) -> None:
         """The deadline came: act with the predicted force."""
         pending, self.pending = self.pending, None
-        if pending is not None:
+        if pending is not None and not self.done:
             self.guard(self._act)(*pending[1:])
 
     def _on_measured_realtime(self, k: int, fm: float, x: float = 0.0, v: float = 0.0,
