@@ -310,7 +310,8 @@ SCHEMA: tuple[ParamSpec, ...] = (
               choices=('prediction', 'linear'), nodes=_CTRL),
     ParamSpec('reference_deadline_fraction', 0.5, '', 'Real-time mode: when the reference '
               'force of step k has not arrived as the measurement of k does, the force servo '
-              'controller waits for it until t_k plus this fraction of dt, then predicts it '
+              'controller waits for it until t_k plus this fraction of dt (and at most this '
+              "fraction of dt from the measurement's arrival), then predicts it "
               '(reference_extrapolation); 0: never wait. The command must still reach the '
               'rig before t_k+1.', 0.0, 0.9, nodes=_CTRL),
     ParamSpec('adaptive_window_s', 0.5, 's', "Identification window of the 'adaptive' "
