@@ -802,8 +802,8 @@ class ReferencePlayout:
     error was 0.16-1.7 % of the force's RMS against 3.7-11.7 % extrapolated linearly; the
     stale steps of four real-time runs of that specimen (8-243 steps of 5000) replayed in
     process cost 4.0-8.8 % in x extrapolated linearly and 1.0-2.2 % predicted (0.48-0.68 %
-    with none). The fit costs about 0.1 ms at a stale step only; every other step stores
-    its force.
+    with none). The fit costs 53 us at a stale step only (median, an idle host); every other
+    step stores its force (0.35 us).
 
     Measured (benchmarks/stale_reference.py: the two-pier bridge of ``config/two_piers.yaml``
     with ``model``; the stale steps of three real-time runs on a loaded 2-core host, 0.5-1.4 %
