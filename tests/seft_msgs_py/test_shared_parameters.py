@@ -250,9 +250,10 @@ def test_value_source_lists_cover_the_schema():
     # rate (adaptive_specimen_excitation_ratio, adaptive_specimen_max_rate_per_s); + 1:
     # predictor_loop_csi_band (seft design's choice of the inverse's band); + 1:
     # record_resampling; + 1: adaptive_frequency_prior; + 2: the controller's late reference
-    # force (reference_extrapolation, reference_deadline_fraction)
+    # force (reference_extrapolation, reference_deadline_fraction); + 1: the rig's late
+    # valve command (realtime_late_command)
     assert len(VALUE_SOURCE) == len(SCHEMA) == (31 + 47 + 6 + 6 + 10 + 2 + 1 + 2 + 1 + 6 + 3
-                                                + 1 + 1 + 1 + 1 + 2 + 1 + 1 + 1 + 2)
+                                                + 1 + 1 + 1 + 1 + 2 + 1 + 1 + 1 + 2 + 1)
 
 
 def test_value_source_of_unknown_name_is_an_error():

@@ -13,7 +13,7 @@ import pytest
 
 from seft_msgs_py import parameters
 from seft_msgs_py.errors import ParameterError
-from seft_plant_sim.realtime import WallClockRig, applied_commands
+from seft_plant_sim.realtime import ReplayRig, WallClockRig, applied_commands
 from seft_plant_sim.rigs import make_rig
 
 N = 600
@@ -215,3 +215,47 @@ def test_the_applied_commands_reproduce_a_real_time_rig_with_late_commands(comma
     assert np.count_nonzero(applied != u) == 3
     assert _close(rt, _lockstep(p, np.concatenate(([0.0], applied[:-1])))) < 1e-6
     assert _close(rt, _lockstep(p, np.concatenate(([0.0], u[:-1])))) > 1e-3
+
+
+def _replayed(params, u, latency_s):
+    """The real-time rig with the command of step k arriving latency_s[k] after sample k."""
+    rig = ReplayRig(params, latency_s)
+    out = []
+    for k in range(len(u)):
+        m = rig.measure()
+        out.append((m.displacement_m, m.velocity_m_s, m.acceleration_m_s2, m.force_N))
+        rig.apply(u[k])
+    return np.array(out), rig.rig
+
+
+def test_a_late_command_is_predicted_where_the_rig_predicts():
+    """``realtime_late_command: predict``: a late command acts as its linear prediction from
+    the ones received until it arrives. A sinusoidal command (which an order-2 predictor
+    follows exactly) is then nearly as if in time (the predictor's ridge biases it: 1.2 % of
+    the command's value at the single late step here); held, the late steps kick the
+    specimen. In time, or in an open-loop run, the rig holds (the same
+    floats)."""
+    t = np.arange(N) * DT
+    u = 0.2 * np.sin(2 * np.pi * 7.0 * t) + 0.05 * np.sin(2 * np.pi * 23.0 * t + 0.4)
+    p = _params(rig_model='servohydraulic', io_latency_s=0.003)
+    in_time, _ = _replayed(p, u, {})
+    # one command 2.7 ms late (after the next tick) and a 10 ms stall of five at once
+    late = {400: 2 * DT + 0.0007}
+    late.update({k: (505 - k) * DT + 0.0003 for k in range(500, 505)})
+    held, rig_h = _replayed(p, u, late)
+    predicted, rig_p = _replayed(dict(p, realtime_late_command='predict'), u, late)
+    assert rig_p.predicted == 6 and rig_h.predicted == 0
+    err_hold, err_pred = _close(held, in_time), _close(predicted, in_time)
+    assert err_hold > 1.0                       # of the largest value of some signal
+    assert err_pred < 0.05 * err_hold
+    # in time the prediction never acts; an open-loop run's commands are held
+    same, rig_s = _replayed(dict(p, realtime_late_command='predict'), u, {})
+    assert np.array_equal(same, in_time) and rig_s.predicted == 0
+    open_loop = dict(p, realtime_late_command='predict', excitation_input='valve_command')
+    held_open, rig_o = _replayed(open_loop, u, late)
+    assert np.array_equal(held_open, held) and rig_o.predicted == 0
+
+
+def test_bad_late_command_rule_is_named():
+    with pytest.raises(ParameterError, match='realtime_late_command'):
+        WallClockRig(dict(_params(), realtime_late_command='guess'))

@@ -178,7 +178,7 @@ SCHEMA: tuple[ParamSpec, ...] = (
               '-(1+alpha) m xg_ddot of the reference force, so the bag holds it as the ground '
               "acceleration) or 'valve_command' (open loop, servohydraulic rig: the force "
               'controller is bypassed and the valve is driven directly; ground motion 0).',
-              choices=('reference_force', 'valve_command'), nodes=_EXC + _RFB),
+              choices=('reference_force', 'valve_command'), nodes=_EXC + _RFB + _RIG),
     ParamSpec('excitation_amplitude', 0.0, 'N or V', 'Excitation amplitude, in N on the '
               'reference force, in V on the valve (noise: standard deviation; chirp, '
               'stepped sine: peak; 0: 100 N, 0.05 V).', 0.0, None, nodes=_EXC),
@@ -558,6 +558,14 @@ SCHEMA: tuple[ParamSpec, ...] = (
               'their latency in their model and add none, so latched they run one sample '
               'behind lockstep.', choices=('latched', 'on_arrival'),
               nodes=_RIG + _RFB),
+    ParamSpec('realtime_late_command', 'hold', '', 'Real-time mode: what the rig outputs '
+              'when the command of a sample has not arrived by the instant it is due (a late '
+              "command; realtime_output). 'hold': the newest command it has (a zero-order "
+              "hold); 'predict': the late command's linear prediction from the commands "
+              'received (order 8, fitted over the last 0.5 s; at most 20 ms beyond the '
+              'newest, then held), until it arrives (seft_plant_sim.realtime.WallClockRig; '
+              'docs: the rig contract).', choices=('hold', 'predict'),
+              nodes=_RIG),
     ParamSpec('realtime_substep_s', 1e-4, 's', "Real-time mode: sub-step of the rig's plant "
               'integration between ticks (command changes are applied on this grid).', 1e-6,
               1.0, True, nodes=_RIG),

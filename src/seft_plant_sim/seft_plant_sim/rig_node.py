@@ -615,6 +615,8 @@ class RigNode(SeftNode):
             if self.abort_at_s is not None:
                 extra['abort_at_s'] = f'{self.abort_at_s:.6f}'
             extra['discarded_commands'] = self.rig.discarded
+            if getattr(self.rig, 'late_command', 'hold') == 'predict':
+                extra['predicted_commands'] = self.rig.predicted
         if getattr(self, 'wall_start', None) is not None:
             extra['wall_s'] = f'{time.monotonic() - self.wall_start:.3f}'
         if self.stop_signal:

@@ -77,8 +77,15 @@ def test_the_replay_splits_a_runs_error_into_the_hosts_timing_and_the_methods(pa
     assert replay['in_time']['displacement'] == pytest.approx(lockstep, rel=1e-6)
     # the study's specimen (2.2 % damped, alpha 1) forgives them: 0.317 against 0.307 %
     assert replay['as_run']['displacement'] > 1.01 * replay['in_time']['displacement']
+    # the rig held its late commands: what one that predicts them would have made of it
+    # (acceleration 8.5 % as run, 0.80 % predicting, 0.72 % in time)
+    as_run, predicting, in_time = (replay[k] for k in ('as_run', 'predicting', 'in_time'))
+    assert in_time['displacement'] < predicting['displacement'] < as_run['displacement']
+    assert predicting['acceleration'] - in_time['acceleration'] < 0.002
+    assert as_run['acceleration'] > 0.05
     line = timing_replay_line(replay)
     assert line.startswith('6 late command(s), 5 stale step(s); worst NRMS x / a / f recorded')
+    assert ', the rig predicting late commands ' in line
     # a lockstep run, or a lab's rig, has nothing to replay
     assert replay_timing(simulate(params)) is None
     run.params['rig_interface'] = 'udp_bridge'
@@ -101,6 +108,12 @@ def test_seft_run_replays_a_run_that_erred_with_late_steps_and_flags_the_hosts_c
     run.extra['timing_data'] = {'rig': _timing('rig', steps, latency=latency)}
     assert replay_due(run, {'displacement': 0.011, 'acceleration': None})
     assert not replay_due(run, {'displacement': 0.009, 'acceleration': 0.0099})
+    assert replay_due(run, lambda: {'displacement': 0.011})
+    # without a late step the run's error is not even compared (the callable not called)
+    in_time = simulate(params)
+    in_time.params = dict(in_time.params, mode='realtime')
+    in_time.extra['timing_data'] = {'rig': _timing('rig', steps, latency=np.full(N, 5e-4))}
+    assert not replay_due(in_time, lambda: pytest.fail('compared a run with no late step'))
     lines = []
     api._replay_if_due(run, 'run 1', lines.append)
     assert lines == []                              # the study's run errs 0.3 %: no replay

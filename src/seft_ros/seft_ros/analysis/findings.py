@@ -255,7 +255,8 @@ TIMING_COST_FLAG_POINTS = 0.005
 
 def timing_replay_line(replay: dict) -> str:
     """One line of :func:`~seft_ros.analysis.timing_replay.replay_timing`'s result: the worst
-    NRMS x / acceleration / interface force recorded, replayed as run and in time."""
+    NRMS x / acceleration / interface force recorded, replayed as run (and, where it was
+    replayed so, with the rig predicting late commands) and in time."""
     def cell(worst: dict) -> str:
         if 'unstable_at_s' in worst:
             return f"unstable at {worst['unstable_at_s']:.2f} s"
@@ -263,10 +264,12 @@ def timing_replay_line(replay: dict) -> str:
                           for s in ('displacement', 'acceleration', 'interface_force')) + ' %'
     late = sum(replay['late_commands'].values())
     stale = sum(replay['stale_steps'].values())
+    predicting = (f", the rig predicting late commands {cell(replay['predicting'])}"
+                  if replay.get('predicting') else '')
     return (f'{late} late command(s), {stale} stale step(s); worst NRMS x / a / f recorded '
-            f"{cell(replay['recorded'])}, replayed as run {cell(replay['as_run'])}, "
-            f"with every step in time {cell(replay['in_time'])} (the difference is the "
-            "host's timing, not the method)")
+            f"{cell(replay['recorded'])}, replayed as run {cell(replay['as_run'])}"
+            f"{predicting}, with every step in time {cell(replay['in_time'])} (the "
+            "difference is the host's timing, not the method)")
 
 
 def timing_cost_flag(replay: dict | None) -> str | None:

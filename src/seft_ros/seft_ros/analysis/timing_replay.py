@@ -20,7 +20,7 @@ __all__ = ['replay_timing', 'replay_due', 'REPLAY_ABOVE_NRMS']
 REPLAY_ABOVE_NRMS = 0.01
 
 
-def replay_timing(run) -> dict | None:
+def replay_timing(run, recorded: dict | None = None) -> dict | None:
     """What a real-time run's late steps cost it: the run replayed in one process on the
     real-time rig, as it ran and with every step in time.
 
@@ -38,6 +38,9 @@ def replay_timing(run) -> dict | None:
     run : RunData
         A real-time run read from its bag (``extra['timing_data']``) with seft's simulated
         rigs (``rig_interface: simulated``).
+    recorded : dict, optional
+        The run's own worst NRMS per signal (the summary's ``worst_nrms``, fractions), where
+        the caller has it; else compared here.
 
     Returns
     -------
@@ -46,7 +49,9 @@ def replay_timing(run) -> dict | None:
         replayed); else ``late_commands`` and ``stale_steps`` (per rig, counts) and
         ``recorded``, ``as_run``, ``in_time``: the worst NRMS per signal
         (:data:`~seft_ros.analysis.findings.REPLAY_SIGNALS`, fractions; an unstable replay
-        ``{'unstable_at_s': t}``).
+        ``{'unstable_at_s': t}``); where the rigs held late commands
+        (``realtime_late_command: hold``) and some came late, ``predicting``: the same as
+        run with rigs that predict them (what ``predict`` would have given).
 
     Raises
     ------
@@ -80,29 +85,37 @@ def replay_timing(run) -> dict | None:
 
     as_run = simulate(params, stale_steps=stale, command_latency_s=latency)
     in_time = simulate(params, command_latency_s={rig: {} for rig in run.rig_names})
-    return {'late_commands': {rig: sum(1 for v in lat.values() if not v <= float(p['dt']))
-                              for rig, lat in latency.items()},
+    late = {rig: sum(1 for v in lat.values() if not v <= float(p['dt']))
+            for rig, lat in latency.items()}
+    extra = {}
+    if any(late.values()) and params.get('realtime_late_command', 'hold') == 'hold':
+        # what a rig that predicts a late command would have made of the same timing
+        extra['predicting'] = worst(simulate(dict(params, realtime_late_command='predict'),
+                                             stale_steps=stale, command_latency_s=latency))
+    return {'late_commands': late,
             'stale_steps': {rig: len(s) for rig, s in stale.items()},
-            'recorded': worst(run), 'as_run': worst(as_run), 'in_time': worst(in_time)}
+            'recorded': ({s: recorded.get(s) for s in REPLAY_SIGNALS} if recorded is not None
+                         else worst(run)),
+            'as_run': worst(as_run), 'in_time': worst(in_time), **extra}
 
 
-def replay_due(run, worst_nrms: dict) -> bool:
+def replay_due(run, worst_nrms) -> bool:
     """Whether ``seft run`` replays this run's timing by itself (:func:`replay_timing`): a
     stable real-time run of seft's simulated rigs with a late command or a stale step and a
     worst NRMS above :data:`REPLAY_ABOVE_NRMS` in some signal (`worst_nrms`: the summary's,
-    fractions). Its cost is two runs in process (a few seconds), paid where the run
+    fractions, or a callable that returns them: called only once the timing says a replay
+    could be due). Its cost is two runs in process (a few seconds), paid where the run
     erred."""
     p = run.params
     timing = run.extra.get('timing_data') or {}
     if not (run.stable and timing and p.get('mode') == 'realtime'
             and p.get('rig_interface', 'simulated') == 'simulated'):
         return False
-    if not any(v is not None and v > REPLAY_ABOVE_NRMS for v in worst_nrms.values()):
-        return False
     dt = float(p['dt'])
-    for node, t in timing.items():
-        if node.endswith('rig') and np.any(~(t.loop_latency_s <= dt)):
-            return True
-        if node.endswith('force_servo_controller') and np.any(t.stale):
-            return True
-    return False
+    if not any((node.endswith('rig') and np.any(~(t.loop_latency_s <= dt)))
+               or (node.endswith('force_servo_controller') and np.any(t.stale))
+               for node, t in timing.items()):
+        return False
+    if callable(worst_nrms):
+        worst_nrms = worst_nrms()
+    return any(v is not None and v > REPLAY_ABOVE_NRMS for v in worst_nrms.values())

@@ -524,12 +524,18 @@ def _replay_if_due(rd: RunData, label: str, progress: Callable[[str], None]) -> 
     from seft_ros.analysis.findings import timing_replay_line
     from seft_ros.analysis.metrics import compare_run, summary_entry
     from seft_ros.analysis.timing_replay import replay_due, replay_timing
+    worst: dict = {}
+
+    def worst_nrms() -> dict:
+        worst.update(summary_entry(rd, compare_run(rd)).get('worst_nrms') or {})
+        return worst
+
     try:
-        if not replay_due(rd, summary_entry(rd, compare_run(rd)).get('worst_nrms') or {}):
+        if not replay_due(rd, worst_nrms):
             return
         progress(f'[{label}] late steps and an error above 1 %: replaying the run in process, '
                  'as it ran and in time')
-        rd.extra['timing_replay'] = replay = replay_timing(rd)
+        rd.extra['timing_replay'] = replay = replay_timing(rd, recorded=worst or None)
     except SeftError as exc:
         progress(f'[{label}] no timing replay: {exc}')
         return

@@ -8,6 +8,13 @@ from scipy import signal
 
 from seft_msgs_py.calibration import CALIBRATIONS, DEFAULT_CALIBRATION, controller_gain_V_per_N
 from seft_msgs_py.errors import ParameterError
+from seft_msgs_py.prediction import (
+    PREDICTION_ORDER,
+    PREDICTION_RIDGE,
+    PREDICTION_WINDOW_S,
+    SampleHistory,
+    window_steps,
+)
 
 __all__ = ['DiscreteFilter', 'ForceServoController', 'SaturationInterlock', 'LOOP_SHAPING_NUM',
            'ControllerTF',
@@ -754,14 +761,6 @@ class SaturationInterlock:
 
 #: ``reference_extrapolation`` values (:class:`ReferencePlayout`).
 REFERENCE_EXTRAPOLATIONS = ('prediction', 'linear')
-#: Order of the linear predictor of a late reference force [samples].
-PREDICTION_ORDER = 8
-#: Span of reference forces the predictor is fitted to [s].
-PREDICTION_WINDOW_S = 0.5
-#: Ridge weight of the predictor's fit, relative to the mean power of its regressors.
-PREDICTION_RIDGE = 1e-6
-
-
 def prediction_window_steps(params) -> int:
     """The forces a real-time controller fits its late-force predictor to (``0``: linear
     extrapolation), from ``reference_extrapolation`` and ``dt``.
@@ -775,7 +774,7 @@ def prediction_window_steps(params) -> int:
     if mode not in REFERENCE_EXTRAPOLATIONS:
         raise ParameterError(f'parameter reference_extrapolation={mode!r}: expected one of '
                              + ', '.join(repr(m) for m in REFERENCE_EXTRAPOLATIONS))
-    return int(round(PREDICTION_WINDOW_S / float(params['dt']))) if mode == 'prediction' else 0
+    return window_steps(float(params['dt'])) if mode == 'prediction' else 0
 
 
 class ReferencePlayout:
@@ -792,9 +791,11 @@ class ReferencePlayout:
 
     With ``prediction_window`` forces of history (``reference_extrapolation: prediction``,
     the default) the force is predicted instead by a linear predictor of order
-    :data:`PREDICTION_ORDER` fitted, at the stale step, to the last `prediction_window`
-    forces by least squares (the autocorrelation-free *covariance method*, with a ridge of
-    :data:`PREDICTION_RIDGE`), unless its one-step residual over the window is no smaller
+    :data:`~seft_msgs_py.prediction.PREDICTION_ORDER` fitted, at the stale step, to the last
+    `prediction_window` forces by least squares (the autocorrelation-free *covariance
+    method*, with a ridge of :data:`~seft_msgs_py.prediction.PREDICTION_RIDGE`;
+    :class:`~seft_msgs_py.prediction.SampleHistory`), unless its one-step residual over the
+    window is no smaller
     than linear extrapolation's. A reference force is dominated by the lightly damped
     modes of the test, which such a predictor follows exactly (an AR(2) predicts a sinusoid
     without error). On the real-time references of a 32 Hz, 0.5 % specimen at alpha 1
@@ -860,10 +861,7 @@ class ReferencePlayout:
         self._before = (-1, 0.0)                # and of the one before it
         #: how many stale forces the predictor gave (the others: linear extrapolation)
         self.predicted = 0
-        if window:
-            size = window + PREDICTION_ORDER
-            self._history = np.zeros(size)      # f_r[j] at j % size
-            self._history_steps = np.full(size, -1, dtype=np.int64)
+        self._history = SampleHistory(window) if window else None
 
     def receive(self, step: int, force_N: float) -> None:
         """A reference force arrived (any order; a repeat replaces it)."""
@@ -875,11 +873,8 @@ class ReferencePlayout:
             self._newest = (step, force_N)
         elif step >= before:
             self._before = (step, force_N)
-        if self.prediction_window:
-            i = step % self._history.size
-            if step >= self._history_steps[i]:
-                self._history[i] = force_N
-                self._history_steps[i] = step
+        if self._history is not None:
+            self._history.store(step, force_N)
 
     def has_due(self, k: int) -> bool:
         """Whether the force step `k` acts on has arrived."""
@@ -907,7 +902,8 @@ class ReferencePlayout:
             value, source = f1, j1
             if j0 >= 0 and j1 < due and self.extrapolate_steps:
                 ahead = min(due - j1, self.extrapolate_steps)
-                predicted = self._predict(j1, ahead) if self.prediction_window else None
+                predicted = (self._history.predict(j1, ahead) if self._history is not None
+                             else None)
                 if predicted is None:
                     value = f1 + ahead * (f1 - f0) / (j1 - j0)
                 else:
@@ -920,34 +916,6 @@ class ReferencePlayout:
         for j in [j for j in forces if j <= done]:
             del forces[j]
         return value, stale, source
-
-    def _predict(self, newest: int, ahead: int) -> float | None:
-        """``f_r[newest + ahead]`` by the linear predictor fitted to the forces up to
-        `newest` (None: too few of them in a row, or linear extrapolation fits better)."""
-        size = self._history.size
-        steps = np.arange(newest - size + 1, newest + 1)
-        if steps[0] < 0 or not np.array_equal(self._history_steps[steps % size], steps):
-            return None
-        x = self._history[steps % size]
-        p = PREDICTION_ORDER
-        # rows: x[i-1], ..., x[i-p] -> x[i]
-        regressors = np.lib.stride_tricks.sliding_window_view(x[:-1], p)[:, ::-1]
-        target = x[p:]
-        gram = regressors.T @ regressors
-        ridge = PREDICTION_RIDGE * np.trace(gram) / p
-        try:
-            coef = np.linalg.solve(gram + ridge * np.eye(p), regressors.T @ target)
-        except np.linalg.LinAlgError:
-            return None
-        residual = target - regressors @ coef
-        linear = target[1:] - (2.0 * x[p:-1] - x[p - 1:-2])
-        if not (np.all(np.isfinite(coef))
-                and residual[1:] @ residual[1:] < linear @ linear):
-            return None
-        recent = list(x[-p:][::-1])                  # x[newest], x[newest - 1], ...
-        for _ in range(ahead):
-            recent.insert(0, float(np.dot(coef, recent[:p])))
-        return recent[0]
 
     def replay(self, k: int, force_N: float, late: bool) -> float:
         """One step of an in-process replay of a real-time run: the force of step `k` arrives
