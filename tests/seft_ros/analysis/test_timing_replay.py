@@ -33,10 +33,10 @@ def params():
     return dict(p, alpha=1.0, n_steps=N)
 
 
-def _timing(node, steps, latency=None, stale=None):
+def _timing(node, steps, latency=None, stale=None, age=None):
     n = steps.size
     nan = np.full(n, np.nan)
-    return NodeTiming(node, steps, nan, nan, nan, np.zeros(n, bool),
+    return NodeTiming(node, steps, nan, nan, nan if age is None else age, np.zeros(n, bool),
                       np.zeros(n, bool) if stale is None else stale,
                       nan if latency is None else latency)
 
@@ -135,3 +135,33 @@ def test_seft_run_replays_a_run_that_erred_with_late_steps_and_flags_the_hosts_c
     assert 'unstable at 1.20 s' in timing_cost_flag(replay)
     run.extra['timing_replay'] = replay
     assert any(f.startswith('timing: ') for f in run_flags(run, compare_run(run)))
+
+
+def test_a_controller_several_steps_behind_is_replayed_as_it_ran(params):
+    """A builder that falls behind in a host stall leaves the controller several steps
+    behind its reference forces; the controller's input age (from the newest force it held
+    to its command) less the rig's loop latency of that command says how many
+    (steps_behind), and the replay as run gives the run back exactly. Taken one step
+    behind each (the replay before), it does not."""
+    from seft_ros.analysis.timing_replay import steps_behind
+    latency = np.full(N, 0.0005)
+    behind = {600 + i: d for i, d in enumerate((1, 2, 3, 4, 5, 4, 3, 2, 1))}
+    run = simulate(params, command_latency_s={'': dict(enumerate(latency))},
+                   stale_steps={'': behind})
+    run.params = dict(run.params, mode='realtime')
+    steps = np.arange(N)
+    stale = np.isin(steps, list(behind))
+    # the command leaves 0.1 ms before it reaches the rig; the newest force d steps old
+    age = latency - 1e-4 + DT * np.array([behind.get(k, 0) for k in steps])
+    ctrl = _timing('force_servo_controller', steps, stale=stale, age=age)
+    rig = _timing('rig', steps, latency=latency)
+    assert steps_behind(ctrl, rig, DT) == behind
+    run.extra['timing_data'] = {'rig': rig, 'force_servo_controller': ctrl}
+    replay = replay_timing(run)
+    assert replay['steps_behind'] == {'': 5}
+    assert replay['as_run'] == replay['recorded']
+    assert '9 stale step(s) (up to 5 steps behind)' in timing_replay_line(replay)
+    one_behind = simulate(params, command_latency_s={'': dict(enumerate(latency))},
+                          stale_steps={'': set(behind)})
+    assert (compare_run(one_behind).displacement.nrms
+            != pytest.approx(replay['recorded']['displacement'], rel=1e-3))

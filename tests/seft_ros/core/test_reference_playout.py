@@ -236,3 +236,25 @@ def test_the_prediction_window_follows_the_parameters():
     assert prediction_window_steps({'dt': 0.002, 'reference_extrapolation': 'linear'}) == 0
     with pytest.raises(ParameterError, match="reference_extrapolation='cubic': expected one of"):
         prediction_window_steps({'dt': 0.002, 'reference_extrapolation': 'cubic'})
+
+
+def test_a_replayed_step_several_behind_acts_on_the_forces_the_controller_held():
+    """replay(k, f, d): the controller acts on step k holding the forces up to k - d (a
+    builder d steps behind in a host stall), the rest arrive at later steps in order. The
+    same as a playout fed by hand: receive up to k - d, then due(k); d = 1 is the
+    one-step-late replay (True), 0 in time."""
+    forces = [float(np.sin(0.3 * j) + 0.1 * j) for j in range(40)]
+    behind = {20: 1, 21: 2, 22: 3, 23: 4, 24: 1, 30: True}
+    replayed = ReferencePlayout(0, 2)
+    by_hand = ReferencePlayout(0, 2)
+    received, got = -1, {}
+    for k, f in enumerate(forces):
+        d = int(behind.get(k, 0))
+        got[k] = replayed.replay(k, f, behind.get(k, 0))
+        while received < k - d:
+            received += 1
+            by_hand.receive(received, forces[received])
+        assert got[k] == by_hand.due(k)[0], k
+    # at step 23 the newest held was 19: extrapolated 2 steps beyond it, then held
+    assert got[23] == pytest.approx(forces[19] + 2 * (forces[19] - forces[18]))
+    assert got[25] == forces[25]                  # caught up: every force in

@@ -266,7 +266,10 @@ def timing_replay_line(replay: dict) -> str:
     stale = sum(replay['stale_steps'].values())
     predicting = (f", the rig predicting late commands {cell(replay['predicting'])}"
                   if replay.get('predicting') else '')
-    return (f'{late} late command(s), {stale} stale step(s); worst NRMS x / a / f recorded '
+    behind = max((replay.get('steps_behind') or {}).values(), default=0)
+    stale_text = f'{stale} stale step(s)' + (f' (up to {behind} steps behind)'
+                                             if behind > 1 else '')
+    return (f'{late} late command(s), {stale_text}; worst NRMS x / a / f recorded '
             f"{cell(replay['recorded'])}, replayed as run {cell(replay['as_run'])}"
             f"{predicting}, with every step in time {cell(replay['in_time'])} (the "
             "difference is the host's timing, not the method)")

@@ -857,6 +857,7 @@ class ReferencePlayout:
         self.extrapolate_steps = int(extrapolate_steps)
         self.prediction_window = window
         self._forces: dict[int, float] = {}     # step -> f_r [N], the ones still needed
+        self._replay_pending: list[tuple[int, float]] = []   # replay: computed, not arrived
         self._newest = (-1, 0.0)                # (step, f_r) of the newest force received
         self._before = (-1, 0.0)                # and of the one before it
         #: how many stale forces the predictor gave (the others: linear extrapolation)
@@ -917,13 +918,19 @@ class ReferencePlayout:
             del forces[j]
         return value, stale, source
 
-    def replay(self, k: int, force_N: float, late: bool) -> float:
-        """One step of an in-process replay of a real-time run: the force of step `k` arrives
-        before the controller acts on step `k`, or with `late` just after; returns the force
-        acted on [N] (:meth:`due`'s)."""
-        if not late:
-            self.receive(k, force_N)
-        value = self.due(k)[0]
-        if late:
-            self.receive(k, force_N)
-        return value
+    def replay(self, k: int, force_N: float, late: int = 0) -> float:
+        """One step of an in-process replay of a real-time run; returns the force acted on
+        [N] (:meth:`due`'s).
+
+        The force of step `k` is computed now; the controller acts on step `k` holding the
+        forces up to step ``k - late`` (``late`` 0: in time; 1: the force of `k` arrives
+        just after; ``d > 1``: the builder was ``d`` steps behind, as a host stall leaves
+        it). The others arrive at later steps, in order; a force once received stays
+        (``late`` may fall by more than one a step, never un-receive one). ``True`` is 1.
+        """
+        pending = self._replay_pending
+        pending.append((k, force_N))
+        limit = k - int(late)
+        while pending and pending[0][0] <= limit:
+            self.receive(*pending.pop(0))
+        return self.due(k)[0]

@@ -72,7 +72,10 @@ def simulate(params, *, progress: Callable[[int, int], None] | None = None,
         records, replayed in process); a plain collection for a test of one rig. At those
         steps the controller acts as in real time
         (:class:`~seft_ros.core.controller.ReferencePlayout` with the rig's
-        ``reference_extrapolation_steps``) and the force arrives just after.
+        ``reference_extrapolation_steps``) and the force arrives just after; a mapping of
+        step -> ``d`` (int >= 1) in place of a collection: the controller held the forces
+        up to step ``k - d`` (the builder ``d`` steps behind;
+        :meth:`~seft_ros.core.controller.ReferencePlayout.replay`).
         Servohydraulic rigs only (ignored on the delay rig, which has no controller);
         default none (lockstep).
     command_latency_s : mapping of str to (mapping of int to float), optional
@@ -104,6 +107,14 @@ def simulate(params, *, progress: Callable[[int, int], None] | None = None,
     with single_blas_thread():
         return _simulate(params, progress=progress, record=record, stale_steps=stale_steps,
                          command_latency_s=command_latency_s)
+
+
+def _steps_behind(steps) -> dict[int, int]:
+    """Stale steps as step -> how many steps behind the controller's newest force was (a
+    mapping as given; a collection: 1 each)."""
+    if isinstance(steps, Mapping):
+        return {int(k): max(1, int(d)) for k, d in steps.items()}
+    return dict.fromkeys((int(k) for k in steps), 1)
 
 
 def _simulate(params, *, progress, record, stale_steps, command_latency_s) -> RunData:
@@ -152,7 +163,7 @@ def _simulate(params, *, progress, record, stale_steps, command_latency_s) -> Ru
     playouts = [ReferencePlayout(0, int(rig_params[r]['reference_extrapolation_steps']),
                                  prediction_window_steps(rig_params[r]))
                 if v and r in stale else None for r, v in zip(names, valve)]
-    stale = [frozenset(stale.get(r, ())) for r in names]
+    stale = [_steps_behind(stale.get(r, ())) for r in names]
     look = max(b.lookahead_steps for b in builders)
     # the ground window xg''[j..j+L] of every step as a slice (the numbers of
     # reference_force.ground_window: the record as Python floats, zeros after its end)
@@ -210,7 +221,7 @@ def _simulate(params, *, progress, record, stale_steps, command_latency_s) -> Ru
             meas[r] = m
             fr = commands[r]
             if control is not None:
-                reference = fr if playout is None else playout.replay(k, fr, k in stale_r)
+                reference = fr if playout is None else playout.replay(k, fr, stale_r.get(k, 0))
                 u = control(reference, m.force_N, m.velocity_m_s, m.acceleration_m_s2,
                             m.displacement_m)
                 reason = lock(ctrl.saturated, m.time_s)
