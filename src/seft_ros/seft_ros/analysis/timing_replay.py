@@ -31,9 +31,13 @@ def replay_timing(run, recorded: dict | None = None) -> dict | None:
     reference force it then had (``stale_steps`` of :func:`~seft_ros.core.experiment.simulate`):
     the replay *as run* should match the recorded run (it checks the replay); *in time*,
     every command and reference force arrives in time. Their difference is the error the
-    host's timing cost the run, not the method. Measured (a 32 Hz, 0.5 % specimen at
-    alpha 1 on a family plant, 2026-11-29): runs of 1.95-42.2 % x replayed as run to
-    1.91-22.9 %, in time 1.32 %.
+    host's timing cost the run, not the method. A stale step is replayed as far behind its
+    reference forces as the controller was (:func:`steps_behind`). Measured (2026-11-29):
+    the yielding steel frame at 1 kHz, its builder up to 16 steps behind, replayed as run
+    to the digit (8.36 / 34.92 / 29.98 % x / a / f; in time 1.49 / 8.63 / 5.79 %); a 32 Hz,
+    0.5 % specimen at alpha 1 on a family plant, runs of 1.95-42.2 % x replayed as run to
+    1.91-22.2 % (in time 1.32 %): the 42.2 % run had a 40 ms stall in which the rig's own
+    tick was late, which the replay does not model.
 
     Parameters
     ----------
