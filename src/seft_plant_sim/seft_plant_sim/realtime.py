@@ -44,9 +44,9 @@ predictor declines); an open-loop run (``excitation_input: valve_command``, nois
 held either way (:func:`applied_commands` reconstructs it). A held valve command keeps the
 flow of the step before: on a lightly
 damped specimen each late one is a kick that rings for seconds. Replayed in process with
-their recorded arrivals (``seft compare --replay-timing``), 17 real-time runs of a loaded
-2-core host erred less predicting in 15 (the two piers of issue 41, worst acceleration
-0.80-14.7 % held, 0.51-2.41 % predicted, 0.44 % with every command in time; docs: design,
+their recorded arrivals (``seft compare --replay-timing``), 11 real-time runs of a loaded
+2-core host erred less predicting in 10 (the two piers of issue 41, worst acceleration
+0.80-14.6 % held, 0.51-2.49 % predicted, 0.44 % with every command in time; docs: design,
 real time). The prediction of
 a command between a slow computation's updates on the actuator controller's side is the
 event-driven strategy of Mosqueda, Stojadinovic and Mahin (2007) and the extrapolation of
