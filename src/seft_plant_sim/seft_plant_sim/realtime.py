@@ -476,13 +476,9 @@ class WallClockRig(CommandArrivals):
         sub = self._sub + self._lead
         if self._safe_from_sub is not None and sub >= self._ramp_sub:
             return self._safe_command(sub)
-        held, stamp = self._held, self._held_stamp
-        for effect, j, value in self._events:       # those acting by now, not yet taken
-            if effect <= sub and j > stamp:
-                held, stamp = value, j
-        if self._history is not None and stamp == self._held_stamp:
-            return self._late_command(sub, held, count=False)
-        return held
+        if self._history is not None:
+            return self._late_command(sub, self._held, count=False)
+        return self._held
 
     def measure(self) -> Measurement:
         """Sensor readings at the current tick (step k, time ``t_k``)."""
