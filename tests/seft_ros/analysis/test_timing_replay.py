@@ -86,6 +86,14 @@ def test_the_replay_splits_a_runs_error_into_the_hosts_timing_and_the_methods(pa
     line = timing_replay_line(replay)
     assert line.startswith('6 late command(s), 5 stale step(s); worst NRMS x / a / f recorded')
     assert ', the rig predicting late commands ' in line
+    assert 'does not reproduce' not in line
+    # a replay that misses the run says so (a 40 ms stall of the rig's own tick: 42 % run,
+    # 22 % replayed)
+    missed = dict(replay, recorded=dict(replay['as_run'], displacement=0.42),
+                  as_run=dict(replay['as_run'], displacement=0.22))
+    assert 'replayed as run 22.00 / ' in timing_replay_line(missed)
+    assert '(which does not reproduce the run: part of its timing is not modelled)' in \
+        timing_replay_line(missed)
     # a lockstep run, or a lab's rig, has nothing to replay
     assert replay_timing(simulate(params)) is None
     run.params['rig_interface'] = 'udp_bridge'

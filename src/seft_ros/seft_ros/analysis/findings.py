@@ -44,7 +44,8 @@ from seft_ros.core.specimen_settings import costly_settings
 
 __all__ = ['PEAK_RATIO_FLAG', 'BOUND_HOLD_S', 'SPECIMEN_FLAG', 'estimate_bounds', 'bound_findings',
            'sensor_range_entry', 'sensor_range_lines', 'run_flags', 'verdict', 'REPLAY_SIGNALS',
-           'TIMING_COST_FLAG_POINTS', 'timing_replay_line', 'timing_cost_flag']
+           'TIMING_COST_FLAG_POINTS', 'REPRODUCED_WITHIN', 'timing_replay_line',
+           'timing_cost_flag']
 
 #: A rig's peak (displacement, force, acceleration) beyond this many times the reference's
 #: flags the run.
@@ -269,10 +270,28 @@ def timing_replay_line(replay: dict) -> str:
     behind = max((replay.get('steps_behind') or {}).values(), default=0)
     stale_text = f'{stale} stale step(s)' + (f' (up to {behind} steps behind)'
                                              if behind > 1 else '')
+    missed = (' (which does not reproduce the run: part of its timing is not modelled)'
+              if not _reproduced(replay) else '')
     return (f'{late} late command(s), {stale_text}; worst NRMS x / a / f recorded '
-            f"{cell(replay['recorded'])}, replayed as run {cell(replay['as_run'])}"
+            f"{cell(replay['recorded'])}, replayed as run {cell(replay['as_run'])}{missed}"
             f"{predicting}, with every step in time {cell(replay['in_time'])} (the "
             "difference is the host's timing, not the method)")
+
+
+#: The replay as run reproduces the run (:func:`timing_replay_line`) when its worst NRMS of
+#: each signal is within this fraction of the recorded one, or within 0.5 points.
+REPRODUCED_WITHIN = 0.25
+
+
+def _reproduced(replay: dict) -> bool:
+    recorded, as_run = replay.get('recorded') or {}, replay.get('as_run') or {}
+    if 'unstable_at_s' in recorded or 'unstable_at_s' in as_run:
+        return ('unstable_at_s' in recorded) == ('unstable_at_s' in as_run)
+    for s in REPLAY_SIGNALS:
+        a, b = recorded.get(s), as_run.get(s)
+        if a is not None and b is not None and abs(a - b) > max(0.005, REPRODUCED_WITHIN * a):
+            return False
+    return True
 
 
 def timing_cost_flag(replay: dict | None) -> str | None:
