@@ -163,6 +163,7 @@ def test_a_clean_run(link):
     end = ended(events)
     assert end['samples'] == 301 and end['lost'] == end['duplicate'] == end['reordered'] == 0
     assert end['bad'] == 0 and lines == []
+    assert end['predicted'] == 0                     # it holds (the default rule)
     assert bridge.wire_counts()['udp_lost'] == 0
     # the controller's loop latency of nearly every sample came back (sample to command)
     latencies = [bridge.loop_latency_s(j) for j in range(290)]
@@ -404,3 +405,23 @@ def test_a_pc_with_another_key_is_rejected(link, tmp_path):
     assert bad and bad[0]['why'] == ('datagram to the controller: its HMAC does not verify '
                                      '(another key, or forged)')
     assert not [e for e in events if e['event'] == 'start']
+
+
+def test_an_emulator_that_predicts_a_lost_command_says_how_many_it_predicted(link):
+    """``realtime_late_command: predict``: the emulated controller outputs a prediction in
+    place of a command that has not come (here every 43rd is lost on the link, nine after
+    the first); its end event counts them (a host stall can add late ones)."""
+    bridge, emulator, proxy, events, lines = link(realtime_late_command='predict')
+
+    def lose(i, data):
+        d = ul.decode_to_controller(data)
+        if d.kind == ul.KIND_COMMAND and d.source % 43 == 0:
+            return []
+        return [(0.0, data)]
+    proxy.to_controller = lose
+    play(bridge, 400)
+    bridge.close()
+    end = ended(events)
+    if any(e['event'] == 'safe_state' for e in events):
+        pytest.skip('the host stalled the test past the controller watchdog')
+    assert end['predicted'] >= 9 and end['lost'] >= 9

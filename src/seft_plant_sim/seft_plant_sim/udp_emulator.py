@@ -222,6 +222,7 @@ class ControllerEmulator:
                          'lost': self.filter.lost, 'duplicate': self.filter.duplicate,
                          'reordered': self.filter.reordered, 'bad': self.bad,
                          'discarded': self.rig.discarded if self.rig is not None else 0,
+                         'predicted': self.rig.predicted if self.rig is not None else 0,
                          'foreign': self.foreign, 'refused_starts': self.refused_starts})
             self.runs += 1
         self.ticking = False
