@@ -50,20 +50,26 @@ class SampleHistory:
     ----------
     window : int >= 4 * PREDICTION_ORDER
         Samples the predictor is fitted to.
+    spare : int >= 0
+        Samples newer than the one predicted from that the history may hold without losing
+        the window (a rig stores a command as it arrives, before it acts: a stall's
+        commands arrive together).
 
     Raises
     ------
     ValueError
-        `window` too short.
+        `window` too short, or `spare` negative.
     """
 
-    def __init__(self, window: int):
+    def __init__(self, window: int, spare: int = 0):
         window = int(window)
         if window < 4 * PREDICTION_ORDER:
             raise ValueError(f'prediction window {window!r}: expected at least '
                              f'{4 * PREDICTION_ORDER} samples')
+        if int(spare) < 0:
+            raise ValueError(f'spare samples {spare!r}: expected >= 0')
         self.window = window
-        size = window + PREDICTION_ORDER
+        size = window + PREDICTION_ORDER + int(spare)
         self._values = np.zeros(size)                         # x[j] at j % size
         self._steps = np.full(size, -1, dtype=np.int64)
 
@@ -84,7 +90,7 @@ class SampleHistory:
         """``x[newest + ahead]`` by the linear predictor fitted to the samples up to
         `newest` (None: too few of them in a row, or linear extrapolation fits better)."""
         size = self._values.size
-        steps = np.arange(newest - size + 1, newest + 1)
+        steps = np.arange(newest - self.window - PREDICTION_ORDER + 1, newest + 1)
         if steps[0] < 0 or not np.array_equal(self._steps[steps % size], steps):
             return None
         x = self._values[steps % size]

@@ -39,18 +39,19 @@ What acts while a command is late (``realtime_late_command``): ``'hold'`` (defau
 the newest command in effect, as a DAQ's zero-order hold; ``'predict'`` gives, from the
 instant the late command was due until it arrives, its linear prediction from the commands
 received (:class:`~seft_msgs_py.prediction.SampleHistory`: order 8 fitted over the last
-0.5 s, at most :data:`LATE_COMMAND_HORIZON_S` beyond the newest, linear extrapolation where the
-predictor declines); an open-loop run (``excitation_input: valve_command``, noise) is
-held either way (:func:`applied_commands` reconstructs it). A held valve command keeps the
-flow of the step before: on a lightly
-damped specimen each late one is a kick that rings for seconds. Replayed in process with
-their recorded arrivals (``seft compare --replay-timing``), 11 real-time runs of a loaded
-2-core host erred less predicting in 10 (the two piers of issue 41, worst acceleration
-0.80-14.6 % held, 0.51-2.49 % predicted, 0.44 % with every command in time; docs: design,
-real time). The prediction of
-a command between a slow computation's updates on the actuator controller's side is the
-event-driven strategy of Mosqueda, Stojadinovic and Mahin (2007) and the extrapolation of
-Nakashima and Masaoka (1999); a lab's real-time controller that does it declares the value
+0.5 s, at most :data:`LATE_COMMAND_HORIZON_S` beyond the newest; where the predictor
+declines, the two newest extrapolated linearly over at most :data:`LATE_LINEAR_STEPS`). An
+open-loop run (``excitation_input: valve_command``, noise) is held either way
+(:func:`applied_commands` reconstructs it). A held valve command keeps the flow of the step
+before: on a lightly damped specimen each late one is a kick that rings for seconds.
+Replayed in process with their recorded arrivals (``seft compare --replay-timing``), 11
+real-time runs of a loaded 2-core host erred less predicting in 10 (the two piers of issue
+41, worst acceleration 0.80-14.6 % held, 0.51-2.49 % predicted, 0.44 % with every command
+in time; docs: design, real time; ``benchmarks/late_commands.py``). The prediction of a
+command between a slow computation's updates on the actuator controller's side is the
+event-driven strategy of Mosqueda, Stojadinovic and Mahin (2007, Real-time error monitoring
+for hybrid simulation, J. Struct. Eng. 133(8)) and the extrapolation of Nakashima and
+Masaoka (1999, EESD 28(4)); a lab's real-time controller that does it declares the value
 (docs: the rig contract).
 
 The plant itself is the lockstep rig's own class, built at the sub-step period with no
@@ -71,7 +72,7 @@ from seft_msgs_py.prediction import SampleHistory, window_steps
 from seft_plant_sim.rigs import make_rig
 
 __all__ = ['WallClockRig', 'ReplayRig', 'OUTPUT_TIMINGS', 'LATE_COMMANDS',
-           'LATE_COMMAND_HORIZON_S', 'CommandArrivals',
+           'LATE_COMMAND_HORIZON_S', 'LATE_LINEAR_STEPS', 'CommandArrivals',
            'MODELS_WITH_OWN_DELAY', 'valve_latch_offset_s', 'applied_commands']
 
 #: Rig models whose plant holds the actuator's I/O latency itself (not ``io_latency_s``).
@@ -83,6 +84,8 @@ OUTPUT_TIMINGS = ('latched', 'on_arrival')
 LATE_COMMANDS = ('hold', 'predict')
 #: The longest prediction of a late command beyond the newest one [s] (then held).
 LATE_COMMAND_HORIZON_S = 0.02
+#: The longest linear extrapolation of a late command, where the predictor declines [steps].
+LATE_LINEAR_STEPS = 2
 _EPS = 1e-9
 
 
@@ -319,8 +322,10 @@ class WallClockRig(CommandArrivals):
         # an open-loop identification's commands are noise, and its analysis reconstructs
         # them held (applied_commands): the rig predicts a test's commands only
         predict = late == 'predict' and params.get('excitation_input') != 'valve_command'
-        self._history = SampleHistory(window_steps(dt)) if predict else None
         self._late_steps = max(1, int(round(LATE_COMMAND_HORIZON_S / dt)))
+        # the commands of a stall arrive together, before they act: room for them
+        self._history = (SampleHistory(window_steps(dt), spare=4 * self._late_steps + 8)
+                         if predict else None)
         self._late = (-1, -1, 0.0)          # (held stamp, due stamp, predicted command)
         #: late commands whose prediction acted (``realtime_late_command: predict``)
         self.predicted = 0
@@ -437,8 +442,9 @@ class WallClockRig(CommandArrivals):
         """The command on sub-step `sub` with ``realtime_late_command: predict``: where the
         command due by now (in time) has not arrived, its prediction from the ones received
         (:class:`~seft_msgs_py.prediction.SampleHistory`, over at most
-        :data:`LATE_COMMAND_HORIZON_S` beyond the newest in effect, linear where the predictor
-        declines); else `held`. `count`: a new late command counts in :attr:`predicted`."""
+        :data:`LATE_COMMAND_HORIZON_S` beyond the newest in effect; linear over at most
+        :data:`LATE_LINEAR_STEPS` where the predictor declines); else `held`. `count`: a new
+        late command counts in :attr:`predicted`."""
         if sub < self._due_sub:
             return held
         due = (sub - self._due_sub) // self.substeps + self.source_lag
@@ -451,7 +457,8 @@ class WallClockRig(CommandArrivals):
         value = self._history.predict(newest, ahead)
         if value is None:
             before = self._history.value(newest - 1)
-            value = held if before is None else held + ahead * (held - before)
+            value = held if before is None else (held + min(ahead, LATE_LINEAR_STEPS)
+                                                 * (held - before))
         if count:
             if self._late[1] != due:
                 self.predicted += 1
