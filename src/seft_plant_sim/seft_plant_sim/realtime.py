@@ -44,10 +44,10 @@ declines, the two newest extrapolated linearly over at most :data:`LATE_LINEAR_S
 open-loop run (``excitation_input: valve_command``, noise) is held either way
 (:func:`applied_commands` reconstructs it). A held valve command keeps the flow of the step
 before: on a lightly damped specimen each late one is a kick that rings for seconds.
-Replayed in process with their recorded arrivals (``seft compare --replay-timing``), 11
-real-time runs of a loaded 2-core host erred less predicting in 10 (the two piers of issue
-41, worst acceleration 0.80-14.6 % held, 0.51-2.49 % predicted, 0.44 % with every command
-in time; docs: design, real time; ``benchmarks/late_commands.py``). The prediction of a
+Replayed in process with their recorded arrivals (``seft compare --replay-timing``), 13
+real-time runs of a loaded 2-core host erred less predicting, every one (the two piers of
+issue 41, worst acceleration 0.80-15.1 % held, 0.44-1.00 % predicted, 0.44 % with every
+command in time; docs: design, real time; ``benchmarks/late_commands.py``). The prediction of a
 command between a slow computation's updates on the actuator controller's side is the
 event-driven strategy of Mosqueda, Stojadinovic and Mahin (2007, Real-time error monitoring
 for hybrid simulation, J. Struct. Eng. 133(8)) and the extrapolation of Nakashima and

@@ -78,10 +78,10 @@ def test_the_replay_splits_a_runs_error_into_the_hosts_timing_and_the_methods(pa
     # the study's specimen (2.2 % damped, alpha 1) forgives them: 0.317 against 0.307 %
     assert replay['as_run']['displacement'] > 1.01 * replay['in_time']['displacement']
     # the rig held its late commands: what one that predicts them would have made of it
-    # (acceleration 8.5 % as run, 0.80 % predicting, 0.72 % in time)
+    # (acceleration 8.48 % as run, 0.722 % predicting, 0.719 % in time)
     as_run, predicting, in_time = (replay[k] for k in ('as_run', 'predicting', 'in_time'))
     assert in_time['displacement'] < predicting['displacement'] < as_run['displacement']
-    assert predicting['acceleration'] - in_time['acceleration'] < 0.002
+    assert predicting['acceleration'] - in_time['acceleration'] < 0.0002
     assert as_run['acceleration'] > 0.05
     line = timing_replay_line(replay)
     assert line.startswith('6 late command(s), 5 stale step(s); worst NRMS x / a / f recorded')
