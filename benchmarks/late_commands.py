@@ -29,29 +29,12 @@ import sys
 
 from seft_msgs_py.errors import SeftError
 from seft_ros.analysis.bag import read_run
-from seft_ros.analysis.findings import REPLAY_SIGNALS
-from seft_ros.analysis.metrics import compare_run, summary_entry
-from seft_ros.analysis.timing_replay import replay_timing
+from seft_ros.analysis.findings import replay_cell
+from seft_ros.analysis.timing_replay import replay_timing, worst_nrms
 from seft_ros.cli.config import expand_runs, load_config
 from seft_ros.core.experiment import simulate
 
 ROOT = Path(__file__).resolve().parents[1]
-SHOWN = ('displacement', 'acceleration', 'interface_force')
-
-
-def _cell(worst: dict | None) -> str:
-    if worst is None:
-        return '–'
-    if 'unstable_at_s' in worst:
-        return f"unstable at {worst['unstable_at_s']:.2f} s"
-    return ' / '.join('–' if worst.get(s) is None else f'{100 * worst[s]:.2f}' for s in SHOWN)
-
-
-def _worst(run) -> dict:
-    if not run.stable:
-        return {'unstable_at_s': run.unstable_at_s}
-    entry = summary_entry(run, compare_run(run))
-    return {s: entry['worst_nrms'].get(s) for s in REPLAY_SIGNALS}
 
 
 def synthetic_latency(names, n: int, dt: float, every: int, burst: int,
@@ -90,20 +73,18 @@ def main(argv=None) -> int:
         if args.bags:
             for bag in args.bags:
                 run = read_run(bag)
-                rows = {}
-                for rule in ('hold', 'predict'):
-                    run.params['realtime_late_command'] = rule
-                    rows[rule] = replay_timing(run)
-                if rows['hold'] is None:
+                # replayed holding, the replay also gives the run with the rig predicting
+                run.params['realtime_late_command'] = 'hold'
+                r = replay_timing(run)
+                if r is None:
                     print(f"{bag}: not a real-time run of seft's simulated rigs")
                     continue
-                r = rows['hold']
                 print(f"{bag}: {sum(r['late_commands'].values())} late commands, "
                       f"{sum(r['stale_steps'].values())} stale steps")
-                print(f"  recorded         {_cell(r['recorded'])}")
-                print(f"  replayed, hold   {_cell(r['as_run'])}")
-                print(f"  replayed, predict {_cell(rows['predict']['as_run'])}")
-                print(f"  in time          {_cell(r['in_time'])}")
+                print(f"  recorded         {replay_cell(r['recorded'])}")
+                print(f"  replayed, hold   {replay_cell(r['as_run'])}")
+                print(f"  replayed, predict {replay_cell(r.get('predicting', r['as_run']))}")
+                print(f"  in time          {replay_cell(r['in_time'])}")
             return 0
         runs = [p for p in expand_runs(load_config(args.config))
                 if p.get('predictor') == 'model'
@@ -119,10 +100,10 @@ def main(argv=None) -> int:
         late = sum(len(v) for v in latency.values())
         print(f'{args.config.name}, model, {in_time.n_steps} steps, rigs '
               f"{', '.join(n or 'the study' for n in names)}: {late} late commands")
-        print(f'  in time (lockstep) {_cell(_worst(in_time))}')
+        print(f'  in time (lockstep) {replay_cell(worst_nrms(in_time))}')
         for rule in ('hold', 'predict'):
             run = simulate(dict(params, realtime_late_command=rule), command_latency_s=latency)
-            print(f'  {rule:7s}            {_cell(_worst(run))}')
+            print(f'  {rule:7s}            {replay_cell(worst_nrms(run))}')
     except SeftError as exc:
         print(f'late_commands: {exc}', file=sys.stderr)
         return 2

@@ -44,7 +44,7 @@ from seft_ros.core.specimen_settings import costly_settings
 
 __all__ = ['PEAK_RATIO_FLAG', 'BOUND_HOLD_S', 'SPECIMEN_FLAG', 'estimate_bounds', 'bound_findings',
            'sensor_range_entry', 'sensor_range_lines', 'run_flags', 'verdict', 'REPLAY_SIGNALS',
-           'TIMING_COST_FLAG_POINTS', 'REPRODUCED_WITHIN', 'timing_replay_line',
+           'TIMING_COST_FLAG_POINTS', 'REPRODUCED_WITHIN', 'replay_cell', 'timing_replay_line',
            'timing_cost_flag']
 
 #: A rig's peak (displacement, force, acceleration) beyond this many times the reference's
@@ -254,15 +254,20 @@ REPLAY_SIGNALS = ('displacement', 'acceleration', 'floor_acceleration', 'interfa
 TIMING_COST_FLAG_POINTS = 0.005
 
 
+def replay_cell(worst: dict) -> str:
+    """'x / a / f %' of a replay's worst NRMS per signal (fractions; '–' where one is
+    missing), or 'unstable at t s'."""
+    if 'unstable_at_s' in worst:
+        return f"unstable at {worst['unstable_at_s']:.2f} s"
+    return ' / '.join('–' if worst.get(s) is None else f'{100 * worst[s]:.2f}'
+                      for s in ('displacement', 'acceleration', 'interface_force')) + ' %'
+
+
 def timing_replay_line(replay: dict) -> str:
     """One line of :func:`~seft_ros.analysis.timing_replay.replay_timing`'s result: the worst
     NRMS x / acceleration / interface force recorded, replayed as run (and, where it was
     replayed so, with the rig predicting late commands) and in time."""
-    def cell(worst: dict) -> str:
-        if 'unstable_at_s' in worst:
-            return f"unstable at {worst['unstable_at_s']:.2f} s"
-        return ' / '.join('–' if worst.get(s) is None else f'{100 * worst[s]:.2f}'
-                          for s in ('displacement', 'acceleration', 'interface_force')) + ' %'
+    cell = replay_cell
     late = sum(replay['late_commands'].values())
     stale = sum(replay['stale_steps'].values())
     predicting = (f", the rig predicting late commands {cell(replay['predicting'])}"

@@ -15,7 +15,7 @@ import numpy as np
 
 from seft_ros.analysis.findings import REPLAY_SIGNALS
 
-__all__ = ['replay_timing', 'replay_due', 'steps_behind', 'REPLAY_ABOVE_NRMS']
+__all__ = ['replay_timing', 'replay_due', 'steps_behind', 'worst_nrms', 'REPLAY_ABOVE_NRMS']
 
 #: ``seft run`` replays a real-time run's timing (:func:`replay_due`) when its worst NRMS
 #: of a signal passes this [-] and it had a late command or stale step.
@@ -64,7 +64,6 @@ def replay_timing(run, recorded: dict | None = None) -> dict | None:
     ParameterError
         The run's parameters cannot be simulated here (the message says why).
     """
-    from seft_ros.analysis.metrics import compare_run, summary_entry
     from seft_ros.core.experiment import simulate
     timing = run.extra.get('timing_data') or {}
     p = run.params
@@ -83,12 +82,6 @@ def replay_timing(run, recorded: dict | None = None) -> dict | None:
     params = {k: v for k, v in p.items() if k != 'bag_path'}
     params.update(mode='lockstep', n_steps=run.n_steps)
 
-    def worst(rd) -> dict:
-        if not rd.stable:
-            return {'unstable_at_s': rd.unstable_at_s}
-        entry = summary_entry(rd, compare_run(rd))
-        return {s: entry['worst_nrms'].get(s) for s in REPLAY_SIGNALS}
-
     as_run = simulate(params, stale_steps=stale, command_latency_s=latency)
     in_time = simulate(params, command_latency_s={rig: {} for rig in run.rig_names})
     late = {rig: sum(1 for v in lat.values() if not v <= float(p['dt']))
@@ -96,14 +89,25 @@ def replay_timing(run, recorded: dict | None = None) -> dict | None:
     extra = {}
     if any(late.values()) and params.get('realtime_late_command', 'hold') == 'hold':
         # what a rig that predicts a late command would have made of the same timing
-        extra['predicting'] = worst(simulate(dict(params, realtime_late_command='predict'),
+        extra['predicting'] = worst_nrms(simulate(dict(params, realtime_late_command='predict'),
                                              stale_steps=stale, command_latency_s=latency))
     return {'late_commands': late,
             'stale_steps': {rig: len(s) for rig, s in stale.items()},
             'steps_behind': {rig: max(s.values(), default=0) for rig, s in stale.items()},
             'recorded': ({s: recorded.get(s) for s in REPLAY_SIGNALS} if recorded is not None
-                         else worst(run)),
-            'as_run': worst(as_run), 'in_time': worst(in_time), **extra}
+                         else worst_nrms(run)),
+            'as_run': worst_nrms(as_run), 'in_time': worst_nrms(in_time), **extra}
+
+
+def worst_nrms(run) -> dict:
+    """A run's worst NRMS per signal (:data:`~seft_ros.analysis.findings.REPLAY_SIGNALS`,
+    fractions, the summary's ``worst_nrms``), or ``{'unstable_at_s': t}`` for an unstable
+    run: what a replay reports of each run."""
+    from seft_ros.analysis.metrics import compare_run, summary_entry
+    if not run.stable:
+        return {'unstable_at_s': run.unstable_at_s}
+    entry = summary_entry(run, compare_run(run))
+    return {s: entry['worst_nrms'].get(s) for s in REPLAY_SIGNALS}
 
 
 def steps_behind(controller, rig, dt: float) -> dict[int, int]:
