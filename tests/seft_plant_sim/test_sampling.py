@@ -43,6 +43,24 @@ def test_linear_map_equals_the_matrix_product():
     assert f(list(range(7)) + [99.0])[4] == pytest.approx(m[4] @ np.arange(7.0), rel=1e-14)
 
 
+def test_linear_map_compiles_the_same_coefficients_once():
+    """A copy of a compensator (the stability guard drives hundreds per design) gets the
+    function compiled for its coefficients back; other coefficients or another name, a new
+    one."""
+    rng = np.random.default_rng(5)
+    m = rng.standard_normal((3, 40))
+    f = linear_map(m, name='fir')
+    assert linear_map(m.copy(), name='fir') is f
+    assert linear_map(m, name='other') is not f
+    m2 = m.copy()
+    m2[1, 7] = np.nextafter(m2[1, 7], np.inf)        # one ulp: another map
+    assert linear_map(m2, name='fir') is not f
+    m2[1, 7] += 1.0
+    g = linear_map(m2, name='fir')
+    x = rng.standard_normal(40).tolist()
+    assert g(x)[0] == f(x)[0] and g(x)[1] != f(x)[1]
+
+
 def test_linear_map_of_a_row_returns_a_float():
     w = [0.5, -0.25, 0.0, 2.0]
     f = linear_map(w)

@@ -2,6 +2,7 @@
 below both the controller side and the plant simulation, which both use them)."""
 
 import math
+import threading
 
 import numpy as np
 from scipy.signal import cont2discrete
@@ -111,11 +112,29 @@ def linear_map(matrix, *, name: str = 'linear_map'):
     ``sum(m_ij * x_j for j)``, and within rounding of ``numpy.dot``.
     """
     m = _coefficients(matrix, name, 'linear_map')
+    key = (name, m.shape, m.tobytes())
+    fn = _COMPILED.get(key)
+    if fn is not None:
+        return fn
     exprs = [_row(row, 'x[{}]') for row in ([m] if m.ndim == 1 else list(m))]
     body = exprs[0] if m.ndim == 1 else '(' + ', '.join(exprs) + ',)'
     namespace = {}
     exec(f'def {name}(x):\n    return {body}\n', namespace)
-    return namespace[name]
+    fn = namespace[name]
+    with _COMPILED_LOCK:                # the background fits' thread compiles too
+        if len(_COMPILED) >= _COMPILED_KEPT:
+            _COMPILED.pop(next(iter(_COMPILED)))
+        _COMPILED[key] = fn
+    return fn
+
+
+#: The functions :func:`linear_map` compiled last, by their name and exact coefficients (a
+#: function of literals keeps no state: a copy of a compensator, the stability guard's
+#: identification drives a copy a few hundred times per design, gets the same function
+#: back instead of compiling it again, 0.2-0.4 ms for fifty terms).
+_COMPILED: dict = {}
+_COMPILED_KEPT = 256
+_COMPILED_LOCK = threading.Lock()
 
 
 #: Calls of a :class:`LazyLinearMap` before it compiles itself.

@@ -249,6 +249,34 @@ def test_none_identified_equals_analytic(delay_params):
     assert form.order == 0 and form.command_order == 0 and form.cmd_d == 1.0
 
 
+def test_a_command_of_forces_alone_is_identified_without_driving_it_again(reference_params,
+                                                                        monkeypatch):
+    """`model` on the servohydraulic rig (its command the force-loop inverse's FIR of the
+    desired forces alone): the probes of the measurements skip the command, and the taps are
+    the same floats as when every probe drives it."""
+    from seft_ros.core.reference_force import make_predictor
+    pred = make_predictor(dict(reference_params, predictor='model', alpha=1.0))
+    assert type(pred).command_of_forces_only is True and pred.loop_inverse is not None
+    calls = []
+    step = type(pred.loop_inverse).step
+
+    def counted(self, force_n):
+        calls.append(1)
+        return step(self, force_n)
+
+    monkeypatch.setattr(type(pred.loop_inverse), 'step', counted)
+    taps, cmd = st._identify(pred, 'model', 0.002, True)
+    skipped = len(calls)
+    calls.clear()
+    monkeypatch.setattr(type(pred), 'command_of_forces_only', False)
+    taps_all, cmd_all = st._identify(pred, 'model', 0.002, True)
+    np.testing.assert_array_equal(taps, taps_all)
+    np.testing.assert_array_equal(cmd, cmd_all)
+    assert np.count_nonzero(cmd) > 10
+    n = st._WARM_UP + st._WINDOW
+    assert skipped == len(calls) - 5 * n             # 5 of the 6 probes left the command out
+
+
 def test_nonlinear_compensators_have_no_form(fakes, delay_params):
     with pytest.raises(st.NoLinearModelError, match="'fake_square': not linear"):
         st.compensator(dict(delay_params, predictor='fake_square'))

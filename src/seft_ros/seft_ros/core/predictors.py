@@ -271,6 +271,9 @@ class NoPredictor:
 
     name = 'none'
     step_average = False
+    #: :meth:`command` is a function of the desired forces it was given alone (the stability
+    #: guard's identification then drives it only where they are not zero).
+    command_of_forces_only = True
     #: A structure's interface force at sample k-1, as the acceleration (the study's timing).
     interface = 'sampled'
     delay_s = 0.0
@@ -328,6 +331,9 @@ class PolynomialPredictor:
 
     name = 'polynomial'
     step_average = True
+    #: :meth:`command` is a function of the desired forces it was given alone (see
+    #: :class:`NoPredictor`).
+    command_of_forces_only = True
     #: A structure's interface force extrapolated with the same weights as the acceleration.
     interface = 'extrapolated'
 
@@ -580,6 +586,9 @@ class ModelPredictor:
 
     name = 'model'
     step_average = True
+    #: :meth:`command` is a function of the desired forces it was given alone (see
+    #: :class:`NoPredictor`).
+    command_of_forces_only = True
 
     def __init__(self, model: DelayImpulseModel, alpha: float, mass_kg: float,
                  loop_inverse: 'ForceLoopInverse | None' = None, matching: str = 'poles',

@@ -221,20 +221,22 @@ class LinearPredictor(Protocol):
         """Return the compensator's linear form."""
 
 
-def _drive(predictor, q: np.ndarray, dt: float):
+def _drive(predictor, q: np.ndarray, dt: float, command: bool = True):
     """Feed a copy of a compensator as the builder does; return ``(a_hat[1..N], f_r[0..N-1])``.
 
     ``q`` (N, 6): measurement of step k, desired force ``F[k]`` and the external force of the
-    step after (the interface force; zero ground force).
+    step after (the interface force; zero ground force). ``command=False``: the commands are
+    not asked for (``f_r`` is returned as None).
     """
     pred = copy.deepcopy(predictor)
     commanded: list[float] = []
     n = q.shape[0]
-    a_hat, cmd = np.empty(n), np.empty(n)
+    a_hat, cmd = np.empty(n), (np.empty(n) if command else None)
     pred.predict(None, commanded, 0.0)
     for k in range(n):
         commanded.append(float(q[k, 4]))
-        cmd[k] = pred.command(float(q[k, 4]))
+        if command:
+            cmd[k] = pred.command(float(q[k, 4]))
         meas = Measurement(k, k * dt, float(q[k, 0]), float(q[k, 1]), float(q[k, 2]),
                            float(q[k, 3]))
         a_hat[k] = pred.predict(meas, commanded, float(q[k, 5]))
@@ -266,12 +268,15 @@ def _identify(predictor, name: str, dt: float, check: bool, window: int = _WINDO
     base_a, base_c = _drive(predictor, np.zeros((n, ni)), dt)
     taps = np.zeros((ni, window))
     cmd_taps = np.zeros(window)
+    # a command of the desired forces alone answers a probe of another input with its
+    # response to zeros, the base's (not stepped again: the same floats)
+    forces_only = getattr(predictor, 'command_of_forces_only', False)
     for i in range(ni):
         q = np.zeros((n, ni))
         q[_WARM_UP, i] = _PROBE_SCALE[i]
-        ah, cm = _drive(predictor, q, dt)
+        ah, cm = _drive(predictor, q, dt, command=(i == 4 or not forces_only))
         taps[i] = (ah - base_a)[_WARM_UP:] / _PROBE_SCALE[i]
-        resp = (cm - base_c)[_WARM_UP:]
+        resp = np.zeros(n - _WARM_UP) if cm is None else (cm - base_c)[_WARM_UP:]
         if i == 4:
             cmd_taps = resp / _PROBE_SCALE[i]
         elif np.any(resp != 0.0):
