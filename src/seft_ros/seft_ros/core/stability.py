@@ -233,13 +233,12 @@ def _drive(predictor, q: np.ndarray, dt: float, command: bool = True):
     n = q.shape[0]
     a_hat, cmd = np.empty(n), (np.empty(n) if command else None)
     pred.predict(None, commanded, 0.0)
-    for k in range(n):
-        commanded.append(float(q[k, 4]))
+    predict, step = pred.predict, pred.command
+    for k, (x, v, a, f_m, force, external) in enumerate(q.tolist()):
+        commanded.append(force)
         if command:
-            cmd[k] = pred.command(float(q[k, 4]))
-        meas = Measurement(k, k * dt, float(q[k, 0]), float(q[k, 1]), float(q[k, 2]),
-                           float(q[k, 3]))
-        a_hat[k] = pred.predict(meas, commanded, float(q[k, 5]))
+            cmd[k] = step(force)
+        a_hat[k] = predict(Measurement(k, k * dt, x, v, a, f_m), commanded, external)
     return a_hat, cmd
 
 
