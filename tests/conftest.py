@@ -289,7 +289,8 @@ OFF_THE_WALL_CLOCK = frozenset({
     'test_an_unknown_node_start_method_is_one_error_line',
     'test_a_sweep_over_two_predictors_runs_both_graphs',
     'test_discovery_settle_time_from_the_environment',
-    'test_emulator_and_bridge_errors_are_one_line'})
+    'test_emulator_and_bridge_errors_are_one_line',
+    'test_the_emulator_ends_on_ctrl_c_even_started_as_a_background_job'})
 
 
 def _on_the_wall_clock(item, in_graph: bool) -> bool:

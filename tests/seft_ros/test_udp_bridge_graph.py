@@ -345,6 +345,34 @@ def test_a_silent_pc_brings_the_controller_to_its_safe_state(emulator, bridge_se
     assert Path(out).exists() and leftover_processes(str(out)) == []
 
 
+@pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM])
+def test_the_emulator_ends_on_ctrl_c_even_started_as_a_background_job(sig, tmp_path, ros_env,
+                                                                      seft_exe):
+    """A shell starts a background job with SIGINT ignored (and Python leaves it so): the
+    emulator still ends at once on SIGINT, and on SIGTERM, exit status 0 (it took the 10 s
+    to the test fixture's SIGKILL before)."""
+    proc = subprocess.Popen(
+        [str(seft_exe), 'emulate-controller', '--set',
+         f'udp_controller_address=127.0.0.1:{free_port()}'], cwd=tmp_path, env=ros_env,
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))
+    try:
+        deadline = time.monotonic() + 30
+        err = ''
+        while 'emulating' not in err:
+            assert time.monotonic() < deadline and proc.poll() is None, err
+            err += proc.stderr.readline()
+        t0 = time.monotonic()
+        os.kill(proc.pid, sig)
+        assert proc.wait(timeout=5) == 0
+        assert time.monotonic() - t0 < 2.0
+        assert 'Traceback' not in proc.stderr.read()
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+
+
 def test_emulator_and_bridge_errors_are_one_line(tmp_path, run_process, seft_exe):
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as taken:
         taken.bind(('127.0.0.1', 0))

@@ -378,7 +378,11 @@ def _one_rig(args, verb: str) -> dict:
 
 
 def _emulate(args) -> int:
-    from seft_plant_sim.udp_emulator import ControllerEmulator, realtime_priority
+    from seft_plant_sim.udp_emulator import (
+        ControllerEmulator,
+        interruptible,
+        realtime_priority,
+    )
     params = _one_rig(args, 'emulate-controller')
     if args.runs is not None and args.runs < 1:
         raise InputError(f'--runs {args.runs}: expected a number of runs >= 1')
@@ -387,6 +391,7 @@ def _emulate(args) -> int:
         params, fault=FAULTS[args.inject] if args.inject and not controller_fault else None,
         controller_fault=controller_fault)
     host, port = emulator.address
+    interruptible()                 # before it says it runs: Ctrl-C ends it from then on
     _progress(f"emulating the lab's controller at {host}:{port}: {params['rig_model']} rig, "
               f"dt {1e3 * params['dt']:g} ms, watchdog {1e3 * params['watchdog_timeout_s']:g} "
               'ms' + (f'; fault injected: {args.inject}' if args.inject else '')
