@@ -51,6 +51,11 @@ STATIC_FILES = {
 }
 #: A refused client is said once per this long per address [s].
 REFUSED_QUIET_S = 60.0
+#: How long a client's opening handshake (TLS, then the HTTP upgrade) may take [s]: the view
+#: runs niced beside the test, and on a loaded host its TLS handshake took tens of seconds
+#: (websockets' default, 10 s, hung up on a Foxglove client of the test suite; the proxy's
+#: own connection to the Foxglove server has the same).
+OPEN_TIMEOUT_S = 60.0
 _HEADERS = {
     'Cache-Control': 'no-store',
     'X-Content-Type-Options': 'nosniff',
@@ -132,7 +137,8 @@ class WebServer:
         try:
             servers.append(await serve(self._page_handler, opts.host, opts.port + 1, ssl=tls,
                                        process_request=self._page_request,
-                                       compression=None, max_size=2 ** 16))
+                                       compression=None, max_size=2 ** 16,
+                                       open_timeout=OPEN_TIMEOUT_S))
             self.web_ok = True
         except OSError as exc:
             self.lines.append(listen_error('the web page', opts.host, opts.port + 1, exc))
@@ -141,7 +147,7 @@ class WebServer:
                 servers.append(await serve(
                     self._proxy_handler, opts.host, opts.port, ssl=tls,
                     process_request=self._proxy_request, compression=None, max_size=None,
-                    subprotocols=list(FOXGLOVE_SUBPROTOCOLS)))
+                    subprotocols=list(FOXGLOVE_SUBPROTOCOLS), open_timeout=OPEN_TIMEOUT_S))
                 self.proxy_ok = True
             except OSError as exc:
                 self.lines.append(listen_error('Foxglove', opts.host, opts.port, exc))
@@ -238,7 +244,7 @@ class WebServer:
         url = f'ws://127.0.0.1:{self.foxglove_port}'
         try:
             async with connect(url, subprotocols=protocols, compression=None,
-                               max_size=None) as upstream:
+                               max_size=None, open_timeout=OPEN_TIMEOUT_S) as upstream:
                 async def down():
                     async for message in upstream:
                         await connection.send(message)
