@@ -420,9 +420,10 @@ def _interrupt(signum, frame):
 def interruptible() -> None:
     """Make SIGINT (Ctrl-C) and SIGTERM end :meth:`ControllerEmulator.serve` (as a
     KeyboardInterrupt its caller catches), whatever the process inherited: a shell starts a
-    background job with SIGINT ignored, and Python then leaves it ignored (measured: the
-    emulator of a test suite started in the background took 10 s to its SIGKILL, each).
-    Call from the main thread."""
+    background job (``(seft emulate-controller ... &)``) with SIGINT ignored, and Python then
+    leaves it ignored (measured: such an emulator ran on 12 s after a SIGINT; in a test suite
+    started that way each emulator test's teardown waited 10 s for its SIGKILL). Call from
+    the main thread."""
     signal.signal(signal.SIGINT, signal.default_int_handler)
     signal.signal(signal.SIGTERM, _interrupt)
 
