@@ -402,9 +402,9 @@ def main(argv=None) -> int:
     except (OSError, IndexError, ValueError, KeyError, TypeError, ParameterError) as exc:
         print(f'emulate-controller: error: {exc}', file=sys.stderr)
         return 2
-    realtime_priority(int(params['realtime_priority']))
     interruptible()
     try:
+        realtime_priority(int(params['realtime_priority']))
         emulator.serve(runs=int(args[1]) if len(args) > 1 else None)
     except KeyboardInterrupt:
         pass

@@ -392,12 +392,13 @@ def _emulate(args) -> int:
         controller_fault=controller_fault)
     host, port = emulator.address
     interruptible()                 # before it says it runs: Ctrl-C ends it from then on
-    _progress(f"emulating the lab's controller at {host}:{port}: {params['rig_model']} rig, "
-              f"dt {1e3 * params['dt']:g} ms, watchdog {1e3 * params['watchdog_timeout_s']:g} "
-              'ms' + (f'; fault injected: {args.inject}' if args.inject else '')
-              + ' (Ctrl-C ends)')
-    realtime_priority(int(params['realtime_priority']))
     try:
+        _progress(f"emulating the lab's controller at {host}:{port}: {params['rig_model']} "
+                  f"rig, dt {1e3 * params['dt']:g} ms, watchdog "
+                  f"{1e3 * params['watchdog_timeout_s']:g} ms"
+                  + (f'; fault injected: {args.inject}' if args.inject else '')
+                  + ' (Ctrl-C ends)')
+        realtime_priority(int(params['realtime_priority']))
         emulator.serve(runs=args.runs)
     except KeyboardInterrupt:
         pass
