@@ -53,7 +53,7 @@ from seft_plant_sim.realtime import WallClockRig
 from seft_plant_sim.udp_bridge import RECEIVE_BYTES, parse_address
 
 __all__ = ['ControllerEmulator', 'SAFE_LINGER_S', 'CONTROLLER_FAULTS', 'main',
-           'realtime_priority', 'interruptible']
+           'realtime_priority', 'serve_until_stopped']
 
 #: After its command reached zero the emulator keeps sampling the safe state at least this
 #: long, waiting for the PC's end [s]; then it stops its run by itself (the PC may be gone).
@@ -402,14 +402,8 @@ def main(argv=None) -> int:
     except (OSError, IndexError, ValueError, KeyError, TypeError, ParameterError) as exc:
         print(f'emulate-controller: error: {exc}', file=sys.stderr)
         return 2
-    interruptible()
-    try:
-        realtime_priority(int(params['realtime_priority']))
-        emulator.serve(runs=int(args[1]) if len(args) > 1 else None)
-    except KeyboardInterrupt:
-        pass
-    finally:
-        emulator.close()
+    serve_until_stopped(emulator, int(args[1]) if len(args) > 1 else None,
+                        int(params['realtime_priority']))
     return 0
 
 
@@ -417,15 +411,27 @@ def _interrupt(signum, frame):
     raise KeyboardInterrupt(signal.Signals(signum).name)
 
 
-def interruptible() -> None:
-    """Make SIGINT (Ctrl-C) and SIGTERM end :meth:`ControllerEmulator.serve` (as a
-    KeyboardInterrupt its caller catches), whatever the process inherited: a shell starts a
-    background job (``(seft emulate-controller ... &)``) with SIGINT ignored, and Python then
-    leaves it ignored (measured: such an emulator ran on 12 s after a SIGINT; in a test suite
-    started that way each emulator test's teardown waited 10 s for its SIGKILL). Call from
-    the main thread."""
+def serve_until_stopped(emulator: ControllerEmulator, runs: int | None, priority: int,
+                        announce: Callable[[], None] = lambda: None) -> None:
+    """Serve `runs` runs (None: until stopped) at the rig's real-time `priority`
+    (:func:`realtime_priority`), until SIGINT (Ctrl-C) or SIGTERM; then close the socket.
+    `announce` says that it runs (after the signals are taken: a Ctrl-C from then on ends it).
+
+    The signals are taken whatever the process inherited: a shell starts a background job
+    (``(seft emulate-controller ... &)``) with SIGINT ignored, and Python then leaves it
+    ignored (measured: such an emulator ran on 12 s after a SIGINT; in a test suite started
+    that way each emulator test's teardown waited 10 s for its SIGKILL). Call from the main
+    thread."""
     signal.signal(signal.SIGINT, signal.default_int_handler)
     signal.signal(signal.SIGTERM, _interrupt)
+    try:
+        announce()
+        realtime_priority(priority)
+        emulator.serve(runs=runs)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        emulator.close()
 
 
 def realtime_priority(base: int) -> None:

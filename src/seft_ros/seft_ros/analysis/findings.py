@@ -267,10 +267,9 @@ def timing_replay_line(replay: dict) -> str:
     """One line of :func:`~seft_ros.analysis.timing_replay.replay_timing`'s result: the worst
     NRMS x / acceleration / interface force recorded, replayed as run (and, where it was
     replayed so, with the rig predicting late commands) and in time."""
-    cell = replay_cell
     late = sum(replay['late_commands'].values())
     stale = sum(replay['stale_steps'].values())
-    predicting = (f", the rig predicting late commands {cell(replay['predicting'])}"
+    predicting = (f", the rig predicting late commands {replay_cell(replay['predicting'])}"
                   if replay.get('predicting') else '')
     behind = max((replay.get('steps_behind') or {}).values(), default=0)
     stale_text = f'{stale} stale step(s)' + (f' (up to {behind} steps behind)'
@@ -278,8 +277,9 @@ def timing_replay_line(replay: dict) -> str:
     missed = (' (which does not reproduce the run: part of its timing is not modelled)'
               if not _reproduced(replay) else '')
     return (f'{late} late command(s), {stale_text}; worst NRMS x / a / f recorded '
-            f"{cell(replay['recorded'])}, replayed as run {cell(replay['as_run'])}{missed}"
-            f"{predicting}, with every step in time {cell(replay['in_time'])} (the "
+            f"{replay_cell(replay['recorded'])}, replayed as run "
+            f"{replay_cell(replay['as_run'])}{missed}"
+            f"{predicting}, with every step in time {replay_cell(replay['in_time'])} (the "
             "difference is the host's timing, not the method)")
 
 

@@ -378,11 +378,7 @@ def _one_rig(args, verb: str) -> dict:
 
 
 def _emulate(args) -> int:
-    from seft_plant_sim.udp_emulator import (
-        ControllerEmulator,
-        interruptible,
-        realtime_priority,
-    )
+    from seft_plant_sim.udp_emulator import ControllerEmulator, serve_until_stopped
     params = _one_rig(args, 'emulate-controller')
     if args.runs is not None and args.runs < 1:
         raise InputError(f'--runs {args.runs}: expected a number of runs >= 1')
@@ -391,19 +387,12 @@ def _emulate(args) -> int:
         params, fault=FAULTS[args.inject] if args.inject and not controller_fault else None,
         controller_fault=controller_fault)
     host, port = emulator.address
-    interruptible()                 # before it says it runs: Ctrl-C ends it from then on
-    try:
-        _progress(f"emulating the lab's controller at {host}:{port}: {params['rig_model']} "
-                  f"rig, dt {1e3 * params['dt']:g} ms, watchdog "
-                  f"{1e3 * params['watchdog_timeout_s']:g} ms"
-                  + (f'; fault injected: {args.inject}' if args.inject else '')
-                  + ' (Ctrl-C ends)')
-        realtime_priority(int(params['realtime_priority']))
-        emulator.serve(runs=args.runs)
-    except KeyboardInterrupt:
-        pass
-    finally:
-        emulator.close()
+    serve_until_stopped(
+        emulator, args.runs, int(params['realtime_priority']),
+        announce=lambda: _progress(
+            f"emulating the lab's controller at {host}:{port}: {params['rig_model']} rig, dt "
+            f"{1e3 * params['dt']:g} ms, watchdog {1e3 * params['watchdog_timeout_s']:g} ms"
+            + (f'; fault injected: {args.inject}' if args.inject else '') + ' (Ctrl-C ends)'))
     return 0
 
 
