@@ -173,3 +173,34 @@ def test_a_controller_several_steps_behind_is_replayed_as_it_ran(params):
                           stale_steps={'': set(behind)})
     assert (compare_run(one_behind).displacement.nrms
             != pytest.approx(replay['recorded']['displacement'], rel=1e-3))
+
+
+def test_a_rig_section_that_holds_is_replayed_predicting_too(tmp_path):
+    """A structure whose run predicts late commands but whose pier_a section holds them
+    (``realtime_late_command`` is a rig's parameter): pier_a's late commands are held as
+    run, and the replay says what predicting them would have given, with the section's own
+    setting overridden (before, the run's top-level ``predict`` hid it)."""
+    import yaml
+    doc = yaml.safe_load((CONFIG / 'two_piers.yaml').read_text())
+    doc.update(predictor='model', realtime_late_command='predict')
+    doc['rigs']['pier_a']['realtime_late_command'] = 'hold'
+    path = tmp_path / 'two_piers.yaml'
+    path.write_text(yaml.safe_dump(doc))
+    p = dict(expand_runs(load_config(path))[0], n_steps=N)
+    rng = np.random.default_rng(7)
+    latency = {rig: np.full(N, 0.0005) for rig in ('pier_a', 'pier_b')}
+    late = rng.choice(np.arange(200, N - 10), 8, replace=False)
+    latency['pier_a'][late] = DT + rng.uniform(1.2e-3, 3.5e-3, 8)
+    run = simulate(p, command_latency_s={r: dict(enumerate(v)) for r, v in latency.items()})
+    run.params = dict(run.params, mode='realtime')
+    steps = np.arange(N)
+    run.extra['timing_data'] = {f'{r}/rig': _timing('rig', steps, latency=latency[r])
+                                for r in latency}
+    replay = replay_timing(run)
+    assert replay['late_commands'] == {'pier_a': 8, 'pier_b': 0}
+    assert replay['as_run'] == replay['recorded']
+    as_run, predicting, in_time = (replay[k] for k in ('as_run', 'predicting', 'in_time'))
+    # held, the late commands cost the rig's acceleration; predicted, nearly nothing
+    assert predicting['acceleration'] < as_run['acceleration']
+    assert predicting['acceleration'] - in_time['acceleration'] < \
+        0.1 * (as_run['acceleration'] - in_time['acceleration'])

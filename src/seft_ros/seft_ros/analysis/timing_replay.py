@@ -9,11 +9,13 @@ line and flag are :func:`~seft_ros.analysis.findings.timing_replay_line` and
 :func:`~seft_ros.analysis.findings.timing_cost_flag`.
 """
 
+import dataclasses
 import math
 
 import numpy as np
 
 from seft_ros.analysis.findings import REPLAY_SIGNALS
+from seft_ros.core.structure import is_study, structure_of, test_setup
 
 __all__ = ['replay_timing', 'replay_due', 'steps_behind', 'worst_nrms', 'REPLAY_ABOVE_NRMS']
 
@@ -55,9 +57,10 @@ def replay_timing(run, recorded: dict | None = None) -> dict | None:
         replayed); else ``late_commands`` and ``stale_steps`` (per rig, counts) and
         ``recorded``, ``as_run``, ``in_time``: the worst NRMS per signal
         (:data:`~seft_ros.analysis.findings.REPLAY_SIGNALS`, fractions; an unstable replay
-        ``{'unstable_at_s': t}``); where the rigs held late commands
-        (``realtime_late_command: hold``) and some came late, ``predicting``: the same as
-        run with rigs that predict them (what ``predict`` would have given).
+        ``{'unstable_at_s': t}``); where a rig held its late commands
+        (``realtime_late_command: hold``, the run's or its rig section's) and some came
+        late, ``predicting``: the same as run with every rig predicting them (what
+        ``predict`` would have given).
 
     Raises
     ------
@@ -87,16 +90,31 @@ def replay_timing(run, recorded: dict | None = None) -> dict | None:
     late = {rig: sum(1 for v in lat.values() if not v <= float(p['dt']))
             for rig, lat in latency.items()}
     extra = {}
-    if any(late.values()) and params.get('realtime_late_command', 'hold') == 'hold':
-        # what a rig that predicts a late command would have made of the same timing
-        extra['predicting'] = worst_nrms(simulate(dict(params, realtime_late_command='predict'),
-                                             stale_steps=stale, command_latency_s=latency))
+    holding = {rig: rp.get('realtime_late_command', 'hold') == 'hold'
+               for rig, rp in test_setup(params).rig_params.items()}
+    if any(n and holding[rig] for rig, n in late.items()):
+        # what rigs that predict a late command would have made of the same timing
+        extra['predicting'] = worst_nrms(simulate(_predicting(params), stale_steps=stale,
+                                                  command_latency_s=latency))
     return {'late_commands': late,
             'stale_steps': {rig: len(s) for rig, s in stale.items()},
             'steps_behind': {rig: max(s.values(), default=0) for rig, s in stale.items()},
             'recorded': ({s: recorded.get(s) for s in REPLAY_SIGNALS} if recorded is not None
                          else worst_nrms(run)),
             'as_run': worst_nrms(as_run), 'in_time': worst_nrms(in_time), **extra}
+
+
+def _predicting(params: dict) -> dict:
+    """`params` with every rig predicting its late commands (``realtime_late_command:
+    predict``): the run's parameter, and a structure's rig sections that set their own."""
+    out = dict(params, realtime_late_command='predict')
+    if not is_study(params):
+        structure = structure_of(params)
+        rigs = {rig: dict(section, realtime_late_command='predict')
+                if 'realtime_late_command' in section else dict(section)
+                for rig, section in structure.rigs.items()}
+        out['structure'] = dataclasses.replace(structure, rigs=rigs).to_json()
+    return out
 
 
 def worst_nrms(run) -> dict:
