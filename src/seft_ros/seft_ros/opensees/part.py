@@ -332,9 +332,11 @@ class OpenSeesPart:
         z = np.array(self._inputs(g))
         offset = self._offset_map @ z
         x = z[:len(self._x)]
-        moved = float(np.max(np.abs(offset - self._offset)))
-        self._force_scale = max(self._force_scale, float(np.max(np.abs(self._k0 @ x))))
-        increment = float(np.max(np.abs(self._k0 @ (x - self._x_last))))
+        # the largest magnitudes, read as Python floats (exact; numpy's max of a few
+        # entries costs microseconds each, on every step once the model has yielded)
+        moved = max(map(abs, (offset - self._offset).tolist()))
+        self._force_scale = max(self._force_scale, max(map(abs, (self._k0 @ x).tolist())))
+        increment = max(map(abs, (self._k0 @ (x - self._x_last)).tolist()))
         self._offset, self._x_last = offset, x
         off = moved > max(NONLINEAR_TOLERANCE * increment, NOISE_TOLERANCE * self._force_scale)
         if not (off or iterations > 1 or self._read_next):
@@ -508,11 +510,20 @@ class OpenSeesPart:
         keep, other, interface = self._equations_of()
         for eq in interface:
             k[eq, eq] -= self._penalty
-        kr = k[np.ix_(keep, keep)]
+        kk, ko, oo, ok = self._condensation_indices(keep, other)
+        kr = k[kk]
         if other:
-            kr = kr - k[np.ix_(keep, other)] @ np.linalg.solve(k[np.ix_(other, other)],
-                                                               k[np.ix_(other, keep)])
+            kr = kr - k[ko] @ np.linalg.solve(k[oo], k[ok])
         return 0.5 * (kr + kr.T)
+
+    def _condensation_indices(self, keep, other) -> tuple:
+        """``np.ix_`` of the kept and the other equations' four blocks (made once: each
+        costs a few microseconds, and the tangent is read on most yielding steps)."""
+        cached = getattr(self, '_cond_ix', None)
+        if cached is None:
+            cached = self._cond_ix = (np.ix_(keep, keep), np.ix_(keep, other),
+                                      np.ix_(other, other), np.ix_(other, keep))
+        return cached
 
     def _equations_of(self):
         """The equations of the DOFs with mass (seft's, in order), of the others that are
