@@ -156,22 +156,74 @@ def test_dry_run_times_each_step(two_story):
     assert 0.0 < r.p50_s <= r.p99_s <= r.max_s
 
 
-def test_tangent_is_the_models_own():
+#: config/opensees/shear_frame.py with Rayleigh damping on every story (``-doRayleigh``):
+#: ``kind`` names the stiffness it is proportional to, ``some`` gives it to story 2 only.
+RAYLEIGH_FRAME = """
+import openseespy.opensees as ops
+
+def build(fy2_N=3800.0, b=0.02, kind='initial', beta=0.002, some=False):
+    ops.wipe()
+    ops.model('basic', '-ndm', 2, '-ndf', 2)
+    ops.node(0, 0.0, 0.0)
+    ops.fix(0, 1, 1)
+    for i, c in enumerate((903.278, 333.5, 333.5), start=1):
+        ops.node(i, 0.0, 0.0)
+        ops.fix(i, 0, 1)
+        ops.mass(i, 52.7, 0.0)
+        if i == 2:
+            ops.uniaxialMaterial('Steel01', 10 + i, fy2_N, 2.11e5, b)
+        else:
+            ops.uniaxialMaterial('Elastic', 10 + i, 2.11e5)
+        ops.uniaxialMaterial('Viscous', 20 + i, c, 1.0)
+        ops.uniaxialMaterial('Parallel', 30 + i, 10 + i, 20 + i)
+        ops.element('zeroLength', i, i - 1, i, '-mat', 30 + i, '-dir', 1,
+                    '-doRayleigh', int(i == 2 or not some))
+    factors = {'current': (beta, 0.0, 0.0), 'initial': (0.0, beta, 0.0),
+               'committed': (0.0, 0.0, beta)}[kind]
+    ops.rayleigh(0.0, *factors)
+"""
+
+
+def _yielding_frame(tmp_path, **arguments):
+    """The shear frame's setup with story 2 yielding (RAYLEIGH_FRAME's `arguments`)."""
+    if arguments:
+        (tmp_path / 'frame.py').write_text(RAYLEIGH_FRAME)
+        doc = yaml.safe_load((ROOT / 'config' / 'opensees' / 'shear_frame.yaml').read_text())
+        doc['structure']['opensees'].update(model='frame.py',
+                                            arguments=dict(arguments, fy2_N=3800.0))
+        path = tmp_path / 'frame.yaml'
+        path.write_text(yaml.safe_dump(doc))
+    else:
+        path = ROOT / 'config' / 'opensees' / 'shear_frame.yaml'
+    params = expand_runs(dict(load_config(path), duration_s=1.0))[0]
+    return test_setup(params).substructures
+
+
+@pytest.mark.parametrize('arguments', [{}, {'kind': 'current'}, {'kind': 'committed'}],
+                         ids=['no rayleigh', 'rayleigh current', 'rayleigh committed'])
+def test_tangent_is_the_models_own(tmp_path, arguments):
     """The yielding story of config/opensees/shear_frame.yaml shaken (floor 1 held, 5 Hz
     ground motion): while it is elastic the part has no tangent (its linearization holds);
     while it yields its tangent is the bilinear story's, ``b k`` in place of ``k`` in the
     computational stiffness, from OpenSees' assembled system (within 1e-6); when it unloads,
-    none again."""
-    params = expand_runs(dict(load_config(ROOT / 'config' / 'opensees' / 'shear_frame.yaml'),
-                              duration_s=1.0))[0]
-    sub = test_setup(params).substructures
+    none again. The same with Rayleigh damping on every story's current or committed
+    stiffness, which Newton's system holds beside the tangent (before, the tangent was read
+    as ``K_t + (2/h) beta (K_t - K_0)``: -2.1e5 N/m in place of 4.2e3 with beta 0.002 at 1
+    ms, and the test lost force control); with the committed stiffness, a step that changed
+    the tangent reads a mean of the two tangents (the new one committed at the next step,
+    read then)."""
+    from seft_ros.opensees.loader import rayleigh_calls
+    sub = _yielding_frame(tmp_path, **arguments)
     part = OpenSeesPart(sub, DT)
+    part.prepare()
+    if arguments:
+        assert rayleigh_calls()[-1][0] == 'rayleigh'
     k, b = 2.11e5, 0.02
     fy = float(part.spec.arguments['fy2_N'])
     k_c = sub.stiffness_c_N_per_m
     np.testing.assert_allclose(k_c, [[k, -k, 0], [-k, 2 * k, -k], [0, -k, k]], rtol=1e-12)
     yielded = k_c + (b - 1.0) * k * np.array([[1, -1, 0], [-1, 1, 0], [0, 0, 0]])
-    seen = {'elastic': 0, 'yielding': 0, 'unloading': 0}
+    seen = {'elastic': 0, 'yielding': 0, 'unloading': 0, 'between': 0}
     drift_before = 0.0
     for j in range(300):
         part.observe(0, Measurement(j, j * DT, 0.0, 0.0, 0.0, 0.0))
@@ -182,11 +234,33 @@ def test_tangent_is_the_models_own():
         if abs(drift) < 0.9 * fy / k and seen['yielding'] == 0:
             assert tangent is None, j                  # before the first yield
             seen['elastic'] += 1
-        elif tangent is not None:
-            assert np.max(np.abs(tangent - yielded)) < 1e-6 * k, (j, tangent)
+        elif tangent is not None and np.max(np.abs(tangent - yielded)) < 1e-6 * k:
             seen['yielding'] += 1
+        elif tangent is not None:
+            # the committed stiffness only: a mean of the yielded and the initial tangent
+            assert arguments.get('kind') == 'committed', (j, tangent)
+            low, high = np.minimum(k_c, yielded), np.maximum(k_c, yielded)
+            assert np.all((tangent >= low - 1e-6 * k) & (tangent <= high + 1e-6 * k)), tangent
+            seen['between'] += 1
         elif seen['yielding'] and abs(drift) < abs(drift_before):
             seen['unloading'] += 1                     # back on the linearization
         drift_before = drift
     assert seen['elastic'] > 20 and seen['yielding'] > 10 and seen['unloading'] > 10, seen
-    assert 2 <= part.tangent_steps < seen['yielding']  # read where the tangent changed
+    assert seen['between'] <= 4, seen                  # one per yielding episode at most
+    if not arguments:       # read where the tangent changed (with this damping Newton
+        # takes a second iteration on every step, and the tangent is read on each)
+        assert 2 <= part.tangent_steps < seen['yielding'], part.tangent_steps
+
+
+def test_rayleigh_damping_on_the_current_stiffness_of_some_elements_is_refused(tmp_path):
+    """Damping on the current stiffness that story 2 takes and story 3 does not (a
+    ``zeroLength`` without ``-doRayleigh``): the tangent cannot be told from Newton's system;
+    one line says so and what to do."""
+    from seft_ros.opensees.model import ModelError
+    part = OpenSeesPart(_yielding_frame(tmp_path, kind='current', some=True), DT)
+    with pytest.raises(ModelError, match=r'^structure\.opensees\.model: Rayleigh damping on the '
+                       r'current or committed stiffness \(ops\.rayleigh\(0, 0\.002, 0, 0\)\) '
+                       r'that some elements take and others not .*; give it to every element, '
+                       r'put it on the initial stiffness \(beta_K_init\), or set prediction: '
+                       r'initial$'):
+        part.prepare()

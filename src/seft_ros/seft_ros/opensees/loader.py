@@ -16,13 +16,14 @@ from contextlib import contextmanager
 import ctypes
 import importlib
 import importlib.util
+import math
 import os
 from pathlib import Path
 import tempfile
 
 from seft_msgs_py.errors import ParameterError
 
-__all__ = ['opensees', 'captured', 'Capture', 'last_message']
+__all__ = ['opensees', 'captured', 'Capture', 'last_message', 'rayleigh_calls']
 
 _MODULE = None
 
@@ -58,7 +59,61 @@ def opensees():
                              'the pinned version') from None
     except Exception as exc:              # openseespy raises a bare Exception on Linux
         raise ParameterError(f'openseespy: cannot import it ({exc})') from None
+    _log_rayleigh(_MODULE)
     return _MODULE
+
+
+#: The Rayleigh damping factors the model set since its last ``wipe``: ``(command,
+#: (alpha_M, beta_K, beta_K_init, beta_K_comm))`` per call of ``rayleigh`` (``'rayleigh'``),
+#: ``region ... -rayleigh`` (``'region'``) and ``setElementRayleighDampingFactors``
+#: (``'element'``). OpenSees keeps no way to read them back; the OpenSees part needs to
+#: know whether the damping follows the current or committed stiffness
+#: (:func:`rayleigh_calls`).
+_RAYLEIGH: list = []
+
+
+def rayleigh_calls() -> tuple:
+    """The Rayleigh damping commands the model gave since its last ``wipe``, in order:
+    ``(command, (alpha_M, beta_K, beta_K_init, beta_K_comm))`` (:data:`_RAYLEIGH`)."""
+    return tuple(_RAYLEIGH)
+
+
+def _log_rayleigh(module) -> None:
+    """Wrap `module`'s ``rayleigh``, ``region``, ``setElementRayleighDampingFactors`` and
+    ``wipe`` so that the factors a model sets are kept (a model script imports the same
+    module object after this, so its calls go through the wrappers)."""
+    def factors(values) -> tuple:
+        out = []
+        for v in list(values)[:4]:
+            try:
+                out.append(float(v))
+            except (TypeError, ValueError):
+                out.append(math.nan)
+        return tuple(out + [0.0] * (4 - len(out)))
+
+    def wrap(name, record):
+        original = getattr(module, name, None)
+        if original is None or getattr(original, '_seft_wrapped', False):
+            return
+
+        def wrapper(*args, **kwargs):
+            result = original(*args, **kwargs)
+            record(args)
+            return result
+        wrapper._seft_wrapped = True
+        wrapper.__doc__ = original.__doc__
+        setattr(module, name, wrapper)
+
+    def region(args):
+        if '-rayleigh' in args:
+            i = args.index('-rayleigh')
+            _RAYLEIGH.append(('region', factors(args[i + 1:i + 5])))
+
+    wrap('rayleigh', lambda args: _RAYLEIGH.append(('rayleigh', factors(args))))
+    wrap('region', region)
+    wrap('setElementRayleighDampingFactors',
+         lambda args: _RAYLEIGH.append(('element', factors(args[1:]))))
+    wrap('wipe', lambda args: _RAYLEIGH.clear())
 
 
 class Capture:

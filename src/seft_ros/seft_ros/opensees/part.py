@@ -61,7 +61,7 @@ import numpy as np
 from seft_msgs_py.errors import ParameterError
 from seft_ros.core.structure import Substructures
 from seft_ros.core.substructure import structure_matrices
-from seft_ros.opensees.loader import captured, last_message, opensees
+from seft_ros.opensees.loader import captured, last_message, opensees, rayleigh_calls
 from seft_ros.opensees.model import KIND, ModelError, ModelSpec, build_model, interface_group
 
 __all__ = ['OpenSeesPart', 'STEP_TIME', 'dry_run', 'DryRun', 'BUDGET_FRACTION',
@@ -171,6 +171,7 @@ class OpenSeesPart:
         # linearization at the latest sample, and whether it moved over the last step
         self._tangent_on = spec.prediction == 'tangent'
         self._read_next = False
+        self._tangent_damping, self._damping_gain = (0.0, 0.0), 0.0
         self._k_t = None                  # the condensed tangent of the latest sample
         self.tangent_steps = 0            # samples whose tangent was assembled
         # step: deferred: the sample ahead of OpenSees' (its linear step), and the
@@ -237,16 +238,23 @@ class OpenSeesPart:
                     # Newmark's M, C part of the system, from a full one (printA reads only
                     # those): the tangent is read from the system Newton assembles
                     ops.system('FullGeneral')
-                    self._newmark_mc = (_assembled(ops, (4.0 / h ** 2, 2.0 / h, 1.0))
-                                        - _assembled(ops, (0.0, 0.0, 1.0)))
+                    k0 = _assembled(ops, (0.0, 0.0, 1.0))
+                    self._newmark_mc = _assembled(ops, (4.0 / h ** 2, 2.0 / h, 1.0)) - k0
+                    self._tangent_damping = _stiffness_damping(ops, k0, spec.where)
+                    self._k0_full = k0
+                    self._damping_gain = 2.0 / h * sum(self._tangent_damping)
                 ops.system('BandGeneral')
                 self._full_system = False
                 ops.algorithm('Newton')
                 ops.integrator('Newmark', 0.5, 0.25)
                 ops.analysis('Transient')
                 error = None
+            except ModelError as exc:         # the model's damping (_stiffness_damping)
+                error = exc
             except Exception as exc:
                 error = exc
+        if isinstance(error, ModelError):
+            raise error
         if error is not None:
             raise ModelError(f'{spec.where}: setting up the analysis failed: OpenSees: '
                              f'{last_message(log.text) or error}')
@@ -353,7 +361,9 @@ class OpenSeesPart:
         # back on the initial tangent (a member unloaded): the linearization's, exactly
         self._k_t = None if np.max(np.abs(k_t - k0)) <= INITIAL_TOLERANCE * np.max(
             np.abs(k0)) else k_t
-        self._read_next = False
+        # damping on the committed stiffness: a step that changed the tangent is read with
+        # the tangent committed before it; the next step's system has the new one committed
+        self._read_next = iterations > 1 and self._tangent_damping[1] != 0.0
         self.tangent_steps += 1
 
     def _step_ahead(self, j: int) -> tuple:
@@ -510,6 +520,14 @@ class OpenSeesPart:
         keep, other, interface = self._equations_of()
         for eq in interface:
             k[eq, eq] -= self._penalty
+        g = self._damping_gain
+        if g:
+            # Rayleigh damping on the current (beta_K) or committed (beta_K_comm) stiffness:
+            # Newton's system holds (2/h) C_t, C_t = ... + beta_K K_t + beta_K_comm K_comm,
+            # and the Newmark part above holds it at the initial stiffness; with K_comm
+            # taken as K_t (exact on a step that kept its tangent, a weighted mean of the
+            # two on one that changed it)
+            k = (k + g * self._k0_full) / (1.0 + g)
         kk, ko, oo, ok = self._condensation_indices(keep, other)
         kr = k[kk]
         if other:
@@ -685,6 +703,59 @@ def _assembled(ops, factors) -> np.ndarray:
     a = np.asarray(ops.printA('-ret'), dtype=float)
     size = int(round(math.sqrt(a.size)))
     return a.reshape(size, size)
+
+
+def _stiffness_damping(ops, k0: np.ndarray, where: str) -> tuple[float, float]:
+    """``(beta_K, beta_K_comm)``: the model's Rayleigh damping on its current and committed
+    stiffness (OpenSees' ``rayleigh(alpha_M, beta_K, beta_K_init, beta_K_comm)``), which
+    Newton's system holds beside the tangent; ``(0, 0)`` when there is none or no element
+    takes it (a ``zeroLength`` without ``-doRayleigh 1``).
+
+    Read from the model's ``rayleigh`` commands (:func:`~seft_ros.opensees.loader.
+    rayleigh_calls`); which elements take it is measured at rest: the damping assembled
+    with those two factors doubled, less the model's own, is ``(beta_K + beta_K_comm)
+    K_0,R`` with ``K_0,R`` the initial stiffness of the elements that take it (the factors
+    are then set back, and the damping checked to be the model's again).
+
+    Raises
+    ------
+    ModelError
+        Damping on the current or committed stiffness that only some elements take, or set
+        per region or per element: the tangent cannot be told from Newton's system.
+    """
+    calls = rayleigh_calls()
+    moving = [(kind, f) for kind, f in calls if f[1] or f[3]]
+    if not moving:
+        return (0.0, 0.0)
+    fix = 'put it on the initial stiffness (beta_K_init), or set prediction: initial'
+    if any(kind != 'rayleigh' for kind, _ in moving) or any(
+            not math.isfinite(v) for _, f in moving for v in f):
+        raise ModelError(f'{where}.model: Rayleigh damping on the current or committed '
+                         'stiffness set per region or per element: seft reads the tangent '
+                         f'only with the global ops.rayleigh; {fix}')
+    factors = [f for kind, f in calls if kind == 'rayleigh'][-1]
+    alpha_m, beta_k, beta_k_init, beta_k_comm = factors
+    damping = _assembled(ops, (0.0, 1.0, 0.0))
+    ops.rayleigh(alpha_m, 2.0 * beta_k, beta_k_init, 2.0 * beta_k_comm)
+    doubled = _assembled(ops, (0.0, 1.0, 0.0))
+    ops.rayleigh(*factors)
+    if not np.array_equal(_assembled(ops, (0.0, 1.0, 0.0)), damping):
+        raise ModelError(f'{where}.model: Rayleigh damping on the current or committed '
+                         'stiffness that not every element got from the last ops.rayleigh '
+                         f'(elements made after it, or other factors per element); {fix}')
+    keep = sorted(set(_equations(ops).values()))
+    k0_r = ((doubled - damping) / (beta_k + beta_k_comm))[np.ix_(keep, keep)]
+    k = k0[np.ix_(keep, keep)]
+    tol = 1e-9 * float(np.max(np.abs(k)))
+    if float(np.max(np.abs(k0_r))) <= tol:
+        return (0.0, 0.0)                     # no element takes the damping
+    if float(np.max(np.abs(k0_r - k))) <= tol:
+        return (beta_k, beta_k_comm)
+    raise ModelError(f'{where}.model: Rayleigh damping on the current or committed stiffness '
+                     f'(ops.rayleigh({alpha_m:g}, {beta_k:g}, {beta_k_init:g}, '
+                     f'{beta_k_comm:g})) that some elements take and others not (a zeroLength '
+                     "takes it with '-doRayleigh', 1): seft cannot tell the tangent from it; "
+                     f'give it to every element, {fix}')
 
 
 def _equations(ops) -> dict:
