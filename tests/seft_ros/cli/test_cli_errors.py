@@ -20,6 +20,10 @@ FILES = {
     'short.AT2': AT2_HEAD + 'NPTS= 12, DT= 0.01 SEC\n0.1 0.2 0.3 0.4 0.5\n0.1 0.2 0.3 0.4 0.5\n',
     'token.AT2': AT2_HEAD + 'NPTS= 10, DT= 0.01 SEC\n0.1 0.2 0.3 0.4 0.5\n0.1 0.2 0.3x 0.4 0.5\n',
     'bad.csv': 'time,acceleration\n0.0,0.1\n0.01,0.2\n0.02,abc\n',
+    'cm.AT2': AT2_HEAD.replace('TIME SERIES IN UNITS OF G', 'IN CM/SEC/SEC')
+    + 'NPTS= 5, DT= 0.01 SEC\n98.1 196.1 -50.0 0.0 12.0\n',
+    'msec.AT2': AT2_HEAD + 'NPTS= 5, DT= 10 MSEC\n0.1 0.2 -0.05 0.0 0.012\n',
+    'zeros.AT2': AT2_HEAD + 'NPTS= 5, DT= 0.01 SEC\n0.0 0.0 0.0 0.0 0.0\n',
     'mass0.yaml': 'mass_kg: 0\n',
     'alpha.yaml': 'alpha: [0.5, -1]\n',
     'dt0.yaml': 'dt: 0\n',
@@ -38,6 +42,15 @@ CASES = {
     'at2_token': (['simulate', '--record', 'token.AT2'],
                   re.escape("token.AT2: line 6: expected a number, got '0.3x'")),
     'record_missing': (['simulate', '--record', 'nothing.AT2'], r'nothing\.AT2: no such file'),
+    'at2_units_not_g': (['simulate', '--record', 'cm.AT2'], re.escape(
+        "cm.AT2: line 3: expected units of G, got 'CM/SEC/SEC' (seft reads .AT2 values in g: "
+        'convert them, or write a CSV in m/s^2)')),
+    'at2_dt_msec': (['simulate', '--record', 'msec.AT2'], re.escape(
+        "msec.AT2: line 4: expected 'NPTS=<int>, DT=<float> SEC', got DT in 'MSEC' (seft "
+        'reads DT in seconds)')),
+    'at2_zeros_scaled': (['simulate', '--record', 'zeros.AT2', '--amplitude', '0', '--scale',
+                          '1'], re.escape("zeros.AT2: record 'zeros' is all zeros in its first "
+                                          '1 s; expected a record with a non-zero sample')),
     'csv_token': (['simulate', '--record', 'bad.csv'],
                   re.escape("bad.csv: line 4: expected a number, got 'abc'")),
     'yaml_mass_0': (['simulate', 'mass0.yaml'],

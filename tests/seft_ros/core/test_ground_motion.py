@@ -17,6 +17,8 @@ from seft_ros.core.ground_motion import (
     prepared_record,
     read_at2,
     read_csv,
+    record_read,
+    record_read_line,
     synthetic_default,
 )
 
@@ -141,6 +143,81 @@ def test_read_at2_units_not_g(tmp_path):
         read_at2(path)
 
 
+@pytest.mark.parametrize('units, found', [
+    ('ACCELERATION IN CM/SEC/SEC', 'CM/SEC/SEC'),
+    ('UNITS: m/s2', 'm/s2'),
+    ('ACCELERATION TIME SERIES IN UNITS OF CM/S^2', 'CM/S^2'),
+    ('Acceleration in gal', 'gal'),
+    ('ACCELERATION (MM/S**2)', 'MM/S**2'),
+    ('accel in/s^2, filtered', 'in/s^2'),
+    ('acceleration [m s-2]', 'm s-2'),
+    ('UNITS= mg', 'mg'),
+])
+def test_read_at2_units_line_naming_another_unit(tmp_path, units, found):
+    path = write_at2(tmp_path, 'NPTS= 7, DT= .02 SEC,', units=units)
+    with raises_from(path, f'line 3: expected units of G, got {found!r} (seft reads .AT2 '
+                           'values in g') as info:
+        read_at2(path)
+    assert '\n' not in str(info.value)
+
+
+@pytest.mark.parametrize('units', [
+    'ACCELERATION TIME SERIES IN UNITS OF G',     # PEER NGA
+    'Acceleration in g', 'UNITS: G', 'UNITS OF G.', 'ACCELERATION TIME SERIES',  # no unit
+    'Imperial Valley, station MGS 5, IN 1940',   # words, not units
+])
+def test_read_at2_units_line_g_or_silent(tmp_path, units):
+    rec = read_at2(write_at2(tmp_path, 'NPTS= 7, DT= .02 SEC,', units=units))
+    np.testing.assert_array_equal(rec.acceleration_m_s2, AT2_VALUES_G * G)
+
+
+@pytest.mark.parametrize('line4, word', [
+    ('NPTS= 7, DT= 10 MSEC', 'MSEC'),
+    ('NPTS=      7, DT=   20 ms,', 'ms'),
+    ('NPTS= 7, DT= .02 MIN', 'MIN'),
+    ('7   10.0  MSEC', 'MSEC'),                                # older layout
+])
+def test_read_at2_dt_in_another_time_unit(tmp_path, line4, word):
+    path = write_at2(tmp_path, line4)
+    with raises_from(path, "line 4: expected 'NPTS=<int>, DT=<float> SEC', got DT in "
+                           f'{word!r} (seft reads DT in seconds)'):
+        read_at2(path)
+
+
+@pytest.mark.parametrize('line4', ['NPTS= 7, DT= .02 S', 'NPTS= 7, DT= .02 seconds,',
+                                   'NPTS= 7, DT= .02SECS'])
+def test_read_at2_dt_in_seconds(tmp_path, line4):
+    assert read_at2(write_at2(tmp_path, line4)).dt == 0.02
+
+
+def test_read_at2_dt_above_the_bound(tmp_path):
+    assert read_at2(write_at2(tmp_path, 'NPTS= 7, DT= 0.1 SEC')).dt == 0.1
+    path = write_at2(tmp_path, 'NPTS= 7, DT= 10 SEC', name='slow.AT2')
+    with raises_from(path, 'line 4: expected a sample period DT <= 0.1 s (earthquake records: '
+                           '0.001-0.04 s), got 10.0 s'):
+        read_at2(path)
+    path = write_at2(tmp_path, '7   0.1001', name='old.AT2')
+    with raises_from(path, 'line 4: expected a sample period DT <= 0.1 s'):
+        read_at2(path)
+
+
+def test_read_at2_binary_and_long_tokens_are_cut(tmp_path):
+    png = tmp_path / 'image.AT2'
+    png.write_bytes(b'\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR' + bytes(range(256)) * 4)
+    with pytest.raises(InputError, match=f'^{re.escape(str(png))}: line 3: binary content '
+                                         r'\(a NUL byte\), expected a text file$'):
+        read_at2(png)
+    long = 'x' * 300
+    path = write_at2(tmp_path, 'NPTS= 7, DT= .02 SEC,', tokens=AT2_TOKENS[:6] + [long])
+    with raises_from(path, f"line 6: expected a number, got '{'x' * 40}'...") as info:
+        read_at2(path)
+    assert len(str(info.value)) < len(str(path)) + 100
+    path = write_at2(tmp_path, long, name='header.AT2')
+    with raises_from(path, f"line 4: expected 'NPTS=<int>, DT=<float> SEC', got "
+                           f"'{'x' * 40}'..."):
+        read_at2(path)
+
+
 def test_read_at2_missing_empty_short(tmp_path):
     missing = tmp_path / 'nope.AT2'
     with pytest.raises(InputError, match=f'^{re.escape(str(missing))}: no such file$'):
@@ -235,6 +312,19 @@ def test_read_csv_errors(tmp_path, text, message):
     with raises_from(path, message) as info:
         read_csv(path)
     assert '\n' not in str(info.value)
+
+
+def test_read_csv_semicolons_and_a_coarse_step(tmp_path):
+    path = tmp_path / 'semi.csv'
+    path.write_text('0.0;0.1\n0.01;0.2\n')
+    with raises_from(path, 'line 1: expected 2 columns (time [s], acceleration [m/s^2]), found 1 '
+                           '(columns are separated by a comma or blanks)'):
+        read_csv(path)
+    path = tmp_path / 'ms.csv'                     # time in milliseconds
+    path.write_text('time_ms,a\n0,0.1\n10,0.2\n20,0.3\n')
+    with raises_from(path, 'line 3: expected a sample period DT <= 0.1 s (earthquake records: '
+                           '0.001-0.04 s), got 10.0 s'):
+        read_csv(path)
 
 
 def test_read_csv_tolerance_and_missing(tmp_path):
@@ -334,8 +424,8 @@ def test_load_record_dispatch(tmp_path, default_record):
     assert load_record(str(at2)).n == 7
     assert load_record(at2).n == 7
     csv = tmp_path / 'x.Csv'
-    csv.write_text('0,1\n0.5,2\n')
-    assert load_record(str(csv)).dt == 0.5
+    csv.write_text('0,1\n0.05,2\n')
+    assert load_record(str(csv)).dt == 0.05
 
 
 @pytest.mark.parametrize('source, message', [
@@ -531,9 +621,41 @@ def test_prepare_duration(default_record):
 
 def test_prepare_all_zero_record():
     rec = GroundMotion(0.01, np.zeros(10), 'zeros', 'z.csv')
-    with pytest.raises(InputError, match=re.escape("z.csv: record 'zeros' is all zeros")):
+    with pytest.raises(InputError, match=re.escape("z.csv: record 'zeros' is all zeros; cannot "
+                                                   'scale it to amplitude_N=1000.0')):
         prepare(rec, dt=0.002, mass_kg=1.0, amplitude_N=1000.0)
-    assert prepare(rec, dt=0.002, mass_kg=1.0).peak_m_s2 == 0.0
+    # scaled by scale_factor: refused too, not a run that measures nothing
+    with pytest.raises(InputError, match=re.escape("z.csv: record 'zeros' is all zeros; "
+                                                   'expected a record with a non-zero sample')):
+        prepare(rec, dt=0.002, mass_kg=1.0)
+    quiet_start = GroundMotion(0.01, np.r_[np.zeros(50), 0.3], 'late', 'late.csv')
+    with pytest.raises(InputError, match=re.escape("late.csv: record 'late' is all zeros in its "
+                                                   'first 0.2 s; expected a record')):
+        prepare(quiet_start, dt=0.01, mass_kg=1.0, scale_factor=2.0, duration_s=0.2)
+    assert prepare(quiet_start, dt=0.01, mass_kg=1.0, scale_factor=2.0).peak_m_s2 == 0.6
+
+
+def test_record_read(tmp_path):
+    path = write_at2(tmp_path, 'NPTS= 7, DT= .01 SEC,')
+    params = {'record': str(path), 'dt': 0.01, 'mass_kg': 2.0, 'amplitude_N': G,
+              'scale_factor': 1.0, 'time_scale': 1.0, 'duration_s': 0.0}
+    info = record_read(params)
+    assert info == {'file': str(path), 'npts': 7, 'dt_s': 0.01, 'duration_s': 0.07,
+                    'pga_g': 1.0, 'pga_at_s': 0.04, 'time_scale': 1.0, 'scale': 0.5,
+                    'scaled_by': 'amplitude_N', 'amplitude_N': G, 'run_samples': 7,
+                    'run_dt_s': 0.01, 'run_duration_s': 0.07, 'run_peak_g': 0.5}
+    assert record_read_line(info) == (
+        f'record {path}: 7 samples at 0.01 s (0.07 s), PGA 1 g at 0.04 s; run: time scale 1, '
+        '0.07 s at dt 0.01 s, scaled x0.5 to amplitude_N=9.80665 N, peak 0.5 g')
+    # the prepared record is the one the run gets
+    run = prepared_record(params)
+    assert run.peak_m_s2 / G == info['run_peak_g']
+    info = record_read(params | {'amplitude_N': 0.0, 'scale_factor': 3.0, 'duration_s': 0.03})
+    assert (info['scale'], info['scaled_by'], info['run_samples']) == (3.0, 'scale_factor', 3)
+    assert info['run_peak_g'] == pytest.approx(3 * 0.01)    # the first 3 samples' peak
+    assert record_read_line(info).endswith('0.03 s at dt 0.01 s, scaled x3 (scale_factor), '
+                                           'peak 0.03 g')
+    assert record_read(params | {'record': 'default'}) is None
 
 
 @pytest.mark.parametrize('kwargs, message', [

@@ -21,7 +21,8 @@ from seft_msgs_py.errors import InputError, ParameterError
 
 __all__ = [
     'G', 'GroundMotion', 'read_at2', 'read_csv', 'synthetic_default', 'load_record', 'prepare',
-    'prepared_record', 'resampling_method', 'RESAMPLING_METHODS',
+    'prepared_record', 'record_read', 'record_read_line', 'resampling_method',
+    'RESAMPLING_METHODS', 'MAX_RECORD_DT_S',
 ]
 
 #: Standard gravity [m/s^2] (CGPM 1901), used to convert records in g.
@@ -32,13 +33,37 @@ G = 9.80665
 _REAL = r'[+-]?(?:\d+\.?\d*|\.\d+)(?:[EeDd][+-]?\d+)?'
 _REAL_RE = re.compile(_REAL)
 #: Standard PEER line 4, tolerant of case, blanks around ``=`` and ``,``, a missing comma.
+#: A word after DT is its unit (:data:`_SECONDS`, else the line is refused).
 _NPTS_DT_RE = re.compile(
     r'^\s*NPTS\s*=\s*(?P<npts>[+-]?\d+)\s*,?\s*DT\s*=\s*(?P<dt>' + _REAL + r')'
-    r'(?:\s*SEC\b)?(?:[\s,].*)?$', re.IGNORECASE)
+    r'(?:\s*[A-Za-z]\w*)?(?:[\s,(/].*)?$', re.IGNORECASE)
+#: The word after DT's number, if any.
+_DT_WORD_RE = re.compile(r'\s*(?P<word>[A-Za-z]\w*)')
 #: Older layout of line 4: ``7500   0.0200`` (NPTS then DT), possibly followed by text.
 _OLD_NPTS_DT_RE = re.compile(
     r'^\s*(?P<npts>[+-]?\d+)\s*[,\s]\s*(?P<dt>' + _REAL + r')(?:[\s,].*)?$')
-_UNITS_RE = re.compile(r'UNITS\s+OF\s+(?P<unit>[^\s,.;]+)', re.IGNORECASE)
+#: The units of DT that are seconds (upper case).
+_SECONDS = ('S', 'SEC', 'SECS', 'SECOND', 'SECONDS')
+#: Time units other than seconds, refused after DT in the older layout too (upper case).
+_OTHER_TIME_UNITS = ('MS', 'MSEC', 'MSECS', 'MILLISEC', 'MILLISECOND', 'MILLISECONDS', 'US',
+                     'USEC', 'MIN', 'MINS', 'MINUTE', 'MINUTES', 'HZ', 'SPS')
+#: Largest DT a record file may have [s]: earthquake records are sampled every 0.001-0.04 s
+#: (PEER NGA: 0.005-0.02 s); at DT = 0.1 s the Nyquist frequency, 5 Hz, is inside the band
+#: of a structure's response, so a larger DT is a unit mistake (``DT= 10`` meant in ms).
+MAX_RECORD_DT_S = 0.1
+#: An explicit statement of the units on line 3: ``UNITS OF G``, ``UNITS: m/s2``.
+_UNITS_RE = re.compile(r'\bUNITS?\s*(?:\bOF\b|[:=])\s*(?P<unit>[^\s,;]+?)[.]?(?=$|[\s,;])',
+                       re.IGNORECASE)
+_LENGTH = (r'(?:CM|MM|M|IN|INCH(?:ES)?|FT|FEET|MET(?:ER|RE)S?|CENTIMET(?:ER|RE)S?'
+           r'|MILLIMET(?:ER|RE)S?)')
+_TIME = r'(?:S|SECS?|SECONDS?)'
+#: An acceleration unit other than g anywhere on line 3: ``CM/SEC/SEC``, ``cm/s^2``,
+#: ``m/s2``, ``m s-2``, ``gal``, ``mg``.
+_OTHER_UNIT_RE = re.compile(
+    r'(?<![A-Z0-9])(?:' + _LENGTH + r'\s*/\s*' + _TIME
+    + r'(?:\s*/\s*' + _TIME + r'|\s*(?:\^|\*\*)?\s*2|²)?'
+    + r'|' + _LENGTH + r'\s*[-*.]?\s*' + _TIME + r'\s*(?:\^|\*\*)?\s*-\s*2'
+    + r'|GALS?|MILLI-?G|MG)(?![A-Z0-9])', re.IGNORECASE)
 _CSV_REAL_RE = re.compile(r'[+-]?(?:\d+\.?\d*|\.\d+)(?:[Ee][+-]?\d+)?')
 
 
@@ -113,14 +138,48 @@ class GroundMotion:
 def _read_lines(path) -> list[str]:
     """The lines of a text file, any line ending; ``InputError`` if it cannot be read."""
     try:
-        text = Path(path).read_bytes().decode('utf-8', errors='replace')
+        data = Path(path).read_bytes()
     except FileNotFoundError:
         raise InputError(f'{path}: no such file') from None
     except IsADirectoryError:
         raise InputError(f'{path}: is a directory, expected a file') from None
     except OSError as exc:
         raise InputError(f'{path}: cannot read ({exc.strerror})') from None
-    return text.splitlines()
+    if b'\x00' in data:
+        lineno = data[:data.index(b'\x00')].count(b'\n') + 1
+        raise InputError(f'{path}: line {lineno}: binary content (a NUL byte), expected a text '
+                         'file')
+    return data.decode('utf-8', errors='replace').splitlines()
+
+
+def _excerpt(text: str, limit: int = 40) -> str:
+    """``repr(text)``, cut to its first `limit` characters (``'...'`` after) so that a binary
+    file's bytes do not fill an error message."""
+    return repr(text) if len(text) <= limit else repr(text[:limit]) + '...'
+
+
+def _units_of(line: str) -> str | None:
+    """The unit other than g that a ``.AT2`` units line (line 3) names, or None.
+
+    ``UNITS OF <u>`` or ``UNITS: <u>`` with ``<u>`` not ``G`` gives ``<u>``; otherwise an
+    acceleration unit other than g anywhere on the line (:data:`_OTHER_UNIT_RE`: ``IN
+    CM/SEC/SEC``, ``gal``) gives that. A line that names g, or no unit at all, gives None
+    (values in g, PEER's format).
+    """
+    stated = _UNITS_RE.search(line)
+    if stated and stated.group('unit').upper() != 'G':
+        return stated.group('unit')
+    other = _OTHER_UNIT_RE.search(line)
+    return other.group(0) if other else None
+
+
+def _check_record_dt(path, where: str, dt: float) -> None:
+    """``InputError`` if a record file's sample period `dt` [s] exceeds
+    :data:`MAX_RECORD_DT_S`."""
+    if dt > MAX_RECORD_DT_S:
+        raise InputError(f'{path}: {where}: expected a sample period DT <= {MAX_RECORD_DT_S} s '
+                         f'(earthquake records: 0.001-0.04 s), got {dt!r} s (a time unit other '
+                         'than seconds?)')
 
 
 def _fortran_float(token: str) -> float:
@@ -168,27 +227,37 @@ def read_at2(path) -> GroundMotion:
     if len(lines) < 4:
         raise InputError(f'{path}: line {len(lines) + 1}: expected 4 header lines, '
                          f'the file ends after {len(lines)}')
-    units = _UNITS_RE.search(lines[2])
-    if units and units.group('unit').upper() != 'G':
-        raise InputError(f"{path}: line 3: expected units of G, got {units.group('unit')!r}")
+    unit = _units_of(lines[2])
+    if unit is not None:
+        raise InputError(f'{path}: line 3: expected units of G, got {_excerpt(unit)} (seft '
+                         'reads .AT2 values in g: convert them, or write a CSV in m/s^2)')
     header = lines[3]
     match = _NPTS_DT_RE.match(header) or _OLD_NPTS_DT_RE.match(header)
     if match is None:
         raise InputError(f"{path}: line 4: expected 'NPTS=<int>, DT=<float> SEC', "
-                         f'got {header.strip()!r}')
+                         f'got {_excerpt(header.strip())}')
+    word = _DT_WORD_RE.match(header, match.end('dt'))
+    dt_unit = word.group('word').upper() if word else None
+    refused = _OTHER_TIME_UNITS if match.re is _OLD_NPTS_DT_RE else None
+    if dt_unit is not None and dt_unit not in _SECONDS and (refused is None
+                                                            or dt_unit in refused):
+        raise InputError(f"{path}: line 4: expected 'NPTS=<int>, DT=<float> SEC', got DT in "
+                         f"{_excerpt(word.group('word'))} (seft reads DT in seconds)")
     npts = int(match.group('npts'))
     dt = _fortran_float(match.group('dt'))
     if npts <= 0:
         raise InputError(f'{path}: line 4: expected NPTS > 0, got NPTS={npts}')
     if not (math.isfinite(dt) and dt > 0):
         raise InputError(f"{path}: line 4: expected DT > 0, got DT={match.group('dt')}")
+    _check_record_dt(path, 'line 4', dt)
 
     values = []
     extra_line = None
     for lineno, line in enumerate(lines[4:], start=5):
         for token in line.split():
             if not _REAL_RE.fullmatch(token):
-                raise InputError(f'{path}: line {lineno}: expected a number, got {token!r}')
+                raise InputError(f'{path}: line {lineno}: expected a number, '
+                                 f'got {_excerpt(token)}')
             if len(values) == npts and extra_line is None:
                 extra_line = lineno
             values.append(_fortran_float(token))
@@ -240,13 +309,15 @@ def read_csv(path) -> GroundMotion:
             continue
         fields = [f.strip() for f in line.split(',')] if ',' in line else line.split()
         numeric = [bool(_CSV_REAL_RE.fullmatch(f)) for f in fields]
-        if header_allowed and not any(numeric):
+        # a header has no field that starts with a number ('0.0;0.1' is a row, not a header)
+        if header_allowed and not any(_CSV_REAL_RE.match(f) for f in fields):
             header_allowed = False
             continue
         header_allowed = False
         if len(fields) != 2:
+            hint = ' (columns are separated by a comma or blanks)' if ';' in line else ''
             raise InputError(f'{path}: line {lineno}: expected 2 columns (time [s], '
-                             f'acceleration [m/s^2]), found {len(fields)}')
+                             f'acceleration [m/s^2]), found {len(fields)}{hint}')
         if not all(numeric):
             bad = fields[numeric.index(False)]
             raise InputError(f'{path}: line {lineno}: expected a number, got {bad!r}')
@@ -267,6 +338,7 @@ def read_csv(path) -> GroundMotion:
         raise InputError(f'{path}: line {linenos[k]}: time not strictly increasing '
                          f'(t={float(t[k])!r} after t={float(t[k - 1])!r})')
     dt = float((t[-1] - t[0]) / (len(t) - 1))
+    _check_record_dt(path, f'line {linenos[1]}', dt)
     off = np.abs(steps - dt) > 1e-6 * dt
     if np.any(off):
         k = int(np.flatnonzero(off)[0]) + 1
@@ -556,13 +628,22 @@ def prepare(record: GroundMotion, *, dt: float, mass_kg: float, amplitude_N: flo
     ParameterError
         If a parameter is outside its range, or ``0 < duration_s < dt/2`` (no sample left).
     InputError
-        If ``amplitude_N > 0`` and the (truncated) record is all zeros.
+        If the (truncated) record is all zeros (with ``amplitude_N`` or ``scale_factor``:
+        a run without ground motion measures nothing).
 
     References
     ----------
     N. Nakata and S. Combs, Substructure Effective Force Testing (time scale factor 0.5,
     amplitude 1000 N).
     """
+    return _prepare(record, dt=dt, mass_kg=mass_kg, amplitude_N=amplitude_N,
+                    scale_factor=scale_factor, time_scale=time_scale, duration_s=duration_s,
+                    resampling=resampling)[0]
+
+
+def _prepare(record: GroundMotion, *, dt, mass_kg, amplitude_N, scale_factor, time_scale,
+             duration_s, resampling) -> tuple[GroundMotion, float]:
+    """:func:`prepare`'s record and the factor it multiplied the record by (step 4)."""
     if resampling not in RESAMPLING_METHODS:
         raise ParameterError(f'parameter record_resampling={resampling!r}: expected one of '
                              + ', '.join(repr(m) for m in RESAMPLING_METHODS))
@@ -587,15 +668,20 @@ def prepare(record: GroundMotion, *, dt: float, mass_kg: float, amplitude_N: flo
             raise ParameterError(f'parameter duration_s={duration_s!r}: expected 0 (whole '
                                  f'record) or float >= dt={dt!r}')
         a = a[:keep]
+    if not np.any(a):
+        within = f' in its first {duration_s:g} s' if duration_s > 0 else ''
+        need = (f'cannot scale it to amplitude_N={amplitude_N!r}' if amplitude_N > 0 else
+                'expected a record with a non-zero sample')
+        raise InputError(f'{record.source}: record {record.name!r} is all zeros{within}; '
+                         f'{need}')
     if amplitude_N > 0:
         peak_N = float(np.max(np.abs(mass_kg * a)))
-        if peak_N == 0:
-            raise InputError(f'{record.source}: record {record.name!r} is all zeros; cannot '
-                             f'scale it to amplitude_N={amplitude_N!r}')
-        a = a * (amplitude_N / peak_N)
+        factor = amplitude_N / peak_N
+        a = a * factor
     else:
+        factor = scale_factor
         a = a * scale_factor
-    return GroundMotion(dt, a, record.name, record.source)
+    return GroundMotion(dt, a, record.name, record.source), factor
 
 
 def resampling_method(params, record: GroundMotion) -> str:
@@ -637,13 +723,19 @@ def prepared_record(params) -> GroundMotion:
         gm = excitation_record(params)
         n = int(params.get('n_steps', 0) or 0)
         return GroundMotion(gm.dt, gm.acceleration_m_s2[:n], gm.name, gm.source) if n else gm
+    return _load_and_prepare(params)[1]
+
+
+def _load_and_prepare(params) -> tuple[GroundMotion, GroundMotion, float]:
+    """The record as read, as prepared (cut to ``n_steps``) and the factor of
+    :func:`prepare` (step 4), for :func:`prepared_record` and :func:`record_read`."""
     record = load_record(params['record'])
-    gm = prepare(record, dt=float(params['dt']), mass_kg=float(params['mass_kg']),
-                 amplitude_N=float(params['amplitude_N']),
-                 scale_factor=float(params['scale_factor']),
-                 time_scale=float(params['time_scale']),
-                 duration_s=float(params['duration_s']),
-                 resampling=resampling_method(params, record))
+    gm, factor = _prepare(record, dt=float(params['dt']), mass_kg=float(params['mass_kg']),
+                          amplitude_N=float(params['amplitude_N']),
+                          scale_factor=float(params['scale_factor']),
+                          time_scale=float(params['time_scale']),
+                          duration_s=float(params['duration_s']),
+                          resampling=resampling_method(params, record))
     n = int(params.get('n_steps', 0) or 0)
     if n:
         if n > gm.acceleration_m_s2.shape[0]:
@@ -651,4 +743,55 @@ def prepared_record(params) -> GroundMotion:
                 f'parameter n_steps={n}: expected <= {gm.acceleration_m_s2.shape[0]} '
                 '(the prepared record length)')
         gm = GroundMotion(gm.dt, gm.acceleration_m_s2[:n], gm.name, gm.source)
-    return gm
+    return record, gm, factor
+
+
+def record_read(params) -> dict | None:
+    """What a run reads from its record file and how it prepares it, for the console and
+    ``summary.json`` (None for the embedded default or an excitation run).
+
+    Returns
+    -------
+    dict or None
+        ``{'file', 'npts', 'dt_s', 'duration_s', 'pga_g', 'pga_at_s'}``: the file as read
+        (peak ground acceleration ``max|a|/G`` and the time of its first occurrence), and the
+        run's input: ``{'time_scale', 'scale', 'scaled_by', 'run_samples', 'run_dt_s',
+        'run_duration_s', 'run_peak_g'}``, ``scale`` the factor the resampled record was
+        multiplied by, ``scaled_by`` ``'amplitude_N'`` (to the peak ``amplitude_N`` [N] of
+        ``mass_kg * a``, with the key ``'amplitude_N'``) or ``'scale_factor'``.
+
+    Raises
+    ------
+    InputError, ParameterError
+        As :func:`prepared_record`.
+    """
+    if params.get('excitation', 'none') != 'none' or params.get('record') == 'default':
+        return None
+    record, gm, factor = _load_and_prepare(params)
+    a = record.acceleration_m_s2
+    k = int(np.argmax(np.abs(a)))
+    info = {'file': str(record.source), 'npts': record.n, 'dt_s': record.dt,
+            'duration_s': record.duration_s, 'pga_g': float(abs(a[k]) / G),
+            'pga_at_s': k * record.dt, 'time_scale': float(params['time_scale']),
+            'scale': factor}
+    amplitude = float(params['amplitude_N'])
+    if amplitude > 0:
+        info.update(scaled_by='amplitude_N', amplitude_N=amplitude)
+    else:
+        info['scaled_by'] = 'scale_factor'
+    info.update(run_samples=gm.n, run_dt_s=gm.dt, run_duration_s=gm.duration_s,
+                run_peak_g=gm.peak_m_s2 / G)
+    return info
+
+
+def record_read_line(info: dict) -> str:
+    """One line of :func:`record_read`'s figures: ``record X.AT2: 5372 samples at 0.01 s
+    (53.72 s), PGA 0.2808 g at 2.18 s; run: time scale 0.5, 26.86 s at dt 0.002 s, scaled
+    x3.63 to amplitude_N=1000 N, peak 1.019 g``."""
+    how = (f"to amplitude_N={info['amplitude_N']:g} N" if info['scaled_by'] == 'amplitude_N'
+           else '(scale_factor)')
+    return (f"record {info['file']}: {info['npts']} samples at {info['dt_s']:g} s "
+            f"({info['duration_s']:g} s), PGA {info['pga_g']:.4g} g at {info['pga_at_s']:g} s; "
+            f"run: time scale {info['time_scale']:g}, {info['run_duration_s']:g} s at dt "
+            f"{info['run_dt_s']:g} s, scaled x{info['scale']:.4g} {how}, "
+            f"peak {info['run_peak_g']:.4g} g")
