@@ -121,3 +121,38 @@ def test_a_sweep_over_records_predictors_and_alphas(tmp_path):
     assert 'pulse' in names[4]
     first = simulate(runs[5])
     assert np.array_equal(result.runs[5].displacement_m, first.displacement_m)
+
+
+def test_what_a_record_file_gave_is_said_once_and_kept_in_the_summary(tmp_path):
+    """One console line per record file (not per run) with its samples, DT, PGA and the
+    factor applied; the same figures in summary.json and the report; none for the default."""
+    csv = tmp_path / 'sine.csv'
+    t = np.arange(200) * 0.01
+    csv.write_text('time,acceleration\n' + '\n'.join(
+        f'{ti:.2f},{2.0 * np.sin(2 * np.pi * ti):.6f}' for ti in t))    # 2 m/s^2 at 0.25 s
+    lines = []
+    runs = api.build_runs(overrides={'record': str(csv), 'duration_s': 0.5,
+                                     'predictor': 'model'}, alphas=[0.5, 1.0],
+                          progress=lines.append)
+    said = [ln for ln in lines if ln.startswith('record ')]
+    assert said == [f'record {csv}: 200 samples at 0.01 s (2 s), PGA 0.2039 g at 0.25 s; run: '
+                    'time scale 0.5, 0.5 s at dt 0.002 s, scaled x9.487 to amplitude_N=1000 N, '
+                    'peak 1.935 g']
+    result = api.simulate_experiments(runs=runs, out_dir=tmp_path / 'out',
+                                      progress=lines.append, force=True, workers=1)
+    for entry in result.summary:
+        read = entry['record_read']
+        assert (read['npts'], read['dt_s'], read['pga_at_s']) == (200, 0.01, 0.25)
+        assert read['pga_g'] == pytest.approx(2.0 / 9.80665, rel=1e-12)
+        # amplitude_N 1000 N on the default 52.7 kg: the prepared peak times the mass
+        assert read['run_peak_g'] * 9.80665 * 52.7 == pytest.approx(1000.0, rel=1e-12)
+        assert read['scale'] == pytest.approx(1000.0 / (52.7 * 2.0), rel=2e-3)
+        assert read['run_samples'] == 250 == entry['n_steps']
+    report = (tmp_path / 'out' / 'report.md').read_text()
+    assert report.count(said[0][len('record '):]) == 2             # one per run
+    lines.clear()
+    runs = api.build_runs(overrides={'duration_s': 0.5}, progress=lines.append)
+    assert not [ln for ln in lines if ln.startswith('record ')]
+    result = api.simulate_experiments(runs=runs, out_dir=tmp_path / 'default',
+                                      progress=lines.append, force=True, workers=1)
+    assert 'record_read' not in result.summary[0]

@@ -1123,6 +1123,9 @@ def summary_entry(run: RunData, comparison: RunComparison) -> dict[str, Any]:
         ``'specimen_stiffness_ratios'``, each rig's identified specimen stiffness over the
         declared one, from ``run.extra``; ``'range_check'``, the pre-run range check
         (:meth:`seft_ros.analysis.range_check.RangeCheck.as_dict`, from ``run.extra``),
+        ``'record_read'``, what the run read from its record file and how it scaled it
+        (:func:`seft_ros.core.ground_motion.record_read`, from ``run.extra``; a run on the
+        embedded default or an excitation has none),
         ``'sensor_range'``, each rig's samples at a sensor's range
         (:func:`seft_ros.analysis.findings.sensor_range_entry`), ``'flags'``, why the run may
         have lost accuracy as a lab sees it (:func:`seft_ros.analysis.findings.run_flags`), and
@@ -1202,6 +1205,8 @@ def summary_entry(run: RunData, comparison: RunComparison) -> dict[str, Any]:
     from seft_ros.analysis.findings import run_flags, sensor_range_entry, verdict
     if run.extra.get('range_check') is not None:
         entry['range_check'] = dict(run.extra['range_check'])
+    if run.extra.get('record_read') is not None:
+        entry['record_read'] = dict(run.extra['record_read'])
     if run.extra.get('timing_replay') is not None:
         entry['timing_replay'] = dict(run.extra['timing_replay'])
     entry['sensor_range'] = sensor_range_entry(run)

@@ -50,6 +50,7 @@ from seft_ros.analysis.timing import (
     timing_figure,
     timing_table,
 )
+from seft_ros.core.ground_motion import record_read_line
 from seft_ros.core.models import model_kinds, model_plugin
 from seft_ros.core.structure import structure_of
 
@@ -575,6 +576,8 @@ def _run_markdown(index: int, run: RunData, comparison: RunComparison) -> list[s
         + f'{run.n_steps} samples' + (f', source {run.source}' if run.source else ''),
         f"- rig contract: {run.extra.get('rig_contract') or 'not reported (a bag before it)'}",
     ]
+    if run.extra.get('record_read'):
+        lines.append(f"- {record_read_line(run.extra['record_read'])}")
     sources = _sources_line(run)
     if sources is not None:
         lines.append(f'- {sources}')

@@ -30,7 +30,7 @@ from seft_ros.cli.config import (
 )
 from seft_ros.core import stability
 from seft_ros.core.experiment import simulate
-from seft_ros.core.ground_motion import prepared_record
+from seft_ros.core.ground_motion import prepared_record, record_read, record_read_line
 from seft_ros.core.models import model_plugin
 from seft_ros.core.predictors import MAX_BAND_ERROR
 from seft_ros.core.reference_force import PREDICTORS
@@ -116,7 +116,11 @@ def build_runs(*, config: str | None = None, overrides: dict[str, Any] | None = 
                                        'duration_s', 'n_steps'))
         if key not in seen:
             seen.add(key)
-            prepared_record(p)
+            info = record_read(p)                   # None: the default or an excitation
+            if info is None:
+                prepared_record(p)
+            elif progress is not None:
+                progress(record_read_line(info))
     return runs
 
 
@@ -182,6 +186,14 @@ def _run_label(p: dict, runs: list[dict] | None = None) -> str:
         stem = Path(str(p['record'])).stem
         label += '_' + ''.join(c if c.isalnum() or c in '-_.' else '_' for c in stem)
     return label
+
+
+def _note_record_read(rd: RunData, params: dict) -> None:
+    """Put what the run read from its record file (:func:`record_read`) in
+    ``rd.extra['record_read']`` for ``summary.json`` and the report."""
+    info = record_read(params)
+    if info is not None:
+        rd.extra['record_read'] = info
 
 
 def _finish(out_dir: Path, runs: list[RunData], title: str, t0: float) -> Result:
@@ -254,9 +266,10 @@ def simulate_experiments(*, runs: list[dict], out_dir: Path,
     ranges = check_ranges(runs=runs, strict=strict, progress=progress)
     check_settings(runs=runs, progress=progress)
     data = simulate_runs(runs=runs, out_dir=out_dir, progress=progress, workers=workers)
-    for rd, check, limits in zip(data, checks, ranges):
+    for rd, p, check, limits in zip(data, runs, checks, ranges):
         rd.extra['stability'] = stability_entry(check)
         rd.extra['range_check'] = limits.as_dict()
+        _note_record_read(rd, p)
     if bags:
         from seft_ros.analysis.bagwrite import write_run_bag
         for rd, path in zip(data, bags):
@@ -722,9 +735,10 @@ def run_experiments(*, runs: list[dict], out_dir: Path,
             viewer.close()
         runner.close()
         claim.close()
-    for rd, check, limits in zip(data, predicted, ranges):
+    for rd, p, check, limits in zip(data, runs, predicted, ranges):
         rd.extra['stability'] = stability_entry(check)
         rd.extra['range_check'] = limits.as_dict()
+        _note_record_read(rd, p)
     return _finish(out_dir, data, title or 'seft run', t0)
 
 
