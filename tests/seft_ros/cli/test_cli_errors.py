@@ -30,7 +30,10 @@ FILES = {
     'unknown.yaml': 'alpha: 0.5\nstiffnes_N_per_m: 2.0e5\n',
     'invalid.yaml': 'alpha: 0.5\nrig_model: [delay\n',
     'ros.yaml': '/**:\n  ros__parameters:\n    use_sim_time: true\n    tau_s: 2.0\n',
+    'binary_plant.yaml': 'rig_model: state_space\nplant_model: binary.yaml\n',
 }
+#: A file that is not UTF-8 text (the bytes 0-255: 0x80 is the first that is not).
+BINARY = bytes(range(256))
 
 #: id -> (arguments after 'seft', expected error line as a regex, stderr is only that line)
 CASES = {
@@ -76,6 +79,12 @@ CASES = {
                      r'invalid\.yaml: line \d+: invalid YAML \(.+\)'),
     'yaml_ros_format': (['simulate', 'ros.yaml'],
                         re.escape('ros.yaml: parameter tau_s=2.0: expected float > 0 <= 1')),
+    'yaml_not_utf8': (['simulate', 'binary.yaml'], re.escape(
+        'binary.yaml: not UTF-8 text (byte 128); expected a YAML file')),
+    'params_not_utf8': (['simulate', '--params', 'binary.yaml'], re.escape(
+        'binary.yaml: not UTF-8 text (byte 128); expected a YAML file')),
+    'plant_model_not_utf8': (['simulate', 'binary_plant.yaml'], re.escape(
+        'binary.yaml: not UTF-8 text (byte 128); expected a YAML file')),
     'yaml_missing': (['simulate', 'nope.yaml'],
                      re.escape('nope.yaml: no such configuration file')),
     'out_not_empty': (['simulate', '--out', 'full'], re.escape(
@@ -96,6 +105,7 @@ CASES = {
 def make_inputs(cwd):
     for name, text in FILES.items():
         (cwd / name).write_text(text)
+    (cwd / 'binary.yaml').write_bytes(BINARY)
     (cwd / 'plain_dir').mkdir()
     (cwd / 'plain_dir' / 'notes.txt').write_text('not a bag\n')
     (cwd / 'full').mkdir()

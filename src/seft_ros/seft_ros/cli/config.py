@@ -33,7 +33,7 @@ from seft_msgs_py import parameters
 from seft_msgs_py.errors import InputError, ParameterError
 
 __all__ = ['load_config', 'expand_runs', 'write_params_file', 'ConfigLoader', 'layer_rigs',
-           'RIGS', 'mapping_values']
+           'RIGS', 'mapping_values', 'read_yaml']
 
 #: The key of :func:`load_config`'s result that holds a layered file's ``rigs`` section.
 RIGS = 'rigs'
@@ -78,13 +78,7 @@ def load_config(path, *, layer: bool = False) -> dict[str, Any]:
     path = Path(path)
     if not path.is_file():
         raise InputError(f'{path}: no such configuration file')
-    try:
-        data = yaml.load(path.read_text(), Loader=ConfigLoader)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, 'problem_mark', None)
-        where = f': line {mark.line + 1}' if mark is not None else ''
-        raise InputError(f'{path}{where}: invalid YAML ({getattr(exc, "problem", exc)})') \
-            from None
+    data = read_yaml(path)
     if data is None:
         return {}
     if not isinstance(data, dict):
@@ -119,6 +113,29 @@ def load_config(path, *, layer: bool = False) -> dict[str, Any]:
     return data
 
 
+def read_yaml(path: Path) -> Any:
+    """The YAML document of the file `path` (read with :class:`ConfigLoader`).
+
+    Raises
+    ------
+    InputError
+        The file is not UTF-8 text, or not valid YAML (the message names the file, and the
+        line when the parser knows it).
+    """
+    try:
+        text = path.read_text(encoding='utf-8')
+    except UnicodeDecodeError as exc:
+        raise InputError(f'{path}: not UTF-8 text (byte {exc.start}); expected a YAML file') \
+            from None
+    try:
+        return yaml.load(text, Loader=ConfigLoader)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, 'problem_mark', None)
+        where = f': line {mark.line + 1}' if mark is not None else ''
+        raise InputError(f'{path}{where}: invalid YAML ({getattr(exc, "problem", exc)})') \
+            from None
+
+
 def mapping_values(values: dict[str, Any], *, base: Path | None = None,
                    where: str = '') -> dict[str, Any]:
     """`values` with each mapping parameter (``seft_msgs_py.parameters.MAPPING_PARAMETERS``:
@@ -149,11 +166,7 @@ def mapping_values(values: dict[str, Any], *, base: Path | None = None,
             if not file.is_file():
                 raise InputError(f'{label}: {value}: no such file (a mapping, its JSON, or the '
                                  'path of a YAML file holding it)')
-            try:
-                doc = yaml.load(file.read_text(), Loader=ConfigLoader)
-            except yaml.YAMLError as exc:
-                raise InputError(f'{file}: invalid YAML ({getattr(exc, "problem", exc)})') \
-                    from None
+            doc = read_yaml(file)
             if isinstance(doc, dict) and list(doc) == [name] and isinstance(doc[name], dict):
                 doc = doc[name]                     # a file with the parameter's own key
             if not isinstance(doc, dict):
