@@ -32,6 +32,8 @@ C = 0.02 * math.sqrt(K * M)
 AREA, CH, KQ, KL = 2.0e-3, 3.8e-3 / 4.0e9, 1.2e-4, 2e-12
 WV, ZV = 2 * math.pi * 50.0, 0.67
 LATENCY = 0.003
+#: A specimen for the models that give the force alone.
+SPECIMEN = {'mass_kg': 52.7, 'damping_N_s_per_m': 903.3, 'stiffness_N_per_m': 2.11e5}
 
 
 def continuous():
@@ -216,14 +218,15 @@ def test_hold_factor_is_the_step_average_of_a_sinusoid():
 
 def test_the_held_force_is_the_force_of_a_plant_that_holds_its_force():
     """A specimen driven by a held force delayed two steps: the held force the model
-    computes from its motion is that force, exactly."""
+    computes from its motion is that force, exactly (the measured force, the spring's and
+    the damper's here, plays no part)."""
     from scipy.signal import cont2discrete
     sa = np.array([[0.0, 1.0], [-K / M, -C / M]])
     sb = np.array([[0.0], [1.0 / M]])
     phi, gam, *_ = cont2discrete((sa, sb, np.eye(2), np.zeros((2, 1))), DT, 'zoh')
     plant = parse_plant({'form': 'state_space', 'dt': DT, 'io_delay_s': 2 * DT,
                          'a': phi.tolist(), 'b': gam[:, 0].tolist(),
-                         'c': {'force_N': [0.0, 0.0], 'displacement_m': [1.0, 0.0],
+                         'c': {'force_N': [K, C], 'displacement_m': [1.0, 0.0],
                                'velocity_m_s': [0.0, 1.0], 'acceleration_m_s2': [0.0, 0.0]},
                          'specimen': {'mass_kg': M, 'damping_N_s_per_m': C,
                                       'stiffness_N_per_m': K}}, dt=DT)
@@ -260,7 +263,48 @@ def test_the_held_force_is_the_force_of_a_plant_that_holds_its_force():
                                       r'> 0$'),
     ({'form': 'state_space', 'a': [[0.5]], 'b': [1.0], 'c': {'force_N': [1.0]}, 'gain': 2},
      r'^plant_model: unknown field\(s\) gain; expected some of'),
+    # a misspelt key of the specimen or the uncertainty is named, not read as missing
+    ({'form': 'state_space', 'a': [[0.5]], 'b': [1.0], 'c': {'force_N': [1.0]},
+      'specimen': {'mass_kg': 52.7, 'damping': 903.3, 'stiffness_N_per_m': 2.11e5}},
+     r'^plant_model.specimen: unknown field\(s\) damping; expected some of '
+     r'damping_N_s_per_m, mass_kg, stiffness_N_per_m$'),
+    ({'form': 'state_space', 'a': [[0.5]], 'b': [1.0], 'c': {'force_N': [1.0]},
+      'specimen': SPECIMEN, 'uncertainty': {'relativ': 0.5}},
+     r'^plant_model.uncertainty: unknown field\(s\) relativ; expected some of band_hz, '
+     r'frequency, note, peak_force_N, peak_velocity_m_s, relative$'),
+    # a delay of 2 s (meant: 2 ms) would be 1000 states
+    ({'form': 'state_space', 'io_delay_s': 2.0, 'a': [[-1.0]], 'b': [1.0],
+      'c': {'force_N': [1.0]}, 'specimen': SPECIMEN},
+     r"^plant_model.io_delay_s=2: expected at most 50 steps of the run's dt=0.002 s \(0.1 s; "
+     r'each step is a state of the sampled model\)$'),
+    # a force that does not depend on the valve command
+    ({'form': 'transfer_function', 'num': {'force_N': [0.0]}, 'den': [1.0, 3.0],
+      'specimen': SPECIMEN},
+     r'^plant_model.num.force_N: all zero: the force does not depend on the valve command; '
+     r'expected a non-zero numerator$'),
+    ({'form': 'state_space', 'a': [[-1.0]], 'b': [1.0], 'c': {'force_N': [0.0]},
+      'specimen': SPECIMEN},
+     r'^plant_model.c.force_N: the force does not depend on the valve command'),
+    ({'form': 'state_space', 'a': [[-1.0, 0.0], [0.0, -2.0]], 'b': [1.0, 0.0],
+      'c': {'force_N': [0.0, 5.0]}, 'specimen': SPECIMEN},      # a state b never reaches
+     r'^plant_model.c.force_N: the force does not depend on the valve command \(c.force_N '
+     r'\(sI - a\)\^-1 b is zero\); expected the force row of the model$'),
+    ({'form': 'state_space', 'a': [[-1.0]], 'b': [0.0], 'c': {'force_N': [1.0]},
+      'specimen': SPECIMEN},
+     r'^plant_model.b: all zero: the valve command drives nothing'),
 ])
 def test_a_bad_model_is_refused_in_one_line_naming_the_field(doc, message):
     with pytest.raises(ParameterError, match=message):
         parse_plant(doc, dt=DT)
+
+
+def test_the_io_delay_bound_is_the_longest_loop_delay_a_compensator_inverts():
+    """50 steps of dt are accepted (the largest predictor_loop_delay_steps); one more is not."""
+    from seft_msgs_py.parameters import spec
+    from seft_msgs_py.plant import MAX_IO_DELAY_STEPS
+    assert MAX_IO_DELAY_STEPS == spec('predictor_loop_delay_steps').maximum
+    doc = {'form': 'state_space', 'dt': DT, 'a': [[0.5]], 'b': [1.0], 'c': {'force_N': [1.0]},
+           'specimen': SPECIMEN, 'io_delay_s': MAX_IO_DELAY_STEPS * DT}
+    assert parse_plant(doc, dt=DT).order == 1 + 2 + MAX_IO_DELAY_STEPS
+    with pytest.raises(ParameterError, match=r'^plant_model.io_delay_s=0.102: expected at most '):
+        parse_plant(dict(doc, io_delay_s=(MAX_IO_DELAY_STEPS + 1) * DT), dt=DT)

@@ -460,7 +460,9 @@ SCHEMA: tuple[ParamSpec, ...] = (
     ParamSpec('plant_model', 'none', '', "The force loop's plant as data: valve command [V] to "
               'measured force, displacement, velocity and acceleration with the specimen in the '
               'loop (seft_msgs_py.plant), a mapping {form: state_space | transfer_function, dt '
-              '(0: continuous), io_delay_s, a/b/c or num/den, specimen, uncertainty} (written '
+              '(0: continuous), io_delay_s (at most 50 steps of dt: '
+              'seft_msgs_py.plant.MAX_IO_DELAY_STEPS), a/b/c or num/den, specimen, '
+              'uncertainty} (written '
               "by seft identify --params, or the lab's own); in a configuration file a YAML "
               "mapping or the path of a YAML file holding one, here its JSON. 'none': the "
               "servohydraulic rig's own model. The force-controller design, the compensators' "

@@ -49,13 +49,20 @@ from seft_msgs_py.sampling import split_delay, zoh
 
 __all__ = ['OUTPUTS', 'PlantModel', 'PlantUncertainty', 'Specimen', 'LoopResponses',
            'sample_continuous', 'hold_factor', 'controller_response', 'parse_plant',
-           'MOTION_OUTPUTS']
+           'MOTION_OUTPUTS', 'MAX_IO_DELAY_STEPS']
 
 #: The outputs of a :class:`PlantModel`, rows of its ``c``, in this order.
 OUTPUTS = ('force_N', 'displacement_m', 'velocity_m_s', 'acceleration_m_s2')
 #: The motion outputs, which a model of the force alone derives from its specimen.
 MOTION_OUTPUTS = OUTPUTS[1:]
 _FORMS = ('state_space', 'transfer_function')
+#: The longest pure delay of the command a lab's model may state (``io_delay_s``), in steps of
+#: the run's ``dt``. Each step of it is a state of the sampled model (a 2 s delay at 2 ms made
+#: 1000 states, and ``seft design``'s frequency response on them wanted 50 GiB; at 50 steps
+#: the design of a 6-state model takes 0.5 GB and 8 s), and the 'model' compensator inverts
+#: the force loop to at most this many steps of delay (the largest
+#: ``predictor_loop_delay_steps``): it could not compensate a longer one anyway.
+MAX_IO_DELAY_STEPS = 50
 
 
 @dataclass(frozen=True)
@@ -99,11 +106,13 @@ class Specimen:
         Raises
         ------
         ParameterError
-            A value missing, not a number or out of range (the message names `where`).
+            An unknown key, a value missing, not a number or out of range (the message names
+            `where`).
         """
         if not isinstance(doc, Mapping):
             raise ParameterError(f'{where}: expected a mapping with mass_kg, '
                                  'damping_N_s_per_m and stiffness_N_per_m')
+        _known_fields(doc, ('mass_kg', 'damping_N_s_per_m', 'stiffness_N_per_m'), where)
         values = []
         for key, positive in (('mass_kg', True), ('damping_N_s_per_m', False),
                               ('stiffness_N_per_m', True)):
@@ -172,11 +181,13 @@ class PlantUncertainty:
         Raises
         ------
         ParameterError
-            A value not a number or out of range.
+            An unknown key, a value not a number or out of range.
         """
         if not isinstance(doc, Mapping):
             raise ParameterError(f'{where}: expected a mapping with relative (and band_hz, '
                                  'note)')
+        _known_fields(doc, ('relative', 'band_hz', 'note', 'frequency', 'peak_force_N',
+                            'peak_velocity_m_s'), where)
         rel = doc.get('relative', 0.0)
         if isinstance(rel, bool) or not isinstance(rel, (int, float)) \
                 or not (math.isfinite(rel) and rel >= 0):
@@ -773,7 +784,8 @@ def parse_plant(doc, *, dt: float, specimen: Specimen | None = None,
 
             form: state_space | transfer_function
             dt: 0.002          # the model's period [s]; absent or 0: continuous
-            io_delay_s: 0.003  # pure delay of the command [s] (discrete: whole steps)
+            io_delay_s: 0.003  # pure delay of the command [s] (discrete: whole steps;
+                               # at most MAX_IO_DELAY_STEPS steps of dt)
             # state_space: s' = a s + b u (or s[k+1] = ...), y = c s
             a: [[...], ...]
             b: [...]
@@ -808,17 +820,16 @@ def parse_plant(doc, *, dt: float, specimen: Specimen | None = None,
     ParameterError
         Not a mapping, an unknown form or output, shapes that do not fit, a feedthrough (the
         sample of step k would depend on its own command), a discrete model of another period,
-        or a discrete delay that is not whole steps. The message names `where` and the field.
+        a discrete delay that is not whole steps, a delay longer than
+        :data:`MAX_IO_DELAY_STEPS` steps, a force that does not depend on the valve command
+        (a zero force row or numerator), an unknown key (in the specimen and uncertainty too).
+        The message names `where` and the field.
     """
     from seft_msgs_py.parameters import mapping_value
     doc = mapping_value(doc, where=where,
                         expected='a plant model mapping (form, dt, a/b/c or num/den, ...)')
-    known = {'form', 'dt', 'io_delay_s', 'a', 'b', 'c', 'd', 'num', 'den', 'specimen',
-             'uncertainty', 'source', 'info'}
-    unknown = sorted(set(doc) - known)
-    if unknown:
-        raise ParameterError(f'{where}: unknown field(s) {", ".join(unknown)}; expected some '
-                             f'of {", ".join(sorted(known))}')
+    _known_fields(doc, ('form', 'dt', 'io_delay_s', 'a', 'b', 'c', 'd', 'num', 'den',
+                        'specimen', 'uncertainty', 'source', 'info'), where)
     form = doc.get('form')
     if form not in _FORMS:
         raise ParameterError(f'{where}.form={form!r}: expected one of '
@@ -832,6 +843,11 @@ def parse_plant(doc, *, dt: float, specimen: Specimen | None = None,
                              f"run's period dt={run_dt:g} s (give it continuous, or identify "
                              'it at this period)')
     delay = _number(doc.get('io_delay_s', 0.0) or 0.0, f'{where}.io_delay_s', nonneg=True)
+    if delay > MAX_IO_DELAY_STEPS * run_dt * (1 + 1e-9):
+        raise ParameterError(f'{where}.io_delay_s={delay:g}: expected at most '
+                             f"{MAX_IO_DELAY_STEPS} steps of the run's dt={run_dt:g} s "
+                             f'({MAX_IO_DELAY_STEPS * run_dt:g} s; each step is a state of the '
+                             'sampled model)')
     if 'specimen' in doc:
         specimen = Specimen.from_mapping(doc['specimen'], where=f'{where}.specimen')
     unc = (PlantUncertainty.from_mapping(doc['uncertainty'], where=f'{where}.uncertainty')
@@ -850,6 +866,13 @@ def parse_plant(doc, *, dt: float, specimen: Specimen | None = None,
             raise ParameterError(f'{where}.b: expected {n} numbers (one input: the valve '
                                  f'command), got {b.size}')
         rows = _outputs(doc['c'], f'{where}.c', n)
+        if not np.any(b):
+            raise ParameterError(f'{where}.b: all zero: the valve command drives nothing; '
+                                 'expected the input column of the valve command')
+        if _zero_response(a, b, rows['force_N']):
+            raise ParameterError(f'{where}.c.force_N: the force does not depend on the valve '
+                                 'command (c.force_N (sI - a)^-1 b is zero); expected the '
+                                 'force row of the model')
         if not _all_zero(doc.get('d', 0.0)):
             raise ParameterError(f'{where}.d: expected zero (no feedthrough: the sample of t_k '
                                  'cannot depend on the command of step k; put a delay in '
@@ -863,6 +886,9 @@ def parse_plant(doc, *, dt: float, specimen: Specimen | None = None,
         if den[0] == 0:
             raise ParameterError(f'{where}.den: expected a non-zero leading coefficient')
         nums = _outputs(doc['num'], f'{where}.num', None)
+        if not np.any(nums['force_N']):
+            raise ParameterError(f'{where}.num.force_N: all zero: the force does not depend '
+                                 'on the valve command; expected a non-zero numerator')
         for key, num in nums.items():
             num = np.trim_zeros(num, 'f')
             if num.size >= den.size:
@@ -886,6 +912,32 @@ def parse_plant(doc, *, dt: float, specimen: Specimen | None = None,
                       source=str(doc.get('source', '') or f'{where} ({form}, '
                                  f'{"discrete" if discrete else "continuous"})'),
                       info=info)
+
+
+def _known_fields(doc: Mapping, known, where: str) -> None:
+    """Refuse a key of `doc` not in `known`, naming it and the expected ones."""
+    unknown = sorted(str(k) for k in set(doc) - set(known))
+    if unknown:
+        raise ParameterError(f'{where}: unknown field(s) {", ".join(unknown)}; expected some '
+                             f'of {", ".join(sorted(known))}')
+
+
+def _zero_response(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> bool:
+    """Whether ``c (sI - a)^-1 b`` (or in z) is zero: `c` orthogonal to each Krylov vector
+    ``a^k b``, k < n, each normalized (relative 1e-12), so that no power overflows."""
+    v = b[:, 0].astype(float)
+    scale = float(np.linalg.norm(c))
+    if scale == 0.0:
+        return True
+    for _ in range(a.shape[0]):
+        norm = float(np.linalg.norm(v))
+        if norm == 0.0:
+            break
+        v = v / norm
+        if abs(float(c @ v)) > 1e-12 * scale:
+            return False
+        v = a @ v
+    return True
 
 
 def _all_zero(value) -> bool:

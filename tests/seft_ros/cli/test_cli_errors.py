@@ -15,6 +15,10 @@ from rosbags.typesys import Stores, get_typestore
 
 AT2_HEAD = 'PEER NGA STRONG MOTION DATABASE RECORD\nTest, 1/1/2000, STA, 0\n' \
     'ACCELERATION TIME SERIES IN UNITS OF G\n'
+#: A lab's plant model of the force alone (the motion from its specimen).
+PLANT = ('form: transfer_function\nnum: {{force_N: {num}}}\nden: [1.0, 100.0]\n'
+         'io_delay_s: {delay}\nspecimen: {specimen}\n')
+SPECIMEN = '{mass_kg: 52.7, damping_N_s_per_m: 903.3, stiffness_N_per_m: 211000.0}'
 FILES = {
     'npts.AT2': AT2_HEAD + 'NPTS= abc, DT= 0.01 SEC\n0.1 0.2 0.3 0.4 0.5\n',
     'short.AT2': AT2_HEAD + 'NPTS= 12, DT= 0.01 SEC\n0.1 0.2 0.3 0.4 0.5\n0.1 0.2 0.3 0.4 0.5\n',
@@ -31,6 +35,13 @@ FILES = {
     'invalid.yaml': 'alpha: 0.5\nrig_model: [delay\n',
     'ros.yaml': '/**:\n  ros__parameters:\n    use_sim_time: true\n    tau_s: 2.0\n',
     'binary_plant.yaml': 'rig_model: state_space\nplant_model: binary.yaml\n',
+    'zero_force.yaml': PLANT.format(num='[0.0]', delay=0.003, specimen=SPECIMEN),
+    'zero_force_run.yaml': 'rig_model: state_space\nplant_model: zero_force.yaml\n',
+    'long_delay.yaml': PLANT.format(num='[1.0e6]', delay=2.0, specimen=SPECIMEN),
+    'long_delay_run.yaml': 'rig_model: state_space\nplant_model: long_delay.yaml\n',
+    'specimen_typo.yaml': PLANT.format(num='[1.0e6]', delay=0.003, specimen=SPECIMEN.replace(
+        'damping_N_s_per_m', 'damping')),
+    'specimen_typo_run.yaml': 'rig_model: state_space\nplant_model: specimen_typo.yaml\n',
 }
 #: A file that is not UTF-8 text (the bytes 0-255: 0x80 is the first that is not).
 BINARY = bytes(range(256))
@@ -85,6 +96,15 @@ CASES = {
         'binary.yaml: not UTF-8 text (byte 128); expected a YAML file')),
     'plant_model_not_utf8': (['simulate', 'binary_plant.yaml'], re.escape(
         'binary.yaml: not UTF-8 text (byte 128); expected a YAML file')),
+    'plant_zero_force': (['simulate', 'zero_force_run.yaml', '--predictor', 'none'], re.escape(
+        'zero_force_run.yaml: parameter plant_model.num.force_N: all zero: the force does not '
+        'depend on the valve command; expected a non-zero numerator')),
+    'plant_long_delay': (['simulate', 'long_delay_run.yaml'], re.escape(
+        'long_delay_run.yaml: parameter plant_model.io_delay_s=2: expected at most 50 steps of '
+        "the run's dt=0.002 s (0.1 s; each step is a state of the sampled model)")),
+    'plant_specimen_typo': (['simulate', 'specimen_typo_run.yaml'], re.escape(
+        'specimen_typo_run.yaml: parameter plant_model.specimen: unknown field(s) damping; '
+        'expected some of damping_N_s_per_m, mass_kg, stiffness_N_per_m')),
     'yaml_missing': (['simulate', 'nope.yaml'],
                      re.escape('nope.yaml: no such configuration file')),
     'out_not_empty': (['simulate', '--out', 'full'], re.escape(
