@@ -253,3 +253,51 @@ def test_runs_that_cannot_run_are_refused(tmp_path):
     assert lines and lines[0].startswith('opensees: two_story.py:build: a dry run of 500 steps')
     check_runs([dict(base, structure=parse_structure(_section()).to_json(),
                      mode='realtime')], progress=lines.append)
+
+
+@pytest.mark.parametrize('text, function, message', [
+    ('import sys\ndef build():\n    sys.exit(3)\n', 'build',
+     'structure.opensees.model: model.py: build() failed: SystemExit: 3'),
+    ('import sys\nprint("built")\nsys.exit(0)\n', None,
+     'structure.opensees.model: model.py failed: SystemExit: 0'),
+    ('import sys\nsys.exit("no licence")\ndef build():\n    pass\n', 'build',
+     'structure.opensees.model: model.py: importing it raised SystemExit: no licence'),
+])
+def test_a_model_that_calls_sys_exit_is_refused(tmp_path, text, function, message):
+    """sys.exit() in a model (its function, a script, or at import) is the model's failure,
+    not seft's exit: before, seft ended silently with the model's status (0 looked like
+    success)."""
+    path = tmp_path / 'model.py'
+    path.write_text(text)
+    with pytest.raises(ModelError) as info:
+        parse_structure(_section(model=str(path), function=function))
+    assert str(info.value) == message
+
+
+def test_a_model_interrupted_by_ctrl_c_still_interrupts(tmp_path):
+    """Only SystemExit is the model's failure: a KeyboardInterrupt stops seft."""
+    path = _model(tmp_path, """
+        def build():
+            raise KeyboardInterrupt
+    """)
+    with pytest.raises(KeyboardInterrupt):
+        parse_structure(_section(model=path))
+
+
+def test_seft_simulate_on_a_script_that_exits_0_fails(tmp_path, seft_exe, run_process):
+    """The real command on a script model ending in sys.exit(0): one error line, exit 2, no
+    run (it ended with exit 0 and no output)."""
+    (tmp_path / 'exits.py').write_text(
+        "import openseespy.opensees as ops\nops.wipe(); ops.model('basic', '-ndm', 1, '-ndf', 1)"
+        "\nimport sys; sys.exit(0)\n")
+    (tmp_path / 'exits.yaml').write_text(
+        'structure:\n  opensees:\n    model: exits.py\n    function: null\n'
+        '    dofs: {s1: [1, 1]}\n    physical_elements: {lab: [1]}\n  physical: {s1: lab}\n')
+    proc = run_process([seft_exe, 'simulate', 'exits.yaml', '--duration', '1', '--out', 'out'],
+                       cwd=tmp_path)
+    assert proc.returncode == 2, proc.stderr
+    assert 'Traceback' not in proc.stderr
+    errors = [ln for ln in proc.stderr.splitlines() if ln.startswith('seft: error: ')]
+    assert errors == ['seft: error: exits.yaml: structure.opensees.model: exits.py failed: '
+                      'SystemExit: 0']
+    assert not (tmp_path / 'out').exists()

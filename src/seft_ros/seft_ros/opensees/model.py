@@ -348,9 +348,9 @@ def _builder(spec: ModelSpec):
             module = importlib.import_module(spec.source)
     except ModelError:
         raise
-    except Exception as exc:
+    except (Exception, SystemExit) as exc:    # sys.exit() in the module: not seft's exit
         raise ModelError(f'{where}: {Path(spec.source).name}: importing it raised '
-                         f'{type(exc).__name__}: {exc}') from None
+                         f'{_raised(exc)}') from None
     fn = getattr(module, spec.function, None)
     if not callable(fn):
         raise ModelError(f'{spec.where}.function: {Path(spec.source).name} has no function '
@@ -380,7 +380,8 @@ def build_model(spec: ModelSpec, *, test: bool = False) -> None:
     Raises
     ------
     ModelError
-        The model function raised, or OpenSees refused a command (its message kept).
+        The model function raised (or called sys.exit), or OpenSees refused a command (its
+        message kept).
     ParameterError
         A DOF's node missing or its DOF beyond the node's, a physical element missing or not
         connected to its rig's interface node.
@@ -393,16 +394,22 @@ def build_model(spec: ModelSpec, *, test: bool = False) -> None:
             ops.wipe()
             fn(**dict(spec.arguments))
             error = None
-        except Exception as exc:
+        except (Exception, SystemExit) as exc:  # sys.exit() in the model: not seft's exit
             error = exc
     if error is not None:
         said = last_message(log.text)
         detail = f'OpenSees: {said}' if said and 'See' in str(error) else (
-            f'{type(error).__name__}: {error}' + (f' (OpenSees: {said})' if said else ''))
+            _raised(error) + (f' (OpenSees: {said})' if said else ''))
         raise ModelError(f'{spec.where}.model: {name} failed: {detail}')
     _check_model(spec, name)
     if test:
         remove_specimens(spec)
+
+
+def _raised(exc: BaseException) -> str:
+    """``Type: message`` of an exception a model raised (a ``SystemExit`` with its code)."""
+    said = exc.code if isinstance(exc, SystemExit) else exc
+    return f'{type(exc).__name__}: {said}'
 
 
 def _check_model(spec: ModelSpec, name: str) -> None:
