@@ -255,6 +255,51 @@ def test_runs_that_cannot_run_are_refused(tmp_path):
                      mode='realtime')], progress=lines.append)
 
 
+#: A 2-D cantilever (ndf 3) with its floor's mass horizontal only, the specimen a horizontal
+#: spring from a fixed node: no mass in dof 2 (vertical) or 3 (the rotation).
+CANTILEVER_2D = """
+    import openseespy.opensees as ops
+    def build():
+        ops.wipe(); ops.model('basic', '-ndm', 2, '-ndf', 3)
+        ops.node(0, 0.0, 0.0); ops.fix(0, 1, 1, 1)
+        ops.node(1, 0.0, 1.0); ops.mass(1, 52.7, 0.0, 0.0)
+        ops.geomTransf('Linear', 1)
+        ops.element('elasticBeamColumn', 2, 0, 1, 4.8e-4, 200e9, 6.4e-8, 1)
+        ops.node(9, 0.0, 1.0); ops.fix(9, 1, 1, 1)
+        ops.uniaxialMaterial('Elastic', 1, 2.11e5, 903.278)
+        ops.element('zeroLength', 1, 9, 1, '-mat', 1, '-dir', 1)
+"""
+
+
+@pytest.mark.parametrize('model, excitation, ndf', [
+    (None, 2, 1),                   # the 1-D two-story building
+    (CANTILEVER_2D, 2, 3), (CANTILEVER_2D, 3, 3), (CANTILEVER_2D, 7, 3)])
+def test_an_excitation_dof_without_mass_is_refused(tmp_path, model, excitation, ndf):
+    """An excitation direction in which no DOF has mass would excite nothing (a run of a
+    structure that never moves, reported stable): refused, naming the directions with mass.
+    The rotation of a 2-D frame (dof 3) was refused as 'the elements carry mass'."""
+    change = {'excitation_dof': excitation}
+    if model is not None:
+        change.update(model=_model(tmp_path, model), dofs={'top': [1, 1]})
+    section = _section(**change)
+    if model is not None:
+        section['physical'] = {'top': 'lab'}
+    with pytest.raises(ParameterError) as info:
+        parse_structure(section)
+    assert str(info.value) == (
+        f'structure.opensees.excitation_dof: {excitation}: no DOF with mass in that direction '
+        f'(the model has ndf {ndf}; masses in dof 1)')
+
+
+def test_the_excitation_dof_with_mass_is_taken(tmp_path):
+    """The same 2-D cantilever excited along its floor's mass: one DOF, excited."""
+    s = parse_structure({'opensees': {'model': _model(tmp_path, CANTILEVER_2D),
+                                      'dofs': {'top': [1, 1]}, 'physical_elements': {'lab': [1]},
+                                      'excitation_dof': 1}, 'physical': {'top': 'lab'}})
+    assert s.dofs == ('top',)
+    np.testing.assert_allclose(s.influence, [1.0])
+
+
 @pytest.mark.parametrize('text, function, message', [
     ('import sys\ndef build():\n    sys.exit(3)\n', 'build',
      'structure.opensees.model: model.py: build() failed: SystemExit: 3'),

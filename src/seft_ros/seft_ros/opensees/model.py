@@ -736,6 +736,7 @@ def model_structure(section: Mapping, *, rigs: Mapping | None = None,
             raise ParameterError(f'{where}.physical: rig {rig} tests node {node} dof {dof}, '
                                  'which the model fixes')
     dofs, eqs = _mass_dofs(whole, spec)
+    _check_excitation(spec, dofs)
     m, c, k = condense(whole, eqs, where=spec.where)
     # the computational part: the specimens removed
     build_model(spec, test=True)
@@ -816,6 +817,19 @@ def interface_group(node: int, dof: int) -> list[int]:
             if dof in ops.getConstrainedDOFs(c) and c not in group:
                 group.append(int(c))
     return group
+
+
+def _check_excitation(spec: ModelSpec, dofs) -> None:
+    """Refuse an ``excitation_dof`` in which no DOF of the model has mass (the ground
+    motion would load nothing), with the model in OpenSees."""
+    directions = sorted({d for _, _, d in dofs})
+    if spec.excitation_dof in directions:
+        return
+    ops = opensees()
+    ndf = max(len(ops.nodeDisp(node)) for node in ops.getNodeTags())
+    raise ParameterError(f'{spec.where}.excitation_dof: {spec.excitation_dof}: no DOF with mass '
+                         f'in that direction (the model has ndf {ndf}; masses in dof '
+                         f'{", ".join(str(d) for d in directions)})')
 
 
 def _check_elements_mass(lin: Linearization, spec: ModelSpec) -> None:
