@@ -42,9 +42,16 @@ FILES = {
     'specimen_typo.yaml': PLANT.format(num='[1.0e6]', delay=0.003, specimen=SPECIMEN.replace(
         'damping_N_s_per_m', 'damping')),
     'specimen_typo_run.yaml': 'rig_model: state_space\nplant_model: specimen_typo.yaml\n',
+    'alpha_twice.yaml': 'alpha: [0.5, 1, 0.50]\n',
 }
 #: A file that is not UTF-8 text (the bytes 0-255: 0x80 is the first that is not).
 BINARY = bytes(range(256))
+
+
+def given_too(setting, option):
+    """The refusal of ``--set NAME=VALUE`` with the parameter's own option."""
+    return re.escape(f'--set {setting}: {option} is given too; expected the value once')
+
 
 #: id -> (arguments after 'seft', expected error line as a regex, stderr is only that line)
 CASES = {
@@ -109,8 +116,49 @@ CASES = {
                      re.escape('nope.yaml: no such configuration file')),
     'out_not_empty': (['simulate', '--out', 'full'], re.escape(
         'full: output directory exists and is not empty; expected a new directory')),
-    'n_steps_too_long': (['simulate', '--set', 'n_steps=100000'], re.escape(
+    'n_steps_too_long': (['simulate', '--set', 'duration_s=1', '--set', 'n_steps=100000'],
+                         re.escape(
         'parameter n_steps=100000: expected <= 500 (the prepared record length)')),
+    # the same run twice, or two values of one parameter on one command line: refused
+    'alpha_twice': (['simulate', '--alpha', '0.5', '1', '0.50'], re.escape(
+        '--alpha 0.5 1.0 0.5: the same run twice; expected each value once')),
+    'predictor_twice': (['simulate', '--predictor', 'model', 'none', 'model'], re.escape(
+        '--predictor model none model: the same run twice; expected each value once')),
+    'record_twice': (['simulate', '--record', 'short.AT2', './short.AT2'], re.escape(
+        '--record short.AT2 ./short.AT2: the same run twice; expected each value once')),
+    'yaml_alpha_twice': (['simulate', 'alpha_twice.yaml'], re.escape(
+        'alpha_twice.yaml: parameter alpha: 0.5 twice: the same run twice; expected each '
+        'value once')),
+    'set_with_time_scale': (['simulate', '--set', 'time_scale=0.25', '--time-scale', '0.8'],
+                            given_too('time_scale=0.25', '--time-scale')),
+    'set_after_time_scale': (['simulate', '--time-scale', '0.8', '--set', 'time_scale=0.25'],
+                             given_too('time_scale=0.25', '--time-scale')),
+    'set_with_amplitude': (['simulate', '--set', 'amplitude_N=300', '--amplitude', '700'],
+                           given_too('amplitude_N=300', '--amplitude')),
+    'set_with_predictor': (['simulate', '--set', 'predictor=model', '--predictor',
+                            'polynomial'], given_too('predictor=model', '--predictor')),
+    'set_with_record': (['simulate', '--set', 'record=short.AT2', '--record', 'default'],
+                        given_too('record=short.AT2', '--record')),
+    'set_with_duration': (['simulate', '--set', 'duration_s=1', '--duration', '0.5'],
+                          given_too('duration_s=1', '--duration')),
+    'n_steps_with_duration': (['simulate', '--set', 'n_steps=10'],
+                              given_too('n_steps=10', '--duration')),
+    'record_given_twice': (['simulate', '--record', 'short.AT2', '--record', 'default'],
+                           re.escape('--record: given twice; expected it once (--record A B: '
+                                     'one run per value)')),
+    'amplitude_given_twice': (['simulate', '--amplitude', '500', '--amplitude', '700'],
+                              re.escape('--amplitude: given twice; expected it once')),
+    'amplitude_and_scale': (['simulate', '--amplitude', '500', '--scale', '2'], re.escape(
+        '--scale 2: an amplitude of 500 N is given too; expected one of them (--scale with '
+        'no amplitude or --amplitude 0)')),
+    'name_is_a_path': (['simulate', '--name', '../../x'], re.escape(
+        "--name '../../x': expected a run name, not a path (no '/', not '.' or '..')")),
+    'out_under_a_file': (['simulate', '--out', 'plain_dir/notes.txt/x'], re.escape(
+        '--out plain_dir/notes.txt/x: cannot create the output directory (Not a directory); '
+        'expected a directory that can be made')),
+    'out_in_proc': (['simulate', '--out', '/proc/seft_nope'], re.escape(
+        '--out /proc/seft_nope: cannot create the output directory (No such file or '
+        'directory); expected a directory that can be made')),
     'compare_not_a_bag': (['compare', 'plain_dir'],
                           re.escape('plain_dir: not a bag, a run directory (with bag/) '
                                     'or a folder of run directories') + '; .+'),
@@ -146,7 +194,10 @@ def results(tmp_path_factory, seft_exe, run_process):
         key, (args, _) = item
         argv = [seft_exe, *args]
         if args[0] == 'simulate':
-            argv += ['--duration', '1'] + ([] if '--out' in args else ['--out', f'out_{key}'])
+            # a case that gives the length by --set gets no --duration (refused with it)
+            length = ([] if any(a.startswith('duration_s=') for a in args)
+                      else ['--duration', '1'])
+            argv += length + ([] if '--out' in args else ['--out', f'out_{key}'])
         else:
             argv += ['--out', f'out_{key}']
         return key, run_process(argv, cwd=cwd, timeout=60)
@@ -209,6 +260,21 @@ def test_run_with_bad_record_fails_fast(seft_exe, run_process, tmp_path):
 def test_run_with_bad_parameter_starts_nothing(seft_exe, run_process, tmp_path):
     proc = run_process([seft_exe, 'run', '--alpha', '-1', '--out', 'out'], cwd=tmp_path)
     assert error_line(proc) == 'command line: parameter alpha=-1.0: expected float >= 0 <= 100'
+    assert len(proc.stderr.splitlines()) == 1
+    assert not (tmp_path / 'out').exists()
+
+
+@pytest.mark.parametrize('args, message', [
+    (['--alpha', '0.5', '0.5'], '--alpha 0.5 0.5: the same run twice; expected each value once'),
+    (['--set', 'predictor=model', '--predictor', 'none'],
+     '--set predictor=model: --predictor is given too; expected the value once')])
+def test_run_refuses_a_conflict_before_anything_starts(seft_exe, run_process,
+                                                         tmp_path, args, message):
+    # before: the second run's recorder failed on the first's bag, no report, and the first
+    # run's params.yaml and logs overwritten
+    proc = run_process([seft_exe, 'run', *args, '--duration', '0.2', '--out', 'out'],
+                       cwd=tmp_path)
+    assert error_line(proc) == message
     assert len(proc.stderr.splitlines()) == 1
     assert not (tmp_path / 'out').exists()
 

@@ -41,7 +41,8 @@ __all__ = ['build_runs', 'output_dir', 'remove_empty_dirs', 'run_experiments',
            'summary_table', 'criteria_table',
            'Result', 'check_stability', 'check_domain', 'open_runner', 'stability_entry',
            'stability_report', 'stability_table', 'StabilityResult', 'identify_bags',
-           'identification_table', 'check_ranges', 'RangeRefusedError', 'check_settings']
+           'identification_table', 'check_ranges', 'RangeRefusedError', 'check_settings',
+           'run_labels', 'alpha_text']
 
 
 class Result:
@@ -145,7 +146,7 @@ def output_dir(*, out: str | None, name: str, created: list[Path] | None = None)
     Raises
     ------
     InputError
-        `out` exists and is not an empty directory.
+        `out` exists and is not an empty directory, or the directory cannot be made.
     """
     if out:
         path = Path(out)
@@ -159,7 +160,13 @@ def output_dir(*, out: str | None, name: str, created: list[Path] | None = None)
             i += 1
             path = base.with_name(f'{base.name}-{i}')
     missing = [d for d in (*reversed(path.parents), path) if not d.exists()]
-    path.mkdir(parents=True, exist_ok=True)
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        what = f'--out {out}' if out else str(path)
+        raise InputError(f'{what}: cannot create the output directory '
+                         f'({exc.strerror or exc}); expected a directory that can be '
+                         'made') from None
     if created is not None:
         created.extend(missing)
     return path
@@ -176,16 +183,71 @@ def remove_empty_dirs(dirs: list[Path]) -> None:
             d.rmdir()
 
 
+def alpha_text(alpha: float) -> str:
+    """`alpha` as a run label shows it: ``:g`` (``0.5``, ``1``), or every digit when ``:g``
+    would round it (``0.1234561``), so that different alphas never share a label."""
+    short = f'{float(alpha):g}'
+    return short if float(short) == float(alpha) else repr(float(alpha))
+
+
+def _record_names(records: list) -> dict:
+    """Each record's part of a run label: its file stem; records that share a stem are told
+    apart by their folder's name before it (``rec2_dt001``), and where that is shared too, by
+    their position among them (``dt001-2``)."""
+    def clean(text):
+        return ''.join(c if c.isalnum() or c in '-_.' else '_' for c in text)
+
+    names = {r: clean(Path(str(r)).stem) for r in records}
+    for rule in ('folder', 'index'):
+        groups: dict[str, list] = {}
+        for r in records:
+            groups.setdefault(names[r], []).append(r)
+        for shared in (g for g in groups.values() if len(g) > 1):
+            for i, r in enumerate(shared, 1):
+                stem = clean(Path(str(r)).stem)
+                names[r] = (f'{clean(Path(str(r)).resolve().parent.name)}_{stem}'
+                            if rule == 'folder' else f'{stem}-{i}')
+    return names
+
+
+def run_labels(runs: list[dict]) -> list[str]:
+    """The runs' directory names, unique (:func:`_run_label`).
+
+    Raises
+    ------
+    InputError
+        Two runs still share a label (the same run twice: refused before anything starts).
+    """
+    records = list(dict.fromkeys(str(r['record']) for r in runs))
+    several_alphas = len({float(r.get('alpha', 0.0)) for r in runs}) > 1
+    names = _record_names(records) if len(records) > 1 else {}
+    labels = []
+    for p in runs:
+        if has_structure(p):
+            label = 'structure_' + (f'alpha_{alpha_text(p["alpha"])}_' if several_alphas
+                                    else '') + str(p['predictor'])
+        else:
+            label = f'alpha_{alpha_text(p["alpha"])}_{p["rig_model"]}_{p["predictor"]}'
+        if names:
+            label += '_' + names[str(p['record'])]
+        labels.append(label)
+    shared = sorted({lb for lb in labels if labels.count(lb) > 1})
+    if shared:
+        raise InputError(f'runs {", ".join(shared)}: the same run twice; expected each record, '
+                         'predictor and alpha once')
+    return labels
+
+
 def _run_label(p: dict, runs: list[dict] | None = None) -> str:
     """A run's directory name (``alpha_<alpha>_<rig>_<predictor>``, a structure test's
-    ``structure_<predictor>``); with several records in `runs`, the record's file stem
-    too."""
-    label = (f'alpha_{p["alpha"]:g}_{p["rig_model"]}_{p["predictor"]}' if not has_structure(p)
-             else f'structure_{p["predictor"]}')
-    if runs and len({r['record'] for r in runs}) > 1:
-        stem = Path(str(p['record'])).stem
-        label += '_' + ''.join(c if c.isalnum() or c in '-_.' else '_' for c in stem)
-    return label
+    ``structure_<predictor>``, with ``alpha_<alpha>_`` before the predictor when the runs
+    have several alphas); with several records in `runs`, the record's part too
+    (:func:`_record_names`). Alpha as :func:`alpha_text` writes it."""
+    runs = runs or [p]
+    index = next((i for i, r in enumerate(runs) if r is p), None)
+    if index is None:
+        return run_labels([p])[0]
+    return run_labels(runs)[index]
 
 
 def _note_record_read(rd: RunData, params: dict) -> None:
@@ -258,7 +320,8 @@ def simulate_experiments(*, runs: list[dict], out_dir: Path,
         progress check (within about 0.5 s) and the workers exit before this re-raises.
     """
     t0 = time.monotonic()
-    bags = [out_dir / _run_label(p, runs) / 'bag' for p in runs] if bag else []
+    labels = run_labels(runs)             # each run its own directory, before anything starts
+    bags = [out_dir / label / 'bag' for label in labels] if bag else []
     for path in bags:
         if path.exists():
             raise InputError(f'{path}: the bag exists already; expected a new --out directory')
@@ -705,6 +768,7 @@ def run_experiments(*, runs: list[dict], out_dir: Path,
     if processes not in partition.PROCESSES:
         raise InputError(f'--processes {processes}: expected '
                          f'{" or ".join(partition.PROCESSES)}')
+    run_labels(runs)                      # each run its own directory, before anything starts
     if nodes is not None:
         nodes = check_nodes(nodes, runs)
         check_stability(runs=runs, force=force, progress=progress)

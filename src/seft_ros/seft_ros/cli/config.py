@@ -23,6 +23,7 @@ only a rig's parameters, never one of the whole test
 
 from dataclasses import replace
 import json
+import os
 from pathlib import Path
 import re
 from typing import Any
@@ -242,6 +243,30 @@ def layer_rigs(values: dict[str, Any], sections: dict[str, dict[str, Any]], *,
     return dict(values, structure=replace(s, rigs=MappingProxyType(rigs)).to_json())
 
 
+def same_value(name: str, value: Any) -> Any:
+    """What makes two values of a swept parameter the same run: an alpha's number, a
+    record's file (``rec/a.AT2`` and ``./rec/a.AT2`` are one record), else the value."""
+    if name == 'alpha':
+        try:
+            return float(value)
+        except (TypeError, ValueError):
+            return value
+    if name == 'record' and str(value) != 'default':
+        return os.path.realpath(str(value))
+    return value
+
+
+def repeated(name: str, values: list) -> Any:
+    """The first value of `values` that is the same run as an earlier one, else None."""
+    seen = set()
+    for v in values:
+        key = same_value(name, v)
+        if key in seen:
+            return v
+        seen.add(key)
+    return None
+
+
 def expand_runs(config: dict[str, Any], *, where: str = '',
                 notes: list[str] | None = None) -> list[dict[str, Any]]:
     """Validate a configuration and expand lists of ``record``, ``predictor`` and ``alpha``
@@ -267,6 +292,11 @@ def expand_runs(config: dict[str, Any], *, where: str = '',
         return values
 
     alphas, predictors, records = (values_of(n) for n in ('alpha', 'predictor', 'record'))
+    for name, values in (('alpha', alphas), ('predictor', predictors), ('record', records)):
+        twice = repeated(name, values)
+        if twice is not None:
+            raise ParameterError(f'{where + ": " if where else ""}parameter {name}: {twice!r} '
+                                 'twice: the same run twice; expected each value once')
     runs = []
     for record in records:
         for predictor in predictors:

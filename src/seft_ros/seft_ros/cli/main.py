@@ -16,6 +16,7 @@ from seft_msgs_py import parameters
 from seft_msgs_py.errors import InputError, SeftError
 from seft_plant_sim.faults import CONTROLLER_FAULTS, FAULTS, SENSOR_FAULTS
 from seft_ros.cli import api, partition
+from seft_ros.cli.config import repeated
 from seft_ros.cli.live import options_from_args
 from seft_ros.cli.spawn import node_start
 
@@ -41,13 +42,37 @@ def _set_value(text: str):
     return name.strip(), value
 
 
-def _typed(sets, *, alpha: bool = False):
+#: The parameters of the experiment options (``dest`` -> the option): ``--set NAME=...`` and
+#: the option on one command line are refused, as is an option given twice.
+OPTIONS = {'record': '--record', 'rig_model': '--rig', 'predictor': '--predictor',
+           'amplitude_N': '--amplitude', 'scale_factor': '--scale', 'time_scale': '--time-scale',
+           'duration_s': '--duration', 'mode': '--mode'}
+#: Parameters that a given option sets too (``n_steps`` is the run's length, as --duration).
+ALSO_SET_BY = {'n_steps': 'duration_s'}
+
+
+class _Once(argparse.Action):
+    """Store the value; an option given twice is noted in ``args.repeated`` (refused with a
+    line of its own by :func:`_check_options`, not kept as the last)."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        if getattr(namespace, self.dest, None) is not None:
+            namespace.repeated = [*getattr(namespace, 'repeated', []), option_string]
+        setattr(namespace, self.dest, values)
+
+
+def _typed(sets, *, alpha: bool = False, given: dict[str, str] | None = None):
     """``--set`` values read by each parameter's type in the schema (not by YAML's guessing:
-    ``tau_s=1e-12`` is a float), checked against its range."""
+    ``tau_s=1e-12`` is a float), checked against its range. `given`: the parameters whose
+    option is on the command line (name -> option): their ``--set`` is refused."""
     out = []
     for name, text in sets:
         if name == 'alpha' and not alpha:
             raise InputError('--set alpha: use --alpha')
+        option = (given or {}).get(name)
+        if option is not None:
+            raise InputError(f'--set {name}={text}: {option} is given too; expected the value '
+                             'once')
         if name not in parameters.defaults():
             raise InputError(f'command line: --set {name}={text}: unknown parameter '
                              f'{name!r} (the parameter reference lists them)')
@@ -65,21 +90,27 @@ def _node_list(text: str) -> list[str]:
 def _experiment_options(p: argparse.ArgumentParser) -> None:
     p.add_argument('config', nargs='?', help='configuration YAML (ROS 2 parameter file; '
                    'alpha may be a list)')
-    p.add_argument('--record', nargs='+', metavar='FILE',
+    p.add_argument('--record', action=_Once, nargs='+', metavar='FILE',
                    help="ground motion(s): 'default', a PEER .AT2 or a CSV path (several: one "
-                   'run per record, predictor and alpha)')
-    p.add_argument('--alpha', type=float, nargs='+', metavar='A', help='mass ratio(s)')
-    p.add_argument('--rig', dest='rig_model', choices=RIG_CHOICES,
+                   "run per record, predictor and alpha, each run's directory named by the "
+                   "record's file stem; records of the same stem by their folder too, "
+                   'rec2_dt001, else by their position, dt001-2)')
+    p.add_argument('--alpha', action=_Once, type=float, nargs='+', metavar='A',
+                   help="mass ratio(s) (a run's directory alpha_<A>_...: A to every digit "
+                   'that tells it from another)')
+    p.add_argument('--rig', action=_Once, dest='rig_model', choices=RIG_CHOICES,
                    help="simulated rig model ('state_space': the plant_model; 'actuator': "
                    'the family of actuators, actuator_family)')
-    p.add_argument('--predictor', nargs='+', metavar='NAME',
+    p.add_argument('--predictor', action=_Once, nargs='+', metavar='NAME',
                    help="delay compensation(s): 'none', 'model', 'polynomial', 'adaptive' "
                    '(several: one run per predictor and alpha)')
-    p.add_argument('--amplitude', dest='amplitude_N', type=float, metavar='N',
+    p.add_argument('--amplitude', action=_Once, dest='amplitude_N', type=float, metavar='N',
                    help="peak of m*xg'' [N] (0: use --scale)")
-    p.add_argument('--scale', dest='scale_factor', type=float, help='plain amplitude factor')
-    p.add_argument('--time-scale', dest='time_scale', type=float, help='record time scale')
-    p.add_argument('--duration', dest='duration_s', type=float, metavar='S',
+    p.add_argument('--scale', action=_Once, dest='scale_factor', type=float,
+                   help='plain amplitude factor (instead of --amplitude: amplitude_N is 0)')
+    p.add_argument('--time-scale', action=_Once, dest='time_scale', type=float,
+                   help='record time scale')
+    p.add_argument('--duration', action=_Once, dest='duration_s', type=float, metavar='S',
                    help='run length after time scaling [s] (0: whole record)')
     p.add_argument('--params', dest='params_files', action='append', default=[],
                    metavar='FILE', help='parameter file layered over CONFIG (repeatable, '
@@ -87,8 +118,9 @@ def _experiment_options(p: argparse.ArgumentParser) -> None:
                    "sections merge into CONFIG's); the options above and --set win")
     p.add_argument('--set', dest='sets', type=_set_value, action='append', default=[],
                    metavar='NAME=VALUE', help='any other parameter (repeatable)')
-    p.add_argument('--out', help='output directory (default runs/<name>/)')
-    p.add_argument('--name', help='run name (default: the config file name, or "run")')
+    p.add_argument('--out', action=_Once, help='output directory (default runs/<name>/)')
+    p.add_argument('--name', action=_Once, help='run name, not a path (default: the config '
+                   'file name, or "run")')
     p.add_argument('--force', action='store_true', help='run even when a run is predicted '
                    'unstable by the stability map (warn instead of refusing)')
     p.add_argument('--strict', action='store_true', help="refuse a run whose analytical "
@@ -278,14 +310,46 @@ def _progress(text: str) -> None:
     print(f'[seft] {text}', file=sys.stderr, flush=True)
 
 
+def _check_options(args) -> dict[str, str]:
+    """Refuse what the experiment options would otherwise lose: an option given twice, the
+    same run twice in a list (``--alpha 0.5 0.5``), a run name that is a path. Returns the
+    parameters an option on the command line sets (name -> option; :func:`_typed`)."""
+    for option in getattr(args, 'repeated', ()):
+        several = f' ({option} A B: one run per value)' if option in (
+            '--record', '--alpha', '--predictor') else ''
+        raise InputError(f'{option}: given twice; expected it once{several}')
+    for name in ('record', 'alpha', 'predictor'):
+        values = getattr(args, name)
+        if values and repeated(name, values) is not None:
+            raise InputError(f'--{name} {" ".join(map(str, values))}: the same run twice; '
+                             'expected each value once')
+    name = args.name
+    if name is not None and (not name.strip() or name in ('.', '..') or '/' in name
+                             or (os.altsep and os.altsep in name)):
+        raise InputError(f"--name {name!r}: expected a run name, not a path (no '/', not "
+                         "'.' or '..')")
+    given = {p: opt for p, opt in OPTIONS.items() if getattr(args, p, None) is not None}
+    given.update({p: OPTIONS[by] for p, by in ALSO_SET_BY.items() if by in given})
+    return given
+
+
 def _build(args):
     """The runs of an experiment's options (config, options, --params, --set)."""
+    given = _check_options(args)
     overrides = {k: getattr(args, k) for k in ('record', 'rig_model', 'predictor',
                                                'amplitude_N', 'scale_factor', 'time_scale',
                                                'duration_s')}
     overrides['mode'] = getattr(args, 'mode', None)
-    for name, value in _typed(args.sets):
+    for name, value in _typed(args.sets, given=given):
         overrides[name] = value
+    if args.scale_factor is not None:          # --scale is the amplitude: amplitude_N 0
+        amplitude = overrides.get('amplitude_N')
+        if amplitude is None:
+            overrides['amplitude_N'] = 0.0
+        elif amplitude != 0:
+            raise InputError(f'--scale {args.scale_factor:g}: an amplitude of {amplitude:g} N '
+                             'is given too; expected one of them (--scale with no amplitude '
+                             'or --amplitude 0)')
     return api.build_runs(config=args.config, overrides=overrides, alphas=args.alpha,
                           params_files=args.params_files, progress=_progress)
 
@@ -305,6 +369,7 @@ def _experiments(args):
                          'lockstep graph in one process); use seft run --mode realtime')
     if args.verb == 'run':
         api.check_realtime_rigs(runs)
+    api.run_labels(runs)                  # each run its own directory, before anything starts
     from pathlib import Path
     name = args.name or (Path(args.config).stem if args.config else 'run')
     return runs, api.output_dir(out=args.out, name=name, created=args.created), name
@@ -312,7 +377,9 @@ def _experiments(args):
 
 def _stability(args) -> int:
     overrides = {'rig_model': args.rig_model}
-    for name, value in _typed(args.sets, alpha=True):
+    given = {p: o for p, o, v in (('rig_model', '--rig', args.rig_model),
+                                  ('predictor', '--predictor', args.predictors)) if v}
+    for name, value in _typed(args.sets, alpha=True, given=given):
         overrides[name] = value
     out = api.output_dir(out=args.out, name='stability', created=args.created)
     result = api.stability_report(out_dir=out, config=args.config, overrides=overrides,
@@ -364,7 +431,8 @@ def _rig_runs(args) -> list[dict]:
     """The runs of a rig's options (config, --rig, --params, --set) for rig-check and
     emulate-controller."""
     overrides = {'rig_model': args.rig_model}
-    overrides.update(dict(_typed(args.sets, alpha=True)))
+    given = {'rig_model': '--rig'} if args.rig_model else {}
+    overrides.update(dict(_typed(args.sets, alpha=True, given=given)))
     return api.build_runs(config=args.config, overrides=overrides,
                           params_files=args.params_files, progress=_progress)
 
