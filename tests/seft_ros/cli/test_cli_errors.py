@@ -6,6 +6,7 @@ second of imports.
 """
 
 from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
 import re
 import sys
 
@@ -43,6 +44,9 @@ FILES = {
         'damping_N_s_per_m', 'damping')),
     'specimen_typo_run.yaml': 'rig_model: state_space\nplant_model: specimen_typo.yaml\n',
     'alpha_twice.yaml': 'alpha: [0.5, 1, 0.50]\n',
+    # the two-pier bridge with an alpha, which its structure's masses make meaningless
+    'structure_alpha.yaml': (Path(__file__).resolve().parents[3] / 'config' / 'two_piers.yaml')
+    .read_text().replace('predictor: [none, model]', 'predictor: model') + 'alpha: 0.5\n',
 }
 #: A file that is not UTF-8 text (the bytes 0-255: 0x80 is the first that is not).
 BINARY = bytes(range(256))
@@ -55,6 +59,9 @@ def given_too(setting, option):
 
 #: id -> (arguments after 'seft', expected error line as a regex, stderr is only that line)
 CASES = {
+    'structure_alpha': (['simulate', 'structure_alpha.yaml'], re.escape(
+        "structure_alpha.yaml: parameter alpha=0.5: with a structure the computational masses "
+        "are the structure's; leave alpha at 0")),
     'at2_npts_line': (['simulate', '--record', 'npts.AT2'], re.escape(
         "npts.AT2: line 4: expected 'NPTS=<int>, DT=<float> SEC', got 'NPTS= abc, DT= 0.01 "
         "SEC'")),

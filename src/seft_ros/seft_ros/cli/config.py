@@ -333,6 +333,10 @@ def _with_structure(params: dict[str, Any], where: str) -> dict[str, Any]:
             _check_mappings(rp, f'{where}: rig {rig}' if where else f'rig {rig}')
         if reduces_to_study(setup.substructures):
             return study_parameters(params, setup.substructures)
+        if float(params.get('alpha', 0.0)) != 0.0:
+            # the structure's masses are its mass ratios: an alpha would be ignored
+            raise ParameterError(f'parameter alpha={params["alpha"]!r}: with a structure the '
+                                 "computational masses are the structure's; leave alpha at 0")
         if params.get('excitation', 'none') != 'none':
             from seft_ros.core.excitation import rigs_alone
             return rigs_alone(params)
