@@ -525,6 +525,43 @@ class PlantModel:
         """Whether every pole lies strictly inside the unit circle."""
         return bool(np.all(np.abs(self.poles()) < 1.0))
 
+    def loop_matrix(self, controller) -> np.ndarray:
+        """The state matrix of the force loop closed by a discrete controller.
+
+        The recursion of :meth:`loop_responses` with no reference: the force error
+        ``e = -f``, the controller's inputs ``w = (e, v, a) = W s`` from the plant's state
+        ``s`` (``W`` the rows -force, velocity, acceleration of ``c``), the command
+        ``u = c_c x_c + d_c W s``, so that ``[s; x_c]`` steps by
+        ``[[A + b d_c W, b c_c], [b_c W, a_c]]``.
+
+        Parameters
+        ----------
+        controller : object with ``state_space()``
+            As :meth:`loop_responses`.
+
+        Returns
+        -------
+        ndarray, shape (n + n_c, n + n_c)
+            The plant's n states first, then the controller's n_c; the loop is stable when
+            every eigenvalue lies strictly inside the unit circle.
+        """
+        ac, bc, cc, dc = (np.atleast_2d(np.asarray(m, dtype=float))
+                          for m in controller.state_space())
+        w = np.vstack([-self.row('force_N'), self.row('velocity_m_s'),
+                       self.row('acceleration_m_s2')])
+        n, nc = self.order, ac.shape[0] if ac.size else 0
+        m = np.zeros((n + nc, n + nc))
+        m[:n, :n] = self.a + self.b @ (dc[:1] @ w)
+        if nc:
+            m[:n, n:] = self.b @ cc[:1]
+            m[n:, :n] = bc @ w
+            m[n:, n:] = ac
+        return m
+
+    def loop_radius(self, controller) -> float:
+        """The spectral radius of :meth:`loop_matrix` (< 1: the closed force loop is stable)."""
+        return float(np.max(np.abs(np.linalg.eigvals(self.loop_matrix(controller)))))
+
     def loop_responses(self, controller, n: int) -> LoopResponses:
         """Impulse responses of the force loop closed by a discrete controller.
 

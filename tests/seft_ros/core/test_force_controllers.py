@@ -382,8 +382,8 @@ def test_specimen_loop_shaping_cancels_this_rigs_specimen():
     """The study's rule for another specimen: poles at (c/m, k/m) of the rig's own specimen,
     Eq. 3.1's gain; a 1.6 k pier keeps force control with it and 'model' follows the
     reference as closely as on the study's specimen. With Eq. 3.1 the valve saturates
-    uncompensated, and 'model' is refused before the run: its force-loop inverse cannot follow
-    that loop (it would command almost no force)."""
+    uncompensated, and 'model' is refused before the run: that loop is unstable (its spectral
+    radius 1.008), no loop for its force-loop inverse to follow."""
     from seft_ros.analysis.metrics import compare_run
     from seft_ros.core.experiment import simulate
     k = 1.6 * 2.11e5
@@ -396,8 +396,8 @@ def test_specimen_loop_shaping_cancels_this_rigs_specimen():
     study = simulate(dict(p, force_controller='loop_shaping', duration_s=8.0))
     assert not study.stable and 'valve command saturated' in study.abort_reason
     with pytest.raises(ParameterError, match=r'force_controller loop_shaping with the declared '
-                       r'specimen .* cannot be inverted to a 10-step delay \(the best inverse '
-                       r'misses it by 101 % up to 25 Hz\)'):
+                       r'specimen .* is unstable \(closed-loop spectral radius 1\.008\): no '
+                       r'loop to invert'):
         simulate(dict(p, force_controller='loop_shaping', predictor='model', duration_s=8.0))
     run = simulate(dict(p, predictor='model', duration_s=8.0))
     assert run.stable

@@ -455,7 +455,8 @@ def test_adaptive_from_a_prior_its_model_law_cannot_use():
     assert ('its initial law, model at the declared specimen, alone: not predicted, the model '
             'law is not built for it (predictor model on the servohydraulic rig: ') in margin.note
     with pytest.raises(ParameterError, match=r'^predictor adaptive on the servohydraulic rig: '
-                       r'the force loop .* cannot be inverted to a 10-step delay'):
+                       r'the force loop .* is unstable \(closed-loop spectral radius 1\.003\): '
+                       r'no loop to invert'):
         simulate(p)
 
 
@@ -477,3 +478,96 @@ def test_a_plant_gain_error_is_said_with_its_predicted_cost():
     assert unstable.to_json()['gain_error_unstable'] and not costly.to_json()[
         'gain_error_unstable']
     assert 'off the model' not in RobustnessMargin(0.5, 2.0).text()      # seft's rig model
+
+
+# -- the force loop alone unstable: what to check (a lab's controller, its plant model) ------
+
+def _lab_loop(gain: float = 0.05, scale_a: float = 1.0, **extra) -> dict:
+    """seft's servohydraulic rig as a lab's discrete plant_model (its A scaled by
+    `scale_a`) on the state_space rig, closed by a lab's proportional force controller of
+    `gain` [V/N]."""
+    from seft_ros.core.force_loop import force_loop_plant
+    doc = force_loop_plant(parameters.resolve({})).to_mapping()
+    doc['a'] = (scale_a * np.asarray(doc['a'])).tolist()
+    doc['source'] = 'lab test model'
+    ctl = json.dumps({'num': [gain], 'den': [1.0]})
+    return parameters.resolve(dict({'rig_model': 'state_space', 'plant_model': json.dumps(doc),
+                                    'force_controller': 'transfer_function',
+                                    'force_controller_tf': ctl, 'predictor': 'none',
+                                    'alpha': 0.5}, **extra))
+
+
+def _closed_radius(p: dict) -> float:
+    """The closed force loop's largest pole modulus by python-control: the plant's force
+    output under unity feedback through the static gain."""
+    import control
+
+    from seft_ros.core.force_loop import force_loop_plant
+    gain = json.loads(p['force_controller_tf'])['num'][0]
+    lti = force_loop_plant(p).to_lti()
+    force = control.ss(lti.A, lti.B, lti.C[:1], lti.D[:1], lti.dt)
+    return float(np.max(np.abs(control.poles(control.feedback(gain * force, 1)))))
+
+
+def _model_refuses(p: dict, expected: str) -> None:
+    """Predictor model's force-loop inverse refuses the loop of `p` with the guard's
+    `expected` message, before simulating it: no numpy warning (overflow) on the way."""
+    import warnings
+
+    from seft_ros.core.predictors import ForceLoopInverse
+    with warnings.catch_warnings():
+        warnings.simplefilter('error')
+        with pytest.raises(ParameterError) as err:
+            ForceLoopInverse.from_parameters(dict(p, predictor='model'))
+    assert str(err.value) == expected + '; predictor model has no loop to invert'
+
+
+def test_an_unstable_lab_controller_is_named_not_dt():
+    """A proportional gain of 0.05 V/N on seft's rig as a plant model: the guard names
+    force_controller_tf with the closed loop's spectral radius (python-control's poles),
+    not the sample period; predictor model refuses it in the same words before simulating
+    the loop (no numpy overflow warning)."""
+    p = _lab_loop()
+    radius = _closed_radius(p)
+    assert radius > 1.5
+    check = st.check_run(p)
+    assert check.stable is False
+    expected = ('parameter force_controller_tf: the force loop alone (alpha = 0, no mass fed '
+                'back) is predicted unstable on the state_space rig with this force controller '
+                f'(closed-loop spectral radius {radius:.4g}), and no shorter dt makes it '
+                'stable: expected a force controller that stabilizes its plant model (lab test '
+                'model); design one with seft design')
+    assert check.message == expected
+    _model_refuses(p, expected)
+
+
+def test_an_unstable_plant_model_is_named():
+    """The same rig's A scaled by 1.2 (every pole 1.2 times farther out): the plant model is
+    named with its largest pole modulus (numpy's eigenvalues of the scaled A), whatever the
+    controller; predictor model refuses it without simulating it."""
+    from seft_ros.core.force_loop import force_loop_plant
+    p = _lab_loop(gain=1e-4, scale_a=1.2)
+    pole = float(np.max(np.abs(np.linalg.eigvals(
+        1.2 * force_loop_plant(_lab_loop()).a))))
+    assert pole > 1.1
+    expected = ('parameter plant_model: the force loop alone (alpha = 0, no mass fed back) is '
+                'predicted unstable on the state_space rig because its plant model (lab test '
+                f'model) is unstable itself (a pole at |z| = {pole:.4g}, outside the unit '
+                'circle); a model of an actuator is stable: identify it again or correct the '
+                'model')
+    check = st.check_run(p)
+    assert check.stable is False and check.message == expected
+    _model_refuses(p, expected)
+
+
+def test_loop_radius_is_the_loop_models_at_alpha_zero():
+    """PlantModel.loop_radius of a stable and an unstable lab loop equals the spectral
+    radius of the guard's LoopModel at alpha = 0 and python-control's closed-loop poles."""
+    from seft_ros.core.force_loop import force_loop_plant
+    for gain in (1e-3, 0.05):
+        p = _lab_loop(gain=gain)
+        mine = force_loop_plant(p).loop_radius(ForceServoController.from_parameters(p))
+        q = dict(p, alpha=0.0)
+        guard = float(st.LoopModel(q, st.compensator(q)).radii(0.0)[0])
+        assert mine == pytest.approx(guard, rel=1e-9)
+        assert mine == pytest.approx(_closed_radius(p), rel=1e-6)

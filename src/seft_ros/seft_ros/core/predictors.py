@@ -1210,6 +1210,7 @@ class ForceLoopInverse:
         from seft_ros.core.force_loop import compensator_plant, has_plant_model
         plant = compensator_plant(params)
         ctrl = ForceServoController.from_parameters(params)
+        _require_stable_loop(params, plant, ctrl)
         resp = _loop_step_average(plant, ctrl)
         delay = int(params['predictor_loop_delay_steps'])
         inverse = None
@@ -1247,6 +1248,38 @@ class ForceLoopInverse:
         x.insert(0, force_N)
         x.pop()
         return self._fir(x)
+
+
+def _require_stable_loop(params, plant, controller) -> None:
+    """Refuse a force loop that is unstable before its response is simulated (it would only
+    diverge: no inverse, no prior).
+
+    Raises
+    ------
+    ParameterError
+        The closed loop of `plant` and `controller` has a pole on or outside the unit circle
+        (:meth:`~seft_msgs_py.plant.PlantModel.loop_radius`). With a ``plant_model`` the
+        message names what to check (:func:`~seft_ros.core.stability.force_loop_alone_unstable`:
+        the plant model, ``dt`` or the force controller); on seft's rig model, the declared
+        specimen (``predictor_*``) and the controller.
+    """
+    from seft_ros.core.force_loop import has_plant_model
+    from seft_ros.core.stability import force_loop_alone_unstable
+    radius = plant.loop_radius(controller)
+    if radius < 1.0:
+        return
+    who = params.get('predictor', 'model')
+    if has_plant_model(params):
+        raise ParameterError(f'{force_loop_alone_unstable(params, alone=True)}; predictor {who} '
+                             'has no loop to invert')
+    mp = model_parameters(params)
+    raise ParameterError(
+        f"predictor {who} on the servohydraulic rig: the force loop of force_controller "
+        f"{params.get('force_controller', 'loop_shaping')} with the declared specimen "
+        f"(m={mp['mass_kg']:.4g} kg, c={mp['damping_N_s_per_m']:.4g} N s/m, "
+        f"k={mp['stiffness_N_per_m']:.4g} N/m) is unstable (closed-loop spectral radius "
+        f'{radius:.4g}): no loop to invert; check predictor_stiffness_N_per_m and the specimen, '
+        'or identify the rig and design its controller (seft identify --params)')
 
 
 def _loop_step_average(plant, controller, n: int = 1000) -> np.ndarray:
@@ -1633,6 +1666,7 @@ class IdentifiedForceLoop:
         from seft_ros.core.force_loop import compensator_plant
         ctrl = ForceServoController.from_parameters(params)
         plant = compensator_plant(params)
+        _require_stable_loop(params, plant, ctrl)
         prior = (plant.loop_responses(ctrl, 1000) if type(plant) is not PlantModel
                  else _data_loop_responses(plant, ctrl, 1000))
         order = plant.order + max(len(np.ravel(ctrl.az)), len(np.ravel(ctrl.bz))) - 1

@@ -70,7 +70,7 @@ __all__ = [
     'spectral_radius', 'largest_stable_alpha', 'StabilityMap', 'stability_map',
     'StabilityCheck', 'check_run', 'level_extrapolation', 'MAX_LEVEL_EXTRAPOLATION',
     'LEVEL_MISFIT',
-    'largest_stable_dt', 'TestLoop', 'scaled_parameters',
+    'largest_stable_dt', 'force_loop_alone_unstable', 'TestLoop', 'scaled_parameters',
     'largest_stable_scale', 'RobustnessMargin', 'robustness_margin',
     'KANAI_TAJIMI_FIRM_GROUND', 'PREDICTED_LAG_S', 'kanai_tajimi', 'GroundSpectrum',
     'RECORD_SPECTRUM_SEGMENT_S', 'response_grid', 'predicted_error',
@@ -1280,18 +1280,71 @@ def _check_study(params: Mapping) -> StabilityCheck:
         return StabilityCheck(True, rho, bound, f'{where} is predicted stable{frozen} '
                               f'(spectral radius {rho:.4f}, largest stable alpha {bound:.3g})')
     if math.isnan(bound) and max(float(loop.radii(0.0)[0]) for loop in loops) >= 1.0:
-        dt = float(params['dt'])
-        limit = largest_stable_dt(params)
-        hint = (f'; expected dt <= {limit:.3g} s' if math.isfinite(limit)
-                else '; no sample period makes it stable: check the rig and controller')
-        return StabilityCheck(False, rho, bound, f'parameter dt={dt:g}: the force loop alone '
-                              f'(alpha = 0, no mass fed back) is predicted unstable on the {rig} '
-                              f'rig: the sample period is too long for the force loop{hint}')
+        return StabilityCheck(False, rho, bound, force_loop_alone_unstable(params))
     return StabilityCheck(False, rho, bound, f'{where} is predicted unstable{frozen} '
                           f'(largest stable alpha {bound:.3g})')
 
 
-def largest_stable_dt(params: Mapping, *, dt_min: float = 1e-4, rtol: float = 0.01) -> float:
+def force_loop_alone_unstable(params: Mapping, *, alone: bool = False) -> str:
+    """One line saying what to check when the force loop alone (alpha = 0) is unstable.
+
+    The culprit, in this order: a ``plant_model`` that is itself unstable (a pole of its
+    sampled model outside the unit circle: ``plant_model``, as ``seft design`` says); a
+    sample period too long for a loop that a shorter one makes stable
+    (:func:`largest_stable_dt`: ``dt``, with the longest stable period); otherwise the force
+    controller (``force_controller_tf`` for a lab's transfer function, else
+    ``force_controller``), with the closed loop's spectral radius
+    (:meth:`~seft_msgs_py.plant.PlantModel.loop_radius`).
+
+    Parameters
+    ----------
+    params : mapping
+        Resolved run parameters whose force loop alone is unstable at ``params['dt']``.
+    alone : bool
+        Search the sample periods on the force loop alone (plant and controller) instead of
+        the run's loop with its compensator (for a compensator that cannot be built on an
+        unstable loop: :func:`largest_stable_dt`).
+
+    Returns
+    -------
+    str
+        The message, beginning with the parameter to check (``parameter NAME...: ``).
+    """
+    rig = params.get('rig_model', 'servohydraulic')
+    lead = ('the force loop alone (alpha = 0, no mass fed back) is predicted unstable on the '
+            f'{rig} rig')
+    try:
+        plant = force_loop_plant(params)
+    except SeftError:
+        plant = None
+    modelled = plant is not None and has_plant_model(params)
+    if modelled and not plant.stable():
+        pole = float(np.max(np.abs(plant.poles())))
+        return (f'parameter plant_model: {lead} because its plant model ({plant.source}) is '
+                f'unstable itself (a pole at |z| = {pole:.4g}, outside the unit circle); a '
+                'model of an actuator is stable: identify it again or correct the model')
+    limit = largest_stable_dt(params, alone=alone)
+    if math.isfinite(limit):
+        return (f"parameter dt={float(params['dt']):g}: {lead}: the sample period is too long "
+                f'for the force loop; expected dt <= {limit:.3g} s')
+    kind = params.get('force_controller', 'loop_shaping')
+    name = 'force_controller_tf' if kind == 'transfer_function' else f'force_controller={kind!r}'
+    radius = ''
+    if plant is not None:
+        try:
+            radius = (' (closed-loop spectral radius '
+                      f'{plant.loop_radius(ForceServoController.from_parameters(params)):.4g})')
+        except SeftError:
+            pass
+    target = (f'its plant model ({plant.source})' if modelled
+              else f"the {rig} rig (or check the rig's parameters)")
+    return (f'parameter {name}: {lead} with this force controller{radius}, and no shorter dt '
+            f'makes it stable: expected a force controller that stabilizes {target}; design '
+            'one with seft design')
+
+
+def largest_stable_dt(params: Mapping, *, dt_min: float = 1e-4, rtol: float = 0.01,
+                      alone: bool = False) -> float:
     """The longest sample period at which the force loop alone (alpha = 0) is stable.
 
     Bisection on a log scale between `dt_min` and ``params['dt']`` on the spectral radius of
@@ -1306,6 +1359,11 @@ def largest_stable_dt(params: Mapping, *, dt_min: float = 1e-4, rtol: float = 0.
         Lower end of the search [s].
     rtol : float > 0
         Relative width at which the bisection stops.
+    alone : bool
+        The force loop alone, its plant and controller
+        (:meth:`~seft_msgs_py.plant.PlantModel.loop_radius`), instead of :class:`LoopModel`
+        with the run's compensator (which a predictor of the force loop cannot build on a
+        loop it finds unstable).
 
     Returns
     -------
@@ -1315,6 +1373,12 @@ def largest_stable_dt(params: Mapping, *, dt_min: float = 1e-4, rtol: float = 0.
     """
     def stable(dt: float) -> bool:
         p = dict(params, dt=dt, alpha=0.0)
+        if alone:
+            try:
+                return force_loop_plant(p).loop_radius(
+                    ForceServoController.from_parameters(p)) < 1.0
+            except SeftError:
+                return False
         try:
             comp = compensator(p)
             loops = [LoopModel(p, comp, tangent_ratio=None if len(r) == 1 else x)
