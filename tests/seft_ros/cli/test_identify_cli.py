@@ -58,6 +58,16 @@ def test_identify_writes_json_plots_report_and_params(bags, capsys):
     doc['runs'][0]['figures']['plant']['nrms']['force_N'] = 0.25
     assert ('force NRMS 25 %; WARNING: above 10 %, a nonlinear actuator'
             in identification_table(doc))
+    # figures read on a fixed-order fit that misses the response (another actuator's
+    # order: 6 %) are said not to be trusted; seft's rig fits well within the bound
+    fit = doc['runs'][0]['figures']['fit']
+    assert fit['fit_error'] < 0.02 and 'rational fit' not in identification_table(doc)
+    fit['fit_error'] = 0.0628
+    assert ('WARNING: the figures above are read on a rational fit of orders (6, 4) that '
+            "misses the open_loop run's response by 6.3 % (above 2 %): trust the plant model "
+            'and the designed loop below, or identify again with --orders NB NA'
+            in identification_table(doc))
+    fit['fit_error'] = 0.005
     # a loop no inverse follows (a real-time identification of a family actuator: 90 %) is
     # said to be refused by the compensators that invert it, whatever the margins say
     assert 'force-loop inverse' not in identification_table(doc)
