@@ -44,6 +44,8 @@ FILES = {
         'damping_N_s_per_m', 'damping')),
     'specimen_typo_run.yaml': 'rig_model: state_space\nplant_model: specimen_typo.yaml\n',
     'alpha_twice.yaml': 'alpha: [0.5, 1, 0.50]\n',
+    'plant.yaml': PLANT.format(num='[1.0e6]', delay=0.003, specimen=SPECIMEN),
+    'plant_run.yaml': 'rig_model: state_space\nplant_model: plant.yaml\n',
     # the two-pier bridge with an alpha, which its structure's masses make meaningless
     'structure_alpha.yaml': (Path(__file__).resolve().parents[3] / 'config' / 'two_piers.yaml')
     .read_text().replace('predictor: [none, model]', 'predictor: model') + 'alpha: 0.5\n',
@@ -59,6 +61,11 @@ def given_too(setting, option):
 
 #: id -> (arguments after 'seft', expected error line as a regex, stderr is only that line)
 CASES = {
+    'stability_plant_model': (['stability', 'plant_run.yaml', '--predictor', 'none'],
+                              re.escape(
+        "parameter rig_model='state_space': seft stability maps the delay of seft's own rig "
+        "models ('delay', 'servohydraulic'); a plant model carries its delay: seft simulate "
+        'or run checks its loop before the test and refuses one predicted unstable')),
     'structure_alpha': (['simulate', 'structure_alpha.yaml'], re.escape(
         "structure_alpha.yaml: parameter alpha=0.5: with a structure the computational masses "
         "are the structure's; leave alpha at 0")),

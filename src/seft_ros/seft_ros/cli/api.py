@@ -1300,7 +1300,12 @@ def stability_report(*, out_dir: Path, config: str | None = None,
     rig = params['rig_model']
     knob = stability.DELAY_PARAMETER.get(rig)
     if knob is None:
-        raise ParameterError(f'parameter rig_model={rig!r}: no linear model for a map')
+        raise ParameterError(f'parameter rig_model={rig!r}: seft stability maps the delay of '
+                             "seft's own rig models ("
+                             + ', '.join(repr(r) for r in stability.DELAY_PARAMETER)
+                             + '); a plant model carries its delay: seft simulate or run '
+                             'checks its loop before the test and refuses one predicted '
+                             'unstable')
     lo, hi = _TAU_RANGE[rig]
     lo = lo if tau_min is None else float(tau_min)
     hi = hi if tau_max is None else float(tau_max)

@@ -490,7 +490,8 @@ def _delay_knob(params: Mapping) -> str:
     knob = DELAY_PARAMETER.get(params.get('rig_model'))
     if knob is None or (knob == 'io_latency_s' and has_plant_model(params)):
         raise NoLinearModelError(f"rig {params.get('rig_model')!r} with its plant model: "
-                                 'no delay parameter to vary (its delay is in the model)')
+                                 'no delay parameter to vary (its delay is in the model; seft '
+                                 'simulate or run checks its loop before the test)')
     return knob
 
 
