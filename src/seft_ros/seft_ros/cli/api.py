@@ -211,7 +211,7 @@ def _record_names(records: list) -> dict:
 
 
 def run_labels(runs: list[dict]) -> list[str]:
-    """The runs' directory names, unique (:func:`_run_label`).
+    """The runs' directory names, unique (each run's ``_run_label``).
 
     Raises
     ------

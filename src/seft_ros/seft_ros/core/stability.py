@@ -1309,7 +1309,7 @@ def force_loop_alone_unstable(params: Mapping, *, alone: bool = False) -> str:
     Returns
     -------
     str
-        The message, beginning with the parameter to check (``parameter NAME...: ``).
+        The message, beginning with the parameter to check (``parameter NAME: ...``).
     """
     rig = params.get('rig_model', 'servohydraulic')
     lead = ('the force loop alone (alpha = 0, no mass fed back) is predicted unstable on the '

@@ -74,7 +74,7 @@ _RAYLEIGH: list = []
 
 def rayleigh_calls() -> tuple:
     """The Rayleigh damping commands the model gave since its last ``wipe``, in order:
-    ``(command, (alpha_M, beta_K, beta_K_init, beta_K_comm))`` (:data:`_RAYLEIGH`)."""
+    ``(command, (alpha_M, beta_K, beta_K_init, beta_K_comm))``."""
     return tuple(_RAYLEIGH)
 
 
