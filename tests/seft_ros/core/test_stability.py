@@ -539,6 +539,11 @@ def test_an_unstable_lab_controller_is_named_not_dt():
                 'model); design one with seft design')
     assert check.message == expected
     _model_refuses(p, expected)
+    # adaptive identifies the specimen, not the loop: no margin (before, it claimed its
+    # identification's range, 0.5-1.5 x, on the line before the run was refused)
+    margin = st.robustness_margin(dict(p, predictor='adaptive'))
+    assert (margin.low, margin.high) == (1.0, 1.0)
+    assert margin.text() == 'no robustness margin: unstable as declared'
 
 
 def test_an_unstable_plant_model_is_named():

@@ -1286,6 +1286,18 @@ def _check_study(params: Mapping) -> StabilityCheck:
                           f'(largest stable alpha {bound:.3g})')
 
 
+def _force_loop_alone_diverges(params: Mapping) -> bool:
+    """Whether the force loop alone (the controller on the rig's plant with its own
+    specimen, alpha = 0; not the compensators' prior) has a pole on or outside the unit
+    circle (False where it has no linear model)."""
+    from seft_ros.core.controller import ForceServoController
+    try:
+        plant = force_loop_plant(params)
+        return plant.loop_radius(ForceServoController.from_parameters(params)) >= 1.0
+    except SeftError:
+        return False
+
+
 def force_loop_alone_unstable(params: Mapping, *, alone: bool = False) -> str:
     """One line saying what to check when the force loop alone (alpha = 0) is unstable.
 
@@ -1832,6 +1844,9 @@ def robustness_margin(params: Mapping, *, rtol: float = 0.01) -> RobustnessMargi
                                         rtol=rtol).text(bare=True)
         except SeftError as exc:
             initial = f'not predicted, the model law is not built for it ({exc})'
+        if _force_loop_alone_diverges(params):
+            # no stiffness it identifies makes a test of a force loop that diverges alone
+            return RobustnessMargin(1.0, 1.0, initial)
         d = float(params.get('adaptive_max_deviation', 0.5))
         return RobustnessMargin(1.0 - d, 1.0 + d, f'{pred} identifies the stiffness within '
                                 f'+-{100 * d:.0f} %; its initial law, model at the declared '
