@@ -191,6 +191,37 @@ def test_n_steps_truncates(reference_params):
                                       err_msg=name)
 
 
+def test_a_run_cut_short_previews_the_record_that_goes_on(reference_params):
+    """The servohydraulic rig with ``model`` (a 10-step ground preview), alpha 1, the
+    default record (one scale factor) cut at 3 s and at 4 s, both in its strong motion: the
+    3 s run is the 4 s
+    run's first 3 s bit for bit in every signal, its last commands built from the record
+    that goes on after the cut (GroundMotion.following_m_s2). Given the cut record without
+    what follows (zeros after it, as every cut run was before), the last samples of the
+    rig's acceleration leave the run by several per cent of the signal's peak."""
+    from seft_ros.core.ground_motion import GroundMotion
+    params = dict(reference_params, rig_model='servohydraulic', predictor='model', alpha=1.0,
+                  amplitude_N=0.0, scale_factor=1.0)
+    # one scale factor for both cuts (an amplitude scales each cut to its own peak): 1000 N
+    peak = prepared_record(dict(params, duration_s=4.0)).peak_m_s2
+    params['scale_factor'] = 1000.0 / (params['mass_kg'] * peak)
+    short = simulate(dict(params, duration_s=3.0))
+    longer = simulate(dict(params, duration_s=4.0))
+    n = short.n_steps
+    assert n == 1500 and short.stable and longer.stable
+    for name in FIELDS:
+        if getattr(short, name) is not None:
+            np.testing.assert_array_equal(getattr(short, name), getattr(longer, name)[:n],
+                                          err_msg=name)
+    gm = prepared_record(dict(params, duration_s=3.0))
+    assert len(gm.following_m_s2) == 64 and max(map(abs, gm.following_m_s2)) > 0.5
+    ended = simulate(params, record=GroundMotion(gm.dt, gm.acceleration_m_s2, gm.name,
+                                                 gm.source))
+    a, a_ended = longer.acceleration_m_s2[:n], ended.acceleration_m_s2
+    np.testing.assert_array_equal(a_ended[:n - 20], a[:n - 20])
+    assert np.max(np.abs(a_ended[n - 20:] - a[n - 20:])) > 0.03 * np.max(np.abs(a))
+
+
 def test_n_steps_beyond_the_record(reference_params):
     with pytest.raises(ParameterError, match=r'^parameter n_steps=1001: expected <= 1000 '
                        r'\(the prepared record length\)$'):

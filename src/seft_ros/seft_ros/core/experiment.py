@@ -166,8 +166,9 @@ def _simulate(params, *, progress, record, stale_steps, command_latency_s) -> Ru
     stale = [_steps_behind(stale.get(r, ())) for r in names]
     look = max(b.lookahead_steps for b in builders)
     # the ground window xg''[j..j+L] of every step as a slice (the numbers of
-    # reference_force.ground_window: the record as Python floats, zeros after its end)
-    padded = ag.tolist() + [0.0] * (look + 1)
+    # reference_force.ground_window: the record as Python floats, then the samples that
+    # follow a record cut short, zeros after its end)
+    padded = ag.tolist() + list(gm.following_m_s2) + [0.0] * (look + 1)
     # the compensators' online estimates (if they have any), in effect for each f_r[k]
     estimators = [getattr(law.predictor, 'estimates', None) for b in builders for law in b.laws]
     estimated = [r for r, fn in enumerate(estimators) if fn is not None]

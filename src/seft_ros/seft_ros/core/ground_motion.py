@@ -67,6 +67,12 @@ _OTHER_UNIT_RE = re.compile(
 _CSV_REAL_RE = re.compile(r'[+-]?(?:\d+\.?\d*|\.\d+)(?:[Ee][+-]?\d+)?')
 
 
+#: How many samples after a cut record :class:`GroundMotion` keeps for the reference
+#: force's ground preview (``following_m_s2``): more than any compensator looks ahead (its
+#: loop delay, at most 50 steps of ``predictor_loop_delay_steps``, and the preview's step).
+FOLLOWING_SAMPLES = 64
+
+
 @dataclass(frozen=True, eq=False)
 class GroundMotion:
     """A ground-acceleration record sampled uniformly.
@@ -83,6 +89,12 @@ class GroundMotion:
         Record name, e.g. ``'RSN1106_KOBE_KJM000'`` or ``'synthetic-default(seed=1)'``.
     source : str
         Where it came from: the file path or ``'default'``.
+    following_m_s2 : tuple of float, optional
+        The samples that follow the record's last one in its source, prepared as it was (at
+        most :data:`FOLLOWING_SAMPLES`) [m/s^2]: a run cut short of its record
+        (``duration_s``, ``n_steps``) previews the ground motion that goes on there, as the
+        reference force's ground preview does everywhere else; empty where the record ends
+        (zeros after it).
 
     Raises
     ------
@@ -100,6 +112,7 @@ class GroundMotion:
     acceleration_m_s2: np.ndarray
     name: str
     source: str
+    following_m_s2: tuple = ()
 
     def __post_init__(self):
         dt = _check_float('dt', self.dt, '> 0')
@@ -109,8 +122,20 @@ class GroundMotion:
                 f'acceleration_m_s2 of {self.name!r}: expected a finite array of shape (n,), '
                 f'n >= 1, got shape {a.shape}')
         a.setflags(write=False)
+        following = tuple(float(v) for v in self.following_m_s2)[:FOLLOWING_SAMPLES]
+        if not all(math.isfinite(v) for v in following):
+            raise ParameterError(f'following_m_s2 of {self.name!r}: expected finite values')
         object.__setattr__(self, 'dt', dt)
         object.__setattr__(self, 'acceleration_m_s2', a)
+        object.__setattr__(self, 'following_m_s2', following)
+
+    def cut(self, n: int) -> 'GroundMotion':
+        """The first `n` samples (1 <= n <= :attr:`n`), the rest previewed after them
+        (:attr:`following_m_s2`)."""
+        a = self.acceleration_m_s2
+        return GroundMotion(self.dt, a[:n], self.name, self.source,
+                            tuple(a[n:n + FOLLOWING_SAMPLES].tolist())
+                            + self.following_m_s2)
 
     @property
     def n(self) -> int:
@@ -667,7 +692,10 @@ def _prepare(record: GroundMotion, *, dt, mass_kg, amplitude_N, scale_factor, ti
         if keep < 1:
             raise ParameterError(f'parameter duration_s={duration_s!r}: expected 0 (whole '
                                  f'record) or float >= dt={dt!r}')
+        following = a[keep:keep + FOLLOWING_SAMPLES]
         a = a[:keep]
+    else:
+        following = a[:0]
     if not np.any(a):
         within = f' in its first {duration_s:g} s' if duration_s > 0 else ''
         need = (f'cannot scale it to amplitude_N={amplitude_N!r}' if amplitude_N > 0 else
@@ -678,10 +706,12 @@ def _prepare(record: GroundMotion, *, dt, mass_kg, amplitude_N, scale_factor, ti
         peak_N = float(np.max(np.abs(mass_kg * a)))
         factor = amplitude_N / peak_N
         a = a * factor
+        following = following * factor
     else:
         factor = scale_factor
         a = a * scale_factor
-    return GroundMotion(dt, a, record.name, record.source), factor
+        following = following * scale_factor
+    return GroundMotion(dt, a, record.name, record.source, tuple(following.tolist())), factor
 
 
 def resampling_method(params, record: GroundMotion) -> str:
@@ -742,7 +772,7 @@ def _load_and_prepare(params) -> tuple[GroundMotion, GroundMotion, float]:
             raise ParameterError(
                 f'parameter n_steps={n}: expected <= {gm.acceleration_m_s2.shape[0]} '
                 '(the prepared record length)')
-        gm = GroundMotion(gm.dt, gm.acceleration_m_s2[:n], gm.name, gm.source)
+        gm = gm.cut(n)
     return record, gm, factor
 
 

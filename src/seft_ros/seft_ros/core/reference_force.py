@@ -971,8 +971,9 @@ def _forget_before(seen: dict, step: int) -> None:
 
 
 def ground_window(lookup: Callable[[int], float], k: int, lookahead_steps: int,
-                  n_total: int) -> list[float]:
-    """``[xg''[k], ..., xg''[k + lookahead_steps]]`` with zeros after the record.
+                  n_total: int, following: Sequence[float] = ()) -> list[float]:
+    """``[xg''[k], ..., xg''[k + lookahead_steps]]``: the record, then the samples that
+    follow a record cut short (`following`), then zeros.
 
     Parameters
     ----------
@@ -982,9 +983,15 @@ def ground_window(lookup: Callable[[int], float], k: int, lookahead_steps: int,
         Step of the new force.
     lookahead_steps : int >= 0
     n_total : int
-        Record length (steps at and after it are 0).
+        Record length (the run's steps).
+    following : sequence of float
+        The samples after step ``n_total - 1`` [m/s^2]
+        (:attr:`~seft_ros.core.ground_motion.GroundMotion.following_m_s2`); zeros after them.
     """
     end = k + lookahead_steps + 1
     if end <= n_total:
         return [float(lookup(j)) for j in range(k, end)]
-    return [float(lookup(j)) if j < n_total else 0.0 for j in range(k, end)]
+    after = len(following)
+    return [float(lookup(j)) if j < n_total else
+            (float(following[j - n_total]) if j - n_total < after else 0.0)
+            for j in range(k, end)]

@@ -18,6 +18,7 @@ published after the sample before it was due).
 Run by hand: ``ros2 run seft_ros ground_motion_publisher --ros-args --params-file ...``.
 """
 
+import json
 import math
 import sys
 import time
@@ -54,8 +55,11 @@ class GroundMotionPublisher(SeftNode):
         self.get_logger().info(
             f'record {self.record.name}: {self.n_steps} steps of {p["dt"]} s, '
             f'peak {abs(self.values).max():.4g} m/s^2')
+        # a run cut short of its record previews the ground motion that goes on there
+        # (GroundMotion.following_m_s2; repr floats: the builder reads the same numbers)
         self.report(STATE_READY, f'record {self.record.name}', n_steps=self.n_steps,
-                    record=self.record.name)
+                    record=self.record.name,
+                    following=json.dumps(list(self.record.following_m_s2)))
         self._publish_until(self.preview)
 
     def _publish_until(self, last: int, clock_step: int | None = None) -> None:

@@ -94,6 +94,8 @@ class ReferenceForceBuilderNode(SeftNode):
         self.local_index = [self.rig_index[r] for r in self.local]
         # record length: n_steps, or as the ground-motion publisher reports it
         self.n_total = int(p['n_steps']) or None
+        # the samples after a record cut short (the publisher's status; None until it says)
+        self.following = None
         self.dt = float(p['dt'])
         self.monitors = [InstabilityMonitor.from_parameters(self.builder.setup.rig_params[r])
                          for r in self.local]
@@ -272,10 +274,13 @@ class ReferenceForceBuilderNode(SeftNode):
             self.model_pubs[r].publish(msg)
 
     def _on_status(self, msg) -> None:
-        if msg.name == 'ground_motion_publisher' and self.n_total is None:
-            n = status_values(msg).get('n_steps')
+        if msg.name == 'ground_motion_publisher' and (self.n_total is None
+                                                      or self.following is None):
+            values = status_values(msg)
+            n, following = values.get('n_steps'), values.get('following')
             if n is not None:
-                self.n_total = int(n)
+                self.n_total = self.n_total or int(n)
+                self.following = [float(v) for v in json.loads(following or '[]')]
                 self._advance()
 
     # -- stepping ---------------------------------------------------------------------------
@@ -285,6 +290,8 @@ class ReferenceForceBuilderNode(SeftNode):
         for j in range(k, k + self.builder.lookahead_steps + 1):
             if j not in self.ground and (self.n_total is None or j < self.n_total):
                 return False
+            if self.n_total is not None and j >= self.n_total and self.following is None:
+                return False                  # what follows the record: not said yet
         return True
 
     def _inputs_ready(self, k: int) -> bool:
@@ -305,7 +312,8 @@ class ReferenceForceBuilderNode(SeftNode):
         value = self.ground.get(j)
         if value is None:
             if self.n_total is not None and j >= self.n_total:
-                return 0.0
+                following = self.following or ()
+                return following[j - self.n_total] if j - self.n_total < len(following) else 0.0
             self.ground_stale = True
             return self.latest_ground[1]
         return value
@@ -331,7 +339,8 @@ class ReferenceForceBuilderNode(SeftNode):
             look = self.builder.lookahead_steps
             n_total = self.n_total if self.n_total is not None else k + look + 1
             lookup = self._ground_at if self.realtime else self.ground.__getitem__
-            forces = self.builder.step(ground_window(lookup, k, look, n_total))
+            forces = self.builder.step(ground_window(lookup, k, look, n_total,
+                                                     self.following or ()))
             if self.model_pubs and self.builder.outbox is not None \
                     and self.builder.outbox[0] == k:
                 self._publish_models()
