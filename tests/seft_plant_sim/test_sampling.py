@@ -211,6 +211,29 @@ def test_single_blas_thread_limits_and_restores():
     assert [i['num_threads'] for i in threadpool_info() if i['user_api'] == 'blas'] == before
 
 
+def test_single_blas_thread_limits_a_blas_imported_after_its_first_use():
+    """python-control brings slycot's own OpenBLAS: imported after single_blas_thread was
+    first used, it is limited too (a fresh interpreter: the suite's other modules may have
+    imported it already). Before, the controller made at the first use kept its libraries,
+    and this failed in a CI run whose worker had first used it without python-control."""
+    import subprocess
+    import sys
+    code = (
+        'from threadpoolctl import threadpool_info\n'
+        'from seft_msgs_py.sampling import single_blas_thread\n'
+        'blas = lambda: [i for i in threadpool_info() if i["user_api"] == "blas"]\n'
+        'with single_blas_thread():\n'
+        '    before = len(blas())\n'
+        'import control  # noqa: F401\n'
+        'assert len(blas()) > before, "python-control brought no BLAS of its own"\n'
+        'with single_blas_thread():\n'
+        '    assert all(i["num_threads"] == 1 for i in blas()), blas()\n'
+        'print("ok")\n')
+    proc = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                          timeout=120)
+    assert proc.returncode == 0 and proc.stdout.strip() == 'ok', proc.stderr
+
+
 def test_sensor_readings_without_the_dict_shortcut(monkeypatch):
     from seft_plant_sim import sensors
     assert sensors._FILL_DICT                      # Measurement is a plain frozen dataclass

@@ -2,6 +2,7 @@
 below both the controller side and the plant simulation, which both use them)."""
 
 import math
+import sys
 import threading
 
 import numpy as np
@@ -24,13 +25,16 @@ def single_blas_thread():
     two; a sweep of 8 runs in a 2-worker pool took 0.3 s with one BLAS thread per worker and
     1.2-1.5 s (slower than one run after the other) with two. One thread also makes the fit
     independent of the machine's thread count, so a node and ``seft simulate`` get the same
-    numbers. Uses :class:`threadpoolctl.ThreadpoolController`, created at the first call (it
-    finds the BLAS libraries loaded by then).
+    numbers. Uses :class:`threadpoolctl.ThreadpoolController`, which finds the BLAS libraries
+    loaded when it is made: made again once modules were imported since (a module imported
+    later may bring its own BLAS, e.g. python-control's slycot; a controller kept from before
+    left it at its threads), else kept (making one takes about 0.7 ms).
     """
     global _BLAS
-    if _BLAS is None:
-        _BLAS = ThreadpoolController()
-    return _BLAS.limit(limits=1)
+    modules = len(sys.modules)
+    if _BLAS is None or _BLAS[0] != modules:
+        _BLAS = (modules, ThreadpoolController())
+    return _BLAS[1].limit(limits=1)
 
 
 def zoh(a, b, h: float):
