@@ -61,6 +61,10 @@ def given_too(setting, option):
 
 #: id -> (arguments after 'seft', expected error line as a regex, stderr is only that line)
 CASES = {
+    'set_scale_factor_with_amplitude': (['simulate', '--set', 'scale_factor=2'], re.escape(
+        'command line: parameter scale_factor=2.0: used only with amplitude_N 0 '
+        '(amplitude_N=1000 scales the record to that peak force); set amplitude_N to 0, or '
+        'leave scale_factor at 1')),
     'stability_plant_model': (['stability', 'plant_run.yaml', '--predictor', 'none'],
                               re.escape(
         "parameter rig_model='state_space': seft stability maps the delay of seft's own rig "

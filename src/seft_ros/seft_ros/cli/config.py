@@ -304,6 +304,14 @@ def expand_runs(config: dict[str, Any], *, where: str = '',
                 values = dict(config, alpha=alpha, predictor=predictor, record=record)
                 params, chosen = follow_specimen(config, parameters.resolve(values,
                                                                             where=where))
+                amplitude, scale = float(params['amplitude_N']), float(params['scale_factor'])
+                if amplitude > 0 and scale != 1.0:
+                    # amplitude_N wins in ground_motion.prepare: the scale would be ignored
+                    raise ParameterError(
+                        f'{where + ": " if where else ""}parameter scale_factor={scale!r}: '
+                        f'used only with amplitude_N 0 (amplitude_N={amplitude:g} scales the '
+                        'record to that peak force); set amplitude_N to 0, or leave '
+                        'scale_factor at 1')
                 if notes is not None:
                     notes.extend(n for n in chosen if n not in notes)
                 runs.append(_with_structure(params, where))
