@@ -91,7 +91,7 @@ class GroundMotion:
         Where it came from: the file path or ``'default'``.
     following_m_s2 : tuple of float, optional
         The samples that follow the record's last one in its source, prepared as it was (at
-        most :data:`FOLLOWING_SAMPLES`) [m/s^2]: a run cut short of its record
+        most ``FOLLOWING_SAMPLES``) [m/s^2]: a run cut short of its record
         (``duration_s``, ``n_steps``) previews the ground motion that goes on there, as the
         reference force's ground preview does everywhere else; empty where the record ends
         (zeros after it).
@@ -131,7 +131,7 @@ class GroundMotion:
 
     def cut(self, n: int) -> 'GroundMotion':
         """The first `n` samples (1 <= n <= :attr:`n`), the rest previewed after them
-        (:attr:`following_m_s2`)."""
+        (``following_m_s2``)."""
         a = self.acceleration_m_s2
         return GroundMotion(self.dt, a[:n], self.name, self.source,
                             tuple(a[n:n + FOLLOWING_SAMPLES].tolist())

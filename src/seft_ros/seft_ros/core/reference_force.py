@@ -986,7 +986,7 @@ def ground_window(lookup: Callable[[int], float], k: int, lookahead_steps: int,
         Record length (the run's steps).
     following : sequence of float
         The samples after step ``n_total - 1`` [m/s^2]
-        (:attr:`~seft_ros.core.ground_motion.GroundMotion.following_m_s2`); zeros after them.
+        (``GroundMotion.following_m_s2``); zeros after them.
     """
     end = k + lookahead_steps + 1
     if end <= n_total:
