@@ -264,3 +264,66 @@ def test_rayleigh_damping_on_the_current_stiffness_of_some_elements_is_refused(t
                        r'put it on the initial stiffness \(beta_K_init\), or set prediction: '
                        r'initial$'):
         part.prepare()
+
+
+#: A two-story building whose build() runs a static analysis of a lateral 100 N at floor 2,
+#: held by loadConst (``held``) or left on its linear series.
+LOADED_BUILDING = """
+import openseespy.opensees as ops
+
+def build(held=True):
+    ops.wipe()
+    ops.model('basic', '-ndm', 1, '-ndf', 1)
+    ops.node(0, 0.0)
+    ops.fix(0, 1)
+    for i in (1, 2):
+        ops.node(i, 0.0)
+        ops.mass(i, 52.7)
+        ops.uniaxialMaterial('Elastic', i, 2.11e5, 903.278 if i == 1 else 333.5)
+        ops.element('zeroLength', i, i - 1, i, '-mat', i, '-dir', 1)
+    ops.timeSeries('Linear', 1)
+    ops.pattern('Plain', 1, 1)
+    ops.load(2, 100.0)
+    ops.constraints('Plain')
+    ops.numberer('Plain')
+    ops.system('BandGeneral')
+    ops.test('NormDispIncr', 1e-8, 10)
+    ops.algorithm('Newton')
+    ops.integrator('LoadControl', 0.1)
+    ops.analysis('Static')
+    ops.analyze(10)
+    if held:
+        ops.loadConst('-time', 0.0)
+"""
+
+
+@pytest.mark.parametrize('held', [True, False])
+def test_a_load_left_on_its_time_series_is_refused_at_the_first_step(tmp_path, held):
+    """A static analysis in build(): held by loadConst the pattern stays (its factor 1 at
+    every step); left on its linear series its load would grow with the test's time (the
+    test 8-26 % off its reference, silently, before): refused at the first step."""
+    from seft_ros.opensees.model import ModelError
+    (tmp_path / 'loaded.py').write_text(LOADED_BUILDING)
+    doc = {'structure': {'opensees': {'model': 'loaded.py', 'arguments': {'held': held},
+                                      'dofs': {'s1': [1, 1], 's2': [2, 1]},
+                                      'physical_elements': {'lab': [1]}},
+                         'physical': {'s1': 'lab'}},
+           'rigs': {'lab': {'rig_model': 'delay'}}, 'predictor': 'none', 'duration_s': 0.1}
+    (tmp_path / 'loaded.yaml').write_text(yaml.safe_dump(doc))
+    params = expand_runs(load_config(tmp_path / 'loaded.yaml'))[0]
+    part = OpenSeesPart(test_setup(params).substructures, DT)
+    part.prepare()
+    if held:
+        for j in range(3):
+            part.observe(0, Measurement(j, j * DT, 0.0, 0.0, 0.0, 0.0))
+            part.set_ground(j, 0.0)
+            part.state_at(j)
+        return
+    with pytest.raises(ModelError, match=r'^structure\.opensees\.model: its load pattern 1 is '
+                       r'not constant \(its factor moved from 1 to 1\.00[12] over the first '
+                       r'step: .*call ops\.loadConst\(\'-time\', 0\.0\) after the analysis, or '
+                       r'remove the pattern$'):
+        for j in range(3):
+            part.observe(0, Measurement(j, j * DT, 0.0, 0.0, 0.0, 0.0))
+            part.set_ground(j, 0.0)
+            part.state_at(j)

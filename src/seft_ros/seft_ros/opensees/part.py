@@ -172,6 +172,7 @@ class OpenSeesPart:
         self._tangent_on = spec.prediction == 'tangent'
         self._read_next = False
         self._tangent_damping, self._damping_gain = (0.0, 0.0), 0.0
+        self._model_loads = None
         self._k_t = None                  # the condensed tangent of the latest sample
         self.tangent_steps = 0            # samples whose tangent was assembled
         # step: deferred: the sample ahead of OpenSees' (its linear step), and the
@@ -260,6 +261,29 @@ class OpenSeesPart:
                              f'{last_message(log.text) or error}')
         if self._tangent_on:
             self._equations = _equations(ops)
+        # the model's own load patterns (gravity), checked to be constant over the first step
+        self._model_loads = {int(tag): float(ops.getLoadFactor(tag))
+                             for tag in ops.getPatterns() if int(tag) != _PATTERN}
+
+    def _check_model_loads(self, ops) -> None:
+        """After the first step: the model's own load patterns kept their factors. One on a
+        time series that is not constant (an analysis in ``build()`` without ``loadConst``)
+        would grow with the test's time, and the test and its reference would part.
+
+        Raises
+        ------
+        ModelError
+            A pattern's factor moved (the message names it and the remedy).
+        """
+        loads, self._model_loads = self._model_loads, None
+        for tag, before in (loads or {}).items():
+            after = float(ops.getLoadFactor(tag))
+            if after != before:
+                raise ModelError(f'{self.spec.where}.model: its load pattern {tag} is not '
+                                 f'constant (its factor moved from {before:g} to {after:g} '
+                                 'over the first step: an analysis in build() left it on its '
+                                 "time series): call ops.loadConst('-time', 0.0) after the "
+                                 'analysis, or remove the pattern')
 
     def _opensees_step(self, j: int) -> None:
         """Step the model from sample j to j+1 with every rig's measurements of both."""
@@ -315,6 +339,8 @@ class OpenSeesPart:
             self._x[p], self._v[p], self._a[p] = end[r][0], end[r][1], end[r][2]
         if self._tangent_on:
             self._follow_tangent(ops, iterations, g1)
+        if self._model_loads is not None:
+            self._check_model_loads(ops)
         self.step_times_s.append(time.perf_counter() - t0)
 
     def _follow_tangent(self, ops, iterations: int, g: float) -> None:
