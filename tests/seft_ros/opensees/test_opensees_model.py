@@ -210,6 +210,49 @@ def test_rig_that_disagrees_with_its_elements():
         test_setup(params)
 
 
+def test_a_specimen_on_a_node_tied_to_the_interface_is_told_where_to_go(tmp_path):
+    """A 2-D floor of two nodes tied by equalDOF (retained 12, constrained 11), the brace on
+    11: refused, and the message says the tie and the node to connect it to (before: only
+    'not connected')."""
+    path = _model(tmp_path, """
+        import openseespy.opensees as ops
+        def build():
+            ops.wipe(); ops.model('basic', '-ndm', 2, '-ndf', 2)
+            ops.node(1, 0.0, 0.0); ops.node(2, 1.0, 0.0)
+            ops.node(11, 0.0, 1.0); ops.node(12, 1.0, 1.0); ops.node(90, -1.0, 1.0)
+            ops.fix(1, 1, 1); ops.fix(2, 1, 1); ops.fix(90, 1, 1)
+            ops.fix(11, 0, 1); ops.fix(12, 0, 1)
+            ops.mass(12, 100.0, 0.0)
+            ops.uniaxialMaterial('Elastic', 1, 2.11e5, 903.278)
+            ops.element('zeroLength', 1, 1, 11, '-mat', 1, '-dir', 1)
+            ops.element('zeroLength', 2, 2, 12, '-mat', 1, '-dir', 1)
+            ops.equalDOF(12, 11, 1)
+            ops.element('zeroLength', 9, 90, 11, '-mat', 1, '-dir', 1)
+    """)
+    with pytest.raises(ParameterError, match=r'physical_elements\.lab: element 9 \(nodes 90, '
+                       r'11\) is not connected to the interface node 12 of rig lab; its node 11 '
+                       r'is tied to node 12 by an equalDOF: connect the element to node 12 '
+                       r'itself \(the rig acts there\)$'):
+        parse_structure({'opensees': {'model': path, 'dofs': {'floor': [12, 1]},
+                                      'physical_elements': {'lab': [9]}},
+                         'physical': {'floor': 'lab'}})
+
+
+def test_a_story_as_the_specimen_names_the_dof_it_also_acts_on():
+    """Story 2's spring as the specimen of the rig at story 2 acts on story 1 too: the
+    largest term is story 1's own stiffness, named as such (before: 'between story_1 and
+    story_1')."""
+    s = parse_structure({'opensees': {'model': str(TWO_STORY),
+                                      'dofs': {'story_1': [1, 1], 'story_2': [2, 1]},
+                                      'physical_elements': {'lab': [2]}},
+                         'physical': {'story_2': 'lab'}})
+    params = dict(expand_runs({'predictor': 'none'})[0], structure=s.to_json())
+    with pytest.raises(ParameterError, match=r"the specimens act on other dofs than their rigs' "
+                       r'\(stiffness [\d.e+]+ N/m at story_1, which no rig tests\): a rig '
+                       'drives one dof'):
+        test_setup(params)
+
+
 def test_specimen_acting_on_other_dofs():
     """Story 2's spring as the specimen of the rig at story 1 also acts on story 2."""
     s = parse_structure(_section(physical_elements={'lab': [2]}))

@@ -469,12 +469,17 @@ def check_connected(spec: ModelSpec, interfaces: Mapping[str, tuple[int, int]]) 
                     joined.add(t)
                     reached |= ns
                     todo = True
+        tied = set(interface_group(node, interfaces[rig][1])) - {node}
         for t in tags:
             if t not in joined:
+                via = sorted(set(ops.eleNodes(t)) & tied)
+                hint = (f'; its node {via[0]} is tied to node {node} by an equalDOF: connect '
+                        f'the element to node {node} itself (the rig acts there)' if via
+                        else ": a specimen acts on its rig's DOF")
                 raise ParameterError(
                     f'{spec.where}.physical_elements.{rig}: element {t} (nodes '
                     f'{", ".join(str(n) for n in ops.eleNodes(t))}) is not connected to the '
-                    f"interface node {node} of rig {rig}: a specimen acts on its rig's DOF")
+                    f'interface node {node} of rig {rig}{hint}')
 
 
 def remove_specimens(spec: ModelSpec) -> list[int]:
@@ -915,11 +920,13 @@ def split_model(structure: Structure, specimens: Mapping[str, Mapping[str, Any]]
             rest[i, i] = 0.0
         if np.max(np.abs(rest)) > _TOL * scale:
             a, b = np.unravel_index(int(np.argmax(np.abs(rest))), rest.shape)
+            at = (f'at {structure.dofs[a]}, which no rig tests' if a == b else
+                  f'between {structure.dofs[a]} and {structure.dofs[b]}')
             raise ParameterError(
                 f'{where}.opensees.physical_elements: the specimens act on other dofs than '
-                f"their rigs' ({name} {rest[a, b]:.6g} {unit} between {structure.dofs[a]} "
-                f'and {structure.dofs[b]}): a rig drives one dof, so its specimen must act on '
-                'that dof only (e.g. a zeroLength or twoNodeLink element in that direction)')
+                f"their rigs' ({name} {rest[a, b]:.6g} {unit} {at}): a rig drives one dof, so "
+                'its specimen must act on that dof only (e.g. a zeroLength or twoNodeLink '
+                'element in that direction, not a story between two floors)')
     rigid = np.array([max(mass[i, i] - m[j], 0.0) for j, i in enumerate(idx)])
     alpha = np.round(rigid / m, ALPHA_DECIMALS)
     mc = mass.copy()
