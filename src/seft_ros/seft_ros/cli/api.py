@@ -112,9 +112,7 @@ def build_runs(*, config: str | None = None, overrides: dict[str, Any] | None = 
     # read every record now: a bad file is reported before anything starts
     seen = set()
     for p in runs:
-        key = tuple(p.get(k) for k in ('record', 'dt', 'mass_kg', 'amplitude_N',
-                                       'scale_factor', 'time_scale', 'record_resampling',
-                                       'duration_s', 'n_steps'))
+        key = _record_key(p)
         if key not in seen:
             seen.add(key)
             info = record_read(p)                   # None: the default or an excitation
@@ -250,12 +248,24 @@ def _run_label(p: dict, runs: list[dict] | None = None) -> str:
     return run_labels(runs)[index]
 
 
-def _note_record_read(rd: RunData, params: dict) -> None:
-    """Put what the run read from its record file (:func:`record_read`) in
-    ``rd.extra['record_read']`` for ``summary.json`` and the report."""
-    info = record_read(params)
-    if info is not None:
-        rd.extra['record_read'] = info
+def _record_key(p: dict) -> tuple:
+    """The parameters that decide a run's prepared record (runs that share them read and
+    prepare it once)."""
+    return tuple(p.get(k) for k in ('record', 'dt', 'mass_kg', 'amplitude_N', 'scale_factor',
+                                    'time_scale', 'record_resampling', 'duration_s',
+                                    'n_steps'))
+
+
+def _note_records_read(data: list[RunData], runs: list[dict]) -> None:
+    """Put what each run read from its record file (:func:`record_read`, once per record
+    and preparation) in ``rd.extra['record_read']`` for ``summary.json`` and the report."""
+    read: dict[tuple, dict | None] = {}
+    for rd, p in zip(data, runs):
+        key = _record_key(p)
+        if key not in read:
+            read[key] = record_read(p)
+        if read[key] is not None:
+            rd.extra['record_read'] = read[key]
 
 
 def _finish(out_dir: Path, runs: list[RunData], title: str, t0: float) -> Result:
@@ -329,10 +339,10 @@ def simulate_experiments(*, runs: list[dict], out_dir: Path,
     ranges = check_ranges(runs=runs, strict=strict, progress=progress)
     check_settings(runs=runs, progress=progress)
     data = simulate_runs(runs=runs, out_dir=out_dir, progress=progress, workers=workers)
-    for rd, p, check, limits in zip(data, runs, checks, ranges):
+    for rd, check, limits in zip(data, checks, ranges):
         rd.extra['stability'] = stability_entry(check)
         rd.extra['range_check'] = limits.as_dict()
-        _note_record_read(rd, p)
+    _note_records_read(data, runs)
     if bags:
         from seft_ros.analysis.bagwrite import write_run_bag
         for rd, path in zip(data, bags):
@@ -361,7 +371,7 @@ def simulate_runs(*, runs: list[dict], out_dir: Path,
     KeyboardInterrupt
         As :func:`simulate_experiments`.
     """
-    labels = [_run_label(p, runs) for p in runs]
+    labels = run_labels(runs)
     n_workers = min(len(runs), workers or os.cpu_count() or 1)
     if n_workers > 1:
         return _simulate_pool(runs, labels, out_dir, progress, n_workers)
@@ -633,8 +643,7 @@ def _run_here(runs, out_dir, progress, domain, nodes, processes, live) -> Result
                             f'{", ".join(present)}: another run? Stop it or choose another '
                             'domain on every host')
         data = []
-        for p in runs:
-            label = _run_label(p, runs)
+        for p, label in zip(runs, run_labels(runs)):
             outcome = runner.run(p, out_dir / label, label=f'[{label}] ', nodes=nodes)
             if outcome.recorded_here:
                 data.append(_read_outcome(outcome, label, progress))
@@ -790,8 +799,7 @@ def run_experiments(*, runs: list[dict], out_dir: Path,
     viewer = None
     try:
         viewer = _start_live(live, runner, out_dir, progress)
-        for p in runs:
-            label = _run_label(p, runs)
+        for p, label in zip(runs, run_labels(runs)):
             outcome = runner.run(p, out_dir / label, label=f'[{label}] ')
             data.append(_read_outcome(outcome, label, progress))
     finally:
@@ -799,10 +807,10 @@ def run_experiments(*, runs: list[dict], out_dir: Path,
             viewer.close()
         runner.close()
         claim.close()
-    for rd, p, check, limits in zip(data, runs, predicted, ranges):
+    for rd, check, limits in zip(data, predicted, ranges):
         rd.extra['stability'] = stability_entry(check)
         rd.extra['range_check'] = limits.as_dict()
-        _note_record_read(rd, p)
+    _note_records_read(data, runs)
     return _finish(out_dir, data, title or 'seft run', t0)
 
 
@@ -1125,9 +1133,9 @@ def check_settings(*, runs: list[dict], progress: Callable[[str], None] = print)
     a line shared by several runs once, with their labels)."""
     from seft_ros.core.specimen_settings import costly_settings
     lines: dict[str, list[str]] = {}
-    for p in runs:
+    for p, label in zip(runs, run_labels(runs)):
         for line in costly_settings(p):
-            lines.setdefault(line, []).append(_run_label(p, runs))
+            lines.setdefault(line, []).append(label)
     for line, labels in lines.items():
         progress(f'settings: [{", ".join(labels)}] {line}' if len(runs) > 1 else
                  f'settings: {line}')
@@ -1165,11 +1173,11 @@ def check_ranges(*, runs: list[dict], strict: bool = False,
         if check is not None:
             check(runs, progress=progress)
     checks, lines = [], {}
-    for p in runs:
+    for p, label in zip(runs, run_labels(runs)):
         check = range_check(p, prepared_record(p).acceleration_m_s2)
         checks.append(check)
         for line in check.lines():
-            lines.setdefault(line, []).append(_run_label(p, runs))
+            lines.setdefault(line, []).append(label)
     shown = [f'[{", ".join(labels)}] {line}' if len(runs) > 1 else line
              for line, labels in lines.items()]
     if strict and shown:
@@ -1206,10 +1214,9 @@ def check_stability(*, runs: list[dict], force: bool = False,
     """
     checks = [stability.check_run(p, margin=True) for p in runs]
     refused = []
-    for p, c in zip(runs, checks):
+    for p, c, label in zip(runs, checks, run_labels(runs)):
         if c.stable is None:
             progress(f'note: {c.message}')
-        label = _run_label(p, runs)
         if c.margin is not None:
             progress(f'robustness: [{label}] {c.margin.text()}')
         if c.stable is False:
