@@ -52,6 +52,7 @@ import sys
 import time
 
 from seft_msgs_py.scheduling import set_fifo
+from seft_ros.cli.arguments import OneLineParser
 from seft_ros.core.link import LinkModel
 
 __all__ = ['PacketWire', 'PacketHub', 'open_tun', 'main']
@@ -314,7 +315,7 @@ def _port(text: str):
 
 def build_parser() -> argparse.ArgumentParser:
     """The emulator's arguments."""
-    p = argparse.ArgumentParser(prog='link_emulator', description=__doc__.splitlines()[0])
+    p = OneLineParser(prog='link_emulator', description=__doc__.splitlines()[0])
     p.add_argument('--devices', nargs=2, metavar=('FIRST', 'SECOND'),
                    help='names of the two TUN devices to create (at most 15 characters)')
     p.add_argument('--port', type=_port, action='append', default=[],

@@ -16,6 +16,7 @@ from seft_msgs_py import parameters
 from seft_msgs_py.errors import InputError, SeftError
 from seft_plant_sim.faults import CONTROLLER_FAULTS, FAULTS, SENSOR_FAULTS
 from seft_ros.cli import api, partition
+from seft_ros.cli.arguments import OneLineParser
 from seft_ros.cli.config import repeated
 from seft_ros.cli.live import options_from_args
 from seft_ros.cli.spawn import node_start
@@ -24,13 +25,6 @@ from seft_ros.cli.spawn import node_start
 RIG_CHOICES = parameters.spec('rig_model').choices
 
 __all__ = ['main', 'build_parser']
-
-
-class _Parser(argparse.ArgumentParser):
-    def error(self, message):
-        self.print_usage(sys.stderr)
-        print(f'seft: error: {message}', file=sys.stderr)
-        sys.exit(2)
 
 
 def _set_value(text: str):
@@ -130,9 +124,10 @@ def _experiment_options(p: argparse.ArgumentParser) -> None:
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of ``seft``."""
-    parser = _Parser(prog='seft', description='Substructure effective force testing '
+    parser = OneLineParser(prog='seft', description='Substructure effective force testing '
                      '(force-based real-time hybrid simulation) on ROS 2.')
-    sub = parser.add_subparsers(dest='verb', required=True, parser_class=_Parser)
+    sub = parser.add_subparsers(dest='verb', required=True, parser_class=OneLineParser)
+    parser.verbs = sub.choices
     run = sub.add_parser('run', help='run experiments as a node graph over DDS (bag + report)')
     _experiment_options(run)
     run.add_argument('--mode', choices=('lockstep', 'realtime'),

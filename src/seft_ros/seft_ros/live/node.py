@@ -39,6 +39,7 @@ from seft_msgs_py.errors import SeftError
 from seft_msgs_py.node_support import exit_if_longer
 from seft_msgs_py.signals import FINAL_STATES
 from seft_msgs_py.topics import LINK, RUN_PARAMETERS, STATUS, record_topic
+from seft_ros.cli.arguments import OneLineParser
 from seft_ros.live.access import DEFAULT_HOST, DEFAULT_PORT, TOKEN_ENV, LiveOptions, listen_error
 from seft_ros.live.channels import DISPLAY_RATE_HZ
 from seft_ros.live.view import LIVE_NAME, LiveView
@@ -181,7 +182,7 @@ class LiveNode(Node):
 
 
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog='python -m seft_ros.live.node',
+    p = OneLineParser(prog='python -m seft_ros.live.node', error_prefix='live view',
                                 description='The live view of seft runs in this ROS domain '
                                 f'(token: ${TOKEN_ENV}).')
     p.add_argument('--host', default=DEFAULT_HOST)
