@@ -266,12 +266,14 @@ def test_rayleigh_damping_on_the_current_stiffness_of_some_elements_is_refused(t
         part.prepare()
 
 
-#: A two-story building whose build() runs a static analysis of a lateral 100 N at floor 2,
-#: held by loadConst (``held``) or left on its linear series.
+#: A two-story building whose build() runs a static analysis of 100 N at node ``at`` (2: its
+#: roof, a lateral load; 3: a massless node on its own spring to the ground, a load that
+#: displaces no DOF of the building), held by loadConst (``held``) or left on its linear
+#: series.
 LOADED_BUILDING = """
 import openseespy.opensees as ops
 
-def build(held=True):
+def build(held=True, at=3):
     ops.wipe()
     ops.model('basic', '-ndm', 1, '-ndf', 1)
     ops.node(0, 0.0)
@@ -281,9 +283,12 @@ def build(held=True):
         ops.mass(i, 52.7)
         ops.uniaxialMaterial('Elastic', i, 2.11e5, 903.278 if i == 1 else 333.5)
         ops.element('zeroLength', i, i - 1, i, '-mat', i, '-dir', 1)
+    ops.node(3, 0.0)
+    ops.uniaxialMaterial('Elastic', 3, 1e5)
+    ops.element('zeroLength', 3, 0, 3, '-mat', 3, '-dir', 1)
     ops.timeSeries('Linear', 1)
     ops.pattern('Plain', 1, 1)
-    ops.load(2, 100.0)
+    ops.load(at, 100.0)
     ops.constraints('Plain')
     ops.numberer('Plain')
     ops.system('BandGeneral')
@@ -297,33 +302,53 @@ def build(held=True):
 """
 
 
-@pytest.mark.parametrize('held', [True, False])
-def test_a_load_left_on_its_time_series_is_refused_at_the_first_step(tmp_path, held):
-    """A static analysis in build(): held by loadConst the pattern stays (its factor 1 at
-    every step); left on its linear series its load would grow with the test's time (the
-    test 8-26 % off its reference, silently, before): refused at the first step."""
-    from seft_ros.opensees.model import ModelError
+def _loaded_part(tmp_path, held, at):
     (tmp_path / 'loaded.py').write_text(LOADED_BUILDING)
-    doc = {'structure': {'opensees': {'model': 'loaded.py', 'arguments': {'held': held},
+    doc = {'structure': {'opensees': {'model': 'loaded.py',
+                                      'arguments': {'held': held, 'at': at},
                                       'dofs': {'s1': [1, 1], 's2': [2, 1]},
                                       'physical_elements': {'lab': [1]}},
                          'physical': {'s1': 'lab'}},
            'rigs': {'lab': {'rig_model': 'delay'}}, 'predictor': 'none', 'duration_s': 0.1}
     (tmp_path / 'loaded.yaml').write_text(yaml.safe_dump(doc))
     params = expand_runs(load_config(tmp_path / 'loaded.yaml'))[0]
-    part = OpenSeesPart(test_setup(params).substructures, DT)
+    return OpenSeesPart(test_setup(params).substructures, DT)
+
+
+def _three_steps(part):
+    for j in range(3):
+        part.observe(0, Measurement(j, j * DT, 0.0, 0.0, 0.0, 0.0))
+        part.set_ground(j, 0.0)
+        part.state_at(j)
+
+
+@pytest.mark.parametrize('held', [True, False])
+def test_a_load_left_on_its_time_series_is_refused_at_the_first_step(tmp_path, held):
+    """A static analysis in build() (its load beside the building: none of its DOFs
+    displaced): held by loadConst the pattern stays (its factor 1 at every step); left on its
+    linear series its load would grow with the test's time (the test 8-26 % off its
+    reference, silently, before): refused at the first step."""
+    from seft_ros.opensees.model import ModelError
+    part = _loaded_part(tmp_path, held, at=3)
     part.prepare()
     if held:
-        for j in range(3):
-            part.observe(0, Measurement(j, j * DT, 0.0, 0.0, 0.0, 0.0))
-            part.set_ground(j, 0.0)
-            part.state_at(j)
+        _three_steps(part)
         return
     with pytest.raises(ModelError, match=r'^structure\.opensees\.model: its load pattern 1 is '
                        r'not constant \(its factor moved from 1 to 1\.00[12] over the first '
                        r'step: .*call ops\.loadConst\(\'-time\', 0\.0\) after the analysis, or '
                        r'remove the pattern$'):
-        for j in range(3):
-            part.observe(0, Measurement(j, j * DT, 0.0, 0.0, 0.0, 0.0))
-            part.set_ground(j, 0.0)
-            part.state_at(j)
+        _three_steps(part)
+
+
+def test_a_lateral_load_held_through_the_interface_is_refused_at_rest(tmp_path):
+    """100 N at the roof held by loadConst holds the specimen's DOF at 100 / 2.11e5 m =
+    0.4739 mm where the rig starts at 0 (a start-up transient of 7 % over 1 s before):
+    refused before the first step, in one line with the displacement."""
+    from seft_ros.opensees.model import ModelError
+    part = _loaded_part(tmp_path, True, at=2)
+    with pytest.raises(ModelError, match=r'^structure\.opensees\.model: its own loads hold the '
+                       r'interface DOF s1 \(node 1, dof 1\) at 0\.4739 mm at the start, where '
+                       r"the rig's specimen starts unloaded at 0 .*; leave lateral loads out of "
+                       r'build\(\) \(gravity on a frame that does not sway may stay\)$'):
+        part.prepare()
