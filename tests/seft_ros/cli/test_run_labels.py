@@ -2,6 +2,7 @@
 (two records of one file stem, alphas equal to six digits) are told apart, and the same run
 twice is refused before anything starts (``seft_ros.cli.api.run_labels``)."""
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -75,3 +76,13 @@ def test_simulate_writes_each_run_of_one_stem_and_close_alphas_apart(seft_exe, r
         values = params.get('/**', {}).get('ros__parameters', params)
         assert values['record'] == f'{d.split("_")[-2]}/dt001.csv'
         assert f'alpha_{values["alpha"]!r}_' in d
+    # the summary, the console table and the report name the records as the labels do
+    # (before: both 'dt001', and the table had no record column: two rows alike)
+    summary = json.loads((tmp_path / 'out' / 'summary.json').read_text())['runs']
+    assert sorted({e['record'] for e in summary}) == ['rec2_dt001', 'rec_dt001']
+    assert sorted(e['record_read']['file'] for e in summary)[::2] == ['rec/dt001.csv',
+                                                                      'rec2/dt001.csv']
+    rows = [ln for ln in proc.stdout.splitlines() if ln.rstrip().endswith('_dt001')]
+    assert len(rows) == 4 and {ln.split()[-1] for ln in rows} == {'rec_dt001', 'rec2_dt001'}
+    report = (tmp_path / 'out' / 'report.md').read_text()
+    assert '| rec_dt001 |' in report and '| rec2_dt001 |' in report

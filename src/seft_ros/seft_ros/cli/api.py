@@ -258,14 +258,23 @@ def _record_key(p: dict) -> tuple:
 
 def _note_records_read(data: list[RunData], runs: list[dict]) -> None:
     """Put what each run read from its record file (:func:`record_read`, once per record
-    and preparation) in ``rd.extra['record_read']`` for ``summary.json`` and the report."""
+    and preparation) in ``rd.extra['record_read']`` for ``summary.json`` and the report.
+    Records of one file stem in other folders are named as their runs' labels name them
+    (``rd.record_name``: ``rec2_dt001``, :func:`_record_names`), so that the tables, the
+    summary and the report tell their runs apart."""
     read: dict[tuple, dict | None] = {}
+    records = list(dict.fromkeys(str(p['record']) for p in runs))
+    stems = [Path(r).stem for r in records]
+    names = _record_names(records) if len(set(stems)) < len(stems) else {}
     for rd, p in zip(data, runs):
         key = _record_key(p)
         if key not in read:
             read[key] = record_read(p)
         if read[key] is not None:
             rd.extra['record_read'] = read[key]
+        record = str(p['record'])
+        if names and stems.count(Path(record).stem) > 1:
+            rd.record_name = names[record]
 
 
 def _finish(out_dir: Path, runs: list[RunData], title: str, t0: float) -> Result:
