@@ -175,7 +175,14 @@ def test_a_sweep_over_two_predictors_runs_both_graphs(tmp_path, seft_exe, run_pr
     assert leftover_processes(str(out)) == []
     domains = re.findall(r'graph up in [\d.]+ s \(ROS_DOMAIN_ID=(\d+)\)', proc.stderr)
     assert domains == [str(DOMAIN_ID)] * 2, proc.stderr
+    # each run's wall time, and the rigs' stepping without the start-up (the graph's
+    # discovery and settling: a real-time run read 'x0.47 real time' before)
+    walls = re.findall(r'\] (\d+) steps in ([\d.]+) s wall \(stepping ([\d.]+) s\);',
+                       proc.stderr)
+    assert len(walls) == 2 and walls[1][0] == '1000', proc.stderr
+    assert all(0 < float(stepping) <= float(wall) for _, wall, stepping in walls), walls
     entries = json.loads((out / 'summary.json').read_text())['runs']
+    assert [f'{e["wall_s"]:.1f}' for e in entries] == [w[2] for w in walls]
     assert [(e['predictor'], e['stable']) for e in entries] == [('none', False),
                                                                 ('model', True)]
     bags = [next(out.glob(f'*_{predictor}/bag')) for predictor in ('none', 'model')]

@@ -606,7 +606,9 @@ def _read_outcome(outcome, label: str, progress: Callable[[str], None]) -> RunDa
                      'the run)')
     state = 'stable' if rd.stable else f'ABORTED at {rd.unstable_at_s:.3f} s: ' \
         f'{rd.abort_reason}'
-    progress(f'[{label}] {rd.n_steps} steps in {outcome.wall_time_s:.1f} s wall; '
+    stepping = rd.extra.get('wall_s')          # the rigs' stepping, without the start-up
+    stepped = f' (stepping {stepping:.1f} s)' if stepping else ''
+    progress(f'[{label}] {rd.n_steps} steps in {outcome.wall_time_s:.1f} s wall{stepped}; '
              f'{state}; bag {outcome.bag_path}')
     _replay_if_due(rd, label, progress)
     return rd

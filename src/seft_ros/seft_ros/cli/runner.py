@@ -722,7 +722,7 @@ class GraphRunner:
         last_progress = time.monotonic()
         last_print = 0.0
         seen = 0
-        t0 = time.monotonic()
+        stepping = None                 # (wall, sim time) when the rig was first seen running
         audited_at = 0.0
         while True:
             self._spin(0.1)
@@ -744,13 +744,18 @@ class GraphRunner:
                     self.warnings_said.add((s['name'], s['warning']))
             rig = self._latest(self.graph.master)
             now = time.monotonic()
-            if rig and rig.get('state') == STATE_RUNNING and now - last_print > 2.0:
-                last_print = now
-                step, n = int(rig.get('step', 0)), int(rig.get('n_steps', 0) or 1)
+            if rig and rig.get('state') == STATE_RUNNING:
                 sim_t = float(rig.get('time_s', 0.0))
-                speed = sim_t / max(now - t0, 1e-9)
-                self.progress(f'{label}step {step}/{n} ({100 * step / n:.0f} %), '
-                              f't = {sim_t:.2f} s sim, {speed:.2f}x real time')
+                if stepping is None:          # the pace is the stepping's, not the start-up's
+                    stepping = (now, sim_t)
+                if now - last_print > 2.0:
+                    last_print = now
+                    step, n = int(rig.get('step', 0)), int(rig.get('n_steps', 0) or 1)
+                    elapsed = now - stepping[0]
+                    pace = (f', {(sim_t - stepping[1]) / elapsed:.2f}x real time'
+                            if elapsed >= 1.0 else '')
+                    self.progress(f'{label}step {step}/{n} ({100 * step / n:.0f} %), '
+                                  f't = {sim_t:.2f} s sim{pace}')
             over = (self._latest('recorder', (STATE_CLOSED,)) or (
                 not recorded_here and all(p.poll() is not None for p in procs.values())))
             if over or (recorded_here and self._closed_on_disk(procs)):
