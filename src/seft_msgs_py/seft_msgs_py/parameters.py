@@ -149,7 +149,8 @@ SCHEMA: tuple[ParamSpec, ...] = (
               'accelerogram), a PEER NGA .AT2 path (g) or a two-column time [s], '
               'acceleration [m/s^2] CSV path.', nodes=_GM + ('recorder',)),
     ParamSpec('amplitude_N', 1000.0, 'N', 'Scale the record so that the peak of m*xg_ddot is '
-              'this force (reference study: 1000 N); 0 uses scale_factor instead.', 0.0, None,
+              'this force (reference study: 1000 N), m the top-level mass_kg (also for a '
+              'structure, whatever its specimens weigh); 0 uses scale_factor instead.', 0.0, None,
               nodes=_GM + _RFB + ('recorder',)),
     ParamSpec('scale_factor', 1.0, '', 'Plain amplitude factor on the record (used when '
               'amplitude_N is 0).', 0.0, None, True, nodes=_GM + ('recorder',)),

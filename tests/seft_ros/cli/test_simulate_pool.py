@@ -136,8 +136,8 @@ def test_what_a_record_file_gave_is_said_once_and_kept_in_the_summary(tmp_path):
                           progress=lines.append)
     said = [ln for ln in lines if ln.startswith('record ')]
     assert said == [f'record {csv}: 200 samples at 0.01 s (2 s), PGA 0.2039 g at 0.25 s; run: '
-                    'time scale 0.5, 0.5 s at dt 0.002 s, scaled x9.487 to amplitude_N=1000 N, '
-                    'peak 1.935 g']
+                    'time scale 0.5, 0.5 s at dt 0.002 s, scaled x9.487 to amplitude_N=1000 N '
+                    'over mass_kg=52.7 kg, peak 1.935 g']
     result = api.simulate_experiments(runs=runs, out_dir=tmp_path / 'out',
                                       progress=lines.append, force=True, workers=1)
     for entry in result.summary:

@@ -642,11 +642,13 @@ def test_record_read(tmp_path):
     info = record_read(params)
     assert info == {'file': str(path), 'npts': 7, 'dt_s': 0.01, 'duration_s': 0.07,
                     'pga_g': 1.0, 'pga_at_s': 0.04, 'time_scale': 1.0, 'scale': 0.5,
-                    'scaled_by': 'amplitude_N', 'amplitude_N': G, 'run_samples': 7,
+                    'scaled_by': 'amplitude_N', 'amplitude_N': G, 'mass_kg': 2.0,
+                    'run_samples': 7,
                     'run_dt_s': 0.01, 'run_duration_s': 0.07, 'run_peak_g': 0.5}
     assert record_read_line(info) == (
         f'record {path}: 7 samples at 0.01 s (0.07 s), PGA 1 g at 0.04 s; run: time scale 1, '
-        '0.07 s at dt 0.01 s, scaled x0.5 to amplitude_N=9.80665 N, peak 0.5 g')
+        '0.07 s at dt 0.01 s, scaled x0.5 to amplitude_N=9.80665 N over mass_kg=2 kg, peak '
+        '0.5 g')
     # the prepared record is the one the run gets
     run = prepared_record(params)
     assert run.peak_m_s2 / G == info['run_peak_g']

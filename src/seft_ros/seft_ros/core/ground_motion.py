@@ -788,7 +788,9 @@ def record_read(params) -> dict | None:
         run's input: ``{'time_scale', 'scale', 'scaled_by', 'run_samples', 'run_dt_s',
         'run_duration_s', 'run_peak_g'}``, ``scale`` the factor the resampled record was
         multiplied by, ``scaled_by`` ``'amplitude_N'`` (to the peak ``amplitude_N`` [N] of
-        ``mass_kg * a``, with the key ``'amplitude_N'``) or ``'scale_factor'``.
+        ``mass_kg * a``, with the keys ``'amplitude_N'`` and ``'mass_kg'``: the top-level
+        ``mass_kg``, the study's specimen mass unless set, also for a structure) or
+        ``'scale_factor'``.
 
     Raises
     ------
@@ -806,7 +808,8 @@ def record_read(params) -> dict | None:
             'scale': factor}
     amplitude = float(params['amplitude_N'])
     if amplitude > 0:
-        info.update(scaled_by='amplitude_N', amplitude_N=amplitude)
+        info.update(scaled_by='amplitude_N', amplitude_N=amplitude,
+                    mass_kg=float(params['mass_kg']))
     else:
         info['scaled_by'] = 'scale_factor'
     info.update(run_samples=gm.n, run_dt_s=gm.dt, run_duration_s=gm.duration_s,
@@ -817,9 +820,9 @@ def record_read(params) -> dict | None:
 def record_read_line(info: dict) -> str:
     """One line of :func:`record_read`'s figures: ``record X.AT2: 5372 samples at 0.01 s
     (53.72 s), PGA 0.2808 g at 2.18 s; run: time scale 0.5, 26.86 s at dt 0.002 s, scaled
-    x3.63 to amplitude_N=1000 N, peak 1.019 g``."""
-    how = (f"to amplitude_N={info['amplitude_N']:g} N" if info['scaled_by'] == 'amplitude_N'
-           else '(scale_factor)')
+    x3.63 to amplitude_N=1000 N over mass_kg=52.7 kg, peak 1.019 g``."""
+    how = (f"to amplitude_N={info['amplitude_N']:g} N over mass_kg={info['mass_kg']:g} kg"
+           if info['scaled_by'] == 'amplitude_N' else '(scale_factor)')
     return (f"record {info['file']}: {info['npts']} samples at {info['dt_s']:g} s "
             f"({info['duration_s']:g} s), PGA {info['pga_g']:.4g} g at {info['pga_at_s']:g} s; "
             f"run: time scale {info['time_scale']:g}, {info['run_duration_s']:g} s at dt "
