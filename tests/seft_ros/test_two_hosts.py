@@ -6,7 +6,8 @@ with that reason (CI runs as root, so it runs there). The run is real time acros
 5 ms +/- 1 ms one way (the link emulator's hub; this kernel has no netem), split the earlier
 way (``--partition builder_remote``: the loop crosses the link, the runners size the playout
 delay from the measured round trip, ``network_delay_s`` auto); the link is taken down 3 s
-after the rig started.
+after the rig started. The default partition (``loop_local``) with its link cut: the compute
+host, which holds the recorder, ends the run and writes the report.
 """
 
 import json
@@ -120,6 +121,64 @@ def test_a_cut_link_ends_the_run_safely_on_both_hosts(tmp_path, ros_env):
     # sized from the start-up measurement (the run's own is in 'hosts'), with the margin
     assert link['network_delay_s'] >= 1e-3 * (link['decided_round_trip_p99_ms'] + 3.0) - 1e-9
     assert link['decided_round_trip_p99_ms'] <= rtt['max']
+
+
+def test_a_cut_link_on_the_default_partition_ends_the_run_on_the_compute_host(tmp_path,
+                                                                              ros_env):
+    """The default partition (the loop on the lab host, the recorder on the compute host),
+    the link cut 1 s into a 3 s run: the lab stops its rig on its watchdog, and the compute
+    host, which then hears nothing more of the lab, takes it for lost once it has answered no
+    ping for REFERENCE_SILENT_S, ends the run with the reason and writes the report. Before,
+    it waited for the lab's rig until 'the run stalled: no report for 30 s' (exit 2, no
+    report; the recorder closed the bag 40 s after the start)."""
+    why = _can_make_namespaces()
+    if why:
+        pytest.skip(why)
+    for attempt in (1, 2):
+        out = tmp_path / f'cut_{attempt}'
+        proc = subprocess.run(
+            ['bash', str(ROOT / 'tools' / 'two_hosts.sh'), '--cut-after', '1', '--out',
+             str(out), '--', '--duration', '3', '--set', 'watchdog_timeout_s=0.04'],
+            cwd=tmp_path, env=ros_env, capture_output=True, text=True, timeout=300)
+        err = proc.stderr
+        assert 'Traceback' not in err
+        # a safety function ended the run: a result on both hosts (exit 0), as one host's abort
+        assert proc.returncode == 0, err
+        if 'lab host lab lost' in err:
+            break
+        # the run ended before the cut (a stall of this shared machine): once more
+        print(f'attempt {attempt}: the run ended before the cut:\n{err}')
+    else:
+        pytest.skip('both runs ended before the cut (stalls of this machine)')
+    cut = re.search(r'link cut \(.+ of lab, both ways\) ([0-9.]+) s after the rigs started '
+                    r'.* at wall time (\d+) ns', err)
+    assert cut, err
+    cut_s, cut_wall_s = float(cut.group(1)), int(cut.group(2)) * 1e-9
+    lost = re.search(r'^compute: .*lab host lab lost after t = ([0-9.]+) s \(its last sample '
+                     r'here\): link cut or host down, no word from it for ([0-9.]+) s; '
+                     r'recording closed$', err, re.MULTILINE)
+    assert lost, err
+    # the lab's samples reached the bag up to the cut; the silence the pings measured
+    assert cut_s - 0.15 < float(lost.group(1)) <= cut_s + 0.05, (cut_s, lost.group(1))
+    assert 5.0 <= float(lost.group(2)) < 6.0, lost.group(2)
+    # the bag closed within a few seconds of the cut: the lab's last answer to a ping (at
+    # most 1 s before the cut) plus REFERENCE_SILENT_S (5 s), and a margin for this machine
+    log = next(out.glob('compute/*/logs/recorder.log')).read_text()
+    closed = re.search(r'\[(\d+\.\d+)\] \[recorder\]: bag .* closed', log)
+    assert closed, log
+    assert 3.5 < float(closed.group(1)) - cut_wall_s < 7.5, float(closed.group(1)) - cut_wall_s
+    # the report, as seft compare writes it from the bag: aborted, with the reason
+    entry = json.loads((out / 'compute' / 'summary.json').read_text())['runs'][0]
+    assert entry['stable'] is False and entry['abort_node'] == 'seft_runner'
+    assert entry['abort_reason'].startswith('seft_runner: lab host lab lost: no word from it')
+    assert entry['recording']['end'] == 'stopped'
+    assert abs(entry['unstable_at_s'] - float(lost.group(1))) < 0.01, entry['unstable_at_s']
+    report = (out / 'compute' / 'report.md').read_text()
+    assert 'lab host lab lost' in report and 'recording stopped' in report
+    # the lab ended its nodes too, with its own reason
+    assert re.search(r'^lab: .*no word from the host with the recorder', err, re.MULTILINE)
+    names = subprocess.run(['ip', 'netns', 'list'], capture_output=True, text=True).stdout
+    assert not re.search(_left_behind(err), names), names
 
 
 def test_a_lossy_link_does_not_stop_the_run(tmp_path, ros_env):

@@ -17,13 +17,15 @@ Before their nodes start, the runners of a run over several hosts meet on DDS:
    all hosts then agree) and its host's offset (:data:`~seft_msgs_py.clock.OFFSET_ENV`).
 
 During the run the reference pings every host once a second (a host that stops hearing them
-after its own nodes have ended takes the reference for lost:
+after its own nodes have ended takes the reference for lost, and the reference takes a host
+that stops answering them, and whose nodes are silent too, for lost:
 ``REFERENCE_SILENT_S`` of seft_ros.cli.runner) and publishes the link figures
 (``/seft/link``), which the recorder writes into the bag: round trip p50/p99/max and offset
 per host pair, and the emulation used (:data:`EMULATION_ENV`, which ``tools/hosts.sh`` sets).
 """
 
 import json
+import math
 import os
 import socket
 import time
@@ -161,8 +163,12 @@ class LinkPhase:
         self.samples: dict[str, list[PingSample]] = {}
         self._seq = 0
         self._sent: dict[int, tuple[str, int]] = {}
-        self._last_ping = 0.0
+        self._last_ping = -math.inf
         self._last_publish = 0.0
+        #: The reference: when each host last answered a ping, and when this runner's pings
+        #: of the run in progress began (monotonic [s]; a host's silence counts from then)
+        self.answered_at: dict[str, float] = {}
+        self._pinging_since = 0.0
         self.label = ''
         self.reference = False
         self.decision: dict | None = None
@@ -207,6 +213,7 @@ class LinkPhase:
         if doc.get('to') != self.site or doc['seq'] not in self._sent:
             return
         peer, t1 = self._sent.pop(doc['seq'])
+        self.answered_at[peer] = time.monotonic()
         self.samples.setdefault(peer, []).append(PingSample(t1, doc['t2'], doc['t3'], t4))
 
     def _ping(self, peer: str) -> None:
@@ -304,12 +311,23 @@ class LinkPhase:
             return 0.0
         return time.monotonic() - self.reference_heard_at
 
+    def hosts_silent_s(self) -> dict[str, float]:
+        """The reference: how long each other host has not answered its pings [s], counted
+        from the first ping of the run in progress (none while its nodes start); {} elsewhere."""
+        if not self.reference or self.decision is None:
+            return {}
+        now = time.monotonic()
+        return {p: now - max(self.answered_at.get(p, -math.inf), self._pinging_since)
+                for p in self.decision['links']}
+
     def tick(self) -> None:
         """The reference: a ping to every host each second, the figures every 2 s."""
         if not self.reference or self.decision is None:
             return
         now = time.monotonic()
         if now - self._last_ping >= 1.0:
+            if now - self._last_ping > 2.0:
+                self._pinging_since = now     # pings resume: a run is watched from here
             self._last_ping = now
             for peer in self.decision['links']:
                 self._ping(peer)

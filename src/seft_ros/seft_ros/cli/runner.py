@@ -13,7 +13,8 @@ recorder listens. The run is over when the recorder reports the bag 'closed'.
 Several hosts: a runner may start only some of the nodes (``nodes``); the others are started
 by the runner of another host, in the same ROS domain. The runner waits until every node of
 the graph, local or remote, has reported ready, and ends when the bag is closed or, where the
-recorder runs elsewhere, when the run is over and its own nodes have exited.
+recorder runs elsewhere, when the run is over and its own nodes have exited. A host gone
+silent (its link cut, or down) ends the run on the other side: ``REFERENCE_SILENT_S``.
 
 Only the run commands its rig (issue 42): each run gets a new run token
 (:mod:`seft_msgs_py.provenance`, the nodes seal their messages with it), and every
@@ -96,7 +97,11 @@ END_TIMEOUT_S = 15.0
 #: heard the host with the recorder (its runner pings every host once a second) for this
 #: long [s]: the link or that host is lost, and nothing more reaches the bag. Otherwise its
 #: nodes linger until the recorder closes the bag (``RECORDER_WAIT_S`` of
-#: seft_msgs_py.node_support, 20 s): a lab whose link was cut waited those 20 s.
+#: seft_msgs_py.node_support, 20 s): a lab whose link was cut waited those 20 s. The host with
+#: the recorder takes a host that has not answered its pings, and whose nodes have not
+#: reported, for this long for lost, and ends the run (:meth:`GraphRunner._host_lost`): the
+#: recorder waited for that host's rig forever, and the runner gave up with 'the run stalled'
+#: after ``STALL_TIMEOUT_S``, no report written.
 REFERENCE_SILENT_S = 5.0
 #: Name of the runner's status reports.
 RUNNER_NAME = 'seft_runner'
@@ -530,6 +535,12 @@ class GraphRunner:
         bag is closed or the recorder of this host is gone (or, without a recorder here, until
         this host's nodes have exited)."""
         self._publish_abort(reason, **values)
+        self._wait_closed(procs)
+
+    def _wait_closed(self, procs) -> None:
+        """Wait (at most :data:`END_TIMEOUT_S`) until the bag is closed or the recorder of
+        this host is gone (or, without a recorder here, until this host's nodes have
+        exited)."""
         deadline = time.monotonic() + END_TIMEOUT_S
         recorder = procs.get('recorder')
         while time.monotonic() < deadline:
@@ -555,20 +566,31 @@ class GraphRunner:
     def _when_from_bag(self) -> str:
         """When in the run, from the first rig's last measured sample in this host's bag
         (``step * dt``, the rig contract's stamps), or 'before the rig started'."""
-        if not self._bag_closed():
+        last = self._bag_last_step([self.graph.master])
+        if last is None:
             return 'before the rig started'
+        step, t_s = last
+        return (f'at t = {t_s:.3f} s (step {step}, the last in the bag; no report of the rig '
+                'reached this runner)')
+
+    def _bag_last_step(self, rig_nodes) -> tuple[int, float] | None:
+        """The last step every sensor of the rigs `rig_nodes` has in this host's closed bag,
+        and its time [s] (``step * dt``, the rig contract's stamps); None when the bag is not
+        closed, cannot be read or holds none."""
+        if not self._bag_closed():
+            return None
         from seft_ros.analysis.bag import read_signals  # the error path only: no import cost
         try:
             bag = read_signals(self._bag_path)
         except (SeftError, OSError):            # a when, never a second error
-            return 'before the rig started'
-        steps = [max(bag.samples[s.name]) for s in self.graph.sensors(self.graph.rigs[0])
+            return None
+        rigs = [self.graph.rig_of(n) for n in rig_nodes]
+        steps = [max(bag.samples[s.name]) for r in rigs for s in self.graph.sensors(r)
                  if bag.samples.get(s.name)]
         if not steps:
-            return 'before the rig started'
+            return None
         step = min(steps)
-        return (f'at t = {step * float(bag.params["dt"]):.3f} s (step {step}, the last in the '
-                'bag; no report of the rig reached this runner)')
+        return step, step * float(bag.params['dt'])
 
     def _check_procs(self, procs, log_dir) -> None:
         """A node of this host that died ends the run safely, then the runner fails naming
@@ -764,6 +786,9 @@ class GraphRunner:
             if not recorded_here and self._reference_lost(procs, label):
                 self._check_stopped()
                 return self._rig_final(heard_only=True) or {}
+            if recorded_here and self._host_lost(procs, label):
+                self._check_stopped()
+                return self._rig_final(heard_only=True) or {}
             if recorded_here and procs['recorder'].poll() is not None:
                 raise SeftError('the recorder exited before closing the bag: '
                                 f'{_last_line(log_dir / log_name("recorder"))}')
@@ -786,6 +811,45 @@ class GraphRunner:
                       '(link or host lost): ending them; its bag holds what reached it')
         for p in _running(procs):
             p.send_signal(signal.SIGINT)
+        return True
+
+    def _host_lost(self, procs, label: str) -> bool:
+        """On the host with the recorder: another host has answered none of its pings, and
+        none of its nodes has reported, for :data:`REFERENCE_SILENT_S` (its link cut, or the
+        host down: its rig's end can no longer reach the recorder). Then end the run: an abort
+        that names the host and its nodes (the recorder stops waiting for them and closes the
+        bag with what reached it; the nodes here end on it), then one line saying so."""
+        silent = {} if self.link is None else self.link.hosts_silent_s()
+        lost = {}
+        for host, silent_s in silent.items():
+            if silent_s <= REFERENCE_SILENT_S:
+                continue
+            nodes = [n for n in self.link.hellos.get(host, {}).get('nodes', ())
+                     if n in self.run_nodes]
+            heard = [s['received'] for s in self.statuses if s['name'] in nodes]
+            silent_s = min([silent_s, *(time.monotonic() - t for t in heard[-1:])])
+            if silent_s > REFERENCE_SILENT_S:
+                lost[host] = (silent_s, nodes)
+        if not lost:
+            return False
+        for host, (silent_s, nodes) in lost.items():
+            rigs = [n for n in nodes if n in self.graph.rig_nodes()]
+            self._publish_abort(f'lab host {host} lost: no word from it for {silent_s:.1f} s '
+                                '(link cut or host down)', lost_nodes=','.join(nodes),
+                                **({'failed_node': rigs[0]} if rigs else {}))
+        self._wait_closed(procs)
+        closed = ('recording closed' if self._bag_closed() else
+                  f'recording not closed after {END_TIMEOUT_S:.0f} s: stopping the recorder')
+        for host, (silent_s, nodes) in lost.items():
+            rigs = [n for n in nodes if n in self.graph.rig_nodes()]
+            last = self._bag_last_step(rigs)
+            heard = [self._latest(r, (STATE_RUNNING,)) for r in rigs]
+            when = (f'after t = {last[1]:.3f} s (its last sample here)' if last is not None
+                    else 'before its rig started' if not any(heard) else
+                    f'after t = {max(float(h.get("time_s", 0.0)) for h in heard if h):.3f} s '
+                    '(its last report here)')
+            self.progress(f'{label}lab host {host} lost {when}: link cut or host down, no '
+                          f'word from it for {silent_s:.1f} s; {closed}')
         return True
 
     def _check_stopped(self) -> None:

@@ -33,7 +33,9 @@ sqlite3 commits cost about 7 us a step. A closed bag is the same for every reade
 
 It ends by itself once the rig reported 'done' or 'aborted' and every node's final count of
 published samples has arrived (or after ``FLUSH_TIMEOUT_S``), closes the bag, reports
-'closed' and exits. On Ctrl-C or SIGTERM it closes the bag too.
+'closed' and exits. On Ctrl-C or SIGTERM it closes the bag too. A runner's abort that names
+the nodes of a host it lost (``lost_nodes``: its link cut, ``seft_ros.cli.runner``) counts
+them as ended: their reports cannot come.
 
 Run by hand: ``ros2 run seft_ros recorder --ros-args -p bag_path:=my_run ...``.
 """
@@ -307,6 +309,9 @@ class RecorderNode(SeftNode):
             dead = values.get('failed_node')
             if dead and dead not in self.finals:
                 self.finals[dead] = {'state': STATE_FAILED}
+            # a runner's report of a host lost (its link cut): its nodes' reports cannot come
+            for lost in filter(None, values.get('lost_nodes', '').split(',')):
+                self.finals.setdefault(lost, {'state': STATE_FAILED})
             # every rig has finished (the study's test: the rig)
             if self.rig_final_at is None and self.rig_nodes <= set(self.finals):
                 self.rig_final_at = time.monotonic()
