@@ -290,7 +290,9 @@ OFF_THE_WALL_CLOCK = frozenset({
     'test_a_sweep_over_two_predictors_runs_both_graphs',
     'test_discovery_settle_time_from_the_environment',
     'test_emulator_and_bridge_errors_are_one_line',
-    'test_the_emulator_ends_on_ctrl_c_even_started_as_a_background_job'})
+    'test_the_emulator_ends_on_ctrl_c_even_started_as_a_background_job',
+    'test_another_runs_node_parameters_are_named_once_and_the_run_completes',
+    'test_a_node_of_the_run_with_other_parameters_after_the_start_stops_it_safely'})
 
 
 def _on_the_wall_clock(item, in_graph: bool) -> bool:

@@ -8,7 +8,11 @@ messages with ``wrench.force.x = VALUE``, RATE_HZ of them a second for SECONDS, 
 for one of the next five samples of the run; ``copy``: with the frame id it sees on TOPIC (a
 sender that copies the run's seal in the clear), else ``'actuator'``. On a record stream
 (``/seft/record/...``) it sends record batches instead: one row ``[k, VALUE, VALUE, ...]``
-each, labelled as the stream's.
+each, labelled as the stream's. On ``/seft/node_parameters`` it sends the parameters of a
+node named ``recorder`` (the nodes-by-hand tutorial's: the schema's defaults, alpha VALUE,
+``duration_s`` 4, mode lockstep) with ``run_token`` 'none' (a node of another run), or with
+``copy`` the run's token read from ``/seft/run_parameters`` (a node of this run started with
+other parameters), RATE_HZ messages a second for SECONDS.
 
 Start it together with the run: its DDS participant then takes part in the run's start-up
 discovery, and its publisher (a new endpoint of a known participant) reaches the run's nodes
@@ -26,6 +30,7 @@ It prints ``sent N, matched by M subscription(s), from step S`` when it is done 
 ``WAIT_S`` passed before.
 """
 
+import json
 import sys
 import threading
 import time
@@ -33,11 +38,12 @@ import time
 from geometry_msgs.msg import WrenchStamped
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
-from std_msgs.msg import Float64MultiArray, MultiArrayDimension
+from std_msgs.msg import Float64MultiArray, MultiArrayDimension, String
 
+from seft_msgs_py import parameters
 from seft_msgs_py.convert import FieldsReader, frame_id_of_raw
 from seft_msgs_py.signals import MEASUREMENT_FIELDS, RECORD_STREAMS
-from seft_msgs_py.topics import DATA_QOS, MEASUREMENT
+from seft_msgs_py.topics import DATA_QOS, MEASUREMENT, NODE_PARAMETERS, RUN_PARAMETERS
 
 #: The longest the intruder waits for the run to reach FROM_STEP [s].
 WAIT_S = 90.0
@@ -54,7 +60,8 @@ def main(argv) -> int:
     rclpy.init()
     node = rclpy.create_node('intruder')
     stream = next((r for r in RECORD_STREAMS if r.name == topic), None)
-    seen = {'step': None, 'at': None, 'frame': 'actuator', 'from': None}
+    node_parameters = topic == NODE_PARAMETERS.name
+    seen = {'step': None, 'at': None, 'frame': 'actuator', 'from': None, 'token': None}
     read = FieldsReader(MEASUREMENT.msg_type, MEASUREMENT_FIELDS)
     reached = threading.Event()
 
@@ -65,7 +72,8 @@ def main(argv) -> int:
     def on_measurement(raw):
         stamp, _ = read(raw)
         seen['step'], seen['at'] = stamp // DT_NS, time.monotonic()
-        if (seen['step'] >= from_step and (not copy or seen['frame'] != 'actuator')
+        copied = seen['token'] is not None if node_parameters else seen['frame'] != 'actuator'
+        if (seen['step'] >= from_step and (not copy or copied)
                 and not reached.is_set() and known_subscriptions() > 0):
             seen['from'] = seen['step']
             reached.set()
@@ -74,7 +82,12 @@ def main(argv) -> int:
         seen['frame'] = frame_id_of_raw(raw, WrenchStamped).decode()
     node.create_subscription(MEASUREMENT.msg_type, MEASUREMENT.name, on_measurement, DATA_QOS,
                              raw=True)
-    if copy:
+    def on_run_parameters(msg):
+        seen['token'] = json.loads(msg.data)['run_token']
+    if copy and node_parameters:
+        node.create_subscription(String, RUN_PARAMETERS.name, on_run_parameters,
+                                 RUN_PARAMETERS.qos)
+    elif copy:
         node.create_subscription(WrenchStamped, topic, on_command, DATA_QOS, raw=True)
     executor = SingleThreadedExecutor()
     executor.add_node(node)
@@ -95,8 +108,16 @@ def main(argv) -> int:
                       f'{seen["step"]}, {known_subscriptions()} subscription(s) known)',
                       flush=True)
                 return 1
-        pub = node.create_publisher(WrenchStamped if stream is None else Float64MultiArray,
-                                    topic, DATA_QOS)
+        if node_parameters:
+            pub = node.create_publisher(String, topic, NODE_PARAMETERS.qos)
+            values = {s.name: s.default for s in parameters.specs_for_node('recorder')}
+            values.update(alpha=value, duration_s=4.0, mode='lockstep',
+                          run_token=seen['token'] if copy else 'none')
+            text = String(data=json.dumps({'node': 'recorder', 'parameters': values},
+                                          sort_keys=True))
+        else:
+            pub = node.create_publisher(
+                WrenchStamped if stream is None else Float64MultiArray, topic, DATA_QOS)
         msg = WrenchStamped()
         msg.wrench.force.x = value
         batch = Float64MultiArray()
@@ -111,7 +132,9 @@ def main(argv) -> int:
         end = next_at + seconds
         while time.monotonic() < end:
             k = seen['step'] + 1 + sent % 5
-            if stream is not None:
+            if node_parameters:
+                pub.publish(text)
+            elif stream is not None:
                 batch.data = [float(k)] + [value] * len(stream.columns)
                 pub.publish(batch)
             else:

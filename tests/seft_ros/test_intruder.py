@@ -10,6 +10,12 @@ completed "stable" with NRMS x 9.76 % instead of 0.44 %, and nothing named it). 
 that commands the rig the run must stop safely, naming the publisher and the topic, without
 taking one forged force; on a topic that does not (a record stream of the bag) the run goes
 on, the forged rows are kept out of the bag, and a warning names it.
+
+On ``/seft/node_parameters`` (session 23's D2: the nodes-by-hand recorder, run_token 'none',
+on the domain of a live test made every node exit 'failed' mid-run, the rig with no safe
+ramp, and the runner said "nothing was run"), lockstep graphs: another run's parameters are
+named once and the run completes; parameters of the run's own token that differ once it has
+begun stop it safely, the report written.
 """
 
 import json
@@ -20,6 +26,7 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 from test_node_graph_integration import leftover_processes
 
 from seft_ros.analysis.bag import read_run
@@ -30,21 +37,25 @@ MAIN = ROOT / 'config' / 'main.yaml'
 INTRUDER = Path(__file__).with_name('intruder.py')
 #: The run: 4 s of the main job's record at alpha 0.5 with its compensator, in real time.
 RUN = ['--alpha', '0.5', '--predictor', 'model', '--mode', 'realtime', '--duration', '4']
+#: The same run in lockstep.
+LOCKSTEP = ['--alpha', '0.5', '--predictor', 'model', '--mode', 'lockstep', '--duration', '4']
 
 
 def run_with_intruder(tmp_path, seft_exe, env, topic, *extra, intruder=('3000', '5000'),
-                      from_step=400, seconds=2.0):
-    """``seft run config/main.yaml RUN`` and the intruder, started together (the intruder's
-    module notes: its participant takes part in the run's start-up discovery), the intruder
-    publishing from the run's step `from_step` on for `seconds`; returns (the run's stdout,
-    its run directory, the intruder's output)."""
+                      from_step=400, seconds=2.0, run=RUN, copy=False):
+    """``seft run config/main.yaml RUN`` (or `run`) and the intruder, started together (the
+    intruder's module notes: its participant takes part in the run's start-up discovery),
+    the intruder publishing from the run's step `from_step` on for `seconds` (`copy`: with
+    the run's seal or token); returns (the run's stdout, its run directory, the intruder's
+    output)."""
     out = tmp_path / 'out'
-    run = subprocess.Popen([str(seft_exe), 'run', str(MAIN), *RUN, '--out', str(out),
+    run = subprocess.Popen([str(seft_exe), 'run', str(MAIN), *run, '--out', str(out),
                             *extra], cwd=tmp_path, env=env, stdout=subprocess.PIPE,
                            stderr=subprocess.STDOUT, text=True, start_new_session=True)
     sender = subprocess.Popen([sys.executable, str(INTRUDER), topic, *intruder, str(seconds),
-                               str(from_step)], env=env, stdout=subprocess.PIPE,
-                              stderr=subprocess.STDOUT, text=True, start_new_session=True)
+                               str(from_step), *(['copy'] if copy else [])], env=env,
+                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                              start_new_session=True)
     try:
         console, _ = run.communicate(timeout=120)
         said, _ = sender.communicate(timeout=60)
@@ -138,3 +149,60 @@ def test_a_foreign_record_stream_is_a_warning_and_the_run_completes(tmp_path, se
     reference = simulate(dict(data.params, mode='lockstep')).rigs[''].displacement_m
     nrms = np.sqrt(np.mean((rig.displacement_m - reference) ** 2)) / np.ptp(reference)
     assert nrms < 0.01, nrms
+
+
+def test_another_runs_node_parameters_are_named_once_and_the_run_completes(
+        tmp_path, seft_exe, ros_env):
+    """The nodes-by-hand recorder's parameters (run_token 'none', alpha 0, 4 s, lockstep)
+    published on the run's domain from step 300 of a lockstep run: not the run's. Before:
+    every node refused them ('parameter run_token differs: recorder='none', ...'), exit 2,
+    "4 shared parameter(s) differ between the nodes (listed above); nothing was run", no
+    report. Now one warning names them, and the run completes with every sample, its bag's
+    parameters the run's own."""
+    console, run_dir, intruder = run_with_intruder(
+        tmp_path, seft_exe, ros_env, '/seft/node_parameters', run=LOCKSTEP,
+        intruder=('0.0', '20'), from_step=300, seconds=1.0)
+    assert intruder.startswith('sent '), intruder
+    assert 'differs' not in console and 'nothing was run' not in console, console
+    named = ("foreign publisher on /seft/node_parameters: parameters of a node 'recorder' "
+             "with run_token 'none', not this run's: ignored")
+    assert console.count(named) == 1, console
+    data, reports = statuses(run_dir)
+    assert data.stable, data.abort_reason
+    assert data.extra['parameter_mismatches'] == []
+    assert data.params['alpha'] == 0.5 and data.params['run_token'] != 'none'
+    finals = {s['name']: s['state'] for s in reports
+              if s.get('state') in ('done', 'aborted', 'failed')}
+    assert set(finals.values()) == {'done'}, finals
+    assert data.rigs[''].measured_force_N.size == 2000
+    assert named in (run_dir.parent / 'report.md').read_text()
+
+
+def test_a_node_of_the_run_with_other_parameters_after_the_start_stops_it_safely(
+        tmp_path, seft_exe, ros_env):
+    """Parameters with the run's own token (a node of this run) that differ (alpha 0,
+    duration 4 s) heard from step 300 of a lockstep run: the run is stopped through the
+    abort path, at the step it had reached, the report written. Before: every node exited
+    'failed' at once and the runner said "nothing was run" (exit 2, no report)."""
+    console, run_dir, intruder = run_with_intruder(
+        tmp_path, seft_exe, ros_env, '/seft/node_parameters', run=LOCKSTEP,
+        intruder=('0.0', '20'), from_step=300, seconds=1.0, copy=True)
+    assert intruder.startswith('sent '), intruder
+    assert 'nothing was run' not in console, console
+    assert 'parameter alpha differs: recorder=0.0' in console, console
+    summary = json.loads((run_dir.parent / 'summary.json').read_text())['runs'][0]
+    reason = summary['abort_reason']
+    assert ('parameters differ between nodes after the start: parameter alpha differs: '
+            'recorder=0.0, ') in reason and 'the run is stopped safely' in reason, reason
+    # the console's last line says when: at or after the intruder's first step (0.6 s)
+    stopped = float(console.split('ABORTED at ')[1].split(' s: ')[0])
+    data, reports = statuses(run_dir)
+    assert not data.stable and data.unstable_at_s == pytest.approx(stopped, abs=1e-3)
+    finals = {s['name']: s for s in reports if s.get('state') in ('done', 'aborted',
+                                                                   'failed')}
+    assert finals['rig']['state'] == 'aborted', finals['rig']
+    assert not any(s['state'] == 'failed' for s in finals.values()), finals
+    # the samples up to there in the bag
+    n = data.rigs[''].measured_force_N.size
+    assert 300 <= n < 2000 and 0.6 <= stopped <= n * 0.002, (n, stopped)
+    assert reason in (run_dir.parent / 'report.md').read_text()

@@ -55,6 +55,7 @@ from seft_msgs_py.convert import (
 from seft_msgs_py.dds import use_seft_profile
 from seft_msgs_py.errors import ParameterError, SeftError
 from seft_msgs_py.graph import UNKNOWN_NODE, Graph, qualified, scoped, split_qualified
+from seft_msgs_py.provenance import NONE as NO_TOKEN
 from seft_msgs_py.provenance import RunSeal
 from seft_msgs_py.rig_contract import FOREIGN_REASON
 from seft_msgs_py.scheduling import set_fifo
@@ -91,6 +92,9 @@ PRIORITY_OFFSET = {'rig': 3, 'force_servo_controller': 2, 'reference_force_build
 DRAIN_TIMEOUT_S = 2.0
 #: Start of the 'failed' status message of a node that refused differing parameters.
 MISMATCH_MESSAGE = 'parameters differ between nodes: '
+#: Start of the 'aborted' reason of a node that found differing parameters once the run had
+#: begun stepping (:meth:`SeftNode._refuse_parameters`): the run is stopped safely.
+MISMATCH_ABORT = 'parameters differ between nodes after the start: '
 #: The ROS arguments of the node being created by :func:`main_for_nodes` (None: the
 #: process's own, as ``ros2 run`` gives them).
 _node_arguments: list[str] | None = None
@@ -203,12 +207,17 @@ class SeftNode(Node):
         self.node_params: dict[str, dict] = {}
         #: When (monotonic [s]) each node's parameters were first heard (this one's: sent).
         self.node_heard_at: dict[str, float] = {}
+        #: ``(node, run_token)`` of the parameters heard from nodes of another run (another
+        #: token: not this run's, never compared; said once each in this node's log).
+        self.foreign_params: set[tuple[str, str]] = set()
         self.node_params_pub = self.create_publisher(
             NODE_PARAMETERS.msg_type, NODE_PARAMETERS.name, NODE_PARAMETERS.qos)
         self.create_subscription(NODE_PARAMETERS.msg_type, NODE_PARAMETERS.name,
                                  self._on_node_parameters, NODE_PARAMETERS.qos)
         #: This node refused the graph's parameters (a shared value differs between nodes).
         self.refused = False
+        #: This node stopped the run on parameters that differ once it had begun.
+        self.mismatch_stopped = False
         #: The nodes whose status this node has received.
         self.heard: set[str] = set()
         #: This node's record batches (flushed before its final status).
@@ -467,7 +476,14 @@ class SeftNode(Node):
     def _on_node_parameters(self, msg) -> None:
         """Collect another node's parameters (also once this node has finished: after a
         refusal :func:`main_for` lingers until every node is heard); refuse to go on when a
-        shared value differs."""
+        shared value differs.
+
+        Parameters with another ``run_token`` than this node's are another run's (a node
+        started by hand on the run's domain, another test): never taken for this run's
+        nor compared, and said once per node and token in this node's log (the runner
+        names them on the console). The run's own nodes share its token, so a node of the
+        run started with other parameters is still refused.
+        """
         try:
             data = json.loads(msg.data)
             node, values = str(data['node']), dict(data['parameters'])
@@ -478,6 +494,14 @@ class SeftNode(Node):
             split_qualified(node)
         except ParameterError:
             return
+        token = str(values.get('run_token', NO_TOKEN))
+        if token != str(self.params.get('run_token')):
+            if (node, token) not in self.foreign_params:
+                self.foreign_params.add((node, token))
+                self.get_logger().warning(
+                    f'{FOREIGN_REASON}{NODE_PARAMETERS.name}: parameters of a node {node!r} '
+                    f"with run_token {token!r}, not this run's: ignored (another run's node)")
+            return
         self.node_params[node] = values
         self.node_heard_at.setdefault(node, time.monotonic())
         self.guard(self._check_parameters)()
@@ -487,11 +511,33 @@ class SeftNode(Node):
         if lines:
             self._refuse_parameters(lines)
 
+    def stepping_begun(self) -> bool:
+        """Whether the run has begun stepping as this node knows it (its clock master's
+        'running' report with the run's steps has been heard); the rig overrides it."""
+        return self.run_steps is not None
+
+    def run_time_s(self) -> float | None:
+        """The run's time [s] where this node stops it, for an abort's reason (None: this
+        node does not step the run; the rig overrides it)."""
+        return None
+
     def _refuse_parameters(self, lines: list[str]) -> None:
-        """Name every differing parameter in one line on stderr, report 'failed', exit 2."""
-        self.refused = True
+        """Name every differing parameter in one line on stderr; before the run has begun
+        stepping, report 'failed' and exit 2 (nothing was run); once it has, stop the run
+        safely, once (:meth:`abort_run`: the rig to its safe state, the recording closed;
+        the rig's reason says the time it stopped at)."""
+        if self.mismatch_stopped:
+            return
         for line in lines:
             print(f'{self.seft_name}: error: {line}', file=sys.stderr, flush=True)
+        if self.stepping_begun():
+            self.mismatch_stopped = True
+            at = self.run_time_s()
+            self.abort_run(MISMATCH_ABORT + '; '.join(lines) + '; the run is stopped safely'
+                           + ('' if at is None else f' at t = {at:.3f} s'),
+                           int(getattr(self, 'next_step', 0)))
+            return
+        self.refused = True
         self.report(STATE_FAILED, MISMATCH_MESSAGE + '; '.join(lines))
         self.finish(2)
 

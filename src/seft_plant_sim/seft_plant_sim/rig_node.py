@@ -149,6 +149,8 @@ class RigNode(SeftNode):
         self.ended_by = None
         #: Real time: why the rig went to its safe state (None: it has not).
         self.abort_reason = None
+        #: What an abort of this rig adds to its final status (``foreign_topic``).
+        self.abort_values: dict = {}
         self.graph_names = graph_nodes(p, self.seft_name)
         #: The builders that read this rig's measurement, and its controller (if any).
         self.readers = (self.graph.builder_nodes() if self.graph.per_rig_builders
@@ -593,6 +595,34 @@ class RigNode(SeftNode):
         else:
             self._end(STATE_ABORTED, reason)
 
+    def stepping_begun(self) -> bool:
+        """Whether this rig has begun stepping (its sample 0 is out)."""
+        return self.running or self.published > 0
+
+    def run_time_s(self) -> float:
+        """The rig's time [s]: its current step's."""
+        return self.rig.step * self.rig.dt
+
+    def abort_run(self, reason: str, step: int, **values) -> None:
+        """Stop the run from this rig (a foreign publisher on its command topic, parameters
+        that differ once the run has begun): in real time, running, its safe state (the
+        command ramped to zero, sampled to the end: :meth:`_abort_realtime`); otherwise the
+        run ends aborted at its current step. `step` is ignored (the rig's own is
+        reported); `values` go into the final status.
+
+        (The base class's abort reports and finishes at once: a real-time rig ending so
+        stops with no safe ramp.)
+        """
+        self.abort_values.update(values)
+        if self.realtime and self.running and self.drain_until is not None:
+            # every step was taken (as on a stop signal then): the run is complete
+            self.get_logger().error(f'{reason} (after the last step: the run is complete)')
+            self._end_realtime()
+        elif self.realtime and self.running:
+            self._abort_realtime(reason)
+        else:
+            self._end(STATE_ABORTED, reason)
+
     def published_count(self) -> int:
         """Samples this rig published (its final status reports it)."""
         return self.published
@@ -623,6 +653,7 @@ class RigNode(SeftNode):
             extra['signal'] = self.stop_signal
         if self.ended_by is not None:
             extra['ended_by'] = self.ended_by
+        extra.update(self.abort_values)
         self.report(state, message, step=k, n_steps=self.n_steps,
                     time_s=f'{k * self.rig.dt:.6f}', published=self.published,
                     mode=self.params['mode'],

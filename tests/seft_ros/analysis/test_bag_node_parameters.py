@@ -256,6 +256,25 @@ def test_last_message_of_a_node_wins(tmp_path, response, run_params):
     assert bag.node_params['reference_force_builder']['alpha'] == 0.5
 
 
+def test_another_runs_node_parameters_are_not_the_runs(tmp_path, response, run_params):
+    """A node of another run on the domain (the nodes-by-hand recorder, run_token 'none',
+    alpha 0, 4 s) heard after the run's own recorder: recorded, but not taken for the run's
+    (before: its values replaced the run's recorder's, and the bag listed 'parameter alpha
+    differs: recorder=0.0, ...', 'parameter run_token differs: recorder='none', ...')."""
+    token = '0123456789abcdef'
+    nodes = node_parameters(**{n: {'alpha': 0.5, 'run_token': token}
+                               for n in parameters.NODES})
+    stray = json.dumps({'node': 'recorder', 'parameters': dict(
+        nodes['recorder'], alpha=0.0, duration_s=4.0, run_token='none')})
+    bag = read_signals(write_bag(tmp_path / 'bag', response,
+                                 run_params=dict(run_params, alpha=0.5, run_token=token),
+                                 node_params=nodes, raw_node_params=(stray,)))
+    assert bag.parameter_mismatches == []
+    assert bag.node_params['recorder']['run_token'] == token
+    assert bag.node_params['recorder']['alpha'] == 0.5
+    assert bag.params['run_token'] == token and bag.params['alpha'] == 0.5
+
+
 # -- old bags --------------------------------------------------------------------------------
 
 def read_json_run_params(path):

@@ -205,8 +205,10 @@ def read_signals(path) -> BagSignals:
         the run's graph (:class:`~seft_msgs_py.graph.Graph`: its rigs and their topics), the
         samples per step of every rig's topics, the message counts and the status reports.
         Nodes that disagree on a shared parameter do not stop the reading: the lines are in
-        ``BagSignals.parameter_mismatches``. A step recorded more than once with the same
-        value reads as one sample (listed in ``BagSignals.duplicates``).
+        ``BagSignals.parameter_mismatches``. The parameters of a node with another
+        ``run_token`` than the run parameters' (another run's node on the domain, recorded
+        as it was heard) are not the run's and are left out. A step recorded more than once
+        with the same value reads as one sample (listed in ``BagSignals.duplicates``).
 
     Raises
     ------
@@ -233,6 +235,7 @@ def read_signals(path) -> BagSignals:
     statuses = []
     params = None
     node_params = {}
+    heard_params: list[tuple[str, dict]] = []   # (node, parameters), in bag order
     kept: list[tuple] = []                     # (topic, type, CDR) of the data, in bag order
     recovery = None
     link = None
@@ -246,9 +249,8 @@ def read_signals(path) -> BagSignals:
                 params = json.loads(msg.data)
             elif topic == signals.NODE_PARAMETERS.name:
                 msg = typestore.deserialize_cdr(raw, msgtype)
-                node, values = _node_parameters(
-                    msg.data, f'{path}: {signals.NODE_PARAMETERS.name}')
-                node_params[node] = values
+                heard_params.append(_node_parameters(
+                    msg.data, f'{path}: {signals.NODE_PARAMETERS.name}'))
             elif topic == signals.LINK.name:
                 link = _link(typestore.deserialize_cdr(raw, msgtype).data, path)
             elif topic == signals.STATUS.name:
@@ -262,6 +264,12 @@ def read_signals(path) -> BagSignals:
         raise
     except Exception as exc:  # rosbags raises several types for a damaged bag
         raise InputError(f'{path}: cannot read the bag: {exc}') from None
+    # the run's nodes only: parameters with another run_token than the run's are another
+    # run's node on the domain (recorded, never taken for this run's)
+    token = params.get('run_token') if isinstance(params, dict) else None
+    for node, values in heard_params:
+        if token is None or values.get('run_token', token) == token:
+            node_params[node] = values
     if params is None and not node_params:
         if recovery is not None:
             cut = f' ({recovery.end})' if recovery.end else ''

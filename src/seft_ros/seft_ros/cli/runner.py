@@ -56,6 +56,8 @@ from seft_msgs_py.convert import (
 from seft_msgs_py.dds import use_seft_profile
 from seft_msgs_py.errors import SeftError
 from seft_msgs_py.graph import UNKNOWN_NODE, Graph, split_qualified
+from seft_msgs_py.node_support import MISMATCH_ABORT
+from seft_msgs_py.provenance import NONE as NO_TOKEN
 from seft_msgs_py.provenance import new_run_token
 from seft_msgs_py.rig_contract import FOREIGN_REASON
 from seft_msgs_py.signals import CLOCK, RUN_PARAMETERS
@@ -275,6 +277,10 @@ class GraphRunner:
         #: The nodes of the run in progress (None before the first): only their parameters
         #: are compared (the previous run's latched ones can arrive after it ended).
         self.run_nodes: set[str] | None = None
+        #: ``(node, run_token)`` of the parameters heard from another run's nodes (named).
+        self.foreign_params: set[tuple[str, str]] = set()
+        #: The run in progress was stopped on parameters that differ after its start.
+        self.mismatch_stopped = False
         self.node.create_subscription(NODE_PARAMETERS.msg_type, NODE_PARAMETERS.name,
                                       self._on_node_parameters, NODE_PARAMETERS.qos)
         self.status_pub = self.node.create_publisher(STATUS.msg_type, STATUS.name, STATUS.qos)
@@ -312,26 +318,64 @@ class GraphRunner:
         self.statuses.append(values)
 
     def _on_node_parameters(self, msg) -> None:
+        """Collect a node's parameters: a node of the run in progress with its token.
+
+        Parameters with another ``run_token`` are another run's (a node started by hand on
+        this domain, another test): never compared with this run's; named once on the
+        console and in the bag (a warning), as a foreign publisher is."""
         try:
             data = json.loads(msg.data)
             node = str(data['node'])
             if self.run_nodes is not None and node not in self.run_nodes:
                 return          # a node of the previous run (its latched message, late)
-            self.node_params[node] = dict(data['parameters'])
+            values = dict(data['parameters'])
         except (ValueError, KeyError, TypeError):
             return
+        token = str(values.get('run_token', NO_TOKEN))
+        if 'run_token' in self.run_params and token != str(self.run_params['run_token']):
+            if (node, token) not in self.foreign_params:
+                self.foreign_params.add((node, token))
+                line = (f'{FOREIGN_REASON}{NODE_PARAMETERS.name}: parameters of a node '
+                        f"{node!r} with run_token {token!r}, not this run's: ignored "
+                        "(another run's node on this domain)")
+                self.status_pub.publish(status_msg(RUNNER_NAME, STATE_RUNNING, line,
+                                                   warning=line,
+                                                   foreign_topic=NODE_PARAMETERS.name))
+            return
+        self.node_params[node] = values
 
     def _check_parameters(self) -> None:
-        """Stop when the nodes resolved different values of a shared parameter.
+        """Stop when the nodes of the run resolved different values of a shared parameter.
 
         Each differing parameter is shown on one line (the nodes print the same lines).
+        Before any rig has begun stepping the run is refused (nothing was run); once one
+        has, the run is stopped safely instead (an abort on ``/seft/status``: the rigs to
+        their safe state, the bag closed, the report written), once.
+
+        Raises
+        ------
+        SeftError
+            Before the start: the number of differing parameters, 'nothing was run'.
         """
+        if self.mismatch_stopped:
+            return
         lines = parameters.shared_mismatches(self.node_params)
-        if lines:
-            for line in lines:
-                self.progress(line)
+        if not lines:
+            return
+        for line in lines:
+            self.progress(line)
+        if not self._stepping_begun():
             raise SeftError(f'{len(lines)} shared parameter(s) differ between the nodes '
                             '(listed above); nothing was run')
+        self.mismatch_stopped = True
+        self._publish_abort(MISMATCH_ABORT + '; '.join(lines) + '; the run is stopped safely')
+
+    def _stepping_begun(self) -> bool:
+        """A rig of the run in progress has reported that it began stepping ('running' with
+        its step, or a final status after samples)."""
+        return any(s['name'] in self.graph.rig_nodes() and 'step' in s
+                   and (s.get('state') == STATE_RUNNING or int(s.get('published', 0)) > 0)
+                   for s in self.statuses)
 
     def _spin(self, seconds: float) -> None:
         deadline = time.monotonic() + seconds
@@ -408,6 +452,8 @@ class GraphRunner:
         self.statuses.clear()
         self.warnings_said.clear()
         self.node_params.clear()
+        self.foreign_params.clear()
+        self.mismatch_stopped = False
         self.audited = self._audited_topics()
         self.earlier = {g for _, _, g in self._publishers(self.audited)}
         self.named = set()

@@ -316,6 +316,15 @@ class RecorderNode(SeftNode):
             if self.rig_final_at is None and self.rig_nodes <= set(self.finals):
                 self.rig_final_at = time.monotonic()
 
+    def abort_run(self, reason: str, step: int, **values) -> None:
+        """Stop the run from the recorder (parameters that differ once the run has begun):
+        report the abort (the rig goes to its safe state, the other nodes end), and record
+        on: the rig's safe ramp and the final statuses, then close as after any abort."""
+        self.get_logger().error(reason)
+        self.report(STATE_ABORTED, reason, step=step, **values)
+        if self.abort_heard_at is None:
+            self.abort_heard_at = time.monotonic()
+
     def on_stop_signal(self, signame: str) -> None:
         """SIGINT/SIGTERM: record the rig's safe ramp, then close (at most ``safe_ramp_s`` +
         ``RIG_SILENT_S`` later); a second signal closes at once."""
