@@ -38,6 +38,7 @@ __all__ = [
     'COMMAND_KINDS', 'command_kind', 'command_signal', 'command_latency_s', 'SAFE_HOLD_S',
     'reaction_limit_s', 'first_effect_step', 'qos_of', 'markdown_tables', 'is_compatible',
     'WATCHDOG_REASON', 'PROGRESS_EVERY', 'SEAL_RULE', 'FOREIGN_REASON', 'RANGE_PARAMETERS',
+    'INTERRUPT_REASON',
 ]
 
 #: Version of the contract (``MAJOR.MINOR``; module notes).
@@ -64,6 +65,10 @@ WATCHDOG_REASON = 'watchdog:'
 #: The final message of a rig (or the abort of another node) that dropped a message without
 #: the run's seal starts so, and names the topic and the publisher.
 FOREIGN_REASON = 'foreign publisher on '
+#: The abort of ``seft run``'s runner when the operator interrupts it (Ctrl-C, SIGTERM):
+#: with the ``signal`` of a node stopped by a signal, what marks a run as interrupted (the
+#: report's reason; not an unstable run).
+INTERRUPT_REASON = 'interrupted (Ctrl-C or SIGTERM at the runner)'
 #: What a rig does with the run's seal (``run_token``, ``message_auth``, ``auth_key_file``;
 #: :mod:`seft_msgs_py.provenance`), as the page says it.
 SEAL_RULE = ("header.frame_id of every measurement is the run's seal: 'actuator#' + "

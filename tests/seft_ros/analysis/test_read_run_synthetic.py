@@ -6,6 +6,7 @@ changes records (:func:`rewrite`). What read_run returns is checked against what
 wrote: the simulated run's arrays, cut where the test cut them.
 """
 
+import json
 import re
 
 import numpy as np
@@ -49,9 +50,10 @@ def source(run, tmp_path_factory):
     return write_run_bag(run, tmp_path_factory.mktemp('source') / 'bag')
 
 
-def rewrite(src, dst, edit):
+def rewrite(src, dst, edit, added=None):
     """Copy bag `src` to `dst`, each message through ``edit(topic, ns, msg)``: the list of
-    ``(ns, msg)`` to write instead (``msg`` a fresh copy, free to change)."""
+    ``(ns, msg)`` to write instead (``msg`` a fresh copy, free to change); then `added`
+    (``{topic: (msgtype, [(ns, msg), ...])}``)."""
     with Reader(src) as reader, Writer(dst, version=9,
                                        storage_plugin=StoragePlugin.MCAP) as writer:
         conns = {c.topic: writer.add_connection(c.topic, c.msgtype, typestore=STORE)
@@ -59,6 +61,10 @@ def rewrite(src, dst, edit):
         for conn, ns, raw in reader.messages():
             for out_ns, msg in edit(conn.topic, ns, STORE.deserialize_cdr(raw, conn.msgtype)):
                 writer.write(conns[conn.topic], out_ns, STORE.serialize_cdr(msg, conn.msgtype))
+        for topic, (msgtype, messages) in (added or {}).items():
+            conn = writer.add_connection(topic, msgtype, typestore=STORE)
+            for ns, msg in messages:
+                writer.write(conn, ns, STORE.serialize_cdr(msg, msgtype))
     return dst
 
 
@@ -282,3 +288,110 @@ def test_an_abort_after_a_gap_keeps_its_time(source, run, tmp_path):
     gaps = rd.extra['gaps']
     assert gaps['missing'] == {REFERENCE: [10, 11]}
     assert (gaps['at_step'], gaps['steps_after_gap'], gaps['last_step']) == (10, 18, 29)
+
+
+# -- an interrupted real-time run ------------------------------------------------------------
+
+def interrupted(k_abort, *, runner=True):
+    """An edit that turns the completed run into a real-time run the operator interrupted
+    with Ctrl-C at step `k_abort` (session 23's D6, as the graph records it): every node
+    stopped by SIGINT, the force servo controller reporting first, then (`runner`) the
+    runner's interrupt, then the rig, which sampled its safe ramp to the end of the bag
+    (``abort_at_s``); the reference forces and commands end at the abort."""
+    stopped = {'ground_motion_publisher', 'reference_force_builder', 'force_servo_controller'}
+    t_abort = f'{k_abort * DT:.6f}'
+
+    def edit(topic, ns, msg):
+        k = ns // DT_NS
+        if topic in (signals.RUN_PARAMETERS.name, signals.NODE_PARAMETERS.name):
+            doc = json.loads(msg.data)
+            (doc['parameters'] if 'parameters' in doc else doc)['mode'] = 'realtime'
+            msg.data = json.dumps(doc)
+            return [(ns, msg)]
+        if topic in (REFERENCE, VALVE, GROUND):
+            return [] if k >= k_abort else [(ns, msg)]
+        if topic != signals.STATUS.name:
+            return [(ns, msg)]
+        state = next(kv.value for kv in msg.values if kv.key == 'state')
+        if state != 'done' or msg.name not in stopped | {'rig'}:
+            return [(ns, msg)]
+        if msg.name != 'rig':
+            return []
+        out = [(ns, status('force_servo_controller', 'aborted',
+                           'force_servo_controller stopped by SIGINT', step=k_abort,
+                           time_s=t_abort, published=k_abort, signal='SIGINT'))]
+        if runner:
+            out.append((ns, status('seft_runner', 'aborted', rig_contract.INTERRUPT_REASON)))
+        out += [(ns, status(node, 'aborted', f'{node} stopped by SIGINT', step=k_abort,
+                            time_s=t_abort, published=k_abort, signal='SIGINT'))
+                for node in sorted(stopped - {'force_servo_controller'})]
+        out.append((ns, status('rig', 'aborted', 'rig stopped by SIGINT', step=N, n_steps=N,
+                               time_s=f'{N * DT:.6f}', published=N, mode='realtime',
+                               abort_at_s=t_abort, signal='SIGINT',
+                               **{rig_contract.CONTRACT_KEY: rig_contract.CONTRACT})))
+        return out
+    return edit
+
+
+def rig_timing(k_abort):
+    """The rig's timing records of every sample: 0.4 ms loop latency up to the abort, then
+    (its safe ramp, the controller stopped) no command: lost, and stale."""
+    joint_state = STORE.types['sensor_msgs/msg/JointState']
+    header = STORE.types['std_msgs/msg/Header']
+    stamp = STORE.types['builtin_interfaces/msg/Time']
+    out = []
+    for k in range(N):
+        ramp = k >= k_abort
+        values = [1e-5, 1e-4, 1e-3, 0.0, float(ramp and k > k_abort),
+                  float('nan') if ramp else 4e-4]
+        sec, nanosec = divmod(k * DT_NS, 10**9)
+        out.append((k * DT_NS, joint_state(
+            header=header(stamp=stamp(sec=sec, nanosec=nanosec), frame_id=''),
+            name=list(signals.TIMING_FIELDS), position=np.array(values),
+            velocity=np.array([], float), effort=np.array([], float))))
+    return {'/seft/timing/rig': (signals.TIMING_TYPE, out)}
+
+
+@pytest.mark.parametrize('runner', [True, False])
+def test_an_interrupted_run_is_the_operators_not_unstable_and_its_ramp_not_timed(
+        source, run, tmp_path, runner):
+    """Ctrl-C at step 30 of 40: the reason names the operator's interrupt (before: the first
+    node to report, 'force_servo_controller: force_servo_controller stopped by SIGINT'); the
+    timing statistics stop at the abort (before: the 10 ramp ticks counted as 10 lost
+    commands and 9 of 39 stale, 23 %); the timing replay reports the run's NRMS (before:
+    'recorded unstable at 0.06 s')."""
+    from seft_ros.analysis.findings import timing_replay_line
+    from seft_ros.analysis.timing_replay import replay_timing
+    rd = read_run(rewrite(source, tmp_path / 'bag', interrupted(30, runner=runner),
+                          rig_timing(30)))
+    check_values(rd, run, 30)
+    assert rd.stable is False and rd.unstable_at_s == 30 * DT
+    assert rd.extra['interrupted'] is True
+    assert rd.abort_reason == ('seft_runner: interrupted (Ctrl-C or SIGTERM at the runner)'
+                               if runner else 'interrupted (SIGINT): force_servo_controller: '
+                               'force_servo_controller stopped by SIGINT')
+    timing = rd.extra['timing']
+    assert timing['lost_commands'] == 0 and timing['stale_command_fraction'] == 0.0
+    assert timing['nodes']['rig']['records'] == 30
+    assert timing['loop_latency_ms'] == {'p50': 0.4, 'p99': 0.4, 'max': 0.4}
+    replay = replay_timing(rd)
+    assert replay['late_commands'] == {'': 0}
+    assert replay['recorded']['displacement'] == pytest.approx(
+        replay['in_time']['displacement'], rel=1e-3)
+    assert 'unstable' not in timing_replay_line(replay)
+
+
+def test_an_abort_of_the_run_is_not_an_interrupt(source, tmp_path):
+    """The builder's monitor aborts (no signal), and then the operator presses Ctrl-C:
+    the monitor's reason stays the run's."""
+    abort = builder_abort(25)
+
+    def edit(topic, ns, msg):
+        out = abort(topic, ns, msg)
+        if (topic == signals.STATUS.name and msg.name == 'reference_force_builder'
+                and out[0][1].level == 2):          # its abort, then the operator's Ctrl-C
+            out.append((ns, status('seft_runner', 'aborted', rig_contract.INTERRUPT_REASON)))
+        return out
+    rd = read_run(rewrite(source, tmp_path / 'bag', edit))
+    assert rd.extra['interrupted'] is False
+    assert rd.abort_reason == f'reference_force_builder: {MONITOR}'

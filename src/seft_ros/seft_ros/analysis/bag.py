@@ -35,7 +35,7 @@ from rosbags.typesys import Stores, get_typestore
 from seft_msgs_py import parameters, signals
 from seft_msgs_py.errors import InputError, ParameterError
 from seft_msgs_py.graph import STRUCTURE_STATE, Graph, qualified, scoped
-from seft_msgs_py.rig_contract import CONTRACT_KEY
+from seft_msgs_py.rig_contract import CONTRACT_KEY, INTERRUPT_REASON
 from seft_ros.analysis.bag_recovery import FLUSH_EVERY_S, is_unclosed_bag, recover_bag
 from seft_ros.analysis.rundata import RigData, RunData
 from seft_ros.analysis.timing import (
@@ -687,9 +687,16 @@ def read_run(path) -> RunData:
     stable = not aborted
     reason = None
     first = _first_abort(aborted)
+    interrupted = first is not None and _interrupt(first)
+    if interrupted:
+        # the operator's stop (Ctrl-C reaches every node of the terminal's process group,
+        # and the first node to report is not the cause): the runner's interrupt if heard
+        first = next((s for s in aborted if s['message'] == INTERRUPT_REASON), first)
     if first is not None:
         reason = first['message'] if first['name'] == 'rig' else (
             f"{first['name']}: {first['message']}")
+        if interrupted and first['message'] != INTERRUPT_REASON:
+            reason = f"interrupted ({first['signal']}): {reason}"
     elif not all(finals.values()) and recording['end'] in ('crashed', 'stopped'):
         # the bag ends before the run did: the test is cut short at its last complete step
         stable = False
@@ -715,6 +722,7 @@ def read_run(path) -> RunData:
              'rig_finals': finals, 'node_statuses': bag.statuses,
              'recovered': bag.recovery is not None,
              'abort_node': first['name'] if first is not None else None,
+             'interrupted': interrupted,
              # what the builders reported during the run (a specimen not the declared one)
              'warnings': [s['warning'] for s in bag.statuses if s.get('warning')],
              # each rig's samples at a sensor's range, as its builder counted them, and its
@@ -726,7 +734,9 @@ def read_run(path) -> RunData:
         extra['bag_lost_messages'] = lost
     if p.get('mode') == 'realtime':
         extra['timing_data'] = bag.timing
-        extra['timing'] = timing_summary(bag.timing)
+        # the test's steps: not the safe-state ramp the rigs sampled after an abort
+        extra['timing'] = timing_summary(bag.timing, until_step=None if abort_at_s is None
+                                         else int(round(abort_at_s / dt)))
     if bag.link is not None:
         extra['link'] = bag.link
 
@@ -751,6 +761,12 @@ def read_run(path) -> RunData:
         rigs=rigs, computational=_computational(bag, n), stable=stable,
         unstable_at_s=unstable_at_s, abort_reason=reason, record_name=record_name,
         source=str(path), extra=extra)
+
+
+def _interrupt(status: dict) -> bool:
+    """Whether an abort report is a stop signal's (a node's ``signal``) or the runner's
+    interrupt (:data:`~seft_msgs_py.rig_contract.INTERRUPT_REASON`)."""
+    return bool(status.get('signal')) or status['message'] == INTERRUPT_REASON
 
 
 def _first_abort(aborted: list[dict]) -> dict | None:

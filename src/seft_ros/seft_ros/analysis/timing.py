@@ -19,6 +19,7 @@ from seft_msgs_py import signals
 from seft_msgs_py.errors import InputError
 
 __all__ = ['NodeTiming', 'read_timing', 'timing_row', 'node_timings', 'timing_summary',
+           'timing_until',
            'timing_figure', 'timing_table', 'percentiles_ms', 'TIMING_PUBLISHER',
            'link_summary', 'PLAYOUT_MISS_FRACTION', 'link_markdown']
 
@@ -124,8 +125,30 @@ def percentiles_ms(values) -> dict:
             'max': round(float(v.max()) * 1e3, 4)}
 
 
-def timing_summary(timing: dict[str, NodeTiming]) -> dict | None:
+def timing_until(t: NodeTiming, step: int | None) -> NodeTiming:
+    """The records of `t` of the steps before `step` (all of them for None)."""
+    if step is None:
+        return t
+    keep = t.step < step
+    return NodeTiming(t.node, t.step[keep], t.period_jitter_s[keep], t.compute_s[keep],
+                      t.input_age_s[keep], t.missed_deadline[keep], t.stale[keep],
+                      t.loop_latency_s[keep])
+
+
+def timing_summary(timing: dict[str, NodeTiming],
+                   until_step: int | None = None) -> dict | None:
     """The ``"timing"`` block of ``summary.json`` (None without timing records).
+
+    Parameters
+    ----------
+    timing : dict of str -> NodeTiming
+        Each node's records.
+    until_step : int, optional
+        Only the records of the steps before it: an aborted run's abort step
+        (``abort_at_s / dt``). After it a real-time rig samples its safe-state ramp, with no
+        command coming (its controller has stopped): those ticks are not the test's, and
+        counted they made an interrupted run's 124 ramp ticks 'lost commands' and 10.9 %
+        of its ticks 'stale'.
 
     Returns
     -------
@@ -139,6 +162,7 @@ def timing_summary(timing: dict[str, NodeTiming]) -> dict | None:
         ``input_age_ms``, ``period_jitter_ms``, ``missed_deadline_fraction`` and
         ``stale_fraction``. Fractions are in 0..1.
     """
+    timing = {name: timing_until(t, until_step) for name, t in timing.items()}
     rigs = [t for name, t in sorted(timing.items()) if _is_rig(name) and t.n]
     if not rigs:
         return None
@@ -147,6 +171,8 @@ def timing_summary(timing: dict[str, NodeTiming]) -> dict | None:
         return np.concatenate([getattr(t, attr)[1 if skip_first else 0:] for t in rigs])
     nodes = {}
     for name, t in sorted(timing.items()):
+        if not t.n:
+            continue
         nodes[name] = {
             'records': t.n,
             'compute_ms': percentiles_ms(t.compute_s),

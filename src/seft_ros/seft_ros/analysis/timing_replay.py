@@ -15,6 +15,7 @@ import math
 import numpy as np
 
 from seft_ros.analysis.findings import REPLAY_SIGNALS
+from seft_ros.analysis.timing import timing_until
 from seft_ros.core.structure import is_study, structure_of, test_setup
 
 __all__ = ['replay_timing', 'replay_due', 'steps_behind', 'worst_nrms', 'REPLAY_ABOVE_NRMS']
@@ -79,9 +80,12 @@ def replay_timing(run, recorded: dict | None = None) -> dict | None:
         rig_t = timing.get(f'{prefix}rig')
         if rig_t is None:
             return None
+        # the run's analysed steps: not an aborted run's safe-state ramp (no commands)
+        rig_t = timing_until(rig_t, run.n_steps)
         latency[rig] = dict(zip(rig_t.step.tolist(), rig_t.loop_latency_s.tolist()))
         ctrl = timing.get(f'{prefix}force_servo_controller')
-        stale[rig] = {} if ctrl is None else steps_behind(ctrl, rig_t, float(p['dt']))
+        stale[rig] = {} if ctrl is None else steps_behind(timing_until(ctrl, run.n_steps),
+                                                          rig_t, float(p['dt']))
     params = {k: v for k, v in p.items() if k != 'bag_path'}
     params.update(mode='lockstep', n_steps=run.n_steps)
 
@@ -120,9 +124,10 @@ def _predicting(params: dict) -> dict:
 def worst_nrms(run) -> dict:
     """A run's worst NRMS per signal (:data:`~seft_ros.analysis.findings.REPLAY_SIGNALS`,
     fractions, the summary's ``worst_nrms``), or ``{'unstable_at_s': t}`` for an unstable
-    run: what a replay reports of each run."""
+    run: what a replay reports of each run. A run the operator interrupted
+    (``extra['interrupted']``) is not unstable: its NRMS over the steps it ran."""
     from seft_ros.analysis.metrics import compare_run, summary_entry
-    if not run.stable:
+    if not run.stable and not run.extra.get('interrupted'):
         return {'unstable_at_s': run.unstable_at_s}
     entry = summary_entry(run, compare_run(run))
     return {s: entry['worst_nrms'].get(s) for s in REPLAY_SIGNALS}

@@ -59,7 +59,7 @@ from seft_msgs_py.graph import UNKNOWN_NODE, Graph, split_qualified
 from seft_msgs_py.node_support import MISMATCH_ABORT
 from seft_msgs_py.provenance import NONE as NO_TOKEN
 from seft_msgs_py.provenance import new_run_token
-from seft_msgs_py.rig_contract import FOREIGN_REASON
+from seft_msgs_py.rig_contract import FOREIGN_REASON, INTERRUPT_REASON
 from seft_msgs_py.signals import CLOCK, RUN_PARAMETERS
 from seft_msgs_py.topics import NODE_PARAMETERS, STATUS, TOPICS
 from seft_ros.cli.config import write_params_file
@@ -520,7 +520,7 @@ class GraphRunner:
         except KeyboardInterrupt:
             self.progress(f'{label}interrupted: ending the run safely (rig to its safe '
                           'state, bag closed)')
-            self._end_run('interrupted (Ctrl-C or SIGTERM at the runner)', procs)
+            self._end_run(INTERRUPT_REASON, procs)
             outcome.update(error='interrupted')
             raise
         except SeftError as exc:
