@@ -606,7 +606,7 @@ class RigNode(SeftNode):
     def abort_run(self, reason: str, step: int, **values) -> None:
         """Stop the run from this rig (a foreign publisher on its command topic, parameters
         that differ once the run has begun): in real time, running, its safe state (the
-        command ramped to zero, sampled to the end: :meth:`_abort_realtime`); otherwise the
+        command ramped to zero, sampled to the end, as after any abort); otherwise the
         run ends aborted at its current step. `step` is ignored (the rig's own is
         reported); `values` go into the final status.
 
