@@ -204,3 +204,38 @@ def test_a_rig_section_that_holds_is_replayed_predicting_too(tmp_path):
     assert predicting['acceleration'] < as_run['acceleration']
     assert predicting['acceleration'] - in_time['acceleration'] < \
         0.1 * (as_run['acceleration'] - in_time['acceleration'])
+
+
+def test_an_aborted_real_time_run_with_late_steps_is_replayed_not_an_interrupted_one(
+        params, monkeypatch):
+    """A real-time run stopped by an abort (the monitor, the watchdog) after a late step is
+    replayed whatever its error (it has no NRMS to judge): did the host's timing stop it?
+    (Before: a 'model' run stopped by the monitor at 1.99 s on a loaded host showed 'stable
+    False' only; the replay by hand gave 0.35 % with every step in time.) A run the operator
+    interrupted, or one whose late steps came after its abort, is not replayed."""
+    from types import SimpleNamespace
+
+    from seft_ros.analysis.timing_replay import replay_due
+    from seft_ros.cli import api
+    latency = np.full(N, 0.0005)
+    latency[700] = 2 * DT + 0.0007
+    steps = np.arange(N)
+
+    def aborted_run(n_steps, **extra):             # what replay_due reads of a RunData
+        return SimpleNamespace(
+            params=dict(params, mode='realtime'), stable=False, n_steps=n_steps,
+            unstable_at_s=n_steps * DT,
+            extra=dict({'timing_data': {'rig': _timing('rig', steps, latency=latency)}},
+                       **extra))
+    aborted = aborted_run(1000)
+    assert replay_due(aborted, lambda: pytest.fail('an aborted run has no NRMS to judge'))
+    before = aborted_run(600)
+    assert not replay_due(before, lambda: pytest.fail('no late step before the abort'))
+    interrupted = aborted_run(1000, interrupted=True)
+    assert not replay_due(interrupted, lambda: pytest.fail('the operator stopped it'))
+    lines = []
+    from seft_ros.analysis import timing_replay
+    monkeypatch.setattr(timing_replay, 'replay_timing', lambda run, recorded=None: None)
+    api._replay_if_due(aborted, 'run 1', lines.append)
+    assert lines == ['[run 1] late steps and an abort: replaying the run in process, as it '
+                     'ran and in time']

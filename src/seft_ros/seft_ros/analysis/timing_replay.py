@@ -172,21 +172,27 @@ def steps_behind(controller, rig, dt: float) -> dict[int, int]:
 
 def replay_due(run, worst_nrms) -> bool:
     """Whether ``seft run`` replays this run's timing by itself (:func:`replay_timing`): a
-    stable real-time run of seft's simulated rigs with a late command or a stale step and a
-    worst NRMS above :data:`REPLAY_ABOVE_NRMS` in some signal (`worst_nrms`: the summary's,
-    fractions, or a callable that returns them: called only once the timing says a replay
-    could be due). Its cost is two runs in process (a few seconds), paid where the run
-    erred."""
+    real-time run of seft's simulated rigs with a late command or a stale step (up to its
+    abort, if it was aborted) that either was aborted (not by the operator: did the host's
+    timing stop it?) or completed with a worst NRMS above :data:`REPLAY_ABOVE_NRMS` in some
+    signal (`worst_nrms`: the summary's, fractions, or a callable that returns them: called
+    only once the timing says a replay could be due). Its cost is two runs in process (a few
+    seconds), paid where the run erred."""
     p = run.params
     timing = run.extra.get('timing_data') or {}
-    if not (run.stable and timing and p.get('mode') == 'realtime'
+    if not (timing and p.get('mode') == 'realtime'
             and p.get('rig_interface', 'simulated') == 'simulated'):
         return False
+    if not run.stable and run.extra.get('interrupted'):
+        return False                   # the operator's stop: nothing to explain
     dt = float(p['dt'])
     if not any((node.endswith('rig') and np.any(~(t.loop_latency_s <= dt)))
                or (node.endswith('force_servo_controller') and np.any(t.stale))
-               for node, t in timing.items()):
+               for node, t in ((node, timing_until(t, run.n_steps))
+                               for node, t in timing.items())):
         return False
+    if not run.stable:
+        return True
     if callable(worst_nrms):
         worst_nrms = worst_nrms()
     return any(v is not None and v > REPLAY_ABOVE_NRMS for v in worst_nrms.values())

@@ -630,8 +630,9 @@ def _replay_if_due(rd: RunData, label: str, progress: Callable[[str], None]) -> 
     try:
         if not replay_due(rd, worst_nrms):
             return
-        progress(f'[{label}] late steps and an error above 1 %: replaying the run in process, '
-                 'as it ran and in time')
+        why = 'an error above 1 %' if rd.stable else 'an abort'
+        progress(f'[{label}] late steps and {why}: replaying the run in process, as it ran '
+                 'and in time')
         rd.extra['timing_replay'] = replay = replay_timing(rd, recorded=worst or None)
     except SeftError as exc:
         progress(f'[{label}] no timing replay: {exc}')
