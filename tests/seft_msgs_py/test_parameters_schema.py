@@ -122,12 +122,19 @@ def test_validate_value_where_prefix():
 
 
 def test_unknown_parameter():
-    with bad("unknown parameter 'alpah'"):
+    # the closest names of the schema (within 0.1 of the closest's similarity), or the
+    # reference; a where prefix as for a bad value
+    with bad("unknown parameter 'alpah' (did you mean 'alpha'?)"):
         validate_value('alpah', 1.0)
-    with bad("unknown parameter 'alpah'"):
+    with bad("run.yaml: unknown parameter 'alpah' (did you mean 'alpha'?)"):
+        validate_value('alpah', 1.0, where='run.yaml')
+    with bad("unknown parameter 'alpah' (did you mean 'alpha'?)"):
         spec('alpah')
-    with bad("unknown parameter 'foo'"):
+    with bad("unknown parameter 'foo' (the parameter reference lists them)"):
         resolve({'foo': 1})
+    with bad("unknown parameter 'bouc_wen_exponent' (did you mean 'bouc_wen_n' or "
+             "'bouc_wen_beta'?)"):
+        spec('bouc_wen_exponent')
 
 
 @pytest.mark.parametrize('name, value, expected', [

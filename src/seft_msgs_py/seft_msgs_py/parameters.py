@@ -16,8 +16,8 @@ from typing import Any, Iterable, Mapping
 from seft_msgs_py.errors import ParameterError
 
 __all__ = [
-    'ParamSpec', 'SCHEMA', 'NODES', 'spec', 'specs_for_node', 'defaults', 'validate_value',
-    'from_text',
+    'ParamSpec', 'SCHEMA', 'NODES', 'spec', 'unknown_parameter', 'specs_for_node', 'defaults',
+    'validate_value', 'from_text',
     'resolve', 'graph_nodes', 'PER_NODE', 'shared_mismatches', 'VALUE_SOURCE', 'value_source',
     'VALVE_RIG_MODELS', 'valve_commanded', 'MAPPING_PARAMETERS', 'mapping_value',
 ]
@@ -637,7 +637,34 @@ def spec(name: str) -> ParamSpec:
     try:
         return _BY_NAME[name]
     except KeyError:
-        raise ParameterError(f'unknown parameter {name!r}') from None
+        raise ParameterError(unknown_parameter(name)) from None
+
+
+def unknown_parameter(name: str) -> str:
+    """The message for a parameter name that is not in the schema, with the closest names.
+
+    Up to two names of the schema as close as the closest one (within 0.1 of its
+    :func:`difflib.get_close_matches` similarity ratio, at least 0.6), or, with none, a
+    pointer to the parameter reference.
+
+    Parameters
+    ----------
+    name : str
+        The name given.
+
+    Returns
+    -------
+    str
+        e.g. ``"unknown parameter 'stiffnes_N_per_m' (did you mean 'stiffness_N_per_m'?)"``.
+    """
+    import difflib
+    close = difflib.get_close_matches(name, list(_BY_NAME), n=2, cutoff=0.6)
+    if close:
+        best = difflib.SequenceMatcher(None, close[0], name).ratio()
+        close = [c for c in close
+                 if difflib.SequenceMatcher(None, c, name).ratio() >= best - 0.1]
+        return f'unknown parameter {name!r} (did you mean {" or ".join(map(repr, close))}?)'
+    return f'unknown parameter {name!r} (the parameter reference lists them)'
 
 
 #: The rig models driven by the valve voltage, whose force loop the force servo controller
@@ -700,8 +727,10 @@ def validate_value(name: str, value: Any, *, where: str = '') -> Any:
         Unknown name, wrong type, non-finite number, out of range or not one of the choices;
         the message names the parameter and what was expected.
     """
-    s = spec(name)
     prefix = f'{where}: ' if where else ''
+    if name not in _BY_NAME:
+        raise ParameterError(prefix + unknown_parameter(name))
+    s = spec(name)
     expected = s.expected()
     bad = ParameterError(f'{prefix}parameter {name}={value!r}: expected {expected}')
     if isinstance(s.default, bool):
@@ -791,12 +820,14 @@ def from_text(name: str, text: str, *, where: str = '') -> Any:
         Unknown parameter, or a text that is no value of the parameter's type or out of its
         range; the message names the parameter and what was expected.
     """
+    prefix = f'{where}: ' if where else ''
+    if name not in _BY_NAME:
+        raise ParameterError(prefix + unknown_parameter(name))
     s = spec(name)
     text = text.strip()
     if name in LIST_PARAMETERS and text.startswith('[') and text.endswith(']'):
         items = [t.strip() for t in text[1:-1].split(',') if t.strip()]
         return [from_text(name, t, where=where) for t in items]
-    prefix = f'{where}: ' if where else ''
     bad = ParameterError(f'{prefix}parameter {name}={text!r}: expected {s.expected()}')
     if isinstance(s.default, bool):
         if text.lower() not in ('true', 'false'):

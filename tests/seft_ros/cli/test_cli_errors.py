@@ -112,7 +112,8 @@ CASES = {
     'set_mode': (['simulate', '--set', 'mode=fast'], re.escape(
         "command line: parameter mode='fast': expected one of 'lockstep', 'realtime'")),
     'yaml_unknown': (['simulate', 'unknown.yaml'],
-                     re.escape("unknown.yaml: unknown parameter 'stiffnes_N_per_m'")),
+                     re.escape("unknown.yaml: unknown parameter 'stiffnes_N_per_m' (did you "
+                               "mean 'stiffness_N_per_m'?)")),
     'yaml_invalid': (['simulate', 'invalid.yaml'],
                      r'invalid\.yaml: line \d+: invalid YAML \(.+\)'),
     'yaml_ros_format': (['simulate', 'ros.yaml'],

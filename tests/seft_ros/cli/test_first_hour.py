@@ -40,8 +40,11 @@ FAILURES = {
     'set_int': (['simulate', '--set', 'n_steps=1.5'], re.escape(
         "command line: parameter n_steps='1.5': expected int >= 0")),
     'set_unknown': (['simulate', '--set', 'stifness_N_per_m=1e5'], re.escape(
-        "command line: --set stifness_N_per_m=1e5: unknown parameter 'stifness_N_per_m' (the "
-        'parameter reference lists them)')),
+        "command line: --set stifness_N_per_m=1e5: unknown parameter 'stifness_N_per_m' (did "
+        "you mean 'stiffness_N_per_m'?)")),
+    'set_unknown_far': (['simulate', '--set', 'xyz=1'], re.escape(
+        "command line: --set xyz=1: unknown parameter 'xyz' (the parameter reference lists "
+        'them)')),
     # a bad domain: nothing created, whether --out is given or not
     'run_bad_domain_out': (['run', '--domain-id', '999', '--out', 'out'],
                            re.escape('--domain-id=999: expected an integer 0-232')),

@@ -146,7 +146,8 @@ def test_study_and_structure_bags_are_identified_apart(lab, capsys):
     ('rigs:\n  pier_a: {dt: 0.001}\n', 'two_piers.yaml', InputError,
      r'rigs\.pier_a\.dt: a parameter of the whole test, not of one rig; set it for all$'),
     ('rigs:\n  pier_a: {predictor_mass: 50.0}\n', 'two_piers.yaml', InputError,
-     r"rigs\.pier_a: unknown parameter 'predictor_mass'$"),
+     r"rigs\.pier_a: unknown parameter 'predictor_mass' \(did you mean 'predictor_mass_kg' or "
+     r"'predictor_tau_s'\?\)$"),
     ('rigs:\n  pier_a: {predictor_mass_kg: -1.0}\n', 'two_piers.yaml', ParameterError,
      r'rigs\.pier_a: parameter predictor_mass_kg=-1\.0: expected'),
     ('rigs: [pier_a]\n', 'two_piers.yaml', InputError,

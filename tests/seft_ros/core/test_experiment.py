@@ -231,7 +231,8 @@ def test_n_steps_beyond_the_record(reference_params):
 def test_simulate_validates_its_parameters(reference_params, tmp_path):
     with pytest.raises(ParameterError, match=r'^parameter alpha=-1: expected float >= 0'):
         simulate(dict(reference_params, alpha=-1))
-    with pytest.raises(ParameterError, match=r"^unknown parameter 'mass'$"):
+    with pytest.raises(ParameterError, match=r"^unknown parameter 'mass' \(did you mean "
+                                             r"'mass_kg'\?\)$"):
         simulate({'mass': 3.0})
     missing = tmp_path / 'nothing.AT2'
     with pytest.raises(InputError, match=re.escape(str(missing)) + ': no such file'):

@@ -108,7 +108,7 @@ def load_config(path, *, layer: bool = False) -> dict[str, Any]:
     known = parameters.defaults()
     for key in data:
         if key not in known:
-            raise InputError(f'{path}: unknown parameter {key!r}')
+            raise InputError(f'{path}: {parameters.unknown_parameter(key)}')
     if rigs is not None and not isinstance(structure, dict):
         data[RIGS] = _rig_sections(rigs, where=f'{path}: rigs')
     return data
@@ -192,7 +192,7 @@ def _rig_sections(rigs, *, where: str) -> dict[str, dict[str, Any]]:
         section = {}
         for name, value in values.items():
             if name not in known:
-                raise InputError(f'{where}.{rig}: unknown parameter {name!r}')
+                raise InputError(f'{where}.{rig}: {parameters.unknown_parameter(name)}')
             if name in parameters.TEST_PARAMETERS:
                 raise InputError(f'{where}.{rig}.{name}: a parameter of the whole test, not of '
                                  'one rig; set it for all')

@@ -68,8 +68,8 @@ def _typed(sets, *, alpha: bool = False, given: dict[str, str] | None = None):
             raise InputError(f'--set {name}={text}: {option} is given too; expected the value '
                              'once')
         if name not in parameters.defaults():
-            raise InputError(f'command line: --set {name}={text}: unknown parameter '
-                             f'{name!r} (the parameter reference lists them)')
+            raise InputError(f'command line: --set {name}={text}: '
+                             f'{parameters.unknown_parameter(name)}')
         out.append((name, parameters.from_text(name, text, where='command line')))
     return out
 
