@@ -55,13 +55,19 @@ mode shapes, Chopra, Dynamics of Structures, Sec. 11.5) or ``rayleigh_damping:
 {mass_coefficient_1_per_s: a0, stiffness_coefficient_s: a1}`` (``C = a0 M + a1 K``,
 Chopra Sec. 11.4).
 
-Checks (one error line naming the field): ``M`` symmetric positive definite, ``K`` symmetric
+Checks (one error line naming the field): every per-DOF field of one size (the field that
+differs from the others is named); ``M`` symmetric positive definite, ``K`` symmetric
 positive definite (the whole structure stands on the ground), ``C`` symmetric positive
-semi-definite; a physical DOF has a lumped mass not smaller than its specimen's, no mass
-coupling to other DOFs, and a stiffness to the ground (the row sum of ``K``) equal to its
-specimen's; each rig tests one DOF; every rig section names a rig of ``physical``.
+semi-definite (symmetric to 1e-8 of the matrix's largest entry, a matrix printed to 9
+significant digits; the matrix used is then ``(A + A^T) / 2``); modal damping ratios below 1
+(critical); an influence vector not all zero; a physical DOF has a lumped mass not smaller
+than its specimen's, no mass coupling to other DOFs, a spring to the ground (a specimen joins
+its DOF to the ground: a story between two floors cannot be one) whose stiffness (the row sum
+of ``K``) equals its specimen's; each rig tests one DOF; every rig section names a rig of
+``physical``.
 """
 
+from collections import Counter
 from dataclasses import dataclass, field, replace
 import json
 import math
@@ -97,8 +103,15 @@ _SHEAR = ('story_masses_kg', 'story_stiffnesses_N_per_m')
 _MATRICES = ('mass_matrix_kg', 'stiffness_matrix_N_per_m')
 _DAMPING = ('story_damping_N_s_per_m', 'damping_matrix_N_s_per_m', 'modal_damping_ratios',
             'rayleigh_damping')
-#: Relative tolerance of the symmetry and specimen checks.
+#: Relative tolerance of the definiteness and specimen checks.
 _TOL = 1e-9
+#: Relative tolerance of the symmetry check, of the matrix's largest entry: one unit in the
+#: 9th significant digit of that entry. A matrix an FE program assembled symmetric and
+#: printed to 9 digits may differ across its diagonal by one unit of the last digit
+#: (the sums of its assembly round either side of a printed digit); a matrix typed wrong
+#: differs by far more (k_nonsym: 5 %). The matrix used is then (A + A^T) / 2, a change
+#: of at most half of this: far below any stiffness, mass or damping a lab can measure.
+_SYMMETRY_TOL = 1e-8
 #: The rigid computational mass ratio is rounded to this many decimals (far below any mass a
 #: lab can weigh), so that a mass written as (1 + alpha) m gives the study's alpha exactly.
 ALPHA_DECIMALS = 12
@@ -308,11 +321,13 @@ def _matrix(where: str, key: str, value, n: int | None) -> np.ndarray:
     if not np.all(np.isfinite(arr)):
         raise _fail(where, key, 'expected finite numbers')
     scale = max(float(np.max(np.abs(arr))), 1e-300)
-    if np.max(np.abs(arr - arr.T)) > _TOL * scale:
+    if np.max(np.abs(arr - arr.T)) > _SYMMETRY_TOL * scale:
         i, j = np.unravel_index(int(np.argmax(np.abs(arr - arr.T))), arr.shape)
-        raise _fail(where, key, f'expected a symmetric matrix, but row {i + 1} column '
-                    f'{j + 1} is {arr[i, j]!r} and row {j + 1} column {i + 1} is {arr[j, i]!r}')
-    return 0.5 * (arr + arr.T)
+        raise _fail(where, key, f'expected a symmetric matrix (to {_SYMMETRY_TOL:g} of '
+                    f'its largest entry), but row {i + 1} column {j + 1} is '
+                    f'{float(arr[i, j])!r} and row {j + 1} column {i + 1} is '
+                    f'{float(arr[j, i])!r}')
+    return 0.5 * (arr + arr.T)              # nothing downstream sees the round-off
 
 
 def _definite(where: str, key: str, matrix: np.ndarray, *, semi: bool = False) -> None:
@@ -359,6 +374,10 @@ def _modal_damping(where: str, ratios, mass: np.ndarray, stiff: np.ndarray) -> n
     if isinstance(ratios, (int, float)) and not isinstance(ratios, bool):
         ratios = [ratios]
     zeta = _numbers(where, 'modal_damping_ratios', ratios, nonnegative=True)
+    if np.any(zeta >= 1.0):
+        raise _fail(where, 'modal_damping_ratios', 'expected ratios < 1 (fractions of '
+                    'critical damping: 0.05 is 5 %; at 1 a mode no longer oscillates), got '
+                    f'{ratios!r}')
     if zeta.shape[0] == 1:
         zeta = np.full(n, zeta[0])
     elif zeta.shape[0] != n:
@@ -400,6 +419,32 @@ def _links(stiff: np.ndarray, dofs, shear: bool) -> tuple:
     return tuple(out)
 
 
+def _dof_count(where: str, section: Mapping, form: tuple) -> int:
+    """The number of DOFs: the size most of the per-DOF fields given agree on (the first
+    field's of `form` on a tie). A field of another size is named, with the fields that
+    agree (a mass matrix of the wrong size is the mass matrix's error, not ``dofs``'s);
+    ``dofs`` of the wrong size is left to its own check."""
+    keys = ('dofs', *form, 'story_damping_N_s_per_m', 'damping_matrix_N_s_per_m', 'influence')
+    sizes = {k: len(section[k]) for k in keys
+             if k in section and isinstance(section[k], (list, tuple))}
+    if form[0] not in sizes:
+        return 0
+    counts = Counter(sizes.values())
+    most = max(counts.values())
+    n = sizes[form[0]] if counts[sizes[form[0]]] == most else next(
+        v for v, c in counts.items() if c == most)
+    for key, size in sizes.items():
+        if size != n and key != 'dofs':
+            agree = [k for k, v in sizes.items() if v == n]
+            matrix = key in (*_MATRICES, 'damping_matrix_N_s_per_m')
+            names = ' and '.join([', '.join(agree[:-1]), agree[-1]] if agree[:-1] else agree)
+            raise _fail(where, key, f'has {size} {"rows" if matrix else "entries"}, but '
+                        f'{names} {"give" if len(agree) > 1 else "gives"} {n} dofs; '
+                        f'expected {f"a {n} x {n} matrix" if matrix else f"{n} entries"} '
+                        f'(one {"row " if matrix else ""}per dof)')
+    return n
+
+
 def parse_structure(section: Mapping, *, rigs: Mapping | None = None,
                     where: str = 'structure', base=None) -> Structure:
     """Check a ``structure`` section (and its ``rigs`` section) and build the model.
@@ -426,10 +471,11 @@ def parse_structure(section: Mapping, *, rigs: Mapping | None = None,
     Raises
     ------
     ParameterError
-        One line naming the field: an unknown key, a missing or a doubled form, a list of the
-        wrong length, a number out of range, a matrix that is not symmetric or not positive
-        definite where it must be, a DOF or rig name that is not a ROS name, a rig that tests
-        two DOFs, a rig section for no physical DOF, no physical DOF.
+        One line naming the field: an unknown key, a missing or a doubled form, a list or a
+        matrix of another size than the other fields', a number out of range (a modal damping
+        ratio of 1 or more), an influence vector all zero, a matrix that is not symmetric or
+        not positive definite where it must be, a DOF or rig name that is not a ROS name, a
+        rig that tests two DOFs, a rig section for no physical DOF, no physical DOF.
     """
     if not isinstance(section, Mapping):
         raise ParameterError(f'{where}: expected a mapping (module seft_ros.core.structure '
@@ -471,12 +517,8 @@ def parse_structure(section: Mapping, *, rigs: Mapping | None = None,
                     'story masses give story_damping_N_s_per_m, modal_damping_ratios or '
                     'rayleigh_damping')
     # the number of DOFs
-    if shear:
-        first = section['story_masses_kg']
-        n = len(first) if isinstance(first, (list, tuple)) else 0
-    else:
-        first = section['mass_matrix_kg']
-        n = len(first) if isinstance(first, (list, tuple)) else 0
+    first = section[form[0]]
+    n = _dof_count(where, section, form)
     if n < 1:
         raise _fail(where, form[0], f'expected at least one dof, got {first!r}')
     dofs = section.get('dofs')
@@ -518,6 +560,10 @@ def parse_structure(section: Mapping, *, rigs: Mapping | None = None,
     influence = np.ones(n)
     if 'influence' in section:
         influence = _numbers(where, 'influence', section['influence'], n)
+        if not np.any(influence):
+            raise _fail(where, 'influence', "all zero: the ground motion loads no dof (the "
+                        "load -M iota xg'' of Eq. 1 is zero); expected a non-zero entry "
+                        '(default: ones)')
     physical = section.get('physical')
     if not isinstance(physical, Mapping) or not physical:
         raise _fail(where, 'physical', 'expected a mapping of at least one dof to the rig that '
@@ -629,8 +675,9 @@ def split(structure: Structure, specimens: Mapping[str, Mapping[str, Any]], *,
     ------
     ParameterError
         A rig without parameters, a physical DOF coupled by mass to another DOF, a mass
-        smaller than the specimen's, or a stiffness to the ground (the row sum of ``K``)
-        that differs from the specimen's: the structure's physical part disagrees with the
+        smaller than the specimen's, a physical DOF with no spring to the ground (a member
+        between two DOFs cannot be a specimen), or a stiffness to the ground (the row sum of
+        ``K``) that differs from the specimen's: the structure's physical part disagrees with the
         rig's specimen (the message gives both values).
     """
     if structure.model_kind is not None:     # a plug-in's model: its specimens, its split
@@ -662,6 +709,17 @@ def split(structure: Structure, specimens: Mapping[str, Mapping[str, Any]], *,
                 f'{where}: the mass at physical dof {dof!r} is {float(mass[i, i])!r} kg, less '
                 f"than rig {rig}'s specimen mass_kg={float(m[j])!r}: the structure disagrees "
                 'with the specimen')
+        ground = float(np.sum(stiff[i]))
+        if abs(ground) <= 1e-6 * scale < k[j]:
+            grounded = [structure.dofs[o] for o in range(structure.n)
+                        if abs(float(np.sum(stiff[o]))) > 1e-6 * scale]
+            raise ParameterError(
+                f'{where}.physical: dof {dof!r} has no spring to the ground (the row sum of '
+                f'the stiffness matrix is {ground:.6g} N/m): it is joined to other dofs only, '
+                f"but a specimen joins its dof to the ground (rig {rig}'s actuator reacts on "
+                'the lab floor), so a member between two dofs (a story above the first) '
+                'cannot be one; test a dof with a spring to the ground (here: '
+                f'{", ".join(grounded)})')
         damped = float(structure.damping_N_s_per_m[i, i])
         if damped < c[j] * (1.0 - 1e-6):
             raise ParameterError(
@@ -670,7 +728,6 @@ def split(structure: Structure, specimens: Mapping[str, Mapping[str, Any]], *,
                 f"{rig}'s specimen alone, damping_N_s_per_m={float(c[j]):.6g}: the computational "
                 'part would add negative damping there (give the structure at least the '
                 "specimen's damping at that dof, or declare the specimen's own)")
-        ground = float(np.sum(stiff[i]))
         if abs(ground - k[j]) > 1e-6 * max(scale, k[j]):
             raise ParameterError(
                 f'{where}: the stiffness to the ground at physical dof {dof!r} is {ground!r} N/m '
