@@ -88,6 +88,25 @@ def test_compare_a_sweep_folder(sweep_dir, tmp_path, capsys):
     assert html.count('<img ') == html.count('src="data:image/png;base64,')
 
 
+def test_compare_numbers_a_folders_runs_as_its_command_did(sweep_dir, simulated, tmp_path):
+    """The folder's summary.json (as seft run wrote it: the runs in LABELS order, none before
+    model) numbers the runs, not the directory listing (before: run 1 was
+    alpha_0_servohydraulic_model, the folder's run 4)."""
+    from seft_ros.analysis.report import write_report
+    write_report([simulated[label] for label in LABELS], tmp_path / 'ran')
+    (sweep_dir / 'summary.json').write_text((tmp_path / 'ran' / 'summary.json').read_text())
+    result = api.compare_bags(bags=[str(sweep_dir)], out_dir=tmp_path / 'cmp')
+    assert [(e['predictor'], e['alpha']) for e in result.summary] == [
+        (label.split('_')[3], float(label.split('_')[1])) for label in LABELS]
+    # a summary that does not name each run once (another folder's): the listing's order
+    entries = json.loads((sweep_dir / 'summary.json').read_text())
+    entries['runs'] = entries['runs'][:1] * 6
+    (sweep_dir / 'summary.json').write_text(json.dumps(entries))
+    result = api.compare_bags(bags=[str(sweep_dir)], out_dir=tmp_path / 'cmp2')
+    assert [(e['predictor'], e['alpha']) for e in result.summary][:2] == [('model', 0.0),
+                                                                       ('none', 0.0)]
+
+
 def test_criteria_table_of_missing_values():
     table = api.criteria_table([{'alpha': 0.5, 'predictor': 'none', 'criteria':
                                  {'J1': None, 'J2': 1.0, 'J3': None, 'J4': 2.0, 'J5': 3.0},

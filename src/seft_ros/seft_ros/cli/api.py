@@ -841,7 +841,8 @@ def find_bags(paths: list[str]) -> list[Path]:
         Each one a bag (a directory with ``metadata.yaml`` or a ``.mcap``/``.db3`` file), a
         run directory of ``seft run`` (holding ``bag/``) or a folder of run directories
         (``seft run --out DIR``: ``DIR/<run>/bag``, taken in natural order of the run names,
-        numbers by value).
+        numbers by value; :func:`compare_bags` then numbers them as the folder's
+        ``summary.json`` does).
 
     Returns
     -------
@@ -878,17 +879,44 @@ def find_bags(paths: list[str]) -> list[Path]:
     return out
 
 
+def _recorded_order(folder: Path, data: list[RunData]) -> list[RunData]:
+    """The runs of a folder in the order its command ran and numbered them (run 1, 2, ...:
+    the entries of the folder's ``summary.json``, matched by record, predictor and alpha as
+    the summary names them), not the directory listing's (``structure_adaptive`` before
+    ``structure_model``). `data` as given when the folder has no summary or its entries do
+    not name each run once."""
+    try:
+        entries = json.loads((folder / 'summary.json').read_text())['runs']
+        keys = [(e['record'], e['predictor'], None if e['alpha'] is None else float(e['alpha']))
+                for e in entries]
+    except (OSError, ValueError, KeyError, TypeError):
+        return data
+
+    def key(rd):
+        rigs = list(rd.rigs.values())
+        alpha = rigs[0].params.get('alpha') if len(rigs) == 1 else None
+        return (rd.record_name or rd.params.get('record', ''), rd.params.get('predictor'),
+                None if alpha is None else float(alpha))
+    index = {k: i for i, k in enumerate(keys)}
+    ours = [key(rd) for rd in data]
+    if len(index) != len(keys) or len(set(ours)) != len(ours) or not all(
+            k in index for k in ours):
+        return data
+    return sorted(data, key=lambda rd: index[key(rd)])
+
+
 def compare_bags(*, bags: list[str], out_dir: Path, title: str = '',
                  replay_timing: bool = False,
                  progress: Callable[[str], None] = lambda line: None) -> Result:
     """Read bags and write the comparison report against the analytical reference.
 
-    Each path is a bag, a run directory or a folder of run directories (:func:`find_bags`):
-    ``seft compare runs/main`` reports a whole sweep, with the table of criteria (one row
-    per run) and their plot against alpha per predictor. With `replay_timing`, each
-    real-time run of seft's simulated rigs is replayed in process as it ran and with every
-    step in time (:func:`~seft_ros.analysis.timing_replay.replay_timing`; its line in the report,
-    ``timing_replay`` in the summary; `progress` says which run).
+    Each path is a bag, a run directory or a folder of run directories (:func:`find_bags`;
+    a folder's runs numbered as the command that wrote it numbered them, from its
+    ``summary.json``): ``seft compare runs/main`` reports a whole sweep, with the table of
+    criteria (one row per run) and their plot against alpha per predictor. With
+    `replay_timing`, each real-time run of seft's simulated rigs is replayed in process as it
+    ran and with every step in time (:func:`~seft_ros.analysis.timing_replay.replay_timing`;
+    its line in the report, ``timing_replay`` in the summary; `progress` says which run).
 
     Raises
     ------
@@ -896,7 +924,9 @@ def compare_bags(*, bags: list[str], out_dir: Path, title: str = '',
         A path is not a readable seft bag, run directory or folder of run directories.
     """
     t0 = time.monotonic()
-    data = [read_run(b) for b in find_bags(bags)]
+    data = []
+    for text in bags:
+        data += _recorded_order(Path(text), [read_run(b) for b in find_bags([text])])
     for rd in data:
         # the pre-run guard's prediction, as seft run put it in the summary (deterministic:
         # the run's parameters are in its bag)
