@@ -1026,7 +1026,7 @@ class InputWatchdog:
             if silent > limit:
                 self.node.abort_run(
                     f'watchdog: no {name} for {1e3 * silent:.0f} ms (limit '
-                    f'{1e3 * self.timeout_s:.0f} ms; node or link lost)',
+                    f'{1e3 * self.timeout_s:g} ms; node or link lost)',
                     int(getattr(self.node, 'next_step', 0)))
                 return
 

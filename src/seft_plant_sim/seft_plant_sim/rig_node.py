@@ -447,7 +447,7 @@ class RigNode(SeftNode):
         silent = self.rig.silent_s(now)
         if silent > self.watchdog_s:
             reason = (f'udp_bridge: no datagram from the controller for {1e3 * silent:.1f} '
-                      f'ms (limit {1e3 * self.watchdog_s:.0f} ms) after t = '
+                      f'ms (limit {1e3 * self.watchdog_s:g} ms) after t = '
                       f'{self.rig.time_s:.3f} s')
             self._abort_realtime(reason)
             self._flush_timing(final=True)
@@ -531,7 +531,7 @@ class RigNode(SeftNode):
             if reason is None and start - self.last_command_at > self.watchdog_s:
                 reason = (f'{rig_contract.WATCHDOG_REASON} no {self.command_topic.name} for '
                           f'{1e3 * (start - self.last_command_at):.1f} ms (limit '
-                          f'{1e3 * self.watchdog_s:.0f} ms) at t = {rig.time_s:.3f} s')
+                          f'{1e3 * self.watchdog_s:g} ms) at t = {rig.time_s:.3f} s')
             if reason:
                 self._abort_realtime(reason)
         self._sample_realtime(start, time.monotonic())

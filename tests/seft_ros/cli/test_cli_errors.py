@@ -185,6 +185,19 @@ CASES = {
                                     'or a folder of run directories') + '; .+'),
     'compare_missing': (['compare', 'no_such_bag'],
                         re.escape('no_such_bag: no such bag or run directory')),
+    # a real-time watchdog shorter than 3 sample periods ends the run at its first lost or
+    # late sample (before: accepted; every node tripped at the first step, 'limit 0 ms')
+    'run_watchdog_below_dt': (['run', '--mode', 'realtime', '--set', 'watchdog_timeout_s=0.0005',
+                               '--duration', '0.1'], re.escape(
+        'command line: parameter watchdog_timeout_s=0.0005: expected at least 3 sample '
+        'periods, 0.006 s at dt=0.002 s (an input is due every dt: a shorter watchdog ends '
+        'the run at the first lost or late sample)')),
+    'run_watchdog_3_dt_at_1khz': (['run', '--mode', 'realtime', '--set', 'dt=0.001', '--set',
+                                   'watchdog_timeout_s=0.0025', '--duration', '0.1'],
+                                  re.escape(
+        'command line: parameter watchdog_timeout_s=0.0025: expected at least 3 sample '
+        'periods, 0.003 s at dt=0.001 s (an input is due every dt: a shorter watchdog ends '
+        'the run at the first lost or late sample)')),
     'run_domain_out_of_range': (['run', '--domain-id', '233', '--duration', '0.1'],
                                 re.escape('--domain-id=233: expected an integer 0-232')),
     'compare_foreign_bag': (['compare', 'foreign_bag'], re.escape(

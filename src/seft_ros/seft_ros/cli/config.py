@@ -333,12 +333,14 @@ def _with_structure(params: dict[str, Any], where: str) -> dict[str, Any]:
     """
     if params.get('structure', 'none') in ('none', '', None):
         _check_mappings(params, where)
+        _check_watchdog(params, where)
         return params
     from seft_ros.core.structure import reduces_to_study, study_parameters, test_setup
     try:
         setup = test_setup(params)
         for rig, rp in setup.rig_params.items():
             _check_mappings(rp, f'{where}: rig {rig}' if where else f'rig {rig}')
+            _check_watchdog(rp, f'rig {rig}')
         if reduces_to_study(setup.substructures):
             return study_parameters(params, setup.substructures)
         if float(params.get('alpha', 0.0)) != 0.0:
@@ -351,6 +353,33 @@ def _with_structure(params: dict[str, Any], where: str) -> dict[str, Any]:
     except ParameterError as exc:
         raise ParameterError(f'{where}: {exc}' if where else str(exc)) from None
     return params
+
+
+#: The shortest real-time watchdog, in sample periods: an input is due every dt, and a
+#: sample lost on the way (the graph carries on with the latest one) leaves 2 dt of
+#: silence; a third dt is the room for a late sample's scheduling jitter. A shorter limit
+#: ends the run at the first lost or late sample (below dt: at the first step).
+_WATCHDOG_MIN_STEPS = 3
+
+
+def _check_watchdog(params: dict[str, Any], where: str) -> None:
+    """Refuse a real-time watchdog shorter than :data:`_WATCHDOG_MIN_STEPS` sample periods (a
+    lockstep run has none: its nodes wait for each other).
+
+    Raises
+    ------
+    ParameterError
+        The message names `where`, the parameter, the bound and the run's dt.
+    """
+    if params.get('mode') != 'realtime':
+        return
+    limit, dt = float(params['watchdog_timeout_s']), float(params['dt'])
+    if limit < _WATCHDOG_MIN_STEPS * dt * (1.0 - 1e-9):
+        raise ParameterError(
+            f'{where + ": " if where else ""}parameter watchdog_timeout_s={limit:g}: expected '
+            f'at least {_WATCHDOG_MIN_STEPS} sample periods, {_WATCHDOG_MIN_STEPS * dt:g} s at '
+            f'dt={dt:g} s (an input is due every dt: a shorter watchdog ends the run at the '
+            'first lost or late sample)')
 
 
 def _check_mappings(params: dict[str, Any], where: str) -> None:

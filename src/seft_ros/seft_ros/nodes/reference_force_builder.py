@@ -407,7 +407,7 @@ class ReferenceForceBuilderNode(SeftNode):
         if self._ground_missing * self.dt <= float(self.params['watchdog_timeout_s']):
             return False
         self.abort_run(f'watchdog: no ground motion for {1e3 * self._ground_missing * self.dt:.0f}'
-                       f' ms (limit {1e3 * float(self.params["watchdog_timeout_s"]):.0f} ms; '
+                       f' ms (limit {1e3 * float(self.params["watchdog_timeout_s"]):g} ms; '
                        'the ground-motion publisher or its link lost)', k)
         return True
 
