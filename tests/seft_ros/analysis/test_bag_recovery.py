@@ -164,7 +164,10 @@ def test_a_killed_recorders_bag_reads_up_to_the_last_flush(mcap_bags, tmp_path):
     assert rec['flush_every_s'] == pytest.approx(FLUSH * DT)
     assert rec['file_complete'] is False
     assert not run.stable and run.unstable_at_s == pytest.approx(600 * DT)
-    assert 'ended in a crash' in run.abort_reason and run.abort_reason.startswith('recorder: ')
+    assert run.abort_reason == ('recorder: the recording was not closed (recorder killed, or '
+                                'still recording)')
+    assert rec['note'].startswith('the recording was not closed (recorder killed, or still '
+                                  'recording): recovered 1.200 s (600 steps')
 
 
 def test_a_file_cut_anywhere_yields_only_whole_messages(mcap_bags, tmp_path):

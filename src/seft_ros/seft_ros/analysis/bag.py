@@ -17,7 +17,8 @@ final ``/seft/status`` reports.
 A bag its recorder never closed (killed with SIGKILL: no ``metadata.yaml``, an MCAP file
 without its summary, an uncommitted sqlite3 transaction) reads too: every message of its
 complete records (:mod:`seft_ros.analysis.bag_recovery`); :func:`read_run` says that the
-recording ended in a crash and how much it recovered.
+recording was not closed (the recorder killed, or still recording: the file cannot tell) and
+how much it recovered.
 
 A bag recorded from the live topics (``ros2 bag record`` on a full ROS install, which sees
 the rig's one ``/seft/measurement`` message and the nodes' record batches instead of the
@@ -518,7 +519,8 @@ def recording_end(bag: BagSignals, n_steps: int) -> dict:
         ``'end'``: ``'closed'`` (the recorder closed the bag after every rig's final
         status), ``'stopped'`` (the recorder closed the bag, but the run's end is not in it:
         no final status of a rig; the recorder was stopped by a signal, or lost the rig),
-        ``'crashed'`` (never closed: recovered from the file, the recorder was killed) or
+        ``'crashed'`` (never closed: recovered from the file; the recorder was killed, or
+        is still recording) or
         ``'unknown'`` (no recorder status: a bag not written by the recorder);
         ``'steps'`` and ``'duration_s'``: the complete steps and their time span [s];
         ``'messages'``: the messages read; ``'note'``: one line for the report. A crashed
@@ -541,9 +543,11 @@ def recording_end(bag: BagSignals, n_steps: int) -> dict:
                      FLUSH_EVERY_S)
         out.update(end='crashed', flush_every_s=flush, storage=bag.recovery.storage,
                    file_complete=bag.recovery.file_complete, cut=bag.recovery.end)
-        out['note'] = (f'the recording ended in a crash (recorder killed, bag not closed): '
-                       f'recovered {held}; at most the last {flush:g} s before the crash '
-                       'is lost')
+        # a bag without its metadata: the recorder was killed, or it is still writing (a
+        # run still going, or a recorder left behind): the file cannot tell which
+        out['note'] = (f'the recording was not closed (recorder killed, or still recording): '
+                       f'recovered {held}; at most the last {flush:g} s before the end of '
+                       'the file is missing (not flushed)')
     elif closed and run_ended:
         out.update(end='closed', note=f'bag closed by the recorder: {held}')
     elif recorder:
@@ -602,8 +606,8 @@ def read_run(path) -> RunData:
     state ends at the first abort (``abort_at_s`` of a rig's final status): the ramp after it
     is not part of the test. A bag that ends before the run did (no final status of a rig;
     the recorder killed or stopped) is a run cut short: not ``stable``, ended at its last
-    complete step, with the reason ``'recorder: the recording ended in a crash (recorder
-    killed)'`` (or ``'... was stopped before the run ended'``).
+    complete step, with the reason ``'recorder: the recording was not closed (recorder
+    killed, or still recording)'`` (or ``'... was stopped before the run ended'``).
 
     **Gaps.** A step missing on a signal before the run's end (the step at which the rig
     that ended the run stopped: its final ``step``, the safe state of a real-time abort,
@@ -700,7 +704,8 @@ def read_run(path) -> RunData:
     elif not all(finals.values()) and recording['end'] in ('crashed', 'stopped'):
         # the bag ends before the run did: the test is cut short at its last complete step
         stable = False
-        reason = ('recorder: the recording ended in a crash (recorder killed)'
+        reason = ('recorder: the recording was not closed (recorder killed, or still '
+                  'recording)'
                   if recording['end'] == 'crashed' else
                   'recorder: the recording was stopped before the run ended')
     record_name = next((s.get('record') for s in bag.statuses

@@ -524,6 +524,12 @@ def _mismatch_lines(run: RunData) -> list[str]:
             'experiment):'] + [f'  - {line}' for line in mismatches]
 
 
+def _recording_end(recording: dict) -> str:
+    """How a recording cut short ended, as the report's bold label says it: 'stopped', or
+    'not closed' (summary ``end`` 'crashed': the recorder killed, or still recording)."""
+    return 'not closed' if recording.get('end') == 'crashed' else str(recording.get('end'))
+
+
 def _warning_lines(run: RunData) -> list[str]:
     """A marked line per warning the run's nodes and runner reported (a specimen not the
     declared one, a foreign publisher on the run's topics), each once, in order."""
@@ -596,7 +602,7 @@ def _run_markdown(index: int, run: RunData, comparison: RunComparison) -> list[s
     lines += _warning_lines(run)
     recording = run.extra.get('recording') or {}
     if recording.get('end') in ('crashed', 'stopped'):
-        lines.append(f'- **recording {recording["end"]}**: {recording.get("note")}')
+        lines.append(f'- **recording {_recording_end(recording)}**: {recording.get("note")}')
     elif recording.get('gap_at_step') is not None:
         lines.append(f'- **recording with a gap**: {recording.get("note")}')
     lines += _range_markdown(run)
@@ -1532,7 +1538,7 @@ def _structure_run_markdown(index: int, run: RunData, comparison: RunComparison,
              f'Reference: {comparison.structure_reference.method}.', '']
     recording = run.extra.get('recording') or {}
     if recording.get('end') in ('crashed', 'stopped'):
-        lines += [f'- **recording {recording["end"]}**: {recording.get("note")}']
+        lines += [f'- **recording {_recording_end(recording)}**: {recording.get("note")}']
     elif recording.get('gap_at_step') is not None:
         lines += [f'- **recording with a gap**: {recording.get("note")}']
     lines += _mismatch_lines(run)

@@ -27,7 +27,7 @@ complete step the recorder had received but at most the last ``FLUSH_EVERY_S`` (
 steps at dt = 2 ms), and every other message received more than ``FLUSH_EVERY_S`` (+ the 0.1 s
 of its timer) of wall time before the kill; a kill that lands inside a flush's write (about a
 millisecond) loses that chunk too, twice the bound. ``seft compare`` reads such a bag
-(:mod:`seft_ros.analysis.bag_recovery`) and says the recording ended in a crash. Measured
+(:mod:`seft_ros.analysis.bag_recovery`) and says the recording was not closed. Measured
 (``benchmarks/bag_flush.py``): no cost within the noise for MCAP, whose chunks become smaller;
 sqlite3 commits cost about 7 us a step. A closed bag is the same for every reader.
 
