@@ -644,7 +644,7 @@ def unknown_parameter(name: str) -> str:
     """The message for a parameter name that is not in the schema, with the closest names.
 
     Up to two names of the schema as close as the closest one (within 0.1 of its
-    :func:`difflib.get_close_matches` similarity ratio, at least 0.6), or, with none, a
+    ``difflib.get_close_matches`` similarity ratio, at least 0.6), or, with none, a
     pointer to the parameter reference.
 
     Parameters
