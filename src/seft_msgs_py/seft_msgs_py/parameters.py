@@ -410,7 +410,8 @@ SCHEMA: tuple[ParamSpec, ...] = (
               'control-structure interaction, Dimig et al. 1999, Zhao et al. 2005, with a PI '
               "force controller that cancels the oil column's leakage pole: the force loop "
               "then does not depend on the specimen's stiffness); 'tangent_loop_shaping' "
-              "(C_f with its control-structure-interaction poles scheduled on the member's "
+              "('specimen_loop_shaping' with its control-structure-interaction poles, this "
+              "rig's own (c/m, k/m), scheduled on the member's "
               'tangent stiffness force_tangent_horizon_s ahead, from a Bouc-Wen model '
               "identified online: for members that yield); 'specimen_loop_shaping' (the "
               "study's rule for this rig's own specimen: g/(s^2 + (c/m) s + k/m), e.g. a second "

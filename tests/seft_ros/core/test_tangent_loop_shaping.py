@@ -23,9 +23,10 @@ DT = 0.002
 K = 2.11e5
 TANGENT = dict(force_controller='tangent_loop_shaping')
 YIELDING = dict(specimen_model='bouc_wen', rig_model='servohydraulic')
-#: g [V/N] of paper Eq. 3.1 in the default reading (37 V/lbf) and the denominator's c1, w2.
+#: g [V/N] of paper Eq. 3.1 in the default reading (37 V/lbf) and the denominator's c1, w2:
+#: the rig's own specimen's c/m and k/m (the study's: 17.14 and 4003.8; Eq. 3.1 rounds 4002).
 G = controller_gain_V_per_N(parameters.defaults())
-C1, W2 = 17.14, 4002.0
+C1, W2 = 903.278 / 52.7, K / 52.7
 
 
 def controller(**kw):
@@ -42,17 +43,40 @@ def test_from_parameters_builds_the_scheduled_design():
     ctrl = controller()
     assert isinstance(ctrl, TangentLoopShaping) and ctrl.kind == 'tangent_loop_shaping'
     assert ctrl.uses_motion and ctrl.horizon_s == 0.005
-    # the nominal (elastic) design is the study's: same discrete C_f as loop_shaping
-    base = ForceServoController.from_parameters(parameters.defaults())
+    # the nominal (elastic) design cancels the rig's own specimen: the discrete C_f of
+    # specimen_loop_shaping, (1, c/m, k/m) = (1, 17.14, 4003.8) for the study's specimen
+    base = ForceServoController.from_parameters(dict(parameters.defaults(),
+                                                     force_controller='specimen_loop_shaping'))
     np.testing.assert_allclose(ctrl.bz, base.bz, rtol=1e-15)
     np.testing.assert_allclose(ctrl.az, base.az, rtol=1e-15)
+    assert ctrl.design.den == pytest.approx((1.0, 17.14, 2.11e5 / 52.7), rel=1e-12)
 
 
-def test_elastic_member_gives_the_study_controller_to_rounding():
-    """rho = 1: the trapezoidal state recursion is the loop-shaping filter's (both Tustin at
-    the period prewarped at sqrt(4002) rad/s)."""
+@pytest.mark.parametrize('stiffness_N_per_m', [1.5e5, 2.5e5])
+def test_the_design_cancels_the_rigs_own_member(stiffness_N_per_m):
+    """Session 23's D1: the controller cancelled the study's specimen (1, 17.14, 4002)
+    whatever the rig's k, so a member 18 % stiffer erred 10x more. Its elastic design, the
+    design the stability guard and the compensators' force-loop model use
+    (ForceServoController.from_parameters), and every frozen design are the rig's own
+    (1, c/m, rho k/m)."""
+    p = dict(parameters.defaults(), **TANGENT, stiffness_N_per_m=stiffness_N_per_m,
+             mass_kg=60.0, damping_N_s_per_m=950.0)
+    ctrl = ForceServoController.from_parameters(p)
+    own = ForceServoController.from_parameters(dict(p, force_controller='specimen_loop_shaping'))
+    assert ctrl.design.den == pytest.approx((1.0, 950.0 / 60.0, stiffness_N_per_m / 60.0),
+                                            rel=1e-12)
+    np.testing.assert_allclose(ctrl.az, own.az, rtol=1e-15)
+    np.testing.assert_allclose(ctrl.frozen(1.0).az, own.az, rtol=1e-12)
+    half = ctrl.frozen(0.5).design.den
+    assert half == pytest.approx((1.0, 950.0 / 60.0, 0.5 * stiffness_N_per_m / 60.0), rel=1e-12)
+
+
+def test_elastic_member_gives_the_specimen_controller_to_rounding():
+    """rho = 1: the trapezoidal state recursion is specimen_loop_shaping's filter (both Tustin
+    at the period prewarped at sqrt(k/m) rad/s)."""
     ctrl = held(controller(valve_limit_V=1e6), 1.0)
-    base = ForceServoController.from_parameters(dict(parameters.defaults(), valve_limit_V=1e6))
+    base = ForceServoController.from_parameters(dict(
+        parameters.defaults(), valve_limit_V=1e6, force_controller='specimen_loop_shaping'))
     e = np.random.default_rng(1).normal(0, 200.0, 2000)
     got = np.array([ctrl.step(ek, 0.0) for ek in e])
     want = np.array([base.step(ek, 0.0) for ek in e])

@@ -20,7 +20,7 @@ __all__ = ['DiscreteFilter', 'ForceServoController', 'SaturationInterlock', 'LOO
            'ControllerTF',
            'LOOP_SHAPING_DEN', 'FORCE_CONTROLLERS', 'TangentLoopShaping', 'ReferencePlayout',
            'REFERENCE_EXTRAPOLATIONS', 'PREDICTION_ORDER', 'PREDICTION_WINDOW_S',
-           'PREDICTION_RIDGE', 'prediction_window_steps']
+           'PREDICTION_RIDGE', 'prediction_window_steps', 'specimen_denominator']
 
 #: Numerator of C_f(s) = 37 / (s^2 + 17.14 s + 4002) [V/N] (paper Eq. 3.1) in the default
 #: reading, V/lbf: 37/4.448 = 8.318 V/N (:mod:`seft_msgs_py.calibration`; 'si': 37 V/N).
@@ -31,6 +31,42 @@ LOOP_SHAPING_DEN = (1.0, 17.14, 4002.0)
 #: The force controller designs (parameter ``force_controller``), :class:`ForceServoController`.
 FORCE_CONTROLLERS = ('loop_shaping', 'integral', 'velocity_feedback', 'tangent_loop_shaping',
                      'specimen_loop_shaping', 'transfer_function')
+
+
+def specimen_denominator(params) -> tuple[float, float, float]:
+    """The denominator of C_f(s) that cancels the rig's own specimen, ``(1, c/m, k/m)``.
+
+    Paper Eq. 3.1's ``s^2 + 17.14 s + 4002`` is the study's specimen's
+    ``(m s^2 + c s + k)/m``; ``specimen_loop_shaping`` and ``tangent_loop_shaping`` (whose
+    elastic design it is) take it from the rig's ``mass_kg``, ``damping_N_s_per_m`` and
+    ``stiffness_N_per_m`` (the study's rig: ``(1, 17.14, 4003.8)``).
+
+    Parameters
+    ----------
+    params : mapping
+        The rig's parameters (absent keys: the schema's defaults).
+
+    Returns
+    -------
+    tuple of float
+        ``(1, c/m [1/s], k/m [1/s^2])``.
+
+    Raises
+    ------
+    ParameterError
+        If ``mass_kg`` is not > 0 or ``stiffness_N_per_m`` is not > 0.
+    """
+    from seft_msgs_py.parameters import spec
+
+    def get(name):
+        return float(params[name] if name in params else spec(name).default)
+
+    m, c, k = get('mass_kg'), get('damping_N_s_per_m'), get('stiffness_N_per_m')
+    for name, value in (('mass_kg', m), ('stiffness_N_per_m', k)):
+        if not (math.isfinite(value) and value > 0):
+            raise ParameterError(f'parameter {name}={value!r}: expected float > 0 (the '
+                                 "specimen the force controller's C_f cancels)")
+    return (1.0, c / m, k / m)
 
 
 class DiscreteFilter:
@@ -419,9 +455,8 @@ class ForceServoController:
             return cls(dt, limit, num=(controller_gain_V_per_N(params),),
                        integral_hz=fi if kind == 'integral' else 0.0, kind=kind)
         if kind == 'specimen_loop_shaping':
-            m = float(get('mass_kg'))
-            den = (1.0, float(get('damping_N_s_per_m')) / m, float(get('stiffness_N_per_m')) / m)
-            return cls(dt, limit, num=(controller_gain_V_per_N(params),), den=den, kind=kind)
+            return cls(dt, limit, num=(controller_gain_V_per_N(params),),
+                       den=specimen_denominator(params), kind=kind)
         area = float(get('piston_area_m2'))
         c_h = float(get('actuator_volume_m3')) / (4.0 * float(get('oil_bulk_modulus_Pa')))
         k_q = float(valve_flow_gain_m3_per_s_V(params))
@@ -554,18 +589,20 @@ class TangentLoopShaping(ForceServoController):
     Why: the valve drives a flow, so below the oil column the valve-to-force plant is the
     specimen's dynamic stiffness times an integrator, ``P(s) ~ (k_q/A)(m s^2 + c s + k_t)/s``
     (control-structure interaction, Dyke et al. 1995; :mod:`seft_plant_sim.servohydraulic`),
-    and ``C_f(s) = g/(s^2 + 17.14 s + 4002)``, whose poles are the specimen's
-    ``(m s^2 + c s + k)/m`` (paper Eq. 3.1), cancels that zero: the loop is
+    and ``C_f(s) = g/(s^2 + (c/m) s + k/m)``, whose poles are the specimen's
+    ``(m s^2 + c s + k)/m`` (paper Eq. 3.1, ``s^2 + 17.14 s + 4002`` for the study's
+    specimen; here the rig's own ``mass_kg``, ``damping_N_s_per_m`` and
+    ``stiffness_N_per_m``, :func:`specimen_denominator`), cancels that zero: the loop is
     ``g m k_q/(A s)``, an integrator. When the member yields its tangent stiffness k_t falls
     (to a tenth for the default Bouc-Wen member), the zero moves down and the loop gain below
     it falls with k_t (at 1 Hz from 13.3 to 1.31): the force lags and undershoots. Here the
     cancellation follows the member::
 
-        C(s; rho) = g / (s^2 + 17.14 s + 4002 rho),   rho = k_t(t + h) / k
+        C(s; rho) = g / (s^2 + (c/m) s + (k/m) rho),   rho = k_t(t + h) / k
 
     so that the loop stays ``g m k_q/(A s)`` whatever k_t (gain scheduling on the measured
     operating point, Rugh and Shamma 2000), with ``k`` the member's elastic stiffness as
-    identified (so that an elastic member is ``rho = 1``, the study's controller, however
+    identified (so that an elastic member is ``rho = 1``, ``specimen_loop_shaping``, however
     well its stiffness is known). ``k_t(t + h)`` is the tangent stiffness predicted
     ``h = force_tangent_horizon_s`` after the sample, when the command acts on the flow
     (I/O latency and valve lag), by
@@ -576,10 +613,10 @@ class TangentLoopShaping(ForceServoController):
     to about 2 % (docs: design, "Force control"); with the tangent of the present sample instead of
     the predicted one, 19 %.
 
-    Discretization: the state ``(u, u')`` of ``u'' + 17.14 u' + 4002 rho u = g e`` by the
+    Discretization: the state ``(u, u')`` of ``u'' + (c/m) u' + (k/m) rho u = g e`` by the
     trapezoidal rule (Tustin) at the period prewarped at the elastic resonance (as
     :class:`ForceServoController`), with ``rho`` of the current sample: at ``rho = 1`` the
-    output is that of ``loop_shaping`` to rounding, and a change of ``rho`` changes the
+    output is that of ``specimen_loop_shaping`` to rounding, and a change of ``rho`` changes the
     command's curvature, not the command (no jump). ``bz``, ``az`` and
     :meth:`~ForceServoController.state_space` are those of the elastic member (``rho = 1``):
     the stability map,
@@ -588,7 +625,8 @@ class TangentLoopShaping(ForceServoController):
     Parameters
     ----------
     dt, valve_limit_V, num, den
-        As :class:`ForceServoController` (``den`` second order: ``(1, 2 zeta w, w^2)``).
+        As :class:`ForceServoController` (``den`` second order: ``(1, 2 zeta w, w^2)``;
+        :meth:`from_parameters`: the rig's own ``(1, c/m, k/m)``).
     member : HystereticMember
         The member's model.
     horizon_s : float >= 0
@@ -640,7 +678,7 @@ class TangentLoopShaping(ForceServoController):
                                    spec('force_tangent_horizon_s').default))
         member = HystereticMember(MemberGuess.from_parameters(params, predictor=False), dt)
         return cls(dt, float(params['valve_limit_V']), num=(controller_gain_V_per_N(params),),
-                   member=member, horizon_s=horizon)
+                   den=specimen_denominator(params), member=member, horizon_s=horizon)
 
     @property
     def uses_motion(self) -> bool:
