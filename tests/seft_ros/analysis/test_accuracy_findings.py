@@ -139,3 +139,24 @@ def test_model_on_a_specimen_it_does_not_model_is_flagged():
                            'stiffness; model compensates for the declared one')
     run.rigs[''].params['predictor'] = 'adaptive'           # identifies it: not flagged
     assert run_flags(run, c) == []
+
+
+def test_a_run_the_guard_predicted_unstable_is_flagged_when_it_completes():
+    """The pre-run guard's prediction (summary.json's 'stability') flags a completed run
+    predicted unstable; an aborted run is 'aborted' already, a predicted stable one is not
+    flagged."""
+    run = _run()
+    c = compare_run(run)
+    message = ('structure with predictor none is predicted UNSTABLE (spectral radius 1.0002; '
+               'largest stable coupling 0.106 times its computational part)')
+    run.extra['stability'] = {'predicted_stable': True, 'spectral_radius': 0.9991,
+                              'message': 'predicted stable'}
+    assert run_flags(run, c) == []
+    run.extra['stability'] = {'predicted_stable': False, 'spectral_radius': 1.0002,
+                              'message': message}
+    assert run_flags(run, c) == [
+        f'predicted unstable: before the run the stability guard said: {message}; it ran '
+        'anyway (--force) and completed, but its loop grows: a longer record or a larger input '
+        'may diverge']
+    run.stable = False
+    assert run_flags(run, c) == []

@@ -152,3 +152,43 @@ def test_a_declared_uncertainty_wider_than_the_margin_is_refused(seft_exe, run_p
         in proc.stderr
     summary = json.loads((tmp_path / 'adaptive' / 'summary.json').read_text())['runs'][0]
     assert summary['stability']['robustness_margin']['stiffness_ratio_high'] == 1.5
+
+
+#: A two-story whose uncompensated loop the guard predicts just unstable (spectral radius
+#: 1.0002): the growth is slow, the record ends first (session 23's D2, a1.0_none.yaml).
+SLOWLY_UNSTABLE = """\
+predictor: [none]
+amplitude_N: 600.0
+duration_s: 2.0
+structure:
+  dofs: [f1, f2]
+  physical: {f1: lab}
+  story_masses_kg: [105.4, 40.0]
+  story_stiffnesses_N_per_m: [208051.26077496368, 150000.0]
+  story_damping_N_s_per_m: [331.1238656883643, 150.0]
+rigs:
+  lab:
+    stiffness_N_per_m: 208051.26077496368
+    damping_N_s_per_m: 331.1238656883643
+    force_controller: specimen_loop_shaping
+"""
+
+
+def test_a_forced_run_predicted_unstable_that_completes_is_flagged(seft_exe, run_process,
+                                                                   tmp_path):
+    """Completing the record is not stability: the guard's prediction flags the run in the
+    summary, on the console and in the report (before: verdict 'stable', flags [], and the
+    report never named the prediction)."""
+    (tmp_path / 'c.yaml').write_text(SLOWLY_UNSTABLE)
+    proc = run_process([seft_exe, 'simulate', 'c.yaml', '--out', 'out', '--force'],
+                       cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    run, = json.loads((tmp_path / 'out' / 'summary.json').read_text())['runs']
+    assert run['stable'] is True and run['stability']['predicted_stable'] is False
+    flag = ('predicted unstable: before the run the stability guard said: structure with '
+            'predictor none is predicted UNSTABLE (spectral radius 1.0002; largest stable '
+            'coupling 0.106 times its computational part); it ran anyway (--force) and '
+            'completed, but its loop grows: a longer record or a larger input may diverge')
+    assert run['flags'] == [flag] and run['verdict'] == 'stable, flagged'
+    assert f'note: run 1 (none): flagged: {flag}' in proc.stdout.splitlines()
+    assert f'- flagged: {flag}' in (tmp_path / 'out' / 'report.md').read_text().splitlines()

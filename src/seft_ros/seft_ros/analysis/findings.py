@@ -1,9 +1,14 @@
 """What a run shows of a loss of accuracy that a lab can see without the reference.
 
-A run that completes is not therefore right. Four signs, each visible in the lab's own data
-and the pre-run prediction (never in the comparison's error), and a fifth in rehearsal, flag
+A run that completes is not therefore right. Five signs, each visible in the lab's own data
+and the pre-run prediction (never in the comparison's error), and a sixth in rehearsal, flag
 a run instead of calling it plainly stable (:func:`run_flags`):
 
+* **a run the guard predicted unstable**: the pre-run stability guard
+  (:func:`~seft_ros.core.stability.check_run`, ``summary.json``'s ``stability``) gave its
+  sampled loop a spectral radius of 1 or more and the run was made anyway (``--force``):
+  completing the record does not make it stable, its free response grows (a two-story with
+  ``none`` at alpha 1 on the floor, spectral radius 1.0002, completed with 82 % of x);
 * **an identification at its bounds**: an online estimate held at the edge of the range its
   compensator allows (``adaptive``: m, c, k and the gain within ``adaptive_max_deviation``
   of the prior, tau within ``[0, adaptive_max_delay_s]``, the I/O latency within its search
@@ -15,7 +20,8 @@ a run instead of calling it plainly stable (:func:`run_flags`):
   the two piers with a pier 10 % stiffer than modelled err by 30 % and identify it at
   0.909 x);
 * **settings the docs show cost accuracy** (a yielding member with an elastic specimen's
-  controller, law or loop inverse; ``model`` with an uncertain specimen:
+  controller, law or loop inverse; a linear specimen other than the study's on its
+  ``loop_shaping``; ``model`` with an uncertain specimen:
   :func:`~seft_ros.core.specimen_settings.costly_settings`), chosen by the user;
 * **a peak beyond the prediction**: a rig's displacement, force or acceleration peaks more
   than :data:`PEAK_RATIO_FLAG` times the analytical reference's peak over the same samples
@@ -206,6 +212,11 @@ def run_flags(run: RunData, comparison) -> list[str]:
         The run against its reference (:func:`~seft_ros.analysis.metrics.compare_run`).
     """
     flags = []
+    predicted = run.extra.get('stability') or {}
+    if run.stable and predicted.get('predicted_stable') is False:
+        flags.append(f'predicted unstable: before the run the stability guard said: '
+                     f'{predicted.get("message")}; it ran anyway (--force) and completed, but '
+                     'its loop grows: a longer record or a larger input may diverge')
     dt = float(run.params.get('dt', 0.0) or 0.0)
     for rig, data in run.rigs.items():
         if dt > 0:
