@@ -579,7 +579,8 @@ def _hand_made(params, criteria=None, **run_fields):
 def _signal_entry(base):
     """The summary of :func:`_signal`."""
     return {'nrms': base + 0.4, 'peak_ratio': base + 0.5, 'lag_s': base + 0.3,
-            'peak_test': base + 0.1, 'peak_reference': base + 0.2, 'nrms_unshifted': base + 0.6}
+            'peak_test': base + 0.1, 'peak_reference': base + 0.2, 'nrms_common_lag': base + 0.7,
+            'nrms_unshifted': base + 0.6}
 
 
 def test_summary_entry_of_a_hand_made_comparison():

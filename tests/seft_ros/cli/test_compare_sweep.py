@@ -74,6 +74,9 @@ def test_compare_a_sweep_folder(sweep_dir, tmp_path, capsys):
     assert main(['compare', str(sweep_dir), '--out', str(out)]) == 0
     printed = capsys.readouterr().out
     assert 'J1_ms' in printed and 'J4%' in printed
+    # the first table removes each signal's own lag, and says so; the criteria table the
+    # displacement's (session 23's D3: the first table had no label)
+    assert '(NRMS: each signal after removing its own lag;' in printed.splitlines()[0]
     assert f'(self-contained page: {out / "report.html"})' in printed
     summary = json.loads((out / 'summary.json').read_text())['runs']
     assert len(summary) == len(LABELS)
@@ -139,6 +142,14 @@ def test_compare_a_study_bag_and_a_structure_bag(tmp_path, capsys):
     assert 'J1_ms' in printed and '(criteria: Silva et al. 2020' not in printed
     assert api.criteria_table(json.loads((out / 'summary.json').read_text())['runs']) == ''
     summary = json.loads((out / 'summary.json').read_text())['runs']
+    # the table says which NRMS it prints, each signal's own lag removed (session 23's D3:
+    # unlabelled), and prints that; summary.json has the other two per DOF as well
+    assert printed.splitlines()[0].endswith(
+        "(NRMS: each signal after removing its own lag; after the displacement's lag and as "
+        'recorded: summary.json, report.md)')
+    deck = summary[1]['dofs']['deck']['acceleration']
+    assert f"{100 * deck['nrms']:8.2f}" in printed.splitlines()[4]
+    assert deck['nrms_common_lag'] > 0 and deck['nrms_unshifted'] > 0
     assert [e['structure']['dofs'] for e in summary] == [['specimen'],
                                                          ['pier_a', 'pier_b', 'deck']]
 

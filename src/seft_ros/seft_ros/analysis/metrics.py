@@ -545,8 +545,9 @@ class SignalComparison:
     nrms_unshifted : float
         Normalized RMS error of the signals as recorded (no lag removed), as a fraction.
     nrms_common_lag : float
-        Normalized RMS error after removing the run's common lag (the displacement's) from
-        this signal, as a fraction; equals `nrms` for the displacement.
+        Normalized RMS error after removing the common lag, the displacement's of its rig
+        or DOF, from this signal, as a fraction; equals `nrms` for a displacement and a
+        link's drift.
     """
 
     peak_test: float
@@ -804,9 +805,11 @@ def _compare_rig(rig: RigData, reference: ReferenceResponse, dt: float, n: int, 
         high_frequency_cutoff_hz=float(high_frequency_cutoff_hz), residual=residual)
 
 
-def _signal_comparison(test, reference, dt: float, max_lag_s: float) -> SignalComparison:
-    """:class:`SignalComparison` of two signals over the samples finite in both (no common
-    lag: NaN)."""
+def _signal_comparison(test, reference, dt: float, max_lag_s: float,
+                       common_lag_s: float | None = None) -> SignalComparison:
+    """:class:`SignalComparison` of two signals over the samples finite in both; its common-lag
+    NRMS after removing `common_lag_s` (its DOF's displacement lag), or its own lag's for
+    None (a displacement or a link's drift, whose lag is the common one)."""
     test = np.asarray(test, dtype=float)
     reference = np.asarray(reference, dtype=float)
     good = np.isfinite(test) & np.isfinite(reference)
@@ -816,11 +819,14 @@ def _signal_comparison(test, reference, dt: float, max_lag_s: float) -> SignalCo
         return SignalComparison(math.nan, math.nan, math.nan, math.nan, math.nan, math.nan,
                                 math.nan)
     lag = estimate_lag(test, reference, dt, max_lag_s)
+    nrms = nrms_error(shift(test, lag, dt), reference)
+    common = (nrms if common_lag_s is None or common_lag_s == lag else
+              nrms_error(shift(test, common_lag_s, dt), reference)
+              if math.isfinite(common_lag_s) else math.nan)
     return SignalComparison(
-        peak_test=peak(test), peak_reference=peak(reference), lag_s=lag,
-        nrms=nrms_error(shift(test, lag, dt), reference),
+        peak_test=peak(test), peak_reference=peak(reference), lag_s=lag, nrms=nrms,
         peak_ratio=peak_ratio(test, reference), nrms_unshifted=nrms_error(test, reference),
-        nrms_common_lag=math.nan)
+        nrms_common_lag=common)
 
 
 def _dof_signals(run: RunData, dofs, rigs, physical_index, influence) -> dict:
@@ -922,8 +928,9 @@ def compare_run(run: RunData, reference: StructureReference | ReferenceResponse 
     **Per DOF** (:class:`DofComparison`): a physical DOF's displacement, acceleration and
     interface force are its rig's comparisons; its floor acceleration ``x'' + iota xg''``
     and a computational DOF's signals (:func:`dof_signals`) are compared the same way over
-    the samples finite in both (no common lag). **Per link** (:class:`LinkComparison`): the
-    relative displacement of its ends.
+    the samples finite in both, their common lag the DOF's displacement lag (a physical DOF's:
+    its rig's). **Per link** (:class:`LinkComparison`): the relative displacement of its
+    ends.
 
     Parameters
     ----------
@@ -982,16 +989,20 @@ def compare_run(run: RunData, reference: StructureReference | ReferenceResponse 
             'acceleration': reference.acceleration_m_s2}
     dofs = []
     for i, dof in enumerate(reference.dofs):
+        c = rigs[physical[i]] if i in physical else None
+        x = c.displacement if c is not None else _signal_comparison(
+            test[dof]['displacement'][:n], refs['displacement'][:n, i], dt, max_lag_s)
+        # every signal of a DOF also with its displacement's lag removed (the common lag)
         floor = _signal_comparison(test[dof]['floor_acceleration'][:n],
-                                   reference.absolute_acceleration_m_s2[:n, i], dt, max_lag_s)
-        if i in physical:
-            c = rigs[physical[i]]
+                                   reference.absolute_acceleration_m_s2[:n, i], dt, max_lag_s,
+                                   x.lag_s)
+        if c is not None:
             dofs.append(DofComparison(dof, physical[i], c.displacement, c.acceleration, floor,
                                       c.force))
             continue
-        own = {name: _signal_comparison(test[dof][name][:n], values[:n, i], dt, max_lag_s)
-               for name, values in refs.items()}
-        dofs.append(DofComparison(dof, None, floor_acceleration=floor, **own))
+        a = _signal_comparison(test[dof]['acceleration'][:n], refs['acceleration'][:n, i], dt,
+                               max_lag_s, x.lag_s)
+        dofs.append(DofComparison(dof, None, x, a, floor))
     links = []
     for link in reference.links:
         x_i, r_i = test[reference.dofs[link.i]]['displacement'][:n], \
@@ -1089,7 +1100,7 @@ def _signal_entry(c: SignalComparison | None) -> dict[str, Any] | None:
         return None
     return {'nrms': c.nrms, 'peak_ratio': c.peak_ratio, 'lag_s': c.lag_s,
             'peak_test': c.peak_test, 'peak_reference': c.peak_reference,
-            'nrms_unshifted': c.nrms_unshifted}
+            'nrms_common_lag': c.nrms_common_lag, 'nrms_unshifted': c.nrms_unshifted}
 
 
 def summary_entry(run: RunData, comparison: RunComparison) -> dict[str, Any]:
@@ -1157,7 +1168,9 @@ def summary_entry(run: RunData, comparison: RunComparison) -> dict[str, Any]:
         'interface_force'}`` (the largest NRMS over the DOFs),
         ``'dofs': {dof: {'rig', 'displacement', 'acceleration', 'floor_acceleration',
         'interface_force'}}``, ``'links': {name: {...}}`` (each signal ``{'nrms',
-        'peak_ratio', 'lag_s', 'peak_test', 'peak_reference', 'nrms_unshifted'}``, SI;
+        'peak_ratio', 'lag_s', 'peak_test', 'peak_reference', 'nrms_common_lag',
+        'nrms_unshifted'}``, SI; ``nrms`` after removing the signal's own lag,
+        ``nrms_common_lag`` after removing its DOF's displacement lag, None for a link;
         ``interface_force`` None at a computational DOF; ``rig`` None there, ``''`` for the
         study's rig), ``'rigs': {rig: {...}}`` (each rig's one-rig keys above, with
         ``'rig_contract'`` and ``'nonlinear'``, and ``'dof'``, ``'specimen_model'``) and,

@@ -619,7 +619,7 @@ def _run_markdown(index: int, run: RunData, comparison: RunComparison) -> list[s
         f'{_fmt(comparison.high_frequency_force_fraction, ".2f", 100)} %, reference '
         f'{_fmt(comparison.high_frequency_force_fraction_reference, ".2f", 100)} %',
         '',
-        '| signal | peak test | peak ref | peak ratio | lag [ms] | NRMS [%] '
+        '| signal | peak test | peak ref | peak ratio | lag [ms] | NRMS own lag [%] '
         '| NRMS common lag [%] | NRMS as recorded [%] |',
         '|---|---:|---:|---:|---:|---:|---:|---:|',
     ]
@@ -1547,17 +1547,29 @@ def _structure_run_markdown(index: int, run: RunData, comparison: RunComparison,
     lines += _range_markdown(run)
     if lines[-1]:
         lines.append('')
-    lines += ['| dof | rig | NRMS x | NRMS ẍ | NRMS floor ẍ | NRMS force | peak x | '
-              'peak floor ẍ | peak force | lag x [ms] |',
+    lines += ["NRMS [%] of each signal after removing its own lag (the summary table's and the "
+              "console's), then after removing its degree of freedom's displacement lag (lag x, "
+              'the common lag: a lag of its own can hide a phase error) and as recorded.', '',
+              '| dof | rig | NRMS x own / as recorded | NRMS ẍ own / common / as recorded | '
+              'NRMS floor ẍ own / common / as recorded | NRMS force own / common / as recorded '
+              '| peak x | peak floor ẍ | peak force | lag x [ms] |',
               '|---|---|---|---|---|---|---|---|---|---|']
+
+    def pct(*values):
+        return ' / '.join('–' if v is None or not np.isfinite(v) else f'{100 * v:.2f}'
+                          for v in values)
+
+    def three(c):
+        return '–' if c is None else pct(c.nrms, c.nrms_common_lag, c.nrms_unshifted)
+
     for d in comparison.dofs:
         f = d.interface_force
+        x = d.displacement
         lines.append(
-            f'| {d.dof} | {_dof_rig(d.rig)} | {_pct(d.displacement.nrms)} | '
-            f'{_pct(d.acceleration.nrms)} | {_pct(d.floor_acceleration.nrms)} | '
-            f'{_pct(f.nrms) if f else "–"} | {_num(d.displacement.peak_ratio)} | '
-            f'{_num(d.floor_acceleration.peak_ratio)} | '
-            f'{_num(f.peak_ratio) if f else "–"} | {_num(1e3 * d.displacement.lag_s, ".2f")} |')
+            f'| {d.dof} | {_dof_rig(d.rig)} | {pct(x.nrms, x.nrms_unshifted)} | '
+            f'{three(d.acceleration)} | {three(d.floor_acceleration)} | {three(f)} | '
+            f'{_num(x.peak_ratio)} | {_num(d.floor_acceleration.peak_ratio)} | '
+            f'{_num(f.peak_ratio) if f else "–"} | {_num(1e3 * x.lag_s, ".2f")} |')
     lines += ['', '| link (story drift) | NRMS | peak ratio | peak test [mm] | '
               'peak reference [mm] |', '|---|---|---|---|---|']
     for lk in comparison.links:

@@ -971,6 +971,13 @@ def _rig_name(rig) -> str:
     return '-' if rig is None else (rig or 'rig')
 
 
+#: What the NRMS of :func:`summary_table` and :func:`structure_table` are (their header's
+#: last words): each signal's own lag removed, the ``nrms`` of ``summary.json`` (and of the
+#: report's per-run tables, beside the common-lag and as-recorded figures).
+OWN_LAG_NOTE = ("(NRMS: each signal after removing its own lag; after the displacement's lag "
+                'and as recorded: summary.json, report.md)')
+
+
 def structure_table(summary: list[dict]) -> str:
     """A plain-text table of summary entries per degree of freedom, for any runs: one line
     per run and degree of freedom (NRMS of displacement, acceleration, floor acceleration and
@@ -985,7 +992,7 @@ def structure_table(summary: list[dict]) -> str:
         return f'{v:7.3f}' if v is not None else f'{"-":>7}'
     lines = [f'{"run":>3} {"predictor":>10} {"stable":>7} {"abort_s":>8} {"dof":>12} '
              f'{"rig":>10} {"nrms_x%":>8} {"nrms_a%":>8} {"nrms_fa%":>8} {"nrms_f%":>8} '
-             f'{"peak_x":>7} {"peak_fa":>7}']
+             f'{"peak_x":>7} {"peak_fa":>7}  {OWN_LAG_NOTE}']
     for i, e in enumerate(summary, start=1):
         abort = f'{e["unstable_at_s"]:8.3f}' if e['unstable_at_s'] is not None else f'{"-":>8}'
         for dof in e['structure']['dofs']:
@@ -1046,6 +1053,7 @@ def summary_table(summary: list[dict]) -> str:
     head = (f'{"alpha":>6} {"rig":>14} {"predictor":>10} {"stable":>7} {"abort_s":>8} '
             f'{"lag_ms":>7} {"nrms_x%":>8} {"nrms_a%":>8} {"nrms_f%":>8} {"peak_x":>7} '
             f'{"peak_a":>7} {"peak_f":>7}')
+    note = f'  {OWN_LAG_NOTE}'
     records = len({e.get('record') for e in summary}) > 1
     if records:
         head += f' {"record":>24}'
@@ -1055,7 +1063,7 @@ def summary_table(summary: list[dict]) -> str:
     nonlinear = any(e.get('nonlinear') for e in summary)
     if nonlinear:
         head += f' {"nrms_xr%":>8} {"xres_mm":>8} {"xres_ref":>8}'
-    lines = [head]
+    lines = [head + note]
 
     def pct(v):
         return f'{100 * v:8.2f}' if v is not None else f'{"-":>8}'
