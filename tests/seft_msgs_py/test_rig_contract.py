@@ -145,3 +145,16 @@ def test_the_page_holds_the_current_tables():
     assert gen_rig_contract_docs.page_with_tables(page) == page, \
         'run tools/gen_rig_contract_docs.py'
     assert CONTRACT in page
+
+
+def test_the_runners_interrupt_names_its_signal_and_is_told_from_other_aborts():
+    """The runner's abort on the operator's signal names it (SIGHUP and SIGTERM stop a run
+    as Ctrl-C does); the bag's reader tells it from other aborts, also as bags recorded
+    before the signal was named wrote it."""
+    from seft_msgs_py.rig_contract import INTERRUPT_REASON, is_runner_interrupt, runner_interrupt
+    assert runner_interrupt('SIGHUP') == 'interrupted (SIGHUP at the runner)'
+    assert all(is_runner_interrupt(runner_interrupt(s)) for s in ('SIGINT', 'SIGTERM',
+                                                                   'SIGHUP'))
+    assert is_runner_interrupt(INTERRUPT_REASON)
+    assert not is_runner_interrupt('unstable at t=0.784 s: high-frequency oscillation')
+    assert not is_runner_interrupt('interrupted (SIGINT): rig stopped by SIGINT')

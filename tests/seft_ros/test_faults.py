@@ -9,6 +9,7 @@ disk with the abort reason. The recorder's own crash is tested with the recorder
 
 import json
 import os
+from pathlib import Path
 import re
 import signal
 import subprocess
@@ -192,6 +193,221 @@ def test_a_killed_loop_process_ends_the_run_and_names_its_nodes(tmp_path, seft_e
     assert len(closed) == 1
     for topic in DATA:
         assert len(messages[topic]) >= run.n_steps, topic
+
+
+def _start_run(seft_exe, ros_env, cwd, out, *args):
+    """``seft run`` at alpha 0.5 in a session of its own (its process group: the terminal's
+    foreground job), its stderr to a file; returns (process, the file)."""
+    log = cwd / f'{out.name}.stderr'
+    with open(log, 'w') as err:
+        proc = subprocess.Popen(
+            [str(seft_exe), 'run', '--alpha', '0.5', '--out', str(out), *args], cwd=cwd,
+            env=ros_env, stdout=subprocess.DEVNULL, stderr=err, start_new_session=True)
+    return proc, log
+
+
+def _wait_for_line(proc, log, pattern, timeout=90.0) -> None:
+    """Wait until the runner's stderr has a line matching `pattern` (it must still run)."""
+    deadline = time.monotonic() + timeout
+    while not re.search(pattern, log.read_text(), re.M):
+        assert proc.poll() is None and time.monotonic() < deadline, log.read_text()
+        time.sleep(0.02)
+
+
+def _end_of(proc, log, timeout=60.0) -> str:
+    """The runner's exit, then its stderr (its process group killed if it outlasts
+    `timeout`)."""
+    try:
+        proc.wait(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        pass
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    return log.read_text()
+
+
+def _no_process_left(out, timeout=30.0) -> list[str]:
+    """The processes of the run in `out` still there after `timeout` [s] (none: [])."""
+    deadline = time.monotonic() + timeout
+    while leftover_processes(str(out)) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    return leftover_processes(str(out))
+
+
+def _stepping_lockstep_run(seft_exe, ros_env, tmp_path):
+    """``seft run`` in lockstep (30 s of record at time scale 2, 15,000 steps: a few seconds
+    of stepping here), once its rig has made steps; returns (its output, process, stderr
+    file)."""
+    out = tmp_path / 'run'
+    proc, log = _start_run(seft_exe, ros_env, tmp_path, out, '--duration', '30',
+                           '--time-scale', '2')
+    try:
+        _wait_for_rig(out)
+        _wait_for_line(proc, log, r'step [1-9]\d*/')
+    except BaseException:
+        _end_of(proc, log, timeout=0)
+        raise
+    return out, proc, log
+
+
+def _cut_short_run(out):
+    """The run of `out` ended early with its bag closed: (its directory, each node's final
+    status, the run read back)."""
+    run_dir = next(out.glob('alpha_*'))
+    _, messages = read_bag(run_dir / 'bag')
+    run = read_run(run_dir / 'bag')
+    assert run.extra['recording']['end'] == 'closed'
+    assert 0 < run.n_steps < 15000
+    return run_dir, finals(messages), run
+
+
+def test_a_hang_up_ends_a_lockstep_run_safely_with_one_line(tmp_path, seft_exe, ros_env):
+    """SIGHUP to the runner's process group (the terminal closed, an SSH session dropped)
+    ends the run as Ctrl-C does: every node ends it safely (before: each died at once, the
+    bag was not closed and the runner printed nothing), the runner prints one line with what
+    was reached and exits 128 + 1."""
+    out, proc, log = _stepping_lockstep_run(seft_exe, ros_env, tmp_path)
+    try:
+        os.killpg(proc.pid, signal.SIGHUP)
+    finally:
+        stderr = _end_of(proc, log)
+    assert proc.returncode == 129, stderr
+    assert 'Traceback' not in stderr
+    last = stderr.strip().splitlines()[-1]
+    run_dir, done, _ = _cut_short_run(out)
+    assert last.startswith(f'seft: interrupted by SIGHUP (hang-up): [{run_dir.name}] the rig '
+                           'stopped at t = '), last
+    assert last.endswith(f'; bag closed: {run_dir}/bag; no report written: `seft compare '
+                         f'{out}` writes one from the bag(s) kept'), last
+    assert _no_process_left(out) == []
+    assert done['rig']['state'] == 'aborted' and 'SIGHUP' in done['rig']['message']
+    assert {'ground_motion_publisher', 'reference_force_builder',
+            'force_servo_controller'} <= set(done)
+
+
+def test_the_nodes_end_the_run_when_their_runner_is_killed(tmp_path, seft_exe, ros_env):
+    """The runner killed (SIGKILL) in the middle of a lockstep run: its nodes see it gone
+    (``$SEFT_RUNNER_PID``, seft_msgs_py.stopping) and end the run safely by themselves
+    within about a second: the rig aborts naming the runner, the recorder closes the bag, no
+    process is left. Before, they ran on unsupervised (to the end of the run here; with a
+    node lost too, the others waited forever)."""
+    out, proc, log = _stepping_lockstep_run(seft_exe, ros_env, tmp_path)
+    try:
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait(timeout=10)
+        left = _no_process_left(out)
+    finally:
+        try:
+            os.killpg(proc.pid, signal.SIGKILL)     # what is left of the group, if anything
+        except ProcessLookupError:
+            pass
+    assert left == []
+    run_dir, done, _ = _cut_short_run(out)
+    rig = done['rig']
+    assert rig['state'] == 'aborted', rig
+    # the first node that saw it ended the run (each stops by itself; the rig names it)
+    assert rig['message'].endswith(f' stopped by the end of its runner (pid {proc.pid})'), rig
+    said = [log.name for log in (run_dir / 'logs').glob('*.log')
+            if f'its runner (pid {proc.pid}) has ended' in log.read_text()]
+    assert said, 'no node said that its runner had ended'
+
+
+def test_a_second_ctrl_c_does_not_cut_the_realtime_safe_ramp(tmp_path, seft_exe, ros_env):
+    """Two Ctrl-Cs 0.1 s apart, as an impatient operator presses them, in real time: the
+    rig's 200 ms safe ramp is not cut (before: the rig died 100 ms into it and sent no final
+    status, while the runner said the run ended safely). The rig and the recorder hold the
+    second signal for their safe stop; the bag holds the ramp and the hold after it; the
+    runner's line says from when the rig ramped."""
+    out = tmp_path / 'run'
+    proc, log = _start_run(seft_exe, ros_env, tmp_path, out, '--duration', '4', '--mode',
+                           'realtime', '--set', 'watchdog_timeout_s=0.2', '--set',
+                           'monitor_threshold=0')
+    try:
+        start = _wait_for_rig(out)
+        time.sleep(max(0.0, start + 1.0 - time.monotonic()))
+        os.killpg(proc.pid, signal.SIGINT)
+        time.sleep(0.1)
+        os.killpg(proc.pid, signal.SIGINT)
+    finally:
+        stderr = _end_of(proc, log)
+    run_dir = next(out.glob('alpha_*'))
+    _, messages = read_bag(run_dir / 'bag')
+    rig = finals(messages).get('rig', {})
+    if rig.get('state') == 'aborted' and 'SIGINT' not in rig['message'] \
+            and 'seft_runner' not in rig['message']:
+        pytest.skip(f'the run ended before the signals: {rig["message"]}')
+    assert proc.returncode == 130, stderr
+    assert 'Traceback' not in stderr
+    assert 'SIGINT again: still ending the run' in stderr
+    assert rig['state'] == 'aborted', rig
+    abort_at = float(rig['abort_at_s'])
+    last = stderr.strip().splitlines()[-1]
+    assert (f'the rig ramped to its safe state from t = {abort_at:.3f} s; bag closed: '
+            f'{run_dir}/bag') in last, last
+    rig_log = (run_dir / 'logs' / 'rig.log').read_text()
+    assert 'rig: SIGINT again: finishing the safe stop first' in rig_log
+    # the samples to the end of the ramp (safe_ramp_s 0.2 s) and the hold after it (0.05 s)
+    force = messages['/seft/measured_force']
+    assert len(force) * DT >= abort_at + 0.2 + 0.05 - DT
+    assert _no_process_left(out) == []
+
+
+@pytest.mark.parametrize('sig,code', [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+def test_a_stop_while_seft_starts_is_one_line(sig, code, tmp_path, seft_exe, ros_env):
+    """A stop signal while ``seft run`` imports its modules, then while its runner starts
+    (the nodes' fork server imports theirs): one line saying nothing was run, no traceback
+    (before: KeyboardInterrupt tracebacks through scipy's imports and the fork server's, and
+    'nodes stopped, bags closed' when none existed), exit 128 + the signal, no output
+    folder."""
+    said = {signal.SIGINT: 'Ctrl-C (SIGINT)', signal.SIGTERM: 'SIGTERM'}[sig]
+    out = tmp_path / 'imports'
+    proc, log = _start_run(seft_exe, ros_env, tmp_path, out, '--duration', '2')
+    try:
+        # numpy mapped: seft's own imports have begun (scipy's take about a second more)
+        deadline = time.monotonic() + 30
+        while 'numpy' not in Path(f'/proc/{proc.pid}/maps').read_text():
+            assert proc.poll() is None and time.monotonic() < deadline, log.read_text()
+            time.sleep(0.01)
+        os.killpg(proc.pid, sig)
+    finally:
+        stderr = _end_of(proc, log)
+    assert proc.returncode == code and stderr == (
+        f'seft: interrupted by {said} while starting; nothing was run\n'), stderr
+    out = tmp_path / 'runner'
+    proc, log = _start_run(seft_exe, ros_env, tmp_path, out, '--duration', '2')
+    try:
+        _wait_for_line(proc, log, r'run\(s\) ->')
+        os.killpg(proc.pid, sig)
+    finally:
+        stderr = _end_of(proc, log)
+    assert proc.returncode == code, stderr
+    assert 'Traceback' not in stderr
+    assert stderr.strip().splitlines()[-1] == (
+        f'seft: interrupted by {said}: before any node started: nothing was run')
+    assert not out.exists()
+    assert _no_process_left(out) == []
+
+
+def test_ctrl_c_during_the_report_says_how_to_make_it(tmp_path, seft_exe, ros_env):
+    """Ctrl-C once every run has ended, while the report is written: the line says that the
+    runs are complete and that ``seft compare`` writes the report from the bags kept (before:
+    'nodes stopped, bags closed')."""
+    out = tmp_path / 'run'
+    proc, log = _start_run(seft_exe, ros_env, tmp_path, out, '--duration', '2')
+    try:
+        _wait_for_line(proc, log, r' steps in .* wall; ')
+        os.killpg(proc.pid, signal.SIGINT)
+    finally:
+        stderr = _end_of(proc, log)
+    assert proc.returncode == 130, stderr
+    assert 'Traceback' not in stderr
+    assert stderr.strip().splitlines()[-1] == (
+        f'seft: interrupted by Ctrl-C (SIGINT): 1 run(s) complete, their bags in {out}; no '
+        f'report written: `seft compare {out}` writes one from the bag(s) kept')
+    assert (next(out.glob('alpha_*')) / 'bag' / 'metadata.yaml').is_file()
+    assert not (out / 'report.md').exists()
 
 
 def test_two_runners_split_the_graph_and_equal_simulate(tmp_path, seft_exe, ros_env):

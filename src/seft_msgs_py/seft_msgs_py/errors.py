@@ -4,7 +4,7 @@ The command-line interface maps each of them to a one-line message and exit code
 (house style after ``rosbags/rosbag2/errors.py``).
 """
 
-__all__ = ['SeftError', 'InputError', 'ParameterError', 'RigLimitError']
+__all__ = ['SeftError', 'InputError', 'ParameterError', 'RigLimitError', 'Interrupted']
 
 
 class SeftError(Exception):
@@ -27,3 +27,25 @@ class ParameterError(SeftError):
 
 class RigLimitError(SeftError):
     """The rig left its safe envelope (stroke or force limit); the run was aborted."""
+
+
+class Interrupted(KeyboardInterrupt):
+    """A command stopped by Ctrl-C, SIGTERM or SIGHUP, with what it had reached.
+
+    A ``KeyboardInterrupt``, so that every ``except KeyboardInterrupt`` on its way still
+    takes it.
+
+    Parameters
+    ----------
+    signame : str
+        The signal (``SIGINT``, ``SIGTERM``, ``SIGHUP``).
+    state : str
+        What the command had reached when it stopped, as the end of the sentence
+        ``seft: interrupted by SIGINT: <state>`` (the run's ending: the rig's safe state,
+        the bag; what was written and what was not).
+    """
+
+    def __init__(self, signame: str, state: str):
+        super().__init__(signame, state)
+        self.signame = signame
+        self.state = state

@@ -65,6 +65,7 @@ from seft_msgs_py.signals import (
     RECORD_ROWS,
     RecordStream,
 )
+from seft_msgs_py.stopping import STOP_SIGNALS, RunnerWatch, StopRequests
 from seft_msgs_py.topics import MEASUREMENT, NODE_PARAMETERS, STATUS, record_topic
 
 __all__ = ['SeftNode', 'StepTiming', 'RecordBatch', 'InputWatchdog', 'main_for',
@@ -703,14 +704,23 @@ class SeftNode(Node):
         self.finish(0)
 
     def on_stop_signal(self, signame: str) -> None:
-        """SIGINT or SIGTERM during the run: end it safely from this node (the rig goes to its
-        safe state when it hears the abort; the recorder closes the bag after it).
+        """SIGINT, SIGTERM or SIGHUP during the run, or the end of the runner (`signame`:
+        the signal's name, or :attr:`~seft_msgs_py.stopping.RunnerWatch.reason`): end it
+        safely from this node (the rig goes to its safe state when it hears the abort; the
+        recorder closes the bag after it).
 
         Nodes override this (the rig ramps to its safe state itself). A second signal ends
-        the process at once.
+        the process at once, unless a node of the process holds it (:meth:`stop_hold_s`).
         """
         self.abort_run(f'{self.seft_name} stopped by {signame}',
                        int(getattr(self, 'next_step', 0)), signal=signame)
+
+    def stop_hold_s(self) -> float:
+        """How long this node's safe stop holds its process against a second stop signal,
+        from the first [s]; 0 (the default): it does not, a second signal ends the process
+        at once. The rig holds it for its safe ramp, the recorder to record it
+        (:mod:`seft_msgs_py.stopping`)."""
+        return 0.0
 
     def final_counts(self) -> dict:
         """What the final status reports: samples published, and timing records with their
@@ -1069,23 +1079,26 @@ def main_for_nodes(specs: Sequence[tuple[Callable[[], SeftNode], str, Sequence[s
         The process's arguments for ``rclpy.init`` (None: ``sys.argv``).
     """
     global _node_arguments
-    # SIGINT and SIGTERM are this loop's (rclpy's handlers would shut the context down at
-    # once): the first one asks every node to stop safely (:meth:`SeftNode.on_stop_signal`),
-    # a second one ends the process now
+    # SIGINT, SIGTERM and SIGHUP are this loop's (rclpy's handlers would shut the context
+    # down at once): the first one asks every node to stop safely
+    # (:meth:`SeftNode.on_stop_signal`), a second one ends the process now unless a node
+    # holds it for its safe stop (seft_msgs_py.stopping); so does the end of the runner
     use_seft_profile()            # before the first participant (seft_msgs_py.dds)
     clock.read_environment()      # this process's (a forked node's, seft_ros.cli.spawn)
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
-    stop: list[str] = []
-
-    def on_signal(signum, frame):
-        if stop:
-            raise KeyboardInterrupt
-        stop.append(signal.Signals(signum).name)
-
-    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     nodes: list[SeftNode] = []
-    code = 0
     name = specs[0][1]
+
+    def hold_s() -> float:
+        # a node's safe stop, then its final status served (the linger after a stop)
+        hold = max((n.stop_hold_s() for n in nodes), default=0.0)
+        return hold + LINGER_S if hold > 0 else 0.0
+
+    requests = StopRequests(hold_s, name)
+    stop = requests.names
+    runner = RunnerWatch.from_environment()
+    previous = {s: signal.signal(s, requests.on_signal) for s in STOP_SIGNALS}
+    code = 0
     try:
         for factory, name, node_args in specs:
             _node_arguments = None if node_args is None else list(node_args)
@@ -1104,6 +1117,11 @@ def main_for_nodes(specs: Sequence[tuple[Callable[[], SeftNode], str, Sequence[s
             executor.add_node(node)
         stop_handled = False
         while not all(n.done for n in nodes):
+            if runner is not None and not stop and runner.gone():
+                print(f'{name}: its runner (pid {runner.pid}) has ended: stopping the run safely',
+                      file=sys.stderr, flush=True)
+                requests.request(runner.reason)
+            requests.check()
             if stop and not stop_handled:
                 stop_handled = True
                 for node in nodes:

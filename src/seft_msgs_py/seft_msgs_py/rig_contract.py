@@ -39,6 +39,8 @@ __all__ = [
     'reaction_limit_s', 'first_effect_step', 'qos_of', 'markdown_tables', 'is_compatible',
     'WATCHDOG_REASON', 'PROGRESS_EVERY', 'SEAL_RULE', 'FOREIGN_REASON', 'RANGE_PARAMETERS',
     'INTERRUPT_REASON',
+    'runner_interrupt',
+    'is_runner_interrupt',
 ]
 
 #: Version of the contract (``MAJOR.MINOR``; module notes).
@@ -69,6 +71,19 @@ FOREIGN_REASON = 'foreign publisher on '
 #: with the ``signal`` of a node stopped by a signal, what marks a run as interrupted (the
 #: report's reason; not an unstable run).
 INTERRUPT_REASON = 'interrupted (Ctrl-C or SIGTERM at the runner)'
+
+
+def runner_interrupt(signame: str) -> str:
+    """The abort reason of ``seft run``'s runner stopped by the operator's signal `signame`
+    (``'SIGINT'``, ``'SIGTERM'``, ``'SIGHUP'``): ``'interrupted (SIGINT at the runner)'``."""
+    return f'interrupted ({signame} at the runner)'
+
+
+def is_runner_interrupt(message: str) -> bool:
+    """Whether an abort reason is the runner's interrupt (:func:`runner_interrupt`, or
+    :data:`INTERRUPT_REASON` of bags recorded before the signal was named)."""
+    return message == INTERRUPT_REASON or (message.startswith('interrupted (')
+                                           and message.endswith(' at the runner)'))
 #: What a rig does with the run's seal (``run_token``, ``message_auth``, ``auth_key_file``;
 #: :mod:`seft_msgs_py.provenance`), as the page says it.
 SEAL_RULE = ("header.frame_id of every measurement is the run's seal: 'actuator#' + "
@@ -223,6 +238,16 @@ def command_latency_s(params: Mapping) -> float:
     if command_kind(params) == COMMAND_KINDS[0]:
         return float(params['io_latency_s'])
     return float(params['tau_s'])
+
+
+def safe_stop_s(params: Mapping) -> float:
+    """How long a rig's safe stop lasts from its safe state's start to its final status [s]:
+    the commands already output still reach the actuator (:func:`command_latency_s`), then
+    the ramp (``safe_ramp_s``) and the hold after it (:data:`SAFE_HOLD_S`). 0 in lockstep
+    mode (an abort ends the run at once: a simulation has nothing to ramp)."""
+    if params.get('mode') != 'realtime':
+        return 0.0
+    return command_latency_s(params) + float(params['safe_ramp_s']) + SAFE_HOLD_S
 
 
 def first_effect_step(stamp_step: int, latency_s: float, dt: float) -> int:

@@ -584,8 +584,9 @@ class RigNode(SeftNode):
         self.rig.enter_safe_state()
 
     def on_stop_signal(self, signame: str) -> None:
-        """SIGINT/SIGTERM: the safe state (real time: the command ramped to zero, sampled to
-        the end), then the run ends aborted with that reason."""
+        """SIGINT/SIGTERM/SIGHUP or the end of the runner: the safe state (real time: the
+        command ramped to zero, sampled to the end), then the run ends aborted with that
+        reason."""
         reason = f'rig stopped by {signame}'
         self.stop_signal = signame
         if self.realtime and self.running and self.drain_until is not None:
@@ -622,6 +623,15 @@ class RigNode(SeftNode):
             self._abort_realtime(reason)
         else:
             self._end(STATE_ABORTED, reason)
+
+    def stop_hold_s(self) -> float:
+        """Real time, once the rig has started: its safe stop (the commands already output,
+        the ramp, the hold after it: ``seft_msgs_py.rig_contract.safe_stop_s``) holds
+        the process against a second stop signal, so that a second Ctrl-C does not cut the
+        ramp (a bridge's included: the lab's controller ramps on the rig's request)."""
+        if not self.realtime or self.t0 is None:
+            return 0.0
+        return rig_contract.safe_stop_s(self.params)
 
     def published_count(self) -> int:
         """Samples this rig published (its final status reports it)."""

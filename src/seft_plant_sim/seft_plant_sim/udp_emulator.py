@@ -414,8 +414,9 @@ def _interrupt(signum, frame):
 def serve_until_stopped(emulator: ControllerEmulator, runs: int | None, priority: int,
                         announce: Callable[[], None] = lambda: None) -> None:
     """Serve `runs` runs (None: until stopped) at the rig's real-time `priority`
-    (:func:`realtime_priority`), until SIGINT (Ctrl-C) or SIGTERM; then close the socket.
-    `announce` says that it runs (after the signals are taken: a Ctrl-C from then on ends it).
+    (:func:`realtime_priority`), until SIGINT (Ctrl-C), SIGTERM or SIGHUP; then close the
+    socket. `announce` says that it runs (after the signals are taken: a Ctrl-C from then on
+    ends it).
 
     The signals are taken whatever the process inherited: a shell starts a background job
     (``(seft emulate-controller ... &)``) with SIGINT ignored, and Python then leaves it
@@ -424,6 +425,7 @@ def serve_until_stopped(emulator: ControllerEmulator, runs: int | None, priority
     thread."""
     signal.signal(signal.SIGINT, signal.default_int_handler)
     signal.signal(signal.SIGTERM, _interrupt)
+    signal.signal(signal.SIGHUP, _interrupt)        # its terminal closed: as SIGTERM
     try:
         announce()
         realtime_priority(priority)

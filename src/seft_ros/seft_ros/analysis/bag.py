@@ -36,7 +36,7 @@ from rosbags.typesys import Stores, get_typestore
 from seft_msgs_py import parameters, signals
 from seft_msgs_py.errors import InputError, ParameterError
 from seft_msgs_py.graph import STRUCTURE_STATE, Graph, qualified, scoped
-from seft_msgs_py.rig_contract import CONTRACT_KEY, INTERRUPT_REASON
+from seft_msgs_py.rig_contract import CONTRACT_KEY, is_runner_interrupt
 from seft_ros.analysis.bag_recovery import FLUSH_EVERY_S, is_unclosed_bag, recover_bag
 from seft_ros.analysis.rundata import RigData, RunData
 from seft_ros.analysis.timing import (
@@ -695,11 +695,11 @@ def read_run(path) -> RunData:
     if interrupted:
         # the operator's stop (Ctrl-C reaches every node of the terminal's process group,
         # and the first node to report is not the cause): the runner's interrupt if heard
-        first = next((s for s in aborted if s['message'] == INTERRUPT_REASON), first)
+        first = next((s for s in aborted if is_runner_interrupt(s['message'])), first)
     if first is not None:
         reason = first['message'] if first['name'] == 'rig' else (
             f"{first['name']}: {first['message']}")
-        if interrupted and first['message'] != INTERRUPT_REASON:
+        if interrupted and not is_runner_interrupt(first['message']):
             reason = f"interrupted ({first['signal']}): {reason}"
     elif not all(finals.values()) and recording['end'] in ('crashed', 'stopped'):
         # the bag ends before the run did: the test is cut short at its last complete step
@@ -770,8 +770,8 @@ def read_run(path) -> RunData:
 
 def _interrupt(status: dict) -> bool:
     """Whether an abort report is a stop signal's (a node's ``signal``) or the runner's
-    interrupt (:data:`~seft_msgs_py.rig_contract.INTERRUPT_REASON`)."""
-    return bool(status.get('signal')) or status['message'] == INTERRUPT_REASON
+    interrupt (:func:`~seft_msgs_py.rig_contract.is_runner_interrupt`)."""
+    return bool(status.get('signal')) or is_runner_interrupt(status['message'])
 
 
 def _first_abort(aborted: list[dict]) -> dict | None:

@@ -3,6 +3,7 @@
 ``run_experiments`` needs rclpy (it starts and watches the node graph); the others do not.
 """
 
+import contextlib
 import json
 import os
 from pathlib import Path
@@ -15,8 +16,9 @@ import numpy as np
 
 from seft_msgs_py import parameters
 from seft_msgs_py.domain import LOCK_DIR, claim_domain, held_by_ancestor
-from seft_msgs_py.errors import InputError, ParameterError, SeftError
+from seft_msgs_py.errors import InputError, Interrupted, ParameterError, SeftError
 from seft_msgs_py.sampling import single_blas_thread
+from seft_msgs_py.stopping import signal_name
 from seft_ros.analysis.bag import read_run
 from seft_ros.analysis.rundata import RunData
 from seft_ros.cli import partition
@@ -646,31 +648,39 @@ def _run_here(runs, out_dir, progress, domain, nodes, processes, live) -> Result
     where the recorder runs (None elsewhere)."""
     from seft_ros.cli.runner import GraphRunner  # rclpy only for this verb
     t0 = time.monotonic()
-    runner = GraphRunner(domain, progress, localhost_default=False, processes=processes)
-    viewer = _start_live(live, runner, out_dir, progress)
+    with _interrupted_as(lambda exc: _NOTHING_RUN):
+        runner = GraphRunner(domain, progress, localhost_default=False, processes=processes)
+    viewer = None
+    data = []
+    now: list[str] = []           # the run in progress
+    ran: list[str] = []           # the runs over
     try:
-        present = runner.present_nodes(nodes)
-        if present:
-            raise SeftError(f'ROS_DOMAIN_ID={domain} already has node(s) '
-                            f'{", ".join(present)}: another run? Stop it or choose another '
-                            'domain on every host')
-        data = []
-        for p, label in zip(runs, run_labels(runs)):
-            outcome = runner.run(p, out_dir / label, label=f'[{label}] ', nodes=nodes)
-            if outcome.recorded_here:
-                data.append(_read_outcome(outcome, label, progress))
-            else:
-                progress(f'[{label}] run over on this host ({", ".join(nodes)}): rig '
-                         f'{outcome.rig_state or "not heard"}'
-                         + (f': {outcome.message}' if outcome.message else '')
-                         + f'; outcome in {outcome.run_dir / "outcome.json"}')
+        with _interrupted_as(lambda exc: _runs_interrupted(exc, out_dir, now, ran)):
+            viewer = _start_live(live, runner, out_dir, progress)
+            present = runner.present_nodes(nodes)
+            if present:
+                raise SeftError(f'ROS_DOMAIN_ID={domain} already has node(s) '
+                                f'{", ".join(present)}: another run? Stop it or choose another '
+                                'domain on every host')
+            for p, label in zip(runs, run_labels(runs)):
+                now[:] = [label]
+                outcome = runner.run(p, out_dir / label, label=f'[{label}] ', nodes=nodes)
+                ran.append(now.pop())
+                if outcome.recorded_here:
+                    data.append(_read_outcome(outcome, label, progress))
+                else:
+                    progress(f'[{label}] run over on this host ({", ".join(nodes)}): rig '
+                             f'{outcome.rig_state or "not heard"}'
+                             + (f': {outcome.message}' if outcome.message else '')
+                             + f'; outcome in {outcome.run_dir / "outcome.json"}')
     finally:
         if viewer is not None:
             viewer.close()
         runner.close()
     if 'recorder' not in nodes:
         return None
-    return _finish(out_dir, data, 'seft run (several hosts)', t0)
+    with _interrupted_as(lambda exc: _runs_interrupted(exc, out_dir, now, ran)):
+        return _finish(out_dir, data, 'seft run (several hosts)', t0)
 
 
 def open_runner(*, domain_id: int | None = None, progress: Callable[[str], None] = print,
@@ -785,6 +795,10 @@ def run_experiments(*, runs: list[dict], out_dir: Path,
     SeftError
         A node failed, died, was stopped or the graph stalled (message names the node, when,
         and its log).
+    Interrupted
+        Ctrl-C, SIGTERM or SIGHUP (a ``KeyboardInterrupt``), with what was reached: nothing
+        run; the run in progress ended (its rig's safe state, its bag) and the runs before
+        it, no report written; or every run, and the report not written.
     """
     if processes not in partition.PROCESSES:
         raise InputError(f'--processes {processes}: expected '
@@ -805,25 +819,70 @@ def run_experiments(*, runs: list[dict], out_dir: Path,
         predicted.extend(check_stability(runs=runs, force=force, progress=progress))
         ranges.extend(check_ranges(runs=runs, strict=strict, progress=progress))
         check_settings(runs=runs, progress=progress)
-    runner, claim = open_runner(domain_id=domain_id, progress=progress, checks=checks,
-                                processes=processes)
+    with _interrupted_as(lambda exc: _NOTHING_RUN):
+        runner, claim = open_runner(domain_id=domain_id, progress=progress, checks=checks,
+                                    processes=processes)
     data = []
     viewer = None
+    now: list[str] = []           # the run in progress
+    ran: list[str] = []           # the runs over
+    with _interrupted_as(lambda exc: _runs_interrupted(exc, out_dir, now, ran)):
+        try:
+            viewer = _start_live(live, runner, out_dir, progress)
+            for p, label in zip(runs, run_labels(runs)):
+                now[:] = [label]
+                outcome = runner.run(p, out_dir / label, label=f'[{label}] ')
+                ran.append(now.pop())
+                data.append(_read_outcome(outcome, label, progress))
+        finally:
+            if viewer is not None:
+                viewer.close()
+            runner.close()
+            claim.close()
+    with _interrupted_as(lambda exc: _runs_interrupted(exc, out_dir, now, ran)):
+        for rd, check, limits in zip(data, predicted, ranges):
+            rd.extra['stability'] = stability_entry(check)
+            rd.extra['range_check'] = limits.as_dict()
+        _note_records_read(data, runs)
+        return _finish(out_dir, data, title or 'seft run', t0)
+
+
+#: What an interrupted ``seft run`` reached before any node started.
+_NOTHING_RUN = 'before any node started: nothing was run'
+
+
+@contextlib.contextmanager
+def _interrupted_as(state: Callable[[KeyboardInterrupt], str]):
+    """Raise a ``KeyboardInterrupt`` of the block as :class:`~seft_msgs_py.errors.Interrupted`
+    with ``state(exc)``: what the command had reached (``seft``'s last line)."""
     try:
-        viewer = _start_live(live, runner, out_dir, progress)
-        for p, label in zip(runs, run_labels(runs)):
-            outcome = runner.run(p, out_dir / label, label=f'[{label}] ')
-            data.append(_read_outcome(outcome, label, progress))
-    finally:
-        if viewer is not None:
-            viewer.close()
-        runner.close()
-        claim.close()
-    for rd, check, limits in zip(data, predicted, ranges):
-        rd.extra['stability'] = stability_entry(check)
-        rd.extra['range_check'] = limits.as_dict()
-    _note_records_read(data, runs)
-    return _finish(out_dir, data, title or 'seft run', t0)
+        yield
+    except KeyboardInterrupt as exc:
+        raise Interrupted(signal_name(exc), state(exc)) from None
+
+
+def _runs_interrupted(exc: KeyboardInterrupt, out_dir: Path, now: list[str],
+                      ran: list[str]) -> str:
+    """What ``seft run`` reached when interrupted: the run in progress `now` (as the runner
+    ended it, :meth:`~seft_ros.cli.runner.GraphRunner.run`), the runs over (`ran`), and
+    that no report was written (``seft compare`` writes one from the bags)."""
+    if now:
+        ended = (exc.state if isinstance(exc, Interrupted) else
+                 'left at once while the run ended; its nodes stop the run by themselves '
+                 '(their logs say how)')
+        if not ran and isinstance(exc, Interrupted) and exc.state.startswith('before'):
+            return _NOTHING_RUN
+        parts = [f'[{now[0]}] {ended}']
+        if ran:
+            parts.append(f'{len(ran)} earlier run(s) complete')
+    elif ran:
+        parts = [f'{len(ran)} run(s) complete, their bags in {out_dir}']
+    else:
+        return _NOTHING_RUN
+    if any(out_dir.glob('*/bag')):
+        parts.append(f'no report written: `seft compare {out_dir}` writes one from the '
+                     'bag(s) kept')
+    return '; '.join(parts)
 
 
 def _natural_key(path: Path) -> list:

@@ -3,23 +3,48 @@
 
 Every :class:`~seft_msgs_py.errors.SeftError` (bad file, bad parameter, failed node) is printed as
 one line
-``seft: error: ...`` with exit code 2; Ctrl-C stops the run safely with exit code 130.
+``seft: error: ...`` with exit code 2. Ctrl-C, SIGTERM and SIGHUP (the terminal closed, an SSH
+session dropped) stop a run safely and print one line that says what was reached, with exit
+code 128 + the signal's number: 130, 143, 129.
 """
 
-import argparse
-import os
 import signal
 import sys
-import time
+import threading
 
-from seft_msgs_py import parameters
-from seft_msgs_py.errors import InputError, SeftError
-from seft_plant_sim.faults import CONTROLLER_FAULTS, FAULTS, SENSOR_FAULTS
-from seft_ros.cli import api, partition
-from seft_ros.cli.arguments import OneLineParser
-from seft_ros.cli.config import repeated
-from seft_ros.cli.live import options_from_args
-from seft_ros.cli.spawn import node_start
+
+def _interrupted_on_start(signum, frame):
+    """A stop signal while ``seft`` imports its modules (seconds on a loaded host): one line,
+    not a traceback through scipy's imports."""
+    print(f'seft: interrupted by {_said(signal.Signals(signum).name)} while starting; nothing '
+          'was run', file=sys.stderr, flush=True)
+    raise SystemExit(128 + signum)
+
+
+def _said(signame: str) -> str:
+    """A signal's name as the last line says it."""
+    return {'SIGINT': 'Ctrl-C (SIGINT)', 'SIGHUP': 'SIGHUP (hang-up)'}.get(signame, signame)
+
+
+if (threading.current_thread() is threading.main_thread()
+        and sys.argv[:1] and sys.argv[0].rsplit('/', 1)[-1] == 'seft'):
+    # the `seft` command (its console script), not a test or a tool that imports this module
+    for _signum in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+        signal.signal(_signum, _interrupted_on_start)
+
+import argparse  # noqa: E402  (after the start-up's signal handlers)
+import os  # noqa: E402
+import time  # noqa: E402
+
+from seft_msgs_py import parameters  # noqa: E402
+from seft_msgs_py.errors import InputError, Interrupted, SeftError  # noqa: E402
+from seft_msgs_py.stopping import STOP_SIGNALS, signal_name  # noqa: E402
+from seft_plant_sim.faults import CONTROLLER_FAULTS, FAULTS, SENSOR_FAULTS  # noqa: E402
+from seft_ros.cli import api, partition  # noqa: E402
+from seft_ros.cli.arguments import OneLineParser  # noqa: E402
+from seft_ros.cli.config import repeated  # noqa: E402
+from seft_ros.cli.live import options_from_args  # noqa: E402
+from seft_ros.cli.spawn import node_start  # noqa: E402
 
 #: The rig models of --rig (the parameter rig_model's choices).
 RIG_CHOICES = parameters.spec('rig_model').choices
@@ -298,11 +323,21 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _interrupt(signum, frame):
-    raise KeyboardInterrupt
+    raise KeyboardInterrupt(signal.Signals(signum).name)
+
+
+def _say(text: str, stream=None) -> None:
+    """Print a line (stderr by default); a terminal that is gone (a hang-up: writes fail
+    with EIO) takes nothing more, and the command goes on ending the run safely."""
+    try:
+        print(text, file=stream or sys.stderr, flush=True)
+    except OSError:
+        devnull = open(os.devnull, 'w')
+        sys.stdout = sys.stderr = devnull
 
 
 def _progress(text: str) -> None:
-    print(f'[seft] {text}', file=sys.stderr, flush=True)
+    _say(f'[seft] {text}')
 
 
 def _check_options(args) -> dict[str, str]:
@@ -499,22 +534,44 @@ def _rig_check(args) -> int:
 
 def main(argv=None) -> int:
     """Entry point of ``seft``; returns the exit code."""
-    args = build_parser().parse_args(argv)
-    args.created = []           # directories this command made: removed if it fails empty
-    code = 1
+    # SIGTERM and SIGHUP end a run as Ctrl-C does (rig to its safe state, bags closed), not
+    # the runner alone with its nodes left running; each is named in the last line
+    previous = {s: signal.signal(s, _interrupt) for s in STOP_SIGNALS}
+    code, args = 1, None
     try:
+        args = build_parser().parse_args(argv)
+        args.created = []       # directories this command made: removed if it fails empty
         code = _main(args)
         return code
+    except KeyboardInterrupt as exc:
+        signame = signal_name(exc)
+        code = 128 + signal.Signals[signame].value
+        _say(f'seft: interrupted by {_said(signame)}: {_reached(exc, args)}')
+        return code
     finally:
-        if code != 0:
+        if code != 0 and args is not None:
             api.remove_empty_dirs(args.created)
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
+def _reached(exc: KeyboardInterrupt, args) -> str:
+    """What an interrupted command had reached (the end of its last line)."""
+    if isinstance(exc, Interrupted):
+        return exc.state
+    if args is None:
+        return 'nothing was run'
+    if args.verb in ('run', 'rig-check'):
+        # a further signal while the run ended (the runner's, after its line said so)
+        return ('left at once while the run ended; its nodes stop the run by themselves '
+                '(their logs say how)')
+    if args.verb in ('simulate', 'compare'):
+        return f'seft {args.verb} did not finish; no report written'
+    return f'seft {args.verb} did not finish'
 
 
 def _main(args) -> int:
     t0 = time.monotonic()
-    # SIGTERM ends a run as Ctrl-C does (rig to its safe state, bags closed), not the runner
-    # alone with its nodes left running
-    signal.signal(signal.SIGTERM, _interrupt)
     try:
         if args.verb == 'stability':
             return _stability(args)
@@ -561,9 +618,6 @@ def _main(args) -> int:
     except SeftError as exc:
         print(f'seft: error: {exc}', file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print('seft: interrupted; nodes stopped, bags closed', file=sys.stderr)
-        return 130
     print(api.summary_table(result.summary))
     criteria = api.criteria_table(result.summary)
     if criteria:

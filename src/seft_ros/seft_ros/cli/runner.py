@@ -34,6 +34,7 @@ from pathlib import Path
 import signal
 import subprocess
 import sys
+import threading
 import time
 from typing import Callable
 
@@ -54,13 +55,14 @@ from seft_msgs_py.convert import (
     status_values,
 )
 from seft_msgs_py.dds import use_seft_profile
-from seft_msgs_py.errors import SeftError
+from seft_msgs_py.errors import Interrupted, SeftError
 from seft_msgs_py.graph import UNKNOWN_NODE, Graph, split_qualified
 from seft_msgs_py.node_support import MISMATCH_ABORT
 from seft_msgs_py.provenance import NONE as NO_TOKEN
 from seft_msgs_py.provenance import new_run_token
-from seft_msgs_py.rig_contract import FOREIGN_REASON, INTERRUPT_REASON
+from seft_msgs_py.rig_contract import FOREIGN_REASON, runner_interrupt
 from seft_msgs_py.signals import CLOCK, RUN_PARAMETERS
+from seft_msgs_py.stopping import RUNNER_PID_ENV, STOP_SIGNALS, signal_name
 from seft_msgs_py.topics import NODE_PARAMETERS, STATUS, TOPICS
 from seft_ros.cli.config import write_params_file
 from seft_ros.cli.partition import PROCESSES
@@ -248,6 +250,8 @@ class GraphRunner:
             os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE',
                                   self.env['ROS_AUTOMATIC_DISCOVERY_RANGE'])
         self.env.setdefault('PYTHONUNBUFFERED', '1')
+        # the nodes stop the run safely when this process ends (seft_msgs_py.stopping)
+        self.env[RUNNER_PID_ENV] = str(os.getpid())
         self.context = rclpy.Context()
         rclpy.init(context=self.context, domain_id=domain_id)
         self.node = Node('seft_runner', context=self.context)
@@ -255,6 +259,8 @@ class GraphRunner:
         self.executor.add_node(self.node)
         self.statuses = []
         self.warnings_said: set[tuple[str, str]] = set()
+        #: After an interrupt, while the run ends: the further stop signals (_HeldSignals).
+        self._held: _HeldSignals | None = None
         #: The processes of the run in progress (:meth:`run`).
         self.procs: dict[str, subprocess.Popen] = {}
         self._bag_path: Path | None = None    # the bag of the run in progress
@@ -417,8 +423,11 @@ class GraphRunner:
         SeftError
             A node failed, died or was stopped by a signal (which node and when; the bag up
             to then is closed and readable), the graph did not start or stalled.
-        KeyboardInterrupt
-            After the run was ended safely (rig to its safe state, bag closed).
+        Interrupted
+            Ctrl-C, SIGTERM or SIGHUP: after the run was ended (the rig to its safe state,
+            the bag closed), with what it reached (the rig's final status, or that none
+            came; the bag). A further signal while it ends is said and waited out; one more
+            leaves at once (``KeyboardInterrupt``; the nodes then stop the run themselves).
         """
         run_dir = Path(run_dir)
         log_dir = run_dir / 'logs'
@@ -517,12 +526,24 @@ class GraphRunner:
             return RunOutcome(bag_path, run_dir, time.monotonic() - start,
                               rig_final.get('state', ''), rig_final.get('message', ''),
                               'recorder' in local, frozenset(self.warnings_said))
-        except KeyboardInterrupt:
-            self.progress(f'{label}interrupted: ending the run safely (rig to its safe '
-                          'state, bag closed)')
-            self._end_run(INTERRUPT_REASON, procs)
+        except KeyboardInterrupt as exc:
+            signame = signal_name(exc)
             outcome.update(error='interrupted')
-            raise
+            if not procs:
+                raise Interrupted(signame, 'before the nodes of the run started: nothing '
+                                  'was run') from None
+            self.progress(f'{label}interrupted by {signame}: ending the run (rig to its '
+                          'safe state, bag closed)')
+            self._held = _HeldSignals()
+            try:
+                with self._held:
+                    self._end_run(runner_interrupt(signame), procs)
+                    self._stop(procs)
+            finally:
+                self._held = None
+            state = self._interrupted_state(procs)
+            outcome.update(interrupted=state, rig_final=self._rig_final(heard_only=True))
+            raise Interrupted(signame, state) from None
         except SeftError as exc:
             outcome.update(error=str(exc))
             raise
@@ -590,6 +611,7 @@ class GraphRunner:
         deadline = time.monotonic() + END_TIMEOUT_S
         recorder = procs.get('recorder')
         while time.monotonic() < deadline:
+            self._say_held()
             if self._latest('recorder', (STATE_CLOSED,)):
                 return
             if recorder is not None and recorder.poll() is not None:
@@ -911,6 +933,7 @@ class GraphRunner:
         """Let finished nodes exit; SIGINT the rest (the recorder closes its bag), then kill."""
         deadline = time.monotonic() + 5.0
         while time.monotonic() < deadline and any(p.poll() is None for p in procs.values()):
+            self._say_held()
             self._spin(0.05)
         for sig, wait in ((signal.SIGINT, 10.0), (signal.SIGTERM, 5.0), (signal.SIGKILL, 5.0)):
             # one signal per process (a loop process holds several nodes: a second SIGINT
@@ -922,7 +945,76 @@ class GraphRunner:
                 p.send_signal(sig)
             deadline = time.monotonic() + wait
             while time.monotonic() < deadline and any(p.poll() is None for p in alive):
+                self._say_held()
                 time.sleep(0.05)
+
+    def _say_held(self) -> None:
+        """Say once that a further stop signal came while the run ends (:class:`_HeldSignals`)."""
+        if self._held is not None and self._held.names and not self._held.said:
+            self._held.said = True
+            self.progress(f'{self._held.names[0]} again: still ending the run (the rig '
+                          'finishes its safe ramp, the recorder closes the bag); once more to '
+                          'leave at once (the nodes then stop by themselves)')
+
+    def _interrupted_state(self, procs) -> str:
+        """What an interrupted run reached, once it has ended: the rig's safe state (from its
+        final status; without one, that it is not confirmed) and the bag."""
+        parts = []
+        rig = self._rig_final(heard_only=True)
+        here = [r for r in self.graph.rig_nodes() if r in procs]
+        if rig is not None:
+            step = int(rig.get('step', 0) or 0)
+            if 'abort_at_s' in rig:
+                parts.append(f'the rig ramped to its safe state from t = '
+                             f'{float(rig["abort_at_s"]):.3f} s')
+            elif rig.get('state') == STATE_DONE:
+                parts.append('the rig had completed its run')
+            elif step == 0:
+                parts.append('the rig stopped before its first step')
+            else:
+                parts.append(f'the rig stopped at t = {float(rig.get("time_s", 0.0)):.3f} s '
+                             f'(step {step})')
+        elif here:
+            logs = ', '.join(str(self._bag_path.parent / 'logs' / log_name(r)) for r in here)
+            parts.append(f'NO final status from {", ".join(here)}: its safe stop is not '
+                         f'confirmed; check the rig (log: {logs})')
+        else:
+            parts.append("the rig's host did not report its end here")
+        if self._bag_closed():
+            parts.append(f'bag closed: {self._bag_path}')
+        elif 'recorder' in procs:
+            parts.append(f'the bag was not closed: {self._bag_path} (seft compare recovers '
+                         'it up to at most the last 0.25 s)')
+        return '; '.join(parts)
+
+
+class _HeldSignals:
+    """While a runner ends an interrupted run: the next stop signal (SIGINT, SIGTERM, SIGHUP)
+    is noted, not raised, so that a second Ctrl-C does not leave the run's end unwatched (the
+    runner said it ended safely while the rig died in its ramp); the one after raises
+    ``KeyboardInterrupt``. The signals are the main thread's only: elsewhere it does nothing.
+    """
+
+    def __init__(self):
+        self.names: list[str] = []
+        self.said = False
+        self._previous: dict = {}
+
+    def _on_signal(self, signum, frame):
+        name = signal.Signals(signum).name
+        if self.names:
+            raise KeyboardInterrupt(name)
+        self.names.append(name)
+
+    def __enter__(self):
+        if threading.current_thread() is threading.main_thread():
+            self._previous = {s: signal.signal(s, self._on_signal) for s in STOP_SIGNALS}
+        return self
+
+    def __exit__(self, *exc):
+        for sig, handler in self._previous.items():
+            signal.signal(sig, handler)
+        return False
 
 
 def _running(procs) -> list:

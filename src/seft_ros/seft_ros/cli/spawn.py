@@ -100,11 +100,16 @@ class NodeProcess:
         self.send_signal(signal.SIGKILL)
 
 
+#: Imported by the fork server before the nodes' modules: it ignores the stop signals
+#: meant for the runner's process group (seft_ros.cli.fork_server_signals).
+_SERVER_SIGNALS = 'seft_ros.cli.fork_server_signals'
+
+
 def _fork_context(modules: Sequence[str]):
     global _context
     if _context is None:
         ctx = multiprocessing.get_context('forkserver')
-        ctx.set_forkserver_preload(list(modules))
+        ctx.set_forkserver_preload([_SERVER_SIGNALS, *modules])
         _context = ctx
     return _context
 
@@ -126,7 +131,15 @@ def prepare(modules: Sequence[str]) -> None:
 def _run_module(module: str, argv: Sequence[str], env: Mapping[str, str],
                 log_path: str) -> None:
     """In the forked child: become ``python -m module argv...`` with `env`, output to the
-    log, and exit with what the module's ``main()`` returns."""
+    log, and exit with what the module's ``main()`` returns.
+
+    The signals the fork server ignores (:mod:`seft_ros.cli.fork_server_signals`) are the
+    node's again, as in a process of its own: SIGINT raises ``KeyboardInterrupt``, SIGTERM
+    and SIGHUP end it, until its ``main()`` takes them
+    (:func:`~seft_msgs_py.node_support.main_for_nodes`)."""
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    signal.signal(signal.SIGHUP, signal.SIG_DFL)
     fd = os.open(log_path, os.O_WRONLY | os.O_APPEND)
     os.dup2(fd, 1)
     os.dup2(fd, 2)

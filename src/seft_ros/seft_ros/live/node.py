@@ -38,6 +38,7 @@ from seft_msgs_py.convert import STATE_ABORTED, STATE_READY, status_msg, status_
 from seft_msgs_py.errors import SeftError
 from seft_msgs_py.node_support import exit_if_longer
 from seft_msgs_py.signals import FINAL_STATES
+from seft_msgs_py.stopping import STOP_SIGNALS, RunnerWatch
 from seft_msgs_py.topics import LINK, RUN_PARAMETERS, STATUS, record_topic
 from seft_ros.cli.arguments import OneLineParser
 from seft_ros.live.access import DEFAULT_HOST, DEFAULT_PORT, TOKEN_ENV, LiveOptions, listen_error
@@ -244,7 +245,8 @@ def serve(options: LiveOptions):
 
 
 def main(argv=None) -> int:
-    """Entry point: serve the live view until SIGINT or SIGTERM."""
+    """Entry point: serve the live view until SIGINT, SIGTERM or SIGHUP, or until the runner
+    that started it (``$SEFT_RUNNER_PID``) has ended."""
     args = _parser().parse_args(argv)
     try:
         os.nice(NICE)
@@ -265,8 +267,10 @@ def main(argv=None) -> int:
 
     def on_signal(signum, frame):
         stopping.set()
-    signal.signal(signal.SIGINT, on_signal)
-    signal.signal(signal.SIGTERM, on_signal)
+    for signum in STOP_SIGNALS:
+        signal.signal(signum, on_signal)
+    # a viewer started by a runner ends with it (a killed runner left it serving)
+    runner = RunnerWatch.from_environment()
     rclpy.init(args=None, signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
     node = LiveNode(view, _say)
     holder['node'] = node
@@ -274,7 +278,7 @@ def main(argv=None) -> int:
     executor.add_node(node)
     _say(READY_LINE)
     try:
-        while not stopping.is_set():
+        while not stopping.is_set() and not (runner is not None and runner.gone()):
             executor.spin_once(timeout_sec=0.1)
     finally:
         # the shutdown is bounded: a viewer holds no sample of the test, and its servers'

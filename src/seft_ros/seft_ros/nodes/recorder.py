@@ -33,9 +33,9 @@ sqlite3 commits cost about 7 us a step. A closed bag is the same for every reade
 
 It ends by itself once the rig reported 'done' or 'aborted' and every node's final count of
 published samples has arrived (or after ``FLUSH_TIMEOUT_S``), closes the bag, reports
-'closed' and exits. On Ctrl-C or SIGTERM it closes the bag too. A runner's abort that names
-the nodes of a host it lost (``lost_nodes``: its link cut, ``seft_ros.cli.runner``) counts
-them as ended: their reports cannot come.
+'closed' and exits. On Ctrl-C, SIGTERM or SIGHUP it closes the bag too. A runner's abort that
+names the nodes of a host it lost (``lost_nodes``: its link cut, ``seft_ros.cli.runner``)
+counts them as ended: their reports cannot come.
 
 Run by hand: ``ros2 run seft_ros recorder --ros-args -p bag_path:=my_run ...``.
 """
@@ -49,6 +49,7 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 from std_msgs.msg import String
 
+from seft_msgs_py import rig_contract
 from seft_msgs_py.convert import (
     STATE_ABORTED,
     STATE_CLOSED,
@@ -326,11 +327,17 @@ class RecorderNode(SeftNode):
             self.abort_heard_at = time.monotonic()
 
     def on_stop_signal(self, signame: str) -> None:
-        """SIGINT/SIGTERM: record the rig's safe ramp, then close (at most ``safe_ramp_s`` +
-        ``RIG_SILENT_S`` later); a second signal closes at once."""
+        """SIGINT/SIGTERM/SIGHUP or the end of the runner: record the rig's safe ramp, then
+        close (at most ``safe_ramp_s`` + ``RIG_SILENT_S`` later); a second signal during
+        the rig's safe stop is held (:meth:`stop_hold_s`), a later one closes at once."""
         self.get_logger().warning(f'{signame}: closing the bag after the rig has stopped')
         if self.abort_heard_at is None:
             self.abort_heard_at = time.monotonic()
+
+    def stop_hold_s(self) -> float:
+        """Real time: the rig's safe stop (``seft_msgs_py.rig_contract.safe_stop_s``),
+        so that the bag holds the whole ramp after a second Ctrl-C, as the rig makes it."""
+        return rig_contract.safe_stop_s(self.params)
 
     def _published(self):
         """``(topic, recorded, published)`` of every topic of every node that has finished."""

@@ -1,0 +1,204 @@
+"""How a node process is asked to stop: signals, and the end of the runner that started it.
+
+A node process (:func:`~seft_msgs_py.node_support.main_for_nodes`) takes SIGINT (Ctrl-C),
+SIGTERM and SIGHUP (its terminal closed, an SSH session dropped) alike: the first one asks
+every node to end the run safely (the rig ramps to its safe state, the recorder records the
+ramp and closes the bag). A second signal ends the process at once, unless one of its nodes
+holds it (:meth:`~seft_msgs_py.node_support.SeftNode.stop_hold_s`: the rig, a bridge to a
+lab's rig, while its safe ramp runs; the recorder, while it records it): then the process
+says so and goes on, and a third signal, or the hold's bound (:data:`STOP_HOLD_MARGIN_S`
+past the hold), ends it at once. An operator pressing Ctrl-C twice in 0.1 s cut the rig's
+200 ms ramp at 100 ms, and the rig sent no final status.
+
+A node started by a runner (``seft run``, ``seft rig-check``) gets the runner's process id
+in ``$SEFT_RUNNER_PID`` (:data:`RUNNER_PID_ENV`) and stops the run safely, as on SIGTERM,
+once that process has ended (:class:`RunnerWatch`): a runner killed, or ended by a hang-up
+before it could stop its nodes, left them running the rig unsupervised (and, in lockstep,
+a graph whose node then died waited forever). A forked node's parent is the runner's fork
+server (``seft_ros.cli.spawn``), not the runner, so the watch names the runner itself; the
+kernel's parent-death signal (``PR_SET_PDEATHSIG``) would follow the fork server, which
+outlives the runner while the nodes hold its pipe.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import sys
+import time
+from typing import Callable
+
+__all__ = ['STOP_SIGNALS', 'RUNNER_PID_ENV', 'RUNNER_CHECK_S', 'STOP_HOLD_MARGIN_S',
+           'RunnerWatch', 'StopRequests', 'signal_name']
+
+#: The signals that stop a node process safely (a second one ends it at once, see above).
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+#: Environment variable by which a runner gives the nodes it starts its process id.
+RUNNER_PID_ENV = 'SEFT_RUNNER_PID'
+#: How often a node process checks that its runner still runs [s] (reading
+#: ``/proc/<pid>/stat``: about 20 us).
+RUNNER_CHECK_S = 0.25
+#: A process held by a node's safe stop ends at a second signal anyway this long past the
+#: hold (its stop, plus ``LINGER_S`` to serve its final status) [s]: the hold has a known
+#: length, and a stop that outlasts it by this much is stuck.
+STOP_HOLD_MARGIN_S = 2.0
+
+
+def signal_name(exc: BaseException) -> str:
+    """The signal that raised the ``KeyboardInterrupt`` `exc`: its first argument when a
+    handler gave one (``seft``'s: ``SIGINT``, ``SIGTERM``, ``SIGHUP``), else ``SIGINT``
+    (Python's own handler: Ctrl-C)."""
+    if isinstance(exc, KeyboardInterrupt) and getattr(exc, 'signame', None):
+        return exc.signame
+    name = exc.args[0] if exc.args else ''
+    return name if isinstance(name, str) and name.startswith('SIG') else 'SIGINT'
+
+
+def _proc_state(pid: int) -> tuple[str, int] | None:
+    """``(state, start time in clock ticks)`` of process `pid` from ``/proc/<pid>/stat``, or
+    None if there is no such process (or no ``/proc``)."""
+    try:
+        with open(f'/proc/{pid}/stat', 'rb') as f:
+            text = f.read().decode(errors='replace')
+    except OSError:
+        return None
+    # 'pid (comm) state ppid ...': comm may hold spaces and parentheses, the rest does not
+    fields = text[text.rfind(')') + 2:].split()
+    try:
+        return fields[0], int(fields[19])
+    except (IndexError, ValueError):
+        return None
+
+
+class RunnerWatch:
+    """Whether the runner of this node process still runs.
+
+    Parameters
+    ----------
+    pid : int
+        The runner's process id (``$SEFT_RUNNER_PID``).
+
+    Linux: the runner is gone when ``/proc/<pid>`` is gone, a zombie (ended, not yet waited
+    for by its shell), or another process (a pid reused: its start time differs). Elsewhere:
+    ``kill(pid, 0)`` fails with no such process. A runner already gone when the watch starts
+    (it died while this process started) is gone at the first check.
+    """
+
+    def __init__(self, pid: int):
+        self.pid = pid
+        self._start = _proc_state(pid) if os.path.isdir('/proc/self') else None
+        self._proc = os.path.isdir('/proc/self')
+        self._gone = self._proc and self._start is None
+        self._checked_at = -float('inf')
+
+    @classmethod
+    def from_environment(cls) -> RunnerWatch | None:
+        """The watch of ``$SEFT_RUNNER_PID``; None when unset or not a process id (a node
+        started by hand, ``ros2 run``: its parent is a shell, to be left when it ends)."""
+        text = os.environ.get(RUNNER_PID_ENV, '').strip()
+        if not text.isdigit() or int(text) <= 1:
+            return None
+        return cls(int(text))
+
+    @property
+    def reason(self) -> str:
+        """What stopped the node, in place of a signal's name: 'the end of its runner (pid N)'."""
+        return f'the end of its runner (pid {self.pid})'
+
+    def gone(self, now: float | None = None) -> bool:
+        """Whether the runner has ended; checked at most every :data:`RUNNER_CHECK_S`
+        (`now`: ``time.monotonic()``)."""
+        now = time.monotonic() if now is None else now
+        if self._gone or now - self._checked_at < RUNNER_CHECK_S:
+            return self._gone
+        self._checked_at = now
+        if self._proc:
+            state = _proc_state(self.pid)
+            self._gone = (state is None or state[0] in ('Z', 'X')
+                          or state[1] != self._start[1])
+        else:
+            try:
+                os.kill(self.pid, 0)
+            except ProcessLookupError:
+                self._gone = True
+            except PermissionError:
+                pass
+        return self._gone
+
+
+class StopRequests:
+    """The stop requests a node process has had, in order: signals (by name) and the end
+    of its runner (:attr:`RunnerWatch.reason`).
+
+    Parameters
+    ----------
+    hold_s : callable
+        ``() -> float``: how long the process's nodes hold it against a second signal from
+        the first request [s] (0: they do not; a second signal ends the process at once).
+    name : str
+        The process's name in the line it writes when it holds a signal.
+
+    Install :meth:`on_signal` as the handler of :data:`STOP_SIGNALS`; call :meth:`check`
+    from the process's loop.
+    """
+
+    def __init__(self, hold_s: Callable[[], float], name: str):
+        self.hold_s = hold_s
+        self.name = name
+        #: The requests: the first stops the process's nodes safely.
+        self.names: list[str] = []
+        self.first_at: float | None = None
+        #: The second signal, held (None: none held).
+        self.held: str | None = None
+        self.hold_until: float | None = None
+        self._said = False
+
+    def request(self, name: str) -> None:
+        """A stop request that is not a signal (the runner's end): a first request only."""
+        if not self.names:
+            self.names.append(name)
+            self.first_at = time.monotonic()
+
+    def on_signal(self, signum, frame) -> None:
+        """Signal handler: the first signal is a request; a second one ends the process
+        (``KeyboardInterrupt``) unless a node holds it; a third one ends it.
+
+        Raises
+        ------
+        KeyboardInterrupt
+            A second signal not held, or a third.
+        """
+        name = signal.Signals(signum).name
+        now = time.monotonic()
+        if not self.names:
+            self.request(name)
+            return
+        if self.held is None:
+            hold = self.hold_s()
+            until = self.first_at + hold + STOP_HOLD_MARGIN_S
+            if hold > 0 and now < until:
+                self.held, self.hold_until = name, until
+                return
+        raise KeyboardInterrupt
+
+    def check(self) -> None:
+        """From the process's loop: say once that a second signal is held (stderr, the
+        node's log); past the hold's bound, end the process.
+
+        Raises
+        ------
+        KeyboardInterrupt
+            A held signal's bound has passed.
+        """
+        if self.held is None:
+            return
+        now = time.monotonic()
+        if not self._said:
+            self._said = True
+            print(f'{self.name}: {self.held} again: finishing the safe stop first (at most '
+                  f'{self.hold_until - now:.1f} s more; one more signal ends the process now)',
+                  file=sys.stderr, flush=True)
+        if now > self.hold_until:
+            print(f'{self.name}: the safe stop did not end within its bound; ending the '
+                  'process now', file=sys.stderr, flush=True)
+            raise KeyboardInterrupt
