@@ -292,6 +292,19 @@ def test_argparse_errors_are_one_line_naming_the_command(argv, line, capsys):
     assert capsys.readouterr().err == line + '\n'
 
 
+@pytest.mark.parametrize('verb', ['run', 'simulate', 'sites'])
+def test_predictor_help_names_every_registered_predictor(verb, capsys):
+    # the help listed 'none', 'model', 'polynomial', 'adaptive' and left 'ats' out
+    from seft_ros.core.reference_force import PREDICTORS
+    with pytest.raises(SystemExit) as exit_info:
+        main.main([verb, '--help'])
+    assert exit_info.value.code == 0
+    text = ' '.join(capsys.readouterr().out.split())
+    assert ("delay compensation(s): 'none', 'polynomial', 'model', 'adaptive', 'ats' "
+            '(several: one run per predictor and alpha)') in text
+    assert set(PREDICTORS) == {'none', 'polynomial', 'model', 'adaptive', 'ats'}
+
+
 def test_argparse_set_without_value(seft_exe, run_process, tmp_path):
     proc = run_process([seft_exe, 'simulate', '--set', 'alpha'], cwd=tmp_path)
     assert proc.returncode == 2 and 'Traceback' not in proc.stderr

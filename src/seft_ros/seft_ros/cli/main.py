@@ -45,6 +45,7 @@ from seft_ros.cli.arguments import OneLineParser  # noqa: E402
 from seft_ros.cli.config import repeated  # noqa: E402
 from seft_ros.cli.live import options_from_args  # noqa: E402
 from seft_ros.cli.spawn import node_start  # noqa: E402
+from seft_ros.core.reference_force import PREDICTORS  # noqa: E402
 
 #: The rig models of --rig (the parameter rig_model's choices).
 RIG_CHOICES = parameters.spec('rig_model').choices
@@ -121,8 +122,8 @@ def _experiment_options(p: argparse.ArgumentParser) -> None:
                    help="simulated rig model ('state_space': the plant_model; 'actuator': "
                    'the family of actuators, actuator_family)')
     p.add_argument('--predictor', action=_Once, nargs='+', metavar='NAME',
-                   help="delay compensation(s): 'none', 'model', 'polynomial', 'adaptive' "
-                   '(several: one run per predictor and alpha)')
+                   help='delay compensation(s): ' + ', '.join(map(repr, PREDICTORS))
+                   + ' (several: one run per predictor and alpha)')
     p.add_argument('--amplitude', action=_Once, dest='amplitude_N', type=float, metavar='N',
                    help="peak of m*xg'' [N] (0: use --scale)")
     p.add_argument('--scale', action=_Once, dest='scale_factor', type=float,
