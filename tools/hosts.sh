@@ -5,8 +5,10 @@
 #                       [--delay-ms D] [--jitter-ms J]
 #                       [--loss P] [--link SITE=D[,J[,P]]]... [--cut-after S] [--cut-site SITE]
 #                       [--live PORT] [--live-stop]
-#                       [--out DIR] [-- seft run options (a config, --alpha, --set, ...)]
+#                       [--out DIR | --name NAME] [-- seft run options (a config, --alpha, ...)]
 #
+# The outputs go to --out DIR (new or empty), else to runs/NAME (default NAME: hosts), or
+# runs/NAME-2, -3, ... where that exists, as seft run --name picks its folder.
 # One network namespace per site of the partition (`seft sites`): "compute" (the recorder
 # and the ground-motion publisher; with builder_remote the builder too) and one per lab
 # ("lab" for the study's rig, or one per rig of a structure, named after it). Each lab's link
@@ -33,9 +35,9 @@
 set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 partition=loop_local processes=loop delay=0 jitter=0 loss=0 cut="" cut_site="" live="" live_stop=""
-out="$root/runs/hosts"
+out="" name=hosts
 declare -A links=()
-usage() { sed -n '2,28p' "$0"; }
+usage() { sed -n '2,34p' "$0"; }
 while [[ $# -gt 0 ]]; do
   case "$1" in
     --partition) partition="$2"; shift 2 ;;
@@ -47,6 +49,7 @@ while [[ $# -gt 0 ]]; do
     --cut-after) cut="$2"; shift 2 ;;
     --cut-site) cut_site="$2"; shift 2 ;;
     --out) out="$2"; shift 2 ;;
+    --name) name="$2"; shift 2 ;;
     --live) live="$2"; shift 2 ;;
     --live-stop) live_stop=1; shift ;;
     --) shift; break ;;
@@ -54,6 +57,13 @@ while [[ $# -gt 0 ]]; do
     *) echo "hosts.sh: error: unknown option $1 (seft run options go after --)" >&2; exit 2 ;;
   esac
 done
+if [[ -n "$out" ]]; then
+  [[ ! -e "$out" || ( -d "$out" && -z "$(ls -A "$out")" ) ]] || { echo "hosts.sh: error: --out $out: exists and is not empty; expected a new directory (without --out: runs/$name, or runs/$name-2, ... where that exists)" >&2; exit 2; }
+else
+  [[ "$name" =~ ^[A-Za-z0-9._-]+$ && "$name" != . && "$name" != .. ]] || { echo "hosts.sh: error: --name $name: expected a name, not a path (letters, digits, . _ -)" >&2; exit 2; }
+  out="$root/runs/$name" i=1
+  while [[ -e "$out" ]]; do i=$((i + 1)); out="$root/runs/$name-$i"; done
+fi
 [[ "$processes" == loop || "$processes" == node ]] || { echo "hosts.sh: error: --processes $processes: expected loop or node" >&2; exit 2; }
 number() { [[ "$1" =~ ^[0-9]+([.][0-9]+)?$ ]] || { echo "hosts.sh: error: '$1': expected a number >= 0 ($2)" >&2; exit 2; }; }
 number "$delay" --delay-ms; number "$jitter" --jitter-ms; number "$loss" --loss
@@ -143,6 +153,7 @@ for s in "${labs[@]}"; do IFS=, read -r d j p <<< "${links[$s]}"; summary+=" $s 
 echo "hosts.sh: partition $partition, processes $processes, domain $domain, network namespaces seft-*-$id; $summary" >&2
 
 pids=()
+launched="$EPOCHREALTIME"
 for s in compute "${labs[@]}"; do
   viewer=()
   if [[ "$s" == compute && -n "$live" ]]; then
@@ -182,6 +193,8 @@ if [[ -n "$cut" ]]; then
     for _ in $(seq 6000); do
       start="$(grep -hs -m1 'starting (' "$out/$cut_site"/*/logs/*rig.log \
                | sed -n 's/^[^[]*\[[A-Z]*\] \[\([0-9.]*\)\].*/\1/p' | head -n1)" || true
+      # a rig of this run: started after its runners were (never another run's log)
+      [[ -z "$start" ]] || awk -v t="$start" -v l="$launched" 'BEGIN { exit !(t >= l - 1) }' || start=""
       [[ -z "$start" ]] || break
       alive=0; for p in "${pids[@]}"; do kill -0 "$p" 2>/dev/null && alive=1; done
       [[ $alive == 1 ]] || break                 # every runner gone: no rig will start
@@ -197,6 +210,7 @@ if [[ -n "$cut" ]]; then
 fi
 rc=0
 i=0
+: > "$out/exits.txt"
 for s in compute "${labs[@]}"; do
   code=0
   wait "${pids[$i]}" || code=$?
@@ -220,5 +234,5 @@ wait "$hub" 2>/dev/null || true
 hub=""
 grep -v '^\s*$' "$out/link_emulator.err" >&2 || true
 echo "$summary${cut:+ cut $cut_site after $cut s}"
-echo "exits: $(tr '\n' ' ' < "$out/exits.txt"); outputs in $out"
+echo "exits: $(sed ':a;N;$!ba;s/\n/, /g' "$out/exits.txt"); outputs in $out"
 exit $rc

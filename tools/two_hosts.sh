@@ -14,18 +14,20 @@
 # of their use) and the recorder. --partition builder_remote is the earlier split (the
 # builder on the compute host, the loop across the link with a playout delay the runners
 # size from the measured round trip). --live PORT: the live view of the compute host, at
-# 127.0.0.1:PORT (Foxglove) and PORT+1 (the page). See tools/hosts.sh for the rest (it
-# needs root).
+# 127.0.0.1:PORT (Foxglove) and PORT+1 (the page). The outputs go to --out DIR (new or
+# empty), else to runs/two_hosts, or runs/two_hosts-2, -3, ... where that exists. See
+# tools/hosts.sh for the rest (it needs root).
 set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
-out="$root/runs/two_hosts"
+out=()
 args=()
 while [[ $# -gt 0 ]]; do
   case "$1" in
-    --out) out="$2"; shift 2 ;;
+    --out) out=(--out "$2"); shift 2 ;;
     --) break ;;
-    -h|--help) sed -n '2,18p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,19p' "$0"; exit 0 ;;
     *) args+=("$1"); shift ;;
   esac
 done
-exec bash "$root/tools/hosts.sh" --out "$out" "${args[@]}" "$@"
+[[ ${#out[@]} -gt 0 ]] || out=(--name two_hosts)
+exec bash "$root/tools/hosts.sh" "${out[@]}" "${args[@]}" "$@"
