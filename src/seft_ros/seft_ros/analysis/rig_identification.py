@@ -819,8 +819,11 @@ def identified_parameters(runs: list[RunIdentification], *,
     runs : list of RunIdentification
         One rig's.
     specimen : (float, float, float), optional
-        The rig's identified specimen ``(m [kg], c [N s/m], k [N/m])`` for the force-loop
-        model (default: the run's configured specimen, :func:`fit_hydraulics`).
+        The rig's identified specimen ``(m [kg], c [N s/m], k [N/m])``. Not used: the plant
+        model is identified with each open-loop run's own specimen fit
+        (``RunIdentification.specimen``, written as ``plant_model.specimen``); the grey-box
+        fit of seft's rig parameters that took it is :func:`fit_hydraulics`, which this
+        function no longer writes.
 
     Returns
     -------

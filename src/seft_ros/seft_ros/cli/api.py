@@ -1562,9 +1562,12 @@ def identify_bags(*, bags: list[str], out_dir: Path, window: str = 'hann',
     orders : (int, int), optional
         Orders (nb, na) of the rational fits (default per kind of run).
     params_out : str, optional
-        Write the identified parameters there as a parameter file: the study's rig's delay
-        and force-loop model, or each structure rig's specimen, delay and force-loop model
-        in its ``rigs`` section.
+        Write the identified parameters there as a parameter file
+        (:func:`~seft_ros.analysis.rig_identification.identified_parameters`): the study's
+        rig's closed-loop delay and, from an open-loop bag, its plant model with the force
+        controller designed for it (which replaces the configured one) and its
+        compensators' settings; or each structure rig's specimen and the same in its
+        ``rigs`` section.
 
     Returns
     -------

@@ -215,10 +215,12 @@ def build_parser() -> argparse.ArgumentParser:
                        '(default nperseg/2)')
     ident.add_argument('--orders', type=int, nargs=2, metavar=('NB', 'NA'), help='orders of '
                        'the rational fit in z^-1 (default 6 4 open loop, 8 6 closed loop)')
-    ident.add_argument('--params', dest='params_out', metavar='FILE', help='write the '
-                       'identified delay and force-loop model as a parameter file; of a '
-                       "structure's bags, a rigs section per rig with its specimen too (for "
-                       'seft run CONFIG --params FILE)')
+    ident.add_argument('--params', dest='params_out', metavar='FILE', help='write a '
+                       'parameter file (for seft run CONFIG --params FILE): the closed-loop '
+                       'delay; with an open-loop bag, the identified plant model and a force '
+                       'controller designed for it, which REPLACES the configured one, with '
+                       "its compensators' settings; of a structure's bags, a rigs section "
+                       'per rig with its specimen too')
     des = sub.add_parser('design', help="design each rig's force controller from the model "
                          "of its force loop (plant_model, or seft's rig model): crossover, "
                          'margins, control-structure interaction')
