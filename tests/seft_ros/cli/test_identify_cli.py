@@ -29,6 +29,10 @@ def test_identify_writes_json_plots_report_and_params(bags, capsys):
                  '--nperseg', '1024', '--params', str(params)]) == 0
     printed = capsys.readouterr().out
     assert 'zero_hz' in printed and 'delay_ms' in printed
+    # the JSON is the data, the PNGs are the figures (it printed 'figures: .../*.json')
+    assert f'data: {out / "identification.json"}\n' in printed
+    assert (f'figures: {out} (bode_run_0.png, bode_run_1.png, loop_run_0.png, '
+            'specimen_run_0.png, specimen_run_1.png)\n') in printed
     doc = json.loads((out / 'identification.json').read_text())
     assert [r['kind'] for r in doc['runs']] == ['open_loop', 'closed_loop']
     assert doc['zero_hz'] == pytest.approx(10.07, rel=0.03)

@@ -433,7 +433,8 @@ def _identify(args) -> int:
                                params_out=args.params_out)
     print(api.identification_table(result.document))
     print(f'report: {out / "identification.md"}')
-    print(f'figures: {out / "identification.json"}')
+    print(f'data: {out / "identification.json"}')
+    print(f'figures: {out} ({", ".join(sorted(p.name for p in out.glob("*.png")))})')
     if result.params_path is not None:
         print(f'parameters: {result.params_path}')
     return 0
