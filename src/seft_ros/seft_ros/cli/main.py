@@ -306,7 +306,8 @@ def build_parser() -> argparse.ArgumentParser:
     stab = sub.add_parser('stability', help='largest stable alpha over the delay per predictor '
                           "from the sampled loop's eigenvalues (stability.png, .json, table)")
     stab.add_argument('config', nargs='?', help='configuration YAML (rig, specimen, dt; '
-                      'its alpha(s) and delay are marked)')
+                      'its alpha(s) and delay are marked on stability.png; of a structure the '
+                      'map is of the coupling scale, the configured test at 1)')
     stab.add_argument('--rig', dest='rig_model', choices=RIG_CHOICES,
                       help='simulated rig model')
     stab.add_argument('--predictor', dest='predictors', nargs='+', metavar='NAME',
