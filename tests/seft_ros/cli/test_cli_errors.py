@@ -6,6 +6,7 @@ second of imports.
 """
 
 from concurrent.futures import ThreadPoolExecutor
+import json
 from pathlib import Path
 import re
 import sys
@@ -352,3 +353,23 @@ def test_node_started_by_hand_with_bad_parameter(run_process, tmp_path, value, s
     assert proc.stdout == ''
     assert proc.stderr.splitlines() == [
         f'reference_force_builder: error: parameter alpha={shown}: expected float >= 0 <= 100']
+
+
+def test_fail_on_abort_exits_3_for_an_abort_the_guard_did_not_foresee(tmp_path, capsys):
+    """``--fail-on-abort``: a lab script can tell a safety abort from a good run by the exit
+    code (before: 0 whatever the outcome). At 30 kN the valve saturates and the interlock
+    stops the run the guard found stable (exit 3, one line naming it); the study's alpha 1.5
+    without compensation, predicted unstable and run with --force, aborts as foreseen (0);
+    without the option an abort stays a result (0)."""
+    common = ['simulate', '--duration', '2', '--alpha']
+    big = common + ['0.5', '--predictor', 'model', '--amplitude', '30000']
+    assert main.main(big + ['--fail-on-abort', '--out', str(tmp_path / 'a')]) == 3
+    err = capsys.readouterr().err.splitlines()
+    assert re.fullmatch(r'seft: 1 run\(s\) aborted that the stability guard had not predicted '
+                        r'unstable: run 1 \(model, alpha 0\.5\) at 0\.\d+ s: force control '
+                        r'lost at t=0\.\d+ s: .* \(--fail-on-abort: exit code 3\)', err[-1]), err
+    assert main.main(big + ['--out', str(tmp_path / 'b')]) == 0
+    foreseen = common + ['1.5', '--predictor', 'none', '--force', '--fail-on-abort']
+    assert main.main(foreseen + ['--out', str(tmp_path / 'c')]) == 0
+    entry = json.loads((tmp_path / 'c' / 'summary.json').read_text())['runs'][0]
+    assert entry['stable'] is False and entry['stability']['predicted_stable'] is False

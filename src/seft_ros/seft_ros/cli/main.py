@@ -146,6 +146,10 @@ def _experiment_options(p: argparse.ArgumentParser) -> None:
     p.add_argument('--strict', action='store_true', help="refuse a run whose analytical "
                    "reference exceeds a rig's sensor range or actuator capacity (default: one "
                    'warning line per channel before the run)')
+    p.add_argument('--fail-on-abort', action='store_true', help='exit code 3 when a run was '
+                   "aborted (the monitor, the interlock, a watchdog, the operator's stop, a "
+                   'lost host) that the stability guard had not predicted unstable (default: '
+                   'an aborted run is a result, exit code 0; summary.json has each verdict)')
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -631,7 +635,29 @@ def _main(args) -> int:
           f'{result.out_dir / "report.html"})')
     print(f'summary: {result.out_dir / "summary.json"}')
     print(f'took {time.monotonic() - t0:.1f} s')
+    unforeseen = unforeseen_aborts(result.summary)
+    if args.fail_on_abort and unforeseen:
+        print(f'seft: {len(unforeseen)} run(s) aborted that the stability guard had not '
+              f'predicted unstable: {"; ".join(unforeseen)} (--fail-on-abort: exit code 3)',
+              file=sys.stderr)
+        return 3
     return 0
+
+
+def unforeseen_aborts(summary: list[dict]) -> list[str]:
+    """The runs of `summary` (``summary.json``'s entries) that were aborted although the
+    stability guard had not predicted them unstable, each as ``run N (<predictor>, alpha A)
+    at T s: <reason>``. A run the guard predicted unstable and ``--force`` ran is expected
+    to abort (the study's alpha 1.5 without compensation): not listed."""
+    said = []
+    for i, e in enumerate(summary, start=1):
+        if e.get('stable') or (e.get('stability') or {}).get('predicted_stable') is False:
+            continue
+        at = e.get('unstable_at_s')
+        said.append(f'run {i} ({e.get("predictor")}, alpha {e.get("alpha", 0):g})'
+                    + (f' at {at:.3f} s' if at is not None else '')
+                    + f': {e.get("abort_reason") or "aborted"}')
+    return said
 
 
 if __name__ == '__main__':
