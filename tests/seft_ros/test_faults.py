@@ -397,7 +397,7 @@ def test_ctrl_c_during_the_report_says_how_to_make_it(tmp_path, seft_exe, ros_en
     out = tmp_path / 'run'
     proc, log = _start_run(seft_exe, ros_env, tmp_path, out, '--duration', '2')
     try:
-        _wait_for_line(proc, log, r' steps in .* wall; ')
+        _wait_for_line(proc, log, r' steps in .* wall( \(stepping [\d.]+ s\))?; ')
         os.killpg(proc.pid, signal.SIGINT)
     finally:
         stderr = _end_of(proc, log)

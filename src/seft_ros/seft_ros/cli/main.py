@@ -635,8 +635,9 @@ def _main(args) -> int:
           f'{result.out_dir / "report.html"})')
     print(f'summary: {result.out_dir / "summary.json"}')
     print(f'took {time.monotonic() - t0:.1f} s')
-    unforeseen = unforeseen_aborts(result.summary)
-    if args.fail_on_abort and unforeseen:
+    unforeseen = (unforeseen_aborts(result.summary)
+                  if getattr(args, 'fail_on_abort', False) else [])   # run and simulate
+    if unforeseen:
         print(f'seft: {len(unforeseen)} run(s) aborted that the stability guard had not '
               f'predicted unstable: {"; ".join(unforeseen)} (--fail-on-abort: exit code 3)',
               file=sys.stderr)
