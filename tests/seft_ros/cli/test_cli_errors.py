@@ -373,3 +373,20 @@ def test_fail_on_abort_exits_3_for_an_abort_the_guard_did_not_foresee(tmp_path, 
     assert main.main(foreseen + ['--out', str(tmp_path / 'c')]) == 0
     entry = json.loads((tmp_path / 'c' / 'summary.json').read_text())['runs'][0]
     assert entry['stable'] is False and entry['stability']['predicted_stable'] is False
+
+
+def test_unforeseen_aborts_of_a_structure_and_of_runs_without_a_prediction():
+    """A structure's summary entry has no alpha (None), a run may have no stability entry
+    (a bag read by compare): named all the same (a three-host bridge's compute host ended
+    in a TypeError here)."""
+    summary = [{'stable': False, 'predictor': 'model', 'alpha': None, 'unstable_at_s': 0.596,
+                'abort_reason': 'pier_a/reference_force_builder: watchdog: no pier_b/'
+                'measurement for 100 ms', 'stability': {'predicted_stable': True}},
+               {'stable': False, 'predictor': 'none', 'alpha': 1.5, 'unstable_at_s': 0.786,
+                'abort_reason': 'unstable', 'stability': {'predicted_stable': False}},
+               {'stable': True, 'predictor': 'model', 'alpha': 1.0},
+               {'stable': False, 'predictor': 'ats', 'alpha': 0.5, 'unstable_at_s': None,
+                'abort_reason': None}]
+    assert main.unforeseen_aborts(summary) == [
+        'run 1 (model) at 0.596 s: pier_a/reference_force_builder: watchdog: no '
+        'pier_b/measurement for 100 ms', 'run 4 (ats, alpha 0.5): aborted']

@@ -654,8 +654,9 @@ def unforeseen_aborts(summary: list[dict]) -> list[str]:
     for i, e in enumerate(summary, start=1):
         if e.get('stable') or (e.get('stability') or {}).get('predicted_stable') is False:
             continue
-        at = e.get('unstable_at_s')
-        said.append(f'run {i} ({e.get("predictor")}, alpha {e.get("alpha", 0):g})'
+        at, alpha = e.get('unstable_at_s'), e.get('alpha')     # a structure's: None
+        said.append(f'run {i} ({e.get("predictor")}'
+                    + (f', alpha {alpha:g})' if isinstance(alpha, (int, float)) else ')')
                     + (f' at {at:.3f} s' if at is not None else '')
                     + f': {e.get("abort_reason") or "aborted"}')
     return said
