@@ -268,6 +268,10 @@ def test_bad_datagrams_to_the_pc_are_rejected_with_one_line_and_end_the_run(link
     play(bridge, 200, until=lambda taken: bridge.counts['bad'] >= 3)
     assert bridge.counts['bad'] == 3 and len(lines) == 3
     assert lines[0] == f'udp_bridge: rejected {why} (1 of at most 3)'
+    # the same count ends a run that has no sample yet (every datagram rejected: a lab's
+    # encoder with another layout); before, it ended as 'no datagram from the controller'
+    assert bridge.start_violation() == (f'udp_bridge: 3 datagrams of the controller rejected '
+                                        f'before its first sample (limit 3; last: {why})')
     bridge.current = bridge.current or bridge._pending[0]
     assert bridge.limit_violation() == (f'udp_bridge: 3 datagrams of the controller rejected '
                                         f'(limit 3; last: {why})')
@@ -344,6 +348,13 @@ def test_the_controller_refuses_another_dt(link):
     play(bridge, 100, seconds=0.5, until=lambda t: bridge.controller is not None
          and bridge.controller.state == ul.STATE_FAULT)
     assert events[-1]['event'] == 'refused' and events[-1]['dt_ns'] == 1_000_000
+    # before any sample (a refusing controller sends none): the run cannot start, said at
+    # once (before: only at a sample in effect, so a refused run waited for the runner's
+    # 30 s stall bound with a generic message)
+    assert bridge.current is None and not bridge._pending
+    host, port = bridge.peer
+    assert bridge.start_violation() == (f'udp_bridge: the controller at {host}:{port} refused '
+                                        'the run (dt mismatch)')
     bridge.current = bridge.controller
     assert bridge.limit_violation() == 'udp_bridge: the controller refused the run (dt mismatch)'
 

@@ -391,3 +391,22 @@ def test_emulator_and_bridge_errors_are_one_line(tmp_path, run_process, seft_exe
     proc = run_process([seft_exe, 'emulate-controller', '--runs', '0'], cwd=tmp_path)
     assert proc.returncode == 2 and proc.stderr.strip().splitlines()[-1] == (
         'seft: error: --runs 0: expected a number of runs >= 1')
+
+
+def test_a_run_with_no_controller_at_its_address_is_refused_naming_it(tmp_path, run_process,
+                                                                      seft_exe):
+    """The lab's first mistake: a wrong port, or the controller not started. The rig waits
+    CONTROLLER_WAIT_S (10 s) for its first datagram, then the run is refused in one line
+    naming the address (before: the runner's 30 s stall bound, 'the run stalled: no report
+    for 30 s', nothing naming the controller)."""
+    port = free_port()                   # nothing listens there
+    proc = run_process([seft_exe, 'run', '--mode', 'realtime', '--alpha', '0.5', '--predictor',
+                        'model', '--duration', '1', '--set', 'rig_interface=udp_bridge',
+                        '--set', f'udp_controller_address=127.0.0.1:{port}', '--out',
+                        tmp_path / 'run'], cwd=tmp_path, timeout=120)
+    assert proc.returncode == 2 and 'Traceback' not in proc.stderr, proc.stderr
+    assert proc.stderr.strip().splitlines()[-1] == (
+        'seft: error: [alpha_0.5_servohydraulic_model] the rig failed before its first '
+        f'sample: udp_bridge: no datagram from the controller at 127.0.0.1:{port} for 10 s: '
+        'is it running and listening on that address (udp_controller_address; seft '
+        'emulate-controller for a rehearsal)?; nothing was run')

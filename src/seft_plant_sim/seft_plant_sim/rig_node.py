@@ -47,7 +47,7 @@ from seft_msgs_py.convert import (
     status_values,
 )
 from seft_msgs_py.dds import DISCOVERY_SETTLE_S
-from seft_msgs_py.errors import ParameterError
+from seft_msgs_py.errors import ParameterError, SeftError
 from seft_msgs_py.graph import Graph, qualified
 from seft_msgs_py.interface import COMMAND_VALVE
 from seft_msgs_py.node_support import SeftNode, StepTiming, main_for
@@ -82,6 +82,11 @@ START_LEAD_S = 0.5
 #: Real-time mode: after the last tick the rig waits for the commands of its last samples
 #: (their loop latency recorded, not counted lost) for watchdog_timeout_s, at least this [s].
 DRAIN_MIN_S = 0.1
+#: A UDP bridge's rig waits at most this long for the first valid datagram of the lab's
+#: controller before the run is refused [s] (the controller starts in about a second; a wrong
+#: address or a controller not started waited for the runner's 30 s stall bound, unnamed).
+CONTROLLER_WAIT_S = 10.0
+
 
 def graph_nodes(params, me: str = 'rig') -> tuple[str, ...]:
     """The nodes of the run's graph besides the rig `me` (qualified names; the recorder only
@@ -180,6 +185,8 @@ class RigNode(SeftNode):
         self.armed_rigs: set[str] = set()
         self.armed = False
         self.start_at = None
+        #: When the rig began waiting for a UDP bridge's controller (monotonic [s]).
+        self.controller_wait_since = None
         self.start_timer = self.wall_timer(0.05, self._try_start)
         if self.bridge:
             # the PC's heartbeat from the executor (a frozen node sends none), the
@@ -218,8 +225,27 @@ class RigNode(SeftNode):
     def _try_start(self) -> None:
         if self.running or self.done or self.n_steps <= 0:
             return
-        if self.bridge and not self.rig.controller_heard:
-            return              # the lab's controller is not up (or not reachable)
+        if self.bridge:
+            refused = self.rig.start_violation()
+            if refused:                 # nothing was run: one line, exit 2
+                raise SeftError(refused)
+            if not self.rig.controller_heard:
+                # the lab's controller is not up (or not reachable): said once, and past
+                # CONTROLLER_WAIT_S the run is refused (it waited for the runner's 30 s stall
+                # bound, and nothing named the controller)
+                now = time.monotonic()
+                if self.controller_wait_since is None:
+                    self.controller_wait_since = now
+                    host, port = self.rig.peer
+                    self.get_logger().info(f'udp_bridge: waiting for the controller at '
+                                           f'{host}:{port}')
+                elif now - self.controller_wait_since > CONTROLLER_WAIT_S:
+                    host, port = self.rig.peer
+                    raise SeftError(
+                        f'udp_bridge: no datagram from the controller at {host}:{port} for '
+                        f'{CONTROLLER_WAIT_S:g} s: is it running and listening on that address '
+                        '(udp_controller_address; seft emulate-controller for a rehearsal)?')
+                return
         if self.command_sub.get_publisher_count() < 1:
             return
         # the recorder listens to this rig and has discovered the record batches of every
@@ -436,6 +462,14 @@ class RigNode(SeftNode):
         for line in self.rig.take_notices():
             self.warn(line)
         if not self.running:
+            return
+        refused = self.rig.start_violation() if self.t0 is None else None
+        if refused:
+            # before the first sample: the controller refused the run, or every datagram of
+            # it is rejected (limit_violation judges them at a sample in effect only)
+            self._abort_realtime(refused)
+            self._flush_timing(final=True)
+            self._end(STATE_ABORTED, refused)
             return
         if self.rig.left is not None and self.t0 is not None:
             # the controller no longer runs this session: nothing of it will come

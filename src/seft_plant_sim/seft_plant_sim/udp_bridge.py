@@ -362,6 +362,22 @@ class UdpBridgeRig(CommandArrivals):
         """The controller reports its command at zero (:data:`~udp_layout.STATE_SAFE`)."""
         return self.current is not None and self.current.state == ul.STATE_SAFE
 
+    def start_violation(self) -> str | None:
+        """Why the run cannot start, before its first sample, or None: too many rejected
+        datagrams (a layout, byte-order or key mistake of the lab's encoder), or the
+        controller's refusal of this run (its state ``fault``: ``dt_ns`` or the command kind
+        not its own). :meth:`limit_violation` judges these only at a sample in effect, and
+        a controller that refuses sends none: the run waited until the runner's 30 s stall
+        bound, with a generic message."""
+        if self.counts['bad'] >= self.max_bad:
+            return (f'udp_bridge: {self.counts["bad"]} datagrams of the controller rejected '
+                    f'before its first sample (limit {self.max_bad}; last: {self.last_bad})')
+        d = self.controller
+        if d is not None and d.session in (self.session, 0) and d.state == ul.STATE_FAULT:
+            return (f'udp_bridge: the controller at {self.peer[0]}:{self.peer[1]} refused the '
+                    f'run ({ul.REASON_NAMES.get(d.reason, d.reason)})')
+        return None
+
     def limit_violation(self) -> str | None:
         """Why the run must end safely at the sample in effect, or None: too many rejected
         datagrams, the controller's own fault or safe state, or the measured stroke or force

@@ -594,8 +594,21 @@ def _shared_domain(domain_id: int | None) -> int:
 
 
 def _read_outcome(outcome, label: str, progress: Callable[[str], None]) -> RunData:
-    """Read a graph run's bag back and say how the run went."""
-    rd = read_run(outcome.bag_path)
+    """Read a graph run's bag back and say how the run went.
+
+    Raises
+    ------
+    SeftError
+        The bag holds no step: the rig's reason when it ended before its first sample (a UDP
+        bridge's controller not found, or refusing the run), else the bag's."""
+    try:
+        rd = read_run(outcome.bag_path)
+    except SeftError:
+        if outcome.rig_state in ('failed', 'aborted') and outcome.message:
+            # the rig ended before its first sample: its reason, not the empty bag's
+            raise SeftError(f'[{label}] the rig {outcome.rig_state} before its first sample: '
+                            f'{outcome.message}; nothing was run') from None
+        raise
     # a warning the bag holds and the console did not say: its report reached the recorder
     # but reached the runner only after the recorder closed the bag (no order between two
     # nodes' reports; a reliable resend waits for the writer's next heartbeat)
