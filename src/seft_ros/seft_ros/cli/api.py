@@ -105,6 +105,7 @@ def build_runs(*, config: str | None = None, overrides: dict[str, Any] | None = 
     values = mapping_values(values, base=Path.cwd(), where='command line')
     for path, sections in reversed(rig_layers):      # the first file's values last: they win
         values = layer_rigs(values, sections, where=str(path))
+    _refuse_overrides_no_rig_takes(values, overrides or {})
     if alphas:
         values['alpha'] = list(alphas)
     notes = []
@@ -123,6 +124,49 @@ def build_runs(*, config: str | None = None, overrides: dict[str, Any] | None = 
             elif progress is not None:
                 progress(record_read_line(info))
     return runs
+
+
+def _same_value(a, b) -> bool:
+    """Whether two parameter values are the same (a ``--set`` text and a number alike)."""
+    try:
+        return float(a) == float(b)
+    except (TypeError, ValueError):
+        return str(a) == str(b)
+
+
+def _refuse_overrides_no_rig_takes(values: dict[str, Any], overrides: dict[str, Any]) -> None:
+    """A command-line value (an option or ``--set``) that every rig of the structure sets
+    otherwise in its own section changes nothing (a rig section beats a test-wide value):
+    refused in one line. ``--rig state_space``, the documented rehearsal, ran a structure
+    whose rigs set ``rig_model: actuator`` on those actuators, to the digit, and called it
+    rehearsed.
+
+    Raises
+    ------
+    InputError
+        Such a value (the message names it, each rig's own value and the remedy).
+    """
+    structure = values.get('structure')
+    if not isinstance(structure, str) or not structure.startswith('{'):
+        return
+    try:
+        doc = json.loads(structure)
+    except ValueError:
+        return
+    rigs = sorted(set((doc.get('physical') or {}).values()))
+    sections = doc.get('rigs') or {}
+    if not rigs or not isinstance(sections, dict):
+        return
+    for name, value in overrides.items():
+        if value is None or not all(name in (sections.get(r) or {}) for r in rigs):
+            continue
+        if all(_same_value(sections[r][name], value) for r in rigs):
+            continue
+        own = ', '.join(f'{r}: {sections[r][name]}' for r in rigs)
+        raise InputError(f'command line: {name}={value}: no rig of the structure takes it, '
+                         f'every rig section sets its own ({own}) and a rig section beats a '
+                         "test-wide value; set it in the rigs' sections (or a --params file's "
+                         'rigs section)')
 
 
 def output_dir(*, out: str | None, name: str, created: list[Path] | None = None) -> Path:
