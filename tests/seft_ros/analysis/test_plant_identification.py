@@ -174,7 +174,10 @@ def test_the_model_states_its_level_and_the_guard_holds_back_on_a_sticking_actua
     stuck = outcomes['coulomb_friction']
     assert stuck[3] < 0.05 and stuck[4] < 0.01, stuck        # a good fit at a few mm/s
     assert stuck[:2] == (None, False), stuck
-    assert 'no verdict: the plant_model was identified at a peak velocity' in stuck[2]
+    # the verdict first (before: 'the test ... is predicted stable (...); no verdict: ...')
+    assert stuck[2].startswith('no verdict: the plant_model was identified at a peak '
+                               'velocity'), stuck[2]
+    assert '(the linear prediction alone: ' in stuck[2] and 'predicted stable' in stuck[2]
     assert outcomes['valve_2nd_order'][:2] == (True, True), outcomes['valve_2nd_order']
     # what a plant gain GAIN_ERROR off its model does, said before the run: this column's
     # test at alpha 1 is stable only to 1.01 x the model's gain (predicted), and runs on

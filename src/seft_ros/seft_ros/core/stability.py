@@ -1957,8 +1957,10 @@ def check_run(params: Mapping, *, margin: bool = False) -> StabilityCheck:
         if check.stable:
             beyond = level_extrapolation(params)
             if beyond:
+                # the verdict first: 'predicted stable; no verdict' read as both
                 check = replace(check, stable=None,
-                                message=f'{check.message}; no verdict: {beyond}')
+                                message=f'no verdict: {beyond} (the linear prediction '
+                                f'alone: {check.message})')
         if margin and (check.stable is not None
                        or params['predictor'] in MARGIN_OF_INITIAL_LAW):
             check = replace(check, margin=robustness_margin(params))
