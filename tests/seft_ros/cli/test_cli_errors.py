@@ -199,6 +199,21 @@ CASES = {
         'command line: parameter watchdog_timeout_s=0.0025: expected at least 3 sample '
         'periods, 0.003 s at dt=0.001 s (an input is due every dt: a shorter watchdog ends '
         'the run at the first lost or late sample)')),
+    # a UDP bridge's controller address is checked before anything starts (before: by the
+    # rig node 7-8 s into the start)
+    'run_udp_address_no_port': (['run', '--mode', 'realtime', '--set',
+                                 'rig_interface=udp_bridge', '--set',
+                                 'udp_controller_address=127.0.0.1:99999', '--duration', '0.1'],
+                                re.escape("command line: parameter udp_controller_address="
+                                          "'127.0.0.1:99999': expected host:port with a port "
+                                          '1-65535')),
+    'run_udp_address_unknown_host': (['run', '--mode', 'realtime', '--set',
+                                      'rig_interface=udp_bridge', '--set',
+                                      'udp_controller_address=no-such-lab-pxi.invalid:47001',
+                                      '--duration', '0.1'],
+                                     re.escape("command line: parameter udp_controller_address="
+                                               "'no-such-lab-pxi.invalid:47001': cannot resolve "
+                                               "'no-such-lab-pxi.invalid' (") + '.+'),
     'run_domain_out_of_range': (['run', '--domain-id', '233', '--duration', '0.1'],
                                 re.escape('--domain-id=233: expected an integer 0-232')),
     'compare_foreign_bag': (['compare', 'foreign_bag'], re.escape(

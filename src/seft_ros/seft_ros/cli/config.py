@@ -334,6 +334,7 @@ def _with_structure(params: dict[str, Any], where: str) -> dict[str, Any]:
     if params.get('structure', 'none') in ('none', '', None):
         _check_mappings(params, where)
         _check_watchdog(params, where)
+        _check_controller_address(params, where)
         return params
     from seft_ros.core.structure import reduces_to_study, study_parameters, test_setup
     try:
@@ -341,6 +342,7 @@ def _with_structure(params: dict[str, Any], where: str) -> dict[str, Any]:
         for rig, rp in setup.rig_params.items():
             _check_mappings(rp, f'{where}: rig {rig}' if where else f'rig {rig}')
             _check_watchdog(rp, f'rig {rig}')
+            _check_controller_address(rp, f'rig {rig}')
         if reduces_to_study(setup.substructures):
             return study_parameters(params, setup.substructures)
         if float(params.get('alpha', 0.0)) != 0.0:
@@ -380,6 +382,25 @@ def _check_watchdog(params: dict[str, Any], where: str) -> None:
             f'at least {_WATCHDOG_MIN_STEPS} sample periods, {_WATCHDOG_MIN_STEPS * dt:g} s at '
             f'dt={dt:g} s (an input is due every dt: a shorter watchdog ends the run at the '
             'first lost or late sample)')
+
+
+def _check_controller_address(params: dict[str, Any], where: str) -> None:
+    """A real-time UDP bridge's ``udp_controller_address`` is ``host:port`` with a host that
+    resolves, checked before anything starts (it was refused by the rig node 7-8 s into the
+    start, the other ``udp_*`` values in 1 s).
+
+    Raises
+    ------
+    ParameterError
+        As :func:`~seft_plant_sim.udp_bridge.resolve_address`, prefixed with `where`.
+    """
+    if params.get('mode') != 'realtime' or params.get('rig_interface') != 'udp_bridge':
+        return
+    from seft_plant_sim.udp_bridge import resolve_address
+    try:
+        resolve_address(params['udp_controller_address'])
+    except ParameterError as exc:
+        raise ParameterError(f'{where + ": " if where else ""}{exc}') from None
 
 
 def _check_mappings(params: dict[str, Any], where: str) -> None:
