@@ -373,7 +373,7 @@ class UdpBridgeRig(CommandArrivals):
             return (f'udp_bridge: {self.counts["bad"]} datagrams of the controller rejected '
                     f'before its first sample (limit {self.max_bad}; last: {self.last_bad})')
         d = self.controller
-        if d is not None and d.session in (self.session, 0) and d.state == ul.STATE_FAULT:
+        if d is not None and d.session == self.session and d.state == ul.STATE_FAULT:
             return (f'udp_bridge: the controller at {self.peer[0]}:{self.peer[1]} refused the '
                     f'run ({ul.REASON_NAMES.get(d.reason, d.reason)})')
         return None
