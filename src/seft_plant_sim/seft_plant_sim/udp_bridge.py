@@ -362,6 +362,14 @@ class UdpBridgeRig(CommandArrivals):
         """The controller reports its command at zero (:data:`~udp_layout.STATE_SAFE`)."""
         return self.current is not None and self.current.state == ul.STATE_SAFE
 
+    def _rejected(self, when: str) -> str | None:
+        """The line of ``udp_max_bad_datagrams`` rejected datagrams (`when`: after
+        'rejected'), or None below the limit."""
+        if self.counts['bad'] < self.max_bad:
+            return None
+        return (f'udp_bridge: {self.counts["bad"]} datagrams of the controller rejected{when} '
+                f'(limit {self.max_bad}; last: {self.last_bad})')
+
     def start_violation(self) -> str | None:
         """Why the run cannot start, before its first sample, or None: too many rejected
         datagrams (a layout, byte-order or key mistake of the lab's encoder), or the
@@ -369,9 +377,9 @@ class UdpBridgeRig(CommandArrivals):
         not its own). :meth:`limit_violation` judges these only at a sample in effect, and
         a controller that refuses sends none: the run waited until the runner's 30 s stall
         bound, with a generic message."""
-        if self.counts['bad'] >= self.max_bad:
-            return (f'udp_bridge: {self.counts["bad"]} datagrams of the controller rejected '
-                    f'before its first sample (limit {self.max_bad}; last: {self.last_bad})')
+        rejected = self._rejected(' before its first sample')
+        if rejected:
+            return rejected
         d = self.controller
         if d is not None and d.session == self.session and d.state == ul.STATE_FAULT:
             return (f'udp_bridge: the controller at {self.peer[0]}:{self.peer[1]} refused the '
@@ -382,9 +390,9 @@ class UdpBridgeRig(CommandArrivals):
         """Why the run must end safely at the sample in effect, or None: too many rejected
         datagrams, the controller's own fault or safe state, or the measured stroke or force
         beyond the limits."""
-        if self.counts['bad'] >= self.max_bad:
-            return (f'udp_bridge: {self.counts["bad"]} datagrams of the controller rejected '
-                    f'(limit {self.max_bad}; last: {self.last_bad})')
+        rejected = self._rejected('')
+        if rejected:
+            return rejected
         c = self.current
         if c is not None and c.state in (ul.STATE_FAULT, ul.STATE_SAFE_RAMP, ul.STATE_SAFE):
             what = 'refused the run' if c.state == ul.STATE_FAULT else 'went to its safe state'

@@ -146,19 +146,17 @@ def _refuse_overrides_no_rig_takes(values: dict[str, Any], overrides: dict[str, 
     InputError
         Such a value (the message names it, each rig's own value and the remedy).
     """
-    structure = values.get('structure')
-    if not isinstance(structure, str) or not structure.startswith('{'):
+    from seft_ros.core.structure import Structure
+    structure = values.get('structure', 'none')
+    if structure in ('none', '', None):
         return
     try:
-        doc = json.loads(structure)
-    except ValueError:
-        return
-    rigs = sorted(set((doc.get('physical') or {}).values()))
-    sections = doc.get('rigs') or {}
-    if not rigs or not isinstance(sections, dict):
-        return
+        sections = Structure.from_json(structure).rigs    # every rig, with its section
+    except ParameterError:
+        return                          # expand_runs names what is wrong with it
+    rigs = sorted(sections)
     for name, value in overrides.items():
-        if value is None or not all(name in (sections.get(r) or {}) for r in rigs):
+        if value is None or not rigs or not all(name in sections[r] for r in rigs):
             continue
         if all(_same_value(sections[r][name], value) for r in rigs):
             continue

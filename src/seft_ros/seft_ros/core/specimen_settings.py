@@ -166,21 +166,21 @@ def _cancelled(p: Mapping[str, Any]) -> dict[str, float] | None:
     :data:`CANCELLED_DAMPING_TOLERANCE`), else None."""
     import math
 
-    from seft_msgs_py.parameters import spec
-    from seft_ros.core.controller import LOOP_SHAPING_DEN
+    from seft_msgs_py.errors import ParameterError
+    from seft_ros.core.controller import LOOP_SHAPING_DEN, specimen_denominator
 
-    def get(name):
-        return float(p[name] if name in p else spec(name).default)
-
-    m, c, k = get('mass_kg'), get('damping_N_s_per_m'), get('stiffness_N_per_m')
-    if not (m > 0 and k > 0 and c >= 0):
+    try:
+        _, c_per_m, k_per_m = specimen_denominator(p)    # what specimen_loop_shaping cancels
+    except ParameterError:
         return None                         # refused elsewhere
-    _, c0, k0 = LOOP_SHAPING_DEN
-    if (abs(k / m / k0 - 1.0) <= CANCELLED_STIFFNESS_TOLERANCE
-            and abs(c / m / c0 - 1.0) <= CANCELLED_DAMPING_TOLERANCE):
+    if not c_per_m >= 0:
         return None
-    return {'k_per_m': k / m, 'c_per_m': c / m,
-            'specimen_hz': math.sqrt(k / m) / (2.0 * math.pi),
+    _, c0, k0 = LOOP_SHAPING_DEN
+    if (abs(k_per_m / k0 - 1.0) <= CANCELLED_STIFFNESS_TOLERANCE
+            and abs(c_per_m / c0 - 1.0) <= CANCELLED_DAMPING_TOLERANCE):
+        return None
+    return {'k_per_m': k_per_m, 'c_per_m': c_per_m,
+            'specimen_hz': math.sqrt(k_per_m) / (2.0 * math.pi),
             'cancelled_hz': math.sqrt(k0) / (2.0 * math.pi)}
 
 
