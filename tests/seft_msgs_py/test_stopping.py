@@ -96,3 +96,72 @@ def test_the_signal_of_an_interrupt():
     assert signal_name(KeyboardInterrupt()) == 'SIGINT'
     assert signal_name(KeyboardInterrupt('SIGHUP')) == 'SIGHUP'
     assert signal_name(Interrupted('SIGTERM', 'nothing was run')) == 'SIGTERM'
+
+
+def test_a_signal_that_ends_the_process_during_a_callback_is_left_to_the_loop(capsys):
+    """While the loop spins (a node's callback may run), the second signal does not raise
+    in the handler (it surfaced inside the callback, the executor's '[FATAL] Exception in
+    'timers' callback' with a traceback): the loop's check ends the process in one line; a
+    further signal while that end is pending raises at once."""
+    requests = StopRequests(lambda: 0.0, 'rig')
+    requests.on_signal(signal.SIGINT, None)
+    requests.spinning = True
+    requests.on_signal(signal.SIGTERM, None)            # inside a callback: no raise
+    assert requests.end_now == 'SIGTERM'
+    with pytest.raises(KeyboardInterrupt):
+        requests.on_signal(signal.SIGTERM, None)        # the callback does not return
+    requests.spinning = False
+    with pytest.raises(KeyboardInterrupt):
+        requests.check()
+    assert capsys.readouterr().err == 'rig: SIGTERM again: ending the process now\n'
+
+
+#: A node process whose main thread is in a timer callback most of the time (50 ms busy
+#: every 5 ms), stopped safely by nothing: a second signal ends it.
+BUSY_NODE = """
+import sys, time
+from seft_msgs_py.node_support import SeftNode, main_for_nodes
+
+
+class Busy(SeftNode):
+    def __init__(self):
+        super().__init__('recorder')
+        self.said = False
+        self.wall_timer(0.005, self._busy)
+
+    def _busy(self):
+        if not self.said:
+            self.said = True
+            print('ready', flush=True)
+        end = time.monotonic() + 0.05
+        while time.monotonic() < end:
+            pass
+
+    def on_stop_signal(self, signame):
+        print('stop ' + signame, flush=True)
+
+
+sys.exit(main_for_nodes([(Busy, 'busy', None)], ['busy']))
+"""
+
+
+def test_a_second_signal_inside_a_nodes_callback_ends_it_in_one_line(tmp_path, ros_env):
+    """Session 23: the runner's SIGINT, then its SIGTERM, ended a refused rig with '[FATAL]
+    [rig]: Exception in 'timers' callback' and a KeyboardInterrupt traceback. Now the
+    process ends with one line."""
+    script = tmp_path / 'busy.py'
+    script.write_text(BUSY_NODE)
+    proc = subprocess.Popen([sys.executable, str(script)], env=ros_env, text=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    try:
+        assert proc.stdout.readline() == 'ready\n'
+        proc.send_signal(signal.SIGINT)
+        assert proc.stdout.readline() == 'stop SIGINT\n'
+        time.sleep(0.2)
+        proc.send_signal(signal.SIGTERM)
+        out, err = proc.communicate(timeout=20)
+    finally:
+        proc.kill()
+        proc.wait()
+    assert 'Traceback' not in err and 'Exception in' not in err, err
+    assert err.strip().splitlines() == ['busy: SIGTERM again: ending the process now']

@@ -1115,6 +1115,18 @@ def main_for_nodes(specs: Sequence[tuple[Callable[[], SeftNode], str, Sequence[s
         executor = EventsExecutor()
         for node in nodes:
             executor.add_node(node)
+
+        def spin(timeout_s: float) -> None:
+            # the nodes' callbacks run in here: a signal that ends the process is left to
+            # requests.check() (a KeyboardInterrupt raised inside a callback was logged as
+            # the executor's '[FATAL] Exception in 'timers' callback', with its traceback)
+            requests.spinning = True
+            try:
+                executor.spin_once(timeout_sec=timeout_s)
+            finally:
+                requests.spinning = False
+            requests.check()
+
         stop_handled = False
         while not all(n.done for n in nodes):
             if runner is not None and not stop and runner.gone():
@@ -1130,11 +1142,11 @@ def main_for_nodes(specs: Sequence[tuple[Callable[[], SeftNode], str, Sequence[s
                 continue
             due, node = _next_due(nodes)
             if due is None:
-                executor.spin_once(timeout_sec=0.1)
+                spin(0.1)
                 continue
             wait = due - time.monotonic()
             if wait > 0:
-                executor.spin_once(timeout_sec=min(wait, 0.1))
+                spin(min(wait, 0.1))
             else:
                 node.run_due()
         code = _exit_code(nodes)
@@ -1153,7 +1165,7 @@ def main_for_nodes(specs: Sequence[tuple[Callable[[], SeftNode], str, Sequence[s
                     break             # stopped by a signal: serve the final status briefly
                 if all(_lingered(n, now, waited, heard_at) for n in nodes):
                     break
-                executor.spin_once(timeout_sec=0.05)
+                spin(0.05)
     except (KeyboardInterrupt, ExternalShutdownException):
         code = _exit_code(nodes)
     except SeftError as exc:

@@ -10,6 +10,14 @@ says so and goes on, and a third signal, or the hold's bound (:data:`STOP_HOLD_M
 past the hold), ends it at once. An operator pressing Ctrl-C twice in 0.1 s cut the rig's
 200 ms ramp at 100 ms, and the rig sent no final status.
 
+A signal that ends the process never raises inside a node's callback: while the process loop
+hands its thread to the executor (:attr:`StopRequests.spinning`), the end is left to the loop
+(:meth:`StopRequests.check`, at most one ``spin_once`` later), which says it in one line.
+Raised from the handler, it surfaced in whatever callback ran (a rig refused before its first
+sample, stopped by the runner's SIGINT and then its SIGTERM, logged ``[FATAL] [rig]:
+Exception in 'timers' callback`` with a ``KeyboardInterrupt`` traceback). A further signal
+while that end is pending (a callback that does not return) raises at once.
+
 A node started by a runner (``seft run``, ``seft rig-check``) gets the runner's process id
 in ``$SEFT_RUNNER_PID`` (:data:`RUNNER_PID_ENV`) and stops the run safely, as on SIGTERM,
 once that process has ended (:class:`RunnerWatch`): a runner killed, or ended by a hang-up
@@ -152,6 +160,11 @@ class StopRequests:
         self.held: str | None = None
         self.hold_until: float | None = None
         self._said = False
+        #: The process loop has handed its thread to the executor (a node's callback may be
+        #: running): a signal that ends the process is left to :meth:`check`.
+        self.spinning = False
+        #: The signal that ends the process, left to :meth:`check` (None: none).
+        self.end_now: str | None = None
 
     def request(self, name: str) -> None:
         """A stop request that is not a signal (the runner's end): a first request only."""
@@ -161,12 +174,15 @@ class StopRequests:
 
     def on_signal(self, signum, frame) -> None:
         """Signal handler: the first signal is a request; a second one ends the process
-        (``KeyboardInterrupt``) unless a node holds it; a third one ends it.
+        (``KeyboardInterrupt``) unless a node holds it; a third one ends it. While
+        :attr:`spinning` the end is left to :meth:`check` (:attr:`end_now`), so that it
+        does not surface inside a node's callback; a signal after that raises.
 
         Raises
         ------
         KeyboardInterrupt
-            A second signal not held, or a third.
+            A second signal not held, or a third, outside the executor's spin; any signal
+            while such an end is pending.
         """
         name = signal.Signals(signum).name
         now = time.monotonic()
@@ -179,17 +195,25 @@ class StopRequests:
             if hold > 0 and now < until:
                 self.held, self.hold_until = name, until
                 return
+        if self.spinning and self.end_now is None:
+            self.end_now = name
+            return
         raise KeyboardInterrupt
 
     def check(self) -> None:
-        """From the process's loop: say once that a second signal is held (stderr, the
+        """From the process's loop: end the process on a signal left to it
+        (:attr:`end_now`), in one line; say once that a second signal is held (stderr, the
         node's log); past the hold's bound, end the process.
 
         Raises
         ------
         KeyboardInterrupt
-            A held signal's bound has passed.
+            A signal ends the process, or a held signal's bound has passed.
         """
+        if self.end_now is not None:
+            print(f'{self.name}: {self.end_now} again: ending the process now',
+                  file=sys.stderr, flush=True)
+            raise KeyboardInterrupt(self.end_now)
         if self.held is None:
             return
         now = time.monotonic()
