@@ -6,6 +6,7 @@ The test plays the rig node's part: it sends the heartbeats, takes the samples i
 answers each with a command.
 """
 
+import dataclasses
 import socket
 import threading
 import time
@@ -436,3 +437,60 @@ def test_an_emulator_that_predicts_a_lost_command_says_how_many_it_predicted(lin
     if any(e['event'] == 'safe_state' for e in events):
         pytest.skip('the host stalled the test past the controller watchdog')
     assert end['predicted'] >= 9 and end['lost'] >= 9
+
+
+def confirm_wait(bridge, n_steps=1000, seconds=3.0):
+    """The rig node's part from an abort at sample 100: the safe state asked for, samples
+    taken on; until the controller reports its safe state or the PC's bound passes. Returns
+    the seconds from the request to either."""
+    play(bridge, n_steps, until=lambda taken: taken and taken[-1] >= 100)
+    bridge.enter_safe_state()
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline:
+        bridge.receive()
+        while bridge._pending:
+            bridge.advance()
+        now = time.monotonic()
+        if bridge.safe_confirmed or bridge.safe_overdue(now):
+            return now - bridge.safe_requested_at
+    raise AssertionError('neither confirmed nor overdue')
+
+
+def test_the_safe_state_is_the_controllers_to_confirm_within_a_bound(link, params):
+    """Session 23: a controller whose safe state never reached the PC (a proxy rewrote state
+    2 and 3 to 1) was waited for without a bound, and the PC said 'the rig ramped to its safe
+    state'. Now: confirmed within the bound when it comes, and past the bound (latency, safe
+    ramp, hold and watchdog: 12 + 200 + 50 + 50 ms) said NOT confirmed."""
+    from seft_msgs_py import rig_contract
+    bound = rig_contract.safe_confirm_s(params)
+    assert bound == pytest.approx(params['io_latency_s'] + params['safe_ramp_s']
+                                  + rig_contract.SAFE_HOLD_S + WATCHDOG)
+    bridge, emulator, proxy, events, lines = link()
+    assert bridge.safe_state_values(time.monotonic()) == {}      # not asked for
+    waited = confirm_wait(bridge)
+    assert bridge.safe_confirmed and waited < bound
+    assert bridge.safe_state_values(time.monotonic()) == {'safe_confirmed': 1}
+
+
+def test_a_safe_state_the_controller_does_not_report_is_said_not_confirmed(link, params):
+    bridge, emulator, proxy, events, lines = link()
+
+    def running(i, data):            # the controller's safe states reach the PC as running
+        d = ul.decode_to_pc(data)
+        if d.state in (ul.STATE_SAFE_RAMP, ul.STATE_SAFE):
+            d = dataclasses.replace(d, state=ul.STATE_RUNNING)
+        return [(0.0, ul.encode(d))]
+    proxy.to_pc = running
+    waited = confirm_wait(bridge)
+    bound = bridge.safe_confirm_s
+    assert not bridge.safe_confirmed and bound < waited < bound + 0.05
+    now = bridge.last_heard               # the controller still sends (as running)
+    values = bridge.safe_state_values(now)
+    assert values['safe_confirmed'] == 0
+    assert values['safe_unconfirmed'] == (
+        f'the safe state was NOT confirmed by the controller at {bridge.peer[0]}:'
+        f'{bridge.peer[1]}: no state 3 (safe) from it {now - bridge.safe_requested_at:.3f} s '
+        'after the request (bound '
+        f'{bound:.3f} s: latency, safe ramp, hold and watchdog; its last state: running); '
+        'check the rig')
+    assert [e for e in events if e['event'] == 'safe_state']     # the controller did ramp

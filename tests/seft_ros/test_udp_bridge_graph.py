@@ -304,12 +304,21 @@ def test_a_silent_controller_ends_the_run_and_then_reads_the_safe_request(
     _wait_running(emu)
     os.kill(emu.proc.pid, signal.SIGSTOP)
     stopped = time.monotonic()
-    _, err = _finish(proc)
+    console, err = _finish(proc)
     assert 'Traceback' not in err
     run = read_run(next(out.glob('*/bag')))
     final = run.extra['rig_final']
     assert final['state'] == 'aborted'
     assert final['message'].startswith('udp_bridge: no datagram from the controller for ')
+    # the run's reason is the controller's silence, whichever watchdog it tripped first
+    # (session 23: 'force_servo_controller: watchdog: no /seft/reference_force ...')
+    assert run.abort_reason == final['message'] and run.extra['abort_node'] == 'rig'
+    # a stopped controller never reported its safe state: said, not claimed
+    assert final['safe_confirmed'] == '0'
+    assert final['safe_unconfirmed'].startswith('the safe state was NOT confirmed by the '
+                                                'controller at ')
+    assert 'UDP bridge datagrams over ' in console + err
+    assert 'rig: the safe state was NOT confirmed by the controller' in console + err
     # the silence to 0.1 ms (in whole ms, a watchdog that fired just past 50 ms read '50')
     silent = float(re.search(r'for ([\d.]+) ms', final['message']).group(1))
     assert 50 < silent <= 50 + 15                       # the watchdog, and its check period

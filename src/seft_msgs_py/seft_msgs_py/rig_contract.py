@@ -36,8 +36,10 @@ __all__ = [
     'VERSION', 'CONTRACT', 'CONTRACT_KEY', 'TopicRole', 'PUBLISHES', 'SUBSCRIBES',
     'StatusKey', 'STATUS_KEYS', 'STATES', 'REQUIRED_PARAMETERS', 'COMMAND_SOURCE_LAG',
     'COMMAND_KINDS', 'command_kind', 'command_signal', 'command_latency_s', 'SAFE_HOLD_S',
+    'safe_stop_s', 'safe_confirm_s',
     'reaction_limit_s', 'first_effect_step', 'qos_of', 'markdown_tables', 'is_compatible',
-    'WATCHDOG_REASON', 'PROGRESS_EVERY', 'SEAL_RULE', 'FOREIGN_REASON', 'RANGE_PARAMETERS',
+    'WATCHDOG_REASON', 'BRIDGE_REASON', 'PROGRESS_EVERY', 'SEAL_RULE', 'FOREIGN_REASON',
+    'RANGE_PARAMETERS',
     'INTERRUPT_REASON',
     'runner_interrupt',
     'is_runner_interrupt',
@@ -64,6 +66,11 @@ SAFE_HOLD_S = 0.05
 PROGRESS_EVERY = 250
 #: The final message of a rig that went to its safe state because no command came starts so.
 WATCHDOG_REASON = 'watchdog:'
+#: The final message of a rig behind the UDP bridge that ended the run on what it saw of its
+#: controller or the link to it (silence, datagrams lost or reordered, the controller's own
+#: safe state, a refusal) starts so. Such a reason is the run's rather than another node's
+#: watchdog, which the controller's silence trips first (the graph's inputs stop with it).
+BRIDGE_REASON = 'udp_bridge: '
 #: The final message of a rig (or the abort of another node) that dropped a message without
 #: the run's seal starts so, and names the topic and the publisher.
 FOREIGN_REASON = 'foreign publisher on '
@@ -248,6 +255,18 @@ def safe_stop_s(params: Mapping) -> float:
     if params.get('mode') != 'realtime':
         return 0.0
     return command_latency_s(params) + float(params['safe_ramp_s']) + SAFE_HOLD_S
+
+
+def safe_confirm_s(params: Mapping) -> float:
+    """How long a rig behind the UDP bridge waits, from its request, for its controller to
+    report its safe state (state 3, the command at zero) [s]: :func:`safe_stop_s` (the
+    commands already output, the ramp ``safe_ramp_s``, and :data:`SAFE_HOLD_S`) plus
+    ``watchdog_timeout_s`` (the report is a datagram like any other, and the PC allows any
+    datagram that long). Past it the run ends, and its final status says that the safe
+    state was NOT confirmed by the controller (``safe_confirmed`` 0). 0 in lockstep mode."""
+    if params.get('mode') != 'realtime':
+        return 0.0
+    return safe_stop_s(params) + float(params['watchdog_timeout_s'])
 
 
 def first_effect_step(stamp_step: int, latency_s: float, dt: float) -> int:

@@ -340,6 +340,14 @@ class RigNode(SeftNode):
                 and self.ended_by is None and self.abort_reason is None):
             self.ended_by = msg.name
             reason = f'{msg.name}: {msg.message}'
+            view = (self.rig.view(time.monotonic(), self.watchdog_s)
+                    if self.bridge and msg.message.startswith(rig_contract.WATCHDOG_REASON)
+                    else None)
+            if view:
+                # the controller's silence or lost samples stopped the graph's inputs: the
+                # bridge's view is the cause, the other node's watchdog its consequence
+                # (before: the run's reason was 'force_servo_controller: watchdog: ...')
+                reason = f'{view}; then {reason}'
             if self.realtime and self.running:
                 self._abort_realtime(reason)
             else:
@@ -486,6 +494,14 @@ class RigNode(SeftNode):
             self._abort_realtime(reason)
             self._flush_timing(final=True)
             self._end(STATE_ABORTED, reason)
+            return
+        if self.rig.safe_overdue(now):
+            # the controller did not report its safe state within safe_confirm_s of the
+            # request: the run ends, its final status says so (before: the PC waited for it
+            # without a bound, as long as the controller sent anything)
+            self.get_logger().error(self.rig.safe_state_values(now)['safe_unconfirmed'])
+            self._flush_timing(final=True)
+            self._end(STATE_ABORTED, self.abort_reason)
             return
         if self.t0 is None:
             if not self.rig.has_sample:
@@ -662,9 +678,14 @@ class RigNode(SeftNode):
         """Real time, once the rig has started: its safe stop (the commands already output,
         the ramp, the hold after it: ``seft_msgs_py.rig_contract.safe_stop_s``) holds
         the process against a second stop signal, so that a second Ctrl-C does not cut the
-        ramp (a bridge's included: the lab's controller ramps on the rig's request)."""
+        ramp (a bridge's included: the lab's controller ramps on the rig's request; the
+        bridge waits for its report at most ``rig_contract.safe_confirm_s``, then holds
+        ``SAFE_HOLD_S``)."""
         if not self.realtime or self.t0 is None:
             return 0.0
+        if self.bridge:
+            # the wait for the controller's safe state, then the hold after it
+            return rig_contract.safe_confirm_s(self.params) + SAFE_HOLD_S
         return rig_contract.safe_stop_s(self.params)
 
     def published_count(self) -> int:
@@ -683,6 +704,7 @@ class RigNode(SeftNode):
         extra = {}
         if self.bridge:
             extra.update(self.rig.wire_counts())
+            extra.update(self.rig.safe_state_values(time.monotonic()))
             self.rig.close()
         if self.realtime:
             extra.update(self.timing.counts())

@@ -29,6 +29,11 @@ Faults at the socket:
 * a silent controller (no datagram for ``watchdog_timeout_s``) ends the run: the rig node
   reports it, and asks the controller (if it still hears) for its safe state; a silent PC is
   the controller's to notice (its own watchdog), which it reports in its state;
+* the safe state is the controller's to confirm (its state 3, safe): the PC waits for it at
+  most :func:`~seft_msgs_py.rig_contract.safe_confirm_s` from its request
+  (:meth:`UdpBridgeRig.safe_overdue`), and the final status says whether it came
+  (:meth:`UdpBridgeRig.safe_state_values`); before, the PC waited for it without a bound, and
+  said the rig ramped to its safe state without it;
 * a datagram from any other address than ``udp_controller_address`` (the rig contract's
   session rules: a controller sends from the address it listens on) is dropped, whatever
   its session, counted (``foreign``) and its address named once (:meth:`take_notices`); a
@@ -103,7 +108,9 @@ class UdpBridgeRig(CommandArrivals):
         Resolved parameters: ``dt`` [s], ``rig_model`` (the command kind: valve voltage for
         'servohydraulic', force reference for 'delay'), ``udp_controller_address``,
         ``udp_local_port`` (0: any), ``udp_heartbeat_s`` [s], ``udp_max_bad_datagrams``,
-        ``watchdog_timeout_s`` [s], ``stroke_limit_m`` [m], ``force_limit_N`` [N],
+        ``watchdog_timeout_s`` [s], ``safe_ramp_s`` [s] and the command latency
+        (:func:`~seft_msgs_py.rig_contract.safe_confirm_s`), ``stroke_limit_m`` [m],
+        ``force_limit_N`` [N],
         ``message_auth`` and ``auth_key_file`` (the HMAC of each datagram).
     log : callable(str), optional
         Receives one line per rejected datagram.
@@ -123,6 +130,11 @@ class UdpBridgeRig(CommandArrivals):
     left : str or None
         Why the controller no longer runs this run's session (it ended it on its own, or
         restarted it: its samples went back); the rig node then ends the run aborted.
+    safe_confirmed : bool
+        The controller reported its safe state (state 3) during this run.
+    safe_confirm_s : float
+        How long the PC waits for that report from its request [s]
+        (:func:`~seft_msgs_py.rig_contract.safe_confirm_s`).
 
     Raises
     ------
@@ -166,6 +178,9 @@ class UdpBridgeRig(CommandArrivals):
         self.last_bad = ''
         self.n_steps = 0
         self.started = self.ended = self.safe_requested = False
+        self.safe_requested_at: float | None = None     # when [s, monotonic]
+        self.safe_confirmed = False
+        self.safe_confirm_s = rig_contract.safe_confirm_s(params)
         self.discarded = 0
         self._arrivals: dict[int, float] = {}
         self._pending: deque = deque()
@@ -215,6 +230,7 @@ class UdpBridgeRig(CommandArrivals):
         """Ask the controller for its safe state (now, and in every datagram from now on)."""
         if not self.safe_requested:
             self.safe_requested = True
+            self.safe_requested_at = time.monotonic()
             self.heartbeat()
 
     def close(self) -> None:
@@ -259,6 +275,9 @@ class UdpBridgeRig(CommandArrivals):
             return False
         self.controller = d
         self.last_heard = now
+        if d.state == ul.STATE_SAFE and self.started and d.session in (self.session, 0):
+            # its command at zero (session 0: it ended the session after holding it)
+            self.safe_confirmed = True
         if (d.reason == ul.REASON_START_REFUSED and d.session == self.session
                 and not self.start_refused):
             self.start_refused = True
@@ -361,6 +380,49 @@ class UdpBridgeRig(CommandArrivals):
     def safe_ramp_done(self) -> bool:
         """The controller reports its command at zero (:data:`~udp_layout.STATE_SAFE`)."""
         return self.current is not None and self.current.state == ul.STATE_SAFE
+
+    def view(self, now: float, watchdog_s: float) -> str | None:
+        """What the PC saw of the controller that explains another node's watchdog (an
+        input of the graph stopped), or None: the controller silent for half the watchdog
+        `watchdog_s` [s] or more, or its samples lost or dropped as reordered (not published).
+        Starts with ``rig_contract.BRIDGE_REASON``."""
+        silent = self.silent_s(now)
+        if silent >= watchdog_s / 2:
+            return (f'udp_bridge: no datagram from the controller for {1e3 * silent:.1f} ms '
+                    f'(limit {1e3 * watchdog_s:g} ms) after t = {self.time_s:.3f} s')
+        lost, reordered = self.filter.lost, self.filter.reordered
+        if lost or reordered:
+            return (f'udp_bridge: samples of the controller not published by t = '
+                    f'{self.time_s:.3f} s: {lost} lost, {reordered} reordered (dropped)')
+        return None
+
+    def safe_overdue(self, now: float) -> bool:
+        """The safe state was asked for, the controller has not reported it (state 3), and
+        :attr:`safe_confirm_s` has passed since the request (`now`: ``time.monotonic()``)."""
+        return (self.safe_requested and not self.safe_confirmed
+                and now - self.safe_requested_at > self.safe_confirm_s)
+
+    def safe_state_values(self, now: float) -> dict:
+        """For the final status, once the safe state was asked for (else empty):
+        ``safe_confirmed`` (1: the controller reported its safe state; 0: it did not) and,
+        when it did not, ``safe_unconfirmed``, the line that says so (how long after the
+        request, the bound, the controller's last state)."""
+        if not self.safe_requested:
+            return {}
+        if self.safe_confirmed:
+            return {'safe_confirmed': 1}
+        c = self.controller
+        last = ul.STATE_NAMES.get(c.state, c.state) if c is not None else 'none heard'
+        silent = self.silent_s(now)
+        heard = (f'; nothing from it for {silent:.3f} s'
+                 if self.heartbeat_s < silent < math.inf else '')
+        return {'safe_confirmed': 0,
+                'safe_unconfirmed': (
+                    f'the safe state was NOT confirmed by the controller at {self.peer[0]}:'
+                    f'{self.peer[1]}: no state {ul.STATE_SAFE} (safe) from it '
+                    f'{now - self.safe_requested_at:.3f} s after the request (bound '
+                    f'{self.safe_confirm_s:.3f} s: latency, safe ramp, hold and watchdog; its '
+                    f'last state: {last}{heard}); check the rig')}
 
     def _rejected(self, when: str) -> str | None:
         """The line of ``udp_max_bad_datagrams`` rejected datagrams (`when`: after

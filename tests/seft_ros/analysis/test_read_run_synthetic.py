@@ -395,3 +395,102 @@ def test_an_abort_of_the_run_is_not_an_interrupt(source, tmp_path):
     rd = read_run(rewrite(source, tmp_path / 'bag', edit))
     assert rd.extra['interrupted'] is False
     assert rd.abort_reason == f'reference_force_builder: {MONITOR}'
+
+
+# -- a rig behind the UDP bridge -------------------------------------------------------------
+
+#: The wire counts of a bridge's final status (UdpBridgeRig.wire_counts): every datagram to
+#: the PC came twice (session 23's bridge tester: 1004 duplicates on a run read 'stable').
+WIRE = {'udp_late': 3, 'udp_bad': 0, 'udp_other_session': 0, 'udp_foreign': 0, 'udp_lost': 0,
+        'udp_duplicate': 1004, 'udp_reordered': 0, 'controller_late': 0, 'controller_lost': 1,
+        'controller_duplicate': 0, 'controller_reordered': 0, 'controller_bad': 0,
+        'controller_start_refused': 0}
+SILENT = ('udp_bridge: no datagram from the controller for 203.5 ms (limit 200 ms) after '
+          't = 0.050 s')
+UNCONFIRMED = ('the safe state was NOT confirmed by the controller at 127.0.0.1:47001: no '
+               'state 3 (safe) from it 0.462 s after the request (bound 0.462 s: latency, '
+               'safe ramp, hold and watchdog; its last state: running); check the rig')
+
+
+def bridge_run(k_abort=None, **final):
+    """An edit that gives the rig's final status a UDP bridge's counts (and `final`); with
+    `k_abort`, the controller fell silent at step `k_abort`: the force servo controller's
+    watchdog reports first, then the rig its own view (as the graph records it)."""
+    t_abort = f'{(k_abort or 0) * DT:.6f}'
+
+    def edit(topic, ns, msg):
+        k = ns // DT_NS
+        if k_abort is not None and topic in FIELD and k > k_abort:
+            return []
+        if topic != signals.STATUS.name:
+            return [(ns, msg)]
+        state = next(kv.value for kv in msg.values if kv.key == 'state')
+        if state != 'done' or msg.name not in ('rig', 'force_servo_controller'):
+            return [(ns, msg)]
+        if msg.name == 'force_servo_controller':
+            return [] if k_abort is not None else [(ns, msg)]
+        if k_abort is None:
+            return [(ns, status('rig', 'done', 'completed 40 steps', step=N, n_steps=N,
+                                time_s=f'{N * DT:.6f}', published=N, **WIRE, **final))]
+        return [(ns, status('force_servo_controller', 'aborted', 'watchdog: no '
+                            '/seft/reference_force for 201 ms (limit 200 ms; node or link '
+                            'lost)', step=k_abort, time_s=t_abort)),
+                (ns, status('rig', 'aborted', SILENT, step=k_abort, n_steps=N, time_s=t_abort,
+                            published=k_abort + 1, ended_by='force_servo_controller',
+                            **WIRE, **final))]
+    return edit
+
+
+def test_a_silent_controller_is_the_runs_reason_not_the_watchdog_it_tripped(source, tmp_path):
+    """Session 23: the run's reason was 'force_servo_controller: watchdog: no
+    /seft/reference_force for 201 ms ...', the bridge's own view second. Now the rig's view
+    of its controller is the reason."""
+    rd = read_run(rewrite(source, tmp_path / 'bag', bridge_run(25)))
+    assert rd.stable is False
+    assert rd.abort_reason == SILENT
+    assert rd.extra['abort_node'] == 'rig'
+
+
+def test_the_bridges_wire_counts_and_an_unconfirmed_safe_state_are_reported(
+        source, tmp_path):
+    """The counts were in the bag's final status only: now in the summary, the report and
+    the console's notes, with a warning for the duplicates (and the lost command, 1 of 40:
+    above 1 %; 3 late samples of 40 too), and the safe state NOT confirmed said plainly."""
+    from seft_ros.analysis.findings import bridge_entry, bridge_lines
+    from seft_ros.analysis.metrics import compare_run, summary_entry
+    from seft_ros.analysis.report import _run_markdown
+    from seft_ros.cli.api import _accuracy_notes
+    rd = read_run(rewrite(source, tmp_path / 'bag', bridge_run(
+        safe_confirmed=0, safe_unconfirmed=UNCONFIRMED)))
+    entry = summary_entry(rd, compare_run(rd))
+    bridge = entry['udp_bridge']['rig']
+    assert bridge == bridge_entry(rd)['rig']
+    assert bridge['counts']['to_pc']['duplicate'] == 1004
+    assert bridge['counts']['to_controller']['lost'] == 1
+    assert bridge['safe_confirmed'] is False and bridge['safe_unconfirmed'] == UNCONFIRMED
+    assert bridge['warnings'] == [
+        'rig: the UDP link to the PC was not clean: 3 late (7.5 % of 40 samples; applied '
+        'late), 1004 duplicate (2510.0 % of 40 samples; dropped): check the network and the '
+        'controller',
+        'rig: the UDP link to the controller was not clean: 1 lost (2.5 % of 40 samples; not '
+        'applied): check the network and the controller']
+    lines = bridge_lines(entry['udp_bridge'])
+    assert lines[0] == ('counts', 'rig: UDP bridge datagrams over 40 samples: to the PC 0 '
+                        'lost, 3 late, 1004 duplicate, 0 reordered, 0 bad, 0 foreign, 0 other '
+                        'session; to the controller 1 lost, 0 late, 0 duplicate, 0 reordered, '
+                        '0 bad')
+    assert lines[-1] == ('safe state', f'rig: {UNCONFIRMED}')
+    markdown = _run_markdown(1, rd, compare_run(rd))
+    assert f'- {lines[0][1]}' in markdown
+    assert f'- **warning**: {bridge["warnings"][0]}' in markdown
+    assert f'- **safe state NOT confirmed**: rig: {UNCONFIRMED}' in markdown
+    notes = _accuracy_notes('run 1 (model)', entry)
+    assert f'note: run 1 (model): WARNING: {bridge["warnings"][1]}' in notes
+    assert f'note: run 1 (model): WARNING: rig: {UNCONFIRMED}' in notes
+    # a clean link: the counts, no warning
+    rd = read_run(rewrite(source, tmp_path / 'clean', bridge_run(safe_confirmed=1)))
+    clean = dict(WIRE, udp_duplicate=0, udp_late=0, controller_lost=0)
+    assert bridge_entry(rd)['rig']['warnings'] != []          # WIRE's counts
+    rd.extra['rig_finals']['rig'].update({k: str(v) for k, v in clean.items()})
+    assert bridge_entry(rd)['rig']['warnings'] == []
+    assert bridge_entry(rd)['rig']['safe_confirmed'] is True

@@ -35,8 +35,13 @@ from rosbags.typesys import Stores, get_typestore
 
 from seft_msgs_py import parameters, signals
 from seft_msgs_py.errors import InputError, ParameterError
-from seft_msgs_py.graph import STRUCTURE_STATE, Graph, qualified, scoped
-from seft_msgs_py.rig_contract import CONTRACT_KEY, is_runner_interrupt
+from seft_msgs_py.graph import STRUCTURE_STATE, Graph, qualified, scoped, split_qualified
+from seft_msgs_py.rig_contract import (
+    BRIDGE_REASON,
+    CONTRACT_KEY,
+    WATCHDOG_REASON,
+    is_runner_interrupt,
+)
 from seft_ros.analysis.bag_recovery import FLUSH_EVERY_S, is_unclosed_bag, recover_bag
 from seft_ros.analysis.rundata import RigData, RunData
 from seft_ros.analysis.timing import (
@@ -777,12 +782,21 @@ def _interrupt(status: dict) -> bool:
 def _first_abort(aborted: list[dict]) -> dict | None:
     """The report of the node that aborted first, of the 'aborted'/'failed' reports in bag
     order: the first whose message does not pass on another's (a node ending on another's
-    abort reports ``'<that node>: <its message>'``, and the bag may hold it first)."""
+    abort reports ``'<that node>: <its message>'``, and the bag may hold it first); a
+    watchdog's (``rig_contract.WATCHDOG_REASON``) yields to a rig's that names what its UDP
+    bridge saw (``rig_contract.BRIDGE_REASON``: the controller silent, its samples lost)."""
     names = {s['name'] for s in aborted}
-    for s in aborted:
-        if not any(s['message'].startswith(f'{name}: ') for name in names - {s['name']}):
-            return s
-    return aborted[0] if aborted else None
+    first = next((s for s in aborted if not any(s['message'].startswith(f'{name}: ')
+                                                 for name in names - {s['name']})),
+                 aborted[0] if aborted else None)
+    if first is not None and first['message'].startswith(WATCHDOG_REASON):
+        # a watchdog (an input of the graph stopped) yields to a UDP bridge's rig that saw
+        # its controller fall silent or its samples lost: the cause, reported a little later
+        # (before: 'force_servo_controller: watchdog: no /seft/reference_force for 201 ms'
+        # was the reason of a run whose controller had gone silent)
+        first = next((s for s in aborted if split_qualified(s['name'])[1] == 'rig'
+                      and s['message'].startswith(BRIDGE_REASON)), first)
+    return first
 
 
 def _end_step(finals: dict, abort_at_s: float | None, dt: float) -> tuple[int | None, bool]:

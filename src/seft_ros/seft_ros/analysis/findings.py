@@ -35,7 +35,12 @@ a run instead of calling it plainly stable (:func:`run_flags`):
   against the reference, which the four above do not.
 
 The samples read at a sensor's range are reported beside them (:func:`sensor_range_entry`):
-how many per rig and channel, and what the builder did with them.
+how many per rig and channel, and what the builder did with them. So is, for a rig behind
+the UDP bridge, what its final status says of the link and the controller
+(:func:`bridge_entry`): the datagrams each side counted duplicated, reordered, lost, late or
+rejected, a warning when the link was not clean (:data:`WIRE_WARN_FRACTION`), and a safe
+state the controller did not confirm. Before, these were in the bag's final status only: a
+run whose every datagram came twice (1004 duplicates) read "stable".
 """
 
 import math
@@ -51,7 +56,24 @@ from seft_ros.core.specimen_settings import costly_settings
 __all__ = ['PEAK_RATIO_FLAG', 'BOUND_HOLD_S', 'SPECIMEN_FLAG', 'estimate_bounds', 'bound_findings',
            'sensor_range_entry', 'sensor_range_lines', 'run_flags', 'verdict', 'REPLAY_SIGNALS',
            'TIMING_COST_FLAG_POINTS', 'REPRODUCED_WITHIN', 'replay_cell', 'timing_replay_line',
-           'timing_cost_flag']
+           'timing_cost_flag', 'WIRE_WARN_FRACTION', 'bridge_entry', 'bridge_lines']
+
+#: A rig behind the UDP bridge: lost or late datagrams (either way) above this fraction of
+#: its samples are a warning [-]; a duplicated, reordered or rejected one at any count (a
+#: clean link has none).
+WIRE_WARN_FRACTION = 0.01
+#: The wire counts of a bridge's final status (``UdpBridgeRig.wire_counts``) by side, as the
+#: lines name them: (the status key's prefix, the side, the counts in order).
+_WIRE_SIDES = (('udp_', 'to the PC', ('lost', 'late', 'duplicate', 'reordered', 'bad',
+                                      'foreign', 'other_session')),
+               ('controller_', 'to the controller', ('lost', 'late', 'duplicate',
+                                                     'reordered', 'bad')))
+#: Counts that are a warning at any number, and those above WIRE_WARN_FRACTION of the
+#: samples (foreign datagrams and a refused second sender are named during the run).
+_WIRE_ANY, _WIRE_FRACTION = ('duplicate', 'reordered', 'bad'), ('lost', 'late')
+#: What each count means for the run, in the warning.
+_WIRE_EFFECT = {'duplicate': 'dropped', 'reordered': 'dropped, never applied late',
+                'bad': 'rejected', 'lost': 'not applied', 'late': 'applied late'}
 
 #: A rig's peak (displacement, force, acceleration) beyond this many times the reference's
 #: flags the run.
@@ -326,3 +348,61 @@ def timing_cost_flag(replay: dict | None) -> str | None:
     if cost <= TIMING_COST_FLAG_POINTS:
         return None
     return f'timing: {timing_replay_line(replay)}'
+
+
+def bridge_entry(run: RunData) -> dict[str, Any]:
+    """What the final status of each rig behind the UDP bridge says of its link and its
+    controller (for ``summary.json``; empty for a run without a bridge).
+
+    ``{rig node: {'samples', 'counts': {'to_pc': {count: n}, 'to_controller': {count: n}},
+    'safe_confirmed', 'safe_unconfirmed', 'warnings'}}``: the samples the rig published, the
+    datagrams each side counted (``udp_*``: the controller's at the PC; ``controller_*``: the
+    PC's at the controller; ``rig_contract.md``, the UDP bridge), whether the controller
+    reported its safe state once the PC asked for it (None: it was not asked; False with the
+    line that says so), and a warning line per side whose link was not clean
+    (:data:`WIRE_WARN_FRACTION`).
+    """
+    out = {}
+    for node, final in (run.extra.get('rig_finals') or {}).items():
+        if not final or not any(k.startswith('udp_') for k in final):
+            continue
+        samples = int(final.get('published', 0) or 0)
+        counts, warnings = {}, []
+        for prefix, side, names in _WIRE_SIDES:
+            got = {n: int(final[prefix + n]) for n in names if prefix + n in final}
+            counts['to_pc' if prefix == 'udp_' else 'to_controller'] = got
+            bad = [n for n in names if got.get(n, 0) and (
+                n in _WIRE_ANY or (n in _WIRE_FRACTION
+                                   and got[n] > WIRE_WARN_FRACTION * max(samples, 1)))]
+            if bad:
+                warnings.append(
+                    f'{node}: the UDP link {side} was not clean: ' + ', '.join(
+                        f'{got[n]} {n} ({100 * got[n] / max(samples, 1):.1f} % of '
+                        f'{samples} samples; {_WIRE_EFFECT[n]})' for n in bad)
+                    + ': check the network and the controller')
+        confirmed = final.get('safe_confirmed')
+        out[node] = {'samples': samples, 'counts': counts,
+                     'safe_confirmed': None if confirmed is None else str(confirmed) == '1',
+                     'safe_unconfirmed': final.get('safe_unconfirmed'),
+                     'warnings': warnings}
+    return out
+
+
+def bridge_lines(entry: dict[str, Any]) -> list[tuple[str, str]]:
+    """``(kind, line)`` of :func:`bridge_entry` `entry`, each rig's in order: ``'counts'``
+    (both sides' counts), ``'warning'`` (a link that was not clean), ``'safe state'`` (the
+    safe state NOT confirmed by the controller)."""
+    lines = []
+    for node, info in entry.items():
+        sides = []
+        for prefix, side, names in _WIRE_SIDES:
+            got = info['counts']['to_pc' if prefix == 'udp_' else 'to_controller']
+            if got:
+                sides.append(f'{side} ' + ', '.join(f'{got[n]} {n.replace("_", " ")}'
+                                                    for n in names if n in got))
+        lines.append(('counts', f'{node}: UDP bridge datagrams over {info["samples"]} '
+                                f'samples: {"; ".join(sides)}'))
+        lines += [('warning', w) for w in info['warnings']]
+        if info.get('safe_unconfirmed'):
+            lines.append(('safe state', f'{node}: {info["safe_unconfirmed"]}'))
+    return lines

@@ -1138,7 +1138,10 @@ def summary_entry(run: RunData, comparison: RunComparison) -> dict[str, Any]:
         (:func:`seft_ros.core.ground_motion.record_read`, from ``run.extra``; a run on the
         embedded default or an excitation has none),
         ``'sensor_range'``, each rig's samples at a sensor's range
-        (:func:`seft_ros.analysis.findings.sensor_range_entry`), ``'flags'``, why the run may
+        (:func:`seft_ros.analysis.findings.sensor_range_entry`), for a rig behind the UDP
+        bridge ``'udp_bridge'``, its link's datagram counts, warnings and whether the
+        controller confirmed its safe state
+        (:func:`seft_ros.analysis.findings.bridge_entry`), ``'flags'``, why the run may
         have lost accuracy as a lab sees it (:func:`seft_ros.analysis.findings.run_flags`), and
         ``'verdict'``, ``'stable'``, ``'stable, flagged'`` or ``'aborted'``; ``wall_s`` [s],
         the wall time of the stepping, from ``run.extra['wall_s']``; ``rig_contract``, the rig
@@ -1215,7 +1218,7 @@ def summary_entry(run: RunData, comparison: RunComparison) -> dict[str, Any]:
         entry['specimen_stiffness_ratios'] = dict(run.extra['specimen_ratios'])
     # what says the run may have lost accuracy (issue 39): the pre-run range check, the
     # samples at a sensor's range, and the flags a lab sees without the reference
-    from seft_ros.analysis.findings import run_flags, sensor_range_entry, verdict
+    from seft_ros.analysis.findings import bridge_entry, run_flags, sensor_range_entry, verdict
     if run.extra.get('range_check') is not None:
         entry['range_check'] = dict(run.extra['range_check'])
     if run.extra.get('record_read') is not None:
@@ -1223,6 +1226,9 @@ def summary_entry(run: RunData, comparison: RunComparison) -> dict[str, Any]:
     if run.extra.get('timing_replay') is not None:
         entry['timing_replay'] = dict(run.extra['timing_replay'])
     entry['sensor_range'] = sensor_range_entry(run)
+    bridge = bridge_entry(run)
+    if bridge:
+        entry['udp_bridge'] = bridge
     entry['flags'] = run_flags(run, comparison)
     entry['verdict'] = verdict(bool(run.stable), entry['flags'])
     entry.update(_structure_entries(run, comparison))

@@ -24,6 +24,8 @@ import numpy as np
 
 from seft_msgs_py.errors import ParameterError
 from seft_ros.analysis.findings import (
+    bridge_entry,
+    bridge_lines,
     run_flags,
     sensor_range_entry,
     sensor_range_lines,
@@ -536,6 +538,14 @@ def _warning_lines(run: RunData) -> list[str]:
     return [f'- **warning**: {w}' for w in dict.fromkeys(run.extra.get('warnings') or ())]
 
 
+def _bridge_markdown(run: RunData) -> list[str]:
+    """A rig behind the UDP bridge: its link's datagram counts, a marked warning when the
+    link was not clean, and a safe state the controller did not confirm."""
+    label = {'counts': '', 'warning': '**warning**: ',
+             'safe state': '**safe state NOT confirmed**: '}
+    return [f'- {label[kind]}{line}' for kind, line in bridge_lines(bridge_entry(run))]
+
+
 def _range_markdown(run: RunData) -> list[str]:
     """The pre-run range check's lines and the samples read at a sensor's range, one item
     each (issue 39)."""
@@ -600,6 +610,7 @@ def _run_markdown(index: int, run: RunData, comparison: RunComparison) -> list[s
         where = f' at t = {at:.3f} s' if at is not None else ''
         lines.append(f'- **aborted{where}**: {run.abort_reason or "no reason recorded"}')
     lines += _warning_lines(run)
+    lines += _bridge_markdown(run)
     recording = run.extra.get('recording') or {}
     if recording.get('end') in ('crashed', 'stopped'):
         lines.append(f'- **recording {_recording_end(recording)}**: {recording.get("note")}')

@@ -667,6 +667,10 @@ def _read_outcome(outcome, label: str, progress: Callable[[str], None]) -> RunDa
     stepped = f' (stepping {stepping:.1f} s)' if stepping else ''
     progress(f'[{label}] {rd.n_steps} steps in {outcome.wall_time_s:.1f} s wall{stepped}; '
              f'{state}; bag {outcome.bag_path}')
+    from seft_ros.analysis.findings import bridge_entry, bridge_lines
+    for kind, line in bridge_lines(bridge_entry(rd)):
+        # a rig behind the UDP bridge: its link's counts, and what was not right with it
+        progress(f'[{label}] ' + ('' if kind == 'counts' else 'WARNING: ') + line)
     _replay_if_due(rd, label, progress)
     return rd
 
@@ -1145,11 +1149,14 @@ def _stable_cell(entry: dict) -> str:
 def _accuracy_notes(who: str, entry: dict) -> list[str]:
     """``note:`` lines of a summary entry's flags and samples at a sensor's range (issue
     39)."""
-    from seft_ros.analysis.findings import sensor_range_lines
+    from seft_ros.analysis.findings import bridge_lines, sensor_range_lines
     lines = [f'note: {who}: flagged: {flag}' for flag in entry.get('flags') or ()
              if entry.get('stable')]
     lines += [f'note: {who}: {line}'
               for line in sensor_range_lines(entry.get('sensor_range') or {})]
+    lines += [f'note: {who}: WARNING: {line}'
+              for kind, line in bridge_lines(entry.get('udp_bridge') or {})
+              if kind != 'counts']
     return lines
 
 

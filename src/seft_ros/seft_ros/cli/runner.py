@@ -964,7 +964,12 @@ class GraphRunner:
         here = [r for r in self.graph.rig_nodes() if r in procs]
         if rig is not None:
             step = int(rig.get('step', 0) or 0)
-            if 'abort_at_s' in rig:
+            if rig.get('safe_unconfirmed'):
+                # a UDP bridge whose controller never reported its safe state
+                parts.append(f'the rig was asked for its safe state from t = '
+                             f'{float(rig.get("abort_at_s", 0.0)):.3f} s, but '
+                             f'{rig["safe_unconfirmed"]}')
+            elif 'abort_at_s' in rig:
                 parts.append(f'the rig ramped to its safe state from t = '
                              f'{float(rig["abort_at_s"]):.3f} s')
             elif rig.get('state') == STATE_DONE:
