@@ -17,6 +17,7 @@ import pytest
 from scipy import signal
 
 from seft_msgs_py.errors import InputError, ParameterError
+from seft_msgs_py.sensor_range import SensorRanges
 from seft_ros.analysis.rig_identification import identified_rig_parameters, identify_rigs
 from seft_ros.analysis.specimen_identification import NONLINEAR_TOLERANCE, fit_specimen
 from seft_ros.cli.api import build_runs
@@ -113,6 +114,30 @@ def test_a_yielding_member_is_said_to_be_not_linear(amplitude, linear):
     assert not any(k.startswith('predictor_') and k != 'predictor_tau_s' for k in section)
     assert section['_specimen'].startswith('m, c, k not written: not linear')
     assert ident.figures['specimen']['linear'] is False
+
+
+@pytest.mark.parametrize('share, taken', [(0.0005, True), (0.05, False)])
+def test_a_sensor_at_its_range_is_blamed_beyond_a_few_samples(share, taken):
+    """An accelerometer that clips: in 0.05 % of the samples the fit is taken (and says
+    so), in 5 % it is not the specimen's and the verdict names the sensor."""
+    f, x, v, a = _oscillator(40.0, 600.0, 3.0e5)
+    limit = float(np.quantile(np.abs(a), 1.0 - share))
+    clipped = np.clip(a, -limit, limit)
+    fit = fit_specimen(f, x, v, clipped, 0.002, ranges=SensorRanges(acceleration_m_s2=limit))
+    (channel, n, value), = fit.at_range
+    # the readings within 0.1 % of the range count too (AT_RANGE_FRACTION)
+    assert channel == 'acceleration' and share * 6000 <= n <= 2 * share * 6000 + 3
+    assert fit.linear is taken and fit.clipped is not taken
+    if taken:
+        assert fit.mass_kg == pytest.approx(40.0, rel=0.005)
+        assert fit.verdict().endswith(f'; its acceleration at its sensor range in {n} of 6000 '
+                                      'samples (at most 0.1 % are taken)')
+        return
+    assert fit.verdict().startswith(f'not the specimen: its acceleration was at its sensor '
+                                    f'range ({limit:g} m/s^2) in {n} of 6000 samples, and the '
+                                    'fit reads the clipped readings')
+    assert fit.verdict().endswith('identify again with a lower excitation_amplitude or an '
+                                  'accelerometer of a larger range (accelerometer_range_m_s2)')
 
 
 def test_no_motion_is_not_a_specimen():

@@ -311,7 +311,8 @@ def _design_lines(runs: list[dict[str, Any]]) -> list[str]:
         s = design['structure']
         gm, gm_db = _fmt(m['gain_margin'], '.3g'), _fmt(m.get('gain_margin_dB'), '.3g')
         notched = ''.join(f', a resonance at {f:.4g} Hz notched' for f, _ in s['resonances'])
-        miss = _fmt(100 * design['inverse_band_error'], '.2g')
+        miss = design['inverse_band_error']       # None: no inverse (an unstable loop)
+        miss = _fmt(None if miss is None else 100 * miss, '.2g')
         verdict = 'met' if design['met'] else 'NOT met'
         notes = '' if not design['notes'] else ' (' + '; '.join(design['notes']) + ')'
         errors = ', '.join(f'{k} {100 * v:.2g} %' for k, v in plant['nrms'].items())

@@ -36,6 +36,7 @@ from scipy import optimize, signal
 from seft_msgs_py.errors import InputError, ParameterError
 from seft_msgs_py.parameters import valve_commanded
 from seft_msgs_py.plant import controller_response
+from seft_msgs_py.sensor_range import SensorRanges
 from seft_ros.analysis.rundata import RunData
 from seft_ros.analysis.specimen_identification import (
     FIT_PARTS,
@@ -622,7 +623,8 @@ def identify_run(run: RunData, *, window: str = 'hann', nperseg: int = DEFAULT_N
     if run.n_steps >= MIN_SPECIMEN_SAMPLES:         # else no specimen (a short H1 run)
         specimen = fit_specimen(run.measured_force_N, run.displacement_m, run.velocity_m_s,
                                 run.acceleration_m_s2, dt, band_hz=_specimen_band(p),
-                                where=f'{src}: rig {rig}' if rig else src)
+                                where=f'{src}: rig {rig}' if rig else src,
+                                ranges=SensorRanges.from_parameters(p))
         ident.specimen = specimen
         ident.restoring = (run.displacement_m, run.measured_force_N
                            - specimen.mass_kg * run.acceleration_m_s2
@@ -837,9 +839,17 @@ def identified_parameters(runs: list[RunIdentification], *,
         (:meth:`~seft_ros.core.force_design.ForceLoopDesign.parameters`: ``force_controller``
         'transfer_function', ``force_controller_tf``, ``predictor_loop_*``,
         ``predictor_calibration``, and ``predictor_tau_s``, the designed loop's delay, which
-        replaces the measured one of the old controller). Keys starting with '_' are notes.
+        replaces the measured one of the old controller). Keys starting with '_' are notes:
+        ``_plant`` (the plant's order, delay and fit; or, for an open-loop run of a
+        valve-driven rig that gave none, ``'not identified ...'`` and why: its specimen fit's
+        verdict, e.g. a sensor at its range), ``_design`` (the design's summary; ``'NOT
+        written ...'`` and why when it closes no stable loop on the model, or when the model
+        misses the measured force by more than ``MAX_PLANT_MISFIT``
+        (:mod:`seft_ros.core.stability`) NRMS: the level above which the
+        stability guard trusts no verdict of it, and a design on it is not the rig's).
         Empty if nothing was identified.
     """
+    from seft_ros.core.stability import MAX_PLANT_MISFIT
     out: dict[str, Any] = {}
     delays = [r.figures['delay_ms'] for r in runs
               if r.kind == 'closed_loop' and math.isfinite(r.figures.get('delay_ms', math.nan))]
@@ -848,8 +858,20 @@ def identified_parameters(runs: list[RunIdentification], *,
     for r in runs:
         if r.kind == 'open_loop' and r.plant is not None:
             out['plant_model'] = r.plant.mapping()
+            misfit = r.plant.nrms['force_N']
             out['_plant'] = (f'order {r.plant.order}, delay {r.plant.delay_steps} steps, force '
-                             f'NRMS {100 * r.plant.nrms["force_N"]:.2g} %')
+                             f'NRMS {100 * misfit:.2g} %')
+            if not misfit <= MAX_PLANT_MISFIT:
+                out['_design'] = (f'NOT written: the plant model misses the measured force by '
+                                  f'{100 * misfit:.2g} % NRMS, above '
+                                  f'{100 * MAX_PLANT_MISFIT:g} % (MAX_PLANT_MISFIT, the level '
+                                  'above which the stability guard gives its runs no verdict): '
+                                  'the actuator is not linear at this level (friction, valve '
+                                  'flow), and a controller designed on this model is not '
+                                  "the rig's; identify it again at the test's level, or enter "
+                                  "the lab's own controller (force_controller_tf) and rehearse "
+                                  'it on the rig at a low amplitude')
+                break
             if not r.design.stable:
                 out['_design'] = ("NOT written: no controller of seft's design closes a "
                                   'stable force loop on this model (' + '; '.join(r.design.notes)
@@ -860,6 +882,13 @@ def identified_parameters(runs: list[RunIdentification], *,
             out['_design'] = r.design.summary() + ('' if r.design.met else ' (targets NOT met: '
                                                    + '; '.join(r.design.notes) + ')')
             break
+        if (r.kind == 'open_loop' and r.plant is None and valve_commanded(r.params)
+                and '_plant' not in out):
+            why = (f'the specimen fit it needs is {r.specimen.verdict()}'
+                   if r.specimen is not None
+                   else f'the run is too short for the specimen fit the plant model needs '
+                   f'({MIN_SPECIMEN_SAMPLES} samples at least)')
+            out['_plant'] = f'not identified from {r.source}: {why}'
     return out
 
 

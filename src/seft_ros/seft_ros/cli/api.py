@@ -1640,7 +1640,10 @@ def identify_bags(*, bags: list[str], out_dir: Path, window: str = 'hann',
     InputError, ParameterError
         Unreadable bag, a run that was aborted (when and why), a run too short for the
         segment length, bad options, bags of the study's rig and of a structure together;
-        the message names the bag (and the rig) or the option.
+        the message names the bag (and the rig) or the option. With `params_out`: a rig of
+        the bags whose open-loop run gave no plant model (its specimen fit's verdict: a
+        sensor at its range, a member that yields), or a structure's rig with nothing
+        identified: the file would lack it (the report and figures are written first).
     """
     from seft_ros.analysis import rig_identification as ri
     from seft_ros.analysis.identification_report import (
@@ -1684,6 +1687,11 @@ def identify_bags(*, bags: list[str], out_dir: Path, window: str = 'hann',
         doc = write_identification(idents, out_dir, identified=identified, version=version)
     params_path = None
     if params_out:
+        lacking = _rigs_lacking(per_rig if structure else {'': identified},
+                                [i.rig for i in idents])
+        if lacking:
+            raise InputError(f'--params {params_out}: not written: {lacking} (the report: '
+                             f'{Path(out_dir) / "identification.md"})')
         if not identified:
             raise InputError(f'--params {params_out}: nothing to write (no closed-loop delay, '
                              'no open-loop run of a valve-driven rig and no linear specimen '
@@ -1694,6 +1702,24 @@ def identify_bags(*, bags: list[str], out_dir: Path, window: str = 'hann',
         params_path = (write_rig_params_yaml(per_rig, params_out) if structure
                        else write_params_yaml(identified, params_out))
     return IdentifyResult(out_dir, doc, params_path)
+
+
+def _rigs_lacking(values: dict[str, dict[str, Any]], rigs: list[str]) -> str:
+    """Why the parameter file of ``seft identify`` would lack a rig of the bags, one clause
+    per rig ('' when none lacks): a rig with nothing identified, or whose open-loop run gave
+    no plant model (``_plant`` 'not identified ...': a structure's test would run it on the
+    configured controller, its section silently missing)."""
+    out = []
+    for rig in dict.fromkeys(rigs):
+        own = values.get(rig) or {}
+        who = f'rig {rig}' if rig else 'the rig'
+        note = str(own.get('_plant', ''))
+        if note.startswith('not identified'):
+            out.append(f'{who} gets no plant model and no force controller: {note}')
+        elif rig and not any(not k.startswith('_') for k in own):
+            out.append(f'{who}: nothing identified'
+                       + (f" ({own['_specimen']})" if '_specimen' in own else ''))
+    return '; '.join(out)
 
 
 class DesignResult:
@@ -1814,7 +1840,9 @@ _IDENTIFY_FIGURES = ('zero_hz', 'resonance_hz', 'crossover_hz', 'phase_margin_de
 #: the loop figures it prints (:data:`_IDENTIFY_FIGURES`, read on that fit) are not to be
 #: trusted [-]: seft's own rig fits within 0.7 %, and the figures' documented tolerances
 #: (docs: tutorials/identification) hold there; an actuator of another order fitted at
-#: 6 % gave a crossover of 8.1 Hz for 13.6 Hz and a phase margin of 34.5 deg for 46.
+#: 6 % gave a crossover of 8.1 Hz for 13.6 Hz and a phase margin of 34.5 deg for 46. A run
+#: whose plant model (its order chosen by the data) fits the force within it gets a note
+#: instead: the design and the parameter file are read on that model.
 FIT_WARNING = 0.02
 
 
@@ -1839,11 +1867,7 @@ def identification_table(doc: dict) -> str:
         for r in runs:
             fit = r['figures'].get('fit') or {}
             if (fit.get('fit_error') or 0.0) > FIT_WARNING:
-                lines.append(f"WARNING: the figures above are read on a rational fit of orders "
-                             f"{tuple(fit['orders'])} that misses the {r['kind']} run's "
-                             f"response by {100 * fit['fit_error']:.1f} % (above "
-                             f'{100 * FIT_WARNING:g} %): trust the plant model and the designed '
-                             'loop below, or identify again with --orders NB NA')
+                lines.append(_fit_warning(fit, r['kind'], r['figures'].get('plant')))
         specs = [(r['kind'], r['figures']['specimen']) for r in runs
                  if r['figures'].get('specimen')]
         if specs:
@@ -1894,4 +1918,34 @@ def identification_table(doc: dict) -> str:
                                  + ' up to 25 Hz): the `model` and `adaptive` compensators '
                                  'will refuse these settings (`none`, `polynomial` and '
                                  '`ats` need no inverse)')
+        # what the parameter file does not get, and why (rig_identification's notes)
+        written = (figures.get('parameters') if 'rigs' in doc else doc.get('parameters')) or {}
+        plant_note, design_note = str(written.get('_plant', '')), str(written.get('_design', ''))
+        if plant_note.startswith('not identified'):
+            lines.append(f"{'plant model':18s} not identified (it needs the specimen fit above): "
+                         'none for the parameter file, which --params then refuses to write')
+        if design_note.startswith('NOT written: '):
+            lines.append(f"{'':18s} designed controller NOT written to the parameter file: "
+                         + design_note[len('NOT written: '):])
     return '\n'.join(lines)
+
+
+def _fit_warning(fit: dict, kind: str, plant: dict | None) -> str:
+    """The line on loop figures read on a fixed-order rational fit that misses the run's
+    response by more than :data:`FIT_WARNING`: a note when the run's plant model (its order
+    chosen by the data) fits the force within that bound, since the designed loop and the
+    parameter file are read on it; a warning otherwise."""
+    head = (f"the figures above are read on a rational fit of orders {tuple(fit['orders'])} "
+            f"that misses the {kind} run's response by {100 * fit['fit_error']:.1f} % (above "
+            f'{100 * FIT_WARNING:g} %)')
+    if not plant:
+        return f'WARNING: {head}: identify again with --orders NB NA'
+    misfit = plant['nrms']['force_N']
+    if misfit <= FIT_WARNING:
+        return (f"note: {head}; the plant model below (order {plant['order']}) fits the "
+                f'force to {100 * misfit:.2g} %, and the designed loop and the parameter file '
+                'are read on it (--orders NB NA reads the figures above closer)')
+    return (f'WARNING: {head}, and the plant model below misses the force by '
+            f'{100 * misfit:.2g} %: no linear model of this order fits the actuator at this '
+            'level (friction, valve flow); trust neither the figures above nor the designed '
+            'loop far')

@@ -90,6 +90,24 @@ class _Fixed:
         return self._form
 
 
+def _misfit_clause(rig_params: Mapping[str, Mapping]) -> str:
+    """The rigs whose ``plant_model`` misses its measured force by more than
+    :data:`~seft_ros.core.stability.MAX_PLANT_MISFIT` (its stated ``uncertainty.relative``),
+    as a clause of a calibration's refusal ('' when none): the loop calibrated is that
+    model's, which is not the rig's."""
+    from seft_ros.core import stability
+    poor = [(rig, stability._plant_misfit(p)) for rig, p in rig_params.items()]
+    poor = [(rig, m) for rig, m in poor if m > stability.MAX_PLANT_MISFIT]
+    if not poor:
+        return ''
+    which = ', '.join(f"{f'rig {rig}' if rig else 'the rig'}'s plant_model misses its force by "
+                      f'{100 * m:.2g} % NRMS' for rig, m in poor)
+    return (f'; {which} (above {100 * stability.MAX_PLANT_MISFIT:g} %, MAX_PLANT_MISFIT: a '
+            'nonlinear actuator, friction or valve flow), and the force controller and '
+            "inverse designed on it are not the rig's: identify it again (seft identify) or "
+            "enter the lab's own controller")
+
+
 def pole_calibration(params: Mapping) -> np.ndarray:
     """The offset of the ``model`` law's gains ``K`` that gives the run's closed loop the
     reference structure's pole (module notes).
@@ -200,7 +218,7 @@ def _pole_calibration(params: Mapping) -> np.ndarray:
             f'{offset[1]:.4g} N s/m of {k0[0]:.4g}, {k0[1]:.4g}; pole {abs(e):.6f} at '
             f'{math.degrees(np.angle(e)):.3f} deg, reference {abs(target):.6f} at '
             f'{math.degrees(np.angle(target)):.3f} deg): check the force-loop inverse '
-            '(predictor_loop_*) or use predictor_calibration none')
+            '(predictor_loop_*) or use predictor_calibration none' + _misfit_clause({'': base}))
     # the ground force's gain: the test's response to the ground force, the pole exact, as
     # the reference's in the least squares over the response band (module notes)
     scale = ground_gain_scale(m0 + offset[0] * dm[0] + offset[1] * dm[1],
@@ -209,7 +227,7 @@ def _pole_calibration(params: Mapping) -> np.ndarray:
     if not (math.isfinite(scale) and abs(scale - 1.0) < MAX_CORRECTION):
         raise ParameterError(f'predictor_calibration poles: the ground force would need a gain '
                              f'of {scale:.4g}: check the force-loop inverse (predictor_loop_*) '
-                             'or use predictor_calibration none')
+                             'or use predictor_calibration none' + _misfit_clause({'': base}))
     result = np.array([offset[0], offset[1], scale])
     if len(_CACHE) >= 16:
         _CACHE.pop(next(iter(_CACHE)))
@@ -403,7 +421,8 @@ def _structure_calibration(params: Mapping) -> dict:
             f"structure's modes ({freqs} Hz) with the interface corrections of "
             f'{", ".join(rigs)} (pole error {np.max(np.abs(res)):.2g}, largest correction '
             f'{np.max(np.abs(v)):.3g} of {MAX_CORRECTION}): check the force-loop inverse '
-            '(predictor_loop_*) or use predictor_calibration none')
+            '(predictor_loop_*) or use predictor_calibration none'
+            + _misfit_clause({r: setup.rig_params[r] for r in setup.rig_names}))
     out = {}
     for j, (r, scale) in enumerate(zip(rigs, scales)):
         vv = v[4 * j:4 * j + 4]
