@@ -1,14 +1,20 @@
 """Bad input to the ``seft`` command and to a node started by hand: exit code 2 and one line.
 
-Every case runs the installed ``seft`` as a subprocess (cwd in tmp, isolated ROS env). The
-``seft simulate`` cases run a few at a time in a module fixture: each start costs about a
-second of imports.
+The table of one-line errors (:data:`CASES`) runs ``seft``'s entry point in this process
+(cwd in tmp, stdout and stderr captured), one case after another: as a subprocess each case
+cost about a second of imports, 52-67 s of one worker for the table. The cases of
+:data:`AS_PROCESS` run the installed ``seft`` as a subprocess too (isolated ROS env), so
+that the console script's exit code and streams are checked for each verb.
 """
 
 from concurrent.futures import ThreadPoolExecutor
+import contextlib
+import io
 import json
+import os
 from pathlib import Path
 import re
+import subprocess
 import sys
 
 import pytest
@@ -235,25 +241,59 @@ def make_inputs(cwd):
         writer.write(conn, 1, store.serialize_cdr(msg, 'std_msgs/msg/String'))
 
 
+#: Cases also run as the installed ``seft`` in a subprocess (one per verb and input kind).
+AS_PROCESS = ('yaml_mass_0', 'at2_token', 'compare_missing', 'run_domain_out_of_range')
+
+
+def case_argv(key: str) -> list[str]:
+    """The arguments after ``seft`` of case `key`: a short run in its own output directory."""
+    args = CASES[key][0]
+    if args[0] == 'simulate':
+        # a case that gives the length by --set gets no --duration (refused with it)
+        length = [] if any(a.startswith('duration_s=') for a in args) else ['--duration', '1']
+        return [*args, *length, *([] if '--out' in args else ['--out', f'out_{key}'])]
+    return [*args, '--out', f'out_{key}']
+
+
+def run_in_process(argv: list[str], cwd: Path) -> subprocess.CompletedProcess:
+    """``seft argv`` through its entry point in this process, in `cwd`: the exit code and
+    what it wrote to stdout and stderr."""
+    out, err = io.StringIO(), io.StringIO()
+    previous = os.getcwd()
+    os.chdir(cwd)
+    try:
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            try:
+                code = main.main(argv)
+            except SystemExit as exc:       # argparse's errors
+                code = exc.code
+    finally:
+        os.chdir(previous)
+    return subprocess.CompletedProcess(argv, code, out.getvalue(), err.getvalue())
+
+
 @pytest.fixture(scope='module')
-def results(tmp_path_factory, seft_exe, run_process):
+def inputs(tmp_path_factory):
     cwd = tmp_path_factory.mktemp('cli_errors')
     make_inputs(cwd)
+    return cwd
 
-    def one(item):
-        key, (args, _) = item
-        argv = [seft_exe, *args]
-        if args[0] == 'simulate':
-            # a case that gives the length by --set gets no --duration (refused with it)
-            length = ([] if any(a.startswith('duration_s=') for a in args)
-                      else ['--duration', '1'])
-            argv += length + ([] if '--out' in args else ['--out', f'out_{key}'])
-        else:
-            argv += ['--out', f'out_{key}']
-        return key, run_process(argv, cwd=cwd, timeout=60)
 
-    with ThreadPoolExecutor(max_workers=3) as pool:
-        return dict(pool.map(one, CASES.items()))
+@pytest.fixture(scope='module')
+def results(inputs):
+    return {key: run_in_process(case_argv(key), inputs) for key in CASES}
+
+
+@pytest.fixture(scope='module')
+def process_results(inputs, seft_exe, run_process, tmp_path_factory):
+    cwd = tmp_path_factory.mktemp('cli_errors_process')
+    make_inputs(cwd)
+
+    def one(key):
+        return key, run_process([seft_exe, *case_argv(key)], cwd=cwd, timeout=60)
+
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        return dict(pool.map(one, AS_PROCESS))
 
 
 def error_line(proc, prefix='seft: error: '):
@@ -277,6 +317,14 @@ def test_bad_input_is_one_error_line(results, case):
     assert re.fullmatch(CASES[case][1], message), message
     # found before anything runs: the error is all there is on stderr
     assert len(proc.stderr.splitlines()) == 1, proc.stderr
+
+
+@pytest.mark.parametrize('case', AS_PROCESS)
+def test_the_installed_command_gives_the_same_line(process_results, results, case):
+    # the console script: exit code 2, the one line, nothing on stdout, no output left
+    proc = process_results[case]
+    assert error_line(proc) == error_line(results[case])
+    assert proc.stderr == results[case].stderr
 
 
 def test_argparse_choice_error(seft_exe, run_process, tmp_path):
