@@ -22,6 +22,7 @@ import pytest
 from rosbags.rosbag2 import Reader
 from rosbags.typesys import Stores, get_typestore
 
+from seft_msgs_py.node_support import STACKS_SIGNAL
 from seft_ros.analysis.bag import read_run
 
 REPO = Path(__file__).resolve().parents[2]
@@ -101,6 +102,12 @@ class Graph:
                 break
             time.sleep(0.05)
         self.codes = {node: proc.poll() for node, proc in self.procs.items()}
+        alive = [proc for proc in self.procs.values() if proc.poll() is None]
+        for proc in alive:
+            # where a node that did not end is: its threads' stacks to its stderr (output())
+            os.kill(proc.pid, STACKS_SIGNAL)
+        if alive:
+            time.sleep(1.0)
         return dict(self.codes)
 
     def stderr(self, node: str) -> str:
@@ -159,6 +166,30 @@ def read_bag(path: Path):
 #: received by then with their alpha (the builder's 0.5, the others' 0.0), grouped by value.
 ALPHA_LINE = re.compile(r'(?P<node>\w+): error: parameter alpha differs: '
                         r'(?P<values>\w+=\d\.\d(, \w+=\d\.\d)+)')
+
+
+def test_a_node_that_does_not_end_says_where_it_is(tmp_path, ros_env):
+    """``kill -USR1`` of a node process: every thread's Python stack on its stderr, and the
+    node goes on (a builder that did its 500 lockstep steps was alive 60 s later under the
+    suite's load, printed nothing and ignored SIGINT: its stack says where it waits)."""
+    graph = Graph(tmp_path, ros_env)
+    graph.procs['rig'] = subprocess.Popen(
+        [str(executable('rig', 'seft_plant_sim')), '--ros-args', '--params-file', PARAMS_FILE,
+         *SHORT], cwd=REPO, env=ros_env, stdin=subprocess.DEVNULL,
+        stdout=open(tmp_path / 'rig.out', 'wb'), stderr=open(tmp_path / 'rig.err', 'wb'),
+        start_new_session=True)
+    try:
+        # alone, the rig waits for its graph (the recorder, the controller) and never ends
+        assert graph.wait(4.0) == {'rig': None}, graph.output()
+        stacks = graph.stderr('rig')
+        assert re.search(r'^Current thread 0x[0-9a-f]+ \(most recent call first\):\n'
+                         r'(  File .*\n)*  File ".*node_support\.py", line \d+ in main_for_nodes$',
+                         stacks,
+                         re.MULTILINE), stacks
+        assert graph.procs['rig'].poll() is None, stacks          # and it goes on
+    finally:
+        assert graph.stop() == []
+    assert graph.procs['rig'].returncode is not None
 
 
 def test_readme_mistake_alpha_on_one_node_is_refused(graph, tmp_path):

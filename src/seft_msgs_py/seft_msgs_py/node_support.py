@@ -10,6 +10,7 @@ becomes a one-line message on stderr and exit code 2.
 
 import contextlib
 from dataclasses import replace
+import faulthandler
 import gc
 import json
 import math
@@ -69,9 +70,14 @@ from seft_msgs_py.stopping import STOP_SIGNALS, RunnerWatch, StopRequests
 from seft_msgs_py.topics import MEASUREMENT, NODE_PARAMETERS, STATUS, record_topic
 
 __all__ = ['SeftNode', 'StepTiming', 'RecordBatch', 'InputWatchdog', 'main_for',
-           'main_for_nodes', 'descriptor_of', 'LINGER_S', 'shut_down', 'SHUTDOWN_TIMEOUT_S',
-           'exit_if_longer']
+           'main_for_nodes', 'descriptor_of', 'STACKS_SIGNAL', 'LINGER_S', 'shut_down',
+           'SHUTDOWN_TIMEOUT_S', 'exit_if_longer']
 
+#: The signal that makes a node process write every thread's Python stack to stderr (its
+#: log) and go on (``faulthandler.register``): ``kill -USR1 PID`` of a node that does not end.
+#: Seen under the test suite's load (load average 5): a reference-force builder that had done
+#: its 500 lockstep steps was alive 60 s later, printed nothing and ignored SIGINT for 10 s.
+STACKS_SIGNAL = signal.SIGUSR1
 #: How long a finished node keeps serving its publishers before it exits [s].
 LINGER_S = 1.0
 #: With a recorder in the graph, the longest wait for it to close the bag [s].
@@ -1085,6 +1091,10 @@ def main_for_nodes(specs: Sequence[tuple[Callable[[], SeftNode], str, Sequence[s
     # holds it for its safe stop (seft_msgs_py.stopping); so does the end of the runner
     use_seft_profile()            # before the first participant (seft_msgs_py.dds)
     clock.read_environment()      # this process's (a forked node's, seft_ros.cli.spawn)
+    # a node that does not end can be asked where it is: SIGUSR1 prints every thread's
+    # Python stack to stderr (its log) from the signal itself, so also when its main thread
+    # is stuck in a call into ROS or DDS that Ctrl-C cannot interrupt
+    faulthandler.register(STACKS_SIGNAL, all_threads=True)
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     nodes: list[SeftNode] = []
     name = specs[0][1]
