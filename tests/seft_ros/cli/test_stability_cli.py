@@ -102,7 +102,9 @@ def test_a_structure_predicted_unstable_is_refused_then_forced(seft_exe, run_pro
     assert proc.returncode == 2 and proc.stdout == ''
     assert re.fullmatch(r'seft: error: structure with predictor none is predicted UNSTABLE '
                         r'\(spectral radius 1\.0[0-9]{3}; unstable already at 0\.1 times its '
-                        r'computational part\); use --force to run it anyway',
+                        r"computational part\); it grows at 14\.2\d Hz, the structure's mode "
+                        r'at 16\.29 Hz \(its modes: 6\.224, 16\.29 Hz\); use --force to run it '
+                        r'anyway',
                         proc.stderr.splitlines()[-1]), proc.stderr
     proc = run_process([seft_exe, 'simulate', 'c.yaml', '--out', 'forced', '--force'],
                        cwd=tmp_path)
@@ -187,7 +189,9 @@ def test_a_forced_run_predicted_unstable_that_completes_is_flagged(seft_exe, run
     assert run['stable'] is True and run['stability']['predicted_stable'] is False
     flag = ('predicted unstable: before the run the stability guard said: structure with '
             'predictor none is predicted UNSTABLE (spectral radius 1.0002; largest stable '
-            'coupling 0.106 times its computational part); it ran anyway (--force) and '
+            "coupling 0.106 times its computational part); it grows at 12.34 Hz, the "
+            "structure's mode at 12.21 Hz (its modes: 5.642, 12.21 Hz); it ran anyway "
+            '(--force) and '
             'completed, but its loop grows: a longer record or a larger input may diverge')
     assert run['flags'] == [flag] and run['verdict'] == 'stable, flagged'
     assert f'note: run 1 (none): flagged: {flag}' in proc.stdout.splitlines()

@@ -3,6 +3,7 @@ against simulation."""
 
 import json
 import math
+import re
 
 import numpy as np
 import pytest
@@ -391,6 +392,53 @@ def test_check_structure_says_it_in_one_line():
                                     '(spectral radius 1.0')
     ok = st.check_run(_two_story(1.0, 1.0, 'model'))
     assert ok.stable and 'predicted stable' in ok.message
+
+
+@pytest.mark.parametrize('k2, grows_hz, mode_hz, nyquist', [
+    (1e7, 107.0, 102.9, False), (1e8, 250.0, 324.9, True)])
+def test_a_stiff_link_is_named_where_the_test_grows(k2, grows_hz, mode_hz, nyquist, tmp_path):
+    """A two-story whose second story is stiff (session 23's D9: 1e8 N/m, a 325 Hz mode
+    above the 250 Hz Nyquist frequency): the refusal says where the loop grows, the mode it
+    is, and the cause (before: the spectral radius and the coupling scale only); a stepped
+    run is stopped by the instability monitor (at 0.32 s and 0.07 s)."""
+    from seft_ros.cli.api import build_runs
+    config = tmp_path / 'stiff.yaml'
+    config.write_text(f"""\
+predictor: model
+amplitude_N: 800.0
+time_scale: 0.5
+duration_s: 1.0
+structure:
+  dofs: [f1, f2]
+  physical: {{f1: lab}}
+  story_masses_kg: [60.0, 40.0]
+  story_stiffnesses_N_per_m: [2.5e5, {k2}]
+  story_damping_N_s_per_m: [950.0, 150.0]
+rigs:
+  lab: {{rig_model: servohydraulic, stiffness_N_per_m: 2.5e5,
+         force_controller: specimen_loop_shaping}}
+""")
+    p = build_runs(config=str(config), overrides={})[0]
+    check = st.check_run(p)
+    assert check.stable is False
+    m = re.search(r'; it grows at ([\d.]+) Hz, the structure\'s mode at ([\d.]+) Hz(, above '
+                  r'the Nyquist frequency 250 Hz of dt=0.002 s)? \(its modes: [\d.]+, '
+                  r'[\d.]+ Hz\): a stiff computational link \(a near-rigid story, a bearing\) '
+                  r'puts a mode where one sample period costs its feedback 45 degrees or more; '
+                  r'lump the DOFs it joins into one, or soften it$', check.message)
+    assert m, check.message
+    assert float(m[1]) == pytest.approx(grows_hz, abs=0.5)
+    assert float(m[2]) == pytest.approx(mode_hz, abs=0.1)
+    assert (m[3] is not None) == nyquist
+    # the mode against the structure's own eigenvalues (independent of the loop)
+    w2 = np.linalg.eigvals(np.linalg.solve(np.diag([60.0, 40.0]), [[2.5e5 + k2, -k2],
+                                                                    [-k2, k2]]))
+    assert float(m[2]) == pytest.approx(np.sqrt(w2.max()) / (2 * math.pi), rel=1e-3)
+    run = simulate(p)
+    assert not run.stable and 'high-frequency oscillation' in run.abort_reason
+    # an uncompensated two-story grows at its second mode, 12 Hz: named, with no stiff link
+    slow = st.check_run(_two_story(1.0, 1.0, 'none'))
+    assert 'it grows at' in slow.message and 'stiff' not in slow.message, slow.message
 
 
 # -- the robustness margin ------------------------------------------------------------------

@@ -1972,7 +1972,8 @@ def _check_structure(params: Mapping) -> StabilityCheck:
     largest stable coupling scale)."""
     predictor = params['predictor']
     try:
-        radius = TestLoop(params).spectral_radius
+        loop = TestLoop(params)
+        radius = loop.spectral_radius
     except NoLinearModelError as exc:
         return StabilityCheck(None, math.nan, math.nan,
                               f'structure with predictor {predictor}: no stability '
@@ -1988,7 +1989,77 @@ def _check_structure(params: Mapping) -> StabilityCheck:
     message = (f'structure with predictor {predictor} is predicted '
                f'{"stable" if stable else "UNSTABLE"} (spectral radius {radius:.4f}; '
                f'{limit})')
+    if not stable:
+        message += growing_mode(loop.matrix, params)
     return StabilityCheck(stable, radius, boundary, message)
+
+
+#: A growing oscillation of a test's loop is the structure's mode when their frequencies
+#: differ by at most this fraction of the mode's [-] (measured: a two-story building whose
+#: second story is stiffened from 1e6 to 1e8 N/m grows at 107 Hz with its second mode at
+#: 103 Hz, and at the Nyquist frequency, 250 Hz, with it at 178 Hz or 325 Hz).
+GROWING_MODE_TOLERANCE = 0.15
+
+
+#: A structure's mode of at least this many cycles a sample period (45 degrees of phase a
+#: sample: 62.5 Hz at dt = 2 ms) is a stiff link's [-]: the growth there is named as such.
+#: The two-story building above grew at its 103 Hz mode (0.21 cycles a sample); the
+#: uncompensated two-story of session 23's D2 grows at its 12.2 Hz mode (0.024), a loop
+#: whose delay is not compensated, not a stiff link.
+STIFF_MODE_CYCLES_PER_SAMPLE = 0.125
+
+
+def growing_mode(matrix: np.ndarray, params: Mapping) -> str:
+    """What an unstable structure's test grows at: ``''``, or the end of its refusal naming
+    the frequency of the loop's largest eigenvalue and, when it is one of the structure's
+    modes above its first, that mode, and, for a mode of at least
+    :data:`STIFF_MODE_CYCLES_PER_SAMPLE`, the usual cause (a stiff computational link).
+
+    The loop's largest eigenvalue ``z`` oscillates at ``|arg z| / (2 pi dt)`` [Hz] (at the
+    Nyquist frequency ``1 / (2 dt)`` for a real negative one, where a mode above it
+    aliases). The structure's modes are :meth:`~seft_ros.core.structure.Structure.modes`;
+    one above the first matches within :data:`GROWING_MODE_TOLERANCE`, or, for a growth at
+    the Nyquist frequency, the highest if it lies above half of it (``omega dt > pi / 2``).
+
+    Parameters
+    ----------
+    matrix : ndarray, shape (n, n)
+        The test's closed-loop state matrix (:class:`TestLoop`'s ``matrix``).
+    params : mapping
+        The run's parameters (``dt``, the structure).
+
+    Returns
+    -------
+    str
+        ``'; it grows at F Hz ...'``, or ``''`` if no eigenvalue lies outside the unit
+        circle.
+    """
+    eig = np.linalg.eigvals(matrix)
+    z = eig[np.argmax(np.abs(eig))]
+    if not abs(z) >= 1.0:
+        return ''
+    dt = float(params['dt'])
+    nyquist_hz = 0.5 / dt
+    grows_hz = abs(float(np.angle(z))) / (2.0 * math.pi * dt)
+    text = f'; it grows at {grows_hz:.4g} Hz'
+    modes_hz = test_setup(params).substructures.structure.modes()[0]
+    at_nyquist = grows_hz >= (1.0 - GROWING_MODE_TOLERANCE) * nyquist_hz
+    matched = [f for f in modes_hz[1:]
+               if abs(grows_hz - f) <= GROWING_MODE_TOLERANCE * f
+               or (at_nyquist and f >= 0.5 * nyquist_hz)]
+    if not matched:
+        return text
+    # at the Nyquist frequency the highest (a mode above it aliases there)
+    mode_hz = max(matched) if at_nyquist else min(matched, key=lambda f: abs(f - grows_hz))
+    where = (f', above the Nyquist frequency {nyquist_hz:g} Hz of dt={dt:g} s'
+             if mode_hz >= nyquist_hz else '')
+    text += (f", the structure's mode at {mode_hz:.4g} Hz{where} (its modes: "
+             + ', '.join(f'{f:.4g}' for f in modes_hz) + ' Hz)')
+    if mode_hz * dt < STIFF_MODE_CYCLES_PER_SAMPLE:
+        return text
+    return (f'{text}: a stiff computational link (a near-rigid story, a bearing) puts a mode '
+            'where one sample period costs its feedback 45 degrees or more; lump the DOFs it '
+            'joins into one, or soften it')
 
 
 def stability_map(params: Mapping, taus, predictors, *, alpha_max: float = 3.0,
