@@ -103,3 +103,33 @@ def test_the_largest_amplitude_that_fits_fits():
     assert summary['rigs']['']['acceleration']['exceeded'] is True
     assert summary['rigs']['']['force']['exceeded'] is False
     assert summary['lines'] == check.lines() and len(summary['lines']) == 2
+
+
+def test_a_real_time_run_beyond_its_actuators_capacity_is_refused_unless_forced():
+    """A real-time run (a lab's rig on the wall clock) whose reference needs more than its
+    actuator's velocity is refused before anything starts (before: a warning line, and the
+    interlock stopped the run 0.86 s in, session 23's operations tester); --force runs it
+    with the warning. The same run in lockstep, and a sensor's range in real time, warn."""
+    realtime = _runs(2500.0, [2.0], mode='realtime')
+    with pytest.raises(api.RangeRefusedError, match=(
+            r"^range check: rig actuator velocity: the reference peaks at 2\.418 m/s, beyond "
+            r"the actuator's velocity at the valve limit of 1\.998 m/s; the largest amplitude "
+            r"that fits: amplitude_N 2066 N; refused: a real-time run beyond its actuator's "
+            r'capacity, which the interlock would stop; lower the amplitude, or --force to run '
+            r'it anyway$')):
+        api.check_ranges(runs=realtime)
+    lines = []
+    api.check_ranges(runs=realtime, force=True, progress=lines.append)
+    assert _short(lines) == ['range check: rig acceleration:',
+                             'range check: rig actuator velocity:']
+    lines.clear()
+    api.check_ranges(runs=_runs(2500.0, [2.0], mode='lockstep'), progress=lines.append)
+    assert len(lines) == 2
+    lines.clear()
+    # alpha 2 at 1000 N: the accelerometer's range only (39.9 of 39.2 m/s^2), in real time
+    api.check_ranges(runs=_runs(1000.0, [2.0], mode='realtime'), progress=lines.append)
+    assert _short(lines) == ['range check: rig acceleration:']
+    # two runs, one beyond: the refusal names it, and nothing of the other
+    with pytest.raises(api.RangeRefusedError, match=r'^range check: \[alpha_2_servohydraulic_'
+                       r'model\] rig actuator velocity: .*; refused: a real-time run'):
+        api.check_ranges(runs=_runs(2500.0, [0.5, 2.0], mode='realtime'))

@@ -835,7 +835,8 @@ def run_experiments(*, runs: list[dict], out_dir: Path,
     view of the runs (:mod:`seft_ros.cli.live`), in the run's domain for every run.
 
     Before any node starts, :func:`check_stability` (`force`: warn instead of refusing) and
-    :func:`check_ranges` (`strict`: refuse instead of warning).
+    :func:`check_ranges` (`strict`: refuse instead of warning; `force`: run a real-time run
+    beyond its actuator's capacity, with its warning).
 
     `nodes` (``seft run --nodes``): start only these nodes; the rest of the graph runs on
     other hosts in the same ROS domain (``ROS_DOMAIN_ID`` or `domain_id`, required then;
@@ -847,7 +848,8 @@ def run_experiments(*, runs: list[dict], out_dir: Path,
     PredictedUnstableError
         A run is predicted unstable and `force` is False (nothing started).
     RangeRefusedError
-        `strict` and a run's reference exceeds a range or capacity (nothing started).
+        `strict` and a run's reference exceeds a range or capacity, or a real-time run's
+        exceeds its actuator's capacity and not `force` (nothing started).
     InputError
         `nodes` names no node of the graph, several hosts without a shared domain, or
         `processes` is not one of ``node``, ``loop``.
@@ -866,7 +868,7 @@ def run_experiments(*, runs: list[dict], out_dir: Path,
     if nodes is not None:
         nodes = check_nodes(nodes, runs)
         check_stability(runs=runs, force=force, progress=progress)
-        check_ranges(runs=runs, strict=strict, progress=progress)
+        check_ranges(runs=runs, strict=strict, force=force, progress=progress)
         check_settings(runs=runs, progress=progress)
         return _run_here(runs, out_dir, progress, _shared_domain(domain_id), nodes, processes,
                          live)
@@ -876,7 +878,8 @@ def run_experiments(*, runs: list[dict], out_dir: Path,
 
     def checks():
         predicted.extend(check_stability(runs=runs, force=force, progress=progress))
-        ranges.extend(check_ranges(runs=runs, strict=strict, progress=progress))
+        ranges.extend(check_ranges(runs=runs, strict=strict, force=force,
+                                   progress=progress))
         check_settings(runs=runs, progress=progress)
     with _interrupted_as(lambda exc: _NOTHING_RUN):
         runner, claim = open_runner(domain_id=domain_id, progress=progress, checks=checks,
@@ -1312,7 +1315,7 @@ def check_settings(*, runs: list[dict], progress: Callable[[str], None] = print)
                  f'settings: {line}')
 
 
-def check_ranges(*, runs: list[dict], strict: bool = False,
+def check_ranges(*, runs: list[dict], strict: bool = False, force: bool = False,
                  progress: Callable[[str], None] = print) -> list:
     """Before the runs: each rig's peaks of the analytical reference against its sensors'
     ranges and its actuator's capacity (:func:`seft_ros.analysis.range_check.range_check`).
@@ -1320,7 +1323,12 @@ def check_ranges(*, runs: list[dict], strict: bool = False,
     One line per channel that will be exceeded (``range check: [run] rig, channel: the
     reference peaks at ..., beyond the ... of ...; the largest amplitude that fits: ...``), a
     line shared by several runs once with their labels; `strict` (``--strict``) refuses the
-    runs instead. A run with a plug-in's model (:mod:`seft_ros.core.models`) is first checked
+    runs instead. A real-time run (``mode: realtime``: a rig on the wall clock, a lab's
+    hardware) whose reference exceeds its *actuator's* capacity (force, stroke or velocity:
+    ``actuator *`` channels) is refused unless `force` (``--force``): the interlock would stop
+    it (the operations tester's run needing 4 times the stroke and 1.8 times the force was
+    stopped at 0.86 s); a sensor's range stays a warning there (the run counts what clips).
+    A run with a plug-in's model (:mod:`seft_ros.core.models`) is first checked
     by its plug-in's ``check_runs`` (OpenSees: :func:`seft_ros.opensees.checks.check_runs`;
     refused in one line where it cannot run as configured); its range check is made with
     the report.
@@ -1333,7 +1341,8 @@ def check_ranges(*, runs: list[dict], strict: bool = False,
     Raises
     ------
     RangeRefusedError
-        `strict` and a channel exceeded (the message is the first line and how many more).
+        `strict` and a channel exceeded, or a real-time run beyond its actuator's capacity
+        and not `force` (the message is the first such line and how many more).
     InputError, ParameterError
         Bad record or parameter.
     """
@@ -1343,18 +1352,31 @@ def check_ranges(*, runs: list[dict], strict: bool = False,
         check = getattr(model_plugin(kind), 'check_runs', None)
         if check is not None:
             check(runs, progress=progress)
-    checks, lines = [], {}
+    checks, lines, beyond = [], {}, {}
     for p, label in zip(runs, run_labels(runs)):
         check = range_check(p, prepared_record(p).acceleration_m_s2)
         checks.append(check)
-        for line in check.lines():
+        for peak in check.exceeded:
+            line = check.line(peak)
             lines.setdefault(line, []).append(label)
-    shown = [f'[{", ".join(labels)}] {line}' if len(runs) > 1 else line
-             for line, labels in lines.items()]
+            if p.get('mode') == 'realtime' and peak.channel.startswith('actuator '):
+                beyond.setdefault(line, []).append(label)
+
+    def labelled(found):
+        return [f'[{", ".join(labels)}] {line}' if len(runs) > 1 else line
+                for line, labels in found.items()]
+    shown = labelled(lines)
     if strict and shown:
         more = f' (and {len(shown) - 1} more)' if len(shown) > 1 else ''
         raise RangeRefusedError(f'range check: {shown[0]}{more}; refused (--strict): lower '
                                 'the amplitude or run without --strict')
+    if beyond and not force:
+        refused = labelled(beyond)
+        more = f' (and {len(refused) - 1} more)' if len(refused) > 1 else ''
+        raise RangeRefusedError(
+            f"range check: {refused[0]}{more}; refused: a real-time run beyond its actuator's "
+            'capacity, which the interlock would stop; lower the amplitude, or --force to '
+            'run it anyway')
     for line in shown:
         progress(f'range check: {line}')
     return checks

@@ -142,7 +142,8 @@ def _experiment_options(p: argparse.ArgumentParser) -> None:
     p.add_argument('--name', action=_Once, help='run name, not a path (default: the config '
                    'file name, or "run")')
     p.add_argument('--force', action='store_true', help='run even when a run is predicted '
-                   'unstable by the stability map (warn instead of refusing)')
+                   'unstable by the stability map, or a real-time run needs more than its '
+                   "actuator's capacity (warn instead of refusing)")
     p.add_argument('--strict', action='store_true', help="refuse a run whose analytical "
                    "reference exceeds a rig's sensor range or actuator capacity (default: one "
                    'warning line per channel before the run)')
