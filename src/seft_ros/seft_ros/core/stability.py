@@ -74,7 +74,7 @@ __all__ = [
     'largest_stable_scale', 'RobustnessMargin', 'robustness_margin',
     'KANAI_TAJIMI_FIRM_GROUND', 'PREDICTED_LAG_S', 'kanai_tajimi', 'GroundSpectrum',
     'RECORD_SPECTRUM_SEGMENT_S', 'response_grid', 'predicted_error',
-    'GAIN_ERROR',
+    'GAIN_ERROR', 'growing_mode', 'GROWING_MODE_TOLERANCE', 'STIFF_MODE_CYCLES_PER_SAMPLE',
 ]
 
 #: Inputs of a compensator's linear form at step k, in this order (:class:`PredictorForm`).
