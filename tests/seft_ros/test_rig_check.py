@@ -172,17 +172,11 @@ def test_rig_check_errors_are_one_line(args, message, tmp_path, run_process, sef
     assert proc.stderr.strip().splitlines()[-1] == f'seft: error: {message}'
 
 
-def test_the_tap_drops_what_an_earlier_run_sent():
-    """A reader matched late takes the rig's history at once, and what the middleware holds
-    is taken in the next spin: samples and /clock of an earlier run or attempt reach the tap
-    after it began the next one. They are told apart by their send time and dropped (taken,
-    they would count as this run's: samples repeated, /clock off its grid)."""
-    from rclpy.serialization import serialize_message
-    from rosgraph_msgs.msg import Clock
-
+def _tap():
+    """The checker's tap (``rig_check._Tap``) on a stand-in runner node; its subscriptions'
+    callbacks by topic."""
     from seft_msgs_py import parameters
     from seft_msgs_py.graph import Graph
-    from seft_msgs_py.topics import MEASUREMENT
     from seft_ros.cli.rig_check import _Tap
 
     class Node:
@@ -192,7 +186,20 @@ def test_the_tap_drops_what_an_earlier_run_sent():
             self.callbacks[topic] = callback
 
     runner = type('Runner', (), {'node': Node()})()
-    tap = _Tap(runner, Graph.from_parameters(parameters.resolve({})))
+    return _Tap(runner, Graph.from_parameters(parameters.resolve({}))), Node.callbacks
+
+
+def test_the_tap_drops_what_an_earlier_run_sent():
+    """A reader matched late takes the rig's history at once, and what the middleware holds
+    is taken in the next spin: samples and /clock of an earlier run or attempt reach the tap
+    after it began the next one. They are told apart by their send time and dropped (taken,
+    they would count as this run's: samples repeated, /clock off its grid)."""
+    from rclpy.serialization import serialize_message
+    from rosgraph_msgs.msg import Clock
+
+    from seft_msgs_py.topics import MEASUREMENT
+
+    tap, callbacks = _tap()
     tap.reset(2_000_000)
     began = tap.since_ns
 
@@ -210,8 +217,8 @@ def test_the_tap_drops_what_an_earlier_run_sent():
     def info(sent_ns):
         return {'source_timestamp': sent_ns, 'received_timestamp': began + 5_000_000}
 
-    on_measurement = Node.callbacks[MEASUREMENT.name]
-    on_clock = Node.callbacks['/clock']
+    on_measurement = callbacks[MEASUREMENT.name]
+    on_clock = callbacks['/clock']
     for k in (998, 999):                    # the earlier attempt's last samples, taken late
         on_measurement(measurement(k), info(began - 1_000_000))
     on_clock(clock_msg(990), info(began - 1_000_000))
@@ -220,6 +227,44 @@ def test_the_tap_drops_what_an_earlier_run_sent():
     on_clock(clock_msg(0), info(began + 500_000_000))
     assert tap.steps == [0, 1] and tap.values == [[0.0], [1.0]]
     assert tap.clock_ns == [0] and tap.stale == 3
+
+
+def test_the_tap_injects_the_fault_at_its_first_chance_heard_live(monkeypatch):
+    """The fault comes at the first of its chances (``CheckProfile.fault_steps``, a cycle
+    apart) whose sample the checker hears within ``LATE_FAULT_S`` of its sending: a chance
+    heard late (the checker discovered the rig late and takes its first samples at once) is
+    passed over for the next; the last is taken however late (the run is then run again)."""
+    from rclpy.serialization import serialize_message
+
+    from seft_msgs_py import clock
+    from seft_msgs_py.topics import MEASUREMENT
+
+    tap, callbacks = _tap()
+    on_measurement = callbacks[MEASUREMENT.name]
+    now = {'ns': 0}
+    monkeypatch.setattr(clock, 'system_ns', lambda: now['ns'])
+    monkeypatch.setattr(clock, 'now_ns', lambda: now['ns'])
+
+    def hear(k, late_s):
+        msg = MEASUREMENT.msg_type()
+        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(k * 2_000_000, 10**9)
+        msg.name, msg.position = ['force_N'], [float(k)]
+        sent = 10**12 + k * 2_000_000
+        now['ns'] = sent + int(late_s * 1e9)
+        on_measurement(serialize_message(msg), {'source_timestamp': sent,
+                                                'received_timestamp': now['ns']})
+
+    for lateness, fired_at in (((0.001,) * 3, 100), ((0.3, 0.001, 0.001), 200),
+                               ((0.3, 0.3, 0.001), 300), ((0.3, 0.3, 0.3), 300)):
+        faults = []
+        now['ns'] = 0
+        tap.reset(2_000_000, faults.append, (100, 200, 300))
+        for k in range(0, 400):
+            hear(k, lateness[min(k // 100, 3) - 1] if k >= 100 else 0.3)
+        assert tap.fault_step == fired_at and faults == [pytest.approx(fired_at * 0.002)], \
+            lateness
+        assert tap.fault_ns == 10**12 + fired_at * 2_000_000 + int(
+            lateness[fired_at // 100 - 1] * 1e9)
 
 
 def test_a_step_run_whose_clock_the_checker_missed_is_run_again():

@@ -36,8 +36,9 @@ def check_params(model: str, **overrides) -> dict:
                                'watchdog_timeout_s': 0.05, **overrides})
 
 
-def _run(name, params, profile, fault, tmp_dir):
-    """One run, played sample by sample."""
+def _run(name, params, profile, fault, tmp_dir, chance=0):
+    """One run, played sample by sample; the fault at its chance `chance`
+    (``profile.fault_steps``)."""
     reference = profile.step_reference() if name == 'step' else profile.sine_reference()
     p = check_parameters(params, profile, tmp_dir / 'record.csv', reference.size)
     dt = profile.dt
@@ -66,7 +67,7 @@ def _run(name, params, profile, fault, tmp_dir):
             break
         if abort_at is None:
             why = rig.limit_violation()
-            if why is None and name != 'step' and k == profile.fault_step:
+            if why is None and name != 'step' and k == profile.fault_steps[chance]:
                 fault_ns = T0_NS + int((k * dt + 3e-4) * 1e9)
                 if name != 'watchdog':
                     why = {'abort': 'seft_runner: seft rig-check: abort',
@@ -114,12 +115,14 @@ def _run(name, params, profile, fault, tmp_dir):
                                                rig_contract.REQUIRED_PARAMETERS}})
     return _Run(name, p, steps=steps, stamps=stamps, arrivals=np.array(sent),
                 names=MEASUREMENT_FIELDS, values=rows, fault_ns=fault_ns, clock_ns=clock_ns,
-                statuses=statuses, bag=bag, bag_closed=True)
+                statuses=statuses, bag=bag, bag_closed=True,
+                fault_step=None if name == 'step' else profile.fault_steps[chance])
 
 
 def recorded_runs(params, profile: rc.CheckProfile, tmp_dir, fault: str | None = None,
-                  runs=RUNS) -> dict:
+                  runs=RUNS, chance: int = 0) -> dict:
     """The runs of a rig check of `params`' rig with `fault` (a name of
     :data:`~seft_plant_sim.faults.FAULTS`, None: none), as ``seft_ros.cli.rig_check``
-    collects them."""
-    return {name: _run(name, params, profile, fault, tmp_dir) for name in runs}
+    collects them; the fault runs' fault at its chance `chance` (``profile.fault_steps``: a
+    checker that heard the earlier chances late)."""
+    return {name: _run(name, params, profile, fault, tmp_dir, chance) for name in runs}

@@ -183,3 +183,26 @@ def test_both_piers_pass_every_check(piers, watchdog_s, tmp_path):
         held = evaluate(recorded_runs(p, profile, tmp_path, 'no_safe_state'), params=p,
                         profile=profile, command_kind=kind)
         assert {r.name for r in held if not r.passed} == SAFE, rig
+
+
+@pytest.mark.parametrize('model', ['delay', 'servohydraulic'])
+def test_a_fault_at_a_later_chance_is_judged_at_its_own_sample(model, tmp_path):
+    """A checker that heard the fault's first chance late injects it a cycle or two later
+    (``CheckProfile.fault_steps``): the safe state is judged from that sample (the last cycle
+    before it, the rig's reaction to it), a seft rig passes and a rig that holds its command
+    fails, as at the first chance."""
+    p = check_params(model)
+    profile = rc.CheckProfile(dt=p['dt'])
+    kind = rig_contract.command_kind(p)
+    for chance in (1, 2):
+        runs = recorded_runs(p, profile, tmp_path, chance=chance)
+        results = {r.name: r for r in evaluate(runs, params=p, profile=profile,
+                                               command_kind=kind)}
+        assert [r.measured for r in results.values() if not r.passed] == [], chance
+        for name in SAFE:
+            # the recorded rig enters its safe state at the fault's sample: 0.3 ms after
+            # the fault (checker's), and for the watchdog its timeout later
+            assert -1e-3 < results[name].values['reaction_s'] < 0.06, (chance, name)
+        held = evaluate(recorded_runs(p, profile, tmp_path, 'no_safe_state', chance=chance),
+                        params=p, profile=profile, command_kind=kind)
+        assert {r.name for r in held if not r.passed} == SAFE, chance

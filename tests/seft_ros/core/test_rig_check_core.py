@@ -49,8 +49,11 @@ def test_profile_step_and_sine(profile):
     assert f.size == 1000 and profile.onset_step == 250
     assert np.all(f[:250] == 0) and np.all(f[250:750] == 100.0) and np.all(f[750:] == 0)
     s = profile.sine_reference()
-    assert profile.fault_step == 250 + 1031                  # 4.125 cycles of 2 Hz
-    assert s.size == profile.fault_step + 500
+    assert profile.fault_step == 250 + 531                   # 2.125 cycles of 2 Hz
+    # a checker that heard that sample late injects the fault a cycle later, or two: the
+    # record goes on 1 s after the last chance
+    assert profile.fault_steps == (250 + 531, 250 + 781, 250 + 1031)
+    assert s.size == profile.fault_steps[-1] + 500
     t = (profile.fault_step - 250) * DT
     assert s[profile.fault_step] == pytest.approx(100 * math.sin(2 * math.pi * 2 * t))
     assert s[profile.fault_step] == pytest.approx(100 / math.sqrt(2), rel=0.01)   # 45 deg
@@ -63,6 +66,13 @@ def test_profile_refuses_bad_values(field, value):
     kwargs = {'dt': DT, field: value}
     with pytest.raises(ParameterError, match=rf'^{field}=.*: expected a number > 0$'):
         rc.CheckProfile(**kwargs)
+
+
+@pytest.mark.parametrize('value', [0, 1.5, True])
+def test_profile_refuses_bad_fault_chances(value):
+    with pytest.raises(ParameterError, match=rf'^fault_chances={value!r}: expected a whole '
+                       'number >= 1$'):
+        rc.CheckProfile(dt=DT, fault_chances=value)
 
 
 def test_profile_refuses_a_sine_too_fast():

@@ -15,9 +15,11 @@ The runs (:data:`RUNS`), each a graph of its own, bounded in time and force:
     a start flag of its own session and 0 V commands to the lab's controller, which must
     refuse them);
 ``abort``, ``stopped_controller``, ``watchdog``
-    a sine of ``amplitude_N``; one cycle and 45 degrees into it, ``seft rig-check`` publishes
-    an abort on /seft/status, stops the node that commands the rig with SIGTERM (it reports
-    itself aborted), or freezes it with SIGSTOP (silent: the rig's watchdog must notice).
+    a sine of ``amplitude_N``; two cycles and 45 degrees into it (a cycle or two later if
+    the checker heard that sample late: ``CheckProfile.fault_steps``), ``seft rig-check``
+    publishes an abort on /seft/status, stops the node that commands the rig with SIGTERM (it
+    reports itself aborted), or freezes it with SIGSTOP (silent: the rig's watchdog must
+    notice).
 
 The reference force reaches the rig through seft's own graph: a record of ground
 acceleration ``-f_r / m`` played with ``alpha = 0`` and no compensation gives the reference
@@ -322,14 +324,20 @@ class _Tap:
         node.create_subscription(STATUS.msg_type, STATUS.name, self._on_status, STATUS.qos)
 
     def reset(self, dt_ns: int = 1, fault: Callable[[], None] | None = None,
-              fault_step: int | None = None) -> None:
+              fault_steps: Sequence[int] = ()) -> None:
+        """Begin a run: samples of `dt_ns` [ns]; `fault` is fired at the first of
+        `fault_steps` (its chances, in order) whose sample the checker hears within
+        :data:`LATE_FAULT_S` of its sending (at the last chance whatever its lateness: the run
+        is then run again, :func:`_disturbed`)."""
         self.dt_ns = dt_ns
         self.steps, self.stamps, self.arrivals, self.values = [], [], [], []
         self.received: list[float] = []
         self.handled: list[float] = []
         self.names: tuple | None = None
         self.clock_ns: list[int] = []
-        self.fault, self.fault_step, self.fault_ns = fault, fault_step, None
+        self.fault, self.fault_steps, self.fault_ns = fault, list(fault_steps), None
+        #: The chance the fault was injected at (its sample) [-], None before.
+        self.fault_step: int | None = None
         self.stopped_pid: int | None = None
         #: This run began here [ns, system clock]: what was sent before is an earlier run's.
         self.since_ns = clock.system_ns()
@@ -374,8 +382,15 @@ class _Tap:
         elif names != self.names:
             self.names = tuple('' for _ in names)      # messages disagree: a failed check
         self.values.append(list(msg.position))
-        if self.fault is not None and self.fault_ns is None and k >= self.fault_step:
+        if self.fault is not None and self.fault_ns is None and k >= self.fault_steps[0]:
+            # heard late (a checker that discovered the rig late takes its first samples
+            # at once): the next chance, a whole cycle later, heard live
+            later = [s for s in self.fault_steps if s > k]
+            if later and self.handled[-1] - self.arrivals[-1] > LATE_FAULT_S:
+                self.fault_steps = later
+                return
             self.fault_ns = clock.now_ns()
+            self.fault_step = self.fault_steps[0]
             self.fault(k * self.dt_ns * 1e-9)
 
     def _on_clock(self, raw: bytes, info: dict) -> None:
@@ -408,6 +423,9 @@ class _Run:
     names: tuple = ()
     values: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
     fault_ns: int | None = None
+    #: The sample the fault was injected at (one of ``CheckProfile.fault_steps``; None: the
+    #: profile's first chance).
+    fault_step: int | None = None
     clock_ns: list = field(default_factory=list)
     statuses: list = field(default_factory=list)
     bag: object = None
@@ -446,6 +464,11 @@ class _Run:
         return next((int(s['t0_ns']) for s in self.rig_reports()
                      if s.get('state') == STATE_RUNNING and 't0_ns' in s), None)
 
+    def fault_step_of(self, profile: rc.CheckProfile) -> int:
+        """The sample of this run's fault [-]: the chance it was injected at, else the
+        profile's first."""
+        return profile.fault_step if self.fault_step is None else self.fault_step
+
     def ended_before_fault(self, profile: rc.CheckProfile) -> str | None:
         """How the rig ended a fault run before its fault's sample (its final report), or
         None."""
@@ -463,7 +486,8 @@ class _Run:
         return None
 
     def fault_late_s(self, profile: rc.CheckProfile) -> float | None:
-        """How late the fault came after its sample's instant ``t0 + fault_step dt`` [s]
+        """How late the fault came after its sample's instant ``t0 + k dt`` (``k``:
+        :meth:`fault_step_of`) [s]
         (inf: never, though the rig ran past it; None: no fault run, no t0, or the rig
         ended before the fault's sample)."""
         t0 = self.t0_ns()
@@ -471,7 +495,7 @@ class _Run:
             return None
         if self.fault_ns is None:
             return math.inf
-        return (self.fault_ns - t0) * 1e-9 - profile.fault_step * profile.dt
+        return (self.fault_ns - t0) * 1e-9 - self.fault_step_of(profile) * profile.dt
 
     def sample_count(self) -> int:
         """How many samples the rig published (its final report; else the last step the
@@ -625,11 +649,11 @@ def _one_run(name: str, run_dir: Path, *, params: Mapping, profile: rc.CheckProf
                                 float(params['mass_kg']))
     p = check_parameters(params, profile, record, len(reference))
     run = _Run(name, p, rig=tap.rig)
-    sender, fault_step = None, profile.fault_step
+    sender, fault_steps = None, profile.fault_steps
     if name == 'step' and p.get('rig_interface') == 'udp_bridge':
         sender = _SecondSender(p)
-        fault, fault_step = sender.fire, profile.second_sender_step
-    tap.reset(int(round(profile.dt * 1e9)), fault, fault_step)
+        fault, fault_steps = sender.fire, (profile.second_sender_step,)
+    tap.reset(int(round(profile.dt * 1e9)), fault, fault_steps)
     progress(f'[{name}] {len(reference)} samples of {1e3 * profile.dt:g} ms, amplitude '
              f'{profile.amplitude_N:g} N')
     try:
@@ -644,6 +668,7 @@ def _one_run(name: str, run_dir: Path, *, params: Mapping, profile: rc.CheckProf
     run.values = (np.array(tap.values, dtype=float) if tap.values
                   else np.zeros((0, len(MEASUREMENT_FIELDS))))
     run.fault_ns = tap.fault_ns
+    run.fault_step = tap.fault_step if name != 'step' else None
     run.clock_ns = list(tap.clock_ns)
     run.unsealed, run.unsealed_frame = tap.unsealed, tap.unsealed_frame
     run.seal_text = tap.seal.describe() if tap.seal is not None else ''
@@ -900,10 +925,11 @@ def evaluate(runs: Mapping[str, _Run], *, params: Mapping, profile: rc.CheckProf
     sine = None
     for run_name in rc.FAULT_RUNS:
         run = runs.get(run_name)
-        fields = (run.fields(profile.fault_step)
-                  if run is not None and run.sample_count() >= profile.fault_step else None)
+        fault = run.fault_step_of(profile) if run is not None else 0
+        fields = (run.fields(fault)
+                  if run is not None and run.sample_count() >= fault else None)
         if fields is not None:
-            sine = [s[onset:profile.fault_step] for s in fields]
+            sine = [s[onset:fault] for s in fields]
             break
     if step is None:
         for name in rc.CHECKS[:rc.CHECKS.index('command timing') + 1]:
@@ -933,7 +959,7 @@ def evaluate(runs: Mapping[str, _Run], *, params: Mapping, profile: rc.CheckProf
         fields = run.fields(run.sample_count())
         f, v = (fields[0], fields[2]) if fields is not None else (np.zeros(0),) * 2
         cycle = int(round(1.0 / (profile.sine_hz * dt)))
-        fault = profile.fault_step
+        fault = run.fault_step_of(profile)
         lat = latency if math.isfinite(latency) else rig_contract.command_latency_s(params)
         out[check] = rc.check_safe_state(
             check, final=run.final(), command_kind=command_kind, time_s=np.arange(f.size) * dt,
