@@ -4,7 +4,9 @@ A node process spends most of its start-up importing (numpy, rclpy, scipy.signal
 about 0.8 s of CPU of its 1 s, measured on this 2-core machine); a graph starts five of them
 at once. ``fork`` (the default) starts them from a fork server
 (``multiprocessing.forkserver``, the standard library's) that imported every node's module
-once, before any ROS context exists: each node then only creates its context and node. The
+once, before any ROS context exists, and then froze its objects out of the garbage
+collector's way (:mod:`seft_ros.cli.fork_server_freeze`): each node then only creates its
+context and node. The
 child takes the command line it would have been executed with as its process title
 (``setproctitle``), so ``ps``, ``pgrep -f`` and ``/proc/<pid>/cmdline`` show each node as
 ``python -m <module> --ros-args ...``, and runs the module's ``main()`` as ``python -m`` would.
@@ -103,13 +105,16 @@ class NodeProcess:
 #: Imported by the fork server before the nodes' modules: it ignores the stop signals
 #: meant for the runner's process group (seft_ros.cli.fork_server_signals).
 _SERVER_SIGNALS = 'seft_ros.cli.fork_server_signals'
+#: Imported by the fork server after the nodes' modules: it freezes what it holds out of the
+#: garbage collector's way (seft_ros.cli.fork_server_freeze).
+_SERVER_FREEZE = 'seft_ros.cli.fork_server_freeze'
 
 
 def _fork_context(modules: Sequence[str]):
     global _context
     if _context is None:
         ctx = multiprocessing.get_context('forkserver')
-        ctx.set_forkserver_preload([_SERVER_SIGNALS, *modules])
+        ctx.set_forkserver_preload([_SERVER_SIGNALS, *modules, _SERVER_FREEZE])
         _context = ctx
     return _context
 
