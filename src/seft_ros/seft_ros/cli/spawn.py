@@ -5,7 +5,7 @@ about 0.8 s of CPU of its 1 s, measured on this 2-core machine); a graph starts 
 at once. ``fork`` (the default) starts them from a fork server
 (``multiprocessing.forkserver``, the standard library's) that imported every node's module
 once, before any ROS context exists, and then froze its objects out of the garbage
-collector's way (:mod:`seft_ros.cli.fork_server_freeze`): each node then only creates its
+collector's way (``seft_ros.cli.fork_server_freeze``): each node then only creates its
 context and node. The
 child takes the command line it would have been executed with as its process title
 (``setproctitle``), so ``ps``, ``pgrep -f`` and ``/proc/<pid>/cmdline`` show each node as
