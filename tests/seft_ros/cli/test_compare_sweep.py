@@ -92,22 +92,31 @@ def test_compare_a_sweep_folder(sweep_dir, tmp_path, capsys):
 
 
 def test_compare_numbers_a_folders_runs_as_its_command_did(sweep_dir, simulated, tmp_path):
-    """The folder's summary.json (as seft run wrote it: the runs in LABELS order, none before
-    model) numbers the runs, not the directory listing (before: run 1 was
-    alpha_0_servohydraulic_model, the folder's run 4)."""
-    from seft_ros.analysis.report import write_report
-    write_report([simulated[label] for label in LABELS], tmp_path / 'ran')
-    (sweep_dir / 'summary.json').write_text((tmp_path / 'ran' / 'summary.json').read_text())
+    """The folder's summary.json (the entries seft run writes, ``metrics.summary_entry``: the
+    runs in LABELS order, none before model) numbers the runs, not the directory listing
+    (before: run 1 was alpha_0_servohydraulic_model, the folder's run 4). One report, the
+    comparison's: the folder's summary.json is written without seft run's figures, and the
+    order with another folder's summary is ``compare_bags``' own ``_recorded_order`` (the
+    figures are test_compare_a_sweep_folder's; three reports took 15-35 s here)."""
+    from seft_ros.analysis.metrics import compare_run, summary_entry
+    from seft_ros.analysis.report import write_summary_json
+    write_summary_json([summary_entry(simulated[label], compare_run(simulated[label]))
+                        for label in LABELS], sweep_dir / 'summary.json')
     result = api.compare_bags(bags=[str(sweep_dir)], out_dir=tmp_path / 'cmp')
     assert [(e['predictor'], e['alpha']) for e in result.summary] == [
         (label.split('_')[3], float(label.split('_')[1])) for label in LABELS]
     # a summary that does not name each run once (another folder's): the listing's order
+    listing = [simulated[b.parent.name] for b in api.find_bags([str(sweep_dir)])]
+
+    def order(runs):
+        return [(rd.params['predictor'], rd.params['alpha']) for rd in runs]
+    assert order(api._recorded_order(sweep_dir, listing)) == order(
+        simulated[label] for label in LABELS)
     entries = json.loads((sweep_dir / 'summary.json').read_text())
     entries['runs'] = entries['runs'][:1] * 6
     (sweep_dir / 'summary.json').write_text(json.dumps(entries))
-    result = api.compare_bags(bags=[str(sweep_dir)], out_dir=tmp_path / 'cmp2')
-    assert [(e['predictor'], e['alpha']) for e in result.summary][:2] == [('model', 0.0),
-                                                                       ('none', 0.0)]
+    assert order(api._recorded_order(sweep_dir, listing))[:2] == [('model', 0.0),
+                                                                  ('none', 0.0)]
 
 
 def test_criteria_table_of_missing_values():
