@@ -39,13 +39,43 @@ SPECIMEN = {'mass_kg': MASS_KG, 'stiffness_N_per_m': K1, 'damping_N_s_per_m': C1
 
 
 @pytest.fixture(scope='module')
-def lab_settings():
-    """The rig's settings of the lab path on valve_2nd_order (identification and design)."""
+def designs():
+    """``design_force_controller`` kept by its inputs for this module (the plant's JSON, the
+    specimen, the targets, the detuning and the ground spectrum's name and samples), a copy
+    returned: the lab path's design and ``seft design``'s of the same plant for the same
+    record are one computation (15-25 s each)."""
+    import copy
+
+    from seft_ros.core import force_design
+    kept = {}
+    design = force_design.design_force_controller
+
+    def kept_design(plant, *, specimen=None, targets=None, detune=None, ground_spectrum=None):
+        g = ground_spectrum
+        key = (plant.to_json(), repr(specimen), repr(targets or force_design.DesignTargets()),
+               detune, g if g is None else (g.name, g.freq_hz.tobytes(), g.density.tobytes()))
+        if key not in kept:
+            kept[key] = design(plant, specimen=specimen, targets=targets, detune=detune,
+                               ground_spectrum=ground_spectrum)
+        return copy.deepcopy(kept[key])
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(force_design, 'design_force_controller', kept_design)
+        yield kept
+
+
+@pytest.fixture(scope='module')
+def lab_settings(designs):
+    """The rig's settings of the lab path on valve_2nd_order (identification and design),
+    the force-loop inverse ranked for the record the structure's 4 s test plays (as
+    ``seft design`` of that test ranks it)."""
+    from seft_ros.core.force_design import played_record_spectrum
     base = dict(SPECIMEN, rig_model='actuator', actuator_family='valve_2nd_order', dt=DT)
     run = build_runs(overrides=dict(base, predictor='none', excitation='noise',
                                     excitation_input='valve_command', duration_s=20.0,
                                     alpha=0.0))[0]
-    found = identified_parameters(identify_rigs(simulate(run)))
+    test = two_story({}, duration_s=4.0)
+    found = identified_parameters(identify_rigs(
+        simulate(run), record_spectrum=lambda _: played_record_spectrum(test)))
     settings = mapping_values({k: v for k, v in found.items() if not k.startswith('_')})
     assert settings['predictor_calibration'] == 'poles'
     return settings
