@@ -1,7 +1,7 @@
 """What a run shows of a loss of accuracy that a lab can see without the reference.
 
-A run that completes is not therefore right. Five signs, each visible in the lab's own data
-and the pre-run prediction (never in the comparison's error), and a sixth in rehearsal, flag
+A run that completes is not therefore right. Six signs, each visible in the lab's own data
+and the pre-run prediction (never in the comparison's error), and a seventh in rehearsal, flag
 a run instead of calling it plainly stable (:func:`run_flags`):
 
 * **a run the guard predicted unstable**: the pre-run stability guard
@@ -23,6 +23,13 @@ a run instead of calling it plainly stable (:func:`run_flags`):
   controller, law or loop inverse; a linear specimen other than the study's on its
   ``loop_shaping``; ``model`` with an uncertain specimen:
   :func:`~seft_ros.core.specimen_settings.costly_settings`), chosen by the user;
+* **no margin**: the guard's robustness margin of a test on a plant model of data (a plant
+  gain scanned, :func:`~seft_ros.core.stability.robustness_margin`) says that the model's
+  gain off by :data:`~seft_ros.core.stability.GAIN_ERROR` (2 %) is unstable: the test
+  stands on its stability boundary (a 45 Hz, 0.5 % specimen at dt 1 ms on a designed loop,
+  session 24's explorer: stable for 0.1-1.00 x the gain; the valve's gain 1 % up after the
+  identification gave 75 % and 5894 % of x, completed and called "stable, flagged" only
+  for its peaks; 2 % down 48-76 %, "stable");
 * **a peak beyond the prediction**: a rig's displacement, force or acceleration peaks more
   than :data:`PEAK_RATIO_FLAG` times the analytical reference's peak over the same samples
   (the pre-run check's prediction, :mod:`seft_ros.analysis.range_check`);
@@ -52,6 +59,7 @@ from seft_msgs_py.errors import SeftError
 from seft_msgs_py.sensor_range import AT_RANGE_FRACTION, CHANNEL_UNITS, CHANNELS, RANGE_PARAMETERS
 from seft_ros.analysis.rundata import RunData, rig_label
 from seft_ros.core.specimen_settings import costly_settings
+from seft_ros.core.stability import MARGIN_RANGE
 
 __all__ = ['PEAK_RATIO_FLAG', 'BOUND_HOLD_S', 'SPECIMEN_FLAG', 'estimate_bounds', 'bound_findings',
            'sensor_range_entry', 'sensor_range_lines', 'run_flags', 'verdict', 'REPLAY_SIGNALS',
@@ -239,6 +247,21 @@ def run_flags(run: RunData, comparison) -> list[str]:
         flags.append(f'predicted unstable: before the run the stability guard said: '
                      f'{predicted.get("message")}; it ran anyway (--force) and completed, but '
                      'its loop grows: a longer record or a larger input may diverge')
+    margin = predicted.get('robustness_margin') or {}
+    if run.stable and margin.get('gain_error_unstable'):
+        lo, hi = margin.get('low'), margin.get('high')
+        where = ''
+        if lo is not None and hi is not None:
+            lo = f'<{lo:.3g}' if lo <= MARGIN_RANGE[0] else f'{lo:.3g}'
+            hi = f'>{hi:.3g}' if hi >= MARGIN_RANGE[1] else f'{hi:.3g}'
+            where = f" (stable for a plant gain {lo}-{hi} x the model's)"
+
+        flags.append(f'no margin: before the run the stability guard predicted that a plant '
+                     f'gain {100 * margin.get("gain_error", 0.0):g} % off the plant model\'s '
+                     f"is unstable{where}: a servo-valve's gain drifts that much with its "
+                     'supply pressure and oil temperature, and this test is stable only while '
+                     'the rig is its model; design the loop again with a margin, or use '
+                     'predictor adaptive with adaptive_loop_fit fit')
     dt = float(run.params.get('dt', 0.0) or 0.0)
     for rig, data in run.rigs.items():
         if dt > 0:
