@@ -5,6 +5,7 @@
 
 import contextlib
 import json
+import math
 import os
 from pathlib import Path
 import random
@@ -44,7 +45,7 @@ __all__ = ['build_runs', 'output_dir', 'remove_empty_dirs', 'run_experiments',
            'Result', 'check_stability', 'check_domain', 'open_runner', 'stability_entry',
            'stability_report', 'stability_table', 'StabilityResult', 'identify_bags',
            'identification_table', 'check_ranges', 'RangeRefusedError', 'check_settings',
-           'run_labels', 'alpha_text']
+           'run_labels', 'alpha_text', 'predicted_error_warning', 'ACCURATE_TEST']
 
 
 class Result:
@@ -1881,6 +1882,49 @@ _IDENTIFY_FIGURES = ('zero_hz', 'resonance_hz', 'crossover_hz', 'phase_margin_de
 FIT_WARNING = 0.02
 
 
+#: The NRMS displacement error of an accurate test of the study's kind: (the largest
+#: alpha, its bound) in order (issue 38's target 3: 1 % at alpha <= 1, 2 % at 1.5) [-].
+ACCURATE_TEST = ((1.0, 0.01), (math.inf, 0.02))
+
+
+def predicted_error_warning(design: dict) -> str:
+    """Why a design's own prediction of the study's test with ``model`` is not an accurate
+    test, or ``''``.
+
+    Parameters
+    ----------
+    design : dict
+        A design's JSON (:meth:`~seft_ros.core.force_design.ForceLoopDesign.to_json`): its
+        ``predicted_error`` ``[[alpha, NRMS x], ...]``, ``structure.specimen_hz`` and
+        ``controller_z.dt``.
+
+    Returns
+    -------
+    str
+        The predicted errors against :data:`ACCURATE_TEST` and, for a specimen of fewer than
+        ``1 / COARSE_SAMPLING`` samples a period, the sample period that gives it more; ''
+        when every predicted error is within its bound (or none is predicted).
+    """
+    from seft_ros.core.force_design import COARSE_SAMPLING
+    predicted = [(float(a), float(e)) for a, e in design.get('predicted_error') or ()]
+
+    def bound(alpha):
+        return next(b for top, b in ACCURATE_TEST if alpha <= top)
+    if not any(e > bound(a) for a, e in predicted):
+        return ''
+    text = ("the study's test with `model` on this loop is predicted at "
+            + ' / '.join(f'{100 * e:.2g}' for _, e in predicted) + ' % NRMS x at alpha '
+            + ' / '.join(f'{a:g}' for a, _ in predicted)
+            + ', more than an accurate test (1 % up to alpha 1, 2 % beyond)')
+    f_n = float((design.get('structure') or {}).get('specimen_hz') or 0.0)
+    dt = float((design.get('controller_z') or {}).get('dt') or 0.0)
+    if f_n > 0 and dt > 0 and f_n * dt > COARSE_SAMPLING:
+        text += (f': the specimen ({f_n:.3g} Hz) has {1.0 / (f_n * dt):.3g} samples a period '
+                 f'at dt {1e3 * dt:g} ms; identify and design again at a sample period of at '
+                 f'most {1e3 * COARSE_SAMPLING / f_n:.2g} ms')
+    return text
+
+
 def identification_table(doc: dict) -> str:
     """What ``seft identify`` prints of its JSON document: the study's rig's figures with its
     known model's, then each rig's specimen and verdict (a structure's: per rig, with the
@@ -1944,6 +1988,9 @@ def identification_table(doc: dict) -> str:
                              + f", inverse {design['loop_delay_steps']} steps; targets "
                              + ('met' if design['met'] else 'NOT met: ' + '; '.join(
                                  design['notes'])))
+                warning = predicted_error_warning(design)
+                if warning:
+                    lines.append(f"{'':18s} WARNING: {warning}")
                 miss = design.get('inverse_band_error')
                 if miss is not None and not miss <= MAX_BAND_ERROR:
                     lines.append(f"{'':18s} WARNING: no force-loop inverse of 2-30 steps "

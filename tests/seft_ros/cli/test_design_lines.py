@@ -1,0 +1,27 @@
+"""What ``seft identify`` and ``seft design`` say of a design beyond its margins."""
+
+from seft_ros.cli import api
+
+
+def _design(errors, specimen_hz=45.0, dt=0.002):
+    return {'predicted_error': [[a, e] for a, e in zip((0.5, 1.0, 1.5), errors)],
+            'structure': {'specimen_hz': specimen_hz}, 'controller_z': {'dt': dt}}
+
+
+def test_a_design_predicted_less_accurate_than_a_test_should_be_says_so():
+    """Session 24's explorer: a 45 Hz, 0.5 % specimen at dt 2 ms on a lab's actuator, its
+    design predicted 2.2 / 1.03 / 3.0 % at alpha 0.5 / 1 / 1.5 (the runs 2.21 / 0.67 / 2.91 %)
+    and the console said 'targets met' and nothing of the sample period; at dt 1 ms the same
+    specimen ran at 0.20-0.36 %."""
+    assert api.predicted_error_warning(_design((0.02187, 0.01027, 0.03002))) == (
+        "the study's test with `model` on this loop is predicted at 2.2 / 1 / 3 % NRMS x at "
+        'alpha 0.5 / 1 / 1.5, more than an accurate test (1 % up to alpha 1, 2 % beyond): the '
+        'specimen (45 Hz) has 11.1 samples a period at dt 2 ms; identify and design again at '
+        'a sample period of at most 1.1 ms')
+    # within 1 % up to alpha 1 and 2 % beyond: nothing; 1.9 % at 1.5 is within
+    assert api.predicted_error_warning(_design((0.0099, 0.0062, 0.019))) == ''
+    # over, on a specimen sampled finely enough: the errors alone (a shorter dt is no cure)
+    assert api.predicted_error_warning(_design((0.004, 0.012, 0.01), specimen_hz=10.0)) == (
+        "the study's test with `model` on this loop is predicted at 0.4 / 1.2 / 1 % NRMS x at "
+        'alpha 0.5 / 1 / 1.5, more than an accurate test (1 % up to alpha 1, 2 % beyond)')
+    assert api.predicted_error_warning({'predicted_error': []}) == ''
