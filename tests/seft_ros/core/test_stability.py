@@ -254,18 +254,25 @@ def test_a_command_of_forces_alone_is_identified_without_driving_it_again(refere
                                                                         monkeypatch):
     """`model` on the servohydraulic rig (its command the force-loop inverse's FIR of the
     desired forces alone): the probes of the measurements skip the command, and the taps are
-    the same floats as when every probe drives it."""
+    the same floats as when every probe drives it (the drives computed at once,
+    ``drive_responses``, or stepped)."""
     from seft_ros.core.reference_force import make_predictor
     pred = make_predictor(dict(reference_params, predictor='model', alpha=1.0))
     assert type(pred).command_of_forces_only is True and pred.loop_inverse is not None
     calls = []
     step = type(pred.loop_inverse).step
+    at_once = type(pred).drive_responses
 
     def counted(self, force_n):
         calls.append(1)
         return step(self, force_n)
 
+    def counted_at_once(self, inputs, command=True):
+        calls.extend([1] * (inputs.shape[0] if command else 0))
+        return at_once(self, inputs, command)
+
     monkeypatch.setattr(type(pred.loop_inverse), 'step', counted)
+    monkeypatch.setattr(type(pred), 'drive_responses', counted_at_once)
     taps, cmd = st._identify(pred, 'model', 0.002, True)
     skipped = len(calls)
     calls.clear()
@@ -276,6 +283,50 @@ def test_a_command_of_forces_alone_is_identified_without_driving_it_again(refere
     assert np.count_nonzero(cmd) > 10
     n = st._WARM_UP + st._WINDOW
     assert skipped == len(calls) - 5 * n             # 5 of the 6 probes left the command out
+    calls.clear()
+    monkeypatch.setattr(type(pred), 'drive_responses', lambda *args: None)    # stepped
+    taps_stepped, cmd_stepped = st._identify(pred, 'model', 0.002, True)
+    assert taps_stepped.tobytes() == taps.tobytes() and cmd_stepped.tobytes() == cmd.tobytes()
+    assert len(calls) == 7 * n + 2 * (st._WARM_UP + 2 * st._WINDOW)    # stepped: step
+
+
+def test_the_model_predictors_steps_at_once_are_its_stepped_floats(reference_params):
+    """``ModelPredictor.drive_responses`` (the identification's drives computed for all steps
+    at once) gives the floats of stepping a copy, bit for bit: on zeros, a pulse of each
+    input and random inputs, with the law's gains calibrated, a loop inverse that has
+    filtered forces before and at alpha 0; a law it does not cover is stepped."""
+    from seft_ros.core.predictors import ModelPredictor
+    from seft_ros.core.reference_force import make_predictor
+    base = make_predictor(dict(reference_params, predictor='model', alpha=1.0))
+    offset = make_predictor(dict(reference_params, predictor='model', alpha=0.5,
+                                 predictor_loop_delay_steps=7))
+    offset = ModelPredictor(offset.model, 0.5, offset.mass_kg, offset.loop_inverse,
+                            gain_offset=(1.5e3, -40.0, 1.01))
+    used = make_predictor(dict(reference_params, predictor='model', alpha=1.5))
+    for force in (300.0, -120.0, 45.0):
+        used.command(force)                   # a filter state to start from
+    rest = ModelPredictor(base.model, 0.0, base.mass_kg, base.loop_inverse)
+    n, rng = 260, np.random.default_rng(3)
+    inputs = [np.zeros((n, 6)), rng.standard_normal((n, 6)) * st._PROBE_SCALE]
+    for i in range(6):
+        pulse = np.zeros((n, 6))
+        pulse[16, i] = st._PROBE_SCALE[i]
+        inputs.append(pulse)
+    for pred in (base, offset, used, rest):
+        for q in inputs:
+            for command in (True, False):
+                got = pred.drive_responses(q, command)
+                want = st._stepped(pred, q, 0.002, command)
+                assert got[0].tobytes() == want[0].tobytes()
+                assert (got[1] is None and want[1] is None
+                        or got[1].tobytes() == want[1].tobytes())
+    assert np.count_nonzero(used.drive_responses(inputs[0])[1]) > 10     # the state's
+    impulse = ModelPredictor(base.model, 1.0, base.mass_kg, base.loop_inverse,
+                             matching='impulse')
+    measured = ModelPredictor(base.model, 1.0, base.mass_kg, base.loop_inverse,
+                              restoring_force='measured')
+    assert impulse.drive_responses(inputs[1]) is None
+    assert measured.drive_responses(inputs[1]) is None
 
 
 def test_nonlinear_compensators_have_no_form(fakes, delay_params):

@@ -226,8 +226,20 @@ def _drive(predictor, q: np.ndarray, dt: float, command: bool = True):
 
     ``q`` (N, 6): measurement of step k, desired force ``F[k]`` and the external force of the
     step after (the interface force; zero ground force). ``command=False``: the commands are
-    not asked for (``f_r`` is returned as None).
+    not asked for (``f_r`` is returned as None). A predictor that computes the steps at once
+    (``drive_responses``: :class:`~seft_ros.core.predictors.ModelPredictor`, the same floats)
+    is not stepped.
     """
+    drive = getattr(predictor, 'drive_responses', None)
+    if drive is not None:
+        out = drive(q, command)
+        if out is not None:
+            return out
+    return _stepped(predictor, q, dt, command)
+
+
+def _stepped(predictor, q: np.ndarray, dt: float, command: bool = True):
+    """:func:`_drive` by stepping a copy of the predictor."""
     pred = copy.deepcopy(predictor)
     commanded: list[float] = []
     n = q.shape[0]
