@@ -186,12 +186,17 @@ def _pole_calibration(params: Mapping) -> np.ndarray:
         dg.append((gi - ground0) / steps[i])
 
     start = np.ones(m0.shape[0], dtype=complex)        # ARPACK's start: reproducible
+    poles = {}
 
     def pole(offset):
         """The closed loop's eigenvalue nearest the target, by shift-invert (3x faster than
-        all of them at 213 states)."""
-        mm = (m0 + offset[0] * dm[0] + offset[1] * dm[1]).astype(complex)
-        return complex(eigs(mm, k=1, sigma=target, v0=start, return_eigenvectors=False)[0])
+        all of them at 213 states); kept by the offset (the converged one is asked again)."""
+        key = offset.tobytes()
+        if key not in poles:
+            mm = (m0 + offset[0] * dm[0] + offset[1] * dm[1]).astype(complex)
+            poles[key] = complex(eigs(mm, k=1, sigma=target, v0=start,
+                                      return_eigenvectors=False)[0])
+        return poles[key]
 
     offset = np.zeros(2)
     for _ in range(_ITERATIONS):
