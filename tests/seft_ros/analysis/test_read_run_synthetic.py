@@ -494,3 +494,20 @@ def test_the_bridges_wire_counts_and_an_unconfirmed_safe_state_are_reported(
     rd.extra['rig_finals']['rig'].update({k: str(v) for k, v in clean.items()})
     assert bridge_entry(rd)['rig']['warnings'] == []
     assert bridge_entry(rd)['rig']['safe_confirmed'] is True
+
+
+def test_the_first_abort_reads_a_runners_report_beside_a_watchdog():
+    """A run whose first abort is a watchdog and whose reports include the runner's (a lab
+    host lost: 'seft_runner', no graph node): the watchdog stays the reason. Before, the
+    bridge rule looked the runner's name up as a graph node and raised "node 'seft_runner':
+    expected one of ...": the two- and three-host cut-link runs ended in that error (CI of
+    0d0c0ed)."""
+    from seft_ros.analysis.bag import _first_abort
+    watchdog = {'name': 'reference_force_builder', 'state': 'aborted',
+                'message': 'watchdog: no measurement for 41 ms (limit 40 ms; node or link lost)'}
+    runner = {'name': 'seft_runner', 'state': 'aborted',
+              'message': 'lab host lab lost: no word from it for 5.0 s (link cut or host down)'}
+    assert _first_abort([watchdog, runner]) is watchdog
+    bridge = {'name': 'pier_a/rig', 'state': 'aborted',
+              'message': 'udp_bridge: no datagram from the controller for 203.5 ms'}
+    assert _first_abort([watchdog, runner, bridge]) is bridge

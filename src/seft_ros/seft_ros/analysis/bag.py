@@ -35,7 +35,7 @@ from rosbags.typesys import Stores, get_typestore
 
 from seft_msgs_py import parameters, signals
 from seft_msgs_py.errors import InputError, ParameterError
-from seft_msgs_py.graph import STRUCTURE_STATE, Graph, qualified, scoped, split_qualified
+from seft_msgs_py.graph import STRUCTURE_STATE, Graph, qualified, scoped
 from seft_msgs_py.rig_contract import (
     BRIDGE_REASON,
     CONTRACT_KEY,
@@ -794,7 +794,9 @@ def _first_abort(aborted: list[dict]) -> dict | None:
         # its controller fall silent or its samples lost: the cause, reported a little later
         # (before: 'force_servo_controller: watchdog: no /seft/reference_force for 201 ms'
         # was the reason of a run whose controller had gone silent)
-        first = next((s for s in aborted if split_qualified(s['name'])[1] == 'rig'
+        # (by the name's last part: the reports include seft's tools, 'seft_runner', whose
+        # names are no graph node's)
+        first = next((s for s in aborted if s['name'].rpartition('/')[2] == 'rig'
                       and s['message'].startswith(BRIDGE_REASON)), first)
     return first
 
