@@ -2054,7 +2054,10 @@ def growing_mode(matrix: np.ndarray, params: Mapping) -> str:
     nyquist_hz = 0.5 / dt
     grows_hz = abs(float(np.angle(z))) / (2.0 * math.pi * dt)
     text = f'; it grows at {grows_hz:.4g} Hz'
-    modes_hz = test_setup(params).substructures.structure.modes()[0]
+    try:
+        modes_hz = test_setup(params).substructures.structure.modes()[0]
+    except (np.linalg.LinAlgError, ValueError):
+        return text                 # no modes to name (a mass matrix not positive definite)
     at_nyquist = grows_hz >= (1.0 - GROWING_MODE_TOLERANCE) * nyquist_hz
     matched = [f for f in modes_hz[1:]
                if abs(grows_hz - f) <= GROWING_MODE_TOLERANCE * f
