@@ -39,7 +39,7 @@ a run instead of calling it plainly stable (:func:`run_flags`):
   and flagged when its late steps cost more than half a percentage point in some signal
   (:func:`timing_cost_flag`): three late valve commands of 5000
   cost a 32 Hz, 0.5 % specimen 4.9 points of x. This sign reads the replays' errors
-  against the reference, which the four above do not.
+  against the reference, which the others above do not.
 
 The samples read at a sensor's range are reported beside them (:func:`sensor_range_entry`):
 how many per rig and channel, and what the builder did with them. So is, for a rig behind
