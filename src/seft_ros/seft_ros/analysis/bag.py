@@ -793,9 +793,8 @@ def _first_abort(aborted: list[dict]) -> dict | None:
         # a watchdog (an input of the graph stopped) yields to a UDP bridge's rig that saw
         # its controller fall silent or its samples lost: the cause, reported a little later
         # (before: 'force_servo_controller: watchdog: no /seft/reference_force for 201 ms'
-        # was the reason of a run whose controller had gone silent)
-        # (by the name's last part: the reports include seft's tools, 'seft_runner', whose
-        # names are no graph node's)
+        # was the reason of a run whose controller had gone silent). A rig by its name's
+        # last part: the reports include seft's tools ('seft_runner'), no graph node's
         first = next((s for s in aborted if s['name'].rpartition('/')[2] == 'rig'
                       and s['message'].startswith(BRIDGE_REASON)), first)
     return first

@@ -59,7 +59,7 @@ from seft_msgs_py.errors import SeftError
 from seft_msgs_py.sensor_range import AT_RANGE_FRACTION, CHANNEL_UNITS, CHANNELS, RANGE_PARAMETERS
 from seft_ros.analysis.rundata import RunData, rig_label
 from seft_ros.core.specimen_settings import costly_settings
-from seft_ros.core.stability import MARGIN_RANGE
+from seft_ros.core.stability import RobustnessMargin
 
 __all__ = ['PEAK_RATIO_FLAG', 'BOUND_HOLD_S', 'SPECIMEN_FLAG', 'estimate_bounds', 'bound_findings',
            'sensor_range_entry', 'sensor_range_lines', 'run_flags', 'verdict', 'REPLAY_SIGNALS',
@@ -71,11 +71,12 @@ __all__ = ['PEAK_RATIO_FLAG', 'BOUND_HOLD_S', 'SPECIMEN_FLAG', 'estimate_bounds'
 #: clean link has none).
 WIRE_WARN_FRACTION = 0.01
 #: The wire counts of a bridge's final status (``UdpBridgeRig.wire_counts``) by side, as the
-#: lines name them: (the status key's prefix, the side, the counts in order).
-_WIRE_SIDES = (('udp_', 'to the PC', ('lost', 'late', 'duplicate', 'reordered', 'bad',
-                                      'foreign', 'other_session')),
-               ('controller_', 'to the controller', ('lost', 'late', 'duplicate',
-                                                     'reordered', 'bad')))
+#: lines name them: (the status key's prefix, the side's key in the summary, the side, the
+#: counts in order).
+_WIRE_SIDES = (('udp_', 'to_pc', 'to the PC', ('lost', 'late', 'duplicate', 'reordered',
+                                               'bad', 'foreign', 'other_session')),
+               ('controller_', 'to_controller', 'to the controller',
+                ('lost', 'late', 'duplicate', 'reordered', 'bad')))
 #: Counts that are a warning at any number, and those above WIRE_WARN_FRACTION of the
 #: samples (foreign datagrams and a refused second sender are named during the run).
 _WIRE_ANY, _WIRE_FRACTION = ('duplicate', 'reordered', 'bad'), ('lost', 'late')
@@ -250,14 +251,10 @@ def run_flags(run: RunData, comparison) -> list[str]:
     margin = predicted.get('robustness_margin') or {}
     if run.stable and margin.get('gain_error_unstable'):
         lo, hi = margin.get('low'), margin.get('high')
-        where = ''
-        if lo is not None and hi is not None:
-            lo = f'<{lo:.3g}' if lo <= MARGIN_RANGE[0] else f'{lo:.3g}'
-            hi = f'>{hi:.3g}' if hi >= MARGIN_RANGE[1] else f'{hi:.3g}'
-            where = f" (stable for a plant gain {lo}-{hi} x the model's)"
-
+        where = ('' if lo is None or hi is None else ' (stable for a plant gain '
+                 f"{RobustnessMargin(lo, hi).text(bare=True)} the model's)")
         flags.append(f'no margin: before the run the stability guard predicted that a plant '
-                     f'gain {100 * margin.get("gain_error", 0.0):g} % off the plant model\'s '
+                     f"gain {100 * margin.get('gain_error', 0.0):g} % off the plant model's "
                      f"is unstable{where}: a servo-valve's gain drifts that much with its "
                      'supply pressure and oil temperature, and this test is stable only while '
                      'the rig is its model; design the loop again with a margin, or use '
@@ -391,9 +388,9 @@ def bridge_entry(run: RunData) -> dict[str, Any]:
             continue
         samples = int(final.get('published', 0) or 0)
         counts, warnings = {}, []
-        for prefix, side, names in _WIRE_SIDES:
+        for prefix, key, side, names in _WIRE_SIDES:
             got = {n: int(final[prefix + n]) for n in names if prefix + n in final}
-            counts['to_pc' if prefix == 'udp_' else 'to_controller'] = got
+            counts[key] = got
             bad = [n for n in names if got.get(n, 0) and (
                 n in _WIRE_ANY or (n in _WIRE_FRACTION
                                    and got[n] > WIRE_WARN_FRACTION * max(samples, 1)))]
@@ -418,8 +415,8 @@ def bridge_lines(entry: dict[str, Any]) -> list[tuple[str, str]]:
     lines = []
     for node, info in entry.items():
         sides = []
-        for prefix, side, names in _WIRE_SIDES:
-            got = info['counts']['to_pc' if prefix == 'udp_' else 'to_controller']
+        for _, key, side, names in _WIRE_SIDES:
+            got = info['counts'][key]
             if got:
                 sides.append(f'{side} ' + ', '.join(f'{got[n]} {n.replace("_", " ")}'
                                                     for n in names if n in got))
