@@ -18,6 +18,7 @@ from seft_msgs_py.provenance import (
     mac_input,
     new_run_token,
     read_key,
+    status_id_of_run,
 )
 
 TOKEN = '0123456789abcdef'
@@ -129,3 +130,72 @@ def test_the_datagram_trailer():
     assert len(mac) == MAC_BYTES == 16
     assert mac == hmac.new(KEY, data, hashlib.sha256).digest()[:16]
     assert datagram_mac(KEY, data[:-1] + b'\0') != mac
+
+
+STATUS_TOPIC = '/seft/status'
+
+
+def _status(name='rig', state='aborted', message='watchdog', level=2, hardware_id='seft',
+            **values):
+    """A status report's fields (an object like ``DiagnosticStatus``)."""
+    class KV:
+        def __init__(self, key, value):
+            self.key, self.value = key, value
+
+    class Status:
+        pass
+    msg = Status()
+    msg.name, msg.message, msg.level, msg.hardware_id = name, message, level, hardware_id
+    msg.values = [KV('state', state)] + [KV(k, str(v)) for k, v in values.items()]
+    return msg
+
+
+def test_a_status_report_seal():
+    """A status report's hardware id: 'seft' without a token; 'seft#' + token in the clear;
+    with the key, the first 32 hex digits of HMAC-SHA256 over b'seft-status-1' 0 token 0
+    topic 0, the level (one byte), then name, message, keys and values each with its UTF-8
+    length (>I), computed here independently."""
+    plain = RunSeal('none')
+    assert plain.seal_status(_status(), STATUS_TOPIC).hardware_id == 'seft'
+    assert plain.status_ok(_status(), STATUS_TOPIC)
+    assert not plain.status_ok(_status(hardware_id='seft#' + TOKEN), STATUS_TOPIC)
+    clear = RunSeal(TOKEN)
+    assert clear.seal_status(_status(), STATUS_TOPIC).hardware_id == 'seft#' + TOKEN
+    assert clear.status_ok(_status(hardware_id='seft#' + TOKEN), STATUS_TOPIC)
+    for other in ('seft', 'seft#' + new_run_token(), 'seft#' + TOKEN[:-1], 'x#' + TOKEN):
+        assert not clear.status_ok(_status(hardware_id=other), STATUS_TOPIC), other
+    keyed = RunSeal(TOKEN, KEY)
+    msg = keyed.seal_status(_status(step=7, published=7), STATUS_TOPIC)
+    field = [b'rig', b'watchdog', b'state', b'aborted', b'step', b'7', b'published', b'7']
+    data = (b'seft-status-1\0' + TOKEN.encode() + b'\0' + STATUS_TOPIC.encode() + b'\0'
+            + bytes([2]) + b''.join(struct.pack('>I', len(f)) + f for f in field))
+    expected = hmac.new(KEY, data, hashlib.sha256).hexdigest()[:32]
+    assert msg.hardware_id == 'seft#' + expected
+    assert keyed.status_ok(msg, STATUS_TOPIC)
+    assert keyed.status_ok(_status(level=b'\x02', hardware_id=msg.hardware_id, step=7,
+                                   published=7), STATUS_TOPIC)      # rclpy's byte level
+    # the token in the clear, another word, another node, another topic, another key
+    assert not keyed.status_ok(_status(hardware_id='seft#' + TOKEN, step=7, published=7),
+                               STATUS_TOPIC)
+    for changed in (_status(message='watchdog!', hardware_id=msg.hardware_id, step=7,
+                            published=7),
+                    _status(name='pier_a/rig', hardware_id=msg.hardware_id, step=7,
+                            published=7),
+                    _status(state='done', hardware_id=msg.hardware_id, step=7, published=7),
+                    _status(hardware_id=msg.hardware_id, step=7, published=8)):
+        assert not keyed.status_ok(changed, STATUS_TOPIC)
+    assert not keyed.status_ok(msg, '/pier_a/seft/status')
+    assert not RunSeal(TOKEN, b'j' * 32).status_ok(msg, STATUS_TOPIC)
+    assert not RunSeal(new_run_token(), KEY).status_ok(msg, STATUS_TOPIC)
+
+
+def test_a_status_seal_by_its_form():
+    """Without the key (the bag reader): the token itself, or 32 hex digits with hmac."""
+    assert status_id_of_run('seft#' + TOKEN, TOKEN, 'token')
+    assert not status_id_of_run('seft#' + new_run_token(), TOKEN, 'token')
+    assert not status_id_of_run('seft', TOKEN, 'token')
+    assert status_id_of_run('seft', 'none', 'token')
+    assert not status_id_of_run('seft#' + TOKEN, 'none', 'token')
+    assert status_id_of_run('seft#' + 'ab' * 16, TOKEN, 'hmac')
+    for other in ('seft#' + TOKEN, 'seft#' + 'ab' * 15, 'seft#' + 'AB' * 16, 'seft'):
+        assert not status_id_of_run(other, TOKEN, 'hmac'), other

@@ -278,6 +278,16 @@ def test_servo_run_parameters_in_the_bag(servo):
     assert p['dt'] == 0.002 and p['bag_path'] == str(servo.bag.resolve())
 
 
+def test_servo_run_every_status_is_sealed(servo):
+    """Every status report in the bag (each node's, the runner's, the recorder's 'closed')
+    carries the run's seal: 'seft#' + its run token (message_auth token)."""
+    token = servo.params['run_token']
+    ids = {(m.name, m.hardware_id) for _, m in servo.messages['/seft/status']}
+    assert {name for name, _ in ids} >= {'rig', 'recorder', 'reference_force_builder',
+                                         'force_servo_controller', 'ground_motion_publisher'}
+    assert {hardware_id for _, hardware_id in ids} == {'seft#' + token}
+
+
 @pytest.mark.parametrize('which', ['servo', 'delay', 'servo_model', 'delay_adaptive',
                                    'servo_window', 'servo_velocity', 'servo_open_loop',
                                    'servo_yielding', 'servo_model_loop'])

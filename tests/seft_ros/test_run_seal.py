@@ -21,9 +21,13 @@ from rclpy.executors import SingleThreadedExecutor
 
 from seft_msgs_py import parameters
 from seft_msgs_py.convert import (
+    STATE_ABORTED,
+    STATE_CLOSED,
+    STATE_DONE,
     ScalarReader,
     SerializedStamped,
     frame_id_of_raw,
+    status_msg,
     status_values,
 )
 from seft_msgs_py.provenance import RunSeal, new_run_token
@@ -36,33 +40,59 @@ DT_NS = 2_000_000
 STEPS = 5
 
 
-@pytest.fixture(params=['token', 'hmac'])
-def controller(request, tmp_path, ros_env):
-    """The controller by hand with a run token (and a key); its parameters and seal."""
+def controller_by_hand(message_auth, tmp_path, ros_env):
+    """The controller by hand with a run token (and a key): a generator that yields its
+    parameters, seal and process, and ends the process."""
     key = tmp_path / 'key'
     key.write_text('c4' * 32)
     params = parameters.resolve({'mode': 'lockstep', 'rig_model': 'servohydraulic',
                                  'run_token': new_run_token(),
-                                 'message_auth': request.param, 'auth_key_file': str(key)})
+                                 'message_auth': message_auth, 'auth_key_file': str(key)})
     path = write_params_file(params, tmp_path / 'params.yaml')
     proc = subprocess.Popen([sys.executable, '-m', 'seft_ros.nodes.force_servo_controller',
                              '--ros-args', '--params-file', str(path)], env=ros_env,
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    yield params, RunSeal.from_parameters(params)
+    yield params, RunSeal.from_parameters(params), proc
     if proc.poll() is None:
         proc.terminate()
     proc.communicate(timeout=20)
 
 
-def test_a_message_without_the_seal_is_dropped_and_ends_the_run(controller, ros_env):
-    params, seal = controller
+@pytest.fixture(params=['token', 'hmac'])
+def controller(request, tmp_path, ros_env):
+    """The controller by hand with a run token (and a key); its parameters and seal."""
+    for params, seal, _ in controller_by_hand(request.param, tmp_path, ros_env):
+        yield params, seal
+
+
+def nodes_of_test(ros_env, *names):
+    """The test's own rclpy nodes `names` on the run's domain: (close, nodes, spin_until),
+    spin_until(done, timeout) spinning them until done() or the timeout [s], close() ending
+    them and their context."""
     context = rclpy.Context()
     rclpy.init(context=context, domain_id=int(ros_env['ROS_DOMAIN_ID']))
-    rig = rclpy.create_node('rig', context=context)
-    builder = rclpy.create_node('reference_force_builder', context=context)
+    nodes = [rclpy.create_node(name, context=context) for name in names]
     executor = SingleThreadedExecutor(context=context)
-    for node in (rig, builder):
+    for node in nodes:
         executor.add_node(node)
+
+    def spin_until(done, timeout=20.0):
+        deadline = time.monotonic() + timeout
+        while not done() and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.02)
+        return done()
+
+    def close():
+        for node in nodes:
+            node.destroy_node()
+        rclpy.try_shutdown(context=context)
+    return close, nodes, spin_until
+
+
+def test_a_message_without_the_seal_is_dropped_and_ends_the_run(controller, ros_env):
+    params, seal = controller
+    close, (rig, builder), spin_until = nodes_of_test(ros_env, 'rig',
+                                                        'reference_force_builder')
     measurement = rig.create_publisher(MEASUREMENT.msg_type, MEASUREMENT.name, MEASUREMENT.qos)
     reference = builder.create_publisher(REFERENCE_FORCE.msg_type, REFERENCE_FORCE.name,
                                          REFERENCE_FORCE.qos)
@@ -80,12 +110,6 @@ def test_a_message_without_the_seal_is_dropped_and_ends_the_run(controller, ros_
     rig.create_subscription(STATUS.msg_type, STATUS.name,
                             lambda m: reports.append((m.name, status_values(m), m.message)),
                             STATUS.qos)
-
-    def spin_until(done, timeout=20.0):
-        deadline = time.monotonic() + timeout
-        while not done() and time.monotonic() < deadline:
-            executor.spin_once(timeout_sec=0.02)
-        return done()
 
     def sealed(writer, topic, k, values):
         stamp = k * DT_NS
@@ -114,11 +138,9 @@ def test_a_message_without_the_seal_is_dropped_and_ends_the_run(controller, ros_
                               and r[1].get('state') in ('aborted', 'failed', 'done')), None)
         assert spin_until(final)
         time.sleep(0.3)
-        executor.spin_once(timeout_sec=0.1)
+        spin_until(lambda: False, timeout=0.1)
     finally:
-        rig.destroy_node()
-        builder.destroy_node()
-        rclpy.try_shutdown(context=context)
+        close()
     name, values, message = final()
     assert values['state'] == 'aborted', message
     assert message.startswith("foreign publisher on /seft/reference_force: no publisher but "
@@ -137,3 +159,69 @@ def test_a_message_without_the_seal_is_dropped_and_ends_the_run(controller, ros_
         value, frame = valves[k]
         assert value == u, (k, value, u)
         assert seal.frame_ok(frame, VALVE_COMMAND.name, k * DT_NS, (value,))
+
+
+@pytest.fixture(params=['token', 'hmac'])
+def lone_controller(request, tmp_path, ros_env):
+    """The controller by hand with a run token (and a key); its parameters, seal and
+    process."""
+    yield from controller_by_hand(request.param, tmp_path, ros_env)
+
+
+def test_a_status_of_another_run_never_ends_the_run(lone_controller, ros_env):
+    """A stray 'rig' that reports 'aborted' and a stray 'recorder' that reports 'closed' on
+    the run's domain (another test's nodes, a node by hand: no seal, another run's token, or
+    the token in the clear without the key) do not end the run's controller: the statuses are
+    dropped, counted and their publisher named once; the run's own rig's 'done' ends it."""
+    params, seal, proc = lone_controller
+    close, (rig, stray), spin_until = nodes_of_test(ros_env, 'rig', 'recorder')
+    reports = []
+    rig.create_subscription(STATUS.msg_type, STATUS.name,
+                            lambda m: reports.append((m.name, status_values(m), m.message,
+                                                      m.hardware_id)), STATUS.qos)
+    own = rig.create_publisher(STATUS.msg_type, STATUS.name, STATUS.qos)
+    foreign = stray.create_publisher(STATUS.msg_type, STATUS.name, STATUS.qos)
+
+    def final():
+        return next((r for r in reports if r[0] == 'force_servo_controller'
+                     and r[1].get('state') in ('aborted', 'failed', 'done')), None)
+    other = new_run_token()
+    ids = ['seft', 'seft#' + other]            # a node by hand; another run's token
+    if seal.authenticated:
+        ids.append('seft#' + seal.token)        # the token in the clear, without the key
+    try:
+        assert spin_until(lambda: foreign.get_subscription_count() > 0
+                          and any(r[0] == 'force_servo_controller' for r in reports))
+        for hardware_id in ids:
+            foreign.publish(_with_id(status_msg('rig', STATE_ABORTED, 'another test: '
+                                                'watchdog', step=3, published=3),
+                                     hardware_id))
+            foreign.publish(_with_id(status_msg('recorder', STATE_CLOSED, 'bag closed'),
+                                     hardware_id))
+        assert not spin_until(final, timeout=1.5), final()
+        assert proc.poll() is None
+        own.publish(seal.seal_status(status_msg('rig', STATE_DONE, 'completed 0 steps',
+                                                published=0), STATUS.name))
+        assert spin_until(final)
+        time.sleep(0.3)
+        spin_until(lambda: False, timeout=0.1)
+    finally:
+        close()
+    name, values, message, hardware_id = final()
+    assert values['state'] == 'done', message
+    assert message == 'rig finished'
+    assert values['foreign_dropped'] == str(2 * len(ids))
+    assert seal.status_ok(_with_id(status_msg(name, 'done', message, **{
+        k: v for k, v in values.items() if k != 'state'}), hardware_id), STATUS.name)
+    # every report of the controller carries the run's seal
+    mine = [r for r in reports if r[0] == 'force_servo_controller']
+    assert all(r[3].startswith('seft#') for r in mine), mine
+    warnings = [r[2] for r in mine if 'warning' in r[1]]
+    assert len(warnings) == 1, warnings
+    assert warnings[0].startswith('foreign publisher on /seft/status: '), warnings
+    assert 'its status report was not sealed for this run' in warnings[0]
+
+
+def _with_id(msg, hardware_id):
+    msg.hardware_id = hardware_id
+    return msg

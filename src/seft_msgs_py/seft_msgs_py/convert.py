@@ -13,6 +13,8 @@ from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from rclpy.serialization import deserialize_message, serialize_message
 from rosgraph_msgs.msg import Clock
 
+from seft_msgs_py.provenance import STATUS_ID
+
 # the node states live in the ROS-free table (re-exported here)
 from seft_msgs_py.signals import (
     STATE_ABORTED,
@@ -22,6 +24,7 @@ from seft_msgs_py.signals import (
     STATE_READY,
     STATE_RECORDING,
     STATE_RUNNING,
+    STATUS,
 )
 from seft_msgs_py.topics import FRAME_ID, TopicSpec
 
@@ -340,18 +343,22 @@ def clock_msg(stamp_ns: int) -> Clock:
 
 
 def status_msg(node: str, state: str, message: str = '', *, level: bytes | None = None,
-               **values) -> DiagnosticStatus:
+               seal=None, **values) -> DiagnosticStatus:
     """A node status report: ``name`` = node, ``values['state']`` = state, extra key/values.
 
-    The level defaults to ERROR for aborted/failed, OK otherwise.
+    The level defaults to ERROR for aborted/failed, OK otherwise. With `seal` (a
+    :class:`~seft_msgs_py.provenance.RunSeal`) the report carries the run's seal in its
+    ``hardware_id`` (``'seft#' + seal``; :meth:`~seft_msgs_py.provenance.RunSeal.seal_status`),
+    without it the plain ``'seft'`` (a node by hand, ``seft simulate``'s bag).
     """
     if level is None:
         level = (DiagnosticStatus.ERROR if state in (STATE_ABORTED, STATE_FAILED)
                  else DiagnosticStatus.OK)
     kv = [KeyValue(key='state', value=state)]
     kv += [KeyValue(key=k, value=str(v)) for k, v in values.items()]
-    return DiagnosticStatus(level=level, name=node, message=message,
-                            hardware_id='seft', values=kv)
+    msg = DiagnosticStatus(level=level, name=node, message=message,
+                           hardware_id=STATUS_ID, values=kv)
+    return msg if seal is None else seal.seal_status(msg, STATUS.name)
 
 
 def status_values(msg) -> dict[str, str]:

@@ -586,11 +586,32 @@ class SeftNode(Node):
             values[spec.name] = parameters.validate_value(spec.name, p.value)
         return values
 
+    def status_of_run(self, msg) -> bool:
+        """Whether the status report `msg` carries the run's seal (its ``hardware_id``,
+        :meth:`~seft_msgs_py.provenance.RunSeal.status_ok`; a node by hand: none). Every
+        status callback acts on the run's reports only; ``_on_any_status`` counts and names
+        the others (:meth:`foreign_status`)."""
+        return self.seal.status_ok(msg, STATUS.name)
+
+    def foreign_status(self, msg) -> None:
+        """A status report without the run's seal (another run's node, a node by hand on
+        the domain): dropped (it never ends nor changes the run), counted with this node's
+        dropped messages (``foreign_dropped``) and its publisher named once, in a warning
+        (:meth:`foreign_publisher`)."""
+        self.foreign[STATUS.name] = self.foreign.get(STATUS.name, 0) + 1
+        self.foreign_publisher(
+            STATUS.name, False, f'its status report was not sealed for this run (node '
+            f"{msg.name!r}, state {status_values(msg).get('state')!r}, hardware id "
+            f'{msg.hardware_id!r}; {self.seal.describe()}); dropped, never acted on')
+
     def _on_any_status(self, msg) -> None:
         """Track the nodes heard and the recorder, also once this node has finished
         (:func:`main_for` lingers until the recorder has closed the bag, or failed: then it
         records nothing more; after a refusal, until every node is heard), then
-        :meth:`_watch_run`."""
+        :meth:`_watch_run`. A report without the run's seal: :meth:`foreign_status` only."""
+        if not self.status_of_run(msg):
+            self.guard(self.foreign_status)(msg)     # not after this node's end (guard)
+            return
         self.heard.add(msg.name)
         if msg.name == 'recorder':
             self.recorder_ready = True
@@ -801,7 +822,8 @@ class SeftNode(Node):
         if state in (STATE_DONE, STATE_ABORTED, STATE_FAILED):
             for batch in self.records:
                 batch.flush()
-        self.status_pub.publish(status_msg(self.seft_name, state, message, **values))
+        self.status_pub.publish(status_msg(self.seft_name, state, message, seal=self.seal,
+                                           **values))
 
     def guard(self, callback: Callable) -> Callable:
         """Wrap a callback so that an exception ends the node cleanly instead of the executor.

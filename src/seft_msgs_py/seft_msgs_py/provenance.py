@@ -11,20 +11,31 @@ carries the run's **seal**:
   ``'actuator'``;
 * ``layout.dim[0].label`` of a record batch (``std_msgs/Float64MultiArray``, the ground
   motion the builder reads and every stream the recorder writes) is ``'step#' + seal``
-  instead of ``'step'``.
+  instead of ``'step'``;
+* ``hardware_id`` of a status report (``/seft/status``, ``diagnostic_msgs/DiagnosticStatus``:
+  a node's state, an abort, the recorder's 'closed', a runner's or the live view's report)
+  is ``'seft#' + seal`` instead of ``'seft'`` (:meth:`RunSeal.seal_status`). A status ends
+  nodes (a rig's final status, the recorder's 'closed', an abort), so a node, the runner,
+  the recorder, the live view and ``seft rig-check`` act only on the run's
+  (:meth:`RunSeal.status_ok`) and drop, count and name the others: a stray rig's 'aborted'
+  from another test never ends this run.
 
 With ``message_auth: token`` the seal is the run token itself: it keeps out the messages of
 another test on the same domain and of an earlier run (their token differs), but not a sender
 that reads the domain and copies it. With ``message_auth: hmac`` it is an HMAC-SHA256 (RFC
 2104), truncated to :data:`MAC_BYTES` bytes (32 hex digits), keyed with the test's shared key
 (``auth_key_file``, never on the wire) over the run token, the topic, the stamp and the values
-(:func:`mac_input`): only a holder of the key can make a message the nodes take, and a sealed
-message cannot be replayed in another run or on another topic. A node drops a message whose
-seal is not the run's before it reads a value of it (:class:`RunSeal`), counts it, and names
-its publisher (``seft_msgs_py.node_support``).
+(:func:`mac_input`; a status: over the run token, the topic, the node's name, the level, the
+message and every key/value, :func:`status_mac_input`): only a holder of the key can make a
+message the nodes take, and a sealed message cannot be replayed in another run or on another
+topic. A status has no stamp: a copier on the domain can replay a status of this run within
+this run (the same node's same report again, unchanged; it cannot alter a word of it nor make
+one the node did not send). A node drops a message whose seal is not the run's before it
+reads a value of it (:class:`RunSeal`), counts it, and names its publisher
+(``seft_msgs_py.node_support``).
 
-Nodes started by hand without a token (``run_token: none``) keep the plain ``'actuator'``
-and ``'step'``: a graph with no token takes only unsealed messages.
+Nodes started by hand without a token (``run_token: none``) keep the plain ``'actuator'``,
+``'step'`` and ``'seft'``: a graph with no token takes only unsealed messages.
 
 The UDP bridge's datagrams are sealed with the same key (``message_auth: hmac``): a trailer
 of :data:`MAC_BYTES` bytes, the HMAC over the datagram (:func:`datagram_mac`).
@@ -49,13 +60,16 @@ from typing import Mapping, Sequence
 from seft_msgs_py.errors import ParameterError
 
 __all__ = ['RunSeal', 'new_run_token', 'read_key', 'key_of', 'mac_input', 'datagram_mac',
-           'FRAME_ID', 'LABEL', 'SEPARATOR', 'TOKEN_HEX', 'MAC_BYTES', 'MIN_KEY_BYTES',
-           'AUTH_TOKEN', 'AUTH_HMAC', 'AUTH_MODES', 'NONE']
+           'status_mac_input', 'status_id_of_run', 'FRAME_ID', 'LABEL', 'STATUS_ID',
+           'SEPARATOR', 'TOKEN_HEX', 'MAC_BYTES', 'MIN_KEY_BYTES', 'AUTH_TOKEN', 'AUTH_HMAC',
+           'AUTH_MODES', 'NONE']
 
 #: The frame id of an unsealed stamped message (the actuator axis, ``seft_msgs_py.topics``).
 FRAME_ID = 'actuator'
 #: The first label of an unsealed record batch.
 LABEL = 'step'
+#: The hardware id of an unsealed status report (``diagnostic_msgs/DiagnosticStatus``).
+STATUS_ID = 'seft'
 #: Between the frame id (or label) and the seal.
 SEPARATOR = '#'
 #: Hex digits of a run token (64 random bits).
@@ -72,6 +86,8 @@ AUTH_HMAC = 'hmac'
 AUTH_MODES = (AUTH_TOKEN, AUTH_HMAC)
 #: Domain separation of the seal's HMAC input (its version).
 _DOMAIN = b'seft-seal-1'
+#: Domain separation of a status report's HMAC input (its version).
+_STATUS_DOMAIN = b'seft-status-1'
 
 
 def new_run_token() -> str:
@@ -132,6 +148,62 @@ def mac_input(token: str, topic: str, stamp_ns: int, values: Sequence[float]) ->
     """
     head = b'\0'.join((_DOMAIN, token.encode('ascii'), topic.encode('ascii'), b''))
     return head + struct.pack(f'>q{len(values)}d', stamp_ns, *values)
+
+
+def status_mac_input(token: str, topic: str, name: str, level: int, message: str,
+                     pairs: Sequence[tuple[str, str]]) -> bytes:
+    """What a status report's seal (``message_auth: hmac``) is computed over, as bytes.
+
+    ``b'seft-status-1' 0x00 token 0x00 topic 0x00`` (ASCII), the level as one byte, then the
+    node's name, the message and each key and value in the report's order, each as its
+    UTF-8 length (big-endian uint32) and its UTF-8 bytes.
+
+    Parameters
+    ----------
+    token, topic : str
+        The run token and the status topic (``/seft/status``).
+    name : str
+        The reporting node's (qualified) name, ``DiagnosticStatus.name``.
+    level : int
+        ``DiagnosticStatus.level`` (0 OK, 1 WARN, 2 ERROR, 3 STALE).
+    message : str
+        ``DiagnosticStatus.message``.
+    pairs : sequence of (str, str)
+        The key/values, ``DiagnosticStatus.values``, in order.
+    """
+    out = [b'\0'.join((_STATUS_DOMAIN, token.encode('ascii'), topic.encode('ascii'), b'')),
+           struct.pack('>B', level & 0xff)]
+    for text in (name, message, *(t for pair in pairs for t in pair)):
+        raw = str(text).encode('utf-8')
+        out.append(struct.pack('>I', len(raw)) + raw)
+    return b''.join(out)
+
+
+def status_id_of_run(hardware_id: str, token: str, message_auth: str = AUTH_TOKEN) -> bool:
+    """Whether a status report's ``hardware_id`` has the form of the run's seal, for a reader
+    without the shared key (the bag reader, a live view on a host without the key file).
+
+    ``message_auth: token``: ``'seft#' + token``, the seal itself. ``hmac``: ``'seft#'`` and
+    ``2 * MAC_BYTES`` hex digits; the MAC is not checked (the key is needed): the recorder
+    checks it before it writes a report to the bag. A run without a token (``'none'``):
+    the plain :data:`STATUS_ID`.
+    """
+    token = '' if token in (None, NONE) else str(token)
+    if not token:
+        return hardware_id == STATUS_ID
+    head, sep, seal = str(hardware_id).partition(SEPARATOR)
+    if head != STATUS_ID or not sep:
+        return False
+    if message_auth == AUTH_HMAC:
+        return len(seal) == 2 * MAC_BYTES and all(c in '0123456789abcdef' for c in seal)
+    return seal == token
+
+
+def _level_of(level) -> int:
+    """A status level as an int (rclpy: one byte, rosbags: an int)."""
+    if isinstance(level, (bytes, bytearray)):
+        return level[0] if level else 0
+    return int(level)
 
 
 def datagram_mac(key: bytes, datagram: bytes) -> bytes:
@@ -252,6 +324,36 @@ class RunSeal:
         head, sep, got = label.partition(SEPARATOR)
         return (head == LABEL and bool(sep) and hmac.compare_digest(
             got.encode('ascii', 'replace'), self.seal(topic, 0, values).encode('ascii')))
+
+    def status_seal(self, topic: str, msg) -> str:
+        """The seal of one status report `msg` (``diagnostic_msgs/DiagnosticStatus`` or an
+        object with its fields: ``name``, ``level``, ``message``, ``values``) on `topic`
+        [hex text] ('' for a run without a token; :func:`status_mac_input`)."""
+        if self._fixed is not None:
+            return self._fixed
+        data = status_mac_input(self.token, topic, str(msg.name), _level_of(msg.level),
+                                str(msg.message), [(kv.key, kv.value) for kv in msg.values])
+        return hmac.new(self.key, data, hashlib.sha256).hexdigest()[:2 * MAC_BYTES]
+
+    def seal_status(self, msg, topic: str):
+        """Put this run's seal on the status report `msg` (its ``hardware_id``:
+        ``'seft#' + seal``, or :data:`STATUS_ID` without a token), once its fields are
+        final; returns `msg`."""
+        msg.hardware_id = (STATUS_ID + SEPARATOR + self.status_seal(topic, msg)
+                           if self.sealed else STATUS_ID)
+        return msg
+
+    def status_ok(self, msg, topic: str) -> bool:
+        """Whether the status report `msg` on `topic` carries this run's seal (a run
+        without a token: whether it carries none, ``hardware_id`` :data:`STATUS_ID`)."""
+        got = str(msg.hardware_id)
+        if not self.sealed:
+            return got == STATUS_ID
+        head, sep, mac = got.partition(SEPARATOR)
+        if head != STATUS_ID or not sep:
+            return False
+        return hmac.compare_digest(mac.encode('ascii', 'replace'),
+                                   self.status_seal(topic, msg).encode('ascii'))
 
     def describe(self) -> str:
         """What seals the run, in words (logs and reports)."""

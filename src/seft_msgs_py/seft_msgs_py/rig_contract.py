@@ -38,7 +38,8 @@ __all__ = [
     'COMMAND_KINDS', 'command_kind', 'command_signal', 'command_latency_s', 'SAFE_HOLD_S',
     'safe_stop_s', 'safe_confirm_s',
     'reaction_limit_s', 'first_effect_step', 'qos_of', 'markdown_tables', 'is_compatible',
-    'WATCHDOG_REASON', 'BRIDGE_REASON', 'PROGRESS_EVERY', 'SEAL_RULE', 'FOREIGN_REASON',
+    'WATCHDOG_REASON', 'BRIDGE_REASON', 'PROGRESS_EVERY', 'SEAL_RULE', 'STATUS_SEAL_RULE',
+    'FOREIGN_REASON',
     'RANGE_PARAMETERS',
     'INTERRUPT_REASON',
     'runner_interrupt',
@@ -99,6 +100,14 @@ SEAL_RULE = ("header.frame_id of every measurement is the run's seal: 'actuator#
              "run_token 'none': 'actuator'. A command whose frame id is not the run's seal "
              'of it is dropped, never applied, and the run ends safely with a reason '
              f"starting {FOREIGN_REASON!r} that names the topic and the publisher")
+#: The run's seal on the status reports (``/seft/status``; :mod:`seft_msgs_py.provenance`).
+STATUS_SEAL_RULE = ("hardware_id of every status report is the run's seal: 'seft#' + "
+                    "run_token (message_auth hmac: 'seft#' + the first 32 hex digits of "
+                    'HMAC-SHA256(key, provenance.status_mac_input(run_token, /seft/status, '
+                    "name, level, message, key/values))); run_token 'none': 'seft'. Another "
+                    "node's report without the run's seal (another run's node or one started "
+                    'by hand on the domain) is dropped: it never ends the run nor sends the '
+                    'rig to its safe state; the graph counts it and names its publisher once')
 
 
 @dataclass(frozen=True)
@@ -340,5 +349,7 @@ def markdown_tables() -> str:
                           f'{_md(s.description)} |')
         tables.append(params)
     tables.append(["| the run's seal | the rig |", '|---|---|',
-                   f'| on its measurement and on the commands it takes | {_md(SEAL_RULE)} |'])
+                   f'| on its measurement and on the commands it takes | {_md(SEAL_RULE)} |',
+                   f'| on its status reports and on those it acts on | '
+                   f'{_md(STATUS_SEAL_RULE)} |'])
     return '\n\n'.join('\n'.join(t) for t in tables)

@@ -315,6 +315,8 @@ class RigNode(SeftNode):
         self.start_at = time.monotonic() + (start_ns - clock.now_ns()) * 1e-9
 
     def _on_status(self, msg) -> None:
+        if not self.status_of_run(msg):
+            return              # another run's (SeftNode._on_any_status counts it)
         if self.refused_by_another_node(msg):
             return
         values = status_values(msg)

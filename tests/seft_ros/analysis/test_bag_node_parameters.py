@@ -63,10 +63,10 @@ def string_raw(text):
     return STORE.serialize_cdr(msg, 'std_msgs/msg/String')
 
 
-def status_raw(node, state, message=''):
+def status_raw(node, state, message='', hardware_id='seft'):
     kv = STORE.types['diagnostic_msgs/msg/KeyValue']
     msg = STORE.types['diagnostic_msgs/msg/DiagnosticStatus'](
-        level=b'\x00'[0], name=node, message=message, hardware_id='seft',
+        level=b'\x00'[0], name=node, message=message, hardware_id=hardware_id,
         values=[kv(key='state', value=state)])
     return STORE.serialize_cdr(msg, 'diagnostic_msgs/msg/DiagnosticStatus')
 
@@ -110,9 +110,11 @@ def response():
     }
 
 
-def write_bag(path, response, *, run_params=None, node_params=None, raw_node_params=()):
+def write_bag(path, response, *, run_params=None, node_params=None, raw_node_params=(),
+              status_id='seft', statuses=()):
     """A seft bag: run parameters, node parameters (one message per node), every scalar
-    topic for N steps and the final statuses."""
+    topic for N steps, `statuses` (``(node, state, message, hardware_id)``) and the final
+    statuses (hardware id `status_id`)."""
     with Writer(path, version=9) as writer:
         conns = {}
 
@@ -132,8 +134,11 @@ def write_bag(path, response, *, run_params=None, node_params=None, raw_node_par
         for step in range(N):
             for sig in signals.SCALAR_SIGNALS:
                 write(sig, step * int(DT * 1e9), scalar_raw(sig, step, response[sig.name][step]))
+        for status in statuses:
+            write(signals.STATUS, N // 2 * int(DT * 1e9), status_raw(*status))
         for node in ('ground_motion_publisher', 'reference_force_builder', 'rig'):
-            write(signals.STATUS, N * int(DT * 1e9), status_raw(node, 'done', 'finished'))
+            write(signals.STATUS, N * int(DT * 1e9), status_raw(node, 'done', 'finished',
+                                                                status_id))
     return path
 
 
@@ -273,6 +278,45 @@ def test_another_runs_node_parameters_are_not_the_runs(tmp_path, response, run_p
     assert bag.node_params['recorder']['run_token'] == token
     assert bag.node_params['recorder']['alpha'] == 0.5
     assert bag.params['run_token'] == token and bag.params['alpha'] == 0.5
+
+
+@pytest.mark.parametrize('message_auth', ['token', 'hmac'])
+def test_another_runs_statuses_are_not_the_runs(tmp_path, response, run_params, message_auth):
+    """A stray rig's 'aborted' and a stray recorder's 'closed' in the bag (another run's
+    seal, or none) are not the run's: its finals are its own rig's 'done' (before: the run
+    read as aborted by the stray rig at 1.5 s, its bag closed by the stray recorder)."""
+    token = '0123456789abcdef'
+    seal = token if message_auth == 'token' else '5e' * 16
+    nodes = node_parameters(**{n: {'run_token': token, 'message_auth': message_auth}
+                               for n in parameters.NODES})
+    stray = [('rig', 'aborted', 'another test: watchdog', 'seft#fedcba9876543210'),
+             ('recorder', 'closed', 'bag closed', 'seft'),
+             ('rig', 'aborted', 'a short seal', 'seft#' + seal[:8])]
+    path = write_bag(tmp_path / 'bag', response, node_params=nodes, status_id='seft#' + seal,
+                     run_params=dict(run_params, run_token=token, message_auth=message_auth),
+                     statuses=stray)
+    bag = read_signals(path)
+    assert bag.foreign_statuses == 3
+    assert [(s['name'], s['state']) for s in bag.statuses] == [
+        ('ground_motion_publisher', 'done'), ('reference_force_builder', 'done'),
+        ('rig', 'done')]
+    run = read_run(path)
+    assert run.stable and run.unstable_at_s is None
+    assert run.extra['rig_finals']['rig']['state'] == 'done'
+
+
+def test_an_unsealed_bag_reads_every_status_as_before(tmp_path, response, run_params):
+    """A bag recorded before the statuses were sealed (a run token, every hardware id
+    'seft'): every status is the run's, the rig's 'aborted' too."""
+    token = '0123456789abcdef'
+    nodes = node_parameters(**{n: {'run_token': token} for n in parameters.NODES})
+    path = write_bag(tmp_path / 'bag', response, node_params=nodes,
+                     run_params=dict(run_params, run_token=token),
+                     statuses=[('rig', 'aborted', 'watchdog', 'seft')])
+    bag = read_signals(path)
+    assert bag.foreign_statuses == 0
+    assert [(s['name'], s['state']) for s in bag.statuses][0] == ('rig', 'aborted')
+    assert len(bag.statuses) == 4
 
 
 # -- old bags --------------------------------------------------------------------------------

@@ -36,6 +36,8 @@ from rosbags.typesys import Stores, get_typestore
 from seft_msgs_py import parameters, signals
 from seft_msgs_py.errors import InputError, ParameterError
 from seft_msgs_py.graph import STRUCTURE_STATE, Graph, qualified, scoped
+from seft_msgs_py.provenance import AUTH_TOKEN, SEPARATOR, STATUS_ID, status_id_of_run
+from seft_msgs_py.provenance import NONE as NO_TOKEN
 from seft_msgs_py.rig_contract import (
     BRIDGE_REASON,
     CONTRACT_KEY,
@@ -94,7 +96,11 @@ class BagSignals:
         sample); empty when none. A step recorded twice with different values is an
         :class:`~seft_msgs_py.errors.InputError` of :func:`read_signals`.
     statuses : list of dict
-        Every status report: ``name``, ``message`` and its key/values.
+        Every status report of the run: ``name``, ``message`` and its key/values
+        (another run's are left out: a report with another seal than the run's).
+    foreign_statuses : int
+        The status reports in the bag that are not the run's (another seal), left out of
+        `statuses`; 0 in a bag recorded before the statuses were sealed.
     node_params : dict of str -> dict
         ``{node: {parameter: value}}`` as each node published it on
         ``/seft/node_parameters`` (the last message of a node); empty in an older bag.
@@ -137,6 +143,7 @@ class BagSignals:
         self.duplicates: dict[str, list[int]] = {}
         #: The last link figures of a run over several hosts (``/seft/link``), or None.
         self.link: dict | None = None
+        self.foreign_statuses = 0
 
 
 def _link(data: str, path: Path) -> dict:
@@ -263,7 +270,7 @@ def read_signals(path) -> BagSignals:
                 msg = typestore.deserialize_cdr(raw, msgtype)
                 entry = {kv.key: kv.value for kv in msg.values}
                 entry.update(name=msg.name, message=msg.message)
-                statuses.append(entry)
+                statuses.append((str(msg.hardware_id), entry))
             else:
                 kept.append((topic, msgtype, bytes(raw)))
     except InputError:
@@ -335,10 +342,12 @@ def read_signals(path) -> BagSignals:
     for node, rows in data.live_timing.items():
         if node not in timing_rows:
             timing_rows[node] = [(step * dt_ns, values) for step, values in rows]
+    statuses, foreign_statuses = _run_statuses(statuses, params)
     bag = BagSignals(params, by_step, counts, statuses, node_params=node_params,
                      param_sources=sources, parameter_mismatches=mismatches,
                      timing=node_timings(timing_rows, params['dt']))
     bag.graph = graph
+    bag.foreign_statuses = foreign_statuses
     bag.fields = {topic: {(key[1] if isinstance(key, tuple) else int(round(key / dt_ns))):
                           values for key, values in rows.items()}
                   for topic, rows in data.fields.items()}
@@ -864,6 +873,26 @@ def _computational(bag: BagSignals, n: int) -> dict[str, np.ndarray]:
         for name, value in row.items():
             values.setdefault(name, np.full(n, np.nan))[k] = float(value)
     return values
+
+
+def _run_statuses(read, params) -> tuple[list[dict], int]:
+    """The run's status reports of those read from a bag, and how many were not the run's.
+
+    `read`: ``(hardware_id, report)`` in bag order; `params`: the run's parameters
+    (``run_token``, ``message_auth``). A bag whose reports carry no seal (recorded before the
+    statuses were sealed, ``seft simulate``'s, a run of nodes by hand): every report, as
+    before. Otherwise the reports with the run's seal
+    (:func:`~seft_msgs_py.provenance.status_id_of_run`): with ``message_auth: token``,
+    ``'seft#' + run_token``; with ``hmac``, a seal of ``2 * MAC_BYTES`` hex digits (the key
+    is not in the bag: the recorder checked each MAC before it wrote the report, and writes
+    no other).
+    """
+    if not any(hardware_id.startswith(STATUS_ID + SEPARATOR) for hardware_id, _ in read):
+        return [entry for _, entry in read], 0
+    token = str(params.get('run_token', NO_TOKEN))
+    auth = str(params.get('message_auth', AUTH_TOKEN))
+    kept = [entry for hardware_id, entry in read if status_id_of_run(hardware_id, token, auth)]
+    return kept, len(read) - len(kept)
 
 
 def rig_contract_of(statuses, rig: str = 'rig') -> str | None:

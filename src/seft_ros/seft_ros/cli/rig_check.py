@@ -314,6 +314,7 @@ class _Tap:
         self.topic = graph.measurement(graph.rigs[0]).name
         self._deserialize = deserialize_message
         self._msg_type = MEASUREMENT.msg_type
+        self._status_topic = STATUS.name
         self.dt_ns = 1
         self.reset()
         node = runner.node
@@ -347,6 +348,8 @@ class _Tap:
         #: the messages without it and the first one's frame id.
         self.seal = None
         self.unsealed, self.unsealed_frame = 0, ''
+        #: Status reports without the run's seal heard during this run (another run's).
+        self.foreign_statuses = 0
 
     def _earlier(self, info: dict) -> bool:
         """Whether a message was sent before this run began (by the rig of an earlier run or
@@ -400,6 +403,12 @@ class _Tap:
         self.clock_ns.append(clock_ns_from_raw(raw))
 
     def _on_status(self, msg) -> None:
+        # the run's reports only (the runner's seal of the run): a stray rig's final report
+        # (another run on the domain) must not wake the frozen node; counted
+        seal = getattr(self.runner, 'seal', None)
+        if seal is not None and not seal.status_ok(msg, self._status_topic):
+            self.foreign_statuses += 1
+            return
         # a node frozen by the watchdog run goes on once the rig has ended the run: it
         # hears the rig's final report and ends as after any run
         if (self.stopped_pid is not None and msg.name == self.rig_node

@@ -59,7 +59,7 @@ from seft_msgs_py.errors import Interrupted, SeftError
 from seft_msgs_py.graph import UNKNOWN_NODE, Graph, split_qualified
 from seft_msgs_py.node_support import MISMATCH_ABORT
 from seft_msgs_py.provenance import NONE as NO_TOKEN
-from seft_msgs_py.provenance import new_run_token
+from seft_msgs_py.provenance import RunSeal, new_run_token
 from seft_msgs_py.rig_contract import FOREIGN_REASON, runner_interrupt
 from seft_msgs_py.signals import CLOCK, RUN_PARAMETERS
 from seft_msgs_py.stopping import RUNNER_PID_ENV, STOP_SIGNALS, signal_name
@@ -268,6 +268,12 @@ class GraphRunner:
         self.graph = Graph(('',), {'': 'servohydraulic'})
         #: The parameters of the run in progress as its nodes get them (its run token).
         self.run_params: dict = {}
+        #: The seal of the run in progress (its status reports carry it; the runner acts on
+        #: the run's reports only): none before the first run.
+        self.seal = RunSeal()
+        #: Status reports without the run's seal received during the run in progress (another
+        #: run's node on the domain): dropped, never acted on; their publisher named once.
+        self.foreign_statuses = 0
         #: The run's topics the audit checks: topic -> whether it commands the rig; the
         #: publishers there before the run's nodes started (gids); the foreign ones named.
         self.audited: dict[str, bool] = {}
@@ -319,9 +325,32 @@ class GraphRunner:
         rclpy.try_shutdown(context=self.context)
 
     def _on_status(self, msg) -> None:
+        if not self.seal.status_ok(msg, STATUS.name):
+            self._foreign_status(msg)
+            return
         values = status_values(msg)
         values.update(name=msg.name, message=msg.message, received=time.monotonic())
         self.statuses.append(values)
+
+    def _foreign_status(self, msg) -> None:
+        """A status report without the run's seal (another run's node, a node by hand on the
+        domain): counted, never acted on (it neither ends the run nor is shown as its), and
+        the first one said on the console and in the bag (a warning naming the publisher and
+        the report), as a foreign parameter message is."""
+        self.foreign_statuses += 1
+        if self.foreign_statuses > 1 or not self.run_params:
+            return
+        found = [(i.node_name, i.node_namespace, i.endpoint_gid)
+                 for i in self.node.get_publishers_info_by_topic(STATUS.name)]
+        who = (', '.join(self.graph.foreign_publishers(STATUS.name, found))
+               or "no publisher but the run's own in the runner's view (a sender that has "
+               'left, or a node of the run with another token or key)')
+        line = (f'{FOREIGN_REASON}{STATUS.name}: {who}: a status report of {msg.name!r} '
+                f"(state {status_values(msg).get('state')!r}, hardware id "
+                f"{msg.hardware_id!r}) not sealed for this run: ignored (another run's or a "
+                'hand-started node on this domain)')
+        self.status_pub.publish(status_msg(RUNNER_NAME, STATE_RUNNING, line, seal=self.seal,
+                                           warning=line, foreign_topic=STATUS.name))
 
     def _on_node_parameters(self, msg) -> None:
         """Collect a node's parameters: a node of the run in progress with its token.
@@ -345,7 +374,7 @@ class GraphRunner:
                         f"{node!r} with run_token {token!r}, not this run's: ignored "
                         "(another run's node on this domain)")
                 self.status_pub.publish(status_msg(RUNNER_NAME, STATE_RUNNING, line,
-                                                   warning=line,
+                                                   seal=self.seal, warning=line,
                                                    foreign_topic=NODE_PARAMETERS.name))
             return
         self.node_params[node] = values
@@ -459,6 +488,9 @@ class GraphRunner:
         # `seft run`'s latched parameters and reports) is still queued: take it, then forget it
         self._spin(0.1)
         self.statuses.clear()
+        # this run's seal from now: what is queued from an earlier run was taken with its own
+        self.seal = RunSeal.from_parameters(params)
+        self.foreign_statuses = 0
         self.warnings_said.clear()
         self.node_params.clear()
         self.foreign_params.clear()
@@ -595,7 +627,8 @@ class GraphRunner:
     def _publish_abort(self, reason: str, **values) -> None:
         """Report an abort on ``/seft/status``: the rig goes to its safe state and ends the
         run, the recorder closes the bag after it."""
-        self.status_pub.publish(status_msg(RUNNER_NAME, STATE_ABORTED, reason, **values))
+        self.status_pub.publish(status_msg(RUNNER_NAME, STATE_ABORTED, reason, seal=self.seal,
+                                           **values))
 
     def _end_run(self, reason: str, procs, **values) -> None:
         """End the run from the runner (`reason` recorded in the bag), then wait until the
@@ -804,7 +837,8 @@ class GraphRunner:
                 self._publish_abort(line, foreign_topic=topic)
             else:
                 self.status_pub.publish(status_msg(RUNNER_NAME, STATE_RUNNING, line,
-                                                   warning=line, foreign_topic=topic))
+                                                   seal=self.seal, warning=line,
+                                                   foreign_topic=topic))
             lines.append(line)
         return lines
 

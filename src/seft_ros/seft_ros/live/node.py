@@ -37,6 +37,8 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from seft_msgs_py.convert import STATE_ABORTED, STATE_READY, status_msg, status_values
 from seft_msgs_py.errors import SeftError
 from seft_msgs_py.node_support import exit_if_longer
+from seft_msgs_py.provenance import AUTH_TOKEN, RunSeal, status_id_of_run
+from seft_msgs_py.rig_contract import FOREIGN_REASON
 from seft_msgs_py.signals import FINAL_STATES
 from seft_msgs_py.stopping import STOP_SIGNALS, RunnerWatch
 from seft_msgs_py.topics import LINK, RUN_PARAMETERS, STATUS, record_topic
@@ -57,6 +59,8 @@ READY_LINE = 'live view: ready'
 OFF_LINE = 'live view: off; the test runs without it'
 #: The process's niceness: below the test's nodes.
 NICE = 10
+#: The most status reports held before the first run's parameters are heard.
+EARLY_STATUSES = 1000
 #: How long the page's stop waits for the ROS side [s].
 STOP_WAIT_S = 2.0
 #: The longest the process takes to close its servers and ROS once stopped [s]; then it
@@ -88,6 +92,17 @@ class LiveNode(Node):
         self.stops: queue.SimpleQueue = queue.SimpleQueue()
         self.status_pub = None
         self.run_token = None
+        #: The shown run's seal (from its parameters): None before a run, or a run in
+        #: ``message_auth: hmac`` whose key file this host cannot read (its reports are then
+        #: taken by their seal's form, ``status_id_of_run``, and the operator's stop cannot
+        #: be sealed).
+        self.seal: RunSeal | None = None
+        self.has_run = False
+        self.message_auth = AUTH_TOKEN
+        #: The reports heard before the first run's parameters (replayed against its seal).
+        self.early: list = []
+        #: Reports without the shown run's seal (another run's node on the domain): dropped.
+        self.foreign_statuses = 0
         self.matched_said = True          # no run yet
         self.create_timer(0.02, self._service)
 
@@ -111,7 +126,19 @@ class LiveNode(Node):
                 spec.msg_type, name, lambda m, s=stream: self._on_batch(s, m), LIVE_DATA_QOS)
         self._drop_status_publisher()
         self.run_token = params.get('run_token')
+        self.message_auth = str(params.get('message_auth', AUTH_TOKEN))
+        self.foreign_statuses = 0
+        try:
+            self.seal = RunSeal.from_parameters(params)
+        except SeftError as exc:      # hmac, the key file not on this host
+            self.seal = None
+            self.get_logger().warning(f'{exc}: the reports are taken by the form of their '
+                                      "seal, and the operator's stop cannot be sent")
+        self.has_run = True
         self.matched_said = False
+        early, self.early = self.early, []
+        for held in early:
+            self._on_status(held)
         self.view.add_reference()         # after subscribing: the run may be short
 
     def _on_batch(self, stream, msg) -> None:
@@ -125,7 +152,29 @@ class LiveNode(Node):
         self.view.on_batch(stream.name, columns, msg.data)
 
     def _on_status(self, msg) -> None:
+        """A report of the shown run (its seal): to the view; another run's: dropped,
+        counted, its first said in the log; before any run's parameters: held."""
+        if not self.has_run:
+            if len(self.early) < EARLY_STATUSES:
+                self.early.append(msg)
+            return
+        if not self._of_run(msg):
+            self.foreign_statuses += 1
+            if self.foreign_statuses == 1:
+                self.get_logger().warning(
+                    f'{FOREIGN_REASON}{STATUS.name}: a report of {msg.name!r} (state '
+                    f"{status_values(msg).get('state')!r}, hardware id {msg.hardware_id!r}) "
+                    "not sealed for the shown run: not shown (another run's or a "
+                    'hand-started node on this domain)')
+            return
         self.view.on_status(msg.name, msg.message, status_values(msg))
+
+    def _of_run(self, msg) -> bool:
+        """Whether a report carries the shown run's seal (checked with the key where this
+        host has it, else by its form)."""
+        if self.seal is not None:
+            return self.seal.status_ok(msg, STATUS.name)
+        return status_id_of_run(msg.hardware_id, str(self.run_token), self.message_auth)
 
     def _on_link(self, msg) -> None:
         try:
@@ -158,14 +207,19 @@ class LiveNode(Node):
             self.matched_said = True
             self._status_publisher().publish(status_msg(
                 LIVE_NAME, STATE_READY, 'live view: every stream of the run matched',
+                seal=self.seal or RunSeal(),
                 run_token=str(self.run_token), streams=len(self.batch_subs)))
 
     def _stop(self, client: str) -> str:
         state = self.view.status.state
         if state not in ('starting', 'running'):
             return f'no run to stop (state: {state})'
+        if self.seal is None:
+            return ("cannot stop the run: its reports are sealed with the test's key "
+                    '(message_auth hmac), whose file this host cannot read')
         reason = f'operator stop from the live view (client {client})'
         self._status_publisher().publish(status_msg(LIVE_NAME, STATE_ABORTED, reason,
+                                                    seal=self.seal,
                                                     stopped_by='operator', client=client,
                                                     step=self.view.status.step))
         self.say(f'live view: {reason}: the rig goes to its safe state')

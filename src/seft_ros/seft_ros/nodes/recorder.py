@@ -8,11 +8,13 @@ sent (and, in real-time mode, its timing records) as record batches of ten rows
 per-sample messages (serialized in place, :class:`~seft_msgs_py.convert.SerializedStamped`).
 On two cores each received message costs a process about 0.15 ms: one batch per stream per
 ten steps instead of eleven messages a step is what lets it keep up at 1 kHz. Status and
-parameter messages are subscribed to and written unchanged. Message definitions are stored,
-so ``ros2 bag``, Foxglove and PlotJuggler open the bag. The log time of a stamped message is
-its header stamp (the sample time); status messages take the latest sample time seen. At
-start it writes the run's resolved parameters as JSON on ``/seft/run_parameters``, so the
-bag alone is enough to analyse and reproduce the run.
+parameter messages are subscribed to and written unchanged; a status report without the
+run's seal (another run's node on the domain, ``seft_msgs_py.provenance``) is not the run's:
+never written nor acted on, counted in the recorder's ``foreign_dropped``. Message
+definitions are stored, so ``ros2 bag``, Foxglove and PlotJuggler open the bag. The log time
+of a stamped message is its header stamp (the sample time); status messages take the latest
+sample time seen. At start it writes the run's resolved parameters as JSON on
+``/seft/run_parameters``, so the bag alone is enough to analyse and reproduce the run.
 
 Every ``ACK_EVERY`` steps it reports how many steps it has recorded; the rig waits for it
 (lockstep flow control), so no sample is ever dropped from a subscription queue.
@@ -44,7 +46,7 @@ import os
 import sys
 import time
 
-from rclpy.serialization import serialize_message
+from rclpy.serialization import deserialize_message, serialize_message
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 from std_msgs.msg import String
@@ -148,10 +150,14 @@ class RecorderNode(SeftNode):
         self._flush()
         self.params_pub = self.create_publisher(String, RUN_PARAMETERS.name, RUN_PARAMETERS.qos)
         self.params_pub.publish(String(data=parameters_json(p)))
-        for t in (STATUS, NODE_PARAMETERS):
-            self.create_subscription(t.msg_type, t.name,
-                                     self.guard(lambda raw, n=t.name: self._on_unstamped(n, raw)),
-                                     t.qos, raw=True)
+        self.create_subscription(
+            NODE_PARAMETERS.msg_type, NODE_PARAMETERS.name,
+            self.guard(lambda raw: self._on_unstamped(NODE_PARAMETERS.name, raw)),
+            NODE_PARAMETERS.qos, raw=True)
+        # the run's status reports only (their seal): another run's are dropped, counted and
+        # named by SeftNode._on_any_status, never written (the bag reader takes the finals)
+        self.create_subscription(STATUS.msg_type, STATUS.name, self.guard(self._on_status_raw),
+                                 STATUS.qos, raw=True)
         # a run over several hosts: the runners' link figures (the topic added to the bag
         # with its first message: a run on one host has none)
         self.create_subscription(LINK.msg_type, LINK.name, self.guard(self._on_link), LINK.qos,
@@ -285,6 +291,10 @@ class RecorderNode(SeftNode):
     def _on_unstamped(self, name: str, raw: bytes) -> None:
         self._write(name, self.latest_ns, raw)
 
+    def _on_status_raw(self, raw: bytes) -> None:
+        if self.status_of_run(deserialize_message(raw, STATUS.msg_type)):
+            self._write(STATUS.name, self.latest_ns, raw)
+
     def _on_link(self, raw: bytes) -> None:
         if self.writer is None:
             return
@@ -295,6 +305,8 @@ class RecorderNode(SeftNode):
         self._write(LINK.name, self.latest_ns, raw)
 
     def _on_status(self, msg) -> None:
+        if not self.status_of_run(msg):
+            return              # another run's (SeftNode._on_any_status counts it)
         values = status_values(msg)
         state = values.get('state')
         if state == STATE_READY and msg.name in self.topics_of_node:
@@ -379,7 +391,8 @@ class RecorderNode(SeftNode):
             self.get_logger().warning('closing the bag without: ' + ', '.join(missing))
         counts = {name.rsplit('/', 1)[-1]: n for name, n in self.counts.items()}
         final = status_msg(self.seft_name, STATE_CLOSED, f'bag {self.bag_path} closed',
-                           incomplete=', '.join(missing), lost=self._lost(), **counts)
+                           incomplete=', '.join(missing), lost=self._lost(), seal=self.seal,
+                           **counts)
         # the bag's own account of what it holds and lost, as its last message
         self._write(STATUS.name, self.latest_ns, serialize_message(final))
         self._close()

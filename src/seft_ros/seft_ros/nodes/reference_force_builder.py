@@ -274,6 +274,8 @@ class ReferenceForceBuilderNode(SeftNode):
             self.model_pubs[r].publish(msg)
 
     def _on_status(self, msg) -> None:
+        if not self.status_of_run(msg):
+            return              # another run's (SeftNode._on_any_status counts it)
         if msg.name == 'ground_motion_publisher' and (self.n_total is None
                                                       or self.following is None):
             values = status_values(msg)
