@@ -423,11 +423,11 @@ def test_servo_run_is_stable_and_complete(servo):
     # the rig contract it followed, in its ready and final reports (rig_contract)
     rig = [status_values(m) for _, m in servo.messages['/seft/status'] if m.name == 'rig']
     ready = next(v for v in rig if v['state'] == 'ready')
-    assert (ready['contract'], rig[-1]['contract']) == ('seft-rig/2.0', 'seft-rig/2.0')
+    assert (ready['contract'], rig[-1]['contract']) == ('seft-rig/3.0', 'seft-rig/3.0')
     assert (ready['command_kind'], float(ready['command_latency_s'])) == ('valve_command_V',
                                                                           0.003)
-    assert read_run(servo.bag).extra['rig_contract'] == 'seft-rig/2.0'
-    assert '- rig contract: seft-rig/2.0' in (servo.out / 'report.md').read_text()
+    assert read_run(servo.bag).extra['rig_contract'] == 'seft-rig/3.0'
+    assert '- rig contract: seft-rig/3.0' in (servo.out / 'report.md').read_text()
 
 
 def test_diverging_run_is_aborted_safely(delay):

@@ -10,6 +10,7 @@ runs a fault needs only, to keep the tests short. Every fault against every chec
 import json
 from pathlib import Path
 import re
+import sys
 
 import numpy as np
 import pytest
@@ -53,7 +54,7 @@ def test_seft_rigs_pass_every_check(model, tmp_path, run_process, seft_exe):
     assert re.search(r'^rig-check: 21 of 21 checks passed \(\d+ s; runs in ', proc.stdout,
                      re.MULTILINE)
     report = json.loads((out / 'rig_check.json').read_text())
-    assert report['passed'] is True and report['contract'] == 'seft-rig/2.0'
+    assert report['passed'] is True and report['contract'] == 'seft-rig/3.0'
     checks = {c['name']: c['values'] for c in report['checks']}
     # the numbers behind the lines
     assert abs(checks['clock']['period_s'] - 0.002) < 4e-5
@@ -147,6 +148,36 @@ def test_a_rig_of_a_structure_is_checked_in_its_namespace(tmp_path, run_process,
     report = json.loads((out / 'pier_b' / 'rig_check.json').read_text())
     assert {c['name']: c['values'] for c in report['checks']}['measurement'][
         'record_differs'] == 0
+
+
+def test_a_rig_of_contract_2_is_told_to_seal_its_status_reports(tmp_path, run_process,
+                                                                seft_exe):
+    """Contract 3.0: a lab's rig node of 2.0 (``rig_contract2.py``: its measurement sealed,
+    its status reports not) has its reports dropped by the graph, its ready and final too.
+    The contract line says so and what to change (before: 'no ready report from the rig with
+    a contract', and the step run was run twice more as a stalled graph); its measurement
+    and signals still pass, and the run is not repeated."""
+    out = tmp_path / 'check'
+    rig = f'{sys.executable} {Path(__file__).with_name("rig_contract2.py")}'
+    proc, lines = rig_check(run_process, seft_exe, out, '--rig', 'delay', '--runs', 'step',
+                            '--rig-command', rig)
+    assert proc.returncode == 1, proc.stdout + proc.stderr
+    verdict, text = lines['contract']
+    assert verdict == 'FAIL' and re.fullmatch(
+        r"the rig's \d+ status reports do not carry the run's seal \(hardware id 'seft'; run "
+        r"token [0-9a-f]+ in the clear \(message_auth token\)\): a rig of 'seft-rig/2\.0' "
+        r"that does not seal its status reports: the graph drops them, its ready and final "
+        r"reports too; seft-rig/3\.0 asks the run's seal in hardware_id of every report .*",
+        text), text
+    verdict, text = lines['final status']
+    assert verdict == 'FAIL' and re.match(r"step: its final report \('\w+'\) without the "
+                                          r"run's seal, dropped by the graph", text), text
+    for name in ('measurement', 'force scale', 'displacement scale', 'stamps'):
+        assert lines[name][0] == 'PASS', (name, lines[name])
+    assert 'once more' not in proc.stdout + proc.stderr
+    report = json.loads((out / 'rig_check.json').read_text())
+    contract = {c['name']: c['values'] for c in report['checks']}['contract']
+    assert contract['contract'] == 'seft-rig/2.0' and contract['unsealed_reports'] >= 2
 
 
 @pytest.mark.parametrize('args, message', [

@@ -173,7 +173,7 @@ def test_a_run_through_the_bridge_equals_the_servohydraulic_rig(emulator, bridge
     assert leftover_processes(str(out)) == []
     run = read_run(next(out.glob('*/bag')))
     assert run.params['rig_interface'] == 'udp_bridge' and run.stable
-    assert run.extra['rig_contract'] == 'seft-rig/2.0'
+    assert run.extra['rig_contract'] == 'seft-rig/3.0'
     # the real-time simulated rig's plant, fed the commands as the controller took them
     latency = command_latency(run)
     replay = replay_measurement(run, latency)

@@ -23,6 +23,9 @@ seal and takes only sealed commands (:data:`SEAL_RULE`, :mod:`seft_msgs_py.prove
 controller behind the UDP bridge follows the session rules
 (``seft_plant_sim.udp_layout.SESSION_RULES``); with it (issue 39, an addition on its own
 1.1) the ranges of the sensors and the capacity of the actuator (:data:`RANGE_PARAMETERS`).
+3.0: a rig seals its status reports too and acts only on sealed ones
+(:data:`STATUS_SEAL_RULE`): the graph drops the reports of a rig of 2.0, its ready and final
+ones too (:func:`unsealed_status_advice` says what to change).
 """
 
 from dataclasses import dataclass
@@ -39,7 +42,7 @@ __all__ = [
     'safe_stop_s', 'safe_confirm_s',
     'reaction_limit_s', 'first_effect_step', 'qos_of', 'markdown_tables', 'is_compatible',
     'WATCHDOG_REASON', 'BRIDGE_REASON', 'PROGRESS_EVERY', 'SEAL_RULE', 'STATUS_SEAL_RULE',
-    'FOREIGN_REASON',
+    'FOREIGN_REASON', 'unsealed_status_advice',
     'RANGE_PARAMETERS',
     'INTERRUPT_REASON',
     'runner_interrupt',
@@ -47,7 +50,7 @@ __all__ = [
 ]
 
 #: Version of the contract (``MAJOR.MINOR``; module notes).
-VERSION = '2.0'
+VERSION = '3.0'
 #: What a conforming rig reports under :data:`CONTRACT_KEY` in its status: name and version.
 CONTRACT = f'seft-rig/{VERSION}'
 #: The key of the contract in the rig's ``/seft/status`` values (ready and final reports).
@@ -108,6 +111,24 @@ STATUS_SEAL_RULE = ("hardware_id of every status report is the run's seal: 'seft
                     "node's report without the run's seal (another run's node or one started "
                     'by hand on the domain) is dropped: it never ends the run nor sends the '
                     'rig to its safe state; the graph counts it and names its publisher once')
+
+
+def unsealed_status_advice(contract: str | None) -> str:
+    """What a rig whose status reports do not carry the run's seal must change, in words
+    (``seft rig-check``'s contract line, ``seft run``'s warning): typically a rig written to
+    contract 2.0, which sealed its measurement but not its reports.
+
+    Parameters
+    ----------
+    contract : str or None
+        The contract the rig's unsealed ready report names, None if it named none.
+    """
+    who = f'a rig of {contract!r}' if contract else 'a rig'
+    return (f"{who} that does not seal its status reports: the graph drops them, its ready "
+            f"and final reports too; {CONTRACT} asks the run's seal in hardware_id of every "
+            "report ('seft#' + run_token; with message_auth hmac 'seft#' + the HMAC of "
+            'provenance.status_mac_input) and that the rig act only on reports that carry '
+            "it (docs/rig_contract.md: the run's seal)")
 
 
 @dataclass(frozen=True)

@@ -106,7 +106,7 @@ def test_structure_round_trip_bit_for_bit(tmp_path):
     assert back.rigs['pier_a'].params['predictor'] == 'model'   # the run's, not a default
     assert set(back.extra['rig_finals']) == {'pier_a/rig', 'pier_b/rig'}
     assert back.extra['parameter_mismatches'] == []
-    assert back.extra['rig_contract'] == 'seft-rig/2.0'
+    assert back.extra['rig_contract'] == 'seft-rig/3.0'
     with Reader(path) as reader:
         types = {c.topic: c.msgtype for c in reader.connections}
     graph = Graph.from_parameters(rd.params)

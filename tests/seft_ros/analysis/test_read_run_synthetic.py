@@ -105,7 +105,7 @@ def test_the_intact_bag_reads_every_step(source, run):
     assert rd.extra['recording']['end'] == 'closed'
     assert 'gap' not in rd.extra['recording']['note']
     # the rig's final status says which rig contract it followed
-    assert rd.extra['rig_contract'] == rig_contract.CONTRACT == 'seft-rig/2.0'
+    assert rd.extra['rig_contract'] == rig_contract.CONTRACT == 'seft-rig/3.0'
 
 
 def test_a_bag_without_the_contract_reads_with_none(source, tmp_path):

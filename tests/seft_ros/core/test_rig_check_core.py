@@ -95,7 +95,7 @@ def test_contract_check():
     ok = rc.check_contract(_ready(), params, 'valve_command_V')
     assert ok.passed and ok.values['command_latency_s'] == 0.003
     # a rig that publishes no sensor ranges: said, not failed (issue 39)
-    assert ok.measured == ('seft-rig/2.0, takes valve_command_V, command latency 3 ms, 17 of '
+    assert ok.measured == ('seft-rig/3.0, takes valve_command_V, command latency 3 ms, 17 of '
                            '17 required parameters published; ranges not declared: '
                            'force_range_N, displacement_range_m, velocity_range_m_s, '
                            "accelerometer_range_m_s2, actuator_velocity_limit_m_s (the "
@@ -108,11 +108,39 @@ def test_contract_check():
     bad = rc.check_contract(_ready(contract='seft-rig/1.0', command_latency_s='-1'),
                             {k: v for k, v in params.items() if k != 'dt'}, 'reference_force_N')
     assert not bad.passed
-    assert bad.measured == ("contract 'seft-rig/1.0', expected seft-rig/2.0; command_kind "
+    assert bad.measured == ("contract 'seft-rig/1.0', expected seft-rig/3.0; command_kind "
                             "'valve_command_V', expected 'reference_force_N'; "
                             "command_latency_s '-1', expected seconds >= 0; parameters not "
                             'published: dt')
     assert not rc.check_contract(None, params, 'valve_command_V').passed
+
+
+def test_a_rig_of_contract_2_whose_reports_are_unsealed_is_told_what_to_change():
+    """Contract 3.0: a rig of 2.0 seals its measurement but not its status reports; the
+    graph drops them (its ready and final too), and the contract line says so and what to
+    change, not just 'no ready report'."""
+    params = {n: 0 for n in rig_contract.REQUIRED_PARAMETERS}
+    unsealed = [_ready(contract='seft-rig/2.0', hardware_id='seft'),
+                {'state': 'running', 'hardware_id': 'seft'},
+                {'state': 'done', 'hardware_id': 'seft', 'contract': 'seft-rig/2.0'}]
+    r = rc.check_contract(None, params, 'valve_command_V', unsealed,
+                          'run token 0123abcd in the clear (message_auth token)')
+    assert not r.passed and r.values == {'contract': 'seft-rig/2.0', 'unsealed_reports': 3}
+    assert r.measured == (
+        "the rig's 3 status reports do not carry the run's seal (hardware id 'seft'; run "
+        "token 0123abcd in the clear (message_auth token)): a rig of 'seft-rig/2.0' that "
+        'does not seal its status reports: the graph drops them, its ready and final '
+        "reports too; seft-rig/3.0 asks the run's seal in hardware_id of every report "
+        "('seft#' + run_token; with message_auth hmac 'seft#' + the HMAC of "
+        'provenance.status_mac_input) and that the rig act only on reports that carry it '
+        "(docs/rig_contract.md: the run's seal)")
+    # a sealed ready report is the rig's word: a stray unsealed one beside it changes nothing
+    assert rc.check_contract(_ready(), params, 'valve_command_V', unsealed).passed
+    final = rc.check_final_status({'step': None, 'abort': None}, 1000,
+                                  {'step': unsealed[-1]})
+    assert not final.passed and final.measured == (
+        "step: its final report ('done') without the run's seal, dropped by the graph; "
+        'abort: no final status')
 
 
 def _clock_data(n=1000, period=DT, burst=0):
@@ -529,14 +557,14 @@ def test_final_status_and_bags():
               'abort': {'state': 'aborted', 'contract': c}}
     ok = rc.check_final_status(finals, 1000)
     assert ok.passed and ok.measured == ('2 runs ended with the expected report (step done, '
-                                         'abort aborted), contract seft-rig/2.0')
+                                         'abort aborted), contract seft-rig/3.0')
     bad = rc.check_final_status({**finals, 'abort': {'state': 'done', 'message': 'x',
                                                      'contract': 'seft-rig/1.0'},
                                  'watchdog': None}, 999)
     assert not bad.passed
     assert bad.measured == ("step: published 1000 samples, expected 999; abort: 'done' ('x'), "
                             "expected 'aborted'; abort: contract 'seft-rig/1.0', expected "
-                            'seft-rig/2.0; watchdog: no final status')
+                            'seft-rig/3.0; watchdog: no final status')
     assert rc.check_bags_closed({'step': True, 'abort': True}).passed
     r = rc.check_bags_closed({'step': True, 'abort': False})
     assert not r.passed and r.measured == '1 of 2 bags closed (not: abort)'

@@ -350,6 +350,9 @@ class _Tap:
         self.unsealed, self.unsealed_frame = 0, ''
         #: Status reports without the run's seal heard during this run (another run's).
         self.foreign_statuses = 0
+        #: The rig's own reports among them (a rig of contract 2.0 does not seal its
+        #: reports): their values with ``hardware_id``, for the contract's line.
+        self.rig_unsealed: list[dict] = []
 
     def _earlier(self, info: dict) -> bool:
         """Whether a message was sent before this run began (by the rig of an earlier run or
@@ -408,6 +411,9 @@ class _Tap:
         seal = getattr(self.runner, 'seal', None)
         if seal is not None and not seal.status_ok(msg, self._status_topic):
             self.foreign_statuses += 1
+            if msg.name == self.rig_node:
+                self.rig_unsealed.append({**status_values(msg), 'message': msg.message,
+                                          'hardware_id': msg.hardware_id})
             return
         # a node frozen by the watchdog run goes on once the rig has ended the run: it
         # hears the rig's final report and ends as after any run
@@ -448,6 +454,9 @@ class _Run:
     seal_text: str = ''
     #: The second sender's trial (``check_second_sender``; a UDP bridge's step run).
     second_sender: dict | None = None
+    #: The rig's status reports without the run's seal (the graph dropped them), their
+    #: values with ``hardware_id`` (:attr:`_Tap.rig_unsealed`).
+    rig_unsealed: list = field(default_factory=list)
 
     @property
     def rig_node(self) -> str:
@@ -463,6 +472,11 @@ class _Run:
 
     def final(self) -> dict | None:
         found = [s for s in self.rig_reports() if s.get('state') in FINAL_STATES]
+        return found[-1] if found else None
+
+    def unsealed_final(self) -> dict | None:
+        """The rig's last final report without the run's seal, None if none."""
+        found = [s for s in self.rig_unsealed if s.get('state') in FINAL_STATES]
         return found[-1] if found else None
 
     def ready(self) -> dict | None:
@@ -619,6 +633,8 @@ def _disturbed(run: '_Run', profile: rc.CheckProfile) -> str | None:
     (a slow discovery), one of seft's own nodes lost an input before the fault, or the rig
     lost its commands in the step run (a watchdog: this machine stalled the graph; a rig that
     never gets its commands fails the second time too)."""
+    if run.rig_unsealed and run.final() is None:
+        return None         # a rig of contract 2.0: the graph dropped its reports, each time
     late = run.fault_late_s(profile)
     if late is not None and late > LATE_FAULT_S:
         return f'the checker heard the rig {late:.2f} s late: the fault came late'
@@ -681,6 +697,7 @@ def _one_run(name: str, run_dir: Path, *, params: Mapping, profile: rc.CheckProf
     run.clock_ns = list(tap.clock_ns)
     run.unsealed, run.unsealed_frame = tap.unsealed, tap.unsealed_frame
     run.seal_text = tap.seal.describe() if tap.seal is not None else ''
+    run.rig_unsealed = list(tap.rig_unsealed)
     if sender is not None:
         run.second_sender = sender.result()
     # what the checker heard (steps, stamps [ns], when the rig sent each, when the checker's
@@ -875,7 +892,8 @@ def _step_checks(step: _Run, *, params: Mapping, profile: rc.CheckProfile, comma
     dt = profile.dt
     out = {}
     rig_params = step.bag.node_params.get(step.rig_node) if step.bag is not None else None
-    out['contract'] = rc.check_contract(step.ready(), rig_params, command_kind)
+    out['contract'] = rc.check_contract(step.ready(), rig_params, command_kind,
+                                        step.rig_unsealed, step.seal_text)
     latency = out['contract'].values.get('command_latency_s', math.nan)
     final = step.final() or {}
     expected = int(final.get('published', step.params['n_steps']))
@@ -985,7 +1003,8 @@ def evaluate(runs: Mapping[str, _Run], *, params: Mapping, profile: rc.CheckProf
             step.second_sender, step.final(), int(step.params['n_steps']))
     out['final status'] = rc.check_final_status(
         {n: r.final() for n, r in runs.items()},
-        int(step.params['n_steps']) if step is not None else 0)
+        int(step.params['n_steps']) if step is not None else 0,
+        {n: r.unsealed_final() for n, r in runs.items() if r.unsealed_final() is not None})
     out['bag closed'] = rc.check_bags_closed({n: r.bag_closed for n, r in runs.items()})
     return [out[name] for name in rc.checks_for(udp)]
 

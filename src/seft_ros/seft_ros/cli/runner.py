@@ -60,7 +60,13 @@ from seft_msgs_py.graph import UNKNOWN_NODE, Graph, split_qualified
 from seft_msgs_py.node_support import MISMATCH_ABORT
 from seft_msgs_py.provenance import NONE as NO_TOKEN
 from seft_msgs_py.provenance import RunSeal, new_run_token
-from seft_msgs_py.rig_contract import FOREIGN_REASON, runner_interrupt
+from seft_msgs_py.rig_contract import (
+    CONTRACT_KEY,
+    FOREIGN_REASON,
+    is_compatible,
+    runner_interrupt,
+    unsealed_status_advice,
+)
 from seft_msgs_py.signals import CLOCK, RUN_PARAMETERS
 from seft_msgs_py.stopping import RUNNER_PID_ENV, STOP_SIGNALS, signal_name
 from seft_msgs_py.topics import NODE_PARAMETERS, STATUS, TOPICS
@@ -345,10 +351,15 @@ class GraphRunner:
         who = (', '.join(self.graph.foreign_publishers(STATUS.name, found))
                or "no publisher but the run's own in the runner's view (a sender that has "
                'left, or a node of the run with another token or key)')
+        values = status_values(msg)
         line = (f'{FOREIGN_REASON}{STATUS.name}: {who}: a status report of {msg.name!r} '
-                f"(state {status_values(msg).get('state')!r}, hardware id "
+                f"(state {values.get('state')!r}, hardware id "
                 f"{msg.hardware_id!r}) not sealed for this run: ignored (another run's or a "
                 'hand-started node on this domain)')
+        contract = values.get(CONTRACT_KEY)
+        if msg.name in self.graph.rig_nodes() and contract and not is_compatible(contract):
+            # the run's own rig written to an earlier contract (2.0 sealed no report)
+            line += f"; if it is this run's: {unsealed_status_advice(contract)}"
         self.status_pub.publish(status_msg(RUNNER_NAME, STATE_RUNNING, line, seal=self.seal,
                                            warning=line, foreign_topic=STATUS.name))
 

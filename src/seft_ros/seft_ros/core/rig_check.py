@@ -341,25 +341,42 @@ class CheckProfile:
 
 # -- the checks -------------------------------------------------------------------------------
 
-def check_contract(ready: Mapping | None, rig_params: Mapping | None, command_kind: str
-                   ) -> CheckResult:
+def check_contract(ready: Mapping | None, rig_params: Mapping | None, command_kind: str,
+                   unsealed: Sequence[Mapping] = (), seal: str = '') -> CheckResult:
     """The rig says which contract it follows, what it takes, and takes the parameters.
 
     Parameters
     ----------
     ready : mapping or None
-        The rig's 'ready' status values (the first that carries ``contract``), None if none.
+        The rig's 'ready' status values (the first that carries ``contract``) among the
+        reports with the run's seal, None if none.
     rig_params : mapping or None
         The parameters the rig published on ``/seft/node_parameters``.
     command_kind : str
         The command the graph sends it (``rig_contract.command_kind`` of the run).
+    unsealed : sequence of mapping
+        The rig's status reports without the run's seal (a rig of contract 2.0: the graph
+        drops them), each its values with ``hardware_id``.
+    seal : str
+        What seals the run, in words (``RunSeal.describe``).
 
     Returns
     -------
     CheckResult
         ``values``: ``contract``, ``command_latency_s`` [s], ``missing_parameters`` and,
-        when it passes, ``undeclared_ranges`` (of ``rig_contract.RANGE_PARAMETERS``).
+        when it passes, ``undeclared_ranges`` (of ``rig_contract.RANGE_PARAMETERS``);
+        ``unsealed_reports`` when the rig's reports were not sealed.
     """
+    if not ready and unsealed:
+        contract = next((u[rig_contract.CONTRACT_KEY] for u in unsealed
+                         if rig_contract.CONTRACT_KEY in u), None)
+        ids = sorted({str(u.get('hardware_id', '')) for u in unsealed})
+        return CheckResult(
+            'contract', False, f"the rig's {len(unsealed)} status reports do not carry the "
+            f"run's seal (hardware id {', '.join(map(repr, ids))}"
+            + (f'; {seal}' if seal else '') + '): '
+            + rig_contract.unsealed_status_advice(contract),
+            {'contract': contract, 'unsealed_reports': len(unsealed)})
     if not ready:
         return CheckResult('contract', False, 'no ready report from the rig with a contract')
     problems = []
@@ -1198,8 +1215,8 @@ def check_second_sender(trial: Mapping | None, final: Mapping | None, expected_s
                        f'(done, {expected_steps} of {expected_steps} samples)', values)
 
 
-def check_final_status(finals: Mapping[str, Mapping | None], expected_steps: int
-                       ) -> CheckResult:
+def check_final_status(finals: Mapping[str, Mapping | None], expected_steps: int,
+                       unsealed: Mapping[str, Mapping] | None = None) -> CheckResult:
     """Every run ends with the rig's final report naming a compatible contract.
 
     Parameters
@@ -1209,11 +1226,17 @@ def check_final_status(finals: Mapping[str, Mapping | None], expected_steps: int
         (``'step'``) must end 'done' after `expected_steps` samples, a fault run 'aborted'.
     expected_steps : int
         The step run's samples.
+    unsealed : mapping of str to mapping, optional
+        Run name -> the rig's final report without the run's seal (the graph dropped it),
+        for a run without a sealed one.
     """
     problems = []
     for run, final in finals.items():
         if final is None:
-            problems.append(f'{run}: no final status')
+            dropped = (unsealed or {}).get(run)
+            problems.append(f'{run}: no final status' if dropped is None else
+                            f"{run}: its final report ({dropped.get('state')!r}) without the "
+                            "run's seal, dropped by the graph")
             continue
         state = final.get('state')
         want = 'done' if run == 'step' else 'aborted'
