@@ -127,12 +127,52 @@ class PlantFit:
             doc['uncertainty'] = self.model.uncertainty.to_mapping()
         return doc
 
+    def with_specimen(self, specimen: Specimen, frequency_uncertainty: float) -> None:
+        """Put `specimen` (and the relative standard error of its natural frequency) with
+        the model in place of the one it was identified with (the same transfer functions:
+        a fit of the specimen made after the plant's, :meth:`residuals`)."""
+        doc = self.mapping()
+        doc['specimen'] = specimen.to_mapping()
+        doc['uncertainty'] = dict(doc['uncertainty'], frequency=float(frequency_uncertainty),
+                                  note=_uncertainty_note(self.nrms['force_N'], self.order,
+                                                         frequency_uncertainty))
+        self.model = parse_plant(doc, dt=self.dt, where=self.source)
+
+    def residuals(self, u, outputs) -> np.ndarray:
+        """The measured outputs less the model's simulation from rest: with an exact command
+        (the valve command an open-loop run sent), the sensors' noise and the model's error.
+
+        Parameters
+        ----------
+        u : array_like, shape (n,)
+            The valve command the model was identified from [V].
+        outputs : array_like, shape (n, 4)
+            The measured outputs of :data:`~seft_msgs_py.plant.OUTPUTS` (their first sample
+            taken as the offset, as :func:`identify_plant` does).
+
+        Returns
+        -------
+        ndarray, shape (n, 4)
+            [output units].
+        """
+        u = np.asarray(u, dtype=float)
+        y = np.asarray(outputs, dtype=float)
+        sim = np.column_stack([signal.lfilter(np.concatenate([np.zeros(self.delay_steps), b]),
+                                              self.a, u) for b in self.b])
+        return (y - y[0]) - sim
+
     def to_json(self) -> dict[str, Any]:
         """The figures of the fit (order, delay, errors, the orders tried)."""
         return {'order': self.order, 'delay_steps': self.delay_steps,
                 'nrms': {k: float(v) for k, v in self.nrms.items()},
                 'orders': self.orders,
                 'uncertainty': self.model.uncertainty.to_mapping()}
+
+
+def _uncertainty_note(force_nrms: float, order: int, frequency_uncertainty: float) -> str:
+    """The identified model's uncertainty note."""
+    return (f'identified: force NRMS {100 * force_nrms:.2g} % (order {order}); '
+            f'specimen frequency +-{100 * frequency_uncertainty:.2g} %')
 
 
 def _shift(x: np.ndarray, k: int) -> np.ndarray:
@@ -387,8 +427,7 @@ def _identify(u, y, dt, scale, specimen, frequency_uncertainty, max_order, sourc
     nrms = {name: float(np.sqrt(np.mean((y[:, i] - sim[:, i]) ** 2)) / spread[i])
             for i, name in enumerate(OUTPUTS)}
     unc = PlantUncertainty(max(nrms['force_N'], ERROR_FLOOR), (0.0, 0.5 / dt),
-                           f'identified: force NRMS {100 * nrms["force_N"]:.2g} % (order {na}); '
-                           f'specimen frequency +-{100 * frequency_uncertainty:.2g} %',
+                           _uncertainty_note(nrms['force_N'], na, frequency_uncertainty),
                            float(frequency_uncertainty),
                            peak_force_N=float(np.max(np.abs(y[:, 0]))),
                            peak_velocity_m_s=float(np.max(np.abs(y[:, 2]))))
