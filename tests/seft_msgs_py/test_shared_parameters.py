@@ -208,7 +208,7 @@ def test_shared_parameters_have_an_explicit_source():
       'monitor_threshold', 'monitor_floor_N', 'network_delay_s',
       'predictor_restoring_force', 'hysteresis_post_yield_ratio',
       'hysteresis_yield_displacement_m', 'hysteresis_n', 'specimen_uncertainty',
-      'specimen_check', 'predictor_io_latency_s'],
+      'specimen_check', 'predictor_io_latency_s', 'divergence_factor'],
      'reference_force_builder'),
     (['mass_kg', 'stiffness_N_per_m', 'damping_N_s_per_m', 'specimen_model',
       'post_yield_stiffness_ratio', 'yield_displacement_m', 'bouc_wen_n', 'bouc_wen_beta',
@@ -251,9 +251,9 @@ def test_value_source_lists_cover_the_schema():
     # predictor_loop_csi_band (seft design's choice of the inverse's band); + 1:
     # record_resampling; + 1: adaptive_frequency_prior; + 2: the controller's late reference
     # force (reference_extrapolation, reference_deadline_fraction); + 1: the rig's late
-    # valve command (realtime_late_command)
+    # valve command (realtime_late_command); + 1: the builder's divergence_factor
     assert len(VALUE_SOURCE) == len(SCHEMA) == (31 + 47 + 6 + 6 + 10 + 2 + 1 + 2 + 1 + 6 + 3
-                                                + 1 + 1 + 1 + 1 + 2 + 1 + 1 + 1 + 2 + 1)
+                                                + 1 + 1 + 1 + 1 + 2 + 1 + 1 + 1 + 2 + 1 + 1)
 
 
 def test_value_source_of_unknown_name_is_an_error():

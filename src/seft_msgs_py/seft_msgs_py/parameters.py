@@ -147,25 +147,25 @@ SCHEMA: tuple[ParamSpec, ...] = (
     # -- ground motion ----------------------------------------------------------------------
     ParamSpec('record', 'default', '', "Ground-motion source: 'default' (embedded synthetic "
               'accelerogram), a PEER NGA .AT2 path (g) or a two-column time [s], '
-              'acceleration [m/s^2] CSV path.', nodes=_GM + ('recorder',)),
+              'acceleration [m/s^2] CSV path.', nodes=_GM + _RFB + ('recorder',)),
     ParamSpec('amplitude_N', 1000.0, 'N', 'Scale the record so that the peak of m*xg_ddot is '
               'this force (reference study: 1000 N), m the top-level mass_kg (also for a '
               'structure, whatever its specimens weigh); 0 uses scale_factor instead.', 0.0, None,
               nodes=_GM + _RFB + ('recorder',)),
     ParamSpec('scale_factor', 1.0, '', 'Plain amplitude factor on the record (used when '
-              'amplitude_N is 0).', 0.0, None, True, nodes=_GM + ('recorder',)),
+              'amplitude_N is 0).', 0.0, None, True, nodes=_GM + _RFB + ('recorder',)),
     ParamSpec('time_scale', 0.5, '', 'Time scale of the record (0.5 halves its time step, as '
-              'in the reference study).', 0.0, 100.0, True, nodes=_GM + ('recorder',)),
+              'in the reference study).', 0.0, 100.0, True, nodes=_GM + _RFB + ('recorder',)),
     ParamSpec('record_resampling', 'auto', '', "How the record is resampled to dt: "
               "'band_limited' (scipy.signal.resample_poly: nothing above the record's "
               "Nyquist frequency), 'linear' (numpy.interp: images of the record's content "
               "near multiples of its sample rate, which a force loop cannot track) or 'auto' "
               "(linear for the embedded default, as the reference study's test always ran; "
               "band_limited for a record file).", choices=('auto', 'linear', 'band_limited'),
-              nodes=_GM + ('recorder',)),
+              nodes=_GM + _RFB + ('recorder',)),
     ParamSpec('duration_s', 0.0, 's', 'Length of the run after time scaling (0: the whole '
               'record; with an excitation, its length, 0: 20 s).', 0.0, None,
-              nodes=_GM + _CTRL + ('recorder',)),
+              nodes=_GM + _CTRL + _RFB + ('recorder',)),
     ParamSpec('preview_steps', 50, '', 'How many steps ahead of the simulated clock the ground '
               'acceleration is published.', 1, 100000, nodes=_GM),
     # -- excitation (seft_ros.core.excitation): identification runs -------------------------
@@ -388,6 +388,15 @@ SCHEMA: tuple[ParamSpec, ...] = (
               'disables. Disarmed in an open-loop identification run (excitation on the '
               "valve: the loop it guards is open), where the rig's stroke_limit_m and "
               'force_limit_N guard the run.', 0.0, 100.0, nodes=_RFB),
+    ParamSpec('divergence_factor', 3.0, '', 'The run is aborted (unstable, diverging) when '
+              "a rig's measured displacement or force exceeds this times the pre-run "
+              "reference analysis's peak of it plus 6 times the channel's declared noise "
+              '(noise_displacement_m, noise_force_N) plus monitor_floor_N (for the '
+              'displacement monitor_floor_N / k): a growth the monitor cannot see, at the '
+              "reference structure's own frequency. A yielding specimen is watched on its "
+              'force only; no check without a prediction (an OpenSees model, an '
+              'identification run). 0 disables (seft_ros.core.monitor.DivergenceGuard).',
+              0.0, 1000.0, nodes=_RFB),
     ParamSpec('specimen_uncertainty', 0.0, '', 'How far the specimens may be from their '
               'declared stiffness, as a fraction (0.2: 0.8 to 1.2 times it; 0: not declared). '
               'The pre-run guard refuses a run whose compensation is not stable over that range '
@@ -497,7 +506,7 @@ SCHEMA: tuple[ParamSpec, ...] = (
               "rig: declare its load cell's; 'adaptive' identifies the specimen above 3 times "
               'it).', 0.0, None, nodes=_RIG + _RFB),
     ParamSpec('noise_displacement_m', 0.0, 'm', 'Standard deviation of displacement-sensor '
-              'noise.', 0.0, None, nodes=_RIG),
+              'noise.', 0.0, None, nodes=_RIG + _RFB),
     ParamSpec('noise_velocity_m_s', 0.0, 'm/s', 'Standard deviation of velocity-sensor noise.',
               0.0, None, nodes=_RIG),
     ParamSpec('noise_acceleration_m_s2', 0.0, 'm/s^2', 'Standard deviation of accelerometer '
@@ -877,7 +886,8 @@ TEST_PARAMETERS = frozenset({
     'excitation_amplitude',
     'excitation_band_low_hz', 'excitation_band_hz', 'excitation_seed',
     'predictor_loop_latency_s', 'network_delay_s', 'monitor_cutoff_hz', 'monitor_window_s',
-    'monitor_threshold', 'monitor_floor_N', 'wait_for_recorder', 'recorder_window_steps',
+    'monitor_threshold', 'monitor_floor_N', 'divergence_factor', 'wait_for_recorder',
+    'recorder_window_steps',
     'wait_for_live_view', 'bag_path', 'bag_storage', 'structure', 'structure_builders',
     'realtime_priority', 'specimen_uncertainty', 'run_token', 'message_auth',
 })
@@ -1012,11 +1022,17 @@ _SHARED_SOURCE = {
     # the load cell's noise: the rig's (the builder's specimen identification stays above it,
     # predictors.specimen_excitation_level_N)
     'noise_force_N': 'rig',
+    # the displacement sensor's noise: the rig's (the builder's divergence guard allows for it)
+    'noise_displacement_m': 'rig',
     'watchdog_timeout_s': 'rig',            # the rig's watchdog; the others watch their inputs
     'network_delay_s': 'reference_force_builder',   # the delay its predictor compensates
     # the record's scaling: the ground-motion publisher's (the builder's estimators scale
     # their hold threshold with it, predictors.excitation_level_N)
     'amplitude_N': 'ground_motion_publisher',
+    # the record: the ground-motion publisher plays it (the builder's divergence guard reads
+    # the same record for the pre-run reference analysis of its peaks)
+    'record': 'ground_motion_publisher', 'scale_factor': 'ground_motion_publisher',
+    'time_scale': 'ground_motion_publisher', 'record_resampling': 'ground_motion_publisher',
     'realtime_output': 'rig',               # the rig outputs the commands
     # who may command the rig: the run's (every node holds the same; the rig's is recorded)
     'run_token': 'rig', 'message_auth': 'rig', 'auth_key_file': 'rig',

@@ -76,8 +76,10 @@ def assert_aborted(run):
 
 
 def test_diverging_delay_run_is_aborted_at_a_limit(reference_params):
-    """Without the instability monitor the run diverges until the force limit (24.5 kN)."""
-    run = simulate(dict(reference_params, rig_model='delay', alpha=1.5, monitor_threshold=0.0))
+    """Without the instability monitor (and the divergence guard) the run diverges until the
+    force limit (24.5 kN)."""
+    run = simulate(dict(reference_params, rig_model='delay', alpha=1.5, monitor_threshold=0.0,
+                        divergence_factor=0.0))
     assert_aborted(run)
     assert run.abort_reason.startswith(f'force limit exceeded at t={run.unstable_at_s:.3f} s: ')
     assert abs(run.measured_force_N[-1]) < 24.5e3
@@ -119,8 +121,10 @@ def test_default_reading_alpha_1_5_runs_to_the_force_limit_past_the_acceleromete
     clipped); the builder now feeds back the acceleration estimated from the measured force
     and motion while the sensor is at its range (issue 39), so the loop grows until the force
     limit stops it, as without a range, and every clipped sample is counted. The monitor (on
-    by default, next test) is what stops such a run first."""
-    run = simulate(dict(reference_params, alpha=1.5, monitor_threshold=0.0))
+    by default, next test) is what stops such a run first (and, with it off, the divergence
+    guard: off here too)."""
+    run = simulate(dict(reference_params, alpha=1.5, monitor_threshold=0.0,
+                        divergence_factor=0.0))
     assert_aborted(run)
     assert run.abort_reason.startswith(f'force limit exceeded at t={run.unstable_at_s:.3f} s')
     assert np.max(np.abs(run.acceleration_m_s2)) == 39.2       # the sensor read its range
@@ -131,7 +135,7 @@ def test_default_reading_alpha_1_5_runs_to_the_force_limit_past_the_acceleromete
     assert count['acceleration_estimated'] == at_range > 100
     # without the accelerometer range: the same end, nothing flagged
     run = simulate(dict(reference_params, alpha=1.5, monitor_threshold=0.0,
-                        accelerometer_range_m_s2=0.0))
+                        divergence_factor=0.0, accelerometer_range_m_s2=0.0))
     assert_aborted(run)
     assert run.abort_reason.startswith(f'force limit exceeded at t={run.unstable_at_s:.3f} s')
     assert run.extra['sensor_range']['']['samples']['acceleration'] == 0

@@ -73,7 +73,7 @@ def test_alpha_one_and_a_half_is_stopped_by_the_monitor(uncompensated, reference
     stay far inside their limits. With the monitor off the loop grows past the 4 g
     accelerometer's range (once it bounded the loop; the builder now feeds back the
     acceleration estimated from the measured force and motion there, issue 39) until the
-    force limit stops it."""
+    divergence guard stops it, or with that off too the force limit."""
     run = uncompensated[1.5]
     assert not run.stable
     assert run.abort_reason.startswith('unstable at t=')
@@ -82,8 +82,14 @@ def test_alpha_one_and_a_half_is_stopped_by_the_monitor(uncompensated, reference
     assert np.max(np.abs(run.valve_command_V)) < 10.0
     assert np.max(np.abs(run.measured_force_N)) < reference_params['force_limit_N'] / 4
     assert np.max(np.abs(run.displacement_m)) < reference_params['stroke_limit_m'] / 4
-    off = simulate(dict(run.params, monitor_threshold=0.0))
+    # with the monitor off, the divergence guard ends it: the force at 3 x its predicted peak
+    guarded = simulate(dict(run.params, monitor_threshold=0.0))
+    assert guarded.abort_reason == (
+        'unstable at t=1.046 s: diverging, the measured force reached 9855 N, 3.03 x the '
+        'predicted peak 3248 N (divergence_factor 3: the pre-run reference analysis)')
+    off = simulate(dict(run.params, monitor_threshold=0.0, divergence_factor=0.0))
     assert not off.stable and off.abort_reason.startswith('force limit exceeded at t=')
+    assert off.unstable_at_s > guarded.unstable_at_s
     assert off.unstable_at_s > run.unstable_at_s
     assert off.extra['sensor_range']['']['samples']['acceleration'] > 100
     # ... although the loop oscillates: far more power above 20 Hz than the stable alpha = 1

@@ -352,7 +352,7 @@ class _RecordingMonitor(InstabilityMonitor):
 
 
 OBSERVE = {'monitor_threshold': 0.0, 'saturation_abort_fraction': 1.0, 'force_limit_N': 1e12,
-           'stroke_limit_m': 1e6}
+           'stroke_limit_m': 1e6, 'divergence_factor': 0.0}
 STABLE = {'delay': (0.0, 0.5, 0.9), 'servohydraulic': (0.0, 0.5, 1.0, 1.2)}
 UNSTABLE = {'delay': (1.5, 2.0), 'servohydraulic': (1.5, 2.0)}
 

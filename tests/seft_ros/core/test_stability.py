@@ -31,15 +31,17 @@ def delay_params(reference_params):
 
 @pytest.fixture(scope='module')
 def free_response(reference_params, tmp_path_factory):
-    """Parameters of a free-response run: a 6 ms ground pulse then 4 s of nothing, no monitor,
-    no interlock, no limits in reach, unlimited valve and accelerometer."""
+    """Parameters of a free-response run: a 6 ms ground pulse then 4 s of nothing, no monitor
+    nor divergence guard, no interlock, no limits in reach, unlimited valve and
+    accelerometer."""
     path = tmp_path_factory.mktemp('stability') / 'pulse.csv'
     t = np.arange(2000) * 0.002
     ag = np.zeros_like(t)
     ag[1:4] = 1.0
     np.savetxt(path, np.c_[t, ag], delimiter=',')
     return dict(reference_params, record=str(path), time_scale=1.0, amplitude_N=100.0,
-                monitor_threshold=0.0, saturation_abort_fraction=1.0, stroke_limit_m=1e3,
+                monitor_threshold=0.0, divergence_factor=0.0, saturation_abort_fraction=1.0,
+                stroke_limit_m=1e3,
                 force_limit_N=1e12, valve_limit_V=100.0, accelerometer_range_m_s2=0.0,
                 # the preview (on by default) would command the pulse tau ahead: a pulse in
                 # the first tau of the record would then never be applied (nothing is

@@ -43,7 +43,7 @@ from seft_ros.core.controller import (
 )
 from seft_ros.core.excitation import make_valve_controller
 from seft_ros.core.ground_motion import GroundMotion, prepared_record
-from seft_ros.core.monitor import InstabilityMonitor, SpecimenCheck
+from seft_ros.core.monitor import DivergenceGuard, InstabilityMonitor, SpecimenCheck
 from seft_ros.core.reference_force import ReferenceForceBuilder
 
 __all__ = ['simulate']
@@ -145,6 +145,13 @@ def _simulate(params, *, progress, record, stale_steps, command_latency_s) -> Ru
     locks = [SaturationInterlock.from_parameters(rig_params[r]) if v else None
              for r, v in zip(names, valve)]
     monitors = [InstabilityMonitor.from_parameters(rig_params[r]) for r in names]
+    # each rig's measured displacement and force against the pre-run prediction of their
+    # peaks (divergence_factor); the range check's reference analysis of the record as run
+    predicted = None
+    if float(params.get('divergence_factor', 0.0) or 0.0) > 0:
+        from seft_ros.analysis.range_check import range_check  # analysis imports the core
+        predicted = range_check(params, ag)
+    guards = [DivergenceGuard.from_parameters(rig_params[r], predicted, rig=r) for r in names]
     # each rig's specimen against its compensator's model (specimen_check)
     local_params = {r: p for b in builders for r, p in zip(b.local_rigs, b.rig_params)}
     checks = [SpecimenCheck.from_parameters(local_params[r], rig=r) for r in names]
@@ -192,10 +199,12 @@ def _simulate(params, *, progress, record, stale_steps, command_latency_s) -> Ru
               ctrls[r].step if valve[r] else None, locks[r].update if valve[r] else None,
               ctrls[r], playouts[r], stale[r], rows[r].append)
              for r, rig in enumerate(rigs)]
-    # each rig's watches in the builder: its instability monitor and its specimen check
-    # (None: none; its finding a warning, or with specimen_check: abort a reason to stop)
+    # each rig's watches in the builder: its instability monitor, its specimen check (None:
+    # none; its finding a warning, or with specimen_check: abort a reason to stop) and its
+    # divergence guard (None: none)
     watches = [(r, monitors[r].update, None if checks[r] is None else checks[r].update,
-                check_abort[r], names[r]) for r in range(n_r)]
+                check_abort[r], names[r], None if guards[r] is None else guards[r].update)
+               for r in range(n_r)]
     # each builder's rig observations, and its rigs' range guards (a warning to say)
     observations = [(b.observe, r) for b in builders for r in range(n_r)]
     guarded = [(b, g) for b in builders for g in b.range_guards if g is not None]
@@ -240,9 +249,11 @@ def _simulate(params, *, progress, record, stale_steps, command_latency_s) -> Ru
             break
         if k + 1 < n_total:
             scale = builder_set.last_ground_forces_N
-            for r, watch, check, abort, name in watches:
+            for r, watch, check, abort, name, diverging in watches:
                 m = meas[r]
                 reason = watch(m.force_N, scale[r], m.time_s)
+                if not reason and diverging is not None:
+                    reason = diverging(m)
                 if not reason and check is not None:
                     reason = check(m)
                     if reason and not abort:

@@ -12,8 +12,9 @@ builder in a rig's namespace (``structure_builders: per_rig``). The numerics are
 (``predictor``; ``none``: the measured acceleration of the previous step, paper Eq. 5.3) and
 the interface force of the computational part. Before each new force, one instability
 monitor per commanded rig (``seft_ros.core.monitor``) checks that rig's measured force for a
-growing high-frequency oscillation; when it trips, the builder reports 'aborted' and the rigs
-stop.
+growing high-frequency oscillation, and one divergence guard its measured displacement and
+force against the pre-run reference analysis's peaks (``divergence_factor``); when either
+trips, the builder reports 'aborted' and the rigs stop.
 
 Lockstep: ``f_r[k]`` of every commanded rig once ``xg''[k .. k+L]`` (``L`` =
 ``builder.lookahead_steps``: the hold-consistent compensators and the ground-motion preview
@@ -48,7 +49,7 @@ from seft_msgs_py.node_support import (
     main_for,
 )
 from seft_msgs_py.topics import REFERENCE_FORCE, STATUS, record_topic
-from seft_ros.core.monitor import InstabilityMonitor, SpecimenCheck
+from seft_ros.core.monitor import DivergenceGuard, InstabilityMonitor, SpecimenCheck
 from seft_ros.core.predictors import BackgroundFits
 from seft_ros.core.reference_force import ReferenceForceBuilder, ground_window
 from seft_ros.core.substructure import SpecimenModel
@@ -99,6 +100,16 @@ class ReferenceForceBuilderNode(SeftNode):
         self.dt = float(p['dt'])
         self.monitors = [InstabilityMonitor.from_parameters(self.builder.setup.rig_params[r])
                          for r in self.local]
+        # each commanded rig's measured displacement and force against the pre-run
+        # prediction of their peaks (divergence_factor): the range check's reference analysis
+        # of the record the ground-motion publisher plays, as seft simulate makes it
+        predicted = None
+        if float(p.get('divergence_factor', 0.0) or 0.0) > 0:
+            from seft_ros.analysis.range_check import range_check
+            predicted = range_check(p)
+        self.divergence_guards = [
+            DivergenceGuard.from_parameters(self.builder.setup.rig_params[r], predicted, rig=r)
+            for r in self.local]
         # each commanded rig's specimen against its compensator's model (specimen_check)
         self.checks = [SpecimenCheck.from_parameters(p, rig=r)
                        for r, p in zip(self.local, self.builder.rig_params)]
@@ -376,13 +387,17 @@ class ReferenceForceBuilderNode(SeftNode):
             self.builder.advance()
 
     def _monitors_trip(self, k: int) -> bool:
-        """Each commanded rig's instability monitor on its sample k-1 (True: aborted)."""
+        """Each commanded rig's instability monitor, divergence guard and specimen check on
+        its sample k-1 (True: aborted)."""
         latest = self.latest.get(k - 1, {})
         for i, (r, monitor) in enumerate(zip(self.local_index, self.monitors)):
             m = latest.get(r)
             if m is None:
                 continue
             reason = monitor.update(m.force_N, self.builder.last_ground_forces_N[i], m.time_s)
+            guard = self.divergence_guards[i]
+            if not reason and guard is not None:
+                reason = guard.update(m)
             check = self.checks[i]
             if not reason and check is not None:
                 finding = check.update(m)
