@@ -169,6 +169,15 @@ def test_a_discrete_lab_model_is_refused_in_real_time_in_one_line():
                        r'plant_model is discrete at dt \(2 ms\) .* 0\.1 ms grid'):
         WallClockRig(p)
     WallClockRig(dict(p, realtime_substep_s=DT))        # on the model's own grid
+    # the rig's own plant (rig_plant_model) is the one stepped, and the one named: a
+    # continuous plant_model beside it does not let a discrete rig plant through
+    continuous = dict(plant, dt=0.0, num={'force_N': [1.0e4]}, den=[1.0, 100.0])
+    p = _params(rig_model='state_space', plant_model=json.dumps(continuous),
+                rig_plant_model=json.dumps(plant))
+    with pytest.raises(ParameterError, match=r'^rig_model state_space in real time: the '
+                       r'rig_plant_model is discrete at dt \(2 ms\)'):
+        WallClockRig(p)
+    WallClockRig(dict(p, rig_plant_model=json.dumps(continuous)))
 
 
 def test_the_applied_command_of_each_step_by_the_latching_rule():

@@ -478,7 +478,14 @@ SCHEMA: tuple[ParamSpec, ...] = (
               "mapping or the path of a YAML file holding one, here its JSON. 'none': the "
               "servohydraulic rig's own model. The force-controller design, the compensators' "
               'force-loop inverse, the stability guard and seft identify take it; rig_model '
-              "'state_space' simulates it.", nodes=_RIG + _CTRL + _RFB),
+              "'state_space' simulates it unless rig_plant_model is given.",
+              nodes=_RIG + _CTRL + _RFB),
+    ParamSpec('rig_plant_model', 'none', '', "rig_model 'state_space': the plant the simulated "
+              "rig steps, as plant_model's mapping (or file), when it is not the compensators' "
+              "and the guard's plant_model: the lab's own model of its actuator and specimen, "
+              'kept apart from the one seft identify --params writes as plant_model, so that a '
+              "rehearsal runs the identified design on the lab's plant. 'none': the rig "
+              'simulates plant_model. Refused with any other rig_model.', nodes=_RIG),
     ParamSpec('actuator_family', 'valve_2nd_order', '', "rig_model 'actuator': the member of "
               "seft_plant_sim's actuator family (seft_plant_sim.actuator.FAMILY: servo-valves of "
               'second order and three stages, a leaky actuator, valve flow through an orifice, '
@@ -772,8 +779,8 @@ def validate_value(name: str, value: Any, *, where: str = '') -> Any:
 
 
 #: Text parameters whose value is a mapping in a configuration file (held as its JSON): a
-#: plant model and a lab's force controller.
-MAPPING_PARAMETERS = ('plant_model', 'force_controller_tf')
+#: plant model (the compensators' and the state_space rig's own) and a lab's force controller.
+MAPPING_PARAMETERS = ('plant_model', 'rig_plant_model', 'force_controller_tf')
 
 def mapping_value(value, *, where: str, expected: str) -> dict:
     """The mapping a mapping parameter holds (:data:`MAPPING_PARAMETERS`): `value` itself or

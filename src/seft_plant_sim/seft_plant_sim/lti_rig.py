@@ -8,6 +8,11 @@ sensors (noise, accelerometer range) and its stroke and force limits. A model th
 from its hardware, or the one ``seft identify`` made of its bags: the test and everything seft
 predicts of it then run on the same plant, so what differs between the rehearsal and the
 hardware is what the model leaves out.
+
+``rig_plant_model`` (same schema) gives the rig a plant of its own, apart from the
+``plant_model`` the compensators and the guard read: the lab's model of its hardware as the
+rig, the identified model (``seft identify --params``) as the design's, so that the
+rehearsal shows what the gap between the two does to the test.
 """
 
 import math
@@ -22,7 +27,30 @@ from seft_msgs_py.sampling import linear_map
 from seft_plant_sim.sensors import Sensors
 from seft_plant_sim.specimen import SafetyLimits
 
-__all__ = ['StateSpaceRig']
+__all__ = ['StateSpaceRig', 'rig_plant_parameter']
+
+_NONE = (None, '', 'none')
+
+
+def rig_plant_parameter(params: Mapping) -> str | None:
+    """The parameter holding the plant a ``state_space`` rig steps.
+
+    Parameters
+    ----------
+    params : mapping
+        The rig's parameters (``rig_plant_model``, ``plant_model``: JSON text or 'none').
+
+    Returns
+    -------
+    str or None
+        ``'rig_plant_model'`` when it is given (the rig's own plant, apart from the
+        compensators' and the guard's ``plant_model``), else ``'plant_model'`` when that is
+        given, else None.
+    """
+    for name in ('rig_plant_model', 'plant_model'):
+        if params.get(name, 'none') not in _NONE:
+            return name
+    return None
 
 _F, _X, _V, _A = (OUTPUTS.index(n) for n in ('force_N', 'displacement_m', 'velocity_m_s',
                                              'acceleration_m_s2'))
@@ -62,21 +90,24 @@ class StateSpaceRig:
 
     @classmethod
     def from_parameters(cls, params: Mapping, *, rk4_substeps: int = 1) -> 'StateSpaceRig':
-        """Build from ``plant_model`` (required), ``dt``, the sensors and the limits
+        """Build from the rig's plant (:func:`rig_plant_parameter`: ``rig_plant_model``, else
+        ``plant_model``; one is required), ``dt``, the sensors and the limits
         (``rk4_substeps``, of :func:`~seft_plant_sim.rigs.make_rig`, is unused: the model is
         linear and stepped exactly).
 
         Raises
         ------
         ParameterError
-            No ``plant_model``, or one that does not parse (the message names the field).
+            Neither model, or one that does not parse (the message names the parameter and
+            the field).
         """
-        text = params.get('plant_model', 'none')
-        if text in (None, '', 'none'):
+        name = rig_plant_parameter(params)
+        if name is None:
             raise ParameterError("rig_model 'state_space': expected plant_model (the lab's model "
                                  'of its actuator and specimen: a state space or transfer '
-                                 'function, or the file seft identify --params wrote)')
-        plant = parse_plant(text, dt=float(params['dt']), where='parameter plant_model')
+                                 'function, or the file seft identify --params wrote) or '
+                                 "rig_plant_model (the rig's own, apart from plant_model)")
+        plant = parse_plant(params[name], dt=float(params['dt']), where=f'parameter {name}')
         rng = float(params.get('accelerometer_range_m_s2', 0.0) or 0.0)
         return cls(plant, Sensors.from_parameters(params, rng if rng > 0 else None),
                    SafetyLimits.from_parameters(params))

@@ -215,11 +215,15 @@ def applied_commands(command, loop_latency_s, dt: float, latch_offset_s: float):
     return applied, late
 
 
-def _discrete_model(text) -> bool:
-    """Whether a ``plant_model`` (parsed already by the rig) is given in z."""
+def _discrete_model(params: Mapping) -> str | None:
+    """The parameter holding a ``state_space`` rig's plant (parsed already by the rig) when
+    that plant is given in z, else None."""
     from seft_msgs_py.parameters import mapping_value
-    doc = mapping_value(text, where='parameter plant_model', expected='a plant model mapping')
-    return float(doc.get('dt', 0.0) or 0.0) > 0
+    from seft_plant_sim.lti_rig import rig_plant_parameter
+    name = rig_plant_parameter(params)
+    doc = mapping_value(params[name], where=f'parameter {name}',
+                        expected='a plant model mapping')
+    return name if float(doc.get('dt', 0.0) or 0.0) > 0 else None
 
 
 class WallClockRig(CommandArrivals):
@@ -284,10 +288,11 @@ class WallClockRig(CommandArrivals):
         probe = make_rig(dict(params))          # validates the model parameters at dt
         self.command_kind = probe.command_kind
         own_delay = params.get('rig_model') in MODELS_WITH_OWN_DELAY
-        if (params.get('rig_model') == 'state_space' and self.substeps > 1
-                and _discrete_model(params['plant_model'])):
+        discrete = (params.get('rig_model') == 'state_space' and self.substeps > 1
+                    and _discrete_model(params))
+        if discrete:
             raise ParameterError(
-                'rig_model state_space in real time: the plant_model is discrete at dt '
+                f'rig_model state_space in real time: the {discrete} is discrete at dt '
                 f'({1e3 * dt:g} ms) and the real-time rig steps on a {1e3 * h:g} ms grid '
                 '(realtime_substep_s); give the model continuous, set realtime_substep_s to '
                 'dt, or rehearse it with seft simulate (lockstep, the model as identified)')

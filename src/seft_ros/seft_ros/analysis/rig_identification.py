@@ -445,10 +445,14 @@ def _controller_response(controller, freqs_hz) -> np.ndarray:
 def _known_model(params):
     """The run's own model of its force loop
     (:func:`~seft_ros.core.force_loop.force_loop_plant`: its ``plant_model``, or seft's rig
-    model with the run's specimen) and its controller: ``(plant, controller)``, or None
-    where the rig has none (an actuator seft has no model of, or seft_plant_sim missing)."""
+    model with the run's specimen; a ``state_space`` rig's ``rig_plant_model`` where given,
+    the plant the rig stepped) and its controller: ``(plant, controller)``, or None where the
+    rig has none (an actuator seft has no model of, or seft_plant_sim missing)."""
     from seft_ros.core.controller import ForceServoController
     from seft_ros.core.force_loop import force_loop_plant
+    rig_plant = params.get('rig_plant_model', 'none')
+    if params.get('rig_model') == 'state_space' and rig_plant not in (None, '', 'none'):
+        params = dict(params, plant_model=rig_plant)
     try:
         return force_loop_plant(params), ForceServoController.from_parameters(params)
     except ParameterError:

@@ -101,8 +101,8 @@ def build_runs(*, config: str | None = None, overrides: dict[str, Any] | None = 
             rig_layers.append((path, sections))
         for name, value in data.items():
             layered.setdefault(name, value)
-        if ('plant_model' in data and values.get('plant_model') is not None
-                and values.get('rig_model') == 'state_space' and replaced_by is None):
+        if 'plant_model' in data and values.get('plant_model') not in (None, '', 'none') \
+                and replaced_by is None:
             replaced_by = path
     values.update({k: v for k, v in layered.items() if v is not None})
     values.update({k: v for k, v in (overrides or {}).items() if v is not None})
@@ -115,15 +115,17 @@ def build_runs(*, config: str | None = None, overrides: dict[str, Any] | None = 
         values['alpha'] = list(alphas)
     notes = []
     runs = expand_runs(values, where=config or 'command line', notes=notes)
-    if replaced_by is not None:
-        # a rig_model state_space simulates its plant_model, which its compensator and the
-        # guard read too: the file's (an identified model) replaces the lab's for all three
+    if (replaced_by is not None and values.get('rig_model') == 'state_space'
+            and values.get('rig_plant_model', 'none') in (None, '', 'none')):
+        # a rig_model state_space without a rig_plant_model simulates its plant_model, which
+        # its compensator and the guard read too: the file's (an identified model) replaces
+        # the lab's for all three
         notes.append(f"--params {replaced_by}: its plant_model replaces {config}'s, and the "
                      'state_space rig simulates it: this run rehearses the design on the model '
-                     "it was made from, not on the configuration's plant (one plant_model "
-                     'serves the rig, its compensator and the guard; to try the design on a '
-                     "plant other than its model, use rig_model servohydraulic or actuator "
-                     "with the lab's values)")
+                     "it was made from, not on the configuration's plant (without a "
+                     'rig_plant_model one plant_model serves the rig, its compensator and the '
+                     "guard; to rehearse the design on the configuration's plant, give that "
+                     'plant as rig_plant_model there)')
     for note in notes if progress is not None else ():
         progress(f'settings: {note}')
     # read every record now: a bad file is reported before anything starts

@@ -404,21 +404,30 @@ def _check_controller_address(params: dict[str, Any], where: str) -> None:
 
 
 def _check_mappings(params: dict[str, Any], where: str) -> None:
-    """Parse a rig's ``plant_model`` and ``force_controller_tf`` now (a bad field is refused
-    before anything runs).
+    """Parse a rig's ``plant_model``, ``rig_plant_model`` and ``force_controller_tf`` now (a
+    bad field is refused before anything runs).
 
     Raises
     ------
     ParameterError
-        The message names `where`, the parameter and the field.
+        The message names `where`, the parameter and the field; a ``rig_plant_model`` on a
+        rig other than ``state_space`` (no other rig reads it).
     """
     prefix = f'{where}: ' if where else ''
+    from seft_msgs_py.plant import parse_plant
     from seft_ros.core.force_loop import has_plant_model
-    if has_plant_model(params):
-        from seft_msgs_py.plant import parse_plant
+    rig_plant = params.get('rig_plant_model', 'none') not in (None, '', 'none')
+    if rig_plant and params.get('rig_model') != 'state_space':
+        raise ParameterError(f"{prefix}parameter rig_plant_model: the plant a rig_model "
+                             f"'state_space' steps, and this rig is "
+                             f"{params.get('rig_model')!r} (its physics is its own): set "
+                             "rig_model state_space, or rig_plant_model none")
+    for name, given in (('plant_model', has_plant_model(params)),
+                        ('rig_plant_model', rig_plant)):
+        if not given:
+            continue
         try:
-            parse_plant(params['plant_model'], dt=float(params['dt']),
-                        where='parameter plant_model')
+            parse_plant(params[name], dt=float(params['dt']), where=f'parameter {name}')
         except ParameterError as exc:
             raise ParameterError(f'{prefix}{exc}') from None
     if params.get('force_controller') == 'transfer_function':

@@ -119,7 +119,8 @@ def _experiment_options(p: argparse.ArgumentParser) -> None:
                    help="mass ratio(s) (a run's directory alpha_<A>_...: A to every digit "
                    'that tells it from another)')
     p.add_argument('--rig', action=_Once, dest='rig_model', choices=RIG_CHOICES,
-                   help="simulated rig model ('state_space': the plant_model; 'actuator': "
+                   help="simulated rig model ('state_space': the rig_plant_model, else the "
+                   "plant_model; 'actuator': "
                    'the family of actuators, actuator_family)')
     p.add_argument('--predictor', action=_Once, nargs='+', metavar='NAME',
                    help='delay compensation(s): ' + ', '.join(map(repr, PREDICTORS))

@@ -11,12 +11,12 @@ is not what it does alone: on ``two_story`` with a 32 Hz, 0.5 % first story on t
 acceleration (a loop pole above the inverse's band, 44 Hz, lightly damped), 12 steps 1.3 %.
 
 :func:`choose_structure_inverses` rehearses the structure's test on the lab's own model of
-each rig (``rig_model: state_space`` with its ``plant_model``: the test is never chosen on
-the plant it will run on) for the delays from the shortest stable one on
-(:data:`DELAY_SPAN_STEPS` of them, and the one-DOF design's), rig after rig, on the test's
-own record (its first :data:`REHEARSAL_S`), in lockstep; it keeps the delay of the least
-worst NRMS over every DOF and signal (displacement, acceleration, interface force), the
-shorter on a tie.
+each rig (``rig_model: state_space`` with its ``plant_model``, never a ``rig_plant_model``:
+the test is never chosen on the plant it will run on) for the delays from the shortest
+stable one on (:data:`DELAY_SPAN_STEPS` of them, and the one-DOF design's), rig after rig,
+on the test's own record (its first :data:`REHEARSAL_S`), in lockstep; it keeps the delay
+of the least worst NRMS over every DOF and signal (displacement, acceleration, interface
+force), the shorter on a tie.
 
 References
 ----------
@@ -192,8 +192,9 @@ def choose_structure_inverses(params: Mapping, designed: Mapping[str, Mapping],
     rigs = [r for r in setup.substructures.coupled_rigs
             if r in designed and setup.rig_params[r].get('predictor') == 'model']
     for rig in setup.rig_names:      # rehearsed on the lab's model of each rig
-        if has_plant_model(setup.rig_params[rig]):
-            base = with_rig_values(base, rig, {'rig_model': 'state_space'})
+        if has_plant_model(setup.rig_params[rig]):      # that model, not a rig_plant_model
+            base = with_rig_values(base, rig, {'rig_model': 'state_space',
+                                               'rig_plant_model': 'none'})
     choices = []
     for rig in rigs:
         rp = setup.rig_params[rig]
