@@ -148,6 +148,11 @@ def test_a_linear_specimen_other_than_the_one_loop_shaping_cancels():
         assert bool(costly_settings(q)) == said, (name, ratio)
     assert costly_settings(dict(p, force_controller='specimen_loop_shaping')) == []
     assert costly_settings(dict(p, rig_model='delay')) == []          # no valve controller
+    # an open-loop identification run: the valve driven directly, the controller bypassed
+    # (session 24's F and J were flagged for the controller that the next step replaces)
+    open_loop = dict(p, predictor='none', excitation='noise', excitation_input='valve_command')
+    assert costly_settings(open_loop) == [] and costly_settings(open_loop, flagging=True) == []
+    assert costly_settings(dict(open_loop, excitation_input='reference_force')) == [line]
     yielding = dict(p, specimen_model='bouc_wen', predictor_restoring_force='hysteretic',
                     predictor_loop_delay_steps=5)
     assert [line.split(':')[1] for line in costly_settings(yielding)] == [

@@ -187,7 +187,9 @@ def _cancelled(p: Mapping[str, Any]) -> dict[str, float] | None:
 def costly_settings(params: Mapping[str, Any], *, flagging: bool = False) -> list[str]:
     """One line per rig and combination of a run's settings that the docs' tables show
     costs accuracy (:data:`COSTLY`), ``'<rig>: <why>'``; `flagging`: only the rules that flag
-    the run (:data:`FLAGGING`).
+    the run (:data:`FLAGGING`). None for a rig of an open-loop identification run
+    (:func:`~seft_ros.core.monitor.open_loop_identification`: its controller and
+    compensator drive nothing).
 
     Raises
     ------
@@ -195,6 +197,7 @@ def costly_settings(params: Mapping[str, Any], *, flagging: bool = False) -> lis
         An invalid structure (as :func:`~seft_ros.core.structure.test_setup`).
     """
     from seft_ros.core.force_loop import has_plant_model
+    from seft_ros.core.monitor import open_loop_identification
     from seft_ros.core.predictors import adaptive_loop_mode
     from seft_ros.core.structure import is_study, test_setup
     coupled = ()
@@ -206,6 +209,10 @@ def costly_settings(params: Mapping[str, Any], *, flagging: bool = False) -> lis
         coupled = setup.substructures.coupled_rigs      # as seft design rehearses them
     lines = []
     for rig, p in rigs.items():
+        if open_loop_identification(p):
+            # the valve is driven directly: the force controller is bypassed and the
+            # reference force (the compensator's) drives nothing, so no rule applies
+            continue
         rules = []
         predictor = p.get('predictor')
         restoring = p.get('predictor_restoring_force', 'model')
