@@ -9,6 +9,7 @@ identification never sees.
 
 import dataclasses
 import math
+import re
 
 import numpy as np
 import pytest
@@ -289,6 +290,15 @@ def test_adaptive_holds_the_loop_it_was_given_and_learns_the_specimen():
     margin = stability.check_run(params, margin=True).margin
     assert (margin.low, margin.high) == (0.5, 1.5)
     assert 'alone: not predicted, the model law is not built for it (' in margin.note
+    # and says why: the declared specimen is not the plant model's (session 24: it blamed
+    # the force-loop inverse, and a diverged search printed offsets of 1e16 N/m)
+    assert re.search(r"the loop's model reaches the reference structure's pole \(10\.00 Hz, "
+                     r"0\.42 % damped\) only with the law's gains offset by 6\.\d+e\+04 N/m, ",
+                     margin.note), margin.note
+    assert ('the declared specimen (32 kg, 1.895e+05 N/m, 12.25 Hz: predictor_* or the '
+            "rig's) is 0.80 x the loop model's mass and 1.20 x its stiffness (40 kg, 1.579e+05 "
+            'N/m, 10.00 Hz)') in margin.note
+    assert 'check the force-loop inverse' not in margin.note
     run = simulate(params)
     assert run.stable
     est = {name: np.asarray(v) for name, v in run.rigs[''].estimates.items()}

@@ -65,6 +65,13 @@ _ITERATIONS, _STEP = 8, 1e-4
 #: sign of a wrong model.
 MAX_CORRECTION = 0.5
 GAIN_FLOOR = 0.05
+#: A refused calibration names the declared specimen when its mass or stiffness is more
+#: than this from the loop model's specimen (relative): the law's reference pole is the
+#: declared specimen's, the loop's the model's (a prior 20 % off, session 24) [-].
+SPECIMEN_TOLERANCE = 0.01
+#: Beyond this many times :data:`MAX_CORRECTION` the search's offsets are no correction but
+#: a diverged Newton iteration (1e16 N/m on a 2.5e5 N/m specimen), and are not printed [-].
+_DIVERGED = 10.0
 
 _CACHE: dict = {}
 
@@ -106,6 +113,39 @@ def _misfit_clause(rig_params: Mapping[str, Mapping]) -> str:
             'nonlinear actuator, friction or valve flow), and the force controller and '
             "inverse designed on it are not the rig's: identify it again (seft identify) or "
             "enter the lab's own controller")
+
+
+def _pole_text(z: complex, dt: float) -> str:
+    """A sampled pole ``z = exp(lambda dt)`` as its frequency [Hz] and damping ratio [%]."""
+    lam = np.log(complex(z)) / dt
+    return (f'{abs(lam) / (2.0 * math.pi):.2f} Hz, '
+            f'{-100.0 * lam.real / max(abs(lam), 1e-300):.2g} % damped')
+
+
+def _specimen_clause(params: Mapping, declared: Mapping) -> str | None:
+    """The declared specimen (the law's, ``model_parameters``) against the loop model's
+    (:func:`~seft_ros.core.force_loop.force_loop_plant`), as a clause of a refused
+    calibration, when its mass or stiffness differs by more than
+    :data:`SPECIMEN_TOLERANCE`; None when they agree or the loop has no specimen."""
+    from seft_ros.core.force_loop import force_loop_plant
+    try:
+        spec = force_loop_plant(params).specimen
+    except ParameterError:
+        return None
+    if spec is None:
+        return None
+    m, k = float(declared['mass_kg']), float(declared['stiffness_N_per_m'])
+    if (abs(m / spec.mass_kg - 1.0) <= SPECIMEN_TOLERANCE
+            and abs(k / spec.stiffness_N_per_m - 1.0) <= SPECIMEN_TOLERANCE):
+        return None
+    return (f'the declared specimen ({m:.4g} kg, {k:.4g} N/m, '
+            f"{math.sqrt(k / m) / (2.0 * math.pi):.2f} Hz: predictor_* or the rig's) is "
+            f"{m / spec.mass_kg:.2f} x the loop model's mass and "
+            f'{k / spec.stiffness_N_per_m:.2f} x its stiffness ({spec.mass_kg:.4g} kg, '
+            f'{spec.stiffness_N_per_m:.4g} N/m, {spec.natural_frequency_hz:.2f} Hz), and the '
+            "pole sought is the declared specimen's reference structure's: declare the "
+            "specimen the loop has (a plant_model's specimen, as seft identify wrote it), "
+            "or use predictor_calibration none; adaptive identifies the specimen from the run")
 
 
 def pole_calibration(params: Mapping) -> np.ndarray:
@@ -217,13 +257,25 @@ def _pole_calibration(params: Mapping) -> np.ndarray:
     gain_scale = np.maximum(np.abs(k0), GAIN_FLOOR * np.array([
         mp['stiffness_N_per_m'], 2.0 * math.sqrt(mp['stiffness_N_per_m'] * mp['mass_kg'])]))
     if abs(e - target) > 1e-8 or np.any(np.abs(offset) > MAX_CORRECTION * gain_scale):
-        raise ParameterError(
-            "predictor_calibration poles: the loop's model does not reach the reference "
-            f"structure's pole with the law's gains (offset {offset[0]:.4g} N/m, "
-            f'{offset[1]:.4g} N s/m of {k0[0]:.4g}, {k0[1]:.4g}; pole {abs(e):.6f} at '
-            f'{math.degrees(np.angle(e)):.3f} deg, reference {abs(target):.6f} at '
-            f'{math.degrees(np.angle(target)):.3f} deg): check the force-loop inverse '
-            '(predictor_loop_*) or use predictor_calibration none' + _misfit_clause({'': base}))
+        shift = (f"{offset[0]:.4g} N/m, {offset[1]:.4g} N s/m of the law's {k0[0]:.4g}, "
+                 f'{k0[1]:.4g}')
+        if abs(e - target) <= 1e-8:
+            found = (f"the loop's model reaches the reference structure's pole "
+                     f"({_pole_text(target, dt)}) only with the law's gains offset by "
+                     f'{shift} (beyond {100 * MAX_CORRECTION:g} % of them)')
+        elif (np.all(np.isfinite(offset))
+                and np.all(np.abs(offset) <= _DIVERGED * MAX_CORRECTION * gain_scale)):
+            found = (f"the loop's model does not reach the reference structure's pole "
+                     f"({_pole_text(target, dt)}) with the law's gains (offset {shift}: pole "
+                     f'{_pole_text(e, dt)})')
+        else:           # a diverged iteration: its offsets and pole say nothing
+            found = ("the search for the law's gains that give the loop the reference "
+                     f"structure's pole ({_pole_text(target, dt)}) diverged (the loop's pole "
+                     f"nearest it at the law's own gains: {_pole_text(pole(np.zeros(2)), dt)})")
+        why = _specimen_clause(base, mp) or ('check the force-loop inverse (predictor_loop_*) '
+                                             'or use predictor_calibration none')
+        raise ParameterError(f'predictor_calibration poles: {found}: {why}'
+                             + _misfit_clause({'': base}))
     # the ground force's gain: the test's response to the ground force, the pole exact, as
     # the reference's in the least squares over the response band (module notes)
     scale = ground_gain_scale(m0 + offset[0] * dm[0] + offset[1] * dm[1],
