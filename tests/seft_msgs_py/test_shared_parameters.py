@@ -251,9 +251,11 @@ def test_value_source_lists_cover_the_schema():
     # predictor_loop_csi_band (seft design's choice of the inverse's band); + 1:
     # record_resampling; + 1: adaptive_frequency_prior; + 2: the controller's late reference
     # force (reference_extrapolation, reference_deadline_fraction); + 1: the rig's late
-    # valve command (realtime_late_command); + 1: the builder's divergence_factor
+    # valve command (realtime_late_command); + 1: the builder's divergence_factor; + 1: a
+    # state_space rig's own plant (rig_plant_model)
     assert len(VALUE_SOURCE) == len(SCHEMA) == (31 + 47 + 6 + 6 + 10 + 2 + 1 + 2 + 1 + 6 + 3
-                                                + 1 + 1 + 1 + 1 + 2 + 1 + 1 + 1 + 2 + 1 + 1)
+                                                + 1 + 1 + 1 + 1 + 2 + 1 + 1 + 1 + 2 + 1 + 1
+                                                + 1)
 
 
 def test_value_source_of_unknown_name_is_an_error():
