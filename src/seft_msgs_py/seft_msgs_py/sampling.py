@@ -80,7 +80,7 @@ def split_delay(tau_s: float, dt: float) -> tuple[int, float]:
     return n, max(delta, 0.0)
 
 
-def linear_map(matrix, *, name: str = 'linear_map'):
+def linear_map(matrix, *, name: str = 'linear_map', unpack: bool = False):
     """Compile ``y = M x`` for a fixed matrix into straight-line Python float code.
 
     Stepping a small sampled system once per control period with numpy costs about a
@@ -98,11 +98,16 @@ def linear_map(matrix, *, name: str = 'linear_map'):
         Finite coefficients. A 1-d array gives a function returning one float.
     name : str
         Name of the function (shown in profiles and tracebacks).
+    unpack : bool
+        The caller passes exactly n floats: the function unpacks `x` into locals once
+        instead of indexing it at each term (two instructions fewer a term: a tenth of a
+        48-tap FIR's time). The same products summed in the same order.
 
     Returns
     -------
     callable(x) -> tuple of float, length m (or float for a 1-d `matrix`)
-        `x` is any sequence of at least n floats that supports indexing (a list is fastest).
+        `x` is any sequence of at least n floats that supports indexing (a list is fastest);
+        with `unpack`, a sequence of exactly n (otherwise the call raises ValueError).
 
     Raises
     ------
@@ -116,14 +121,15 @@ def linear_map(matrix, *, name: str = 'linear_map'):
     ``sum(m_ij * x_j for j)``, and within rounding of ``numpy.dot``.
     """
     m = _coefficients(matrix, name, 'linear_map')
-    key = (name, m.shape, m.tobytes())
+    key = (name, m.shape, m.tobytes(), unpack)
     fn = _COMPILED.get(key)
     if fn is not None:
         return fn
-    exprs = [_row(row, 'x[{}]') for row in ([m] if m.ndim == 1 else list(m))]
+    operand, head = _operands(m.shape[-1], unpack)
+    exprs = [_row(row, operand) for row in ([m] if m.ndim == 1 else list(m))]
     body = exprs[0] if m.ndim == 1 else '(' + ', '.join(exprs) + ',)'
     namespace = {}
-    exec(f'def {name}(x):\n    return {body}\n', namespace)
+    exec(f'def {name}(x):\n{head}    return {body}\n', namespace)
     fn = namespace[name]
     with _COMPILED_LOCK:                # the background fits' thread compiles too
         if len(_COMPILED) >= _COMPILED_KEPT:
@@ -207,7 +213,8 @@ class LazyLinearMap:
         return self._compiled is not None
 
 
-def chained_linear_map(matrix, then, *, name: str = 'chained_linear_map'):
+def chained_linear_map(matrix, then, *, name: str = 'chained_linear_map',
+                       unpack: bool = False):
     """Compile ``y = M x`` and ``z = N y`` for fixed matrices into one straight-line function.
 
     A sampled system's step and its readings (``s[k+1] = [Phi, Gamma] [s[k], u]``, then
@@ -223,6 +230,8 @@ def chained_linear_map(matrix, then, *, name: str = 'chained_linear_map'):
         N; finite coefficients.
     name : str
         Name of the function (shown in profiles and tracebacks).
+    unpack : bool
+        The caller passes exactly n floats (see :func:`linear_map`).
 
     Returns
     -------
@@ -240,11 +249,13 @@ def chained_linear_map(matrix, then, *, name: str = 'chained_linear_map'):
     if m.ndim != 2 or n.ndim != 2 or n.shape[1] != m.shape[0]:
         raise ValueError(f'chained_linear_map: expected matrices (m, n) and (p, m), got shapes '
                          f'{m.shape} and {n.shape}')
-    lines = [f'    y{i} = {_row(row, "x[{}]")}' for i, row in enumerate(m)]
+    operand, head = _operands(m.shape[1], unpack)
+    lines = [f'    y{i} = {_row(row, operand)}' for i, row in enumerate(m)]
     y = '(' + ', '.join(f'y{i}' for i in range(m.shape[0])) + ',)'
     z = '(' + ', '.join(_row(row, 'y{}') for row in n) + ',)'
     namespace = {}
-    exec(f'def {name}(x):\n' + '\n'.join(lines) + f'\n    return {y}, {z}\n', namespace)
+    exec(f'def {name}(x):\n{head}' + '\n'.join(lines) + f'\n    return {y}, {z}\n',
+         namespace)
     return namespace[name]
 
 
@@ -258,6 +269,15 @@ def _coefficients(matrix, name: str, caller: str) -> np.ndarray:
     if not np.all(np.isfinite(m)):
         raise ValueError(f'{caller}: expected finite coefficients')
     return m
+
+
+def _operands(n: int, unpack: bool) -> tuple[str, str]:
+    """How the compiled code reads entry j of its argument ``x`` of `n` entries: the
+    operand's format string and the function's first line (``x[j]``, none; or ``xj`` with
+    ``x0, x1, ... = x``)."""
+    if not unpack:
+        return 'x[{}]', ''
+    return 'x{}', '    ' + ''.join(f'x{j}, ' for j in range(n)) + '= x\n'
 
 
 def _terms(row) -> list:

@@ -538,7 +538,8 @@ def loop_impulse_responses(params: ServoHydraulicParams, specimen: LinearSpecime
     g_early = (phi_rest @ g_early)[:, 0]
     g_late = g_late[:, 0]
     measured_force = _linear_map(np.asarray(sys.C)[0], name='measured_force')
-    advance = _linear_map(np.hstack([phi, g_early[:, None], g_late[:, None]]), name='advance')
+    advance = _linear_map(np.hstack([phi, g_early[:, None], g_late[:, None]]), name='advance',
+                          unpack=True)
     bz, az = np.ravel(controller.bz), np.ravel(controller.az)
     bz, az = bz / az[0], az / az[0]
     nc = max(len(bz), len(az)) - 1
@@ -548,8 +549,8 @@ def loop_impulse_responses(params: ServoHydraulicParams, specimen: LinearSpecime
     zc = [0.0] * nc
     s = [0.0] * (ns + 1)
     u_hist = deque([0.0] * (nd + 1), maxlen=nd + 1)
-    out = np.zeros(n)
-    sampled = np.zeros(n)
+    out = [0.0] * n                     # (Python lists: a store in an array costs more)
+    sampled = [0.0] * n
     for j in range(n):
         fr = 1.0 if j == 0 else 0.0
         fm = measured_force(s)
@@ -565,7 +566,7 @@ def loop_impulse_responses(params: ServoHydraulicParams, specimen: LinearSpecime
         s = list(advance(s + [early, late]))
         u_hist.append(u)
         out[j] = (s[ns] - w_before) / dt
-    return LoopResponses(sampled, out)
+    return LoopResponses(np.array(sampled), np.array(out))
 
 
 # -- the rig --------------------------------------------------------------------------------
@@ -658,7 +659,8 @@ class ServoHydraulicRig:
         # function: advance(w) -> (s[k+1], y)
         self._advance = _chained_linear_map(
             np.hstack([self.model.phi, self.model.gamma_early[:, None],
-                       self.model.gamma_late[:, None]]), self._c, name='advance')
+                       self.model.gamma_late[:, None]]), self._c, name='advance',
+            unpack=True)
         self._w = [0.0] * (ns + 2)           # [state, u_early, u_late]
         # outputs at t_k, in the order of OUTPUTS
         self._y = _linear_map(self._c, name='read')(self._w)

@@ -623,7 +623,7 @@ class ModelPredictor:
             row = gain @ np.hstack([model.E, model.H])
             self._beta = float(beta)
             self._kx, self._kv = float(row[0]), float(row[1])
-            self._feedback = _linear_map(row[2:], name='feedback')
+            self._feedback = _linear_map(row[2:], name='feedback', unpack=True)
             self._feedback_row = np.array(row[2:], dtype=float)
             # weight of the restoring-force offset d in F (class notes): 1 - beta + K H 1
             self._offset_weight = 1.0 - self._beta + float(np.sum(row[2:]))
@@ -1197,7 +1197,7 @@ class ForceLoopInverse:
         self.max_gain = max_gain
         self.delay_steps = int(delay_steps)
         self._x = [0.0] * taps.shape[0]             # newest first
-        self._fir = _linear_map(self.taps, name='fir')
+        self._fir = _linear_map(self.taps, name='fir', unpack=True)
 
     def __getstate__(self):
         # the compiled filter is rebuilt from the taps (BackgroundFits sends inverses between
@@ -1208,7 +1208,7 @@ class ForceLoopInverse:
 
     def __setstate__(self, state):
         self.__dict__.update(state)
-        self._fir = _linear_map(self.taps, name='fir')
+        self._fir = _linear_map(self.taps, name='fir', unpack=True)
 
     @classmethod
     def from_frequency_response(cls, freq, response, dt: float, delay_steps: int,
