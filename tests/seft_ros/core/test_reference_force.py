@@ -6,6 +6,7 @@ trapezoids between its knots (exact for a piecewise linear record), and the dela
 ``with_loop_latency`` must give, by hand.
 """
 
+import dataclasses
 import math
 import re
 
@@ -381,3 +382,34 @@ def test_ground_window_inside_at_and_after_the_end():
     assert ground_window(look, 0, 0, 5) == [1.0]
     assert all(type(v) is float for v in ground_window(look, 3, 3, 5))
     assert all(type(v) is float for v in ground_window(look, 0, 4, 5))
+
+
+def test_a_builder_of_one_rig_steps_its_law_alone_with_the_same_numbers(reference_params):
+    """A one-DOF test's builder steps its one law directly (issue 41): the same commands as
+    the builder's general step over its rigs, the measurements that came too late to be used
+    forgotten, and a missing one refused, as there."""
+    from seft_ros.core.reference_force import ReferenceForceBuilder
+    params = dict(reference_params, predictor='model', alpha=0.5)
+    one, general = (ReferenceForceBuilder.from_parameters(params) for _ in range(2))
+    assert one._only_law is one.laws[0]
+    general._only_law = None                      # the loop over the laws
+    rng = np.random.default_rng(2)
+    ground = rng.standard_normal(300).tolist() + [0.0] * (1 + one.lookahead_steps)
+    width = 1 + one.lookahead_steps
+    for k in range(300):
+        if k:
+            m = Measurement(k - 1, (k - 1) * 0.002, *(rng.standard_normal(4) * [1e-3, 1e-2,
+                                                                             1.0, 300.0]))
+            for b in (one, general):
+                b.observe(0, m)
+                if k % 50 == 0:                   # a sample of the past, too late to be used
+                    b.observe(0, dataclasses.replace(m, step=k - 6))
+        out = one.step(ground[k:k + width])
+        assert out == general.step(ground[k:k + width]) and isinstance(out[0], float)
+        assert one.last_ground_forces_N == general.last_ground_forces_N
+    assert one.laws[0].commanded_N == general.laws[0].commanded_N
+    assert len(one._latest[0]) <= 4
+    for b in (one, general):
+        with pytest.raises(ParameterError, match=r'^rig rig: no measurement of sample 299 '
+                                                 r'observed$'):
+            b.step(ground[300:300 + width])

@@ -507,6 +507,9 @@ class ReferenceForceBuilder:
         self.remote_rigs = tuple(r for r in names if r not in self.local_rigs)
         # a step does more than its laws (other builders' models, a computational part)
         self._couples = bool(self.remote_rigs) or self._tracking
+        # the law of a builder of one rig whose step is its law's alone (a one-DOF test: no
+        # structure, no other builder); None otherwise
+        self._only_law = self.laws[0] if self.n_l == 1 and not self._couples else None
         self._inbox: dict[int, dict] = {}
         self._remote_models: dict[int, SpecimenModel] = {}    # rig position -> its model
         #: ``(step, {rig: SpecimenModel})`` of the local rigs, set every
@@ -787,6 +790,21 @@ class ReferenceForceBuilder:
             raise ParameterError(f'ground window of {len(window)} samples: expected '
                                  f'{self.lookahead_steps + 1} (xg[k..k+{self.lookahead_steps}])')
         k = self.next_step
+        law = self._only_law
+        if law is not None:                 # the loop below for one rig, written out
+            m = None
+            if k > 0:
+                seen = self._latest[0]
+                m = seen.pop(k - 1, None)
+                if m is None:
+                    raise ParameterError(f'rig {self.local_rigs[0] or "rig"}: no measurement '
+                                         f'of sample {k - 1} observed')
+                if len(seen) > 4:
+                    _forget_before(seen, k - 1)
+            force = law.step_window(window, m)
+            self.last_ground_forces_N[0] = law.last_ground_force_N
+            self.next_step = k + 1
+            return [force]
         if k > 0:
             latest = []
             for seen in self._latest:
