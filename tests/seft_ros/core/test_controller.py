@@ -208,6 +208,26 @@ def test_interlock_trips_exactly_above_the_fraction(window, fraction):
     assert f'{expected}/{window} samples' in reason
 
 
+
+@pytest.mark.parametrize('seed', range(6))
+def test_interlock_is_the_sliding_window_count_across_quiet_stretches(seed):
+    """Saturated bursts between long unsaturated stretches (the interlock skips its ring
+    while the window holds no saturated sample): its trip is the first sample whose last 50
+    samples, counted here, hold more than 25 saturated."""
+    rng = np.random.default_rng(seed)
+    flags = []
+    while len(flags) < 3000:
+        flags += [False] * int(rng.integers(0, 120)) + list(rng.random(int(rng.integers(1, 60)))
+                                                             < rng.uniform(0.3, 0.9))
+    counts = [sum(flags[max(0, k - 49):k + 1]) for k in range(len(flags))]
+    first = next((k for k, c in enumerate(counts) if c > 25), None)
+    got = first_trip(SaturationInterlock(DT, 0.1, 0.5), flags)
+    if first is None:
+        assert got is None
+    else:
+        assert got == (first, f'force control lost at t={first * DT:.3f} s: valve command '
+                              f'saturated in {counts[first]}/50 samples of the last 0.100 s')
+
 def test_interlock_fraction_one_never_trips():
     il = SaturationInterlock(DT, 0.1, 1.0)
     assert first_trip(il, [True] * 5000) is None

@@ -784,6 +784,8 @@ class SaturationInterlock:
 
     def update(self, saturated: bool, time_s: float) -> str | None:
         """Record one sample; return a one-line abort reason when the interlock trips."""
+        if not saturated and not self._count:
+            return None             # a window of unsaturated samples stays one (the common case)
         flags, i = self._flags, self._i
         old = flags[i]
         flags[i] = saturated
