@@ -159,14 +159,12 @@ class InstabilityMonitor:
         self.threshold = float(threshold)
         hp = DiscreteFilter(*signal.butter(2, cutoff_hz, 'highpass', fs=1.0 / dt))
         lp = DiscreteFilter(*signal.butter(2, cutoff_hz, 'lowpass', fs=1.0 / dt))
-        # the two biquads as update steps them: (b0, b1, b2, a1, a2) of the high pass, then
-        # of the low pass; their states (z0, z1) of each, in the same order
-        self._biquads = hp._biquad + lp._biquad
-        self._z = [0.0, 0.0, 0.0, 0.0]
-        self._beta = float(np.exp(-dt / window_s))
-        self._one_less_beta = 1.0 - self._beta
-        self._ms_hf = 0.0
-        self._ms_lf = 0.0
+        beta = float(np.exp(-dt / window_s))
+        # what update steps: the two biquads' (b0, b1, b2, a1, a2), the high pass's then the
+        # low pass's, and the running mean squares' weights (beta, 1 - beta); and its state:
+        # the biquads' (z0, z1) in the same order, then the two mean squares
+        self._coefficients = hp._biquad + lp._biquad + (beta, 1.0 - beta)
+        self._state = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
         self.ground_force_scale_N = 0.0
         self.ratio = 0.0
 
@@ -225,18 +223,16 @@ class InstabilityMonitor:
             Sample time [s], for the message.
         """
         x = measured_force_N
-        # the two Butterworth sections (DiscreteFilter.step of a biquad, written out)
-        z = self._z
-        b0, b1, b2, a1, a2, c0, c1, c2, d1, d2 = self._biquads
-        hf = b0 * x + z[0]
-        z[0] = b1 * x - a1 * hf + z[1]
-        z[1] = b2 * x - a2 * hf
-        lf = c0 * x + z[2]
-        z[2] = c1 * x - d1 * lf + z[3]
-        z[3] = c2 * x - d2 * lf
-        b, c = self._beta, self._one_less_beta
-        ms_hf = self._ms_hf = b * self._ms_hf + c * hf * hf
-        ms_lf = self._ms_lf = b * self._ms_lf + c * lf * lf
+        # the two Butterworth sections (DiscreteFilter.step of a biquad, written out) and
+        # their running mean squares, the state read and written once
+        b0, b1, b2, a1, a2, c0, c1, c2, d1, d2, b, c = self._coefficients
+        z0, z1, z2, z3, ms_hf, ms_lf = self._state
+        hf = b0 * x + z0
+        lf = c0 * x + z2
+        ms_hf = b * ms_hf + c * hf * hf
+        ms_lf = b * ms_lf + c * lf * lf
+        self._state = (b1 * x - a1 * hf + z1, b2 * x - a2 * hf,
+                       c1 * x - d1 * lf + z3, c2 * x - d2 * lf, ms_hf, ms_lf)
         scale = abs(ground_force_N)
         if scale > self.ground_force_scale_N:
             self.ground_force_scale_N = scale
