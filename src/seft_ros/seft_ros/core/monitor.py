@@ -303,10 +303,18 @@ class DivergenceGuard:
                 raise ParameterError(f'divergence guard: the limit of {field_name} is '
                                      f'{limit!r}; expected a positive finite value')
         self.factor = float(factor)
-        self._limits = tuple((name, float(limit), peak, channel, unit)
-                             for name, (limit, peak, channel, unit) in limits.items())
-        #: The largest ratio |y| / limit seen so far, of any channel [-].
-        self.ratio = 0.0
+        # (limit, predicted peak, channel, unit) of the displacement and of the force; an
+        # unwatched channel's limit is infinite
+        unwatched = (math.inf, 0.0, '', '')
+        self._x = tuple(limits.get('displacement_m', unwatched))
+        self._f = tuple(limits.get('force_N', unwatched))
+        self._x_limit, self._f_limit = float(self._x[0]), float(self._f[0])
+        self._x_peak = self._f_peak = 0.0
+
+    @property
+    def ratio(self) -> float:
+        """The largest ratio |y| / limit seen so far, of any watched channel [-]."""
+        return max(self._x_peak / self._x_limit, self._f_peak / self._f_limit)
 
     @classmethod
     def from_parameters(cls, params, check, rig: str = '') -> 'DivergenceGuard | None':
@@ -356,18 +364,19 @@ class DivergenceGuard:
         """Take one sample (a :class:`~seft_msgs_py.interface.Measurement`); return the
         one-line reason when a channel passes its limit: the signal, its value, the predicted
         peak and how many times it the value is."""
-        for name, limit, peak, channel, unit in self._limits:
-            value = abs(getattr(measurement, name))
-            ratio = value / limit
-            if ratio > self.ratio:
-                self.ratio = ratio
-                if ratio > 1.0:
-                    return (f'unstable at t={measurement.time_s:.3f} s: diverging, the '
-                            f'measured {channel} reached {value:.4g} {unit}, '
-                            f'{value / peak:.2f} x the predicted peak {peak:.4g} {unit} '
-                            f'(divergence_factor {self.factor:g}: the pre-run reference '
-                            'analysis)')
-        return None
+        x = abs(measurement.displacement_m)
+        f = abs(measurement.force_N)
+        if x > self._x_peak:
+            self._x_peak = x
+        if f > self._f_peak:
+            self._f_peak = f
+        if x <= self._x_limit and f <= self._f_limit:      # the common case: one compare each
+            return None
+        value, (_limit, peak, channel, unit) = (x, self._x) if x > self._x_limit else (f, self._f)
+        return (f'unstable at t={measurement.time_s:.3f} s: diverging, the '
+                f'measured {channel} reached {value:.4g} {unit}, '
+                f'{value / peak:.2f} x the predicted peak {peak:.4g} {unit} '
+                f'(divergence_factor {self.factor:g}: the pre-run reference analysis)')
 
 #: ``specimen_check``: what the builder does when a rig's specimen is not the declared one.
 SPECIMEN_CHECK_ACTIONS = ('warn', 'abort', 'off')
