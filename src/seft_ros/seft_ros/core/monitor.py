@@ -260,7 +260,7 @@ class DivergenceGuard:
 
     The pre-run range check (:func:`~seft_ros.analysis.range_check.range_check`) gives each
     rig's peaks of the analytical reference, what a compensated test reproduces. The guard
-    trips at the first sample where a watched channel's measured magnitude exceeds
+    trips at the first sample where a watched channel's measured magnitude exceeds::
 
         |y| > factor * peak_predicted + DIVERGENCE_NOISE_SIGMAS * sigma_noise + floor
 
@@ -313,7 +313,7 @@ class DivergenceGuard:
 
     @property
     def ratio(self) -> float:
-        """The largest ratio |y| / limit seen so far, of any watched channel [-]."""
+        """The largest ratio ``|y| / limit`` seen so far, of any watched channel [-]."""
         return max(self._x_peak / self._x_limit, self._f_peak / self._f_limit)
 
     @classmethod
