@@ -1,6 +1,9 @@
 """What says a run may have lost accuracy, as a lab sees it without the reference: the
 flags, and the samples at a sensor's range (issue 39)."""
 
+import json
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -186,3 +189,75 @@ def test_a_test_on_its_stability_boundary_is_flagged_no_margin():
     run.extra['stability'] = dict(stable, robustness_margin={
         'stiffness_ratio_low': 0.62, 'stiffness_ratio_high': 1.85, 'note': ''})
     assert run_flags(run, c) == []
+
+
+def test_an_error_beyond_the_guards_prediction_is_flagged():
+    """The flag reads the run's worst NRMS x against the guard's predicted one: above
+    ERROR_RATIO_FLAG (3) times it and above an accurate test's bound (1 % up to alpha 1,
+    2 % beyond); never without a prediction."""
+    from seft_ros.analysis.findings import ERROR_RATIO_FLAG, error_beyond_prediction
+    assert ERROR_RATIO_FLAG == 3.0
+    entry = {'predicted_stable': True,
+             'predicted_error': {'displacement': 0.002, 'spectrum': 'record default'}}
+    assert error_beyond_prediction(entry, 1.0, 0.0095) == ''        # 4.75 x, within 1 %
+    assert error_beyond_prediction(entry, 1.5, 0.019) == ''         # 9.5 x, within 2 %
+    assert error_beyond_prediction(entry, 1.5, 0.021).startswith(
+        "error beyond the prediction: NRMS x 2.1 %, 10.5 x the 0.2 % the guard predicted on "
+        "the loop's model before the run (record default) and more than an accurate test's "
+        '2 %: the rig did not behave as its model')
+    high = dict(entry, predicted_error={'displacement': 0.01, 'spectrum': 'record default'})
+    assert error_beyond_prediction(high, 1.0, 0.029) == ''          # 2.9 x its prediction
+    assert error_beyond_prediction(high, 1.0, 0.031) != ''
+    assert error_beyond_prediction(dict(entry, predicted_error=None), 1.0, 0.5) == ''
+    assert error_beyond_prediction({}, 1.0, 0.5) == ''
+    # through run_flags: the run of _run() errs 0.03 % x
+    run = _run()
+    run.extra['stability'] = dict(entry, predicted_error={'displacement': 1e-5,
+                                                          'spectrum': 'record default'})
+    c = compare_run(run)
+    assert run_flags(run, c) == []                                  # within the 1 % bound
+
+
+#: Session 24's explorer's case F as a lab identified it (seft identify --params): its
+#: plant_model, designed force controller and compensator settings.
+F_RIG = str(Path(__file__).parent / 'data' / 'own_actuator_F_rig.yaml')
+#: Case F's rig (its lab's own values): a 15 Hz, 3 % specimen of 200 kg.
+F_CASE = {'rig_model': 'servohydraulic', 'mass_kg': 200.0, 'stiffness_N_per_m': 1776500.0,
+          'damping_N_s_per_m': 1130.97, 'valve_time_constant_s': 0.00199,
+          'io_latency_s': 0.0025, 'actuator_volume_m3': 5.13e-4, 'predictor': 'model',
+          'amplitude_N': 150.0, 'duration_s': 4.0}
+
+
+def test_a_valve_gain_off_its_identified_value_is_flagged_with_the_figures(tmp_path):
+    """Case F, identified exactly, then its valve's flow gain 5 % up (the explorer: 13-41 %
+    of x, verdict "stable", no flag): 4 s of the record at alpha 1 err 21 % of x against the
+    guard's 0.091 %, and the run is flagged with both; the same run on the identified gain
+    (0.03 %) is not. The guard's line says the prediction, summary.json stores it."""
+    from seft_msgs_py.calibration import valve_flow_gain_m3_per_s_V
+    from seft_ros.cli import api
+    lines = []
+    healthy = api.build_runs(overrides=F_CASE, alphas=[1.0], params_files=[F_RIG])
+    kq = valve_flow_gain_m3_per_s_V(healthy[0])
+    off = api.build_runs(overrides=dict(F_CASE, valve_flow_gain_m3_per_s_V=1.05 * kq),
+                         alphas=[1.0], params_files=[F_RIG])
+    summaries = []
+    for name, runs in (('healthy', healthy), ('off', off)):
+        api.simulate_experiments(runs=runs, out_dir=tmp_path / name, progress=lines.append)
+        summaries.append(json.loads((tmp_path / name / 'summary.json').read_text())['runs'][0])
+    good, bad = summaries
+    predicted = good['stability']['predicted_error']
+    assert predicted['displacement'] == pytest.approx(9.14e-4, rel=0.01)
+    assert predicted['spectrum'] == 'record synthetic-default(seed=1)'
+    assert bad['stability']['predicted_error'] == predicted     # the model's, not the rig's
+    assert any(line.endswith("; NRMS x predicted 0.091 % on the loop's model (record "
+                             "synthetic-default(seed=1))") for line in lines)
+    assert good['worst_nrms']['displacement'] == pytest.approx(2.84e-4, rel=0.05)
+    assert good['flags'] == [] and good['verdict'] == 'stable'
+    assert bad['worst_nrms']['displacement'] == pytest.approx(0.212, rel=0.02)
+    assert bad['verdict'] == 'stable, flagged' and len(bad['flags']) == 1
+    assert bad['flags'][0].startswith(
+        "error beyond the prediction: NRMS x 21.2 %, 232 x the 0.091 % the guard predicted on "
+        "the loop's model before the run (record synthetic-default(seed=1)) and more than an "
+        "accurate test's 1 %: the rig did not behave as its model; if the run met no limit "
+        "(valve, sensor range), the plant is not the one identified")
+    assert 'identify the rig again and check its valve gain' in bad['flags'][0]

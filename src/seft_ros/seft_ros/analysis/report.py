@@ -547,9 +547,14 @@ def _bridge_markdown(run: RunData) -> list[str]:
 
 
 def _range_markdown(run: RunData) -> list[str]:
-    """The pre-run range check's lines and the samples read at a sensor's range, one item
-    each (issue 39)."""
+    """The pre-run guard's predicted NRMS x, the range check's lines and the samples read at
+    a sensor's range, one item each (issue 39)."""
     lines = []
+    predicted = (run.extra.get('stability') or {}).get('predicted_error')
+    if predicted:
+        lines.append(f"- pre-run stability guard: NRMS x predicted "
+                     f"{100 * predicted['displacement']:.2g} % on the loop's model "
+                     f"({predicted.get('spectrum')})")
     check = run.extra.get('range_check') or {}
     for line in check.get('lines') or ():
         lines.append(f'- pre-run range check: {line}')
