@@ -933,6 +933,8 @@ def predicted_error(params: Mapping, alphas=None, *, loop: LoopModel | None = No
     alphas = np.atleast_1d(np.asarray(params['alpha'] if alphas is None else alphas,
                                       dtype=float))
     lags = np.arange(-PREDICTED_LAG_S, PREDICTED_LAG_S + 0.25 * dt, 0.5 * dt)
+    if len(lags) < 3:               # a sample period beyond the lag searched: one step each side
+        lags = np.array([-0.5 * dt, 0.0, 0.5 * dt])
     out = np.empty(len(alphas))
     for i, alpha in enumerate(alphas):
         mt = (1.0 + alpha) * m
