@@ -515,9 +515,9 @@ SCHEMA: tuple[ParamSpec, ...] = (
     ParamSpec('noise_displacement_m', 0.0, 'm', 'Standard deviation of displacement-sensor '
               'noise.', 0.0, None, nodes=_RIG + _RFB),
     ParamSpec('noise_velocity_m_s', 0.0, 'm/s', 'Standard deviation of velocity-sensor noise.',
-              0.0, None, nodes=_RIG),
+              0.0, None, nodes=_RIG + _RFB),
     ParamSpec('noise_acceleration_m_s2', 0.0, 'm/s^2', 'Standard deviation of accelerometer '
-              'noise.', 0.0, None, nodes=_RIG),
+              'noise.', 0.0, None, nodes=_RIG + _RFB),
     ParamSpec('noise_seed', 1, '', 'Seed of the sensor-noise generator (runs are '
               'reproducible).', 0, None, nodes=_RIG),
     # -- servohydraulic rig (seft_plant_sim.servohydraulic.ServoHydraulicParams) -------------
@@ -1031,6 +1031,9 @@ _SHARED_SOURCE = {
     'noise_force_N': 'rig',
     # the displacement sensor's noise: the rig's (the builder's divergence guard allows for it)
     'noise_displacement_m': 'rig',
+    # the velocity sensor's and the accelerometer's noise: the rig's (the builder's specimen
+    # check takes them out of its regression, monitor.SpecimenCheck)
+    'noise_velocity_m_s': 'rig', 'noise_acceleration_m_s2': 'rig',
     'watchdog_timeout_s': 'rig',            # the rig's watchdog; the others watch their inputs
     'network_delay_s': 'reference_force_builder',   # the delay its predictor compensates
     # the record's scaling: the ground-motion publisher's (the builder's estimators scale

@@ -43,7 +43,12 @@ from seft_ros.core.controller import (
 )
 from seft_ros.core.excitation import make_valve_controller
 from seft_ros.core.ground_motion import GroundMotion, prepared_record
-from seft_ros.core.monitor import DivergenceGuard, InstabilityMonitor, SpecimenCheck
+from seft_ros.core.monitor import (
+    SPECIMEN_UNJUDGED,
+    DivergenceGuard,
+    InstabilityMonitor,
+    SpecimenCheck,
+)
 from seft_ros.core.reference_force import ReferenceForceBuilder
 
 __all__ = ['simulate']
@@ -200,7 +205,8 @@ def _simulate(params, *, progress, record, stale_steps, command_latency_s) -> Ru
               ctrls[r], playouts[r], stale[r], rows[r].append)
              for r, rig in enumerate(rigs)]
     # each rig's watches in the builder: its instability monitor, its specimen check (None:
-    # none; its finding a warning, or with specimen_check: abort a reason to stop) and its
+    # none; its finding a warning, or with specimen_check: abort a reason to stop; its note
+    # that it cannot judge, SPECIMEN_UNJUDGED, a warning) and its
     # divergence guard (None: none)
     watches = [(r, monitors[r].update, None if checks[r] is None else checks[r].update,
                 check_abort[r], names[r], None if guards[r] is None else guards[r].update)
@@ -256,7 +262,7 @@ def _simulate(params, *, progress, record, stale_steps, command_latency_s) -> Ru
                     reason = diverging(m)
                 if not reason and check is not None:
                     reason = check(m)
-                    if reason and not abort:
+                    if reason and (not abort or reason.startswith(SPECIMEN_UNJUDGED)):
                         warnings.append(reason)
                         reason = None
                 if reason:

@@ -49,7 +49,12 @@ from seft_msgs_py.node_support import (
     main_for,
 )
 from seft_msgs_py.topics import REFERENCE_FORCE, STATUS, record_topic
-from seft_ros.core.monitor import DivergenceGuard, InstabilityMonitor, SpecimenCheck
+from seft_ros.core.monitor import (
+    SPECIMEN_UNJUDGED,
+    DivergenceGuard,
+    InstabilityMonitor,
+    SpecimenCheck,
+)
 from seft_ros.core.predictors import BackgroundFits
 from seft_ros.core.reference_force import ReferenceForceBuilder, ground_window
 from seft_ros.core.substructure import SpecimenModel
@@ -401,7 +406,8 @@ class ReferenceForceBuilderNode(SeftNode):
             check = self.checks[i]
             if not reason and check is not None:
                 finding = check.update(m)
-                if finding and self.check_abort[i]:
+                if (finding and self.check_abort[i]
+                        and not finding.startswith(SPECIMEN_UNJUDGED)):
                     reason = finding
                 elif finding:
                     name = self.local[i]
