@@ -425,11 +425,11 @@ class SpecimenCheck:
     exponentially weighted normal equations with the noise's covariance taken out,
     ``theta = (R - W Sigma)^-1 r`` (``W`` the weights' sum, ``Sigma`` the regressors' noise
     covariance: the readings are regressed unfiltered, so it is the declared variances), and
-    judges only where the estimate is :data:`JUDGE_SIGMAS` standard errors (from the equation
+    judges only where the estimate is ``JUDGE_SIGMAS`` standard errors (from the equation
     error's residual) inside or outside the tolerance; otherwise it cannot judge (``judged``
-    False) and says nothing, and after :data:`UNJUDGED_MEMORIES` memories of it one note. Its
+    False) and says nothing, and after ``UNJUDGED_MEMORIES`` memories of it one note. Its
     ``stiffness_ratio`` takes the estimates whose standard error is at most
-    :data:`JUDGE_ERROR_FRACTION` of the tolerance (or a finding's). This is what a
+    ``JUDGE_ERROR_FRACTION`` of the tolerance (or a finding's). This is what a
     lab cannot see in the test's own
     signals: with a wrong model the ``model`` compensator makes a stable but wrong test (two
     piers, a pier's model 10 % soft: 84 % error) unless the loop goes unstable and the
@@ -650,7 +650,7 @@ class SpecimenCheck:
         """Take one sample (a :class:`~seft_msgs_py.interface.Measurement`); return the
         one-line finding the first time the specimen is judged not the declared one, or the
         one-line note (beginning :data:`SPECIMEN_UNJUDGED`) the first time the check could
-        not judge for :data:`UNJUDGED_MEMORIES` memories in a row."""
+        not judge for ``UNJUDGED_MEMORIES`` memories in a row."""
         f = measurement.force_N
         ms = self._mean_square                       # ExcitationGate.update
         ms = self._mean_square = ms + self._gate_weight * (f * f - ms)
