@@ -219,19 +219,22 @@ def test_missing_source_falls_back_to_the_next_node_then_run_parameters(tmp_path
                                                                          run_params):
     """A delay-rig graph without the servo controller and, here, without recorder and
     ground-motion node parameters: valve_limit_V and amplitude_N from the builder, which
-    declares them too (the amplitude for its estimators' hold level); the record's time
-    scale, which only those two declare, from /seft/run_parameters."""
+    declares them too (the amplitude for its estimators' hold level; the record's time scale
+    for its divergence guard's prediction); the ground motion's preview, which only those two
+    declare, from /seft/run_parameters."""
     nodes = node_parameters(force_servo_controller=None, recorder=None,
                             ground_motion_publisher=None,
                             reference_force_builder={'alpha': 0.5, 'valve_limit_V': 8.0,
-                                                     'rig_model': 'delay'},
+                                                     'rig_model': 'delay', 'time_scale': 0.7},
                             rig={'alpha': 0.5, 'rig_model': 'delay'})
-    given = dict(run_params, record='default', time_scale=0.7, valve_limit_V=9.0)
+    given = dict(run_params, record='default', time_scale=0.7, valve_limit_V=9.0,
+                 preview_steps=3)
     run = read_run(write_bag(tmp_path / 'bag', response, run_params=given, node_params=nodes))
     sources = run.extra['param_sources']
     assert (run.params['valve_limit_V'], sources['valve_limit_V']) == (
         8.0, 'reference_force_builder')
-    assert (run.params['time_scale'], sources['time_scale']) == (0.7, 'run_parameters')
+    assert (run.params['time_scale'], sources['time_scale']) == (0.7, 'reference_force_builder')
+    assert (run.params['preview_steps'], sources['preview_steps']) == (3, 'run_parameters')
     assert sources['amplitude_N'] == 'reference_force_builder'
     assert sources['bag_path'] == 'run_parameters'
     assert run.params['rig_model'] == 'delay' and run.valve_command_V is None

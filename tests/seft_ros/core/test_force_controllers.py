@@ -382,9 +382,9 @@ def test_specimen_loop_shaping_cancels_this_rigs_specimen():
     """The study's rule for another specimen: poles at (c/m, k/m) of the rig's own specimen,
     Eq. 3.1's gain; a 1.6 k pier keeps force control with it and 'model' follows the
     reference as closely as on the study's specimen. With Eq. 3.1 the test diverges
-    uncompensated (the divergence guard ends it at 3 x the predicted displacement, 1.3 s, before
-    the valve saturates), and 'model' is refused before the run: that loop is unstable (its spectral
-    radius 1.008), no loop for its force-loop inverse to follow."""
+    uncompensated (the divergence guard ends it at 3 x the predicted displacement, 1.3 s,
+    before the valve saturates), and 'model' is refused before the run: that loop is unstable
+    (its spectral radius 1.008), no loop for its force-loop inverse to follow."""
     from seft_ros.analysis.metrics import compare_run
     from seft_ros.core.experiment import simulate
     k = 1.6 * 2.11e5
