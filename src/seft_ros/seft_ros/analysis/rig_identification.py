@@ -757,7 +757,8 @@ def _identify_plant(ident: RunIdentification, run: RunData, figs: dict,
                            - sf.damping_N_s_per_m * run.velocity_m_s)
         ident.plant.with_specimen(*specimen_of(sf))
     spectrum, note = (record_spectrum or played_record_spectrum)(run.params)
-    ident.design = design_force_controller(ident.plant.model, ground_spectrum=spectrum)
+    ident.design = design_force_controller(ident.plant.model, ground_spectrum=spectrum,
+                                           plant_gain_margin=True)
     if note:
         ident.design.notes.append(note)
     figs['plant'] = ident.plant.to_json()

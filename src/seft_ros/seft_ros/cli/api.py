@@ -1903,7 +1903,7 @@ def design_controllers(*, config: str | None = None, overrides: dict | None = No
         design_force_controller,
         played_record_spectrum,
     )
-    from seft_ros.core.force_loop import force_loop_plant
+    from seft_ros.core.force_loop import force_loop_plant, has_plant_model
     from seft_ros.core.structure import test_setup
     if out and Path(out).is_dir():
         raise InputError(f'--out {out}: is a directory; expected the name of the parameter '
@@ -1922,7 +1922,8 @@ def design_controllers(*, config: str | None = None, overrides: dict | None = No
         except ParameterError as exc:
             raise ParameterError(f'rig {rig}: {exc}' if rig else str(exc)) from None
         designs[rig] = design_force_controller(plant, targets=targets,
-                                               ground_spectrum=spectrum)
+                                               ground_spectrum=spectrum,
+                                               plant_gain_margin=has_plant_model(rp))
         if note:
             designs[rig].notes.append(note)
     if not designs:
@@ -2075,9 +2076,10 @@ def identification_table(doc: dict) -> str:
                              + f", inverse {design['loop_delay_steps']} steps; targets "
                              + ('met' if design['met'] else 'NOT met: ' + '; '.join(
                                  design['notes'])))
-                warning = predicted_error_warning(design)
-                if warning:
-                    lines.append(f"{'':18s} WARNING: {warning}")
+                for warning in (predicted_error_warning(design),
+                                design.get('low_crossover_warning')):
+                    if warning:
+                        lines.append(f"{'':18s} WARNING: {warning}")
                 miss = design.get('inverse_band_error')
                 if miss is not None and not miss <= MAX_BAND_ERROR:
                     lines.append(f"{'':18s} WARNING: no force-loop inverse of 2-30 steps "
