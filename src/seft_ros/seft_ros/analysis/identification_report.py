@@ -334,9 +334,9 @@ def _design_lines(runs: list[dict[str, Any]]) -> list[str]:
                   'the control-structure-interaction zero at '
                   f"{_fmt(s['specimen_hz'], '.4g')} Hz{notched}; force-loop inverse "
                   f"{design['loop_delay_steps']} steps, {design['loop_taps']} taps (miss "
-                  f'{miss} % up to 25 Hz{predicted}); targets {verdict}{notes}.'
-                  + (f" Warning: {design['low_crossover_warning']}."
-                     if design.get('low_crossover_warning') else ''), '']
+                  f'{miss} % up to 25 Hz{predicted}); targets {verdict}{notes}.', '']
+        for warning in design.get('warnings') or ():
+            lines += [f'**WARNING:** {warning}.', '']
     return lines
 
 

@@ -2076,8 +2076,8 @@ def identification_table(doc: dict) -> str:
                              + f", inverse {design['loop_delay_steps']} steps; targets "
                              + ('met' if design['met'] else 'NOT met: ' + '; '.join(
                                  design['notes'])))
-                for warning in (predicted_error_warning(design),
-                                design.get('low_crossover_warning')):
+                for warning in ([predicted_error_warning(design)]
+                                + list(design.get('warnings') or ())):
                     if warning:
                         lines.append(f"{'':18s} WARNING: {warning}")
                 miss = design.get('inverse_band_error')

@@ -461,7 +461,7 @@ def _design(args) -> int:
               f'{100 * d.inverse_band_error:.2g} % up to 25 Hz), closed-loop delay '
               f'{1e3 * d.equivalent_delay_s:.1f} ms; targets '
               + ('met' if d.met else 'NOT met: ' + '; '.join(d.notes)))
-        for warning in (api.predicted_error_warning(d.to_json()), d.low_crossover_warning()):
+        for warning in [api.predicted_error_warning(d.to_json())] + d.warnings:
             if warning:
                 print(f'{label}WARNING: {warning}')
     for choice in result.inverse_choices:
