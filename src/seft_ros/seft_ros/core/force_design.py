@@ -65,7 +65,8 @@ __all__ = ['DesignTargets', 'LoopMargins', 'ForceLoopDesign', 'loop_margins',
            'design_force_controller', 'plant_margins', 'INVERSE_BAND_ERROR',
            'MIN_DETUNED_MODULUS_MARGIN', 'DESIGN_ALPHAS', 'PREDICTED_ERROR_GOAL',
            'PREDICTED_ERROR_PATIENCE', 'PREDICTED_ERROR_BOUND', 'RECORD_PREDICTED_GAIN',
-           'KANAI_TAJIMI_GROUND', 'DESIGN_METHOD', 'played_record_spectrum']
+           'KANAI_TAJIMI_GROUND', 'DESIGN_METHOD', 'played_record_spectrum',
+           'compensated_test_margins', 'LOW_CROSSOVER_HZ', 'SLOW_PAIR_DAMPING']
 
 #: The largest miss ``max |W T - z^-d|`` up to 25 Hz of the force-loop inverse the design
 #: chooses (the study's rig, 48 taps: 0.01 at d = 10).
@@ -319,8 +320,14 @@ class ForceLoopDesign:
     crossover_limit: str = ''
 
     def low_crossover_warning(self) -> str:
-        """The line on a crossover below :data:`LOW_CROSSOVER_HZ` (empty at or above it),
-        with what limits it where the design can tell."""
+        """The warning on a crossover below :data:`LOW_CROSSOVER_HZ`.
+
+        Returns
+        -------
+        str
+            The crossover against :data:`LOW_CROSSOVER_HZ`, with what holds it
+            (``crossover_limit``) where the design can tell; empty at or above it.
+        """
         fc = self.margins.crossover_hz
         if not fc < LOW_CROSSOVER_HZ:
             return ''
@@ -472,10 +479,10 @@ def _resonances(plant: PlantModel, above_hz: float):
 #: The crossover a designed loop should reach on a valve of 40 Hz bandwidth or more (the
 #: issue's target for such valves and specimens of 2-50 Hz) [Hz]: below it the design says
 #: so, and a well-damped pole pair of the plant below it may be replaced by an integral
-#: action (:func:`_slow_pole`).
+#: action (``_slow_pole``).
 LOW_CROSSOVER_HZ = 10.0
 #: The least damping of a plant pole pair the integral action may cancel (a lighter one is a
-#: resonance: notched, :func:`_resonances`) [-].
+#: resonance: notched, ``_resonances``) [-].
 SLOW_PAIR_DAMPING = 0.3
 
 
@@ -1059,10 +1066,25 @@ def _gain_robust(plant: PlantModel, design: 'ForceLoopDesign', delay_steps: int,
 
 
 def compensated_test_margins(plant: PlantModel, design: 'ForceLoopDesign') -> dict:
-    """The robustness margin of the study's test with ``model`` on a design (the law
-    calibrated, the design's inverse) at each :data:`DESIGN_ALPHAS`: alpha ->
-    :class:`~seft_ros.core.stability.RobustnessMargin` in plant gain (what the pre-run
-    guard prints for that test); empty without the plant's specimen."""
+    """The robustness margin in plant gain of the study's test with ``model`` on a design.
+
+    Parameters
+    ----------
+    plant : PlantModel
+        The plant model the design is for (with its specimen).
+    design : ForceLoopDesign
+        The design: its controller and force-loop inverse (``loop_delay_steps``,
+        ``loop_csi_band``), the law calibrated as the design writes it.
+
+    Returns
+    -------
+    dict
+        alpha -> :class:`~seft_ros.core.stability.RobustnessMargin` (``kind``
+        'plant_gain': the range of plant gain, times the model's, the test is stable for;
+        what the pre-run guard prints for that test, ``stability.robustness_margin``) at
+        each :data:`DESIGN_ALPHAS`; a margin of NaNs with the reason where the test has no
+        linear model. Empty without the plant's specimen.
+    """
     from seft_ros.core import stability
     if plant.specimen is None:
         return {}
