@@ -50,13 +50,16 @@ def designs():
     kept = {}
     design = force_design.design_force_controller
 
-    def kept_design(plant, *, specimen=None, targets=None, detune=None, ground_spectrum=None):
+    def kept_design(plant, *, specimen=None, targets=None, detune=None, ground_spectrum=None,
+                    plant_gain_margin=False):
         g = ground_spectrum
         key = (plant.to_json(), repr(specimen), repr(targets or force_design.DesignTargets()),
-               detune, g if g is None else (g.name, g.freq_hz.tobytes(), g.density.tobytes()))
+               detune, g if g is None else (g.name, g.freq_hz.tobytes(), g.density.tobytes()),
+               plant_gain_margin)
         if key not in kept:
             kept[key] = design(plant, specimen=specimen, targets=targets, detune=detune,
-                               ground_spectrum=ground_spectrum)
+                               ground_spectrum=ground_spectrum,
+                               plant_gain_margin=plant_gain_margin)
         return copy.deepcopy(kept[key])
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(force_design, 'design_force_controller', kept_design)
