@@ -13,7 +13,7 @@ bash tools/docs.sh    # the docs, warnings as errors: a broken reference or docs
 # 2. the real-time tests (real time, several hosts, rig-check, the UDP bridge and the link
 #    emulator at their sockets), one at a time and alone: a real-time test sharing the two
 #    cores with another test misses its deadlines.
-# Measured on this 2-core host (fresh-clone CI, 2026-11-29, session 24): 441 s + 444 s
+# Measured on this 2-core host (fresh-clone CI, 2026-11-29, session 25): 488 s + 459 s
 # (2026-11-25, before issues 31-34's tests: 253 s + 285 s, against about 690 s in one
 # process).
 # Options are passed to both phases (a -m or -n of yours replaces ours); both always run.
