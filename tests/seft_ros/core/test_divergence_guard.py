@@ -187,3 +187,23 @@ def test_inaccurate_but_bounded_run_is_not_aborted(tmp_path):
     rd = simulate(params)
     assert rd.stable
     assert max(_peaks(rd, params)) < 1.5
+
+
+def test_a_host_that_cannot_read_the_record_runs_without_the_guard_and_says_so():
+    """The builder node reads the record for its guard's prediction; on a host without the
+    record file (a run over several hosts) the guard is off with a one-line warning, where
+    range_check itself raised and the node failed at its start."""
+    from seft_msgs_py import parameters
+    from seft_msgs_py.errors import InputError
+    from seft_ros.analysis.range_check import divergence_prediction, range_check
+    params = parameters.resolve({'record': '/nonexistent/lab_record.AT2'})
+    with pytest.raises(InputError):
+        range_check(params)
+    check, note = divergence_prediction(params)
+    assert check is None and note == (
+        'divergence guard off: the record cannot be read on this host (/nonexistent/'
+        'lab_record.AT2: no such file); the run goes on without it (the instability monitor '
+        'and the limits still watch it)')
+    assert DivergenceGuard.from_parameters(dict(params, divergence_factor=3.0), check) is None
+    check, note = divergence_prediction(parameters.resolve())
+    assert note == '' and check.predicted('', 'displacement') > 0

@@ -37,10 +37,11 @@ from types import SimpleNamespace
 from typing import Any
 
 from seft_msgs_py.calibration import valve_flow_gain_m3_per_s_V
-from seft_msgs_py.errors import SeftError
+from seft_msgs_py.errors import InputError, SeftError
 from seft_msgs_py.sensor_range import CHANNEL_UNITS, RANGE_PARAMETERS
 
-__all__ = ['CHANNELS', 'ChannelPeak', 'RangeCheck', 'range_check', 'actuator_velocity_limit_m_s']
+__all__ = ['CHANNELS', 'ChannelPeak', 'RangeCheck', 'range_check', 'divergence_prediction',
+           'actuator_velocity_limit_m_s']
 
 #: The channels checked: name -> (the reference's signal, the thing whose limit it is).
 CHANNELS = {
@@ -263,3 +264,36 @@ def range_check(params, ground_acceleration_m_s2=None) -> RangeCheck:
             unit = CHANNEL_UNITS.get(channel, _UNITS[signal])
             check.peaks.append(ChannelPeak(rig, channel, peak, _limit(rp, channel), unit))
     return check
+
+
+def divergence_prediction(params) -> tuple[RangeCheck | None, str]:
+    """The range check a node's divergence guard reads, or None and why.
+
+    The reference-force builder node reads the record itself for it
+    (:class:`~seft_ros.core.monitor.DivergenceGuard`). On a host that cannot read the record
+    (a run over several hosts whose record file lives on the ground-motion publisher's) the
+    guard is off for the run, which goes on, and the node says so.
+
+    Parameters
+    ----------
+    params : mapping
+        The node's resolved parameters.
+
+    Returns
+    -------
+    check : RangeCheck or None
+        :func:`range_check`; None where the record cannot be read here.
+    note : str
+        Empty, or the one-line warning that the guard is off and why.
+
+    Raises
+    ------
+    ParameterError
+        Bad parameters (as the run would).
+    """
+    try:
+        return range_check(params), ''
+    except InputError as exc:
+        return None, (f'divergence guard off: the record cannot be read on this host ({exc}); '
+                      'the run goes on without it (the instability monitor and the limits '
+                      'still watch it)')

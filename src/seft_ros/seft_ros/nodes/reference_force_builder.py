@@ -108,10 +108,12 @@ class ReferenceForceBuilderNode(SeftNode):
         # each commanded rig's measured displacement and force against the pre-run
         # prediction of their peaks (divergence_factor): the range check's reference analysis
         # of the record the ground-motion publisher plays, as seft simulate makes it
-        predicted = None
+        predicted, self._guard_note = None, ''
         if float(p.get('divergence_factor', 0.0) or 0.0) > 0:
-            from seft_ros.analysis.range_check import range_check
-            predicted = range_check(p)
+            from seft_ros.analysis.range_check import divergence_prediction
+            predicted, self._guard_note = divergence_prediction(p)
+            if self._guard_note:
+                self.get_logger().warning(self._guard_note)
         self.divergence_guards = [
             DivergenceGuard.from_parameters(self.builder.setup.rig_params[r], predicted, rig=r)
             for r in self.local]
@@ -238,6 +240,9 @@ class ReferenceForceBuilderNode(SeftNode):
             for warning in self.builder.range_warnings():
                 self.get_logger().warning(warning)
                 self.report(STATE_RUNNING, warning, warning=warning, step=k)
+            if self._guard_note:                    # the divergence guard off: said once
+                self.report(STATE_RUNNING, self._guard_note, warning=self._guard_note, step=k)
+                self._guard_note = ''
         if k >= self.next_step - 1:                 # (a late one of a step already built)
             self.arrived.setdefault(k, set()).add(r)
         if self.realtime:
