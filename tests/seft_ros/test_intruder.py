@@ -37,15 +37,12 @@ MAIN = ROOT / 'config' / 'main.yaml'
 INTRUDER = Path(__file__).with_name('intruder.py')
 #: The run: 4 s of the main job's record at alpha 0.5 with its compensator, in real time.
 RUN = ['--alpha', '0.5', '--predictor', 'model', '--mode', 'realtime', '--duration', '4']
-#: The same run in lockstep.
-LOCKSTEP = ['--alpha', '0.5', '--predictor', 'model', '--mode', 'lockstep', '--duration', '4']
-#: A lockstep run of 8 s: a lockstep run goes faster than real time, and an intruder that the
-#: run's participants learn of only at a periodic announcement (up to ~3 s, module notes of
-#: intruder.py) reached the 4 s run after its bag had closed, or never (twice in the suite
-#: on 2 cores, session 25: the warning on the console but not in the report, the intruder
+#: The same run in lockstep, 8 s: a lockstep run goes faster than real time, and an intruder
+#: that the run's participants learn of only at a periodic announcement (up to ~3 s, module
+#: notes of intruder.py) reached a 4 s run after its bag had closed, or never (in the suite on
+#: 2 cores, session 25: the warning on the console but not in the report, the intruder
 #: waiting for a measurement it never heard, or the rig done before the abort came).
-LOCKSTEP_LONG = ['--alpha', '0.5', '--predictor', 'model', '--mode', 'lockstep', '--duration',
-                 '8']
+LOCKSTEP = ['--alpha', '0.5', '--predictor', 'model', '--mode', 'lockstep', '--duration', '8']
 
 
 def run_with_intruder(tmp_path, seft_exe, env, topic, *extra, intruder=('3000', '5000'),
@@ -167,7 +164,7 @@ def test_another_runs_node_parameters_are_named_once_and_the_run_completes(
     report. Now one warning names them, and the run completes with every sample, its bag's
     parameters the run's own."""
     console, run_dir, intruder = run_with_intruder(
-        tmp_path, seft_exe, ros_env, '/seft/node_parameters', run=LOCKSTEP_LONG,
+        tmp_path, seft_exe, ros_env, '/seft/node_parameters', run=LOCKSTEP,
         intruder=('0.0', '20'), from_step=300, seconds=1.0)
     assert intruder.startswith('sent '), intruder
     assert 'differs' not in console and 'nothing was run' not in console, console
@@ -188,12 +185,12 @@ def test_another_runs_node_parameters_are_named_once_and_the_run_completes(
 def test_a_node_of_the_run_with_other_parameters_after_the_start_stops_it_safely(
         tmp_path, seft_exe, ros_env):
     """Parameters with the run's own token (a node of this run) that differ (alpha 0,
-    duration 4 s) heard from step 300 of an 8 s lockstep run (LOCKSTEP_LONG: in the suite
+    duration 4 s) heard from step 300 of an 8 s lockstep run (LOCKSTEP: in the suite
     the 4 s run once ended, its rig 'done', before the abort reached it): the run is stopped
     through the abort path, at the step it had reached, the report written. Before: every
     node exited 'failed' at once and the runner said "nothing was run" (exit 2, no report)."""
     console, run_dir, intruder = run_with_intruder(
-        tmp_path, seft_exe, ros_env, '/seft/node_parameters', run=LOCKSTEP_LONG,
+        tmp_path, seft_exe, ros_env, '/seft/node_parameters', run=LOCKSTEP,
         intruder=('0.0', '20'), from_step=300, seconds=1.0, copy=True)
     assert intruder.startswith('sent '), intruder
     assert 'nothing was run' not in console, console
