@@ -15,6 +15,7 @@ from seft_ros.analysis.findings import (
     run_flags,
     sensor_range_entry,
     sensor_range_lines,
+    valve_saturation_entry,
     verdict,
 )
 from seft_ros.analysis.metrics import compare_run
@@ -279,3 +280,28 @@ def test_a_run_of_the_records_first_seconds_gets_no_prediction_to_be_flagged_aga
     assert api.plays_whole_record(parameters.resolve({'rig_model': 'delay', 'duration_s': 40.0}))
     assert api.guard_check(whole).predicted_error == pytest.approx(5.34e-4, rel=0.05)
     assert math.isnan(api.guard_check(part).predicted_error)
+
+
+def test_a_valve_at_its_limit_is_flagged():
+    """A completed run whose valve command sat at its limit lost its force loop there
+    (the interlock stops a run only at half of 0.1 s): flagged with the samples and when.
+    The study's test at alpha 1 with the valve's limit at 90 % of the command it needs."""
+    from seft_ros.core.experiment import simulate
+    p = parameters.resolve({'predictor': 'model', 'alpha': 1.0, 'duration_s': 6.0})
+    free = simulate(p)
+    assert valve_saturation_entry(free) == {}
+    assert not [f for f in run_flags(free, compare_run(free)) if 'valve' in f]
+    limit = 0.9 * float(np.max(np.abs(free.valve_command_V)))
+    run = simulate(dict(p, valve_limit_V=limit))
+    assert run.stable
+    u = run.valve_command_V
+    at = np.flatnonzero(np.abs(u) >= limit)
+    assert 0 < at.size < 0.01 * u.shape[0]
+    entry = valve_saturation_entry(run)
+    assert entry == {'': {'samples': at.size, 'of': u.shape[0], 'limit_V': limit,
+                          'first_s': at[0] * DT, 'last_s': at[-1] * DT}}
+    [flag] = [f for f in run_flags(run, compare_run(run)) if f.startswith('valve')]
+    assert flag.startswith(f'valve at its limit: rig valve command at +-{limit:g} V in '
+                           f'{at.size} samples of {u.shape[0]} between t={at[0] * DT:.3f} and '
+                           f'{at[-1] * DT:.3f} s: the force loop was open there')
+    assert flag.endswith('lower amplitude_N')

@@ -308,7 +308,8 @@ def test_summary_entry_keys_and_values(ground_motion):
                   'high_frequency_force_fraction', 'high_frequency_force_fraction_reference',
                   'high_frequency_cutoff_hz', 'abort_reason', 'mode', 'wall_s', 'rig_contract']
     # the study's keys first, in their order; then the sections every run has
-    assert list(entry) == study_keys + ['warnings', 'sensor_range', 'flags', 'verdict',
+    assert list(entry) == study_keys + ['warnings', 'sensor_range', 'valve_saturation',
+                                        'flags', 'verdict',
                                         'abort_node', 'n_steps', 'structure', 'worst_nrms',
                                         'dofs', 'links', 'rigs']
     assert entry['warnings'] == [] and entry['flags'] == [] and entry['verdict'] == 'stable'

@@ -623,7 +623,7 @@ def test_summary_entry_of_a_hand_made_comparison():
                                                        'acceleration')),
                               'first_s': {}, 'last_s': {}, 'acceleration_estimated': None,
                               'source': 'signals'}},
-        'flags': [], 'verdict': 'aborted'}
+        'valve_saturation': {}, 'flags': [], 'verdict': 'aborted'}
     # the sections of every run: the one DOF, its link, the rig (the study's keys again)
     assert (entry['abort_node'], entry['n_steps']) == (None, 3)
     assert entry['structure'] == {'dofs': ['specimen'], 'physical': {'specimen': ''},

@@ -1,6 +1,9 @@
 """The pre-run range check: each rig's reference peaks against its sensors' ranges and its
 actuator's capacity (v_max = k_q V_lim / A on the servohydraulic rig)."""
 
+import json
+
+import numpy as np
 import pytest
 
 from seft_msgs_py import parameters
@@ -51,22 +54,25 @@ def test_one_line_per_channel_beyond_its_range_or_capacity():
     assert ('peaks at 39.91 m/s^2, beyond the accelerometer range of 39.2 m/s^2; the largest '
             'amplitude that fits: amplitude_N 982.1 N') in lines[0]
     lines.clear()
-    # at 2500 N, alpha = 2 also needs 2.4 m/s of the valve's 2.0
+    # at 2500 N, alpha = 2 also needs 2.4 m/s of the valve's 2.0, and so more than its 10 V
     api.check_ranges(runs=_runs(2500.0, [1.0, 2.0]), progress=lines.append)
     assert _short(lines) == ['range check: [alpha_1_servohydraulic_model] rig acceleration:',
                              'range check: [alpha_2_servohydraulic_model] rig acceleration:',
                              'range check: [alpha_2_servohydraulic_model] rig actuator '
-                             'velocity:']
+                             'velocity:',
+                             'range check: [alpha_2_servohydraulic_model] rig actuator valve '
+                             'command:']
     assert "2.418 m/s, beyond the actuator's velocity at the valve limit of 1.998 m/s" \
         in lines[2] and 'amplitude_N 2066 N' in lines[2]
     lines.clear()
     # Eq. 3.1 in V/N: alpha >= 0.5 needs more than the valve's 0.45 m/s at 1000 N
     api.check_ranges(runs=_runs(1000.0, [0.0, 0.5, 1.0, 1.5], reading='si'),
                      progress=lines.append)
-    assert [ln.split('] ')[0] for ln in lines] == [
-        'range check: [alpha_0.5_servohydraulic_model', 'range check: [alpha_1_servohydraulic_'
-        'model', 'range check: [alpha_1.5_servohydraulic_model']
-    assert '0.667 m/s' in lines[1] and '0.4492 m/s' in lines[1]
+    # (each of them the valve's velocity and its command: the command includes the velocity)
+    assert [ln.split(': the reference')[0] for ln in lines] == [
+        f'range check: [alpha_{a}_servohydraulic_model] rig actuator {channel}'
+        for a in ('0.5', '1', '1.5') for channel in ('velocity', 'valve command')]
+    assert '0.667 m/s' in lines[2] and '0.4492 m/s' in lines[2]
     lines.clear()
     api.check_ranges(runs=_runs(500.0, [0.0, 0.5, 1.0, 1.5], reading='si'),
                      progress=lines.append)
@@ -89,7 +95,7 @@ def test_strict_refuses_and_names_the_channel():
     runs = _runs(2500.0, [2.0])
     with pytest.raises(api.RangeRefusedError,
                        match=r'^range check: rig acceleration: the reference peaks at 99\.78 '
-                       r'.* \(and 1 more\); refused \(--strict\)'):
+                       r'.* \(and 2 more\); refused \(--strict\)'):
         api.check_ranges(runs=runs, strict=True)
 
 
@@ -102,7 +108,7 @@ def test_the_largest_amplitude_that_fits_fits():
     summary = check.as_dict()
     assert summary['rigs']['']['acceleration']['exceeded'] is True
     assert summary['rigs']['']['force']['exceeded'] is False
-    assert summary['lines'] == check.lines() and len(summary['lines']) == 2
+    assert summary['lines'] == check.lines() and len(summary['lines']) == 3
 
 
 def test_a_real_time_run_beyond_its_actuators_capacity_is_refused_unless_forced():
@@ -114,17 +120,19 @@ def test_a_real_time_run_beyond_its_actuators_capacity_is_refused_unless_forced(
     with pytest.raises(api.RangeRefusedError, match=(
             r"^range check: rig actuator velocity: the reference peaks at 2\.418 m/s, beyond "
             r"the actuator's velocity at the valve limit of 1\.998 m/s; the largest amplitude "
-            r"that fits: amplitude_N 2066 N; refused: a real-time run beyond its actuator's "
-            r'capacity, which the interlock would stop; lower the amplitude, or --force to run '
-            r'it anyway$')):
+            r"that fits: amplitude_N 2066 N \(and 1 more\); refused: a real-time run beyond its "
+            r"actuator's "
+            r'capacity, which the interlock would stop; lower the amplitude, or --force to '
+            r'run it anyway$')):
         api.check_ranges(runs=realtime)
     lines = []
     api.check_ranges(runs=realtime, force=True, progress=lines.append)
     assert _short(lines) == ['range check: rig acceleration:',
-                             'range check: rig actuator velocity:']
+                             'range check: rig actuator velocity:',
+                             'range check: rig actuator valve command:']
     lines.clear()
     api.check_ranges(runs=_runs(2500.0, [2.0], mode='lockstep'), progress=lines.append)
-    assert len(lines) == 2
+    assert len(lines) == 3
     lines.clear()
     # alpha 2 at 1000 N: the accelerometer's range only (39.9 of 39.2 m/s^2), in real time
     api.check_ranges(runs=_runs(1000.0, [2.0], mode='realtime'), progress=lines.append)
@@ -133,3 +141,40 @@ def test_a_real_time_run_beyond_its_actuators_capacity_is_refused_unless_forced(
     with pytest.raises(api.RangeRefusedError, match=r'^range check: \[alpha_2_servohydraulic_'
                        r'model\] rig actuator velocity: .*; refused: a real-time run'):
         api.check_ranges(runs=_runs(2500.0, [0.5, 2.0], mode='realtime'))
+
+
+def test_the_valve_command_a_force_needs_on_a_first_order_plant():
+    """u = P^-1 f: on a plant F[k+1] = 0.9 F[k] + 100 u[k] (a lab's discrete model), the
+    command of a smooth force that starts and ends at rest is (F[k+1] - 0.9 F[k]) / 100."""
+    from seft_ros.analysis.range_check import valve_command_needed
+    plant = {'form': 'state_space', 'dt': 0.002, 'a': [[0.9]], 'b': [100.0],
+             'c': {'force_N': [1.0]},
+             'specimen': {'mass_kg': 52.7, 'damping_N_s_per_m': 100.0,
+                          'stiffness_N_per_m': 2.11e5}}
+    p = parameters.resolve({'rig_model': 'state_space', 'plant_model': json.dumps(plant)})
+    t = np.arange(3000) * 0.002
+    force = 500.0 * np.sin(2 * np.pi * 3.0 * t) * np.sin(np.pi * t / t[-1]) ** 2
+    u = valve_command_needed(p, force)
+    assert u.shape == force.shape
+    expected = (force[1:] - 0.9 * force[:-1]) / 100.0
+    assert np.max(np.abs(u[:-1] - expected)) < 1e-9 * np.max(np.abs(expected))
+    # the delay rig applies its force: no valve
+    assert valve_command_needed(dict(p, rig_model='delay'), force) is None
+
+
+def test_the_valve_command_needed_is_the_exact_tests():
+    """On seft's rig with its own model (exact), model's valve command peaks where the
+    prediction says (0.1-0.3 % measured, session 26); with the valve's limit below that
+    peak the range check says so, with the amplitude that fits."""
+    from seft_ros.core.experiment import simulate
+    p = _runs(1000.0, [1.0], duration_s=6.0)[0]
+    run = simulate(p)
+    check = range_check(p)
+    predicted = check.predicted('', 'actuator valve command')
+    assert predicted == pytest.approx(np.max(np.abs(run.valve_command_V)), rel=0.01)
+    limited = dict(p, valve_limit_V=0.8 * predicted)
+    check = range_check(limited)
+    [peak] = [q for q in check.exceeded if q.channel == 'actuator valve command']
+    assert check.fits(peak) == pytest.approx(800.0, rel=1e-9)
+    assert ('rig actuator valve command: the reference force needs '
+            f'{predicted:.4g} V of valve command') in check.line(peak)

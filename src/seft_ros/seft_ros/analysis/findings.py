@@ -1,6 +1,6 @@
 """What a run shows of a loss of accuracy that a lab can see without the reference.
 
-A run that completes is not therefore right. Six signs, each visible in the lab's own data
+A run that completes is not therefore right. Seven signs, each visible in the lab's own data
 and the pre-run prediction (never in the comparison's error), a seventh that reads the run's
 error against the guard's prediction, and an eighth in rehearsal, flag a run instead of
 calling it plainly stable (:func:`run_flags`):
@@ -44,6 +44,14 @@ calling it plainly stable (:func:`run_flags`):
 * **a peak beyond the prediction**: a rig's displacement, force or acceleration peaks more
   than :data:`PEAK_RATIO_FLAG` times the analytical reference's peak over the same samples
   (the pre-run check's prediction, :mod:`seft_ros.analysis.range_check`);
+* **a valve at its limit**: a completed run whose valve command sat at ``valve_limit_V``
+  in some samples (:func:`valve_saturation_entry`): the force loop was open there and the
+  load cell's force did not follow its reference; the saturation interlock stops a run only
+  when half of 0.1 s saturates. Measured (session 26): a lab's ``state_space`` plant (80 Hz
+  valve, a flexible reaction frame, a 16 Hz, 2 % specimen) through seft identify, alpha
+  1.5 at 650 N (the range check's largest amplitude for the accelerometer: 658 N) saturated
+  in 33 samples of 5,000 and erred by 10.0 % x with ``model`` and 17.1 % with ``adaptive``
+  (400 N: 0.06 %), the ``adaptive`` run called plainly "stable";
 * **the host's timing** (a rehearsal on seft's simulated rigs only): a real-time run that
   erred by more than 1 % with a late command or a stale step is replayed in process as it
   ran and in time (``seft run`` does it; :func:`~seft_ros.analysis.timing_replay.replay_timing`),
@@ -74,7 +82,8 @@ from seft_ros.core.stability import RobustnessMargin, accurate_test_bound
 
 __all__ = ['PEAK_RATIO_FLAG', 'ERROR_RATIO_FLAG', 'error_beyond_prediction', 'BOUND_HOLD_S',
            'SPECIMEN_FLAG', 'estimate_bounds', 'bound_findings',
-           'sensor_range_entry', 'sensor_range_lines', 'run_flags', 'verdict', 'REPLAY_SIGNALS',
+           'sensor_range_entry', 'sensor_range_lines', 'valve_saturation_entry',
+           'valve_saturation_flag', 'run_flags', 'verdict', 'REPLAY_SIGNALS',
            'TIMING_COST_FLAG_POINTS', 'REPRODUCED_WITHIN', 'replay_cell', 'timing_replay_line',
            'timing_cost_flag', 'WIRE_WARN_FRACTION', 'bridge_entry', 'bridge_lines']
 
@@ -245,6 +254,56 @@ def sensor_range_lines(entry: dict[str, Any]) -> list[str]:
     return lines
 
 
+def valve_saturation_entry(run: RunData) -> dict[str, Any]:
+    """Each valve-driven rig's samples with its valve command at its limit.
+
+    A force controller clips its command to ``valve_limit_V`` (``ForceController``); a sample
+    at the limit is one where the loop asked the valve for more than it gives.
+
+    Parameters
+    ----------
+    run : RunData
+        A run (its rigs' ``valve_command_V``, shape (n,) [V], and ``valve_limit_V``).
+
+    Returns
+    -------
+    dict
+        ``{rig: {'samples': int, 'of': int, 'limit_V': float, 'first_s': float, 'last_s':
+        float}}`` for the rigs with at least one such sample (empty: none, or no valve).
+    """
+    out: dict[str, Any] = {}
+    dt = float(run.params.get('dt', 0.0) or 0.0)
+    for rig, data in run.rigs.items():
+        u = data.valve_command_V
+        limit = float(data.params.get('valve_limit_V', 0.0) or 0.0)
+        if u is None or not limit > 0:
+            continue
+        u = np.asarray(u, dtype=float)
+        at = np.flatnonzero(np.abs(u) >= limit)
+        if at.size:
+            out[rig] = {'samples': int(at.size), 'of': int(u.shape[0]), 'limit_V': limit,
+                        'first_s': float(at[0]) * dt, 'last_s': float(at[-1]) * dt}
+    return out
+
+
+def valve_saturation_flag(entry: dict[str, Any], params) -> list[str]:
+    """The flag lines of :func:`valve_saturation_entry`'s `entry`, one per rig (module
+    notes); `params` the run's, for the amplitude it names."""
+    scale = 'amplitude_N' if float(params.get('amplitude_N', 0.0) or 0.0) > 0 \
+        else 'scale_factor'
+    lines = []
+    for rig, info in entry.items():
+        n = info['samples']
+        when = (f"at t={info['first_s']:.3f} s" if n == 1 else
+                f"between t={info['first_s']:.3f} and {info['last_s']:.3f} s")
+        lines.append(f"valve at its limit: {rig_label(rig)} valve command at "
+                     f"+-{info['limit_V']:g} V in {n} sample{'s' if n > 1 else ''} of "
+                     f"{info['of']} {when}: the force loop was open there and the measured "
+                     f'force did not follow its reference (the test asked the actuator for '
+                     f'more flow than its valve gives); lower {scale}')
+    return lines
+
+
 #: The error flag (:func:`error_beyond_prediction`): a completed run's NRMS x above this many
 #: times the guard's prediction [-]. Measured with the record's spectrum (session 25): the
 #: runs on exact plants erred 0.33-1.34 x the prediction (seft's rig with none and model at
@@ -346,6 +405,8 @@ def run_flags(run: RunData, comparison) -> list[str]:
         flags += [f'settings: {line}' for line in costly_settings(run.params, flagging=True)]
     except (SeftError, KeyError):
         pass                            # parameters that do not make a test (a hand-made run)
+    if run.stable:
+        flags += valve_saturation_flag(valve_saturation_entry(run), run.params)
     timing = timing_cost_flag(run.extra.get('timing_replay'))
     if timing:
         flags.append(timing)

@@ -1218,7 +1218,13 @@ def summary_entry(run: RunData, comparison: RunComparison) -> dict[str, Any]:
         entry['specimen_stiffness_ratios'] = dict(run.extra['specimen_ratios'])
     # what says the run may have lost accuracy (issue 39): the pre-run range check, the
     # samples at a sensor's range, and the flags a lab sees without the reference
-    from seft_ros.analysis.findings import bridge_entry, run_flags, sensor_range_entry, verdict
+    from seft_ros.analysis.findings import (
+        bridge_entry,
+        run_flags,
+        sensor_range_entry,
+        valve_saturation_entry,
+        verdict,
+    )
     if run.extra.get('range_check') is not None:
         entry['range_check'] = dict(run.extra['range_check'])
     if run.extra.get('record_read') is not None:
@@ -1226,6 +1232,7 @@ def summary_entry(run: RunData, comparison: RunComparison) -> dict[str, Any]:
     if run.extra.get('timing_replay') is not None:
         entry['timing_replay'] = dict(run.extra['timing_replay'])
     entry['sensor_range'] = sensor_range_entry(run)
+    entry['valve_saturation'] = valve_saturation_entry(run)
     bridge = bridge_entry(run)
     if bridge:
         entry['udp_bridge'] = bridge

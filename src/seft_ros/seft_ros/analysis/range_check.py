@@ -16,6 +16,7 @@ channel                       peak of the reference                    against
 ``actuator force``            interface force                          ``force_limit_N``
 ``actuator stroke``           displacement                             ``stroke_limit_m``
 ``actuator velocity``         velocity                                 the valve's capacity
+``actuator valve command``    the valve command the force needs        ``valve_limit_V``
 ============================  =======================================  =====================
 
 (the valve's capacity: ``actuator_velocity_limit_m_s``, or on the servohydraulic and
@@ -25,6 +26,18 @@ peak exceeds its limit gives one line: the rig, the channel, the peak, the limit
 largest amplitude that fits (the run's ``amplitude_N`` or ``scale_factor`` times limit / peak:
 the reference is linear in the record; for a yielding member that scaling is an estimate and
 the line says so).
+
+The valve command a valve-driven rig needs for the reference's interface force ``f`` is
+``u = P^-1 f`` on the rig's force-loop plant ``P``
+(:func:`~seft_ros.core.force_loop.force_loop_plant`: seft's rig model or the
+``plant_model`` of data, valve command to load-cell force with the specimen in the loop),
+on the FFT of ``f``: the command of a test that follows its reference force exactly,
+whatever the actuator (its flow through the piston's motion and the oil's compression, its
+valve's dynamics, its I/O delay). Measured (session 26): within 0.5 % of the peak command of
+``model`` runs on seft's rig (main job, alpha 0.5 and 1) and on a lab's ``state_space``
+plant with a flexible reaction frame (alpha 0.5 and 1.5), whose velocity capacity the range
+check did not know: that plant at 650 N saturated its valve in 33 samples and erred by
+10-17 % where the accelerometer's channel allowed 658 N.
 
 A test's own peaks sit above the reference's by its error and the force loop's ringing, so a
 channel within a few per cent of its range may still clip: the run counts what did
@@ -36,12 +49,15 @@ import math
 from types import SimpleNamespace
 from typing import Any
 
+import numpy as np
+
 from seft_msgs_py.calibration import valve_flow_gain_m3_per_s_V
 from seft_msgs_py.errors import InputError, SeftError
+from seft_msgs_py.rig_contract import COMMAND_KINDS, command_kind
 from seft_msgs_py.sensor_range import CHANNEL_UNITS, RANGE_PARAMETERS
 
 __all__ = ['CHANNELS', 'ChannelPeak', 'RangeCheck', 'range_check', 'divergence_prediction',
-           'actuator_velocity_limit_m_s']
+           'actuator_velocity_limit_m_s', 'valve_command_needed']
 
 #: The channels checked: name -> (the reference's signal, the thing whose limit it is).
 CHANNELS = {
@@ -52,9 +68,13 @@ CHANNELS = {
     'actuator force': ('force_N', "actuator's force limit"),
     'actuator stroke': ('displacement_m', "actuator's stroke limit"),
     'actuator velocity': ('velocity_m_s', "actuator's velocity at the valve limit"),
+    'actuator valve command': ('valve_command_V', "valve's command limit"),
 }
 _UNITS = {'force_N': 'N', 'displacement_m': 'm', 'velocity_m_s': 'm/s',
-          'acceleration_m_s2': 'm/s^2'}
+          'acceleration_m_s2': 'm/s^2', 'valve_command_V': 'V'}
+#: |P| below this fraction of its largest value on the FFT grid is taken at it (a zero of
+#: the force response on the unit circle; the force there is zero too) [-].
+_RESPONSE_FLOOR = 1e-9
 
 
 def actuator_velocity_limit_m_s(params) -> float | None:
@@ -90,6 +110,8 @@ def _limit(params, channel: str) -> float | None:
         value = float(params.get('force_limit_N', 0.0) or 0.0)
     elif channel == 'actuator stroke':
         value = float(params.get('stroke_limit_m', 0.0) or 0.0)
+    elif channel == 'actuator valve command':
+        value = float(params.get('valve_limit_V', 0.0) or 0.0)
     else:
         value = actuator_velocity_limit_m_s(params) or 0.0
     return value if value > 0 else None
@@ -172,6 +194,11 @@ class RangeCheck:
         if not self.linear:
             fits += ' (scaled linearly: the yielding member makes it an estimate)'
         what = CHANNELS[peak.channel][1]
+        if peak.channel == 'actuator valve command':
+            return (f'{who} {peak.channel}: the reference force needs {peak.peak:.4g} V of '
+                    f"valve command through the force loop's plant model, beyond the {what} "
+                    f'of {peak.limit:.4g} V (the valve saturates and the force loop opens); '
+                    f'the largest amplitude that fits: {fits}')
         return (f'{who} {peak.channel}: the reference peaks at {peak.peak:.4g} {peak.unit}, '
                 f'beyond the {what} of {peak.limit:.4g} {peak.unit}; the largest amplitude '
                 f'that fits: {fits}')
@@ -197,7 +224,7 @@ class RangeCheck:
                 'scale': self.scale, 'linear': self.linear, 'rigs': rigs}
 
 
-def range_check(params, ground_acceleration_m_s2=None) -> RangeCheck:
+def range_check(params, ground_acceleration_m_s2=None, *, valve: bool = True) -> RangeCheck:
     """The pre-run range check of a run (module notes).
 
     Parameters
@@ -207,6 +234,10 @@ def range_check(params, ground_acceleration_m_s2=None) -> RangeCheck:
     ground_acceleration_m_s2 : array_like (n,), optional
         The prepared record [m/s^2] (default:
         :func:`~seft_ros.core.ground_motion.prepared_record`).
+    valve : bool
+        Check the valve command too (:func:`valve_command_needed`; about 0.08 s a run on
+        seft's rig, its model's sampling): the divergence guard, which reads the
+        displacement and force, leaves it out.
 
     Returns
     -------
@@ -257,13 +288,72 @@ def range_check(params, ground_acceleration_m_s2=None) -> RangeCheck:
     for rig, rp in rigs.items():
         response = reference.rig(rig)
         for channel, (signal, _) in CHANNELS.items():
-            values = getattr(response, signal)
+            if signal == 'valve_command_V':
+                values = valve_command_needed(rp, response.force_N) if valve else None
+                if values is None:
+                    continue
+            else:
+                values = getattr(response, signal)
             peak = float(abs(values).max()) if values.shape[0] else 0.0
             if not math.isfinite(peak):
                 continue
             unit = CHANNEL_UNITS.get(channel, _UNITS[signal])
             check.peaks.append(ChannelPeak(rig, channel, peak, _limit(rp, channel), unit))
     return check
+
+
+def valve_command_needed(params, force_N):
+    """The valve command a rig needs to apply `force_N` (module notes), or None.
+
+    ``u = IFFT(FFT(f) / P)`` on ``2^ceil(log2(2 n))`` points, ``P`` the force response of
+    the rig's force-loop plant (valve command to load-cell force, the specimen in the loop)
+    at the FFT's frequencies (where ``P`` is infinite, the mean of an actuator that
+    integrates its flow without leakage, the command is zero).
+
+    Parameters
+    ----------
+    params : mapping
+        The rig's resolved parameters.
+    force_N : array_like, shape (n,)
+        The interface force to apply [N] (the reference's, at the rig's sample period).
+
+    Returns
+    -------
+    ndarray, shape (n,) or None
+        [V]; None for a rig without a valve (the delay rig) or without a linear model of
+        its force loop.
+    """
+    if command_kind(params) != COMMAND_KINDS[0]:
+        return None
+    from scipy.linalg import schur
+
+    from seft_ros.core.force_loop import force_loop_plant
+    try:
+        plant = force_loop_plant(params)
+    except SeftError:
+        return None
+    f = np.asarray(force_N, dtype=float)
+    n = f.shape[0]
+    if n < 2:
+        return np.zeros(n)
+    nfft = 1 << int(math.ceil(math.log2(2 * n)))
+    z = np.exp(2j * np.pi * np.fft.rfftfreq(nfft, plant.dt) * plant.dt)
+    # c (zI - A)^-1 b at every frequency: the complex Schur form A = U T U^H, then (z - T) y
+    # = U^H b by back substitution, all frequencies at once (an order-n solve per frequency
+    # costs 30 times more on 8,000 frequencies)
+    tri, unitary = schur(plant.a, output='complex')
+    b_t, c_t = unitary.conj().T @ plant.b[:, 0], plant.row('force_N') @ unitary
+    y = np.zeros((z.shape[0], plant.order), dtype=complex)
+    with np.errstate(divide='ignore', invalid='ignore'):
+        for i in range(plant.order - 1, -1, -1):
+            y[:, i] = (b_t[i] + y[:, i + 1:] @ tri[i, i + 1:]) / (z - tri[i, i])
+        response = y @ c_t
+        magnitude = np.abs(response)
+        finite = np.isfinite(magnitude)
+        floor = _RESPONSE_FLOOR * float(magnitude[finite].max())
+        response = np.where(magnitude < floor, floor, response)
+        command = np.where(finite, np.fft.rfft(f, nfft) / response, 0.0)
+    return np.fft.irfft(command, nfft)[:n]
 
 
 def divergence_prediction(params) -> tuple[RangeCheck | None, str]:
@@ -292,7 +382,7 @@ def divergence_prediction(params) -> tuple[RangeCheck | None, str]:
         Bad parameters (as the run would).
     """
     try:
-        return range_check(params), ''
+        return range_check(params, valve=False), ''
     except InputError as exc:
         return None, (f'divergence guard off: the record cannot be read on this host ({exc}); '
                       'the run goes on without it (the instability monitor and the limits '

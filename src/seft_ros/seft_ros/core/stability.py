@@ -1292,7 +1292,7 @@ def level_extrapolation(params: Mapping) -> str | None:
     if not stated:
         return None
     try:
-        planned = range_check(params).peaks
+        planned = range_check(params, valve=False).peaks
     except SeftError:
         return None
     worst = None
