@@ -43,6 +43,19 @@ RUN = ['--alpha', '0.5', '--predictor', 'model', '--mode', 'realtime', '--durati
 #: 2 cores, session 25: the warning on the console but not in the report, the intruder
 #: waiting for a measurement it never heard, or the rig done before the abort came).
 LOCKSTEP = ['--alpha', '0.5', '--predictor', 'model', '--mode', 'lockstep', '--duration', '8']
+#: The bound of the run's own reference force, over the peak seft's pre-run reference analysis
+#: predicts for the run (``summary.json``'s ``range_check``: 1911 N at 3.61 s for this run;
+#: the lockstep run's reference peaks at 1910 N, a real-time run's at 1909 N on a loaded host).
+#: The intruder's match, hence the abort, comes anywhere from 0.8 s to the run's end (the
+#: intruder learns of the controller's subscription at a periodic announcement, up to ~3 s
+#: later: aborts at 0.87-3.23 s in 6 runs beside a busy loop), so the whole run's peak is the
+#: one to bound. Over it: a host stall of 5-8 ms (seen beside a busy loop at step 535: the rig
+#: held the command 5 steps and its measured force swung to 1514 N where lockstep has 412 N)
+#: moves the reference the builder makes from that measurement; the suite saw 2197 N (1.15 x)
+#: against the former bound of 2000 N, written for a reference "below 1.1 kN" (true only of an
+#: abort before 2.9 s). 1.25 covers that, below the divergence guard's 3 x (healthy runs
+#: of docs/design/safety.md's calibration: at most 1.015 for the shipped configurations).
+REFERENCE_MARGIN = 1.25
 
 
 def run_with_intruder(tmp_path, seft_exe, env, topic, *extra, intruder=('3000', '5000'),
@@ -114,7 +127,9 @@ def test_a_forged_reference_force_is_never_applied_and_the_run_stops_naming_it(
     assert finals['rig']['state'] == 'aborted' and 'abort_at_s' in finals['rig']
     # not one forged force taken: the controller took no more reference forces than the
     # builder published (each once: reliable, in order), and the measured force followed the
-    # builder's reference force (3000 N forged against a reference below 1.1 kN)
+    # builder's reference force, the run's own (within REFERENCE_MARGIN of the reference
+    # analysis's peak: 3000 N forged against 1911 N predicted); the bag's reference force is
+    # the builder's record stream, sealed: no forged message reaches it
     controller = finals['force_servo_controller']
     taken = int(controller['taken:/seft/reference_force'])
     assert 0 < taken <= int(finals['reference_force_builder']['published'])
@@ -122,7 +137,9 @@ def test_a_forged_reference_force_is_never_applied_and_the_run_stops_naming_it(
     n = min(int(float(finals['rig']['abort_at_s']) / float(data.params['dt'])),
             rig.reference_force_N.size)
     peak = np.max(np.abs(rig.reference_force_N[:n]))
-    assert peak < 2000.0 and np.max(np.abs(rig.measured_force_N[:n])) < 1.2 * peak
+    predicted = summary['range_check']['rigs']['']['force']['peak']
+    assert peak < REFERENCE_MARGIN * predicted, (peak, predicted, n)
+    assert np.max(np.abs(rig.measured_force_N[:n])) < 1.2 * peak
 
 
 def test_a_foreign_record_stream_is_a_warning_and_the_run_completes(tmp_path, seft_exe,
