@@ -81,16 +81,22 @@ def test_onset_is_anticipated_where_it_stopped_and_after_its_elastic_range(loade
     k = loaded.stiffness([0.0, 0.0107])         # from 0.008 to 0.0187: 0.0027 of 0.0107 past
     np.testing.assert_allclose(k, K0 - (0.0027 / 0.0107) * LAM * np.outer(U, U), rtol=1e-9)
     assert loaded.stiffness([0.0, 0.004]) is None          # not far enough
-    # the other sense: its elastic range is not known before it has yielded there
-    assert loaded.stiffness([0.0, -0.05]) is None
+    # the other sense, before it has yielded there: Masing's range, twice its first onset's
+    # distance from rest; that onset is the middle of the step that showed it (0.008 to
+    # 0.012): x2 = 0.010, so it yields again at x2 = 0.016 - 0.020 = -0.004
+    assert mech.first_onset_m == pytest.approx(z(0.010))
+    k = loaded.stiffness([0.0, -0.016])                    # to -0.008: 0.004 of 0.016 past
+    np.testing.assert_allclose(k, K0 - 0.25 * LAM * np.outer(U, U), rtol=1e-9)
+    assert loaded.stiffness([0.0, -0.011]) is None         # to -0.003: not far enough
     for x2 in (0.0, -0.008):                               # elastic, then yields in - at -0.008
         loaded.observe([0.0, x2], None if x2 > -0.008 else yielded())
-    assert mech.elastic_range_m == pytest.approx(abs(z(-0.008) - z(0.016)))
+    # the range it has shown: from z(0.016) to the middle of the step 0.0 -> -0.008
+    assert mech.elastic_range_m == pytest.approx(abs(z(-0.004) - z(0.016)))
     for x2 in (-0.012, -0.004):                            # yields, then unloads
         loaded.observe([0.0, x2], yielded() if x2 < -0.008 else None)
-    # back in +: it yields again at z(-0.012) + its elastic range, at x2 = 0.012
-    k = loaded.stiffness([0.0, 0.020])                     # to 0.016: 0.004 of 0.020 past
-    np.testing.assert_allclose(k, K0 - 0.2 * LAM * np.outer(U, U), rtol=1e-9)
+    # back in +: it yields again at z(-0.012) + its elastic range, at x2 = 0.008
+    k = loaded.stiffness([0.0, 0.020])                     # to 0.016: 0.008 of 0.020 past
+    np.testing.assert_allclose(k, K0 - 0.4 * LAM * np.outer(U, U), rtol=1e-9)
 
 
 def test_a_gradual_yielding_is_not_anticipated():
