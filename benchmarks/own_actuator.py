@@ -27,6 +27,11 @@ Usage::
     .venv/bin/python benchmarks/own_actuator.py --monte-carlo 20 --alphas 1 --no-adaptive
     #   20 spread plants per member (+-30 %), the 32 Hz 1 % specimen, model at alpha 1
     .venv/bin/python benchmarks/own_actuator.py --write docs/results/own-actuator.md
+    .venv/bin/python benchmarks/own_actuator.py --noise 1 --members leaky --specimens 10
+    #   the sensors' declared noise: 1 N on the load cell and the proportionate set
+    .venv/bin/python benchmarks/own_actuator.py --noise force=0.1
+    #   or each sensor's own (force [N], displacement [m], velocity [m/s], acceleration
+    #   [m/s^2], seed), the others noise-free
 
 Prints one line per plant and specimen, then the table; ``--write`` puts the table in the
 docs page between its markers.
@@ -55,6 +60,52 @@ MASS_KG = 40.0
 #: alpha 0.5-1.5; at 1 ms 0.3-1.3 % [s].
 STIFF_DT_S = 0.001
 STIFF_HZ = 40.0
+#: The sensors' noise (standard deviations) per newton of the load cell's in the
+#: proportionate set of ``--noise F``: a 40 kN load cell with 0.1 N (2.5e-6 of its range),
+#: a 76 mm displacement sensor with 0.2 um, and so on (session 24's case K is ``--noise 5``
+#: but for its velocity).
+NOISE_PER_N = {'noise_force_N': 1.0, 'noise_displacement_m': 2e-6,
+               'noise_velocity_m_s': 2e-5, 'noise_acceleration_m_s2': 0.01}
+_NOISE_KEYS = {'force': 'noise_force_N', 'displacement': 'noise_displacement_m',
+               'velocity': 'noise_velocity_m_s', 'acceleration': 'noise_acceleration_m_s2',
+               'seed': 'noise_seed'}
+
+
+def noise_parameters(text: str) -> dict:
+    """The rig's noise parameters of ``--noise``: a number F (the load cell's noise [N]
+    and :data:`NOISE_PER_N` times it for the other sensors) or ``key=value`` pairs
+    separated by commas (keys ``force`` [N], ``displacement`` [m], ``velocity`` [m/s],
+    ``acceleration`` [m/s^2], ``seed``).
+
+    Raises
+    ------
+    argparse.ArgumentTypeError
+        Another key, a value that is not a number >= 0.
+    """
+    try:
+        level = float(text)
+    except ValueError:
+        pass
+    else:
+        if not (math.isfinite(level) and level >= 0):
+            raise argparse.ArgumentTypeError(f'--noise {text}: expected a level >= 0 [N]')
+        return {k: v * level for k, v in NOISE_PER_N.items()}
+    out = {}
+    for item in text.split(','):
+        key, _, value = item.partition('=')
+        if key.strip() not in _NOISE_KEYS:
+            raise argparse.ArgumentTypeError(
+                f'--noise {item!r}: expected a level [N] or key=value with a key of '
+                f'{", ".join(_NOISE_KEYS)}')
+        try:
+            v = float(value)
+        except ValueError:
+            v = -1.0
+        if not (math.isfinite(v) and v >= 0):
+            raise argparse.ArgumentTypeError(f'--noise {item!r}: expected a number >= 0')
+        name = _NOISE_KEYS[key.strip()]
+        out[name] = int(v) if name == 'noise_seed' else v
+    return out
 
 
 def _specimen(f_hz: float, zeta: float, mass_kg: float = MASS_KG) -> dict:
@@ -293,6 +344,12 @@ def main(argv=None) -> int:
                     help='the mass ratios of the model runs (Monte Carlo: 1.0, as the '
                     "issue's target; none: the adaptive run alone)")
     ap.add_argument('--no-adaptive', action='store_true', help='skip the adaptive run')
+    ap.add_argument('--no-rig', action='store_true', help="skip seft's rig with the column")
+    ap.add_argument('--noise', type=noise_parameters, default={}, metavar='F|KEY=V,...',
+                    help="the sensors' declared noise in every run: a load cell's noise F "
+                    '[N] with the proportionate set (displacement 2e-6 m, velocity 2e-5 m/s, '
+                    'acceleration 0.01 m/s^2 per N), or force=,displacement=,velocity=,'
+                    'acceleration=,seed= (the others noise-free)')
     ap.add_argument('--workers', type=int, default=2)
     ap.add_argument('--json', help='write the results there')
     ap.add_argument('--write', help='a docs page to put the table in (between markers)')
@@ -307,11 +364,13 @@ def main(argv=None) -> int:
         todo = cases(args.members, (32.0,), (0.01,), spread=0.3,
                      seeds=range(1, args.monte_carlo + 1), stiff=False)
     else:
-        todo = cases(args.members, specimens, args.damping)
+        todo = cases(args.members, specimens, args.damping, stiff=not args.no_rig)
     for c in todo:
         c.update(record=args.record, alphas=tuple(args.alphas), adaptive=not args.no_adaptive)
+        c['params'].update(args.noise)
     print(f'{len(todo)} plants x specimens, {args.workers} workers; load: '
-          f'{os.getloadavg()[0]:.2f}', flush=True)
+          f'{os.getloadavg()[0]:.2f}' + (f'; noise {args.noise}' if args.noise else ''),
+          flush=True)
     results = []
     with ProcessPoolExecutor(args.workers) as pool:
         for r in pool.map(lab_path, todo):
