@@ -103,6 +103,9 @@ def test_a_record_without_excitation_or_too_short_is_refused_in_one_line(second_
         identify_plant(np.zeros_like(u), y, DT, source='rec')
     with pytest.raises(InputError, match=r'^rec: 300 samples; expected at least'):
         identify_plant(u[:300], y[:300], DT, source='rec')
+    with pytest.raises(ParameterError, match=r"^plant fit: the force from the specimen needs "
+                                             r"the model's specimen"):
+        identify_plant(u[:2000], y[:2000], DT, max_order=2).with_specimen_force(u, y)
 
 
 def test_the_controller_designed_from_the_data_meets_its_margins_on_the_true_plant(
@@ -414,3 +417,47 @@ def test_a_real_time_identification_reads_the_command_the_rig_applied():
     assert applied_valve_command(lockstep) == (pytest.approx(u, abs=0), 0)
     on_arrival = dataclasses.replace(run, params=dict(p, realtime_output='on_arrival'))
     assert applied_valve_command(on_arrival) == (pytest.approx(u, abs=0), 0)
+
+
+def test_a_noisy_load_cell_leaves_the_force_zero_at_the_specimen():
+    """A load cell with 0.1 N of noise (against 240 N RMS) on a 2 Hz, 0.5 % specimen (40 kg),
+    20 s of valve noise (the lab path's): the force the specimen takes near 2 Hz is its
+    damping's alone, a few newtons. The force's numerator fitted on its own put its zero at
+    2.004 Hz with a damping ratio of 0.0023 and missed the true force response by up to 460 %
+    at 1.9-2.1 Hz (a 10 s record), and the study's test that inverted that model erred by 20 %
+    NRMS x at alpha 1. The record's halves say the specimen's force on the modelled motion is
+    the better known there, and the model takes it: its zeros are the specimen fit's poles
+    (within 0.1 % in frequency and 5 % in damping of the true ones here), the force response
+    within 25 % at 1.9-2.1 Hz, and the force fit no worse than the noise allows."""
+    from seft_ros.analysis.rig_identification import identify_rigs
+    m, f_n, zeta = 40.0, 2.0, 0.005
+    k = m * (2.0 * math.pi * f_n) ** 2
+    c = 2.0 * zeta * math.sqrt(k * m)
+    p = resolve(dict(mass_kg=m, stiffness_N_per_m=k, damping_N_s_per_m=c,
+                     rig_model='actuator', actuator_family='valve_2nd_order',
+                     excitation='noise', excitation_input='valve_command', duration_s=20.0,
+                     noise_force_N=0.1))
+    plant = identify_rigs(simulate(p))[0].plant
+    assert plant.force_errors['specimen'] < 0.5 * plant.force_errors['own']
+    true = actuator_spec(p).linear_plant(LinearSpecimen(m, c, k), DT)
+    f = np.linspace(1.9, 2.1, 41)
+    err = np.abs(plant.model.frequency_response(f) / true.frequency_response(f) - 1.0)
+    assert np.max(err) < 0.25, np.max(err)
+    s = np.log(np.roots(np.trim_zeros(plant.b[0], 'f')).astype(complex)) / DT
+    near = s[np.abs(np.abs(s) / (2 * math.pi) - f_n) < 0.1]
+    assert near.size == 2
+    assert np.abs(near) / (2 * math.pi) == pytest.approx([f_n, f_n], rel=1e-3)
+    assert -near.real / np.abs(near) == pytest.approx([zeta, zeta], rel=0.05)
+    assert plant.nrms['force_N'] < 2.0 * plant.free_force_nrms
+    assert plant.model.info['free_force_nrms'] == plant.free_force_nrms
+
+
+def test_a_noise_free_record_keeps_its_own_force(second_order):
+    """Without noise both forces are exact and the fit keeps its own (the noise-free lab
+    path unchanged bit for bit): their errors on the record's halves below 1e-6."""
+    _, u, y = second_order
+    fit = identify_plant(u, y, DT, specimen=Specimen(M, C, K))
+    b = fit.b.copy()
+    assert fit.with_specimen_force(u, y) is False
+    assert np.array_equal(fit.b, b) and fit.free_force_nrms is None
+    assert max(fit.force_errors.values()) < 1e-6, fit.force_errors
