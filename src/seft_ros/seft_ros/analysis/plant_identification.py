@@ -161,21 +161,21 @@ class PlantFit:
         the force's own numerator, where the record says that force is the better known
         near the specimen's frequency; then its force NRMS is that model's on the record.
 
-        The control-structure-interaction zeros of the force response are the specimen's
-        poles. A force numerator fitted on its own places them from the force alone, where a
-        lightly damped specimen takes almost none: with a load cell's noise of 0.1 N on an
-        actuator with a 2 Hz, 0.5 % specimen (40 kg, 238 N RMS), its zero at 2.0040 Hz,
-        damping 0.0023, where the specimen fit (errors in variables) gives 2.0008 Hz, 0.0050
-        (true 2.0000, 0.0050); the study's test that inverted that model erred by 20 % NRMS
-        x at alpha 1, 1.9 % with the specimen's force. With the motion sensors noisy too the
-        acceleration's numerator can be the worse known (0.9 % off at 2 Hz with 1e-3 m/s^2
-        of noise), and the specimen's force worse than the force's own. So the two are
-        compared on the record's halves: each output's numerators fitted again on each half
-        (the model's denominator, the regressor of the whole record), and the force response
-        of each kind on the specimen's band (:func:`_csi_band`) differs between the halves
-        by its error (half the difference, relative to the specimen's force); the specimen's
-        standard errors add theirs to the specimen's force. Its force is taken where its
-        error is below half the other's and above :data:`FORCE_CHOICE_FLOOR` (a noise-free
+        The control-structure-interaction zeros of the force response are the specimen's poles.
+        A force numerator fitted on its own places them from the force alone, where a lightly
+        damped specimen takes almost none: with a load cell's noise of 0.1 N on an actuator
+        with a 2 Hz, 0.5 % specimen (40 kg, 238 N RMS), its zero at 2.0040 Hz, damping 0.0023,
+        where the specimen fit (errors in variables) gives 2.0008 Hz, 0.0050 (true 2.0000,
+        0.0050); the study's test that inverted that model erred by 20 % NRMS x at alpha 1, 1.9
+        % with the specimen's force. With the motion sensors noisy too the acceleration's
+        numerator can be the worse known (0.9 % off at 2 Hz with 1e-3 m/s^2 of noise), and the
+        specimen's force worse than the force's own. So the two are compared on the record's
+        halves: each output's numerators fitted again on each half (the model's denominator,
+        the regressor of the whole record), and the force response of each kind on the
+        specimen's band (5 half-power bandwidths around its frequency) differs between the
+        halves by its error (half the difference, relative to the specimen's force); the
+        specimen's standard errors add theirs to the specimen's force. Its force is taken where
+        its error is below half the other's and above :data:`FORCE_CHOICE_FLOOR` (a noise-free
         record keeps its own fit: both are exact).
 
         Parameters
