@@ -305,3 +305,7 @@ def test_a_valve_at_its_limit_is_flagged():
                            f'{at.size} samples of {u.shape[0]} between t={at[0] * DT:.3f} and '
                            f'{at[-1] * DT:.3f} s: the force loop was open there')
     assert flag.endswith('lower amplitude_N')
+    # an identification run's valve command is its excitation (no force loop): not counted
+    import dataclasses
+    excited = dataclasses.replace(run, params=dict(run.params, excitation='noise'))
+    assert valve_saturation_entry(excited) == {}

@@ -1,8 +1,8 @@
 """What a run shows of a loss of accuracy that a lab can see without the reference.
 
 A run that completes is not therefore right. Seven signs, each visible in the lab's own data
-and the pre-run prediction (never in the comparison's error), a seventh that reads the run's
-error against the guard's prediction, and an eighth in rehearsal, flag a run instead of
+and the pre-run prediction (never in the comparison's error), an eighth that reads the run's
+error against the guard's prediction, and a ninth in rehearsal, flag a run instead of
 calling it plainly stable (:func:`run_flags`):
 
 * **a run the guard predicted unstable**: the pre-run stability guard
@@ -257,8 +257,10 @@ def sensor_range_lines(entry: dict[str, Any]) -> list[str]:
 def valve_saturation_entry(run: RunData) -> dict[str, Any]:
     """Each valve-driven rig's samples with its valve command at its limit.
 
-    A force controller clips its command to ``valve_limit_V`` (``ForceController``); a sample
-    at the limit is one where the loop asked the valve for more than it gives.
+    A force controller clips its command to ``valve_limit_V``
+    (:class:`~seft_ros.core.controller.ForceServoController`); a sample at the limit is one
+    where the loop asked the valve for more than it gives. An identification run (an
+    ``excitation``: no force loop) has none.
 
     Parameters
     ----------
@@ -272,6 +274,8 @@ def valve_saturation_entry(run: RunData) -> dict[str, Any]:
         float}}`` for the rigs with at least one such sample (empty: none, or no valve).
     """
     out: dict[str, Any] = {}
+    if run.params.get('excitation', 'none') != 'none':
+        return out
     dt = float(run.params.get('dt', 0.0) or 0.0)
     for rig, data in run.rigs.items():
         u = data.valve_command_V
