@@ -130,9 +130,7 @@ def test_a_failed_node_ends_the_run_safely_and_the_bag_reads(node, sig, mode, tm
     # the bag up to that moment: readable, every step complete, the abort recorded
     run = read_run(bag)
     assert run.stable is False and node in (run.abort_reason or '')
-    # ended inside the record (how far the loop got in the 0.3 s is the host's speed: 1-2 s
-    # of record on session 25's host, 0.84 s on session 26's slower one)
-    assert 0.0 < run.unstable_at_s < 29.0 and run.n_steps > 0
+    assert 1.0 < run.unstable_at_s < 29.0
     assert run.n_steps >= int(1.0 / DT)
     closed = [m for _, m in messages['/seft/status'] if m.name == 'recorder'
               and dict((v.key, v.value) for v in m.values).get('state') == 'closed']
@@ -188,7 +186,9 @@ def test_a_killed_loop_process_ends_the_run_and_names_its_nodes(tmp_path, seft_e
     bag = next(out.glob('*/bag'))
     run = read_run(bag)
     assert run.stable is False and 'reference_force_builder' in (run.abort_reason or '')
-    assert 1.0 < run.unstable_at_s < 29.0
+    # ended inside the record (how far the loop got in the 0.3 s is the host's speed: 1-2 s
+    # of record on session 25's host, 0.54-0.84 s on session 26's slower one)
+    assert 0.0 < run.unstable_at_s < 29.0 and run.n_steps > 0
     _, messages = read_bag(bag)
     closed = [m for _, m in messages['/seft/status'] if m.name == 'recorder'
               and dict((v.key, v.value) for v in m.values).get('state') == 'closed']
