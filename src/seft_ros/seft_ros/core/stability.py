@@ -48,6 +48,7 @@ from seft_msgs_py.errors import ParameterError, SeftError
 from seft_msgs_py.graph import Graph
 from seft_msgs_py.interface import Measurement
 from seft_msgs_py.parameters import valve_commanded
+from seft_msgs_py.plant import schur_response
 from seft_msgs_py.sampling import single_blas_thread
 from seft_msgs_py.sampling import zoh as _zoh
 from seft_plant_sim.delay_rig import delay_split
@@ -716,16 +717,8 @@ class LoopModel:
         c_x = np.zeros(lay['size'])
         c_x[lay['z']] = lay['outputs'][0]
         z = np.exp(2j * np.pi * np.asarray(freq_hz, dtype=float) * self._dt)
-        # the complex Schur form M = U T U^H (the shift registers make M defective: no
-        # modal sum), then (z - T) y = U^H b_E by back substitution, every frequency at once
-        from scipy.linalg import schur
-        tri, unitary = schur(mat, output='complex')
-        b_t, c_t = unitary.conj().T @ b_e, c_x @ unitary
-        n = lay['size']
-        y = np.zeros((len(z), n), dtype=complex)
-        for i in range(n - 1, -1, -1):
-            y[:, i] = (b_t[i] + y[:, i + 1:] @ tri[i, i + 1:]) / (z - tri[i, i])
-        return y @ c_t, float(np.max(np.abs(np.diag(tri))))
+        # the complex Schur form of M (the shift registers make M defective: no modal sum)
+        return schur_response(mat, b_e, c_x, z)
 
 
 def loop_model(params: Mapping) -> LoopModel:
