@@ -284,12 +284,20 @@ def controller_response(controller, freqs_hz) -> np.ndarray:
 def schur_response(a, b, c, z) -> tuple[np.ndarray, float]:
     """``c (zI - a)^-1 b`` at many points ``z``, from one complex Schur form of ``a``.
 
-    ``a = U T U^H`` (``scipy.linalg.schur``, complex output), then ``(z - T) y = U^H b`` by
+    ``a`` is balanced first (``scipy.linalg.matrix_balance``, scaling only: ``D^-1 a D``
+    with ``D`` a diagonal of powers of 2, exact in floating point; ``b / D``, ``c D``), then
+    ``a = U T U^H`` (``scipy.linalg.schur``, complex output) and ``(z - T) y = U^H b`` by
     back substitution, every point at once: O(n^2) per point against O(n^3) for a solve per
     point (30 times less on 8,000 frequencies of a plant), and right for a defective ``a``
     (the shift registers of a delay), where a sum over modes is not. Golub & Van Loan,
-    *Matrix Computations*, 4th ed., section 7.6 (the Schur form for ``(zI - a)^-1`` at many
-    shifts).
+    *Matrix Computations*, 4th ed., sections 7.5.7 (balancing) and 7.6 (the Schur form for
+    ``(zI - a)^-1`` at many shifts).
+
+    Why balanced: a test loop on a lab's plant in physical units (pressures, flows) had a
+    norm of 3.2e6 and ``zI - a`` a condition number of 2.6e17 at 0.5-2 Hz; unbalanced, the
+    response there was 0.6-1 % off a direct solve, and moved by that much with the plant's
+    gain off by 1e-13 (the force-loop design's choice of inverse with it); balanced (scales
+    6e-5 to 2048, condition 2e7), it agrees with the solve to 1e-10.
 
     Parameters
     ----------
@@ -316,10 +324,13 @@ def schur_response(a, b, c, z) -> tuple[np.ndarray, float]:
         ``a`` not square, or the sizes of ``b`` and ``c`` not its order (numpy's and
         scipy's own errors).
     """
-    from scipy.linalg import schur
+    from scipy.linalg import matrix_balance, schur
 
-    tri, unitary = schur(np.asarray(a), output='complex')
-    b_t, c_t = unitary.conj().T @ np.asarray(b), np.asarray(c) @ unitary
+    balanced, (scale, _) = matrix_balance(np.asarray(a, dtype=float), permute=False,
+                                          separate=True)
+    tri, unitary = schur(balanced, output='complex')
+    b_t = unitary.conj().T @ (np.asarray(b, dtype=float) / scale)
+    c_t = (np.asarray(c, dtype=float) * scale) @ unitary
     z = np.asarray(z)
     n = tri.shape[0]
     y = np.zeros((z.shape[0], n), dtype=complex)
