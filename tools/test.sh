@@ -15,7 +15,7 @@ bash tools/docs.sh    # the docs, warnings as errors: a broken reference or docs
 #    cores with another test misses its deadlines.
 # Measured on this 2-core host (fresh-clone CI, 2026-11-29, session 25): 488 s + 459 s
 # (2026-11-25, before issues 31-34's tests: 253 s + 285 s, against about 690 s in one
-# process).
+# process); on the 3-4x slower VMs of 2026-11-30 (session 27): 1077 s + 761 s.
 # Options are passed to both phases (a -m or -n of yours replaces ours); both always run.
 workers="${SEFT_TEST_WORKERS:-2}"
 if ! [[ "$workers" =~ ^[1-9][0-9]*$ ]]; then
