@@ -284,10 +284,11 @@ def realtime_accuracy(entry: dict) -> tuple[dict, str]:
 
     Why: on the 2-core VMs of 2026-11-29/30 (a Python loop of 1e7 additions 1.3-1.5 s, three
     to four times the hosts these tests were written on; CI's first phase 1096 s against
-    488 s), the graph needs 1.3 of the 2 cores at 500 Hz and one-host real-time runs had 2.5 %
-    stale steps, up to 6 steps behind: `model` at alpha 0.5 recorded 0.53 / 11.2 / 9.5 % x / a
-    / f (0.39 / 0.90 / 0.77 % in time), and over two emulated hosts went unstable at 0.90 s
-    (replayed as run: at 0.88 s; in time 0.23 / 1.09 / 1.15 %). What these tests check, the
+    488 s), the graph needs 1.3 of the 2 cores at 500 Hz: a one-host real-time run of `model`
+    at alpha 0.5 had 2.5 % of its commands late and 1 % stale steps and recorded 0.53 / 11.2 /
+    9.5 % x / a / f (0.39 / 0.90 / 0.77 % in time), and over two emulated hosts (stale steps
+    up to 6 behind) went unstable at 0.90 s (replayed as run: at 0.88 s; in time 0.23 / 1.09
+    / 1.15 %). What these tests check, the
     method and the transport, is what the replay in time measures; what the host can hold is
     the benchmarks' (benchmarks/realtime_graph.py).
     """

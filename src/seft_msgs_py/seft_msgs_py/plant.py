@@ -295,8 +295,9 @@ def schur_response(a, b, c, z) -> tuple[np.ndarray, float]:
 
     Why balanced: a test loop on a lab's plant in physical units (pressures, flows) had a
     norm of 3.2e6 and ``zI - a`` a condition number of 2.6e17 at 0.5-2 Hz; unbalanced, the
-    response there was 0.6-1 % off a direct solve, and moved by that much with the plant's
-    gain off by 1e-13 (the force-loop design's choice of inverse with it); balanced (scales
+    response there was 0.6-1 % off a direct solve and moved by up to 0.2 % with the plant's
+    gain off by 1e-13, its predicted test errors by up to 10 x (and the force-loop design's
+    choice of inverse with them); balanced (scales
     6e-5 to 2048, condition 2e7), it agrees with the solve to 1e-10.
 
     Parameters
