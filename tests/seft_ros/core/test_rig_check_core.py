@@ -6,6 +6,7 @@ import re
 
 import numpy as np
 import pytest
+from scipy.integrate import quad
 
 from seft_msgs_py import parameters, rig_contract
 from seft_msgs_py.errors import ParameterError
@@ -539,6 +540,46 @@ def test_safe_state_of_a_valve_rig():
                   fault_ns=int(0.98e9), kind='valve_command_V', reason_prefix='watchdog:')
     assert not other.passed and other.measured.endswith("(expected 'watchdog:' ...)")
 
+
+
+def test_a_valve_rig_creeps_in_proportion_to_the_force_it_holds():
+    """A closed valve leaks: v = -L f, f = k x, so the held force relaxes as exp(-L k t). A
+    long watchdog left 340 N (3.4 x the amplitude) to hold: the creep is 3.4 x faster than
+    at the amplitude, and passes; the same velocity loading the specimen (a valve held
+    open: the force grows) fails, at any force."""
+    final = {'state': 'aborted', 'abort_at_s': '1.000', 'message': 'watchdog: no command'}
+    k, leak = 2.11e5, 7.2e-6                      # N/m, m/s per N (the bridge's rig check)
+    t = np.arange(700) * DT
+    sine = 0.006 * np.sin(2 * np.pi * 2 * t) * (t >= 0.5) * (t < 1.0)
+    # the force held through the ramp of the valve's command, then the creep (the check
+    # judges from the command's latency, 10 ms, and 10 ms of settling after the ramp)
+    settled = 1.0 + 0.01 + float(PARAMS['safe_ramp_s']) + 0.01
+    rest = t >= settled - 1e-9
+    f = np.where(t >= 1.0, -340.0 * np.exp(-leak * k * np.clip(t - settled, 0, None)), 0.0)
+    creep = _safe(final, f, np.where(rest, -leak * f, sine * (t < 1.0)), fault_ns=int(0.98e9),
+                  kind='valve_command_V')
+    ratio, growth = rc.held_force(t[rest], f[rest], 100.0)
+    assert ratio == pytest.approx(3.4)
+    span = t[rest][-1] - t[rest][0]
+    # the least-squares line's slope of |f| = 340 exp(-L k t) over [0, span] is the average of
+    # its derivative weighted by 6 t (span - t) / span^3 (continuous; the samples are dense)
+    slope, _ = quad(lambda s: -340.0 * leak * k * np.exp(-leak * k * s) * 6 * s * (span - s)
+                    / span**3, 0.0, span)
+    assert growth == pytest.approx(slope * span, rel=1e-2)
+    assert creep.passed, creep.measured
+    assert creep.values['rest_limit'] == pytest.approx(0.35 * 0.006 * 3.4, rel=1e-3)
+    assert 'the creep of a held force 3.40 x the amplitude), |f| fell' in creep.measured
+    # without the held force's factor the creep (2.45 mm/s) would fail 0.35 x 6 mm/s
+    assert creep.values['rest_value'] > 0.35 * 0.006
+    # a valve held open: the same speed, into the spring (|f| grows k v per second)
+    v_open = leak * 340.0
+    loading = np.where(t >= 1.0, -340.0 - k * v_open * np.clip(t - settled, 0, None), 0.0)
+    held = _safe(final, loading, np.where(rest, -v_open, sine * (t < 1.0)), fault_ns=int(0.98e9),
+                 kind='valve_command_V')
+    assert rc.held_force(t[rest], loading[rest], 100.0) == pytest.approx(
+        (1.0, k * v_open * span))
+    assert not held.passed and held.measured.endswith(
+        'the valve still loads the specimen); reason: watchdog: no command')
 
 def test_safe_state_not_reached():
     z = np.zeros(700)
