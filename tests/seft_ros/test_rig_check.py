@@ -289,13 +289,80 @@ def test_the_tap_injects_the_fault_at_its_first_chance_heard_live(monkeypatch):
                                ((0.3, 0.3, 0.001), 300), ((0.3, 0.3, 0.3), 300)):
         faults = []
         now['ns'] = 0
-        tap.reset(2_000_000, faults.append, (100, 200, 300))
+        tap.reset(2_000_000, lambda t_s, sent_s: faults.append(t_s), (100, 200, 300))
         for k in range(0, 400):
             hear(k, lateness[min(k // 100, 3) - 1] if k >= 100 else 0.3)
         assert tap.fault_step == fired_at and faults == [pytest.approx(fired_at * 0.002)], \
             lateness
         assert tap.fault_ns == 10**12 + fired_at * 2_000_000 + int(
             lateness[fired_at // 100 - 1] * 1e9)
+
+
+@pytest.mark.parametrize('lag_s, sent', [(0.0, 10), (0.6, 0)])
+def test_the_second_sender_starts_only_while_the_live_run_goes_on(lag_s, sent):
+    """The second sender (``seft rig-check`` through the UDP bridge) fires when the checker
+    hears sample 812 of 1000 (t = 1.624 s); it sends its 10 starts while the rig's clock is
+    0.1 s or more before the run's end (2.0 s). A checker that heard the sample 0.6 s late
+    (a loaded host: the controller took a start that came after the run's end) withholds
+    them, and the step run is run again; the datagrams go to a real socket."""
+    import socket
+    import time as _time
+
+    from seft_msgs_py import clock
+    from seft_ros.cli.rig_check import _disturbed, _Run, _SecondSender
+    from seft_ros.core.rig_check import CheckProfile, check_second_sender
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as controller:
+        controller.bind(('127.0.0.1', 0))
+        controller.settimeout(0.5)
+        port = controller.getsockname()[1]
+        sender = _SecondSender({'udp_controller_address': f'127.0.0.1:{port}', 'dt': 0.002,
+                                'n_steps': 1000, 'command_kind': 'valve_command_V'})
+        sender.fire(1.624, clock.system_ns() * 1e-9 - lag_s)
+        got = []
+        deadline = _time.monotonic() + 1.0
+        while len(got) < sent and _time.monotonic() < deadline:
+            got.append(controller.recv(4096))
+        trial = sender.result()
+    assert len(got) == sent and trial['sent'] == sent
+    assert trial['withheld'] == 10 - sent and trial['lag_s'] >= lag_s
+    final = {'name': 'rig', 'state': 'done', 'published': '1000', 'message': 'done',
+             'controller_start_refused': '1'}
+    run = _Run('step', {}, steps=np.arange(1000), statuses=[final], clock_ns=[0],
+               second_sender=trial)
+    verdict = check_second_sender(trial, final, 1000)
+    if sent:
+        assert _disturbed(run, CheckProfile(dt=0.002)) is None
+        assert verdict.passed, verdict.measured
+    else:
+        why = _disturbed(run, CheckProfile(dt=0.002))
+        assert why.startswith('the checker heard the rig 0.6') and why.endswith(
+            "the second sender's start would have come after the run's end"), why
+        assert verdict.measured.startswith('not measured: the checker heard the rig 0.6')
+
+
+def test_a_run_that_ran_away_on_stale_commands_is_run_again():
+    """A run that ended early (a force limit before the fault; the step run aborted) with more
+    than 10 % of its samples on a stale command says nothing of the rig: run again (the
+    bridge on a slow VM: 451 of 497 stale, away at 0.74 s). The same end on fresh commands
+    is the rig's, and judged."""
+    from seft_ros.cli.rig_check import _disturbed, _Run
+    from seft_ros.core.rig_check import CheckProfile
+    profile = CheckProfile(dt=0.002)
+    away = {'name': 'rig', 'state': 'aborted', 'published': '497', 'stale': '451',
+            'abort_at_s': '0.740', 'message': 'force limit exceeded at t=0.740 s'}
+    run = _Run('watchdog', {}, steps=np.arange(497), statuses=[away], clock_ns=[0])
+    assert _disturbed(run, profile) == (
+        'the graph fell behind the rig (451 of its 497 samples with a stale command) and the '
+        'run ended early (force limit exceeded at t=0.740 s)')
+    assert _disturbed(_Run('watchdog', {}, steps=np.arange(497), clock_ns=[0],
+                           statuses=[dict(away, stale='20')]), profile) is None
+    step = _Run('step', {}, steps=np.arange(665), clock_ns=[0], statuses=[dict(
+        away, published='665', stale='334', abort_at_s='1.076')])
+    assert _disturbed(step, profile).startswith('the graph fell behind the rig (334 of its 665')
+    # a run that reached its fault is judged whatever its stale commands
+    done = dict(away, abort_at_s='1.760', message='watchdog: no /seft/valve_command')
+    assert _disturbed(_Run('watchdog', {}, steps=np.arange(497), clock_ns=[0],
+                           statuses=[done], fault_ns=1), profile) is None
 
 
 def test_a_step_run_whose_clock_the_checker_missed_is_run_again():

@@ -288,6 +288,11 @@ def test_second_sender_check():
         "end: 'aborted', 820 of 1000 samples (udp_bridge: no datagram from the controller "
         'for 51.0 ms). A controller refuses a start while a session is live and answers the '
         'live PC alone (rig contract: sessions)')
+    # a checker that heard the rig late sent its start alone (the run's end near)
+    late = rc.check_second_sender(dict(trial, sent=1, withheld=9), done, 1000)
+    assert late.passed and late.measured.startswith(
+        "a start of session 7 from 127.0.0.1:40000 at t = 1.625 s (its start datagram; 9 more "
+        "withheld, the live run's end near): refused")
     leak = rc.check_second_sender(dict(trial, heard=[(9, 'running')]), done, 1000)
     assert not leak.passed and 'not with its session' in leak.measured
     assert not rc.check_second_sender(None, done, 1000).passed

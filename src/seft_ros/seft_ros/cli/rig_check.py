@@ -221,6 +221,9 @@ class _SecondSender:
     """
 
     SENDS = 10
+    #: A start is sent only while the live run has at least this long to go by the rig's
+    #: clock [s]: after the run's end a controller is free, and taking a start is right.
+    END_GUARD_S = 0.1
 
     def __init__(self, params: Mapping):
         import random
@@ -244,6 +247,12 @@ class _SecondSender:
         self.address = f'{host}:{port}'
         self.sent, self.sequence = 0, 0
         self.t_s: float | None = None
+        #: The live run's end on the rig's clock [s].
+        self.end_s = int(params['n_steps']) * self.dt
+        #: How far the rig's clock had run past `t_s` when each start was due [s]; the
+        #: starts not sent (too near the run's end).
+        self.lag_s = 0.0
+        self.withheld = 0
         self.thread = None
 
     def _send(self, kind: int, flags: int, value: float = 0.0, sample: int = -1) -> None:
@@ -257,17 +266,30 @@ class _SecondSender:
         except OSError:
             pass
 
-    def fire(self, t_s: float) -> None:
+    def fire(self, t_s: float, sent_s: float) -> None:
         """Send the start, then the 0 V commands every period, from a thread (`t_s`: the
-        step run's time now [s])."""
+        sample the checker heard [s of the run]; `sent_s`: when the rig sent it [s, system
+        clock]). Each only while the live run has :attr:`END_GUARD_S` to go by the rig's
+        clock: a checker that heard the sample late (a loaded host: 0.75 s late, and the
+        controller, rightly, took the start after the run's end) withholds the rest."""
         import threading
         self.t_s = t_s
 
+        def live() -> bool:
+            self.lag_s = clock.system_ns() * 1e-9 - sent_s
+            return t_s + self.lag_s < self.end_s - self.END_GUARD_S
+
         def run():
-            self._send(self.ul.KIND_HEARTBEAT, self.ul.FLAG_START)
-            for j in range(self.SENDS - 1):
-                time.sleep(self.dt)
-                self._send(self.ul.KIND_COMMAND, self.ul.FLAG_START, 0.0, j)
+            for j in range(self.SENDS):
+                if j:
+                    time.sleep(self.dt)
+                if not live():
+                    self.withheld = self.SENDS - j
+                    return
+                if j == 0:
+                    self._send(self.ul.KIND_HEARTBEAT, self.ul.FLAG_START)
+                else:
+                    self._send(self.ul.KIND_COMMAND, self.ul.FLAG_START, 0.0, j - 1)
         self.thread = threading.Thread(target=run, name='second_sender', daemon=True)
         self.thread.start()
 
@@ -296,7 +318,7 @@ class _SecondSender:
         if self.t_s is None:
             return None
         return {'from': self.address, 'session': self.session, 't_s': self.t_s,
-                'sent': sent, 'heard': heard}
+                'sent': sent, 'heard': heard, 'lag_s': self.lag_s, 'withheld': self.withheld}
 
 
 class _Tap:
@@ -324,9 +346,10 @@ class _Tap:
                                  raw=True)
         node.create_subscription(STATUS.msg_type, STATUS.name, self._on_status, STATUS.qos)
 
-    def reset(self, dt_ns: int = 1, fault: Callable[[], None] | None = None,
+    def reset(self, dt_ns: int = 1, fault: Callable[[float, float], None] | None = None,
               fault_steps: Sequence[int] = ()) -> None:
-        """Begin a run: samples of `dt_ns` [ns]; `fault` is fired at the first of
+        """Begin a run: samples of `dt_ns` [ns]; ``fault(t_s, sent_s)`` (the sample's time in
+        the run, the system time the rig sent it [s]) is fired at the first of
         `fault_steps` (its chances, in order) whose sample the checker hears within
         :data:`LATE_FAULT_S` of its sending (at the last chance whatever its lateness: the run
         is then run again, :func:`_disturbed`)."""
@@ -397,7 +420,7 @@ class _Tap:
                 return
             self.fault_ns = clock.now_ns()
             self.fault_step = self.fault_steps[0]
-            self.fault(k * self.dt_ns * 1e-9)
+            self.fault(k * self.dt_ns * 1e-9, self.arrivals[-1])
 
     def _on_clock(self, raw: bytes, info: dict) -> None:
         if self._earlier(info):
@@ -598,13 +621,13 @@ def _above_the_graph(base: int, progress: Callable[[str], None]) -> None:
                  'scheduler; its timing of the rig may suffer under load')
 
 
-def _fault_of(name: str, runner, command_node: str, tap: _Tap) -> Callable[[], None]:
+def _fault_of(name: str, runner, command_node: str, tap: _Tap) -> Callable[[float, float], None]:
     """The fault of a run (module notes)."""
-    def abort(t_s):
+    def abort(t_s, sent_s):
         runner._publish_abort('seft rig-check: abort (the safe-state check)')
 
     def signal_node(sig):
-        def send(t_s):
+        def send(t_s, sent_s):
             proc = runner.procs.get(command_node)
             if proc is not None and proc.poll() is None:
                 if sig == signal.SIGSTOP:
@@ -625,14 +648,19 @@ def _expected_error(name: str, command_node: str, message: str) -> bool:
 LATE_FAULT_S = 0.05
 #: How many times a run is run again when it says nothing of the rig (:func:`_disturbed`).
 FAULT_RETRIES = 2
+#: A run that ended early (before its fault; the step run aborted) with more than this
+#: fraction of its samples taken with a stale command says nothing of the rig: the graph
+#: fell behind it (seft's graph alone on a slow 2-core VM: 4.6 %) [-].
+STALE_FRACTION = 0.1
 
 
 def _disturbed(run: '_Run', profile: rc.CheckProfile) -> str | None:
     """Why a run says nothing of the rig, or None: the checker heard the rig too late to time
     the fault, heard less than half of the step run's samples or none of its /clock messages
-    (a slow discovery), one of seft's own nodes lost an input before the fault, or the rig
+    (a slow discovery), one of seft's own nodes lost an input before the fault, the rig
     lost its commands in the step run (a watchdog: this machine stalled the graph; a rig that
-    never gets its commands fails the second time too)."""
+    never gets its commands fails the second time too), or the run ended early with more
+    than :data:`STALE_FRACTION` of its samples on a stale command (the graph fell behind)."""
     if run.rig_unsealed and run.final() is None:
         return None         # a rig of contract 2.0: the graph dropped its reports, each time
     late = run.fault_late_s(profile)
@@ -641,6 +669,9 @@ def _disturbed(run: '_Run', profile: rc.CheckProfile) -> str | None:
     trial = run.second_sender or {}
     if any(session == trial.get('session') for session, _ in trial.get('heard', ())):
         return None         # the controller took the second sender: its fault, not a stall
+    if trial and not trial.get('sent'):
+        return (f"the checker heard the rig {float(trial.get('lag_s', 0.0)):.2f} s late: the "
+                "second sender's start would have come after the run's end")
     final = run.final() or {}
     published = int(final.get('published', 0) or 0)
     if run.name == 'step' and published and run.steps.size < published // 2:
@@ -655,6 +686,15 @@ def _disturbed(run: '_Run', profile: rc.CheckProfile) -> str | None:
     if run.name == 'step' and str(final.get('message', '')).startswith(
             rig_contract.WATCHDOG_REASON):
         return f'the rig lost its commands ({final["message"]}): the graph stalled'
+    stale = int(final.get('stale', 0) or 0)
+    early = (run.ended_before_fault(profile) if run.name != 'step'
+             else final.get('state') == 'aborted')
+    if early and published and stale > STALE_FRACTION * published:
+        # a loop that waits for its commands is not the loop designed: on the slow VMs of
+        # 2026-11-30 the bridge's runs took 2.5-72 % of their samples with a stale command,
+        # and some ran away before their fault (a force limit at 0.74 s, 451 of 497 stale)
+        return (f'the graph fell behind the rig ({stale} of its {published} samples with a '
+                f"stale command) and the run ended early ({final.get('message', '')})")
     before = run.fault_ns is None
     for s in run.statuses:
         if (s['name'] not in (run.rig_node, 'seft_runner') and s.get('state') == 'aborted'

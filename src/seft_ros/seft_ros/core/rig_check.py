@@ -1226,8 +1226,10 @@ def check_second_sender(trial: Mapping | None, final: Mapping | None, expected_s
     trial : mapping or None
         What the second sender did and heard: ``from`` ('host:port'), ``session``, ``t_s``
         (the step run's time it sent its start [s]), ``sent`` (datagrams sent), ``heard`` (a
-        list of ``(session, state name)`` of each datagram it received from the controller);
-        None: it never sent (the step run did not reach it).
+        list of ``(session, state name)`` of each datagram it received from the controller),
+        ``lag_s`` (how far the rig's clock was past ``t_s`` at its last send or withheld
+        start [s]; 0 if absent); ``sent`` 0: it withheld its start (the run's end too near;
+        not measured); None: it never sent (the step run did not reach it).
     final : mapping or None
         The rig's final status of the step run (``state``, ``published``,
         ``controller_start_refused``).
@@ -1245,10 +1247,17 @@ def check_second_sender(trial: Mapping | None, final: Mapping | None, expected_s
     name = SECOND_SENDER
     if trial is None:
         return not_run(name, 'the step run ended before the second sender sent its start')
+    if not trial.get('sent'):
+        return not_run(name, f"the checker heard the rig {float(trial.get('lag_s', 0)):.2f} s "
+                       "late: the second sender's start would have come after the run's end")
     final = final or {}
     heard = list(trial.get('heard', ()))
+    sent, withheld = int(trial['sent']), int(trial.get('withheld', 0) or 0)
+    what = f'{sent} datagrams, then 0 V commands' if sent > 1 else 'its start datagram'
+    if withheld:
+        what += f"; {withheld} more withheld, the live run's end near"
     who = (f"a start of session {trial['session']} from {trial['from']} at t = "
-           f"{float(trial['t_s']):.3f} s ({trial['sent']} datagrams, then 0 V commands)")
+           f"{float(trial['t_s']):.3f} s ({what})")
     own = sum(1 for sess, _ in heard if sess == trial['session'])
     states = sorted({state for _, state in heard})
     refused = str(final.get('controller_start_refused', '0')) == '1'
