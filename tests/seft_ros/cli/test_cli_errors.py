@@ -453,3 +453,22 @@ def test_unforeseen_aborts_of_a_structure_and_of_runs_without_a_prediction():
     assert main.unforeseen_aborts(summary) == [
         'run 1 (model) at 0.596 s: pier_a/reference_force_builder: watchdog: no '
         'pier_b/measurement for 100 ms', 'run 4 (ats, alpha 0.5): aborted']
+
+
+def test_a_stop_as_seft_run_names_its_runs_says_nothing_was_run(inputs, monkeypatch):
+    """SIGTERM while ``seft run`` writes its ``N run(s) -> DIR`` line (the CI of d0f7ed9: the
+    signal came between the line and its newline): nothing was run, said on a line of its
+    own, exit 143; not 'left at once while the run ended', as if nodes had started."""
+    said = []
+
+    def progress(text):
+        said.append(text)
+        if 'run(s) ->' in text:
+            raise KeyboardInterrupt('SIGTERM')       # main._interrupt's exception
+    monkeypatch.setattr(main, '_progress', progress)
+    proc = run_in_process(['run', '--duration', '0.1', '--out', 'out_stopped'], inputs)
+    assert said[-1].startswith('1 run(s) -> ') and said[-1].endswith('out_stopped')
+    assert proc.returncode == 143, proc.stderr
+    assert proc.stderr.splitlines()[-1] == (
+        'seft: interrupted by SIGTERM: before any node started: nothing was run'), proc.stderr
+    assert not (inputs / 'out_stopped').exists()

@@ -39,7 +39,8 @@ from seft_ros.core.predictors import MAX_BAND_ERROR
 from seft_ros.core.reference_force import PREDICTORS
 from seft_ros.core.structure import structure_of
 
-__all__ = ['build_runs', 'output_dir', 'remove_empty_dirs', 'run_experiments',
+__all__ = ['NOTHING_RUN', 'interrupted_as', 'build_runs', 'output_dir', 'remove_empty_dirs',
+           'run_experiments',
            'simulate_experiments', 'simulate_runs', 'compare_bags', 'find_bags',
            'summary_table', 'criteria_table',
            'Result', 'check_stability', 'check_domain', 'open_runner', 'stability_entry',
@@ -724,14 +725,14 @@ def _run_here(runs, out_dir, progress, domain, nodes, processes, live) -> Result
     where the recorder runs (None elsewhere)."""
     from seft_ros.cli.runner import GraphRunner  # rclpy only for this verb
     t0 = time.monotonic()
-    with _interrupted_as(lambda exc: _NOTHING_RUN):
+    with interrupted_as(lambda exc: NOTHING_RUN):
         runner = GraphRunner(domain, progress, localhost_default=False, processes=processes)
     viewer = None
     data = []
     now: list[str] = []           # the run in progress
     ran: list[str] = []           # the runs over
     try:
-        with _interrupted_as(lambda exc: _runs_interrupted(exc, out_dir, now, ran)):
+        with interrupted_as(lambda exc: _runs_interrupted(exc, out_dir, now, ran)):
             viewer = _start_live(live, runner, out_dir, progress)
             present = runner.present_nodes(nodes)
             if present:
@@ -755,7 +756,7 @@ def _run_here(runs, out_dir, progress, domain, nodes, processes, live) -> Result
         runner.close()
     if 'recorder' not in nodes:
         return None
-    with _interrupted_as(lambda exc: _runs_interrupted(exc, out_dir, now, ran)):
+    with interrupted_as(lambda exc: _runs_interrupted(exc, out_dir, now, ran)):
         return _finish(out_dir, data, 'seft run (several hosts)', t0)
 
 
@@ -881,12 +882,14 @@ def run_experiments(*, runs: list[dict], out_dir: Path,
     if processes not in partition.PROCESSES:
         raise InputError(f'--processes {processes}: expected '
                          f'{" or ".join(partition.PROCESSES)}')
-    run_labels(runs)                      # each run its own directory, before anything starts
+    with interrupted_as(lambda exc: NOTHING_RUN):
+        run_labels(runs)                  # each run its own directory, before anything starts
+        if nodes is not None:
+            nodes = check_nodes(nodes, runs)
+            check_stability(runs=runs, force=force, progress=progress)
+            check_ranges(runs=runs, strict=strict, force=force, progress=progress)
+            check_settings(runs=runs, progress=progress)
     if nodes is not None:
-        nodes = check_nodes(nodes, runs)
-        check_stability(runs=runs, force=force, progress=progress)
-        check_ranges(runs=runs, strict=strict, force=force, progress=progress)
-        check_settings(runs=runs, progress=progress)
         return _run_here(runs, out_dir, progress, _shared_domain(domain_id), nodes, processes,
                          live)
     t0 = time.monotonic()
@@ -898,14 +901,14 @@ def run_experiments(*, runs: list[dict], out_dir: Path,
         ranges.extend(check_ranges(runs=runs, strict=strict, force=force,
                                    progress=progress))
         check_settings(runs=runs, progress=progress)
-    with _interrupted_as(lambda exc: _NOTHING_RUN):
+    with interrupted_as(lambda exc: NOTHING_RUN):
         runner, claim = open_runner(domain_id=domain_id, progress=progress, checks=checks,
                                     processes=processes)
     data = []
     viewer = None
     now: list[str] = []           # the run in progress
     ran: list[str] = []           # the runs over
-    with _interrupted_as(lambda exc: _runs_interrupted(exc, out_dir, now, ran)):
+    with interrupted_as(lambda exc: _runs_interrupted(exc, out_dir, now, ran)):
         try:
             viewer = _start_live(live, runner, out_dir, progress)
             for p, label in zip(runs, run_labels(runs)):
@@ -918,7 +921,7 @@ def run_experiments(*, runs: list[dict], out_dir: Path,
                 viewer.close()
             runner.close()
             claim.close()
-    with _interrupted_as(lambda exc: _runs_interrupted(exc, out_dir, now, ran)):
+    with interrupted_as(lambda exc: _runs_interrupted(exc, out_dir, now, ran)):
         for rd, check, limits in zip(data, predicted, ranges):
             rd.extra['stability'] = stability_entry(check)
             rd.extra['range_check'] = limits.as_dict()
@@ -927,13 +930,19 @@ def run_experiments(*, runs: list[dict], out_dir: Path,
 
 
 #: What an interrupted ``seft run`` reached before any node started.
-_NOTHING_RUN = 'before any node started: nothing was run'
+NOTHING_RUN = 'before any node started: nothing was run'
 
 
 @contextlib.contextmanager
-def _interrupted_as(state: Callable[[KeyboardInterrupt], str]):
+def interrupted_as(state: Callable[[KeyboardInterrupt], str]):
     """Raise a ``KeyboardInterrupt`` of the block as :class:`~seft_msgs_py.errors.Interrupted`
-    with ``state(exc)``: what the command had reached (``seft``'s last line)."""
+    with ``state(exc)``: what the command had reached (``seft``'s last line).
+
+    Raises
+    ------
+    Interrupted
+        In place of a ``KeyboardInterrupt`` of the block (Ctrl-C, SIGTERM, SIGHUP).
+    """
     try:
         yield
     except KeyboardInterrupt as exc:
@@ -950,14 +959,14 @@ def _runs_interrupted(exc: KeyboardInterrupt, out_dir: Path, now: list[str],
                  'left at once while the run ended; its nodes stop the run by themselves '
                  '(their logs say how)')
         if not ran and isinstance(exc, Interrupted) and exc.state.startswith('before'):
-            return _NOTHING_RUN
+            return NOTHING_RUN
         parts = [f'[{now[0]}] {ended}']
         if ran:
             parts.append(f'{len(ran)} earlier run(s) complete')
     elif ran:
         parts = [f'{len(ran)} run(s) complete, their bags in {out_dir}']
     else:
-        return _NOTHING_RUN
+        return NOTHING_RUN
     if any(out_dir.glob('*/bag')):
         parts.append(f'no report written: `seft compare {out_dir}` writes one from the '
                      'bag(s) kept')

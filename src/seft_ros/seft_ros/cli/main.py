@@ -33,6 +33,7 @@ if (threading.current_thread() is threading.main_thread()
         signal.signal(_signum, _interrupted_on_start)
 
 import argparse  # noqa: E402  (after the start-up's signal handlers)
+import contextlib  # noqa: E402
 import os  # noqa: E402
 import time  # noqa: E402
 
@@ -340,7 +341,9 @@ def _say(text: str, stream=None) -> None:
     """Print a line (stderr by default); a terminal that is gone (a hang-up: writes fail
     with EIO) takes nothing more, and the command goes on ending the run safely."""
     try:
-        print(text, file=stream or sys.stderr, flush=True)
+        out = stream or sys.stderr
+        out.write(text + '\n')         # one write: a signal does not split the line from its end
+        out.flush()
     except OSError:
         devnull = open(os.devnull, 'w')
         sys.stdout = sys.stderr = devnull
@@ -607,12 +610,15 @@ def _main(args) -> int:
                                       replay_timing=args.replay_timing, progress=_progress)
         else:
             live = None
-            if args.verb == 'run':
-                api.check_domain(args.domain_id)        # a bad domain before anything runs
-                node_start()                            # and a bad $SEFT_NODE_START
-                live = options_from_args(args)          # and a bad --live address or pair
-            runs, out, name = _experiments(args)
-            _progress(f'{len(runs)} run(s) -> {out}')
+            # a stop before the runner starts: nothing was run (not 'left while the run ended')
+            with (api.interrupted_as(lambda exc: api.NOTHING_RUN) if args.verb == 'run'
+                  else contextlib.nullcontext()):
+                if args.verb == 'run':
+                    api.check_domain(args.domain_id)    # a bad domain before anything runs
+                    node_start()                        # and a bad $SEFT_NODE_START
+                    live = options_from_args(args)      # and a bad --live address or pair
+                runs, out, name = _experiments(args)
+                _progress(f'{len(runs)} run(s) -> {out}')
             if args.verb == 'run':
                 result = api.run_experiments(runs=runs, out_dir=out, progress=_progress,
                                              title=f'seft run {name}', domain_id=args.domain_id,
