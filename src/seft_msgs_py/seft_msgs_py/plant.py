@@ -537,14 +537,21 @@ class PlantModel:
         -------
         ndarray of complex, shape (nf,)
             [output unit / V].
+
+        Raises
+        ------
+        ParameterError
+            An output not in :data:`OUTPUTS`.
+
+        Notes
+        -----
+        :func:`schur_response` (balanced, one Schur form for every frequency), as the test
+        loop's response: on the family's plants of 2-50 Hz specimens it agrees with a solve
+        per frequency to 1e-9 relative.
         """
         row = self.row(output)
         z = np.exp(2j * np.pi * np.atleast_1d(np.asarray(freqs_hz, dtype=float)) * self.dt)
-        n = self.order
-        mats = z[:, None, None] * np.eye(n)[None] - self.a[None]
-        rhs = np.broadcast_to(self.b[None], (z.shape[0], n, 1))
-        x = np.linalg.solve(mats, rhs)[..., 0]
-        return x @ row
+        return schur_response(self.a, self.b[:, 0], row, z)[0]
 
     def impulse(self, n: int) -> np.ndarray:
         """Response to ``u = delta[k]`` (a 1 V command over the first step), shape (n, 4)."""
