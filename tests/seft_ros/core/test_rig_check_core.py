@@ -585,6 +585,19 @@ def test_a_valve_rig_creeps_in_proportion_to_the_force_it_holds():
         (1.0, k * v_open * span))
     assert not held.passed and held.measured.endswith(
         'the valve still loads the specimen); reason: watchdog: no command')
+    # no creep bound beyond the run's force limit (the check's: 5 x the amplitude): a rig
+    # that let the force run to 1264 N and then moved at 12 mm/s is not at rest
+    runaway = np.where(t >= 1.0, -1264.0 * np.exp(-leak * k * np.clip(t - settled, 0, None)),
+                       0.0)
+    moving = np.where(rest, 0.012, sine * (t < 1.0))
+    args = dict(final=final, command_kind='valve_command_V', time_s=t, force_N=runaway,
+                velocity_m_s=moving, quiet=slice(0, 100), before=slice(300, 500),
+                fault_ns=int(0.98e9), t0_ns=0, latency_s=0.01, amplitude_N=100.0)
+    assert rc.check_safe_state('safe state: watchdog', params=PARAMS, **args).passed
+    capped = rc.check_safe_state('safe state: watchdog', params=dict(
+        PARAMS, force_limit_N=500.0), **args)
+    assert not capped.passed and capped.values['rest_limit'] == pytest.approx(
+        0.35 * 0.006 * 5.0, rel=1e-3)
 
 def test_safe_state_not_reached():
     z = np.zeros(700)

@@ -1137,7 +1137,8 @@ def check_safe_state(name: str, *, final: Mapping | None, command_kind: str,
     t0_ns : int or None
         System-clock time of the rig's sample 0 (its ``t0_ns``) [ns].
     params : mapping
-        The run's parameters (``watchdog_timeout_s``, ``dt``, ``safe_ramp_s``).
+        The run's parameters (``watchdog_timeout_s``, ``dt``, ``safe_ramp_s``; and
+        ``force_limit_N`` if any, the cap on the held force's ratio).
     latency_s : float
         The rig's command latency [s].
     amplitude_N : float
@@ -1160,10 +1161,11 @@ def check_safe_state(name: str, *, final: Mapping | None, command_kind: str,
     ``|f| <= REST_FORCE_FRACTION amplitude``; on a valve-commanded rig, whose closed valve
     holds the actuator, ``|v| <= REST_VELOCITY_FRACTION`` of the last cycle's peak velocity,
     times :func:`held_force`'s ratio (a creep relaxing a force larger than the amplitude, as
-    a long watchdog leaves), and ``|f|`` may not grow by more than ``REST_GROWTH_FRACTION``
-    of the amplitude (a valve held open loads the specimen further); each plus 6 standard
-    deviations of the quiet samples (sensor noise). The rig must have
-    sampled at least 5 samples there (``SAFE_HOLD_S`` is 25 at 500 Hz).
+    a long watchdog leaves; at most the run's ``force_limit_N`` over the amplitude), and
+    ``|f|`` may not grow by more than ``REST_GROWTH_FRACTION`` of the amplitude (a valve
+    held open loads the specimen further); each plus 6 standard deviations of the quiet
+    samples (sensor noise). The rig must have sampled at least 5 samples there
+    (``SAFE_HOLD_S`` is 25 at 500 Hz).
     """
     if final is None:
         return CheckResult(name, False, 'no final status from the rig (it never reported '
@@ -1193,6 +1195,9 @@ def check_safe_state(name: str, *, final: Mapping | None, command_kind: str,
         what, unit, scale, s = 'velocity', 'mm/s', 1e3, np.asarray(velocity_m_s, dtype=float)
         ratio, growth = held_force(t[after], np.asarray(force_N, dtype=float)[after],
                                    amplitude_N)
+        # no more than the run's force limit holds (a rig past it has aborted at the limit)
+        ratio = min(ratio, max(1.0, float(params.get('force_limit_N', math.inf))
+                               / amplitude_N))
         bound = REST_VELOCITY_FRACTION * ratio * float(np.max(np.abs(s[before]), initial=0.0))
         growth_limit = REST_GROWTH_FRACTION * amplitude_N + noise
         loads = growth > growth_limit
