@@ -691,7 +691,7 @@ def _disturbed(run: '_Run', profile: rc.CheckProfile) -> str | None:
              else final.get('state') == 'aborted')
     if early and published and stale > STALE_FRACTION * published:
         # a loop that waits for its commands is not the loop designed: on the slow VMs of
-        # 2026-11-30 the bridge's runs took 2.5-72 % of their samples with a stale command,
+        # 2026-11-30 the bridge's runs took 2.5-91 % of their samples with a stale command,
         # and some ran away before their fault (a force limit at 0.74 s, 451 of 497 stale)
         return (f'the graph fell behind the rig ({stale} of its {published} samples with a '
                 f"stale command) and the run ended early ({final.get('message', '')})")
