@@ -669,9 +669,9 @@ def _disturbed(run: '_Run', profile: rc.CheckProfile) -> str | None:
     trial = run.second_sender or {}
     if any(session == trial.get('session') for session, _ in trial.get('heard', ())):
         return None         # the controller took the second sender: its fault, not a stall
-    if trial and not trial.get('sent'):
-        return (f"the checker heard the rig {float(trial.get('lag_s', 0.0)):.2f} s late: the "
-                "second sender's start would have come after the run's end")
+    withheld = rc.start_withheld(trial)
+    if withheld:
+        return withheld
     final = run.final() or {}
     published = int(final.get('published', 0) or 0)
     if run.name == 'step' and published and run.steps.size < published // 2:

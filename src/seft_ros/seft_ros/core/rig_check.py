@@ -89,7 +89,7 @@ __all__ = [
     'check_clock', 'check_stamps', 'check_measurement', 'check_signals', 'check_stuck',
     'check_noise', 'check_command_timing', 'check_safe_state', 'check_final_status',
     'check_bags_closed', 'first_departure', 'not_run', 'format_line', 'SECOND_SENDER',
-    'check_second_sender', 'checks_for', 'held_force',
+    'check_second_sender', 'checks_for', 'held_force', 'start_withheld',
 ]
 
 #: The faults of the safe-state runs: run name -> check name.
@@ -1069,7 +1069,8 @@ def check_command_timing(command, force_N, quiet: slice, onset: int, dt: float,
         {'command_step': j, 'first_effect': k1, 'promised': promised})
 
 
-def held_force(time_s, force_N, amplitude_N: float) -> tuple[float, float]:
+def held_force(time_s, force_N, amplitude_N: float, force_limit_N: float = math.inf
+               ) -> tuple[float, float]:
     """The force that a closed valve holds at rest: how large, and whether the actuator
     relaxes it or loads the specimen further.
 
@@ -1089,12 +1090,15 @@ def held_force(time_s, force_N, amplitude_N: float) -> tuple[float, float]:
         The samples after the ramp (at rest) [s, N].
     amplitude_N : float > 0
         The sine's amplitude [N].
+    force_limit_N : float > 0
+        The run's force limit [N] (default none): no more than it is held (a rig past it
+        has aborted at the limit).
 
     Returns
     -------
     ratio : float >= 1
-        ``max(1, max|f| / amplitude_N)`` if the force relaxes (``growth_N <= 0``), else 1:
-        the factor on the creep the rest bound allows.
+        ``max(1, min(max|f|, force_limit_N) / amplitude_N)`` if the force relaxes
+        (``growth_N <= 0``), else 1: the factor on the creep the rest bound allows.
     growth_N : float
         How much ``|f|`` grows over the samples [N]: the least-squares line's slope times
         their span (negative: it relaxes); 0 for fewer than 2 samples or a value not finite.
@@ -1107,7 +1111,8 @@ def held_force(time_s, force_N, amplitude_N: float) -> tuple[float, float]:
     growth = float(np.polyfit(t - t[0], magnitude, 1)[0] * (t[-1] - t[0]))
     if growth > 0.0:
         return 1.0, growth
-    return max(1.0, float(np.max(np.abs(f))) / float(amplitude_N)), growth
+    held = min(float(np.max(np.abs(f))), float(force_limit_N))
+    return max(1.0, held / float(amplitude_N)), growth
 
 
 def check_safe_state(name: str, *, final: Mapping | None, command_kind: str,
@@ -1186,26 +1191,23 @@ def check_safe_state(name: str, *, final: Mapping | None, command_kind: str,
                            f'sampled {np.count_nonzero(after)} samples after its ramp ended '
                            f'(t = {settled:.3f} s; expected at least 5)',
                            {'reaction_s': reaction})
-    noise = _DEPARTURE_SIGMAS * float(np.std(np.asarray(force_N, dtype=float)[quiet]))
     creep, loads = '', False
     if command_kind == rig_contract.COMMAND_KINDS[1]:
         what, unit, scale, s = 'force', 'N', 1.0, np.asarray(force_N, dtype=float)
         bound = REST_FORCE_FRACTION * amplitude_N
     else:
         what, unit, scale, s = 'velocity', 'mm/s', 1e3, np.asarray(velocity_m_s, dtype=float)
-        ratio, growth = held_force(t[after], np.asarray(force_N, dtype=float)[after],
-                                   amplitude_N)
-        # no more than the run's force limit holds (a rig past it has aborted at the limit)
-        ratio = min(ratio, max(1.0, float(params.get('force_limit_N', math.inf))
-                               / amplitude_N))
+        f = np.asarray(force_N, dtype=float)
+        ratio, growth = held_force(t[after], f[after], amplitude_N,
+                                   float(params.get('force_limit_N', math.inf)))
         bound = REST_VELOCITY_FRACTION * ratio * float(np.max(np.abs(s[before]), initial=0.0))
-        growth_limit = REST_GROWTH_FRACTION * amplitude_N + noise
+        growth_limit = (REST_GROWTH_FRACTION * amplitude_N
+                        + _DEPARTURE_SIGMAS * float(np.std(f[quiet])))
         loads = growth > growth_limit
-        if ratio > 1.0:
-            creep = f', the creep of a held force {ratio:.2f} x the amplitude'
-        creep += (f'), |f| {"grew" if growth > 0 else "fell"} {abs(growth):.3g} N meanwhile '
-                  f'(limit +{growth_limit:.3g} N' + ('; the valve still loads the specimen'
-                                                     if loads else ''))
+        held = f', the creep of a held force {ratio:.2f} x the amplitude' if ratio > 1.0 else ''
+        creep = (f'{held}), |f| {"grew" if growth > 0 else "fell"} {abs(growth):.3g} N '
+                 f'meanwhile (limit +{growth_limit:.3g} N'
+                 + ('; the valve still loads the specimen' if loads else ''))
     bound += _DEPARTURE_SIGMAS * float(np.std(s[quiet]))
     rest = float(np.max(np.abs(s[after])))
     in_time = math.isfinite(reaction) and reaction <= limit
@@ -1219,6 +1221,16 @@ def check_safe_state(name: str, *, final: Mapping | None, command_kind: str,
         + (f' (expected {reason_prefix!r} ...)' if not reason.startswith(reason_prefix)
            else ''),
         {'reaction_s': reaction, 'rest_value': rest, 'rest_limit': bound})
+
+
+def start_withheld(trial: Mapping | None) -> str | None:
+    """Why the second sender sent nothing (it withheld every start: the live run's end too
+    near by the rig's clock), or None if it sent or never fired (`trial`: as
+    :func:`check_second_sender` takes it)."""
+    if not trial or trial.get('sent'):
+        return None
+    return (f"the checker heard the rig {float(trial.get('lag_s', 0.0)):.2f} s late: the "
+            "second sender's start would have come after the run's end")
 
 
 def check_second_sender(trial: Mapping | None, final: Mapping | None, expected_steps: int
@@ -1252,9 +1264,9 @@ def check_second_sender(trial: Mapping | None, final: Mapping | None, expected_s
     name = SECOND_SENDER
     if trial is None:
         return not_run(name, 'the step run ended before the second sender sent its start')
-    if not trial.get('sent'):
-        return not_run(name, f"the checker heard the rig {float(trial.get('lag_s', 0)):.2f} s "
-                       "late: the second sender's start would have come after the run's end")
+    withheld_all = start_withheld(trial)
+    if withheld_all:
+        return not_run(name, withheld_all)
     final = final or {}
     heard = list(trial.get('heard', ()))
     sent, withheld = int(trial['sent']), int(trial.get('withheld', 0) or 0)
