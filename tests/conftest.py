@@ -12,6 +12,7 @@ import subprocess
 import sys
 
 import pytest
+import rerun_reasons
 
 from seft_msgs_py import parameters
 from seft_msgs_py.domain import LOCK_DIR, claim_domain
@@ -226,8 +227,15 @@ def pytest_testnodedown(node, error):
     SAMPLES_AT_A_RANGE.update(getattr(node, 'workeroutput', {}).get('samples_at_a_range', {}))
 
 
+def pytest_runtest_logreport(report):
+    """Keep why a test that is run again failed its first time (:mod:`rerun_reasons`)."""
+    rerun_reasons.record(report)
+
+
 def pytest_terminal_summary(terminalreporter):
-    """Name the tests whose runs took a sensor to its range, with the samples per channel."""
+    """Why the reruns failed first (:mod:`rerun_reasons`); name the tests whose runs took a
+    sensor to its range, with the samples per channel."""
+    rerun_reasons.summary(terminalreporter)
     if not SAMPLES_AT_A_RANGE:
         return
     terminalreporter.section('runs at a sensor range (counted; issue 39)')

@@ -23,8 +23,9 @@ if ! [[ "$workers" =~ ^[1-9][0-9]*$ ]]; then
     exit 2
 fi
 pytest=(.venv/bin/python -m pytest tests -q -p no:cacheprovider -rfER --durations=15)
-# -rfER: name failures, errors and reruns; --durations: the 15 slowest of each phase, where
-# the suite's time goes (the README's goal: toward 10 minutes)
+# -rfER: name failures, errors and reruns (why each rerun failed first: the section
+# tests/rerun_reasons.py adds); --durations: the 15 slowest of each phase, where the suite's
+# time goes (the README's goal: toward 10 minutes)
 status=0
 "${pytest[@]}" -n "$workers" --dist loadscope -m 'not wall_clock' "$@" || status1=$?
 "${pytest[@]}" -m wall_clock "$@" || status2=$?
