@@ -1,7 +1,11 @@
 """The runner names when a node died: from the rig's reports, or, when none reached it (a
-process killed before this runner had discovered it), from the last sample in the closed bag."""
+process killed before this runner had discovered it), from the last sample in the closed bag;
+and a rig that refused the run before its first sample, saying why, is not a node's death."""
+
+import pytest
 
 from seft_msgs_py import parameters
+from seft_msgs_py.errors import SeftError
 from seft_msgs_py.graph import Graph
 from seft_ros.analysis.bagwrite import write_run_bag
 from seft_ros.cli.runner import GraphRunner
@@ -45,3 +49,66 @@ def test_an_interrupted_bridge_run_says_its_safe_state_was_not_confirmed(tmp_pat
     del final['safe_unconfirmed']
     assert runner._interrupted_state({'rig': None}).startswith(
         'the rig ramped to its safe state from t = 2.552 s; bag closed')
+
+
+class _Exited:
+    """A node's process that exited with `code`."""
+
+    def __init__(self, code):
+        self.code = code
+
+    def poll(self):
+        return self.code
+
+
+def _runner_with_reports(later: list[dict]):
+    """A runner without ROS whose spin hears the reports of `later`, one per spin."""
+    runner = GraphRunner.__new__(GraphRunner)
+    runner.graph = Graph.from_parameters(parameters.resolve({'duration_s': 0.5}))
+    runner.statuses, spins = [], []
+
+    def spin(seconds):
+        spins.append(seconds)
+        if later:
+            runner.statuses.append(later.pop(0))
+    runner._spin = spin
+    return runner, spins
+
+
+REFUSAL = {'name': 'rig', 'state': 'failed', 'published': '0',
+           'message': 'udp_bridge: no datagram from the controller at 127.0.0.1:9 for 10 s'}
+
+
+def test_a_rig_that_refused_the_run_is_not_a_node_death(tmp_path):
+    """The CI of 08955b2: a UDP bridge whose controller was not at its address reported
+    'failed' and exited with code 2; the runner saw the exit before the report and named a
+    node's death ('node rig exited with code 2 at t = 0.000 s (step ?)') where the run is the
+    rig's refusal ('the rig failed before its first sample: ...; nothing was run', which the
+    watch then says). The report is waited for (REPORT_GRACE_S): heard on the third spin."""
+    runner, spins = _runner_with_reports([{'name': 'recorder', 'state': 'ready'},
+                                          {'name': 'controller', 'state': 'ready'},
+                                          REFUSAL])
+    runner._check_procs({'rig': _Exited(2), 'recorder': _Exited(None)}, tmp_path)
+    assert len(spins) == 3 and runner._latest('rig')['state'] == 'failed'
+    runner._check_procs({'rig': _Exited(2)}, tmp_path)           # heard: no wait again
+    assert len(spins) == 3
+
+    # no report within the grace, a rig that had stepped, a node that is not a rig, a
+    # signal: each is a death, named as before
+    ended = []
+    for procs, reports in (({'rig': _Exited(2)}, []),
+                           ({'rig': _Exited(2)}, [{'name': 'rig', 'state': 'running',
+                                                   'step': '12', 'published': '12'},
+                                                  REFUSAL]),
+                           ({'controller': _Exited(2)}, [REFUSAL]),
+                           ({'rig': _Exited(-9)}, [REFUSAL])):
+        runner, _ = _runner_with_reports(list(reports))
+        if reports and reports[0].get('state') == 'running':
+            runner.statuses.append(reports.pop(0))
+        runner._end_run = lambda reason, procs, **values: ended.append(reason)
+        runner._when = lambda: 'at t = 0.024 s (step 12)'
+        with pytest.raises(SeftError, match=r'^node (rig|controller) (exited with code 2|was '
+                           r'killed by SIGKILL) at t = 0.024 s'):
+            runner._check_procs(procs, tmp_path)
+    assert ended == ['node rig exited with code 2', 'node rig exited with code 2',
+                     'node controller exited with code 2', 'node rig was killed by SIGKILL']

@@ -846,7 +846,9 @@ def run_rig_check(*, params: Mapping, out_dir: Path, profile: rc.CheckProfile,
                     break
                 progress(f'[{name}] {why}; once more')
             done[name] = run
-            if name == 'step' and run.error is not None:
+            # (a rig that refused the run before its first sample, saying why, ends it
+            # without an error: the runner's watch takes its final report)
+            if name == 'step' and (run.error is not None or run.sample_count() == 0):
                 progress('the step run failed: the other runs are not run')
                 break
     finally:

@@ -103,6 +103,10 @@ STARTUP_TIMEOUT_S = 60.0
 REMOTE_TIMEOUT_S = 600.0
 #: Longest wait for the bag to close after the runner ended a run (a node died, Ctrl-C) [s].
 END_TIMEOUT_S = 15.0
+#: How long a rig that exited with an error before its first sample may take to be heard
+#: reporting why [s] (its final report and its exit race to the runner: the CI of 08955b2
+#: saw the exit first, and the run was named a node's death instead of the rig's refusal).
+REPORT_GRACE_S = 1.0
 #: A host without the recorder whose nodes have all ended ends them at once when it has not
 #: heard the host with the recorder (its runner pings every host once a second) for this
 #: long [s]: the link or that host is lost, and nothing more reaches the bag. Otherwise its
@@ -709,7 +713,7 @@ class GraphRunner:
         it, when and how."""
         for name, proc in procs.items():
             code = proc.poll()
-            if code is None or code == 0:
+            if code is None or code == 0 or self._refused_the_run(name, code):
                 continue
             how = (f'was killed by {signal.Signals(-code).name}' if code < 0
                    else f'exited with code {code}')
@@ -723,6 +727,22 @@ class GraphRunner:
             log = log_dir / log_name(name)
             raise SeftError(f'node {name} {how} {self._when()}: {_last_line(log)} '
                             f'(log: {log}; {saved})')
+
+    def _refused_the_run(self, name: str, code: int) -> bool:
+        """Whether node `name`, which exited with `code`, is a rig that refused the run before
+        its first sample and said why: its final report (failed or aborted) heard, waited for
+        up to :data:`REPORT_GRACE_S` (a UDP bridge whose controller is not at its address, or
+        turns the run down). The run then ends as the rig ended it (the watch reads its
+        reason: 'the rig failed before its first sample: ...; nothing was run'), not as a
+        node's death."""
+        if code <= 0 or name not in self.graph.rig_nodes() or self._stepping_begun():
+            return False
+        deadline = time.monotonic() + REPORT_GRACE_S
+        while self._latest(name, (STATE_FAILED, STATE_ABORTED)) is None:
+            if time.monotonic() >= deadline:
+                return False
+            self._spin(0.05)
+        return True
 
     def _rig_final(self, heard_only: bool = False):
         """The rigs' final status (done, aborted or failed) once every rig's is heard: the
