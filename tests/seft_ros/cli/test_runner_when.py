@@ -92,6 +92,9 @@ def test_a_rig_that_refused_the_run_is_not_a_node_death(tmp_path):
     assert len(spins) == 3 and runner._latest('rig')['state'] == 'failed'
     runner._check_procs({'rig': _Exited(2)}, tmp_path)           # heard: no wait again
     assert len(spins) == 3
+    loop = _Exited(2)               # --processes loop: the rig's process holds other nodes
+    runner._check_procs({'force_servo_controller': loop, 'rig': loop}, tmp_path)
+    assert len(spins) == 3
 
     # no report within the grace, a rig that had stepped, a node that is not a rig, a
     # signal: each is a death, named as before
@@ -101,6 +104,7 @@ def test_a_rig_that_refused_the_run_is_not_a_node_death(tmp_path):
                                                    'step': '12', 'published': '12'},
                                                   REFUSAL]),
                            ({'controller': _Exited(2)}, [REFUSAL]),
+                           ({'controller': _Exited(2), 'rig': _Exited(None)}, [REFUSAL]),
                            ({'rig': _Exited(-9)}, [REFUSAL])):
         runner, _ = _runner_with_reports(list(reports))
         if reports and reports[0].get('state') == 'running':
@@ -111,4 +115,5 @@ def test_a_rig_that_refused_the_run_is_not_a_node_death(tmp_path):
                            r'killed by SIGKILL) at t = 0.024 s'):
             runner._check_procs(procs, tmp_path)
     assert ended == ['node rig exited with code 2', 'node rig exited with code 2',
-                     'node controller exited with code 2', 'node rig was killed by SIGKILL']
+                     'node controller exited with code 2', 'node controller exited with code 2',
+                     'node rig was killed by SIGKILL']

@@ -713,11 +713,14 @@ class GraphRunner:
         it, when and how."""
         for name, proc in procs.items():
             code = proc.poll()
-            if code is None or code == 0 or self._refused_the_run(name, code):
+            if code is None or code == 0:
+                continue
+            # (a process of a rig's loop, --processes loop, holds its rig with other nodes)
+            together = [n for n, p in procs.items() if p is proc]
+            if any(self._refused_the_run(n, code) for n in together):
                 continue
             how = (f'was killed by {signal.Signals(-code).name}' if code < 0
                    else f'exited with code {code}')
-            together = [n for n, p in procs.items() if p is proc]
             if len(together) > 1:
                 how = f'(one process with {", ".join(n for n in together if n != name)}) {how}'
             self._end_run(f'node {name} {how}', procs, failed_node=name)
