@@ -97,18 +97,17 @@ def test_a_rig_that_refused_the_run_is_not_a_node_death(tmp_path):
     assert len(spins) == 3
 
     # no report within the grace, a rig that had stepped, a node that is not a rig, a
-    # signal: each is a death, named as before
+    # signal: each is a death, named as before (the reports heard before, those on the way)
+    stepped = {'name': 'rig', 'state': 'running', 'step': '12', 'published': '12'}
     ended = []
-    for procs, reports in (({'rig': _Exited(2)}, []),
-                           ({'rig': _Exited(2)}, [{'name': 'rig', 'state': 'running',
-                                                   'step': '12', 'published': '12'},
-                                                  REFUSAL]),
-                           ({'controller': _Exited(2)}, [REFUSAL]),
-                           ({'controller': _Exited(2), 'rig': _Exited(None)}, [REFUSAL]),
-                           ({'rig': _Exited(-9)}, [REFUSAL])):
-        runner, _ = _runner_with_reports(list(reports))
-        if reports and reports[0].get('state') == 'running':
-            runner.statuses.append(reports.pop(0))
+    for procs, heard, later in (({'rig': _Exited(2)}, [], []),
+                                ({'rig': _Exited(2)}, [stepped], [REFUSAL]),
+                                ({'controller': _Exited(2)}, [], [REFUSAL]),
+                                ({'controller': _Exited(2), 'rig': _Exited(None)}, [],
+                                 [REFUSAL]),
+                                ({'rig': _Exited(-9)}, [], [REFUSAL])):
+        runner, _ = _runner_with_reports(list(later))
+        runner.statuses.extend(heard)
         runner._end_run = lambda reason, procs, **values: ended.append(reason)
         runner._when = lambda: 'at t = 0.024 s (step 12)'
         with pytest.raises(SeftError, match=r'^node (rig|controller) (exited with code 2|was '
