@@ -8,7 +8,9 @@ names.
   then the test with each --predictor; printed: the yield force, the ductility reached, the
   displacement NRMS per floor (target: <= 3 % to ductility 2.5, <= 5 % to 6), the acceleration
   NRMS per floor; with --initial also each run predicted with the initial linearization
-  (``prediction: initial``, what the compensators did before issue 40).
+  (``prediction: initial``, what the compensators did before issue 40). For each case also
+  how far the reference itself moves with the record scaled by 1 +- 1 % (NRMS x per floor):
+  the case's sensitivity, by which a yielding frame amplifies any error of the test.
 * **The steel frame** (``config/opensees/steel_frame.yaml``) at each --amplitude, or with
   --moment-ratio at the amplitude whose reference reaches each ratio on each record
   (bisection on the reference alone, 14 steps): the largest moment of column 111 over its
@@ -109,11 +111,33 @@ def _run(params):
     return run, comparison, time.monotonic() - t0
 
 
+def _sensitivity(params, change: float = 0.01) -> np.ndarray:
+    """How much OpenSees' analysis of the whole frame moves when the record is scaled by
+    ``1 +- change``: each floor's NRMS x between the scaled and the unscaled analysis, the
+    mean of the two [-] (n,). 1 % per 1 % for a linear frame; a yielding one's residual
+    drifts can move several times more: the test's own errors (its floor-1 tracking, about
+    1 % NRMS) are amplified as much."""
+    setup = test_setup(params)
+    ag = prepared_record(params).acceleration_m_s2
+    plugin, dt = model_plugin('opensees'), float(params['dt'])
+    base = plugin.reference(setup.substructures, dt, ag).displacement_m
+    moved = []
+    for scale in (1.0 + change, 1.0 - change):
+        x = plugin.reference(setup.substructures, dt, scale * ag).displacement_m
+        moved.append(np.sqrt(np.mean((x - base) ** 2, axis=0) / np.mean(base ** 2, axis=0)))
+    return 0.5 * (moved[0] + moved[1])
+
+
 def shear_frame(records, ductilities, predictors, initial: bool, directory: Path) -> None:
     for record in records:
         name = Path(record).name
         for ductility in ductilities:
             fy, reached = _yield_force_for(record, ductility, directory)
+            moved = _sensitivity(_params(SHEAR, directory, arguments={'fy2_N': fy},
+                                         record=record))
+            print(f'shear_frame {name} ductility {reached:4.2f} (fy2 {fy:7.1f} N): the '
+                  f'reference with the record scaled by 1 +- 1 % moves by NRMS x per floor '
+                  f'[%] {_pct(moved)}', flush=True)
             for predictor in predictors:
                 for prediction in ('tangent',) + (('initial',) if initial else ()):
                     params = _params(SHEAR, directory, arguments={'fy2_N': fy},

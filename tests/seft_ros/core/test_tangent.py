@@ -5,7 +5,7 @@ sample, against the loading/unloading conditions worked out by hand."""
 import numpy as np
 import pytest
 
-from seft_ros.core.tangent import YieldMechanisms
+from seft_ros.core.tangent import VirginMechanism, YieldMechanisms
 
 K = 2.11e5                                   # each story's initial stiffness [N/m]
 B = 0.02                                     # story 2's post-yield ratio
@@ -108,3 +108,33 @@ def test_a_gradual_yielding_is_not_anticipated():
     (mech,) = m.mechanisms
     assert not mech.bilinear
     assert m.stiffness([0.0, 0.01]) is None
+
+
+def test_a_first_yield_the_pushover_found_is_anticipated():
+    """A mechanism found before the test (its virgin elastic range: an asymmetric one, -6 to
+    +10 mm of z) starts to yield where that range ends, in either sense, before it has ever
+    yielded; once it has, in the other sense after the range's width (kinematic hardening);
+    a gradual one found so is not anticipated."""
+    low, high = -0.006, 0.010
+    m = YieldMechanisms(K0, [VirginMechanism(U, LAM, low, high, True),
+                             VirginMechanism(np.array([1.0, 0.0]), LAM, -0.001, 0.001, False)])
+    assert len(m.mechanisms) == 1
+    x2 = lambda z: z * np.sqrt(2.0)                          # noqa: E731 (x1 held at 0)
+    m.observe([0.0, 0.0], None)
+    m.observe([0.0, x2(0.004)], None)
+    assert m.stiffness([0.0, x2(0.004)]) is None             # to z 0.008: within the range
+    # to z 0.014: 0.004 of the 0.010 increment past the onset at +0.010
+    np.testing.assert_allclose(m.stiffness([0.0, x2(0.010)]),
+                               K0 - 0.4 * LAM * np.outer(U, U), rtol=1e-9)
+    # to z -0.008 (the other sense): 0.002 of the 0.012 increment past -0.006
+    np.testing.assert_allclose(m.stiffness([0.0, x2(-0.012)]),
+                               K0 - (0.002 / 0.012) * LAM * np.outer(U, U), rtol=1e-9)
+    for z in (0.008, 0.012, 0.016):                          # yields in + from 0.010
+        m.observe([0.0, x2(z)], None if z < high else yielded())
+    m.observe([0.0, x2(0.014)], None)                        # stops at 0.016, unloads
+    (mech,) = m.mechanisms
+    assert not mech.yielding and mech.stop_m == pytest.approx(0.016)
+    # back in -: it yields again at 0.016 - 0.016 (the range's width) = 0.0
+    np.testing.assert_allclose(m.stiffness([0.0, x2(-0.018)]),
+                               K0 - (0.004 / 0.018) * LAM * np.outer(U, U), rtol=1e-9)
+    assert m.stiffness([0.0, x2(-0.012)]) is None            # to z 0.002: not yet

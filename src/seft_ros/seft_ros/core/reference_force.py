@@ -956,7 +956,8 @@ class ReferenceForceBuilder:
                 # to yield over the predicted motion (core.tangent)
                 if self._mechanisms is None:
                     self._mechanisms = YieldMechanisms(
-                        self.setup.substructures.stiffness_c_N_per_m)
+                        self.setup.substructures.stiffness_c_N_per_m,
+                        getattr(state, 'virgin_mechanisms', None) or ())
                 self._mechanisms.observe(x, k_t)
                 shifted = q[:len(x)]
                 stiffness = self._mechanisms.stiffness(

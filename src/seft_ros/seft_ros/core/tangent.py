@@ -33,6 +33,11 @@ samples and gives the stiffness for the predicted motion:
   first yielding bilinear), twice the distance from rest of its first onset (Masing: a
   kinematically hardening member starts at rest in the middle of its elastic range, and
   keeps the range's width);
+* a mechanism **found before the test** (:class:`VirginMechanism`: an OpenSees part's
+  pushover, :func:`seft_ros.opensees.probe.probe_yield`) and bilinear there starts to yield,
+  before it ever has, where its virgin elastic range ends in the predicted sense (its first
+  yield anticipated), and takes that range's width as its elastic range until a reversal
+  shows it (in place of Masing's from its first onset);
 * a sharp mechanism's **onset** (the first yielding sample of an episode) is taken at the
   middle of the step that shows it (:data:`ONSET_FRACTION`): the member started to yield
   somewhere within that step, and the sample is past the onset by an unknown part of the
@@ -59,8 +64,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ['YieldMechanisms', 'Mechanism', 'DEFICIT_TOLERANCE', 'SAME_DIRECTION',
-           'BILINEAR_SPREAD', 'ONSET_FRACTION']
+__all__ = ['YieldMechanisms', 'Mechanism', 'VirginMechanism', 'DEFICIT_TOLERANCE',
+           'SAME_DIRECTION', 'BILINEAR_SPREAD', 'ONSET_FRACTION']
 
 #: A deficit of the tangent stiffness below this part of the largest entry of the initial one
 #: is no yielding.
@@ -131,6 +136,33 @@ class Mechanism:
     held_reversal: bool = False
     first_onset_m: float | None = None
     sharp: bool | None = None
+    virgin_range_m: tuple | None = None
+
+
+@dataclass(frozen=True)
+class VirginMechanism:
+    """A mechanism the computational part found before the test, before it ever yielded (an
+    OpenSees part's pushover: :func:`seft_ros.opensees.probe.probe_yield`).
+
+    Attributes
+    ----------
+    direction : ndarray (n,)
+        ``u`` (unit).
+    deficit_N_per_m : float
+        ``lambda`` once it yields.
+    low_m, high_m : float or None
+        Its virgin elastic range ``[z_low, z_high]`` of ``z = u . x`` [m]: where it first
+        yields in the negative and the positive sense (None: not found).
+    bilinear : bool
+        Whether it yields sharply, keeping its deficit (only such a mechanism's onset is
+        anticipated).
+    """
+
+    direction: np.ndarray
+    deficit_N_per_m: float
+    low_m: float | None
+    high_m: float | None
+    bilinear: bool
 
 
 class YieldMechanisms:
@@ -140,18 +172,28 @@ class YieldMechanisms:
     ----------
     initial_N_per_m : ndarray (n, n)
         ``K_0``: the computational part's initial (linearization's) stiffness [N/m].
+    known : sequence of VirginMechanism
+        Mechanisms found before the test: a bilinear one's first yield is anticipated
+        where its virgin elastic range ends (module notes).
 
     Attributes
     ----------
     mechanisms : list of Mechanism
     """
 
-    def __init__(self, initial_N_per_m):
+    def __init__(self, initial_N_per_m, known=()):
         self.k0 = np.asarray(initial_N_per_m, dtype=float)
         self.scale = float(np.max(np.abs(self.k0)))
         self.mechanisms: list[Mechanism] = []
         self._last_x = None
         self._tangent = None
+        for v in known:
+            if v.bilinear and (v.low_m is not None or v.high_m is not None):
+                u = np.asarray(v.direction, dtype=float)
+                self.mechanisms.append(Mechanism(
+                    u / np.linalg.norm(u), float(v.deficit_N_per_m), 1.0, yielding=False,
+                    onset_deficit_N_per_m=float(v.deficit_N_per_m), bilinear=True,
+                    sharp=True, virgin_range_m=(v.low_m, v.high_m)))
 
     def observe(self, x_m, tangent_N_per_m) -> None:
         """Take a sample: every DOF's displacement [m] and the tangent (None: the initial
@@ -182,6 +224,8 @@ class YieldMechanisms:
                 sense = 1.0 if dz >= 0.0 else -1.0
                 if not m.yielding or m.episode_N_per_m is None:
                     m.onset_deficit_N_per_m = float(lam[i])
+                    if m.first_onset_m is None:       # a mechanism the pushover found
+                        m.first_onset_m = float(ui @ x) - ONSET_FRACTION * dz
                     m.episode_N_per_m = [float(lam[i]), float(lam[i])]
                     if m.stop_m is not None and sense != m.sense:
                         # yielding again in the other sense: the elastic range it has shown
@@ -235,13 +279,21 @@ class YieldMechanisms:
                     k += m.deficit_N_per_m * np.outer(u, u)
                     changed = True
                 continue
-            if m.stop_m is None or dz == 0.0 or not m.bilinear:
+            if dz == 0.0 or not m.bilinear:
                 continue
             sense = 1.0 if dz > 0.0 else -1.0
-            if sense == m.sense:
+            virgin = m.virgin_range_m
+            if m.stop_m is None:
+                # never yielded: where the pushover found it yields (module notes)
+                onset = None if virgin is None else virgin[1] if sense > 0.0 else virgin[0]
+                if onset is None:
+                    continue
+            elif sense == m.sense:
                 onset = m.stop_m
             elif m.elastic_range_m is not None:
                 onset = m.stop_m - m.sense * m.elastic_range_m
+            elif virgin is not None and None not in virgin:
+                onset = m.stop_m - m.sense * (virgin[1] - virgin[0])
             elif m.sharp:                         # Masing, before its first reversal
                 onset = m.stop_m - m.sense * 2.0 * abs(m.first_onset_m)
             else:

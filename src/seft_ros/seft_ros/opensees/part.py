@@ -37,7 +37,8 @@ model is predicted with its own tangent stiffness, read from the system Newton a
 the steps that changed it and condensed to seft's DOFs (:meth:`OpenSeesPart.tangent`;
 ``prediction: tangent``, the default), whose yielding mechanisms the builder follows over
 the predicted motion (:mod:`seft_ros.core.tangent`); exact at the sample, approximate over
-the loop delay (a first yield is not anticipated). With ``prediction: initial`` the change
+the loop delay (a first yield anticipated where a pushover before the test found it,
+:mod:`seft_ros.opensees.probe`). With ``prediction: initial`` the change
 is predicted with the linearization.
 
 With ``step: deferred`` the state a builder gets for sample ``j`` is not OpenSees' but one
@@ -63,6 +64,7 @@ from seft_ros.core.structure import Substructures
 from seft_ros.core.substructure import structure_matrices
 from seft_ros.opensees.loader import captured, last_message, opensees, rayleigh_calls
 from seft_ros.opensees.model import KIND, ModelError, ModelSpec, build_model, interface_group
+from seft_ros.opensees.probe import probe_yield
 
 __all__ = ['OpenSeesPart', 'STEP_TIME', 'dry_run', 'DryRun', 'BUDGET_FRACTION',
            'DEFERRED_BUDGET_FRACTION', 'budget_fraction', 'element_names',
@@ -70,6 +72,10 @@ __all__ = ['OpenSeesPart', 'STEP_TIME', 'dry_run', 'DryRun', 'BUDGET_FRACTION',
 
 #: The recorded state of each step's OpenSees wall time [s].
 STEP_TIME = 'opensees/step_time_s'
+#: How far the pushover before the test pushes each of seft's DOFs [m]
+#: (:func:`~seft_ros.opensees.probe.probe_yield`; a push stops earlier at its first yield,
+#: or where OpenSees no longer converges).
+PUSH_LIMIT_M = 1.0
 #: Tags of seft's own pattern and time series (far from a model's).
 _PATTERN, _SERIES = 2_000_000_011, 2_000_000_012
 #: The interface's moving constraint is a penalty of this many times the largest diagonal of
@@ -123,6 +129,10 @@ class OpenSeesPart:
         A split structure from an OpenSees model (``sub.structure.model``).
     dt : float > 0
         Control period [s].
+    pushover : bool
+        With ``prediction: tangent``, find where the members first yield before the test
+        (:func:`~seft_ros.opensees.probe.probe_yield`, by :meth:`prepare`; a dry run that
+        only times the steps does without).
 
     Attributes
     ----------
@@ -134,6 +144,12 @@ class OpenSeesPart:
         The model's linearization (the structure's matrices).
     step_times_s : list of float
         Each OpenSees step's wall time [s].
+    virgin_mechanisms : list of VirginMechanism or None
+        The pushover's mechanisms (None: not pushed yet, or not pushed).
+    pushes : list of Push or None
+        Its pushes (the same).
+    pushover_time_s : float
+        Its wall time [s].
 
     Notes
     -----
@@ -141,7 +157,7 @@ class OpenSeesPart:
     model per process, and a builder made for its linear model only never builds it.
     """
 
-    def __init__(self, sub: Substructures, dt: float):
+    def __init__(self, sub: Substructures, dt: float, *, pushover: bool = True):
         s = sub.structure
         if s.model_kind != KIND:
             raise ParameterError('OpenSees part: the structure has no OpenSees model')
@@ -178,6 +194,11 @@ class OpenSeesPart:
         self._tangent_damping, self._damping_gain = (0.0, 0.0), 0.0
         self._model_loads = None
         self._k_t = None                  # the condensed tangent of the latest sample
+        # the pushover's mechanisms (opensees.probe; prepare() finds them)
+        self._pushover = pushover and self._tangent_on
+        self.virgin_mechanisms = None
+        self.pushes = None
+        self.pushover_time_s = 0.0
         self.tangent_steps = 0            # samples whose tangent was assembled
         # step: deferred: the sample ahead of OpenSees' (its linear step), and the
         # effective matrices of that step per stiffness
@@ -198,6 +219,13 @@ class OpenSeesPart:
             The model does not build or its analysis cannot be set up (OpenSees' message).
         """
         if not self._ready:
+            if self._pushover and self.virgin_mechanisms is None:
+                # where the members first yield, on the model built for the pushes (then
+                # built again for the test)
+                t0 = time.perf_counter()
+                self.virgin_mechanisms, self.pushes = probe_yield(
+                    self.spec, self.sub.stiffness_c_N_per_m, [PUSH_LIMIT_M] * len(self._nodes))
+                self.pushover_time_s = time.perf_counter() - t0
             build_model(self.spec, test=True)
             self._series = False
             self._setup()
@@ -910,7 +938,7 @@ def dry_run(sub: Substructures, dt: float, *, steps: int = 500, amplitude_m: flo
     DryRun
     """
     from seft_msgs_py.interface import Measurement
-    part = OpenSeesPart(sub, dt)
+    part = OpenSeesPart(sub, dt, pushover=False)
     w = 2.0 * math.pi * frequency_hz
     for k in range(steps + 1):
         t = k * dt
