@@ -138,3 +138,35 @@ def test_a_first_yield_the_pushover_found_is_anticipated():
     np.testing.assert_allclose(m.stiffness([0.0, x2(-0.018)]),
                                K0 - (0.004 / 0.018) * LAM * np.outer(U, U), rtol=1e-9)
     assert m.stiffness([0.0, x2(-0.012)]) is None            # to z 0.002: not yet
+
+
+def test_onsets_and_ends_placed_by_the_deficit_force():
+    """For a mechanism the pushover found (one bilinear member: story 2, yielding at z
+    +-0.0105), the part's deficit force (``K_0 x - R``: ``LAM (z - z_y) U`` while it yields
+    past its onset z_y, held at its value once it unloads) places an onset where it is, not
+    at the middle of its step, and an episode's end at the extreme of its travel between
+    samples: the onset 0.0105 (the middle of the step: 0.010), the end 0.0165 (the last
+    yielding sample: 0.016); the other sense is then anticipated at 0.0165 - 0.021 (the
+    virgin range's width) = -0.0045. A mechanism the pushover did not find keeps the middle
+    of the step and the last yielding sample, deficit force or not (several members'
+    deficits can share one direction: the steel frame's fibre columns)."""
+    x2 = lambda z: z * np.sqrt(2.0)                          # noqa: E731 (x1 held at 0)
+    force = lambda beyond: LAM * beyond * U                  # noqa: E731
+    samples = ((0.0, None, 0.0), (0.008, None, 0.0), (0.012, yielded(), 0.012 - 0.0105),
+               (0.016, yielded(), 0.016 - 0.0105), (0.015, None, 0.0165 - 0.0105))
+    m = YieldMechanisms(K0, [VirginMechanism(U, LAM, -0.0105, 0.0105, True)])
+    for z, k, beyond in samples[:3]:
+        m.observe([0.0, x2(z)], k, force(beyond))
+    (mech,) = m.mechanisms
+    assert mech.first_onset_m == pytest.approx(0.0105, rel=1e-12)
+    for z, k, beyond in samples[3:]:
+        m.observe([0.0, x2(z)], k, force(beyond))
+    assert not mech.yielding and mech.stop_m == pytest.approx(0.0165, rel=1e-12)
+    # to z -0.0095: 0.005 of the 0.0245 increment past -0.0045
+    np.testing.assert_allclose(m.stiffness([0.0, x2(-0.0245)]),
+                               K0 - (0.005 / 0.0245) * LAM * np.outer(U, U), rtol=1e-9)
+    m = YieldMechanisms(K0)
+    for z, k, beyond in samples:
+        m.observe([0.0, x2(z)], k, force(beyond))
+    (mech,) = m.mechanisms
+    assert mech.first_onset_m == pytest.approx(0.010) and mech.stop_m == pytest.approx(0.016)

@@ -252,6 +252,31 @@ def test_tangent_is_the_models_own(tmp_path, arguments):
         assert 2 <= part.tangent_steps < seen['yielding'], part.tangent_steps
 
 
+def test_deficit_forces_are_the_yielding_storys_own(tmp_path):
+    """The restoring forces' deficit the part gives (``K_c,0 x - R(x)``, from its equation of
+    motion) is story 2's alone: ``(k delta - f_s) (-1, 1, 0)``, ``f_s`` its Steel01 spring's
+    force (the element's force less its dashpot's, ``c (v2 - v1)``), at every sample of the
+    same shaking as above, elastic and yielding, to 1e-9 of the largest (measured 7.5e-11 N
+    of 11 kN)."""
+    from seft_ros.opensees.loader import opensees
+    sub = _yielding_frame(tmp_path)
+    part = OpenSeesPart(sub, DT)
+    part.prepare()
+    ops = opensees()
+    k, c = 2.11e5, 333.5                                   # story 2 (shear_frame.py)
+    errors, largest = [], 0.0
+    for j in range(300):
+        part.observe(0, Measurement(j, j * DT, 0.0, 0.0, 0.0, 0.0))
+        part.set_ground(j, 40.0 * np.sin(2 * np.pi * 5.0 * j * DT) * min(1.0, j / 150))
+        x, v, _ = part.state_at(j)
+        spring = float(ops.eleForce(2, 3)) - c * (v[1] - v[0])
+        closed = (k * (x[1] - x[0]) - spring) * np.array([-1.0, 1.0, 0.0])
+        errors.append(np.max(np.abs(part.deficit_forces(x, v) - closed)))
+        largest = max(largest, float(np.max(np.abs(closed))))
+    assert largest > 5e3                                   # it yielded well past its onset
+    assert max(errors) < 1e-9 * largest, (max(errors), largest)
+
+
 def test_rayleigh_damping_on_the_current_stiffness_of_some_elements_is_refused(tmp_path):
     """Damping on the current stiffness that story 2 takes and story 3 does not (a
     ``zeroLength`` without ``-doRayleigh``): the tangent cannot be told from Newton's system;

@@ -958,7 +958,8 @@ class ReferenceForceBuilder:
                     self._mechanisms = YieldMechanisms(
                         self.setup.substructures.stiffness_c_N_per_m,
                         getattr(state, 'virgin_mechanisms', None) or ())
-                self._mechanisms.observe(x, k_t)
+                deficit = getattr(state, 'deficit_forces', None)
+                self._mechanisms.observe(x, k_t, None if deficit is None else deficit(x, v))
                 shifted = q[:len(x)]
                 stiffness = self._mechanisms.stiffness(
                     [a - b for a, b in zip(self._interface.displacements(q), shifted)])

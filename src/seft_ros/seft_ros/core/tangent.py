@@ -38,20 +38,29 @@ samples and gives the stiffness for the predicted motion:
   before it ever has, where its virgin elastic range ends in the predicted sense (its first
   yield anticipated), and takes that range's width as its elastic range until a reversal
   shows it (in place of Masing's from its first onset);
-* a sharp mechanism's **onset** (the first yielding sample of an episode) is taken at the
-  middle of the step that shows it (:data:`ONSET_FRACTION`): the member started to yield
-  somewhere within that step, and the sample is past the onset by an unknown part of the
-  step's increment (about ``k v dt`` of force: 60 N of a 210 kN/m story at 0.15 m/s and
-  2 ms). A mechanism whose first yielding was gradual (a ``Steel02`` fibre section: its
+* a mechanism the pushover found (one bilinear member) has its **onset** (the first
+  yielding sample of an episode) and **end** placed by the part's **deficit force**
+  ``K_0 x - R(x)`` where it gives it (an OpenSees part: ``deficit_forces``, from its
+  equation of motion): along such a mechanism it grows as ``lambda (z - z_onset)`` from its
+  value when the mechanism was last elastic, which places the onset within its step (up to
+  :data:`ONSET_STEPS` steps back), and an episode's end where the travel turned between its
+  samples. Other mechanisms' deficit forces can share a direction (the steel frame's fibre
+  columns: with every bilinear episode so placed, floor-1 NRMS x on El Centro 1940 at 2600
+  N 7.49 % against 3.49 %; with the sharp ones, 3.75 %), so a sharp mechanism the pushover
+  did not find has its onset taken at the middle of the step that shows it
+  (:data:`ONSET_FRACTION`; the sample is past the onset by an unknown part of the step's
+  increment, about ``k v dt`` of force: 60 N of a 210 kN/m story at 0.15 m/s and 2 ms), and
+  an episode's end at its last yielding sample. A mechanism whose first yielding was
+  gradual (a ``Steel02`` fibre section: its
   first deficit is small, and grows) keeps the range it has shown, from the samples
   (measured, the steel frame on El Centro 1940 at ``M/M_y`` 1.35, ``model``: floor-1 NRMS
   x 5.59 % with both for every bilinear mechanism, 3.49 % with them for the sharp ones
   only, 3.72 % with neither).
 
-Exact for one bilinear member with kinematic hardening (a ``Steel01``) whose onset and
-reversal fall on the samples; for gradual yielding (``Steel02`` fibres) the tangent itself
-follows the curve from sample to sample. Several members whose directions are not
-orthogonal share their eigen-directions.
+Exact for one bilinear member with kinematic hardening (a ``Steel01``), with the deficit
+force (without it, for one whose onset and reversal fall on the samples); for gradual
+yielding (``Steel02`` fibres) the tangent itself follows the curve from sample to sample.
+Several members whose directions are not orthogonal share their eigen-directions.
 
 References
 ----------
@@ -65,7 +74,7 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = ['YieldMechanisms', 'Mechanism', 'VirginMechanism', 'DEFICIT_TOLERANCE',
-           'SAME_DIRECTION', 'BILINEAR_SPREAD', 'ONSET_FRACTION']
+           'SAME_DIRECTION', 'BILINEAR_SPREAD', 'ONSET_FRACTION', 'ONSET_STEPS']
 
 #: A deficit of the tangent stiffness below this part of the largest entry of the initial one
 #: is no yielding.
@@ -80,6 +89,9 @@ BILINEAR_SPREAD = 0.1
 #: acceleration NRMS on El Centro 1940 3.44 % at 0, 3.01 % at 0.5; Kobe KJMA 090 3.14 and
 #: 2.41 % (Masing's range in both; before either, 4.29 and 4.24 %).
 ONSET_FRACTION = 0.5
+#: An onset placed by the deficit force lies at most this many steps of its sample's
+#: increment back (a tangent the part read a sample late shows an onset of the step before).
+ONSET_STEPS = 3.0
 
 
 @dataclass
@@ -137,6 +149,8 @@ class Mechanism:
     first_onset_m: float | None = None
     sharp: bool | None = None
     virgin_range_m: tuple | None = None
+    reference_N: float | None = None
+    onset_m: float | None = None
 
 
 @dataclass(frozen=True)
@@ -193,14 +207,18 @@ class YieldMechanisms:
                 self.mechanisms.append(Mechanism(
                     u / np.linalg.norm(u), float(v.deficit_N_per_m), 1.0, yielding=False,
                     onset_deficit_N_per_m=float(v.deficit_N_per_m), bilinear=True,
-                    sharp=True, virgin_range_m=(v.low_m, v.high_m)))
+                    sharp=True, virgin_range_m=(v.low_m, v.high_m), reference_N=0.0))
 
-    def observe(self, x_m, tangent_N_per_m) -> None:
-        """Take a sample: every DOF's displacement [m] and the tangent (None: the initial
-        one: nothing yields)."""
+    def observe(self, x_m, tangent_N_per_m, deficit_N=None) -> None:
+        """Take a sample: every DOF's displacement [m], the tangent (None: the initial
+        one: nothing yields) and, if the part gives it, its restoring force short of the
+        initial stiffness's, ``K_0 x - R(x)`` [N] (n,; None: an onset is placed at
+        :data:`ONSET_FRACTION` of its step, an episode's end at its last yielding
+        sample)."""
         x = np.asarray(x_m, dtype=float)
         dx = x - self._last_x if self._last_x is not None else np.zeros_like(x)
         self._last_x = x
+        forces = None if deficit_N is None else np.asarray(deficit_N, dtype=float)
         previous = self._tangent
         self._tangent = None if tangent_N_per_m is None else np.asarray(tangent_N_per_m,
                                                                         dtype=float)
@@ -215,22 +233,27 @@ class YieldMechanisms:
                 dz = float(ui @ dx)
                 m = self._match(ui)
                 if m is None:
+                    # its first yielding: the part was linear before (no deficit force)
                     m = Mechanism(ui.copy(), float(lam[i]), 1.0 if dz >= 0.0 else -1.0,
-                                  onset_deficit_N_per_m=float(lam[i]),
-                                  first_onset_m=float(ui @ x) - ONSET_FRACTION * dz)
+                                  yielding=False, reference_N=0.0)
                     self.mechanisms.append(m)
                 elif float(m.direction @ ui) < 0.0:
                     ui, dz = -ui, -dz
                 sense = 1.0 if dz >= 0.0 else -1.0
                 if not m.yielding or m.episode_N_per_m is None:
                     m.onset_deficit_N_per_m = float(lam[i])
-                    if m.first_onset_m is None:       # a mechanism the pushover found
-                        m.first_onset_m = float(ui @ x) - ONSET_FRACTION * dz
                     m.episode_N_per_m = [float(lam[i]), float(lam[i])]
+                    # placed by the deficit force if the pushover found the mechanism one
+                    # bilinear member (module notes)
+                    exact = m.virgin_range_m is not None
+                    m.onset_m = float(ui @ x) - self._onset_back(
+                        ui, dz, float(lam[i]), forces if exact else None, m.reference_N)
+                    if m.first_onset_m is None:
+                        m.first_onset_m = m.onset_m
                     if m.stop_m is not None and sense != m.sense:
                         # yielding again in the other sense: the elastic range it has shown
-                        back = ONSET_FRACTION * dz if m.sharp else 0.0
-                        m.elastic_range_m = abs(float(ui @ x) - back - m.stop_m)
+                        m.elastic_range_m = abs((m.onset_m if m.sharp else float(ui @ x))
+                                                - m.stop_m)
                 m.episode_N_per_m = [min(m.episode_N_per_m[0], float(lam[i])),
                                      max(m.episode_N_per_m[1], float(lam[i]))]
                 # (m still holds the sample before's state; a new one yields in `sense`)
@@ -248,7 +271,38 @@ class YieldMechanisms:
                     m.bilinear = low >= (1.0 - BILINEAR_SPREAD) * high
                     if m.sharp is None:
                         m.sharp = m.bilinear
+                    held_N = None if forces is None else float(m.direction @ forces)
+                    if m.bilinear and m.virgin_range_m is not None:
+                        m.stop_m = self._stop(m, held_N)
+                    m.reference_N = held_N
             m.last_m = z
+
+    @staticmethod
+    def _onset_back(u, dz: float, deficit_N_per_m: float, forces, reference_N) -> float:
+        """How far back from the sample along `u` [m] an onset lies that the sample's step
+        (increment `dz` [m]) shows: where the deficit force's growth since the mechanism was
+        last elastic (`reference_N` along `u`), ``lambda (z - z_onset)``, puts it (exact for
+        a bilinear member; up to :data:`ONSET_STEPS` steps back: a tangent read a sample
+        late), else :data:`ONSET_FRACTION` of the step."""
+        if forces is not None and reference_N is not None and dz != 0.0:
+            beyond = (float(u @ forces) - reference_N) / deficit_N_per_m
+            if 0.0 <= beyond / dz <= ONSET_STEPS:
+                return beyond
+        return ONSET_FRACTION * dz
+
+    @staticmethod
+    def _stop(m: 'Mechanism', held_N: float | None) -> float:
+        """Where a bilinear mechanism's yielding episode stopped [m] (along its direction):
+        its onset plus the deficit force it gained over the episode over its deficit
+        stiffness (the extreme of its travel, between samples), or the last sample that
+        yielded without the deficit forces."""
+        if held_N is None or m.reference_N is None or m.onset_m is None:
+            return m.last_m
+        stop = m.onset_m + (held_N - m.reference_N) / float(np.mean(m.episode_N_per_m))
+        # the extreme lies past the last yielding sample, by less than a few of its steps
+        if m.sense * (stop - m.last_m) >= -1e-3 * abs(stop - m.onset_m):
+            return stop
+        return m.last_m
 
     def _match(self, u) -> 'Mechanism | None':
         best, score = None, SAME_DIRECTION

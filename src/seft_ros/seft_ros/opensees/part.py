@@ -199,6 +199,7 @@ class OpenSeesPart:
         self.virgin_mechanisms = None
         self.pushes = None
         self.pushover_time_s = 0.0
+        self._deficit = None              # deficit_forces' matrix
         self.tangent_steps = 0            # samples whose tangent was assembled
         # step: deferred: the sample ahead of OpenSees' (its linear step), and the
         # effective matrices of that step per stiffness
@@ -761,6 +762,50 @@ class OpenSeesPart:
         z[:n], z[n:2 * n] = x, v
         out = (self._prediction_map(stiffness_c_N_per_m, dofs) @ np.array(z)).tolist()
         return out[:n], tuple(out[n:])
+
+    def deficit_forces(self, x, v) -> np.ndarray:
+        """The computational part's restoring force short of its linearization's at the
+        sample of the latest :meth:`state_at`, at every DOF [N] (n,): ``K_c,0 x - R(x)``.
+
+        ``R`` is the model's restoring force less its damping: at a computational DOF
+        ``-M_UU (a_U + iota_U g) - C_U. v`` (its equation of motion), at an interface DOF
+        ``-I_p - C_c[p] v`` (``I_p`` the interface force). Zero while the model is linear
+        (to its integrator's difference); along a yielding mechanism it grows by the
+        mechanism's deficit stiffness times its travel beyond the onset
+        (:class:`~seft_ros.core.tangent.YieldMechanisms` places the onset with it).
+
+        Parameters
+        ----------
+        x, v : sequence of float (n,)
+            Every DOF's displacement [m] and velocity [m/s] at that sample (``state_at``).
+        """
+        n = len(self._x)
+        ahead = self._ahead
+        z = (self._inputs(self.ground.get(self._settled, 0.0)) if ahead is None
+             else self._inputs(self.ground.get(ahead[0], 0.0), ahead[1:]))
+        z[:n], z[n:2 * n] = x, v
+        return self._deficit_map() @ np.array(z)
+
+    def _deficit_map(self) -> np.ndarray:
+        """The matrix on ``z`` (:meth:`_inputs`) of :meth:`deficit_forces` (made once)."""
+        if self._deficit is not None:
+            return self._deficit
+        sub, m = self.sub, self.matrices
+        n, qi, pi = len(self._x), self._qi, self._pi
+        nu = len(qi)
+        out = np.zeros((n, 2 * n + nu + 1 + len(pi)))
+        out[:, :n] = sub.stiffness_c_N_per_m
+        for i in qi:
+            out[i, n:2 * n] = m.damping_N_s_per_m[i]
+        if qi:
+            m_uu = m.mass_kg[np.ix_(qi, qi)]
+            out[np.ix_(qi, range(2 * n, 2 * n + nu))] = m_uu
+            out[qi, 2 * n + nu] = m_uu @ m.influence[qi]
+        for p in pi:
+            out[p, n:2 * n] = sub.damping_c_N_s_per_m[p]
+            out[p, 2 * n + nu + 1 + pi.index(p)] = 1.0
+        self._deficit = out
+        return out
 
     def recorded_state(self, x, v, j: int) -> tuple:
         """The computational DOFs' ``x, v, a`` at sample ``j - recorded_lag_steps`` as
