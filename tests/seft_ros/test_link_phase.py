@@ -71,6 +71,8 @@ def test_the_hosts_measure_their_link_and_run_in_one_clock(tmp_path, seft_exe, r
     assert 0.0 <= link['playout_missed_fraction'] < 0.01
     assert run.params['network_delay_s'] == pytest.approx(link['network_delay_s'])
     # ages across the hosts in the reference clock: the builder (compute) takes the rig's
-    # samples (lab) a fraction of a millisecond old, not 50 ms
+    # samples (lab) a fraction of a millisecond old, not 50 ms; within the clock offset's own
+    # error (asserted above to 2 ms), so it can read below 0 (-0.38 ms once: the fresh-clone
+    # CI of 6d4f70a)
     age = summary['timing']['nodes']['reference_force_builder']['input_age_ms']['p50']
-    assert 0.0 < age < 10.0
+    assert -2.0 < age < 10.0
