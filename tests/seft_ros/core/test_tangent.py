@@ -170,3 +170,11 @@ def test_onsets_and_ends_placed_by_the_deficit_force():
         m.observe([0.0, x2(z)], k, force(beyond))
     (mech,) = m.mechanisms
     assert mech.first_onset_m == pytest.approx(0.010) and mech.stop_m == pytest.approx(0.016)
+
+
+def test_only_the_pushovers_mechanisms_use_the_deficit_force():
+    """The builder asks the part for its deficit force only when a mechanism the pushover
+    found is there (no other mechanism uses it)."""
+    assert not YieldMechanisms(K0).uses_deficit
+    assert not YieldMechanisms(K0, [VirginMechanism(U, LAM, -0.01, 0.01, False)]).uses_deficit
+    assert YieldMechanisms(K0, [VirginMechanism(U, LAM, -0.01, 0.01, True)]).uses_deficit

@@ -959,6 +959,8 @@ class ReferenceForceBuilder:
                         self.setup.substructures.stiffness_c_N_per_m,
                         getattr(state, 'virgin_mechanisms', None) or ())
                 deficit = getattr(state, 'deficit_forces', None)
+                if deficit is None or not self._mechanisms.uses_deficit:
+                    deficit = None                 # (not computed on every step for nothing)
                 self._mechanisms.observe(x, k_t, None if deficit is None else deficit(x, v))
                 shifted = q[:len(x)]
                 stiffness = self._mechanisms.stiffness(

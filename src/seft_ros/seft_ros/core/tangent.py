@@ -209,6 +209,12 @@ class YieldMechanisms:
                     onset_deficit_N_per_m=float(v.deficit_N_per_m), bilinear=True,
                     sharp=True, virgin_range_m=(v.low_m, v.high_m), reference_N=0.0))
 
+    @property
+    def uses_deficit(self) -> bool:
+        """Whether :meth:`observe` uses the part's deficit force: only for the mechanisms
+        the pushover found (module notes); without one, the part need not compute it."""
+        return any(m.virgin_range_m is not None for m in self.mechanisms)
+
     def observe(self, x_m, tangent_N_per_m, deficit_N=None) -> None:
         """Take a sample: every DOF's displacement [m], the tangent (None: the initial
         one: nothing yields) and, if the part gives it, its restoring force short of the
