@@ -6,7 +6,8 @@ horizontal direction with a ``Parallel`` material of its spring and a ``Viscous`
 each floor a lumped mass. Story 1 (element 1) is the reference study's specimen (k = 2.11e5
 N/m, c = 903.278 N s/m, 52.7 kg; Nakata and Combs, Sec. 3.1), tested on the rig; story 2 is
 ``Steel01`` (yield force ``fy2_N``, post-yield ratio ``b``: bilinear with kinematic
-hardening), story 3 elastic. Units: N, m, kg, s.
+hardening), story 3 elastic, or ``Steel01`` too with ``fy3_N`` (post-yield ratio ``b3``).
+Units: N, m, kg, s.
 
 Nodes: 0 the ground, ``i`` floor i. Elements: story ``i`` is element ``i``.
 """
@@ -20,8 +21,10 @@ STORY_DAMPING_N_S_PER_M = (903.278, 333.5, 333.5)
 
 def build(fy2_N: float = 2500.0, b: float = 0.02, masses_kg=FLOOR_MASSES_KG,
           stiffnesses_N_per_m=STORY_STIFFNESSES_N_PER_M,
-          damping_N_s_per_m=STORY_DAMPING_N_S_PER_M):
-    """Build the frame (module notes); ``fy2_N`` 0 makes story 2 elastic."""
+          damping_N_s_per_m=STORY_DAMPING_N_S_PER_M, fy3_N: float = 0.0, b3: float = 0.05):
+    """Build the frame (module notes); ``fy2_N`` 0 makes story 2 elastic, ``fy3_N`` 0 (the
+    default) story 3."""
+    yield_forces_N = {2: (fy2_N, b), 3: (fy3_N, b3)}
     ops.wipe()
     ops.model('basic', '-ndm', 2, '-ndf', 2)
     ops.node(0, 0.0, 0.0)
@@ -31,8 +34,9 @@ def build(fy2_N: float = 2500.0, b: float = 0.02, masses_kg=FLOOR_MASSES_KG,
         ops.node(i, 0.0, 0.0)
         ops.fix(i, 0, 1)
         ops.mass(i, m, 0.0)
-        if i == 2 and fy2_N:
-            ops.uniaxialMaterial('Steel01', 10 + i, fy2_N, k, b)
+        fy_N, ratio = yield_forces_N.get(i, (0.0, 0.0))
+        if fy_N:
+            ops.uniaxialMaterial('Steel01', 10 + i, fy_N, k, ratio)
         else:
             ops.uniaxialMaterial('Elastic', 10 + i, k)
         ops.uniaxialMaterial('Viscous', 20 + i, c, 1.0)

@@ -178,3 +178,46 @@ def test_only_the_pushovers_mechanisms_use_the_deficit_force():
     assert not YieldMechanisms(K0).uses_deficit
     assert not YieldMechanisms(K0, [VirginMechanism(U, LAM, -0.01, 0.01, False)]).uses_deficit
     assert YieldMechanisms(K0, [VirginMechanism(U, LAM, -0.01, 0.01, True)]).uses_deficit
+
+
+def test_two_adjacent_stories_keep_their_own_deficits():
+    """Stories 2 and 3 of a three-floor frame, both found by the pushover, share floor 2: their
+    directions are not orthogonal (``u2 . u3 = -1/2``). Story 2 yields past z2 0.004 and goes
+    on; story 3 yields past z3 0.003 within the step to 0.0034, then unloads while story 2
+    goes on. Each keeps its own direction and deficit (the tangent's eigenvectors mix them),
+    story 3's onset is placed at 0.003 from its own share of the deficit force (its
+    projection, ``lambda3 (z3 - 0.003) - lambda2 (z2 - 0.004) / 2``, holds story 2's), and
+    its end at 0.0034."""
+    k = np.array([K, 0.9 * K, 0.7 * K])
+    k0 = np.array([[k[0] + k[1], -k[1], 0.0], [-k[1], k[1] + k[2], -k[2]], [0.0, -k[2], k[2]]])
+    u2 = np.array([-1.0, 1.0, 0.0]) / np.sqrt(2.0)
+    u3 = np.array([0.0, -1.0, 1.0]) / np.sqrt(2.0)
+    lam2, lam3 = (1 - B) * 2 * k[1], (1 - 0.05) * 2 * k[2]
+    m = YieldMechanisms(k0, [VirginMechanism(u2, lam2, -0.004, 0.004, True),
+                             VirginMechanism(u3, lam3, -0.003, 0.003, True)])
+    story2, story3 = m.mechanisms
+
+    def x(z2, z3):                                  # floor 1 held at 0
+        x2 = z2 * np.sqrt(2.0)
+        return [0.0, x2, x2 + z3 * np.sqrt(2.0)]
+
+    def sample(z2, z3, yielding2, yielding3, beyond3):
+        tangent = k0 - yielding2 * lam2 * np.outer(u2, u2) - yielding3 * lam3 * np.outer(u3, u3)
+        force = lam2 * max(z2 - 0.004, 0.0) * u2 + lam3 * beyond3 * u3
+        m.observe(x(z2, z3), None if not (yielding2 or yielding3) else tangent, force)
+
+    sample(0.0, 0.0, False, False, 0.0)
+    sample(0.003, 0.001, False, False, 0.0)
+    sample(0.005, 0.002, True, False, 0.0)
+    sample(0.007, 0.0034, True, True, 0.0004)
+    assert story2.yielding and story3.yielding and len(m.mechanisms) == 2
+    assert story2.deficit_N_per_m == pytest.approx(lam2, rel=1e-9)
+    assert story3.deficit_N_per_m == pytest.approx(lam3, rel=1e-9)
+    assert story3.onset_m == pytest.approx(0.003, rel=1e-9)
+    # story 2 goes on, story 3 unloads: story 3's deficit given back, story 2's kept
+    increment = np.subtract(x(0.009, 0.0030), x(0.007, 0.0034))
+    np.testing.assert_allclose(m.stiffness(increment), k0 - lam2 * np.outer(u2, u2),
+                               rtol=1e-9, atol=1e-6 * K)
+    sample(0.009, 0.0030, True, False, 0.0004)
+    assert story2.yielding and not story3.yielding
+    assert story3.stop_m == pytest.approx(0.0034, rel=1e-9)

@@ -10,8 +10,12 @@ on yielding, and wrong where one unloads (it is elastic again: ``K_0``) or start
 samples and gives the stiffness for the predicted motion:
 
 * the **deficit** ``D = K_0 - K_t`` (symmetric, positive semi-definite where members yield)
-  is split into its eigen-directions ``u_i`` (``D = sum lambda_i u_i u_i^T``), each one
-  yielding mechanism with the coordinate ``z_i = u_i . x``;
+  is split into yielding mechanisms ``u_i`` (``D = sum lambda_i u_i u_i^T``), each with the
+  coordinate ``z_i = u_i . x``: first over the directions of the mechanisms found before the
+  test (below), each keeping its own (``lambda_i >= 0`` by non-negative least squares over
+  the matrix's entries), then what they do not give into its eigen-directions. Two members
+  whose directions are not orthogonal (two stories that share a floor: ``u . u' = -1/2``)
+  yielding together have eigenvectors that mix them, matching neither;
 * a mechanism **goes on yielding** if the predicted increment of ``z_i`` has the sense of
   its last one, and **unloads** otherwise (its deficit given back: the loading/unloading
   condition of plasticity);
@@ -38,40 +42,47 @@ samples and gives the stiffness for the predicted motion:
   before it ever has, where its virgin elastic range ends in the predicted sense (its first
   yield anticipated), and takes that range's width as its elastic range until a reversal
   shows it (in place of Masing's from its first onset);
-* a mechanism the pushover found (one bilinear member) has its **onset** (the first
-  yielding sample of an episode) and **end** placed by the part's **deficit force**
+* a mechanism the pushover found (one bilinear member) has its **onset** (the first yielding
+  sample of an episode) and **end** placed by its share of the part's **deficit force**
   ``K_0 x - R(x)`` where it gives it (an OpenSees part: ``deficit_forces``, from its
-  equation of motion): along such a mechanism it grows as ``lambda (z - z_onset)`` from its
+  equation of motion): for such a mechanism it grows as ``lambda (z - z_onset)`` from its
   value when the mechanism was last elastic, which places the onset within its step (up to
   :data:`ONSET_STEPS` steps back), and an episode's end where the travel turned between its
-  samples. Other mechanisms' deficit forces can share a direction (the steel frame's fibre
-  columns: with every bilinear episode so placed, floor-1 NRMS x on El Centro 1940 at 2600
-  N 7.49 % against 3.49 %; with the sharp ones, 3.75 %), so a sharp mechanism the pushover
-  did not find has its onset taken at the middle of the step that shows it
+  samples. The share is the mechanism's coordinate in the deficit force's least-squares
+  split over those directions (its projection on its own direction also holds the others'
+  where they are not orthogonal: a frame with two such stories yielding, on the default
+  record at 2500 / 1500 N, floor-3 NRMS x 11.91 % with the eigenvectors and the projection,
+  0.65 % so). Other mechanisms' deficit forces can share a direction (the steel frame's
+  fibre columns: with every bilinear episode so placed, floor-1 NRMS x on El Centro 1940 at
+  2600 N 7.49 % against 3.49 %; with the sharp ones, 3.75 %), so a sharp mechanism the
+  pushover did not find has its onset taken at the middle of the step that shows it
   (:data:`ONSET_FRACTION`; the sample is past the onset by an unknown part of the step's
   increment, about ``k v dt`` of force: 60 N of a 210 kN/m story at 0.15 m/s and 2 ms), and
-  an episode's end at its last yielding sample. A mechanism whose first yielding was
-  gradual (a ``Steel02`` fibre section: its
-  first deficit is small, and grows) keeps the range it has shown, from the samples
-  (measured, the steel frame on El Centro 1940 at ``M/M_y`` 1.35, ``model``: floor-1 NRMS
-  x 5.59 % with both for every bilinear mechanism, 3.49 % with them for the sharp ones
-  only, 3.72 % with neither).
+  an episode's end at its last yielding sample. A mechanism whose first yielding was gradual
+  (a ``Steel02`` fibre section: its first deficit is small, and grows) keeps the range it
+  has shown, from the samples (measured, the steel frame on El Centro 1940 at ``M/M_y``
+  1.35, ``model``: floor-1 NRMS x 5.59 % with both for every bilinear mechanism, 3.49 % with
+  them for the sharp ones only, 3.72 % with neither).
 
 Exact for one bilinear member with kinematic hardening (a ``Steel01``), with the deficit
 force (without it, for one whose onset and reversal fall on the samples); for gradual
 yielding (``Steel02`` fibres) the tangent itself follows the curve from sample to sample.
-Several members whose directions are not orthogonal share their eigen-directions.
+Several members whose directions are not orthogonal, and that the pushover did not find,
+share their eigen-directions.
 
 References
 ----------
 J. C. Simo and T. J. R. Hughes (1998), Computational Inelasticity, Springer, Secs. 1.2-1.4
 (the loading/unloading conditions, the elastic predictor); G. Masing (1926), the elastic range
-of a kinematically hardening member is twice its yield strength, whatever its history.
+of a kinematically hardening member is twice its yield strength, whatever its history;
+C. L. Lawson and R. J. Hanson (1974), Solving Least Squares Problems, Prentice-Hall, Ch. 23
+(non-negative least squares: ``scipy.optimize.nnls``).
 """
 
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.optimize import nnls
 
 __all__ = ['YieldMechanisms', 'Mechanism', 'VirginMechanism', 'DEFICIT_TOLERANCE',
            'SAME_DIRECTION', 'BILINEAR_SPREAD', 'ONSET_FRACTION', 'ONSET_STEPS']
@@ -188,7 +199,8 @@ class YieldMechanisms:
         ``K_0``: the computational part's initial (linearization's) stiffness [N/m].
     known : sequence of VirginMechanism
         Mechanisms found before the test: a bilinear one's first yield is anticipated
-        where its virgin elastic range ends (module notes).
+        where its virgin elastic range ends, and it keeps its direction, its deficit and
+        its share of the deficit force split from the others' (module notes).
 
     Attributes
     ----------
@@ -208,6 +220,8 @@ class YieldMechanisms:
                     u / np.linalg.norm(u), float(v.deficit_N_per_m), 1.0, yielding=False,
                     onset_deficit_N_per_m=float(v.deficit_N_per_m), bilinear=True,
                     sharp=True, virgin_range_m=(v.low_m, v.high_m), reference_N=0.0))
+        # the pushover's mechanisms keep their directions (module notes)
+        self._known = list(self.mechanisms)
 
     @property
     def uses_deficit(self) -> bool:
@@ -231,41 +245,42 @@ class YieldMechanisms:
         held = (previous is not None and self._tangent is not None
                 and np.array_equal(previous, self._tangent))
         seen = set()
+        shares = self._shares(forces)
         if self._tangent is not None:
             deficit = self.k0 - self._tangent
-            lam, u = np.linalg.eigh(0.5 * (deficit + deficit.T))
+            deficit = 0.5 * (deficit + deficit.T)
+            found, rest = self._known_yielding(deficit)
+            lam, u = np.linalg.eigh(rest)
             for i in np.nonzero(lam > DEFICIT_TOLERANCE * self.scale)[0]:
-                ui = u[:, i]
+                found.append((self._match(u[:, i]), u[:, i], float(lam[i])))
+            for m, ui, lam_i in found:
                 dz = float(ui @ dx)
-                m = self._match(ui)
                 if m is None:
                     # its first yielding: the part was linear before (no deficit force)
-                    m = Mechanism(ui.copy(), float(lam[i]), 1.0 if dz >= 0.0 else -1.0,
+                    m = Mechanism(ui.copy(), lam_i, 1.0 if dz >= 0.0 else -1.0,
                                   yielding=False, reference_N=0.0)
                     self.mechanisms.append(m)
                 elif float(m.direction @ ui) < 0.0:
                     ui, dz = -ui, -dz
                 sense = 1.0 if dz >= 0.0 else -1.0
                 if not m.yielding or m.episode_N_per_m is None:
-                    m.onset_deficit_N_per_m = float(lam[i])
-                    m.episode_N_per_m = [float(lam[i]), float(lam[i])]
-                    # placed by the deficit force if the pushover found the mechanism one
-                    # bilinear member (module notes)
-                    exact = m.virgin_range_m is not None
+                    m.onset_deficit_N_per_m = lam_i
+                    m.episode_N_per_m = [lam_i, lam_i]
+                    # placed by its share of the deficit force if the pushover found the
+                    # mechanism one bilinear member (module notes)
                     m.onset_m = float(ui @ x) - self._onset_back(
-                        ui, dz, float(lam[i]), forces if exact else None, m.reference_N)
+                        dz, lam_i, shares.get(id(m)), m.reference_N)
                     if m.first_onset_m is None:
                         m.first_onset_m = m.onset_m
                     if m.stop_m is not None and sense != m.sense:
                         # yielding again in the other sense: the elastic range it has shown
                         m.elastic_range_m = abs((m.onset_m if m.sharp else float(ui @ x))
                                                 - m.stop_m)
-                m.episode_N_per_m = [min(m.episode_N_per_m[0], float(lam[i])),
-                                     max(m.episode_N_per_m[1], float(lam[i]))]
+                m.episode_N_per_m = [min(m.episode_N_per_m[0], lam_i),
+                                     max(m.episode_N_per_m[1], lam_i)]
                 # (m still holds the sample before's state; a new one yields in `sense`)
                 m.held_reversal = held and m.yielding and m.sense != sense
-                m.direction, m.deficit_N_per_m, m.sense, m.yielding = ui, float(lam[i]), \
-                    sense, True
+                m.direction, m.deficit_N_per_m, m.sense, m.yielding = ui, lam_i, sense, True
                 seen.add(id(m))
         for m in self.mechanisms:
             z = float(m.direction @ x)
@@ -277,24 +292,59 @@ class YieldMechanisms:
                     m.bilinear = low >= (1.0 - BILINEAR_SPREAD) * high
                     if m.sharp is None:
                         m.sharp = m.bilinear
-                    held_N = None if forces is None else float(m.direction @ forces)
+                    held_N = shares.get(id(m))
                     if m.bilinear and m.virgin_range_m is not None:
                         m.stop_m = self._stop(m, held_N)
                     m.reference_N = held_N
             m.last_m = z
 
     @staticmethod
-    def _onset_back(u, dz: float, deficit_N_per_m: float, forces, reference_N) -> float:
-        """How far back from the sample along `u` [m] an onset lies that the sample's step
-        (increment `dz` [m]) shows: where the deficit force's growth since the mechanism was
-        last elastic (`reference_N` along `u`), ``lambda (z - z_onset)``, puts it (exact for
-        a bilinear member; up to :data:`ONSET_STEPS` steps back: a tangent read a sample
-        late), else :data:`ONSET_FRACTION` of the step."""
-        if forces is not None and reference_N is not None and dz != 0.0:
-            beyond = (float(u @ forces) - reference_N) / deficit_N_per_m
+    def _onset_back(dz: float, deficit_N_per_m: float, share_N, reference_N) -> float:
+        """How far back from the sample along its direction [m] an onset lies that the
+        sample's step (increment `dz` [m]) shows: where the growth of the mechanism's share
+        of the deficit force (`share_N`, None: not known) since it was last elastic
+        (`reference_N`), ``lambda (z - z_onset)``, puts it (exact for a bilinear member; up
+        to :data:`ONSET_STEPS` steps back: a tangent read a sample late), else
+        :data:`ONSET_FRACTION` of the step."""
+        if share_N is not None and reference_N is not None and dz != 0.0:
+            beyond = (share_N - reference_N) / deficit_N_per_m
             if 0.0 <= beyond / dz <= ONSET_STEPS:
                 return beyond
         return ONSET_FRACTION * dz
+
+    def _known_yielding(self, deficit):
+        """The deficit split over the directions the pushover found (module notes):
+        ``D = sum_j lambda_j u_j u_j^T + rest`` with ``lambda_j >= 0`` by non-negative least
+        squares over the matrix's entries (scipy.optimize.nnls).
+
+        Returns
+        -------
+        found : list of (Mechanism, ndarray (n,), float)
+            The known mechanisms that yield (``lambda_j`` above :data:`DEFICIT_TOLERANCE`),
+            each with its direction and ``lambda_j`` [N/m].
+        rest : ndarray (n, n)
+            What the known directions do not give [N/m] (the other mechanisms' deficit).
+        """
+        known = self._known
+        if not known:
+            return [], deficit
+        basis = np.stack([np.outer(m.direction, m.direction).ravel() for m in known], axis=1)
+        lam, _ = nnls(basis, deficit.ravel())
+        found = [(m, m.direction, float(lam_j)) for m, lam_j in zip(known, lam)
+                 if lam_j > DEFICIT_TOLERANCE * self.scale]
+        return found, deficit - (basis @ lam).reshape(deficit.shape)
+
+    def _shares(self, forces) -> dict:
+        """Each known mechanism's share of the deficit force ``K_0 x - R(x)`` [N]
+        (`forces`, (n,); None: none): its coordinate in the force's least-squares split over
+        the known directions (``F = sum_j s_j u_j``). Along a mechanism's own direction
+        the force also carries the others' shares where the directions are not orthogonal
+        (two adjacent stories: ``u . u' = -1/2``). Keyed by the mechanism's ``id``."""
+        if forces is None or not self._known:
+            return {}
+        directions = np.stack([m.direction for m in self._known], axis=1)
+        s = np.linalg.lstsq(directions, forces, rcond=None)[0]
+        return {id(m): float(v) for m, v in zip(self._known, s)}
 
     @staticmethod
     def _stop(m: 'Mechanism', held_N: float | None) -> float:
@@ -313,6 +363,8 @@ class YieldMechanisms:
     def _match(self, u) -> 'Mechanism | None':
         best, score = None, SAME_DIRECTION
         for m in self.mechanisms:
+            if any(m is k for k in self._known):
+                continue
             s = abs(float(m.direction @ u))
             if s > score:
                 best, score = m, s
