@@ -128,6 +128,7 @@ def test_frame_is_condensed_to_its_floors():
     ({'colour': 'red'}, r'structure\.opensees\.colour: unknown key'),
     ({'step': 'later'},
      r"structure\.opensees\.step: expected one of immediate, deferred, got 'later'"),
+    ({'pushover': 'no'}, r"structure\.opensees\.pushover: expected true or false, got 'no'"),
     ({'model': 'nowhere.py'}, r'structure\.opensees\.model: .*nowhere\.py: no such model file'),
     ({'function': 'construct'},
      r"structure\.opensees\.function: two_story\.py has no function 'construct'"),

@@ -11,6 +11,7 @@ from seft_ros.cli.config import expand_runs, load_config
 from seft_ros.core.structure import test_setup
 from seft_ros.opensees.loader import opensees
 from seft_ros.opensees.part import OpenSeesPart
+from seft_ros.opensees.report import pushover_entry, pushover_lines
 
 ROOT = Path(__file__).resolve().parents[3]
 K = 2.11e5                                   # each story's stiffness [N/m]
@@ -42,15 +43,22 @@ def build(story2='Steel01'):
 """
 
 
-def _part(tmp_path, story2: str) -> OpenSeesPart:
-    """The frame's computational part (story 1 the specimen), prepared: pushed over."""
+def _params(tmp_path, story2: str, **section) -> dict:
+    """The run parameters of the frame (story 1 the specimen; `section`: more keys of its
+    ``structure.opensees``)."""
     tmp_path.mkdir(exist_ok=True)
     (tmp_path / 'frame.py').write_text(FRAME)
     doc = yaml.safe_load((ROOT / 'config' / 'opensees' / 'shear_frame.yaml').read_text())
-    doc['structure']['opensees'].update(model='frame.py', arguments={'story2': story2})
+    doc['structure']['opensees'].update(model='frame.py', arguments={'story2': story2},
+                                        **section)
     path = tmp_path / 'frame.yaml'
     path.write_text(yaml.safe_dump(doc))
-    params = expand_runs(dict(load_config(path), duration_s=1.0))[0]
+    return expand_runs(dict(load_config(path), duration_s=1.0))[0]
+
+
+def _part(tmp_path, story2: str, **section) -> OpenSeesPart:
+    """The frame's computational part, prepared: pushed over (unless `section` says not)."""
+    params = _params(tmp_path, story2, **section)
     part = OpenSeesPart(test_setup(params).substructures, 0.002)
     part.prepare()
     return part
@@ -89,3 +97,28 @@ def test_a_gradual_story_is_found_but_not_anticipated_and_an_elastic_one_not_fou
     (mech,) = _part(tmp_path / 'a', 'Steel02').virgin_mechanisms
     assert not mech.bilinear
     assert _part(tmp_path / 'b', 'Elastic').virgin_mechanisms == []
+
+
+def test_the_summary_says_what_the_pushover_found(tmp_path):
+    """The run summary's entry (``opensees.pushover``, for the report and the console): the
+    asymmetric story along the drift ``x2 - x1``, yielding at -5 and +15 mm and losing its
+    whole stiffness 2.11e5 N/m (closed form); not run with ``pushover: false`` (nor does the
+    part push) or with ``prediction: initial``."""
+    entry = pushover_entry(_params(tmp_path / 'a', 'ElasticPP'))
+    (mech,) = entry['mechanisms']
+    assert entry['ran'] and entry['time_s'] > 0.0
+    assert mech['coordinate'].keys() == {'floor_1', 'floor_2'}
+    assert mech['coordinate']['floor_2'] == 1.0
+    assert mech['coordinate']['floor_1'] == pytest.approx(-1.0, rel=1e-9)
+    np.testing.assert_allclose(mech['first_yield_m'], [-0.005, 0.015], rtol=1e-9)
+    assert mech['lost_stiffness_N_per_m'] == pytest.approx(K, rel=1e-9)
+    assert mech['bilinear']
+    lines = pushover_lines(entry)
+    assert len(lines) == 2 and lines[0].endswith('1 yielding mechanism(s)')
+    assert lines[1].startswith('  -floor_1 + floor_2: first yields at -5.00 / +15.00 mm, '
+                               'bilinear (loses 2.11e+05 N/m)'), lines[1]
+    assert pushover_entry(_params(tmp_path / 'b', 'ElasticPP', pushover=False)) == {
+        'ran': False, 'why': 'pushover: false'}
+    assert _part(tmp_path / 'c', 'ElasticPP', pushover=False).virgin_mechanisms is None
+    assert pushover_entry(_params(tmp_path / 'd', 'ElasticPP', prediction='initial')) == {
+        'ran': False, 'why': 'prediction: initial'}

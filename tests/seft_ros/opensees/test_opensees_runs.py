@@ -102,7 +102,14 @@ def test_simulate_reports_the_model(tmp_path, seft_exe):
     assert 0 < st['p50_s'] <= st['p99_s'] <= st['max_s']
     assert run['dofs']['story_2']['displacement']['nrms'] < 0.01
     assert (out / 'hysteresis_run_1_ele2.png').stat().st_size > 10_000
-    assert '### Run 1: the OpenSees model' in (out / 'report.md').read_text()
+    report = (out / 'report.md').read_text()
+    assert '### Run 1: the OpenSees model' in report
+    # what the pushover found (the two-story building is elastic: nothing), on the console
+    # and in the report
+    assert entry['pushover']['ran'] and entry['pushover']['mechanisms'] == []
+    line = 'no member yields within a push of 1 m on each DOF'
+    assert 'note: run 1 (model): OpenSees pushover (' in result.stdout
+    assert line in result.stdout and line in report
 
 
 def test_a_yielding_story_is_predicted_with_its_tangent(tmp_path):

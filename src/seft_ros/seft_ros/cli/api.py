@@ -1166,7 +1166,19 @@ def structure_table(summary: list[dict]) -> str:
         if (e.get('link') or {}).get('warning'):
             lines.append(f'note: run {i} ({e["predictor"]}): {e["link"]["warning"]}')
         lines += _accuracy_notes(f'run {i} ({e["predictor"]})', e)
+        lines += [f'note: run {i} ({e["predictor"]}): {line}' if not line.startswith(' ')
+                  else line for line in _pushover_lines(e)]
     return '\n'.join(lines)
+
+
+def _pushover_lines(entry: dict) -> list[str]:
+    """The console's lines on what an OpenSees part's pushover found (none: no OpenSees
+    model, or the pushover not run)."""
+    pushover = (entry.get('opensees') or {}).get('pushover')
+    if not pushover or not pushover.get('ran'):
+        return []
+    from seft_ros.opensees.report import pushover_lines
+    return pushover_lines(pushover)
 
 
 def _stable_cell(entry: dict) -> str:

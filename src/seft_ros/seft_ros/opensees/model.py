@@ -23,6 +23,9 @@ kept apart from the analysis seft drives (after OpenSees' own split of ``model``
         prediction: tangent        # the compensators predict the interface force with the
                                    # model's tangent (default), or 'initial': its
                                    # linearization (:mod:`seft_ros.opensees.part`)
+        pushover: true             # with 'tangent', push the model over before the test to
+                                   # find where its members first yield (default;
+                                   # :mod:`seft_ros.opensees.probe`); false: skip it
         step: immediate            # OpenSees steps to the newest sample before the command
                                    # is built (default), or 'deferred': after it, the
                                    # command built from a linear step ahead of the model
@@ -87,7 +90,7 @@ __all__ = ['ModelSpec', 'SECTION_KEYS', 'parse_model_section', 'build_model', 'L
 KIND = 'opensees'
 #: The keys of a ``structure.opensees`` section.
 SECTION_KEYS = ('model', 'function', 'arguments', 'dofs', 'physical_elements', 'excitation_dof',
-                'substeps', 'elements', 'prediction', 'step')
+                'substeps', 'elements', 'prediction', 'step', 'pushover')
 #: How the compensators predict the interface force (``prediction``): with the model's
 #: tangent stiffness at the latest sample, or with its initial linearization.
 PREDICTIONS = ('tangent', 'initial')
@@ -137,6 +140,9 @@ class ModelSpec:
         One of :data:`PREDICTIONS`.
     step : str
         One of :data:`STEPS`.
+    pushover : bool
+        With ``prediction: tangent``, whether the part pushes the model over before the
+        test (:func:`seft_ros.opensees.probe.probe_yield`).
     """
 
     source: str
@@ -151,6 +157,7 @@ class ModelSpec:
     where: str = 'structure.opensees'
     prediction: str = 'tangent'
     step: str = 'immediate'
+    pushover: bool = True
 
     def interface(self, dof_name: str) -> tuple[int, int]:
         """``(node, dof)`` of a seft DOF (KeyError if none)."""
@@ -168,7 +175,7 @@ class ModelSpec:
                                       for r, v in self.physical_elements.items()},
                 'excitation_dof': int(self.excitation_dof), 'substeps': int(self.substeps),
                 'elements': [int(e) for e in self.elements],
-                'prediction': self.prediction, 'step': self.step,
+                'prediction': self.prediction, 'step': self.step, 'pushover': self.pushover,
                 'computational': {k: np.asarray(v).tolist()
                                   for k, v in self.computational.items()}}
 
@@ -191,7 +198,8 @@ class ModelSpec:
                        MappingProxyType({k: np.asarray(v, dtype=float) for k, v in
                                          (doc.get('computational') or {}).items()}),
                        tuple(int(e) for e in doc.get('elements', ())), where,
-                       str(doc.get('prediction', 'tangent')), str(doc.get('step', 'immediate')))
+                       str(doc.get('prediction', 'tangent')), str(doc.get('step', 'immediate')),
+                       bool(doc.get('pushover', True)))
         except (KeyError, TypeError, ValueError) as exc:
             raise ParameterError(f'{where}: expected the model section seft wrote ({exc!r})') \
                 from None
@@ -316,9 +324,12 @@ def parse_model_section(section, *, where: str = 'structure.opensees',
     step = section.get('step', 'immediate')
     if step not in STEPS:
         raise ParameterError(f'{where}.step: expected one of {", ".join(STEPS)}, got {step!r}')
+    pushover = section.get('pushover', True)
+    if not isinstance(pushover, bool):
+        raise ParameterError(f'{where}.pushover: expected true or false, got {pushover!r}')
     return ModelSpec(source, function, MappingProxyType(dict(arguments)), tuple(dofs),
                      MappingProxyType(elements), excitation, substeps, MappingProxyType({}),
-                     tuple(int(t) for t in recorded), where, prediction, step)
+                     tuple(int(t) for t in recorded), where, prediction, step, pushover)
 
 
 def _builder(spec: ModelSpec):

@@ -130,7 +130,8 @@ class OpenSeesPart:
     dt : float > 0
         Control period [s].
     pushover : bool
-        With ``prediction: tangent``, find where the members first yield before the test
+        With ``prediction: tangent`` and the model section's ``pushover`` (default true),
+        find where the members first yield before the test
         (:func:`~seft_ros.opensees.probe.probe_yield`, by :meth:`prepare`; a dry run that
         only times the steps does without).
 
@@ -195,7 +196,7 @@ class OpenSeesPart:
         self._model_loads = None
         self._k_t = None                  # the condensed tangent of the latest sample
         # the pushover's mechanisms (opensees.probe; prepare() finds them)
-        self._pushover = pushover and self._tangent_on
+        self._pushover = pushover and self._tangent_on and spec.pushover
         self.virgin_mechanisms = None
         self.pushes = None
         self.pushover_time_s = 0.0

@@ -10,13 +10,21 @@ report (:mod:`seft_ros.analysis.report`), for a structure with an ``opensees`` m
 
 import math
 from pathlib import Path
+import time
 from typing import Any
 
 import numpy as np
 
-from seft_ros.opensees.part import STEP_TIME, budget_fraction, element_names
+from seft_ros.opensees.model import ModelSpec
+from seft_ros.opensees.part import PUSH_LIMIT_M, STEP_TIME, budget_fraction, element_names
+from seft_ros.opensees.probe import probe_yield
 
-__all__ = ['opensees_entry', 'opensees_markdown', 'hysteresis_figure', 'step_time_summary']
+__all__ = ['opensees_entry', 'opensees_markdown', 'hysteresis_figure', 'step_time_summary',
+           'pushover_entry', 'pushover_lines']
+
+#: A DOF whose part of a mechanism's direction is below this part of the largest is left out
+#: of its coordinate's description.
+_COORDINATE_TOLERANCE = 1e-6
 
 
 def step_time_summary(step_times_s, dt: float, step: str = 'immediate') -> dict[str, Any]:
@@ -62,8 +70,102 @@ def opensees_entry(run) -> dict[str, Any]:
              'substeps': int(model.get('substeps', 1)),
              'step': step,
              'step_time': step_time_summary(run.computational.get(STEP_TIME, ()),
-                                            float(run.params['dt']), step)}
+                                            float(run.params['dt']), step),
+             'pushover': pushover_entry(run.params)}
     return entry
+
+
+def pushover_entry(params) -> dict[str, Any]:
+    """What the OpenSees part's pushover before the test found
+    (:func:`~seft_ros.opensees.probe.probe_yield`, run again here on the same model: it is
+    deterministic), for a run's summary.
+
+    Each mechanism is given along a coordinate scaled so that its largest DOF weight is 1
+    (a story between two floors: the drift ``x_i - x_j``): the weights per DOF, where it
+    first yields in the negative and the positive sense [m] (None: not found) and the
+    stiffness it loses once it yields [N/m] (``lambda`` of the unit direction times the
+    largest weight's square: ``(1 - b) k`` for a bilinear story).
+
+    Parameters
+    ----------
+    params : mapping
+        A run's parameters with an OpenSees structure.
+
+    Returns
+    -------
+    dict
+        ``{'ran': False, 'why': str}`` (``prediction: initial``, or ``pushover: false``),
+        or ``{'ran': True, 'time_s': float, 'mechanisms': [{'coordinate': {dof: weight},
+        'first_yield_m': [low, high], 'lost_stiffness_N_per_m': float, 'bilinear': bool}]}``.
+
+    Raises
+    ------
+    ModelError
+        The model does not build (OpenSees' message).
+    """
+    from seft_ros.core.structure import test_setup
+    setup = test_setup(params)
+    structure = setup.structure
+    spec = ModelSpec.from_doc(structure.model)
+    if spec.prediction != 'tangent':
+        return {'ran': False, 'why': f'prediction: {spec.prediction}'}
+    if not spec.pushover:
+        return {'ran': False, 'why': 'pushover: false'}
+    t0 = time.perf_counter()
+    mechanisms, _ = probe_yield(spec, setup.substructures.stiffness_c_N_per_m,
+                                [PUSH_LIMIT_M] * structure.n)
+    found = []
+    for m in mechanisms:
+        u = np.asarray(m.direction, dtype=float)
+        # the coordinate's largest weight +1, the last DOF's of several (a story's upper
+        # floor: x_upper - x_lower)
+        i = int(np.nonzero(np.abs(u) >= (1.0 - 1e-9) * np.max(np.abs(u)))[0][-1])
+        scale = u[i]
+        weights = u / scale
+        low, high = m.low_m, m.high_m
+        if scale < 0.0:
+            low, high = high, low
+        found.append({
+            'coordinate': {structure.dofs[j]: float(w) for j, w in enumerate(weights)
+                           if abs(w) > _COORDINATE_TOLERANCE},
+            'first_yield_m': [None if low is None else float(low / scale),
+                              None if high is None else float(high / scale)],
+            'lost_stiffness_N_per_m': float(m.deficit_N_per_m * scale ** 2),
+            'bilinear': bool(m.bilinear)})
+    return {'ran': True, 'time_s': time.perf_counter() - t0, 'mechanisms': found}
+
+
+def _coordinate(weights: dict) -> str:
+    """``-floor_1 + floor_2`` from ``{'floor_1': -1.0, 'floor_2': 1.0}`` (the DOFs'
+    order)."""
+    text = ''
+    for name, w in weights.items():
+        sign = '-' if w < 0.0 else '+'
+        size = '' if abs(abs(w) - 1.0) < 1e-9 else f'{abs(w):.3g} '
+        text += (f' {sign} ' if text else ('-' if w < 0.0 else '')) + size + name
+    return text
+
+
+def pushover_lines(pushover: dict) -> list[str]:
+    """Plain-text lines of :func:`pushover_entry`'s entry: one for the pushover, one per
+    mechanism (empty list: no entry)."""
+    if not pushover:
+        return []
+    if not pushover.get('ran'):
+        return [f'OpenSees pushover: not run ({pushover.get("why")})']
+    found = pushover.get('mechanisms') or []
+    took = f'{pushover["time_s"]:.2f} s'
+    if not found:
+        return [f'OpenSees pushover ({took}): no member yields within a push of '
+                f'{PUSH_LIMIT_M:g} m on each DOF']
+    lines = [f'OpenSees pushover ({took}): {len(found)} yielding mechanism(s)']
+    for m in found:
+        ends = ' / '.join('-' if v is None else f'{1e3 * v:+.2f}' for v in m['first_yield_m'])
+        lines.append(f'  {_coordinate(m["coordinate"])}: first yields at {ends} mm, '
+                     + (f'bilinear (loses {m["lost_stiffness_N_per_m"]:.4g} N/m): its first '
+                        'yield anticipated' if m['bilinear'] else
+                        'gradually: followed from its tangent, not anticipated'))
+    return lines
 
 
 def hysteresis_figure(run, reference, tag: int, path, *, title: str = ''):
@@ -140,6 +242,11 @@ def opensees_markdown(index: int, run, entry: dict, out_dir, reference=None) -> 
              f'| {_ms(st.get("p50_s"))} | {_ms(st.get("p99_s"))} | {_ms(st.get("max_s"))} | '
              f'{_ms(st.get("budget_s"))} | {st.get("over_budget", "–")} | '
              f'{st.get("over_period", "–")} |', '']
+    pushover = pushover_lines(info.get('pushover'))
+    if pushover:
+        lines += [pushover[0] + (':' if len(pushover) > 1 else '.'), '']
+        lines += [f'- {line.strip()}' for line in pushover[1:]]
+        lines += [''] if len(pushover) > 1 else []
     from seft_ros.core.structure import test_setup
     setup = test_setup(run.params)
     tags = [int(e) for e in setup.structure.model.get('elements', ())]
