@@ -67,7 +67,9 @@ def test_seft_rigs_pass_every_check(model, tmp_path, run_process, seft_exe):
     # the step shows 5 (delay rig) or 2 (servohydraulic) samples after its command when the
     # command reached the rig by the tick that applies it; one that missed it (its loop
     # latency, in the rig's own timing record, over a period: this shared machine) acts from
-    # its arrival, later, within the check's tolerance
+    # its arrival, later, within the check's tolerance; one whose latency is just over a
+    # period may still have reached it by that tick (the tick itself late: a first CI
+    # attempt showed 2 samples at 2.11 ms)
     timing = checks['command timing']
     nominal = 5 if model == 'delay' else 2
     source = timing['command_step'] - (1 if model == 'delay' else 0)
@@ -77,7 +79,7 @@ def test_seft_rigs_pass_every_check(model, tmp_path, run_process, seft_exe):
     if latency_s <= 0.002:
         assert shown == nominal, (shown, latency_s)
     else:
-        assert nominal < shown <= nominal + TIMING_TOLERANCE_STEPS, (shown, latency_s)
+        assert nominal <= shown <= nominal + TIMING_TOLERANCE_STEPS, (shown, latency_s)
     for name in ('safe state: abort', 'safe state: stopped controller',
                  'safe state: watchdog'):
         assert checks[name]['reaction_s'] <= WATCHDOG_S + 0.004 and \
