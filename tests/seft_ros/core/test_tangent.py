@@ -118,7 +118,8 @@ def test_a_first_yield_the_pushover_found_is_anticipated():
     low, high = -0.006, 0.010
     m = YieldMechanisms(K0, [VirginMechanism(U, LAM, low, high, True),
                              VirginMechanism(np.array([1.0, 0.0]), LAM, -0.001, 0.001, False)])
-    assert len(m.mechanisms) == 1
+    mech, gradual = m.mechanisms                 # the gradual one kept, never anticipated
+    assert gradual.virgin_range_m is None and not gradual.bilinear
     x2 = lambda z: z * np.sqrt(2.0)                          # noqa: E731 (x1 held at 0)
     m.observe([0.0, 0.0], None)
     m.observe([0.0, x2(0.004)], None)
@@ -132,8 +133,8 @@ def test_a_first_yield_the_pushover_found_is_anticipated():
     for z in (0.008, 0.012, 0.016):                          # yields in + from 0.010
         m.observe([0.0, x2(z)], None if z < high else yielded())
     m.observe([0.0, x2(0.014)], None)                        # stops at 0.016, unloads
-    (mech,) = m.mechanisms
     assert not mech.yielding and mech.stop_m == pytest.approx(0.016)
+    assert gradual.stop_m is None and len(m.mechanisms) == 2  # it never yielded
     # back in -: it yields again at 0.016 - 0.016 (the range's width) = 0.0
     np.testing.assert_allclose(m.stiffness([0.0, x2(-0.018)]),
                                K0 - (0.004 / 0.018) * LAM * np.outer(U, U), rtol=1e-9)
@@ -221,3 +222,86 @@ def test_two_adjacent_stories_keep_their_own_deficits():
     sample(0.009, 0.0030, True, False, 0.0004)
     assert story2.yielding and not story3.yielding
     assert story3.stop_m == pytest.approx(0.0034, rel=1e-9)
+
+
+def test_a_gradually_yielding_member_softens_on_over_the_prediction():
+    """A member whose deficit grows as it yields (``lambda = S (z - 0.008)``: a ``Steel02``
+    story, linearized) takes over a predicted increment ``dz`` its mean deficit, ``lambda +
+    S dz / 2``, losing at most half of what it has left along ``U`` with floor 2 free (story
+    2's own ``2 K - lambda``); it unloads elastically; a held tangent keeps the slope; a
+    mechanism whose direction turns between samples (several members) is held at its
+    tangent."""
+    slope = 2e7                                              # S [N/m^2]
+    x2 = lambda z: z * np.sqrt(2.0)                          # noqa: E731 (x1 held at 0)
+
+    def tangent(z, u=U):
+        return K0 - slope * (z - 0.008) * np.outer(u, u)
+
+    m = YieldMechanisms(K0, free_dofs=[1])
+    m.observe([0.0, 0.0], None)
+    for z in (0.010, 0.012, 0.014):
+        m.observe([0.0, x2(z)], tangent(z))
+    (mech,) = m.mechanisms
+    assert mech.slope_N_per_m2 == pytest.approx(slope, rel=1e-9)
+    np.testing.assert_allclose(m.stiffness([0.0, x2(0.004)]),
+                               tangent(0.014) - 0.5 * slope * 0.004 * np.outer(U, U),
+                               rtol=1e-9)
+    left = 2 * K - slope * (0.014 - 0.008)                   # story 2's, along U
+    np.testing.assert_allclose(m.stiffness([0.0, x2(0.1)]),
+                               tangent(0.014) - 0.5 * left * np.outer(U, U), rtol=1e-9)
+    np.testing.assert_allclose(m.stiffness([0.0, x2(-0.004)]), K0, rtol=1e-12)
+    m.observe([0.0, x2(0.015)], tangent(0.014))              # held: the slope stays
+    assert mech.slope_N_per_m2 == pytest.approx(slope, rel=1e-9)
+
+    turning = YieldMechanisms(K0)
+    turning.observe([0.0, 0.0], None)
+    for i, z in enumerate((0.010, 0.012, 0.014)):
+        angle = np.pi / 4 + 1e-3 * i                         # the direction turns
+        u = np.array([-np.cos(angle), np.sin(angle)])
+        turning.observe([0.0, x2(z)], tangent(z, u))
+    (mech,) = turning.mechanisms
+    assert mech.slope_N_per_m2 == 0.0
+    assert turning.stiffness([0.0, x2(0.004)]) is None       # its tangent held
+
+
+def test_two_adjacent_gradual_members_each_follow_their_own_slope():
+    """Stories 2 and 3 of a three-floor frame yielding gradually together (``lambda_j =
+    S_j (z_j - 0.002)``), both found by the pushover: their deficits split over their
+    directions (the eigenvectors mix them and turn as the two grow at their own rates), each
+    its own slope. A deficit their directions do not give (a third member, along floor 1
+    alone) leaves the gradual ones out of the split: an eigen-direction as before."""
+    k = np.array([K, 0.9 * K, 0.7 * K])
+    k0 = np.array([[k[0] + k[1], -k[1], 0.0], [-k[1], k[1] + k[2], -k[2]], [0.0, -k[2], k[2]]])
+    u2 = np.array([-1.0, 1.0, 0.0]) / np.sqrt(2.0)
+    u3 = np.array([0.0, -1.0, 1.0]) / np.sqrt(2.0)
+    s2, s3 = 3e7, 1e7
+
+    def x(z2, z3):
+        x2 = z2 * np.sqrt(2.0)
+        return [0.0, x2, x2 + z3 * np.sqrt(2.0)]
+
+    def tangent(z2, z3):
+        return (k0 - s2 * max(z2 - 0.002, 0.0) * np.outer(u2, u2)
+                - s3 * max(z3 - 0.002, 0.0) * np.outer(u3, u3))
+
+    m = YieldMechanisms(k0, [VirginMechanism(u2, 1.0, -0.002, 0.002, False),
+                             VirginMechanism(u3, 1.0, -0.002, 0.002, False)], free_dofs=[1, 2])
+    story2, story3 = m.mechanisms
+    m.observe(x(0.0, 0.0), None)
+    for z2, z3 in ((0.003, 0.0025), (0.004, 0.003), (0.005, 0.0035)):
+        m.observe(x(z2, z3), tangent(z2, z3))
+    assert len(m.mechanisms) == 2 and story2.yielding and story3.yielding
+    assert story2.slope_N_per_m2 == pytest.approx(s2, rel=1e-6)
+    assert story3.slope_N_per_m2 == pytest.approx(s3, rel=1e-6)
+    increment = np.subtract(x(0.006, 0.004), x(0.005, 0.0035))
+    expected = (tangent(0.005, 0.0035) - 0.5 * s2 * 0.001 * np.outer(u2, u2)
+                - 0.5 * s3 * 0.0005 * np.outer(u3, u3))
+    np.testing.assert_allclose(m.stiffness(increment), expected, rtol=1e-6, atol=1e-6 * K)
+
+    other = YieldMechanisms(k0, [VirginMechanism(u2, 1.0, -0.002, 0.002, False)])
+    other.observe(x(0.0, 0.0), None)
+    e1 = np.array([1.0, 0.0, 0.0])
+    other.observe(x(0.001, 0.0), k0 - 1e5 * np.outer(e1, e1))
+    (gradual, found) = other.mechanisms
+    assert not gradual.yielding and found.yielding
+    np.testing.assert_allclose(abs(found.direction), e1, atol=1e-9)

@@ -957,7 +957,8 @@ class ReferenceForceBuilder:
                 if self._mechanisms is None:
                     self._mechanisms = YieldMechanisms(
                         self.setup.substructures.stiffness_c_N_per_m,
-                        getattr(state, 'virgin_mechanisms', None) or ())
+                        getattr(state, 'virgin_mechanisms', None) or (),
+                        self.setup.structure.computational_index)
                 deficit = getattr(state, 'deficit_forces', None)
                 if deficit is None or not self._mechanisms.uses_deficit:
                     deficit = None                 # (not computed on every step for nothing)
