@@ -26,11 +26,12 @@ samples and gives the stiffness for the predicted motion:
   tangents the part read in that yielding: the tangent held over the prediction is the
   one the member had a few samples before. Only for a mechanism whose direction stays
   (:data:`STEADY_DIRECTION`): one member, its deficit a function of its coordinate alone.
-  Measured (the default record, a `Steel02` story 2 between elastic stories, ``model``):
-  floor-2 NRMS x 7.24 % without, 0.87 % with it (ductility 3.3), 2.38 -> 0.76 % (2.9),
-  2.04 -> 1.73 % (5.3); a fibre frame's column mechanisms turn their directions from
-  sample to sample (the steel frame, El Centro 1940 at 2600 N: followed on every yielding
-  mechanism, floor-1 x 17.3 %, with a 1e-6 turn allowed 4.96 %, against 3.49 % without);
+  Measured (``config/opensees/shear_frame.py`` with a ``Steel02`` story 2, ``model``,
+  four records at drift ductilities 2.1-9.1): the worst floor's NRMS x 0.98-3.47 % with
+  the tangent held, 0.70-1.42 % so; a fibre frame's column mechanisms turn their
+  directions from sample to sample (the steel frame, El Centro 1940 at 2600 N: followed on
+  every yielding mechanism, floor-1 x 17.3 %, with a 1e-6 turn allowed 4.96 %, against
+  3.49 % without);
 * a mechanism whose sample reversed its motion on a **held tangent** (the part did not read
   its tangent again: the same matrix as the sample before, read before the reversal) unloads:
   that tangent cannot show the reversal. A model steps a reversal on one Newton solve where
