@@ -27,8 +27,8 @@ samples and gives the stiffness for the predicted motion:
   one the member had a few samples before. Only for a mechanism whose direction stays
   (:data:`STEADY_DIRECTION`): one member, its deficit a function of its coordinate alone.
   Measured (``config/opensees/shear_frame.py`` with a ``Steel02`` story 2, ``model``,
-  four records at drift ductilities 2.1-9.1): the worst floor's NRMS x 0.98-3.47 % with
-  the tangent held, 0.70-1.42 % so; a fibre frame's column mechanisms turn their
+  four records at drift ductilities 2.1-9.1): the worst floor's NRMS x 1.57-3.47 % with
+  the tangent held, 0.67-1.42 % so; a fibre frame's column mechanisms turn their
   directions from sample to sample (the steel frame, El Centro 1940 at 2600 N: followed on
   every yielding mechanism, floor-1 x 17.3 %, with a 1e-6 turn allowed 4.96 %, against
   3.49 % without);
