@@ -52,6 +52,8 @@ STORY_STIFFNESS_N_PER_M = 2.11e5
 COLUMN_MY_N_M = 690e6 * 0.012 * 0.040 ** 2 / 6.0
 
 
+#: More arguments of the shear frame's model (``--gradual``: story 2 ``Steel02``).
+SHEAR_ARGUMENTS: dict = {}
 #: The models' ``step`` (``--step``; None: the configuration's) and the runs' duration
 #: (``--duration-s``; None: the record's).
 RUN_OPTIONS = {'step': None, 'duration_s': None}
@@ -91,13 +93,15 @@ def _yield_force_for(record: str, ductility: float, directory: Path) -> tuple[fl
     low, high = 100.0, 50_000.0                     # ductility falls as fy grows
     for _ in range(20):
         mid = (low * high) ** 0.5
-        mu = _ductility(_params(SHEAR, directory, arguments={'fy2_N': mid}, record=record))
+        mu = _ductility(_params(SHEAR, directory, arguments={'fy2_N': mid, **SHEAR_ARGUMENTS},
+                                record=record))
         if mu > ductility:
             low = mid
         else:
             high = mid
     fy = (low * high) ** 0.5
-    return fy, _ductility(_params(SHEAR, directory, arguments={'fy2_N': fy}, record=record))
+    return fy, _ductility(_params(SHEAR, directory, arguments={'fy2_N': fy, **SHEAR_ARGUMENTS},
+                                  record=record))
 
 
 def _pct(values) -> str:
@@ -128,19 +132,23 @@ def _sensitivity(params, change: float = 0.01) -> np.ndarray:
     return 0.5 * (moved[0] + moved[1])
 
 
-def shear_frame(records, ductilities, predictors, initial: bool, directory: Path) -> None:
+def shear_frame(records, ductilities, predictors, initial: bool, directory: Path,
+                yield_forces=()) -> None:
     for record in records:
         name = Path(record).name
-        for ductility in ductilities:
-            fy, reached = _yield_force_for(record, ductility, directory)
-            moved = _sensitivity(_params(SHEAR, directory, arguments={'fy2_N': fy},
-                                         record=record))
+        cases = ([(fy, _ductility(_params(SHEAR, directory, record=record,
+                                          arguments={'fy2_N': fy, **SHEAR_ARGUMENTS})))
+                  for fy in yield_forces] if yield_forces else
+                 [_yield_force_for(record, ductility, directory) for ductility in ductilities])
+        for fy, reached in cases:
+            arguments = {'fy2_N': fy, **SHEAR_ARGUMENTS}
+            moved = _sensitivity(_params(SHEAR, directory, arguments=arguments, record=record))
             print(f'shear_frame {name} ductility {reached:4.2f} (fy2 {fy:7.1f} N): the '
                   f'reference with the record scaled by 1 +- 1 % moves by NRMS x per floor '
                   f'[%] {_pct(moved)}', flush=True)
             for predictor in predictors:
                 for prediction in ('tangent',) + (('initial',) if initial else ()):
-                    params = _params(SHEAR, directory, arguments={'fy2_N': fy},
+                    params = _params(SHEAR, directory, arguments=arguments,
                                      prediction=prediction, record=record, predictor=predictor)
                     run, c, wall = _run(params)
                     print(f'shear_frame {name} ductility {reached:4.2f} (fy2 {fy:7.1f} N) '
@@ -205,6 +213,11 @@ def main() -> None:
                          'column M/My on each record (e.g. 1.28 1.35)')
     ap.add_argument('--initial', action='store_true',
                     help="also predict with the initial linearization ('prediction: initial')")
+    ap.add_argument('--yield-force', nargs='*', type=float, default=[],
+                    help="shear frame: story 2's yield forces [N] in place of the "
+                         "ductilities'")
+    ap.add_argument('--gradual', action='store_true',
+                    help='shear frame: story 2 Steel02 (yields gradually) in place of Steel01')
     ap.add_argument('--skip-shear', action='store_true')
     ap.add_argument('--skip-steel', action='store_true')
     ap.add_argument('--step', choices=('immediate', 'deferred'),
@@ -212,10 +225,13 @@ def main() -> None:
     ap.add_argument('--duration-s', type=float, help="the runs' duration (default: the record)")
     args = ap.parse_args()
     RUN_OPTIONS.update(step=args.step, duration_s=args.duration_s)
+    if args.gradual:
+        SHEAR_ARGUMENTS['gradual'] = True
     print(f'load average {os.getloadavg()[0]:.1f}', flush=True)
     with tempfile.TemporaryDirectory(prefix='seft-yielding-') as tmp:
         if not args.skip_shear:
-            shear_frame(args.record, args.ductility, args.predictor, args.initial, Path(tmp))
+            shear_frame(args.record, args.ductility, args.predictor, args.initial, Path(tmp),
+                        args.yield_force)
         if not args.skip_steel:
             steel_frame(args.record, args.amplitude, args.predictor, Path(tmp),
                         args.moment_ratio)
