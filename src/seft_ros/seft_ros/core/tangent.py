@@ -256,6 +256,7 @@ class YieldMechanisms:
     def __init__(self, initial_N_per_m, known=(), free_dofs=()):
         self.k0 = np.asarray(initial_N_per_m, dtype=float)
         self._free = [int(i) for i in free_dofs]
+        self._free_block = np.ix_(self._free, self._free)
         self.scale = float(np.max(np.abs(self.k0)))
         self.mechanisms: list[Mechanism] = []
         self._last_x = None
@@ -272,8 +273,14 @@ class YieldMechanisms:
                 # a gradual member: its direction kept, nothing anticipated (module notes)
                 self.mechanisms.append(Mechanism(u, float(v.deficit_N_per_m), 1.0,
                                                  yielding=False, reference_N=0.0))
-        # the pushover's mechanisms keep their directions (module notes)
+        # the pushover's mechanisms keep their directions (module notes); their split's
+        # matrices, made once
         self._known = list(self.mechanisms)
+        self._basis = (np.stack([np.outer(m.direction, m.direction).ravel()
+                                 for m in self._known], axis=1) if self._known else None)
+        self._directions = (np.stack([m.direction for m in self._known], axis=1)
+                            if self._known else None)
+        self._split = None                # the latest tangent's split (kept while held)
 
     @property
     def uses_deficit(self) -> bool:
@@ -299,10 +306,14 @@ class YieldMechanisms:
         seen = set()
         shares = self._shares(forces)
         if self._tangent is not None:
-            deficit = self.k0 - self._tangent
-            deficit = 0.5 * (deficit + deficit.T)
-            found, rest = self._known_yielding(deficit)
-            lam, u = np.linalg.eigh(rest)
+            if not held or self._split is None:
+                # (a held tangent splits as before: the same matrix)
+                deficit = self.k0 - self._tangent
+                deficit = 0.5 * (deficit + deficit.T)
+                known_found, rest = self._known_yielding(deficit)
+                self._split = (known_found,) + tuple(np.linalg.eigh(rest))
+            known_found, lam, u = self._split
+            found = list(known_found)
             for i in np.nonzero(lam > DEFICIT_TOLERANCE * self.scale)[0]:
                 found.append((self._match(u[:, i]), u[:, i], float(lam[i])))
             for m, ui, lam_i in found:
@@ -399,7 +410,7 @@ class YieldMechanisms:
         known = self._known
         if not known:
             return [], deficit
-        basis = np.stack([np.outer(m.direction, m.direction).ravel() for m in known], axis=1)
+        basis = self._basis
         lam, _ = nnls(basis, deficit.ravel())
         rest = deficit - (basis @ lam).reshape(deficit.shape)
         if np.linalg.norm(rest) > KNOWN_RESIDUAL * np.linalg.norm(deficit):
@@ -423,8 +434,7 @@ class YieldMechanisms:
         (two adjacent stories: ``u . u' = -1/2``). Keyed by the mechanism's ``id``."""
         if forces is None or not self._known:
             return {}
-        directions = np.stack([m.direction for m in self._known], axis=1)
-        s = np.linalg.lstsq(directions, forces, rcond=None)[0]
+        s = np.linalg.lstsq(self._directions, forces, rcond=None)[0]
         return {id(m): float(v) for m, v in zip(self._known, s)
                 if m.virgin_range_m is not None}
 
@@ -454,7 +464,7 @@ class YieldMechanisms:
         if not u_free.any():
             return float(u @ k @ u)
         try:
-            flexibility = float(u_free @ np.linalg.solve(k[np.ix_(free, free)], u_free))
+            flexibility = float(u_free @ np.linalg.solve(k[self._free_block], u_free))
         except np.linalg.LinAlgError:
             return 0.0
         return 1.0 / flexibility if flexibility > 0.0 else 0.0
