@@ -456,7 +456,8 @@ class YieldMechanisms:
         """The stiffness [N/m] along `u` that `k` keeps with the computational DOFs free
         (``1 / (u_U^T K_UU^-1 u_U)``; a story: its own stiffness along ``u``, the other
         members' held by the interface): what may soften before ``K_UU`` is singular
-        (infinite: `u` moves no free DOF, or no free DOFs given)."""
+        (``u^T k u`` where `u` moves no free DOF or none are given; 0 where ``K_UU`` is
+        singular already)."""
         free = self._free
         if not free:
             return float(u @ k @ u)
