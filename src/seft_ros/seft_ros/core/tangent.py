@@ -422,16 +422,18 @@ class YieldMechanisms:
             if not all(bilinear):
                 sub = basis[:, bilinear]
                 lam[np.nonzero(bilinear)[0]] = nnls(sub, deficit.ravel())[0]
+                rest = deficit - (basis @ lam).reshape(deficit.shape)
         found = [(m, m.direction, float(lam_j)) for m, lam_j in zip(known, lam)
                  if lam_j > DEFICIT_TOLERANCE * self.scale]
-        return found, deficit - (basis @ lam).reshape(deficit.shape)
+        return found, rest
 
     def _shares(self, forces) -> dict:
-        """Each known mechanism's share of the deficit force ``K_0 x - R(x)`` [N]
-        (`forces`, (n,); None: none): its coordinate in the force's least-squares split over
-        the known directions (``F = sum_j s_j u_j``). Along a mechanism's own direction
-        the force also carries the others' shares where the directions are not orthogonal
-        (two adjacent stories: ``u . u' = -1/2``). Keyed by the mechanism's ``id``."""
+        """Each known bilinear mechanism's share of the deficit force ``K_0 x - R(x)`` [N]
+        (`forces`, (n,); None: none; only theirs place onsets): its coordinate in the
+        force's least-squares split over all the known directions (``F = sum_j s_j u_j``).
+        Along a mechanism's own direction the force also carries the others' shares where
+        the directions are not orthogonal (two adjacent stories: ``u . u' = -1/2``). Keyed by
+        the mechanism's ``id``."""
         if forces is None or not self._known:
             return {}
         s = np.linalg.lstsq(self._directions, forces, rcond=None)[0]
@@ -502,7 +504,7 @@ class YieldMechanisms:
                     changed = True
                 elif m.slope_N_per_m2 > 0.0:
                     # it goes on softening: its mean deficit over the increment (module
-                    # notes), at most all of its initial stiffness along u
+                    # notes), losing at most SOFTENING_LIMIT of what it has left along u
                     more = min(0.5 * m.slope_N_per_m2 * abs(dz),
                                SOFTENING_LIMIT * self._remaining(k, u))
                     if more > 0.0:
