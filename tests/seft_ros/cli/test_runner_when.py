@@ -2,6 +2,8 @@
 process killed before this runner had discovered it), from the last sample in the closed bag;
 and a rig that refused the run before its first sample, saying why, is not a node's death."""
 
+import time
+
 import pytest
 
 from seft_msgs_py import parameters
@@ -116,3 +118,40 @@ def test_a_rig_that_refused_the_run_is_not_a_node_death(tmp_path):
     assert ended == ['node rig exited with code 2', 'node rig exited with code 2',
                      'node controller exited with code 2', 'node controller exited with code 2',
                      'node rig was killed by SIGKILL']
+
+
+def test_parameters_that_differ_wait_for_the_rigs_word_before_nothing_was_run(monkeypatch):
+    """The CI of 43ca88f: a node's differing parameters reached the runner at the rig's step
+    300 before any report of the rig had (another topic; the rig not discovered yet), and the
+    runner said 'nothing was run' (exit 2) while the nodes stopped the run. Now a rig's word
+    is waited for: its 'running' report, heard on the third spin, makes it a stop of a run in
+    progress; a rig heard 'ready' only, after the grace, a refusal of a run not begun."""
+    monkeypatch.setattr('seft_ros.cli.runner.REPORT_GRACE_S', 0.2)
+    monkeypatch.setattr('seft_ros.cli.runner.DISCOVERY_SETTLE_S', 0.4)
+    differ = {'reference_force_builder': {'alpha': 0.5}, 'recorder': {'alpha': 0.0}}
+
+    def runner_for(later):
+        runner, spins = _runner_with_reports(later)
+        runner.mismatch_stopped, runner.node_params = False, differ
+        runner.progress, aborts = (lambda line: None), []
+        runner._publish_abort = aborts.append
+        return runner, spins, aborts
+
+    runner, spins, aborts = runner_for([{'name': 'recorder', 'state': 'ready'},
+                                        {'name': 'controller', 'state': 'ready'},
+                                        {'name': 'rig', 'state': 'running', 'step': '250'}])
+    runner._check_parameters()
+    assert len(spins) == 3 and runner.mismatch_stopped
+    assert aborts == ['parameters differ between nodes after the start: parameter alpha '
+                      'differs: reference_force_builder=0.5, recorder=0.0; the run is stopped '
+                      'safely']
+    for later, unheard in (([{'name': 'rig', 'state': 'ready'}], False), ([], True)):
+        runner, spins, aborts = runner_for(list(later))
+        runner.statuses.append({'name': 'recorder', 'state': 'ready'})
+        start = time.monotonic()
+        with pytest.raises(SeftError, match=r'^1 shared parameter\(s\) differ between the '
+                           r'nodes \(listed above\); nothing was run$'):
+            runner._check_parameters()
+        # spun for the grace; longer while the rig was never heard
+        assert aborts == [] and len(spins) >= 2
+        assert time.monotonic() - start >= (0.4 if unheard else 0.2)

@@ -415,10 +415,27 @@ class GraphRunner:
         for line in lines:
             self.progress(line)
         if not self._stepping_begun():
+            self._wait_for_the_rigs_word()
+        if not self._stepping_begun():
             raise SeftError(f'{len(lines)} shared parameter(s) differ between the nodes '
                             '(listed above); nothing was run')
         self.mismatch_stopped = True
         self._publish_abort(MISMATCH_ABORT + '; '.join(lines) + '; the run is stopped safely')
+
+    def _wait_for_the_rigs_word(self) -> None:
+        """Before calling a run not begun: spin up to :data:`REPORT_GRACE_S` for the rigs'
+        reports, longer (up to :data:`DISCOVERY_SETTLE_S`) while a rig has not been heard at
+        all; return early once one says it is stepping. A rig's 'running' report and the
+        parameters that differ come over two topics with no order between them, and a rig
+        this runner has not discovered yet may already be stepping (the CI of 43ca88f: a
+        lockstep run at step 300 refused as 'nothing was run' while its nodes stopped it)."""
+        start = time.monotonic()
+        while not self._stepping_begun():
+            waited = time.monotonic() - start
+            unheard = any(self._latest(r) is None for r in self.graph.rig_nodes())
+            if waited >= (DISCOVERY_SETTLE_S if unheard else REPORT_GRACE_S):
+                return
+            self._spin(0.05)
 
     def _stepping_begun(self) -> bool:
         """A rig of the run in progress has reported that it began stepping ('running' with
@@ -926,6 +943,11 @@ class GraphRunner:
                 self._check_stopped()
                 return self._rig_final(heard_only=True) or {}
             if recorded_here and procs['recorder'].poll() is not None:
+                # it may have exited between the check above and this one: ask again now that
+                # its exit code is settled (a clean exit with its bag closed ends the run)
+                if self._closed_on_disk(procs):
+                    self._check_stopped()
+                    return self._rig_final(heard_only=True) or {}
                 raise SeftError('the recorder exited before closing the bag: '
                                 f'{_last_line(log_dir / log_name("recorder"))}')
             if now - last_progress > STALL_TIMEOUT_S:
