@@ -150,6 +150,11 @@ def test_an_opensees_model_stepped_after_the_command_equals_simulate(runner, tmp
     sim = simulate(rd.params)
     sim.computational.pop('opensees/step_time_s')
     _same_run(rd, sim)
+    # what the builder node's part found before the test (its pushover: the elastic
+    # building, no mechanism), carried by its final status in the bag as simulate carries it
+    found, sim_found = (r.extra['part_findings']['pushover'] for r in (rd, sim))
+    assert found['ran'] and sim_found['ran'] and found['time_s'] > 0.0
+    assert found['mechanisms'] == sim_found['mechanisms'] == []
 
 
 def test_a_calibrated_two_story_graph_equals_simulate(runner, tmp_path):

@@ -2,6 +2,7 @@
 pushover of the model before the test, against the members' closed-form yield points."""
 
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -122,3 +123,29 @@ def test_the_summary_says_what_the_pushover_found(tmp_path):
     assert _part(tmp_path / 'c', 'ElasticPP', pushover=False).virgin_mechanisms is None
     assert pushover_entry(_params(tmp_path / 'd', 'ElasticPP', prediction='initial')) == {
         'ran': False, 'why': 'prediction: initial'}
+
+
+def test_the_summary_takes_what_the_runs_part_found_without_pushing_again(tmp_path,
+                                                                           monkeypatch):
+    """The part's own findings (what the builder hands on in the run's data) are the summary
+    entry's, mechanism for mechanism; a run that carries them is summarised without a second
+    pushover (the pushover made to fail here), and one recorded without them (an older bag)
+    is pushed again."""
+    from seft_ros.opensees import report
+    params = _params(tmp_path / 'a', 'ElasticPP')
+    findings = _part(tmp_path / 'b', 'ElasticPP').findings()
+    found = findings['pushover']
+    assert found['ran'] and found['mechanisms'] == pushover_entry(params)['mechanisms']
+    assert _part(tmp_path / 'c', 'ElasticPP', pushover=False).findings() == {
+        'pushover': {'ran': False, 'why': 'pushover: false'}}
+    # a run's data as the builder hands them on (seft simulate's RunData.extra, a bag's
+    # builder status: tests/seft_ros/test_structure_graph.py)
+    run = SimpleNamespace(params=params, extra={'part_findings': findings})
+
+    def pushed(*args, **kwargs):
+        raise AssertionError('pushed over again')
+    monkeypatch.setattr(report, 'probe_yield', pushed)
+    assert report.run_pushover(run) == run.extra['part_findings']['pushover']
+    run.extra.pop('part_findings')
+    with pytest.raises(AssertionError, match='pushed over again'):
+        report.run_pushover(run)

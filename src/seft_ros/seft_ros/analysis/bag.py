@@ -576,7 +576,9 @@ def _builder_json(statuses, key: str) -> dict:
     """A JSON mapping of the builders' final statuses, by rig, merged over the builders:
     ``sensor_range`` (each rig's samples at a sensor's range,
     ``ReferenceForceBuilder.range_counts``), ``specimen_ratios`` (each rig's identified
-    specimen stiffness over the declared one); empty for a bag before issue 39."""
+    specimen stiffness over the declared one), ``part_findings`` (what the computational
+    part found, ``ReferenceForceBuilder.part_findings``); empty for a bag before issue 39
+    (before session 32 for ``part_findings``)."""
     out = {}
     for s in statuses:
         if s.get('state') in _FINAL and s['name'].endswith('reference_force_builder') \
@@ -747,7 +749,9 @@ def read_run(path) -> RunData:
              # each rig's samples at a sensor's range, as its builder counted them, and its
              # specimen check's identified stiffness over the declared one
              'sensor_range': _builder_json(bag.statuses, 'sensor_range'),
-             'specimen_ratios': _builder_json(bag.statuses, 'specimen_ratios')}
+             'specimen_ratios': _builder_json(bag.statuses, 'specimen_ratios'),
+             # what the computational part found (an OpenSees part's pushover)
+             'part_findings': _builder_json(bag.statuses, 'part_findings')}
     lost = bag_lost_messages(bag.statuses)
     if lost is not None:
         extra['bag_lost_messages'] = lost

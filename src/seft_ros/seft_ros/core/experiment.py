@@ -334,7 +334,8 @@ def _simulate(params, *, progress, record, stale_steps, command_latency_s) -> Ru
         extra={'wall_s': wall_s, 'abort_node': abort_node, 'warnings': warnings,
                'specimen_ratios': {r: c.stiffness_ratio for r, c in zip(names, checks)
                                    if c is not None},
-               'sensor_range': {r: v for b in builders for r, v in b.range_counts().items()}})
+               'sensor_range': {r: v for b in builders for r, v in b.range_counts().items()},
+               'part_findings': builder.part_findings()})
 
 
 class _Builders:

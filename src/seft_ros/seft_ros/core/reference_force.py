@@ -619,6 +619,13 @@ class ReferenceForceBuilder:
                 guard.news.clear()
         return out
 
+    def part_findings(self) -> dict:
+        """What the computational part found before or during the test (its optional
+        ``findings()``, JSON-able: an OpenSees part's pushover), {} for a part without it or
+        a builder without a computational part."""
+        findings = getattr(self.state, 'findings', None)
+        return dict(findings()) if findings is not None else {}
+
     def range_counts(self) -> dict:
         """Each local rig's samples at a sensor's range (``RangeCount.as_dict``) with its
         ranges (``'ranges'``: channel -> range in SI units, None unlimited), by rig name."""

@@ -504,6 +504,10 @@ class ComputationalPart(Protocol):
       restoring forces held over the prediction: the computational DOFs' displacements
       shifted) and what to add to its interface forces at `dofs`.
 
+    Any part may add ``findings() -> dict``: what it found before or during the test (JSON-able;
+    an OpenSees part's pushover), which the run's data carry
+    (``ReferenceForceBuilder.part_findings``).
+
     Attributes
     ----------
     state_names : tuple of str

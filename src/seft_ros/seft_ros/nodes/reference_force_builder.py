@@ -258,8 +258,11 @@ class ReferenceForceBuilderNode(SeftNode):
         each commanded rig's samples at a sensor's range (``sensor_range``: the JSON of
         :meth:`~seft_ros.core.reference_force.ReferenceForceBuilder.range_counts`) and its
         specimen check's identified stiffness over the declared one (``specimen_ratios``,
-        JSON)."""
+        JSON) and what its computational part found (``part_findings``, JSON of
+        :meth:`~seft_ros.core.reference_force.ReferenceForceBuilder.part_findings`: an OpenSees
+        part's pushover)."""
         counts = super().final_counts()
+        counts['part_findings'] = json.dumps(self.builder.part_findings(), sort_keys=True)
         counts['sensor_range'] = json.dumps(self.builder.range_counts(), sort_keys=True)
         # each commanded rig's identified specimen stiffness over the declared one
         counts['specimen_ratios'] = json.dumps(

@@ -64,7 +64,7 @@ from seft_ros.core.structure import Substructures
 from seft_ros.core.substructure import structure_matrices
 from seft_ros.opensees.loader import captured, last_message, opensees, rayleigh_calls
 from seft_ros.opensees.model import KIND, ModelError, ModelSpec, build_model, interface_group
-from seft_ros.opensees.probe import probe_yield
+from seft_ros.opensees.probe import describe_mechanisms, probe_yield
 
 __all__ = ['OpenSeesPart', 'STEP_TIME', 'dry_run', 'DryRun', 'BUDGET_FRACTION',
            'DEFERRED_BUDGET_FRACTION', 'budget_fraction', 'element_names',
@@ -232,6 +232,27 @@ class OpenSeesPart:
             self._series = False
             self._setup()
             self._ready = True
+
+    def findings(self) -> dict:
+        """What the part found before the test, for the run's data (JSON-able; the builder
+        hands it on: ``RunData.extra['part_findings']``, the builder's final status in a bag):
+        ``{'pushover': entry}``, the entry ``{'ran': False, 'why': str}`` (``prediction``
+        not ``tangent``, ``pushover: false``, or the model not built yet) or ``{'ran': True,
+        'time_s': float, 'mechanisms': [...]}``
+        (:func:`~seft_ros.opensees.probe.describe_mechanisms`)."""
+        if not self._tangent_on:
+            entry = {'ran': False, 'why': f'prediction: {self.spec.prediction}'}
+        elif not self.spec.pushover:
+            entry = {'ran': False, 'why': 'pushover: false'}
+        elif not self._pushover:
+            entry = {'ran': False, 'why': 'not run: a part made without it (a dry run)'}
+        elif self.virgin_mechanisms is None:
+            entry = {'ran': False, 'why': 'not run: the model was never built'}
+        else:
+            entry = {'ran': True, 'time_s': float(self.pushover_time_s),
+                     'mechanisms': describe_mechanisms(self.virgin_mechanisms,
+                                                       self.sub.structure.dofs)}
+        return {'pushover': entry}
 
     # -- OpenSees ---------------------------------------------------------------------------
 

@@ -48,7 +48,8 @@ from seft_ros.core.tangent import BILINEAR_SPREAD, SAME_DIRECTION, VirginMechani
 from seft_ros.opensees.loader import captured, last_message, opensees
 from seft_ros.opensees.model import ModelError, ModelSpec, build_model, interface_group
 
-__all__ = ['probe_yield', 'Push', 'FIRST_INCREMENT_M', 'FINE_STEPS', 'DEFICIT_TOLERANCE']
+__all__ = ['probe_yield', 'Push', 'FIRST_INCREMENT_M', 'FINE_STEPS', 'DEFICIT_TOLERANCE',
+           'describe_mechanisms']
 
 #: The first increment of a push [m]; it doubles to the push's limit.
 FIRST_INCREMENT_M = 1e-5
@@ -61,6 +62,9 @@ DEFICIT_TOLERANCE = 1e-6
 _PATTERN, _SERIES = 2_000_000_021, 2_000_000_022
 #: Two increments' deficit directions within this (cosine) are one member's.
 _ONE_MEMBER = 1.0 - 1e-4
+#: A DOF whose part of a mechanism's direction is below this part of the largest is left out
+#: of its coordinate's description (:func:`describe_mechanisms`).
+_COORDINATE_TOLERANCE = 1e-6
 
 
 @dataclass(frozen=True)
@@ -293,3 +297,45 @@ class _Model:
         x, d = self.deficit()
         scale = float(np.linalg.norm(self.k0 @ x))
         return float(np.linalg.norm(d)) > DEFICIT_TOLERANCE * scale and scale > 0.0
+
+
+def describe_mechanisms(mechanisms: Sequence[VirginMechanism], dofs: Sequence[str]) -> list[dict]:
+    """The pushover's mechanisms as a run's summary gives them (JSON-able).
+
+    Each mechanism is given along a coordinate scaled so that its largest DOF weight is 1
+    (a story between two floors: the drift ``x_i - x_j``; the last DOF's of several equal
+    weights): the weights per DOF, where it first yields in the negative and the positive
+    sense [m] (None: not found) and the stiffness it loses once it yields [N/m] (``lambda``
+    of the unit direction times the largest weight's square: ``(1 - b) k`` for a bilinear
+    story).
+
+    Parameters
+    ----------
+    mechanisms : sequence of VirginMechanism
+        :func:`probe_yield`'s mechanisms.
+    dofs : sequence of str
+        The structure's DOF names, in seft's order (the directions' length).
+
+    Returns
+    -------
+    list of dict
+        ``{'coordinate': {dof: weight}, 'first_yield_m': [low, high],
+        'lost_stiffness_N_per_m': float, 'bilinear': bool}`` per mechanism.
+    """
+    found = []
+    for m in mechanisms:
+        u = np.asarray(m.direction, dtype=float)
+        i = int(np.nonzero(np.abs(u) >= (1.0 - 1e-9) * np.max(np.abs(u)))[0][-1])
+        scale = u[i]
+        weights = u / scale
+        low, high = m.low_m, m.high_m
+        if scale < 0.0:
+            low, high = high, low
+        found.append({
+            'coordinate': {dofs[j]: float(w) for j, w in enumerate(weights)
+                           if abs(w) > _COORDINATE_TOLERANCE},
+            'first_yield_m': [None if low is None else float(low / scale),
+                              None if high is None else float(high / scale)],
+            'lost_stiffness_N_per_m': float(m.deficit_N_per_m * scale ** 2),
+            'bilinear': bool(m.bilinear)})
+    return found

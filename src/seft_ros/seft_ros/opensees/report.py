@@ -17,15 +17,10 @@ import numpy as np
 
 from seft_ros.opensees.model import ModelSpec
 from seft_ros.opensees.part import PUSH_LIMIT_M, STEP_TIME, budget_fraction, element_names
-from seft_ros.opensees.probe import probe_yield
+from seft_ros.opensees.probe import describe_mechanisms, probe_yield
 
 __all__ = ['opensees_entry', 'opensees_markdown', 'hysteresis_figure', 'step_time_summary',
-           'pushover_entry', 'pushover_lines']
-
-#: A DOF whose part of a mechanism's direction is below this part of the largest is left out
-#: of its coordinate's description.
-_COORDINATE_TOLERANCE = 1e-6
-
+           'pushover_entry', 'pushover_lines', 'run_pushover']
 
 def step_time_summary(step_times_s, dt: float, step: str = 'immediate') -> dict[str, Any]:
     """p50, p99 and max of the OpenSees step times [s], and the overruns: steps longer than
@@ -71,20 +66,39 @@ def opensees_entry(run) -> dict[str, Any]:
              'step': step,
              'step_time': step_time_summary(run.computational.get(STEP_TIME, ()),
                                             float(run.params['dt']), step),
-             'pushover': pushover_entry(run.params)}
+             'pushover': run_pushover(run)}
     return entry
 
 
-def pushover_entry(params) -> dict[str, Any]:
-    """What the OpenSees part's pushover before the test found
-    (:func:`~seft_ros.opensees.probe.probe_yield`, run again here on the same model: it is
-    deterministic), for a run's summary.
+def run_pushover(run) -> dict[str, Any]:
+    """The pushover entry of a run: what its part found before the test, as the run's data
+    carry it (``RunData.extra['part_findings']``: ``seft simulate``'s builder, or the
+    builder's final status in the bag); for a run recorded without it (a bag of before
+    session 32, or a builder that never reported its end), :func:`pushover_entry` runs the
+    pushover again on the model (deterministic, the same entry but its time).
 
-    Each mechanism is given along a coordinate scaled so that its largest DOF weight is 1
-    (a story between two floors: the drift ``x_i - x_j``): the weights per DOF, where it
-    first yields in the negative and the positive sense [m] (None: not found) and the
-    stiffness it loses once it yields [N/m] (``lambda`` of the unit direction times the
-    largest weight's square: ``(1 - b) k`` for a bilinear story).
+    Parameters
+    ----------
+    run : RunData
+        A run whose structure has an OpenSees model.
+
+    Raises
+    ------
+    ModelError
+        Recorded without it, and the model does not build (OpenSees' message).
+    """
+    found = (run.extra or {}).get('part_findings') or {}
+    if isinstance(found.get('pushover'), dict):
+        return found['pushover']
+    return pushover_entry(run.params)
+
+
+def pushover_entry(params) -> dict[str, Any]:
+    """What the OpenSees part's pushover before the test finds
+    (:func:`~seft_ros.opensees.probe.probe_yield`, run here on the model: it is
+    deterministic), for a run's summary when the run's data do not carry it
+    (:func:`run_pushover`); the mechanisms as
+    :func:`~seft_ros.opensees.probe.describe_mechanisms` gives them.
 
     Parameters
     ----------
@@ -114,24 +128,7 @@ def pushover_entry(params) -> dict[str, Any]:
     t0 = time.perf_counter()
     mechanisms, _ = probe_yield(spec, setup.substructures.stiffness_c_N_per_m,
                                 [PUSH_LIMIT_M] * structure.n)
-    found = []
-    for m in mechanisms:
-        u = np.asarray(m.direction, dtype=float)
-        # the coordinate's largest weight +1, the last DOF's of several (a story's upper
-        # floor: x_upper - x_lower)
-        i = int(np.nonzero(np.abs(u) >= (1.0 - 1e-9) * np.max(np.abs(u)))[0][-1])
-        scale = u[i]
-        weights = u / scale
-        low, high = m.low_m, m.high_m
-        if scale < 0.0:
-            low, high = high, low
-        found.append({
-            'coordinate': {structure.dofs[j]: float(w) for j, w in enumerate(weights)
-                           if abs(w) > _COORDINATE_TOLERANCE},
-            'first_yield_m': [None if low is None else float(low / scale),
-                              None if high is None else float(high / scale)],
-            'lost_stiffness_N_per_m': float(m.deficit_N_per_m * scale ** 2),
-            'bilinear': bool(m.bilinear)})
+    found = describe_mechanisms(mechanisms, structure.dofs)
     return {'ran': True, 'time_s': time.perf_counter() - t0, 'mechanisms': found}
 
 
