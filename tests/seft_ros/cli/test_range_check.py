@@ -56,22 +56,31 @@ def test_one_line_per_channel_beyond_its_range_or_capacity():
     lines.clear()
     # at 2500 N, alpha = 2 also needs 2.4 m/s of the valve's 2.0, and so more than its 10 V
     api.check_ranges(runs=_runs(2500.0, [1.0, 2.0]), progress=lines.append)
-    assert _short(lines) == ['range check: [alpha_1_servohydraulic_model] rig acceleration:',
-                             'range check: [alpha_2_servohydraulic_model] rig acceleration:',
-                             'range check: [alpha_2_servohydraulic_model] rig actuator '
-                             'velocity:',
-                             'range check: [alpha_2_servohydraulic_model] rig actuator valve '
-                             'command:']
+    assert _short(lines)[:4] == ['range check: [alpha_1_servohydraulic_model] rig acceleration:',
+                                 'range check: [alpha_2_servohydraulic_model] rig acceleration:',
+                                 'range check: [alpha_2_servohydraulic_model] rig actuator '
+                                 'velocity:',
+                                 'range check: [alpha_2_servohydraulic_model] rig actuator valve '
+                                 'command:']
     assert "2.418 m/s, beyond the actuator's velocity at the valve limit of 1.998 m/s" \
         in lines[2] and 'amplitude_N 2066 N' in lines[2]
+    # and the one amplitude that fits every line (the least: alpha 2's accelerometer, 982 N),
+    # which the first line's (alpha 1's, 1184 N) does not
+    fits = {a: min(c.fits(p) for p in c.exceeded)
+            for a, c in zip((1.0, 2.0), map(range_check, _runs(2500.0, [1.0, 2.0])))}
+    assert fits[2.0] == pytest.approx(982.1, abs=0.1) and fits[1.0] > 1100.0
+    assert 'amplitude_N 1184 N' in lines[0]
+    assert lines[4] == ('range check: the largest amplitude that fits them all: amplitude_N '
+                        f'{fits[2.0]:.4g} N')
     lines.clear()
     # Eq. 3.1 in V/N: alpha >= 0.5 needs more than the valve's 0.45 m/s at 1000 N
     api.check_ranges(runs=_runs(1000.0, [0.0, 0.5, 1.0, 1.5], reading='si'),
                      progress=lines.append)
     # (each of them the valve's velocity and its command: the command includes the velocity)
-    assert [ln.split(': the reference')[0] for ln in lines] == [
+    assert [ln.split(': the reference')[0] for ln in lines[:-1]] == [
         f'range check: [alpha_{a}_servohydraulic_model] rig actuator {channel}'
         for a in ('0.5', '1', '1.5') for channel in ('velocity', 'valve command')]
+    assert lines[-1].startswith('range check: the largest amplitude that fits them all: ')
     assert '0.667 m/s' in lines[2] and '0.4492 m/s' in lines[2]
     lines.clear()
     api.check_ranges(runs=_runs(500.0, [0.0, 0.5, 1.0, 1.5], reading='si'),
@@ -95,7 +104,8 @@ def test_strict_refuses_and_names_the_channel():
     runs = _runs(2500.0, [2.0])
     with pytest.raises(api.RangeRefusedError,
                        match=r'^range check: rig acceleration: the reference peaks at 99\.78 '
-                       r'.* \(and 2 more\); refused \(--strict\)'):
+                       r'.* \(and 2 more; the largest amplitude that fits them all: '
+                       r'amplitude_N 982\.1 N\); refused \(--strict\)'):
         api.check_ranges(runs=runs, strict=True)
 
 
@@ -129,10 +139,12 @@ def test_a_real_time_run_beyond_its_actuators_capacity_is_refused_unless_forced(
     api.check_ranges(runs=realtime, force=True, progress=lines.append)
     assert _short(lines) == ['range check: rig acceleration:',
                              'range check: rig actuator velocity:',
-                             'range check: rig actuator valve command:']
+                             'range check: rig actuator valve command:',
+                             'range check: the largest amplitude that fits them all: '
+                             'amplitude_N 982.1 N']
     lines.clear()
     api.check_ranges(runs=_runs(2500.0, [2.0], mode='lockstep'), progress=lines.append)
-    assert len(lines) == 3
+    assert len(lines) == 4
     lines.clear()
     # alpha 2 at 1000 N: the accelerometer's range only (39.9 of 39.2 m/s^2), in real time
     api.check_ranges(runs=_runs(1000.0, [2.0], mode='realtime'), progress=lines.append)

@@ -1404,8 +1404,9 @@ def check_ranges(*, runs: list[dict], strict: bool = False, force: bool = False,
         return [f'[{", ".join(labels)}] {line}' if len(runs) > 1 else line
                 for line, labels in found.items()]
     shown = labelled(lines)
+    every = _fits_every_run(checks)
     if strict and shown:
-        more = f' (and {len(shown) - 1} more)' if len(shown) > 1 else ''
+        more = f' (and {len(shown) - 1} more{every})' if len(shown) > 1 else ''
         raise RangeRefusedError(f'range check: {shown[0]}{more}; refused (--strict): lower '
                                 'the amplitude or run without --strict')
     if beyond and not force:
@@ -1417,7 +1418,29 @@ def check_ranges(*, runs: list[dict], strict: bool = False, force: bool = False,
             'run it anyway')
     for line in shown:
         progress(f'range check: {line}')
+    if len(shown) > 1 and every:
+        progress(f'range check: {every[2:]}')
     return checks
+
+
+def _fits_every_run(checks) -> str:
+    """``'; the largest amplitude that fits them all: amplitude_N 180.9 N'``: the least of
+    the exceeded channels' (:meth:`~seft_ros.analysis.range_check.RangeCheck.fits`) over the
+    runs of a sweep, when more than one channel or run is exceeded and every run scales its
+    record by the same option (``amplitude_N`` or ``scale_factor``); '' otherwise. Each line
+    gives its own channel's and run's figure, which another line's may not fit (a lab that
+    retried a refused sweep at the first line's amplitude was refused again on the next run).
+    """
+    fits = [(c.scale_name, c.fits(p), c.linear) for c in checks for p in c.exceeded]
+    names = {c.scale_name for c in checks}
+    if len(fits) < 2 or len(names) != 1:
+        return ''
+    name = names.pop()
+    least = min(f for _, f, _ in fits)
+    unit = ' N' if name == 'amplitude_N' else ''
+    estimate = ('' if all(linear for _, _, linear in fits)
+                else ' (scaled linearly: a yielding member makes it an estimate)')
+    return f'; the largest amplitude that fits them all: {name} {least:.4g}{unit}{estimate}'
 
 
 def check_stability(*, runs: list[dict], force: bool = False,
