@@ -677,3 +677,39 @@ def test_loop_radius_is_the_loop_models_at_alpha_zero():
         guard = float(st.LoopModel(q, st.compensator(q)).radii(0.0)[0])
         assert mine == pytest.approx(guard, rel=1e-9)
         assert mine == pytest.approx(_closed_radius(p), rel=1e-6)
+
+
+class _CalibratedLoop:
+    """A loop whose compensator depends on alpha (a pole-calibrated law) with the spectral
+    radius 0.5 + alpha / 4 (stable below alpha 2), and whose law's calibration refuses the
+    alphas in `refused` (``ParameterError``, as ``law_calibration.pole_calibration``)."""
+
+    def __init__(self, refused):
+        self.compensator = type('Compensator', (), {'alpha_dependent': True})()
+        self.refused = refused
+        self.asked = []
+
+    def radii(self, alphas):
+        alphas = np.atleast_1d(np.asarray(alphas, dtype=float))
+        self.asked.extend(alphas.tolist())
+        if any(lo <= a <= hi for a in alphas for lo, hi in self.refused):
+            raise ParameterError("predictor_calibration poles: the loop's model reaches the "
+                                 "reference structure's pole only with the law's gains offset")
+        return 0.5 + 0.25 * alphas
+
+
+def test_a_scan_alpha_the_calibration_refuses_counts_as_no_stable_test():
+    """Session 32's lab plant 15 (a 46 Hz specimen on a 47 Hz valve): its test at alpha 1 was
+    refused before it ran because the pre-run guard's scan for the largest stable alpha asked
+    the pole calibration at alpha 0.25, which refused that alpha (its reference pole at 41 Hz)
+    -- not the run's. A scan's alpha whose law cannot be built is now no stable test there:
+    the boundary is the last alpha before it, and the intervals go on after it."""
+    loop = _CalibratedLoop(refused=[(0.2, 0.3)])
+    first, intervals = st._scan(loop, 3.0, 0.25, 5e-3)
+    assert 0.0 < first <= 0.25 and intervals[0] == (0.0, first)
+    assert len(intervals) == 2 and 0.25 <= intervals[1][0] <= 0.3 + 5e-3
+    assert intervals[1][1] == pytest.approx(2.0, abs=5e-3)
+    assert 0.25 in loop.asked                       # asked, refused, and taken as unstable
+    # a loop whose law does not depend on alpha is scanned as before (no refusal possible)
+    assert st._scan(_CalibratedLoop(refused=[]), 3.0, 0.25, 5e-3)[0] == pytest.approx(
+        2.0, abs=5e-3)

@@ -1001,17 +1001,35 @@ def run_predicted_error(params: Mapping, spectrum: GroundSpectrum | None = None)
         return math.nan
 
 
+def _built_radii(loop: LoopModel, alphas) -> np.ndarray:
+    """:meth:`LoopModel.radii` at each of `alphas`, ``inf`` where the compensator cannot be
+    built at that alpha (its law's pole calibration refuses it: a law seft would not run
+    there is no stable test there). A scan's alpha is not the run's: the CLI's first lab
+    plant of session 32 (a 46 Hz specimen) was refused at alpha 1 because the calibration
+    refused the scan's alpha 0.25 (its reference structure's pole at 41 Hz)."""
+    if not loop.compensator.alpha_dependent:
+        return loop.radii(alphas)
+    out = []
+    for a in np.atleast_1d(np.asarray(alphas, dtype=float)):
+        try:
+            out.append(float(loop.radii(float(a))[0]))
+        except ParameterError:
+            out.append(math.inf)
+    return np.array(out)
+
+
 def _scan(loop: LoopModel, alpha_max: float, step: float, tol: float):
-    """(first boundary, stable intervals) over ``[0, alpha_max]``."""
+    """(first boundary, stable intervals) over ``[0, alpha_max]`` (an alpha where the
+    compensator cannot be built counts as not stable: :func:`_built_radii`)."""
     if loop.compensator.alpha_dependent:
         step, tol = max(step, 0.25), max(tol, 5e-3)      # one identification per alpha
     grid = np.linspace(0.0, alpha_max, int(math.ceil(alpha_max / step)) + 1)
-    stable = loop.radii(grid) < 1.0
+    stable = _built_radii(loop, grid) < 1.0
 
     def edge(lo, hi, lo_stable):
         while hi - lo > tol:
             mid = 0.5 * (lo + hi)
-            if (loop.radii(mid)[0] < 1.0) == lo_stable:
+            if (_built_radii(loop, mid)[0] < 1.0) == lo_stable:
                 lo = mid
             else:
                 hi = mid
