@@ -1004,9 +1004,10 @@ def run_predicted_error(params: Mapping, spectrum: GroundSpectrum | None = None)
 def _built_radii(loop: LoopModel, alphas) -> np.ndarray:
     """:meth:`LoopModel.radii` at each of `alphas`, ``inf`` where the compensator cannot be
     built at that alpha (its law's pole calibration refuses it: a law seft would not run
-    there is no stable test there). A scan's alpha is not the run's: the CLI's first lab
-    plant of session 32 (a 46 Hz specimen) was refused at alpha 1 because the calibration
-    refused the scan's alpha 0.25 (its reference structure's pole at 41 Hz)."""
+    there is no stable test there). A scan's alpha is not the run's: session 32's lab plant
+    15 (a 46 Hz specimen on a 47 Hz valve, docs/results/own-actuator.md) was refused at
+    alpha 0.5, 1 and 1.5 because the calibration refused the scan's alpha 0.25 (its
+    reference structure's pole at 41 Hz)."""
     if not loop.compensator.alpha_dependent:
         return loop.radii(alphas)
     out = []
