@@ -472,10 +472,11 @@ def _csi_zero(plant: PlantModel, specimen: Specimen | None):
 #: from the specimen's mode that the force that moves the specimen (the held force) and the
 #: force the loop controls (the sampled one) part by more than this at the reference
 #: structure's frequency at alpha 0.5 (:func:`sampled_zero_offset`): a lab plant (86 Hz
-#: valve, 4 ms latency, its oil column at 215 Hz, a 8.2 Hz, 1.5 % specimen) at dt 2 ms,
+#: valve, 4 ms latency, its oil column at 215 Hz, an 8.2 Hz, 1.5 % specimen) at dt 2 ms,
 #: estimated 3.7 %, ran 1.37 / 0.81 / 0.55 % NRMS x at alpha 0.5 / 1 / 1.5 with `model`,
 #: every inverse of 2-30 steps 4.6 % or more off the loop; at dt 1 ms 0.21 % and 0.04 / 0.02
-#: / 0.01 %. Thirteen other lab plants at 0.00-0.85 % all ran within 0.3 % at alpha 0.5 [-].
+#: / 0.01 %. Twelve other lab plants, estimated 0.00-0.85 %, ran within 0.56 % at alpha 0.5
+#: (docs/results/own-actuator.md) [-].
 SAMPLED_ZERO_BOUND = 0.02
 
 
