@@ -130,12 +130,16 @@ def test_a_sampled_zero_off_the_specimens_mode_is_warned_with_a_shorter_dt():
     assert part == offset / (1 - 1 / math.sqrt(1.5)) and part > force_design.SAMPLED_ZERO_BOUND
     fine, _, fine_part = force_design.sampled_zero_offset(_fast_oil_column_plant(0.001))
     assert fine < 0.0005 and fine_part < 0.15 * force_design.SAMPLED_ZERO_BOUND
-    note = force_design._sampled_zero_note(_fast_oil_column_plant(0.002), None)
+    coarse = _fast_oil_column_plant(0.002)
+    note = force_design._sampled_zero_note(coarse, None, force_design._csi_zero(coarse, None))
     assert note.startswith("the measured force's control-structure-interaction zero, sampled "
                            "at dt 2 ms, lies 0.68 % from the specimen's mode (8.116 Hz "
                            'against 8.171 Hz)'), note
     assert 'identify and test at a shorter sample period' in note
-    assert force_design._sampled_zero_note(_fast_oil_column_plant(0.001), None) is None
+    fine_plant = _fast_oil_column_plant(0.001)
+    assert force_design._sampled_zero_note(
+        fine_plant, None, force_design._csi_zero(fine_plant, None)) is None
     study = force_loop_plant(resolve({}))
     assert force_design.sampled_zero_offset(study)[2] < 0.25 * force_design.SAMPLED_ZERO_BOUND
-    assert force_design._sampled_zero_note(study, None) is None
+    assert force_design._sampled_zero_note(
+        study, None, force_design._csi_zero(study, None)) is None

@@ -510,7 +510,11 @@ def sampled_zero_offset(plant: PlantModel, specimen: Specimen | None = None):
         alpha 0.5)``; None without a specimen or a control-structure-interaction zero.
     """
     spec = specimen or plant.specimen
-    csi = _csi_zero(plant, spec)
+    return _zero_offset(spec, _csi_zero(plant, spec), plant.dt)
+
+
+def _zero_offset(spec: Specimen | None, csi, dt: float):
+    """:func:`sampled_zero_offset` of the zero `csi` (:func:`_csi_zero`'s) sampled at `dt`."""
     if spec is None or csi is None:
         return None
     wn = 2.0 * math.pi * float(spec.natural_frequency_hz)
@@ -518,19 +522,19 @@ def sampled_zero_offset(plant: PlantModel, specimen: Specimen | None = None):
     if not (math.isfinite(wn) and wn > 0.0 and 0.0 <= zeta < 1.0):
         return None
     s_n = complex(-zeta * wn, wn * math.sqrt(1.0 - zeta * zeta))
-    s_z = complex(np.log(complex(csi[2]))) / plant.dt
+    s_z = complex(np.log(complex(csi[2]))) / dt
     offset = abs(s_z - s_n) / abs(s_n)
     return offset, float(csi[0]), offset / (1.0 - 1.0 / math.sqrt(1.5))
 
 
-def _sampled_zero_note(plant: PlantModel, specimen: Specimen | None) -> str | None:
+def _sampled_zero_note(plant: PlantModel, specimen: Specimen | None, csi) -> str | None:
     """The design's warning of :func:`sampled_zero_offset` beyond
-    :data:`SAMPLED_ZERO_BOUND`, or None."""
-    found = sampled_zero_offset(plant, specimen)
+    :data:`SAMPLED_ZERO_BOUND` (`csi`: the design's :func:`_csi_zero`), or None."""
+    spec = specimen or plant.specimen
+    found = _zero_offset(spec, csi, plant.dt)
     if found is None or found[2] <= SAMPLED_ZERO_BOUND:
         return None
     offset, f_zero, part = found
-    spec = specimen or plant.specimen
     return (f"the measured force's control-structure-interaction zero, sampled at dt "
             f"{1e3 * plant.dt:g} ms, lies {100 * offset:.2g} % from the specimen's mode "
             f'({f_zero:.4g} Hz against {float(spec.natural_frequency_hz):.4g} Hz): the force '
@@ -769,7 +773,7 @@ def _design(plant, specimen, targets, detune, ground_spectrum=None,
                   if plant_gain_margin else 0.0)
     design = _built(plant, best, csi, detune, features, targets, (pm_req, gm_req), notes)
     _choose_inverse(plant, design, ground_spectrum, gain_error)
-    note = _sampled_zero_note(plant, specimen)
+    note = _sampled_zero_note(plant, specimen, csi)
     if note is not None:
         design.warnings.append(note)
     if design.margins.crossover_hz < LOW_CROSSOVER_HZ:

@@ -64,7 +64,7 @@ from seft_ros.core.structure import Substructures
 from seft_ros.core.substructure import structure_matrices
 from seft_ros.opensees.loader import captured, last_message, opensees, rayleigh_calls
 from seft_ros.opensees.model import KIND, ModelError, ModelSpec, build_model, interface_group
-from seft_ros.opensees.probe import describe_mechanisms, probe_yield
+from seft_ros.opensees.probe import describe_mechanisms, probe_yield, pushover_skipped
 
 __all__ = ['OpenSeesPart', 'STEP_TIME', 'dry_run', 'DryRun', 'BUDGET_FRACTION',
            'DEFERRED_BUDGET_FRACTION', 'budget_fraction', 'element_names',
@@ -196,7 +196,7 @@ class OpenSeesPart:
         self._model_loads = None
         self._k_t = None                  # the condensed tangent of the latest sample
         # the pushover's mechanisms (opensees.probe; prepare() finds them)
-        self._pushover = pushover and self._tangent_on and spec.pushover
+        self._pushover = pushover and pushover_skipped(spec) is None
         self.virgin_mechanisms = None
         self.pushes = None
         self.pushover_time_s = 0.0
@@ -240,10 +240,9 @@ class OpenSeesPart:
         not ``tangent``, ``pushover: false``, or the model not built yet) or ``{'ran': True,
         'time_s': float, 'mechanisms': [...]}``
         (:func:`~seft_ros.opensees.probe.describe_mechanisms`)."""
-        if not self._tangent_on:
-            entry = {'ran': False, 'why': f'prediction: {self.spec.prediction}'}
-        elif not self.spec.pushover:
-            entry = {'ran': False, 'why': 'pushover: false'}
+        skipped = pushover_skipped(self.spec)
+        if skipped is not None:
+            entry = {'ran': False, 'why': skipped}
         elif not self._pushover:
             entry = {'ran': False, 'why': 'not run: a part made without it (a dry run)'}
         elif self.virgin_mechanisms is None:

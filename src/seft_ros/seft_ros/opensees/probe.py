@@ -49,7 +49,7 @@ from seft_ros.opensees.loader import captured, last_message, opensees
 from seft_ros.opensees.model import ModelError, ModelSpec, build_model, interface_group
 
 __all__ = ['probe_yield', 'Push', 'FIRST_INCREMENT_M', 'FINE_STEPS', 'DEFICIT_TOLERANCE',
-           'describe_mechanisms']
+           'describe_mechanisms', 'pushover_skipped']
 
 #: The first increment of a push [m]; it doubles to the push's limit.
 FIRST_INCREMENT_M = 1e-5
@@ -297,6 +297,17 @@ class _Model:
         x, d = self.deficit()
         scale = float(np.linalg.norm(self.k0 @ x))
         return float(np.linalg.norm(d)) > DEFICIT_TOLERANCE * scale and scale > 0.0
+
+
+def pushover_skipped(spec: ModelSpec) -> str | None:
+    """Why a model section has no pushover before the test (``'prediction: initial'``,
+    ``'pushover: false'``), or None: it has one (``prediction: tangent`` with ``pushover``
+    true)."""
+    if spec.prediction != 'tangent':
+        return f'prediction: {spec.prediction}'
+    if not spec.pushover:
+        return 'pushover: false'
+    return None
 
 
 def describe_mechanisms(mechanisms: Sequence[VirginMechanism], dofs: Sequence[str]) -> list[dict]:

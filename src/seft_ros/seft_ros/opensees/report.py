@@ -17,7 +17,7 @@ import numpy as np
 
 from seft_ros.opensees.model import ModelSpec
 from seft_ros.opensees.part import PUSH_LIMIT_M, STEP_TIME, budget_fraction, element_names
-from seft_ros.opensees.probe import describe_mechanisms, probe_yield
+from seft_ros.opensees.probe import describe_mechanisms, probe_yield, pushover_skipped
 
 __all__ = ['opensees_entry', 'opensees_markdown', 'hysteresis_figure', 'step_time_summary',
            'pushover_entry', 'pushover_lines', 'run_pushover']
@@ -121,10 +121,9 @@ def pushover_entry(params) -> dict[str, Any]:
     setup = test_setup(params)
     structure = setup.structure
     spec = ModelSpec.from_doc(structure.model)
-    if spec.prediction != 'tangent':
-        return {'ran': False, 'why': f'prediction: {spec.prediction}'}
-    if not spec.pushover:
-        return {'ran': False, 'why': 'pushover: false'}
+    skipped = pushover_skipped(spec)
+    if skipped is not None:
+        return {'ran': False, 'why': skipped}
     t0 = time.perf_counter()
     mechanisms, _ = probe_yield(spec, setup.substructures.stiffness_c_N_per_m,
                                 [PUSH_LIMIT_M] * structure.n)
