@@ -11,6 +11,8 @@ three-stage valve, each identified from 8 s of valve noise.
   structure's pole calibration, asked for with a design on that model, names its misfit.
 """
 
+import contextlib
+import io
 import json
 
 import pytest
@@ -51,6 +53,28 @@ def bridge(tmp_path_factory):
     return root
 
 
+@pytest.fixture(scope='module')
+def friction(bridge):
+    """``seft identify --params`` of the 0.15 V run, done once for the module's tests: what it
+    printed, and the identifications it made (``identify_rigs``' return, taken on its way)."""
+    from seft_ros.analysis import rig_identification as ri
+    made = []
+
+    def identify_rigs(*args, **kwargs):
+        made.extend(found := real(*args, **kwargs))
+        return found
+
+    real = ri.identify_rigs
+    printed = io.StringIO()
+    with pytest.MonkeyPatch.context() as mp, contextlib.redirect_stdout(printed):
+        mp.setattr(ri, 'identify_rigs', identify_rigs)
+        assert main(['identify', str(bridge / 'open_0.15'), '--out',
+                     str(bridge / 'id_friction'), '--params',
+                     str(bridge / 'rig_friction.yaml')]) == 0
+    assert [i.rig for i in made] == ['pier_a', 'pier_b']
+    return printed.getvalue(), made
+
+
 def test_a_clipped_accelerometer_is_blamed_and_the_file_would_lack_its_rig(bridge, capsys):
     params = bridge / 'rig_clipped.yaml'
     out = bridge / 'id_clipped'
@@ -81,11 +105,9 @@ def test_a_clipped_accelerometer_is_blamed_and_the_file_would_lack_its_rig(bridg
         'parameter file, which --params then refuses to write')
 
 
-def test_a_plant_model_that_misses_its_force_gets_no_controller(bridge, capsys):
+def test_a_plant_model_that_misses_its_force_gets_no_controller(bridge, friction):
     params = bridge / 'rig_friction.yaml'
-    assert main(['identify', str(bridge / 'open_0.15'), '--out', str(bridge / 'id_friction'),
-                 '--params', str(params)]) == 0
-    printed = capsys.readouterr().out
+    printed = friction[0]
     doc = json.loads((bridge / 'id_friction' / 'identification.json').read_text())
     run_a = next(r for r in doc['runs'] if r['rig'] == 'pier_a')
     assert run_a['figures']['plant']['nrms']['force_N'] == pytest.approx(0.87, abs=0.01)
@@ -112,16 +134,13 @@ def test_a_plant_model_that_misses_its_force_gets_no_controller(bridge, capsys):
             'below misses the force by 87 %') in printed
 
 
-def test_the_pole_calibration_names_a_plant_model_that_misses_its_force(bridge):
+def test_the_pole_calibration_names_a_plant_model_that_misses_its_force(bridge, friction):
     """A lab that writes the design of the poor model anyway (seft design, by hand): the
     structure's calibration refuses it, naming the rig and its misfit."""
-    from seft_ros.analysis.bag import read_run
     from seft_ros.analysis.identification_report import write_rig_params_yaml
-    from seft_ros.analysis.rig_identification import identify_rigs
     from seft_ros.core.law_calibration import structure_calibration
-    rd = read_run(bridge / 'open_0.15' / 'structure_none' / 'bag')
     sections = {i.rig: dict(i.design.parameters(), plant_model=i.plant.mapping())
-                for i in identify_rigs(rd)}
+                for i in friction[1]}
     write_rig_params_yaml(sections, bridge / 'rig_forced.yaml')
     run, = build_runs(config=str(bridge / 'bridge.yaml'),
                       params_files=[str(bridge / 'rig_forced.yaml')])
