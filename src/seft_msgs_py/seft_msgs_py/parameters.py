@@ -258,7 +258,8 @@ SCHEMA: tuple[ParamSpec, ...] = (
               "whose DOF carries computational springs or dashpots it calibrates the coupled "
               "loop instead: corrections of the interface force the compensator sees that "
               "give the whole test's loop the reference structure's modes "
-              "(seft_ros.core.law_calibration.structure_calibration); 'none': the law as "
+              "(seft_ros.core.law_calibration.structure_calibration; an 'adaptive' rig's "
+              "as the 'model' law at its plant model's specimen); 'none': the law as "
               "derived (the study's). seft design writes 'poles'.", choices=('none', 'poles'),
               nodes=_RFB),
     ParamSpec('predictor_loop_delay_steps', 10, '', "Servohydraulic rig, 'model': the force "

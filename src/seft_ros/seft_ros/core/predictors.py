@@ -3324,6 +3324,39 @@ class AdaptivePredictor:
         return command
 
 
+def calibrated_law_of_adaptive(params) -> dict:
+    """The ``model`` law whose calibration ``adaptive`` takes (``predictor_calibration:
+    poles``): ``predictor: model`` at the specimen of the rig's plant model of data (the one
+    identified with it: what the identification moves the law toward), or, without one, at
+    the configured ``predictor_*`` model.
+
+    Parameters
+    ----------
+    params : mapping
+        One rig's resolved parameters.
+
+    Returns
+    -------
+    dict
+        The parameters to set over `params`: ``predictor`` and, with a plant model of data,
+        ``predictor_mass_kg`` [kg], ``predictor_damping_N_s_per_m`` [N s/m] and
+        ``predictor_stiffness_N_per_m`` [N/m].
+
+    Raises
+    ------
+    ParameterError
+        As :func:`seft_ros.core.force_loop.compensator_plant`.
+    """
+    from seft_ros.core.force_loop import compensator_plant, has_plant_model
+    out = {'predictor': 'model'}
+    spec = compensator_plant(params).specimen
+    if spec is not None and has_plant_model(params):
+        out.update(predictor_mass_kg=spec.mass_kg,
+                   predictor_damping_N_s_per_m=spec.damping_N_s_per_m,
+                   predictor_stiffness_N_per_m=spec.stiffness_N_per_m)
+    return out
+
+
 def _adaptive_law_correction(params):
     """``(rho, s)`` of ``adaptive`` with ``predictor_calibration: poles`` on a valve-driven
     rig: the ``model`` law's calibration (:func:`seft_ros.core.law_calibration.
@@ -3335,14 +3368,8 @@ def _adaptive_law_correction(params):
             or params.get('predictor_restoring_force', 'model') != 'model'
             or params.get('structure', 'none') not in ('none', '', None)):
         return None
-    from seft_ros.core.force_loop import compensator_plant, has_plant_model
     from seft_ros.core.law_calibration import pole_calibration
-    p = dict(params, predictor='model')
-    spec = compensator_plant(params).specimen
-    if spec is not None and has_plant_model(params):
-        p.update(predictor_mass_kg=spec.mass_kg,
-                 predictor_damping_N_s_per_m=spec.damping_N_s_per_m,
-                 predictor_stiffness_N_per_m=spec.stiffness_N_per_m)
+    p = dict(params, **calibrated_law_of_adaptive(params))
     offset = pole_calibration(p)
     gain = ModelPredictor.from_parameters(dict(p, predictor_calibration='none'))._gain
     return offset[:2] / gain, float(offset[2])

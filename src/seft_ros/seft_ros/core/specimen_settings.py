@@ -135,13 +135,14 @@ COSTLY = {
                          'two piers, the one-rig test), 20 % off up to 5.4 % (docs: '
                          'results/robustness); adaptive_loop: model_latency (the default, '
                          'auto) identifies it'),
-    'one-DOF inverse': ('predictor model with predictor_calibration poles and the force-loop '
-                        'inverse chosen for the one-DOF test ({predictor_loop_delay_steps} '
-                        "steps, seft identify's) on a DOF coupled to the computational "
-                        'part: seft design CONFIG --out FILE chooses it by rehearsing the '
-                        "structure on the rig's plant model (two_story with a 32 Hz first "
-                        'story: its acceleration 8.0 % with the one-DOF choice, 1.2-1.3 % '
-                        "with the structure's; docs: results/own-actuator)"),
+    'one-DOF inverse': ('predictor {predictor} with predictor_calibration poles and the '
+                        'force-loop inverse chosen for the one-DOF test '
+                        "({predictor_loop_delay_steps} steps, seft identify's) on a DOF "
+                        'coupled to the computational part: seft design CONFIG --out FILE '
+                        "chooses it by rehearsing the structure on the rig's plant model "
+                        '(two_story with a 32 Hz first story: its acceleration 8.0 % with '
+                        "the one-DOF choice, 1.2-1.3 % with the structure's; docs: "
+                        'results/own-actuator)'),
     'specimen': ("force_controller loop_shaping cancels the study's specimen (s^2 + 17.14 s + "
                  "4002, {cancelled_hz:.2f} Hz), this rig's is s^2 + {c_per_m:.4g} s + "
                  '{k_per_m:.5g} ({specimen_hz:.2f} Hz): 1 % stiffer costs the one-rig test 1.5 % '
@@ -238,7 +239,8 @@ def costly_settings(params: Mapping[str, Any], *, flagging: bool = False) -> lis
         if (servo and predictor == 'adaptive' and not _yields(p)
                 and adaptive_loop_mode(p) == 'model' and not has_plant_model(p)):
             rules.append('latency declared')
-        if (rig in coupled and predictor == 'model' and p.get('predictor_calibration') == 'poles'
+        if (rig in coupled and predictor in ('model', 'adaptive')
+                and p.get('predictor_calibration') == 'poles'
                 and not p.get('predictor_loop_rehearsed', False)):
             rules.append('one-DOF inverse')
         if (is_study(params) and predictor == 'none' and float(p.get('alpha', 0)) >= 0.5
