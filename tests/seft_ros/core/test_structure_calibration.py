@@ -204,7 +204,8 @@ def test_the_one_dof_inverse_on_a_coupled_rig_is_named_before_the_run(lab_settin
     """seft identify's one-DOF inverse, calibrated, on a DOF coupled to the computational
     story: one line before the run names it and seft design (story 1's acceleration 8.0 %
     against 1.26 % with the structure's choice, the design test below), with ``model`` and
-    with ``adaptive`` (calibrated alike); not once seft design chose it, nor for a rig without calibration, nor for the one-DOF test itself."""
+    with ``adaptive`` (calibrated alike); not once seft design chose it, nor for a rig
+    without calibration, nor for the one-DOF test itself."""
     from seft_ros.core.specimen_settings import costly_settings
     (line,) = costly_settings(two_story(lab_settings))
     assert line.startswith('lab: predictor model with predictor_calibration poles and the '
