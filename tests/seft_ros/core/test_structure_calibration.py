@@ -299,3 +299,28 @@ def test_the_rehearsal_starts_at_the_shortest_stable_inverse(lab_settings, monke
     assert choice.errors[choice.chosen_steps] < 0.8 * choice.errors[24], choice.errors
     # the closed loop's delay is the design's for a shorter inverse
     assert choice.values['predictor_tau_s'] == designed['predictor_tau_s']
+
+
+def test_a_design_with_no_stable_rehearsal_says_how_they_failed(lab_settings, monkeypatch):
+    """No rehearsed inverse stable: the one line counts the unstable rehearsals, with the
+    structure's natural frequencies, and the refused ones, with the first refusal's reason
+    (here a stand-in for the rehearsals: two unstable, two refused)."""
+    from seft_msgs_py.errors import ParameterError as Refused
+    from seft_ros.core import structure_design
+    monkeypatch.setattr(structure_design, 'DELAY_SPAN_STEPS', 4)
+    outcomes = iter([math.inf, Refused('the calibration refused it'), math.inf,
+                     Refused('again')])
+
+    def rehearsal(params):
+        outcome = next(outcomes)
+        if isinstance(outcome, Exception):
+            raise outcome
+        return outcome
+    monkeypatch.setattr(structure_design, '_worst_error', rehearsal)
+    designed = dict(lab_settings, predictor_loop_delay_steps=5)
+    with pytest.raises(ParameterError) as info:
+        structure_design.choose_structure_inverses(two_story(designed), {'lab': designed})
+    assert str(info.value) == (
+        'rig lab: no force-loop inverse of 5-8 steps gave a stable rehearsal of the structure '
+        "on its plant model (2 unstable; the structure's modes at 13.9, 36.6 Hz; 2 refused: "
+        'the calibration refused it)')

@@ -145,6 +145,21 @@ def _worst_error(params: Mapping) -> float:
     return max(worst) if worst else math.inf
 
 
+def _no_rehearsal_clause(choice: InverseChoice, setup) -> str:
+    """How the rehearsals of `choice` failed, for the one line of a design that found no
+    stable one: how many went unstable (with the structure's natural frequencies [Hz], the
+    modes such a test loses) and how many were refused (with the first refusal's reason)."""
+    refused = len(choice.refused)
+    unstable = len(choice.errors) - refused
+    parts = []
+    if unstable:
+        freqs = ', '.join(f'{f:.3g}' for f in setup.substructures.structure.modes()[0])
+        parts.append(f"{unstable} unstable; the structure's modes at {freqs} Hz")
+    if refused:
+        parts.append(f'{refused} refused: {next(iter(choice.refused.values()))}')
+    return f' ({"; ".join(parts)})'
+
+
 def choose_structure_inverses(params: Mapping, designed: Mapping[str, Mapping],
                               progress: Callable[[str], None] = lambda _: None,
                               shortest: Mapping[str, int] | None = None
@@ -224,7 +239,8 @@ def choose_structure_inverses(params: Mapping, designed: Mapping[str, Mapping],
         if not math.isfinite(choice.errors[best]):
             raise ParameterError(f'rig {rig}: no force-loop inverse of {first}-'
                                  f'{max(last, designed_steps)} steps gave a stable '
-                                 'rehearsal of the structure on its plant model')
+                                 'rehearsal of the structure on its plant model'
+                                 + _no_rehearsal_clause(choice, setup))
         choice.chosen_steps = best
         choice.values = dict(delay_values(best), predictor_loop_rehearsed=True)
         base = with_rig_values(base, rig, choice.values)
