@@ -74,6 +74,7 @@ __all__ = [
     'adaptive_loop_mode', 'ADAPTIVE_LOOP_FIT', 'FREQUENCY_PRIOR_WEIGHT',
     'UPDATE_STAGES',
     'LOOP_REFIT_TOLERANCE', 'LAW_REBUILD_TOLERANCE', 'LATE_REFERENCE_STEPS',
+    'calibrated_law_of_adaptive',
 ]
 
 
