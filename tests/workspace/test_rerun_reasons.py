@@ -85,3 +85,29 @@ def test_a_long_message_is_cut_to_its_first_lines():
     lines = kept[0][2].splitlines()
     assert lines[:2] == ['line 0', 'line 1'] and len(lines) == rerun_reasons.MAX_LINES + 1
     assert lines[-1] == f'... ({30 - rerun_reasons.MAX_LINES} more lines)'
+
+
+def test_a_long_report_of_checks_keeps_what_failed():
+    """A rig-check's output as the message: its PASS lines are left out first, so the FAIL
+    line and the lines after it are kept."""
+    class Crash:
+        message = '\n'.join(['AssertionError: PASS contract: seft-rig/3.0']
+                             + [f'  PASS check {i}: fine' for i in range(20)]
+                             + ['  FAIL safe state: watchdog: 31 ms after the fault (limit 24 ms)',
+                                '  rig-check: 21 of 22 checks passed'])
+
+    class Longrepr:
+        reprcrash = Crash()
+
+    class Report:
+        outcome, nodeid, when, longrepr = 'rerun', 't.py::test_check', 'call', Longrepr()
+
+    before = len(rerun_reasons.REASONS)
+    rerun_reasons.record(Report())
+    kept = rerun_reasons.REASONS[before:]
+    del rerun_reasons.REASONS[before:]
+    lines = kept[0][2].splitlines()
+    assert lines[-3:] == ['  FAIL safe state: watchdog: 31 ms after the fault (limit 24 ms)',
+                          '  rig-check: 21 of 22 checks passed', '... (11 PASS lines left out)']
+    assert lines[0] == 'AssertionError: PASS contract: seft-rig/3.0'
+    assert len(lines) == rerun_reasons.MAX_LINES + 1
