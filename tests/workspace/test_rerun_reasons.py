@@ -65,22 +65,23 @@ def test_a_rerun_test_names_why_it_failed_first(tmp_path):
     assert 'test_fine' not in section
 
 
-def test_a_long_message_is_cut_to_its_first_lines():
-    class Crash:
-        message = '\n'.join(f'line {i}' for i in range(30))
-
-    class Longrepr:
-        reprcrash = Crash()
-
-    class Report:
-        outcome, nodeid, when, longrepr = 'rerun', 't.py::test_x', 'setup', Longrepr()
-
+def _kept(message: str, *outcomes: str) -> list:
+    """What :func:`rerun_reasons.record` keeps of reports of one test (``t.py::test_x``,
+    setup) whose crash message is `message`, one report per outcome, in order."""
+    from types import SimpleNamespace
+    longrepr = SimpleNamespace(reprcrash=SimpleNamespace(message=message))
     before = len(rerun_reasons.REASONS)
-    rerun_reasons.record(Report())
-    Report.outcome = 'failed'                   # a final failure: pytest prints it itself
-    rerun_reasons.record(Report())
+    for outcome in outcomes:
+        rerun_reasons.record(SimpleNamespace(outcome=outcome, nodeid='t.py::test_x',
+                                             when='setup', longrepr=longrepr))
     kept = rerun_reasons.REASONS[before:]
     del rerun_reasons.REASONS[before:]
+    return kept
+
+
+def test_a_long_message_is_cut_to_its_first_lines():
+    # a final failure ('failed') is not kept: pytest prints it itself
+    kept = _kept('\n'.join(f'line {i}' for i in range(30)), 'rerun', 'failed')
     assert len(kept) == 1 and kept[0][:2] == ('t.py::test_x', 'setup')
     lines = kept[0][2].splitlines()
     assert lines[:2] == ['line 0', 'line 1'] and len(lines) == rerun_reasons.MAX_LINES + 1
@@ -90,23 +91,12 @@ def test_a_long_message_is_cut_to_its_first_lines():
 def test_a_long_report_of_checks_keeps_what_failed():
     """A rig-check's output as the message: its PASS lines are left out first, so the FAIL
     line and the lines after it are kept."""
-    class Crash:
-        message = '\n'.join(['AssertionError: PASS contract: seft-rig/3.0']
-                             + [f'  PASS check {i}: fine' for i in range(20)]
-                             + ['  FAIL safe state: watchdog: 31 ms after the fault (limit 24 ms)',
-                                '  rig-check: 21 of 22 checks passed'])
-
-    class Longrepr:
-        reprcrash = Crash()
-
-    class Report:
-        outcome, nodeid, when, longrepr = 'rerun', 't.py::test_check', 'call', Longrepr()
-
-    before = len(rerun_reasons.REASONS)
-    rerun_reasons.record(Report())
-    kept = rerun_reasons.REASONS[before:]
-    del rerun_reasons.REASONS[before:]
-    lines = kept[0][2].splitlines()
+    (kept,) = _kept('\n'.join(['AssertionError: PASS contract: seft-rig/3.0']
+                               + [f'  PASS check {i}: fine' for i in range(20)]
+                               + ['  FAIL safe state: watchdog: 31 ms after the fault '
+                                  '(limit 24 ms)', '  rig-check: 21 of 22 checks passed']),
+                    'rerun')
+    lines = kept[2].splitlines()
     assert lines[-3:] == ['  FAIL safe state: watchdog: 31 ms after the fault (limit 24 ms)',
                           '  rig-check: 21 of 22 checks passed', '... (11 PASS lines left out)']
     assert lines[0] == 'AssertionError: PASS contract: seft-rig/3.0'
