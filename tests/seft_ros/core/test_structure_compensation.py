@@ -97,6 +97,47 @@ def test_the_interface_prediction_follows_what_adaptive_identified():
                                                                   b.displacement.nrms)
 
 
+def test_the_node_rebuilds_the_interface_prediction_after_its_commands(monkeypatch):
+    """A builder node calls ``advance`` once a step's commands are out: the interface
+    prediction for what ``adaptive`` identified in that step is rebuilt there, so no later
+    step rebuilds it before its commands (the node's critical path), and the run is the
+    lockstep one bit for bit (two_story, the first story's model 10 % stiff, 2 s)."""
+    params = _params('two_story', {'lab': {'predictor_stiffness_N_per_m': 1.1 * 2.11e5}},
+                     predictor='adaptive', duration_s=2.0)
+    plain = simulate(params)
+    built = {'step': 0, 'advance': 0}
+    where = []
+    original_init = rf.InterfacePredictor.__init__
+    original_step = rf.ReferenceForceBuilder.step
+    original_advance = rf.ReferenceForceBuilder.advance
+
+    def init(self, *a, **kw):
+        if where:
+            built[where[-1]] += 1
+        original_init(self, *a, **kw)
+
+    def step(self, *a, **kw):
+        where.append('step')
+        try:
+            return original_step(self, *a, **kw)
+        finally:
+            where.pop()
+            where.append('advance')
+            try:
+                original_advance(self)   # as the node does, after the commands
+            finally:
+                where.pop()
+
+    monkeypatch.setattr(rf.InterfacePredictor, '__init__', init)
+    monkeypatch.setattr(rf.ReferenceForceBuilder, 'step', step)
+    run = simulate(params)
+    assert built['advance'] >= 5 and built['step'] == 0, built
+    for name in ('reference_force_N', 'measured_force_N', 'displacement_m',
+                 'acceleration_m_s2'):
+        np.testing.assert_array_equal(getattr(run.rigs['lab'], name),
+                                      getattr(plain.rigs['lab'], name))
+
+
 def test_per_rig_builders_exchange_their_identified_models(monkeypatch):
     """Each pier's builder (its lab's) integrates a replica that models the other pier: with
     the other lab's identified model (exchanged every EXCHANGE_EVERY_STEPS) the bridge is as

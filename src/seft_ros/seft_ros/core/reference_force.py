@@ -874,10 +874,18 @@ class ReferenceForceBuilder:
         """Real time, once the step's commands are out: the work of the computational part
         that the next step needs but this step's commands did not (an OpenSees model with
         ``step: deferred`` stepped to the sample they were built from). The next step
-        does it otherwise: the same results either way."""
+        does it otherwise: the same results either way.
+
+        Also rebuilds the interface prediction for the compensators' models as this step's
+        laws left them (``adaptive``: its estimates moved by more than
+        :data:`MODEL_TOLERANCE`), which the next step would otherwise rebuild before its
+        commands: that step then finds it built for the same models (the same prediction
+        either way; a tangent that moved meanwhile is rebuilt there)."""
         advance = getattr(self.state, 'advance', None)
         if advance is not None:
             advance()
+        if self._interface is not None:
+            self._build_interface()
 
     def refits(self) -> bool:
         """Whether a compensator of this builder refits during the run (the node then gives
