@@ -179,9 +179,11 @@ def _study_reference_before_structures(alpha, ag, hysteretic=None):
 
 @pytest.mark.parametrize('alpha', [0.0, 0.5, 1.5])
 @pytest.mark.parametrize('model', ['linear', 'bouc_wen'])
-def test_the_one_dof_structure_is_the_study_reference_bit_for_bit(rig, alpha, model):
+def test_the_one_dof_structure_is_the_study_reference(rig, alpha, model):
     """The general structure reference, one DOF with M = (1 + alpha) m: the study's numbers
-    exactly (the main job's table does not move)."""
+    (the main job's table does not move). Yielding, bit for bit; linear, where the study
+    stepped ``lsim``'s recurrence in Python and the structure steps the same recurrence in
+    SLICOT's TF01MD, within 1e-12 of the peak (measured 2e-14 to 7e-13)."""
     from seft_plant_sim.specimen import BoucWenSpecimen
     t = np.arange(1000) * DT
     ag = 30.0 * np.sin(2 * np.pi * 3.0 * t) + np.random.default_rng(5).normal(size=t.shape)
@@ -192,4 +194,7 @@ def test_the_one_dof_structure_is_the_study_reference_bit_for_bit(rig, alpha, mo
         assert np.max(np.abs(ref.hysteretic_z)) > 0.9                 # it yields
     for got, want in zip((ref.displacement_m, ref.velocity_m_s, ref.acceleration_m_s2,
                           ref.force_N), _study_reference_before_structures(alpha, ag, member)):
-        np.testing.assert_array_equal(got, want)
+        if member is not None:
+            np.testing.assert_array_equal(got, want)
+        else:
+            np.testing.assert_allclose(got, want, rtol=0, atol=1e-12 * np.max(np.abs(want)))

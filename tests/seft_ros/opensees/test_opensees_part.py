@@ -40,7 +40,7 @@ def test_factory_gives_the_model(two_story):
 
 
 def test_reference_is_the_exact_linear_response(two_story):
-    """OpenSees' analysis of the whole two-story building equals scipy's lsim of its matrices
+    """OpenSees' analysis of the whole two-story building equals the exact solution of its matrices
     (first-order hold, exact for the linear record) within 0.05 %."""
     setup, ag = two_story
     sub = setup.substructures

@@ -1638,8 +1638,9 @@ def _structure_report(runs: list[RunData], comparisons: list[RunComparison],
     lines = ['## Structure tests', ''] if heading else []
     lines += ['A structure test against its analytical reference: the whole structure '
               "M x'' + C x' + K x = -M iota xg'' simulated from the recorded ground motion "
-              '(scipy.signal.lsim; with a yielding member, scipy.integrate.solve_ivp with the '
-              'Bouc-Wen member). Per degree of freedom: displacement relative to the ground, '
+              '(first-order hold, stepped by SLICOT TF01MD; with a yielding member, '
+              'scipy.integrate.solve_ivp with the Bouc-Wen member). Per degree of freedom: '
+              'displacement relative to the ground, '
               'relative and floor (absolute) acceleration, and at a physical degree of freedom '
               "the interface force (the rig's load cell against the force the reference "
               'specimen carries); per link, its deformation (story drift); per rig, the RTHS '
