@@ -878,7 +878,7 @@ class ReferenceForceBuilder:
 
         Also rebuilds the interface prediction for the compensators' models as this step's
         laws left them (``adaptive``: its estimates moved by more than
-        :data:`MODEL_TOLERANCE`), which the next step would otherwise rebuild before its
+        ``MODEL_TOLERANCE``), which the next step would otherwise rebuild before its
         commands: that step then finds it built for the same models (the same prediction
         either way; a tangent that moved meanwhile is rebuilt there)."""
         advance = getattr(self.state, 'advance', None)
