@@ -143,27 +143,38 @@ def valve_3_stage():
 
 
 def test_the_design_chooses_the_inverse_by_the_predicted_test_error(valve_3_stage):
-    """The shortest inverse within the band error is taken when its test is predicted within
-    the goal, and the test errs below 1 % in every signal (issue 38 target 3). Session 25's
-    host designed a controller whose 4-step inverse left a closed-loop pole at 8.4 Hz beside
-    the reference structure's (2.66 % at alpha 0.5; the design took 11 steps), session 26's
-    another one (3 steps): the loop's frequency response, unbalanced, rode on rounding. With
-    it balanced (seft_msgs_py.plant.schur_response) the design is 3 steps, predicted within
-    0.07 % (Kanai-Tajimi: 0.17 %), run 0.06 / 0.70 / 0.83 % x / a / f at alpha 0.5 (4
-    steps: 0.08 / 0.67 / 0.79 %; 11 steps: 0.06 / 0.44 / 0.53 %)."""
+    """The design takes the shortest inverse within the band error when its test is predicted
+    within the goal, else a longer one predicted within it (issue 38 target 3): the test errs
+    below 1 % in every signal, and an inverse passed over is predicted beyond the goal and
+    runs worse. Which of the two the identification gives rides on the host's rounding: the
+    identified order and the design move with the CPU's BLAS. Sessions 26-33: order 7,
+    3 steps, the shortest, predicted within 0.07 %, run 0.06 / 0.70 / 0.83 % x / a / f at
+    alpha 0.5. 2026-12-01's host: order 8, the shortest 4 steps predicted at 2.4 % and run
+    at 2.66 / 3.47 / 2.74 %, the design's 11 steps predicted at 0.17 % and run at 0.15 /
+    0.48 / 0.55 %. (Session 25: 11 steps for a 4-step inverse's closed-loop pole beside the
+    reference structure, 2.66 %; session 26 balanced the loop's frequency response,
+    seft_msgs_py.plant.schur_response.)"""
     base, plant, design = valve_3_stage
-    assert design.loop_delay_steps == design.shortest_loop_delay_steps == 3
     assert max(design.predicted_error.values()) <= PREDICTED_ERROR_GOAL
+    shortest = design.shortest_loop_delay_steps
+    assert 2 <= shortest <= design.loop_delay_steps
 
     written = dict(design.parameters(),
                    force_controller_tf=json.dumps(design.controller_mapping()))
 
+    def run_params(delay_steps):
+        return parameters.resolve({**base, **written, 'plant_model': plant.to_json(),
+                                   'predictor': 'model', 'alpha': 0.5, 'duration_s': 6.0,
+                                   'amplitude_N': 150.0,
+                                   'predictor_loop_delay_steps': delay_steps})
+
     def errors(delay_steps):
-        p = parameters.resolve({**base, **written, 'plant_model': plant.to_json(),
-                                'predictor': 'model', 'alpha': 0.5, 'duration_s': 6.0,
-                                'amplitude_N': 150.0,
-                                'predictor_loop_delay_steps': delay_steps})
-        cmp = compare_run(simulate(p))
+        cmp = compare_run(simulate(run_params(delay_steps)))
         return [cmp.signal(s).nrms for s in SIGNALS]
     chosen = errors(design.loop_delay_steps)
     assert max(chosen) < 0.01, chosen
+    if shortest != design.loop_delay_steps:
+        passed_over = predicted_error(run_params(shortest), sorted(design.predicted_error))
+        assert max(passed_over) > PREDICTED_ERROR_GOAL, passed_over
+        ran = errors(shortest)
+        assert ran[0] > 2 * chosen[0], (ran, chosen)
