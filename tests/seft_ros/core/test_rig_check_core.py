@@ -216,6 +216,8 @@ def test_stamps_pass():
      r"their stamps' instants: the stamps run 1\.9 samples ahead"),
     ('buffered', r'sent a median 4\.10 ms after t0.*: the samples are 2\.0 samples late'),
     ('behind', r'the first says step -2.*sent 4\.1 ms after their stamps'),
+    ('fell_behind', r"sent 4\.1 ms after their stamps' instants, the first 50 a median 0\.10 "
+     r'ms: the rig fell 2\.0 samples behind after its start and did not catch up'),
 ])
 def test_stamps_fail(change, expected):
     stamps, sent = _stamped()
@@ -232,6 +234,8 @@ def test_stamps_fail(change, expected):
         stamps = stamps - 2 * DT_NS
     if change == 'buffered':           # sample k sent two periods late
         sent = sent + 2 * DT
+    if change == 'fell_behind':        # on time, then two periods late from sample 100 on
+        sent = sent + np.where(stamps >= 100 * DT_NS, 2 * DT, 0.0)
     r = rc.check_stamps(stamps, sent, DT, expected=1000, t0_ns=T0_NS)
     assert not r.passed and re.search(expected, r.measured), r.measured
 

@@ -119,6 +119,9 @@ PERIOD_TOLERANCE = 0.02
 #: rig's clock, in periods [-]: a rig's samples leave a fraction of a period after their
 #: instant (measured here: 0.12 ms median at 2 ms); a stamp two samples off is 2 periods.
 STAMP_OFFSET_STEPS = 1.5
+#: The first samples whose sending the stamps check also reads apart [-]: a rig whose first
+#: ones went out on time and whose median is late fell behind after its start.
+STAMP_EARLY_SAMPLES = 50
 #: Allowed static gain measured force / reference force [-] (the force loop's static error
 #: of a real rig, a load cell's calibration).
 GAIN_RANGE = (0.8, 1.2)
@@ -534,10 +537,12 @@ def check_stamps(stamps_ns: Sequence[int], sent_s: Sequence[float], dt: float, *
     inside = (unique >= 0) & (unique < expected)
     missing = int(expected - np.count_nonzero(inside))
     outside = int(np.count_nonzero(~inside))
-    offset = math.nan
+    offset = early = math.nan
     if t0_ns is not None:
-        offset = float(np.median(np.asarray(sent_s, dtype=float)
-                                 - (t0_ns + stamps) * 1e-9))
+        offsets = np.asarray(sent_s, dtype=float) - (t0_ns + stamps) * 1e-9
+        offset = float(np.median(offsets))
+        first = np.argsort(stamps, kind='stable')[:STAMP_EARLY_SAMPLES]
+        early = float(np.median(offsets[first]))
     limit = STAMP_OFFSET_STEPS * dt
     faults = []
     if off_grid:
@@ -556,9 +561,16 @@ def check_stamps(stamps_ns: Sequence[int], sent_s: Sequence[float], dt: float, *
         faults.append(f"sent {-1e3 * offset:.1f} ms before their stamps' instants: the "
                       f'stamps run {-offset / dt:.1f} samples ahead of the samples')
     elif offset > limit:
-        faults.append(f"sent {1e3 * offset:.1f} ms after their stamps' instants: the "
-                      f'samples are {offset / dt:.1f} samples late (a buffer between the '
-                      'sensors and the node?) or stamped early')
+        if abs(early) <= limit:
+            faults.append(f"sent {1e3 * offset:.1f} ms after their stamps' instants, the "
+                          f'first {min(STAMP_EARLY_SAMPLES, stamps.size)} a median '
+                          f'{1e3 * early:.2f} ms: the rig fell {offset / dt:.1f} samples '
+                          'behind after its start and did not catch up (a tick that takes '
+                          'longer than dt, or samples taken one a wake-up while more wait)')
+        else:
+            faults.append(f"sent {1e3 * offset:.1f} ms after their stamps' instants: the "
+                          f'samples are {offset / dt:.1f} samples late (a buffer between the '
+                          'sensors and the node?) or stamped early')
     when = (', no t0_ns in the running reports: the sending not judged' if t0_ns is None
             else f', sent a median {1e3 * offset:.2f} ms after t0 + k dt (limit '
             f'+/-{1e3 * limit:g} ms)')
