@@ -140,7 +140,7 @@ def test_seft_run_replays_a_run_that_erred_with_late_steps_and_flags_the_hosts_c
     flag = timing_cost_flag(replay)
     assert flag.startswith('timing: 1 late command(s), 0 stale step(s); worst NRMS')
     replay['as_run'] = {'unstable_at_s': 1.2}
-    assert 'unstable at 1.20 s' in timing_cost_flag(replay)
+    assert 'stopped at 1.20 s' in timing_cost_flag(replay)
     run.extra['timing_replay'] = replay
     assert any(f.startswith('timing: ') for f in run_flags(run, compare_run(run)))
 

@@ -442,9 +442,10 @@ TIMING_COST_FLAG_POINTS = 0.005
 
 def replay_cell(worst: dict) -> str:
     """'x / a / f %' of a replay's worst NRMS per signal (fractions; '–' where one is
-    missing), or 'unstable at t s'."""
+    missing), or 'stopped at t s' for a run that was aborted (by its monitor, a watchdog or
+    a limit: the run's reason says which)."""
     if 'unstable_at_s' in worst:
-        return f"unstable at {worst['unstable_at_s']:.2f} s"
+        return f"stopped at {worst['unstable_at_s']:.2f} s"
     return ' / '.join('–' if worst.get(s) is None else f'{100 * worst[s]:.2f}'
                       for s in ('displacement', 'acceleration', 'interface_force')) + ' %'
 
