@@ -37,7 +37,7 @@ import time
 from typing import Callable
 
 __all__ = ['STOP_SIGNALS', 'RUNNER_PID_ENV', 'RUNNER_CHECK_S', 'STOP_HOLD_MARGIN_S',
-           'RunnerWatch', 'StopRequests', 'signal_name']
+           'RunnerWatch', 'StopRequests', 'signal_name', 'stop_raised', 'stop_raised_since']
 
 #: The signals that stop a node process safely (a second one ends it at once, see above).
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
@@ -50,6 +50,29 @@ RUNNER_CHECK_S = 0.25
 #: hold (its stop, plus ``LINGER_S`` to serve its final status) [s]: the hold has a known
 #: length, and a stop that outlasts it by this much is stuck.
 STOP_HOLD_MARGIN_S = 2.0
+
+
+#: The stop signal a handler of this process last raised as ``KeyboardInterrupt``, and when
+#: (``time.monotonic()``): :func:`stop_raised`, :func:`stop_raised_since`.
+_raised: tuple[str, float] | None = None
+
+
+def stop_raised(name: str) -> None:
+    """Note that a signal handler raises ``KeyboardInterrupt(name)`` now (call it just before
+    raising). Raised while rclpy converts a message with Python code (``take_message``, in
+    pybind11), the interrupt does not come out as itself: pybind11 drops it and raises
+    ``RuntimeError: Unable to convert call argument ...`` (a runner hung up at 4.5 s of a
+    lockstep run exited 1 with that traceback instead of ending the run safely); the caller
+    of the executor tells the two apart with :func:`stop_raised_since`."""
+    global _raised
+    _raised = (str(name), time.monotonic())
+
+
+def stop_raised_since(t0: float) -> str | None:
+    """The name of the stop signal raised (:func:`stop_raised`) at or after `t0` [s,
+    ``time.monotonic()``], or None."""
+    raised = _raised
+    return raised[0] if raised is not None and raised[1] >= t0 else None
 
 
 def signal_name(exc: BaseException) -> str:

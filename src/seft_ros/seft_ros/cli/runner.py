@@ -68,7 +68,13 @@ from seft_msgs_py.rig_contract import (
     unsealed_status_advice,
 )
 from seft_msgs_py.signals import CLOCK, RUN_PARAMETERS
-from seft_msgs_py.stopping import RUNNER_PID_ENV, STOP_SIGNALS, signal_name
+from seft_msgs_py.stopping import (
+    RUNNER_PID_ENV,
+    STOP_SIGNALS,
+    signal_name,
+    stop_raised,
+    stop_raised_since,
+)
 from seft_msgs_py.topics import NODE_PARAMETERS, STATUS, TOPICS
 from seft_ros.cli.config import write_params_file
 from seft_ros.cli.partition import PROCESSES
@@ -445,12 +451,23 @@ class GraphRunner:
                    for s in self.statuses)
 
     def _spin(self, seconds: float) -> None:
+        """Serve the runner's subscriptions for `seconds` [s]. A stop signal raised while
+        rclpy converted a message comes out of it as a ``RuntimeError`` (pybind11 drops the
+        ``KeyboardInterrupt``; :func:`~seft_msgs_py.stopping.stop_raised`): it is raised as
+        the interrupt it was, so the run is ended safely."""
         deadline = time.monotonic() + seconds
         while True:
-            left = deadline - time.monotonic()
+            now = time.monotonic()
+            left = deadline - now
             if left <= 0:
                 return
-            self.executor.spin_once(timeout_sec=min(left, 0.05))
+            try:
+                self.executor.spin_once(timeout_sec=min(left, 0.05))
+            except RuntimeError:
+                name = stop_raised_since(now)
+                if name is None:
+                    raise
+                raise KeyboardInterrupt(name) from None
 
     def _latest(self, name: str, states=None):
         for s in reversed(self.statuses):
@@ -1097,6 +1114,7 @@ class _HeldSignals:
     def _on_signal(self, signum, frame):
         name = signal.Signals(signum).name
         if self.names:
+            stop_raised(name)
             raise KeyboardInterrupt(name)
         self.names.append(name)
 
