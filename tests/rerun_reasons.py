@@ -27,12 +27,12 @@ def record(report) -> None:
         # a report of checks (seft rig-check's): its passing lines go first, so that what
         # failed is kept (a CI log of 2026-11-30 showed 12 PASS lines of 22 and no FAIL)
         passing = [i for i, line in enumerate(lines) if line.lstrip().startswith('PASS ')]
-        if passing:
-            drop = set(passing[:len(lines) - MAX_LINES])
-            lines = [line for i, line in enumerate(lines) if i not in drop] + [
-                f'... ({len(drop)} PASS lines left out)']
-        if len(lines) > MAX_LINES + 1:
+        drop = set(passing[:len(lines) - MAX_LINES])
+        lines = [line for i, line in enumerate(lines) if i not in drop]
+        if len(lines) > MAX_LINES:
             lines = lines[:MAX_LINES] + [f'... ({len(lines) - MAX_LINES} more lines)']
+        if drop:
+            lines.append(f'... ({len(drop)} PASS lines left out)')
     REASONS.append((report.nodeid, report.when, '\n'.join(lines)))
 
 
