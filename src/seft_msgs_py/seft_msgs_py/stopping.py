@@ -30,14 +30,16 @@ outlives the runner while the nodes hold its pipe.
 
 from __future__ import annotations
 
+from contextlib import contextmanager
 import os
 import signal
 import sys
+import threading
 import time
 from typing import Callable
 
 __all__ = ['STOP_SIGNALS', 'RUNNER_PID_ENV', 'RUNNER_CHECK_S', 'STOP_HOLD_MARGIN_S',
-           'RunnerWatch', 'StopRequests', 'signal_name', 'stop_raised', 'stop_raised_since']
+           'RunnerWatch', 'StopRequests', 'signal_name', 'raise_stop', 'spinning']
 
 #: The signals that stop a node process safely (a second one ends it at once, see above).
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
@@ -52,27 +54,56 @@ RUNNER_CHECK_S = 0.25
 STOP_HOLD_MARGIN_S = 2.0
 
 
-#: The stop signal a handler of this process last raised as ``KeyboardInterrupt``, and when
-#: (``time.monotonic()``): :func:`stop_raised`, :func:`stop_raised_since`.
-_raised: tuple[str, float] | None = None
+#: A thread of this process's CLI is in rclpy's executor (:func:`spinning`): a stop signal
+#: is left to it (``_pending``), not raised there.
+_spinning = False
+#: The stop signal left to the executor's caller (None: none).
+_pending: str | None = None
 
 
-def stop_raised(name: str) -> None:
-    """Note that a signal handler raises ``KeyboardInterrupt(name)`` now (call it just before
-    raising). Raised while rclpy converts a message with Python code (``take_message``, in
-    pybind11), the interrupt does not come out as itself: pybind11 drops it and raises
-    ``RuntimeError: Unable to convert call argument ...`` (a runner hung up at 4.5 s of a
-    lockstep run exited 1 with that traceback instead of ending the run safely); the caller
-    of the executor tells the two apart with :func:`stop_raised_since`."""
-    global _raised
-    _raised = (str(name), time.monotonic())
+def raise_stop(name: str) -> None:
+    """What a CLI's stop-signal handler does: raise ``KeyboardInterrupt(name)``, or, while
+    the main thread is in rclpy's executor (:func:`spinning`), leave it to be raised when the
+    executor returns. Raised inside the executor, it surfaced wherever Python code ran: in
+    rclpy's ``take_message``, which converts a message with Python code under pybind11, it
+    was dropped for ``RuntimeError: Unable to convert call argument '0' ...`` (a runner
+    hung up at 4.5 s of a lockstep run exited 1 with that traceback instead of ending the
+    run safely). The nodes' processes leave it to their loop the same way
+    (:attr:`StopRequests.spinning`).
+
+    Raises
+    ------
+    KeyboardInterrupt
+        Outside the executor, or a second signal while one is left to it.
+    """
+    global _pending
+    if _spinning and _pending is None:
+        _pending = str(name)
+        return
+    raise KeyboardInterrupt(name)
 
 
-def stop_raised_since(t0: float) -> str | None:
-    """The name of the stop signal raised (:func:`stop_raised`) at or after `t0` [s,
-    ``time.monotonic()``], or None."""
-    raised = _raised
-    return raised[0] if raised is not None and raised[1] >= t0 else None
+@contextmanager
+def spinning():
+    """The block hands this thread to rclpy's executor (one ``spin_once``); on the main
+    thread, a stop signal meanwhile is raised as ``KeyboardInterrupt`` when it ends
+    (:func:`raise_stop`).
+
+    Raises
+    ------
+    KeyboardInterrupt
+        A stop signal came while the block ran.
+    """
+    global _spinning, _pending
+    # (signals reach the main thread only: another thread's spin leaves them raised)
+    _spinning = threading.current_thread() is threading.main_thread()
+    try:
+        yield
+    finally:
+        _spinning = False
+        name, _pending = _pending, None
+        if name is not None:
+            raise KeyboardInterrupt(name)
 
 
 def signal_name(exc: BaseException) -> str:

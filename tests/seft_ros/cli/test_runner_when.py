@@ -159,27 +159,32 @@ def test_parameters_that_differ_wait_for_the_rigs_word_before_nothing_was_run(mo
 
 def test_a_stop_signal_inside_rclpys_message_conversion_is_the_interrupt():
     """CI of session 34: a SIGHUP arrived while rclpy's ``take_message`` converted a message
-    with Python code; pybind11 dropped the ``KeyboardInterrupt`` and raised ``RuntimeError:
-    Unable to convert call argument '0' ...``, so the runner exited 1 with a traceback
-    instead of ending the run safely. ``_spin`` raises it as the interrupt it was, and any
-    other RuntimeError as itself."""
-    from seft_msgs_py.stopping import stop_raised
+    with Python code; raised there, pybind11 dropped the ``KeyboardInterrupt`` for
+    ``RuntimeError: Unable to convert call argument '0' ...``, and the runner exited 1 with a
+    traceback instead of ending the run safely. A stop signal inside the executor is now
+    left to ``_spin``, which raises it once ``spin_once`` returns; outside it the handler
+    raises at once, and an executor's own RuntimeError is raised as itself."""
+    from seft_msgs_py.stopping import raise_stop
 
     class Executor:
         def __init__(self, signame):
             self.signame = signame
+            self.returned = False
 
         def spin_once(self, timeout_sec):
-            if self.signame:
-                stop_raised(self.signame)        # the handler, as seft's main installs it
-            raise RuntimeError("Unable to convert call argument '0' to Python object")
+            if self.signame is None:
+                raise RuntimeError("Unable to convert call argument '0' to Python object")
+            raise_stop(self.signame)            # the handler, as seft's main installs it
+            self.returned = True                # (it did not raise in here)
 
     runner = GraphRunner.__new__(GraphRunner)      # no ROS context: what _spin reads
     runner.executor = Executor('SIGHUP')
     with pytest.raises(KeyboardInterrupt) as info:
         runner._spin(1.0)
-    assert info.value.args == ('SIGHUP',)
-    time.sleep(0.002)                              # (that signal is now in the past)
+    assert info.value.args == ('SIGHUP',) and runner.executor.returned
+    with pytest.raises(KeyboardInterrupt) as info:
+        raise_stop('SIGTERM')                   # not in the executor: at once
+    assert info.value.args == ('SIGTERM',)
     runner.executor = Executor(None)
     with pytest.raises(RuntimeError, match='Unable to convert'):
         runner._spin(1.0)

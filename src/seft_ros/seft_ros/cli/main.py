@@ -39,7 +39,7 @@ import time  # noqa: E402
 
 from seft_msgs_py import parameters  # noqa: E402
 from seft_msgs_py.errors import InputError, Interrupted, SeftError  # noqa: E402
-from seft_msgs_py.stopping import STOP_SIGNALS, signal_name, stop_raised  # noqa: E402
+from seft_msgs_py.stopping import STOP_SIGNALS, raise_stop, signal_name  # noqa: E402
 from seft_plant_sim.faults import CONTROLLER_FAULTS, FAULTS, SENSOR_FAULTS  # noqa: E402
 from seft_ros.cli import api, partition  # noqa: E402
 from seft_ros.cli.arguments import OneLineParser  # noqa: E402
@@ -334,9 +334,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _interrupt(signum, frame):
-    name = signal.Signals(signum).name
-    stop_raised(name)
-    raise KeyboardInterrupt(name)
+    raise_stop(signal.Signals(signum).name)
 
 
 def _say(text: str, stream=None) -> None:

@@ -71,9 +71,9 @@ from seft_msgs_py.signals import CLOCK, RUN_PARAMETERS
 from seft_msgs_py.stopping import (
     RUNNER_PID_ENV,
     STOP_SIGNALS,
+    raise_stop,
     signal_name,
-    stop_raised,
-    stop_raised_since,
+    spinning,
 )
 from seft_msgs_py.topics import NODE_PARAMETERS, STATUS, TOPICS
 from seft_ros.cli.config import write_params_file
@@ -451,23 +451,15 @@ class GraphRunner:
                    for s in self.statuses)
 
     def _spin(self, seconds: float) -> None:
-        """Serve the runner's subscriptions for `seconds` [s]. A stop signal raised while
-        rclpy converted a message comes out of it as a ``RuntimeError`` (pybind11 drops the
-        ``KeyboardInterrupt``; :func:`~seft_msgs_py.stopping.stop_raised`): it is raised as
-        the interrupt it was, so the run is ended safely."""
+        """Serve the runner's subscriptions for `seconds` [s]; a stop signal meanwhile is
+        raised between two ``spin_once`` (:func:`~seft_msgs_py.stopping.spinning`)."""
         deadline = time.monotonic() + seconds
         while True:
-            now = time.monotonic()
-            left = deadline - now
+            left = deadline - time.monotonic()
             if left <= 0:
                 return
-            try:
+            with spinning():
                 self.executor.spin_once(timeout_sec=min(left, 0.05))
-            except RuntimeError:
-                name = stop_raised_since(now)
-                if name is None:
-                    raise
-                raise KeyboardInterrupt(name) from None
 
     def _latest(self, name: str, states=None):
         for s in reversed(self.statuses):
@@ -1114,8 +1106,8 @@ class _HeldSignals:
     def _on_signal(self, signum, frame):
         name = signal.Signals(signum).name
         if self.names:
-            stop_raised(name)
-            raise KeyboardInterrupt(name)
+            raise_stop(name)
+            return
         self.names.append(name)
 
     def __enter__(self):
