@@ -250,3 +250,53 @@ def test_simulate_takes_a_prepared_record_and_reports_progress(reference_params)
     run = simulate(params, record=gm, progress=lambda k, n: calls.append((k, n)))
     assert_same_run(run, simulate(params))
     assert all(n == 500 and 0 < k <= 500 for k, n in calls)
+
+
+def _one_rig_through_the_general_steps(monkeypatch):
+    """Make simulate() step a test of one rig through the loop of any rigs (its lists of one
+    element)."""
+    from seft_ros.core import experiment
+
+    def general(n_total, fr, est, lane, watch_of, builder, estimates, padded, width, warnings,
+                state_rec, record_state, state_lag, est_row, progress):
+        guarded = [(builder, g) for g in builder.range_guards if g is not None]
+        return experiment._rig_steps(
+            n_total, [fr], est, [lane], [watch_of], builder, estimates, padded, width,
+            warnings, state_rec, record_state, state_lag, [est_row], progress, [watch_of[4]],
+            [(builder.observe, 0)], guarded, builder, est is not None)
+    monkeypatch.setattr(experiment, '_one_rig_steps', general)
+
+
+@pytest.mark.parametrize('case', [
+    {'predictor': 'adaptive'},                                   # completes, its estimates
+    {'predictor': 'model', 'force_range_N': 300.0, 'accelerometer_range_m_s2': 5.0},
+    {'predictor': 'model', 'predictor_stiffness_N_per_m': 2.532e5, 'specimen_check': 'abort'},
+    {'predictor': 'none', 'alpha': 2.0},                          # the monitor stops it
+    {'predictor': 'model', 'stroke_limit_m': 0.002},              # the rig's limit
+    {'predictor': 'none', 'alpha': 1.5, 'monitor_threshold': 0.0,  # the interlock
+     'rig_calibration': 'si'},
+    {'predictor': 'model', 'rig_model': 'delay'}])
+def test_a_test_of_one_rig_steps_as_a_test_of_many(reference_params, monkeypatch, case):
+    """simulate()'s step for one rig (the study's test) is the step of any rigs with its
+    lists taken apart: the same signals bit for bit, the same warnings and the same stop, on
+    completed runs and on runs stopped by each watch; with stale steps replayed."""
+    params = dict(reference_params, duration_s=3.0, amplitude_N=500.0, **case)
+    if params['alpha'] == 1.5:                 # (saturates at 3.06 s of the default record)
+        params.update(duration_s=3.5, amplitude_N=reference_params['amplitude_N'])
+    stale = [] if params.get('rig_model') == 'delay' else range(100, 1500, 7)
+    runs = []
+    for general in (False, True):
+        if general:
+            _one_rig_through_the_general_steps(monkeypatch)
+        runs.append(simulate(params, stale_steps=stale))
+    one, many = runs
+    if params['alpha'] == 1.5:
+        assert one.extra['abort_node'] == 'force_servo_controller'
+    assert_same_run(one, many)
+    assert (one.abort_reason, one.extra['abort_node'], one.extra['warnings']) == (
+        many.abort_reason, many.extra['abort_node'], many.extra['warnings'])
+    assert one.extra['sensor_range'] == many.extra['sensor_range']
+    if case.get('predictor') == 'adaptive':
+        assert one.rigs[''].estimates.keys() == many.rigs[''].estimates.keys()
+        for key, values in one.rigs[''].estimates.items():
+            np.testing.assert_array_equal(values, many.rigs[''].estimates[key])

@@ -528,3 +528,46 @@ def test_the_specimen_check_takes_the_declared_sensor_noise_out():
     assert lines[0].startswith('specimen check at t=1.528 s: the rig identifies its specimen '
                                'at 1.25 x the declared')
     assert check.stiffness_ratio == pytest.approx(1.25, rel=1e-5) and check.stiffness_error == 0
+
+
+@pytest.mark.parametrize('noise', [False, True])
+def test_the_specimen_check_judges_a_sample_without_regression_as_the_one_before(noise):
+    """The check skips its verdict on a sample without a regression (four in five) when the
+    sample before found the specimen within the tolerance: the same lines at the same
+    samples, and the same ratio, as a check that judges every sample. K's specimen as
+    declared for 4 s, a pause of the excitation (the gate shut), then 20 % softer."""
+    from seft_msgs_py import parameters
+    from seft_msgs_py.interface import Measurement
+    from seft_ros.core.monitor import SpecimenCheck
+
+    class EverySample(SpecimenCheck):
+        _steady = property(lambda self: False, lambda self, value: None)
+
+    m, c, k = 200.0, 1130.97, 1776500.0
+    sigma = np.array([5.0, 1e-5, 1e-4, 0.05]) if noise else np.zeros(4)
+    p = dict(parameters.resolve(), mass_kg=m, damping_N_s_per_m=c, stiffness_N_per_m=k,
+             dt=0.002, noise_force_N=sigma[0], noise_displacement_m=sigma[1],
+             noise_velocity_m_s=sigma[2], noise_acceleration_m_s2=sigma[3])
+    rng = np.random.default_rng(5)
+    t = np.arange(0.0, 12.0, 0.002)
+    w = 2 * np.pi * np.array([0.9, 1.7, 2.9, 4.3])
+    phase = np.outer(t, w) + rng.uniform(0, 2 * np.pi, 4)
+    envelope = np.where((t > 4.0) & (t < 5.0), 0.0, 8e-5 / np.sqrt(2.0))
+    x = envelope * np.sin(phase).sum(1)
+    v = envelope * (w * np.cos(phase)).sum(1)
+    a = -envelope * (w ** 2 * np.sin(phase)).sum(1)
+    f = m * a + c * v + np.where(t < 4.5, 1.0, 0.8) * k * x
+    e = rng.standard_normal((len(t), 4)) * sigma
+    samples = [Measurement(i, float(t[i]), float(x[i] + e[i, 1]), float(v[i] + e[i, 2]),
+                           float(a[i] + e[i, 3]), float(f[i] + e[i, 0]))
+               for i in range(len(t))]
+    runs = []
+    for kind in (SpecimenCheck, EverySample):
+        check = SpecimenCheck.from_parameters(p)
+        check.__class__ = kind
+        lines = [(s.step, line) for s in samples if (line := check.update(s))]
+        runs.append((lines, check.stiffness_ratio, check.stiffness_error, check.judged))
+    assert runs[0] == runs[1]
+    lines = runs[0][0]
+    assert len(lines) == 1 and 'identifies its specimen at 0.8' in lines[0][1]
+    assert lines[0][0] * 0.002 > 5.0          # (the change at 4.5 s, the check persists)

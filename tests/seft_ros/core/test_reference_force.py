@@ -413,3 +413,44 @@ def test_a_builder_of_one_rig_steps_its_law_alone_with_the_same_numbers(referenc
         with pytest.raises(ParameterError, match=r'^rig rig: no measurement of sample 299 '
                                                  r'observed$'):
             b.step(ground[300:300 + width])
+
+
+@pytest.mark.parametrize('predictor', ['none', 'model', 'adaptive'])
+def test_observe_and_step_is_observe_then_step(predictor):
+    """The one-rig builder's fused step (what ``simulate`` calls for a test of one rig) gives
+    the commands of ``observe`` then ``step`` bit for bit, its range guard counting the same
+    samples (accelerations past the accelerometer's 39.2 m/s^2 range among them), and takes
+    the long way for a sample out of order; a builder of two rigs refuses it."""
+    from seft_msgs_py import parameters
+    from seft_ros.core.reference_force import ReferenceForceBuilder
+    p = parameters.resolve({'predictor': predictor, 'alpha': 1.0})
+    fused, plain = (ReferenceForceBuilder.from_parameters(p) for _ in range(2))
+    rng = np.random.default_rng(3)
+    look = fused.lookahead_steps
+    ag = rng.standard_normal(400 + look + 1)
+    a = 30.0 * rng.standard_normal(400)
+    got, want = [fused.step(ag[:look + 1])[0]], [plain.step(ag[:look + 1])[0]]
+    for k in range(1, 400):
+        m = Measurement(k - 1, (k - 1) * 0.002, 1e-4 * math.sin(k / 9), 1e-3 * math.cos(k / 9),
+                        float(a[k - 1]), 50.0 * math.sin(k / 9))
+        window = ag[k:k + look + 1].tolist()
+        got.append(fused.observe_and_step(m, window))
+        plain.observe(0, m)
+        want.append(plain.step(window)[0])
+    assert got == want
+    assert fused.range_counts() == plain.range_counts()
+    assert fused.range_counts()['']['samples']['acceleration'] > 0
+    # a measurement not of sample k - 1 goes through observe and step, with their error
+    with pytest.raises(ParameterError, match='no measurement of sample 399 observed'):
+        fused.observe_and_step(dataclasses.replace(m, step=500), ag[:look + 1].tolist())
+
+
+def test_observe_and_step_takes_one_rig():
+    from pathlib import Path
+
+    from seft_ros.cli.config import expand_runs, load_config
+    from seft_ros.core.reference_force import ReferenceForceBuilder
+    config = Path(__file__).resolve().parents[3] / 'config' / 'two_piers.yaml'
+    builder = ReferenceForceBuilder.from_parameters(expand_runs(load_config(config))[0])
+    with pytest.raises(ParameterError, match='builder of 2 local rigs: observe_and_step'):
+        builder.observe_and_step(meas(0, 1.0), [0.0] * (1 + builder.lookahead_steps))

@@ -220,11 +220,85 @@ def _simulate(params, *, progress, record, stale_steps, command_latency_s) -> Ru
     state_lag = builder.state_lag_steps     # the state of sample k - lag (an OpenSees part
                                             # that steps after the command)
     warnings = []
-    reason = abort_node = None
-    n_done = n_total
     commands = build(padded[0:width])
     est = estimates() if estimated else None
-    t_last = t_start = time.monotonic()
+    t_start = time.monotonic()
+    if n_r == 1 and len(builders) == 1:
+        # the study's test and every test of one rig: the same step with the loops over
+        # rigs and builders taken apart
+        reason, abort_node, n_done, meas = _one_rig_steps(
+            n_total, commands[0], est, lanes[0], watches[0], builder, estimates, padded,
+            width, warnings, state_rec, record_state, state_lag, est_rows[0], progress)
+    else:
+        reason, abort_node, n_done, meas = _rig_steps(
+            n_total, commands, est, lanes, watches, builder_set, estimates, padded, width,
+            warnings, state_rec, record_state, state_lag, est_rows, progress, names,
+            observations, guarded, builder, estimated)
+    # the samples of the last step that no force was built from (the record's end, or an
+    # abort there): the graph's builder node received them, and counts those at a sensor's
+    # range; so does this
+    built = builders[0].next_step - 1       # the samples a force was built from
+    if n_total and (reason is not None or n_done == n_total):
+        for b in builders:
+            for r in range(n_r):
+                if meas[r] is not None and meas[r].step >= built:
+                    b.count_at_range(r, meas[r])
+            warnings.extend(b.range_warnings())
+    wall_s = time.monotonic() - t_start
+    n = n_done
+    dt = float(params['dt'])
+    t = np.arange(n) * dt
+
+    rig_data = {}
+    for r, name in enumerate(names):
+        # the rig's samples (n, 6) as six contiguous signals
+        fr, fm, u, x, v, a = (np.ascontiguousarray(column) for column in
+                              np.array(rows[r][:n], dtype=float).reshape(-1, 6).T)
+        estimate_signals = None
+        if est_rows[r]:
+            estimate_signals = {key: np.array([e[key] for e in est_rows[r][:n]], dtype=float)
+                                for key in est_rows[r][0]}
+        p = rig_params[name]
+        if not builder.setup.is_study:
+            p = dict(p, alpha=float(builder.setup.substructures.alpha[r]))
+        rig_data[name] = RigData(
+            params=dict(p), reference_force_N=fr, measured_force_N=fm, displacement_m=x,
+            velocity_m_s=v, acceleration_m_s2=a, valve_command_V=u if valve[r] else None,
+            estimates=estimate_signals)
+    # the computational state of sample k is recorded by the step of k+1 (k+2: a state lag):
+    # the last sample's is not (the run ends there); it is NaN
+    computational = {}
+    if builder.state_names:
+        states = np.array(state_rec[:n], dtype=float).reshape(len(state_rec[:n]),
+                                                              len(builder.state_names))
+        for i, name in enumerate(builder.state_names):
+            column = np.full(n, np.nan)
+            column[:states.shape[0]] = states[:n, i]
+            computational[name] = column
+    return RunData(
+        params=dict(params), time_s=t, ground_acceleration_m_s2=np.array(ag[:n]),
+        rigs=rig_data, computational=computational, stable=reason is None,
+        unstable_at_s=None if reason is None else n * dt, abort_reason=reason,
+        record_name=gm.name, source='simulate',
+        extra={'wall_s': wall_s, 'abort_node': abort_node, 'warnings': warnings,
+               'specimen_ratios': {r: c.stiffness_ratio for r, c in zip(names, checks)
+                                   if c is not None},
+               'sensor_range': {r: v for b in builders for r, v in b.range_counts().items()},
+               'part_findings': builder.part_findings()})
+
+
+def _rig_steps(n_total, commands, est, lanes, watches, builder_set, estimates, padded, width,
+               warnings, state_rec, record_state, state_lag, est_rows, progress, names,
+               observations, guarded, builder, estimated):
+    """:func:`simulate`'s steps of a test of any rigs and builders; returns ``(reason,
+    abort_node, n_done, meas)``: the reason the run stopped (None: completed), the node
+    that stopped it, the samples done and each rig's last measurement (None: not taken)."""
+    n_r = len(lanes)
+    reason = abort_node = None
+    n_done = n_total
+    meas = [None] * n_r
+    build = builder_set.step
+    t_last = time.monotonic()
     for k in range(n_total):
         meas = [None] * n_r
         for (r, limit_violation, measure, apply, control, lock, ctrl, playout, stale_r,
@@ -285,57 +359,72 @@ def _simulate(params, *, progress, record, stale_steps, command_latency_s) -> Ru
         if progress is not None and not k & 255 and time.monotonic() - t_last > 0.5:
             t_last = time.monotonic()
             progress(k + 1, n_total)
-    # the samples of the last step that no force was built from (the record's end, or an
-    # abort there): the graph's builder node received them, and counts those at a sensor's
-    # range; so does this
-    built = builders[0].next_step - 1       # the samples a force was built from
-    if n_total and (reason is not None or n_done == n_total):
-        for b in builders:
-            for r in range(n_r):
-                if meas[r] is not None and meas[r].step >= built:
-                    b.count_at_range(r, meas[r])
-            warnings.extend(b.range_warnings())
-    wall_s = time.monotonic() - t_start
-    n = n_done
-    dt = float(params['dt'])
-    t = np.arange(n) * dt
+    return reason, abort_node, n_done, meas
 
-    rig_data = {}
-    for r, name in enumerate(names):
-        # the rig's samples (n, 6) as six contiguous signals
-        fr, fm, u, x, v, a = (np.ascontiguousarray(column) for column in
-                              np.array(rows[r][:n], dtype=float).reshape(-1, 6).T)
-        estimate_signals = None
-        if est_rows[r]:
-            estimate_signals = {key: np.array([e[key] for e in est_rows[r][:n]], dtype=float)
-                                for key in est_rows[r][0]}
-        p = rig_params[name]
-        if not builder.setup.is_study:
-            p = dict(p, alpha=float(builder.setup.substructures.alpha[r]))
-        rig_data[name] = RigData(
-            params=dict(p), reference_force_N=fr, measured_force_N=fm, displacement_m=x,
-            velocity_m_s=v, acceleration_m_s2=a, valve_command_V=u if valve[r] else None,
-            estimates=estimate_signals)
-    # the computational state of sample k is recorded by the step of k+1 (k+2: a state lag):
-    # the last sample's is not (the run ends there); it is NaN
-    computational = {}
-    if builder.state_names:
-        states = np.array(state_rec[:n], dtype=float).reshape(len(state_rec[:n]),
-                                                              len(builder.state_names))
-        for i, name in enumerate(builder.state_names):
-            column = np.full(n, np.nan)
-            column[:states.shape[0]] = states[:n, i]
-            computational[name] = column
-    return RunData(
-        params=dict(params), time_s=t, ground_acceleration_m_s2=np.array(ag[:n]),
-        rigs=rig_data, computational=computational, stable=reason is None,
-        unstable_at_s=None if reason is None else n * dt, abort_reason=reason,
-        record_name=gm.name, source='simulate',
-        extra={'wall_s': wall_s, 'abort_node': abort_node, 'warnings': warnings,
-               'specimen_ratios': {r: c.stiffness_ratio for r, c in zip(names, checks)
-                                   if c is not None},
-               'sensor_range': {r: v for b in builders for r, v in b.range_counts().items()},
-               'part_findings': builder.part_findings()})
+
+def _one_rig_steps(n_total, fr, est, lane, watch_of, builder, estimates, padded, width,
+                   warnings, state_rec, record_state, state_lag, est_row, progress):
+    """:func:`_rig_steps` for a test of one rig and one builder (the study's test), the
+    same operations in the same order with the lists of one element taken apart."""
+    (_, limit_violation, measure, apply, control, lock, ctrl, playout, stale_r,
+     store) = lane
+    _, watch, check, abort, name, diverging = watch_of
+    step_after = builder.observe_and_step   # (observe, then step; no warning in between)
+    scale = builder.last_ground_forces_N            # (updated in place by every step)
+    guards = [g for g in builder.range_guards if g is not None]
+    estimated = est is not None
+    reason = abort_node = m = None
+    n_done = n_total
+    t_last = time.monotonic()
+    for k in range(n_total):
+        m = None
+        reason = limit_violation()
+        if reason:
+            abort_node = qualified('rig', name)
+            n_done = k
+            break
+        m = measure()
+        if control is not None:
+            reference = fr if playout is None else playout.replay(k, fr, stale_r.get(k, 0))
+            u = control(reference, m.force_N, m.velocity_m_s, m.acceleration_m_s2,
+                        m.displacement_m)
+            reason = lock(ctrl.saturated, m.time_s)
+            if reason:
+                abort_node = qualified('force_servo_controller', name)
+                n_done = k
+                break
+        else:
+            u = fr
+        store((fr, m.force_N, u, m.displacement_m, m.velocity_m_s, m.acceleration_m_s2))
+        if estimated and est[0] is not None:
+            est_row.append(est[0])
+        apply(u)
+        if k + 1 < n_total:
+            reason = watch(m.force_N, scale[0], m.time_s)
+            if not reason and diverging is not None:
+                reason = diverging(m)
+            if not reason and check is not None:
+                reason = check(m)
+                if reason and (not abort or reason.startswith(SPECIMEN_UNJUDGED)):
+                    warnings.append(reason)
+                    reason = None
+            if reason:
+                reason = f'{name}: {reason}' if name else reason
+                abort_node = 'reference_force_builder'
+                n_done = k + 1
+                break
+            fr = step_after(m, padded[k + 1:k + 1 + width])
+            for g in guards:
+                if g.news:
+                    warnings.extend(builder.range_warnings())
+            if estimated:
+                est = estimates()
+            if record_state and k >= state_lag:
+                state_rec.append(builder.computational_state)
+        if progress is not None and not k & 255 and time.monotonic() - t_last > 0.5:
+            t_last = time.monotonic()
+            progress(k + 1, n_total)
+    return reason, abort_node, n_done, [m]
 
 
 class _Builders:

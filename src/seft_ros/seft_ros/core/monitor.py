@@ -516,6 +516,9 @@ class SpecimenCheck:
         self._excited = 0
         self._off = 0
         self._unjudged = 0
+        # the latest verdict found the specimen within the tolerance (a sample without a
+        # regression then gives the same verdict, with nothing to change)
+        self._steady = False
         self._unjudged_limit = int(round(UNJUDGED_MEMORIES * memory_s / float(dt)))
         self.noted = False
         self.stiffness_ratio = 1.0
@@ -657,8 +660,14 @@ class SpecimenCheck:
         if not ms > self._gate_limit:
             self._off = 0
             return None
-        if not self._excited % CHECK_EVERY and (self._ranges is None
-                                                or not self._ranges.flags(measurement)):
+        excited = self._excited
+        self._excited = excited + 1
+        if excited % CHECK_EVERY:
+            # no regression at this sample: the estimate is the last sample's, and so is the
+            # verdict where that one found the specimen within the tolerance
+            if self._steady:
+                return None
+        elif self._ranges is None or not self._ranges.flags(measurement):
             s = self._scale
             if self._normal is None:
                 self._update(s[0] * measurement.acceleration_m_s2,
@@ -668,11 +677,11 @@ class SpecimenCheck:
                 self._update_corrected(s[0] * measurement.acceleration_m_s2,
                                        s[1] * measurement.velocity_m_s,
                                        s[2] * measurement.displacement_m, f)
-        self._excited += 1
         if self._normal is None:
             self.stiffness_ratio = self._theta[2]
         if self._excited < self._settle or self.reported:
             return None
+        self._steady = False
         ratio = self.stiffness_ratio
         if self._normal is not None:
             ratio = self._estimate
@@ -696,6 +705,7 @@ class SpecimenCheck:
         self._unjudged = 0
         if abs(ratio - 1.0) <= self.tolerance:
             self._off = 0
+            self._steady = True
             return None
         self._off += 1
         if self._off < self._persist:

@@ -779,6 +779,41 @@ class ReferenceForceBuilder:
             out.append(fn() if fn is not None else None)
         return out
 
+    def observe_and_step(self, measurement: Measurement, window) -> float:
+        """:meth:`observe` of the one local rig's measurement of sample ``k - 1`` (``k`` =
+        ``next_step``), then :meth:`step`: its command ``f_r[k]`` [N] (a float). The
+        same operations and results; a builder of one rig whose step is its law's alone
+        (the study's test, a one-DOF test) takes the measurement straight to its law.
+
+        Parameters
+        ----------
+        measurement : Measurement
+            The local rig's sample ``k - 1``.
+        window : sequence of float, length lookahead_steps + 1
+            ``xg''[k .. k + lookahead_steps]`` [m/s^2].
+
+        Raises
+        ------
+        ParameterError
+            A builder of more than one local rig; as :meth:`step`.
+        """
+        law = self._only_law
+        k = self.next_step
+        if (law is None or measurement.step != k - 1 or self._latest[0]
+                or len(window) <= self.lookahead_steps):
+            if self.n_l != 1:
+                raise ParameterError(f'reference-force builder of {self.n_l} local rigs: '
+                                     'observe_and_step takes one')
+            self.observe(self._local_pos[0], measurement)
+            return self.step(window)[0]
+        guard = self.range_guards[0]
+        if guard is not None:
+            measurement = guard.take(measurement)
+        force = law.step_window(window, measurement)
+        self.last_ground_forces_N[0] = law.last_ground_force_N
+        self.next_step = k + 1
+        return force
+
     def step(self, window) -> list[float]:
         """The commands ``f_r[k]`` of the local rigs [N], from the record and what has been
         observed (``k`` = ``next_step``).
