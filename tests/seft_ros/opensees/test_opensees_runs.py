@@ -182,3 +182,28 @@ def test_a_gradually_yielding_story_is_predicted_softening_on(tmp_path):
     displacement, acceleration = _nrms_per_dof(frame, 'both')
     assert np.all(displacement < 0.015), displacement
     assert acceleration[0] < 0.045, acceleration
+
+
+def test_the_bag_of_an_opensees_run_compares_every_floor_as_the_run(tmp_path):
+    """``seft simulate --bag`` then ``seft compare``: the bag keeps the computational floors'
+    state from sample 0 (before, a sample whose row held a NaN entry, OpenSees' step time at
+    sample 0, was left out whole, and every computational floor compared as nothing: 'n/a'
+    in the table, and a worst NRMS of the rig's DOF alone); each floor's NRMS as the run's."""
+    from seft_ros.analysis.bag import read_run
+    from seft_ros.analysis.bagwrite import write_run_bag
+    path = ROOT / 'config' / 'opensees' / 'shear_frame.yaml'
+    section = yaml.safe_load(path.read_text())
+    section['structure']['opensees']['model'] = str(path.with_suffix('.py'))
+    config = tmp_path / 'shear_frame.yaml'
+    config.write_text(yaml.safe_dump(section))
+    run = simulate(expand_runs(dict(load_config(config), duration_s=1.5))[0])
+    assert np.isnan(run.computational['opensees/step_time_s'][0])
+    back = read_run(write_run_bag(run, tmp_path / 'bag'))
+    for key, values in run.computational.items():
+        np.testing.assert_array_equal(back.computational[key], values, err_msg=key)
+    reference = run_reference(run)
+    want, got = compare_run(run, reference).dofs, compare_run(back, reference).dofs
+    assert [d.dof for d in got] == ['floor_1', 'floor_2', 'floor_3']
+    for a, b in zip(want, got):
+        assert np.isfinite(b.displacement.nrms) and b.displacement.nrms == a.displacement.nrms
+        assert b.acceleration.nrms == a.acceleration.nrms

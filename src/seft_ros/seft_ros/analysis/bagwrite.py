@@ -183,9 +183,13 @@ def write_run_bag(run: RunData, path, *, storage: str | None = None) -> Path:
             for topic, values in estimates:
                 write(topic, ns, build['joint_state'](ns, list(values),
                                                       [values[m][k] for m in values]))
-            if state_topic and state and all(np.isfinite(v[k]) for _, v in state):
-                write(state_topic, ns, build['joint_state'](ns, [name for name, _ in state],
-                                                            [v[k] for _, v in state]))
+            # the computational state of the sample: its recorded entries (an OpenSees
+            # part's step time has none at sample 0; nothing at the last sample)
+            row = [(name, float(v[k])) for name, v in state if np.isfinite(v[k])] \
+                if state_topic else ()
+            if row:
+                write(state_topic, ns, build['joint_state'](ns, [name for name, _ in row],
+                                                            [value for _, value in row]))
         wall = run.extra.get('wall_s')
         final = {'step': n, 'n_steps': n, 'time_s': f'{n * float(p["dt"]):.6f}',
                  'published': n, 'mode': p.get('mode', 'lockstep'),
