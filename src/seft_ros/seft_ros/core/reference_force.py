@@ -392,6 +392,16 @@ MODEL_TOLERANCE = 0.001
 #: rounded; a tangent within half a step of the initial one is the initial one, exactly): the
 #: predictions built for a member's few tangents are kept (:data:`INTERFACE_CACHE`).
 TANGENT_STEP = 0.005
+#: The floor of the tangent the compensators predict with [-]: where the computational
+#: DOFs' block of the (quantized) tangent is below this part of the initial stiffness's in
+#: some direction (a member that yields perfectly plastic: `Steel01` with b 0, `ElasticPP`;
+#: its tangent zero, or rounded to zero on the :data:`TANGENT_STEP` grid), the prediction
+#: takes the tangent plus this part of the initial stiffness: the plateau's force held by a
+#: spring of this part of the member's elastic stiffness anchored far off (the prediction's
+#: static shift needs the block's inverse), whose force over the prediction's horizon
+#: changes by this part of the elastic member's. A post-yield ratio of 0.001 or more is
+#: taken as it is (its grid value at 0.005 of the largest stiffness permitting).
+TANGENT_FLOOR = 1e-3
 
 
 class ReferenceForceBuilder:
@@ -695,7 +705,7 @@ class ReferenceForceBuilder:
         key = grid.astype(np.int64).tobytes()
         if key != self._tangent_key:
             self._tangent_key = key
-            self._tangent = k0 + grid * step
+            self._tangent = _floored_tangent(k0 + grid * step, k0, self._qi)
 
     def set_specimen_model(self, rig: str, model: SpecimenModel) -> None:
         """Model rig `rig` (commanded elsewhere) with an identified specimen from now on: its
@@ -1041,6 +1051,24 @@ class ReferenceForceBuilder:
                 self.interface_N[r] = sum(w * h for w, h in zip(weights, hist))
             else:
                 self.interface_N[r] = predicted[r]
+
+
+def _floored_tangent(tangent: np.ndarray, k0: np.ndarray, qi) -> np.ndarray:
+    """The computational part's tangent stiffness `tangent` (n x n) [N/m], or ``tangent +
+    TANGENT_FLOOR * k0`` where ``tangent - TANGENT_FLOOR * k0`` is not positive definite on
+    the computational DOFs `qi` (a Cholesky factorization tells): a member that yields
+    perfectly plastic leaves its DOFs without stiffness, and the prediction's static shift
+    (``K_UU^-1 d_U``, ``OpenSeesPart.prediction_state``) without an inverse
+    (:data:`TANGENT_FLOOR`)."""
+    if not qi:
+        return tangent
+    ix = np.ix_(qi, qi)
+    block = tangent[ix] - TANGENT_FLOOR * k0[ix]
+    try:
+        np.linalg.cholesky(0.5 * (block + block.T))
+        return tangent
+    except np.linalg.LinAlgError:
+        return tangent + TANGENT_FLOOR * k0
 
 
 def _forget_before(seen: dict, step: int) -> None:
