@@ -91,6 +91,11 @@ def test_write_report(runs, tmp_path):
     assert md.count('**stable**') == 1 and md.count('**stable, flagged**') == 1
     assert '  - peak beyond the prediction: rig acceleration peaks at' in md
     assert [e['verdict'] for e in summary['runs']] == ['stable', 'stable, flagged', 'aborted']
+    # the criteria table's status column says the verdict too (before: 'stable' for the
+    # flagged run, where the console, summary.json and its own section said flagged)
+    rows = [[c.strip() for c in line.strip('|').split('|')] for line in md.splitlines()
+            if line.startswith('| 2 | 0.5 |')]
+    assert rows and all('stable, flagged' in r and 'stable' not in r for r in rows), rows
     assert 'I/O latency = 3 ms' in md and 'dt = 2 ms' in md  # servohydraulic: no tau
     assert '(time_histories.png)' in md and '(time_histories_zoom.png)' in md
     # The displacement row of the alpha = 0 run: 10 ms lag, NRMS 0.00 %.
@@ -234,7 +239,9 @@ def test_write_report_across_predictors(predictor_runs, tmp_path):
     assert float(none[9]) > 5.0 and float(poly[9]) < 2.0  # HF force [%]
     assert none[10] == poly[10] == model[10]  # the same reference
     assert [r[11] for r in rows] == ['10.00', '0.00', '0.00']  # lag x [ms]
-    assert [r[12] for r in rows] == ['stable'] * 3
+    # the status is the run's verdict: the uncompensated run's 45 Hz vibration puts its
+    # acceleration's peak beyond the reference's (flagged, as on the console)
+    assert [r[12] for r in rows] == ['stable, flagged', 'stable', 'stable']
     rows = _table_after(md, '### alpha = 1, rig delay')
     assert rows[2][1] == 'model' and rows[2][12] == 'aborted at 4.000 s'
 
@@ -242,7 +249,7 @@ def test_write_report_across_predictors(predictor_runs, tmp_path):
     rows = _table_after(md, '## Uncompensated vs best compensated')
     assert len(rows) == 2
     assert rows[0][:4] == ['0.5', 'delay', '10.00', '1.100']
-    assert rows[0][5:9] == ['stable', 'model', '2.00', '1.020']
+    assert rows[0][5:9] == ['stable, flagged', 'model', '2.00', '1.020']
     assert rows[1][6:9] == ['polynomial', '5.00', '1.050']
     assert float(rows[0][4]) > 5.0 and float(rows[0][9]) < 2.0
     # The per-run sections are kept.
@@ -270,8 +277,8 @@ def test_write_report_keeps_runs_sharing_a_setup_apart(tmp_path):
         ('3', 'polynomial', 'synthetic', '1.00'), ('4', 'polynomial', 'other', '3.00')]
     assert 'above 30 Hz' in md
     best = _table_after(md, '## Uncompensated vs best compensated')
-    assert best == [['0.5', 'delay', '0.00', '1.000', best[0][4], 'stable', 'polynomial',
-                     '1.00', '1.010', best[0][9]]]
+    assert best == [['0.5', 'delay', '0.00', '1.000', best[0][4], 'stable, flagged',
+                     'polynomial', '1.00', '1.010', best[0][9]]]
 
 
 def test_write_report_single_predictor_keeps_one_grid(runs, tmp_path):

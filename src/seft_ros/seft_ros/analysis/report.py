@@ -978,8 +978,10 @@ def _comparison_labels(runs: list[RunData], indices: list[int],
 
 
 def _entry_status(entry: dict[str, Any]) -> str:
+    """A run's status in the report's tables: its verdict (a flagged run's too, as on the
+    console and in ``summary.json``), or when it was aborted."""
     if entry.get('stable'):
-        return 'stable'
+        return 'stable, flagged' if entry.get('flags') else 'stable'
     at = entry.get('unstable_at_s')
     return f'aborted at {at:.3f} s' if isinstance(at, (int, float)) else 'aborted'
 
