@@ -270,16 +270,27 @@ def test_a_run_of_the_records_first_seconds_gets_no_prediction_to_be_flagged_aga
     """The guard's NRMS prediction is a steady state over the record's spectrum: a run of
     its first 0.6 s (delay rig, none, alpha 0) errs 5.6 % of x from its start from rest,
     against 0.053 % predicted for the whole record, where the whole record errs 0.054 %. Such
-    a run gets no prediction, so no 'error beyond the prediction' flag; the whole record
-    does."""
+    a run gets no prediction, so no 'error beyond the prediction' flag, and a note that says
+    so; the whole record does, and so does a cut of MIN_PREDICTED_PLAY_S or more (before, no
+    cut got one: a plant 2 % off erred 46 % over 15 s of a record, 'stable', no flag)."""
     from seft_msgs_py import parameters
     from seft_ros.cli import api
     whole = parameters.resolve({'rig_model': 'delay'})
     part = parameters.resolve({'rig_model': 'delay', 'duration_s': 0.6})
-    assert api.plays_whole_record(whole) and not api.plays_whole_record(part)
-    assert api.plays_whole_record(parameters.resolve({'rig_model': 'delay', 'duration_s': 40.0}))
+    long_cut = parameters.resolve({'rig_model': 'delay', 'duration_s': 8.0})
+    assert api.played_record_s(part) == pytest.approx((0.6, 10.0))
+    assert api.played_record_s(parameters.resolve({'rig_model': 'delay', 'duration_s': 40.0})
+                               ) == pytest.approx((10.0, 10.0))
     assert api.guard_check(whole).predicted_error == pytest.approx(5.34e-4, rel=0.05)
-    assert math.isnan(api.guard_check(part).predicted_error)
+    short = api.guard_check(part)
+    assert math.isnan(short.predicted_error)
+    assert api.predicted_error_text(short) == (
+        '; no NRMS x prediction: the run plays 0.6 s of its record, too short for the '
+        "guard's steady-state prediction (its start from rest; 6 s or more, or the whole "
+        'record)')
+    assert api.stability_entry(short)['error_note'] == api.predicted_error_text(short)[2:]
+    # 8 s of the record: predicted on what it plays (0.053 % run, measured 0.054 %)
+    assert api.guard_check(long_cut).predicted_error == pytest.approx(5.3e-4, rel=0.1)
 
 
 def test_a_valve_at_its_limit_is_flagged():

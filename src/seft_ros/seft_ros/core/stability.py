@@ -1221,6 +1221,9 @@ class StabilityCheck:
     error_spectrum : str
         The ground the predicted error is weighed with (the record's spectrum, or the
         Kanai-Tajimi ground); '' when there is none.
+    error_note : str
+        Why a test that is predicted has no predicted error (a run too short for it:
+        ``seft_ros.cli.api.guard_check``); '' otherwise.
     """
 
     stable: bool | None
@@ -1230,6 +1233,7 @@ class StabilityCheck:
     margin: 'RobustnessMargin | None' = None
     predicted_error: float = math.nan
     error_spectrum: str = ''
+    error_note: str = ''
 
 
 #: A ``plant_model`` whose stated relative error (``uncertainty.relative``: an identification's
