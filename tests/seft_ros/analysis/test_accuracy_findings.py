@@ -286,8 +286,7 @@ def test_a_run_of_the_records_first_seconds_gets_no_prediction_to_be_flagged_aga
     assert math.isnan(short.predicted_error)
     assert api.predicted_error_text(short) == (
         '; no NRMS x prediction: the run plays 0.6 s of its record, too short for the '
-        "guard's steady-state prediction (its start from rest; 6 s or more, or the whole "
-        'record)')
+        "guard's steady-state prediction (its start from rest; 6 s or more)")
     assert api.stability_entry(short)['error_note'] == api.predicted_error_text(short)[2:]
     # 8 s of the record: predicted on what it plays (0.053 % run, measured 0.054 %)
     assert api.guard_check(long_cut).predicted_error == pytest.approx(5.3e-4, rel=0.1)
@@ -320,3 +319,31 @@ def test_a_valve_at_its_limit_is_flagged():
     import dataclasses
     excited = dataclasses.replace(run, params=dict(run.params, excitation='noise'))
     assert valve_saturation_entry(excited) == {}
+
+
+def test_adaptive_on_a_plant_model_of_another_specimen_is_refused():
+    """Case F's plant model (its 15 Hz, 200 kg specimen inside) with a declared specimen 4
+    times as stiff (a rig.yaml of another specimen, a new user's mistake): 'adaptive' was
+    let through ("stable for 0.5-1.5 x") and diverged in 0.12 s; the guard now refuses it
+    in one line with both specimens, as it refuses 'none' and 'model'. A prior 20 % off, what
+    adaptive is for, is not refused."""
+    from seft_ros.cli import api
+    from seft_ros.core import stability
+    off = api.build_runs(overrides=dict(F_CASE, predictor='adaptive',
+                                        stiffness_N_per_m=4 * F_CASE['stiffness_N_per_m']),
+                         alphas=[1.0], params_files=[F_RIG])[0]
+    check = stability.check_run(off)
+    assert check.stable is False
+    assert check.message == (
+        'predictor adaptive on the rig: its plant_model holds a specimen of 200 kg, '
+        '1.777e+06 N/m (15.00 Hz), 1 x the declared mass and 0.25 x its stiffness (200 kg, '
+        '7.106e+06 N/m, 30.00 Hz), beyond what it identifies (+-50 %, '
+        'adaptive_max_deviation): the plant model is of another specimen, or the declared '
+        'specimen is not the one on the rig; identify the rig with this specimen (seft '
+        "identify RUN --params FILE) or declare the plant model's")
+    prior = api.build_runs(overrides=dict(F_CASE, predictor='adaptive',
+                                          predictor_stiffness_N_per_m=1.2 * F_CASE[
+                                              'stiffness_N_per_m']),
+                           alphas=[1.0], params_files=[F_RIG])[0]
+    assert stability.adaptive_beyond_its_range(prior) == ''
+    assert stability.check_run(prior).stable is not False

@@ -2006,6 +2006,63 @@ def robustness_margin(params: Mapping, *, rtol: float = 0.01) -> RobustnessMargi
     return RobustnessMargin(low, high, note, quantity, cost)
 
 
+def adaptive_beyond_its_range(params: Mapping) -> str:
+    """Why ``adaptive`` cannot compensate a rig whose ``plant_model`` (of data) holds
+    another specimen than the declared one, or '' (also for another compensator, and for a
+    rig without a plant model).
+
+    ``adaptive`` identifies the specimen within ``1 +- adaptive_max_deviation`` (default
+    0.5) of its declared model (``predictor_*``, 0: the rig's); its loop model and the law it
+    starts from are the plant model's, whose specimen is the one the rig was identified
+    with. Where that specimen's mass or stiffness lies outside the identification's range,
+    the plant model is of another specimen, or the declared specimen is not the rig's:
+    either way the range holds no specimen that makes the loop model the rig's. Measured (a
+    new user, 2026-12-01): the ``rig.yaml`` of a 5 Hz specimen used for a 40 Hz one (25.6 x
+    its stiffness): ``none`` and ``model`` refused, ``adaptive`` ran, "stable for 0.5-1.5 x",
+    and diverged at 0.12 s (16,000 % NRMS x); the reverse the same at 0.13 s.
+
+    Parameters
+    ----------
+    params : mapping
+        Resolved run parameters (a structure's rigs each checked).
+
+    Returns
+    -------
+    str
+        The refusal's one line, naming the rig, both specimens and the range.
+    """
+    from seft_ros.core.force_loop import compensator_plant
+    from seft_ros.core.predictors import model_parameters
+    setup = test_setup(params)
+    for rig in setup.rig_names:
+        rp = setup.rig_params[rig]
+        if rp.get('predictor') not in MARGIN_OF_INITIAL_LAW or not has_plant_model(rp):
+            continue
+        try:
+            spec = compensator_plant(rp).specimen
+        except SeftError:
+            continue
+        if spec is None:
+            continue
+        d = float(rp.get('adaptive_max_deviation', 0.5))
+        mp = model_parameters(rp)
+        m, k = float(mp['mass_kg']), float(mp['stiffness_N_per_m'])
+        ratios = (spec.mass_kg / m, spec.stiffness_N_per_m / k)
+        if all(1.0 - d <= r <= 1.0 + d for r in ratios):
+            continue
+        who = f'rig {rig}' if rig else 'the rig'
+        return (f"predictor {rp['predictor']} on {who}: its plant_model holds a specimen of "
+                f'{spec.mass_kg:.4g} kg, {spec.stiffness_N_per_m:.4g} N/m '
+                f'({spec.natural_frequency_hz:.2f} Hz), {ratios[0]:.3g} x the declared mass '
+                f'and {ratios[1]:.3g} x its stiffness ({m:.4g} kg, {k:.4g} N/m, '
+                f'{math.sqrt(k / m) / (2.0 * math.pi):.2f} Hz), beyond what it identifies '
+                f'(+-{100 * d:.0f} %, adaptive_max_deviation): the plant model is of another '
+                'specimen, or the declared specimen is not the one on the rig; identify the '
+                'rig with this specimen (seft identify RUN --params FILE) or declare the '
+                "plant model's")
+    return ''
+
+
 def check_run(params: Mapping, *, margin: bool = False, error: bool = False,
               spectrum: GroundSpectrum | None = None) -> StabilityCheck:
     """Predict whether a run's loop is stable as configured, for any test.
@@ -2044,6 +2101,9 @@ def check_run(params: Mapping, *, margin: bool = False, error: bool = False,
                               'valve_command): the force loop and the acceleration feedback are '
                               "open, nothing to predict; the rig's stroke_limit_m and "
                               'force_limit_N guard it')
+    beyond = adaptive_beyond_its_range(params)
+    if beyond:
+        return StabilityCheck(False, math.nan, math.nan, beyond)
     # eigenvalue problems of a few hundred states: BLAS threads only spin (a designed loop's
     # guard with the calibrated law: 241 s with two threads on a loaded 2-core host)
     with single_blas_thread():
