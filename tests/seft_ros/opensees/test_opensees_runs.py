@@ -110,6 +110,10 @@ def test_simulate_reports_the_model(tmp_path, seft_exe):
     line = 'no member yields within a push of 1 m on each DOF'
     assert 'note: run 1 (model): OpenSees pushover (' in result.stdout
     assert line in result.stdout and line in report
+    # no pre-run range check for an OpenSees model (its reference is the report's): said
+    assert ('range check: not made, the computational part is an opensees model (its '
+            'reference is made with the report): the sensors and the actuator are watched '
+            'during the run only') in result.stdout + result.stderr
 
 
 def test_a_yielding_story_is_predicted_with_its_tangent(tmp_path):

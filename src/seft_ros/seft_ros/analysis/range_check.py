@@ -273,8 +273,8 @@ def range_check(params, ground_acceleration_m_s2=None, *, valve: bool = True) ->
     else:
         setup = test_setup(params)
         if setup.structure.model_kind is not None:
-            check.note = (f'a {setup.structure.model_kind} model (its reference is made with '
-                          'the report)')
+            check.note = (f'the computational part is an {setup.structure.model_kind} model '
+                          '(its reference is made with the report)')
             return check
         rigs = {r: setup.rig_params[r] for r in setup.rig_names}
     check.linear = all(p.get('specimen_model', 'linear') == 'linear' for p in rigs.values())

@@ -1428,6 +1428,17 @@ def check_ranges(*, runs: list[dict], strict: bool = False, force: bool = False,
         progress(f'range check: {line}')
     if len(shown) > 1 and every:
         progress(f'range check: {every[2:]}')
+    # the runs it could not check, said (an OpenSees model's reference is the report's):
+    # the run then has no pre-run check, nor does --strict refuse it
+    unchecked: dict[str, list] = {}
+    for check, label in zip(checks, run_labels(runs)):
+        if check.note and not check.note.startswith('an identification run'):
+            unchecked.setdefault(check.note, []).append(label)
+    for note, labels in unchecked.items():
+        who = f' [{", ".join(labels)}]' if len(runs) > 1 else ''
+        progress(f'range check{who}: not made, {note}: the sensors and the actuator are '
+                 'watched during the run only' + (' (--strict cannot refuse it)'
+                                                  if strict else ''))
     return checks
 
 
