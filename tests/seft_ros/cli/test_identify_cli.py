@@ -103,3 +103,19 @@ def test_identify_errors_are_one_line(bags, capsys):
                  '--out', str(bags / 'y')]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith('seft: error: ') and 'nperseg=100000' in err and '\n' not in err
+
+
+def test_identify_keeps_the_parameter_file_it_replaces(bags, capsys):
+    """--params over an existing file (a lab identifying again into its rig.yaml, or another
+    specimen's runs into the same file): the file is written anew and the one it replaces
+    kept beside it, said on the console (before: overwritten silently)."""
+    params = bags / 'again.yaml'
+    params.write_text('# the lab rig of last week\n')
+    (bags / 'again.previous-1.yaml').write_text('# an older one\n')
+    assert main(['identify', str(bags / 'open'), '--out', str(bags / 'id_again'),
+                 '--nperseg', '1024', '--params', str(params)]) == 0
+    kept = bags / 'again.previous-2.yaml'
+    assert kept.read_text() == '# the lab rig of last week\n'
+    assert (bags / 'again.previous-1.yaml').read_text() == '# an older one\n'
+    assert load_config(params)['force_controller'] == 'transfer_function'
+    assert f'the parameter file it replaced: kept as {kept}\n' in capsys.readouterr().out

@@ -1803,12 +1803,31 @@ def _planned_duration_s(params: dict) -> float | None:
 
 
 class IdentifyResult:
-    """What ``seft identify`` produced: the JSON document and where the files are."""
+    """What ``seft identify`` produced: the JSON document and where the files are
+    (``kept``: where the parameter file it replaced was kept, None when it replaced none)."""
 
-    def __init__(self, out_dir: Path, document: dict, params_path: Path | None):
+    def __init__(self, out_dir: Path, document: dict, params_path: Path | None,
+                 kept: Path | None = None):
         self.out_dir = out_dir
         self.document = document
         self.params_path = params_path
+        self.kept = kept
+
+
+def keep_previous(path: Path) -> Path | None:
+    """Move an existing file `path` aside before it is written anew: to
+    ``<stem>.previous-<n><suffix>`` beside it (the first free ``n``), or None when there is
+    none. A parameter file of ``seft identify`` holds a lab's identified loop and designed
+    controller; writing a new one over it silently lost the one before (a new user
+    identified another specimen's runs into the same file)."""
+    path = Path(path)
+    if not path.is_file():
+        return None
+    n = 1
+    while (kept := path.with_name(f'{path.stem}.previous-{n}{path.suffix}')).exists():
+        n += 1
+    path.rename(kept)
+    return kept
 
 
 def identify_bags(*, bags: list[str], out_dir: Path, window: str = 'hann',
@@ -1909,8 +1928,10 @@ def identify_bags(*, bags: list[str], out_dir: Path, window: str = 'hann',
                              f'--params {params_out}: nothing to write (no closed-loop delay '
                              'and no open-loop run of a valve-driven rig with a linear '
                              'specimen among the bags)')
+        kept = keep_previous(Path(params_out))
         params_path = (write_rig_params_yaml(per_rig, params_out) if structure
                        else write_params_yaml(identified, params_out))
+        return IdentifyResult(out_dir, doc, params_path, kept)
     return IdentifyResult(out_dir, doc, params_path)
 
 

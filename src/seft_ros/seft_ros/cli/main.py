@@ -447,6 +447,8 @@ def _identify(args) -> int:
     print(f'figures: {out} ({", ".join(sorted(p.name for p in out.glob("*.png")))})')
     if result.params_path is not None:
         print(f'parameters: {result.params_path}')
+    if result.kept is not None:
+        print(f'the parameter file it replaced: kept as {result.kept}')
     return 0
 
 
