@@ -11,6 +11,7 @@ import pytest
 from seft_msgs_py import parameters
 from seft_ros.analysis.findings import (
     bound_findings,
+    error_beyond_prediction,
     estimate_bounds,
     run_flags,
     sensor_range_entry,
@@ -347,3 +348,32 @@ def test_adaptive_on_a_plant_model_of_another_specimen_is_refused():
                            alphas=[1.0], params_files=[F_RIG])[0]
     assert stability.adaptive_beyond_its_range(prior) == ''
     assert stability.check_run(prior).stable is not False
+
+
+def test_adaptive_is_flagged_against_what_it_converges_to():
+    """'adaptive' has no linear model, so no prediction, so never a flag (a new user: a lab
+    plant's valve gain 5 % off, 4.2 % x and 8.8 % a, 'stable'). Its prediction is now the
+    model law's at the loop's own specimen, what its identification converges to: case F
+    with its prior 20 % off is predicted as model on the identified plant (0.089 %) and runs
+    within it (0.05 %), with its valve gain 5 % up too (0.11 %: adaptive follows it), not
+    flagged; the 4.2 % of the new user's run would be (12.5 x its 0.33 %)."""
+    from seft_msgs_py.calibration import valve_flow_gain_m3_per_s_V
+    from seft_ros.cli import api
+    from seft_ros.core.experiment import simulate
+    case = dict(F_CASE, predictor='adaptive',
+                predictor_stiffness_N_per_m=1.2 * F_CASE['stiffness_N_per_m'])
+    healthy = api.build_runs(overrides=case, alphas=[1.0], params_files=[F_RIG])
+    kq = valve_flow_gain_m3_per_s_V(healthy[0])
+    off = api.build_runs(overrides=dict(case, valve_flow_gain_m3_per_s_V=1.05 * kq),
+                         alphas=[1.0], params_files=[F_RIG])
+    for runs in (healthy, off):
+        check = api.guard_check(runs[0])
+        assert check.stable is None                     # adaptive: no verdict of its own
+        assert check.predicted_error == pytest.approx(8.88e-4, rel=0.05)  # model's, exact
+        assert check.error_spectrum.endswith("adaptive as model at the loop's specimen, what "
+                                             'its identification converges to')
+        entry = api.stability_entry(check)
+        nrms = max(d.displacement.nrms for d in compare_run(simulate(runs[0])).dofs)
+        assert nrms < 2e-3 and error_beyond_prediction(entry, 1.0, nrms) == ''
+    assert error_beyond_prediction(entry, 1.0, 0.042).startswith(
+        'error beyond the prediction: NRMS x 4.2 %, 47.3 x the 0.089 % the guard predicted')

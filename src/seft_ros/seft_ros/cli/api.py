@@ -53,7 +53,8 @@ __all__ = ['NOTHING_RUN', 'interrupted_as', 'build_runs', 'output_dir', 'remove_
            'stability_report', 'stability_table', 'StabilityResult', 'identify_bags',
            'identification_table', 'check_ranges', 'RangeRefusedError', 'check_settings',
            'run_labels', 'alpha_text', 'predicted_error_warning', 'ACCURATE_TEST',
-           'guard_check', 'played_record_s', 'predicted_error_text']
+           'guard_check', 'played_record_s', 'predicted_error_text', 'MIN_PREDICTED_PLAY_S',
+           'keep_previous']
 
 
 class Result:

@@ -48,7 +48,7 @@ from seft_ros.core.tangent import YieldMechanisms
 
 __all__ = ['Predictor', 'NoPredictor', 'PREDICTORS', 'make_predictor', 'ReferenceForceBuilder',
            'RigReferenceForce', 'ground_window', 'with_loop_latency', 'network_delay_steps',
-           'specimen_model_of', 'Coupling']
+           'specimen_model_of', 'Coupling', 'TANGENT_FLOOR']
 
 
 @runtime_checkable
@@ -395,7 +395,7 @@ TANGENT_STEP = 0.005
 #: The floor of the tangent the compensators predict with [-]: where the computational
 #: DOFs' block of the (quantized) tangent is below this part of the initial stiffness's in
 #: some direction (a member that yields perfectly plastic: `Steel01` with b 0, `ElasticPP`;
-#: its tangent zero, or rounded to zero on the :data:`TANGENT_STEP` grid), the prediction
+#: its tangent zero, or rounded to zero on the ``TANGENT_STEP`` grid), the prediction
 #: takes the tangent plus this part of the initial stiffness: the plateau's force held by a
 #: spring of this part of the member's elastic stiffness anchored far off (the prediction's
 #: static shift needs the block's inverse), whose force over the prediction's horizon

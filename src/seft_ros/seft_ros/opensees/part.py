@@ -68,7 +68,7 @@ from seft_ros.opensees.probe import describe_mechanisms, probe_yield, pushover_s
 
 __all__ = ['OpenSeesPart', 'STEP_TIME', 'dry_run', 'DryRun', 'BUDGET_FRACTION',
            'DEFERRED_BUDGET_FRACTION', 'budget_fraction', 'element_names',
-           'element_response']
+           'element_response', 'TANGENT_FLOOR']
 
 #: The recorded state of each step's OpenSees wall time [s].
 STEP_TIME = 'opensees/step_time_s'
