@@ -17,8 +17,11 @@ def test_there_are_config_files():
 
 @pytest.mark.parametrize('path', FILES, ids=[p.name for p in FILES])
 def test_config_file_loads(path):
-    runs = build_runs(config=str(path))
+    lines = []
+    runs = build_runs(config=str(path), progress=lines.append)
     assert runs
+    # every shipped structure declares its rigs' specimens
+    assert not [line for line in lines if 'declares no specimen' in line], lines
     for p in runs:
         assert parameters.resolve(p) == p
 
@@ -64,3 +67,25 @@ def test_a_command_line_value_every_rig_section_overrides_is_refused(tmp_path):
     path.write_text(yaml.safe_dump(doc))
     runs = api.build_runs(config=str(path), overrides={'rig_model': 'servohydraulic'})
     assert len(runs) == 1 and runs[0]['rig_model'] == 'servohydraulic'
+
+
+def test_a_structures_rig_without_a_specimen_is_said_to_take_the_studys(tmp_path):
+    """A structure whose physical rig's section declares no specimen (a new user left it
+    out) runs on the study's (52.7 kg, 2.11e5 N/m): said in one settings line naming the
+    rig and the values (before: nothing, the report and params.yaml alone held them)."""
+    config = tmp_path / 'norig.yaml'
+    config.write_text('predictor: model\nstructure:\n  dofs: [f1, f2]\n'
+                      '  physical: {f1: lab}\n  story_masses_kg: [80.0, 40.0]\n'
+                      '  story_stiffnesses_N_per_m: [2.11e5, 1.2e5]\n'
+                      '  story_damping_N_s_per_m: [1200.0, 250.0]\n')
+    lines = []
+    runs = build_runs(config=str(config), progress=lines.append)
+    assert runs[0]['predictor'] == 'model'
+    assert lines[0] == (f"settings: {config}: rig lab (structure.physical.f1) declares no "
+                        "specimen in its rigs.lab section: the study's is taken (mass_kg=52.7, "
+                        'stiffness_N_per_m=211000, damping_N_s_per_m=903.278)')
+    # declared at the top level: said nowhere
+    config.write_text(config.read_text() + 'mass_kg: 60.0\n')
+    lines.clear()
+    build_runs(config=str(config), progress=lines.append)
+    assert not [line for line in lines if 'declares no specimen' in line]
