@@ -644,7 +644,8 @@ def test_record_read(tmp_path):
                     'pga_g': 1.0, 'pga_at_s': 0.04, 'time_scale': 1.0, 'scale': 0.5,
                     'scaled_by': 'amplitude_N', 'amplitude_N': G, 'mass_kg': 2.0,
                     'run_samples': 7,
-                    'run_dt_s': 0.01, 'run_duration_s': 0.07, 'run_peak_g': 0.5}
+                    'run_dt_s': 0.01, 'run_duration_s': 0.07, 'run_peak_g': 0.5,
+                    'run_start_g': 0.005}
     assert record_read_line(info) == (
         f'record {path}: 7 samples at 0.01 s (0.07 s), PGA 1 g at 0.04 s; run: time scale 1, '
         '0.07 s at dt 0.01 s, scaled x0.5 to amplitude_N=9.80665 N over mass_kg=2 kg, peak '
