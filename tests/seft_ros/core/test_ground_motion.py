@@ -659,6 +659,11 @@ def test_record_read(tmp_path):
     assert record_read_line(info).endswith('0.03 s at dt 0.01 s, scaled x3 (scale_factor), '
                                            'peak 0.03 g')
     assert record_read(params | {'record': 'default'}) is None
+    # a duration beyond the record's: the whole record is run, and the line says so
+    info = record_read(params | {'duration_s': 1.0})
+    assert info['run_duration_s'] == pytest.approx(0.07) and info['asked_duration_s'] == 1.0
+    assert ', run: time scale 1, 0.07 s (the whole record: duration_s 1 s asked) at dt ' \
+        in record_read_line(info).replace(';', ',')
 
 
 @pytest.mark.parametrize('kwargs, message', [

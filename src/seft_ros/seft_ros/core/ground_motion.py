@@ -815,6 +815,9 @@ def record_read(params) -> dict | None:
     info.update(run_samples=gm.n, run_dt_s=gm.dt, run_duration_s=gm.duration_s,
                 run_peak_g=gm.peak_m_s2 / G,
                 run_start_g=float(gm.acceleration_m_s2[0]) / G if gm.n else 0.0)
+    asked = float(params.get('duration_s', 0.0) or 0.0)
+    if asked > gm.duration_s + gm.dt / 2:
+        info['asked_duration_s'] = asked          # longer than the record: its whole is run
     return info
 
 
@@ -844,8 +847,10 @@ def record_read_line(info: dict) -> str:
     x3.63 to amplitude_N=1000 N over mass_kg=52.7 kg, peak 1.019 g``."""
     how = (f"to amplitude_N={info['amplitude_N']:g} N over mass_kg={info['mass_kg']:g} kg"
            if info['scaled_by'] == 'amplitude_N' else '(scale_factor)')
+    whole = (f" (the whole record: duration_s {info['asked_duration_s']:g} s asked)"
+             if 'asked_duration_s' in info else '')
     return (f"record {info['file']}: {info['npts']} samples at {info['dt_s']:g} s "
             f"({info['duration_s']:g} s), PGA {info['pga_g']:.4g} g at {info['pga_at_s']:g} s; "
-            f"run: time scale {info['time_scale']:g}, {info['run_duration_s']:g} s at dt "
-            f"{info['run_dt_s']:g} s, scaled x{info['scale']:.4g} {how}, "
+            f"run: time scale {info['time_scale']:g}, {info['run_duration_s']:g} s{whole} at "
+            f"dt {info['run_dt_s']:g} s, scaled x{info['scale']:.4g} {how}, "
             f"peak {info['run_peak_g']:.4g} g")
