@@ -89,3 +89,28 @@ def test_a_structures_rig_without_a_specimen_is_said_to_take_the_studys(tmp_path
     lines.clear()
     build_runs(config=str(config), progress=lines.append)
     assert not [line for line in lines if 'declares no specimen' in line]
+
+
+@pytest.mark.parametrize('sign', [1.0, -1.0])
+def test_a_plant_model_that_diverges_by_itself_is_warned(sign):
+    """A lab's plant model with a pole in the right half plane (a sign typo: a new user's
+    valve-and-column model with one entry flipped was taken in silence, and its open-loop
+    run ended at the force limit) is warned before the runs; the stable one is not. By hand:
+    s = 2.5 +- j sqrt(1000 - 6.25) (5.02 Hz), |z| = exp(2.5 * 0.002) = 1.00501."""
+    import json
+    model = {'form': 'state_space', 'dt': 0, 'a': [[0.0, 1.0], [-1000.0, sign * 5.0]],
+             'b': [0.0, 1.0],
+             'c': {'force_N': [1000.0, 0.0], 'displacement_m': [1.0, 0.0],
+                   'velocity_m_s': [0.0, 1.0], 'acceleration_m_s2': [-1000.0, sign * 5.0]}}
+    lines = []
+    build_runs(overrides={'rig_model': 'state_space', 'rig_plant_model': json.dumps(model),
+                          'predictor': 'none', 'excitation': 'noise',
+                          'excitation_input': 'valve_command'}, progress=lines.append)
+    warned = [line for line in lines if 'pole outside the unit circle' in line]
+    if sign < 0:
+        assert warned == []
+        return
+    assert warned == [
+        'warning: parameter rig_plant_model of the rig: a pole outside the unit circle at dt '
+        '(|z| 1.00501: grows at 2.5 1/s, 5.02 Hz): the plant diverges by itself, without a '
+        'controller; check its signs (a state matrix entry, a denominator coefficient)']

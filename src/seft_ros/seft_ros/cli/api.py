@@ -43,7 +43,7 @@ from seft_ros.core.ground_motion import (
 from seft_ros.core.models import model_plugin
 from seft_ros.core.predictors import MAX_BAND_ERROR
 from seft_ros.core.reference_force import PREDICTORS
-from seft_ros.core.structure import structure_of
+from seft_ros.core.structure import structure_of, test_setup
 
 __all__ = ['NOTHING_RUN', 'interrupted_as', 'build_runs', 'output_dir', 'remove_empty_dirs',
            'run_experiments',
@@ -140,6 +140,8 @@ def build_runs(*, config: str | None = None, overrides: dict[str, Any] | None = 
                      'plant as rig_plant_model there)')
     for note in notes if progress is not None else ():
         progress(f'settings: {note}')
+    for line in _unstable_plant_models(runs) if progress is not None else ():
+        progress(f'warning: {line}')
     # read every record now: a bad file is reported before anything starts
     seen = set()
     for p in runs:
@@ -154,6 +156,42 @@ def build_runs(*, config: str | None = None, overrides: dict[str, Any] | None = 
                 if record_start_warning(info):
                     progress(f'warning: {record_start_warning(info)}')
     return runs
+
+
+def _unstable_plant_models(runs: list[dict[str, Any]]) -> list[str]:
+    """One line per plant model (``plant_model``, ``rig_plant_model``) of the runs' rigs
+    with a pole outside the unit circle at ``dt``: a plant that diverges by itself, with no
+    controller (a sign typo in a state matrix, a lab's model of another rig). Measured (a
+    new user, 2026-12-01): ``a[2][2]`` of a valve-and-column model with its sign flipped was
+    taken in silence, and its open-loop identification run ended at the force limit."""
+    from seft_msgs_py.plant import parse_plant
+    out, seen = [], set()
+    for p in runs:
+        setup = test_setup(p)
+        for rig in setup.rig_names:
+            rp = setup.rig_params[rig]
+            for name in ('plant_model', 'rig_plant_model'):
+                text = rp.get(name, 'none')
+                key = (rig, name, text, rp.get('dt'))
+                if text in (None, '', 'none') or key in seen:
+                    continue
+                seen.add(key)
+                try:
+                    poles = parse_plant(text, dt=float(rp['dt']),
+                                        where=f'parameter {name}').poles()
+                except (SeftError, ValueError):
+                    continue                   # the run says what does not parse
+                worst = complex(poles[int(np.argmax(np.abs(poles)))]) if poles.size else 0j
+                if abs(worst) <= 1.0 + 1e-9:
+                    continue
+                lam = np.log(worst) / float(rp['dt'])
+                who = f'rig {rig}' if rig else 'the rig'
+                out.append(f'parameter {name} of {who}: a pole outside the unit circle at '
+                           f'dt (|z| {abs(worst):.6g}: grows at {lam.real:.4g} 1/s, '
+                           f'{abs(lam.imag) / (2.0 * math.pi):.3g} Hz): the plant diverges by '
+                           'itself, without a controller; check its signs (a state matrix '
+                           'entry, a denominator coefficient)')
+    return out
 
 
 #: The specimen's parameters a structure's rig takes from its rigs section or the top level.
