@@ -104,6 +104,11 @@ def test_simulate_reports_the_model(tmp_path, seft_exe):
     assert (out / 'hysteresis_run_1_ele2.png').stat().st_size > 10_000
     report = (out / 'report.md').read_text()
     assert '### Run 1: the OpenSees model' in report
+    # the reference the structure section names is the model's own analysis (before: the
+    # matrix one's, TF01MD, which an OpenSees run does not use)
+    assert ("A structure test against its analytical reference: an opensees model's own "
+            'transient analysis of the whole model from the recorded ground motion. Per '
+            'degree of freedom') in report and 'TF01MD' not in report
     # what the pushover found (the two-story building is elastic: nothing), on the console
     # and in the report
     assert entry['pushover']['ran'] and entry['pushover']['mechanisms'] == []

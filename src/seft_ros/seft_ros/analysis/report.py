@@ -1638,10 +1638,17 @@ def _structure_report(runs: list[RunData], comparisons: list[RunComparison],
     figures ``({number: time histories}, {number: hysteresis})``."""
     dofs = list(dict.fromkeys(d for e in entries for d in e['structure']['dofs']))
     lines = ['## Structure tests', ''] if heading else []
-    lines += ['A structure test against its analytical reference: the whole structure '
-              "M x'' + C x' + K x = -M iota xg'' simulated from the recorded ground motion "
-              '(first-order hold, stepped by SLICOT TF01MD; with a yielding member, '
-              'scipy.integrate.solve_ivp with the Bouc-Wen member). Per degree of freedom: '
+    # the reference of a model of a plug-in kind (OpenSees) is the model's own analysis
+    kinds = sorted({structure_of(r.params).model_kind for r in runs} - {None})
+    matrix = any(structure_of(r.params).model_kind is None for r in runs)
+    how = ([("the whole structure M x'' + C x' + K x = -M iota xg'' simulated from the "
+             'recorded ground motion (first-order hold, stepped by SLICOT TF01MD; with a '
+             'yielding member, scipy.integrate.solve_ivp with the Bouc-Wen member)')]
+           if matrix else []) + [
+        f"{'an' if k[0] in 'aeio' else 'a'} {k} model's own transient analysis of the whole "
+        'model from the recorded ground motion' for k in kinds]
+    lines += [f"A structure test against its analytical reference: {'; or '.join(how)}. "
+              'Per degree of freedom: '
               'displacement relative to the ground, '
               'relative and floor (absolute) acceleration, and at a physical degree of freedom '
               "the interface force (the rig's load cell against the force the reference "
