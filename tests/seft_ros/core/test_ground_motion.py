@@ -296,6 +296,10 @@ def test_read_csv_whitespace_no_header_offset_time(tmp_path):
 @pytest.mark.parametrize('text, message', [
     ('t,a\n0.0,1\n0.01,2\n0.025,3\n0.03,4\n', 'line 4: non-uniform time step'),
     ('0.0,1\n0.01,2\n0.0200001,3\n0.03,4\n', 'line 3: non-uniform time step'),
+    # one dropped row of a long file: the gap's line, against the file's own step (before:
+    # 'line 2', against the mean step the gap had moved)
+    (''.join(f'{0.01 * k:.2f},1\n' for k in range(300) if k != 199),
+     'line 200: non-uniform time step: 0.02 s where the file steps by 0.01 s'),
     ('0.0,1\n0.01,2\n0.01,3\n', 'line 3: time not strictly increasing (t=0.01 after t=0.01)'),
     ('0.0,1\n-0.01,2\n', 'line 2: time not strictly increasing'),
     ('t,a\n0.0,1\n0.01,abc\n', "line 3: expected a number, got 'abc'"),
