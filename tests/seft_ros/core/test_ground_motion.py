@@ -108,6 +108,25 @@ def test_read_at2_extra_values(tmp_path):
         read_at2(path)
 
 
+def test_read_at2_names_the_line_with_a_stray_or_a_lost_value(tmp_path):
+    """A value added to (or lost from) a line of a PEER file, five values a line: the line
+    is named (a new user's stray value on line 8 of Kobe was named at the file's end, line
+    1504, where the extra values 'start')."""
+    tokens = AT2_TOKENS * 3                                  # 21 values: 5 lines of 5, 1
+    lines = ['PEER NGA STRONG MOTION DATABASE RECORD', 'Test event, 1/1/2000, STA, 0',
+             'ACCELERATION TIME SERIES IN UNITS OF G', 'NPTS=     21, DT=   .0200 SEC,']
+    rows = [' '.join(tokens[i:i + 5]) for i in range(0, 21, 5)]
+    for change, message in ((rows[1] + ' 0.0', 'line 6: expected NPTS=21 values, found 22: '
+                             'this line holds 6 values where the others hold 5'),
+                            (' '.join(rows[1].split()[:4]), 'line 9: truncated: expected '
+                             'NPTS=21 values, found 20 (line 6 holds 4 values where the '
+                             'others hold 5)')):
+        path = tmp_path / 'rec.AT2'
+        path.write_text('\n'.join(lines + [rows[0], change, *rows[2:]]) + '\n')
+        with raises_from(path, message):
+            read_at2(path)
+
+
 @pytest.mark.parametrize('line4, message', [
     ('NPTS=      0, DT=   .0200 SEC,', 'line 4: expected NPTS > 0, got NPTS=0'),
     ('NPTS=     -7, DT=   .0200 SEC,', 'line 4: expected NPTS > 0, got NPTS=-7'),

@@ -278,24 +278,51 @@ def read_at2(path) -> GroundMotion:
 
     values = []
     extra_line = None
+    counts = []                        # (line, values on it) of the data lines
     for lineno, line in enumerate(lines[4:], start=5):
-        for token in line.split():
+        tokens = line.split()
+        if tokens:
+            counts.append((lineno, len(tokens)))
+        for token in tokens:
             if not _REAL_RE.fullmatch(token):
                 raise InputError(f'{path}: line {lineno}: expected a number, '
                                  f'got {_excerpt(token)}')
             if len(values) == npts and extra_line is None:
                 extra_line = lineno
             values.append(_fortran_float(token))
+    odd = _odd_line(counts)
     if len(values) < npts:
+        where = (f'line {odd[0]} holds {odd[1]} values where the others hold {odd[2]}'
+                 if odd else None)
         raise InputError(f'{path}: line {len(lines)}: truncated: expected NPTS={npts} values, '
-                         f'found {len(values)}')
+                         f'found {len(values)}' + (f' ({where})' if where else ''))
     if extra_line is not None:
+        if odd is not None:
+            raise InputError(f'{path}: line {odd[0]}: expected NPTS={npts} values, found '
+                             f'{len(values)}: this line holds {odd[1]} values where the others '
+                             f'hold {odd[2]}')
         raise InputError(f'{path}: line {extra_line}: expected NPTS={npts} values, found '
                          f'{len(values)} (the extra values start on this line)')
     accel = np.asarray(values) * G
     if not np.all(np.isfinite(accel)):
         raise InputError(f'{path}: a value overflows float64')
     return GroundMotion(dt, accel, Path(path).stem, str(path))
+
+
+def _odd_line(counts: list) -> tuple | None:
+    """``(line, its count, the usual count)`` of the first data line of a PEER file (a fixed
+    number of values a line, the last line fewer) whose count is not the others', or None
+    when they agree: where a value was added or lost (a stray value on line 8 was named at
+    the file's end, line 1504)."""
+    body = [n for _, n in counts[:-1]]
+    if len(body) < 2:
+        return None
+    usual = max(set(body), key=body.count)
+    for lineno, n in counts[:-1]:
+        if n != usual:
+            return lineno, n, usual
+    last_line, last = counts[-1]
+    return (last_line, last, usual) if last > usual else None
 
 
 def read_csv(path) -> GroundMotion:
