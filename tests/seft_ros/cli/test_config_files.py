@@ -114,3 +114,18 @@ def test_a_plant_model_that_diverges_by_itself_is_warned(sign):
         'warning: parameter rig_plant_model of the rig: a pole outside the unit circle at dt '
         '(|z| 1.00501: grows at 2.5 1/s, 5.02 Hz): the plant diverges by itself, without a '
         'controller; check its signs (a state matrix entry, a denominator coefficient)']
+
+
+def test_a_bad_command_line_value_is_named_as_the_command_lines(tmp_path):
+    """With a configuration file, a bad --alpha or --predictor was named as the file's ('s5.yaml:
+    parameter alpha=-0.5', a new user): it is the command line's."""
+    from seft_msgs_py.errors import ParameterError
+    config = tmp_path / 'lab.yaml'
+    config.write_text('mass_kg: 50.0\n')
+    with pytest.raises(ParameterError, match=r'^command line: parameter alpha=-0\.5: '):
+        build_runs(config=str(config), alphas=[-0.5])
+    with pytest.raises(ParameterError, match=r"^command line: parameter predictor='modle': "):
+        build_runs(config=str(config), overrides={'predictor': ['modle']})
+    with pytest.raises(ParameterError, match=r'lab\.yaml: parameter mass_kg=-1\.0: '):
+        config.write_text('mass_kg: -1.0\n')
+        build_runs(config=str(config))

@@ -99,6 +99,13 @@ def build_runs(*, config: str | None = None, overrides: dict[str, Any] | None = 
         Bad configuration file or value; a ``rigs`` section of a parameter file without a
         structure to merge into, or for a rig the structure has not.
     """
+    # the command line's values named as its own (before: as the configuration file's)
+    for name, value in (overrides or {}).items():
+        if value is not None and name not in parameters.MAPPING_PARAMETERS:
+            for one in (value if isinstance(value, (list, tuple)) else [value]):
+                parameters.validate_value(name, one, where='command line')
+    for one in alphas or ():
+        parameters.validate_value('alpha', one, where='command line')
     values = load_config(config) if config else {}
     layered: dict[str, Any] = {}
     rig_layers = []
