@@ -129,3 +129,17 @@ def test_a_bad_command_line_value_is_named_as_the_command_lines(tmp_path):
     with pytest.raises(ParameterError, match=r'lab\.yaml: parameter mass_kg=-1\.0: '):
         config.write_text('mass_kg: -1.0\n')
         build_runs(config=str(config))
+
+
+def test_half_of_the_identification_runs_settings_is_warned():
+    """--set excitation_input=valve_command without --set excitation=noise ran a closed-loop
+    test of the record without a word (a new user forgot one of the two): warned."""
+    lines = []
+    build_runs(overrides={'excitation_input': 'valve_command'}, progress=lines.append)
+    assert [line for line in lines if line.startswith(
+        'warning: excitation_input valve_command without an excitation (excitation none) '
+        'does nothing: these runs are closed-loop tests of the record')]
+    lines.clear()
+    build_runs(overrides={'excitation_input': 'valve_command', 'excitation': 'noise'},
+               progress=lines.append)
+    assert not [line for line in lines if 'does nothing' in line]

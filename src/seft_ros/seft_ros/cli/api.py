@@ -149,6 +149,13 @@ def build_runs(*, config: str | None = None, overrides: dict[str, Any] | None = 
         progress(f'settings: {note}')
     for line in _unstable_plant_models(runs) if progress is not None else ():
         progress(f'warning: {line}')
+    if progress is not None and any(p.get('excitation_input') == 'valve_command'
+                                    and p.get('excitation', 'none') == 'none' for p in runs):
+        # half of the open-loop identification run's two settings: the other is excitation
+        progress('warning: excitation_input valve_command without an excitation (excitation '
+                 'none) does nothing: these runs are closed-loop tests of the record; an '
+                 'open-loop identification run also sets excitation (e.g. --set '
+                 'excitation=noise)')
     # read every record now: a bad file is reported before anything starts
     seen = set()
     for p in runs:
