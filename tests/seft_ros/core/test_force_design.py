@@ -61,6 +61,8 @@ def stiff_params(tmp_path_factory):
     path = tmp_path_factory.mktemp('design') / 'stiff.yaml'
     sets = [a for k, v in STIFF.items() for a in ('--set', f'{k}={v!r}')]
     assert main(['design', *sets, '--out', str(path)]) == 0
+    # the file names the command that wrote it (before: '# seft identify')
+    assert path.read_text().startswith('# seft design: the identified force loop')
     return path
 
 

@@ -365,12 +365,13 @@ def _specimen_lines(runs: list[dict[str, Any]]) -> list[str]:
     return lines + [''] + verdicts + ['']
 
 
-def write_params_yaml(identified: dict[str, Any], path) -> Path:
+def write_params_yaml(identified: dict[str, Any], path, *,
+                      command: str = 'seft identify') -> Path:
     """Write the identified parameters as a ROS 2 parameter file (``/**: ros__parameters``).
 
     Keys starting with '_' (fit diagnostics) go to a comment. The file is a configuration of
     ``seft run`` / ``seft simulate`` (``CONFIG`` or ``--params FILE``) and a
-    ``--params-file`` of every node.
+    ``--params-file`` of every node; its first line names the `command` that wrote it.
     """
     path = Path(path)
     values = {k: _yaml_value(v) for k, v in identified.items() if not k.startswith('_')}
@@ -378,7 +379,7 @@ def write_params_yaml(identified: dict[str, Any], path) -> Path:
                     if k.startswith('_'))
     body = {'/**': {'ros__parameters': values}}
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text('# seft identify: the identified force loop (plant_model), the force '
+    path.write_text(f'# {command}: the identified force loop (plant_model), the force '
                     "controller designed for it and\n# the compensators' settings, or the "
                     'identified delay\n' + notes + yaml.safe_dump(body, sort_keys=True))
     return path
@@ -398,8 +399,10 @@ def _note(value) -> str:
     return value if isinstance(value, str) else format(value, '.4g')
 
 
-def write_rig_params_yaml(rig_parameters: dict[str, dict[str, Any]], path) -> Path:
-    """Write a structure's identified rigs as a parameter file of its ``rigs`` sections.
+def write_rig_params_yaml(rig_parameters: dict[str, dict[str, Any]], path, *,
+                          command: str = 'seft identify') -> Path:
+    """Write a structure's identified rigs as a parameter file of its ``rigs`` sections (its
+    first line names the `command` that wrote it).
 
     Each rig's section has its parameters (keys starting with '_' go to a comment). The
     file is a ``--params FILE`` of ``seft run`` / ``seft simulate`` with the structure's
@@ -421,7 +424,7 @@ def write_rig_params_yaml(rig_parameters: dict[str, dict[str, Any]], path) -> Pa
             if k.startswith('_'):
                 notes += f'# {rig}: {k[1:]}: {_note(v)}\n'
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text("# seft identify: each rig's identified specimen (predictor_*), delay and "
+    path.write_text(f"# {command}: each rig's identified specimen (predictor_*), delay and "
                     'force-loop model\n# for the structure test: seft run CONFIG --params '
                     f"{path.name} (its rigs sections are merged into CONFIG's)\n" + notes
                     + yaml.safe_dump({'rigs': rigs}, sort_keys=True))

@@ -2137,8 +2137,9 @@ def design_controllers(*, config: str | None = None, overrides: dict | None = No
             values[c.rig]['_design'] += f'; {c.summary()}'
     path = None
     if out:
-        path = (write_params_yaml(values[''], out) if list(values) == ['']
-                else write_rig_params_yaml(values, out))
+        path = (write_params_yaml(values[''], out, command='seft design')
+                if list(values) == [''] else
+                write_rig_params_yaml(values, out, command='seft design'))
     doc = {r: d.to_json() for r, d in designs.items()}
     for c in choices:
         doc[c.rig]['structure_inverse'] = c.to_json()
