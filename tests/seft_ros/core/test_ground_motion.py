@@ -761,3 +761,28 @@ def test_a_record_that_starts_with_a_step_is_warned(tmp_path):
         assert warning.startswith(f'record {path} starts at {start:.3g} g, 40 % of its peak: '
                                   'the test starts at rest')
         assert lines[1] == f'warning: {warning}'
+
+
+def test_a_quiet_part_of_a_record_scaled_up_is_warned(tmp_path):
+    """A cut of a record's quiet lead-in scaled to amplitude_N (a new user's first 2 s of
+    Kobe, scaled x2101 to 2 g): warned with its peak against the record's PGA; the whole
+    record, and the same cut scaled by scale_factor, are not."""
+    from seft_ros.cli import api
+    t = np.arange(0.0, 20.0, 0.01)
+    a = np.where(t < 8.0, 1e-3 * np.sin(2 * np.pi * 7.0 * t),
+                 3.0 * np.sin(2 * np.pi * 1.3 * (t - 8.0)))
+    path = tmp_path / 'lead_in.csv'
+    path.write_text(''.join(f'{ti:.2f},{float(ai)!r}\n' for ti, ai in zip(t, a)))
+
+    def warnings(**overrides):
+        lines = []
+        api.build_runs(overrides=dict({'record': str(path), 'amplitude_N': 500.0},
+                                      **overrides), progress=lines.append)
+        return [w for w in lines if 'quiet part' in w]
+    quiet = warnings(duration_s=2.0)
+    assert len(quiet) == 1 and quiet[0].startswith(
+        f"warning: record {path}: the run's part peaks at 0.000103 g, 0.034 % of the record's "
+        'PGA (0.3059 g at 10.5 s), and amplitude_N scales it x9419')
+    assert 'a quiet part of the record (its lead-in?) scaled up' in quiet[0]
+    assert warnings() == []
+    assert warnings(duration_s=2.0, amplitude_N=0.0, scale_factor=100.0) == []

@@ -36,6 +36,7 @@ from seft_ros.core import stability
 from seft_ros.core.experiment import simulate
 from seft_ros.core.ground_motion import (
     prepared_record,
+    record_quiet_warning,
     record_read,
     record_read_line,
     record_start_warning,
@@ -167,8 +168,9 @@ def build_runs(*, config: str | None = None, overrides: dict[str, Any] | None = 
                 prepared_record(p)
             elif progress is not None:
                 progress(record_read_line(info))
-                if record_start_warning(info):
-                    progress(f'warning: {record_start_warning(info)}')
+                for warning in (record_start_warning(info), record_quiet_warning(info)):
+                    if warning:
+                        progress(f'warning: {warning}')
     return runs
 
 

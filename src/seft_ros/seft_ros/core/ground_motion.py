@@ -22,6 +22,7 @@ from seft_msgs_py.errors import InputError, ParameterError
 __all__ = [
     'G', 'GroundMotion', 'read_at2', 'read_csv', 'synthetic_default', 'load_record', 'prepare',
     'prepared_record', 'record_read', 'record_read_line', 'record_start_warning',
+    'record_quiet_warning', 'QUIET_PART_FRACTION',
     'resampling_method', 'RESAMPLING_METHODS', 'MAX_RECORD_DT_S', 'START_STEP_FRACTION',
 ]
 
@@ -860,6 +861,28 @@ def record_read(params) -> dict | None:
 #: 6.5 % NRMS x, the same window tapered 0.27 %). The PEER records read here start within
 #: 0.4 % of their peak (El Centro 180 0.36 %, Kobe KJMA 0.02 %; the embedded one 0.08 %).
 START_STEP_FRACTION = 0.01
+
+
+#: A run whose part of its record peaks below this part of the record's PGA, scaled by
+#: ``amplitude_N`` to its own peak, is warned [-]: its samples are the record's quiet part
+#: scaled up (a new user's first 2 s of Kobe KJMA 000, its lead-in before the event, came to
+#: 2 g scaled x2101, the recorder's noise and all).
+QUIET_PART_FRACTION = 0.1
+
+
+def record_quiet_warning(info: dict) -> str:
+    """The warning of a run that scales a quiet part of its record (a cut of its lead-in)
+    to ``amplitude_N`` (:data:`QUIET_PART_FRACTION`), or '' (`info`: :func:`record_read`'s)."""
+    if info.get('scaled_by') != 'amplitude_N' or not info.get('scale'):
+        return ''
+    played_g = info['run_peak_g'] / info['scale']        # the played part, as recorded
+    if not info['pga_g'] > 0 or played_g >= QUIET_PART_FRACTION * info['pga_g']:
+        return ''
+    return (f"record {info['file']}: the run's part peaks at {played_g:.3g} g, "
+            f"{100 * played_g / info['pga_g']:.2g} % of the record's PGA "
+            f"({info['pga_g']:.4g} g at {info['pga_at_s']:g} s), and amplitude_N scales it "
+            f"x{info['scale']:.4g}: a quiet part of the record (its lead-in?) scaled up, "
+            "noise and all; play the record's strong motion, or scale by scale_factor")
 
 
 def record_start_warning(info: dict) -> str:
