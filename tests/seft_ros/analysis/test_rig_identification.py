@@ -181,3 +181,23 @@ def test_delay_rig_delay_is_exact():
     assert fig['model']['delay_ms'] == 10.0
     assert fig['delay_ms'] == pytest.approx(10.0, abs=0.05)
     assert fig['delay_xcorr_ms'] == pytest.approx(10.0, abs=0.05)
+
+
+def test_a_state_space_rigs_model_row_is_its_plants_specimen():
+    """A state_space rig steps the specimen inside its plant model, whatever the declared one
+    (a new user's plant file of a 5 Hz, 50 kg specimen declared as a 40 Hz one: the 'rig
+    model' row showed the declaration); the servohydraulic rig's is its configured one."""
+    import json
+
+    from seft_ros.analysis.rig_identification import _plant_specimen
+    k, m, c = 49348.02, 50.0, 62.832
+    plant = {'form': 'state_space', 'dt': 0, 'a': [[0.0, 1.0], [-k / m, -c / m]],
+             'b': [0.0, 1.0 / m],
+             'c': {'force_N': [k, c], 'displacement_m': [1.0, 0.0],
+                   'velocity_m_s': [0.0, 1.0], 'acceleration_m_s2': [-k / m, -c / m]},
+             'specimen': {'mass_kg': m, 'damping_N_s_per_m': c, 'stiffness_N_per_m': k}}
+    p = parameters.resolve({'rig_model': 'state_space', 'rig_plant_model': json.dumps(plant),
+                            'mass_kg': 20.0, 'stiffness_N_per_m': 1.2633e6})
+    own = _plant_specimen(p)
+    assert (own.mass_kg, own.damping_N_s_per_m, own.stiffness_N_per_m) == (m, c, k)
+    assert _plant_specimen(parameters.resolve({'rig_model': 'servohydraulic'})) is None

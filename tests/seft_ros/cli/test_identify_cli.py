@@ -119,3 +119,21 @@ def test_identify_keeps_the_parameter_file_it_replaces(bags, capsys):
     assert (bags / 'again.previous-1.yaml').read_text() == '# an older one\n'
     assert load_config(params)['force_controller'] == 'transfer_function'
     assert f'the parameter file it replaced: kept as {kept}\n' in capsys.readouterr().out
+
+
+def test_identify_warns_of_a_specimen_that_is_not_the_declared_one(bags):
+    """The identified specimen against the declared one: on seft's rig with its own specimen
+    no warning (the fit within 1e-3 of it); the same figures with a declaration 25 times as
+    stiff (a new user's plant file of another specimen: nothing said until the test was
+    refused) give one WARNING line with both ratios."""
+    from seft_ros.cli.api import identify_bags
+    result = identify_bags(bags=[str(bags / 'open')], out_dir=bags / 'id_specimen',
+                           nperseg=1024)
+    doc = result.document
+    spec = doc['runs'][0]['figures']['specimen']
+    assert spec['stiffness_N_per_m'] == pytest.approx(2.11e5, rel=1e-3)
+    assert 'WARNING: the identified specimen' not in identification_table(doc)
+    spec['declared'] = dict(spec['declared'], stiffness_N_per_m=25 * 2.11e5)
+    assert ('  WARNING: the identified specimen is 1 x the declared mass and 0.04 x its '
+            'stiffness (beyond +-10 %): the specimen on the rig is not the declared one'
+            in identification_table(doc))

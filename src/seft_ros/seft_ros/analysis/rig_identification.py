@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 from scipy import optimize, signal
 
-from seft_msgs_py.errors import InputError, ParameterError
+from seft_msgs_py.errors import InputError, ParameterError, SeftError
 from seft_msgs_py.parameters import valve_commanded
 from seft_msgs_py.plant import controller_response
 from seft_msgs_py.sensor_range import SensorRanges
@@ -812,7 +812,28 @@ def specimen_figures(fit: SpecimenFit, params) -> dict[str, Any]:
     model = {k: float(params[k]) for k in SPECIMEN_PARAMETERS}
     declared = {k: float(params.get(name, 0.0)) or model[k]
                 for k, name in SPECIMEN_PARAMETERS.items()}
+    own = _plant_specimen(params)
+    if own is not None:          # a state_space rig steps its plant's specimen, not these
+        model = {'mass_kg': own.mass_kg, 'damping_N_s_per_m': own.damping_N_s_per_m,
+                 'stiffness_N_per_m': own.stiffness_N_per_m}
     return dict(fit.to_json(), model=model, declared=declared)
+
+
+def _plant_specimen(params):
+    """The specimen inside the plant a ``state_space`` rig steps (its ``rig_plant_model``,
+    else ``plant_model``), or None (another rig, a plant without one, one that does not
+    parse: the run said why)."""
+    if params.get('rig_model') != 'state_space':
+        return None
+    from seft_msgs_py.plant import parse_plant
+    from seft_plant_sim.lti_rig import rig_plant_parameter
+    name = rig_plant_parameter(params)
+    if name is None:
+        return None
+    try:
+        return parse_plant(params[name], dt=float(params['dt'])).specimen
+    except (SeftError, ValueError):
+        return None
 
 
 def identify_rigs(run: RunData, **options) -> list[RunIdentification]:
