@@ -2132,12 +2132,15 @@ def check_run(params: Mapping, *, margin: bool = False, error: bool = False,
         # adaptive has no linear model; what it converges to has: the model law at the
         # loop's own specimen (its identification's aim), if that loop is stable
         converged = converged_law(params)
-        if check_run(converged).stable:
-            value = run_predicted_error(converged, spectrum)
-            if math.isfinite(value):
-                check = replace(check, predicted_error=value, error_spectrum=(
-                    f"{ground}; {params['predictor']} as model at the loop's specimen, "
-                    'what its identification converges to'))
+        try:
+            value = (run_predicted_error(converged, spectrum) if check_run(converged).stable
+                     else math.nan)
+        except SeftError:        # a law seft would not build there: nothing predicted
+            value = math.nan
+        if math.isfinite(value):
+            check = replace(check, predicted_error=value, error_spectrum=(
+                f"{ground}; {params['predictor']} as model at the loop's specimen, "
+                'what its identification converges to'))
     return check
 
 
