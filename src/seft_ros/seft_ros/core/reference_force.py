@@ -48,7 +48,8 @@ from seft_ros.core.tangent import YieldMechanisms
 
 __all__ = ['Predictor', 'NoPredictor', 'PREDICTORS', 'make_predictor', 'ReferenceForceBuilder',
            'RigReferenceForce', 'ground_window', 'with_loop_latency', 'network_delay_steps',
-           'specimen_model_of', 'Coupling', 'TANGENT_FLOOR']
+           'specimen_model_of', 'Coupling', 'TANGENT_FLOOR',
+           'below_tangent_floor']
 
 
 @runtime_checkable
@@ -1053,22 +1054,30 @@ class ReferenceForceBuilder:
                 self.interface_N[r] = predicted[r]
 
 
+def below_tangent_floor(block: np.ndarray, initial: np.ndarray) -> bool:
+    """Whether a tangent stiffness block is below :data:`TANGENT_FLOOR` of its initial one
+    in some direction: ``block - TANGENT_FLOOR * initial`` not positive definite (a Cholesky
+    factorization of its symmetric part tells). Both square, the same shape [N/m]."""
+    shifted = block - TANGENT_FLOOR * initial
+    try:
+        np.linalg.cholesky(0.5 * (shifted + shifted.T))
+        return False
+    except np.linalg.LinAlgError:
+        return True
+
+
 def _floored_tangent(tangent: np.ndarray, k0: np.ndarray, qi) -> np.ndarray:
     """The computational part's tangent stiffness `tangent` (n x n) [N/m], or ``tangent +
-    TANGENT_FLOOR * k0`` where ``tangent - TANGENT_FLOOR * k0`` is not positive definite on
-    the computational DOFs `qi` (a Cholesky factorization tells): a member that yields
-    perfectly plastic leaves its DOFs without stiffness, and the prediction's static shift
-    (``K_UU^-1 d_U``, ``OpenSeesPart.prediction_state``) without an inverse
-    (:data:`TANGENT_FLOOR`)."""
+    TANGENT_FLOOR * k0`` where its block on the computational DOFs `qi` is below the floor
+    (:func:`below_tangent_floor`): a member that yields perfectly plastic leaves its DOFs
+    without stiffness, and the prediction's static shift (``K_UU^-1 d_U``,
+    ``OpenSeesPart.prediction_state``) without an inverse (:data:`TANGENT_FLOOR`)."""
     if not qi:
         return tangent
     ix = np.ix_(qi, qi)
-    block = tangent[ix] - TANGENT_FLOOR * k0[ix]
-    try:
-        np.linalg.cholesky(0.5 * (block + block.T))
-        return tangent
-    except np.linalg.LinAlgError:
+    if below_tangent_floor(tangent[ix], k0[ix]):
         return tangent + TANGENT_FLOOR * k0
+    return tangent
 
 
 def _forget_before(seen: dict, step: int) -> None:

@@ -60,6 +60,7 @@ from typing import Sequence
 import numpy as np
 
 from seft_msgs_py.errors import ParameterError
+from seft_ros.core.reference_force import TANGENT_FLOOR, below_tangent_floor
 from seft_ros.core.structure import Substructures
 from seft_ros.core.substructure import structure_matrices
 from seft_ros.opensees.loader import captured, last_message, opensees, rayleigh_calls
@@ -68,7 +69,7 @@ from seft_ros.opensees.probe import describe_mechanisms, probe_yield, pushover_s
 
 __all__ = ['OpenSeesPart', 'STEP_TIME', 'dry_run', 'DryRun', 'BUDGET_FRACTION',
            'DEFERRED_BUDGET_FRACTION', 'budget_fraction', 'element_names',
-           'element_response', 'TANGENT_FLOOR']
+           'element_response']
 
 #: The recorded state of each step's OpenSees wall time [s].
 STEP_TIME = 'opensees/step_time_s'
@@ -100,12 +101,6 @@ NOISE_TOLERANCE = 1.5e-5
 #: linearization's (the assembled system's round-off, less Newmark's part and the penalty,
 #: is about 1e-9 of it).
 INITIAL_TOLERANCE = 1e-6
-#: The floor of the massless DOFs' tangent block in its condensation [-]: where it is below
-#: this part of the initial block in some direction (a massless node between two members
-#: that yield perfectly plastic: `Steel01` with b 0, `ElasticPP`), the condensation takes
-#: the block plus this part of the initial one (its inverse is otherwise undefined; the
-#: prediction's tangent has the same floor, ``seft_ros.core.reference_force.TANGENT_FLOOR``).
-TANGENT_FLOOR = 1e-3
 #: An interface DOF the model's own loads hold displaced by more than this at the start [m]
 #: is refused: the rig's specimen starts unloaded at 0 (about the resolution of a rig's
 #: displacement transducer; a symmetric frame under gravity is displaced by round-off, 1e-22 m).
@@ -208,7 +203,6 @@ class OpenSeesPart:
         self.pushover_time_s = 0.0
         self._deficit = None              # deficit_forces' matrix
         self.tangent_steps = 0            # samples whose tangent was assembled
-        self.floored_steps = 0            # of those, tangents floored (TANGENT_FLOOR)
         # step: deferred: the sample ahead of OpenSees' (its linear step), and the
         # effective matrices of that step per stiffness
         self._deferred = spec.step == 'deferred'
@@ -648,18 +642,12 @@ class OpenSeesPart:
         return 0.5 * (kr + kr.T)
 
     def _floored(self, k_oo: np.ndarray, oo) -> np.ndarray:
-        """The massless DOFs' tangent block `k_oo`, or ``k_oo + TANGENT_FLOOR * K_0,oo``
-        where ``k_oo - TANGENT_FLOOR * K_0,oo`` is not positive definite (a Cholesky
-        factorization tells; :data:`TANGENT_FLOOR`): a massless node between two members
-        that yield perfectly plastic has no stiffness, and its condensation no inverse."""
+        """The massless DOFs' tangent block `k_oo`, or ``k_oo + TANGENT_FLOOR * K_0,oo`` where
+        it is below the floor (``seft_ros.core.reference_force.below_tangent_floor``, the
+        prediction's): a massless node between two members that yield perfectly plastic has
+        no stiffness, and its condensation no inverse."""
         k0_oo = self._k0_full[oo]
-        block = k_oo - TANGENT_FLOOR * k0_oo
-        try:
-            np.linalg.cholesky(0.5 * (block + block.T))
-            return k_oo
-        except np.linalg.LinAlgError:
-            self.floored_steps += 1
-            return k_oo + TANGENT_FLOOR * k0_oo
+        return k_oo + TANGENT_FLOOR * k0_oo if below_tangent_floor(k_oo, k0_oo) else k_oo
 
     def _condensation_indices(self, keep, other) -> tuple:
         """``np.ix_`` of the kept and the other equations' four blocks (made once: each
