@@ -2021,26 +2021,23 @@ def identify_bags(*, bags: list[str], out_dir: Path, window: str = 'hann',
     return IdentifyResult(out_dir, doc, params_path)
 
 
-#: seft identify warns when a linear identified specimen's mass or stiffness is more than
-#: this from the declared one (relative; the specimen check's default tolerance) [-].
-SPECIMEN_MISMATCH = 0.1
-
-
 def _specimen_mismatch(specs) -> list[str]:
     """A WARNING line when the first linear identified specimen of `specs` (``(kind,
-    figures)``) differs from the declared one by more than :data:`SPECIMEN_MISMATCH` in mass
+    figures)``) differs from the declared one by more than the specimen check's default
+    tolerance (``seft_ros.core.monitor.DEFAULT_SPECIMEN_TOLERANCE``, 10 %) in mass
     or stiffness (a new user's plant file of another specimen: 0.04 x the declared
     stiffness, said by nothing until its test was refused)."""
+    from seft_ros.core.monitor import DEFAULT_SPECIMEN_TOLERANCE as tolerance
     fit = next((spec for _, spec in specs if spec.get('linear')), None)
     if fit is None:
         return []
     declared = fit['declared']
     ratios = [fit[k] / declared[k] for k in ('mass_kg', 'stiffness_N_per_m')
               if declared.get(k)]
-    if all(abs(r - 1.0) <= SPECIMEN_MISMATCH for r in ratios):
+    if all(abs(r - 1.0) <= tolerance for r in ratios):
         return []
     return [f'  WARNING: the identified specimen is {ratios[0]:.3g} x the declared mass and '
-            f'{ratios[1]:.3g} x its stiffness (beyond +-{100 * SPECIMEN_MISMATCH:g} %): the '
+            f'{ratios[1]:.3g} x its stiffness (beyond +-{100 * tolerance:g} %): the '
             'specimen on the rig is not the declared one; declare the one identified '
             "(predictor_* or the rig's mass_kg, stiffness_N_per_m), or identify with the "
             'specimen the test is for']
