@@ -305,7 +305,7 @@ def test_adaptive_holds_the_loop_it_was_given_and_learns_the_specimen():
                      r"0\.42 % damped\) only with the law's gains offset by 6\.\d+e\+04 N/m, ",
                      margin.note), margin.note
     assert ('the declared specimen (32 kg, 1.895e+05 N/m, 12.25 Hz: predictor_* or the '
-            "rig's) is 0.80 x the loop model's mass and 1.20 x its stiffness (40 kg, 1.579e+05 "
+            "rig's) is 0.8 x the loop model's mass and 1.2 x its stiffness (40 kg, 1.579e+05 "
             'N/m, 10.00 Hz)') in margin.note
     assert 'check the force-loop inverse' not in margin.note
     run = simulate(params)

@@ -247,6 +247,18 @@ def test_the_reference_pole_is_the_sampled_root_of_the_whole_structure():
     assert reference_pole(m, c, k, alpha, DT) == pytest.approx(expected, rel=1e-12)
 
 
+def test_a_declared_stiffness_1000_times_off_is_named_as_such():
+    """The pole calibration's refusal names the declared specimen's ratio to the loop's in
+    three figures: a typo of 1000x in the stiffness read '0.00 x its stiffness' (found by a
+    new user, session 35)."""
+    from seft_ros.core.law_calibration import pole_calibration
+    params = parameters.resolve({'rig_model': 'servohydraulic', 'predictor': 'model',
+                                 'alpha': 1.0, 'predictor_stiffness_N_per_m': 211.0})
+    with pytest.raises(ParameterError, match=r"is 1 x the loop model's mass and 0\.001 x its "
+                       r'stiffness \(52\.7 kg, 2\.11e\+05 N/m, 10\.07 Hz\)'):
+        pole_calibration(params)
+
+
 def test_the_study_controller_entered_as_a_transfer_function_runs_bit_for_bit():
     """A lab's own controller (force_controller_tf, continuous): the study's C_f entered by
     hand is the loop_shaping run, sample for sample."""

@@ -140,8 +140,8 @@ def _specimen_clause(params: Mapping, declared: Mapping) -> str | None:
         return None
     return (f'the declared specimen ({m:.4g} kg, {k:.4g} N/m, '
             f"{math.sqrt(k / m) / (2.0 * math.pi):.2f} Hz: predictor_* or the rig's) is "
-            f"{m / spec.mass_kg:.2f} x the loop model's mass and "
-            f'{k / spec.stiffness_N_per_m:.2f} x its stiffness ({spec.mass_kg:.4g} kg, '
+            f"{m / spec.mass_kg:.3g} x the loop model's mass and "
+            f'{k / spec.stiffness_N_per_m:.3g} x its stiffness ({spec.mass_kg:.4g} kg, '
             f'{spec.stiffness_N_per_m:.4g} N/m, {spec.natural_frequency_hz:.2f} Hz), and the '
             "pole sought is the declared specimen's reference structure's: declare the "
             "specimen the loop has (a plant_model's specimen, as seft identify wrote it), "
