@@ -281,6 +281,20 @@ def test_write_report_keeps_runs_sharing_a_setup_apart(tmp_path):
                      'polynomial', '1.00', '1.010', best[0][9]]]
 
 
+def test_the_best_compensated_table_names_the_runs_that_tie_to_its_digit(tmp_path):
+    """Two compensated runs whose displacement NRMS shows the same to the table's 0.01 %:
+    both named ('adaptive' alone read as the better one, session 35); a third 0.01 %
+    behind is not."""
+    ag = _ground_motion(1500)
+    runs = [_predictor_run(0.5, 'none', ag, scale=1.1),
+            _predictor_run(0.5, 'polynomial', ag, scale=1.0201),
+            _predictor_run(0.5, 'adaptive', ag, scale=1.01002),
+            _predictor_run(0.5, 'model', ag, scale=1.01004)]
+    md = write_report(runs, tmp_path).report_md.read_text()
+    best = _table_after(md, '## Uncompensated vs best compensated')
+    assert [row[6:8] for row in best] == [['adaptive = model', '1.00']]
+
+
 def test_write_report_single_predictor_keeps_one_grid(runs, tmp_path):
     paths = write_report(runs, tmp_path)
     assert paths.predictor_time_histories == {} and paths.predictor_comparisons == {}

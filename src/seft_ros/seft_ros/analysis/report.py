@@ -1056,11 +1056,28 @@ def _best_markdown(entries: list[dict[str, Any]]) -> list[str]:
 
         row = [_alpha_text(key[0]), key[1] or 'n/a', *cells(none),
                'n/a' if none is None else _entry_status(none),
-               'no stable compensated run' if chosen is None else chosen['predictor'],
+               'no stable compensated run' if chosen is None else _tied(chosen, entries),
                *cells(chosen)]
         lines.append('| ' + ' | '.join(row) + ' |')
     lines.append('')
     return lines
+
+
+def _tied(chosen: dict[str, Any], entries: list[dict[str, Any]]) -> str:
+    """The best run's predictor, with every other stable compensated predictor of its alpha,
+    rig and record whose displacement NRMS shows the same in the table (``.2f`` of a
+    percent): 'adaptive = model'. (Session 35: a new user read 'adaptive' as the better
+    of two runs that tied to the digit.)"""
+    shown = _fmt(chosen['nrms']['displacement'], '.2f', 100)
+    key = (chosen.get('alpha'), chosen.get('rig'), chosen.get('record'))
+    names = [chosen['predictor']]
+    for e in entries:
+        if ((e.get('alpha'), e.get('rig'), e.get('record')) == key and e.get('stable')
+                and e.get('predictor') not in (None, UNCOMPENSATED, *names)
+                and isinstance((e.get('nrms') or {}).get('displacement'), float)
+                and _fmt(e['nrms']['displacement'], '.2f', 100) == shown):
+            names.append(e['predictor'])
+    return ' = '.join(names)
 
 
 def _comparison_files(runs: list[RunData]) -> dict[tuple[Any, Any, str], str]:
