@@ -163,6 +163,27 @@ def test_compare_a_study_bag_and_a_structure_bag(tmp_path, capsys):
                                                          ['pier_a', 'pier_b', 'deck']]
 
 
+def test_the_structure_tables_notes_follow_its_criteria_rows():
+    """The notes of a structure's runs (flags, aborts) come after the criteria table, not
+    between its rows (a new user, session 35); each names its run."""
+    from pathlib import Path
+
+    from seft_ros.analysis.metrics import compare_run, summary_entry
+    from seft_ros.cli.config import load_config
+    config = load_config(Path(__file__).resolve().parents[3] / 'config' / 'two_piers.yaml')
+    run = simulate(parameters.resolve(dict(config, predictor='model', duration_s=0.3)))
+    entry = summary_entry(run, compare_run(run))
+    entries = [dict(entry, flags=['the NRMS x of 9 % is beyond the prediction']),
+               dict(entry, stable=False, unstable_at_s=0.2, abort_reason='watchdog: lost')]
+    lines = api.structure_table(entries).splitlines()
+    head = next(i for i, line in enumerate(lines) if 'J1_ms' in line)
+    rows = [line.split()[:2] for line in lines[head + 1:head + 5]]
+    assert rows == [['1', 'pier_a'], ['1', 'pier_b'], ['2', 'pier_a'], ['2', 'pier_b']]
+    assert lines[head + 5:] == [
+        'note: run 1 (model): flagged: the NRMS x of 9 % is beyond the prediction',
+        'note: run 2 (model): aborted: watchdog: lost']
+
+
 def test_replay_timing_of_lockstep_runs_says_there_is_none(sweep_dir, tmp_path, capsys):
     """``--replay-timing`` on lockstep runs: one line each that there is nothing to replay,
     and the report is the plain one (tests/seft_ros/analysis/test_timing_replay.py replays

@@ -1245,6 +1245,7 @@ def structure_table(summary: list[dict]) -> str:
                          f'{ratio(d["displacement"])} {ratio(d["floor_acceleration"])}')
     lines.append(f'{"run":>3} {"rig":>10} {"J1_ms":>7} {"J2%":>8} {"J3%":>8} {"J4%":>8} '
                  f'{"J5%":>8} {"lat50ms":>8} {"lat99ms":>8} {"stale%":>8}')
+    notes: list[str] = []
     for i, e in enumerate(summary, start=1):
         t = e.get('timing')
         for rig, info in e['rigs'].items():
@@ -1255,14 +1256,15 @@ def structure_table(summary: list[dict]) -> str:
             timing = (f' {t["loop_latency_ms"]["p50"]:8.3f} {t["loop_latency_ms"]["p99"]:8.3f}'
                       f' {100 * t["stale_command_fraction"]:8.2f}' if t else '')
             lines.append(f'{i:3d} {_rig_name(rig)[:10]:>10} {j1} {cells}{timing}')
+        # the runs' notes below the table, not between its rows (a new user, session 35)
         if e.get('abort_reason'):
-            lines.append(f'note: run {i} ({e["predictor"]}): aborted: {e["abort_reason"]}')
+            notes.append(f'note: run {i} ({e["predictor"]}): aborted: {e["abort_reason"]}')
         if (e.get('link') or {}).get('warning'):
-            lines.append(f'note: run {i} ({e["predictor"]}): {e["link"]["warning"]}')
-        lines += _accuracy_notes(f'run {i} ({e["predictor"]})', e)
-        lines += [f'note: run {i} ({e["predictor"]}): {line}' if not line.startswith(' ')
+            notes.append(f'note: run {i} ({e["predictor"]}): {e["link"]["warning"]}')
+        notes += _accuracy_notes(f'run {i} ({e["predictor"]})', e)
+        notes += [f'note: run {i} ({e["predictor"]}): {line}' if not line.startswith(' ')
                   else line for line in _pushover_lines(e)]
-    return '\n'.join(lines)
+    return '\n'.join(lines + notes)
 
 
 def _pushover_lines(entry: dict) -> list[str]:
@@ -1759,7 +1761,8 @@ def stability_report(*, out_dir: Path, config: str | None = None,
         Delay range [s] (``tau_s`` of the delay rig, ``io_latency_s`` of the servohydraulic
         rig); default 0.5-20 ms (delay) or 0-10 ms (servohydraulic).
     points : int >= 2, optional
-        Number of delays (default: 0.5 ms spacing).
+        Number of delays (default: 0.5 ms spacing; a structure's map, which takes seconds
+        a point: 6).
     alpha_max : float > 0
         Upper end of the search in alpha.
 
