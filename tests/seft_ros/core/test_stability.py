@@ -354,6 +354,10 @@ def test_check_run(reference_params):
     skipped = st.check_run(dict(reference_params, alpha=1.5, specimen_model='bouc_wen',
                                 predictor='model', predictor_restoring_force='hysteretic'))
     assert skipped.stable is None and 'not linear time-invariant' in skipped.message
+    # both figures of the superposition test, each beside the response it is of
+    assert re.search(r'misses the sum of its impulse responses by \S+ m/s\^2 in the predicted '
+                     r'acceleration, of \S+, and \S+ N in the command, of \S+\)',
+                     skipped.message), skipped.message
     skipped = st.check_run(dict(reference_params, alpha=1.5, predictor='adaptive'))
     assert skipped.stable is None and 'not predicted' in skipped.message
 

@@ -324,7 +324,7 @@ def build_parser() -> argparse.ArgumentParser:
     stab.add_argument('--tau-max', type=float, metavar='S', help='last delay [s] (default '
                       '0.02 on the delay rig, 0.01 on the servohydraulic rig)')
     stab.add_argument('--points', type=int, metavar='N', help='number of delays (default: '
-                      '0.5 ms spacing)')
+                      "0.5 ms spacing; a structure's map: 6)")
     stab.add_argument('--alpha-max', type=float, default=3.0, metavar='A',
                       help='upper end of the search in alpha (default 3)')
     stab.add_argument('--set', dest='sets', type=_set_value, action='append', default=[],
