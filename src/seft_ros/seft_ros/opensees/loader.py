@@ -9,9 +9,12 @@ importing the package), then imports ``openseespy.opensees``: a model script tha
 
 OpenSees writes its messages to the process's standard error and raises ``OpenSeesError('See
 stderr output')``. :func:`captured` sends them to a file instead (OpenSees' ``logFile`` with
-``-noEcho``) so that an error names OpenSees' own words in one line.
+``-noEcho``) so that an error names OpenSees' own words in one line. As the process ends,
+after seft's last line, OpenSees writes ``Process 0 Terminating`` there; a process that
+loaded it sends its standard error to ``/dev/null`` at its exit (:func:`_quiet_exit`).
 """
 
+import atexit
 from contextlib import contextmanager
 import ctypes
 import importlib
@@ -19,6 +22,7 @@ import importlib.util
 import math
 import os
 from pathlib import Path
+import sys
 import tempfile
 
 from seft_msgs_py.errors import ParameterError
@@ -60,7 +64,27 @@ def opensees():
     except Exception as exc:              # openseespy raises a bare Exception on Linux
         raise ParameterError(f'openseespy: cannot import it ({exc})') from None
     _log_rayleigh(_MODULE)
+    atexit.register(_quiet_exit)
     return _MODULE
+
+
+def _quiet_exit() -> None:
+    """At the exit of a process that loaded OpenSees (an ``atexit`` hook, run after those
+    registered later): flush both streams, then point the standard error (descriptor 2) at
+    ``/dev/null``, so that OpenSees' ``Process 0 Terminating``, which its library writes as
+    the process ends, does not follow seft's last line (a new user read it as an error,
+    session 35). What the interpreter itself writes while it shuts down is lost with it."""
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError, AttributeError):
+            pass
+    try:
+        null = os.open(os.devnull, os.O_WRONLY)
+    except OSError:
+        return
+    os.dup2(null, 2)
+    os.close(null)
 
 
 #: The Rayleigh damping factors the model set since its last ``wipe``: ``(command,
