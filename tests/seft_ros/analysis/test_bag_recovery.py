@@ -170,6 +170,38 @@ def test_a_killed_recorders_bag_reads_up_to_the_last_flush(mcap_bags, tmp_path):
                                   'recording): recovered 1.200 s (600 steps')
 
 
+def test_a_closed_bags_file_cut_afterwards_reads_as_recovered_and_says_so(mcap_bags,
+                                                                           tmp_path):
+    """A bag whose metadata.yaml says it was closed but whose file the reader refuses (a copy
+    cut short): its complete records are read as of a bag never closed, and the recording
+    says 'damaged' with the reader's error (before: 'cannot read the bag: File end magic is
+    invalid', while the same file without its metadata read back; a new user, session 36)."""
+    bag, killed = mcap_bags
+    cut = tmp_path / 'cut'
+    shutil.copytree(killed, cut)
+    shutil.copy(bag / 'metadata.yaml', cut)
+    run = read_run(cut)
+    check_values(run, 600)
+    rec = run.extra['recording']
+    assert rec['end'] == 'damaged' and rec['steps'] == 600
+    assert 'File end magic is invalid' in rec['reader_error'] and 'flush_every_s' not in rec
+    assert rec['note'].startswith(
+        'its metadata.yaml says the recorder closed this bag, but the reader refuses its '
+        f"file ({rec['reader_error']}): cut or damaged after the recording; recovered 1.200 s "
+        '(600 steps'), rec['note']
+    assert not run.stable and run.abort_reason.startswith(
+        'the bag: its file was cut or damaged after the recording')
+    # a file that holds nothing whole: the reader's error, in one line
+    empty = tmp_path / 'empty'
+    empty.mkdir()
+    shutil.copy(bag / 'metadata.yaml', empty)
+    (empty / next(bag.glob('*.mcap')).name).write_bytes(b'not an mcap file')
+    with pytest.raises(InputError, match=r'empty: the reader refuses its file \(.+\), cut or '
+                       r'damaged after the recording, and holds no run parameters in its '
+                       r'complete records \(bag.mcap: not a valid MCAP file'):
+        read_run(empty)
+
+
 def test_a_file_cut_anywhere_yields_only_whole_messages(mcap_bags, tmp_path):
     """Cut the killed recorder's file at 30 places: what is recovered is whole messages of
     whole flushes (a cut record is never parsed short), growing with the cut; a few of the

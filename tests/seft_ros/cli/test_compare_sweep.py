@@ -91,6 +91,40 @@ def test_compare_a_sweep_folder(sweep_dir, tmp_path, capsys):
     assert html.count('<img ') == html.count('src="data:image/png;base64,')
 
 
+def test_a_folders_run_without_a_readable_bag_is_said_and_the_rest_compared(
+        sweep_dir, simulated, tmp_path, monkeypatch):
+    """A run directory of the folder whose bag/ is gone, and one whose bag does not read:
+    each named on the console and under the report's title, the other runs compared (before:
+    the first left the report silently, the second stopped the whole folder; a new user,
+    session 36). A folder with no readable bag is one error line."""
+    import shutil
+
+    from seft_msgs_py.errors import InputError as Refused
+    shutil.rmtree(sweep_dir / LABELS[0] / 'bag')
+
+    def read(path):
+        if path.parent.name == LABELS[1]:
+            raise Refused(f'{path}: cannot read the bag: damaged')
+        return simulated[path.parent.name]
+    monkeypatch.setattr(api, 'read_run', read)
+    said = []
+    result = api.compare_bags(bags=[str(sweep_dir)], out_dir=tmp_path / 'cmp',
+                              progress=said.append)
+    assert len(result.summary) == len(LABELS) - 2
+    assert said == [f'WARNING: {sweep_dir / LABELS[0]}: no bag (bag/ missing or empty): not '
+                    'compared',
+                    f'WARNING: {sweep_dir / LABELS[1] / "bag"}: cannot read the bag: damaged: '
+                    'not compared']
+    head = (tmp_path / 'cmp' / 'report.md').read_text().splitlines()[:4]
+    assert head[2:] == [f'- **not compared**: {sweep_dir / LABELS[0]}: no bag (bag/ missing or '
+                        'empty)',
+                        f'- **not compared**: {sweep_dir / LABELS[1] / "bag"}: cannot read the '
+                        'bag: damaged']
+    monkeypatch.setattr(api, 'read_run', lambda path: read(sweep_dir / LABELS[1] / 'bag'))
+    with pytest.raises(InputError, match=r'sweep: no run of the folder has a readable bag'):
+        api.compare_bags(bags=[str(sweep_dir)], out_dir=tmp_path / 'cmp2')
+
+
 def test_compare_numbers_a_folders_runs_as_its_command_did(sweep_dir, simulated, tmp_path):
     """The folder's summary.json (the entries seft run writes, ``metrics.summary_entry``: the
     runs in LABELS order, none before model) numbers the runs, not the directory listing

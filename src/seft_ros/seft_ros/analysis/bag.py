@@ -255,7 +255,22 @@ def read_signals(path) -> BagSignals:
     try:
         if is_unclosed_bag(path):
             recovery = recover_bag(path)
-        for topic, msgtype, raw in _messages(path, recovery):
+        try:
+            messages = list(_messages(path, recovery))
+        except Exception as exc:  # rosbags raises several types for a damaged bag
+            if recovery is not None:
+                raise
+            # a closed bag (metadata.yaml there) whose file the reader refuses: cut or
+            # damaged after the recording (a copy cut short); its complete records, as of a
+            # bag never closed (before: 'cannot read the bag: File end magic is invalid',
+            # while the same file without its metadata was recovered; session 36)
+            try:
+                recovery = recover_bag(path)
+            except ValueError:
+                raise exc from None
+            recovery.damaged = str(exc) or type(exc).__name__
+            messages = list(_messages(path, recovery))
+        for topic, msgtype, raw in messages:
             counts[topic] = counts.get(topic, 0) + 1
             if topic == signals.RUN_PARAMETERS.name:
                 msg = typestore.deserialize_cdr(raw, msgtype)
@@ -286,8 +301,11 @@ def read_signals(path) -> BagSignals:
     if params is None and not node_params:
         if recovery is not None:
             cut = f' ({recovery.end})' if recovery.end else ''
-            raise InputError(f'{path}: the bag was not closed (recorder killed?) and holds no '
-                             f'run parameters in its complete records{cut}')
+            how = (f'the reader refuses its file ({recovery.damaged}), cut or damaged after '
+                   'the recording,' if recovery.damaged else
+                   'the bag was not closed (recorder killed?)')
+            raise InputError(f'{path}: {how} and holds no run parameters in its complete '
+                             f'records{cut}')
         raise InputError(f'{path}: not a seft bag (no /seft/run_parameters message)')
     if params is not None and not isinstance(params, dict):
         raise InputError(f'{path}: {signals.RUN_PARAMETERS.name}: expected a JSON object')
@@ -534,7 +552,9 @@ def recording_end(bag: BagSignals, n_steps: int) -> dict:
         status), ``'stopped'`` (the recorder closed the bag, but the run's end is not in it:
         no final status of a rig; the recorder was stopped by a signal, or lost the rig),
         ``'crashed'`` (never closed: recovered from the file; the recorder was killed, or
-        is still recording) or
+        is still recording), ``'damaged'`` (closed, its ``metadata.yaml`` there, but its
+        file refused by the reader: cut or damaged afterwards; recovered from the file, the
+        reader's error in ``'reader_error'``) or
         ``'unknown'`` (no recorder status: a bag not written by the recorder);
         ``'steps'`` and ``'duration_s'``: the complete steps and their time span [s];
         ``'messages'``: the messages read; ``'note'``: one line for the report. A crashed
@@ -552,16 +572,33 @@ def recording_end(bag: BagSignals, n_steps: int) -> dict:
     out = {'steps': n_steps, 'duration_s': n_steps * dt,
            'messages': int(sum(bag.counts.values()))}
     held = f'{n_steps * dt:.3f} s ({n_steps} steps, {out["messages"]} messages)'
-    if bag.recovery is not None:
+    planned = next((int(s['n_steps']) for s in bag.statuses
+                    if s['name'] == 'ground_motion_publisher' and 'n_steps' in s), None)
+    # the record's steps the file does not hold (a run cut short, or a file cut)
+    short = (f'; the run played {planned * dt:.3f} s of record ({planned} steps): '
+             f'{(planned - n_steps) * dt:.3f} s of it are not in the file'
+             if planned is not None and planned > n_steps else '')
+    if bag.recovery is not None and bag.recovery.damaged:
+        out.update(end='damaged', storage=bag.recovery.storage,
+                   file_complete=bag.recovery.file_complete, cut=bag.recovery.end,
+                   reader_error=bag.recovery.damaged)
+        # metadata.yaml written at the close, the file cut or damaged afterwards: what it
+        # lost is not bounded by the recorder's flush
+        out['note'] = ('its metadata.yaml says the recorder closed this bag, but the reader '
+                       f'refuses its file ({bag.recovery.damaged}): cut or damaged after the '
+                       f'recording; recovered {held} from its complete records' + short)
+    elif bag.recovery is not None:
         flush = next((float(s['flush_every_s']) for s in recorder if 'flush_every_s' in s),
                      FLUSH_EVERY_S)
         out.update(end='crashed', flush_every_s=flush, storage=bag.recovery.storage,
                    file_complete=bag.recovery.file_complete, cut=bag.recovery.end)
         # a bag without its metadata: the recorder was killed, or it is still writing (a
-        # run still going, or a recorder left behind): the file cannot tell which
+        # run still going, or a recorder left behind): the file cannot tell which; or the
+        # file was cut afterwards, and the flush does not bound what it lost
         out['note'] = (f'the recording was not closed (recorder killed, or still recording): '
                        f'recovered {held}; at most the last {flush:g} s before the end of '
-                       'the file is missing (not flushed)')
+                       'the file is missing (not flushed) if the recorder wrote it so, more '
+                       'if the file was cut afterwards' + short)
     elif closed and run_ended:
         out.update(end='closed', note=f'bag closed by the recorder: {held}')
     elif recorder:
@@ -717,13 +754,15 @@ def read_run(path) -> RunData:
             f"{first['name']}: {first['message']}")
         if interrupted and not is_runner_interrupt(first['message']):
             reason = f"interrupted ({first['signal']}): {reason}"
-    elif not all(finals.values()) and recording['end'] in ('crashed', 'stopped'):
+    elif not all(finals.values()) and recording['end'] in ('crashed', 'stopped', 'damaged'):
         # the bag ends before the run did: the test is cut short at its last complete step
         stable = False
-        reason = ('recorder: the recording was not closed (recorder killed, or still '
-                  'recording)'
-                  if recording['end'] == 'crashed' else
-                  'recorder: the recording was stopped before the run ended')
+        reason = {'crashed': 'recorder: the recording was not closed (recorder killed, or '
+                             'still recording)',
+                  'stopped': 'recorder: the recording was stopped before the run ended',
+                  'damaged': 'the bag: its file was cut or damaged after the recording (the '
+                             'run went on past its end, or ended there: the file cannot '
+                             'tell)'}[recording['end']]
     record_name = next((s.get('record') for s in bag.statuses
                         if s['name'] == 'ground_motion_publisher' and s.get('record')),
                        Path(str(p['record'])).stem)

@@ -112,6 +112,10 @@ class RecoveredBag:
         sqlite3 file counts as complete.
     end : str
         Why the reading of a file stopped before its end ('' if none): the cut record.
+    damaged : str
+        For a bag whose ``metadata.yaml`` says it was closed but whose file the reader
+        refuses (cut or damaged after the recording: a copy cut short), the reader's error;
+        '' for a bag that was never closed.
     """
 
     files: list[Path]
@@ -119,6 +123,7 @@ class RecoveredBag:
     messages: list[tuple[str, str, int, bytes]] = field(default_factory=list)
     file_complete: bool = True
     end: str = ''
+    damaged: str = ''
 
 
 class _ExactReads:
@@ -194,7 +199,8 @@ def recover_bag(path) -> RecoveredBag:
     Parameters
     ----------
     path : str or Path
-        A bag directory without ``metadata.yaml`` (or one storage file), written by rosbags.
+        A bag directory without ``metadata.yaml`` (or one storage file), written by rosbags;
+        or one with it whose file the reader refuses (its metadata is then not read).
 
     Returns
     -------

@@ -528,8 +528,10 @@ def _mismatch_lines(run: RunData) -> list[str]:
 
 def _recording_end(recording: dict) -> str:
     """How a recording cut short ended, as the report's bold label says it: 'stopped', or
-    'not closed' (summary ``end`` 'crashed': the recorder killed, or still recording)."""
-    return 'not closed' if recording.get('end') == 'crashed' else str(recording.get('end'))
+    'not closed' (summary ``end`` 'crashed': the recorder killed, or still recording), 'cut or
+    damaged' (``end`` 'damaged': a closed bag's file cut afterwards)."""
+    return {'crashed': 'not closed', 'damaged': 'cut or damaged'}.get(
+        recording.get('end'), str(recording.get('end')))
 
 
 def _warning_lines(run: RunData) -> list[str]:
@@ -617,7 +619,7 @@ def _run_markdown(index: int, run: RunData, comparison: RunComparison) -> list[s
     lines += _warning_lines(run)
     lines += _bridge_markdown(run)
     recording = run.extra.get('recording') or {}
-    if recording.get('end') in ('crashed', 'stopped'):
+    if recording.get('end') in ('crashed', 'stopped', 'damaged'):
         lines.append(f'- **recording {_recording_end(recording)}**: {recording.get("note")}')
     elif recording.get('gap_at_step') is not None:
         lines.append(f'- **recording with a gap**: {recording.get("note")}')
@@ -1572,7 +1574,7 @@ def _structure_run_markdown(index: int, run: RunData, comparison: RunComparison,
              f'Record {entry["record"]}, {comparison.n_steps} steps of {p["dt"]} s; {state}. '
              f'Reference: {comparison.structure_reference.method}.', '']
     recording = run.extra.get('recording') or {}
-    if recording.get('end') in ('crashed', 'stopped'):
+    if recording.get('end') in ('crashed', 'stopped', 'damaged'):
         lines += [f'- **recording {_recording_end(recording)}**: {recording.get("note")}']
     elif recording.get('gap_at_step') is not None:
         lines += [f'- **recording with a gap**: {recording.get("note")}']
@@ -1703,7 +1705,8 @@ def _structure_report(runs: list[RunData], comparisons: list[RunComparison],
 
 
 def write_report(runs: list[RunData], out_dir, *, title: str = 'seft comparison',
-                 high_frequency_cutoff_hz: float = HIGH_FREQUENCY_CUTOFF_HZ) -> ReportPaths:
+                 high_frequency_cutoff_hz: float = HIGH_FREQUENCY_CUTOFF_HZ,
+                 not_compared: tuple[str, ...] = ()) -> ReportPaths:
     """Compare runs with the reference analysis and write summary.json, report.md and figures.
 
     Any runs, the reference study's tests and structure tests alike, in one report: each
@@ -1776,6 +1779,9 @@ def write_report(runs: list[RunData], out_dir, *, title: str = 'seft comparison'
     high_frequency_cutoff_hz : float > 0
         Cutoff of the high-frequency content of the force [Hz], below every run's Nyquist
         frequency.
+    not_compared : tuple of str
+        One line per run that was asked for but could not be read (``seft compare`` of a
+        folder: a run without its bag, an unreadable bag), listed under the title.
 
     Returns
     -------
@@ -1807,6 +1813,8 @@ def write_report(runs: list[RunData], out_dir, *, title: str = 'seft comparison'
     study = [j for j, run in enumerate(runs) if run.is_study]
     others = [j for j in range(len(runs)) if j not in study]
     lines = [f'# {title}', '']
+    if not_compared:
+        lines += [f'- **not compared**: {line}' for line in not_compared] + ['']
     paths: dict[str, Any] = {}
     if study:
         part, paths = _study_report([runs[j] for j in study], [comparisons[j] for j in study],

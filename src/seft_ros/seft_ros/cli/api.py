@@ -433,9 +433,10 @@ def _note_records_read(data: list[RunData], runs: list[dict]) -> None:
             rd.record_name = names[record]
 
 
-def _finish(out_dir: Path, runs: list[RunData], title: str, t0: float) -> Result:
+def _finish(out_dir: Path, runs: list[RunData], title: str, t0: float,
+            not_compared: tuple[str, ...] = ()) -> Result:
     from seft_ros.analysis.report import write_report  # matplotlib: only for the report
-    paths = write_report(runs, out_dir, title=title)
+    paths = write_report(runs, out_dir, title=title, not_compared=not_compared)
     summary = json.loads(Path(paths.summary_json).read_text())['runs']
     return Result(out_dir, runs, summary, time.monotonic() - t0)
 
@@ -1073,6 +1074,12 @@ def _natural_key(path: Path) -> list:
     return [(0, float(p), '') if i % 2 else (1, 0.0, p) for i, p in enumerate(parts)]
 
 
+def _is_bag(p: Path) -> bool:
+    """Whether `p` is a bag directory (``metadata.yaml`` or a storage file in it)."""
+    return p.is_dir() and ((p / 'metadata.yaml').is_file()
+                           or any(p.glob('*.mcap')) or any(p.glob('*.db3')))
+
+
 def find_bags(paths: list[str]) -> list[Path]:
     """The bags named by `paths`: bags, run directories or folders of run directories.
 
@@ -1096,10 +1103,7 @@ def find_bags(paths: list[str]) -> list[Path]:
         A path does not exist, or is none of the three (a ``seft simulate`` directory holds
         no bag: its report is already written).
     """
-    def is_bag(p: Path) -> bool:
-        return p.is_dir() and ((p / 'metadata.yaml').is_file()
-                               or any(p.glob('*.mcap')) or any(p.glob('*.db3')))
-
+    is_bag = _is_bag
     out: list[Path] = []
     for text in paths:
         path = Path(text)
@@ -1118,6 +1122,16 @@ def find_bags(paths: list[str]) -> list[Path]:
                     'report.md and report.html are in its output directory)')
             out += [d / 'bag' for d in runs]
     return out
+
+
+def _runs_without_bag(folder: Path) -> list[Path]:
+    """The run directories of a folder of runs (a ``params.yaml`` there) without a bag."""
+    try:
+        entries = sorted(folder.iterdir(), key=_natural_key)
+    except OSError:
+        return []
+    return [d for d in entries if d.is_dir() and (d / 'params.yaml').is_file()
+            and not _is_bag(d / 'bag')]
 
 
 def _recorded_order(folder: Path, data: list[RunData]) -> list[RunData]:
@@ -1166,8 +1180,28 @@ def compare_bags(*, bags: list[str], out_dir: Path, title: str = '',
     """
     t0 = time.monotonic()
     data = []
+    skipped: list[str] = []         # the runs of a folder not compared, each said why
     for text in bags:
-        data += _recorded_order(Path(text), [read_run(b) for b in find_bags([text])])
+        found = find_bags([text])
+        if Path(text) in found or Path(text) / 'bag' in found:
+            data += [read_run(b) for b in found]      # a bag or run directory named: its own
+            continue
+        # a folder of runs: a run without a readable bag is said and left out, the rest
+        # compared (before: a run whose bag/ was missing left the report silently, and one
+        # unreadable bag stopped the whole folder; a new user, session 36)
+        for run_dir in _runs_without_bag(Path(text)):
+            skipped.append(f'{run_dir}: no bag (bag/ missing or empty)')
+            progress(f'WARNING: {skipped[-1]}: not compared')
+        runs = []
+        for b in found:
+            try:
+                runs.append(read_run(b))
+            except InputError as exc:
+                skipped.append(str(exc))
+                progress(f'WARNING: {exc}: not compared')
+        if not runs:
+            raise InputError(f'{text}: no run of the folder has a readable bag (above)')
+        data += _recorded_order(Path(text), runs)
     for rd in data:
         # the pre-run guard's prediction, as seft run put it in the summary (deterministic:
         # the run's parameters are in its bag)
@@ -1199,7 +1233,7 @@ def compare_bags(*, bags: list[str], out_dir: Path, title: str = '',
                                              if rd.extra['timing_replay'] else
                                              'no timing replay (a lockstep run, or a rig '
                                              "that is not seft's simulated one)"))
-    return _finish(out_dir, data, title or 'seft compare', t0)
+    return _finish(out_dir, data, title or 'seft compare', t0, tuple(skipped))
 
 
 def _one_dof(entry: dict) -> bool:
@@ -1359,7 +1393,8 @@ def summary_table(summary: list[dict]) -> str:
             lines.append(f'note: run {i} (alpha {e["alpha"]:g}, {e["predictor"]}): '
                          f'{e["link"]["warning"]}')
         rec = e.get('recording') or {}
-        if rec.get('end') in ('crashed', 'stopped') or rec.get('gap_at_step') is not None:
+        if (rec.get('end') in ('crashed', 'stopped', 'damaged')
+                or rec.get('gap_at_step') is not None):
             lines.append(f'note: run {i} (alpha {e["alpha"]:g}, {e["predictor"]}): '
                          f'{rec.get("note")}')
         lines += _accuracy_notes(f'run {i} (alpha {e["alpha"]:g}, {e["predictor"]})', e)
