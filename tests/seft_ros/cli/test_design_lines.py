@@ -17,7 +17,7 @@ def test_a_design_predicted_less_accurate_than_a_test_should_be_says_so():
         "the study's test with `model` on this loop is predicted at 2.2 / 1 / 3 % NRMS x at "
         'alpha 0.5 / 1 / 1.5, more than an accurate test (1 % up to alpha 1, 2 % beyond): the '
         'specimen (45 Hz) has 11.1 samples a period at dt 2 ms; identify and design again at '
-        'a sample period of at most 1.1 ms')
+        'a sample period of at most 1 ms')
     # within 1 % up to alpha 1 and 2 % beyond: nothing; 1.9 % at 1.5 is within
     assert api.predicted_error_warning(_design((0.0099, 0.0062, 0.019))) == ''
     # over, on a specimen sampled finely enough: the errors alone (a shorter dt is no cure)
@@ -25,3 +25,10 @@ def test_a_design_predicted_less_accurate_than_a_test_should_be_says_so():
         "the study's test with `model` on this loop is predicted at 0.4 / 1.2 / 1 % NRMS x at "
         'alpha 0.5 / 1 / 1.5, more than an accurate test (1 % up to alpha 1, 2 % beyond)')
     assert api.predicted_error_warning({'predicted_error': []}) == ''
+    # a specimen just coarser than 20 samples a period (25.5 Hz at 2 ms): half the run's
+    # period, not 'at most 2 ms' at dt 2 ms (a new user, session 36); finer: its own bound
+    assert api.predicted_error_warning(_design((0.012, 0.008, 0.007), specimen_hz=25.5)).endswith(
+        'the specimen (25.5 Hz) has 19.6 samples a period at dt 2 ms; identify and design again '
+        'at a sample period of at most 1 ms')
+    assert api.predicted_error_warning(_design((0.03, 0.01, 0.01), specimen_hz=80.0)).endswith(
+        'at a sample period of at most 0.62 ms')

@@ -2248,7 +2248,7 @@ def predicted_error_warning(design: dict) -> str:
         ``1 / COARSE_SAMPLING`` samples a period, the sample period that gives it more; ''
         when every predicted error is within its bound (or none is predicted).
     """
-    from seft_ros.core.force_design import COARSE_SAMPLING
+    from seft_ros.core.force_design import COARSE_SAMPLING, shorter_sample_period_s
     predicted = [(float(a), float(e)) for a, e in design.get('predicted_error') or ()]
 
     if not any(e > stability.accurate_test_bound(a) for a, e in predicted):
@@ -2262,7 +2262,7 @@ def predicted_error_warning(design: dict) -> str:
     if f_n > 0 and dt > 0 and f_n * dt > COARSE_SAMPLING:
         text += (f': the specimen ({f_n:.3g} Hz) has {1.0 / (f_n * dt):.3g} samples a period '
                  f'at dt {1e3 * dt:g} ms; identify and design again at a sample period of at '
-                 f'most {1e3 * COARSE_SAMPLING / f_n:.2g} ms')
+                 f'most {1e3 * shorter_sample_period_s(f_n, dt):.2g} ms')
     return text
 
 

@@ -67,7 +67,8 @@ __all__ = ['DesignTargets', 'LoopMargins', 'ForceLoopDesign', 'loop_margins',
            'PREDICTED_ERROR_PATIENCE', 'PREDICTED_ERROR_BOUND', 'RECORD_PREDICTED_GAIN',
            'KANAI_TAJIMI_GROUND', 'DESIGN_METHOD', 'played_record_spectrum',
            'compensated_test_margins', 'LOW_CROSSOVER_HZ', 'SLOW_PAIR_DAMPING',
-           'SAMPLED_ZERO_BOUND', 'sampled_zero_offset']
+           'SAMPLED_ZERO_BOUND', 'sampled_zero_offset', 'COARSE_SAMPLING',
+           'shorter_sample_period_s']
 
 #: The largest miss ``max |W T - z^-d|`` up to 25 Hz of the force-loop inverse the design
 #: chooses (the study's rig, 48 taps: 0.01 at d = 10).
@@ -1054,6 +1055,15 @@ DESIGN_ALPHAS = (0.5, 1.0, 1.5)
 #: dt (measured on the family's 50 Hz, 0.5 % specimen on ``valve_2nd_order``: at dt 2 ms,
 #: 10 samples, none stable up to alpha 2 and 1.6-7.0 % NRMS x; at 1 ms, 0.3-1.3 %) [-].
 COARSE_SAMPLING = 0.05
+
+
+def shorter_sample_period_s(natural_frequency_hz: float, dt: float) -> float:
+    """The sample period [s] to suggest for a specimen of `natural_frequency_hz` [Hz]
+    sampled too coarsely at `dt` [s]: ``COARSE_SAMPLING / f_n`` (``1 / COARSE_SAMPLING``
+    samples a period), and never more than half of `dt`: a bound near `dt` read as the
+    run's own period ('at most 2 ms' at dt 2 ms for a 25 Hz specimen, a new user, session
+    36)."""
+    return min(COARSE_SAMPLING / float(natural_frequency_hz), 0.5 * float(dt))
 #: A force-loop inverse whose test is predicted within this NRMS displacement error at every
 #: :data:`DESIGN_ALPHAS` (:func:`~seft_ros.core.stability.predicted_error`) is taken without
 #: trying longer ones [-].
@@ -1260,9 +1270,10 @@ def _search_inverse(plant: PlantModel, design: 'ForceLoopDesign', resp, csi_band
                 'stable up to alpha = 2 on the model')
         f_n = float(plant.specimen.natural_frequency_hz) if plant.specimen is not None else 0.0
         if f_n * design.dt > COARSE_SAMPLING:
+            shorter = shorter_sample_period_s(f_n, design.dt)
             note += (f': the specimen ({f_n:.3g} Hz) has {1.0 / (f_n * design.dt):.3g} samples '
                      f'per period at dt {1e3 * design.dt:g} ms; a sample period of at most '
-                     f'{1e3 * COARSE_SAMPLING / f_n:.2g} ms may give one')
+                     f'{1e3 * shorter:.2g} ms may give one')
         notes.append(note)
     return {'csi_band': csi_band, 'exclude_hz': exclude,
             'chosen': chosen or first_stable or least_band or (30, math.inf),
