@@ -365,8 +365,16 @@ def test_predictor_help_names_every_registered_predictor(verb, capsys):
     assert exit_info.value.code == 0
     text = ' '.join(capsys.readouterr().out.split())
     assert ("delay compensation(s): 'none', 'polynomial', 'model', 'adaptive', 'ats' "
-            '(several: one run per predictor and alpha)') in text
+            "(several: one run per predictor and alpha; default: the configuration's, else "
+            "'none')") in text
     assert set(PREDICTORS) == {'none', 'polynomial', 'model', 'adaptive', 'ats'}
+    # the defaults a record is played with (a new user's CSV played twice as fast by the
+    # study's time scale, which no help named, session 36), from the parameter schema
+    assert ("--amplitude N peak of m*xg'' [N] (0: use --scale; default: the configuration's, "
+            'else 1000)') in text
+    assert ("record time scale: the record's time step times this (default: the "
+            "configuration's, else 0.5, the study's: the record plays in half its time; 1: as "
+            'recorded)') in text
 
 
 def test_argparse_set_without_value(seft_exe, run_process, tmp_path):

@@ -109,29 +109,41 @@ def _node_list(text: str) -> list[str]:
 
 
 def _experiment_options(p: argparse.ArgumentParser) -> None:
+    d = parameters.defaults()
+
+    def default(name: str) -> str:
+        """The help's default of an option: the configuration's, else the schema's (a new
+        user's CSV played twice as fast by the study's time_scale 0.5, which no help named,
+        session 36)."""
+        value = d[name]
+        return f"default: the configuration's, else {value:g}" if isinstance(
+            value, float) else f"default: the configuration's, else {value!r}"
     p.add_argument('config', nargs='?', help='configuration YAML (ROS 2 parameter file; '
                    'alpha may be a list)')
     p.add_argument('--record', action=_Once, nargs='+', metavar='FILE',
                    help="ground motion(s): 'default', a PEER .AT2 or a CSV path (several: one "
                    "run per record, predictor and alpha, each run's directory named by the "
                    "record's file stem; records of the same stem by their folder too, "
-                   'rec2_dt001, else by their position, dt001-2)')
+                   f"rec2_dt001, else by their position, dt001-2; {default('record')}: the "
+                   'embedded synthetic record)')
     p.add_argument('--alpha', action=_Once, type=float, nargs='+', metavar='A',
                    help="mass ratio(s) (a run's directory alpha_<A>_...: A to every digit "
-                   'that tells it from another)')
+                   f"that tells it from another; {default('alpha')})")
     p.add_argument('--rig', action=_Once, dest='rig_model', choices=RIG_CHOICES,
                    help="simulated rig model ('state_space': the rig_plant_model, else the "
                    "plant_model; 'actuator': "
-                   'the family of actuators, actuator_family)')
+                   f"the family of actuators, actuator_family; {default('rig_model')})")
     p.add_argument('--predictor', action=_Once, nargs='+', metavar='NAME',
                    help='delay compensation(s): ' + ', '.join(map(repr, PREDICTORS))
-                   + ' (several: one run per predictor and alpha)')
+                   + f" (several: one run per predictor and alpha; {default('predictor')})")
     p.add_argument('--amplitude', action=_Once, dest='amplitude_N', type=float, metavar='N',
-                   help="peak of m*xg'' [N] (0: use --scale)")
+                   help=f"peak of m*xg'' [N] (0: use --scale; {default('amplitude_N')})")
     p.add_argument('--scale', action=_Once, dest='scale_factor', type=float,
                    help='plain amplitude factor (instead of --amplitude: amplitude_N is 0)')
     p.add_argument('--time-scale', action=_Once, dest='time_scale', type=float,
-                   help='record time scale')
+                   help="record time scale: the record's time step times this "
+                   f"({default('time_scale')}, the study's: the record plays in half its "
+                   'time; 1: as recorded)')
     p.add_argument('--duration', action=_Once, dest='duration_s', type=float, metavar='S',
                    help='run length after time scaling [s] (0: whole record)')
     p.add_argument('--params', dest='params_files', action='append', default=[],
