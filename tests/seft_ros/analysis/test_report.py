@@ -295,6 +295,31 @@ def test_the_best_compensated_table_names_the_runs_that_tie_to_its_digit(tmp_pat
     assert [row[6:8] for row in best] == [['adaptive = model', '1.00']]
 
 
+def test_a_short_runs_zoom_is_the_run_and_a_long_title_is_wrapped():
+    """The zoom of a run shorter than ZOOM_WINDOW_S is the run (a 0.6 s run's zoom spanned
+    0-2 s, and its whole-record panel with it), and a figure's title longer than its width
+    is wrapped (the default record's name ran off both edges; a new user, session 36)."""
+    from matplotlib.figure import Figure
+
+    from seft_ros.analysis.metrics import compare_run
+    from seft_ros.analysis.report import ZOOM_WINDOW_S, _suptitle, _zoom_window
+    ag = _ground_motion(300)                            # 0.6 s at 2 ms
+    run = _predictor_run(0.5, 'model', ag)
+    assert _zoom_window(run, compare_run(run)) == (0.0, float(run.time_s[-1]))
+    long_run = _predictor_run(0.5, 'model', _ground_motion(1500))
+    start, end = _zoom_window(long_run, compare_run(long_run))
+    assert end - start == pytest.approx(ZOOM_WINDOW_S)
+    fig = Figure(figsize=(13.2, 9.7))
+    title = ('seft simulate main5: alpha = 1.5, rig servohydraulic, record '
+             'synthetic-default(seed=1): reference vs uncompensated vs compensated')
+    _suptitle(fig, title)
+    lines = fig._suptitle.get_text().split('\n')
+    assert len(lines) == 2 and ' '.join(lines) == title
+    assert all(len(line) <= 13.2 * 9.5 for line in lines)
+    _suptitle(fig, 'a short title')
+    assert fig._suptitle.get_text() == 'a short title'
+
+
 def test_write_report_single_predictor_keeps_one_grid(runs, tmp_path):
     paths = write_report(runs, tmp_path)
     assert paths.predictor_time_histories == {} and paths.predictor_comparisons == {}

@@ -201,3 +201,27 @@ def test_a_state_space_rigs_model_row_is_its_plants_specimen():
     own = _plant_specimen(p)
     assert (own.mass_kg, own.damping_N_s_per_m, own.stiffness_N_per_m) == (m, c, k)
     assert _plant_specimen(parameters.resolve({'rig_model': 'servohydraulic'})) is None
+
+
+def test_a_bode_plots_magnitude_axis_follows_the_measurement_not_a_models_dive():
+    """A known model whose hold zero dives to 1e-14 at Nyquist no longer sets the magnitude
+    axis (it squeezed the measured response into the top strip; a new user, session 36):
+    the axis spans half the measured minimum to twice the largest curve, within
+    MAGNITUDE_DECADES of the top."""
+    from matplotlib.figure import Figure
+
+    from seft_ros.analysis.identification_report import MAGNITUDE_DECADES, _magnitude_limits
+    f = np.linspace(1.0, 250.0, 200)
+    measured = 1e3 / (1.0 + f / 30.0)
+    model = measured * (1.0 - f / 250.0 + 1e-17)
+    ax = Figure().subplots()
+    ax.loglog(f, model)
+    _magnitude_limits(ax, measured, [('measured', measured, {}), ('model', model, {})])
+    bottom, top = ax.get_ylim()
+    assert top == pytest.approx(2.0 * measured.max())
+    assert bottom == pytest.approx(0.5 * measured.min())
+    # a measurement that itself spans more than the decades allowed: cut there
+    wide = measured * np.logspace(0, -8, f.size)
+    _magnitude_limits(ax, wide, [('measured', wide, {})])
+    bottom, top = ax.get_ylim()
+    assert bottom == pytest.approx(top * 10.0 ** -MAGNITUDE_DECADES)

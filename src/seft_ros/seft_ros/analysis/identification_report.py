@@ -51,6 +51,26 @@ def _clean(value):
     return value
 
 
+#: The decades of magnitude a Bode plot shows below its largest curve at most: a model's
+#: zero near Nyquist (the hold's) dives to 1e-14 and squeezed the measured response into
+#: the top strip (a new user, session 36).
+MAGNITUDE_DECADES = 5.0
+
+
+def _magnitude_limits(ax, measured: np.ndarray, curves) -> None:
+    """The magnitude axis from half the measured response's least (finite, positive) to
+    twice the largest curve's most, within :data:`MAGNITUDE_DECADES` of the top."""
+    values = [np.abs(np.asarray(h))[np.isfinite(h)] for _, h, _ in curves]
+    values = [v[v > 0] for v in values]
+    top = max((float(v.max()) for v in values if v.size), default=0.0)
+    m = np.abs(np.asarray(measured))
+    m = m[np.isfinite(m) & (m > 0)]
+    if not top > 0 or not m.size:
+        return
+    bottom = max(0.5 * float(m.min()), 2.0 * top * 10.0 ** -MAGNITUDE_DECADES)
+    ax.set_ylim(bottom, 2.0 * top)
+
+
 def _bode(ident: RunIdentification, path: Path, index: int) -> Path:
     """Magnitude, phase and coherence: measurement (H1), fit and the known model."""
     fr = ident.response
@@ -68,6 +88,7 @@ def _bode(ident: RunIdentification, path: Path, index: int) -> Path:
     for label, h, style in curves:
         ax_m.loglog(f, np.abs(h), label=label, **style)
         ax_p.semilogx(f, np.degrees(np.unwrap(np.angle(h))), **style)
+    _magnitude_limits(ax_m, fr.response[1:], curves)
     ax_c.semilogx(f, fr.coherence[1:], color='C2')
     ax_c.axhline(MIN_COHERENCE, color='0.6', lw=0.8, ls=':')
     what = ('valve command -> measured force [N/V] (paper Fig. 3a)' if ident.kind ==
@@ -100,6 +121,7 @@ def _loop_plot(ident: RunIdentification, path: Path, index: int) -> Path:
     for label, h, style in curves:
         ax_m.loglog(f, np.abs(h), label=label, **style)
         ax_p.semilogx(f, np.degrees(np.unwrap(np.angle(h))), **style)
+    _magnitude_limits(ax_m, ident.loop[1:], curves)
     ax_m.axhline(1.0, color='0.6', lw=0.8)
     ax_p.axhline(-180.0, color='0.6', lw=0.8)
     fc = ident.figures.get('crossover_hz')

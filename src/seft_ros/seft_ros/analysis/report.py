@@ -15,6 +15,7 @@ import json
 import math
 from pathlib import Path
 import re
+import textwrap
 from typing import Any
 
 from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -236,14 +237,16 @@ def _abort_time(run: RunData) -> float | None:
 
 
 def _zoom_window(run: RunData, comparison: RunComparison) -> tuple[float, float]:
-    """A ZOOM_WINDOW_S window around the reference's displacement peak, inside the run."""
+    """A ZOOM_WINDOW_S window around the reference's displacement peak, inside the run (a
+    run shorter than the window: the run; before, a 0.6 s run's zoom spanned 0-2 s and
+    stretched its whole-record panel too, session 36)."""
     t = run.time_s
     if run.n_steps == 0:
         return 0.0, ZOOM_WINDOW_S
     x = np.abs(comparison.reference.displacement_m[:run.n_steps])
     centre = float(t[int(np.nanargmax(x))]) if np.any(np.isfinite(x)) else float(t[0])
     start = max(float(t[0]), min(centre - ZOOM_WINDOW_S / 2, float(t[-1]) - ZOOM_WINDOW_S))
-    return start, start + ZOOM_WINDOW_S
+    return start, min(start + ZOOM_WINDOW_S, float(t[-1]))
 
 
 def plot_time_histories(runs: list[RunData], comparisons: list[RunComparison], path, *,
@@ -330,7 +333,7 @@ def plot_time_histories(runs: list[RunData], comparisons: list[RunComparison], p
     handles, labels = axes[0, 0].get_legend_handles_labels()
     axes[0, 0].legend(handles[::-1], labels[::-1], loc='lower left', fontsize=8)
     if title:
-        fig.suptitle(title + (f' (zoom, {ZOOM_WINDOW_S:g} s around the reference peak)'
+        _suptitle(fig, title + (f' (zoom, {ZOOM_WINDOW_S:g} s around the reference peak)'
                               if zoom else ''))
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=_DPI)
@@ -469,10 +472,28 @@ def plot_predictor_comparison(runs: list[RunData], comparisons: list[RunComparis
     fig.legend([handles[j] for j in order], [names[j] for j in order], loc='outside lower center',
                ncols=min(len(handles), 5), fontsize=8)
     if title:
-        fig.suptitle(title)
+        _suptitle(fig, title)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=_DPI)
     return path
+
+
+#: The line styles of the references of several alphas in one figure, in order.
+_REFERENCE_STYLES = ({'color': 'k', 'ls': '--'}, {'color': '0.45', 'ls': ':'},
+                     {'color': 'k', 'ls': '-.'}, {'color': '0.45', 'ls': '--'})
+
+#: Characters of a figure's title per inch of its width (matplotlib's 'large' suptitle;
+#: 'medium' takes a fifth more): a longer title is wrapped (a new user's title with the
+#: default record's name ran off both edges of a 1320 px figure, session 36).
+_TITLE_CHARS_PER_IN = 9.5
+
+
+def _suptitle(fig, text: str, **kwargs) -> None:
+    """``fig.suptitle(text)``, wrapped to the figure's width (:data:`_TITLE_CHARS_PER_IN`)."""
+    scale = 1.2 if kwargs.get('fontsize') == 'medium' else 1.0
+    width = max(40, int(fig.get_figwidth() * _TITLE_CHARS_PER_IN * scale))
+    fig.suptitle('\n'.join(textwrap.fill(line, width) for line in str(text).split('\n')),
+                 **kwargs)
 
 
 def _fmt(value, spec: str = '.4g', factor: float = 1.0) -> str:
@@ -725,7 +746,7 @@ def plot_estimates(run: RunData, path, *, title: str = '') -> Path:
     ax.set_xlabel('time [s]')
     ax.grid(True, alpha=0.3)
     if title:
-        fig.suptitle(title)
+        _suptitle(fig, title)
     path = Path(path)
     fig.savefig(path, dpi=_DPI)
     return path
@@ -850,7 +871,7 @@ def plot_hysteresis(runs: list[RunData], comparisons: list[RunComparison], path,
         if handles:
             axes[row, 0].legend(handles, names, loc='lower right', fontsize=7)
     if title:
-        fig.suptitle(title, fontsize='medium')
+        _suptitle(fig, title, fontsize='medium')
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=_DPI)
     return path
@@ -1319,7 +1340,7 @@ def plot_criteria_vs_alpha(entries: list[dict[str, Any]], path, *, title: str = 
     if handles:
         fig.legend(handles, names, loc='outside lower center', ncols=min(len(handles), 6),
                    fontsize=8)
-    fig.suptitle(title or 'Evaluation criteria against alpha (Silva et al. 2020)')
+    _suptitle(fig, title or 'Evaluation criteria against alpha (Silva et al. 2020)')
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=_DPI)
     return path
@@ -1383,7 +1404,11 @@ def plot_runs_compared(runs: list[RunData], comparisons: list[RunComparison], pa
                             label=labels[j] if i == 0 else None)
             if (alpha, i) not in drawn_refs:
                 drawn_refs[(alpha, i)] = True
-                axes[i, 0].plot(t[keep], ref[keep], color='k', lw=1.0, ls='--',
+                # each alpha's reference a style of its own (two black dashed references
+                # could not be told apart; a new user, session 36)
+                k = list(dict.fromkeys(a for a, _ in drawn_refs)).index(alpha)
+                style = _REFERENCE_STYLES[k % len(_REFERENCE_STYLES)]
+                axes[i, 0].plot(t[keep], ref[keep], lw=1.0, **style,
                                 label=f'reference, alpha = {_alpha_text(alpha)}'
                                 if i == 0 else None)
             diff = test - ref
@@ -1408,7 +1433,7 @@ def plot_runs_compared(runs: list[RunData], comparisons: list[RunComparison], pa
     fig.legend(handles, names, loc='outside lower center', ncols=min(len(handles), 4),
                fontsize=8)
     if title:
-        fig.suptitle(title)
+        _suptitle(fig, title)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=_DPI)
     return path
@@ -1514,7 +1539,7 @@ def plot_structure_time_histories(run: RunData, comparison: RunComparison, path,
     for ax in axes[-1]:
         ax.set_xlabel('time [s]')
     if title:
-        fig.suptitle(title)
+        _suptitle(fig, title)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=100)
