@@ -11,7 +11,7 @@ OpenSees writes its messages to the process's standard error and raises ``OpenSe
 stderr output')``. :func:`captured` sends them to a file instead (OpenSees' ``logFile`` with
 ``-noEcho``) so that an error names OpenSees' own words in one line. As the process ends,
 after seft's last line, OpenSees writes ``Process 0 Terminating`` there; a process that
-loaded it sends its standard error to ``/dev/null`` at its exit (:func:`_quiet_exit`).
+loaded it sends its standard error to ``/dev/null`` at its exit (``_quiet_exit``).
 """
 
 import atexit
