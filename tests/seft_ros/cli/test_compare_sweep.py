@@ -125,6 +125,31 @@ def test_a_folders_run_without_a_readable_bag_is_said_and_the_rest_compared(
         api.compare_bags(bags=[str(sweep_dir)], out_dir=tmp_path / 'cmp2')
 
 
+def test_compare_says_what_the_run_read_from_its_record_file(tmp_path):
+    """seft compare of a bag whose run read a record file: the record line (samples, PGA,
+    the scale applied) in the summary and the report, as seft simulate gives it, while the
+    file is at the path the run read it from (before: never; a new user missed the scale
+    factor, session 36); without the file, none."""
+    import numpy as np
+
+    from seft_ros.analysis.bagwrite import write_run_bag
+    from seft_ros.core.ground_motion import record_read
+    t = np.arange(0.0, 2.0, 0.01)
+    csv = tmp_path / 'own.csv'
+    csv.write_text(''.join(f'{ti:.2f},{0.5 * np.sin(2 * np.pi * 3 * ti):.6f}\n' for ti in t))
+    params = parameters.resolve({'record': str(csv), 'predictor': 'model', 'alpha': 0.5,
+                                 'rig_model': 'delay', 'amplitude_N': 300.0})
+    bag = write_run_bag(simulate(params), tmp_path / 'run')
+    result = api.compare_bags(bags=[str(bag)], out_dir=tmp_path / 'cmp')
+    read, = [e['record_read'] for e in result.summary]
+    assert read == json.loads(json.dumps(record_read(params)))
+    assert read['scale'] > 0 and f"scaled x{read['scale']:.4g}" in (
+        tmp_path / 'cmp' / 'report.md').read_text()
+    csv.unlink()
+    result = api.compare_bags(bags=[str(bag)], out_dir=tmp_path / 'cmp2')
+    assert 'record_read' not in result.summary[0]
+
+
 def test_compare_numbers_a_folders_runs_as_its_command_did(sweep_dir, simulated, tmp_path):
     """The folder's summary.json (the entries seft run writes, ``metrics.summary_entry``: the
     runs in LABELS order, none before model) numbers the runs, not the directory listing

@@ -1212,6 +1212,15 @@ def compare_bags(*, bags: list[str], out_dir: Path, title: str = '',
         # and its pre-run range check: the run's record as seft run prepared it, or where it
         # cannot be read here, the record as the bag holds it (all of a run that completed)
         from seft_ros.analysis.range_check import range_check
+        # what the run read from its record file and how it scaled it, as seft run and
+        # simulate report it, where the file is still at the path the run read it from
+        # (before: never, a new user missed the scale factor in compare's report, session 36)
+        try:
+            info = record_read(rd.params)
+        except SeftError:
+            info = None                 # the file is not there: the bag's samples stand
+        if info is not None:
+            rd.extra['record_read'] = info
         try:
             try:
                 record = prepared_record(rd.params).acceleration_m_s2
