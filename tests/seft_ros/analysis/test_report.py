@@ -320,6 +320,17 @@ def test_a_short_runs_zoom_is_the_run_and_a_long_title_is_wrapped():
     assert fig._suptitle.get_text() == 'a short title'
 
 
+def test_a_simulated_runs_report_says_it_has_no_rig_contract(tmp_path):
+    """seft simulate steps seft's rig in process: its report says there is no rig node to
+    report a contract (it read 'not reported (a bag before it)'; a new user, session 36)."""
+    from seft_msgs_py import parameters
+    from seft_ros.core.experiment import simulate
+    run = simulate(parameters.resolve({'rig_model': 'delay', 'duration_s': 0.2}))
+    md = write_report([run], tmp_path).report_md.read_text()
+    assert ("- rig contract: none: seft simulate steps seft's simulated rig in process (no rig "
+            'node)') in md.splitlines()
+
+
 def test_write_report_single_predictor_keeps_one_grid(runs, tmp_path):
     paths = write_report(runs, tmp_path)
     assert paths.predictor_time_histories == {} and paths.predictor_comparisons == {}

@@ -488,6 +488,17 @@ _REFERENCE_STYLES = ({'color': 'k', 'ls': '--'}, {'color': '0.45', 'ls': ':'},
 _TITLE_CHARS_PER_IN = 9.5
 
 
+def _rig_contract_text(run: RunData) -> str:
+    """The report's rig-contract cell: the contract the rig reported; for ``seft simulate``
+    (in one process, no rig node) that there is none to report (it read 'not reported (a bag
+    before it)' there, a new user, session 36); for a bag without it, that it predates it."""
+    if run.extra.get('rig_contract'):
+        return str(run.extra['rig_contract'])
+    if run.source == 'simulate':
+        return "none: seft simulate steps seft's simulated rig in process (no rig node)"
+    return 'not reported (a bag before it)'
+
+
 def _suptitle(fig, text: str, **kwargs) -> None:
     """``fig.suptitle(text)``, wrapped to the figure's width (:data:`_TITLE_CHARS_PER_IN`)."""
     scale = 1.2 if kwargs.get('fontsize') == 'medium' else 1.0
@@ -618,7 +629,7 @@ def _run_markdown(index: int, run: RunData, comparison: RunComparison) -> list[s
             if run.params.get('rig_model') == 'delay' else
             f"I/O latency = {_param(run, 'io_latency_s', 1e3, ' ms')}, ")
         + f'{run.n_steps} samples' + (f', source {run.source}' if run.source else ''),
-        f"- rig contract: {run.extra.get('rig_contract') or 'not reported (a bag before it)'}",
+        f'- rig contract: {_rig_contract_text(run)}',
     ]
     if run.extra.get('record_read'):
         lines.append(f"- {record_read_line(run.extra['record_read'])}")
