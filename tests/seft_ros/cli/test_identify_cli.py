@@ -29,6 +29,11 @@ def test_identify_writes_json_plots_report_and_params(bags, capsys):
                  '--nperseg', '1024', '--params', str(params)]) == 0
     printed = capsys.readouterr().out
     assert 'zero_hz' in printed and 'delay_ms' in printed
+    # the figures name their loop (a lab's crossover beside its known model's, unlabelled,
+    # was read as the designed loop's; session 36)
+    assert printed.splitlines()[0] == (
+        "the run's loop: its force controller on the run's fixed-order fit (the designed "
+        "loop is below); known model: seft's servohydraulic rig model")
     # the JSON is the data, the PNGs are the figures (it printed 'figures: .../*.json')
     assert f'data: {out / "identification.json"}\n' in printed
     assert (f'figures: {out} (bode_run_0.png, bode_run_1.png, loop_run_0.png, '

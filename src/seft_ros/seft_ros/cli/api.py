@@ -2287,6 +2287,16 @@ def identification_table(doc: dict) -> str:
         runs = [r for r in doc['runs'] if r.get('rig', '') == rig]
         if rig:
             lines.append(f'rig {rig}:')
+        if any(figures.get(key) is not None for key in _IDENTIFY_FIGURES):
+            # which loop the figures are of (a lab's crossover of 57.8 Hz beside its known
+            # model's 2.2 Hz, unlabelled, was read as the designed loop's; session 36)
+            source = next((r['figures']['model'].get('source') for r in runs
+                           if (r['figures'].get('model') or {}).get('source')), None)
+            designed = any(r['figures'].get('plant') and r['figures'].get('design')
+                           for r in runs)
+            lines.append("the run's loop: its force controller on the run's fixed-order fit"
+                         + (' (the designed loop is below)' if designed else '')
+                         + (f'; known model: {source}' if source else ''))
         for key in _IDENTIFY_FIGURES:
             if figures.get(key) is not None:
                 model = next((r['figures']['model'].get(key) for r in runs
