@@ -331,6 +331,37 @@ def test_a_simulated_runs_report_says_it_has_no_rig_contract(tmp_path):
             'node)') in md.splitlines()
 
 
+def test_a_structures_figure_marks_its_abort_and_each_column_has_a_time_axis(
+        tmp_path, monkeypatch):
+    """The two piers uncompensated (aborted at about 0.6 s): the abort in the title and on
+    every panel, and the interface force's column, which ends above the deck's empty panel,
+    keeps its time axis (it had none, and the abort no mark; a new user, session 36)."""
+    from pathlib import Path
+
+    from matplotlib.figure import Figure
+
+    from seft_msgs_py import parameters
+    from seft_ros.analysis.metrics import compare_run
+    from seft_ros.analysis.report import plot_structure_time_histories
+    from seft_ros.cli.config import load_config
+    from seft_ros.core.experiment import simulate
+    config = load_config(Path(__file__).resolve().parents[3] / 'config' / 'two_piers.yaml')
+    run = simulate(parameters.resolve(dict(config, predictor='none', duration_s=1.0)))
+    assert not run.stable
+    saved = []
+    monkeypatch.setattr(Figure, 'savefig', lambda fig, path, **kw: saved.append(fig))
+    plot_structure_time_histories(run, compare_run(run), tmp_path / 's.png', title='bridge')
+    fig, = saved
+    at = f'aborted at t = {run.unstable_at_s:.3f} s'
+    assert fig._suptitle.get_text() == f'bridge ({at})'
+    axes = [ax for ax in fig.axes if ax.axison]
+    assert len(axes) == 8 and all(
+        any(line.get_label() == at for line in ax.get_lines()) for ax in axes)
+    force = [ax for ax in fig.axes[2::3] if ax.axison]        # the third column
+    assert force[-1].get_xlabel() == 'time [s]'
+    assert all(label.get_visible() for label in force[-1].get_xticklabels())
+
+
 def test_write_report_single_predictor_keeps_one_grid(runs, tmp_path):
     paths = write_report(runs, tmp_path)
     assert paths.predictor_time_histories == {} and paths.predictor_comparisons == {}

@@ -1545,12 +1545,22 @@ def plot_structure_time_histories(run: RunData, comparison: RunComparison, path,
                          + f': NRMS {_pct(c.nrms)}', fontsize=9)
             ax.set_ylabel(label, fontsize=8)
             ax.grid(True, alpha=0.3)
+            if not run.stable and run.unstable_at_s is not None:
+                ax.axvline(float(run.unstable_at_s), color='tab:red', lw=0.8, ls=':',
+                           label=f'aborted at t = {float(run.unstable_at_s):.3f} s')
             if row == 0 and col == 0:
                 ax.legend(fontsize=7, loc='upper right')
-    for ax in axes[-1]:
-        ax.set_xlabel('time [s]')
+    # each column's lowest drawn panel carries the time axis (the interface force's column
+    # ends above a computational DOF's empty panel: it had none; a new user, session 36)
+    for col in range(axes.shape[1]):
+        shown = [ax for ax in axes[:, col] if ax.axison]
+        if shown:
+            shown[-1].tick_params(labelbottom=True)
+            shown[-1].set_xlabel('time [s]')
     if title:
-        _suptitle(fig, title)
+        aborted = (f' (aborted at t = {float(run.unstable_at_s):.3f} s)'
+                   if not run.stable and run.unstable_at_s is not None else '')
+        _suptitle(fig, title + aborted)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=100)
