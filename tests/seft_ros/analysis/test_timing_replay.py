@@ -84,7 +84,9 @@ def test_the_replay_splits_a_runs_error_into_the_hosts_timing_and_the_methods(pa
     assert predicting['acceleration'] - in_time['acceleration'] < 0.0002
     assert as_run['acceleration'] > 0.05
     line = timing_replay_line(replay)
-    assert line.startswith('6 late command(s), 5 stale step(s); worst NRMS x / a / f recorded')
+    assert line.startswith('6 late command(s) (rig ticks on the previous command: the stale '
+                           'commands), 5 controller stale step(s); worst NRMS x / a / f '
+                           'recorded')
     assert ', the rig predicting late commands ' in line
     assert 'does not reproduce' not in line
     # a replay that misses the run says so (a 40 ms stall of the rig's own tick: 42 % run,
@@ -129,7 +131,8 @@ def test_seft_run_replays_a_run_that_erred_with_late_steps_and_flags_the_hosts_c
     monkeypatch.setattr(timing_replay, 'replay_due', lambda run, worst: True)
     api._replay_if_due(run, 'run 1', lines.append)
     assert lines[0].startswith('[run 1] late steps and an error above 1 %: replaying')
-    assert lines[1].startswith('[run 1] timing: 1 late command(s), 0 stale step(s)')
+    assert lines[1].startswith('[run 1] timing: 1 late command(s) (rig ticks on the previous '
+                               'command: the stale commands), 0 controller stale step(s)')
     assert run.extra['timing_replay']['late_commands'] == {'': 1}
     base = {'displacement': 0.01, 'acceleration': 0.02, 'floor_acceleration': 0.02,
             'interface_force': 0.01}
@@ -138,7 +141,8 @@ def test_seft_run_replays_a_run_that_erred_with_late_steps_and_flags_the_hosts_c
     assert timing_cost_flag(replay) is None         # 0.45 points
     replay['as_run']['acceleration'] = 0.026
     flag = timing_cost_flag(replay)
-    assert flag.startswith('timing: 1 late command(s), 0 stale step(s); worst NRMS')
+    assert flag.startswith('timing: 1 late command(s) (rig ticks on the previous command: the '
+                           'stale commands), 0 controller stale step(s); worst NRMS')
     replay['as_run'] = {'unstable_at_s': 1.2}
     assert 'stopped at 1.20 s' in timing_cost_flag(replay)
     run.extra['timing_replay'] = replay
@@ -168,7 +172,7 @@ def test_a_controller_several_steps_behind_is_replayed_as_it_ran(params):
     replay = replay_timing(run)
     assert replay['steps_behind'] == {'': 5}
     assert replay['as_run'] == replay['recorded']
-    assert '9 stale step(s) (up to 5 steps behind)' in timing_replay_line(replay)
+    assert '9 controller stale step(s) (up to 5 steps behind)' in timing_replay_line(replay)
     one_behind = simulate(params, command_latency_s={'': dict(enumerate(latency))},
                           stale_steps={'': set(behind)})
     assert (compare_run(one_behind).displacement.nrms

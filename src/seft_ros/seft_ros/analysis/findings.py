@@ -594,11 +594,16 @@ def timing_replay_line(replay: dict) -> str:
     predicting = (f", the rig predicting late commands {replay_cell(replay['predicting'])}"
                   if replay.get('predicting') else '')
     behind = max((replay.get('steps_behind') or {}).values(), default=0)
-    stale_text = f'{stale} stale step(s)' + (f' (up to {behind} steps behind)'
-                                             if behind > 1 else '')
+    # the terms of the timing table: a late command is a rig tick that held the previous
+    # command (its 'stale commands' / stale%); a stale step, a controller step on a reference
+    # force built from an older sample (3 late commands beside '0 stale steps' read as a
+    # contradiction of stale% 0.20; a new user, session 36)
+    stale_text = (f'{stale} controller stale step(s)' + (f' (up to {behind} steps behind)'
+                                                         if behind > 1 else ''))
     missed = (' (which does not reproduce the run: part of its timing is not modelled)'
               if not replay_reproduces_run(replay) else '')
-    return (f'{late} late command(s), {stale_text}; worst NRMS x / a / f recorded '
+    return (f'{late} late command(s) (rig ticks on the previous command: the stale '
+            f'commands), {stale_text}; worst NRMS x / a / f recorded '
             f"{replay_cell(replay['recorded'])}, replayed as run "
             f"{replay_cell(replay['as_run'])}{missed}"
             f"{predicting}, with every step in time {replay_cell(replay['in_time'])} (the "
