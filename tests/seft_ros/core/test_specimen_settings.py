@@ -80,8 +80,9 @@ def test_a_structures_yielding_pier_declared_alone():
 def test_costly_combinations_of_the_study():
     p = parameters.resolve({'alpha': 1.0, 'predictor': 'none'})
     assert costly_settings(p) == [
-        "rig: predictor none at alpha 1: the study's finding, the force loop's lag costs "
-        "35-49 % at alpha 0.5-1 and is unstable near 1.5 (README: the main job); 'model' or "
+        "rig: predictor none at alpha 1: the force loop's lag is not compensated (the "
+        "study's finding: on its rig it costs 35-49 % at alpha 0.5-1 and is unstable near "
+        "1.5, README: the main job; the guard gives this rig's figures); 'model' or "
         "'adaptive' compensate it"]
     assert costly_settings(p, flagging=True) == []           # said, not flagged
     assert costly_settings(dict(p, alpha=0.0)) == []

@@ -148,9 +148,10 @@ COSTLY = {
                  '{k_per_m:.5g} ({specimen_hz:.2f} Hz): 1 % stiffer costs the one-rig test 1.5 % '
                  'of x where it had 0.4 %, 18 % stiffer a two-story 24.7 % where it had 0.49 % '
                  '(docs: structures); use force_controller: specimen_loop_shaping'),
-    'uncompensated': ("predictor none at alpha {alpha:g}: the study's finding, the force "
-                      "loop's lag costs 35-49 % at alpha 0.5-1 and is unstable near 1.5 "
-                      "(README: the main job); 'model' or 'adaptive' compensate it"),
+    'uncompensated': ("predictor none at alpha {alpha:g}: the force loop's lag is not "
+                      "compensated (the study's finding: on its rig it costs 35-49 % at alpha "
+                      '0.5-1 and is unstable near 1.5, README: the main job; the guard gives '
+                      "this rig's figures); 'model' or 'adaptive' compensate it"),
 }
 
 
