@@ -116,6 +116,35 @@ def test_a_plant_model_that_diverges_by_itself_is_warned(sign):
         'controller; check its signs (a state matrix entry, a denominator coefficient)']
 
 
+def test_servohydraulic_values_given_to_a_state_space_rig_are_said_to_do_nothing():
+    """seft's servohydraulic rig's parameters given to a state_space rig, whose plant model
+    is the actuator, are named in one settings line (a new user's io_latency_s=0.01 there was
+    silently without effect, session 36); the valve's and the oil's are used by
+    velocity_feedback, and defaults are not named."""
+    import json
+    model = {'form': 'state_space', 'dt': 0, 'a': [[0.0, 1.0], [-1000.0, -5.0]],
+             'b': [0.0, 1.0],
+             'c': {'force_N': [1000.0, 0.0], 'displacement_m': [1.0, 0.0],
+                   'velocity_m_s': [0.0, 1.0], 'acceleration_m_s2': [-1000.0, -5.0]}}
+    base = {'rig_model': 'state_space', 'rig_plant_model': json.dumps(model),
+            'predictor': 'none', 'excitation': 'noise', 'excitation_input': 'valve_command'}
+
+    def said(**values):
+        lines = []
+        build_runs(overrides=dict(base, **values), progress=lines.append)
+        return [line for line in lines if "seft's servohydraulic rig's" in line]
+    assert said(io_latency_s=0.01, piston_area_m2=2e-3) == [
+        "settings: io_latency_s=0.01, piston_area_m2=0.002: seft's servohydraulic rig's, not "
+        'read by the state_space rig, whose plant model (rig_plant_model, else plant_model) '
+        'is the actuator and its delay: they do nothing in this run; put a delay or a valve '
+        'into the plant model']
+    assert said(io_latency_s=0.003) == []                   # the default
+    assert said(piston_area_m2=2e-3, force_controller='velocity_feedback') == []
+    lines = []
+    build_runs(overrides={'io_latency_s': 0.01}, progress=lines.append)   # its own rig
+    assert not [line for line in lines if "seft's servohydraulic rig's" in line]
+
+
 def test_a_bad_command_line_value_is_named_as_the_command_lines(tmp_path):
     """With a configuration file, a bad --alpha or --predictor was named as the file's ('s5.yaml:
     parameter alpha=-0.5', a new user): it is the command line's."""

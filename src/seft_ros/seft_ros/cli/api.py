@@ -150,6 +150,8 @@ def build_runs(*, config: str | None = None, overrides: dict[str, Any] | None = 
         progress(f'settings: {note}')
     for line in _unstable_plant_models(runs) if progress is not None else ():
         progress(f'warning: {line}')
+    for line in _servohydraulic_values_unused(values, runs) if progress is not None else ():
+        progress(f'settings: {line}')
     if progress is not None and any(p.get('excitation_input') == 'valve_command'
                                     and p.get('excitation', 'none') == 'none' for p in runs):
         # half of the open-loop identification run's two settings: the other is excitation
@@ -172,6 +174,40 @@ def build_runs(*, config: str | None = None, overrides: dict[str, Any] | None = 
                     if warning:
                         progress(f'warning: {warning}')
     return runs
+
+
+#: seft's servohydraulic rig's parameters (``ServoHydraulicParams``) that a
+#: ``state_space`` rig does not read: its plant model is the actuator; the six hydraulic
+#: ones are read by ``force_controller: velocity_feedback`` alone. Measured (session 36):
+#: each doubled, a ``state_space`` run with ``none``, ``model`` or ``adaptive`` and a
+#: designed, loop_shaping or transfer_function controller, its range check and its guard
+#: were bit for bit the same (a new user had set io_latency_s=0.01 there, silently).
+_HYDRAULICS = ('piston_area_m2', 'oil_bulk_modulus_Pa', 'actuator_volume_m3',
+               'valve_flow_gain_m3_per_s_V', 'valve_pressure_coefficient_m3_per_s_Pa',
+               'leakage_coefficient_m3_per_s_Pa')
+_SERVOHYDRAULIC_ONLY = ('io_latency_s', 'valve_time_constant_s', 'anti_alias_cutoff_hz')
+
+
+def _servohydraulic_values_unused(values: dict[str, Any], runs: list[dict[str, Any]]
+                                  ) -> list[str]:
+    """One line naming the parameters of seft's servohydraulic rig that were given other
+    than their defaults (in `values`: the configuration, ``--params``, the command line) for
+    a run on the ``state_space`` rig, where they do nothing (``_SERVOHYDRAULIC_ONLY``; and
+    ``_HYDRAULICS`` but with ``velocity_feedback``); none otherwise."""
+    if not runs or any(p.get('rig_model') != 'state_space' for p in runs):
+        return []
+    unused = list(_SERVOHYDRAULIC_ONLY)
+    if all(p.get('force_controller') != 'velocity_feedback' for p in runs):
+        unused += _HYDRAULICS
+    defaults = parameters.defaults()        # (a full parameter file repeats them all)
+    given = [f'{name}={values[name]!r}' for name in unused
+             if values.get(name) is not None and values[name] != defaults.get(name)]
+    if not given:
+        return []
+    return [f"{', '.join(given)}: seft's servohydraulic rig's, not read by the state_space "
+            "rig, whose plant model (rig_plant_model, else plant_model) is the actuator and "
+            'its delay: they do nothing in this run; put a delay or a valve into the plant '
+            'model']
 
 
 def _unstable_plant_models(runs: list[dict[str, Any]]) -> list[str]:
