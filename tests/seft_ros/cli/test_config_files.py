@@ -160,6 +160,25 @@ def test_a_bad_command_line_value_is_named_as_the_command_lines(tmp_path):
         build_runs(config=str(config))
 
 
+def test_a_bad_value_of_a_params_file_is_named_as_that_files(tmp_path):
+    """A --params file's plant_model (discrete at 2 ms) against the command line's dt 1 ms
+    was named as the configuration's ('lab.yaml: parameter plant_model.dt=0.002', a new user
+    whose lab.yaml has no plant_model; session 36): it is the --params file's."""
+    from pathlib import Path
+
+    from seft_msgs_py.errors import ParameterError
+    rig = Path(__file__).resolve().parents[1] / 'analysis' / 'data' / 'own_actuator_F_rig.yaml'
+    config = tmp_path / 'lab.yaml'
+    config.write_text('mass_kg: 200.0\nstiffness_N_per_m: 1776500.0\n'
+                      'damping_N_s_per_m: 1130.97\npredictor: model\n')
+    with pytest.raises(ParameterError, match=rf'^{rig}: parameter plant_model'):
+        build_runs(config=str(config), params_files=[str(rig)], overrides={'dt': 0.001})
+    # a value of the configuration itself: still the configuration's
+    config.write_text(config.read_text() + 'alpha: -1.0\n')
+    with pytest.raises(ParameterError, match=r'lab\.yaml: parameter alpha=-1\.0: '):
+        build_runs(config=str(config), params_files=[str(rig)])
+
+
 def test_half_of_the_identification_runs_settings_is_warned():
     """--set excitation_input=valve_command without --set excitation=noise ran a closed-loop
     test of the record without a word (a new user forgot one of the two): warned."""

@@ -108,6 +108,7 @@ def build_runs(*, config: str | None = None, overrides: dict[str, Any] | None = 
     for one in alphas or ():
         parameters.validate_value('alpha', one, where='command line')
     values = load_config(config) if config else {}
+    origin = dict.fromkeys(values, config)      # where each given value came from
     layered: dict[str, Any] = {}
     rig_layers = []
     replaced_by = None              # the --params file whose plant_model replaces config's
@@ -117,12 +118,15 @@ def build_runs(*, config: str | None = None, overrides: dict[str, Any] | None = 
         if sections:
             rig_layers.append((path, sections))
         for name, value in data.items():
+            if name not in layered and value is not None:
+                origin[name] = str(path)
             layered.setdefault(name, value)
         if 'plant_model' in data and values.get('plant_model') not in (None, '', 'none') \
                 and replaced_by is None:
             replaced_by = path
     values.update({k: v for k, v in layered.items() if v is not None})
     values.update({k: v for k, v in (overrides or {}).items() if v is not None})
+    origin.update({k: 'command line' for k, v in (overrides or {}).items() if v is not None})
     # a plant model or controller given by its file on the command line
     values = mapping_values(values, base=Path.cwd(), where='command line')
     for path, sections in reversed(rig_layers):      # the first file's values last: they win
@@ -133,8 +137,13 @@ def build_runs(*, config: str | None = None, overrides: dict[str, Any] | None = 
             progress(f'settings: {line}')
     if alphas:
         values['alpha'] = list(alphas)
+        origin['alpha'] = 'command line'
     notes = []
-    runs = expand_runs(values, where=config or 'command line', notes=notes)
+    where = config or 'command line'
+    try:
+        runs = expand_runs(values, where=where, notes=notes)
+    except ParameterError as exc:
+        raise _named_by_origin(exc, where, origin) from None
     if (replaced_by is not None and values.get('rig_model') == 'state_space'
             and values.get('rig_plant_model', 'none') in (None, '', 'none')):
         # a rig_model state_space without a rig_plant_model simulates its plant_model, which
@@ -186,6 +195,22 @@ _HYDRAULICS = ('piston_area_m2', 'oil_bulk_modulus_Pa', 'actuator_volume_m3',
                'valve_flow_gain_m3_per_s_V', 'valve_pressure_coefficient_m3_per_s_Pa',
                'leakage_coefficient_m3_per_s_Pa')
 _SERVOHYDRAULIC_ONLY = ('io_latency_s', 'valve_time_constant_s', 'anti_alias_cutoff_hz')
+
+
+def _named_by_origin(exc: ParameterError, where: str, origin: dict[str, str]
+                     ) -> ParameterError:
+    """`exc`, a bad value named as `where`'s (``'<where>: parameter <name>...'``), named as
+    the file or command line that gave it (`origin`: parameter name to its source) where that
+    is another (a plant_model of a --params file was named as the configuration's; a new
+    user, session 36)."""
+    text = str(exc)
+    prefix = f'{where}: parameter '
+    found = re.match(r'[A-Za-z_][A-Za-z0-9_]*', text[len(prefix):]) \
+        if text.startswith(prefix) else None
+    source = origin.get(found.group(0)) if found else None
+    if source is None or source == where:
+        return exc
+    return ParameterError(f'{source}: parameter {text[len(prefix):]}')
 
 
 def _servohydraulic_values_unused(values: dict[str, Any], runs: list[dict[str, Any]]
