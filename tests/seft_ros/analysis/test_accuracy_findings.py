@@ -153,6 +153,8 @@ def test_model_on_a_specimen_it_does_not_model_is_flagged():
         'specimen: rig identifies its specimen at 1.25 x the declared stiffness; adaptive '
         'follows it, but the reference structure (and the computational mass, alpha times the '
         'declared mass) is built on the declared specimen: declare the specimen the rig has']
+    run.rigs[''].params['predictor'] = 'polynomial'       # follows nothing: the check's
+    assert run_flags(run, c) == []
 
 
 def test_a_run_the_guard_predicted_unstable_is_flagged_when_it_completes():

@@ -529,18 +529,17 @@ def run_flags(run: RunData, comparison) -> list[str]:
                          f'{float(ratio):.3g} x the declared stiffness; model compensates '
                          'for the declared one (10 % off costs the structures 4-65 %, docs: '
                          'results/robustness)')
-        elif (data.params.get('predictor') not in ('model', 'none')
+        elif (data.params.get('predictor') == 'adaptive'
                 and abs(float(ratio) - 1.0) >= DEFAULT_SPECIMEN_TOLERANCE):
             # adaptive follows the specimen it identifies, within its +-50 %: the run is
             # judged against, and its mass ratio built on, the declared one; flagged beyond
             # the specimen check's default tolerance (a new user, session 36: 25 % stiffer
             # than declared, 97-139 % NRMS x, no line said so)
             flags.append(f'specimen: {rig_label(rig)} identifies its specimen at '
-                         f'{float(ratio):.3g} x the declared stiffness; '
-                         f"{data.params.get('predictor')} follows it, but the reference "
-                         'structure (and the computational mass, alpha times the declared '
-                         'mass) is built on the declared specimen: declare the specimen the '
-                         'rig has')
+                         f'{float(ratio):.3g} x the declared stiffness; adaptive follows '
+                         'it, but the reference structure (and the computational mass, '
+                         'alpha times the declared mass) is built on the declared specimen: '
+                         'declare the specimen the rig has')
     try:
         flags += [f'settings: {line}' for line in costly_settings(run.params, flagging=True)]
     except (SeftError, KeyError):
