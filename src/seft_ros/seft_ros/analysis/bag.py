@@ -253,24 +253,8 @@ def read_signals(path) -> BagSignals:
     recovery = None
     link = None
     try:
-        if is_unclosed_bag(path):
-            recovery = recover_bag(path)
-        try:
-            messages = list(_messages(path, recovery))
-        except Exception as exc:  # rosbags raises several types for a damaged bag
-            if recovery is not None:
-                raise
-            # a closed bag (metadata.yaml there) whose file the reader refuses: cut or
-            # damaged after the recording (a copy cut short); its complete records, as of a
-            # bag never closed (before: 'cannot read the bag: File end magic is invalid',
-            # while the same file without its metadata was recovered; session 36)
-            try:
-                recovery = recover_bag(path)
-            except ValueError:
-                raise exc from None
-            recovery.damaged = str(exc) or type(exc).__name__
-            messages = list(_messages(path, recovery))
-        for topic, msgtype, raw in messages:
+        recovery = recover_bag(path) if is_unclosed_bag(path) else _refused_by_reader(path)
+        for topic, msgtype, raw in _messages(path, recovery):
             counts[topic] = counts.get(topic, 0) + 1
             if topic == signals.RUN_PARAMETERS.name:
                 msg = typestore.deserialize_cdr(raw, msgtype)
@@ -453,6 +437,27 @@ def _read_data(graph: Graph, kept: list, typestore, path: Path) -> _Data:
             _store(data.samples[topic], stamp.sec * 1_000_000_000 + stamp.nanosec, value,
                    topic, data.repeats)
     return data
+
+
+def _refused_by_reader(path: Path):
+    """None for a closed bag the reader opens (read as it streams); for one whose file it
+    refuses at its opening (``metadata.yaml`` there, the file cut or damaged after the
+    recording: a copy cut short), its complete records
+    (:func:`~seft_ros.analysis.bag_recovery.recover_bag`, ``damaged``: the reader's error).
+    Before, such a bag was 'cannot read the bag: File end magic is invalid', while the same
+    file without its metadata was recovered (a new user, session 36)."""
+    try:
+        reader = Reader(path)
+        reader.open()
+    except Exception as exc:  # rosbags raises several types for a damaged bag
+        try:
+            recovery = recover_bag(path)
+        except ValueError:
+            raise exc from None             # no file to recover from: the reader's error
+        recovery.damaged = str(exc) or type(exc).__name__
+        return recovery
+    reader.close()
+    return None
 
 
 def _messages(path: Path, recovery):
