@@ -120,6 +120,13 @@ def test_a_folders_run_without_a_readable_bag_is_said_and_the_rest_compared(
                         'empty)',
                         f'- **not compared**: {sweep_dir / LABELS[1] / "bag"}: cannot read the '
                         'bag: damaged']
+    # a run given again, by its directory after its folder: compared once, and said
+    said.clear()
+    result = api.compare_bags(bags=[str(sweep_dir), str(sweep_dir / LABELS[2])],
+                              out_dir=tmp_path / 'cmp3', progress=said.append)
+    assert len(result.summary) == len(LABELS) - 2
+    assert said[-1] == (f'WARNING: {sweep_dir / LABELS[2] / "bag"}: given more than once: '
+                        'compared once')
     monkeypatch.setattr(api, 'read_run', lambda path: read(sweep_dir / LABELS[1] / 'bag'))
     with pytest.raises(InputError, match=r'sweep: no run of the folder has a readable bag'):
         api.compare_bags(bags=[str(sweep_dir)], out_dir=tmp_path / 'cmp2')

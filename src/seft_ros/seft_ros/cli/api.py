@@ -1242,8 +1242,17 @@ def compare_bags(*, bags: list[str], out_dir: Path, title: str = '',
     t0 = time.monotonic()
     data = []
     skipped: list[str] = []         # the runs of a folder not compared, each said why
+    seen: set[Path] = set()         # each bag once (given twice, or in a folder given too)
     for text in bags:
-        found = find_bags([text])
+        found = []
+        for b in find_bags([text]):
+            if b.resolve() in seen:
+                progress(f'WARNING: {b}: given more than once: compared once')
+                continue
+            seen.add(b.resolve())
+            found.append(b)
+        if not found:
+            continue
         if Path(text) in found or Path(text) / 'bag' in found:
             data += [read_run(b) for b in found]      # a bag or run directory named: its own
             continue
