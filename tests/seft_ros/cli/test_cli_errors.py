@@ -346,6 +346,15 @@ def test_argparse_choice_error(seft_exe, run_process, tmp_path):
      "'realtime') (see 'seft run --help')"),
     (['compare'], "seft: error: the following arguments are required: BAG "
      "(see 'seft compare --help')"),
+    # an option of the verb before it, and a configuration file swallowed by a list option
+    # (each said in argparse's words alone to a new user, session 36)
+    (['--force', 'simulate'],
+     "seft: error: unrecognized arguments: --force (--force: an option of 'seft simulate', "
+     "given before the verb: put it after the verb) (see 'seft simulate --help')"),
+    (['simulate', '--alpha', '0.5', 'lab.yaml'],
+     "seft: error: argument --alpha: invalid float value: 'lab.yaml' (lab.yaml taken as its "
+     'value: an option of several values takes every word after it; give the configuration '
+     "file first) (see 'seft simulate --help')"),
 ])
 def test_argparse_errors_are_one_line_naming_the_command(argv, line, capsys):
     # an argument the subcommand does not know is reported against the subcommand, not

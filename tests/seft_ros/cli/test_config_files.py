@@ -155,6 +155,11 @@ def test_a_bad_command_line_value_is_named_as_the_command_lines(tmp_path):
         build_runs(config=str(config), alphas=[-0.5])
     with pytest.raises(ParameterError, match=r"^command line: parameter predictor='modle': "):
         build_runs(config=str(config), overrides={'predictor': ['modle']})
+    # the configuration file taken by --predictor's list (--predictor model lab.yaml)
+    with pytest.raises(ParameterError, match=r"predictor='lab\.yaml': expected one of .*\(lab"
+                       r'\.yaml taken as its value: an option of several values takes every '
+                       r'word after it; give the configuration file first\)$'):
+        build_runs(overrides={'predictor': ['model', 'lab.yaml']})
     with pytest.raises(ParameterError, match=r'lab\.yaml: parameter mass_kg=-1\.0: '):
         config.write_text('mass_kg: -1.0\n')
         build_runs(config=str(config))

@@ -104,7 +104,16 @@ def build_runs(*, config: str | None = None, overrides: dict[str, Any] | None = 
     for name, value in (overrides or {}).items():
         if value is not None and name not in parameters.MAPPING_PARAMETERS:
             for one in (value if isinstance(value, (list, tuple)) else [value]):
-                parameters.validate_value(name, one, where='command line')
+                try:
+                    parameters.validate_value(name, one, where='command line')
+                except ParameterError as exc:
+                    if isinstance(one, str) and one.lower().endswith(('.yaml', '.yml')):
+                        # (--predictor model lab.yaml: the file taken as a predictor)
+                        raise ParameterError(
+                            f'{exc} ({one} taken as its value: an option of several values '
+                            'takes every word after it; give the configuration file '
+                            'first)') from None
+                    raise
     for one in alphas or ():
         parameters.validate_value('alpha', one, where='command line')
     values = load_config(config) if config else {}

@@ -7,6 +7,7 @@ options are listed, and nothing else.
 """
 
 import argparse
+import re
 import sys
 
 __all__ = ['OneLineParser']
@@ -34,16 +35,29 @@ class OneLineParser(argparse.ArgumentParser):
         self.verbs: dict = {}           # subcommand -> its parser (set by the caller)
 
     def error(self, message: str):
-        """Print ``<prefix>: error: <message> (see '<prog> --help')`` and exit with code 2."""
+        """Print ``<prefix>: error: <message> (see '<prog> --help')`` and exit with code 2.
+
+        A configuration file taken as a value of a list option (``--alpha 0.5 lab.yaml``:
+        argparse's "invalid float value: 'lab.yaml'") gets the cure: the file first."""
+        value = re.search(r"invalid \w+ value: '([^']*)'", message)
+        if value and value.group(1).lower().endswith(('.yaml', '.yml')):
+            message += (f' ({value.group(1)} taken as its value: an option of several values '
+                        'takes every word after it; give the configuration file first)')
         print(f"{self.error_prefix}: error: {message} (see '{self.prog} --help')",
               file=sys.stderr)
         sys.exit(2)
 
     def parse_args(self, args=None, namespace=None):
         """As :meth:`argparse.ArgumentParser.parse_args`; an unknown argument is reported by
-        the subcommand's parser when a subcommand was given (:attr:`verbs`)."""
+        the subcommand's parser when a subcommand was given (:attr:`verbs`), and one of its
+        options given before it is said so (``seft --force simulate``)."""
         namespace, extras = self.parse_known_args(args, namespace)
         if extras:
             verb = getattr(namespace, 'verb', None)
-            self.verbs.get(verb, self).error(f'unrecognized arguments: {" ".join(extras)}')
+            parser = self.verbs.get(verb, self)
+            before = [e for e in extras if parser is not self
+                      and e.split('=', 1)[0] in parser._option_string_actions]
+            where = (f" ({', '.join(before)}: an option of '{parser.prog}', given before "
+                     "the verb: put it after the verb)" if before else '')
+            parser.error(f'unrecognized arguments: {" ".join(extras)}{where}')
         return namespace
