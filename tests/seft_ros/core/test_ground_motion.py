@@ -343,6 +343,16 @@ def test_read_csv_semicolons_and_a_coarse_step(tmp_path):
     with raises_from(path, 'line 1: expected 2 columns (time [s], acceleration [m/s^2]), found 1 '
                            '(columns are separated by a comma or blanks)'):
         read_csv(path)
+    # a decimal comma, with semicolons or tabs between the columns: said (a new user's
+    # European CSV was told only the count, session 36)
+    for sep in (';', '\t'):
+        path = tmp_path / 'comma.csv'
+        path.write_text(f'0,00{sep}0,10\n0,01{sep}0,20\n')
+        with raises_from(path, 'line 1: expected 2 columns (time [s], acceleration [m/s^2]), '
+                               'found 3 (columns are separated by a comma or blanks; numbers '
+                               "take a decimal point: a decimal comma, as in '0,01', splits "
+                               'each into two)'):
+            read_csv(path)
     path = tmp_path / 'ms.csv'                     # time in milliseconds
     path.write_text('time_ms,a\n0,0.1\n10,0.2\n20,0.3\n')
     with raises_from(path, 'line 3: expected a sample period DT <= 0.1 s (earthquake records: '

@@ -368,7 +368,14 @@ def read_csv(path) -> GroundMotion:
             continue
         header_allowed = False
         if len(fields) != 2:
-            hint = ' (columns are separated by a comma or blanks)' if ';' in line else ''
+            # a decimal comma ('0,01;0,028' or '0,01<tab>0,028') splits each number in two
+            # (a new user's European CSV was told only the column count, session 36)
+            decimal_comma = bool(re.search(r'\d,\d', line)) and (';' in line or '\t' in line
+                                                                or ' ' in line)
+            hint = (' (columns are separated by a comma or blanks; numbers take a decimal '
+                    "point: a decimal comma, as in '0,01', splits each into two)"
+                    if decimal_comma else
+                    ' (columns are separated by a comma or blanks)' if ';' in line else '')
             raise InputError(f'{path}: line {lineno}: expected 2 columns (time [s], '
                              f'acceleration [m/s^2]), found {len(fields)}{hint}')
         if not all(numeric):
