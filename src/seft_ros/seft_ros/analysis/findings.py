@@ -1,9 +1,9 @@
 """What a run shows of a loss of accuracy that a lab can see without the reference.
 
 A run that completes is not therefore right. Seven signs, each visible in the lab's own data
-and the pre-run prediction (never in the comparison's error), an eighth that reads the run's
-error against the guard's prediction, and a ninth in rehearsal, flag a run instead of
-calling it plainly stable (:func:`run_flags`):
+and the pre-run prediction (never in the comparison's error), two that read the run's error
+against the guard's prediction or an accurate test's bound, and one in rehearsal, flag a
+run instead of calling it plainly stable (:func:`run_flags`):
 
 * **a run the guard predicted unstable**: the pre-run stability guard
   (:func:`~seft_ros.core.stability.check_run`, ``summary.json``'s ``stability``) gave its
@@ -19,7 +19,9 @@ calling it plainly stable (:func:`run_flags`):
   (:class:`~seft_ros.core.monitor.SpecimenCheck`); for ``model``, which compensates for the
   declared specimen, already :data:`SPECIMEN_FLAG` from it (inside the check's tolerance:
   the two piers with a pier 10 % stiffer than modelled err by 30 % and identify it at
-  0.909 x);
+  0.909 x); for ``adaptive``, which follows the specimen within its own wide range, at the
+  check's default tolerance (the reference is the declared specimen's: 25 % stiffer, 97 %
+  of x, session 36);
 * **settings the docs show cost accuracy** (a yielding member with an elastic specimen's
   controller, law or loop inverse; a linear specimen other than the study's on its
   ``loop_shaping``; ``model`` with an uncertain specimen:
@@ -41,6 +43,12 @@ calling it plainly stable (:func:`run_flags`):
   48-76 % of x against 0.14-0.29 % predicted; a 15 Hz one 5 % up, 13-41 % against
   0.06-0.18 %; both "stable" with no line). This sign reads the run's error against the
   reference (the declared structure's response), as the timing sign does;
+* **an error beyond an accurate test** (session 36), where the sign above cannot speak: a
+  compensated one-DOF run the guard predicted nothing for (shorter than 6 s, no verdict, a
+  nonlinear law) or predicted beyond an accurate test itself, above that test's bound
+  (:func:`error_beyond_accurate_test`); and a structure, for which nothing is predicted,
+  above :data:`STRUCTURE_ERROR_FLAG` in some DOF (:func:`structure_error_flag`). Both read
+  the run's error against the reference too;
 * **a peak beyond the prediction**: a rig's displacement, force or acceleration peaks more
   than :data:`PEAK_RATIO_FLAG` times the analytical reference's peak over the same samples
   (the pre-run check's prediction, :mod:`seft_ros.analysis.range_check`);
