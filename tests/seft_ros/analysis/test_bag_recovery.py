@@ -186,11 +186,20 @@ def test_a_closed_bags_file_cut_afterwards_reads_as_recovered_and_says_so(mcap_b
     assert rec['end'] == 'damaged' and rec['steps'] == 600
     assert 'File end magic is invalid' in rec['reader_error'] and 'flush_every_s' not in rec
     assert rec['note'].startswith(
-        'its metadata.yaml says the recorder closed this bag, but the reader refuses its '
-        f"file ({rec['reader_error']}): cut or damaged after the recording; recovered 1.200 s "
-        '(600 steps'), rec['note']
+        'its metadata.yaml says the recorder closed this bag, but the reader refuses it '
+        f"({rec['reader_error']}); its file was cut or damaged after the recording: "
+        'recovered 1.200 s (600 steps'), rec['note']
     assert not run.stable and run.abort_reason.startswith(
         'the bag: its file was cut or damaged after the recording')
+    # a whole file the reader refuses for its metadata (another version): read, not 'cut'
+    meta = tmp_path / 'meta'
+    shutil.copytree(bag, meta)
+    text = (meta / 'metadata.yaml').read_text()
+    (meta / 'metadata.yaml').write_text(text.replace('version: ', 'version: 99 #', 1))
+    rec = read_run(meta).extra['recording']
+    assert rec['end'] == 'damaged' and rec['steps'] == N and rec['note'].startswith(
+        'its metadata.yaml says the recorder closed this bag, but the reader refuses it ('), rec
+    assert '; its file is whole: read from it 2.000 s (1000 steps' in rec['note'], rec['note']
     # a file that holds nothing whole: the reader's error, in one line
     empty = tmp_path / 'empty'
     empty.mkdir()

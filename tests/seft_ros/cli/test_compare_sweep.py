@@ -152,6 +152,10 @@ def test_compare_says_what_the_run_read_from_its_record_file(tmp_path):
     assert read == json.loads(json.dumps(record_read(params)))
     assert read['scale'] > 0 and f"scaled x{read['scale']:.4g}" in (
         tmp_path / 'cmp' / 'report.md').read_text()
+    # the file edited since the run: not the run's record, so not said (the review)
+    csv.write_text(''.join(f'{ti:.2f},{0.5 * np.sin(2 * np.pi * 4 * ti):.6f}\n' for ti in t))
+    result = api.compare_bags(bags=[str(bag)], out_dir=tmp_path / 'cmp3')
+    assert 'record_read' not in result.summary[0]
     csv.unlink()
     result = api.compare_bags(bags=[str(bag)], out_dir=tmp_path / 'cmp2')
     assert 'record_read' not in result.summary[0]

@@ -86,6 +86,19 @@ def test_costly_combinations_of_the_study():
         "'adaptive' compensate it"]
     assert costly_settings(p, flagging=True) == []           # said, not flagged
     assert costly_settings(dict(p, alpha=0.0)) == []
+    # a structure uncompensated: said too (a completed one erred 37 % unflagged; session
+    # 36's review), not for its identification run
+    from pathlib import Path
+
+    from seft_ros.cli.api import build_runs
+    two_story = str(Path(__file__).resolve().parents[3] / 'config' / 'two_story.yaml')
+    structure = build_runs(config=two_story, overrides={'predictor': 'none'})[0]
+    assert costly_settings(structure) == [
+        "lab: predictor none on a structure: the force loop's lag is not compensated, and no "
+        'error flag judges the run (a two-story whose uncompensated run completed erred 37 % '
+        "of x; session 36); 'model' or 'adaptive' compensate it"]
+    assert costly_settings(structure, flagging=True) == []
+    assert costly_settings(dict(structure, excitation='noise')) == []
     p = parameters.resolve({'predictor': 'adaptive'})              # adaptive_loop: auto
     assert costly_settings(p) == []                                # the latency fitted
     p = parameters.resolve({'predictor': 'adaptive', 'adaptive_loop': 'model'})

@@ -526,6 +526,37 @@ def test_the_margin_is_where_the_loop_turns_unstable_and_a_run_does():
     assert margin.covers(0.2) and not margin.covers(0.9)
 
 
+def test_a_yielding_structure_is_checked_at_its_members_elastic_stiffness():
+    """A structure whose members yield, on a linear compensator: its loop at the members'
+    elastic stiffness, where every run starts, decides a refusal (the two piers yielding with
+    `none`: spectral radius 1.03, as the elastic twin; before, no prediction, and a new
+    user's yielding building with `none` started and diverged, session 36); stable there,
+    no verdict, said so (`polynomial`); a nonlinear law, no prediction as before (`model`).
+    Checked against a run: `none` diverges, as predicted."""
+    from pathlib import Path
+
+    from seft_ros.cli.api import build_runs
+    config = str(Path(__file__).resolve().parents[3] / 'config' / 'two_piers_yielding.yaml')
+
+    def run_of(predictor):
+        return build_runs(config=config, overrides={'predictor': predictor,
+                                                    'duration_s': 4.0})[0]
+    none = st.check_run(run_of('none'))
+    assert none.stable is False and none.spectral_radius == pytest.approx(1.0304, abs=1e-4)
+    assert none.message.startswith(
+        "structure with predictor none at its yielding members' elastic (initial) stiffness, "
+        'where every run starts, is predicted UNSTABLE (spectral radius 1.0304); it grows at ')
+    assert not simulate(run_of('none')).stable
+    poly = st.check_run(run_of('polynomial'))
+    assert poly.stable is None and poly.spectral_radius < 1.0
+    assert ': stable (spectral radius 0.99' in poly.message
+    assert poly.message.endswith("not predicted as they yield (specimen 'bouc_wen' is "
+                                 'nonlinear)')
+    model = st.check_run(run_of('model'))
+    assert model.stable is None and model.message.startswith(
+        'structure with predictor model: no stability prediction')
+
+
 def test_the_margin_of_a_structure_and_of_adaptive():
     """two_piers with 'model': the whole loop's margin (both piers scaled together);
     'adaptive' compensates what it identifies (+-adaptive_max_deviation) and says what its

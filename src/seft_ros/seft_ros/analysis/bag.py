@@ -45,7 +45,7 @@ from seft_msgs_py.rig_contract import (
     is_runner_interrupt,
 )
 from seft_ros.analysis.bag_recovery import FLUSH_EVERY_S, is_unclosed_bag, recover_bag
-from seft_ros.analysis.rundata import RigData, RunData
+from seft_ros.analysis.rundata import RECORDING_CUT_SHORT, RigData, RunData
 from seft_ros.analysis.timing import (
     node_timings,
     timing_row,
@@ -589,9 +589,13 @@ def recording_end(bag: BagSignals, n_steps: int) -> dict:
                    reader_error=bag.recovery.damaged)
         # metadata.yaml written at the close, the file cut or damaged afterwards: what it
         # lost is not bounded by the recorder's flush
+        # (a whole file the reader refuses for its metadata: a metadata.yaml of another
+        # version or cut itself; the session's review)
+        state = ('its file is whole: read from it' if bag.recovery.file_complete else
+                 'its file was cut or damaged after the recording: recovered')
         out['note'] = ('its metadata.yaml says the recorder closed this bag, but the reader '
-                       f'refuses its file ({bag.recovery.damaged}): cut or damaged after the '
-                       f'recording; recovered {held} from its complete records' + short)
+                       f'refuses it ({bag.recovery.damaged}); {state} {held} from its '
+                       'complete records' + short)
     elif bag.recovery is not None:
         flush = next((float(s['flush_every_s']) for s in recorder if 'flush_every_s' in s),
                      FLUSH_EVERY_S)
@@ -759,7 +763,7 @@ def read_run(path) -> RunData:
             f"{first['name']}: {first['message']}")
         if interrupted and not is_runner_interrupt(first['message']):
             reason = f"interrupted ({first['signal']}): {reason}"
-    elif not all(finals.values()) and recording['end'] in ('crashed', 'stopped', 'damaged'):
+    elif not all(finals.values()) and recording['end'] in RECORDING_CUT_SHORT:
         # the bag ends before the run did: the test is cut short at its last complete step
         stable = False
         reason = {'crashed': 'recorder: the recording was not closed (recorder killed, or '

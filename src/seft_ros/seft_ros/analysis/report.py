@@ -46,7 +46,7 @@ from seft_ros.analysis.metrics import (
     restoring_force,
     summary_entry,
 )
-from seft_ros.analysis.rundata import SIGNALS, RunData, rig_label
+from seft_ros.analysis.rundata import RECORDING_CUT_SHORT, SIGNALS, RunData, rig_label
 from seft_ros.analysis.timing import (
     link_markdown,
     link_summary,
@@ -651,7 +651,7 @@ def _run_markdown(index: int, run: RunData, comparison: RunComparison) -> list[s
     lines += _warning_lines(run)
     lines += _bridge_markdown(run)
     recording = run.extra.get('recording') or {}
-    if recording.get('end') in ('crashed', 'stopped', 'damaged'):
+    if recording.get('end') in RECORDING_CUT_SHORT:
         lines.append(f'- **recording {_recording_end(recording)}**: {recording.get("note")}')
     elif recording.get('gap_at_step') is not None:
         lines.append(f'- **recording with a gap**: {recording.get("note")}')
@@ -1620,7 +1620,7 @@ def _structure_run_markdown(index: int, run: RunData, comparison: RunComparison,
              f'Record {entry["record"]}, {comparison.n_steps} steps of {p["dt"]} s; {state}. '
              f'Reference: {comparison.structure_reference.method}.', '']
     recording = run.extra.get('recording') or {}
-    if recording.get('end') in ('crashed', 'stopped', 'damaged'):
+    if recording.get('end') in RECORDING_CUT_SHORT:
         lines += [f'- **recording {_recording_end(recording)}**: {recording.get("note")}']
     elif recording.get('gap_at_step') is not None:
         lines += [f'- **recording with a gap**: {recording.get("note")}']

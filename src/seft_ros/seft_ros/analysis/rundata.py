@@ -14,7 +14,13 @@ from typing import Any, Mapping
 
 import numpy as np
 
-__all__ = ['RunData', 'RigData', 'SIGNALS', 'RIG_SIGNALS', 'rig_label', 'only_rig']
+__all__ = ['RunData', 'RigData', 'SIGNALS', 'RIG_SIGNALS', 'rig_label', 'only_rig',
+           'RECORDING_CUT_SHORT']
+
+#: The ends of a recording that holds less than its run (``extra['recording']['end']``,
+#: ``seft_ros.analysis.bag.recording_end``): never closed, stopped before the run ended, or
+#: its file cut or damaged after the recording.
+RECORDING_CUT_SHORT = ('crashed', 'stopped', 'damaged')
 
 #: Signals compared against the reference analysis, in report order.
 SIGNALS = ('displacement', 'force', 'acceleration')

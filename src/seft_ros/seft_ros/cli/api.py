@@ -22,7 +22,7 @@ from seft_msgs_py.errors import InputError, Interrupted, ParameterError, SeftErr
 from seft_msgs_py.sampling import single_blas_thread
 from seft_msgs_py.stopping import signal_name
 from seft_ros.analysis.bag import read_run
-from seft_ros.analysis.rundata import RunData
+from seft_ros.analysis.rundata import RECORDING_CUT_SHORT, RunData
 from seft_ros.cli import partition
 from seft_ros.cli.config import (
     RIGS,
@@ -1294,17 +1294,22 @@ def compare_bags(*, bags: list[str], out_dir: Path, title: str = '',
         # what the run read from its record file and how it scaled it, as seft run and
         # simulate report it, where the file is still at the path the run read it from
         # (before: never, a new user missed the scale factor in compare's report, session 36)
+        # and only when the file, prepared as the run prepared it, gives the samples the bag
+        # holds (an edited file, or another file at the same relative path: not the run's;
+        # the session's review)
         try:
+            record = prepared_record(rd.params).acceleration_m_s2
             info = record_read(rd.params)
         except SeftError:
-            info = None                 # the file is not there: the bag's samples stand
-        if info is not None:
-            rd.extra['record_read'] = info
+            record, info = rd.ground_acceleration_m_s2, None
+        n = min(len(record), len(rd.ground_acceleration_m_s2))
+        if n and np.array_equal(np.asarray(record[:n], dtype=float),
+                                np.asarray(rd.ground_acceleration_m_s2[:n], dtype=float)):
+            if info is not None:
+                rd.extra['record_read'] = info
+        else:
+            record = rd.ground_acceleration_m_s2    # the file is not the run's: the bag's
         try:
-            try:
-                record = prepared_record(rd.params).acceleration_m_s2
-            except SeftError:
-                record = rd.ground_acceleration_m_s2
             rd.extra['range_check'] = range_check(rd.params, record).as_dict()
         except SeftError:
             pass
@@ -1481,8 +1486,7 @@ def summary_table(summary: list[dict]) -> str:
             lines.append(f'note: run {i} (alpha {e["alpha"]:g}, {e["predictor"]}): '
                          f'{e["link"]["warning"]}')
         rec = e.get('recording') or {}
-        if (rec.get('end') in ('crashed', 'stopped', 'damaged')
-                or rec.get('gap_at_step') is not None):
+        if rec.get('end') in RECORDING_CUT_SHORT or rec.get('gap_at_step') is not None:
             lines.append(f'note: run {i} (alpha {e["alpha"]:g}, {e["predictor"]}): '
                          f'{rec.get("note")}')
         lines += _accuracy_notes(f'run {i} (alpha {e["alpha"]:g}, {e["predictor"]})', e)

@@ -148,6 +148,10 @@ COSTLY = {
                  '{k_per_m:.5g} ({specimen_hz:.2f} Hz): 1 % stiffer costs the one-rig test 1.5 % '
                  'of x where it had 0.4 %, 18 % stiffer a two-story 24.7 % where it had 0.49 % '
                  '(docs: structures); use force_controller: specimen_loop_shaping'),
+    'uncompensated structure': ("predictor none on a structure: the force loop's lag is not "
+                                'compensated, and no error flag judges the run (a two-story '
+                                'whose uncompensated run completed erred 37 % of x; session '
+                                "36); 'model' or 'adaptive' compensate it"),
     'uncompensated': ("predictor none at alpha {alpha:g}: the force loop's lag is not "
                       "compensated (the study's finding: on its rig it costs 35-49 % at alpha "
                       '0.5-1 and is unstable near 1.5, README: the main job; the guard gives '
@@ -247,6 +251,9 @@ def costly_settings(params: Mapping[str, Any], *, flagging: bool = False) -> lis
         if (is_study(params) and predictor == 'none' and float(p.get('alpha', 0)) >= 0.5
                 and p.get('excitation', 'none') == 'none'):
             rules.append('uncompensated')
+        if (not is_study(params) and predictor == 'none'
+                and p.get('excitation', 'none') == 'none'):
+            rules.append('uncompensated structure')
         lines += [f'{rig}: {COSTLY[r].format(**p, **figures)}' for r in rules
                   if not flagging or r in FLAGGING]
     return lines

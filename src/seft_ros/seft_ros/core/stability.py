@@ -2185,6 +2185,9 @@ def _check_structure(params: Mapping) -> StabilityCheck:
         loop = TestLoop(params)
         radius = loop.spectral_radius
     except NoLinearModelError as exc:
+        elastic = _elastic_structure_check(params, str(exc))
+        if elastic is not None:
+            return elastic
         return StabilityCheck(None, math.nan, math.nan,
                               f'structure with predictor {predictor}: no stability '
                               f'prediction ({exc})')
@@ -2202,6 +2205,34 @@ def _check_structure(params: Mapping) -> StabilityCheck:
     if not stable:
         message += growing_mode(loop.matrix, params)
     return StabilityCheck(stable, radius, boundary, message)
+
+
+def _elastic_structure_check(params: Mapping, why: str) -> StabilityCheck | None:
+    """A structure whose members yield, on a linear compensator: its loop at the members'
+    elastic (initial) stiffness, where every run starts (a necessary condition, as the
+    one-DOF test's check at the elastic end of its tangent: :func:`tangent_ratios`).
+    UNSTABLE there: refused; stable: no verdict, said so; None when a rig does not yield or
+    the compensator has no linear model either. Before, no prediction at all: a new user's
+    yielding building with `none` and `polynomial` started without --force and diverged at
+    1.25 s and 0.19 s, while its elastic twin was refused (session 36)."""
+    setup = test_setup(params)
+    if not any(len(tangent_ratios(setup.rig_params[r])) > 1 for r in setup.rig_names):
+        return None
+    try:
+        loop = TestLoop(params, stiffness_ratio=1.0)
+        radius = loop.spectral_radius
+    except NoLinearModelError:
+        return None
+    predictor = params['predictor']
+    where = (f"structure with predictor {predictor} at its yielding members' elastic "
+             '(initial) stiffness, where every run starts')
+    if radius >= 1.0:
+        return StabilityCheck(False, radius, math.nan,
+                              f'{where}, is predicted UNSTABLE (spectral radius {radius:.4f})'
+                              + growing_mode(loop.matrix, params))
+    return StabilityCheck(None, radius, math.nan,
+                          f'{where}: stable (spectral radius {radius:.4f}); not predicted as '
+                          f'they yield ({why})')
 
 
 #: A growing oscillation of a test's loop is the structure's mode when their frequencies

@@ -69,19 +69,29 @@ def opensees():
 
 
 def _quiet_exit() -> None:
-    """At the exit of a process that loaded OpenSees (an ``atexit`` hook, run after those
-    registered later): flush both streams, then point the standard error (descriptor 2) at
-    ``/dev/null``, so that OpenSees' ``Process 0 Terminating``, which its library writes as
-    the process ends, does not follow seft's last line (a new user read it as an error,
-    session 35). What the interpreter itself writes while it shuts down is lost with it."""
+    """At the exit of a process that loaded OpenSees (an ``atexit`` hook, run before those
+    registered earlier): Python's ``sys.stderr`` moves to a duplicate of descriptor 2, and
+    descriptor 2 itself is pointed at ``/dev/null``, so that OpenSees' ``Process 0
+    Terminating``, which its library writes there as the process ends, does not follow
+    seft's last line (a new user read it as an error, session 35), while what Python writes
+    after this (other exit hooks, 'Exception ignored' at shut-down) still reaches the
+    standard error (the session's review: the first hook sent those to ``/dev/null`` too)."""
     for stream in (sys.stdout, sys.stderr):
         try:
             stream.flush()
         except (OSError, ValueError, AttributeError):
             pass
     try:
+        kept = os.dup(2)
         null = os.open(os.devnull, os.O_WRONLY)
     except OSError:
+        return
+    try:
+        sys.stderr = open(kept, 'w', buffering=1, encoding=getattr(
+            sys.stderr, 'encoding', None) or 'utf-8', errors='backslashreplace', closefd=True)
+    except (OSError, ValueError):
+        os.close(kept)
+        os.close(null)
         return
     os.dup2(null, 2)
     os.close(null)
