@@ -184,6 +184,27 @@ def test_a_bad_value_of_a_params_file_is_named_as_that_files(tmp_path):
         build_runs(config=str(config), params_files=[str(rig)])
 
 
+def test_a_files_test_wide_value_every_rig_sets_otherwise_is_said_to_do_nothing(tmp_path):
+    """A configuration's top-level value that every rig section of the structure sets
+    otherwise changes nothing: said in one settings line naming the file and each rig's own
+    (a new user's top-level force_controller and stiffness, taken in silence; session 36);
+    one the rigs take (noise_force_N: no section sets it) is not named."""
+    from pathlib import Path
+    two_piers = Path(__file__).resolve().parents[3] / 'config' / 'two_piers.yaml'
+    config = tmp_path / 'bridge.yaml'
+    config.write_text(two_piers.read_text() + 'force_controller: loop_shaping\n'
+                      'stiffness_N_per_m: 2.0e5\nnoise_force_N: 1.0\n')
+    lines = []
+    build_runs(config=str(config), progress=lines.append)
+    assert [line for line in lines if 'does nothing' in line] == [
+        f'settings: {config}: force_controller=loop_shaping: does nothing, every rig section '
+        'sets its own (pier_a: specimen_loop_shaping, pier_b: specimen_loop_shaping) and a rig '
+        "section beats a test-wide value; set it in the rigs' sections",
+        f'settings: {config}: stiffness_N_per_m=200000.0: does nothing, every rig section sets '
+        'its own (pier_a: 211000.0, pier_b: 337600.0) and a rig section beats a test-wide '
+        "value; set it in the rigs' sections"]
+
+
 def test_half_of_the_identification_runs_settings_is_warned():
     """--set excitation_input=valve_command without --set excitation=noise ran a closed-loop
     test of the record without a word (a new user forgot one of the two): warned."""

@@ -141,6 +141,8 @@ def build_runs(*, config: str | None = None, overrides: dict[str, Any] | None = 
     for path, sections in reversed(rig_layers):      # the first file's values last: they win
         values = layer_rigs(values, sections, where=str(path))
     _refuse_overrides_no_rig_takes(values, overrides or {})
+    for line in _file_values_no_rig_takes(values, origin) if progress is not None else ():
+        progress(f'settings: {line}')
     if progress is not None:
         for line in _rigs_without_specimen(values, where=config or 'command line'):
             progress(f'settings: {line}')
@@ -347,6 +349,36 @@ def _refuse_overrides_no_rig_takes(values: dict[str, Any], overrides: dict[str, 
                          f'every rig section sets its own ({own}) and a rig section beats a '
                          "test-wide value; set it in the rigs' sections (or a --params file's "
                          'rigs section)')
+
+
+def _file_values_no_rig_takes(values: dict[str, Any], origin: dict[str, str]) -> list[str]:
+    """One line per test-wide value of a file (the configuration, a ``--params`` file) that
+    every rig of the structure sets otherwise in its own section: it changes nothing (a rig
+    section beats a test-wide value). The command line's are refused
+    (:func:`_refuse_overrides_no_rig_takes`); a file's were taken in silence (a new user's
+    top-level force_controller and stiffness_N_per_m, runs bit for bit the same; session 36).
+    ``mass_kg`` is not: the test-wide one scales the record to ``amplitude_N``."""
+    from seft_ros.core.structure import Structure
+    structure = values.get('structure', 'none')
+    if structure in ('none', '', None):
+        return []
+    try:
+        sections = Structure.from_json(structure).rigs
+    except ParameterError:
+        return []
+    rigs = sorted(sections)
+    out = []
+    for name, source in origin.items():
+        value = values.get(name)
+        if (source == 'command line' or value is None or not rigs or name == 'mass_kg'
+                or not all(name in sections[r] for r in rigs)
+                or all(_same_value(sections[r][name], value) for r in rigs)):
+            continue
+        own = ', '.join(f'{r}: {sections[r][name]}' for r in rigs)
+        out.append(f'{source}: {name}={value}: does nothing, every rig section sets its own '
+                   f"({own}) and a rig section beats a test-wide value; set it in the rigs' "
+                   'sections')
+    return out
 
 
 def output_dir(*, out: str | None, name: str, created: list[Path] | None = None) -> Path:
