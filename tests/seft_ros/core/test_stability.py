@@ -748,3 +748,12 @@ def test_a_scan_alpha_the_calibration_refuses_counts_as_no_stable_test():
     # a loop whose law does not depend on alpha is scanned as before (no refusal possible)
     assert st._scan(_CalibratedLoop(refused=[]), 3.0, 0.25, 5e-3)[0] == pytest.approx(
         2.0, abs=5e-3)
+
+
+def test_a_spectral_radius_is_told_from_1():
+    """A radius of 1.00004 read '1' in a refusal, which does not read as unstable (a new
+    user, session 36): as many figures as tell it from 1."""
+    assert st.radius_text(1.00004) == '1.00004'
+    assert st.radius_text(1.0000000002) == '1.0000000002'
+    assert st.radius_text(0.9957123) == '0.9957' and st.radius_text(1.0304446) == '1.03'
+    assert st.radius_text(1.0) == '1'

@@ -87,6 +87,13 @@ BAD_STRUCTURES = {
                   'structure.mass_matrix_kg: has 2 rows, but dofs, stiffness_matrix_N_per_m '
                   'and damping_matrix_N_s_per_m give 3 dofs; expected a 3 x 3 matrix (one row '
                   'per dof)'),
+    # a dof without mass named (a new user's massless deck: 'its smallest eigenvalue is 0'
+    # alone, session 36)
+    'massless': (BRIDGE.format(m='[[52.7, 0, 0], [0, 52.7, 0], [0, 0, 0]]', k=K3),
+                 'structure.mass_matrix_kg: expected a positive definite matrix, but its '
+                 "smallest eigenvalue is 0 (dof 'deck' without mass: every dof of the matrix "
+                 'form carries a mass; a massless node belongs in an OpenSees model, which '
+                 'condenses it)'),
     'influence_size': (TWO.format(k21=-1.5e5, influence='  influence: [1, 1, 1]\n'),
                        'structure.influence: has 3 entries, but dofs, mass_matrix_kg, '
                        'stiffness_matrix_N_per_m and damping_matrix_N_s_per_m give 2 dofs; '

@@ -131,6 +131,11 @@ def test_frame_is_condensed_to_its_floors():
      r'structure\.opensees\.dofs\.story_2: node 2 has 1 dofs \(1\.\.1\), no dof 3'),
     ({'physical_elements': {'lab': [5]}},
      r'physical_elements\.lab: element 5 is not in the model'),
+    # a rig no dof names: the physical key named, not the file pasted mid-sentence (a new
+    # user, session 36)
+    ({'physical_elements': {'lab': [1], 'lab2': [1]}},
+     r'^structure\.opensees\.physical_elements\.lab2: no dof of structure\.physical names '
+     r'this rig \(rigs: lab\)$'),
     ({'substeps': 0}, r'structure\.opensees\.substeps: expected an integer >= 1, got 0'),
     ({'colour': 'red'}, r'structure\.opensees\.colour: unknown key'),
     ({'step': 'later'},

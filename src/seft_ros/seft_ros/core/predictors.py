@@ -1332,7 +1332,7 @@ def _require_stable_loop(params, plant, controller) -> None:
         specimen (``predictor_*``) and the controller.
     """
     from seft_ros.core.force_loop import has_plant_model
-    from seft_ros.core.stability import force_loop_alone_unstable
+    from seft_ros.core.stability import force_loop_alone_unstable, radius_text
     radius = plant.loop_radius(controller)
     if radius < 1.0:
         return
@@ -1346,7 +1346,8 @@ def _require_stable_loop(params, plant, controller) -> None:
         f"{params.get('force_controller', 'loop_shaping')} with the declared specimen "
         f"(m={mp['mass_kg']:.4g} kg, c={mp['damping_N_s_per_m']:.4g} N s/m, "
         f"k={mp['stiffness_N_per_m']:.4g} N/m) is unstable (closed-loop spectral radius "
-        f'{radius:.4g}): no loop to invert; check predictor_stiffness_N_per_m and the specimen, '
+        f'{radius_text(radius)}): no loop to invert; check predictor_stiffness_N_per_m and the '
+        'specimen, '
         'or identify the rig and design its controller (seft identify --params)')
 
 

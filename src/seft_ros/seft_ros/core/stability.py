@@ -65,7 +65,7 @@ from seft_ros.core.structure import test_setup
 from seft_ros.core.substructure import hermite_step
 
 __all__ = [
-    'PREDICTOR_INPUTS', 'DELAY_PARAMETER', 'KNOWN_NONLINEAR', 'PredictorForm',
+    'radius_text', 'PREDICTOR_INPUTS', 'DELAY_PARAMETER', 'KNOWN_NONLINEAR', 'PredictorForm',
     'LinearPredictor', 'Compensator', 'compensator', 'NoLinearModelError',
     'PredictedUnstableError', 'LoopModel', 'loop_model', 'closed_loop_matrix',
     'spectral_radius', 'largest_stable_alpha', 'StabilityMap', 'stability_map',
@@ -514,6 +514,16 @@ def _delay_knob(params: Mapping) -> str:
                                  'no delay parameter to vary (its delay is in the model; seft '
                                  'simulate or run checks its loop before the test)')
     return knob
+
+
+def radius_text(radius: float) -> str:
+    """A spectral radius in four figures, or as many more as tell it from 1 (a radius of
+    1.00004 read '1', which does not read as unstable; a new user, session 36)."""
+    for digits in (4, 6, 8, 10, 12):
+        text = f'{radius:.{digits}g}'
+        if text != '1' or radius == 1.0:
+            return text
+    return repr(float(radius))
 
 
 def tangent_ratios(params: Mapping) -> tuple[float, ...]:
@@ -1444,7 +1454,7 @@ def force_loop_alone_unstable(params: Mapping, *, alone: bool = False) -> str:
     if plant is not None:
         try:
             radius = (' (closed-loop spectral radius '
-                      f'{plant.loop_radius(ForceServoController.from_parameters(params)):.4g})')
+                      f'{radius_text(plant.loop_radius(ForceServoController.from_parameters(params)))})')
         except SeftError:
             pass
     target = (f'its plant model ({plant.source})' if modelled

@@ -330,15 +330,22 @@ def _matrix(where: str, key: str, value, n: int | None) -> np.ndarray:
     return 0.5 * (arr + arr.T)              # nothing downstream sees the round-off
 
 
-def _definite(where: str, key: str, matrix: np.ndarray, *, semi: bool = False) -> None:
+def _definite(where: str, key: str, matrix: np.ndarray, *, semi: bool = False,
+              dofs=()) -> None:
     w = np.linalg.eigvalsh(matrix)
     scale = max(float(np.max(np.abs(w))), 1e-300)
     if (w.min() < -_TOL * scale) if semi else (w.min() <= _TOL * scale):
         kind = 'positive semi-definite' if semi else 'positive definite'
+        # a dof without mass named (a new user's massless deck read only 'its smallest
+        # eigenvalue is 0'; session 36)
+        massless = [str(d) for d, m in zip(dofs, np.diag(matrix)) if m <= _TOL * scale]
+        why = ('' if semi else ' (a mode without stiffness: every dof must be held to the '
+               'ground through springs)' if 'stiffness' in key else
+               f" (dof {', '.join(map(repr, massless))} without mass: every dof of the matrix "
+               'form carries a mass; a massless node belongs in an OpenSees model, which '
+               'condenses it)' if 'mass' in key and massless else '')
         raise _fail(where, key, f'expected a {kind} matrix, but its smallest eigenvalue is '
-                    f'{w.min():.6g}' + ('' if semi else ' (a mode without stiffness: '
-                                        'every dof must be held to the ground through springs)'
-                                        if 'stiffness' in key else ''))
+                    f'{w.min():.6g}' + why)
 
 
 def _shear_building(where: str, section: Mapping, n: int):
@@ -545,7 +552,7 @@ def parse_structure(section: Mapping, *, rigs: Mapping | None = None,
         if 'damping_matrix_N_s_per_m' in section:
             damping = _matrix(where, 'damping_matrix_N_s_per_m',
                               section['damping_matrix_N_s_per_m'], n)
-    _definite(where, form[0], mass)
+    _definite(where, form[0], mass, dofs=dofs)
     _definite(where, form[1], stiff)
     if 'modal_damping_ratios' in section:
         damping = _modal_damping(where, section['modal_damping_ratios'], mass, stiff)

@@ -735,8 +735,11 @@ def model_structure(section: Mapping, *, rigs: Mapping | None = None,
                                  'one dof')
     for rig in spec.physical_elements:
         if rig not in used:
+            # (the physical key's name alone: `where` starts with the file, which the
+            # message's head names already; a new user read it pasted mid-sentence)
             raise ParameterError(f'{spec.where}.physical_elements.{rig}: no dof of '
-                                 f'{where}.physical names this rig (rigs: {", ".join(used)})')
+                                 f'{where.rsplit(": ", 1)[-1]}.physical names this rig '
+                                 f'(rigs: {", ".join(used)})')
     for rig in used:
         if rig not in spec.physical_elements:
             raise ParameterError(f'{spec.where}.physical_elements: no elements for rig {rig!r} '
