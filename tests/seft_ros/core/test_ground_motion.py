@@ -771,6 +771,13 @@ def test_a_record_that_starts_with_a_step_is_warned(tmp_path):
         assert warning.startswith(f'record {path} starts at {start:.3g} g, 40 % of its peak: '
                                   'the test starts at rest')
         assert lines[1] == f'warning: {warning}'
+        # and kept with the run: its summary entry and its report (before: the console's
+        # line before the run only; a new user, session 36)
+        out = tmp_path / 'out'
+        result = api.simulate_experiments(runs=[dict(runs[0], duration_s=1.0)], out_dir=out,
+                                          progress=lambda line: None)
+        assert result.summary[0]['record_warnings'] == [warning]
+        assert f'- **warning**: {warning}' in (out / 'report.md').read_text().splitlines()
 
 
 def test_a_quiet_part_of_a_record_scaled_up_is_warned(tmp_path):

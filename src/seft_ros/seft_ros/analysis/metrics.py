@@ -1228,7 +1228,9 @@ def summary_entry(run: RunData, comparison: RunComparison) -> dict[str, Any]:
     if run.extra.get('range_check') is not None:
         entry['range_check'] = dict(run.extra['range_check'])
     if run.extra.get('record_read') is not None:
+        from seft_ros.core.ground_motion import record_warnings
         entry['record_read'] = dict(run.extra['record_read'])
+        entry['record_warnings'] = record_warnings(run.extra['record_read'])
     if run.extra.get('timing_replay') is not None:
         entry['timing_replay'] = dict(run.extra['timing_replay'])
     entry['sensor_range'] = sensor_range_entry(run)

@@ -53,7 +53,7 @@ from seft_ros.analysis.timing import (
     timing_figure,
     timing_table,
 )
-from seft_ros.core.ground_motion import record_read_line
+from seft_ros.core.ground_motion import record_read_line, record_warnings
 from seft_ros.core.models import model_kinds, model_plugin
 from seft_ros.core.structure import structure_of
 
@@ -633,6 +633,7 @@ def _run_markdown(index: int, run: RunData, comparison: RunComparison) -> list[s
     ]
     if run.extra.get('record_read'):
         lines.append(f"- {record_read_line(run.extra['record_read'])}")
+        lines += [f'- **warning**: {w}' for w in record_warnings(run.extra['record_read'])]
     sources = _sources_line(run)
     if sources is not None:
         lines.append(f'- {sources}')

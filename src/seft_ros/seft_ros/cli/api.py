@@ -36,10 +36,9 @@ from seft_ros.core import stability
 from seft_ros.core.experiment import simulate
 from seft_ros.core.ground_motion import (
     prepared_record,
-    record_quiet_warning,
     record_read,
     record_read_line,
-    record_start_warning,
+    record_warnings,
 )
 from seft_ros.core.models import model_plugin
 from seft_ros.core.predictors import MAX_BAND_ERROR
@@ -190,9 +189,8 @@ def build_runs(*, config: str | None = None, overrides: dict[str, Any] | None = 
                 prepared_record(p)
             elif progress is not None:
                 progress(record_read_line(info))
-                for warning in (record_start_warning(info), record_quiet_warning(info)):
-                    if warning:
-                        progress(f'warning: {warning}')
+                for warning in record_warnings(info):
+                    progress(f'warning: {warning}')
     return runs
 
 

@@ -22,7 +22,7 @@ from seft_msgs_py.errors import InputError, ParameterError
 __all__ = [
     'G', 'GroundMotion', 'read_at2', 'read_csv', 'synthetic_default', 'load_record', 'prepare',
     'prepared_record', 'record_read', 'record_read_line', 'record_start_warning',
-    'record_quiet_warning', 'QUIET_PART_FRACTION',
+    'record_quiet_warning', 'record_warnings', 'QUIET_PART_FRACTION',
     'resampling_method', 'RESAMPLING_METHODS', 'MAX_RECORD_DT_S', 'START_STEP_FRACTION',
 ]
 
@@ -890,6 +890,14 @@ def record_quiet_warning(info: dict) -> str:
             f"({info['pga_g']:.4g} g at {info['pga_at_s']:g} s), and amplitude_N scales it "
             f"x{info['scale']:.4g}: a quiet part of the record (its lead-in?) scaled up, "
             "noise and all; play the record's strong motion, or scale by scale_factor")
+
+
+def record_warnings(info: dict) -> list[str]:
+    """The warnings of what a run read from its record file (:func:`record_start_warning`,
+    :func:`record_quiet_warning`), for the console before the run and for its summary and
+    report after it (a new user's record that starts mid-motion was warned before the run
+    only; session 36)."""
+    return [w for w in (record_start_warning(info), record_quiet_warning(info)) if w]
 
 
 def record_start_warning(info: dict) -> str:
