@@ -646,7 +646,11 @@ def run_flags(run: RunData, comparison) -> list[str]:
         for name in PEAK_SIGNALS:
             s = c.signal(name)
             if s.peak_reference > 0 and s.peak_test > PEAK_RATIO_FLAG * s.peak_reference:
-                flags.append(f'peak beyond the prediction: {rig_label(rig)} {name} peaks at '
+                # the rig's acceleration is relative to the ground (a structure's table shows
+                # the floor's, absolute: a new user could not find the figure; session 36)
+                what = ('acceleration (relative to the ground)' if name == 'acceleration'
+                        else name)
+                flags.append(f'peak beyond the prediction: {rig_label(rig)} {what} peaks at '
                              f'{s.peak_test / s.peak_reference:.2f} x the reference '
                              f'({s.peak_test:.4g} against {s.peak_reference:.4g})')
     return flags
