@@ -174,6 +174,12 @@ def test_watchdog_takes_the_rig_to_its_safe_state(tmp_path, seft_exe, ros_env):
     """Freeze the reference-force builder (SIGSTOP, 1 s) on the delay rig: within the watchdog
     time the rig ramps the actuator force to zero over safe_ramp_s and the run ends aborted.
 
+    Before it, the whole graph is held up 0.5 s (SIGSTOP of the run's process group: a host
+    that stalls): no node is lost, every message waits in a queue, and the run goes on: the
+    rig's catch-up judges no silence of its commands, as the input watchdogs' first check
+    after a hold-up (before: the rig took its safe state on its first tick after it, CI of
+    2026-12-01, a lab's rig held up 263 ms after its sample 0).
+
     The watchdog is set to 0.2 s here, not its 20 ms default: this shared virtual machine
     stalls a whole graph for tens of milliseconds now and then (docs: results, real time),
     and such a stall before the freeze would trip the default first."""
@@ -183,7 +189,7 @@ def test_watchdog_takes_the_rig_to_its_safe_state(tmp_path, seft_exe, ros_env):
          '--duration', '8', '--amplitude', '400', '--set', 'safe_ramp_s=0.1', '--set',
          'watchdog_timeout_s=0.2', '--out', str(out)], cwd=tmp_path, env=ros_env,
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
-    frozen = None
+    frozen = held = None
     try:
         deadline = time.monotonic() + 90
         rig_log = None
@@ -194,7 +200,13 @@ def test_watchdog_takes_the_rig_to_its_safe_state(tmp_path, seft_exe, ros_env):
                 break
             time.sleep(0.1)
         assert rig_log is not None, 'the rig did not start'
-        time.sleep(1.5)
+        time.sleep(0.5)
+        os.killpg(proc.pid, signal.SIGSTOP)
+        held = proc.pid
+        time.sleep(0.5)
+        os.killpg(proc.pid, signal.SIGCONT)
+        held = None
+        time.sleep(1.0)
         frozen = _pid_of('reference_force_builder', str(out))
         os.kill(frozen, signal.SIGSTOP)
         time.sleep(1.0)
@@ -202,6 +214,8 @@ def test_watchdog_takes_the_rig_to_its_safe_state(tmp_path, seft_exe, ros_env):
         frozen = None
         stdout, stderr = proc.communicate(timeout=120)
     finally:
+        if held is not None:
+            os.killpg(held, signal.SIGCONT)
         if frozen is not None:
             os.kill(frozen, signal.SIGCONT)
         if proc.poll() is None:
@@ -222,6 +236,13 @@ def test_watchdog_takes_the_rig_to_its_safe_state(tmp_path, seft_exe, ros_env):
     assert '(limit 200 ms)' in message
     abort_at = float(values['abort_at_s'])
     assert abort_at == pytest.approx(entry['unstable_at_s'])
+    # the hold-up before: the rig caught up its ticks (each late by more than a period) and
+    # went on; the abort is the frozen builder's, after
+    rig = np.array([[s / 1e9, *m.position] for s, (_, m) in
+                    zip(stamps_ns(messages['/seft/timing/rig']), messages['/seft/timing/rig'])])
+    missed = rig[rig[:, 4] > 0, 0]
+    assert missed.size >= 100, missed.size          # 0.5 s of 2 ms ticks held up: about 250
+    assert missed[0] < abort_at - 0.5, (missed[0], abort_at)
     # the rig kept sampling through the ramp: force = the last command ramped to zero over
     # 0.1 s, reaching the specimen tau = 10 ms later; then exactly zero
     force = {round(s / DT_NS): m.wrench.force.x for s, (_, m) in

@@ -17,9 +17,11 @@ deadline, stale command, loop latency). A tick that ran late by more than a peri
 up at once (never skipped) and counts as a missed deadline. It never waits: a command that has
 not arrived is simply not applied yet (a *stale command*). Watchdog: when no command has
 arrived for ``watchdog_timeout_s``, and on any abort (limits, another node's abort), the rig
-goes to its safe state: the command ramps to zero over ``safe_ramp_s`` while the rig keeps
-sampling (and ``SAFE_HOLD_S`` after), then the run ends aborted with the reason and the time
-it happened.
+goes to its safe state (a catch-up after the rig's own loop was held up longer than the limit
+judges no silence, once, and the silence counts from its end: the commands sent meanwhile wait
+in its queue; the input watchdogs' rule, :meth:`~seft_msgs_py.node_support.InputWatchdog.check`):
+the command ramps to zero over ``safe_ramp_s`` while the rig keeps sampling (and
+``SAFE_HOLD_S`` after), then the run ends aborted with the reason and the time it happened.
 
 Start (both modes): once the command publisher is discovered, the recorder subscribes (if
 ``wait_for_recorder``), and the parameters of every node of the graph are in and agree (each
@@ -172,6 +174,8 @@ class RigNode(SeftNode):
             self.watchdog_steps = max(1, int(math.ceil(self.watchdog_s / self.rig.dt)))
             self.t0 = None                   # monotonic time of sample 0 [s]
             self.last_command_at = None      # monotonic time of the latest command [s]
+            self.ticked_at = None            # monotonic time of the latest tick [s]
+            self.deferred = False            # that tick was held up and judged no silence
             self.early_commands = []         # (stamp, value) received before the start
             self.abort_at_s = None
             self.safe_since = None           # plant time the safe ramp ended [s]
@@ -425,7 +429,7 @@ class RigNode(SeftNode):
             return
         self.t0 = time.monotonic()
         self.t0_ns = clock.now_ns()
-        self.last_command_at = self.t0
+        self.last_command_at = self.ticked_at = self.t0
         for stamp, value in self.early_commands:
             self.rig.arrive(stamp, value, 0.0)
         self.early_commands = []
@@ -512,7 +516,7 @@ class RigNode(SeftNode):
             k = self.rig.step
             self.t0 = now - k * self.rig.dt
             self.t0_ns = clock.now_ns() - int(round(k * self.rig.dt * 1e9))
-            self.last_command_at = now
+            self.last_command_at = self.ticked_at = now
             self.report(STATE_RUNNING, step=k, n_steps=self.n_steps,
                         time_s=f'{self.rig.time_s:.3f}', t0_ns=self.t0_ns)
             self._sample_realtime(now, now)
@@ -555,13 +559,30 @@ class RigNode(SeftNode):
         if self.drain_until is not None:
             self._end_realtime()            # the drain's deadline: the rest count lost
             return
+        # this rig's own loop held up longer than the limit since its last step ended (its
+        # process stopped, the host stalled; before a tick or within its catch-up): the
+        # commands sent meanwhile wait in its queue, read only once this catch-up has ended,
+        # so the catch-up (to the moment the hold-up was seen) judges no silence of the
+        # commands, and the silence counts again from its end; a second held-up tick in a row
+        # judges. Before: a rig held up 263 ms after its sample 0 took its safe state on its
+        # first tick (CI, seft rig-check of a lab's rig); a whole graph held up 0.5 s took it
+        # after its catch-up, or within it
+        held_up = False
         due = self.due_step(now)
         while self.running and self.drain_until is None and self.rig.step < due:
             start = time.monotonic()
+            if (not held_up and not self.deferred and self.ticked_at is not None
+                    and start - self.ticked_at > self.watchdog_s):
+                held_up = True
+                due = max(due, self.due_step(start))
             self.rig.advance()
-            self._after_advance(start)
+            self._after_advance(start, judge_silence=not held_up)
+            self.ticked_at = time.monotonic()
+        self.deferred = held_up
+        if held_up:
+            self.last_command_at = max(self.last_command_at, self.ticked_at)
 
-    def _after_advance(self, start: float) -> None:
+    def _after_advance(self, start: float, judge_silence: bool = True) -> None:
         rig = self.rig
         k = rig.step
         if k >= self.n_steps:
@@ -580,7 +601,8 @@ class RigNode(SeftNode):
                     return
         else:
             reason = rig.limit_violation()
-            if reason is None and start - self.last_command_at > self.watchdog_s:
+            if (reason is None and judge_silence
+                    and start - self.last_command_at > self.watchdog_s):
                 reason = (f'{rig_contract.WATCHDOG_REASON} no {self.command_topic.name} for '
                           f'{1e3 * (start - self.last_command_at):.1f} ms (limit '
                           f'{1e3 * self.watchdog_s:g} ms) at t = {rig.time_s:.3f} s')
