@@ -250,11 +250,11 @@ def read_signals(path) -> BagSignals:
     node_params = {}
     heard_params: list[tuple[str, dict]] = []   # (node, parameters), in bag order
     kept: list[tuple] = []                     # (topic, type, CDR) of the data, in bag order
-    recovery = None
+    reader = recovery = None
     link = None
     try:
-        recovery = recover_bag(path) if is_unclosed_bag(path) else _refused_by_reader(path)
-        for topic, msgtype, raw in _messages(path, recovery):
+        reader, recovery = _open_bag(path)
+        for topic, msgtype, raw in _messages(reader, recovery):
             counts[topic] = counts.get(topic, 0) + 1
             if topic == signals.RUN_PARAMETERS.name:
                 msg = typestore.deserialize_cdr(raw, msgtype)
@@ -276,6 +276,9 @@ def read_signals(path) -> BagSignals:
         raise
     except Exception as exc:  # rosbags raises several types for a damaged bag
         raise InputError(f'{path}: cannot read the bag: {exc}') from None
+    finally:
+        if reader is not None:
+            reader.close()
     # the run's nodes only: parameters with another run_token than the run's are another
     # run's node on the domain (recorded, never taken for this run's)
     token = params.get('run_token') if isinstance(params, dict) else None
@@ -439,15 +442,18 @@ def _read_data(graph: Graph, kept: list, typestore, path: Path) -> _Data:
     return data
 
 
-def _refused_by_reader(path: Path):
-    """None for a closed bag the reader opens (read as it streams); for one whose file it
-    refuses at its opening (``metadata.yaml`` there, the file cut or damaged after the
-    recording: a copy cut short), its complete records
-    (:func:`~seft_ros.analysis.bag_recovery.recover_bag`, ``damaged``: the reader's error).
+def _open_bag(path: Path):
+    """``(reader, None)``, rosbags' reader opened, for a closed bag it opens (read as it
+    streams; the caller closes it); ``(None, recovery)`` for an unclosed bag and for one whose
+    file the reader refuses at its opening (``metadata.yaml`` there, the file cut or damaged
+    after the recording: a copy cut short): its complete records
+    (:func:`~seft_ros.analysis.bag_recovery.recover_bag`; ``damaged``, the reader's error).
     Before, such a bag was 'cannot read the bag: File end magic is invalid', while the same
     file without its metadata was recovered (a new user, session 36)."""
+    if is_unclosed_bag(path):
+        return None, recover_bag(path)
+    reader = Reader(path)
     try:
-        reader = Reader(path)
         reader.open()
     except Exception as exc:  # rosbags raises several types for a damaged bag
         try:
@@ -455,21 +461,19 @@ def _refused_by_reader(path: Path):
         except ValueError:
             raise exc from None             # no file to recover from: the reader's error
         recovery.damaged = str(exc) or type(exc).__name__
-        return recovery
-    reader.close()
-    return None
+        return None, recovery
+    return reader, None
 
 
-def _messages(path: Path, recovery):
-    """``(topic, message type, CDR bytes)`` of every message, in log-time order: rosbags'
-    reader for a closed bag, the recovered messages of an unclosed one."""
+def _messages(reader, recovery):
+    """``(topic, message type, CDR bytes)`` of every message, in log-time order: from the
+    opened `reader` of a closed bag, or the recovered messages of another (:func:`_open_bag`)."""
     if recovery is not None:
         for topic, msgtype, _, raw in recovery.messages:
             yield topic, msgtype, raw
         return
-    with Reader(path) as reader:
-        for conn, _, raw in reader.messages():
-            yield conn.topic, conn.msgtype, raw
+    for conn, _, raw in reader.messages():
+        yield conn.topic, conn.msgtype, raw
 
 
 def _read_batch(stream, msg, live: dict, live_timing: dict, path: Path,

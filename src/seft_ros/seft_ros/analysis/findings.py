@@ -480,11 +480,7 @@ def structure_error_flag(comparison, predictor: str = '') -> str:
     str
         Empty without DOFs, without a finite displacement NRMS, or within the bar.
     """
-    worst, where = -math.inf, ''
-    for d in comparison.dofs:
-        value = d.displacement.nrms
-        if math.isfinite(value) and value > worst:
-            worst, where = value, d.dof
+    worst, where = comparison.worst_dof('displacement')
     if not worst > STRUCTURE_ERROR_FLAG:
         return ''
     compensator = f'the compensator ({predictor}) not following the loop, ' if predictor else ''
@@ -527,11 +523,7 @@ def signal_error_flag(comparison, structure: bool = True) -> str:
     for name, label in _OTHER_SIGNALS:
         if name == 'floor_acceleration' and not structure:
             continue
-        worst, where = -math.inf, ''
-        for d in comparison.dofs:
-            c = d.signal(name)
-            if c is not None and math.isfinite(c.nrms) and c.nrms > worst:
-                worst, where = c.nrms, d.dof
+        worst, where = comparison.worst_dof(name)
         if round(100 * worst, 2) > 100 * SIGNAL_ERROR_FLAG:    # (beyond the shown 0.01 %)
             beyond.append(f'{label} {100 * worst:.3g} % at {where}')
     if not beyond:

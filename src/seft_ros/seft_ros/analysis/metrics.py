@@ -757,12 +757,21 @@ class RunComparison:
                 return d
         raise KeyError(name)
 
+    def worst_dof(self, name: str = 'displacement') -> tuple[float, str]:
+        """The largest NRMS over the DOFs of one of :data:`DOF_SIGNALS` and the DOF it is
+        at: (a fraction, the DOF's name); (NaN, '') if none is finite (the first DOF of a
+        tie)."""
+        worst, where = math.nan, ''
+        for d in self.dofs:
+            c = d.signal(name)
+            if c is not None and math.isfinite(c.nrms) and (not where or c.nrms > worst):
+                worst, where = c.nrms, d.dof
+        return worst, where
+
     def worst_nrms(self, name: str = 'displacement') -> float:
         """The largest NRMS over the DOFs of one of :data:`DOF_SIGNALS` (a fraction; NaN if
-        none is finite)."""
-        values = [c.nrms for c in (d.signal(name) for d in self.dofs)
-                  if c is not None and math.isfinite(c.nrms)]
-        return max(values) if values else math.nan
+        none is finite; :meth:`worst_dof` names the DOF)."""
+        return self.worst_dof(name)[0]
 
 
 def _compare_rig(rig: RigData, reference: ReferenceResponse, dt: float, n: int, *,

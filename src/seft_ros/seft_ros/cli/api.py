@@ -4,7 +4,7 @@
 """
 
 import contextlib
-from dataclasses import replace
+from dataclasses import fields, replace
 import json
 import math
 import os
@@ -200,10 +200,12 @@ def build_runs(*, config: str | None = None, overrides: dict[str, Any] | None = 
 #: each doubled, a ``state_space`` run with ``none``, ``model`` or ``adaptive`` and a
 #: designed, loop_shaping or transfer_function controller, its range check and its guard
 #: were bit for bit the same (a new user had set io_latency_s=0.01 there, silently).
-_HYDRAULICS = ('piston_area_m2', 'oil_bulk_modulus_Pa', 'actuator_volume_m3',
-               'valve_flow_gain_m3_per_s_V', 'valve_pressure_coefficient_m3_per_s_Pa',
-               'leakage_coefficient_m3_per_s_Pa')
+#: seft's servohydraulic rig's parameters that no other rig and no controller reads; the
+#: rest of :class:`~seft_plant_sim.servohydraulic.ServoHydraulicParams` (less the
+#: accelerometer's range, every rig's) are its hydraulics, which ``velocity_feedback`` designs
+#: with (:func:`_servohydraulic_values_unused`)
 _SERVOHYDRAULIC_ONLY = ('io_latency_s', 'valve_time_constant_s', 'anti_alias_cutoff_hz')
+_EVERY_RIGS = ('accelerometer_range_m_s2',)
 
 
 def _named_by_origin(exc: ParameterError, where: str, origin: dict[str, str]
@@ -227,12 +229,14 @@ def _servohydraulic_values_unused(values: dict[str, Any], runs: list[dict[str, A
     """One line naming the parameters of seft's servohydraulic rig that were given other
     than their defaults (in `values`: the configuration, ``--params``, the command line) for
     a run on the ``state_space`` rig, where they do nothing (``_SERVOHYDRAULIC_ONLY``; and
-    ``_HYDRAULICS`` but with ``velocity_feedback``); none otherwise."""
+    its hydraulics but with ``velocity_feedback``); none otherwise."""
     if not runs or any(p.get('rig_model') != 'state_space' for p in runs):
         return []
+    from seft_plant_sim.servohydraulic import ServoHydraulicParams
     unused = list(_SERVOHYDRAULIC_ONLY)
     if all(p.get('force_controller') != 'velocity_feedback' for p in runs):
-        unused += _HYDRAULICS
+        unused += [f.name for f in fields(ServoHydraulicParams)
+                   if f.name not in _SERVOHYDRAULIC_ONLY + _EVERY_RIGS]
     defaults = parameters.defaults()        # (a full parameter file repeats them all)
     given = [f'{name}={values[name]!r}' for name in unused
              if values.get(name) is not None and values[name] != defaults.get(name)]
