@@ -19,7 +19,8 @@ __all__ = [
     'ParamSpec', 'SCHEMA', 'NODES', 'spec', 'unknown_parameter', 'specs_for_node', 'defaults',
     'validate_value', 'from_text',
     'resolve', 'graph_nodes', 'PER_NODE', 'shared_mismatches', 'VALUE_SOURCE', 'value_source',
-    'VALVE_RIG_MODELS', 'valve_commanded', 'MAPPING_PARAMETERS', 'mapping_value',
+    'VALVE_RIG_MODELS', 'valve_commanded', 'identification_run', 'MAPPING_PARAMETERS',
+    'mapping_value',
 ]
 
 #: The node names of the graph, as used in ``ParamSpec.nodes``.
@@ -699,6 +700,14 @@ def valve_commanded(rig_model) -> bool:
     if isinstance(rig_model, Mapping):
         rig_model = rig_model.get('rig_model', 'servohydraulic')
     return rig_model in VALVE_RIG_MODELS
+
+
+def identification_run(params: Mapping) -> bool:
+    """Whether run parameters `params` describe an identification run (``excitation`` other
+    than ``'none'``: a known signal plays instead of a ground motion,
+    :mod:`seft_ros.core.excitation`), not a test: nothing of a test's (its error, its valve's
+    saturation, its settings' cost) is judged of it."""
+    return params.get('excitation', 'none') != 'none'
 
 
 def graph_nodes(rig_model: str) -> tuple[str, ...]:

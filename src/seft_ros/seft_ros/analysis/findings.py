@@ -83,6 +83,7 @@ from typing import Any
 import numpy as np
 
 from seft_msgs_py.errors import SeftError
+from seft_msgs_py.parameters import identification_run
 from seft_msgs_py.sensor_range import AT_RANGE_FRACTION, CHANNEL_UNITS, CHANNELS, RANGE_PARAMETERS
 from seft_ros.analysis.rundata import RunData, rig_label
 from seft_ros.core.specimen_settings import costly_settings
@@ -291,7 +292,7 @@ def valve_saturation_entry(run: RunData) -> dict[str, Any]:
         float}}`` for the rigs with at least one such sample (empty: none, or no valve).
     """
     out: dict[str, Any] = {}
-    if run.params.get('excitation', 'none') != 'none':
+    if identification_run(run.params):
         return out
     dt = float(run.params.get('dt', 0.0) or 0.0)
     for rig, data in run.rigs.items():
@@ -580,7 +581,7 @@ def run_flags(run: RunData, comparison) -> list[str]:
             alpha = math.nan                # a structure's alphas: nothing predicted for it
         worst = comparison.worst_nrms('displacement')
         predictor = str(run.params.get('predictor', ''))
-        judged = run.params.get('excitation', 'none') == 'none' and predictor != 'none'
+        judged = not identification_run(run.params) and predictor != 'none'
         if not judged:
             # an identification run: its error is not a test's; none: its lag's cost is its
             # settings line's

@@ -15,6 +15,7 @@ from matplotlib.figure import Figure
 import numpy as np
 import yaml
 
+from seft_msgs_py.parameters import identification_run
 from seft_ros.analysis.rig_identification import MIN_COHERENCE, RunIdentification
 from seft_ros.analysis.rundata import rig_label
 from seft_ros.core.force_design import KANAI_TAJIMI_GROUND
@@ -34,7 +35,7 @@ def _excitation(p) -> dict[str, Any]:
     out = {k: p.get(k) for k in ('excitation', 'excitation_input', 'excitation_amplitude',
                                  'excitation_band_low_hz', 'excitation_band_hz',
                                  'excitation_seed', 'duration_s')}
-    if p.get('excitation', 'none') != 'none' and 'dt' in p:
+    if identification_run(p) and 'dt' in p:
         from seft_ros.core.excitation import excitation_band_hz
         out['excitation_band_hz'] = excitation_band_hz(p)[1]
     return out

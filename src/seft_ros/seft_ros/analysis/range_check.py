@@ -53,6 +53,7 @@ import numpy as np
 
 from seft_msgs_py.calibration import valve_flow_gain_m3_per_s_V
 from seft_msgs_py.errors import InputError, SeftError
+from seft_msgs_py.parameters import identification_run
 from seft_msgs_py.plant import schur_response
 from seft_msgs_py.rig_contract import COMMAND_KINDS, command_kind
 from seft_msgs_py.sensor_range import CHANNEL_UNITS, RANGE_PARAMETERS
@@ -265,7 +266,7 @@ def range_check(params, ground_acceleration_m_s2=None, *, valve: bool = True) ->
     check = RangeCheck(scale_name='amplitude_N' if amplitude > 0 else 'scale_factor',
                        scale=amplitude if amplitude > 0 else float(params.get('scale_factor',
                                                                               1.0)))
-    if params.get('excitation', 'none') != 'none':
+    if identification_run(params):
         check.note = 'an identification run (its excitation is not a record to check)'
         return check
     if is_study(params):

@@ -24,6 +24,7 @@ from matplotlib.ticker import FuncFormatter
 import numpy as np
 
 from seft_msgs_py.errors import ParameterError
+from seft_msgs_py.parameters import identification_run
 from seft_ros.analysis.findings import (
     bridge_entry,
     bridge_lines,
@@ -606,7 +607,7 @@ def _preparation(params) -> str:
     (:func:`seft_ros.core.ground_motion.prepare`; '' for an excitation run or a bag that
     does not say)."""
     how = params.get('record_resampling')
-    if how is None or params.get('excitation', 'none') != 'none':
+    if how is None or identification_run(params):
         return ''
     if how == 'auto':
         how = 'linear' if params.get('record', 'default') == 'default' else 'band_limited'

@@ -34,7 +34,7 @@ import numpy as np
 from scipy import optimize, signal
 
 from seft_msgs_py.errors import InputError, ParameterError, SeftError
-from seft_msgs_py.parameters import valve_commanded
+from seft_msgs_py.parameters import identification_run, valve_commanded
 from seft_msgs_py.plant import controller_response
 from seft_msgs_py.sensor_range import SensorRanges
 from seft_ros.analysis.rundata import RunData
@@ -591,7 +591,7 @@ def identify_run(run: RunData, *, window: str = 'hann', nperseg: int = DEFAULT_N
         raise InputError(f'{src}: a run of {len(run.rigs)} rigs ({", ".join(run.rigs)}); '
                          'identify_rigs identifies each')
     rig = run.rig_names[0]
-    open_loop = p.get('excitation', 'none') != 'none' and \
+    open_loop = identification_run(p) and \
         p.get('excitation_input') == 'valve_command'
     servo = valve_commanded(p)
     if run.n_steps < 8:
@@ -614,7 +614,7 @@ def identify_run(run: RunData, *, window: str = 'hann', nperseg: int = DEFAULT_N
     weight = _coherent(fr)
     nyq = 0.5 / dt
     band = (float(fr.freqs_hz[1]), 0.9 * nyq)
-    lo_exc, hi_exc = (excitation_band_hz(p) if p.get('excitation', 'none') != 'none'
+    lo_exc, hi_exc = (excitation_band_hz(p) if identification_run(p)
                       else (0.0, nyq))
     band = (max(band[0], lo_exc), min(band[1], hi_exc))
     try:
@@ -793,7 +793,7 @@ def _half_errors(run: RunData, motion_noise: np.ndarray, where: str) -> tuple | 
 
 def _specimen_band(params) -> tuple[float, float] | None:
     """The band of the specimen fit: the excitation's, or None (the fit's default)."""
-    if params.get('excitation', 'none') == 'none':
+    if not identification_run(params):
         return None
     return excitation_band_hz(params)
 

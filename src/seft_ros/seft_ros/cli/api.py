@@ -19,6 +19,7 @@ import numpy as np
 from seft_msgs_py import parameters
 from seft_msgs_py.domain import LOCK_DIR, claim_domain, held_by_ancestor
 from seft_msgs_py.errors import InputError, Interrupted, ParameterError, SeftError
+from seft_msgs_py.parameters import identification_run
 from seft_msgs_py.sampling import single_blas_thread
 from seft_msgs_py.stopping import signal_name
 from seft_ros.analysis.bag import read_run
@@ -172,7 +173,7 @@ def build_runs(*, config: str | None = None, overrides: dict[str, Any] | None = 
     for line in _servohydraulic_values_unused(values, runs) if progress is not None else ():
         progress(f'settings: {line}')
     if progress is not None and any(p.get('excitation_input') == 'valve_command'
-                                    and p.get('excitation', 'none') == 'none' for p in runs):
+                                    and not identification_run(p) for p in runs):
         # half of the open-loop identification run's two settings: the other is excitation
         progress('warning: excitation_input valve_command without an excitation (excitation '
                  'none) does nothing: these runs are closed-loop tests of the record; an '
@@ -1800,7 +1801,7 @@ def guard_check(params: dict, spectra: dict | None = None) -> stability.Stabilit
     StabilityCheck
     """
     spectrum, played = None, None
-    if params.get('excitation', 'none') == 'none':
+    if not identification_run(params):
         from seft_ros.core.force_design import played_record_spectrum
         key = tuple(repr(params.get(k)) for k in _RECORD_KEYS)
         spectra = {} if spectra is None else spectra
@@ -2046,7 +2047,7 @@ def _planned_duration_s(params: dict) -> float | None:
     if int(params.get('n_steps', 0) or 0) and dt:
         return int(params['n_steps']) * dt
     duration = float(params.get('duration_s', 0.0) or 0.0)
-    if not duration and params.get('excitation', 'none') != 'none':
+    if not duration and identification_run(params):
         from seft_ros.core.excitation import DEFAULT_DURATION_S
         return DEFAULT_DURATION_S
     return duration or None

@@ -32,6 +32,7 @@ import yaml
 
 from seft_msgs_py import parameters
 from seft_msgs_py.errors import InputError, ParameterError
+from seft_msgs_py.parameters import identification_run
 
 __all__ = ['load_config', 'expand_runs', 'write_params_file', 'ConfigLoader', 'layer_rigs',
            'RIGS', 'mapping_values', 'read_yaml']
@@ -349,7 +350,7 @@ def _with_structure(params: dict[str, Any], where: str) -> dict[str, Any]:
             # the structure's masses are its mass ratios: an alpha would be ignored
             raise ParameterError(f'parameter alpha={params["alpha"]!r}: with a structure the '
                                  "computational masses are the structure's; leave alpha at 0")
-        if params.get('excitation', 'none') != 'none':
+        if identification_run(params):
             from seft_ros.core.excitation import rigs_alone
             return rigs_alone(params)
     except ParameterError as exc:

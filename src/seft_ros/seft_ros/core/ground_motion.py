@@ -18,6 +18,7 @@ from scipy import signal
 from scipy.integrate import cumulative_trapezoid
 
 from seft_msgs_py.errors import InputError, ParameterError
+from seft_msgs_py.parameters import identification_run
 
 __all__ = [
     'G', 'GroundMotion', 'read_at2', 'read_csv', 'synthetic_default', 'load_record', 'prepare',
@@ -789,7 +790,7 @@ def prepared_record(params) -> GroundMotion:
     InputError, ParameterError
         Bad record file or parameter.
     """
-    if params.get('excitation', 'none') != 'none':
+    if identification_run(params):
         from seft_ros.core.excitation import excitation_record
         gm = excitation_record(params)
         n = int(params.get('n_steps', 0) or 0)
@@ -838,7 +839,7 @@ def record_read(params) -> dict | None:
     InputError, ParameterError
         As :func:`prepared_record`.
     """
-    if params.get('excitation', 'none') != 'none' or params.get('record') == 'default':
+    if identification_run(params) or params.get('record') == 'default':
         return None
     record, gm, factor = _load_and_prepare(params)
     a = record.acceleration_m_s2

@@ -8,6 +8,7 @@ import numpy as np
 from scipy import signal
 
 from seft_msgs_py.errors import ParameterError
+from seft_msgs_py.parameters import identification_run
 from seft_ros.core.controller import DiscreteFilter
 
 __all__ = ['InstabilityMonitor', 'open_loop_identification', 'monitor_cutoff_hz', 'SpecimenCheck',
@@ -89,7 +90,7 @@ def open_loop_identification(params) -> bool:
         True when an excitation plays on the valve (``excitation_input: valve_command``):
         the force controller is bypassed and the reference force drives nothing.
     """
-    return (params.get('excitation', 'none') != 'none'
+    return (identification_run(params)
             and params.get('excitation_input', 'reference_force') == 'valve_command')
 
 

@@ -52,7 +52,7 @@ import numpy as np
 from seft_msgs_py import sensor_range as _sensor_range
 from seft_msgs_py.errors import ParameterError, SeftError
 from seft_msgs_py.interface import Measurement
-from seft_msgs_py.parameters import valve_commanded
+from seft_msgs_py.parameters import identification_run, valve_commanded
 from seft_msgs_py.sampling import linear_map as _linear_map
 from seft_msgs_py.sampling import single_blas_thread as _single_blas_thread
 from seft_msgs_py.sampling import split_delay as _split_delay
@@ -179,7 +179,7 @@ def excitation_level_N(params, fallback_N: float | None = None) -> float:
     if level > 0:
         return level
     amplitude = float(params.get('amplitude_N', 1000.0) or 0.0)
-    if amplitude <= 0 or params.get('excitation', 'none') != 'none':
+    if amplitude <= 0 or identification_run(params):
         if fallback_N is not None:
             return float(fallback_N)
         raise ParameterError('parameter adaptive_excitation_N=0 (relative to amplitude_N): '

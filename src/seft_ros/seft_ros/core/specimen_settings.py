@@ -13,6 +13,8 @@ show costs accuracy (:data:`COSTLY`), whoever chose it.
 import json
 from typing import Any, Mapping
 
+from seft_msgs_py.parameters import identification_run
+
 __all__ = ['YIELDING_SETTINGS', 'follow_specimen', 'costly_settings', 'COSTLY', 'FLAGGING',
            'CANCELLED_STIFFNESS_TOLERANCE', 'CANCELLED_DAMPING_TOLERANCE']
 
@@ -249,10 +251,10 @@ def costly_settings(params: Mapping[str, Any], *, flagging: bool = False) -> lis
                 and not p.get('predictor_loop_rehearsed', False)):
             rules.append('one-DOF inverse')
         if (is_study(params) and predictor == 'none' and float(p.get('alpha', 0)) >= 0.5
-                and p.get('excitation', 'none') == 'none'):
+                and not identification_run(p)):
             rules.append('uncompensated')
         if (not is_study(params) and predictor == 'none'
-                and p.get('excitation', 'none') == 'none'):
+                and not identification_run(p)):
             rules.append('uncompensated structure')
         lines += [f'{rig}: {COSTLY[r].format(**p, **figures)}' for r in rules
                   if not flagging or r in FLAGGING]

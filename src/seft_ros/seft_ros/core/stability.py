@@ -47,7 +47,7 @@ import numpy as np
 from seft_msgs_py.errors import ParameterError, SeftError
 from seft_msgs_py.graph import Graph
 from seft_msgs_py.interface import Measurement
-from seft_msgs_py.parameters import valve_commanded
+from seft_msgs_py.parameters import identification_run, valve_commanded
 from seft_msgs_py.plant import schur_response
 from seft_msgs_py.sampling import single_blas_thread
 from seft_msgs_py.sampling import zoh as _zoh
@@ -1008,7 +1008,7 @@ def run_predicted_error(params: Mapping, spectrum: GroundSpectrum | None = None)
         refuses) and ``inf`` where the loop is unstable.
     """
     if (not test_setup(params).is_study or len(tangent_ratios(params)) != 1
-            or params.get('excitation', 'none') != 'none'):
+            or identification_run(params)):
         return math.nan
     try:
         with single_blas_thread():

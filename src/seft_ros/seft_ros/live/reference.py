@@ -12,6 +12,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from seft_msgs_py.errors import SeftError
+from seft_msgs_py.parameters import identification_run
 
 __all__ = ['analytical']
 
@@ -38,7 +39,7 @@ def analytical(params: Mapping[str, Any]) -> dict[str, np.ndarray] | None:
     """
     if params.get('structure', 'none') not in ('none', '', None):
         return None
-    if params.get('excitation', 'none') != 'none':
+    if identification_run(params):
         return None
     from seft_ros.analysis.reference import reference_from_run
     from seft_ros.core.ground_motion import prepared_record
