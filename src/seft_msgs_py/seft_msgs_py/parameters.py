@@ -879,8 +879,11 @@ def from_text(name: str, text: str, *, where: str = '') -> Any:
 
 
 def resolve(overrides: Mapping[str, Any] | Iterable[tuple[str, Any]] = (), *,
-            where: str = '') -> dict[str, Any]:
+            where: str = '', origin: Mapping[str, str] | None = None) -> dict[str, Any]:
     """Return the defaults updated with validated `overrides`.
+
+    `origin` names the source of a value (parameter name to a file or ``'command line'``)
+    where it is not `where`: a bad value is named as its source's.
 
     Raises
     ------
@@ -889,8 +892,9 @@ def resolve(overrides: Mapping[str, Any] | Iterable[tuple[str, Any]] = (), *,
     """
     values = defaults()
     items = overrides.items() if isinstance(overrides, Mapping) else overrides
+    origin = origin or {}
     for name, value in items:
-        values[name] = validate_value(name, value, where=where)
+        values[name] = validate_value(name, value, where=origin.get(name, where))
     return values
 
 

@@ -160,6 +160,14 @@ def test_a_bad_command_line_value_is_named_as_the_command_lines(tmp_path):
                        r'\.yaml taken as its value: an option of several values takes every '
                        r'word after it; give the configuration file first\)$'):
         build_runs(overrides={'predictor': ['model', 'lab.yaml']})
+    # values checked against others after their validation: named as their own source's
+    config.write_text('mass_kg: 50.0\namplitude_N: 400.0\n')
+    with pytest.raises(ParameterError, match=r'^command line: parameter scale_factor=2\.0: '):
+        build_runs(config=str(config), overrides={'scale_factor': 2.0})
+    with pytest.raises(ParameterError,
+                       match=r'^command line: parameter watchdog_timeout_s=0\.001: '):
+        build_runs(config=str(config), overrides={'mode': 'realtime',
+                                                  'watchdog_timeout_s': 0.001})
     with pytest.raises(ParameterError, match=r'lab\.yaml: parameter mass_kg=-1\.0: '):
         config.write_text('mass_kg: -1.0\n')
         build_runs(config=str(config))

@@ -151,10 +151,7 @@ def build_runs(*, config: str | None = None, overrides: dict[str, Any] | None = 
         origin['alpha'] = 'command line'
     notes = []
     where = config or 'command line'
-    try:
-        runs = expand_runs(values, where=where, notes=notes)
-    except ParameterError as exc:
-        raise _named_by_origin(exc, where, origin) from None
+    runs = expand_runs(values, where=where, notes=notes, origin=origin)
     if (replaced_by is not None and values.get('rig_model') == 'state_space'
             and values.get('rig_plant_model', 'none') in (None, '', 'none')):
         # a rig_model state_space without a rig_plant_model simulates its plant_model, which
@@ -207,22 +204,6 @@ def build_runs(*, config: str | None = None, overrides: dict[str, Any] | None = 
 #: with (:func:`_servohydraulic_values_unused`)
 _SERVOHYDRAULIC_ONLY = ('io_latency_s', 'valve_time_constant_s', 'anti_alias_cutoff_hz')
 _EVERY_RIGS = ('accelerometer_range_m_s2',)
-
-
-def _named_by_origin(exc: ParameterError, where: str, origin: dict[str, str]
-                     ) -> ParameterError:
-    """`exc`, a bad value named as `where`'s (``'<where>: parameter <name>...'``), named as
-    the file or command line that gave it (`origin`: parameter name to its source) where that
-    is another (a plant_model of a --params file was named as the configuration's; a new
-    user, session 36)."""
-    text = str(exc)
-    prefix = f'{where}: parameter '
-    found = re.match(r'[A-Za-z_][A-Za-z0-9_]*', text[len(prefix):]) \
-        if text.startswith(prefix) else None
-    source = origin.get(found.group(0)) if found else None
-    if source is None or source == where:
-        return exc
-    return ParameterError(f'{source}: parameter {text[len(prefix):]}')
 
 
 def _servohydraulic_values_unused(values: dict[str, Any], runs: list[dict[str, Any]]

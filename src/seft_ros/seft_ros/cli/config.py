@@ -26,7 +26,7 @@ import json
 import os
 from pathlib import Path
 import re
-from typing import Any
+from typing import Any, Callable
 
 import yaml
 
@@ -269,9 +269,14 @@ def repeated(name: str, values: list) -> Any:
 
 
 def expand_runs(config: dict[str, Any], *, where: str = '',
-                notes: list[str] | None = None) -> list[dict[str, Any]]:
+                notes: list[str] | None = None,
+                origin: dict[str, str] | None = None) -> list[dict[str, Any]]:
     """Validate a configuration and expand lists of ``record``, ``predictor`` and ``alpha``
     into one parameter set per combination (in that order of nesting).
+
+    A bad value is named as its source's: `origin` (parameter name to the file or
+    ``'command line'`` that gave it), else `where` (a ``plant_model`` of a ``--params`` file
+    was named as the configuration's; a new user, session 36).
 
     A rig whose specimen is declared to yield gets the settings of a yielding member where
     the configuration does not set them
@@ -284,42 +289,48 @@ def expand_runs(config: dict[str, Any], *, where: str = '',
         A value out of range (the message names the parameter and, if given, `where`).
     """
     from seft_ros.core.specimen_settings import follow_specimen
+    origin = origin or {}
+
+    def at(name: str) -> str:
+        """The prefix of a message on parameter `name`: its source's."""
+        source = origin.get(name, where)
+        return f'{source}: ' if source else ''
+
     def values_of(name):
         value = config.get(name, parameters.spec(name).default)
         values = list(value) if isinstance(value, (list, tuple)) else [value]
         if not values:
-            raise ParameterError(f'{where + ": " if where else ""}parameter {name}: expected '
-                                 'at least one value')
+            raise ParameterError(f'{at(name)}parameter {name}: expected at least one value')
         return values
 
     alphas, predictors, records = (values_of(n) for n in ('alpha', 'predictor', 'record'))
     for name, values in (('alpha', alphas), ('predictor', predictors), ('record', records)):
         twice = repeated(name, values)
         if twice is not None:
-            raise ParameterError(f'{where + ": " if where else ""}parameter {name}: {twice!r} '
-                                 'twice: the same run twice; expected each value once')
+            raise ParameterError(f'{at(name)}parameter {name}: {twice!r} twice: the same run '
+                                 'twice; expected each value once')
     runs = []
     for record in records:
         for predictor in predictors:
             for alpha in alphas:
                 values = dict(config, alpha=alpha, predictor=predictor, record=record)
-                params, chosen = follow_specimen(config, parameters.resolve(values,
-                                                                            where=where))
+                params, chosen = follow_specimen(config, parameters.resolve(
+                    values, where=where, origin=origin))
                 amplitude, scale = float(params['amplitude_N']), float(params['scale_factor'])
                 if amplitude > 0 and scale != 1.0:
                     # amplitude_N wins in ground_motion.prepare: the scale would be ignored
                     raise ParameterError(
-                        f'{where + ": " if where else ""}parameter scale_factor={scale!r}: '
-                        f'used only with amplitude_N 0 (amplitude_N={amplitude:g} scales the '
-                        'record to that peak force); set amplitude_N to 0, or leave '
-                        'scale_factor at 1')
+                        f'{at("scale_factor")}parameter scale_factor={scale!r}: used only '
+                        f'with amplitude_N 0 (amplitude_N={amplitude:g} scales the record to '
+                        'that peak force); set amplitude_N to 0, or leave scale_factor at 1')
                 if notes is not None:
                     notes.extend(n for n in chosen if n not in notes)
-                runs.append(_with_structure(params, where))
+                runs.append(_with_structure(params, where, at))
     return runs
 
 
-def _with_structure(params: dict[str, Any], where: str) -> dict[str, Any]:
+def _with_structure(params: dict[str, Any], where: str,
+                    at: Callable[[str], str]) -> dict[str, Any]:
     """A run with a structure, checked against its rigs
     (:func:`~seft_ros.core.structure.test_setup`); the study's test if it reduces to it
     (:func:`~seft_ros.core.structure.reduces_to_study`); an identification run (an
@@ -330,31 +341,33 @@ def _with_structure(params: dict[str, Any], where: str) -> dict[str, Any]:
     ------
     ParameterError
         The structure disagrees with a rig's parameters, or a rig section sets a parameter of
-        the whole test (the message names the field and `where`).
+        the whole test (the message names the field and `where`; a value of the whole test,
+        its source, ``at(name)``, the prefix of a message on parameter `name`).
     """
     if params.get('structure', 'none') in ('none', '', None):
-        _check_mappings(params, where)
-        _check_watchdog(params, where)
-        _check_controller_address(params, where)
+        _check_mappings(params, at)
+        _check_watchdog(params, at('watchdog_timeout_s'))
+        _check_controller_address(params, at('udp_controller_address'))
         return params
     from seft_ros.core.structure import reduces_to_study, study_parameters, test_setup
     try:
         setup = test_setup(params)
         for rig, rp in setup.rig_params.items():
-            _check_mappings(rp, f'{where}: rig {rig}' if where else f'rig {rig}')
-            _check_watchdog(rp, f'rig {rig}')
-            _check_controller_address(rp, f'rig {rig}')
+            _check_mappings(rp, lambda name, rig=rig: f'rig {rig}: ')
+            _check_watchdog(rp, f'rig {rig}: ')
+            _check_controller_address(rp, f'rig {rig}: ')
         if reduces_to_study(setup.substructures):
             return study_parameters(params, setup.substructures)
-        if float(params.get('alpha', 0.0)) != 0.0:
-            # the structure's masses are its mass ratios: an alpha would be ignored
-            raise ParameterError(f'parameter alpha={params["alpha"]!r}: with a structure the '
-                                 "computational masses are the structure's; leave alpha at 0")
         if identification_run(params):
             from seft_ros.core.excitation import rigs_alone
             return rigs_alone(params)
     except ParameterError as exc:
         raise ParameterError(f'{where}: {exc}' if where else str(exc)) from None
+    if float(params.get('alpha', 0.0)) != 0.0:
+        # the structure's masses are its mass ratios: an alpha would be ignored
+        raise ParameterError(f'{at("alpha")}parameter alpha={params["alpha"]!r}: with a '
+                             "structure the computational masses are the structure's; leave "
+                             'alpha at 0')
     return params
 
 
@@ -365,27 +378,28 @@ def _with_structure(params: dict[str, Any], where: str) -> dict[str, Any]:
 _WATCHDOG_MIN_STEPS = 3
 
 
-def _check_watchdog(params: dict[str, Any], where: str) -> None:
+def _check_watchdog(params: dict[str, Any], prefix: str) -> None:
     """Refuse a real-time watchdog shorter than :data:`_WATCHDOG_MIN_STEPS` sample periods (a
     lockstep run has none: its nodes wait for each other).
 
     Raises
     ------
     ParameterError
-        The message names `where`, the parameter, the bound and the run's dt.
+        The message (after `prefix`: ``'<source>: '`` or empty) names the parameter, the
+        bound and the run's dt.
     """
     if params.get('mode') != 'realtime':
         return
     limit, dt = float(params['watchdog_timeout_s']), float(params['dt'])
     if limit < _WATCHDOG_MIN_STEPS * dt * (1.0 - 1e-9):
         raise ParameterError(
-            f'{where + ": " if where else ""}parameter watchdog_timeout_s={limit:g}: expected '
+            f'{prefix}parameter watchdog_timeout_s={limit:g}: expected '
             f'at least {_WATCHDOG_MIN_STEPS} sample periods, {_WATCHDOG_MIN_STEPS * dt:g} s at '
             f'dt={dt:g} s (an input is due every dt: a shorter watchdog ends the run at the '
             'first lost or late sample)')
 
 
-def _check_controller_address(params: dict[str, Any], where: str) -> None:
+def _check_controller_address(params: dict[str, Any], prefix: str) -> None:
     """A real-time UDP bridge's ``udp_controller_address`` is ``host:port`` with a host that
     resolves, checked before anything starts (it was refused by the rig node 7-8 s into the
     start, the other ``udp_*`` values in 1 s).
@@ -393,7 +407,8 @@ def _check_controller_address(params: dict[str, Any], where: str) -> None:
     Raises
     ------
     ParameterError
-        As :func:`~seft_plant_sim.udp_bridge.resolve_address`, prefixed with `where`.
+        As :func:`~seft_plant_sim.udp_bridge.resolve_address`, after `prefix` (``'<source>: '``
+        or empty).
     """
     if params.get('mode') != 'realtime' or params.get('rig_interface') != 'udp_bridge':
         return
@@ -401,25 +416,26 @@ def _check_controller_address(params: dict[str, Any], where: str) -> None:
     try:
         resolve_address(params['udp_controller_address'])
     except ParameterError as exc:
-        raise ParameterError(f'{where + ": " if where else ""}{exc}') from None
+        raise ParameterError(f'{prefix}{exc}') from None
 
 
-def _check_mappings(params: dict[str, Any], where: str) -> None:
+def _check_mappings(params: dict[str, Any], at: Callable[[str], str]) -> None:
     """Parse a rig's ``plant_model``, ``rig_plant_model`` and ``force_controller_tf`` now (a
     bad field is refused before anything runs).
 
     Raises
     ------
     ParameterError
-        The message names `where`, the parameter and the field; a ``rig_plant_model`` on a
-        rig other than ``state_space`` (no other rig reads it).
+        The message (after ``at(name)``, the prefix naming parameter `name`'s source) names
+        the parameter and the field; a ``rig_plant_model`` on a rig other than
+        ``state_space`` (no other rig reads it).
     """
-    prefix = f'{where}: ' if where else ''
     from seft_msgs_py.plant import parse_plant
     from seft_ros.core.force_loop import has_plant_model
     rig_plant = params.get('rig_plant_model', 'none') not in (None, '', 'none')
     if rig_plant and params.get('rig_model') != 'state_space':
-        raise ParameterError(f"{prefix}parameter rig_plant_model: the plant a rig_model "
+        raise ParameterError(f"{at('rig_plant_model')}parameter rig_plant_model: the plant a "
+                             "rig_model "
                              f"'state_space' steps, and this rig is "
                              f"{params.get('rig_model')!r} (its physics is its own): set "
                              "rig_model state_space, or rig_plant_model none")
@@ -430,14 +446,14 @@ def _check_mappings(params: dict[str, Any], where: str) -> None:
         try:
             parse_plant(params[name], dt=float(params['dt']), where=f'parameter {name}')
         except ParameterError as exc:
-            raise ParameterError(f'{prefix}{exc}') from None
+            raise ParameterError(f'{at(name)}{exc}') from None
     if params.get('force_controller') == 'transfer_function':
         from seft_ros.core.controller import ControllerTF
         try:
             ControllerTF.from_parameter(params.get('force_controller_tf', 'none'),
                                         dt=float(params['dt']))
         except ParameterError as exc:
-            raise ParameterError(f'{prefix}{exc}') from None
+            raise ParameterError(f'{at("force_controller_tf")}{exc}') from None
 
 
 def write_params_file(params: dict[str, Any], path) -> Path:
