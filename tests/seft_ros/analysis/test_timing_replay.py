@@ -54,13 +54,15 @@ def test_commands_in_time_on_the_replayed_rig_are_the_lockstep_run(params):
 
 
 def test_the_replay_splits_a_runs_error_into_the_hosts_timing_and_the_methods(params):
-    """Six commands 1.2-3.5 ms late and five stale reference forces: the replay as run
-    gives the run's NRMS back to the digit, the replay in time the lockstep run's; the
-    difference is what the late steps cost."""
+    """Six commands 1.2-3.5 ms late, two lost and five stale reference forces: the replay
+    as run gives the run's NRMS back to the digit, the replay in time the lockstep run's; the
+    difference is what the late steps cost. The lost commands are counted apart from the
+    late ones (a new user read them among the late; session 36)."""
     rng = np.random.default_rng(5)
     latency = np.full(N, 0.0005)
-    late = rng.choice(np.arange(200, N - 10), 6, replace=False)
-    latency[late] = DT + rng.uniform(1.2e-3, 3.5e-3, 6)
+    late = rng.choice(np.arange(200, N - 10), 8, replace=False)
+    latency[late] = DT + rng.uniform(1.2e-3, 3.5e-3, 8)
+    latency[late[6:]] = np.nan
     stale = np.zeros(N, bool)
     stale[rng.choice(np.arange(300, N - 10), 5, replace=False)] = True
     run = simulate(params, command_latency_s={'': dict(enumerate(latency))},
@@ -71,7 +73,8 @@ def test_the_replay_splits_a_runs_error_into_the_hosts_timing_and_the_methods(pa
         'rig': _timing('rig', steps, latency=latency),
         'force_servo_controller': _timing('force_servo_controller', steps, stale=stale)}
     replay = replay_timing(run)
-    assert replay['late_commands'] == {'': 6} and replay['stale_steps'] == {'': 5}
+    assert replay['late_commands'] == {'': 6} and replay['lost_commands'] == {'': 2}
+    assert replay['stale_steps'] == {'': 5}
     assert replay['as_run'] == replay['recorded']
     lockstep = compare_run(simulate(params)).displacement.nrms
     assert replay['in_time']['displacement'] == pytest.approx(lockstep, rel=1e-6)
@@ -84,9 +87,9 @@ def test_the_replay_splits_a_runs_error_into_the_hosts_timing_and_the_methods(pa
     assert predicting['acceleration'] - in_time['acceleration'] < 0.0002
     assert as_run['acceleration'] > 0.05
     line = timing_replay_line(replay)
-    assert line.startswith('6 late command(s) (rig ticks on the previous command: the stale '
-                           'commands), 5 controller stale step(s); worst NRMS x / a / f '
-                           'recorded')
+    assert line.startswith('6 late command(s) and 2 lost (rig ticks on the previous command: '
+                           'the stale commands), 5 controller stale step(s); worst NRMS x / a '
+                           '/ f recorded')
     assert ', the rig predicting late commands ' in line
     assert 'does not reproduce' not in line
     # a replay that misses the run says so (a 40 ms stall of the rig's own tick: 42 % run,

@@ -679,6 +679,7 @@ def timing_replay_line(replay: dict) -> str:
     NRMS x / acceleration / interface force recorded, replayed as run (and, where it was
     replayed so, with the rig predicting late commands) and in time."""
     late = sum(replay['late_commands'].values())
+    lost = sum((replay.get('lost_commands') or {}).values())
     stale = sum(replay['stale_steps'].values())
     predicting = (f", the rig predicting late commands {replay_cell(replay['predicting'])}"
                   if replay.get('predicting') else '')
@@ -691,8 +692,11 @@ def timing_replay_line(replay: dict) -> str:
                                                          if behind > 1 else ''))
     missed = (' (which does not reproduce the run: part of its timing is not modelled)'
               if not replay_reproduces_run(replay) else '')
-    return (f'{late} late command(s) (rig ticks on the previous command: the stale '
-            f'commands), {stale_text}; worst NRMS x / a / f recorded '
+    # a command that never arrived (lost) is not late: counted apart (a new user read the
+    # lost ones among the late; session 36)
+    lost_text = f' and {lost} lost' if lost else ''
+    return (f'{late} late command(s){lost_text} (rig ticks on the previous command: the '
+            f'stale commands), {stale_text}; worst NRMS x / a / f recorded '
             f"{replay_cell(replay['recorded'])}, replayed as run "
             f"{replay_cell(replay['as_run'])}{missed}"
             f"{predicting}, with every step in time {replay_cell(replay['in_time'])} (the "

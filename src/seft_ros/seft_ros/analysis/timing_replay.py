@@ -55,7 +55,8 @@ def replay_timing(run, recorded: dict | None = None) -> dict | None:
     -------
     dict or None
         None for a lockstep run or a rig that is not simulated (a lab's hardware cannot be
-        replayed); else ``late_commands`` and ``stale_steps`` (per rig, counts) and
+        replayed); else ``late_commands`` (arrived after their sample period),
+        ``lost_commands`` (never arrived) and ``stale_steps`` (per rig, counts) and
         ``recorded``, ``as_run``, ``in_time``: the worst NRMS per signal
         (:data:`~seft_ros.analysis.findings.REPLAY_SIGNALS`, fractions; an unstable replay
         ``{'unstable_at_s': t}``); where a rig held its late commands
@@ -91,16 +92,18 @@ def replay_timing(run, recorded: dict | None = None) -> dict | None:
 
     as_run = simulate(params, stale_steps=stale, command_latency_s=latency)
     in_time = simulate(params, command_latency_s={rig: {} for rig in run.rig_names})
-    late = {rig: sum(1 for v in lat.values() if not v <= float(p['dt']))
+    late = {rig: sum(1 for v in lat.values() if math.isfinite(v) and v > float(p['dt']))
+            for rig, lat in latency.items()}
+    lost = {rig: sum(1 for v in lat.values() if not math.isfinite(v))
             for rig, lat in latency.items()}
     extra = {}
     holding = {rig: rp.get('realtime_late_command', 'hold') == 'hold'
                for rig, rp in test_setup(params).rig_params.items()}
-    if any(n and holding[rig] for rig, n in late.items()):
+    if any((late[rig] or lost[rig]) and holding[rig] for rig in late):
         # what rigs that predict a late command would have made of the same timing
         extra['predicting'] = worst_nrms(simulate(_predicting(params), stale_steps=stale,
                                                   command_latency_s=latency))
-    return {'late_commands': late,
+    return {'late_commands': late, 'lost_commands': lost,
             'stale_steps': {rig: len(s) for rig, s in stale.items()},
             'steps_behind': {rig: max(s.values(), default=0) for rig, s in stale.items()},
             'recorded': ({s: recorded.get(s) for s in REPLAY_SIGNALS} if recorded is not None
