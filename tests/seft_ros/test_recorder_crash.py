@@ -108,5 +108,6 @@ def test_a_killed_recorder_leaves_a_bag_that_seft_compare_reads(tmp_path, seft_e
     assert f'recovered {run.n_steps * DT:.3f} s ({run.n_steps} steps' in note[0]
     entry = json.loads((cmp_out / 'summary.json').read_text())['runs'][0]
     assert entry['recording']['end'] == 'crashed' and entry['stable'] is False
+    assert entry['verdict'] == 'recording cut short'
     assert entry['recording']['steps'] == run.n_steps
     assert '**recording not closed**' in (cmp_out / 'report.md').read_text()

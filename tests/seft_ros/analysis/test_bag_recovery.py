@@ -168,6 +168,13 @@ def test_a_killed_recorders_bag_reads_up_to_the_last_flush(mcap_bags, tmp_path):
                                 'still recording)')
     assert rec['note'].startswith('the recording was not closed (recorder killed, or still '
                                   'recording): recovered 1.200 s (600 steps')
+    # a cut, not an abort (a new user's recovered cut recording read 'aborted'; session 36)
+    from seft_ros.analysis.metrics import compare_run, summary_entry
+    from seft_ros.analysis.report import _entry_status
+    assert run.recording_cut_short
+    entry = summary_entry(run, compare_run(run))
+    assert entry['verdict'] == 'recording cut short'
+    assert _entry_status(entry) == 'recording cut short at 1.200 s'
 
 
 def test_a_closed_bags_file_cut_afterwards_reads_as_recovered_and_says_so(mcap_bags,

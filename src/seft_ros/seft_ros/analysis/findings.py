@@ -649,10 +649,11 @@ def run_flags(run: RunData, comparison) -> list[str]:
     return flags
 
 
-def verdict(stable: bool, flags: list[str]) -> str:
-    """``'stable'``, ``'stable, flagged'`` or ``'aborted'``."""
+def verdict(stable: bool, flags: list[str], cut: bool = False) -> str:
+    """``'stable'``, ``'stable, flagged'``, ``'aborted'`` or, `cut` (its recording cut
+    short, :func:`~seft_ros.analysis.rundata.cut_short`), ``'recording cut short'``."""
     if not stable:
-        return 'aborted'
+        return 'recording cut short' if cut else 'aborted'
     return 'stable, flagged' if flags else 'stable'
 
 

@@ -1152,7 +1152,8 @@ def summary_entry(run: RunData, comparison: RunComparison) -> dict[str, Any]:
         controller confirmed its safe state
         (:func:`seft_ros.analysis.findings.bridge_entry`), ``'flags'``, why the run may
         have lost accuracy as a lab sees it (:func:`seft_ros.analysis.findings.run_flags`), and
-        ``'verdict'``, ``'stable'``, ``'stable, flagged'`` or ``'aborted'``; ``wall_s`` [s],
+        ``'verdict'``, ``'stable'``, ``'stable, flagged'``, ``'aborted'`` or ``'recording cut
+        short'``; ``wall_s`` [s],
         the wall time of the stepping, from ``run.extra['wall_s']``; ``rig_contract``, the rig
         contract its rig reported, ``'seft-rig/1.1'``, None for a bag before it, from
         ``run.extra``) where alpha and rig are the rig's ``alpha`` and ``rig_model``, predictor
@@ -1248,7 +1249,7 @@ def summary_entry(run: RunData, comparison: RunComparison) -> dict[str, Any]:
     if bridge:
         entry['udp_bridge'] = bridge
     entry['flags'] = run_flags(run, comparison)
-    entry['verdict'] = verdict(bool(run.stable), entry['flags'])
+    entry['verdict'] = verdict(bool(run.stable), entry['flags'], run.recording_cut_short)
     entry.update(_structure_entries(run, comparison))
     return json_safe(entry)
 

@@ -47,7 +47,13 @@ from seft_ros.analysis.metrics import (
     restoring_force,
     summary_entry,
 )
-from seft_ros.analysis.rundata import RECORDING_CUT_SHORT, SIGNALS, RunData, rig_label
+from seft_ros.analysis.rundata import (
+    RECORDING_CUT_SHORT,
+    SIGNALS,
+    RunData,
+    cut_short,
+    rig_label,
+)
 from seft_ros.analysis.timing import (
     link_markdown,
     link_summary,
@@ -352,11 +358,17 @@ def _predictor(run: RunData) -> str:
     return 'n/a' if value is None else str(value)
 
 
+def _ended(run: RunData) -> str:
+    """How a run that did not complete ended: 'aborted', or 'recording cut short'."""
+    return 'recording cut short' if run.recording_cut_short else 'aborted'
+
+
 def _abort_label(run: RunData) -> str:
     at = _abort_time(run)
+    what = _ended(run)
     if at is None:
-        return 'stable' if run.stable else 'aborted'
-    return f'aborted at {at:.3f} s'
+        return 'stable' if run.stable else what
+    return f'{what} at {at:.3f} s'
 
 
 def plot_predictor_comparison(runs: list[RunData], comparisons: list[RunComparison], path, *,
@@ -1019,7 +1031,9 @@ def _entry_status(entry: dict[str, Any]) -> str:
     if entry.get('stable'):
         return 'stable, flagged' if entry.get('flags') else 'stable'
     at = entry.get('unstable_at_s')
-    return f'aborted at {at:.3f} s' if isinstance(at, (int, float)) else 'aborted'
+    what = ('recording cut short' if cut_short(False, entry.get('abort_node'),
+                                               entry.get('recording')) else 'aborted')
+    return f'{what} at {at:.3f} s' if isinstance(at, (int, float)) else what
 
 
 def _cross_predictor_markdown(runs: list[RunData], entries: list[dict[str, Any]],
@@ -1549,7 +1563,7 @@ def plot_structure_time_histories(run: RunData, comparison: RunComparison, path,
             ax.grid(True, alpha=0.3)
             if not run.stable and run.unstable_at_s is not None:
                 ax.axvline(float(run.unstable_at_s), color='tab:red', lw=0.8, ls=':',
-                           label=f'aborted at t = {float(run.unstable_at_s):.3f} s')
+                           label=f'{_ended(run)} at t = {float(run.unstable_at_s):.3f} s')
             if row == 0 and col == 0:
                 ax.legend(fontsize=7, loc='upper right')
     # each column's lowest drawn panel carries the time axis (the interface force's column

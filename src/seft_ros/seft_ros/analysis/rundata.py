@@ -15,12 +15,22 @@ from typing import Any, Mapping
 import numpy as np
 
 __all__ = ['RunData', 'RigData', 'SIGNALS', 'RIG_SIGNALS', 'rig_label', 'only_rig',
-           'RECORDING_CUT_SHORT']
+           'RECORDING_CUT_SHORT', 'cut_short']
 
 #: The ends of a recording that holds less than its run (``extra['recording']['end']``,
 #: ``seft_ros.analysis.bag.recording_end``): never closed, stopped before the run ended, or
 #: its file cut or damaged after the recording.
 RECORDING_CUT_SHORT = ('crashed', 'stopped', 'damaged')
+
+def cut_short(stable: bool, abort_node: str | None, recording: dict | None) -> bool:
+    """Whether a run that did not complete in its bag ends there because its recording did
+    (:data:`RECORDING_CUT_SHORT`: the recorder killed or stopped, the file cut), not because
+    a node aborted it (`abort_node` None): the test may have gone on; a cut, not an abort
+    (a new user's recovered cut recording read 'aborted'; session 36). `stable`,
+    `abort_node` and `recording` as :class:`RunData`'s (``extra``) or a summary entry's."""
+    return (not stable and abort_node is None
+            and (recording or {}).get('end') in RECORDING_CUT_SHORT)
+
 
 #: Signals compared against the reference analysis, in report order.
 SIGNALS = ('displacement', 'force', 'acceleration')
@@ -188,6 +198,13 @@ class RunData:
                        dict(rig_extra or {}))
         return cls(params=params, time_s=time_s,
                    ground_acceleration_m_s2=ground_acceleration_m_s2, rigs={rig: data}, **run)
+
+    @property
+    def recording_cut_short(self) -> bool:
+        """The run ends in its bag where its recording was cut, not aborted
+        (:func:`cut_short`)."""
+        return cut_short(bool(self.stable), self.extra.get('abort_node'),
+                         self.extra.get('recording'))
 
     @property
     def n_steps(self) -> int:

@@ -860,7 +860,8 @@ def _read_outcome(outcome, label: str, progress: Callable[[str], None]) -> RunDa
             said.add(key)
             progress(f'[{label}] {key[0]}: warning: {key[1]} (from the bag: not said during '
                      'the run)')
-    state = 'stable' if rd.stable else f'ABORTED at {rd.unstable_at_s:.3f} s: ' \
+    ended = 'RECORDING CUT SHORT' if rd.recording_cut_short else 'ABORTED'
+    state = 'stable' if rd.stable else f'{ended} at {rd.unstable_at_s:.3f} s: ' \
         f'{rd.abort_reason}'
     stepping = rd.extra.get('wall_s')          # the rigs' stepping, without the start-up
     stepped = f' (stepping {stepping:.1f} s)' if stepping else ''
