@@ -194,3 +194,49 @@ def test_the_tolerance_of_the_cancelled_specimen_measured():
 
     assert nrms() == pytest.approx(0.0152, abs=0.001)
     assert nrms(force_controller='specimen_loop_shaping') == pytest.approx(0.0037, abs=0.0005)
+
+
+def test_a_declared_specimen_other_than_the_plant_models_is_said():
+    """A rig whose declared specimen is not its plant model's (a mass typed in grams: 1000
+    times the plant's, session 38, refused by the guard at a largest stable alpha of 0.0007
+    with no word of the cause) gets a line naming both; within 10 % (an identification's
+    scatter), none."""
+    from pathlib import Path
+    rig = Path(__file__).resolve().parents[1] / 'analysis' / 'data' / 'own_actuator_F_rig.yaml'
+    values = dict(load_config(rig), predictor='model', alpha=0.5)
+    exact = dict(values, mass_kg=200.0, stiffness_N_per_m=1776500.0)
+    assert not [line for line in costly_settings(parameters.resolve(exact))
+                if 'plant model' in line]
+    near = dict(exact, mass_kg=215.0)                  # 7.5 % off: within the tolerance
+    assert not [line for line in costly_settings(parameters.resolve(near))
+                if 'plant model' in line]
+    grams = dict(exact, mass_kg=200000.0)
+    lines = [line for line in costly_settings(parameters.resolve(grams))
+             if 'plant model' in line]
+    assert lines == [
+        "rig: the declared specimen (2e+05 kg, 1.776e+06 N/m, 0.47 Hz) is 1e+03 x the plant "
+        "model's mass and 1 x its stiffness (200 kg, 1.777e+06 N/m, 15.00 Hz): the reference "
+        'structure, the guard and the compensators take the declared specimen, the force loop '
+        "the plant model's (a unit slip? a plant model of another specimen?); declare the "
+        'specimen the plant model has (seft identify wrote it), or identify this one']
+    # said before the run, not a flag of it
+    assert not [line for line in costly_settings(parameters.resolve(grams), flagging=True)
+                if 'plant model' in line]
+
+
+def test_the_settings_lines_come_before_the_guards_refusal(tmp_path):
+    """The settings lines may say why the guard refuses a run: they come first (a new
+    user's specimen 1000 times too soft was refused, and the line naming it came only under
+    --force, after the refusal would have stopped the run; session 38)."""
+    from pathlib import Path
+
+    from seft_ros.cli.api import simulate_experiments
+    from seft_ros.core.stability import PredictedUnstableError
+    rig = Path(__file__).resolve().parents[1] / 'analysis' / 'data' / 'own_actuator_F_rig.yaml'
+    p = parameters.resolve(dict(load_config(rig), predictor='none', alpha=0.5,
+                                mass_kg=200000.0, stiffness_N_per_m=1776500.0,
+                                duration_s=1.0))
+    lines = []
+    with pytest.raises(PredictedUnstableError):
+        simulate_experiments(runs=[p], out_dir=tmp_path, progress=lines.append)
+    assert any("the plant model's mass" in line for line in lines), lines

@@ -587,9 +587,11 @@ def simulate_experiments(*, runs: list[dict], out_dir: Path,
     for path in bags:
         if path.exists():
             raise InputError(f'{path}: the bag exists already; expected a new --out directory')
+    # the settings lines first: they may say why the guard refuses (a new user's specimen
+    # 1000 times too soft, refused with its cause said only under --force; session 38)
+    check_settings(runs=runs, progress=progress)
     checks = check_stability(runs=runs, force=force, progress=progress)
     ranges = check_ranges(runs=runs, strict=strict, progress=progress)
-    check_settings(runs=runs, progress=progress)
     data = simulate_runs(runs=runs, out_dir=out_dir, progress=progress, workers=workers)
     for rd, check, limits in zip(data, checks, ranges):
         rd.extra['stability'] = stability_entry(check)
@@ -1068,9 +1070,9 @@ def run_experiments(*, runs: list[dict], out_dir: Path,
         run_labels(runs)                  # each run its own directory, before anything starts
         if nodes is not None:
             nodes = check_nodes(nodes, runs)
+            check_settings(runs=runs, progress=progress)
             check_stability(runs=runs, force=force, progress=progress)
             check_ranges(runs=runs, strict=strict, force=force, progress=progress)
-            check_settings(runs=runs, progress=progress)
     if nodes is not None:
         return _run_here(runs, out_dir, progress, _shared_domain(domain_id), nodes, processes,
                          live)
@@ -1079,10 +1081,10 @@ def run_experiments(*, runs: list[dict], out_dir: Path,
     predicted, ranges = [], []
 
     def checks():
+        check_settings(runs=runs, progress=progress)     # first: they may say why (above)
         predicted.extend(check_stability(runs=runs, force=force, progress=progress))
         ranges.extend(check_ranges(runs=runs, strict=strict, force=force,
                                    progress=progress))
-        check_settings(runs=runs, progress=progress)
     with interrupted_as(lambda exc: NOTHING_RUN):
         runner, claim = open_runner(domain_id=domain_id, progress=progress, checks=checks,
                                     processes=processes)

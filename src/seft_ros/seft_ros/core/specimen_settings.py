@@ -16,7 +16,8 @@ from typing import Any, Mapping
 from seft_msgs_py.parameters import identification_run
 
 __all__ = ['YIELDING_SETTINGS', 'follow_specimen', 'costly_settings', 'COSTLY', 'FLAGGING',
-           'CANCELLED_STIFFNESS_TOLERANCE', 'CANCELLED_DAMPING_TOLERANCE']
+           'CANCELLED_STIFFNESS_TOLERANCE', 'CANCELLED_DAMPING_TOLERANCE',
+           'PLANT_SPECIMEN_TOLERANCE']
 
 #: The settings of a member that yields: (parameter, value, the rig model it applies to, None:
 #: every rig). docs/tutorials/yielding.md (the tangent controller and the hysteretic
@@ -150,6 +151,14 @@ COSTLY = {
                  '{k_per_m:.5g} ({specimen_hz:.2f} Hz): 1 % stiffer costs the one-rig test 1.5 % '
                  'of x where it had 0.4 %, 18 % stiffer a two-story 24.7 % where it had 0.49 % '
                  '(docs: structures); use force_controller: specimen_loop_shaping'),
+    'plant specimen': ("the declared specimen ({mass_kg:.4g} kg, {stiffness_N_per_m:.4g} N/m, "
+                       "{declared_hz:.2f} Hz) is {mass_ratio:.3g} x the plant model's mass and "
+                       '{stiffness_ratio:.3g} x its stiffness ({plant_mass_kg:.4g} kg, '
+                       '{plant_stiffness_N_per_m:.4g} N/m, {plant_hz:.2f} Hz): the reference '
+                       'structure, the guard and the compensators take the declared specimen, '
+                       "the force loop the plant model's (a unit slip? a plant model of "
+                       'another specimen?); declare the specimen the plant model has (seft '
+                       'identify wrote it), or identify this one'),
     'uncompensated structure': ("predictor none on a structure: the force loop's lag is not "
                                 'compensated, and no error flag judges the run (a two-story '
                                 'whose uncompensated run completed erred 37 % of x; session '
@@ -166,6 +175,43 @@ COSTLY = {
 #: wrong: said before the run, not flagged).
 FLAGGING = ('controller', 'linear law', 'tangent law', 'loop inverse', 'model unknown',
             'specimen')
+
+
+#: A rig's declared specimen whose mass or stiffness is further than this (relative) from
+#: its plant model's specimen gets the ``'plant specimen'`` line: a new user's mass typed in
+#: grams (80000 kg against the plant model's 80 kg) was refused by the guard (largest stable
+#: alpha 0.000742) with no word of the cause (session 38). A prior 20 % off is given as
+#: ``predictor_*``, not as the rig's specimen.
+PLANT_SPECIMEN_TOLERANCE = 0.1
+
+
+def _plant_specimen(p: Mapping[str, Any]) -> dict[str, float] | None:
+    """The figures of the ``'plant specimen'`` line when a rig's declared specimen
+    (``mass_kg``, ``stiffness_N_per_m``) is not its plant model's
+    (:data:`PLANT_SPECIMEN_TOLERANCE`; :func:`~seft_ros.core.force_loop.force_loop_plant`),
+    else None (no plant model, or one without a specimen)."""
+    import math
+
+    from seft_msgs_py.errors import ParameterError
+    from seft_ros.core.force_loop import force_loop_plant, has_plant_model
+
+    if not has_plant_model(p):
+        return None
+    try:
+        spec = force_loop_plant(p).specimen
+        m, k = float(p['mass_kg']), float(p['stiffness_N_per_m'])
+    except (ParameterError, KeyError, TypeError, ValueError):
+        return None                         # refused elsewhere
+    if spec is None or not (m > 0 and k > 0):
+        return None
+    mass_ratio, stiffness_ratio = m / spec.mass_kg, k / spec.stiffness_N_per_m
+    if (abs(mass_ratio - 1.0) <= PLANT_SPECIMEN_TOLERANCE
+            and abs(stiffness_ratio - 1.0) <= PLANT_SPECIMEN_TOLERANCE):
+        return None
+    return {'declared_hz': math.sqrt(k / m) / (2.0 * math.pi), 'mass_ratio': mass_ratio,
+            'stiffness_ratio': stiffness_ratio, 'plant_mass_kg': spec.mass_kg,
+            'plant_stiffness_N_per_m': spec.stiffness_N_per_m,
+            'plant_hz': spec.natural_frequency_hz}
 
 
 def _cancelled(p: Mapping[str, Any]) -> dict[str, float] | None:
@@ -243,6 +289,10 @@ def costly_settings(params: Mapping[str, Any], *, flagging: bool = False) -> lis
             figures = _cancelled(p) or {}
             if figures:
                 rules.append('specimen')
+        plant = _plant_specimen(p)
+        if plant:
+            figures = dict(figures, **plant)
+            rules.append('plant specimen')
         if (servo and predictor == 'adaptive' and not _yields(p)
                 and adaptive_loop_mode(p) == 'model' and not has_plant_model(p)):
             rules.append('latency declared')
