@@ -240,3 +240,27 @@ def test_the_settings_lines_come_before_the_guards_refusal(tmp_path):
     with pytest.raises(PredictedUnstableError):
         simulate_experiments(runs=[p], out_dir=tmp_path, progress=lines.append)
     assert any("the plant model's mass" in line for line in lines), lines
+
+
+def test_a_run_of_several_that_cannot_be_set_up_is_named():
+    """One run of a batch whose compensator cannot be set up (`model` with a specimen model
+    20 % off: its pole calibration refuses it) is named by its label (a new user's batch of
+    `model` and `adaptive` was refused in a line naming no run; session 38); alone, as
+    before."""
+    from pathlib import Path
+
+    from seft_msgs_py.errors import ParameterError
+    from seft_ros.cli.api import build_runs, check_stability
+    rig = Path(__file__).resolve().parents[1] / 'analysis' / 'data' / 'own_actuator_F_rig.yaml'
+    off = {'mass_kg': 200.0, 'stiffness_N_per_m': 1776500.0, 'damping_N_s_per_m': 1130.97,
+           'predictor_stiffness_N_per_m': 1.2 * 1776500.0, 'predictor_mass_kg': 160.0,
+           'duration_s': 1.0}
+    runs = build_runs(params_files=[str(rig)], overrides=dict(off, predictor=['adaptive',
+                                                                               'model']))
+    with pytest.raises(ParameterError, match=r'^\[alpha_0_servohydraulic_model\] '
+                       r'predictor_calibration poles: .*\(the other runs: run them without '
+                       r'this one\)$'):
+        check_stability(runs=runs, progress=lambda line: None)
+    with pytest.raises(ParameterError, match=r'^predictor_calibration poles: '):
+        check_stability(runs=runs[1:], progress=lambda line: None)
+    check_stability(runs=runs[:1], progress=lambda line: None)      # adaptive alone runs

@@ -1720,11 +1720,26 @@ def check_stability(*, runs: list[dict], force: bool = False,
     PredictedUnstableError
         A run is predicted unstable, or its uncertainty exceeds its margin, and `force` is
         False (message of the first such run).
+    ParameterError
+        A run cannot be set up (its compensator's calibration; named by its label when there
+        are several runs).
     """
     spectra: dict = {}
-    checks = [guard_check(p, spectra) for p in runs]
+    labels = run_labels(runs)
+    checks = []
+    for p, label in zip(runs, labels):
+        try:
+            checks.append(guard_check(p, spectra))
+        except ParameterError as exc:
+            # one run of several that cannot be set up (its compensator's calibration): named
+            # (a new user's `model` of a batch with `adaptive` refused all in a line naming
+            # none; session 38)
+            if len(runs) > 1:
+                raise ParameterError(f'[{label}] {exc} (the other runs: run them without '
+                                     'this one)') from None
+            raise
     refused = []
-    for p, c, label in zip(runs, checks, run_labels(runs)):
+    for p, c, label in zip(runs, checks, labels):
         if c.stable is None:
             progress(f'note: {c.message}')
         if c.margin is not None:
