@@ -204,6 +204,23 @@ def test_a_model_that_fails_keeps_opensees_message(tmp_path):
         parse_structure(_section(model=path))
 
 
+def test_the_fault_is_quoted_not_a_warning_before_it(tmp_path):
+    """A harmless warning before the fault (a zeroLength element 3 m long) was quoted in
+    place of the fault (a new user's material typo; session 38)."""
+    path = _model(tmp_path, """
+        import openseespy.opensees as ops
+        def build():
+            ops.wipe(); ops.model('basic', '-ndm', 2, '-ndf', 2)
+            ops.node(0, 0.0, 0.0); ops.node(1, 0.0, 3.0)
+            ops.uniaxialMaterial('Elastic', 1, 1.0e5)
+            ops.element('zeroLength', 1, 0, 1, '-mat', 1, '-dir', 1)
+            ops.uniaxialMaterial('Steel1', 2, 1.0e3, 1.0e5, 0.02)
+    """)
+    with pytest.raises(ModelError, match=r'failed: OpenSees: WARNING material type Steel1 is '
+                       r'unknown$'):
+        parse_structure(_section(model=path))
+
+
 def test_a_model_that_raises_is_named(tmp_path):
     path = _model(tmp_path, """
         def build():

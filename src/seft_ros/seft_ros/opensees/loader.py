@@ -183,11 +183,21 @@ def captured():
             os.unlink(path)
 
 
+#: Words of an OpenSees message line that names a fault (:func:`last_message`), lower case.
+FAULT_WORDS = ('unknown', 'error', 'not found', 'does not exist', 'could not', 'failed',
+               'invalid', 'cannot', 'insufficient', 'not enough', 'no ', 'bad ')
+
+
 def last_message(text: str, limit: int = 240) -> str:
-    """OpenSees' first message line of `text` (where it names the fault), whitespace
-    collapsed and cut to `limit` characters ('' if none)."""
-    for line in text.splitlines():
-        line = ' '.join(line.split())
-        if line and not line.startswith('Process 0 Terminating'):
-            return line if len(line) <= limit else line[:limit - 3] + '...'
-    return ''
+    """OpenSees' message line of `text` that names the fault: the first that reads as one
+    (:data:`FAULT_WORDS`), else the first; whitespace collapsed and cut to `limit`
+    characters ('' if none). A model's harmless warning before its fault (a zeroLength
+    element longer than the tolerance) was quoted in place of the fault ('material type
+    Steel1 is unknown'; a new user, session 38)."""
+    lines = [' '.join(line.split()) for line in text.splitlines()]
+    lines = [line for line in lines if line and not line.startswith('Process 0 Terminating')]
+    if not lines:
+        return ''
+    line = next((line for line in lines if any(w in line.lower() for w in FAULT_WORDS)),
+                lines[0])
+    return line if len(line) <= limit else line[:limit - 3] + '...'
