@@ -43,6 +43,10 @@ def test_identify_writes_json_plots_report_and_params(bags, capsys):
     assert doc['zero_hz'] == pytest.approx(10.07, rel=0.03)
     assert doc['resonance_hz'] == pytest.approx(90.2, rel=0.01)
     assert doc['delay_ms'] == pytest.approx(11.7, abs=0.6)
+    # the crossovers and the one of the phase margin (a loop of three crossings printed the
+    # first beside the margin of another; session 38): seft's rig crosses once
+    assert doc['crossovers'] == 1 and doc['phase_margin_hz'] == doc['crossover_hz']
+    assert 'crossovers' in printed and 'phase_margin_hz' in printed
     for r in doc['runs']:
         for name in r['plots']:
             assert (out / name).read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
@@ -142,3 +146,18 @@ def test_identify_warns_of_a_specimen_that_is_not_the_declared_one(bags):
     assert ('  WARNING: the identified specimen is 1 x the declared mass and 0.04 x its '
             'stiffness (beyond +-10 %): the specimen on the rig is not the declared one'
             in identification_table(doc))
+
+
+def test_a_state_space_rigs_known_model_is_named_as_its_rig_plant_model():
+    """The known model of a state_space rig given by its rig_plant_model alone is named so
+    (it read 'parameter plant_model'; a new user, session 38)."""
+    from pathlib import Path
+
+    from seft_msgs_py import parameters
+    from seft_ros.analysis.rig_identification import _known_model
+    rig = Path(__file__).resolve().parents[1] / 'analysis' / 'data' / 'own_actuator_F_rig.yaml'
+    plant = json.loads(load_config(rig)['plant_model'])
+    del plant['source']                      # a lab's own file names none: the parameter
+    p = parameters.resolve({'rig_model': 'state_space', 'rig_plant_model': json.dumps(plant)})
+    known, _ = _known_model(p)
+    assert known.source.startswith('parameter rig_plant_model'), known.source

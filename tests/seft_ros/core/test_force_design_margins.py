@@ -146,3 +146,25 @@ def test_a_sampled_zero_off_the_specimens_mode_is_warned_with_a_shorter_dt():
     assert force_design.sampled_zero_offset(study)[2] < 0.25 * force_design.SAMPLED_ZERO_BOUND
     assert force_design._sampled_zero_note(
         study, None, force_design._csi_zero(study, None)) is None
+
+
+def test_the_phase_margin_names_its_crossover():
+    """An integrator over a 10 Hz, 2 % resonance crosses 0 dB three times: at 2.09 Hz
+    (|2/(j 2 pi f / 2 pi)| = 1 below the resonance, the crossover) and on either side of the
+    resonance; its smallest phase margin is at the third (10.86 Hz, -76.4 deg), not at the
+    crossover printed beside it (a new user read the two as one; session 38)."""
+    import pytest
+
+    from seft_ros.core.force_design import loop_margins
+
+    def loop(f):
+        f = np.asarray(f, dtype=float)
+        return (2.0 / (1j * f)) / (1.0 - (f / 10.0) ** 2 + 2j * 0.02 * (f / 10.0))
+    m = loop_margins(loop, 0.1, 100.0)
+    assert m.crossovers == 3
+    assert m.crossover_hz == pytest.approx(2.0914, abs=1e-4)
+    assert m.phase_margin_hz == pytest.approx(10.858, abs=1e-3)
+    at = loop(np.array([m.phase_margin_hz]))[0]
+    assert abs(at) == pytest.approx(1.0, abs=1e-9)
+    assert m.phase_margin_deg == pytest.approx(math.degrees(np.angle(at)) + 180.0 - 360.0)
+    assert m.to_json()['phase_margin_hz'] == m.phase_margin_hz

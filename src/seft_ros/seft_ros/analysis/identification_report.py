@@ -24,8 +24,8 @@ __all__ = ['write_identification', 'write_params_yaml', 'write_rig_params_yaml',
            'SUMMARY_KEYS']
 
 #: The top-level figures of ``identification.json`` (the first bag that gives each).
-SUMMARY_KEYS = ('zero_hz', 'resonance_hz', 'crossover_hz', 'phase_margin_deg', 'gain_margin',
-                'delay_ms', 'delay_xcorr_ms')
+SUMMARY_KEYS = ('zero_hz', 'resonance_hz', 'crossover_hz', 'crossovers', 'phase_margin_deg',
+                'phase_margin_hz', 'gain_margin', 'delay_ms', 'delay_xcorr_ms')
 
 
 

@@ -345,24 +345,32 @@ class LoopFigures:
     crossover_hz : float
         First frequency where ``|L|`` falls through 1 [Hz] (nan if none).
     phase_margin_deg : float
-        ``180 + arg L`` there [deg], in (-180, 180].
+        The smallest ``180 + arg L`` at a gain crossover [deg], in (-180, 180].
     gain_margin : float
         Smallest ``1/|L|`` where ``arg L = -180 deg`` (inf if none) [-].
     phase_crossover_hz : float
         Its frequency [Hz].
+    crossovers : int
+        The gain crossovers in the band.
+    phase_margin_hz : float
+        The gain crossover of `phase_margin_deg` [Hz]: with several crossovers, not
+        necessarily `crossover_hz`.
     """
 
     crossover_hz: float
     phase_margin_deg: float
     gain_margin: float
     phase_crossover_hz: float
+    crossovers: int = 1
+    phase_margin_hz: float = math.nan
 
     def to_json(self) -> dict[str, float]:
-        """The four figures (``gain_margin`` inf as None)."""
+        """The figures (``gain_margin`` inf as None)."""
         gm = self.gain_margin
         return {'crossover_hz': self.crossover_hz, 'phase_margin_deg': self.phase_margin_deg,
                 'gain_margin': None if math.isinf(gm) else gm,
-                'phase_crossover_hz': self.phase_crossover_hz}
+                'phase_crossover_hz': self.phase_crossover_hz, 'crossovers': self.crossovers,
+                'phase_margin_hz': self.phase_margin_hz}
 
 
 def loop_figures(loop, f_min: float, f_max: float, points: int = 4000) -> LoopFigures:
@@ -380,7 +388,8 @@ def loop_figures(loop, f_min: float, f_max: float, points: int = 4000) -> LoopFi
     """
     from seft_ros.core.force_design import loop_margins
     m = loop_margins(loop, f_min, f_max, points)
-    return LoopFigures(m.crossover_hz, m.phase_margin_deg, m.gain_margin, m.phase_crossover_hz)
+    return LoopFigures(m.crossover_hz, m.phase_margin_deg, m.gain_margin, m.phase_crossover_hz,
+                       m.crossovers, m.phase_margin_hz)
 
 
 def phase_slope_delay_s(freqs_hz, response, band_hz=DELAY_BAND_HZ, weight=None) -> float:
@@ -451,10 +460,16 @@ def _known_model(params):
     from seft_ros.core.controller import ForceServoController
     from seft_ros.core.force_loop import force_loop_plant
     rig_plant = params.get('rig_plant_model', 'none')
-    if params.get('rig_model') == 'state_space' and rig_plant not in (None, '', 'none'):
-        params = dict(params, plant_model=rig_plant)
     try:
-        return force_loop_plant(params), ForceServoController.from_parameters(params)
+        if params.get('rig_model') == 'state_space' and rig_plant not in (None, '', 'none'):
+            # named as the parameter it is (it read 'parameter plant_model'; session 38)
+            from seft_msgs_py.plant import parse_plant
+            params = dict(params, plant_model=rig_plant)
+            plant = parse_plant(rig_plant, dt=float(params['dt']),
+                                where='parameter rig_plant_model')
+        else:
+            plant = force_loop_plant(params)
+        return plant, ForceServoController.from_parameters(params)
     except ParameterError:
         return None
 

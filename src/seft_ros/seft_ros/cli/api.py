@@ -2339,8 +2339,8 @@ def design_controllers(*, config: str | None = None, overrides: dict | None = No
 
 
 #: The figures ``seft identify`` prints, in order.
-_IDENTIFY_FIGURES = ('zero_hz', 'resonance_hz', 'crossover_hz', 'phase_margin_deg',
-                     'gain_margin', 'delay_ms', 'delay_xcorr_ms')
+_IDENTIFY_FIGURES = ('zero_hz', 'resonance_hz', 'crossover_hz', 'crossovers', 'phase_margin_deg',
+                     'phase_margin_hz', 'gain_margin', 'delay_ms', 'delay_xcorr_ms')
 #: The fit error of the fixed-order rational fit above which ``seft identify`` warns that
 #: the loop figures it prints (:data:`_IDENTIFY_FIGURES`, read on that fit) are not to be
 #: trusted [-]: seft's own rig fits within 0.7 %, and the figures' documented tolerances

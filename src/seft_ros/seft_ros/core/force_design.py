@@ -143,6 +143,9 @@ class LoopMargins:
         Its frequency [Hz] (nan if none).
     crossovers : int
         The number of gain crossovers (1 for a well-shaped loop).
+    phase_margin_hz : float
+        The gain crossover of the smallest phase margin [Hz] (nan if none): with several,
+        not necessarily `crossover_hz` (a new user read the two as one; session 38).
     """
 
     crossover_hz: float
@@ -150,6 +153,7 @@ class LoopMargins:
     gain_margin: float
     phase_crossover_hz: float
     crossovers: int = 1
+    phase_margin_hz: float = math.nan
 
     def to_json(self) -> dict:
         """The figures (``gain_margin`` inf as None)."""
@@ -157,7 +161,8 @@ class LoopMargins:
         return {'crossover_hz': self.crossover_hz, 'phase_margin_deg': self.phase_margin_deg,
                 'gain_margin': None if math.isinf(gm) else gm,
                 'gain_margin_dB': None if math.isinf(gm) else 20.0 * math.log10(gm),
-                'phase_crossover_hz': self.phase_crossover_hz, 'crossovers': self.crossovers}
+                'phase_crossover_hz': self.phase_crossover_hz, 'crossovers': self.crossovers,
+                'phase_margin_hz': self.phase_margin_hz}
 
     def meets(self, phase_margin_deg: float, gain_margin: float) -> bool:
         """Whether the loop has one crossover and at least these margins."""
@@ -994,7 +999,7 @@ def _refined(loop, f, lg, coarse: LoopMargins) -> LoopMargins:
     for i in cross:
         x = brentq(lambda v: abs(at(v)) - 1.0, f[i], f[i + 1], xtol=1e-10)
         pm = (math.degrees(np.angle(at(x))) + 180.0) % 360.0
-        pms.append(pm - 360.0 if pm > 180.0 else pm)
+        pms.append((pm - 360.0 if pm > 180.0 else pm, x))
         if math.isnan(fc) and mag[i] > 1.0:
             fc = x
     flips = np.nonzero((np.sign(lg.imag[:-1]) != np.sign(lg.imag[1:])) & (lg.real[:-1] < 0))[0]
@@ -1005,8 +1010,8 @@ def _refined(loop, f, lg, coarse: LoopMargins) -> LoopMargins:
         if value.real < 0 and 1.0 / abs(value) < gm:
             gm, fp = 1.0 / abs(value), x
     del coarse
-    return LoopMargins(float(fc), float(min(pms)) if pms else math.nan, float(gm), float(fp),
-                       len(cross))
+    pm, at_hz = min(pms) if pms else (math.nan, math.nan)
+    return LoopMargins(float(fc), float(pm), float(gm), float(fp), len(cross), float(at_hz))
 
 
 def _grid_margins(lg: np.ndarray, f: np.ndarray) -> LoopMargins:
@@ -1018,11 +1023,12 @@ def _grid_margins(lg: np.ndarray, f: np.ndarray) -> LoopMargins:
     pms = []
     for i in cross:
         pm = (math.degrees(np.angle(lg[i + 1])) + 180.0) % 360.0
-        pms.append(pm - 360.0 if pm > 180.0 else pm)
+        pms.append((pm - 360.0 if pm > 180.0 else pm, float(f[i + 1])))
     flips = np.nonzero((np.sign(lg.imag[:-1]) != np.sign(lg.imag[1:])) & (lg.real[:-1] < 0))[0]
     gm = min((1.0 / abs(lg[i]) for i in flips), default=math.inf)
-    return LoopMargins(float(f[down[0]]) if down else math.nan,
-                       min(pms) if pms else math.nan, float(gm), math.nan, len(cross))
+    pm, at_hz = min(pms) if pms else (math.nan, math.nan)
+    return LoopMargins(float(f[down[0]]) if down else math.nan, pm, float(gm), math.nan,
+                       len(cross), at_hz)
 
 
 def _closed_loop_stable(plant: PlantModel, bz, az) -> bool:
