@@ -148,6 +148,19 @@ def test_no_motion_is_not_a_specimen():
     assert fit.verdict().startswith('not a specimen')
 
 
+def test_a_force_of_the_wrong_sign_is_named_a_sign():
+    """The force negated (a load cell's polarity reversed): m, c and k all come out negated
+    and explain the force exactly; named a sign, not 'too little motion' (a new user, session
+    38). No motion at all keeps its verdict (above)."""
+    f, x, v, a = _oscillator(52.7, 903.3, 2.11e5)
+    fit = fit_specimen(-f, x, v, a, 0.002, band_hz=(0.5, 60.0))
+    assert fit.mass_kg == pytest.approx(-52.7, rel=1e-6)
+    assert fit.verdict().startswith('not a specimen: the fit gives m = -52.7 kg, c = -903.3 N '
+                                    's/m, k = -2.11e+05 N/m, all negative, and explains the '
+                                    'force within ')
+    assert 'the measured force and the motion have opposite signs' in fit.verdict()
+
+
 @pytest.mark.parametrize('change, error, match', [
     (lambda s: (s[0][:-1],) + s[1:], InputError,
      r'^bag x: force and motion of different shapes'),

@@ -68,6 +68,12 @@ def test_identify_writes_json_plots_report_and_params(bags, capsys):
     # a plant model that explains the force badly is said to be so (the guard then gives
     # its runs no verdict): the same document with a 25 % fit error
     assert 'WARNING' not in identification_table(doc)
+    # a reversed valve or load cell: said (a new user's read healthy margins; session 38)
+    assert doc['runs'][0]['figures']['plant']['polarity'] == 1
+    doc['runs'][0]['figures']['plant']['polarity'] = -1
+    assert ("WARNING: its force answers a positive valve step with a negative force: the "
+            "valve's or the load cell's polarity is reversed" in identification_table(doc))
+    doc['runs'][0]['figures']['plant']['polarity'] = 1
     doc['runs'][0]['figures']['plant']['nrms']['force_N'] = 0.25
     assert ('force NRMS 25 %; WARNING: above 10 %, a nonlinear actuator'
             in identification_table(doc))

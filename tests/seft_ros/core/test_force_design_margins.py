@@ -7,6 +7,7 @@ import json
 import math
 
 import numpy as np
+import pytest
 
 from seft_msgs_py.parameters import resolve
 from seft_ros.core import force_design
@@ -153,8 +154,6 @@ def test_the_phase_margin_names_its_crossover():
     (|2/(j 2 pi f / 2 pi)| = 1 below the resonance, the crossover) and on either side of the
     resonance; its smallest phase margin is at the third (10.86 Hz, -76.4 deg), not at the
     crossover printed beside it (a new user read the two as one; session 38)."""
-    import pytest
-
     from seft_ros.core.force_design import loop_margins
 
     def loop(f):
@@ -168,3 +167,27 @@ def test_the_phase_margin_names_its_crossover():
     assert abs(at) == pytest.approx(1.0, abs=1e-9)
     assert m.phase_margin_deg == pytest.approx(math.degrees(np.angle(at)) + 180.0 - 360.0)
     assert m.to_json()['phase_margin_hz'] == m.phase_margin_hz
+
+
+@pytest.mark.parametrize('member', ['valve_2nd_order', 'valve_3_stage', 'leaky',
+                                    'orifice_flow', 'coulomb_friction', 'pure_delay'])
+def test_a_reversed_valve_is_told_by_its_step(member):
+    """Every plant of the family, and seft's rig, with specimens from 2 to 50 Hz answers a
+    positive valve step with a positive force (+1); the same plant with its valve's sign
+    reversed with a negative one (-1: a new user's reversed valve was identified with healthy
+    margins on the run's loop; session 38)."""
+    from seft_msgs_py.plant import PlantModel
+    from seft_plant_sim.actuator import _member
+    from seft_plant_sim.specimen import LinearSpecimen
+    from seft_ros.core.force_design import valve_polarity
+    for hz in (2.0, 10.0, 50.0):
+        for zeta in (0.005, 0.05):
+            m = 50.0
+            k = m * (2 * math.pi * hz) ** 2
+            spec = LinearSpecimen(m, 2 * zeta * math.sqrt(k * m), k)
+            plant = _member(member, spec).linear_plant(spec, 0.002)
+            assert valve_polarity(plant) == 1, (hz, zeta)
+            assert valve_polarity(PlantModel(plant.a, -plant.b, plant.c, plant.dt)) == -1
+    rig = force_loop_plant(resolve({'stiffness_N_per_m': 1.19e6, 'mass_kg': 29.13}))
+    assert valve_polarity(rig) == 1
+    assert valve_polarity(PlantModel(rig.a, rig.b, -rig.c, rig.dt)) == -1

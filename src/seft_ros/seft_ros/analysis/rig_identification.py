@@ -743,7 +743,11 @@ def _identify_plant(ident: RunIdentification, run: RunData, figs: dict,
     path runs the test's configuration with an excitation)."""
     from seft_msgs_py.plant import Specimen
     from seft_ros.analysis.plant_identification import identify_plant
-    from seft_ros.core.force_design import design_force_controller, played_record_spectrum
+    from seft_ros.core.force_design import (
+        design_force_controller,
+        played_record_spectrum,
+        valve_polarity,
+    )
     def specimen_of(sf):
         se_m, _, se_k = sf.standard_errors
         return (Specimen(sf.mass_kg, sf.damping_N_s_per_m, sf.stiffness_N_per_m),
@@ -778,7 +782,7 @@ def _identify_plant(ident: RunIdentification, run: RunData, figs: dict,
                                            plant_gain_margin=True)
     if note:
         ident.design.notes.append(note)
-    figs['plant'] = ident.plant.to_json()
+    figs['plant'] = dict(ident.plant.to_json(), polarity=valve_polarity(ident.plant.model))
     figs['design'] = ident.design.to_json()
 
 

@@ -29,7 +29,7 @@ from seft_msgs_py.sensor_range import CHANNEL_UNITS, CHANNELS, RANGE_PARAMETERS,
 
 __all__ = ['SpecimenFit', 'fit_specimen', 'NONLINEAR_TOLERANCE', 'FIT_PARTS', 'FILTER_ORDER',
            'SMALL_QUANTILE', 'LARGE_QUANTILE', 'MIN_PART_SAMPLES', 'MAX_AT_RANGE_SHARE',
-           'SENSOR_NAMES', 'NOISE_FLOOR']
+           'SENSOR_NAMES', 'NOISE_FLOOR', 'SIGN_RESIDUAL']
 
 #: Largest relative difference between the stiffness over the largest displacements and over
 #: the smallest ones for a linear specimen [-]. Measured on the simulated rig (20 s of noise,
@@ -46,6 +46,11 @@ NONLINEAR_TOLERANCE = 0.03
 #: 0.5 % for m and k and 1.5 % for c), in 0.28 % c was 1.9 % off, in 1 % m 0.75 %, in 4 %
 #: 2.6, -5.2 and -1.3 %, in 35 % m 34 % and k -11 % (read as a member that yields).
 MAX_AT_RANGE_SHARE = 0.001
+#: A fit whose m, c and k are all negative and which leaves less than this share of the
+#: force unexplained [-] reads a sign reversed between the force and the motion, not a lack
+#: of motion: a new user's load cell reversed gave m, c, k exactly negated (session 38); a
+#: record with too little motion leaves most of the force unexplained.
+SIGN_RESIDUAL = 0.1
 #: Consecutive parts of the record fitted apart for the standard errors.
 FIT_PARTS = 4
 #: Fewest samples of each part.
@@ -144,6 +149,16 @@ class SpecimenFit:
                     f'(m = {self.mass_kg:.4g} kg, c = {self.damping_N_s_per_m:.4g} N s/m, '
                     f"k = {self.stiffness_N_per_m:.4g} N/m are not the specimen's): "
                     f'identify again with a lower excitation_amplitude or {larger}')
+        if (self.mass_kg < 0 and self.stiffness_N_per_m < 0 and self.damping_N_s_per_m <= 0
+                and self.residual < SIGN_RESIDUAL):
+            # m, c and k all negated, and the equation of motion holds: a sign, not a lack of
+            # motion (a new user's reversed load cell read 'too little motion'; session 38)
+            return (f'not a specimen: the fit gives m = {self.mass_kg:.4g} kg, c = '
+                    f'{self.damping_N_s_per_m:.4g} N s/m, k = {self.stiffness_N_per_m:.4g} '
+                    f'N/m, all negative, and explains the force within '
+                    f'{100 * self.residual:.2g} %: the measured force and the motion have '
+                    "opposite signs (the load cell's or a motion sensor's polarity reversed, "
+                    'or a sign in its plant model); fix the sign, then identify again')
         if (self.mass_kg <= 0 or self.stiffness_N_per_m <= 0
                 or not math.isfinite(self.amplitude_dependence)):
             return (f'not a specimen: the fit gives m = {self.mass_kg:.4g} kg, k = '

@@ -2460,6 +2460,12 @@ def identification_table(doc: dict) -> str:
                                 'stability verdict needs a fit within '
                                 f'{100 * stability.LEVEL_MISFIT:g} %)'
                                 if level.get('peak_velocity_m_s') else ''))
+                if plant.get('polarity', 1) < 0:
+                    lines.append(f"{'':18s} WARNING: its force answers a positive valve step "
+                                 "with a negative force: the valve's or the load cell's "
+                                 'polarity is reversed (a force controller of positive gain '
+                                 'drives the loop away, whatever its margins read); fix the '
+                                 'sign at the rig or in its plant model, then identify again')
                 lines.append(f"{'designed loop':18s} crossover {m['crossover_hz']:.1f} Hz, phase "
                              f"margin {m['phase_margin_deg']:.0f} deg, gain margin "
                              + ('inf' if gm is None else f'{gm:.2f}')

@@ -68,7 +68,7 @@ __all__ = ['DesignTargets', 'LoopMargins', 'ForceLoopDesign', 'loop_margins',
            'KANAI_TAJIMI_GROUND', 'DESIGN_METHOD', 'played_record_spectrum',
            'compensated_test_margins', 'LOW_CROSSOVER_HZ', 'SLOW_PAIR_DAMPING',
            'SAMPLED_ZERO_BOUND', 'sampled_zero_offset', 'COARSE_SAMPLING',
-           'shorter_sample_period_s']
+           'shorter_sample_period_s', 'POLARITY_HORIZON_S', 'valve_polarity']
 
 #: The largest miss ``max |W T - z^-d|`` up to 25 Hz of the force-loop inverse the design
 #: chooses (the study's rig, 48 taps: 0.01 at d = 10).
@@ -195,6 +195,33 @@ def loop_margins(loop, f_min: float, f_max: float, points: int = 4000) -> LoopMa
     f = np.logspace(np.log10(f_min), np.log10(f_max), points)
     lg = loop(f)
     return _refined(loop, f, lg, _grid_margins(lg, f))
+
+
+#: The horizon over which :func:`valve_polarity` reads the force's answer to a valve step
+#: [s]: past the I/O delay and the valve's lag, before the specimen's motion turns it.
+POLARITY_HORIZON_S = 0.02
+
+
+def valve_polarity(plant: PlantModel) -> int:
+    """The sign of a servo-hydraulic plant's measured force answering a positive valve
+    step: +1 (the valve opens the chamber that pushes, as every actuator of seft's and the
+    study's), -1 (the valve's or the load cell's polarity reversed: a force controller of
+    positive gain drives the loop away; a new user's reversed valve was identified with
+    healthy margins on the run's loop and a design 'unstable', polarity unnamed, session 38).
+
+    The force's mean over the first :data:`POLARITY_HORIZON_S` of the step response
+    (``scipy.signal.dstep``); 0 where it is exactly zero.
+
+    Parameters
+    ----------
+    plant : PlantModel
+        Valve command [V] to measured force [N] (its ``force_N`` row), sampled at ``dt``.
+    """
+    from scipy.signal import dstep
+    n = max(2, int(round(POLARITY_HORIZON_S / plant.dt)))
+    _, (y,) = dstep((plant.a, plant.b, plant.row('force_N')[None, :], np.zeros((1, 1)),
+                     plant.dt), n=n)
+    return int(np.sign(np.mean(y)))
 
 
 def plant_margins(plant: PlantModel, controller, features=()) -> LoopMargins:
