@@ -511,3 +511,25 @@ def test_the_report_says_how_the_record_was_prepared():
     assert _preparation({'record': 'default', 'time_scale': 0.5}) == ''
     assert _preparation({'record': 'default', 'record_resampling': 'auto',
                          'excitation': 'noise'}) == ''
+
+
+def test_each_rig_reports_its_own_delay():
+    """The report's delay is the rig model's own: seft's servohydraulic rig's io_latency_s,
+    the delay rig's tau, a state_space rig's plant model's io_delay_s (it gave every rig
+    io_latency_s: 3 ms on a new user's plant of 2 ms, whose io_latency_s did nothing;
+    session 38)."""
+    import json
+    from types import SimpleNamespace
+
+    from seft_ros.analysis.report import _latency_text
+    plant = json.dumps({'form': 'transfer_function', 'dt': 0, 'io_delay_s': 0.002,
+                        'num': [1.0], 'den': [1.0, 1.0]})
+    assert _latency_text(SimpleNamespace(params={
+        'rig_model': 'servohydraulic', 'io_latency_s': 0.003})) == 'I/O latency = 3 ms, '
+    assert _latency_text(SimpleNamespace(params={'rig_model': 'delay', 'tau_s': 0.01})) == \
+        'tau = 10 ms, '
+    assert _latency_text(SimpleNamespace(params={
+        'rig_model': 'state_space', 'rig_plant_model': plant, 'io_latency_s': 0.008})) == \
+        "I/O latency = 2 ms (its plant model's io_delay_s), "
+    assert _latency_text(SimpleNamespace(params={'rig_model': 'actuator'})) == \
+        "I/O latency: the actuator rig's own, "

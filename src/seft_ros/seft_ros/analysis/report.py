@@ -628,6 +628,30 @@ def _preparation(params) -> str:
         f'resampling {how})'
 
 
+def _latency_text(run: RunData) -> str:
+    """The rig's delay as its model has it: the delay rig's ``tau_s``, seft's servohydraulic
+    rig's ``io_latency_s``, a state_space rig's plant model's ``io_delay_s`` (the report gave
+    every rig ``io_latency_s``, which only seft's servohydraulic rig reads: 3 ms on a new
+    user's plant of 2 ms; session 38), the family's actuator its own."""
+    params = run.params
+    rig = params.get('rig_model')
+    if rig == 'delay':
+        return f"tau = {_param(run, 'tau_s', 1e3, ' ms')}, "
+    if rig == 'servohydraulic':
+        return f"I/O latency = {_param(run, 'io_latency_s', 1e3, ' ms')}, "
+    if rig == 'state_space':
+        text = params.get('rig_plant_model', 'none')
+        if text in (None, '', 'none'):
+            text = params.get('plant_model', 'none')
+        try:
+            doc = json.loads(text) if isinstance(text, str) else dict(text)
+            delay = float(doc.get('io_delay_s', 0.0) or 0.0)
+        except (TypeError, ValueError, AttributeError):
+            return "I/O latency: its plant model's, "
+        return f"I/O latency = {1e3 * delay:g} ms (its plant model's io_delay_s), "
+    return f"I/O latency: the {rig} rig's own, "
+
+
 def _run_markdown(index: int, run: RunData, comparison: RunComparison) -> list[str]:
     params = run.params
     record = (run.record_name or params.get('record', '')) + _preparation(params)
@@ -637,10 +661,7 @@ def _run_markdown(index: int, run: RunData, comparison: RunComparison) -> list[s
         '',
         f"- alpha = {_param(run, 'alpha')}, rig = {params.get('rig_model', 'n/a')}, "
         f"predictor = {params.get('predictor', 'n/a')}, record = {record or 'n/a'}",
-        f"- dt = {_param(run, 'dt', 1e3, ' ms')}, " + (
-            f"tau = {_param(run, 'tau_s', 1e3, ' ms')}, "
-            if run.params.get('rig_model') == 'delay' else
-            f"I/O latency = {_param(run, 'io_latency_s', 1e3, ' ms')}, ")
+        f"- dt = {_param(run, 'dt', 1e3, ' ms')}, " + _latency_text(run)
         + f'{run.n_steps} samples' + (f', source {run.source}' if run.source else ''),
         f'- rig contract: {_rig_contract_text(run)}',
     ]
