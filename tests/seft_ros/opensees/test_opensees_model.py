@@ -419,3 +419,31 @@ def test_seft_simulate_on_a_script_that_exits_0_fails(tmp_path, seft_exe, run_pr
     assert errors == ['seft: error: exits.yaml: structure.opensees.model: exits.py failed: '
                       'SystemExit: 0']
     assert not (tmp_path / 'out').exists()
+
+
+def test_a_links_hysteresis_is_its_basic_force_on_its_deformation():
+    """A zeroLength story of a 2-D model (ndf 2) loaded by 10 N along its direction: its
+    recorded force is 10 N on 0.01 m (before: its first node's last DOF, the vertical force
+    0, drawn as a flat line in the report; the shipped shear frame's too, session 38)."""
+    from seft_ros.opensees.loader import opensees
+    from seft_ros.opensees.part import element_response
+    ops = opensees()
+    ops.wipe()
+    ops.model('basic', '-ndm', 2, '-ndf', 2)
+    ops.node(1, 0.0, 0.0)
+    ops.node(2, 0.0, 0.0)
+    ops.fix(1, 1, 1)
+    ops.fix(2, 0, 1)
+    ops.uniaxialMaterial('Elastic', 1, 1000.0)
+    ops.element('zeroLength', 1, 1, 2, '-mat', 1, '-dir', 1)
+    ops.timeSeries('Linear', 1)
+    ops.pattern('Plain', 1, 1)
+    ops.load(2, 10.0, 0.0)
+    for command in (('system', 'BandGeneral'), ('numberer', 'Plain'), ('constraints', 'Plain'),
+                    ('integrator', 'LoadControl', 1.0), ('algorithm', 'Linear'),
+                    ('analysis', 'Static')):
+        getattr(ops, command[0])(*command[1:])
+    assert ops.analyze(1) == 0
+    force, deformation = element_response(ops, 1)
+    assert force == pytest.approx(10.0) and deformation == pytest.approx(0.01)
+    ops.wipe()

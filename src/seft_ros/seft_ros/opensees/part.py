@@ -931,9 +931,9 @@ def _equations(ops) -> dict:
 
 
 def element_names(tag: int) -> tuple[str, str]:
-    """The recorded states of element `tag`: its force at its first node's last DOF (a
-    2-D beam-column's end moment [N m]; a link's force [N]) and its first rotation (a
-    beam-column's basic rotation at that end [rad]; a link's deformation [m])."""
+    """The recorded states of element `tag`: its force (a 2-D beam-column's end moment at
+    its first node [N m]; a link's basic force [N]) and its deformation (a beam-column's
+    basic rotation at that end [rad]; a link's basic deformation [m])."""
     return f'opensees/ele{tag}/force', f'opensees/ele{tag}/deformation'
 
 
@@ -947,8 +947,15 @@ def element_response(ops, tag: int, ndf: dict | None = None) -> tuple[float, flo
         if ndf is not None:
             ndf[tag] = per_node
     basic = ops.eleResponse(tag, 'basicDeformation')
-    deformation = basic[1] if len(basic) >= 3 else (basic[0] if basic else math.nan)
-    return float(force[per_node - 1]), float(deformation)
+    if len(basic) >= 3:                 # a beam-column: its end moment, its rotation at i
+        return float(force[per_node - 1]), float(basic[1])
+    # a link (zeroLength, a truss): its basic force along its deformation (its first node's
+    # last DOF was the vertical force of a story's zeroLength, 0: a flat hysteresis plot; a
+    # new user's and the shipped shear frame's, session 38)
+    link = ops.eleResponse(tag, 'basicForce') if basic else []
+    if link:
+        return float(link[0]), float(basic[0])
+    return float(force[per_node - 1]), float(basic[0]) if basic else math.nan
 
 
 #: Matrices kept per stiffness (the few a run predicts with; the oldest dropped first).

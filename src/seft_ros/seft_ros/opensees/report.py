@@ -166,7 +166,8 @@ def pushover_lines(pushover: dict) -> list[str]:
 
 def hysteresis_figure(run, reference, tag: int, path, *, title: str = ''):
     """Draw an element's hysteresis in the test and in the reference (its force against its
-    deformation: a beam-column's end moment against its basic rotation).
+    deformation: a beam-column's end moment against its basic rotation, a link's basic force
+    against its deformation).
 
     Parameters
     ----------
@@ -195,8 +196,9 @@ def hysteresis_figure(run, reference, tag: int, path, *, title: str = ''):
     if force_name in run.computational:
         ax.plot(run.computational[deformation_name], run.computational[force_name],
                 color='C0', lw=0.8, label='test (computational part)')
-    ax.set_xlabel(f'element {tag}: deformation (rotation at end i) [rad]')
-    ax.set_ylabel(f'element {tag}: force (moment at end i) [N m]')
+    # a beam-column's rotation and moment at end i; a link's (zeroLength) basic ones
+    ax.set_xlabel(f'element {tag}: deformation [rad; a link: m]')
+    ax.set_ylabel(f'element {tag}: force [N m; a link: N]')
     ax.grid(True, alpha=0.3)
     ax.legend(loc='best', fontsize='small')
     if title:
