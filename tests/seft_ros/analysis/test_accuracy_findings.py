@@ -488,7 +488,8 @@ def test_a_structure_test_beyond_an_accurate_ones_error_is_flagged():
                 "a structure): the test or the reference's model is off; e.g. the compensator "
                 f'({predictor}) not following the loop, a member yielding beyond what the '
                 'compensator predicts, a model without a unique solution (perfectly plastic '
-                'members in series), a specimen that is not its declaration']
+                'members in series), a specimen that is not its declaration, a force-loop '
+                'inverse not chosen for the structure (seft design)']
         else:
             assert flags == []
     assert worst['polynomial'][0] > 1.1 * STRUCTURE_ERROR_FLAG

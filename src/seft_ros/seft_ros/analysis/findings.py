@@ -490,7 +490,8 @@ def structure_error_flag(comparison, predictor: str = '') -> str:
             "(seft predicts no error for a structure): the test or the reference's model is "
             f'off; e.g. {compensator}a member yielding beyond what the compensator predicts, '
             'a model without a unique solution (perfectly plastic members in series), a '
-            'specimen that is not its declaration')
+            'specimen that is not its declaration, a force-loop inverse not chosen for the '
+            'structure (seft design)')
 
 
 #: The error flag of the other signals (:func:`signal_error_flag`): a compensated test's

@@ -146,6 +146,13 @@ COSTLY = {
                         '(two_story with a 32 Hz first story: its acceleration 8.0 % with '
                         "the one-DOF choice, 1.2-1.3 % with the structure's; docs: "
                         'results/own-actuator)'),
+    'structure inverse': ('predictor {predictor} on a DOF coupled to the computational part '
+                          "with the default force-loop inverse ({predictor_loop_delay_steps} "
+                          'steps, {predictor_loop_taps} taps), not chosen for the structure: '
+                          'seft design CONFIG --out FILE chooses it by rehearsing the '
+                          "structure on the rig's model (a new user's OpenSees steel frame "
+                          'erred 4.27 % of x with the default, 1.63 % with the 5 steps the '
+                          'shipped file sets; session 38)'),
     'specimen': ("force_controller loop_shaping cancels the study's specimen (s^2 + 17.14 s + "
                  "4002, {cancelled_hz:.2f} Hz), this rig's is s^2 + {c_per_m:.4g} s + "
                  '{k_per_m:.5g} ({specimen_hz:.2f} Hz): 1 % stiffer costs the one-rig test 1.5 % '
@@ -214,6 +221,11 @@ def _plant_specimen(p: Mapping[str, Any]) -> dict[str, float] | None:
             'plant_hz': spec.natural_frequency_hz}
 
 
+#: The force-loop inverse's settings (the ``'structure inverse'`` line: all at their
+#: defaults, none chosen).
+_LOOP_INVERSE = ('predictor_loop_delay_steps', 'predictor_loop_taps', 'predictor_loop_hf_weight')
+
+
 def _cancelled(p: Mapping[str, Any]) -> dict[str, float] | None:
     """The figures of the ``'specimen'`` line when a rig's linear specimen is not the one its
     ``loop_shaping`` C_f cancels (:data:`CANCELLED_STIFFNESS_TOLERANCE`,
@@ -250,11 +262,13 @@ def costly_settings(params: Mapping[str, Any], *, flagging: bool = False) -> lis
     ParameterError
         An invalid structure (as :func:`~seft_ros.core.structure.test_setup`).
     """
+    from seft_msgs_py.parameters import defaults as schema_defaults
     from seft_ros.core.force_loop import has_plant_model
     from seft_ros.core.monitor import open_loop_identification
     from seft_ros.core.predictors import adaptive_loop_mode
     from seft_ros.core.structure import is_study, test_setup
     coupled = ()
+    defaults = schema_defaults()
     if is_study(params):
         rigs = {'rig': params}
     else:
@@ -300,6 +314,11 @@ def costly_settings(params: Mapping[str, Any], *, flagging: bool = False) -> lis
                 and p.get('predictor_calibration') == 'poles'
                 and not p.get('predictor_loop_rehearsed', False)):
             rules.append('one-DOF inverse')
+        if (rig in coupled and servo and predictor in ('model', 'adaptive')
+                and p.get('predictor_calibration') != 'poles'
+                and not p.get('predictor_loop_rehearsed', False)
+                and all(p.get(k) == defaults[k] for k in _LOOP_INVERSE)):
+            rules.append('structure inverse')
         if (is_study(params) and predictor == 'none' and float(p.get('alpha', 0)) >= 0.5
                 and not identification_run(p)):
             rules.append('uncompensated')
