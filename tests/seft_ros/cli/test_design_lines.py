@@ -32,3 +32,29 @@ def test_a_design_predicted_less_accurate_than_a_test_should_be_says_so():
         'at a sample period of at most 1 ms')
     assert api.predicted_error_warning(_design((0.03, 0.01, 0.01), specimen_hz=80.0)).endswith(
         'at a sample period of at most 0.62 ms')
+
+
+def test_a_labs_own_controller_is_judged_on_the_plant_model():
+    """seft design prints a lab's own controller's margins on the plant model and whether
+    its force loop is stable (a new user was sent from seft identify to seft design, which
+    ignored it; session 38): the designed controller of lab F is stable, 53 deg; the same
+    times 20 is not."""
+    import json
+    from pathlib import Path
+
+    from seft_msgs_py import parameters
+    from seft_ros.cli.config import load_config
+    from seft_ros.core.force_loop import force_loop_plant
+    rig = Path(__file__).resolve().parents[1] / 'analysis' / 'data' / 'own_actuator_F_rig.yaml'
+    p = parameters.resolve(load_config(rig))
+    plant = force_loop_plant(p)
+    line = api._own_controller_line('', p, plant)
+    assert line.startswith('its own controller (force_controller_tf) on the plant model: '
+                           'crossover 28 Hz (1 gain crossover(s)), phase margin 52.6 deg at '
+                           '28 Hz, gain margin 2.11')
+    assert line.endswith("its force loop is stable; seft's own design follows")
+    tf = json.loads(p['force_controller_tf'])
+    tf['num'] = [20.0 * b for b in tf['num']]
+    loud = dict(p, force_controller_tf=json.dumps(tf))
+    assert 'its force loop is UNSTABLE' in api._own_controller_line('pier', loud, plant)
+    assert api._own_controller_line('pier', loud, plant).startswith('rig pier: ')

@@ -1777,6 +1777,24 @@ _RECORD_KEYS = ('record', 'dt', 'mass_kg', 'amplitude_N', 'scale_factor', 'time_
                 'duration_s', 'record_resampling', 'n_steps')
 
 
+def _own_controller_line(rig: str, params: dict, plant) -> str:
+    """The line of ``seft design`` on a rig's own controller (``force_controller
+    transfer_function``): its crossover and margins on the plant model and whether it closes
+    a stable force loop there (no command said so: a new user was sent from seft identify to
+    seft design, which ignored it, and from there to seft stability; session 38)."""
+    from seft_ros.core.controller import ForceServoController
+    from seft_ros.core.force_design import _closed_loop_stable, plant_margins
+    ctrl = ForceServoController.from_parameters(params)
+    m = plant_margins(plant, ctrl)
+    gm = 'inf' if math.isinf(m.gain_margin) else f'{m.gain_margin:.3g}'
+    stable = _closed_loop_stable(plant, ctrl.bz, ctrl.az)
+    return (f"{f'rig {rig}: ' if rig else ''}its own controller (force_controller_tf) on the "
+            f'plant model: crossover {m.crossover_hz:.3g} Hz ({m.crossovers} gain '
+            f'crossover(s)), phase margin {m.phase_margin_deg:.3g} deg at '
+            f'{m.phase_margin_hz:.3g} Hz, gain margin {gm}; its force loop is '
+            + ('stable' if stable else 'UNSTABLE') + "; seft's own design follows")
+
+
 def guard_check(params: dict, spectra: dict | None = None) -> stability.StabilityCheck:
     """The pre-run guard's prediction of one run: stability, robustness margin and, for
     the study's one-DOF linear test on a record it plays long enough
@@ -2299,6 +2317,8 @@ def design_controllers(*, config: str | None = None, overrides: dict | None = No
             plant = force_loop_plant(rp)
         except ParameterError as exc:
             raise ParameterError(f'rig {rig}: {exc}' if rig else str(exc)) from None
+        if rp.get('force_controller') == 'transfer_function':
+            progress(_own_controller_line(rig, rp, plant))
         designs[rig] = design_force_controller(plant, targets=targets,
                                                ground_spectrum=spectrum,
                                                plant_gain_margin=has_plant_model(rp))
@@ -2311,8 +2331,9 @@ def design_controllers(*, config: str | None = None, overrides: dict | None = No
     if unstable:
         raise ParameterError(f'{", ".join(unstable)}: no controller of seft\'s design closes a '
                              "stable force loop on the plant model; enter the lab's own "
-                             '(force_controller transfer_function, force_controller_tf) and '
-                             'check it with seft stability')
+                             '(force_controller transfer_function, force_controller_tf): seft '
+                             'design prints its margins on the plant model, and seft simulate '
+                             "and run's guard its stability")
     values = {r: dict(d.parameters(), _design=d.summary()
                       + ('' if d.met else ' (targets NOT met: ' + '; '.join(d.notes) + ')'))
               for r, d in designs.items()}
