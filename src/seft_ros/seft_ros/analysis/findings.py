@@ -337,14 +337,17 @@ ERROR_RATIO_FLAG = 3.0
 
 #: The sensor-noise parameters a rig declares, in the flags' words (the measured signals
 #: carry the noise; the guard's prediction of the test's error leaves it out).
-_NOISE_PARAMETERS = (('noise_force_N', 'N'), ('noise_displacement_m', 'm'),
-                     ('noise_velocity_m_s', 'm/s'), ('noise_acceleration_m_s2', 'm/s^2'))
+_NOISE_PARAMETERS = ('noise_force_N', 'noise_displacement_m', 'noise_velocity_m_s',
+                     'noise_acceleration_m_s2')
 
 
 def _declared_noise(params) -> str:
-    """'noise_force_N 2 N, ...' of the sensor noise `params` declare, or ''."""
+    """'noise_force_N 2 N, ...' of the sensor noise `params` declare, or '' (each with its
+    unit from the parameter schema)."""
+    from seft_msgs_py.parameters import spec
     out = []
-    for name, unit in _NOISE_PARAMETERS:
+    for name in _NOISE_PARAMETERS:
+        unit = spec(name).unit
         try:
             value = float((params or {}).get(name) or 0.0)
         except (TypeError, ValueError):
