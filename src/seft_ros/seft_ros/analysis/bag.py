@@ -757,6 +757,7 @@ def read_run(path) -> RunData:
     stable = not aborted
     reason = None
     first = _first_abort(aborted)
+    cut = False                         # the run ends where its recording was cut
     interrupted = first is not None and _interrupt(first)
     if interrupted:
         # the operator's stop (Ctrl-C reaches every node of the terminal's process group,
@@ -770,6 +771,7 @@ def read_run(path) -> RunData:
     elif not all(finals.values()) and recording['end'] in RECORDING_CUT_SHORT:
         # the bag ends before the run did: the test is cut short at its last complete step
         stable = False
+        cut = True
         reason = {'crashed': 'recorder: the recording was not closed (recorder killed, or '
                              'still recording)',
                   'stopped': 'recorder: the recording was stopped before the run ended',
@@ -795,7 +797,7 @@ def read_run(path) -> RunData:
              'rig_finals': finals, 'node_statuses': bag.statuses,
              'recovered': bag.recovery is not None,
              'abort_node': first['name'] if first is not None else None,
-             'interrupted': interrupted,
+             'interrupted': interrupted, 'cut_short': cut,
              # what the builders reported during the run (a specimen not the declared one)
              'warnings': [s['warning'] for s in bag.statuses if s.get('warning')],
              # each rig's samples at a sensor's range, as its builder counted them, and its

@@ -655,7 +655,8 @@ def run_flags(run: RunData, comparison) -> list[str]:
 
 def verdict(stable: bool, flags: list[str], cut: bool = False) -> str:
     """``'stable'``, ``'stable, flagged'``, ``'aborted'`` or, `cut` (its recording cut
-    short, :func:`~seft_ros.analysis.rundata.cut_short`), ``'recording cut short'``."""
+    short, :attr:`~seft_ros.analysis.rundata.RunData.recording_cut_short`), ``'recording cut
+    short'``."""
     if not stable:
         return 'recording cut short' if cut else 'aborted'
     return 'stable, flagged' if flags else 'stable'

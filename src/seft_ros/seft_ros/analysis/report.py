@@ -47,13 +47,7 @@ from seft_ros.analysis.metrics import (
     restoring_force,
     summary_entry,
 )
-from seft_ros.analysis.rundata import (
-    RECORDING_CUT_SHORT,
-    SIGNALS,
-    RunData,
-    cut_short,
-    rig_label,
-)
+from seft_ros.analysis.rundata import RECORDING_CUT_SHORT, SIGNALS, RunData, rig_label
 from seft_ros.analysis.timing import (
     link_markdown,
     link_summary,
@@ -1052,8 +1046,8 @@ def _entry_status(entry: dict[str, Any]) -> str:
     if entry.get('stable'):
         return 'stable, flagged' if entry.get('flags') else 'stable'
     at = entry.get('unstable_at_s')
-    what = ('recording cut short' if cut_short(False, entry.get('abort_node'),
-                                               entry.get('recording')) else 'aborted')
+    what = ('recording cut short' if entry.get('verdict') == 'recording cut short'
+            else 'aborted')
     return f'{what} at {at:.3f} s' if isinstance(at, (int, float)) else what
 
 

@@ -15,22 +15,12 @@ from typing import Any, Mapping
 import numpy as np
 
 __all__ = ['RunData', 'RigData', 'SIGNALS', 'RIG_SIGNALS', 'rig_label', 'only_rig',
-           'RECORDING_CUT_SHORT', 'cut_short']
+           'RECORDING_CUT_SHORT']
 
 #: The ends of a recording that holds less than its run (``extra['recording']['end']``,
 #: ``seft_ros.analysis.bag.recording_end``): never closed, stopped before the run ended, or
 #: its file cut or damaged after the recording.
 RECORDING_CUT_SHORT = ('crashed', 'stopped', 'damaged')
-
-def cut_short(stable: bool, abort_node: str | None, recording: dict | None) -> bool:
-    """Whether a run that did not complete in its bag ends there because its recording did
-    (:data:`RECORDING_CUT_SHORT`: the recorder killed or stopped, the file cut), not because
-    a node aborted it (`abort_node` None): the test may have gone on; a cut, not an abort
-    (a new user's recovered cut recording read 'aborted'; session 36). `stable`,
-    `abort_node` and `recording` as :class:`RunData`'s (``extra``) or a summary entry's."""
-    return (not stable and abort_node is None
-            and (recording or {}).get('end') in RECORDING_CUT_SHORT)
-
 
 #: Signals compared against the reference analysis, in report order.
 SIGNALS = ('displacement', 'force', 'acceleration')
@@ -201,10 +191,12 @@ class RunData:
 
     @property
     def recording_cut_short(self) -> bool:
-        """The run ends in its bag where its recording was cut, not aborted
-        (:func:`cut_short`)."""
-        return cut_short(bool(self.stable), self.extra.get('abort_node'),
-                         self.extra.get('recording'))
+        """The run did not complete in its bag because its recording ended there
+        (:data:`RECORDING_CUT_SHORT`: the recorder killed or stopped, the file cut), not
+        because a node aborted it: the test may have gone on; a cut, not an abort (a new
+        user's recovered cut recording read 'aborted'; session 36). Set by the bag's reader
+        (``extra['cut_short']``)."""
+        return not self.stable and bool(self.extra.get('cut_short'))
 
     @property
     def n_steps(self) -> int:
