@@ -27,7 +27,7 @@ import tempfile
 
 from seft_msgs_py.errors import ParameterError
 
-__all__ = ['opensees', 'captured', 'Capture', 'last_message', 'rayleigh_calls']
+__all__ = ['opensees', 'captured', 'Capture', 'last_message', 'FAULT_WORDS', 'rayleigh_calls']
 
 _MODULE = None
 
