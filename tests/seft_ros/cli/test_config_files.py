@@ -168,6 +168,12 @@ def test_a_bad_command_line_value_is_named_as_the_command_lines(tmp_path):
                        match=r'^command line: parameter watchdog_timeout_s=0\.001: '):
         build_runs(config=str(config), overrides={'mode': 'realtime',
                                                   'watchdog_timeout_s': 0.001})
+    # an alpha for a structure (its masses are its own), also of an identification run
+    for extra in ({}, {'excitation': 'noise', 'excitation_input': 'valve_command',
+                       'predictor': 'none'}):
+        with pytest.raises(ParameterError, match=r'^command line: parameter alpha=0\.5: with a '
+                           r'structure the computational masses'):
+            build_runs(config=str(CONFIG / 'two_story.yaml'), alphas=[0.5], overrides=extra)
     with pytest.raises(ParameterError, match=r'lab\.yaml: parameter mass_kg=-1\.0: '):
         config.write_text('mass_kg: -1.0\n')
         build_runs(config=str(config))

@@ -358,9 +358,6 @@ def _with_structure(params: dict[str, Any], where: str,
             _check_controller_address(rp, f'rig {rig}: ')
         if reduces_to_study(setup.substructures):
             return study_parameters(params, setup.substructures)
-        if identification_run(params):
-            from seft_ros.core.excitation import rigs_alone
-            return rigs_alone(params)
     except ParameterError as exc:
         raise ParameterError(f'{where}: {exc}' if where else str(exc)) from None
     if float(params.get('alpha', 0.0)) != 0.0:
@@ -368,6 +365,12 @@ def _with_structure(params: dict[str, Any], where: str,
         raise ParameterError(f'{at("alpha")}parameter alpha={params["alpha"]!r}: with a '
                              "structure the computational masses are the structure's; leave "
                              'alpha at 0')
+    if identification_run(params):
+        from seft_ros.core.excitation import rigs_alone
+        try:
+            return rigs_alone(params)
+        except ParameterError as exc:
+            raise ParameterError(f'{where}: {exc}' if where else str(exc)) from None
     return params
 
 
