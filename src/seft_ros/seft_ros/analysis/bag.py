@@ -452,8 +452,8 @@ def _open_bag(path: Path):
     file without its metadata was recovered (a new user, session 36)."""
     if is_unclosed_bag(path):
         return None, recover_bag(path)
-    reader = Reader(path)
     try:
+        reader = Reader(path)
         reader.open()
     except Exception as exc:  # rosbags raises several types for a damaged bag
         try:
