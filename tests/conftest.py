@@ -346,9 +346,11 @@ OFF_THE_WALL_CLOCK = frozenset({
     'test_a_sweep_over_two_predictors_runs_both_graphs',
     'test_discovery_settle_time_from_the_environment',
     'test_emulator_and_bridge_errors_are_one_line',
-    'test_the_emulator_ends_on_ctrl_c_even_started_as_a_background_job',
-    'test_another_runs_node_parameters_are_named_once_and_the_run_completes',
-    'test_a_node_of_the_run_with_other_parameters_after_the_start_stops_it_safely'})
+    'test_the_emulator_ends_on_ctrl_c_even_started_as_a_background_job'})
+# (test_intruder's two lockstep runs with another node's parameters went back on the wall
+# clock: they hang on DDS discovery and on the order of two topics at the runner, which a
+# loaded host upsets: 3 failures in 3 loaded phase-1 runs of session 38, none alone or
+# beside one other module's graphs)
 
 
 def _on_the_wall_clock(item, in_graph: bool) -> bool:
