@@ -32,6 +32,7 @@ from seft_ros.analysis.findings import (
     sensor_range_entry,
     sensor_range_lines,
     timing_replay_line,
+    verdict,
 )
 from seft_ros.analysis.metrics import (
     HIGH_FREQUENCY_CUTOFF_HZ,
@@ -353,8 +354,9 @@ def _predictor(run: RunData) -> str:
 
 
 def _ended(run: RunData) -> str:
-    """How a run that did not complete ended: 'aborted', or 'recording cut short'."""
-    return 'recording cut short' if run.recording_cut_short else 'aborted'
+    """How a run that did not complete ended: its verdict, 'aborted' or 'recording cut
+    short' (:func:`~seft_ros.analysis.findings.verdict`)."""
+    return verdict(False, [], run.recording_cut_short)
 
 
 def _abort_label(run: RunData) -> str:
@@ -1046,8 +1048,7 @@ def _entry_status(entry: dict[str, Any]) -> str:
     if entry.get('stable'):
         return 'stable, flagged' if entry.get('flags') else 'stable'
     at = entry.get('unstable_at_s')
-    what = ('recording cut short' if entry.get('verdict') == 'recording cut short'
-            else 'aborted')
+    what = entry.get('verdict') or verdict(False, [])      # its summary's: aborted or cut
     return f'{what} at {at:.3f} s' if isinstance(at, (int, float)) else what
 
 
