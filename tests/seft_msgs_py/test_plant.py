@@ -322,3 +322,13 @@ def test_schur_response_is_the_closed_form_at_many_points():
     response, radius = schur_response(shift, [0.0, 1.0], [1.0, 0.0], z)
     np.testing.assert_allclose(response, z ** -2, rtol=1e-12)
     assert radius == 0.0
+
+
+def test_a_declared_specimen_is_measured_against_the_plant_models_own():
+    """``Specimen.mismatch``: the ratios m/m0 and k/k0 when either lies beyond the tolerance
+    (a mass typed in grams is 1000 x), None within it."""
+    own = Specimen(29.13, 73.6, 1.19e6)
+    assert own.mismatch(29.13e3, 1.19e6, 0.1) == pytest.approx((1000.0, 1.0))
+    assert own.mismatch(29.13, 1.19e6 * 1.25, 0.1) == pytest.approx((1.0, 1.25))
+    assert own.mismatch(29.13 * 1.09, 1.19e6 * 0.91, 0.1) is None
+    assert own.mismatch(29.13 * 1.09, 1.19e6, 0.01) == pytest.approx((1.09, 1.0))

@@ -20,7 +20,7 @@ __all__ = [
     'validate_value', 'from_text',
     'resolve', 'graph_nodes', 'PER_NODE', 'shared_mismatches', 'VALUE_SOURCE', 'value_source',
     'VALVE_RIG_MODELS', 'valve_commanded', 'identification_run', 'MAPPING_PARAMETERS',
-    'mapping_value',
+    'mapping_value', 'rig_plant_parameter',
 ]
 
 #: The node names of the graph, as used in ``ParamSpec.nodes``.
@@ -708,6 +708,28 @@ def identification_run(params: Mapping) -> bool:
     :mod:`seft_ros.core.excitation`), not a test: nothing of a test's (its error, its valve's
     saturation, its settings' cost) is judged of it."""
     return params.get('excitation', 'none') != 'none'
+
+
+def rig_plant_parameter(params: Mapping) -> str | None:
+    """The parameter holding the plant a ``state_space`` rig steps.
+
+    Parameters
+    ----------
+    params : mapping
+        The rig's parameters (``rig_plant_model``, ``plant_model``: JSON text, a mapping or
+        'none').
+
+    Returns
+    -------
+    str or None
+        ``'rig_plant_model'`` when it is given (the rig's own plant, apart from the
+        compensators' and the guard's ``plant_model``), else ``'plant_model'`` when that is
+        given, else None.
+    """
+    for name in ('rig_plant_model', 'plant_model'):
+        if params.get(name, 'none') not in (None, '', 'none'):
+            return name
+    return None
 
 
 def graph_nodes(rig_model: str) -> tuple[str, ...]:

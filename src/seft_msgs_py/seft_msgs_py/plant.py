@@ -95,6 +95,28 @@ class Specimen:
         """``[m, c, k]``: ``m s^2 + c s + k``, the force per displacement [N/m]."""
         return np.array([self.mass_kg, self.damping_N_s_per_m, self.stiffness_N_per_m])
 
+    def mismatch(self, mass_kg: float, stiffness_N_per_m: float,
+                 tolerance: float) -> tuple[float, float] | None:
+        """How far a declared specimen lies from this one.
+
+        Parameters
+        ----------
+        mass_kg, stiffness_N_per_m : float > 0
+            The declared specimen's m [kg] and k [N/m].
+        tolerance : float >= 0
+            The relative difference within which the two agree.
+
+        Returns
+        -------
+        tuple of float or None
+            ``(m / self.mass_kg, k / self.stiffness_N_per_m)`` when either lies further than
+            `tolerance` from 1, else None.
+        """
+        ratios = (mass_kg / self.mass_kg, stiffness_N_per_m / self.stiffness_N_per_m)
+        if all(abs(r - 1.0) <= tolerance for r in ratios):
+            return None
+        return ratios
+
     def to_mapping(self) -> dict[str, float]:
         """``{'mass_kg': m, 'damping_N_s_per_m': c, 'stiffness_N_per_m': k}``."""
         return {'mass_kg': self.mass_kg, 'damping_N_s_per_m': self.damping_N_s_per_m,

@@ -22,35 +22,14 @@ import numpy as np
 
 from seft_msgs_py.errors import ParameterError
 from seft_msgs_py.interface import COMMAND_VALVE, Measurement
+from seft_msgs_py.parameters import rig_plant_parameter
 from seft_msgs_py.plant import OUTPUTS, PlantModel, parse_plant
 from seft_msgs_py.sampling import linear_map
 from seft_plant_sim.sensors import Sensors
 from seft_plant_sim.specimen import SafetyLimits
 
-__all__ = ['StateSpaceRig', 'rig_plant_parameter']
+__all__ = ['StateSpaceRig']
 
-_NONE = (None, '', 'none')
-
-
-def rig_plant_parameter(params: Mapping) -> str | None:
-    """The parameter holding the plant a ``state_space`` rig steps.
-
-    Parameters
-    ----------
-    params : mapping
-        The rig's parameters (``rig_plant_model``, ``plant_model``: JSON text or 'none').
-
-    Returns
-    -------
-    str or None
-        ``'rig_plant_model'`` when it is given (the rig's own plant, apart from the
-        compensators' and the guard's ``plant_model``), else ``'plant_model'`` when that is
-        given, else None.
-    """
-    for name in ('rig_plant_model', 'plant_model'):
-        if params.get(name, 'none') not in _NONE:
-            return name
-    return None
 
 _F, _X, _V, _A = (OUTPUTS.index(n) for n in ('force_N', 'displacement_m', 'velocity_m_s',
                                              'acceleration_m_s2'))
@@ -90,7 +69,8 @@ class StateSpaceRig:
 
     @classmethod
     def from_parameters(cls, params: Mapping, *, rk4_substeps: int = 1) -> 'StateSpaceRig':
-        """Build from the rig's plant (:func:`rig_plant_parameter`: ``rig_plant_model``, else
+        """Build from the rig's plant
+        (:func:`~seft_msgs_py.parameters.rig_plant_parameter`: ``rig_plant_model``, else
         ``plant_model``; one is required), ``dt``, the sensors and the limits
         (``rk4_substeps``, of :func:`~seft_plant_sim.rigs.make_rig`, is unused: the model is
         linear and stepped exactly).

@@ -218,8 +218,7 @@ def applied_commands(command, loop_latency_s, dt: float, latch_offset_s: float):
 def _discrete_model(params: Mapping) -> str | None:
     """The parameter holding a ``state_space`` rig's plant (parsed already by the rig) when
     that plant is given in z, else None."""
-    from seft_msgs_py.parameters import mapping_value
-    from seft_plant_sim.lti_rig import rig_plant_parameter
+    from seft_msgs_py.parameters import mapping_value, rig_plant_parameter
     name = rig_plant_parameter(params)
     doc = mapping_value(params[name], where=f'parameter {name}',
                         expected='a plant model mapping')

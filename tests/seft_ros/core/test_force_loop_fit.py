@@ -68,3 +68,27 @@ def test_an_impulse_response_of_two_dimensions_is_refused():
     with pytest.raises(ValueError, match=r'impulse_response: expected one dimension, got '
                                          r'shape \(2, 500\)'):
         ForceLoopInverse(np.zeros((2, 500)), 0.002, 10)
+
+
+def test_a_state_space_rig_steps_its_rig_plant_model_and_names_it_when_it_does_not_parse():
+    """``rig_plant``: ``rig_plant_model`` before ``plant_model``, its errors named as the
+    parameter they are; None for another rig."""
+    import json
+
+    from seft_msgs_py.errors import ParameterError
+    from seft_ros.core.force_loop import rig_plant
+    one = {'form': 'transfer_function', 'num': {'force_N': [2.0]}, 'den': [1.0, 50.0],
+           'specimen': {'mass_kg': 50.0, 'damping_N_s_per_m': 100.0,
+                        'stiffness_N_per_m': 2e5}}
+    two = dict(one, num={'force_N': [3.0]})
+    params = {'rig_model': 'state_space', 'dt': 0.002, 'plant_model': json.dumps(one)}
+    name, plant = rig_plant(params)
+    assert name == 'plant_model'
+    name, own = rig_plant(dict(params, rig_plant_model=two))        # a mapping, not text
+    assert name == 'rig_plant_model'
+    # static gains 2/50 and 3/50 of the force per volt
+    assert own.frequency_response([0.0])[0].real == pytest.approx(
+        1.5 * plant.frequency_response([0.0])[0].real)
+    assert rig_plant(dict(params, rig_model='servohydraulic')) is None
+    with pytest.raises(ParameterError, match=r'^parameter rig_plant_model.den'):
+        rig_plant(dict(params, rig_plant_model=json.dumps(dict(one, den=[0.0, 0.0]))))

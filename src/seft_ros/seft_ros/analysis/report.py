@@ -23,8 +23,8 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import FuncFormatter
 import numpy as np
 
-from seft_msgs_py.errors import ParameterError
-from seft_msgs_py.parameters import identification_run
+from seft_msgs_py.errors import ParameterError, SeftError
+from seft_msgs_py.parameters import identification_run, mapping_value, rig_plant_parameter
 from seft_ros.analysis.findings import (
     bridge_entry,
     bridge_lines,
@@ -636,13 +636,11 @@ def _latency_text(run: RunData) -> str:
     if rig == 'servohydraulic':
         return f"I/O latency = {_param(run, 'io_latency_s', 1e3, ' ms')}, "
     if rig == 'state_space':
-        text = params.get('rig_plant_model', 'none')
-        if text in (None, '', 'none'):
-            text = params.get('plant_model', 'none')
+        name = rig_plant_parameter(params)
         try:
-            doc = json.loads(text) if isinstance(text, str) else dict(text)
+            doc = mapping_value(params[name], where=f'parameter {name}', expected='a mapping')
             delay = float(doc.get('io_delay_s', 0.0) or 0.0)
-        except (TypeError, ValueError, AttributeError):
+        except (KeyError, SeftError, TypeError, ValueError):
             return "I/O latency: its plant model's, "
         return f"I/O latency = {1e3 * delay:g} ms (its plant model's io_delay_s), "
     return f"I/O latency: the {rig} rig's own, "

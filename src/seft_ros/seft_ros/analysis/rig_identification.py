@@ -46,7 +46,7 @@ from seft_ros.analysis.specimen_identification import (
 )
 from seft_ros.core.excitation import excitation_band_hz
 
-__all__ = ['FrequencyResponse', 'RationalFit', 'LoopFigures', 'RunIdentification',
+__all__ = ['FrequencyResponse', 'RationalFit', 'RunIdentification',
            'h1_estimate', 'fit_rational', 'loop_figures', 'phase_slope_delay_s',
            'xcorr_delay_s', 'identify_run', 'applied_valve_command', 'identified_parameters',
            'identify_rigs', 'identified_rig_parameters', 'specimen_figures', 'fit_hydraulics',
@@ -336,44 +336,7 @@ def fit_rational(freqs_hz, response, dt: float, *, orders=DEFAULT_ORDERS_OPEN, w
     return RationalFit(b, a, float(dt), (float(f.min()), float(f.max())), err)
 
 
-@dataclass(frozen=True)
-class LoopFigures:
-    """Crossover and margins of a loop transfer function ``L(f)``.
-
-    Attributes
-    ----------
-    crossover_hz : float
-        First frequency where ``|L|`` falls through 1 [Hz] (nan if none).
-    phase_margin_deg : float
-        The smallest ``180 + arg L`` at a gain crossover [deg], in (-180, 180].
-    gain_margin : float
-        Smallest ``1/|L|`` where ``arg L = -180 deg`` (inf if none) [-].
-    phase_crossover_hz : float
-        Its frequency [Hz].
-    crossovers : int
-        The gain crossovers in the band.
-    phase_margin_hz : float
-        The gain crossover of `phase_margin_deg` [Hz]: with several crossovers, not
-        necessarily `crossover_hz`.
-    """
-
-    crossover_hz: float
-    phase_margin_deg: float
-    gain_margin: float
-    phase_crossover_hz: float
-    crossovers: int = 1
-    phase_margin_hz: float = math.nan
-
-    def to_json(self) -> dict[str, float]:
-        """The figures (``gain_margin`` inf as None)."""
-        gm = self.gain_margin
-        return {'crossover_hz': self.crossover_hz, 'phase_margin_deg': self.phase_margin_deg,
-                'gain_margin': None if math.isinf(gm) else gm,
-                'phase_crossover_hz': self.phase_crossover_hz, 'crossovers': self.crossovers,
-                'phase_margin_hz': self.phase_margin_hz}
-
-
-def loop_figures(loop, f_min: float, f_max: float, points: int = 4000) -> LoopFigures:
+def loop_figures(loop, f_min: float, f_max: float, points: int = 4000):
     """Crossover and margins of the loop ``loop(f)`` between `f_min` and `f_max` [Hz]
     (:func:`seft_ros.core.force_design.loop_margins`: a scan of `points` log-spaced
     frequencies refined by Brent's method).
@@ -385,11 +348,13 @@ def loop_figures(loop, f_min: float, f_max: float, points: int = 4000) -> LoopFi
     f_min, f_max : float > 0
         Scanned band [Hz].
     points : int
+
+    Returns
+    -------
+    seft_ros.core.force_design.LoopMargins
     """
     from seft_ros.core.force_design import loop_margins
-    m = loop_margins(loop, f_min, f_max, points)
-    return LoopFigures(m.crossover_hz, m.phase_margin_deg, m.gain_margin, m.phase_crossover_hz,
-                       m.crossovers, m.phase_margin_hz)
+    return loop_margins(loop, f_min, f_max, points)
 
 
 def phase_slope_delay_s(freqs_hz, response, band_hz=DELAY_BAND_HZ, weight=None) -> float:
@@ -458,15 +423,13 @@ def _known_model(params):
     the plant the rig stepped) and its controller: ``(plant, controller)``, or None where the
     rig has none (an actuator seft has no model of, or seft_plant_sim missing)."""
     from seft_ros.core.controller import ForceServoController
-    from seft_ros.core.force_loop import force_loop_plant
-    rig_plant = params.get('rig_plant_model', 'none')
+    from seft_ros.core.force_loop import force_loop_plant, rig_plant
     try:
-        if params.get('rig_model') == 'state_space' and rig_plant not in (None, '', 'none'):
+        stepped = rig_plant(params)
+        if stepped is not None and stepped[0] == 'rig_plant_model':
             # named as the parameter it is (it read 'parameter plant_model'; session 38)
-            from seft_msgs_py.plant import parse_plant
-            params = dict(params, plant_model=rig_plant)
-            plant = parse_plant(rig_plant, dt=float(params['dt']),
-                                where='parameter rig_plant_model')
+            plant = stepped[1]
+            params = dict(params, plant_model=params['rig_plant_model'])
         else:
             plant = force_loop_plant(params)
         return plant, ForceServoController.from_parameters(params)
@@ -842,17 +805,12 @@ def _plant_specimen(params):
     """The specimen inside the plant a ``state_space`` rig steps (its ``rig_plant_model``,
     else ``plant_model``), or None (another rig, a plant without one, one that does not
     parse: the run said why)."""
-    if params.get('rig_model') != 'state_space':
-        return None
-    from seft_msgs_py.plant import parse_plant
-    from seft_plant_sim.lti_rig import rig_plant_parameter
-    name = rig_plant_parameter(params)
-    if name is None:
-        return None
+    from seft_ros.core.force_loop import rig_plant
     try:
-        return parse_plant(params[name], dt=float(params['dt'])).specimen
+        stepped = rig_plant(params)
     except (SeftError, ValueError):
         return None
+    return stepped[1].specimen if stepped is not None else None
 
 
 def identify_rigs(run: RunData, **options) -> list[RunIdentification]:

@@ -1783,11 +1783,11 @@ def _own_controller_line(rig: str, params: dict, plant) -> str:
     a stable force loop there (no command said so: a new user was sent from seft identify to
     seft design, which ignored it, and from there to seft stability; session 38)."""
     from seft_ros.core.controller import ForceServoController
-    from seft_ros.core.force_design import _closed_loop_stable, plant_margins
+    from seft_ros.core.force_design import closed_loop_stable, plant_margins
     ctrl = ForceServoController.from_parameters(params)
     m = plant_margins(plant, ctrl)
     gm = 'inf' if math.isinf(m.gain_margin) else f'{m.gain_margin:.3g}'
-    stable = _closed_loop_stable(plant, ctrl.bz, ctrl.az)
+    stable = closed_loop_stable(plant, ctrl.bz, ctrl.az)
     return (f"{f'rig {rig}: ' if rig else ''}its own controller (force_controller_tf) on the "
             f'plant model: crossover {m.crossover_hz:.3g} Hz ({m.crossovers} gain '
             f'crossover(s)), phase margin {m.phase_margin_deg:.3g} deg at '

@@ -68,7 +68,8 @@ __all__ = ['DesignTargets', 'LoopMargins', 'ForceLoopDesign', 'loop_margins',
            'KANAI_TAJIMI_GROUND', 'DESIGN_METHOD', 'played_record_spectrum',
            'compensated_test_margins', 'LOW_CROSSOVER_HZ', 'SLOW_PAIR_DAMPING',
            'SAMPLED_ZERO_BOUND', 'sampled_zero_offset', 'COARSE_SAMPLING',
-           'shorter_sample_period_s', 'POLARITY_HORIZON_S', 'valve_polarity']
+           'shorter_sample_period_s', 'POLARITY_HORIZON_S', 'valve_polarity',
+           'closed_loop_stable']
 
 #: The largest miss ``max |W T - z^-d|`` up to 25 Hz of the force-loop inverse the design
 #: chooses (the study's rig, 48 taps: 0.01 at d = 10).
@@ -895,7 +896,7 @@ def _built(plant, candidate, csi, detune, features, targets, required, notes):
     num, den = _controller_z(csi, csi_damping, 0.0, notches, integral, dt)
     bz, az = num * k / den[0], den / den[0]
     margins = plant_margins(plant, _Discrete(bz, az, dt), features)
-    stable = _closed_loop_stable(plant, bz, az)
+    stable = closed_loop_stable(plant, bz, az)
     met = stable and margins.meets(pm_req, gm_req) and (
         not targets.crossover_hz or margins.crossover_hz >= 0.95 * targets.crossover_hz)
     if not stable:
@@ -1058,9 +1059,23 @@ def _grid_margins(lg: np.ndarray, f: np.ndarray) -> LoopMargins:
                        len(cross), at_hz)
 
 
-def _closed_loop_stable(plant: PlantModel, bz, az) -> bool:
-    """Whether the force loop closed by ``bz/az`` (powers of z) on the plant is stable (the
-    eigenvalues of the closed loop)."""
+def closed_loop_stable(plant: PlantModel, bz, az) -> bool:
+    """Whether the force loop a discrete controller closes on the plant model is stable.
+
+    The loop is ``u = C(z) (r - f)``, ``f`` the plant's ``force_N`` output; stable when every
+    eigenvalue of the closed loop's state matrix lies inside the unit circle.
+
+    Parameters
+    ----------
+    plant : seft_msgs_py.plant.PlantModel
+        The valve-command-to-force plant, discrete at the controller's ``dt``.
+    bz, az : array_like, shape (nb,), (na,)
+        The controller's numerator and denominator in descending powers of z.
+
+    Returns
+    -------
+    bool
+    """
     from scipy.signal import tf2ss
     n = max(len(bz), len(az))
     b = np.concatenate([np.zeros(n - len(bz)), bz])
@@ -1391,7 +1406,7 @@ def _choose_inverse(plant: PlantModel, design: ForceLoopDesign, spectrum=None,
     there, predicted within 0.07 %, run 0.06 / 0.70 / 0.83 % x / a / f at alpha 0.5.)
     """
     from seft_ros.core.controller import ForceServoController
-    if not _closed_loop_stable(plant, np.array(design.num_z), np.array(design.den_z)):
+    if not closed_loop_stable(plant, np.array(design.num_z), np.array(design.den_z)):
         design.notes.append('no force-loop inverse: the force loop on the model is unstable')
         design.inverse_band_error = math.inf
         return

@@ -20,11 +20,11 @@ import functools
 from typing import Mapping
 
 from seft_msgs_py.errors import ParameterError
-from seft_msgs_py.parameters import valve_commanded
+from seft_msgs_py.parameters import mapping_value, rig_plant_parameter, valve_commanded
 from seft_msgs_py.plant import PlantModel, parse_plant
 
 __all__ = ['NoPlantModelError', 'has_plant_model', 'force_loop_plant', 'compensator_plant',
-           'plant_text']
+           'plant_text', 'rig_plant']
 
 
 class NoPlantModelError(ParameterError):
@@ -43,8 +43,41 @@ def has_plant_model(params: Mapping) -> bool:
 
 
 @functools.lru_cache(maxsize=16)
-def _parsed(text: str, dt: float) -> PlantModel:
-    return parse_plant(text, dt=dt, where='parameter plant_model')
+def _parsed(text: str, dt: float, where: str = 'parameter plant_model') -> PlantModel:
+    return parse_plant(text, dt=dt, where=where)
+
+
+def rig_plant(params: Mapping) -> tuple[str, PlantModel] | None:
+    """The plant a ``state_space`` rig steps and the parameter that gives it
+    (:func:`~seft_msgs_py.parameters.rig_plant_parameter`: ``rig_plant_model``, else
+    ``plant_model``).
+
+    Parameters
+    ----------
+    params : mapping
+        A rig's resolved parameters (``rig_model``, ``dt``).
+
+    Returns
+    -------
+    tuple of (str, PlantModel) or None
+        None for another rig, or a ``state_space`` rig with neither model.
+
+    Raises
+    ------
+    ParameterError
+        A model that does not parse (the message names the parameter and the field).
+    """
+    if params.get('rig_model') != 'state_space':
+        return None
+    name = rig_plant_parameter(params)
+    if name is None:
+        return None
+    text = params[name]
+    if not isinstance(text, str):
+        import json
+        text = json.dumps(mapping_value(text, where=f'parameter {name}',
+                                        expected='a plant model mapping'))
+    return name, _parsed(text, float(params['dt']), f'parameter {name}')
 
 
 def force_loop_plant(params: Mapping, *, predictor: bool = False,

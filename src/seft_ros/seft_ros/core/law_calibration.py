@@ -135,13 +135,13 @@ def _specimen_clause(params: Mapping, declared: Mapping) -> str | None:
     if spec is None:
         return None
     m, k = float(declared['mass_kg']), float(declared['stiffness_N_per_m'])
-    if (abs(m / spec.mass_kg - 1.0) <= SPECIMEN_TOLERANCE
-            and abs(k / spec.stiffness_N_per_m - 1.0) <= SPECIMEN_TOLERANCE):
+    ratios = spec.mismatch(m, k, SPECIMEN_TOLERANCE)
+    if ratios is None:
         return None
     return (f'the declared specimen ({m:.4g} kg, {k:.4g} N/m, '
             f"{math.sqrt(k / m) / (2.0 * math.pi):.2f} Hz: predictor_* or the rig's) is "
-            f"{m / spec.mass_kg:.3g} x the loop model's mass and "
-            f'{k / spec.stiffness_N_per_m:.3g} x its stiffness ({spec.mass_kg:.4g} kg, '
+            f"{ratios[0]:.3g} x the loop model's mass and "
+            f'{ratios[1]:.3g} x its stiffness ({spec.mass_kg:.4g} kg, '
             f'{spec.stiffness_N_per_m:.4g} N/m, {spec.natural_frequency_hz:.2f} Hz), and the '
             "pole sought is the declared specimen's reference structure's: declare the "
             "specimen the loop has (a plant_model's specimen, as seft identify wrote it), "

@@ -211,10 +211,10 @@ def _plant_specimen(p: Mapping[str, Any]) -> dict[str, float] | None:
         return None                         # refused elsewhere
     if spec is None or not (m > 0 and k > 0):
         return None
-    mass_ratio, stiffness_ratio = m / spec.mass_kg, k / spec.stiffness_N_per_m
-    if (abs(mass_ratio - 1.0) <= PLANT_SPECIMEN_TOLERANCE
-            and abs(stiffness_ratio - 1.0) <= PLANT_SPECIMEN_TOLERANCE):
+    ratios = spec.mismatch(m, k, PLANT_SPECIMEN_TOLERANCE)
+    if ratios is None:
         return None
+    mass_ratio, stiffness_ratio = ratios
     return {'declared_hz': math.sqrt(k / m) / (2.0 * math.pi), 'mass_ratio': mass_ratio,
             'stiffness_ratio': stiffness_ratio, 'plant_mass_kg': spec.mass_kg,
             'plant_stiffness_N_per_m': spec.stiffness_N_per_m,
