@@ -4,6 +4,7 @@ report."""
 
 import json
 from pathlib import Path
+import re
 import subprocess
 import textwrap
 
@@ -115,10 +116,48 @@ def test_simulate_reports_the_model(tmp_path, seft_exe):
     line = 'no member yields within a push of 1 m on each DOF'
     assert 'note: run 1 (model): OpenSees pushover (' in result.stdout
     assert line in result.stdout and line in report
-    # no pre-run range check for an OpenSees model (its reference is the report's): said
-    assert ('range check: not made, the computational part is an opensees model (its '
-            'reference is made with the report): the sensors and the actuator are watched '
-            'during the run only') in result.stdout + result.stderr
+    # the pre-run range check reads OpenSees' own analysis of the model, the one the report
+    # compares with (before: no range check, 'not made ... made with the report')
+    assert 'range check' not in result.stdout + result.stderr
+    check = run['range_check']
+    assert check['note'] == '' and check['linear'] is False and check['lines'] == []
+    dof = next(d for d in run['dofs'].values() if d['rig'] == 'lab')
+    for channel in ('displacement', 'acceleration'):
+        assert check['rigs']['lab'][channel]['peak'] == dof[channel]['peak_reference']
+        assert not check['rigs']['lab'][channel]['exceeded']
+
+
+def test_an_opensees_test_beyond_a_sensors_range_is_warned_and_refused_with_strict(
+        tmp_path, seft_exe):
+    """The two-story building whose story 2 is OpenSees', its accelerometer's range set
+    below the reference's peak: one range-check line before the run (the peak from
+    OpenSees' analysis, the largest amplitude that fits said to be an estimate), and
+    ``--strict`` refuses the run in one line with nothing run."""
+    section = yaml.safe_load((ROOT / 'config' / 'opensees' / 'two_story.yaml').read_text())
+    section['structure']['opensees']['model'] = str(ROOT / 'config' / 'opensees' /
+                                                    'two_story.py')
+    section['predictor'] = 'model'
+    section['rigs']['lab']['accelerometer_range_m_s2'] = 5.0
+    config = tmp_path / 'two_story.yaml'
+    config.write_text(yaml.safe_dump(section))
+    args = [str(seft_exe), 'simulate', str(config), '--duration', '2']
+    strict = subprocess.run(args + ['--out', str(tmp_path / 'strict'), '--strict'],
+                            capture_output=True, text=True, timeout=300)
+    assert strict.returncode != 0 and 'Traceback' not in strict.stderr
+    errors = [ln for ln in strict.stderr.splitlines() if ln.startswith('seft: error:')]
+    assert len(errors) == 1 and errors[0] == strict.stderr.strip().splitlines()[-1]
+    line = errors[0]
+    assert re.fullmatch(r'seft: error: range check: lab acceleration: the reference peaks at '
+                        r'\d+\.\d+ m/s\^2, beyond the accelerometer range of 5 m/s\^2; .*; '
+                        r'refused \(--strict\): lower the amplitude or run without --strict',
+                        line), line
+    assert 'a member that yields makes it an estimate' in line
+    assert not (tmp_path / 'strict' / 'summary.json').exists()
+    warned = subprocess.run(args + ['--out', str(tmp_path / 'warned')], capture_output=True,
+                            text=True, timeout=300)
+    assert warned.returncode == 0, warned.stderr[-2000:]
+    said = [ln for ln in warned.stderr.splitlines() if ln.startswith('[seft] range check')]
+    assert len(said) == 1 and said[0].startswith('[seft] range check: lab acceleration: '), said
 
 
 def test_a_yielding_story_is_predicted_with_its_tangent(tmp_path):

@@ -2,7 +2,8 @@
 
 The analytical reference of the whole structure
 (:func:`~seft_ros.analysis.reference.run_reference`: the declared specimens, linear or
-yielding, and the prepared record) is what a perfectly
+yielding, and the prepared record; an OpenSees model's, OpenSees' own transient analysis of
+it, which the report then takes back) is what a perfectly
 compensated test reproduces; its peaks at each rig's degree of freedom are the test's, before
 the test. Each is compared with what the rig can read or do (the rig contract):
 
@@ -24,8 +25,8 @@ channel                       peak of the reference                    against
 5; the delay rig and a ``state_space`` model declare none unless it is set). A channel whose
 peak exceeds its limit gives one line: the rig, the channel, the peak, the limit and the
 largest amplitude that fits (the run's ``amplitude_N`` or ``scale_factor`` times limit / peak:
-the reference is linear in the record; for a yielding member that scaling is an estimate and
-the line says so).
+the reference is linear in the record; for a yielding member or an OpenSees model, which may
+yield, that scaling is an estimate and the line says so).
 
 The valve command a valve-driven rig needs for the reference's interface force ``f`` is
 ``u = P^-1 f`` on the rig's force-loop plant ``P``
@@ -194,7 +195,7 @@ class RangeCheck:
         unit = 'N' if self.scale_name == 'amplitude_N' else ''
         fits = f'{self.scale_name} {self.fits(peak):.4g}{" " + unit if unit else ""}'
         if not self.linear:
-            fits += ' (scaled linearly: the yielding member makes it an estimate)'
+            fits += ' (scaled linearly: a member that yields makes it an estimate)'
         what = CHANNELS[peak.channel][1]
         if peak.channel == 'actuator valve command':
             return (f'{who} {peak.channel}: the reference force needs {peak.peak:.4g} V of '
@@ -226,7 +227,8 @@ class RangeCheck:
                 'scale': self.scale, 'linear': self.linear, 'rigs': rigs}
 
 
-def range_check(params, ground_acceleration_m_s2=None, *, valve: bool = True) -> RangeCheck:
+def range_check(params, ground_acceleration_m_s2=None, *, valve: bool = True,
+                program_reference: bool = True) -> RangeCheck:
     """The pre-run range check of a run (module notes).
 
     Parameters
@@ -240,13 +242,21 @@ def range_check(params, ground_acceleration_m_s2=None, *, valve: bool = True) ->
         Check the valve command too (:func:`valve_command_needed`; about 0.08 s a run on
         seft's rig, its model's sampling): the divergence guard, which reads the
         displacement and force, leaves it out.
+    program_reference : bool
+        Make a program's model's reference (OpenSees' analysis of it). False: such a run
+        gets a ``note`` and no peaks: the divergence guard's prediction, made in the
+        builder's process and in ``seft simulate`` alike (OpenSees' one domain per process
+        holds the part the builder steps, which an analysis of the whole model would
+        replace), so an OpenSees test has no divergence guard.
 
     Returns
     -------
     RangeCheck
         With ``note`` and no peaks for a run it cannot check: an identification run (an
-        ``excitation``), an OpenSees model (its reference is OpenSees' own analysis, made
-        with the report).
+        ``excitation``), or one whose reference cannot be made (an OpenSees model that
+        does not build or converge: the reason). An OpenSees model's reference is OpenSees'
+        own analysis of it (a few seconds for a frame; the report takes the same one back),
+        not linear in the record (``linear`` False).
 
     Raises
     ------
@@ -269,16 +279,23 @@ def range_check(params, ground_acceleration_m_s2=None, *, valve: bool = True) ->
     if identification_run(params):
         check.note = 'an identification run (its excitation is not a record to check)'
         return check
+    program = None
     if is_study(params):
         rigs = {'': params}
     else:
         setup = test_setup(params)
-        if setup.structure.model_kind is not None:
-            check.note = (f'the computational part is an {setup.structure.model_kind} model '
-                          '(its reference is made with the report)')
+        program = setup.structure.model_kind
+        if program is not None and not program_reference:
+            check.note = (f'the computational part is an {program} model (its reference is '
+                          "its program's own analysis, not made in this process)")
             return check
         rigs = {r: setup.rig_params[r] for r in setup.rig_names}
-    check.linear = all(p.get('specimen_model', 'linear') == 'linear' for p in rigs.values())
+    # a program's model (OpenSees) may yield: its reference is its own analysis, made here
+    # before the run (the report takes the same one back: opensees_reference keeps it); it
+    # was left to the report, and a lab's OpenSees test had no range check before it, nor
+    # could --strict refuse it (session 39)
+    check.linear = program is None and all(p.get('specimen_model', 'linear') == 'linear'
+                                           for p in rigs.values())
     if ground_acceleration_m_s2 is None:
         ground_acceleration_m_s2 = prepared_record(params).acceleration_m_s2
     try:
@@ -376,7 +393,7 @@ def divergence_prediction(params) -> tuple[RangeCheck | None, str]:
         Bad parameters (as the run would).
     """
     try:
-        return range_check(params, valve=False), ''
+        return range_check(params, valve=False, program_reference=False), ''
     except InputError as exc:
         return None, (f'divergence guard off: the record cannot be read on this host ({exc}); '
                       'the run goes on without it (the instability monitor and the limits '

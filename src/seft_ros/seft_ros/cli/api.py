@@ -1610,8 +1610,9 @@ def check_ranges(*, runs: list[dict], strict: bool = False, force: bool = False,
     stopped at 0.86 s); a sensor's range stays a warning there (the run counts what clips).
     A run with a plug-in's model (:mod:`seft_ros.core.models`) is first checked
     by its plug-in's ``check_runs`` (OpenSees: :func:`seft_ros.opensees.checks.check_runs`;
-    refused in one line where it cannot run as configured); its range check is made with
-    the report.
+    refused in one line where it cannot run as configured); its range check reads its
+    program's own analysis (OpenSees': a few seconds for a frame, which the report then
+    takes back).
 
     Returns
     -------
@@ -1662,8 +1663,8 @@ def check_ranges(*, runs: list[dict], strict: bool = False, force: bool = False,
         progress(f'range check: {line}')
     if len(shown) > 1 and every:
         progress(f'range check: {every[2:]}')
-    # the runs it could not check, said (an OpenSees model's reference is the report's):
-    # the run then has no pre-run check, nor does --strict refuse it
+    # the runs it could not check, said (a model that does not build or converge): the run
+    # then has no pre-run check, nor does --strict refuse it
     unchecked: dict[str, list] = {}
     for check, label in zip(checks, run_labels(runs)):
         if check.note and not check.note.startswith('an identification run'):

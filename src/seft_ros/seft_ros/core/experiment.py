@@ -155,7 +155,7 @@ def _simulate(params, *, progress, record, stale_steps, command_latency_s) -> Ru
     predicted = None
     if float(params.get('divergence_factor', 0.0) or 0.0) > 0:
         from seft_ros.analysis.range_check import range_check  # analysis imports the core
-        predicted = range_check(params, ag, valve=False)
+        predicted = range_check(params, ag, valve=False, program_reference=False)
     guards = [DivergenceGuard.from_parameters(rig_params[r], predicted, rig=r) for r in names]
     # each rig's specimen against its compensator's model (specimen_check)
     local_params = {r: p for b in builders for r, p in zip(b.local_rigs, b.rig_params)}

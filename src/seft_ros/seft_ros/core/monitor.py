@@ -338,8 +338,9 @@ class DivergenceGuard:
         DivergenceGuard or None
             None when ``divergence_factor`` is 0, in an open-loop identification run, and
             without a prediction: no check (a run with an excitation, an OpenSees model,
-            whose reference is OpenSees' own analysis made with the report) or no positive
-            predicted peak of any watched channel.
+            whose reference, OpenSees' own analysis, the builder's process does not make:
+            :func:`~seft_ros.analysis.range_check.range_check`'s ``program_reference``) or
+            no positive predicted peak of any watched channel.
         """
         factor = float(params.get('divergence_factor', 0.0) or 0.0)
         if factor <= 0 or check is None or open_loop_identification(params):

@@ -1325,7 +1325,7 @@ def level_extrapolation(params: Mapping) -> str | None:
     if not stated:
         return None
     try:
-        planned = range_check(params, valve=False).peaks
+        planned = range_check(params, valve=False, program_reference=False).peaks
     except SeftError:
         return None
     worst = None
