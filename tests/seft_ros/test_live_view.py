@@ -480,7 +480,11 @@ def test_live_view_over_tls(token, tmp_path, ros_env):
 def test_layout_file_names_the_channels_of_a_run(reference_params):
     """The shipped Foxglove layout plots paths the live view publishes for the study's run."""
     from seft_ros.live.channels import RunChannels
-    layout = Path(__file__).resolve().parents[2] / 'docs' / 'foxglove' / \
+    from seft_ros.live.node import layout_file
+    # the console names it by its absolute path (it named it relative to the repository,
+    # wherever seft ran)
+    layout = Path(layout_file())
+    assert layout == Path(__file__).resolve().parents[2] / 'docs' / 'foxglove' / \
         'seft_live_layout.json'
     text = layout.read_text()
     doc = json.loads(text)

@@ -365,6 +365,26 @@ def test_argparse_errors_are_one_line_naming_the_command(argv, line, capsys):
     assert capsys.readouterr().err == line + '\n'
 
 
+@pytest.mark.parametrize('args, line', [
+    (['main.yaml'], 'seft emulate-controller takes one run of one rig: the configuration gives 8 '
+     'runs (alpha [0.0, 0.5, 1.0, 1.5], predictor [model, none]); give one of each, e.g. --set '
+     'alpha=0.0 --set predictor=model'),
+    # alpha given, the two predictors left: before, 'expected one alpha and no structure'
+    (['main.yaml', '--set', 'alpha=0.5'], 'seft emulate-controller takes one run of one rig: '
+     'the configuration gives 2 runs (predictor [model, none]); give one of each, e.g. --set '
+     'predictor=model'),
+    (['two_piers.yaml'], 'seft emulate-controller takes one rig: the configuration is a '
+     "structure; give a one-rig configuration (a rig's own section)"),
+])
+def test_the_emulator_names_what_makes_more_than_one_run(args, line, capsys):
+    """What a lab gets from ``seft emulate-controller`` on the shipped configurations (a
+    new user followed the rig contract's page with config/main.yaml; session 39)."""
+    config = Path(__file__).resolve().parents[3] / 'config'
+    argv = ['emulate-controller', str(config / args[0]), *args[1:]]
+    assert main.main(argv) == 2
+    assert capsys.readouterr().err == f'seft: error: {line}\n'
+
+
 @pytest.mark.parametrize('verb', ['run', 'simulate', 'sites'])
 def test_predictor_help_names_every_registered_predictor(verb, capsys):
     # the help listed 'none', 'model', 'polynomial', 'adaptive' and left 'ats' out

@@ -501,8 +501,20 @@ def _rig_runs(args) -> list[dict]:
 def _one_rig(args, verb: str) -> dict:
     """The parameters of one rig (:func:`_rig_runs`), for emulate-controller."""
     runs = _rig_runs(args)
-    if len(runs) != 1 or runs[0].get('structure', 'none') != 'none':
-        raise InputError(f'seft {verb} takes one rig: expected one alpha and no structure')
+    if runs[0].get('structure', 'none') != 'none':
+        raise InputError(f'seft {verb} takes one rig: the configuration is a structure; give '
+                         "a one-rig configuration (a rig's own section)")
+    if len(runs) != 1:
+        # name what makes several runs (it said 'expected one alpha' for config/main.yaml,
+        # whose two predictors made two runs with alpha set; session 39)
+        lists = {name: sorted({str(r.get(name)) for r in runs})
+                 for name in parameters.LIST_PARAMETERS}
+        several = ', '.join(f"{name} [{', '.join(values)}]"
+                            for name, values in lists.items() if len(values) > 1)
+        raise InputError(f'seft {verb} takes one run of one rig: the configuration gives '
+                         f'{len(runs)} runs ({several}); give one of each, e.g. '
+                         + ' '.join(f'--set {name}={values[0]}'
+                                    for name, values in lists.items() if len(values) > 1))
     return runs[0]
 
 

@@ -47,7 +47,8 @@ from seft_ros.live.access import DEFAULT_HOST, DEFAULT_PORT, TOKEN_ENV, LiveOpti
 from seft_ros.live.channels import DISPLAY_RATE_HZ
 from seft_ros.live.view import LIVE_NAME, LiveView
 
-__all__ = ['LiveNode', 'main', 'LIVE_DATA_QOS', 'READY_LINE', 'OFF_LINE', 'NICE']
+__all__ = ['LiveNode', 'main', 'LIVE_DATA_QOS', 'READY_LINE', 'OFF_LINE', 'NICE', 'LAYOUT_FILE',
+           'layout_file']
 
 #: The record batches as the live view reads them: best effort, volatile, a short queue.
 LIVE_DATA_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=50,
@@ -261,6 +262,21 @@ def _warm_up(analytical) -> None:
     analytical(dict(parameters.resolve(), duration_s=0.1))
 
 
+
+#: The Foxglove layout shipped with seft, relative to its repository.
+LAYOUT_FILE = 'docs/foxglove/seft_live_layout.json'
+
+
+def layout_file() -> str:
+    """Where the shipped Foxglove layout is: its absolute path in the repository this
+    package runs from (a new user ran seft outside the repository and the relative path
+    named nothing there; session 39), else :data:`LAYOUT_FILE` in seft's repository (an
+    installed package without the docs)."""
+    from pathlib import Path
+    path = Path(__file__).resolve().parents[4] / LAYOUT_FILE
+    return str(path) if path.is_file() else f"{LAYOUT_FILE} in seft's repository"
+
+
 def serve(options: LiveOptions):
     """Start the Foxglove server and the web server of `options`; return ``(view, web,
     foxglove_server, lines)`` where `lines` say what listens and what could not."""
@@ -291,7 +307,7 @@ def serve(options: LiveOptions):
         lines.append(f'live view: web page {page}'
                      + (' (with the operator stop button)' if options.stop else ''))
     if foxglove_server is not None and (not options.token or web.proxy_ok):
-        lines.append(f'live view: Foxglove {fox} (layout: docs/foxglove/seft_live_layout.json)')
+        lines.append(f'live view: Foxglove {fox} (layout: {layout_file()})')
     elif foxglove_server is not None:
         foxglove_server.stop()
         foxglove_server = None
