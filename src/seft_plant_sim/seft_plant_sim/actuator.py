@@ -371,36 +371,56 @@ class ActuatorRig:
             r = 1.0 - (p if xv >= 0.0 else -p) * inv_ps
             return kq * xv * sqrt(r) if r > 0.0 else 0.0
 
-        def rates(s, u):
-            x, v, p = s[0], s[1], s[2]
-            force = area * p - (fc * tanh(v * inv_vs) if fc else 0.0)
-            acc = (force - c * v - k * x) * inv_m
-            if valve == 'first_order':
-                xv = s[3]
-                dvalve = [(u - xv) * w]
-            elif valve == 'second_order':
-                xv, dxv = s[3], s[4]
-                dvalve = [dxv, w2 * (u - xv) - zw2 * dxv]
-            else:
-                y, dy, xv = s[3], s[4], s[5]
-                dvalve = [dy, w2 * (u - y) - zw2 * dy, wm * (y - xv)]
-            dp = (flow(xv, p) - area * v - leak * p) * inv_ch
-            return [v, acc, dp] + dvalve
+        # the derivatives as a tuple of six (a valve of fewer states pads with zeros, whose
+        # rates stay zero), one function per valve (its kind read once, not at every call);
+        # the same operations, in the same order, as the one function with a list of
+        # before (bit for bit: tests/seft_plant_sim/test_actuator.py)
+        if valve == 'first_order':
+            def rates(x, v, p, xv, _4, _5, u):
+                force = area * p - (fc * tanh(v * inv_vs) if fc else 0.0)
+                acc = (force - c * v - k * x) * inv_m
+                dp = (flow(xv, p) - area * v - leak * p) * inv_ch
+                return v, acc, dp, (u - xv) * w, 0.0, 0.0
+        elif valve == 'second_order':
+            def rates(x, v, p, xv, dxv, _5, u):
+                force = area * p - (fc * tanh(v * inv_vs) if fc else 0.0)
+                acc = (force - c * v - k * x) * inv_m
+                dp = (flow(xv, p) - area * v - leak * p) * inv_ch
+                return v, acc, dp, dxv, w2 * (u - xv) - zw2 * dxv, 0.0
+        else:
+            def rates(x, v, p, y, dy, xv, u):
+                force = area * p - (fc * tanh(v * inv_vs) if fc else 0.0)
+                acc = (force - c * v - k * x) * inv_m
+                dp = (flow(xv, p) - area * v - leak * p) * inv_ch
+                return v, acc, dp, dy, w2 * (u - y) - zw2 * dy, wm * (y - xv)
 
         return rates
 
     def _rk4(self, s, u, h, n):
-        rates = self._rates
+        """`n` classical Runge-Kutta steps of `h` [s] from the state list `s` under the held
+        command `u` [V] (each state's stages ``s + h/2 k1``, ``s + h/2 k2``, ``s + h k3`` and
+        ``s + h/6 (k1 + 2 (k2 + k3) + k4)``, unrolled over six scalars, the valve's unused
+        ones zero: the family's rigs spent 2.9 of 8.6 s of a 1 kHz test in building and
+        zipping lists)."""
+        rates, size = self._rates, len(s)
+        s0, s1, s2, s3, s4, s5 = list(s) + [0.0] * (6 - size)
         for _ in range(n):
             h2 = 0.5 * h
-            k1 = rates(s, u)
-            k2 = rates([a + h2 * b for a, b in zip(s, k1)], u)
-            k3 = rates([a + h2 * b for a, b in zip(s, k2)], u)
-            k4 = rates([a + h * b for a, b in zip(s, k3)], u)
+            a0, a1, a2, a3, a4, a5 = rates(s0, s1, s2, s3, s4, s5, u)
+            b0, b1, b2, b3, b4, b5 = rates(s0 + h2 * a0, s1 + h2 * a1, s2 + h2 * a2,
+                                           s3 + h2 * a3, s4 + h2 * a4, s5 + h2 * a5, u)
+            c0, c1, c2, c3, c4, c5 = rates(s0 + h2 * b0, s1 + h2 * b1, s2 + h2 * b2,
+                                           s3 + h2 * b3, s4 + h2 * b4, s5 + h2 * b5, u)
+            d0, d1, d2, d3, d4, d5 = rates(s0 + h * c0, s1 + h * c1, s2 + h * c2,
+                                           s3 + h * c3, s4 + h * c4, s5 + h * c5, u)
             h6 = h / 6.0
-            s = [a + h6 * (b1 + 2.0 * (b2 + b3) + b4) for a, b1, b2, b3, b4
-                 in zip(s, k1, k2, k3, k4)]
-        return s
+            s0 = s0 + h6 * (a0 + 2.0 * (b0 + c0) + d0)
+            s1 = s1 + h6 * (a1 + 2.0 * (b1 + c1) + d1)
+            s2 = s2 + h6 * (a2 + 2.0 * (b2 + c2) + d2)
+            s3 = s3 + h6 * (a3 + 2.0 * (b3 + c3) + d3)
+            s4 = s4 + h6 * (a4 + 2.0 * (b4 + c4) + d4)
+            s5 = s5 + h6 * (a5 + 2.0 * (b5 + c5) + d5)
+        return [s0, s1, s2, s3, s4, s5][:size]
 
     @property
     def time_s(self) -> float:
