@@ -259,3 +259,32 @@ def test_run_reference_of_a_structure_run_with_a_yielding_pier():
     assert specimens[0].yield_displacement_m == 0.003
     with pytest.raises(ParameterError, match='2 rigs'):
         reference_from_run(run)
+
+
+def test_a_run_and_its_comparison_integrate_the_yielding_structure_once(monkeypatch):
+    """A yielding member's run: its divergence guard's reference before the run and its
+    comparison's after it are one integration (they were two, the same), and what the
+    comparison holds is its own copy (a caller that changes it changes nothing kept)."""
+    from seft_ros.analysis import reference
+    calls = []
+    real = reference._integrate_nonlinear
+
+    def counted(*args):
+        calls.append(args[4])                # dt
+        return real(*args)
+
+    monkeypatch.setattr(reference, '_integrate_nonlinear', counted)
+    monkeypatch.setattr(reference, '_NONLINEAR', {})
+    run = simulate({'rig_model': 'delay', 'specimen_model': 'bouc_wen', 'alpha': 0.5,
+                    'duration_s': 2.0})
+    first = compare_run(run).reference
+    assert len(calls) == 1
+    first.displacement_m[:] = 0.0
+    again = compare_run(run).reference
+    assert len(calls) == 1 and np.max(np.abs(again.displacement_m)) > DY
+    # the integration kept equals a new one to the last bit
+    monkeypatch.setattr(reference, '_NONLINEAR', {})
+    fresh = compare_run(run).reference
+    assert len(calls) == 2
+    np.testing.assert_array_equal(fresh.displacement_m, again.displacement_m)
+    np.testing.assert_array_equal(fresh.force_N, again.force_N)
