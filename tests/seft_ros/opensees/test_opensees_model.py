@@ -447,3 +447,22 @@ def test_a_links_hysteresis_is_its_basic_force_on_its_deformation():
     force, deformation = element_response(ops, 1)
     assert force == pytest.approx(10.0) and deformation == pytest.approx(0.01)
     ops.wipe()
+
+
+def test_what_opensees_says_while_a_model_builds_is_said_before_the_run(tmp_path):
+    """A model that builds with OpenSees' warnings (a zeroLength story whose nodes are 3 m
+    apart): one note line before the run, quoting the first and counting the rest (they
+    were dropped; a new user, session 38); the shipped two-story model says nothing."""
+    apart = _model(tmp_path, TWO_STORY.read_text().replace('ops.node(i, 0.0)',
+                                                           'ops.node(i, 3.0 * i)'))
+    base = expand_runs({'predictor': 'model'})[0]
+    lines = []
+    check_runs([dict(base, structure=parse_structure(_section(model=apart)).to_json())],
+               progress=lines.append)
+    assert lines == ['note: opensees: model.py:build: OpenSees said while the model built: '
+                     'WARNING ZeroLength::setDomain(): Element 1 has L= 3, which is greater '
+                     'than the tolerance (and 1 more line(s))']
+    lines.clear()
+    check_runs([dict(base, structure=parse_structure(_section()).to_json())],
+               progress=lines.append)
+    assert lines == []

@@ -378,7 +378,7 @@ def model_name(source: str, function: str, *, sep: str = ':') -> str:
     return f'{base}{sep}{function}' + ('()' if sep != ':' else '')
 
 
-def build_model(spec: ModelSpec, *, test: bool = False) -> None:
+def build_model(spec: ModelSpec, *, test: bool = False) -> list[str]:
     """Build the model of `spec` in OpenSees (``wipe()`` first: one model per process).
 
     Parameters
@@ -387,6 +387,13 @@ def build_model(spec: ModelSpec, *, test: bool = False) -> None:
     test : bool
         Build the computational model of the test: the physical elements removed, with the
         nodes only they used (:func:`remove_specimens`); default the whole structure.
+
+    Returns
+    -------
+    list of str
+        What OpenSees said while the model built (its warnings: a zeroLength element whose
+        nodes are apart, say), one line each, whitespace collapsed; empty when it said
+        nothing.
 
     Raises
     ------
@@ -415,6 +422,8 @@ def build_model(spec: ModelSpec, *, test: bool = False) -> None:
     _check_model(spec, name)
     if test:
         remove_specimens(spec)
+    said = (' '.join(line.split()) for line in log.text.splitlines())
+    return [line for line in said if line and not line.startswith('Process 0 Terminating')]
 
 
 def _raised(exc: BaseException) -> str:
