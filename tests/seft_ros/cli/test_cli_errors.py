@@ -131,14 +131,16 @@ CASES = {
         'binary.yaml: not UTF-8 text (byte 128); expected a YAML file')),
     'plant_model_not_utf8': (['simulate', 'binary_plant.yaml'], re.escape(
         'binary.yaml: not UTF-8 text (byte 128); expected a YAML file')),
+    # a model in a file of its own is named by that file (it was by the configuration that
+    # points to it; a new user, session 38)
     'plant_zero_force': (['simulate', 'zero_force_run.yaml', '--predictor', 'none'], re.escape(
-        'zero_force_run.yaml: parameter plant_model.num.force_N: all zero: the force does not '
+        'zero_force.yaml: plant_model.num.force_N: all zero: the force does not '
         'depend on the valve command; expected a non-zero numerator')),
     'plant_long_delay': (['simulate', 'long_delay_run.yaml'], re.escape(
-        'long_delay_run.yaml: parameter plant_model.io_delay_s=2: expected at most 50 steps of '
+        'long_delay.yaml: plant_model.io_delay_s=2: expected at most 50 steps of '
         "the run's dt=0.002 s (0.1 s; each step is a state of the sampled model)")),
     'plant_specimen_typo': (['simulate', 'specimen_typo_run.yaml'], re.escape(
-        'specimen_typo_run.yaml: parameter plant_model.specimen: unknown field(s) damping; '
+        'specimen_typo.yaml: plant_model.specimen: unknown field(s) damping; '
         'expected some of damping_N_s_per_m, mass_kg, stiffness_N_per_m')),
     'yaml_missing': (['simulate', 'nope.yaml'],
                      re.escape('nope.yaml: no such configuration file')),

@@ -174,10 +174,30 @@ def mapping_values(values: dict[str, Any], *, base: Path | None = None,
             if not isinstance(doc, dict):
                 raise InputError(f'{file}: expected a mapping ({name})')
             out[name] = json.dumps(doc, sort_keys=True, separators=(',', ':'))
+            _remember_file(out[name], file)
         elif not isinstance(value, str):
             raise InputError(f'{label}: expected a mapping, its JSON or a YAML file path, got '
                              f'{value!r}')
     return out
+
+
+#: The files the mapping parameters were read from, by the JSON text read
+#: (:func:`mapping_file`; the latest few).
+_MAPPING_FILES: dict[str, Path] = {}
+
+
+def _remember_file(text: str, file: Path) -> None:
+    _MAPPING_FILES.pop(text, None)
+    if len(_MAPPING_FILES) >= 32:
+        _MAPPING_FILES.pop(next(iter(_MAPPING_FILES)))
+    _MAPPING_FILES[text] = file
+
+
+def mapping_file(text) -> Path | None:
+    """The YAML file a mapping parameter's JSON `text` was read from by
+    :func:`mapping_values` in this process, or None (given inline, on the command line, or
+    not read here)."""
+    return _MAPPING_FILES.get(text) if isinstance(text, str) else None
 
 
 def _rig_sections(rigs, *, where: str) -> dict[str, dict[str, Any]]:
@@ -446,10 +466,14 @@ def _check_mappings(params: dict[str, Any], at: Callable[[str], str]) -> None:
                         ('rig_plant_model', rig_plant)):
         if not given:
             continue
+        file = mapping_file(params[name])
         try:
-            parse_plant(params[name], dt=float(params['dt']), where=f'parameter {name}')
+            # a model read from a file of its own: the error names that file (it named the
+            # configuration that points to it; a new user, session 38)
+            parse_plant(params[name], dt=float(params['dt']),
+                        where=f'{file}: {name}' if file else f'parameter {name}')
         except ParameterError as exc:
-            raise ParameterError(f'{at(name)}{exc}') from None
+            raise ParameterError(f'{exc}' if file else f'{at(name)}{exc}') from None
     if params.get('force_controller') == 'transfer_function':
         from seft_ros.core.controller import ControllerTF
         try:
