@@ -90,8 +90,12 @@ def test_the_replay_splits_a_runs_error_into_the_hosts_timing_and_the_methods(pa
     assert line.startswith('6 late command(s) and 2 lost (rig ticks on the previous command: '
                            'the stale commands), 5 controller stale step(s); worst NRMS x / a '
                            '/ f recorded')
-    assert ', the rig predicting late commands ' in line
+    assert ', the rig predicting late commands (realtime_late_command: predict) ' in line
     assert 'does not reproduce' not in line
+    # a predicting replay that a monitor stopped is said to be aborted
+    stopped = dict(replay, predicting={'unstable_at_s': 14.062})
+    assert ('the rig predicting late commands (realtime_late_command: predict) aborted at '
+            '14.06 s, with every step in time') in timing_replay_line(stopped)
     # a replay that misses the run says so (a 40 ms stall of the rig's own tick: 42 % run,
     # 22 % replayed)
     missed = dict(replay, recorded=dict(replay['as_run'], displacement=0.42),

@@ -511,3 +511,16 @@ def test_a_stop_as_seft_run_names_its_runs_says_nothing_was_run(inputs, monkeypa
     assert proc.stderr.splitlines()[-1] == (
         'seft: interrupted by SIGTERM: before any node started: nothing was run'), proc.stderr
     assert not (inputs / 'out_stopped').exists()
+
+
+def test_a_real_time_run_a_watchdog_ended_names_the_parameter():
+    """The note of a real-time run stopped by a watchdog names watchdog_timeout_s (4 of 5 of a
+    new user's runs on a shared host were stopped by 21-31 ms stalls, and nothing named it;
+    session 39); a lockstep run's, or another abort's, says nothing more."""
+    from seft_ros.cli.api import WATCHDOG_HINT, _watchdog_hint
+    reason = ('pier_b/force_servo_controller: watchdog: no measurement for 21 ms (limit 20 ms; '
+              'node or link lost)')
+    assert _watchdog_hint({'mode': 'realtime', 'abort_reason': reason}) == WATCHDOG_HINT
+    assert 'watchdog_timeout_s=0.2' in WATCHDOG_HINT
+    assert _watchdog_hint({'mode': 'lockstep', 'abort_reason': reason}) == ''
+    assert _watchdog_hint({'mode': 'realtime', 'abort_reason': 'rig: unstable at t=1 s'}) == ''

@@ -687,7 +687,12 @@ def timing_replay_line(replay: dict) -> str:
     late = sum(replay['late_commands'].values())
     lost = sum((replay.get('lost_commands') or {}).values())
     stale = sum(replay['stale_steps'].values())
-    predicting = (f", the rig predicting late commands {replay_cell(replay['predicting'])}"
+    # the setting named (a new user found it in the parameter reference; session 39), and an
+    # aborted replay said to be one
+    predicting = (', the rig predicting late commands (realtime_late_command: predict) '
+                  + (f"aborted at {replay['predicting']['unstable_at_s']:.2f} s"
+                     if 'unstable_at_s' in replay['predicting']
+                     else replay_cell(replay['predicting']))
                   if replay.get('predicting') else '')
     behind = max((replay.get('steps_behind') or {}).values(), default=0)
     # the terms of the timing table: a late command is a rig tick that held the previous

@@ -1404,7 +1404,8 @@ def structure_table(summary: list[dict]) -> str:
             lines.append(f'{i:3d} {_rig_name(rig)[:10]:>10} {j1} {cells}{timing}')
         # the runs' notes below the table, not between its rows (a new user, session 35)
         if e.get('abort_reason'):
-            notes.append(f'note: run {i} ({e["predictor"]}): aborted: {e["abort_reason"]}')
+            notes.append(f'note: run {i} ({e["predictor"]}): aborted: {e["abort_reason"]}'
+                         + _watchdog_hint(e))
         if (e.get('link') or {}).get('warning'):
             notes.append(f'note: run {i} ({e["predictor"]}): {e["link"]["warning"]}')
         notes += _accuracy_notes(f'run {i} ({e["predictor"]})', e)
@@ -1427,6 +1428,20 @@ def _stable_cell(entry: dict) -> str:
     """The table's ``stable`` cell: True, False, or ``flagged`` for a stable run with flags
     (``note:`` lines below say why)."""
     return 'flagged' if entry.get('stable') and entry.get('flags') else str(entry['stable'])
+
+
+#: What a real-time run stopped by one of its watchdogs is told (:func:`_watchdog_hint`).
+WATCHDOG_HINT = ('; a watchdog ends a real-time run whose host stalls longer than its limit '
+                 '(watchdog_timeout_s, 20 ms by default, is meant for a real-time kernel): on '
+                 'a shared or virtual machine try --set watchdog_timeout_s=0.2')
+
+
+def _watchdog_hint(entry: dict) -> str:
+    """:data:`WATCHDOG_HINT` for a real-time run a watchdog ended, else '' (4 of 5 of a new
+    user's runs on a shared host were stopped by 21-31 ms stalls and nothing named the
+    parameter; session 39)."""
+    reason = str(entry.get('abort_reason') or '')
+    return WATCHDOG_HINT if entry.get('mode') == 'realtime' and 'watchdog:' in reason else ''
 
 
 def _accuracy_notes(who: str, entry: dict) -> list[str]:
