@@ -502,3 +502,27 @@ def test_a_structure_test_beyond_an_accurate_ones_error_is_flagged():
     for params in (dict(run.params, excitation='noise'), dict(run.params, predictor='none')):
         run.params = params
         assert not [f for f in run_flags(run, c) if f.startswith('error beyond')]
+
+
+def test_an_error_flag_names_the_hosts_timing_first_when_its_replay_explains_the_loss():
+    """A run whose late steps cost it (its timing replay: in time 0.2 / 0.5 / 0.4 %, as run
+    5 / 20 / 10 %): its error flag names the host's timing first among the causes, with the
+    replay in time (a new user's real-time structure was pointed at its compensator while
+    the timing line showed lockstep's figures in time; session 39); without a replay, or
+    one that costs nothing, it does not."""
+    from seft_ros.core.experiment import simulate
+    run = simulate({'predictor': 'ats', 'alpha': 1.0, 'duration_s': 2.0})
+    comparison = compare_run(run)
+    assert comparison.acceleration.nrms > 0.05             # an ats test that errs anyway
+    host = "; first among the causes here, the host's timing: replayed with every step in time"
+    plain = [f for f in run_flags(run, comparison) if f.startswith('error beyond')]
+    assert plain and not any(host in f for f in plain)
+    worst = {'displacement': 0.05, 'acceleration': 0.2, 'interface_force': 0.1}
+    run.extra['timing_replay'] = {
+        'late_commands': {'': 3}, 'stale_steps': {'': 2}, 'recorded': worst, 'as_run': worst,
+        'in_time': {'displacement': 0.002, 'acceleration': 0.005, 'interface_force': 0.004}}
+    flagged = [f for f in run_flags(run, comparison) if f.startswith('error beyond')]
+    assert flagged and all(f.endswith(host + ' the run errs 0.20 / 0.50 / 0.40 % (x / a / f; '
+                                              'its timing line)') for f in flagged)
+    run.extra['timing_replay']['in_time'] = worst           # the timing cost nothing
+    assert [f for f in run_flags(run, comparison) if f.startswith('error beyond')] == plain

@@ -596,11 +596,21 @@ def run_flags(run: RunData, comparison) -> list[str]:
             beyond = ('' if alpha != alpha else
                       error_beyond_prediction(predicted, alpha, worst, run.params)
                       or error_beyond_accurate_test(predicted, alpha, worst, run.params))
+        # a run whose late steps cost it (its timing replay): the host's timing named first
+        # among the causes (a new user's real-time structure was pointed at its compensator,
+        # and the timing line two notes below showed the replay in time at lockstep's
+        # figures; session 39)
+        host = ''
+        if timing_cost_flag(run.extra.get('timing_replay')):
+            in_time = run.extra['timing_replay']['in_time']
+            host = ("; first among the causes here, the host's timing: replayed with every "
+                    f'step in time the run errs {replay_cell(in_time)} (x / a / f; its '
+                    'timing line)')
         if beyond:
-            flags.append(beyond)
+            flags.append(beyond + host)
         other = signal_error_flag(comparison, not run.is_study) if judged else ''
         if other:
-            flags.append(other)
+            flags.append(other + host)
     dt = float(run.params.get('dt', 0.0) or 0.0)
     for rig, data in run.rigs.items():
         if dt > 0:
