@@ -250,3 +250,35 @@ def test_an_aborted_real_time_run_with_late_steps_is_replayed_not_an_interrupted
     api._replay_if_due(aborted, 'run 1', lines.append)
     assert lines == ['[run 1] late steps and an abort: replaying the run in process, as it '
                      'ran and in time']
+
+
+def test_a_run_a_watchdog_stopped_is_judged_by_its_errors_to_then():
+    """A real-time run a watchdog stopped (a host stall: no replay models it): its recorded
+    cell gives its NRMS to the stop, and a replay as run (which runs to the same step and
+    completes) that matches them reproduces it (a new user's, within 0.3 points, was said
+    not to; session 39); one far off does not."""
+    from seft_ros.analysis.findings import replay_reproduces_run
+    from seft_ros.analysis.timing_replay import worst_nrms
+    run = simulate({'alpha': 1.5, 'predictor': 'none', 'duration_s': 2.0})
+    assert not run.stable
+    assert set(worst_nrms(run)) == {'unstable_at_s'}              # the monitor's stop
+    run.abort_reason = ('pier_b/force_servo_controller: watchdog: no measurement for 21 ms '
+                        '(limit 20 ms; node or link lost)')
+    worst = worst_nrms(run)
+    assert worst['watchdog'] and worst['unstable_at_s'] == run.unstable_at_s
+    assert 0 < worst['displacement'] < worst['acceleration']
+    recorded = {'unstable_at_s': 9.924, 'watchdog': True, 'displacement': 0.0881,
+                'acceleration': 0.7582, 'floor_acceleration': 0.455, 'interface_force': 0.2519}
+    as_run = {'displacement': 0.0878, 'acceleration': 0.7604, 'floor_acceleration': 0.454,
+              'interface_force': 0.2525}
+    in_time = {'displacement': 0.0021, 'acceleration': 0.0039, 'floor_acceleration': 0.0024,
+               'interface_force': 0.0017}
+    replay = {'late_commands': {'pier_b': 40}, 'stale_steps': {'pier_b': 30},
+              'recorded': recorded, 'as_run': as_run, 'in_time': in_time}
+    assert replay_reproduces_run(replay)
+    line = timing_replay_line(replay)
+    assert ('recorded stopped at 9.92 s by a watchdog (8.81 / 75.82 / 25.19 % to then), '
+            'replayed as run 8.78 / 76.04 / 25.25 %, with every step in time') in line
+    far = dict(replay, as_run=dict(as_run, displacement=0.02))
+    assert not replay_reproduces_run(far)
+    assert 'does not reproduce the run' in timing_replay_line(far)

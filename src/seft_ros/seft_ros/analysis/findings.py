@@ -685,7 +685,10 @@ def replay_cell(worst: dict) -> str:
     missing), or 'stopped at t s' for a run that was aborted (by its monitor, a watchdog or
     a limit: the run's reason says which)."""
     if 'unstable_at_s' in worst:
-        return f"stopped at {worst['unstable_at_s']:.2f} s"
+        stop = f"stopped at {worst['unstable_at_s']:.2f} s"
+        if worst.get('watchdog'):
+            return f'{stop} by a watchdog ({replay_cell(_finite_part(worst))} to then)'
+        return stop
     return ' / '.join('–' if worst.get(s) is None else f'{100 * worst[s]:.2f}'
                       for s in ('displacement', 'acceleration', 'interface_force')) + ' %'
 
@@ -729,6 +732,11 @@ def timing_replay_line(replay: dict) -> str:
 REPRODUCED_WITHIN = 0.25
 
 
+def _finite_part(worst: dict) -> dict:
+    """A stopped run's worst NRMS per signal to its stop (its ``unstable_at_s`` left out)."""
+    return {s: worst.get(s) for s in REPLAY_SIGNALS}
+
+
 def replay_reproduces_run(replay: dict) -> bool:
     """Whether a timing replay's run as run reproduces the recorded run: both unstable or both
     stable, and then each signal's worst NRMS within :data:`REPRODUCED_WITHIN` of the recorded
@@ -736,8 +744,11 @@ def replay_reproduces_run(replay: dict) -> bool:
     reproduce lost accuracy to something the replay does not model; a run it does, to the
     host's timing."""
     recorded, as_run = replay.get('recorded') or {}, replay.get('as_run') or {}
-    if 'unstable_at_s' in recorded or 'unstable_at_s' in as_run:
+    watchdog = recorded.get('watchdog') and 'unstable_at_s' not in as_run
+    if not watchdog and ('unstable_at_s' in recorded or 'unstable_at_s' in as_run):
         return ('unstable_at_s' in recorded) == ('unstable_at_s' in as_run)
+    # (a run a watchdog stopped: the replay, which models no watchdog, runs to the same step
+    # and is judged by its NRMS to then)
     for s in REPLAY_SIGNALS:
         a, b = recorded.get(s), as_run.get(s)
         if a is not None and b is not None and abs(a - b) > max(0.005, REPRODUCED_WITHIN * a):

@@ -127,11 +127,20 @@ def _predicting(params: dict) -> dict:
 def worst_nrms(run) -> dict:
     """A run's worst NRMS per signal (:data:`~seft_ros.analysis.findings.REPLAY_SIGNALS`,
     fractions, the summary's ``worst_nrms``), or ``{'unstable_at_s': t}`` for an unstable
-    run: what a replay reports of each run. A run the operator interrupted
+    run (with ``'watchdog': True`` and its NRMS to then for one a watchdog stopped): what a
+    replay reports of each run. A run the operator interrupted
     (``extra['interrupted']``) is not unstable: its NRMS over the steps it ran."""
     from seft_ros.analysis.metrics import compare_run, summary_entry
     if not run.stable and not run.extra.get('interrupted'):
-        return {'unstable_at_s': run.unstable_at_s}
+        out = {'unstable_at_s': run.unstable_at_s}
+        if 'watchdog:' in str(run.abort_reason or ''):
+            # a watchdog's stop is the host's timing, which no replay models (a replay runs
+            # to the same step and completes): its NRMS to then, which the replay's are
+            # judged against (a new user's replay matched them within 0.3 points and was
+            # said not to reproduce the run; session 39)
+            entry = summary_entry(run, compare_run(run))
+            out.update(watchdog=True, **{s: entry['worst_nrms'].get(s) for s in REPLAY_SIGNALS})
+        return out
     entry = summary_entry(run, compare_run(run))
     return {s: entry['worst_nrms'].get(s) for s in REPLAY_SIGNALS}
 
