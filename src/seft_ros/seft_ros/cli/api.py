@@ -864,7 +864,8 @@ def _read_outcome(outcome, label: str, progress: Callable[[str], None]) -> RunDa
                      'the run)')
     ended = 'RECORDING CUT SHORT' if rd.recording_cut_short else 'ABORTED'
     state = 'stable' if rd.stable else f'{ended} at {rd.unstable_at_s:.3f} s: ' \
-        f'{rd.abort_reason}'
+        f'{rd.abort_reason}' + _watchdog_hint({'mode': rd.params.get('mode'),
+                                               'abort_reason': rd.abort_reason})
     stepping = rd.extra.get('wall_s')          # the rigs' stepping, without the start-up
     stepped = f' (stepping {stepping:.1f} s)' if stepping else ''
     progress(f'[{label}] {rd.n_steps} steps in {outcome.wall_time_s:.1f} s wall{stepped}; '

@@ -262,7 +262,6 @@ def _warm_up(analytical) -> None:
     analytical(dict(parameters.resolve(), duration_s=0.1))
 
 
-
 #: The Foxglove layout shipped with seft, relative to its repository.
 LAYOUT_FILE = 'docs/foxglove/seft_live_layout.json'
 
