@@ -252,6 +252,19 @@ def test_the_structure_tables_notes_follow_its_criteria_rows():
     assert lines[head + 5:] == [
         'note: run 1 (model): flagged: the NRMS x of 9 % is beyond the prediction',
         'note: run 2 (model): aborted: watchdog: lost']
+    # a real-time run: each rig's stale% its own node's (it repeated the run's; session 39),
+    # and a watchdog's abort names watchdog_timeout_s
+    timing = {'loop_latency_ms': {'p50': 0.75, 'p99': 8.96, 'max': 20.0},
+              'stale_command_fraction': 0.059,
+              'nodes': {'pier_a/rig': {'stale_fraction': 0.0547},
+                        'pier_b/rig': {'stale_fraction': 0.0633}}}
+    timed = dict(entry, mode='realtime', timing=timing, stable=False, unstable_at_s=0.2,
+                 abort_reason='pier_b/force_servo_controller: watchdog: no measurement for 21 '
+                              'ms (limit 20 ms; node or link lost)')
+    lines = api.structure_table([timed]).splitlines()
+    head = next(i for i, line in enumerate(lines) if 'J1_ms' in line)
+    assert [line.split()[-1] for line in lines[head + 1:head + 3]] == ['5.47', '6.33']
+    assert lines[head + 3].endswith('--set watchdog_timeout_s=0.2')
 
 
 def test_replay_timing_of_lockstep_runs_says_there_is_none(sweep_dir, tmp_path, capsys):

@@ -1400,8 +1400,12 @@ def structure_table(summary: list[dict]) -> str:
             cells = ' '.join(f'{c[k]:8.2f}' if c.get(k) is not None else f'{"-":>8}'
                              for k in ('J2', 'J3', 'J4', 'J5'))
             j1 = f'{c["J1"]:7.2f}' if c.get('J1') is not None else f'{"-":>7}'
+            # each rig its own stale fraction (its node's timing), not the run's (a new user
+            # read the run's figure repeated for each rig; session 39)
+            own = ((t or {}).get('nodes') or {}).get(f'{rig}/rig' if rig else 'rig') or {}
+            stale = own.get('stale_fraction', (t or {}).get('stale_command_fraction'))
             timing = (f' {t["loop_latency_ms"]["p50"]:8.3f} {t["loop_latency_ms"]["p99"]:8.3f}'
-                      f' {100 * t["stale_command_fraction"]:8.2f}' if t else '')
+                      f' {100 * stale:8.2f}' if t and stale is not None else '')
             lines.append(f'{i:3d} {_rig_name(rig)[:10]:>10} {j1} {cells}{timing}')
         # the runs' notes below the table, not between its rows (a new user, session 35)
         if e.get('abort_reason'):
