@@ -171,7 +171,9 @@ def test_a_foreign_record_stream_is_a_warning_and_the_run_completes(tmp_path, se
     assert f'- **warning**: {warning[0]}' in (run_dir.parent / 'report.md').read_text()
     rig = data.rigs['']
     assert rig.measured_force_N.size == 2000 and np.all(np.isfinite(rig.displacement_m))
-    assert np.max(np.abs(rig.measured_force_N)) < 2e3         # no forged row in the bag
+    # no forged row in the bag: the intruder's carry 1e6 N; the run's own force, in real
+    # time, peaked at 2064 N on a loaded host (the bound was 2e3 N; session 39)
+    assert np.max(np.abs(rig.measured_force_N)) < 1e5
     reference = simulate(dict(data.params, mode='lockstep')).rigs[''].displacement_m
     nrms = np.sqrt(np.mean((rig.displacement_m - reference) ** 2)) / np.ptp(reference)
     assert nrms < 0.01, nrms
