@@ -520,7 +520,7 @@ def test_a_real_time_run_a_watchdog_ended_names_the_parameter():
     from seft_ros.cli.api import WATCHDOG_HINT, _watchdog_hint
     reason = ('pier_b/force_servo_controller: watchdog: no measurement for 21 ms (limit 20 ms; '
               'node or link lost)')
-    assert _watchdog_hint({'mode': 'realtime', 'abort_reason': reason}) == WATCHDOG_HINT
+    assert _watchdog_hint('realtime', reason) == WATCHDOG_HINT
     assert 'watchdog_timeout_s=0.2' in WATCHDOG_HINT
-    assert _watchdog_hint({'mode': 'lockstep', 'abort_reason': reason}) == ''
-    assert _watchdog_hint({'mode': 'realtime', 'abort_reason': 'rig: unstable at t=1 s'}) == ''
+    assert _watchdog_hint('lockstep', reason) == ''
+    assert _watchdog_hint('realtime', 'rig: unstable at t=1 s') == ''

@@ -131,18 +131,17 @@ def worst_nrms(run) -> dict:
     replay reports of each run. A run the operator interrupted
     (``extra['interrupted']``) is not unstable: its NRMS over the steps it ran."""
     from seft_ros.analysis.metrics import compare_run, summary_entry
-    if not run.stable and not run.extra.get('interrupted'):
-        out = {'unstable_at_s': run.unstable_at_s}
-        if 'watchdog:' in str(run.abort_reason or ''):
-            # a watchdog's stop is the host's timing, which no replay models (a replay runs
-            # to the same step and completes): its NRMS to then, which the replay's are
-            # judged against (a new user's replay matched them within 0.3 points and was
-            # said not to reproduce the run; session 39)
-            entry = summary_entry(run, compare_run(run))
-            out.update(watchdog=True, **{s: entry['worst_nrms'].get(s) for s in REPLAY_SIGNALS})
-        return out
+    stopped = not run.stable and not run.extra.get('interrupted')
+    # a watchdog's stop is the host's timing, which no replay models (a replay runs to the
+    # same step and completes): its NRMS to then, which the replay's are judged against (a
+    # new user's replay matched them within 0.3 points and was said not to reproduce the
+    # run; session 39)
+    watchdog = stopped and 'watchdog:' in str(run.abort_reason or '')
+    if stopped and not watchdog:
+        return {'unstable_at_s': run.unstable_at_s}
     entry = summary_entry(run, compare_run(run))
-    return {s: entry['worst_nrms'].get(s) for s in REPLAY_SIGNALS}
+    worst = {s: entry['worst_nrms'].get(s) for s in REPLAY_SIGNALS}
+    return dict(worst, unstable_at_s=run.unstable_at_s, watchdog=True) if watchdog else worst
 
 
 def steps_behind(controller, rig, dt: float) -> dict[int, int]:

@@ -864,8 +864,7 @@ def _read_outcome(outcome, label: str, progress: Callable[[str], None]) -> RunDa
                      'the run)')
     ended = 'RECORDING CUT SHORT' if rd.recording_cut_short else 'ABORTED'
     state = 'stable' if rd.stable else f'{ended} at {rd.unstable_at_s:.3f} s: ' \
-        f'{rd.abort_reason}' + _watchdog_hint({'mode': rd.params.get('mode'),
-                                               'abort_reason': rd.abort_reason})
+        f'{rd.abort_reason}' + _watchdog_hint(rd.params.get('mode'), rd.abort_reason)
     stepping = rd.extra.get('wall_s')          # the rigs' stepping, without the start-up
     stepped = f' (stepping {stepping:.1f} s)' if stepping else ''
     progress(f'[{label}] {rd.n_steps} steps in {outcome.wall_time_s:.1f} s wall{stepped}; '
@@ -1410,7 +1409,7 @@ def structure_table(summary: list[dict]) -> str:
         # the runs' notes below the table, not between its rows (a new user, session 35)
         if e.get('abort_reason'):
             notes.append(f'note: run {i} ({e["predictor"]}): aborted: {e["abort_reason"]}'
-                         + _watchdog_hint(e))
+                         + _watchdog_hint(e.get('mode'), e['abort_reason']))
         if (e.get('link') or {}).get('warning'):
             notes.append(f'note: run {i} ({e["predictor"]}): {e["link"]["warning"]}')
         notes += _accuracy_notes(f'run {i} ({e["predictor"]})', e)
@@ -1441,12 +1440,11 @@ WATCHDOG_HINT = ('; a watchdog ends a real-time run whose host stalls longer tha
                  'a shared or virtual machine try --set watchdog_timeout_s=0.2')
 
 
-def _watchdog_hint(entry: dict) -> str:
-    """:data:`WATCHDOG_HINT` for a real-time run a watchdog ended, else '' (4 of 5 of a new
-    user's runs on a shared host were stopped by 21-31 ms stalls and nothing named the
-    parameter; session 39)."""
-    reason = str(entry.get('abort_reason') or '')
-    return WATCHDOG_HINT if entry.get('mode') == 'realtime' and 'watchdog:' in reason else ''
+def _watchdog_hint(mode, reason) -> str:
+    """:data:`WATCHDOG_HINT` for a run of `mode` 'realtime' whose abort `reason` is a
+    watchdog's, else '' (4 of 5 of a new user's runs on a shared host were stopped by 21-31
+    ms stalls and nothing named the parameter; session 39)."""
+    return WATCHDOG_HINT if mode == 'realtime' and 'watchdog:' in str(reason or '') else ''
 
 
 def _accuracy_notes(who: str, entry: dict) -> list[str]:

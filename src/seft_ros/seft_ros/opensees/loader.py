@@ -27,7 +27,8 @@ import tempfile
 
 from seft_msgs_py.errors import ParameterError
 
-__all__ = ['opensees', 'captured', 'Capture', 'last_message', 'FAULT_WORDS', 'rayleigh_calls']
+__all__ = ['opensees', 'captured', 'Capture', 'last_message', 'message_lines', 'FAULT_WORDS',
+           'rayleigh_calls']
 
 _MODULE = None
 
@@ -188,14 +189,20 @@ FAULT_WORDS = ('unknown', 'error', 'not found', 'does not exist', 'could not', '
                'invalid', 'cannot', 'insufficient', 'not enough', 'no ', 'bad ')
 
 
+def message_lines(text: str) -> list[str]:
+    """OpenSees' message lines of `text`, whitespace collapsed, blank lines and its
+    'Process 0 Terminating' left out."""
+    lines = (' '.join(line.split()) for line in text.splitlines())
+    return [line for line in lines if line and not line.startswith('Process 0 Terminating')]
+
+
 def last_message(text: str, limit: int = 240) -> str:
     """OpenSees' message line of `text` that names the fault: the first that reads as one
     (:data:`FAULT_WORDS`), else the first; whitespace collapsed and cut to `limit`
     characters ('' if none). A model's harmless warning before its fault (a zeroLength
     element longer than the tolerance) was quoted in place of the fault ('material type
     Steel1 is unknown'; a new user, session 38)."""
-    lines = [' '.join(line.split()) for line in text.splitlines()]
-    lines = [line for line in lines if line and not line.startswith('Process 0 Terminating')]
+    lines = message_lines(text)
     if not lines:
         return ''
     line = next((line for line in lines if any(w in line.lower() for w in FAULT_WORDS)),

@@ -79,7 +79,7 @@ from seft_ros.core.structure import (
     Structure,
     Substructures,
 )
-from seft_ros.opensees.loader import captured, last_message, opensees
+from seft_ros.opensees.loader import captured, last_message, message_lines, opensees
 
 __all__ = ['ModelSpec', 'SECTION_KEYS', 'parse_model_section', 'build_model', 'Linearization',
            'linearize', 'condense', 'model_structure', 'split_model', 'ModelError',
@@ -422,8 +422,7 @@ def build_model(spec: ModelSpec, *, test: bool = False) -> list[str]:
     _check_model(spec, name)
     if test:
         remove_specimens(spec)
-    said = (' '.join(line.split()) for line in log.text.splitlines())
-    return [line for line in said if line and not line.startswith('Process 0 Terminating')]
+    return message_lines(log.text)
 
 
 def _raised(exc: BaseException) -> str:
